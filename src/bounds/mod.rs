@@ -1,0 +1,1 @@
+//! Bounds on a ReLU network over a box (in progress).

@@ -1,0 +1,1 @@
+//! equilibria (in progress)

@@ -1,0 +1,23 @@
+//! The crate's error type: one enum per concern, gathered here with `#[from]`.
+
+/// Every error cbfreach's library can return.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// A scenario file could not be read or is invalid.
+    #[error(transparent)]
+    Scenario(#[from] crate::scenario::ScenarioError),
+    /// A network file could not be read or is invalid.
+    #[error(transparent)]
+    Network(#[from] crate::network::NetworkError),
+    /// The safety filter could not be evaluated.
+    #[error(transparent)]
+    Filter(#[from] crate::filter::FilterError),
+    /// Reading or writing a file failed.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: String,
+        /// What went wrong.
+        source: std::io::Error,
+    },
+}
