@@ -1,1 +1,213 @@
-//! equilibria (in progress)
+//! Equilibria of the filtered system `F(x) = f̃(x) + g(x) v(x) = 0` inside the region `C`.
+//!
+//! A CBF filter can create equilibria where the nominal loop has none: points on `∂S` where
+//! `f̃(x*) ≠ 0` is cancelled by the filter (*undesirable* equilibria, Chen et al. 2024). We find
+//! them by damped Newton iterations from a grid of starts over `C` and from the same starts
+//! projected onto each CBF's zero level set, de-duplicate, and classify each by the eigenvalues
+//! of `DF(x*)` (central differences: `F` is smooth on each side of an active-set switch, and an
+//! equilibrium on `∂S` lies strictly inside the active side).
+
+use nalgebra::{DMatrix, DVector};
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::boxes::IntervalBox;
+use crate::filter::SafetyFilter;
+
+/// Stability type from the eigenvalues of the Jacobian.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Stability {
+    /// Every eigenvalue has a negative real part.
+    Stable,
+    /// Real parts of both signs, none zero.
+    Saddle,
+    /// Every eigenvalue has a positive real part.
+    Unstable,
+    /// Some real part is zero (within tolerance): linearisation decides nothing.
+    NonHyperbolic,
+}
+
+impl std::fmt::Display for Stability {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Stability::Stable => "stable",
+            Stability::Saddle => "saddle",
+            Stability::Unstable => "unstable",
+            Stability::NonHyperbolic => "non-hyperbolic",
+        })
+    }
+}
+
+/// One equilibrium `x*` of the filtered system.
+#[derive(Clone, Debug, Serialize)]
+pub struct Equilibrium {
+    /// `x*`.
+    pub x: Vec<f64>,
+    /// Its type.
+    pub kind: Stability,
+    /// Eigenvalues of `DF(x*)` as `[re, im]`, sorted by real part.
+    pub eigenvalues: Vec<[f64; 2]>,
+    /// `f̃(x*) ≠ 0`: an equilibrium created by the filter.
+    pub undesirable: bool,
+}
+
+/// Search settings.
+#[derive(Clone, Debug)]
+pub struct EquilibriumSearch {
+    /// Starting points per axis of the grid over `C`.
+    pub starts_per_axis: usize,
+    /// Accept `x` when `‖F(x)‖∞` is below this.
+    pub residual_tolerance: f64,
+    /// Real parts within this of 0 count as zero.
+    pub hyperbolicity_tolerance: f64,
+    /// Newton iterations per start.
+    pub max_iterations: usize,
+}
+
+impl Default for EquilibriumSearch {
+    fn default() -> Self {
+        EquilibriumSearch {
+            starts_per_axis: 30,
+            residual_tolerance: 1e-10,
+            hyperbolicity_tolerance: 1e-6,
+            max_iterations: 60,
+        }
+    }
+}
+
+/// Every equilibrium of the filtered system found inside `region`, sorted by position.
+pub fn find_equilibria(
+    filter: &SafetyFilter,
+    region: &IntervalBox,
+    search: &EquilibriumSearch,
+) -> Vec<Equilibrium> {
+    let n = region.dim();
+    let per_axis = search.starts_per_axis.max(2);
+    let cells = region.partition(&vec![per_axis; n]);
+    let mut starts: Vec<Vec<f64>> = cells.iter().map(IntervalBox::center).collect();
+    for cbf in &filter.scenario().cbfs {
+        starts.extend(cells.iter().filter_map(|c| {
+            let p = project_to_zero_level(&c.center(), |x| {
+                let grad = cbf.gradient.iter().map(|e| e.eval(x)).collect();
+                (cbf.h.eval(x), grad)
+            })?;
+            region.contains(&p).then_some(p)
+        }));
+    }
+    let found: Vec<Vec<f64>> = starts
+        .par_iter()
+        .filter_map(|x0| newton(filter, x0, search))
+        .filter(|x| region.contains(x))
+        .collect();
+
+    let scale = region.widths().iter().fold(0.0_f64, |a, &b| a.max(b));
+    let mut unique: Vec<Vec<f64>> = Vec::new();
+    for x in found {
+        if !unique.iter().any(|u| max_dist(u, &x) < 1e-6 * scale.max(1.0)) {
+            unique.push(x);
+        }
+    }
+    unique.sort_by(|a, b| a.iter().zip(b).fold(std::cmp::Ordering::Equal, |o, (p, q)| {
+        o.then(p.total_cmp(q))
+    }));
+    unique
+        .into_iter()
+        .filter_map(|x| classify(filter, x, search))
+        .collect()
+}
+
+fn max_dist(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(p, q)| (p - q).abs()).fold(0.0, f64::max)
+}
+
+/// Newton's method on a scalar `h` towards `h = 0` along `∇h` (a few steps; None if it fails).
+fn project_to_zero_level(
+    x0: &[f64],
+    h_and_grad: impl Fn(&[f64]) -> (f64, Vec<f64>),
+) -> Option<Vec<f64>> {
+    let mut x = x0.to_vec();
+    for _ in 0..30 {
+        let (h, grad) = h_and_grad(&x);
+        let norm2: f64 = grad.iter().map(|g| g * g).sum();
+        if !h.is_finite() || !norm2.is_finite() || norm2 < 1e-300 {
+            return None;
+        }
+        if h.abs() < 1e-13 {
+            return Some(x);
+        }
+        x.iter_mut().zip(&grad).for_each(|(xi, gi)| *xi -= h * gi / norm2);
+    }
+    let (h, _) = h_and_grad(&x);
+    (h.abs() < 1e-9).then_some(x)
+}
+
+fn residual(filter: &SafetyFilter, x: &[f64]) -> Option<(Vec<f64>, f64)> {
+    let f = filter.closed_loop(x).ok()?;
+    let r = f.iter().fold(0.0_f64, |a, v| a.max(v.abs()));
+    r.is_finite().then_some((f, r))
+}
+
+/// Damped Newton on `F(x) = 0` with a backtracking line search on `‖F‖∞`.
+fn newton(filter: &SafetyFilter, x0: &[f64], search: &EquilibriumSearch) -> Option<Vec<f64>> {
+    let n = x0.len();
+    let mut x = x0.to_vec();
+    let (mut f, mut r) = residual(filter, &x)?;
+    for _ in 0..search.max_iterations {
+        if r < search.residual_tolerance {
+            return Some(x);
+        }
+        let jac = filter.closed_loop_jacobian(&x).ok()?;
+        let delta = DMatrix::from_row_slice(n, n, &jac)
+            .lu()
+            .solve(&(-DVector::from_vec(f.clone())))?;
+        let mut alpha = 1.0;
+        loop {
+            let trial: Vec<f64> = (0..n).map(|i| x[i] + alpha * delta[i]).collect();
+            if let Some((ft, rt)) = residual(filter, &trial) {
+                if rt < r * (1.0 - 1e-4 * alpha) {
+                    (x, f, r) = (trial, ft, rt);
+                    break;
+                }
+            }
+            alpha *= 0.5;
+            if alpha < 1e-10 {
+                return None;
+            }
+        }
+    }
+    (r < search.residual_tolerance).then_some(x)
+}
+
+fn classify(
+    filter: &SafetyFilter,
+    x: Vec<f64>,
+    search: &EquilibriumSearch,
+) -> Option<Equilibrium> {
+    let n = x.len();
+    let jac = filter.closed_loop_jacobian(&x).ok()?;
+    let mut eigenvalues: Vec<[f64; 2]> = DMatrix::from_row_slice(n, n, &jac)
+        .complex_eigenvalues()
+        .iter()
+        .map(|z| [z.re, z.im])
+        .collect();
+    eigenvalues.sort_by(|a, b| a[0].total_cmp(&b[0]).then(a[1].total_cmp(&b[1])));
+    let tol = search.hyperbolicity_tolerance;
+    let kind = if eigenvalues.iter().any(|z| z[0].abs() <= tol) {
+        Stability::NonHyperbolic
+    } else if eigenvalues.iter().all(|z| z[0] < 0.0) {
+        Stability::Stable
+    } else if eigenvalues.iter().all(|z| z[0] > 0.0) {
+        Stability::Unstable
+    } else {
+        Stability::Saddle
+    };
+    let nominal = filter.scenario().f_tilde_at(&x);
+    let undesirable = nominal.iter().any(|v| v.abs() > 1e-7);
+    Some(Equilibrium {
+        x,
+        kind,
+        eigenvalues,
+        undesirable,
+    })
+}

@@ -3,15 +3,11 @@
 /// Every error cbfreach's library can return.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
-    /// A scenario file could not be read or is invalid.
-    #[error(transparent)]
-    Scenario(#[from] crate::scenario::ScenarioError),
+    // WIP-LEAD-SCENARIO
     /// A network file could not be read or is invalid.
     #[error(transparent)]
     Network(#[from] crate::network::NetworkError),
-    /// The safety filter could not be evaluated.
-    #[error(transparent)]
-    Filter(#[from] crate::filter::FilterError),
+    // WIP-LEAD-FILTER
     /// Reading or writing a file failed.
     #[error("{path}: {source}")]
     Io {

@@ -1,9 +1,334 @@
-//! The safety filter (in progress).
+//! The ground-truth safety filter `v(x)` (DESIGN §1).
+//!
+//! ```text
+//! v(x) = argmin_θ ½‖θ‖²
+//!        s.t. ∇hᵢ(x)·(f̃(x) + g(x) θ) + aᵢ hᵢ(x) ≥ 0      i = 1..N   (CBF conditions)
+//!             u_min ≤ κ(x) + θ ≤ u_max                             (input bounds)
+//!             a(x)·θ ≤ b(x)                                         (further constraints)
+//! ```
+//!
+//! Every constraint is a row `aₖ(x)·θ ≤ bₖ(x)`; a CBF gives `aₖ = −L_g h`, `bₖ = L_f̃ h + a·h`.
+//! With one row the solution is the projection of 0 onto a half-space,
+//! `v = min(0, b)/‖a‖² · a`, which is the paper's `max(0, −(L_f̃h + α(h)))/‖L_g h‖² · L_g hᵀ`;
+//! with a scalar input it is 0 clamped to the interval the rows leave; otherwise clarabel
+//! solves the QP. An empty feasible set is reported as [`FilterError::Infeasible`].
 
-/// Errors in evaluating the filter.
-#[derive(Debug, thiserror::Error)]
+use clarabel::algebra::CscMatrix;
+use clarabel::solver::{
+    DefaultSettingsBuilder, DefaultSolver, IPSolver, SolverStatus, SupportedConeT,
+};
+
+use crate::scenario::Scenario;
+
+/// Why `v(x)` could not be computed at a point.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum FilterError {
-    /// Placeholder.
-    #[error("{0}")]
-    Invalid(String),
+    /// No `θ` satisfies the constraints at `x`.
+    #[error("the filter's QP is infeasible at x = {x:?}: {reason}")]
+    Infeasible {
+        /// The state.
+        x: Vec<f64>,
+        /// Which constraints conflict, as far as known.
+        reason: String,
+    },
+    /// A CBF's gradient (or a constraint) is not defined at `x`.
+    #[error("{what} is not differentiable (or not defined) at x = {x:?}")]
+    NotDifferentiable {
+        /// The CBF or constraint.
+        what: String,
+        /// The state.
+        x: Vec<f64>,
+    },
+    /// clarabel stopped without a solution.
+    #[error("clarabel stopped with status {status} at x = {x:?}")]
+    Solver {
+        /// clarabel's status.
+        status: String,
+        /// The state.
+        x: Vec<f64>,
+    },
+}
+
+/// How `v(x)` is computed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FilterMethod {
+    /// One constraint row: projection onto a half-space.
+    ClosedFormSingle,
+    /// Scalar input: 0 clamped to the feasible interval.
+    ClosedFormScalar,
+    /// The general QP, by clarabel.
+    Qp,
+}
+
+/// The constraint rows `G θ ≤ q` at one state.
+#[derive(Clone, Debug)]
+pub struct ConstraintRows {
+    /// `G`, row-major, one row of m per constraint.
+    pub g: Vec<f64>,
+    /// `q`.
+    pub q: Vec<f64>,
+    /// A label per row for messages (`obstacle`, `u1 ≤ u_max`, …).
+    pub labels: Vec<String>,
+}
+
+/// The filter `v(x)` of a scenario.
+#[derive(Clone, Debug)]
+pub struct SafetyFilter<'a> {
+    scenario: &'a Scenario,
+    method: FilterMethod,
+}
+
+/// Rows whose `‖aₖ‖²` is below this are treated as `θ`-free (`0 ≤ bₖ`).
+const DEGENERATE_ROW: f64 = 1e-24;
+
+impl<'a> SafetyFilter<'a> {
+    /// The filter with the cheapest exact method for the scenario's structure.
+    pub fn new(scenario: &'a Scenario) -> SafetyFilter<'a> {
+        let rows = scenario.cbfs.len()
+            + scenario.constraints.len()
+            + 2 * scenario.input_bounds.as_ref().map_or(0, |_| scenario.m());
+        let method = if rows == 1 {
+            FilterMethod::ClosedFormSingle
+        } else if scenario.m() == 1 {
+            FilterMethod::ClosedFormScalar
+        } else {
+            FilterMethod::Qp
+        };
+        SafetyFilter { scenario, method }
+    }
+
+    /// The filter with a chosen method (a closed form is only valid for its structure; the QP
+    /// always is). Used to cross-check the closed forms against clarabel.
+    pub fn with_method(scenario: &'a Scenario, method: FilterMethod) -> SafetyFilter<'a> {
+        SafetyFilter { scenario, method }
+    }
+
+    /// The method in use.
+    pub fn method(&self) -> FilterMethod {
+        self.method
+    }
+
+    /// The scenario.
+    pub fn scenario(&self) -> &'a Scenario {
+        self.scenario
+    }
+
+    /// The rows `G θ ≤ q` at `x`.
+    pub fn constraint_rows(&self, x: &[f64]) -> Result<ConstraintRows, FilterError> {
+        let s = self.scenario;
+        let (n, m) = (s.n(), s.m());
+        let f_tilde = s.f_tilde_at(x);
+        let g = s.g_at(x);
+        let kappa = s.kappa_at(x);
+        let mut rows = ConstraintRows {
+            g: Vec::new(),
+            q: Vec::new(),
+            labels: Vec::new(),
+        };
+        for cbf in &s.cbfs {
+            let grad: Vec<f64> = cbf.gradient.iter().map(|e| e.eval(x)).collect();
+            let h = cbf.h.eval(x);
+            if !h.is_finite() || grad.iter().any(|v| !v.is_finite()) {
+                return Err(FilterError::NotDifferentiable {
+                    what: format!("CBF `{}`", cbf.name),
+                    x: x.to_vec(),
+                });
+            }
+            // aₖ = −L_g h = −∇hᵀ g,  bₖ = L_f̃ h + a·h.
+            rows.g
+                .extend((0..m).map(|j| -(0..n).map(|i| grad[i] * g[i * m + j]).sum::<f64>()));
+            rows.q
+                .push((0..n).map(|i| grad[i] * f_tilde[i]).sum::<f64>() + cbf.alpha * h);
+            rows.labels.push(cbf.name.clone());
+        }
+        if let Some(bounds) = &s.input_bounds {
+            for j in 0..m {
+                let mut row = vec![0.0; m];
+                row[j] = 1.0;
+                rows.g.extend(&row);
+                rows.q.push(bounds.upper[j] - kappa[j]);
+                rows.labels.push(format!("{} ≤ {}", s.inputs[j], bounds.upper[j]));
+                row[j] = -1.0;
+                rows.g.extend(&row);
+                rows.q.push(kappa[j] - bounds.lower[j]);
+                rows.labels.push(format!("{} ≥ {}", s.inputs[j], bounds.lower[j]));
+            }
+        }
+        for (k, c) in s.constraints.iter().enumerate() {
+            rows.g.extend(c.a.iter().map(|e| e.eval(x)));
+            rows.q.push(c.b.eval(x));
+            rows.labels.push(format!("constraint[{k}]"));
+        }
+        if rows.g.iter().chain(&rows.q).any(|v| !v.is_finite()) {
+            return Err(FilterError::NotDifferentiable {
+                what: "a constraint".into(),
+                x: x.to_vec(),
+            });
+        }
+        Ok(rows)
+    }
+
+    /// `v(x)`.
+    pub fn eval(&self, x: &[f64]) -> Result<Vec<f64>, FilterError> {
+        let rows = self.constraint_rows(x)?;
+        let m = self.scenario.m();
+        match self.method {
+            FilterMethod::ClosedFormSingle => project_half_space(&rows, m, x),
+            FilterMethod::ClosedFormScalar => clamp_scalar(&rows, x),
+            FilterMethod::Qp => solve_qp(&rows, m, x),
+        }
+    }
+
+    /// The filtered vector field `F(x) = f̃(x) + g(x) v(x)`.
+    pub fn closed_loop(&self, x: &[f64]) -> Result<Vec<f64>, FilterError> {
+        let v = self.eval(x)?;
+        Ok(self.closed_loop_with(x, &v))
+    }
+
+    /// `f̃(x) + g(x) θ` for a given input correction `θ`.
+    pub fn closed_loop_with(&self, x: &[f64], theta: &[f64]) -> Vec<f64> {
+        let s = self.scenario;
+        let m = s.m();
+        let g = s.g_at(x);
+        s.f_tilde_at(x)
+            .iter()
+            .enumerate()
+            .map(|(i, fi)| fi + (0..m).map(|j| g[i * m + j] * theta[j]).sum::<f64>())
+            .collect()
+    }
+
+    /// The Jacobian `Dv(x)` (m×n, row-major) by central differences with step
+    /// `ε·max(1, |xᵢ|)`, `ε = 1e-6`. `v` is piecewise smooth: across a switching surface of the
+    /// active set the result mixes the two one-sided Jacobians.
+    pub fn jacobian(&self, x: &[f64]) -> Result<Vec<f64>, FilterError> {
+        central_jacobian(|y| self.eval(y), x, self.scenario.m())
+    }
+
+    /// The Jacobian `DF(x)` (n×n, row-major) of the filtered vector field.
+    pub fn closed_loop_jacobian(&self, x: &[f64]) -> Result<Vec<f64>, FilterError> {
+        central_jacobian(|y| self.closed_loop(y), x, self.scenario.n())
+    }
+}
+
+/// Central-difference Jacobian of `map: ℝⁿ → ℝᵏ`, row-major k×n.
+fn central_jacobian(
+    map: impl Fn(&[f64]) -> Result<Vec<f64>, FilterError>,
+    x: &[f64],
+    k: usize,
+) -> Result<Vec<f64>, FilterError> {
+    let n = x.len();
+    let mut jac = vec![0.0; k * n];
+    let mut y = x.to_vec();
+    for j in 0..n {
+        let step = 1e-6 * x[j].abs().max(1.0);
+        y[j] = x[j] + step;
+        let plus = map(&y)?;
+        y[j] = x[j] - step;
+        let minus = map(&y)?;
+        y[j] = x[j];
+        for i in 0..k {
+            jac[i * n + j] = (plus[i] - minus[i]) / (2.0 * step);
+        }
+    }
+    Ok(jac)
+}
+
+/// One row `a·θ ≤ b`: `θ = 0` when `b ≥ 0`, else the projection `b a / ‖a‖²`.
+fn project_half_space(rows: &ConstraintRows, m: usize, x: &[f64]) -> Result<Vec<f64>, FilterError> {
+    let a = &rows.g[..m];
+    let b = rows.q[0];
+    if b >= 0.0 {
+        return Ok(vec![0.0; m]);
+    }
+    let norm2: f64 = a.iter().map(|v| v * v).sum();
+    if norm2 <= DEGENERATE_ROW {
+        return Err(FilterError::Infeasible {
+            x: x.to_vec(),
+            reason: format!(
+                "`{}` needs {b:.3e} ≥ 0 but the input cannot act on it (L_g h = 0)",
+                rows.labels[0]
+            ),
+        });
+    }
+    Ok(a.iter().map(|ai| b * ai / norm2).collect())
+}
+
+/// Scalar input: each row bounds `θ` from one side; `θ = clamp(0, lo, hi)`.
+fn clamp_scalar(rows: &ConstraintRows, x: &[f64]) -> Result<Vec<f64>, FilterError> {
+    let (mut lo, mut hi) = (f64::NEG_INFINITY, f64::INFINITY);
+    let (mut lo_label, mut hi_label) = ("", "");
+    for ((&a, &b), label) in rows.g.iter().zip(&rows.q).zip(&rows.labels) {
+        if a * a <= DEGENERATE_ROW {
+            if b < 0.0 {
+                return Err(FilterError::Infeasible {
+                    x: x.to_vec(),
+                    reason: format!("`{label}` needs {b:.3e} ≥ 0 but the input cannot act on it"),
+                });
+            }
+        } else if a > 0.0 {
+            if b / a < hi {
+                hi = b / a;
+                hi_label = label;
+            }
+        } else if b / a > lo {
+            lo = b / a;
+            lo_label = label;
+        }
+    }
+    if lo > hi {
+        return Err(FilterError::Infeasible {
+            x: x.to_vec(),
+            reason: format!("`{lo_label}` needs θ ≥ {lo:.6} but `{hi_label}` needs θ ≤ {hi:.6}"),
+        });
+    }
+    Ok(vec![0.0_f64.clamp(lo, hi)])
+}
+
+/// The general QP `min ½‖θ‖² s.t. G θ ≤ q` by clarabel.
+fn solve_qp(rows: &ConstraintRows, m: usize, x: &[f64]) -> Result<Vec<f64>, FilterError> {
+    let k = rows.q.len();
+    if k == 0 {
+        return Ok(vec![0.0; m]);
+    }
+    let p = CscMatrix::identity(m);
+    // G in compressed-column form, every entry stored (the problems are tiny and dense).
+    let colptr = (0..=m).map(|j| j * k).collect();
+    let rowval = (0..m).flat_map(|_| 0..k).collect();
+    let nzval = (0..m)
+        .flat_map(|j| (0..k).map(move |i| rows.g[i * m + j]))
+        .collect();
+    let a = CscMatrix::new(k, m, colptr, rowval, nzval);
+    let cones = [SupportedConeT::NonnegativeConeT(k)];
+    let settings = DefaultSettingsBuilder::default()
+        .verbose(false)
+        .tol_gap_abs(1e-12)
+        .tol_gap_rel(1e-12)
+        .tol_feas(1e-12)
+        .build()
+        .map_err(|e| FilterError::Solver {
+            status: format!("settings: {e}"),
+            x: x.to_vec(),
+        })?;
+    let q = vec![0.0; m];
+    let mut solver =
+        DefaultSolver::new(&p, &q, &a, &rows.q, &cones, settings).map_err(|e| {
+            FilterError::Solver {
+                status: format!("setup: {e}"),
+                x: x.to_vec(),
+            }
+        })?;
+    solver.solve();
+    match solver.solution.status {
+        SolverStatus::Solved | SolverStatus::AlmostSolved => Ok(solver.solution.x.clone()),
+        SolverStatus::PrimalInfeasible | SolverStatus::AlmostPrimalInfeasible => {
+            Err(FilterError::Infeasible {
+                x: x.to_vec(),
+                reason: format!("clarabel certifies that {} are incompatible", rows.labels.join(", ")),
+            })
+        }
+        status => Err(FilterError::Solver {
+            status: format!("{status:?}"),
+            x: x.to_vec(),
+        }),
+    }
 }

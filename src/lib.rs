@@ -11,15 +11,17 @@
 #![warn(missing_docs)]
 
 pub mod bounds;
-pub mod equilibria;
+pub mod boxes;
+// WIP-LEAD pub mod equilibria;
 pub mod error;
 pub mod expressions;
-pub mod filter;
+// WIP-LEAD pub mod filter;
 pub mod intervals;
 pub mod network;
-pub mod scenario;
-pub mod simulate;
+// WIP-LEAD pub mod scenario;
+// WIP-LEAD pub mod simulate;
 
 pub use error::Error;
+pub use boxes::IntervalBox;
 pub use intervals::Interval;
 pub use network::Mlp;

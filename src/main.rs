@@ -1,1 +1,54 @@
-fn main(){}
+//! The `cbfreach` command line: parses arguments, calls the library, prints.
+
+mod cli;
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+/// Sound, batched interval reachability for systems with CBF safety filters.
+///
+/// With no command, runs the main job on the built-in scenario 1 of the paper.
+#[derive(Parser)]
+#[command(name = "cbfreach", version, about, long_about = None)]
+struct Cli {
+    #[command(subcommand)]
+    command: Option<Command>,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Validate a scenario file and summarise it.
+    Check {
+        /// The scenario file (TOML).
+        scenario: PathBuf,
+    },
+    /// Simulate the filtered system from points or from random samples of a box.
+    Simulate(cli::simulate::SimulateArgs),
+    /// Find, classify and list the equilibria of the filtered system inside C.
+    Equilibria {
+        /// The scenario file (TOML).
+        scenario: PathBuf,
+        /// Print JSON instead of a table.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+fn main() -> ExitCode {
+    let args = Cli::parse();
+    let result = match args.command {
+        None => cli::report::run_default(),
+        Some(Command::Check { scenario }) => cli::check::run(&scenario),
+        Some(Command::Simulate(a)) => cli::simulate::run(&a),
+        Some(Command::Equilibria { scenario, json }) => cli::equilibria::run(&scenario, json),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::from(2)
+        }
+    }
+}

@@ -1,1 +1,146 @@
-//! simulate (in progress)
+//! Point simulation of a closed loop `ẋ = F(x)` with explicit Euler or classical RK4.
+//!
+//! Used for the filtered system `F = f̃ + g v` (ground truth), the NN system `f̃ + g N`, and as
+//! the judge of every set the reachability engine computes (DESIGN §3).
+
+use std::io::Write;
+
+use rand::{Rng, SeedableRng};
+use serde::Serialize;
+
+use crate::boxes::IntervalBox;
+use crate::filter::{FilterError, SafetyFilter};
+
+/// The time-stepping scheme.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Integrator {
+    /// `x ← x + dt F(x)`, as the paper.
+    Euler,
+    /// Classical fourth-order Runge–Kutta.
+    Rk4,
+}
+
+/// One simulated trajectory.
+#[derive(Clone, Debug, Serialize)]
+pub struct Trajectory {
+    /// Initial state.
+    pub x0: Vec<f64>,
+    /// Times `t₀ = 0, t₁, …`.
+    pub t: Vec<f64>,
+    /// States at those times.
+    pub x: Vec<Vec<f64>>,
+    /// Why the trajectory stopped before the horizon (e.g. an infeasible filter), if it did.
+    pub stopped: Option<String>,
+}
+
+impl Trajectory {
+    /// The last state.
+    pub fn last(&self) -> &[f64] {
+        self.x.last().map_or(&self.x0, |v| v)
+    }
+}
+
+/// Integrates `ẋ = field(x)` from `x0` over `steps` steps of `dt`; stops early (and says why)
+/// when the field cannot be evaluated.
+pub fn integrate<E: std::fmt::Display>(
+    field: impl Fn(&[f64]) -> Result<Vec<f64>, E>,
+    x0: &[f64],
+    dt: f64,
+    steps: usize,
+    integrator: Integrator,
+) -> Trajectory {
+    let mut traj = Trajectory {
+        x0: x0.to_vec(),
+        t: vec![0.0],
+        x: vec![x0.to_vec()],
+        stopped: None,
+    };
+    let mut x = x0.to_vec();
+    for k in 0..steps {
+        match step(&field, &x, dt, integrator) {
+            Ok(next) => x = next,
+            Err(e) => {
+                traj.stopped = Some(format!("at t = {}: {e}", k as f64 * dt));
+                break;
+            }
+        }
+        traj.t.push((k + 1) as f64 * dt);
+        traj.x.push(x.clone());
+    }
+    traj
+}
+
+/// One step of the scheme.
+pub fn step<E>(
+    field: impl Fn(&[f64]) -> Result<Vec<f64>, E>,
+    x: &[f64],
+    dt: f64,
+    integrator: Integrator,
+) -> Result<Vec<f64>, E> {
+    let axpy = |a: &[f64], s: f64, b: &[f64]| -> Vec<f64> {
+        a.iter().zip(b).map(|(ai, bi)| ai + s * bi).collect()
+    };
+    match integrator {
+        Integrator::Euler => Ok(axpy(x, dt, &field(x)?)),
+        Integrator::Rk4 => {
+            let k1 = field(x)?;
+            let k2 = field(&axpy(x, 0.5 * dt, &k1))?;
+            let k3 = field(&axpy(x, 0.5 * dt, &k2))?;
+            let k4 = field(&axpy(x, dt, &k3))?;
+            Ok((0..x.len())
+                .map(|i| x[i] + dt / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]))
+                .collect())
+        }
+    }
+}
+
+/// Simulates the filtered system `ẋ = f̃(x) + g(x) v(x)`.
+pub fn simulate_filtered(
+    filter: &SafetyFilter,
+    x0: &[f64],
+    dt: f64,
+    steps: usize,
+    integrator: Integrator,
+) -> Trajectory {
+    integrate(
+        |x: &[f64]| -> Result<Vec<f64>, FilterError> { filter.closed_loop(x) },
+        x0,
+        dt,
+        steps,
+        integrator,
+    )
+}
+
+/// `count` points drawn uniformly from `b`, deterministic for `seed`; the corners come first
+/// (up to `count`), since extreme trajectories often start there.
+pub fn sample_box(b: &IntervalBox, count: usize, seed: u64) -> Vec<Vec<f64>> {
+    let n = b.dim();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let corners = (0..1usize << n.min(16)).map(|mask| {
+        let s: Vec<f64> = (0..n).map(|i| ((mask >> i) & 1) as f64).collect();
+        b.point_at(&s)
+    });
+    let mut points: Vec<Vec<f64>> = corners.take(count).collect();
+    while points.len() < count {
+        let s: Vec<f64> = (0..n).map(|_| rng.random::<f64>()).collect();
+        points.push(b.point_at(&s));
+    }
+    points
+}
+
+/// Writes trajectories as CSV: `trajectory,t,<state names…>`, one row per time.
+pub fn write_csv(
+    out: &mut impl Write,
+    states: &[String],
+    trajectories: &[Trajectory],
+) -> std::io::Result<()> {
+    writeln!(out, "trajectory,t,{}", states.join(","))?;
+    for (k, traj) in trajectories.iter().enumerate() {
+        for (t, x) in traj.t.iter().zip(&traj.x) {
+            let xs: Vec<String> = x.iter().map(|v| v.to_string()).collect();
+            writeln!(out, "{k},{t},{}", xs.join(","))?;
+        }
+    }
+    Ok(())
+}

@@ -2,6 +2,22 @@
 //!
 //! Weights are stored row-major as `[out, in]`, exactly as PyTorch's `nn.Linear` keeps them, so
 //! that a `state_dict` of an `nn.Sequential` loads unchanged.
+//!
+//! - [`io`]: safetensors load/save (`Mlp::load_safetensors`, `Mlp::save_safetensors`).
+//! - [`train`]: a small Adam trainer with an optional Jacobian (Sobolev) term (DESIGN.md §2b, §6).
+//! - [`Mlp::jacobian`]: `DN(x) = W_L D_{L−1} W_{L−1} ⋯ D_1 W_1`, `D_k = diag(z_k > 0)`.
+
+mod adam;
+mod batch;
+mod error;
+pub mod io;
+pub mod train;
+
+pub use error::NetworkError;
+pub use train::{
+    evaluate, resume, train, Dataset, EpochStats, ErrorStats, LrSchedule, Precision, TrainReport,
+    TrainSettings,
+};
 
 /// One affine layer `y = W x + b`, `W` of shape `[n_out, n_in]` stored row-major.
 #[derive(Clone, Debug, PartialEq)]
@@ -65,6 +81,88 @@ impl Mlp {
         a
     }
 
+    /// The Jacobian `DN(x)`, `m × n` row-major (`J[i * n + j] = ∂N_i/∂x_j`).
+    ///
+    /// `DN(x) = W_L D_{L−1} W_{L−1} ⋯ D_1 W_1` with `D_k = diag(ReLU'(z_k))`. At a kink
+    /// (pre-activation exactly 0) the one-sided convention `ReLU'(0) = 0` is used, i.e. a neuron
+    /// counts as active only when its pre-activation is `> 0` — the same rule as the trainer.
+    /// Computed forward-mode: the `n` tangent vectors ride along with the activations.
+    pub fn jacobian(&self, x: &[f64]) -> Vec<f64> {
+        let n = self.input_dim();
+        let mut a = x.to_vec();
+        // Tangents, `width × n` row-major: column j is ∂a/∂x_j. Starts as the identity.
+        let mut t: Vec<f64> = (0..n * n)
+            .map(|k| if k / n == k % n { 1.0 } else { 0.0 })
+            .collect();
+        for (k, layer) in self.layers.iter().enumerate() {
+            let z = layer.apply(&a);
+            let mut t_next = vec![0.0; layer.n_out * n];
+            for (i, row) in layer.weight.chunks_exact(layer.n_in).enumerate() {
+                let out = &mut t_next[i * n..(i + 1) * n];
+                for (p, w) in row.iter().enumerate() {
+                    if *w != 0.0 {
+                        for (o, tv) in out.iter_mut().zip(&t[p * n..(p + 1) * n]) {
+                            *o += w * tv;
+                        }
+                    }
+                }
+            }
+            if k + 1 < self.layers.len() {
+                for (i, zi) in z.iter().enumerate() {
+                    if *zi <= 0.0 {
+                        t_next[i * n..(i + 1) * n].fill(0.0);
+                    }
+                }
+                a = z.into_iter().map(|v| v.max(0.0)).collect();
+            } else {
+                a = z;
+            }
+            t = t_next;
+        }
+        let _ = a;
+        t
+    }
+
+    /// Checks that the layers chain (`n_in` of each is the `n_out` of the one before) and that
+    /// every weight and bias has the length its widths say. `name` labels errors.
+    pub fn validate(&self, name: &str) -> Result<(), NetworkError> {
+        if self.layers.is_empty() {
+            return Err(NetworkError::Empty);
+        }
+        let path = std::path::PathBuf::from(name);
+        let mut prev: Option<usize> = None;
+        for (k, l) in self.layers.iter().enumerate() {
+            let expected_in = prev.unwrap_or(l.n_in);
+            if l.n_in != expected_in || l.weight.len() != l.n_out * l.n_in {
+                return Err(NetworkError::Shape {
+                    path,
+                    name: format!("layer {k} weight"),
+                    expected: vec![l.n_out, expected_in],
+                    found: vec![l.weight.len() / l.n_in.max(1), l.n_in],
+                });
+            }
+            if l.bias.len() != l.n_out {
+                return Err(NetworkError::Shape {
+                    path,
+                    name: format!("layer {k} bias"),
+                    expected: vec![l.n_out],
+                    found: vec![l.bias.len()],
+                });
+            }
+            prev = Some(l.n_out);
+        }
+        Ok(())
+    }
+
+    /// The architecture string `n_0xn_1x…xn_L`, e.g. `2x400x400x400x2`.
+    pub fn architecture(&self) -> String {
+        self.widths()
+            .iter()
+            .map(|w| w.to_string())
+            .collect::<Vec<_>>()
+            .join("x")
+    }
+
     /// A network with the given widths and He-uniform random weights, deterministic for `seed`.
     /// Used for tests, benchmarks and as the trainer's starting point.
     pub fn random(widths: &[usize], seed: u64) -> Mlp {
@@ -89,12 +187,4 @@ impl Mlp {
             .collect();
         Mlp { layers }
     }
-}
-
-/// Errors in loading or validating a network.
-#[derive(Debug, thiserror::Error)]
-pub enum NetworkError {
-    /// Placeholder until io lands.
-    #[error("{0}")]
-    Invalid(String),
 }

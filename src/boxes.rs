@@ -1,0 +1,159 @@
+//! Boxes (hyper-rectangles) `[x̲, x̄] = {x : x̲ ≤ x ≤ x̄}`: the sets that initial conditions,
+//! the region `C`, goal sets and reachable-set bounds are made of.
+
+use serde::{Deserialize, Serialize};
+
+/// A non-empty box `[lower, upper]` in ℝⁿ.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct IntervalBox {
+    /// `x̲`.
+    pub lower: Vec<f64>,
+    /// `x̄`.
+    pub upper: Vec<f64>,
+}
+
+impl IntervalBox {
+    /// A box, checked: equal lengths, finite corners, `lower ≤ upper` on every axis.
+    /// The error says which axis is wrong and how.
+    pub fn new(lower: Vec<f64>, upper: Vec<f64>) -> Result<IntervalBox, String> {
+        if lower.len() != upper.len() {
+            return Err(format!(
+                "lower has {} entries but upper has {}",
+                lower.len(),
+                upper.len()
+            ));
+        }
+        if lower.is_empty() {
+            return Err("a box needs at least one coordinate".into());
+        }
+        for (i, (&l, &u)) in lower.iter().zip(&upper).enumerate() {
+            if !l.is_finite() || !u.is_finite() {
+                return Err(format!("coordinate {i}: bounds must be finite, found [{l}, {u}]"));
+            }
+            if l > u {
+                return Err(format!(
+                    "coordinate {i}: inverted bounds, lower {l} > upper {u} (the box is empty)"
+                ));
+            }
+        }
+        Ok(IntervalBox { lower, upper })
+    }
+
+    /// Dimension `n`.
+    pub fn dim(&self) -> usize {
+        self.lower.len()
+    }
+
+    /// Centre `(x̲ + x̄)/2`.
+    pub fn center(&self) -> Vec<f64> {
+        self.lower
+            .iter()
+            .zip(&self.upper)
+            .map(|(l, u)| 0.5 * (l + u))
+            .collect()
+    }
+
+    /// Widths `x̄ − x̲`.
+    pub fn widths(&self) -> Vec<f64> {
+        self.lower
+            .iter()
+            .zip(&self.upper)
+            .map(|(l, u)| u - l)
+            .collect()
+    }
+
+    /// Volume (area in 2-D).
+    pub fn volume(&self) -> f64 {
+        self.widths().iter().product()
+    }
+
+    /// `x ∈ [x̲, x̄]`.
+    pub fn contains(&self, x: &[f64]) -> bool {
+        x.iter()
+            .zip(self.lower.iter().zip(&self.upper))
+            .all(|(v, (l, u))| l <= v && v <= u)
+    }
+
+    /// `self ⊆ other`.
+    pub fn is_subset_of(&self, other: &IntervalBox) -> bool {
+        (0..self.dim())
+            .all(|i| other.lower[i] <= self.lower[i] && self.upper[i] <= other.upper[i])
+    }
+
+    /// The point `x̲ + s ⊙ (x̄ − x̲)` for `s ∈ [0, 1]ⁿ` (for sampling).
+    pub fn point_at(&self, s: &[f64]) -> Vec<f64> {
+        (0..self.dim())
+            .map(|i| self.lower[i] + s[i] * (self.upper[i] - self.lower[i]))
+            .collect()
+    }
+
+    /// The box cut into `counts[i]` equal cells along axis i, axis 0 fastest.
+    pub fn partition(&self, counts: &[usize]) -> Vec<IntervalBox> {
+        let n = self.dim();
+        let total: usize = counts.iter().product();
+        (0..total)
+            .map(|mut k| {
+                let mut lower = vec![0.0; n];
+                let mut upper = vec![0.0; n];
+                for i in 0..n {
+                    let j = k % counts[i];
+                    k /= counts[i];
+                    let w = (self.upper[i] - self.lower[i]) / counts[i] as f64;
+                    lower[i] = self.lower[i] + j as f64 * w;
+                    // The last cell ends exactly at the box's edge, so the cells cover it.
+                    upper[i] = if j + 1 == counts[i] {
+                        self.upper[i]
+                    } else {
+                        self.lower[i] + (j + 1) as f64 * w
+                    };
+                }
+                IntervalBox { lower, upper }
+            })
+            .collect()
+    }
+
+    /// The two halves of the box cut across its widest axis.
+    pub fn bisect(&self) -> (IntervalBox, IntervalBox) {
+        let widths = self.widths();
+        let axis = (0..self.dim())
+            .max_by(|&a, &b| widths[a].total_cmp(&widths[b]))
+            .unwrap_or(0);
+        let mid = 0.5 * (self.lower[axis] + self.upper[axis]);
+        let mut left = self.clone();
+        let mut right = self.clone();
+        left.upper[axis] = mid;
+        right.lower[axis] = mid;
+        (left, right)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rejects_inverted_empty_and_nan_boxes() {
+        assert!(IntervalBox::new(vec![1.0], vec![0.0])
+            .unwrap_err()
+            .contains("inverted"));
+        assert!(IntervalBox::new(vec![], vec![]).is_err());
+        assert!(IntervalBox::new(vec![f64::NAN], vec![1.0])
+            .unwrap_err()
+            .contains("finite"));
+        assert!(IntervalBox::new(vec![0.0, 0.0], vec![1.0]).is_err());
+    }
+
+    #[test]
+    fn partition_covers_the_box_exactly() {
+        let b = IntervalBox::new(vec![-1.0, 0.0], vec![2.0, 0.3]).unwrap();
+        let cells = b.partition(&[3, 7]);
+        assert_eq!(cells.len(), 21);
+        let area: f64 = cells.iter().map(|c| c.volume()).sum();
+        assert!((area - b.volume()).abs() < 1e-12);
+        assert!(cells.iter().all(|c| c.is_subset_of(&b)));
+        assert_eq!(cells[20].upper, b.upper);
+        let (l, r) = b.bisect();
+        assert_eq!(l.upper[0], 0.5);
+        assert_eq!(r.lower[0], 0.5);
+    }
+}

@@ -1,0 +1,79 @@
+//! `cbfreach check <scenario>`: validate and summarise.
+
+use std::path::Path;
+
+use cbfreach::expressions::Expr;
+use cbfreach::filter::SafetyFilter;
+
+use super::{fmt_point, load_scenario, CliResult};
+
+/// Runs the command.
+pub fn run(path: &Path) -> CliResult {
+    let s = load_scenario(path)?;
+    let show = |e: &Expr| e.display(&s.states).to_string();
+    println!("{}: scenario `{}` is valid", s.file, s.name);
+    if !s.description.is_empty() {
+        println!("  {}", s.description.replace('\n', "\n  "));
+    }
+    println!(
+        "  states  {} (n = {}), inputs {} (m = {})",
+        s.states.join(", "),
+        s.n(),
+        s.inputs.join(", "),
+        s.m()
+    );
+    for (i, e) in s.f_tilde.iter().enumerate() {
+        println!("  f̃[{}] = {}", s.states[i], show(e));
+    }
+    for c in &s.cbfs {
+        println!("  CBF {}: h = {}   α(s) = {}·s", c.name, show(&c.h), c.alpha);
+    }
+    if let Some(b) = &s.input_bounds {
+        println!("  input bounds {} … {}", fmt_point(&b.lower), fmt_point(&b.upper));
+    }
+    println!(
+        "  filter: {:?} ({} constraint rows)",
+        SafetyFilter::new(&s).method(),
+        SafetyFilter::new(&s)
+            .constraint_rows(&s.reach.region.center())
+            .map(|r| r.q.len())
+            .unwrap_or(0)
+    );
+    let r = &s.reach;
+    println!(
+        "  reach: C = {} × … {}, dt = {}, T = {} ({} steps), norm {:?}, M_C {:?}",
+        fmt_point(&r.region.lower),
+        fmt_point(&r.region.upper),
+        r.dt,
+        r.horizon,
+        r.steps(),
+        r.norm,
+        r.m_c
+    );
+    println!(
+        "  goal {} … {}, {} initial boxes",
+        fmt_point(&r.goal.lower),
+        fmt_point(&r.goal.upper),
+        r.initial.len()
+    );
+    match &s.network {
+        Some(net) => println!(
+            "  network {} ({}{})",
+            net.file.display(),
+            net.architecture
+                .iter()
+                .map(|w| w.to_string())
+                .collect::<Vec<_>>()
+                .join("×"),
+            if net.file.exists() { "" } else { ", file not present yet" }
+        ),
+        None => println!("  no network"),
+    }
+    println!(
+        "  training grid {:?} over {} … {}",
+        s.training.grid,
+        fmt_point(&s.training.region.lower),
+        fmt_point(&s.training.region.upper)
+    );
+    Ok(())
+}

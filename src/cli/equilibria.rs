@@ -1,0 +1,50 @@
+//! `cbfreach equilibria <scenario> [--json]`.
+
+use std::path::Path;
+
+use cbfreach::equilibria::{find_equilibria, Equilibrium, EquilibriumSearch};
+use cbfreach::filter::SafetyFilter;
+
+use super::{fmt_point, load_scenario, CliResult};
+
+/// Runs the command.
+pub fn run(path: &Path, json: bool) -> CliResult {
+    let s = load_scenario(path)?;
+    let found = find_equilibria(
+        &SafetyFilter::new(&s),
+        &s.reach.region,
+        &EquilibriumSearch::default(),
+    );
+    if json {
+        println!("{}", serde_json::to_string_pretty(&found)?);
+    } else {
+        println!("{} equilibria of the filtered system in C:", found.len());
+        print_table(&found);
+    }
+    Ok(())
+}
+
+/// A readable table of equilibria.
+pub fn print_table(found: &[Equilibrium]) {
+    println!("  {:<24} {:<15} {:<11} eigenvalues", "x*", "kind", "");
+    for e in found {
+        let eig: Vec<String> = e
+            .eigenvalues
+            .iter()
+            .map(|z| {
+                if z[1].abs() > 1e-9 {
+                    format!("{:.4}{:+.4}i", z[0], z[1])
+                } else {
+                    format!("{:.4}", z[0])
+                }
+            })
+            .collect();
+        println!(
+            "  {:<24} {:<15} {:<11} {}",
+            fmt_point(&e.x),
+            e.kind.to_string(),
+            if e.undesirable { "undesirable" } else { "desired" },
+            eig.join(", ")
+        );
+    }
+}

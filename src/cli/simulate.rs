@@ -1,0 +1,156 @@
+//! `cbfreach simulate`: trajectories of the filtered system as CSV or JSON.
+
+use std::io::Write;
+use std::path::PathBuf;
+
+use cbfreach::boxes::IntervalBox;
+use cbfreach::filter::SafetyFilter;
+use cbfreach::scenario::Scenario;
+use cbfreach::simulate::{sample_box, simulate_filtered, write_csv, Integrator, Trajectory};
+
+use super::{fmt_point, load_scenario, parse_point, CliResult};
+
+/// Arguments of `cbfreach simulate`.
+#[derive(clap::Args)]
+pub struct SimulateArgs {
+    /// The scenario file (TOML).
+    scenario: PathBuf,
+    /// Start from this point (comma-separated, one number per state); repeatable.
+    #[arg(long = "from", value_name = "X1,X2,...")]
+    from: Vec<String>,
+    /// Start from N random safe points of --box (default: the region C).
+    #[arg(long, value_name = "N")]
+    samples: Option<usize>,
+    /// Box to sample, as LOWER:UPPER with comma-separated corners, e.g. -1,-1:1,1.
+    #[arg(long = "box", value_name = "LOWER:UPPER")]
+    sample_box: Option<String>,
+    /// Seed for the samples.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Time step (default: the scenario's dt).
+    #[arg(long)]
+    dt: Option<f64>,
+    /// Horizon (default: the scenario's).
+    #[arg(long)]
+    horizon: Option<f64>,
+    /// Integration scheme.
+    #[arg(long, value_enum, default_value_t = Integrator::Euler)]
+    integrator: Integrator,
+    /// Output format.
+    #[arg(long, value_enum, default_value_t = Format::Csv)]
+    format: Format,
+    /// Write trajectories here instead of standard output (a summary is then printed).
+    #[arg(long, short)]
+    out: Option<PathBuf>,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum Format {
+    Csv,
+    Json,
+}
+
+/// Parses `LOWER:UPPER` into a box of dimension n.
+pub fn parse_box(option: &str, text: &str, n: usize) -> Result<IntervalBox, String> {
+    let (lo, hi) = text
+        .split_once(':')
+        .ok_or_else(|| format!("{option}: expected LOWER:UPPER, e.g. -1,-1:1,1, found `{text}`"))?;
+    let (lower, upper) = (parse_point(option, lo)?, parse_point(option, hi)?);
+    if lower.len() != n || upper.len() != n {
+        return Err(format!("{option}: expected {n} numbers on each side of `:`"));
+    }
+    IntervalBox::new(lower, upper).map_err(|e| format!("{option}: {e}"))
+}
+
+/// The starting points the arguments ask for.
+fn starts(args: &SimulateArgs, s: &Scenario) -> Result<Vec<Vec<f64>>, String> {
+    let mut points = Vec::new();
+    for text in &args.from {
+        let x = parse_point("--from", text)?;
+        if x.len() != s.n() {
+            return Err(format!(
+                "--from {text}: expected {} numbers ({}), found {}",
+                s.n(),
+                s.states.join(", "),
+                x.len()
+            ));
+        }
+        points.push(x);
+    }
+    if let Some(count) = args.samples {
+        let b = match &args.sample_box {
+            Some(t) => parse_box("--box", t, s.n())?,
+            None => s.reach.region.clone(),
+        };
+        points.extend(safe_samples(s, &b, count, args.seed)?);
+    }
+    if points.is_empty() {
+        return Err("give --from X1,X2,... or --samples N".into());
+    }
+    Ok(points)
+}
+
+/// `count` samples of `b` inside the safe set (rejection sampling).
+pub fn safe_samples(
+    s: &Scenario,
+    b: &IntervalBox,
+    count: usize,
+    seed: u64,
+) -> Result<Vec<Vec<f64>>, String> {
+    let mut points = Vec::with_capacity(count);
+    let mut round = 0;
+    while points.len() < count {
+        let batch = sample_box(b, 4 * count.max(16), seed.wrapping_add(round));
+        points.extend(batch.into_iter().filter(|x| s.is_safe(x)).take(count - points.len()));
+        round += 1;
+        if round > 64 {
+            return Err("the sampled box has (almost) no safe points".into());
+        }
+    }
+    Ok(points)
+}
+
+/// Runs the command.
+pub fn run(args: &SimulateArgs) -> CliResult {
+    let s = load_scenario(&args.scenario)?;
+    let dt = args.dt.unwrap_or(s.reach.dt);
+    let horizon = args.horizon.unwrap_or(s.reach.horizon);
+    if !(dt > 0.0 && horizon > 0.0) {
+        return Err(format!("--dt and --horizon must be positive, found {dt} and {horizon}").into());
+    }
+    let steps = (horizon / dt - 1e-9).ceil() as usize;
+    let filter = SafetyFilter::new(&s);
+    let trajectories: Vec<Trajectory> = starts(args, &s)?
+        .iter()
+        .map(|x0| simulate_filtered(&filter, x0, dt, steps, args.integrator))
+        .collect();
+
+    let mut buffer = Vec::new();
+    match args.format {
+        Format::Csv => write_csv(&mut buffer, &s.states, &trajectories)?,
+        Format::Json => serde_json::to_writer_pretty(&mut buffer, &trajectories)?,
+    }
+    match &args.out {
+        Some(path) => {
+            std::fs::write(path, &buffer).map_err(|e| format!("{}: {e}", path.display()))?;
+            println!(
+                "{} trajectories of {} steps (dt = {dt}) written to {}",
+                trajectories.len(),
+                steps,
+                path.display()
+            );
+            for t in trajectories.iter().take(20) {
+                println!("  {} → {}", fmt_point(&t.x0), fmt_point(t.last()));
+            }
+        }
+        None => std::io::stdout().write_all(&buffer)?,
+    }
+    for t in trajectories.iter().filter(|t| t.stopped.is_some()) {
+        eprintln!(
+            "warning: trajectory from {} stopped {}",
+            fmt_point(&t.x0),
+            t.stopped.as_deref().unwrap_or_default()
+        );
+    }
+    Ok(())
+}

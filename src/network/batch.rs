@@ -1,0 +1,500 @@
+//! Batched forward and backward passes with forward-mode tangents, on `matrixmultiply` GEMMs.
+//!
+//! A batch of `B` samples with `n_t` tangent directions is one matrix of `r·B` rows,
+//! `r = 1 + n_t`: rows `0..B` are the primal activations, rows `(j+1)B..(j+2)B` the tangents
+//! `∂a/∂x_j`. Every layer is then one GEMM for all rows,
+//!
+//! ```text
+//! Z_k = A_{k−1} W_kᵀ (+ b_k on primal rows),   A_k = D_k Z_k,   D_k = diag(z_k > 0) of the primal row,
+//! ```
+//!
+//! i.e. the tangents follow the primal's ReLU pattern (`ReLU'(0) = 0`, as [`Mlp::jacobian`]).
+//! Since `D_k` is piecewise constant, the backward pass is the same for primal and tangent rows:
+//! `G_{k−1} = D_{k−1} (G_k W_k)`, `∂L/∂W_k = G_kᵀ A_{k−1}` (one GEMM over all `r·B` rows),
+//! `∂L/∂b_k = Σ_primal rows G_k`. The cost is about `r×` a plain forward/backward.
+//!
+//! Determinism: `matrixmultiply` threads only its loops over output blocks (m and n); each
+//! output entry's sum over `k` runs in one fixed order, so results do not depend on the
+//! thread count or on scheduling. They may differ between CPUs with different SIMD kernels
+//! (FMA or not), as any floating-point code.
+//!
+//! [`Mlp::jacobian`]: super::Mlp::jacobian
+
+use std::ops::{Add, AddAssign, Div, Mul, MulAssign, Sub};
+
+use safetensors::tensor::Dtype;
+
+use super::io::{f32_bytes, f64_bytes, RawTensors};
+use super::{Layer, Mlp, NetworkError};
+
+/// The float type a training run computes in.
+pub(crate) trait Scalar:
+    Copy
+    + Default
+    + PartialOrd
+    + Send
+    + Sync
+    + std::fmt::Debug
+    + Add<Output = Self>
+    + Sub<Output = Self>
+    + Mul<Output = Self>
+    + Div<Output = Self>
+    + AddAssign
+    + MulAssign
+    + 'static
+{
+    const ZERO: Self;
+    const ONE: Self;
+    const DTYPE: Dtype;
+    fn from_f64(x: f64) -> Self;
+    fn to_f64(self) -> f64;
+    fn sqrt(self) -> Self;
+    fn to_bytes(v: &[Self]) -> Vec<u8>;
+    fn read(raw: &RawTensors<'_>, name: &str) -> Result<Vec<Self>, NetworkError>;
+    /// `C ← α A B + β C` with arbitrary strides.
+    ///
+    /// # Safety
+    /// The strided index ranges must lie inside the pointed-to buffers.
+    #[allow(clippy::too_many_arguments)]
+    unsafe fn gemm_raw(
+        m: usize,
+        k: usize,
+        n: usize,
+        alpha: Self,
+        a: *const Self,
+        rsa: isize,
+        csa: isize,
+        b: *const Self,
+        rsb: isize,
+        csb: isize,
+        beta: Self,
+        c: *mut Self,
+        rsc: isize,
+        csc: isize,
+    );
+}
+
+impl Scalar for f32 {
+    const ZERO: Self = 0.0;
+    const ONE: Self = 1.0;
+    const DTYPE: Dtype = Dtype::F32;
+    fn from_f64(x: f64) -> Self {
+        x as f32
+    }
+    fn to_f64(self) -> f64 {
+        self as f64
+    }
+    fn sqrt(self) -> Self {
+        f32::sqrt(self)
+    }
+    fn to_bytes(v: &[Self]) -> Vec<u8> {
+        f32_bytes(v)
+    }
+    fn read(raw: &RawTensors<'_>, name: &str) -> Result<Vec<Self>, NetworkError> {
+        raw.f32s(name)
+    }
+    unsafe fn gemm_raw(
+        m: usize,
+        k: usize,
+        n: usize,
+        alpha: Self,
+        a: *const Self,
+        rsa: isize,
+        csa: isize,
+        b: *const Self,
+        rsb: isize,
+        csb: isize,
+        beta: Self,
+        c: *mut Self,
+        rsc: isize,
+        csc: isize,
+    ) {
+        matrixmultiply::sgemm(m, k, n, alpha, a, rsa, csa, b, rsb, csb, beta, c, rsc, csc)
+    }
+}
+
+impl Scalar for f64 {
+    const ZERO: Self = 0.0;
+    const ONE: Self = 1.0;
+    const DTYPE: Dtype = Dtype::F64;
+    fn from_f64(x: f64) -> Self {
+        x
+    }
+    fn to_f64(self) -> f64 {
+        self
+    }
+    fn sqrt(self) -> Self {
+        f64::sqrt(self)
+    }
+    fn to_bytes(v: &[Self]) -> Vec<u8> {
+        f64_bytes(v)
+    }
+    fn read(raw: &RawTensors<'_>, name: &str) -> Result<Vec<Self>, NetworkError> {
+        raw.f64s(name)
+    }
+    unsafe fn gemm_raw(
+        m: usize,
+        k: usize,
+        n: usize,
+        alpha: Self,
+        a: *const Self,
+        rsa: isize,
+        csa: isize,
+        b: *const Self,
+        rsb: isize,
+        csb: isize,
+        beta: Self,
+        c: *mut Self,
+        rsc: isize,
+        csc: isize,
+    ) {
+        matrixmultiply::dgemm(m, k, n, alpha, a, rsa, csa, b, rsb, csb, beta, c, rsc, csc)
+    }
+}
+
+/// Strides `(row, column)` of a matrix view.
+type Strides = (usize, usize);
+
+/// Smallest buffer length that holds an `rows × cols` view with these strides.
+fn needed(rows: usize, cols: usize, (rs, cs): Strides) -> usize {
+    if rows == 0 || cols == 0 {
+        0
+    } else {
+        (rows - 1) * rs + (cols - 1) * cs + 1
+    }
+}
+
+/// Safe `C = A B` (`A: m×k`, `B: k×n`, `C: m×n`), bounds checked.
+fn gemm<T: Scalar>(
+    (m, k, n): (usize, usize, usize),
+    a: &[T],
+    sa: Strides,
+    b: &[T],
+    sb: Strides,
+    c: &mut [T],
+    sc: Strides,
+) {
+    // Internal invariant (shapes come from a validated network), not user input.
+    assert!(
+        a.len() >= needed(m, k, sa) && b.len() >= needed(k, n, sb) && c.len() >= needed(m, n, sc),
+        "gemm buffer too small"
+    );
+    if m == 0 || n == 0 {
+        return;
+    }
+    if k == 0 {
+        c.iter_mut().for_each(|v| *v = T::ZERO);
+        return;
+    }
+    // SAFETY: the assertion above keeps every strided access inside the slices; `c` does not
+    // alias `a` or `b` (distinct borrows).
+    unsafe {
+        T::gemm_raw(
+            m,
+            k,
+            n,
+            T::ONE,
+            a.as_ptr(),
+            sa.0 as isize,
+            sa.1 as isize,
+            b.as_ptr(),
+            sb.0 as isize,
+            sb.1 as isize,
+            T::ZERO,
+            c.as_mut_ptr(),
+            sc.0 as isize,
+            sc.1 as isize,
+        )
+    }
+}
+
+/// One layer's parameters (or their gradients / Adam moments) in the working precision.
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) struct Params<T> {
+    /// `W`, `[n_out, n_in]` row-major.
+    pub w: Vec<T>,
+    /// `b`, `[n_out]`.
+    pub b: Vec<T>,
+    pub n_in: usize,
+    pub n_out: usize,
+}
+
+impl<T: Scalar> Params<T> {
+    pub fn zeros_like(&self) -> Self {
+        Params {
+            w: vec![T::ZERO; self.w.len()],
+            b: vec![T::ZERO; self.b.len()],
+            n_in: self.n_in,
+            n_out: self.n_out,
+        }
+    }
+}
+
+/// The network in working precision.
+pub(crate) fn to_params<T: Scalar>(mlp: &Mlp) -> Vec<Params<T>> {
+    mlp.layers
+        .iter()
+        .map(|l| Params {
+            w: l.weight.iter().map(|&x| T::from_f64(x)).collect(),
+            b: l.bias.iter().map(|&x| T::from_f64(x)).collect(),
+            n_in: l.n_in,
+            n_out: l.n_out,
+        })
+        .collect()
+}
+
+/// Back to an f64 [`Mlp`] (exact: f32 → f64 widening is exact).
+pub(crate) fn to_mlp<T: Scalar>(params: &[Params<T>]) -> Mlp {
+    Mlp {
+        layers: params
+            .iter()
+            .map(|p| Layer {
+                weight: p.w.iter().map(|x| x.to_f64()).collect(),
+                bias: p.b.iter().map(|x| x.to_f64()).collect(),
+                n_in: p.n_in,
+                n_out: p.n_out,
+            })
+            .collect(),
+    }
+}
+
+/// Buffers for one batch: `acts[k]` is the input of layer `k` (`acts[0]` the network input,
+/// filled by the caller), `out` the network output, `g`/`tmp` backward scratch.
+pub(crate) struct Workspace<T> {
+    pub acts: Vec<Vec<T>>,
+    pub out: Vec<T>,
+    pub g: Vec<T>,
+    tmp: Vec<T>,
+    /// Samples in this batch.
+    pub b: usize,
+    /// Row groups: 1 primal + tangent directions.
+    pub r: usize,
+}
+
+impl<T: Scalar> Workspace<T> {
+    pub fn new(n_layers: usize) -> Self {
+        Workspace {
+            acts: vec![Vec::new(); n_layers],
+            out: Vec::new(),
+            g: Vec::new(),
+            tmp: Vec::new(),
+            b: 0,
+            r: 1,
+        }
+    }
+
+    /// Sets the batch layout and fills `acts[0]`: primal rows from `x(i)` (the i-th sample's
+    /// input), tangent group `j` rows with the unit vector `e_j`.
+    pub fn load_inputs<'a>(
+        &mut self,
+        n_in: usize,
+        b: usize,
+        tangents: bool,
+        x: impl Fn(usize) -> &'a [f64],
+    ) {
+        self.b = b;
+        self.r = if tangents { 1 + n_in } else { 1 };
+        let a0 = &mut self.acts[0];
+        a0.clear();
+        a0.resize(self.r * b * n_in, T::ZERO);
+        for i in 0..b {
+            for (dst, &src) in a0[i * n_in..(i + 1) * n_in].iter_mut().zip(x(i)) {
+                *dst = T::from_f64(src);
+            }
+        }
+        for j in 0..self.r - 1 {
+            for i in 0..b {
+                a0[((j + 1) * b + i) * n_in + j] = T::ONE;
+            }
+        }
+    }
+
+    /// Forward pass; afterwards `out` holds `r·B × n_L` rows (primal, then tangents).
+    pub fn forward(&mut self, net: &[Params<T>]) {
+        let rows = self.r * self.b;
+        let nl = net.len();
+        for (k, p) in net.iter().enumerate() {
+            let (inp, rest) = self.acts.split_at_mut(k + 1);
+            let input = &inp[k];
+            let output: &mut Vec<T> = if k + 1 < nl {
+                &mut rest[0]
+            } else {
+                &mut self.out
+            };
+            output.clear();
+            output.resize(rows * p.n_out, T::ZERO);
+            gemm(
+                (rows, p.n_in, p.n_out),
+                input,
+                (p.n_in, 1),
+                &p.w,
+                (1, p.n_in),
+                output,
+                (p.n_out, 1),
+            );
+            let (primal, tangents) = output.split_at_mut(self.b * p.n_out);
+            for row in primal.chunks_exact_mut(p.n_out) {
+                for (z, &bias) in row.iter_mut().zip(&p.b) {
+                    *z += bias;
+                }
+            }
+            if k + 1 < nl {
+                for z in primal.iter_mut() {
+                    if !(*z > T::ZERO) {
+                        *z = T::ZERO;
+                    }
+                }
+                mask_tangents(primal, tangents);
+            }
+        }
+    }
+
+    /// Backward pass from `g` (`∂L/∂out`, `r·B × n_L`, filled by the caller) into `grads`
+    /// (overwritten).
+    pub fn backward(&mut self, net: &[Params<T>], grads: &mut [Params<T>]) {
+        let rows = self.r * self.b;
+        for k in (0..net.len()).rev() {
+            let p = &net[k];
+            let gr = &mut grads[k];
+            let input = &self.acts[k];
+            // ∂L/∂W = Gᵀ A: (n_out × rows)(rows × n_in)
+            gemm(
+                (p.n_out, rows, p.n_in),
+                &self.g,
+                (1, p.n_out),
+                input,
+                (p.n_in, 1),
+                &mut gr.w,
+                (p.n_in, 1),
+            );
+            gr.b.iter_mut().for_each(|v| *v = T::ZERO);
+            for row in self.g[..self.b * p.n_out].chunks_exact(p.n_out) {
+                for (d, &v) in gr.b.iter_mut().zip(row) {
+                    *d += v;
+                }
+            }
+            if k > 0 {
+                self.tmp.clear();
+                self.tmp.resize(rows * p.n_in, T::ZERO);
+                gemm(
+                    (rows, p.n_out, p.n_in),
+                    &self.g,
+                    (p.n_out, 1),
+                    &p.w,
+                    (p.n_in, 1),
+                    &mut self.tmp,
+                    (p.n_in, 1),
+                );
+                // D_{k}: the primal ReLU pattern of this layer's input, for every row group.
+                let mask_src = &input[..self.b * p.n_in];
+                for group in self.tmp.chunks_exact_mut(self.b * p.n_in) {
+                    for (gv, &a) in group.iter_mut().zip(mask_src) {
+                        if !(a > T::ZERO) {
+                            *gv = T::ZERO;
+                        }
+                    }
+                }
+                std::mem::swap(&mut self.g, &mut self.tmp);
+            }
+        }
+    }
+}
+
+/// Zeroes tangent entries whose primal neuron is inactive (`primal` already ReLU'd).
+fn mask_tangents<T: Scalar>(primal: &[T], tangents: &mut [T]) {
+    if primal.is_empty() {
+        return;
+    }
+    for group in tangents.chunks_exact_mut(primal.len()) {
+        for (t, &a) in group.iter_mut().zip(primal) {
+            if !(a > T::ZERO) {
+                *t = T::ZERO;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Batched forward with tangents equals `Mlp::forward` and `Mlp::jacobian`.
+    #[test]
+    fn batched_forward_matches_pointwise() {
+        let mlp = Mlp::random(&[3, 9, 7, 2], 5);
+        let xs: Vec<Vec<f64>> = (0..13)
+            .map(|i| {
+                let t = i as f64 * 0.37;
+                vec![t.sin(), (2.0 * t).cos(), t - 2.0]
+            })
+            .collect();
+        let net = to_params::<f64>(&mlp);
+        let mut ws = Workspace::<f64>::new(net.len());
+        ws.load_inputs(3, xs.len(), true, |i| &xs[i]);
+        ws.forward(&net);
+        let b = xs.len();
+        for (i, x) in xs.iter().enumerate() {
+            let y = mlp.forward(x);
+            let j = mlp.jacobian(x);
+            for o in 0..2 {
+                assert!((ws.out[i * 2 + o] - y[o]).abs() < 1e-12);
+                for d in 0..3 {
+                    let t = ws.out[((d + 1) * b + i) * 2 + o];
+                    assert!((t - j[o * 3 + d]).abs() < 1e-12);
+                }
+            }
+        }
+    }
+
+    /// Backward gradients against central finite differences of
+    /// `L = Σ_rows Σ_o c_{row,o} out_{row,o}` (primal and tangent rows).
+    #[test]
+    fn backward_matches_finite_differences() {
+        let mlp = Mlp::random(&[2, 6, 5, 2], 9);
+        let xs: Vec<Vec<f64>> = (0..4)
+            .map(|i| vec![0.3 * i as f64 - 0.5, 0.2 - 0.1 * i as f64])
+            .collect();
+        let loss = |net: &[Params<f64>]| {
+            let mut ws = Workspace::<f64>::new(net.len());
+            ws.load_inputs(2, xs.len(), true, |i| &xs[i]);
+            ws.forward(net);
+            ws.out
+                .iter()
+                .enumerate()
+                .map(|(k, v)| v * (1.0 + (k as f64 * 0.7).sin()))
+                .sum::<f64>()
+        };
+        let net = to_params::<f64>(&mlp);
+        let mut ws = Workspace::<f64>::new(net.len());
+        ws.load_inputs(2, xs.len(), true, |i| &xs[i]);
+        ws.forward(&net);
+        ws.g = (0..ws.out.len())
+            .map(|k| 1.0 + (k as f64 * 0.7).sin())
+            .collect();
+        let mut grads: Vec<Params<f64>> = net.iter().map(|p| p.zeros_like()).collect();
+        ws.backward(&net, &mut grads);
+        let h = 1e-6;
+        for k in 0..net.len() {
+            for idx in 0..net[k].w.len() {
+                let mut plus = net.clone();
+                plus[k].w[idx] += h;
+                let mut minus = net.clone();
+                minus[k].w[idx] -= h;
+                let fd = (loss(&plus) - loss(&minus)) / (2.0 * h);
+                assert!(
+                    (fd - grads[k].w[idx]).abs() < 1e-6 * (1.0 + fd.abs()),
+                    "layer {k} w[{idx}]: fd {fd} vs {}",
+                    grads[k].w[idx]
+                );
+            }
+            for idx in 0..net[k].b.len() {
+                let mut plus = net.clone();
+                plus[k].b[idx] += h;
+                let mut minus = net.clone();
+                minus[k].b[idx] -= h;
+                let fd = (loss(&plus) - loss(&minus)) / (2.0 * h);
+                assert!((fd - grads[k].b[idx]).abs() < 1e-6 * (1.0 + fd.abs()));
+            }
+        }
+    }
+}

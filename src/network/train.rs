@@ -1,0 +1,1105 @@
+//! Training a ReLU [`Mlp`] `N ≈ v` with Adam and an optional Jacobian (Sobolev) term.
+//!
+//! Loss per batch `B` (DESIGN.md §2b: slope errors matter as much as value errors):
+//!
+//! ```text
+//! L = (1/|B|) Σ_{s∈B} w_s ( ‖N(x_s) − v_s‖² + λ ‖DN(x_s) − Dv_s‖_F² )
+//! ```
+//!
+//! `λ` = [`TrainSettings::jacobian_weight`], `w_s` the optional per-sample weights. `DN` is
+//! computed forward-mode (the `n` input tangents ride along the activations, masked by the
+//! primal ReLU pattern) and back-propagated through the same GEMMs, so a step with the Jacobian
+//! term costs about `(1 + n)×` one without (see [`batch`](super::batch)).
+//!
+//! **Largest errors.** The reachability bound uses the *maximum* error `M_C`, so late in
+//! training (from [`TrainSettings::hard_example_start`]) each epoch also revisits the
+//! [`TrainSettings::hard_example_fraction`] of samples whose loss was largest in the previous
+//! epoch (hard-example oversampling). Unlike a p-norm loss with growing `p`, this keeps the
+//! gradient scale (and hence the learning rate) unchanged and never lets a single outlier
+//! dominate a step, while the extra visits still pull the tail down; the errors it needs come
+//! for free from the forward passes.
+//!
+//! **Precision.** [`Precision::F32`] (default) trains on `sgemm`, about twice as fast as `dgemm`;
+//! the result is widened exactly to f64. Reported final errors are always measured on that f64
+//! network with f64 arithmetic.
+//!
+//! **Determinism.** For a fixed seed the result is bitwise reproducible on one machine: the
+//! shuffle of epoch `e` comes from `ChaCha8Rng` seeded with `seed` on stream `e`, the hard
+//! examples are chosen with a total order (score, then index), and `matrixmultiply`'s threads
+//! split only output blocks, never a sum. A run resumed from a checkpoint (weights, Adam
+//! moments and step, per-sample scores, epoch) continues bit-identically.
+
+use std::collections::{BTreeMap, HashMap};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use rand::seq::SliceRandom;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use super::adam::Adam;
+use super::batch::{to_mlp, to_params, Params, Scalar, Workspace};
+use super::io::{serialize, write_atomically, RawTensor, RawTensors};
+use super::{Mlp, NetworkError};
+
+/// Training data: inputs `x_s`, targets `v(x_s)`, optionally `Dv(x_s)` and sample weights.
+#[derive(Clone, Debug, Default)]
+pub struct Dataset {
+    /// Input dimension `n`.
+    pub n_in: usize,
+    /// Output dimension `m`.
+    pub n_out: usize,
+    /// `N × n` row-major.
+    pub inputs: Vec<f64>,
+    /// `N × m` row-major.
+    pub targets: Vec<f64>,
+    /// `N × m × n`: for each sample the Jacobian `Dv`, `m × n` row-major
+    /// (`[s*m*n + i*n + j] = ∂v_i/∂x_j`). Needed when `jacobian_weight > 0`.
+    pub jacobians: Option<Vec<f64>>,
+    /// Per-sample loss weights `w_s ≥ 0`. Samples of weight 0 are skipped by training and
+    /// excluded from the reported errors (e.g. points where the filter is infeasible).
+    pub weights: Option<Vec<f64>>,
+}
+
+impl Dataset {
+    /// Number of samples `N`.
+    pub fn len(&self) -> usize {
+        if self.n_in == 0 {
+            0
+        } else {
+            self.inputs.len() / self.n_in
+        }
+    }
+
+    /// Whether there are no samples.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Input of sample `s`.
+    pub fn input(&self, s: usize) -> &[f64] {
+        &self.inputs[s * self.n_in..(s + 1) * self.n_in]
+    }
+
+    /// Target of sample `s`.
+    pub fn target(&self, s: usize) -> &[f64] {
+        &self.targets[s * self.n_out..(s + 1) * self.n_out]
+    }
+
+    fn weight(&self, s: usize) -> f64 {
+        self.weights.as_ref().map_or(1.0, |w| w[s])
+    }
+
+    /// Checks lengths, dimensions and finiteness.
+    pub fn validate(&self) -> Result<(), NetworkError> {
+        let bad = |message: String| Err(NetworkError::Dataset { message });
+        if self.n_in == 0 || self.n_out == 0 {
+            return bad(format!(
+                "dimensions must be positive (n_in = {}, n_out = {})",
+                self.n_in, self.n_out
+            ));
+        }
+        if self.inputs.len() % self.n_in != 0 {
+            return bad(format!(
+                "inputs has {} values, not a multiple of n_in = {}",
+                self.inputs.len(),
+                self.n_in
+            ));
+        }
+        let n = self.len();
+        if n == 0 {
+            return bad("no samples".into());
+        }
+        if self.targets.len() != n * self.n_out {
+            return bad(format!(
+                "targets has {} values, expected N·n_out = {}·{}",
+                self.targets.len(),
+                n,
+                self.n_out
+            ));
+        }
+        if let Some(j) = &self.jacobians {
+            if j.len() != n * self.n_out * self.n_in {
+                return bad(format!(
+                    "jacobians has {} values, expected N·n_out·n_in = {}·{}·{}",
+                    j.len(),
+                    n,
+                    self.n_out,
+                    self.n_in
+                ));
+            }
+        }
+        if let Some(w) = &self.weights {
+            if w.len() != n {
+                return bad(format!("weights has {} values, expected N = {n}", w.len()));
+            }
+            if let Some(i) = w.iter().position(|x| !(x.is_finite() && *x >= 0.0)) {
+                return bad(format!(
+                    "weight of sample {i} is {}, must be finite and ≥ 0",
+                    w[i]
+                ));
+            }
+            if w.iter().all(|&x| x == 0.0) {
+                return bad("every sample has weight 0".into());
+            }
+        }
+        let check = |name: &str, v: &[f64], per: usize| {
+            v.iter().position(|x| !x.is_finite()).map_or(Ok(()), |i| {
+                bad(format!("{name} of sample {} is not finite", i / per))
+            })
+        };
+        check("input", &self.inputs, self.n_in)?;
+        check("target", &self.targets, self.n_out)?;
+        if let Some(j) = &self.jacobians {
+            check("jacobian", j, self.n_in * self.n_out)?;
+        }
+        Ok(())
+    }
+}
+
+/// The working precision of the trainer.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Precision {
+    /// `sgemm`; about twice as fast. The trained network is widened exactly to f64.
+    #[default]
+    F32,
+    /// `dgemm` throughout.
+    F64,
+}
+
+/// How the learning rate moves from `learning_rate` to `lr_min` over the epochs.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum LrSchedule {
+    /// `learning_rate` throughout (`lr_min` unused).
+    Constant,
+    /// `lr_min + (lr − lr_min)(1 + cos(π e/E))/2` at epoch `e` of `E`.
+    #[default]
+    Cosine,
+    /// Multiply by `factor` every `every` epochs, never below `lr_min`.
+    Step {
+        /// Epochs between decays.
+        every: usize,
+        /// Decay factor in (0, 1].
+        factor: f64,
+    },
+}
+
+/// Settings of [`train`]. Every field has a default ([`TrainSettings::default`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TrainSettings {
+    /// Passes over the data (default 100).
+    pub epochs: usize,
+    /// Samples per Adam step (default 256).
+    pub batch_size: usize,
+    /// Initial learning rate (default 1e-3).
+    pub learning_rate: f64,
+    /// Final learning rate of the decaying schedules (default 1e-5).
+    pub lr_min: f64,
+    /// Learning-rate schedule (default cosine).
+    pub lr_schedule: LrSchedule,
+    /// `λ` of the Sobolev term `λ‖DN − Dv‖²` (default 0; needs [`Dataset::jacobians`]).
+    pub jacobian_weight: f64,
+    /// Fraction of the samples, those of largest loss in the previous epoch, visited a second
+    /// time in each late epoch (default 0.1; 0 disables).
+    pub hard_example_fraction: f64,
+    /// Fraction of the epochs after which hard examples are oversampled (default 0.5).
+    pub hard_example_start: f64,
+    /// Seed of the shuffles (default 0).
+    pub seed: u64,
+    /// Working precision (default f32).
+    pub precision: Precision,
+    /// Where to write checkpoints (default none).
+    pub checkpoint: Option<PathBuf>,
+    /// Write a checkpoint every this many epochs and after the last (default 10; 0: only after
+    /// the last).
+    pub checkpoint_every: usize,
+    /// Adam's `β₁` (default 0.9).
+    pub adam_beta1: f64,
+    /// Adam's `β₂` (default 0.999).
+    pub adam_beta2: f64,
+    /// Adam's `ε` (default 1e-8).
+    pub adam_eps: f64,
+}
+
+impl Default for TrainSettings {
+    fn default() -> Self {
+        TrainSettings {
+            epochs: 100,
+            batch_size: 256,
+            learning_rate: 1e-3,
+            lr_min: 1e-5,
+            lr_schedule: LrSchedule::Cosine,
+            jacobian_weight: 0.0,
+            hard_example_fraction: 0.1,
+            hard_example_start: 0.5,
+            seed: 0,
+            precision: Precision::F32,
+            checkpoint: None,
+            checkpoint_every: 10,
+            adam_beta1: 0.9,
+            adam_beta2: 0.999,
+            adam_eps: 1e-8,
+        }
+    }
+}
+
+impl TrainSettings {
+    /// Checks ranges; [`NetworkError::Settings`] names the offending field.
+    pub fn validate(&self) -> Result<(), NetworkError> {
+        let bad = |message: String| Err(NetworkError::Settings { message });
+        let pos = |x: f64| x.is_finite() && x > 0.0;
+        if self.batch_size == 0 {
+            return bad("batch_size must be ≥ 1".into());
+        }
+        if !pos(self.learning_rate) {
+            return bad(format!(
+                "learning_rate = {} must be > 0",
+                self.learning_rate
+            ));
+        }
+        if !(self.lr_min.is_finite() && self.lr_min >= 0.0 && self.lr_min <= self.learning_rate) {
+            return bad(format!(
+                "lr_min = {} must be in [0, learning_rate = {}]",
+                self.lr_min, self.learning_rate
+            ));
+        }
+        if let LrSchedule::Step { every, factor } = self.lr_schedule {
+            if every == 0 || !(factor > 0.0 && factor <= 1.0) {
+                return bad(format!(
+                    "step schedule needs every ≥ 1 and factor in (0, 1], got {every} and {factor}"
+                ));
+            }
+        }
+        if !(self.jacobian_weight.is_finite() && self.jacobian_weight >= 0.0) {
+            return bad(format!(
+                "jacobian_weight = {} must be ≥ 0",
+                self.jacobian_weight
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.hard_example_fraction) {
+            return bad(format!(
+                "hard_example_fraction = {} must be in [0, 1]",
+                self.hard_example_fraction
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.hard_example_start) {
+            return bad(format!(
+                "hard_example_start = {} must be in [0, 1]",
+                self.hard_example_start
+            ));
+        }
+        if !(0.0..1.0).contains(&self.adam_beta1)
+            || !(0.0..1.0).contains(&self.adam_beta2)
+            || !pos(self.adam_eps)
+        {
+            return bad("Adam needs β₁, β₂ in [0, 1) and ε > 0".into());
+        }
+        Ok(())
+    }
+
+    /// Learning rate of epoch `e` (0-based).
+    pub fn lr_at(&self, e: usize) -> f64 {
+        let (lr, lo) = (self.learning_rate, self.lr_min);
+        match self.lr_schedule {
+            LrSchedule::Constant => lr,
+            LrSchedule::Cosine => {
+                let frac = e as f64 / self.epochs.max(1) as f64;
+                lo + (lr - lo) * 0.5 * (1.0 + (std::f64::consts::PI * frac).cos())
+            }
+            LrSchedule::Step { every, factor } => {
+                let k = (e / every.max(1)).min(i32::MAX as usize) as i32;
+                (lr * factor.powi(k)).max(lo)
+            }
+        }
+    }
+
+    fn hard_examples_on(&self, e: usize) -> bool {
+        self.hard_example_fraction > 0.0
+            && e > 0
+            && e as f64 >= self.hard_example_start * self.epochs as f64
+    }
+}
+
+/// What one epoch did, passed to the progress callback and kept in the report.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EpochStats {
+    /// Epochs completed (1-based).
+    pub epoch: usize,
+    /// Total epochs of the run.
+    pub epochs: usize,
+    /// Mean weighted loss over the epoch's samples.
+    pub loss: f64,
+    /// Max over samples of `‖N(x_s) − v_s‖∞`, each measured when the sample was visited
+    /// (weights move during the epoch; [`TrainReport::final_errors`] is exact).
+    pub max_error: f64,
+    /// Mean over samples of `‖N(x_s) − v_s‖∞`, measured likewise.
+    pub mean_error: f64,
+    /// Max over samples of `max |DN − Dv|` (entrywise), when the data have Jacobians.
+    pub max_slope_error: Option<f64>,
+    /// Learning rate used.
+    pub lr: f64,
+    /// Sample visits (data plus hard-example repeats).
+    pub samples: usize,
+    /// Wall-clock seconds of the epoch.
+    pub seconds: f64,
+}
+
+/// Errors of a network on a data set, in f64, over the samples of positive weight.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ErrorStats {
+    /// Samples measured.
+    pub samples: usize,
+    /// `max_s ‖N(x_s) − v_s‖∞`.
+    pub max_error: f64,
+    /// Sample index where `max_error` is attained.
+    pub argmax: usize,
+    /// `mean_s ‖N(x_s) − v_s‖∞`.
+    pub mean_error: f64,
+    /// `max_s ‖N(x_s) − v_s‖₂`.
+    pub max_error_l2: f64,
+    /// `max_s max_ij |DN − Dv|_ij`, when the data have Jacobians.
+    pub max_slope_error: Option<f64>,
+    /// `mean_s max_ij |DN − Dv|_ij`, when the data have Jacobians.
+    pub mean_slope_error: Option<f64>,
+}
+
+/// Per-sample errors of a network on a data set (see [`pointwise_errors`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct PointErrors {
+    /// `‖N(x_s) − v_s‖∞` for every sample.
+    pub value: Vec<f64>,
+    /// `‖N(x_s) − v_s‖₂` for every sample.
+    pub value_l2: Vec<f64>,
+    /// `max_ij |DN(x_s) − Dv_s|_ij` for every sample, when the data have Jacobians.
+    pub slope: Option<Vec<f64>>,
+}
+
+/// The outcome of [`train`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TrainReport {
+    /// One entry per epoch, including those run before a resume.
+    pub epochs: Vec<EpochStats>,
+    /// Errors of the returned (f64) network on the whole data set.
+    pub final_errors: ErrorStats,
+    /// Wall-clock seconds of this call (training and final evaluation).
+    pub seconds: f64,
+    /// Epoch the run resumed from, if it did.
+    pub resumed_from: Option<usize>,
+}
+
+impl TrainReport {
+    /// The report as string metadata for [`Mlp::save_safetensors`]: `max_error`,
+    /// `mean_error`, `max_slope_error`, `epochs`, `final_loss`, and the full report as JSON
+    /// under `train_report`.
+    pub fn metadata(&self) -> BTreeMap<String, String> {
+        let mut m = BTreeMap::new();
+        m.insert("max_error".into(), self.final_errors.max_error.to_string());
+        m.insert(
+            "mean_error".into(),
+            self.final_errors.mean_error.to_string(),
+        );
+        if let Some(s) = self.final_errors.max_slope_error {
+            m.insert("max_slope_error".into(), s.to_string());
+        }
+        m.insert("epochs".into(), self.epochs.len().to_string());
+        if let Some(last) = self.epochs.last() {
+            m.insert("final_loss".into(), last.loss.to_string());
+        }
+        if let Ok(json) = serde_json::to_string(self) {
+            m.insert("train_report".into(), json);
+        }
+        m
+    }
+}
+
+/// Trains `init` on `data`; calls `progress` after every epoch.
+///
+/// Returns the trained network (f64) and a report whose [`TrainReport::final_errors`] are
+/// measured on that network. Writes checkpoints if [`TrainSettings::checkpoint`] is set.
+pub fn train(
+    init: Mlp,
+    data: &Dataset,
+    settings: &TrainSettings,
+    progress: impl FnMut(&EpochStats),
+) -> Result<(Mlp, TrainReport), NetworkError> {
+    check_inputs(&init, data, settings)?;
+    match settings.precision {
+        Precision::F32 => {
+            let state = State::<f32>::fresh(&init, data, settings);
+            run(state, data, settings, progress, None)
+        }
+        Precision::F64 => {
+            let state = State::<f64>::fresh(&init, data, settings);
+            run(state, data, settings, progress, None)
+        }
+    }
+}
+
+/// Continues a run from a checkpoint written by [`train`] with the same data. With the same
+/// settings the result is bitwise that of the uninterrupted run; `settings.epochs` may be
+/// raised to train longer (the cosine schedule then follows the new length).
+pub fn resume(
+    checkpoint: &Path,
+    data: &Dataset,
+    settings: &TrainSettings,
+    progress: impl FnMut(&EpochStats),
+) -> Result<(Mlp, TrainReport), NetworkError> {
+    settings.validate()?;
+    data.validate()?;
+    let bytes = std::fs::read(checkpoint).map_err(|source| NetworkError::Io {
+        path: checkpoint.to_path_buf(),
+        source,
+    })?;
+    match settings.precision {
+        Precision::F32 => {
+            let state = State::<f32>::load(&bytes, checkpoint, data, settings)?;
+            let from = state.epoch;
+            run(state, data, settings, progress, Some(from))
+        }
+        Precision::F64 => {
+            let state = State::<f64>::load(&bytes, checkpoint, data, settings)?;
+            let from = state.epoch;
+            run(state, data, settings, progress, Some(from))
+        }
+    }
+}
+
+/// Errors of `mlp` on `data` in f64, over the samples of positive weight.
+pub fn evaluate(mlp: &Mlp, data: &Dataset) -> Result<ErrorStats, NetworkError> {
+    let pe = pointwise_errors(mlp, data)?;
+    let mut st = ErrorStats {
+        samples: 0,
+        max_error: 0.0,
+        argmax: 0,
+        mean_error: 0.0,
+        max_error_l2: 0.0,
+        max_slope_error: pe.slope.as_ref().map(|_| 0.0),
+        mean_slope_error: pe.slope.as_ref().map(|_| 0.0),
+    };
+    let (mut sum, mut sum_slope) = (0.0, 0.0);
+    for s in 0..data.len() {
+        if data.weight(s) <= 0.0 {
+            continue;
+        }
+        st.samples += 1;
+        sum += pe.value[s];
+        if pe.value[s] > st.max_error {
+            st.max_error = pe.value[s];
+            st.argmax = s;
+        }
+        st.max_error_l2 = st.max_error_l2.max(pe.value_l2[s]);
+        if let Some(sl) = &pe.slope {
+            sum_slope += sl[s];
+            st.max_slope_error = st.max_slope_error.map(|m| m.max(sl[s]));
+        }
+    }
+    let n = st.samples.max(1) as f64;
+    st.mean_error = sum / n;
+    st.mean_slope_error = st.mean_slope_error.map(|_| sum_slope / n);
+    Ok(st)
+}
+
+/// Per-sample value (and, with Jacobians in the data, slope) errors of `mlp` on every sample
+/// of `data`, in f64 — e.g. for a local error bound per cell instead of one global `M_C`.
+pub fn pointwise_errors(mlp: &Mlp, data: &Dataset) -> Result<PointErrors, NetworkError> {
+    mlp.validate("<network>")?;
+    data.validate()?;
+    check_dims(mlp, data)?;
+    let params = to_params::<f64>(mlp);
+    let n = data.len();
+    let tangents = data.jacobians.is_some();
+    let mut ws = Workspace::<f64>::new(params.len());
+    let mut out = PointErrors {
+        value: vec![0.0; n],
+        value_l2: vec![0.0; n],
+        slope: tangents.then(|| vec![0.0; n]),
+    };
+    const CHUNK: usize = 1024;
+    let idx: Vec<usize> = (0..n).collect();
+    for chunk in idx.chunks(CHUNK) {
+        ws.load_inputs(data.n_in, chunk.len(), tangents, |i| data.input(chunk[i]));
+        ws.forward(&params);
+        for (i, &s) in chunk.iter().enumerate() {
+            let e = sample_errors(&ws, data, i, s);
+            out.value[s] = e.value;
+            out.value_l2[s] = e.value_sq.sqrt();
+            if let Some(sl) = &mut out.slope {
+                sl[s] = e.slope;
+            }
+        }
+    }
+    Ok(out)
+}
+
+fn check_dims(mlp: &Mlp, data: &Dataset) -> Result<(), NetworkError> {
+    if mlp.input_dim() != data.n_in || mlp.output_dim() != data.n_out {
+        return Err(NetworkError::Dataset {
+            message: format!(
+                "data are {} → {} but the network {} maps {} → {}",
+                data.n_in,
+                data.n_out,
+                mlp.architecture(),
+                mlp.input_dim(),
+                mlp.output_dim()
+            ),
+        });
+    }
+    Ok(())
+}
+
+fn check_inputs(init: &Mlp, data: &Dataset, settings: &TrainSettings) -> Result<(), NetworkError> {
+    settings.validate()?;
+    data.validate()?;
+    init.validate("<initial network>")?;
+    check_dims(init, data)?;
+    if settings.jacobian_weight > 0.0 && data.jacobians.is_none() {
+        return Err(NetworkError::Settings {
+            message: "jacobian_weight > 0 needs Dataset::jacobians".into(),
+        });
+    }
+    if let Some(i) = init
+        .layers
+        .iter()
+        .flat_map(|l| l.weight.iter().chain(&l.bias))
+        .position(|x| !x.is_finite())
+    {
+        return Err(NetworkError::NonFinite {
+            path: "<initial network>".into(),
+            name: "parameters".into(),
+            index: i,
+        });
+    }
+    Ok(())
+}
+
+/// Errors of sample `s`, sitting at batch row `i` of a forward pass.
+struct SampleErrors {
+    /// `‖e‖∞`.
+    value: f64,
+    /// `‖e‖₂²`.
+    value_sq: f64,
+    /// `max |E|`.
+    slope: f64,
+    /// `‖E‖_F²`.
+    slope_sq: f64,
+}
+
+fn sample_errors<T: Scalar>(ws: &Workspace<T>, data: &Dataset, i: usize, s: usize) -> SampleErrors {
+    let (n, m, b) = (data.n_in, data.n_out, ws.b);
+    let mut e = SampleErrors {
+        value: 0.0,
+        value_sq: 0.0,
+        slope: 0.0,
+        slope_sq: 0.0,
+    };
+    for (o, &t) in data.target(s).iter().enumerate() {
+        let d = ws.out[i * m + o].to_f64() - t;
+        e.value = e.value.max(d.abs());
+        e.value_sq += d * d;
+    }
+    if ws.r > 1 {
+        if let Some(jac) = &data.jacobians {
+            let dv = &jac[s * m * n..(s + 1) * m * n];
+            for j in 0..n {
+                for o in 0..m {
+                    let d = ws.out[((j + 1) * b + i) * m + o].to_f64() - dv[o * n + j];
+                    e.slope = e.slope.max(d.abs());
+                    e.slope_sq += d * d;
+                }
+            }
+        }
+    }
+    e
+}
+
+/// Everything a run needs to continue: the checkpoint contents.
+struct State<T> {
+    params: Vec<Params<T>>,
+    adam: Adam<T>,
+    /// Epochs completed.
+    epoch: usize,
+    /// Per-sample loss from the last visit (hard-example scores).
+    score: Vec<f64>,
+    history: Vec<EpochStats>,
+}
+
+const CHECKPOINT_FORMAT: &str = "cbfreach-train-checkpoint";
+
+impl<T: Scalar> State<T> {
+    fn fresh(init: &Mlp, data: &Dataset, s: &TrainSettings) -> Self {
+        let params = to_params::<T>(init);
+        let adam = Adam::new(&params, s.adam_beta1, s.adam_beta2, s.adam_eps);
+        State {
+            params,
+            adam,
+            epoch: 0,
+            score: vec![0.0; data.len()],
+            history: Vec::new(),
+        }
+    }
+
+    fn to_bytes(&self, settings: &TrainSettings, path: &Path) -> Result<Vec<u8>, NetworkError> {
+        let mut t: Vec<RawTensor> = Vec::new();
+        let groups = [
+            ("net", &self.params),
+            ("adam_m", &self.adam.m),
+            ("adam_v", &self.adam.v),
+        ];
+        for (g, ps) in groups {
+            for (k, p) in ps.iter().enumerate() {
+                t.push((
+                    format!("{g}.{k}.weight"),
+                    T::DTYPE,
+                    vec![p.n_out, p.n_in],
+                    T::to_bytes(&p.w),
+                ));
+                t.push((
+                    format!("{g}.{k}.bias"),
+                    T::DTYPE,
+                    vec![p.n_out],
+                    T::to_bytes(&p.b),
+                ));
+            }
+        }
+        t.push((
+            "score".into(),
+            safetensors::Dtype::F64,
+            vec![self.score.len()],
+            super::io::f64_bytes(&self.score),
+        ));
+        let mut meta = HashMap::new();
+        meta.insert("format".into(), CHECKPOINT_FORMAT.into());
+        meta.insert("epoch".into(), self.epoch.to_string());
+        meta.insert("adam_t".into(), self.adam.t.to_string());
+        meta.insert("architecture".into(), to_mlp(&self.params).architecture());
+        meta.insert("samples".into(), self.score.len().to_string());
+        let json = |e: serde_json::Error| NetworkError::Format {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        };
+        meta.insert(
+            "precision".into(),
+            serde_json::to_string(&settings.precision).map_err(json)?,
+        );
+        meta.insert(
+            "settings".into(),
+            serde_json::to_string(settings).map_err(json)?,
+        );
+        meta.insert(
+            "history".into(),
+            serde_json::to_string(&self.history).map_err(json)?,
+        );
+        serialize(&t, meta, path)
+    }
+
+    fn load(
+        bytes: &[u8],
+        path: &Path,
+        data: &Dataset,
+        settings: &TrainSettings,
+    ) -> Result<Self, NetworkError> {
+        let raw = RawTensors::parse(bytes, path)?;
+        let mismatch = |message: String| NetworkError::Checkpoint {
+            path: path.to_path_buf(),
+            message,
+        };
+        let meta = |key: &str| {
+            raw.metadata
+                .get(key)
+                .cloned()
+                .ok_or_else(|| mismatch(format!("metadata key `{key}` missing")))
+        };
+        if meta("format")? != CHECKPOINT_FORMAT {
+            return Err(mismatch("not a cbfreach training checkpoint".into()));
+        }
+        let precision: Precision = serde_json::from_str(&meta("precision")?)
+            .map_err(|e| mismatch(format!("bad precision: {e}")))?;
+        if precision != settings.precision {
+            return Err(mismatch(format!(
+                "checkpoint precision {precision:?}, settings ask for {:?}",
+                settings.precision
+            )));
+        }
+        let num = |key: &str| {
+            meta(key)?
+                .parse::<u64>()
+                .map_err(|e| mismatch(format!("metadata `{key}`: {e}")))
+        };
+        let epoch = num("epoch")? as usize;
+        let adam_t = num("adam_t")?;
+        let history: Vec<EpochStats> = serde_json::from_str(&meta("history")?)
+            .map_err(|e| mismatch(format!("bad history: {e}")))?;
+        let score = raw.f64s("score")?;
+        if score.len() != data.len() {
+            return Err(mismatch(format!(
+                "checkpoint was written for {} samples, the data have {}",
+                score.len(),
+                data.len()
+            )));
+        }
+        let read_group = |g: &str| -> Result<Vec<Params<T>>, NetworkError> {
+            let mut out = Vec::new();
+            let mut prev: Option<usize> = None;
+            for k in 0.. {
+                let wn = format!("{g}.{k}.weight");
+                let shape = match raw.shape(&wn) {
+                    Ok(s) => s,
+                    Err(_) => break,
+                };
+                let bn = format!("{g}.{k}.bias");
+                let w = T::read(&raw, &wn)?;
+                let b = T::read(&raw, &bn)?;
+                if shape.len() != 2
+                    || prev.is_some_and(|p| p != shape[1])
+                    || b.len() != shape[0]
+                    || w.len() != shape[0] * shape[1]
+                {
+                    return Err(NetworkError::Shape {
+                        path: path.to_path_buf(),
+                        name: wn,
+                        expected: vec![b.len(), prev.unwrap_or(shape.last().copied().unwrap_or(0))],
+                        found: shape,
+                    });
+                }
+                prev = Some(shape[0]);
+                out.push(Params {
+                    w,
+                    b,
+                    n_in: shape[1],
+                    n_out: shape[0],
+                });
+            }
+            Ok(out)
+        };
+        let params = read_group("net")?;
+        if params.is_empty() {
+            return Err(NetworkError::Empty);
+        }
+        let m = read_group("adam_m")?;
+        let v = read_group("adam_v")?;
+        let dims = |ps: &[Params<T>]| ps.iter().map(|p| (p.n_in, p.n_out)).collect::<Vec<_>>();
+        if dims(&m) != dims(&params) || dims(&v) != dims(&params) {
+            return Err(mismatch(
+                "Adam moments do not match the network's shapes".into(),
+            ));
+        }
+        check_dims(&to_mlp(&params), data)?;
+        let adam = Adam {
+            m,
+            v,
+            t: adam_t,
+            beta1: settings.adam_beta1,
+            beta2: settings.adam_beta2,
+            eps: settings.adam_eps,
+        };
+        Ok(State {
+            params,
+            adam,
+            epoch,
+            score,
+            history,
+        })
+    }
+
+    fn save(&self, settings: &TrainSettings, path: &Path) -> Result<(), NetworkError> {
+        let bytes = self.to_bytes(settings, path)?;
+        write_atomically(path, &bytes)
+    }
+}
+
+/// The sample order of epoch `e`: every sample of positive weight, plus (late in training) the
+/// hardest `fraction`, shuffled together.
+fn epoch_order(e: usize, active: &[usize], score: &[f64], settings: &TrainSettings) -> Vec<usize> {
+    let mut order = active.to_vec();
+    if settings.hard_examples_on(e) {
+        let k = ((settings.hard_example_fraction * active.len() as f64).round() as usize)
+            .min(active.len());
+        if k > 0 {
+            let mut ranked = active.to_vec();
+            // Total order: larger score first, then lower index.
+            let cmp = |a: &usize, b: &usize| score[*b].total_cmp(&score[*a]).then(a.cmp(b));
+            if k < ranked.len() {
+                ranked.select_nth_unstable_by(k - 1, cmp);
+            }
+            let mut hard = ranked[..k].to_vec();
+            hard.sort_unstable();
+            order.extend(hard);
+        }
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
+    rng.set_stream(e as u64);
+    order.shuffle(&mut rng);
+    order
+}
+
+fn run<T: Scalar>(
+    mut st: State<T>,
+    data: &Dataset,
+    settings: &TrainSettings,
+    mut progress: impl FnMut(&EpochStats),
+    resumed_from: Option<usize>,
+) -> Result<(Mlp, TrainReport), NetworkError> {
+    let t_start = Instant::now();
+    let (n_in, n_out) = (data.n_in, data.n_out);
+    let lambda = settings.jacobian_weight;
+    let tangents = lambda > 0.0;
+    let active: Vec<usize> = (0..data.len()).filter(|&s| data.weight(s) > 0.0).collect();
+    let mut ws = Workspace::<T>::new(st.params.len());
+    let mut grads: Vec<Params<T>> = st.params.iter().map(|p| p.zeros_like()).collect();
+    let mut value_err = vec![0.0f64; data.len()];
+    let mut slope_err = vec![0.0f64; data.len()];
+    let has_jac = data.jacobians.is_some();
+
+    while st.epoch < settings.epochs {
+        let e = st.epoch;
+        let t0 = Instant::now();
+        let lr = settings.lr_at(e);
+        let order = epoch_order(e, &active, &st.score, settings);
+        let mut loss_sum = 0.0;
+        for batch in order.chunks(settings.batch_size) {
+            let b = batch.len();
+            ws.load_inputs(n_in, b, tangents, |i| data.input(batch[i]));
+            ws.forward(&st.params);
+            // ∂L/∂out, L = (1/b) Σ w_s (‖e‖² + λ‖E‖²).
+            ws.g.clear();
+            ws.g.resize(ws.out.len(), T::ZERO);
+            let r = ws.r;
+            for (i, &s) in batch.iter().enumerate() {
+                let w = data.weight(s);
+                let c = 2.0 * w / b as f64;
+                for (o, &t) in data.target(s).iter().enumerate() {
+                    let d = ws.out[i * n_out + o].to_f64() - t;
+                    ws.g[i * n_out + o] = T::from_f64(c * d);
+                }
+                if r > 1 {
+                    if let Some(jac) = &data.jacobians {
+                        let dv = &jac[s * n_out * n_in..(s + 1) * n_out * n_in];
+                        for j in 0..n_in {
+                            for o in 0..n_out {
+                                let row = ((j + 1) * b + i) * n_out + o;
+                                let d = ws.out[row].to_f64() - dv[o * n_in + j];
+                                ws.g[row] = T::from_f64(c * lambda * d);
+                            }
+                        }
+                    }
+                }
+                let se = sample_errors(&ws, data, i, s);
+                let l = w * (se.value_sq + lambda * se.slope_sq);
+                loss_sum += l;
+                st.score[s] = l;
+                value_err[s] = se.value;
+                slope_err[s] = se.slope;
+            }
+            ws.backward(&st.params, &mut grads);
+            st.adam.step(&mut st.params, &grads, lr);
+        }
+        // Slope errors of an epoch without tangents: measure them on demand only at the end.
+        let (mut max_e, mut sum_e, mut max_s) = (0.0f64, 0.0, 0.0f64);
+        for &s in &active {
+            max_e = max_e.max(value_err[s]);
+            sum_e += value_err[s];
+            max_s = max_s.max(slope_err[s]);
+        }
+        st.epoch += 1;
+        let stats = EpochStats {
+            epoch: st.epoch,
+            epochs: settings.epochs,
+            loss: loss_sum / order.len().max(1) as f64,
+            max_error: max_e,
+            mean_error: sum_e / active.len().max(1) as f64,
+            max_slope_error: (has_jac && tangents).then_some(max_s),
+            lr,
+            samples: order.len(),
+            seconds: t0.elapsed().as_secs_f64(),
+        };
+        if !stats.loss.is_finite() {
+            return Err(NetworkError::Settings {
+                message: format!(
+                    "training diverged at epoch {} (loss {}); lower learning_rate",
+                    st.epoch, stats.loss
+                ),
+            });
+        }
+        st.history.push(stats.clone());
+        progress(&stats);
+        if let Some(path) = &settings.checkpoint {
+            let periodic =
+                settings.checkpoint_every > 0 && st.epoch % settings.checkpoint_every == 0;
+            if periodic || st.epoch == settings.epochs {
+                st.save(settings, path)?;
+            }
+        }
+    }
+    let mlp = to_mlp(&st.params);
+    let final_errors = evaluate(&mlp, data)?;
+    let report = TrainReport {
+        epochs: st.history,
+        final_errors,
+        seconds: t_start.elapsed().as_secs_f64(),
+        resumed_from,
+    };
+    Ok((mlp, report))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `v(x) = (sin x₁, x₁ x₂)` on an `k × k` grid over `[−1, 1]²`, with `Dv`.
+    fn smooth_data(k: usize) -> Dataset {
+        let mut d = Dataset {
+            n_in: 2,
+            n_out: 2,
+            jacobians: Some(Vec::new()),
+            ..Default::default()
+        };
+        for i in 0..k {
+            for j in 0..k {
+                let x1 = -1.0 + 2.0 * i as f64 / (k - 1) as f64;
+                let x2 = -1.0 + 2.0 * j as f64 / (k - 1) as f64;
+                d.inputs.extend([x1, x2]);
+                d.targets.extend([x1.sin(), x1 * x2]);
+                if let Some(jac) = &mut d.jacobians {
+                    jac.extend([x1.cos(), 0.0, x2, x1]);
+                }
+            }
+        }
+        d
+    }
+
+    fn quick(epochs: usize, lambda: f64) -> TrainSettings {
+        TrainSettings {
+            epochs,
+            batch_size: 32,
+            learning_rate: 1e-2,
+            lr_min: 1e-4,
+            jacobian_weight: lambda,
+            seed: 7,
+            ..Default::default()
+        }
+    }
+
+    /// Worst slope error on a finer off-grid set, from `Mlp::jacobian`.
+    fn max_slope_error(mlp: &Mlp) -> f64 {
+        let mut worst = 0.0f64;
+        for i in 0..41 {
+            for j in 0..41 {
+                let x1 = -0.99 + 1.98 * i as f64 / 40.0;
+                let x2 = -0.99 + 1.98 * j as f64 / 40.0;
+                let jn = mlp.jacobian(&[x1, x2]);
+                let jv = [x1.cos(), 0.0, x2, x1];
+                for (a, b) in jn.iter().zip(jv) {
+                    worst = worst.max((a - b).abs());
+                }
+            }
+        }
+        worst
+    }
+
+    #[test]
+    fn fits_a_smooth_function() {
+        let data = smooth_data(21);
+        let mut calls = 0;
+        let (mlp, rep) = train(
+            Mlp::random(&[2, 16, 16, 2], 1),
+            &data,
+            &quick(150, 0.0),
+            |s| {
+                calls += 1;
+                assert_eq!(s.epoch, calls);
+            },
+        )
+        .unwrap();
+        assert_eq!(calls, 150);
+        assert_eq!(rep.epochs.len(), 150);
+        // The returned network is what the report measured.
+        assert_eq!(evaluate(&mlp, &data).unwrap(), rep.final_errors);
+        eprintln!("fit: {:?}", rep.final_errors);
+        assert!(rep.final_errors.max_error < 0.05, "{:?}", rep.final_errors);
+        assert!(rep.final_errors.mean_error < 0.01, "{:?}", rep.final_errors);
+        assert!(rep.epochs[149].loss < rep.epochs[0].loss / 100.0);
+    }
+
+    #[test]
+    fn jacobian_term_lowers_slope_error() {
+        let data = smooth_data(21);
+        let init = Mlp::random(&[2, 16, 16, 2], 3);
+        let (plain, rp) = train(init.clone(), &data, &quick(150, 0.0), |_| {}).unwrap();
+        let (sob, rs) = train(init, &data, &quick(150, 0.1), |_| {}).unwrap();
+        let (ep, es) = (max_slope_error(&plain), max_slope_error(&sob));
+        eprintln!(
+            "slope error max: plain {ep:.3} (data {:?}), sobolev {es:.3} (data {:?}); value max {:.4} vs {:.4}",
+            rp.final_errors.max_slope_error,
+            rs.final_errors.max_slope_error,
+            rp.final_errors.max_error,
+            rs.final_errors.max_error
+        );
+        assert!(es < ep, "Sobolev {es} not below plain {ep}");
+        assert!(rs.final_errors.max_slope_error < rp.final_errors.max_slope_error);
+        assert!(rs.final_errors.max_error < 0.1, "{:?}", rs.final_errors);
+    }
+
+    #[test]
+    fn same_seed_is_bitwise_identical_and_f64_works() {
+        let data = smooth_data(9);
+        for precision in [Precision::F32, Precision::F64] {
+            let s = TrainSettings {
+                precision,
+                hard_example_start: 0.3,
+                ..quick(10, 0.1)
+            };
+            let init = Mlp::random(&[2, 16, 16, 2], 2);
+            let (a, _) = train(init.clone(), &data, &s, |_| {}).unwrap();
+            let (b, _) = train(init.clone(), &data, &s, |_| {}).unwrap();
+            assert_eq!(a, b);
+            let (c, _) = train(init, &data, &TrainSettings { seed: 8, ..s }, |_| {}).unwrap();
+            assert_ne!(a, c);
+        }
+    }
+
+    #[test]
+    fn resume_matches_uninterrupted_run() {
+        let data = smooth_data(9);
+        let dir = std::env::temp_dir().join(format!("cbfreach-train-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let ck = dir.join("ck.safetensors");
+        let init = Mlp::random(&[2, 16, 16, 2], 4);
+        for precision in [Precision::F32, Precision::F64] {
+            let full = TrainSettings {
+                precision,
+                hard_example_start: 0.2,
+                ..quick(12, 0.1)
+            };
+            let (a, ra) = train(init.clone(), &data, &full, |_| {}).unwrap();
+            // Interrupt at epoch 5: the checkpoint written after epoch 5 is copied away when
+            // epoch 6 reports (checkpoints are written after the progress callback).
+            let part = TrainSettings {
+                checkpoint: Some(ck.clone()),
+                checkpoint_every: 5,
+                ..full.clone()
+            };
+            let ck5 = dir.join("ck5.safetensors");
+            train(init.clone(), &data, &part, |s| {
+                if s.epoch == 6 {
+                    std::fs::copy(&ck, &ck5).unwrap();
+                }
+            })
+            .unwrap();
+            let mut seen = Vec::new();
+            let (b, rb) = resume(&ck5, &data, &full, |s| seen.push(s.epoch)).unwrap();
+            assert_eq!(seen, (6..=12).collect::<Vec<_>>());
+            assert_eq!(a, b);
+            assert_eq!(rb.resumed_from, Some(5));
+            assert_eq!(rb.epochs.len(), 12);
+            assert_eq!(ra.epochs[..5], rb.epochs[..5]);
+            // Resuming the final checkpoint has nothing left to do.
+            let (c, _) = resume(&ck, &data, &full, |_| panic!("no epochs left")).unwrap();
+            assert_eq!(a, c);
+            assert_eq!(ra.final_errors, rb.final_errors);
+        }
+    }
+}

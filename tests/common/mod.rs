@@ -1,0 +1,47 @@
+//! Fixtures shared by the integration tests.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+
+use cbfreach::scenario::Scenario;
+
+/// Path of a shipped scenario file.
+pub fn scenario_path(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("scenarios")
+        .join(name)
+}
+
+/// The paper's scenario 1.
+pub fn integrator() -> Scenario {
+    Scenario::load(&scenario_path("integrator.toml")).expect("scenario 1 loads")
+}
+
+/// The paper's scenario 2.
+pub fn double_integrator() -> Scenario {
+    Scenario::load(&scenario_path("double-integrator.toml")).expect("scenario 2 loads")
+}
+
+/// Compiles scenario text given inline (errors carry the name `test.toml`).
+pub fn from_text(text: &str) -> Result<Scenario, cbfreach::scenario::ScenarioError> {
+    Scenario::from_toml(text, "test.toml", Path::new("."))
+}
+
+/// A small valid scenario as text, to be broken by the error tests.
+pub const SMALL: &str = r#"
+name = "small"
+[system]
+states = ["x", "y"]
+inputs = ["u"]
+f = ["y", "-x"]
+g = [["0"], ["1"]]
+kappa = ["-x - y"]
+[[cbf]]
+h = "y + 2"
+[reach]
+region = { lower = [-1, -1], upper = [1, 1] }
+m_c = 0.1
+dt = 0.05
+horizon = 1.0
+goal = { lower = [-0.1, -0.1], upper = [0.1, 0.1] }
+"#;

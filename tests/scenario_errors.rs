@@ -1,0 +1,128 @@
+//! Every class of bad scenario input gives an error naming the file, the key and what was
+//! expected (and, for expressions, the column).
+
+mod common;
+
+use cbfreach::filter::{FilterError, SafetyFilter};
+use common::{from_text, SMALL};
+
+/// The error message for `SMALL` with `from` replaced by `to`.
+fn error_for(from: &str, to: &str) -> String {
+    assert!(SMALL.contains(from), "fixture lacks `{from}`");
+    match from_text(&SMALL.replacen(from, to, 1)) {
+        Ok(_) => panic!("`{to}` was accepted"),
+        Err(e) => e.to_string(),
+    }
+}
+
+fn assert_mentions(message: &str, parts: &[&str]) {
+    for p in parts {
+        assert!(message.contains(p), "`{message}` does not mention `{p}`");
+    }
+}
+
+#[test]
+fn the_fixture_is_valid() {
+    let s = from_text(SMALL).expect("valid");
+    assert_eq!((s.n(), s.m()), (2, 1));
+    assert_eq!(s.reach.steps(), 20);
+}
+
+#[test]
+fn unknown_symbol_names_key_and_column() {
+    let m = error_for(r#"kappa = ["-x - y"]"#, r#"kappa = ["-x - z"]"#);
+    assert_mentions(&m, &["test.toml", "system.kappa[0]", "column 6", "z"]);
+}
+
+#[test]
+fn malformed_expression_names_column() {
+    let m = error_for(r#"h = "y + 2""#, r#"h = "y + * 2""#);
+    assert_mentions(&m, &["test.toml", "cbf[0].h", "column"]);
+    let m = error_for(r#"h = "y + 2""#, r#"h = "(y + 2""#);
+    assert_mentions(&m, &["cbf[0].h", "column"]);
+    let m = error_for(r#"h = "y + 2""#, r#"h = "y^0.5""#);
+    assert_mentions(&m, &["cbf[0].h", "integer"]);
+}
+
+#[test]
+fn wrong_dimension_of_g() {
+    let m = error_for(r#"g = [["0"], ["1"]]"#, r#"g = [["0"], ["1", "2"]]"#);
+    assert_mentions(&m, &["test.toml", "system.g[1]", "expected 1"]);
+    let m = error_for(r#"g = [["0"], ["1"]]"#, r#"g = [["0"]]"#);
+    assert_mentions(&m, &["system.g", "expected 2 rows"]);
+    let m = error_for(r#"f = ["y", "-x"]"#, r#"f = ["y"]"#);
+    assert_mentions(&m, &["system.f", "expected 2"]);
+}
+
+#[test]
+fn empty_or_inverted_boxes() {
+    let m = error_for("lower = [-1, -1], upper = [1, 1]", "lower = [1, -1], upper = [-1, 1]");
+    assert_mentions(&m, &["test.toml", "reach.region", "inverted", "coordinate 0"]);
+    let m = error_for("lower = [-1, -1], upper = [1, 1]", "lower = [-1], upper = [1]");
+    assert_mentions(&m, &["reach.region", "length 2"]);
+    let m = error_for(
+        "goal = { lower = [-0.1, -0.1], upper = [0.1, 0.1] }",
+        "goal = { lower = [-0.1, 0.2], upper = [0.1, 0.1] }",
+    );
+    assert_mentions(&m, &["reach.goal", "inverted", "coordinate 1"]);
+}
+
+#[test]
+fn non_positive_dt_and_horizon() {
+    assert_mentions(&error_for("dt = 0.05", "dt = 0"), &["reach.dt", "dt > 0"]);
+    assert_mentions(&error_for("dt = 0.05", "dt = -1"), &["reach.dt", "dt > 0"]);
+    assert_mentions(&error_for("horizon = 1.0", "horizon = -2"), &["reach.horizon"]);
+    assert_mentions(&error_for("dt = 0.05", "dt = nan"), &["reach.dt", "finite"]);
+}
+
+#[test]
+fn bad_settings_and_unknown_keys() {
+    assert_mentions(&error_for("m_c = 0.1", "m_c = -0.1"), &["reach.m_c"]);
+    assert_mentions(&error_for("m_c = 0.1", r#"m_c = "guessed""#), &["reach.m_c", "certified"]);
+    assert_mentions(
+        &error_for("m_c = 0.1", "m_c = 0.1\nnorm = \"3\""),
+        &["reach.norm", "\"inf\""],
+    );
+    // A typo in a key is caught, not ignored.
+    assert_mentions(&error_for("dt = 0.05", "dtt = 0.05"), &["test.toml", "dtt"]);
+    // Invalid TOML says where.
+    assert_mentions(&error_for("dt = 0.05", "dt = = 0.05"), &["test.toml", "line"]);
+    assert_mentions(
+        &error_for(r#"states = ["x", "y"]"#, r#"states = ["x", "x"]"#),
+        &["system.states[1]", "twice"],
+    );
+    assert_mentions(
+        &error_for("[[cbf]]\nh = \"y + 2\"", "[[cbf]]\nh = \"y + 2\"\nalpha = 0"),
+        &["cbf[0].alpha", "positive"],
+    );
+}
+
+#[test]
+fn network_architecture_must_match_the_system() {
+    let text = format!("{SMALL}\n[network]\nfile = \"n.safetensors\"\narchitecture = [2, 8, 2]\n");
+    let m = from_text(&text).expect_err("m = 1 but the network has 2 outputs").to_string();
+    assert_mentions(&m, &["network.architecture", "2×…×1"]);
+}
+
+#[test]
+fn cbf_not_differentiable_where_evaluated() {
+    let s = from_text(&SMALL.replace(r#"h = "y + 2""#, r#"h = "abs(x) + y + 2""#)).unwrap();
+    let filter = SafetyFilter::new(&s);
+    // Smooth away from x = 0 ...
+    assert!(filter.eval(&[0.5, 0.0]).is_ok());
+    // ... and at the kink the filter says so instead of using a made-up gradient.
+    match filter.eval(&[0.0, 0.0]) {
+        Err(FilterError::NotDifferentiable { what, x }) => {
+            assert!(what.contains("h1"), "{what}");
+            assert_eq!(x, vec![0.0, 0.0]);
+        }
+        other => panic!("expected NotDifferentiable, got {other:?}"),
+    }
+}
+
+#[test]
+fn missing_file_names_the_file() {
+    let e = cbfreach::scenario::Scenario::load(std::path::Path::new("no/such/file.toml"))
+        .expect_err("missing");
+    assert_mentions(&e.to_string(), &["no/such/file.toml", "cannot read"]);
+}
