@@ -3,11 +3,15 @@
 /// Every error cbfreach's library can return.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
-    // WIP-LEAD-SCENARIO
+    /// A scenario file could not be read or is invalid.
+    #[error(transparent)]
+    Scenario(#[from] crate::scenario::ScenarioError),
     /// A network file could not be read or is invalid.
     #[error(transparent)]
     Network(#[from] crate::network::NetworkError),
-    // WIP-LEAD-FILTER
+    /// The safety filter could not be evaluated.
+    #[error(transparent)]
+    Filter(#[from] crate::filter::FilterError),
     /// Reading or writing a file failed.
     #[error("{path}: {source}")]
     Io {

@@ -284,6 +284,60 @@ fn clamp_scalar(rows: &ConstraintRows, x: &[f64]) -> Result<Vec<f64>, FilterErro
     Ok(vec![0.0_f64.clamp(lo, hi)])
 }
 
+/// The exact minimiser, from the active sets that clarabel's answer makes plausible.
+///
+/// Candidates are the rows that are nearly tight at clarabel's `θ` or carry a multiplier; every
+/// subset `A` of at most m of them gives a candidate from [`kkt_point`], and the unique KKT
+/// point is the one with multipliers `μ ≥ 0` that satisfies every row. `None` if no subset qualifies (then
+/// clarabel's own answer, accurate to its tolerance, is used).
+fn polish(rows: &ConstraintRows, m: usize, x: &[f64], z: &[f64]) -> Option<Vec<f64>> {
+    let k = rows.q.len();
+    let slack = |k: usize| rows.q[k] - (0..m).map(|j| rows.g[k * m + j] * x[j]).sum::<f64>();
+    let candidates: Vec<usize> = (0..k)
+        .filter(|&r| z[r] > 1e-9 || slack(r) <= 1e-6 * rows.q[r].abs().max(1.0))
+        .collect();
+    if candidates.len() > 12 {
+        return None;
+    }
+    let mut best: Option<Vec<f64>> = None;
+    for mask in 0u32..(1 << candidates.len()) {
+        if mask.count_ones() as usize > m {
+            continue;
+        }
+        let active: Vec<usize> = (0..candidates.len())
+            .filter(|b| mask >> b & 1 == 1)
+            .map(|b| candidates[b])
+            .collect();
+        let Some(theta) = kkt_point(rows, m, &active) else {
+            continue;
+        };
+        let holds = (0..k).all(|r| {
+            let lhs: f64 = (0..m).map(|j| rows.g[r * m + j] * theta[j]).sum();
+            lhs <= rows.q[r] + 1e-10 * rows.q[r].abs().max(1.0)
+        });
+        let norm = |t: &[f64]| t.iter().map(|v| v * v).sum::<f64>();
+        if holds && best.as_ref().is_none_or(|b| norm(&theta) < norm(b)) {
+            best = Some(theta);
+        }
+    }
+    best
+}
+
+/// The KKT point for the active set `A`: stationarity `θ = −G_Aᵀ μ` and `G_A θ = q_A` give
+/// `μ = −(G_A G_Aᵀ)⁻¹ q_A`, which must be `≥ 0`; `None` otherwise.
+fn kkt_point(rows: &ConstraintRows, m: usize, active: &[usize]) -> Option<Vec<f64>> {
+    if active.is_empty() {
+        return Some(vec![0.0; m]);
+    }
+    let ga = nalgebra::DMatrix::from_fn(active.len(), m, |r, j| rows.g[active[r] * m + j]);
+    let qa = nalgebra::DVector::from_iterator(active.len(), active.iter().map(|&r| rows.q[r]));
+    let mu = -(&ga * ga.transpose()).lu().solve(&qa)?;
+    if mu.iter().any(|&l| !(l >= 0.0)) {
+        return None;
+    }
+    Some((-(ga.transpose() * mu)).iter().copied().collect())
+}
+
 /// The general QP `min ½‖θ‖² s.t. G θ ≤ q` by clarabel.
 fn solve_qp(rows: &ConstraintRows, m: usize, x: &[f64]) -> Result<Vec<f64>, FilterError> {
     let k = rows.q.len();
@@ -301,9 +355,9 @@ fn solve_qp(rows: &ConstraintRows, m: usize, x: &[f64]) -> Result<Vec<f64>, Filt
     let cones = [SupportedConeT::NonnegativeConeT(k)];
     let settings = DefaultSettingsBuilder::default()
         .verbose(false)
-        .tol_gap_abs(1e-12)
-        .tol_gap_rel(1e-12)
-        .tol_feas(1e-12)
+        .tol_gap_abs(1e-10)
+        .tol_gap_rel(1e-10)
+        .tol_feas(1e-10)
         .build()
         .map_err(|e| FilterError::Solver {
             status: format!("settings: {e}"),
@@ -318,8 +372,15 @@ fn solve_qp(rows: &ConstraintRows, m: usize, x: &[f64]) -> Result<Vec<f64>, Filt
             }
         })?;
     solver.solve();
-    match solver.solution.status {
-        SolverStatus::Solved | SolverStatus::AlmostSolved => Ok(solver.solution.x.clone()),
+    let sol = &solver.solution;
+    match sol.status {
+        SolverStatus::Solved | SolverStatus::AlmostSolved | SolverStatus::InsufficientProgress
+            if sol.x.iter().all(|v| v.is_finite()) =>
+        {
+            // Interior-point answers are accurate to the tolerance; the active set they reveal
+            // gives the exact minimiser, which we keep when it passes the KKT conditions.
+            Ok(polish(rows, m, &sol.x, &sol.z).unwrap_or_else(|| sol.x.clone()))
+        }
         SolverStatus::PrimalInfeasible | SolverStatus::AlmostPrimalInfeasible => {
             Err(FilterError::Infeasible {
                 x: x.to_vec(),

@@ -12,14 +12,16 @@
 
 pub mod bounds;
 pub mod boxes;
-// WIP-LEAD pub mod equilibria;
+pub mod dataset;
+pub mod equilibria;
 pub mod error;
 pub mod expressions;
-// WIP-LEAD pub mod filter;
+pub mod filter;
 pub mod intervals;
 pub mod network;
-// WIP-LEAD pub mod scenario;
-// WIP-LEAD pub mod simulate;
+pub mod reach;
+pub mod scenario;
+pub mod simulate;
 
 pub use error::Error;
 pub use boxes::IntervalBox;

@@ -26,6 +26,12 @@ enum Command {
     },
     /// Simulate the filtered system from points or from random samples of a box.
     Simulate(cli::simulate::SimulateArgs),
+    /// Evaluate the filter v on the training grid (with its Jacobian).
+    Dataset(cli::train::DatasetArgs),
+    /// Train the surrogate ReLU network N ≈ v and save it as safetensors.
+    Train(cli::train::TrainArgs),
+    /// Reachable sets of the filtered system from the scenario's initial boxes.
+    Reach(cli::reach::ReachArgs),
     /// Find, classify and list the equilibria of the filtered system inside C.
     Equilibria {
         /// The scenario file (TOML).
@@ -42,6 +48,9 @@ fn main() -> ExitCode {
         None => cli::report::run_default(),
         Some(Command::Check { scenario }) => cli::check::run(&scenario),
         Some(Command::Simulate(a)) => cli::simulate::run(&a),
+        Some(Command::Reach(a)) => cli::reach::run(&a),
+        Some(Command::Dataset(a)) => cli::train::run_dataset(&a),
+        Some(Command::Train(a)) => cli::train::run_train(&a),
         Some(Command::Equilibria { scenario, json }) => cli::equilibria::run(&scenario, json),
     };
     match result {

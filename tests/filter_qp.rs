@@ -60,8 +60,7 @@ fn scalar_closed_form_matches_clarabel() {
 
 #[test]
 fn scalar_closed_form_with_input_bounds_matches_clarabel() {
-    let s = from_text(&format!("{SMALL}\ninput_bounds = {{ lower = [-1.5], upper = [2.0] }}\n"))
-        .unwrap();
+    let s = from_text(&format!("{SMALL}\n[input_bounds]\nlower = [-1.5]\nupper = [2.0]\n")).unwrap();
     let qp = SafetyFilter::with_method(&s, FilterMethod::Qp);
     let closed = SafetyFilter::new(&s);
     let (mut feasible, mut infeasible) = (0, 0);
@@ -96,7 +95,9 @@ kappa = ["-x1", "-x2"]
 h = "(x1 - 2)^2 + x2^2 - 1"
 [[cbf]]
 h = "(x1 + 1)^2 + (x2 - 2)^2 - 0.5"
-input_bounds = { lower = [-4, -4], upper = [4, 4] }
+[input_bounds]
+lower = [-4, -4]
+upper = [4, 4]
 [reach]
 region = { lower = [-3, -3], upper = [4, 4] }
 m_c = 0
@@ -133,8 +134,7 @@ fn infeasible_qp_is_reported_not_zeroed() {
     let text = SMALL
         .replace(r#"h = "y + 2""#, r#"h = "y - 2""#)
         .replace("m_c = 0.1", "m_c = 0.1\n");
-    let s = from_text(&format!("{text}\ninput_bounds = {{ lower = [-0.1], upper = [0.1] }}\n"))
-        .unwrap();
+    let s = from_text(&format!("{text}\n[input_bounds]\nlower = [-0.1]\nupper = [0.1]\n")).unwrap();
     let x = [0.0, 0.0]; // h = −2: the CBF condition needs u ≥ 2 − (−x − y) …, beyond 0.1
     for f in [SafetyFilter::new(&s), SafetyFilter::with_method(&s, FilterMethod::Qp)] {
         match f.eval(&x) {

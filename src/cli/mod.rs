@@ -2,8 +2,10 @@
 
 pub mod check;
 pub mod equilibria;
+pub mod reach;
 pub mod report;
 pub mod simulate;
+pub mod train;
 
 use std::path::Path;
 
@@ -15,6 +17,17 @@ pub type CliResult = Result<(), Box<dyn std::error::Error>>;
 /// Loads a scenario file.
 pub fn load_scenario(path: &Path) -> Result<Scenario, Box<dyn std::error::Error>> {
     Ok(Scenario::load(path)?)
+}
+
+/// A progress bar on standard error (hidden when it is not a terminal).
+pub fn progress_bar(len: u64, what: &str) -> indicatif::ProgressBar {
+    let bar = indicatif::ProgressBar::new(len);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{spinner} {msg} [{bar:40}] {pos}/{len} {elapsed}")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    bar.set_message(what.to_string());
+    bar
 }
 
 /// Parses `a,b,c` into numbers, naming the option on error.
@@ -30,6 +43,10 @@ pub fn parse_point(option: &str, text: &str) -> Result<Vec<f64>, String> {
 
 /// Formats a vector compactly: `(1.000, -2.500)`.
 pub fn fmt_point(x: &[f64]) -> String {
-    let parts: Vec<String> = x.iter().map(|v| format!("{v:.4}")).collect();
+    // Values that print as zero print without a sign.
+    let parts: Vec<String> = x
+        .iter()
+        .map(|&v| format!("{:.4}", if v.abs() < 5e-5 { 0.0 } else { v }))
+        .collect();
     format!("({})", parts.join(", "))
 }

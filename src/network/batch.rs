@@ -340,7 +340,7 @@ impl<T: Scalar> Workspace<T> {
             }
             if k + 1 < nl {
                 for z in primal.iter_mut() {
-                    if !(*z > T::ZERO) {
+                    if !is_active(*z) {
                         *z = T::ZERO;
                     }
                 }
@@ -389,7 +389,7 @@ impl<T: Scalar> Workspace<T> {
                 let mask_src = &input[..self.b * p.n_in];
                 for group in self.tmp.chunks_exact_mut(self.b * p.n_in) {
                     for (gv, &a) in group.iter_mut().zip(mask_src) {
-                        if !(a > T::ZERO) {
+                        if !is_active(a) {
                             *gv = T::ZERO;
                         }
                     }
@@ -400,6 +400,12 @@ impl<T: Scalar> Workspace<T> {
     }
 }
 
+/// The ReLU derivative's convention: a neuron is active iff its pre-activation is `> 0`
+/// (NaN counts as inactive).
+fn is_active<T: Scalar>(z: T) -> bool {
+    z > T::ZERO
+}
+
 /// Zeroes tangent entries whose primal neuron is inactive (`primal` already ReLU'd).
 fn mask_tangents<T: Scalar>(primal: &[T], tangents: &mut [T]) {
     if primal.is_empty() {
@@ -407,7 +413,7 @@ fn mask_tangents<T: Scalar>(primal: &[T], tangents: &mut [T]) {
     }
     for group in tangents.chunks_exact_mut(primal.len()) {
         for (t, &a) in group.iter_mut().zip(primal) {
-            if !(a > T::ZERO) {
+            if !is_active(a) {
                 *t = T::ZERO;
             }
         }

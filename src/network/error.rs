@@ -103,6 +103,17 @@ pub enum NetworkError {
         /// What is wrong.
         message: String,
     },
+    /// Training produced a non-finite loss or non-finite weights.
+    #[error(
+        "training diverged at epoch {epoch} (loss {loss}); lower learning_rate or \
+         jacobian_weight, or rescale the data"
+    )]
+    Diverged {
+        /// Epoch (1-based) where it was noticed.
+        epoch: usize,
+        /// The epoch's mean loss.
+        loss: f64,
+    },
     /// A checkpoint does not fit the run it should resume (other data, network or settings).
     #[error("{}: cannot resume from this checkpoint: {message}", path.display())]
     Checkpoint {

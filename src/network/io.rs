@@ -196,6 +196,19 @@ impl<'a> RawTensors<'a> {
 
     /// Tensor `name` as f64 (F32 widened exactly), checked finite.
     pub(crate) fn f64s(&self, name: &str) -> Result<Vec<f64>, NetworkError> {
+        let values = self.f64s_unchecked(name)?;
+        if let Some(index) = values.iter().position(|x| !x.is_finite()) {
+            return Err(NetworkError::NonFinite {
+                path: self.path.clone(),
+                name: name.to_string(),
+                index,
+            });
+        }
+        Ok(values)
+    }
+
+    /// Tensor `name` as f64 (F32 widened exactly), NaN and ∞ allowed.
+    pub(crate) fn f64s_unchecked(&self, name: &str) -> Result<Vec<f64>, NetworkError> {
         let v = self.view(name)?;
         let data = v.data();
         let values: Vec<f64> = match v.dtype() {
@@ -215,13 +228,6 @@ impl<'a> RawTensors<'a> {
                 })
             }
         };
-        if let Some(index) = values.iter().position(|x| !x.is_finite()) {
-            return Err(NetworkError::NonFinite {
-                path: self.path.clone(),
-                name: name.to_string(),
-                index,
-            });
-        }
         Ok(values)
     }
 
@@ -384,7 +390,7 @@ mod tests {
                 let bytes = match dtype {
                     Dtype::F32 => f32_bytes(d),
                     // f16 stand-in: 2 bytes per element
-                    _ => vec![0u8; d.len() * dtype.size()],
+                    _ => vec![0u8; d.len() * dtype.bitsize() / 8],
                 };
                 (n.to_string(), dtype, s.clone(), bytes)
             })
@@ -555,8 +561,10 @@ mod tests {
     }
 
     #[test]
-    fn empty_file_is_empty() {
-        let bytes = serialize(&[], HashMap::new(), Path::new("e")).unwrap();
+    fn file_without_tensors_is_empty() {
+        let header = br#"{"__metadata__":{"format":"cbfreach-mlp"}}"#;
+        let mut bytes = (header.len() as u64).to_le_bytes().to_vec();
+        bytes.extend_from_slice(header);
         let err = Mlp::from_safetensors_bytes(&bytes, "e").unwrap_err();
         assert!(matches!(err, NetworkError::Empty), "{err}");
     }

@@ -4,7 +4,7 @@
 //! that a `state_dict` of an `nn.Sequential` loads unchanged.
 //!
 //! - [`io`]: safetensors load/save (`Mlp::load_safetensors`, `Mlp::save_safetensors`).
-//! - [`train`]: a small Adam trainer with an optional Jacobian (Sobolev) term (DESIGN.md §2b, §6).
+//! - [`train`](mod@train): a small Adam trainer with an optional Jacobian (Sobolev) term (DESIGN.md §2b, §6).
 //! - [`Mlp::jacobian`]: `DN(x) = W_L D_{L−1} W_{L−1} ⋯ D_1 W_1`, `D_k = diag(z_k > 0)`.
 
 mod adam;
@@ -15,8 +15,8 @@ pub mod train;
 
 pub use error::NetworkError;
 pub use train::{
-    evaluate, resume, train, Dataset, EpochStats, ErrorStats, LrSchedule, Precision, TrainReport,
-    TrainSettings,
+    evaluate, pointwise_errors, resume, train, Dataset, EpochStats, ErrorStats, LrSchedule,
+    PointErrors, Precision, TrainReport, TrainSettings,
 };
 
 /// One affine layer `y = W x + b`, `W` of shape `[n_out, n_in]` stored row-major.
@@ -89,37 +89,35 @@ impl Mlp {
     /// Computed forward-mode: the `n` tangent vectors ride along with the activations.
     pub fn jacobian(&self, x: &[f64]) -> Vec<f64> {
         let n = self.input_dim();
+        let last = self.layers.len().saturating_sub(1);
         let mut a = x.to_vec();
         // Tangents, `width × n` row-major: column j is ∂a/∂x_j. Starts as the identity.
         let mut t: Vec<f64> = (0..n * n)
             .map(|k| if k / n == k % n { 1.0 } else { 0.0 })
             .collect();
         for (k, layer) in self.layers.iter().enumerate() {
-            let z = layer.apply(&a);
+            // t ← W t
             let mut t_next = vec![0.0; layer.n_out * n];
             for (i, row) in layer.weight.chunks_exact(layer.n_in).enumerate() {
                 let out = &mut t_next[i * n..(i + 1) * n];
                 for (p, w) in row.iter().enumerate() {
-                    if *w != 0.0 {
-                        for (o, tv) in out.iter_mut().zip(&t[p * n..(p + 1) * n]) {
-                            *o += w * tv;
-                        }
+                    for (o, tv) in out.iter_mut().zip(&t[p * n..(p + 1) * n]) {
+                        *o += w * tv;
                     }
                 }
             }
-            if k + 1 < self.layers.len() {
+            if k < last {
+                // a ← ReLU(W a + b); t ← D t with D = diag(z > 0)
+                let z = layer.apply(&a);
                 for (i, zi) in z.iter().enumerate() {
-                    if *zi <= 0.0 {
+                    if zi.is_nan() || *zi <= 0.0 {
                         t_next[i * n..(i + 1) * n].fill(0.0);
                     }
                 }
                 a = z.into_iter().map(|v| v.max(0.0)).collect();
-            } else {
-                a = z;
             }
             t = t_next;
         }
-        let _ = a;
         t
     }
 
@@ -186,5 +184,72 @@ impl Mlp {
             })
             .collect();
         Mlp { layers }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn jacobian_matches_finite_differences() {
+        let mlp = Mlp::random(&[3, 20, 15, 2], 4);
+        let h = 1e-6;
+        for s in 0..10 {
+            let x: Vec<f64> = (0..3).map(|j| ((s * 3 + j) as f64 * 0.91).sin()).collect();
+            let jac = mlp.jacobian(&x);
+            assert_eq!(jac.len(), 6);
+            for j in 0..3 {
+                let mut xp = x.clone();
+                xp[j] += h;
+                let mut xm = x.clone();
+                xm[j] -= h;
+                let (yp, ym) = (mlp.forward(&xp), mlp.forward(&xm));
+                for i in 0..2 {
+                    let fd = (yp[i] - ym[i]) / (2.0 * h);
+                    assert!(
+                        (fd - jac[i * 3 + j]).abs() < 1e-6,
+                        "{fd} vs {}",
+                        jac[i * 3 + j]
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn jacobian_at_a_kink_uses_the_strict_convention() {
+        // N(x) = ReLU(x) + ReLU(−x)·0 : at x = 0 the neuron is inactive, DN = 0.
+        let mlp = Mlp {
+            layers: vec![
+                Layer {
+                    weight: vec![1.0],
+                    bias: vec![0.0],
+                    n_in: 1,
+                    n_out: 1,
+                },
+                Layer {
+                    weight: vec![2.0],
+                    bias: vec![0.5],
+                    n_in: 1,
+                    n_out: 1,
+                },
+            ],
+        };
+        assert_eq!(mlp.jacobian(&[0.0]), vec![0.0]);
+        assert_eq!(mlp.jacobian(&[1e-300]), vec![2.0]);
+        assert_eq!(mlp.architecture(), "1x1x1");
+    }
+
+    #[test]
+    fn validate_catches_broken_chains() {
+        let mut mlp = Mlp::random(&[2, 4, 3], 0);
+        assert!(mlp.validate("m").is_ok());
+        mlp.layers[1].n_in = 5;
+        assert!(matches!(mlp.validate("m"), Err(NetworkError::Shape { .. })));
+        assert!(matches!(
+            Mlp { layers: vec![] }.validate("m"),
+            Err(NetworkError::Empty)
+        ));
     }
 }

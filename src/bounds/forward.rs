@@ -1,0 +1,363 @@
+//! Forward linear bound propagation (auto_LiRPA's `Forward` mode; immrax's `crown`), batched as
+//! matrix products (DESIGN.md §4–5).
+//!
+//! Every neuron carries affine forms in the input `x` over the box, kept in centre–radius form:
+//! an affine centre `Ĉ(x)` and an affine radius `R̂(x)` with the invariant
+//!
+//! ```text
+//!     |z(x) − Ĉ(x)| ≤ R̂(x)      for every x in the box        (lower form Ĉ − R̂, upper Ĉ + R̂)
+//! ```
+//!
+//! * **Input.** `Ĉ = x`, `R̂ = 0`; so the first layer is exact: `Ĉ = W₁x + b₁`, `R̂ = 0`.
+//! * **Affine layer** `z' = W a + b`: `|z' − (WĈ + b)| = |W (a − Ĉ)| ≤ |W| R̂`, so
+//!   `(Ĉ, R̂) ← (W Ĉ + b, |W| R̂)`. For a group of `G` boxes the forms are matrices
+//!   `n_k × G(n+1)` (columns box-major, `n` coefficients then the constant), and a layer is two
+//!   GEMMs `(n_k × n_{k−1})·(n_{k−1} × G(n+1))` plus one `(n_k × n_{k−1})·(n_{k−1} × G)` for the
+//!   rounding magnitudes below.
+//! * **ReLU.** Concretise `l = min(Ĉ − R̂)`, `u = max(Ĉ + R̂)` over the box (by its centre and
+//!   radius); if `u ≤ 0` the forms become 0, if `l ≥ 0` they stay; otherwise with the adaptive
+//!   lines `s̲ z ≤ ReLU(z) ≤ s̄ z + t̄` ([`relu_lines`]) `ReLU(z) ∈ [s̲(Ĉ − R̂), s̄(Ĉ + R̂) + t̄]`,
+//!   whose centre–radius form is `Ĉ ← αĈ + βR̂ + t̄/2`, `R̂ ← βĈ + αR̂ + t̄/2` with
+//!   `α = (s̄ + s̲)/2`, `β = (s̄ − s̲)/2`.
+//! * **Output.** `C̲ = Ĉ − R̂`, `C̄ = Ĉ + R̂`, concretised over the box.
+//!
+//! # Rounding (module error model of [`crate::bounds`])
+//!
+//! The invariant is kept in exact real arithmetic for the *computed* forms by adding every
+//! rounding error, bounded over the box, to the constant of `R̂` (rounded up). Write
+//! `V = Σ_q (|Ĉ_q| + |R̂_q|) mag_q + |Ĉ_0| + |R̂_0|` for a neuron's form magnitude over the box
+//! (`mag_q ≥ |x_q|`). Then
+//! * affine layer: the computed `WĈ + b` and `|W|R̂` err, over the box, by at most
+//!   `γ (|W| V + |b|)` together (the third GEMM computes `|W| V`), `N = n_{k−1} + 1` terms;
+//! * ReLU: computing `αĈ + βR̂ + t̄/2` and `βĈ + αR̂ + t̄/2` (a handful of roundings per
+//!   coefficient, `α, |β| ≤ max(s̄, s̲)`) errs by at most `γ (max(s̄, s̲) V + t̄)`;
+//!   the concretisation of `l, u` errs by at most `γ V`;
+//! * output: forming `Ĉ ∓ R̂` errs by at most `γ V`, subtracted from / added to the constant.
+//!
+//! The absolute (underflow) part uses the scale `1 + Σ_q mag_q` ([`err_bound`]).
+
+use super::{
+    add_down, add_up, affine_max, affine_min, err_bound, gemm, network_bounds_batch_into, next_up,
+    relu_lines, AffineBounds, AffineBoundsBatch, BoundMethod, BoundsError, OutRow, Relaxation,
+};
+use crate::network::Mlp;
+use rayon::prelude::*;
+
+/// Largest number of boxes propagated together in one GEMM.
+const MAX_GROUP: usize = 128;
+
+/// Forward linear bounds of `net` over `[lower, upper]` (adaptive ReLU relaxation).
+pub fn forward(net: &Mlp, lower: &[f64], upper: &[f64]) -> Result<AffineBounds, BoundsError> {
+    let mut out = AffineBoundsBatch::new();
+    network_bounds_batch_into(net, lower, upper, BoundMethod::Forward, &mut out)?;
+    Ok(out
+        .get(0)
+        .unwrap_or_else(|| AffineBounds::unbounded(net.input_dim(), net.output_dim())))
+}
+
+/// Buffers for one group of boxes, reused across the groups of one rayon task.
+#[derive(Default)]
+struct Workspace {
+    c: Vec<f64>,
+    r: Vec<f64>,
+    c_next: Vec<f64>,
+    r_next: Vec<f64>,
+    /// Form magnitude `V` per neuron and box, `n_k × G`.
+    v: Vec<f64>,
+    v_next: Vec<f64>,
+    /// Box centre, radius and magnitude bound, `G × n` each.
+    xc: Vec<f64>,
+    xr: Vec<f64>,
+    xmag: Vec<f64>,
+    /// Underflow scale `1 + Σ mag` per box.
+    scale: Vec<f64>,
+    /// Whether a box's bounds overflowed.
+    poisoned: Vec<bool>,
+}
+
+/// Forward bounds for a validated batch, into `rows` (one per box).
+pub(crate) fn forward_batch_into(net: &Mlp, lower: &[f64], upper: &[f64], rows: &mut [OutRow<'_>]) {
+    let n0 = net.input_dim();
+    if rows.is_empty() {
+        return;
+    }
+    let threads = rayon::current_num_threads().max(1);
+    let group = rows.len().div_ceil(threads).clamp(1, MAX_GROUP);
+    let abs_w: Vec<Vec<f64>> = net
+        .layers
+        .iter()
+        .map(|l| l.weight.iter().map(|w| w.abs()).collect())
+        .collect();
+    rows.par_chunks_mut(group)
+        .zip(lower.par_chunks(group * n0))
+        .zip(upper.par_chunks(group * n0))
+        .for_each_init(Workspace::default, |ws, ((rows, lo), hi)| {
+            forward_group(net, &abs_w, lo, hi, rows, ws);
+            rows.iter_mut().for_each(|row| row.sanitize());
+        });
+}
+
+/// Propagates one group of `rows.len()` boxes through the network.
+fn forward_group(
+    net: &Mlp,
+    abs_w: &[Vec<f64>],
+    lower: &[f64],
+    upper: &[f64],
+    rows: &mut [OutRow<'_>],
+    ws: &mut Workspace,
+) {
+    let n0 = net.input_dim();
+    let g_count = rows.len();
+    let k_cols = n0 + 1;
+    let cols = g_count * k_cols;
+    let n_layers = net.layers.len();
+
+    // The box as centre ± radius, rigorously containing it, and |x| ≤ xmag.
+    ws.xc.clear();
+    ws.xr.clear();
+    ws.xmag.clear();
+    ws.scale.clear();
+    ws.poisoned.clear();
+    ws.poisoned.resize(g_count, false);
+    for g in 0..g_count {
+        let mut sum = 1.0;
+        for p in 0..n0 {
+            let (l, h) = (lower[g * n0 + p], upper[g * n0 + p]);
+            let c = 0.5 * l + 0.5 * h;
+            let r = next_up(h - c).max(next_up(c - l));
+            let m = next_up(c.abs() + r);
+            ws.xc.push(c);
+            ws.xr.push(r);
+            ws.xmag.push(m);
+            sum += m;
+        }
+        ws.scale.push(next_up(sum));
+    }
+
+    // Layer 0 is exact: Ĉ = [W₀ | b₀] for every box, R̂ = 0.
+    let first = &net.layers[0];
+    ws.c.clear();
+    ws.c.resize(first.n_out * cols, 0.0);
+    ws.r.clear();
+    ws.r.resize(first.n_out * cols, 0.0);
+    for i in 0..first.n_out {
+        let w_row = &first.weight[i * n0..(i + 1) * n0];
+        for g in 0..g_count {
+            let dst = &mut ws.c[i * cols + g * k_cols..i * cols + (g + 1) * k_cols];
+            dst[..n0].copy_from_slice(w_row);
+            dst[n0] = first.bias[i];
+        }
+    }
+
+    for k in 0..n_layers {
+        let layer = &net.layers[k];
+        let n = layer.n_out;
+        if k > 0 {
+            let n_prev = layer.n_in;
+            ws.c_next.clear();
+            ws.c_next.resize(n * cols, 0.0);
+            ws.r_next.clear();
+            ws.r_next.resize(n * cols, 0.0);
+            ws.v_next.clear();
+            ws.v_next.resize(n * g_count, 0.0);
+            gemm(n, n_prev, cols, &layer.weight, &ws.c, &mut ws.c_next);
+            gemm(n, n_prev, cols, &abs_w[k], &ws.r, &mut ws.r_next);
+            gemm(n, n_prev, g_count, &abs_w[k], &ws.v, &mut ws.v_next);
+            for i in 0..n {
+                let b = layer.bias[i];
+                for g in 0..g_count {
+                    let at = i * cols + g * k_cols + n0;
+                    ws.c_next[at] += b;
+                    let err = err_bound(
+                        n_prev + 1,
+                        ws.v_next[i * g_count + g] + b.abs(),
+                        ws.scale[g],
+                    );
+                    ws.r_next[at] = add_up(ws.r_next[at], err);
+                }
+            }
+            std::mem::swap(&mut ws.c, &mut ws.c_next);
+            std::mem::swap(&mut ws.r, &mut ws.r_next);
+        }
+
+        if k + 1 == n_layers {
+            write_output(n, n0, ws, lower, upper, rows);
+            return;
+        }
+
+        // ReLU relaxation, per neuron and box; V of the result for the next layer.
+        ws.v.clear();
+        ws.v.resize(n * g_count, 0.0);
+        for i in 0..n {
+            for g in 0..g_count {
+                let span = i * cols + g * k_cols..i * cols + (g + 1) * k_cols;
+                let (xc, xr, xmag) = (
+                    &ws.xc[g * n0..(g + 1) * n0],
+                    &ws.xr[g * n0..(g + 1) * n0],
+                    &ws.xmag[g * n0..(g + 1) * n0],
+                );
+                let cf = &mut ws.c[span.clone()];
+                let rf = &mut ws.r[span];
+                let (mut su, mut sl, mut mag) = (
+                    cf[n0] + rf[n0],
+                    cf[n0] - rf[n0],
+                    cf[n0].abs() + rf[n0].abs(),
+                );
+                for p in 0..n0 {
+                    let (up, lo) = (cf[p] + rf[p], cf[p] - rf[p]);
+                    su += up * xc[p] + up.abs() * xr[p];
+                    sl += lo * xc[p] - lo.abs() * xr[p];
+                    mag += (cf[p].abs() + rf[p].abs()) * xmag[p];
+                }
+                let err = err_bound(3 * n0 + 3, mag, ws.scale[g]);
+                let (l, u) = (add_down(sl, -err), add_up(su, err));
+                if !(l.is_finite() && u.is_finite()) {
+                    ws.poisoned[g] = true;
+                }
+                let v = if u <= 0.0 {
+                    cf.fill(0.0);
+                    rf.fill(0.0);
+                    0.0
+                } else if l >= 0.0 {
+                    mag
+                } else {
+                    let (s_lo, s_up, t) = relu_lines(l, u, Relaxation::Adaptive);
+                    let alpha = 0.5 * (s_up + s_lo);
+                    let beta = 0.5 * (s_up - s_lo);
+                    for p in 0..k_cols {
+                        let (c, r) = (cf[p], rf[p]);
+                        cf[p] = alpha * c + beta * r;
+                        rf[p] = beta * c + alpha * r;
+                    }
+                    cf[n0] += 0.5 * t;
+                    rf[n0] += 0.5 * t;
+                    let err = err_bound(8, s_up.max(s_lo) * mag + t, ws.scale[g]);
+                    rf[n0] = add_up(rf[n0], err);
+                    let mut v = cf[n0].abs() + rf[n0].abs();
+                    for p in 0..n0 {
+                        v += (cf[p].abs() + rf[p].abs()) * xmag[p];
+                    }
+                    v
+                };
+                ws.v[i * g_count + g] = v;
+            }
+        }
+    }
+}
+
+/// Output forms `Ĉ ∓ R̂` with widened constants, and their concretisation over each box.
+fn write_output(
+    m: usize,
+    n0: usize,
+    ws: &Workspace,
+    lower: &[f64],
+    upper: &[f64],
+    rows: &mut [OutRow<'_>],
+) {
+    let k_cols = n0 + 1;
+    let cols = rows.len() * k_cols;
+    for (g, row) in rows.iter_mut().enumerate() {
+        if ws.poisoned[g] {
+            row.set_unbounded();
+            continue;
+        }
+        let (lo, hi) = (&lower[g * n0..(g + 1) * n0], &upper[g * n0..(g + 1) * n0]);
+        let xmag = &ws.xmag[g * n0..(g + 1) * n0];
+        for i in 0..m {
+            let at = i * cols + g * k_cols;
+            let (cf, rf) = (&ws.c[at..at + k_cols], &ws.r[at..at + k_cols]);
+            let mut mag = cf[n0].abs() + rf[n0].abs();
+            for p in 0..n0 {
+                row.a_lower[i * n0 + p] = cf[p] - rf[p];
+                row.a_upper[i * n0 + p] = cf[p] + rf[p];
+                mag += (cf[p].abs() + rf[p].abs()) * xmag[p];
+            }
+            let err = err_bound(2, mag, ws.scale[g]);
+            row.b_lower[i] = add_down(cf[n0] - rf[n0], -err);
+            row.b_upper[i] = add_up(cf[n0] + rf[n0], err);
+            let a_lo = &row.a_lower[i * n0..(i + 1) * n0];
+            let a_up = &row.a_upper[i * n0..(i + 1) * n0];
+            row.lower[i] = affine_min(a_lo, row.b_lower[i], lo, hi, xmag);
+            row.upper[i] = affine_max(a_up, row.b_upper[i], lo, hi, xmag);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bounds::test_support::*;
+    use crate::bounds::{crown, network_bounds_batch};
+
+    #[test]
+    fn forward_is_sound_on_random_networks_and_boxes() {
+        for_each_case(40, |case| {
+            let b = forward(&case.net, &case.lo, &case.hi).unwrap();
+            check_bounds(&case.net, &case.lo, &case.hi, &b, &case.points)
+                .unwrap_or_else(|e| panic!("{}: {e}", case.name));
+        });
+    }
+
+    #[test]
+    fn batched_forward_equals_one_box_at_a_time() {
+        // Group boundaries must not change any box's result (bit for bit: same operations).
+        let net = Mlp::random(&[3, 32, 32, 2], 11);
+        let mut rng = case_rng(5);
+        let (mut lo, mut hi) = (Vec::new(), Vec::new());
+        for k in 0..300 {
+            let (l, h) = random_box(&mut rng, 3, BoxKind::ALL[k % BoxKind::ALL.len()]);
+            lo.extend(l);
+            hi.extend(h);
+        }
+        for method in [BoundMethod::Forward, BoundMethod::Crown, BoundMethod::Ibp] {
+            let batch = network_bounds_batch(&net, &lo, &hi, method).unwrap();
+            assert_eq!(batch.len(), 300);
+            for k in [0, 1, 127, 128, 299] {
+                let one = crate::bounds::network_bounds(
+                    &net,
+                    &lo[3 * k..3 * k + 3],
+                    &hi[3 * k..3 * k + 3],
+                    method,
+                )
+                .unwrap();
+                let from_batch = batch.get(k).unwrap();
+                let close = |a: &[f64], b: &[f64]| {
+                    a.iter()
+                        .zip(b)
+                        .all(|(x, y)| (x - y).abs() <= 1e-12 * (1.0 + x.abs()))
+                };
+                assert!(
+                    close(&one.lower, &from_batch.lower) && close(&one.upper, &from_batch.upper),
+                    "{method:?} box {k}"
+                );
+                assert!(
+                    close(&one.a_lower, &from_batch.a_lower)
+                        && close(&one.b_upper, &from_batch.b_upper),
+                    "{method:?} box {k}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn forward_vs_crown_measured() {
+        // Forward is never tighter than backward CROWN in theory-free practice; measured only.
+        let (mut sum_f, mut sum_c, mut n) = (0.0f64, 0.0f64, 0);
+        for_each_case(30, |case| {
+            let f = forward(&case.net, &case.lo, &case.hi).unwrap();
+            let c = crown(&case.net, &case.lo, &case.hi, Relaxation::Adaptive).unwrap();
+            for o in 0..f.n_out {
+                let (wf, wc) = (f.upper[o] - f.lower[o], c.upper[o] - c.lower[o]);
+                if wc > 1e-9 {
+                    sum_f += (wf / wc).ln();
+                    sum_c += 1.0;
+                    n += 1;
+                }
+            }
+        });
+        eprintln!(
+            "forward/crown width ratio, geometric mean over {n} outputs of non-tiny boxes: {:.3}",
+            (sum_f / sum_c.max(1.0)).exp()
+        );
+    }
+}

@@ -1,0 +1,161 @@
+//! `cbfreach reach <scenario>`: tubes from the scenario's initial boxes.
+
+use std::path::PathBuf;
+
+use cbfreach::bounds::BoundMethod;
+use cbfreach::network::Mlp;
+use cbfreach::reach::{Backend, CpuBackend, ReachMethod, ReachProblem, ReachResult, ReachSettings};
+use cbfreach::scenario::{Margin, Scenario};
+use serde::Serialize;
+
+use super::{fmt_point, load_scenario, progress_bar, CliResult};
+
+/// Arguments of `cbfreach reach`.
+#[derive(clap::Args)]
+pub struct ReachArgs {
+    /// The scenario file (TOML).
+    pub scenario: PathBuf,
+    /// Engine: `cpu` (the GPU engine is not built yet).
+    #[arg(long, default_value = "cpu")]
+    pub backend: String,
+    /// How the network is bounded over each box.
+    #[arg(long, value_enum, default_value_t = BoundMethod::Crown)]
+    pub bounds: BoundMethod,
+    /// How the network's error enters the sets.
+    #[arg(long, value_enum, default_value_t = ReachMethod::Disturbance)]
+    pub method: ReachMethod,
+    /// Record every K-th step (the last is always recorded).
+    #[arg(long, default_value_t = 1)]
+    pub every: usize,
+    /// Override M_C.
+    #[arg(long = "m-c")]
+    pub m_c: Option<f64>,
+    /// Use this network instead of the scenario's.
+    #[arg(long)]
+    pub network: Option<PathBuf>,
+    /// Write the tubes as JSON here.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+}
+
+#[derive(Serialize)]
+struct ReachJson<'a> {
+    scenario: &'a str,
+    backend: String,
+    bounds: BoundMethod,
+    method: ReachMethod,
+    dt: f64,
+    m_c: f64,
+    #[serde(flatten)]
+    result: &'a ReachResult,
+}
+
+/// Loads the network named by `--network` or by the scenario.
+pub fn load_network(s: &Scenario, path: Option<&PathBuf>) -> Result<Mlp, Box<dyn std::error::Error>> {
+    let path = match (path, &s.network) {
+        (Some(p), _) => p.clone(),
+        (None, Some(net)) => net.file.clone(),
+        (None, None) => {
+            return Err(format!("{}: no [network] section and no --network given", s.file).into())
+        }
+    };
+    if !path.exists() {
+        return Err(format!(
+            "{}: network file {} does not exist (train one with `cbfreach train {}`)",
+            s.file,
+            path.display(),
+            s.file
+        )
+        .into());
+    }
+    Ok(Mlp::load_safetensors(&path)?)
+}
+
+/// `M_C` from the flag or the scenario.
+pub fn resolve_margin(s: &Scenario, flag: Option<f64>) -> Result<f64, String> {
+    match (flag, s.reach.m_c) {
+        (Some(v), _) if v.is_finite() && v >= 0.0 => Ok(v),
+        (Some(v), _) => Err(format!("--m-c: expected a finite number ≥ 0, found {v}")),
+        (None, Margin::Value(v)) => Ok(v),
+        (None, other) => Err(format!(
+            "{}: reach.m_c = {other:?} needs the network's error report, which this version \
+             cannot compute yet; give --m-c",
+            s.file
+        )),
+    }
+}
+
+/// Runs the command.
+pub fn run(args: &ReachArgs) -> CliResult {
+    let s = load_scenario(&args.scenario)?;
+    if args.backend != "cpu" && args.backend != "auto" {
+        return Err(format!("--backend {}: only `cpu` exists so far", args.backend).into());
+    }
+    let network = load_network(&s, args.network.as_ref())?;
+    let m_c = resolve_margin(&s, args.m_c)?;
+    let problem = ReachProblem::new(&s, network, m_c)?;
+    let settings = ReachSettings {
+        bounds: args.bounds,
+        method: args.method,
+        every: args.every,
+    };
+    let backend = CpuBackend;
+    let bar = progress_bar(problem.steps as u64, "Euler steps");
+    let result = backend.reach(&problem, &s.reach.initial, &settings, &|done, _| {
+        bar.set_position(done as u64)
+    })?;
+    bar.finish_and_clear();
+
+    println!(
+        "{}: {} boxes × {} steps, {:?} bounds, {:?} method, M_C = {m_c}, backend {}",
+        s.file,
+        result.boxes.len(),
+        problem.steps,
+        args.bounds,
+        args.method,
+        backend.name()
+    );
+    for tube in &result.boxes {
+        if let Some(last) = tube.last() {
+            let set = last.inflated();
+            let width = set.widths().iter().fold(0.0_f64, |a, &b| a.max(b));
+            let where_ = if set.is_subset_of(&s.reach.goal) {
+                "in the goal set".to_string()
+            } else {
+                format!("max width {width:.3}")
+            };
+            println!(
+                "  {} … {}  →  t = {:.2}: {} … {}  {}{}",
+                fmt_point(&tube.initial.lower),
+                fmt_point(&tube.initial.upper),
+                last.t,
+                fmt_point(&set.lower),
+                fmt_point(&set.upper),
+                where_,
+                if tube.valid { "" } else { "  INVALID (left C)" }
+            );
+        }
+    }
+    let steps = (result.boxes.len() * problem.steps) as f64;
+    println!(
+        "  time: {:.3} s embedding ({:.0} box-steps/s), {:.3} s Minkowski",
+        result.timing.reach_s,
+        steps / result.timing.reach_s.max(1e-12),
+        result.timing.minkowski_s
+    );
+    if let Some(path) = &args.json {
+        let json = ReachJson {
+            scenario: &s.file,
+            backend: backend.name(),
+            bounds: args.bounds,
+            method: args.method,
+            dt: problem.dt,
+            m_c,
+            result: &result,
+        };
+        std::fs::write(path, serde_json::to_string(&json)?)
+            .map_err(|e| format!("{}: {e}", path.display()))?;
+        println!("  tubes written to {}", path.display());
+    }
+    Ok(())
+}

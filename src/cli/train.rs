@@ -1,0 +1,211 @@
+//! `cbfreach dataset` and `cbfreach train`: the surrogate network `N ≈ v`.
+
+use std::path::PathBuf;
+
+use cbfreach::boxes::IntervalBox;
+use cbfreach::dataset::{filter_dataset, grid_points, DatasetSummary};
+use cbfreach::filter::SafetyFilter;
+use cbfreach::network::train::{self, Dataset, TrainSettings};
+use cbfreach::network::Mlp;
+use cbfreach::scenario::Scenario;
+
+use super::{load_scenario, progress_bar, CliResult};
+
+/// Arguments of `cbfreach dataset`.
+#[derive(clap::Args)]
+pub struct DatasetArgs {
+    /// The scenario file (TOML).
+    pub scenario: PathBuf,
+    /// Points per axis (default: the scenario's training grid).
+    #[arg(long, value_delimiter = ',')]
+    pub grid: Option<Vec<usize>>,
+    /// Write the samples as CSV (x…, v…, Dv…) here.
+    #[arg(long, short)]
+    pub out: Option<PathBuf>,
+}
+
+/// Arguments of `cbfreach train`.
+#[derive(clap::Args)]
+pub struct TrainArgs {
+    /// The scenario file (TOML).
+    pub scenario: PathBuf,
+    /// Points per axis of the training grid (default: the scenario's).
+    #[arg(long, value_delimiter = ',')]
+    pub grid: Option<Vec<usize>>,
+    /// Layer widths, e.g. 2,64,64,2 (default: the scenario's architecture).
+    #[arg(long, value_delimiter = ',')]
+    pub architecture: Option<Vec<usize>>,
+    /// Passes over the data.
+    #[arg(long, default_value_t = 200)]
+    pub epochs: usize,
+    /// Samples per Adam step.
+    #[arg(long, default_value_t = 256)]
+    pub batch_size: usize,
+    /// Initial learning rate (cosine decay to 1e-5).
+    #[arg(long, default_value_t = 1e-3)]
+    pub lr: f64,
+    /// Weight λ of the Jacobian term λ‖DN − Dv‖² (0 disables).
+    #[arg(long, default_value_t = 0.1)]
+    pub jacobian_weight: f64,
+    /// Seed of the initial weights and the shuffles.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Continue from the checkpoint beside the output file.
+    #[arg(long)]
+    pub resume: bool,
+    /// Where to write the network (default: the scenario's network file).
+    #[arg(long, short)]
+    pub out: Option<PathBuf>,
+}
+
+fn training_points(s: &Scenario, grid: Option<&Vec<usize>>) -> Result<Vec<Vec<f64>>, String> {
+    let grid = grid.unwrap_or(&s.training.grid);
+    if grid.len() != s.n() || grid.iter().any(|&k| k < 2) {
+        return Err(format!("--grid: expected {} counts, each at least 2", s.n()));
+    }
+    Ok(grid_points(&s.training.region, grid))
+}
+
+/// The filter on a set of points, with a progress bar.
+fn build(s: &Scenario, points: &[Vec<f64>], what: &str) -> (Dataset, DatasetSummary) {
+    let filter = SafetyFilter::new(s);
+    let bar = progress_bar(points.len() as u64, what);
+    let out = filter_dataset(&filter, points, true, &|done| bar.set_position(done as u64));
+    bar.finish_and_clear();
+    out
+}
+
+fn print_summary(s: &Scenario, d: &DatasetSummary) {
+    println!(
+        "{}: {} grid points, {} samples ({} outside S, {} where the filter acts), {} infeasible skipped",
+        s.file, d.grid_points, d.samples, d.unsafe_samples, d.active_samples, d.infeasible
+    );
+}
+
+/// Runs `cbfreach dataset`.
+pub fn run_dataset(args: &DatasetArgs) -> CliResult {
+    let s = load_scenario(&args.scenario)?;
+    let points = training_points(&s, args.grid.as_ref())?;
+    let (data, summary) = build(&s, &points, "filter on the grid");
+    print_summary(&s, &summary);
+    if let Some(path) = &args.out {
+        let mut text = String::new();
+        let names: Vec<String> = s
+            .states
+            .iter()
+            .cloned()
+            .chain(s.inputs.iter().map(|u| format!("v_{u}")))
+            .chain(s.inputs.iter().flat_map(|u| s.states.iter().map(move |x| format!("d{u}_d{x}"))))
+            .collect();
+        text.push_str(&names.join(","));
+        text.push('\n');
+        let (n, m) = (s.n(), s.m());
+        for k in 0..data.len() {
+            let mut row: Vec<String> =
+                data.inputs[k * n..(k + 1) * n].iter().map(f64::to_string).collect();
+            row.extend(data.targets[k * m..(k + 1) * m].iter().map(f64::to_string));
+            if let Some(j) = &data.jacobians {
+                row.extend(j[k * m * n..(k + 1) * m * n].iter().map(f64::to_string));
+            }
+            text.push_str(&row.join(","));
+            text.push('\n');
+        }
+        std::fs::write(path, text).map_err(|e| format!("{}: {e}", path.display()))?;
+        println!("samples written to {}", path.display());
+    }
+    Ok(())
+}
+
+/// A validation grid the training never saw: the training grid shifted by half a spacing,
+/// restricted to the safe set, where the filter acts (`C ∩ S`).
+pub fn validation_points(s: &Scenario, grid: &[usize]) -> Vec<Vec<f64>> {
+    let r = &s.training.region;
+    let half: Vec<f64> = (0..s.n())
+        .map(|i| 0.5 * (r.upper[i] - r.lower[i]) / (grid[i] - 1) as f64)
+        .collect();
+    let inner = IntervalBox {
+        lower: (0..s.n()).map(|i| r.lower[i] + half[i]).collect(),
+        upper: (0..s.n()).map(|i| r.upper[i] - half[i]).collect(),
+    };
+    let counts: Vec<usize> = grid.iter().map(|k| k - 1).collect();
+    grid_points(&inner, &counts)
+        .into_iter()
+        .filter(|x| s.is_safe(x) && s.reach.region.contains(x))
+        .collect()
+}
+
+/// Runs `cbfreach train`.
+pub fn run_train(args: &TrainArgs) -> CliResult {
+    let s = load_scenario(&args.scenario)?;
+    let architecture = match (&args.architecture, &s.network) {
+        (Some(a), _) => a.clone(),
+        (None, Some(net)) => net.architecture.clone(),
+        (None, None) => return Err("no [network] in the scenario: give --architecture".into()),
+    };
+    if architecture.len() < 2
+        || architecture[0] != s.n()
+        || architecture[architecture.len() - 1] != s.m()
+    {
+        return Err(format!(
+            "--architecture {architecture:?}: must start with n = {} and end with m = {}",
+            s.n(),
+            s.m()
+        )
+        .into());
+    }
+    let out = match (&args.out, &s.network) {
+        (Some(p), _) => p.clone(),
+        (None, Some(net)) => net.file.clone(),
+        (None, None) => return Err("give --out FILE".into()),
+    };
+    let points = training_points(&s, args.grid.as_ref())?;
+    let (data, summary) = build(&s, &points, "training data");
+    print_summary(&s, &summary);
+    let grid = args.grid.clone().unwrap_or(s.training.grid.clone());
+    let (validation, vsummary) = build(&s, &validation_points(&s, &grid), "validation data");
+
+    let checkpoint = out.with_extension("ckpt");
+    let settings = TrainSettings {
+        epochs: args.epochs,
+        batch_size: args.batch_size,
+        learning_rate: args.lr,
+        jacobian_weight: args.jacobian_weight,
+        seed: args.seed,
+        checkpoint: Some(checkpoint.clone()),
+        ..TrainSettings::default()
+    };
+    let bar = progress_bar(args.epochs as u64, "epochs");
+    let progress = |e: &train::EpochStats| {
+        bar.set_position(e.epoch as u64);
+        bar.set_message(format!("loss {:.3e}, max error {:.4}", e.loss, e.max_error));
+    };
+    let (net, report) = if args.resume && checkpoint.exists() {
+        train::resume(&checkpoint, &data, &settings, progress)?
+    } else {
+        train::train(Mlp::random(&architecture, args.seed), &data, &settings, progress)?
+    };
+    bar.finish_and_clear();
+    let val = train::evaluate(&net, &validation)?;
+    let mut metadata = report.metadata();
+    metadata.insert("scenario".into(), s.name.clone());
+    metadata.insert("validation_max_linf".into(), val.max_error.to_string());
+    metadata.insert("validation_max_l2".into(), val.max_error_l2.to_string());
+    net.save_safetensors(&out, &metadata)?;
+    println!(
+        "trained {} in {:.1} s ({} epochs): training max ℓ∞ error {:.4}",
+        net.architecture(),
+        report.seconds,
+        report.epochs.len(),
+        report.final_errors.max_error
+    );
+    println!(
+        "validation on {} unseen points of C ∩ S: max ℓ∞ {:.4}, max ℓ2 {:.4}, mean ℓ∞ {:.4}, max slope error {:.3}",
+        vsummary.samples,
+        val.max_error,
+        val.max_error_l2,
+        val.mean_error,
+        val.max_slope_error.unwrap_or(f64::NAN)
+    );
+    println!("network written to {}", out.display());
+    Ok(())
+}

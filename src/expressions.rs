@@ -1,1 +1,0 @@
-//! expressions (in progress)

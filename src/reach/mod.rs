@@ -1,0 +1,274 @@
+//! Reachable sets of the filtered system from many initial boxes (paper §3, DESIGN §2).
+//!
+//! A [`ReachProblem`] is the compiled problem (scenario dynamics, network, region `C`, `M_C`,
+//! `dt`, horizon); a [`Backend`] runs one Euler trajectory of the embedding system per box and
+//! returns a [`Tube`] per box. Two methods turn NN-system boxes into filtered-system sets:
+//!
+//! - [`ReachMethod::Disturbance`] (default, sound by construction): on `C`,
+//!   `v(x) ∈ N(x) + [−M_C, M_C]`, so the filtered system is the NN system with a bounded input
+//!   disturbance and the embedding with `d̲ − M_C, d̄ + M_C` bounds it directly;
+//! - [`ReachMethod::Minkowski`] (the paper's Theorem 2, labelled as such): the NN-system box
+//!   plus the closeness radius `r_t` of [`closeness`]. DESIGN §2.6 explains the gap in its proof.
+//!
+//! Every box's result is marked invalid from the first step where its set leaves `C`: the
+//! theorem (and `M_C`) only hold inside `C`.
+
+pub mod closeness;
+pub mod cpu;
+pub mod embedding;
+
+use serde::Serialize;
+
+use crate::bounds::BoundMethod;
+use crate::boxes::IntervalBox;
+use crate::intervals::Interval;
+use crate::network::Mlp;
+use crate::scenario::{Norm, Scenario};
+use embedding::Dynamics;
+
+pub use cpu::CpuBackend;
+
+/// How NN-system boxes become sets of the filtered system.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum ReachMethod {
+    /// The network's error as a bounded input disturbance (sound by construction).
+    #[default]
+    Disturbance,
+    /// The paper's closeness radius and Minkowski sum (Theorem 2).
+    Minkowski,
+}
+
+/// Settings of one reach run.
+#[derive(Clone, Debug)]
+pub struct ReachSettings {
+    /// How the network is bounded over each box.
+    pub bounds: BoundMethod,
+    /// Disturbance or Minkowski.
+    pub method: ReachMethod,
+    /// Record every K-th step (and always the last).
+    pub every: usize,
+}
+
+impl Default for ReachSettings {
+    fn default() -> Self {
+        ReachSettings {
+            bounds: BoundMethod::Crown,
+            method: ReachMethod::Disturbance,
+            every: 1,
+        }
+    }
+}
+
+/// Why a reach run could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum ReachError {
+    /// The network does not map states to inputs.
+    #[error("the network maps ℝ^{net_in} → ℝ^{net_out} but the scenario needs ℝ^{n} → ℝ^{m}")]
+    NetworkShape {
+        /// Network input dimension.
+        net_in: usize,
+        /// Network output dimension.
+        net_out: usize,
+        /// States.
+        n: usize,
+        /// Inputs.
+        m: usize,
+    },
+    /// An initial box has the wrong dimension or does not lie in `C`.
+    #[error("initial box {index}: {message}")]
+    InitialBox {
+        /// Its index.
+        index: usize,
+        /// What is wrong.
+        message: String,
+    },
+    /// Bad settings.
+    #[error("{0}")]
+    Settings(String),
+    /// The network bounds failed.
+    #[error(transparent)]
+    Bounds(#[from] crate::bounds::BoundsError),
+}
+
+/// The compiled reach problem: plain data that every backend reads.
+#[derive(Clone, Debug)]
+pub struct ReachProblem {
+    /// The dynamics.
+    pub dynamics: Dynamics,
+    /// The network `N`.
+    pub network: Mlp,
+    /// The region `C`.
+    pub region: IntervalBox,
+    /// `M_C`, the bound on `‖N − v‖∞` over `C` (per input).
+    pub m_c: f64,
+    /// Norm of the closeness radius.
+    pub norm: Norm,
+    /// Euler step.
+    pub dt: f64,
+    /// Number of steps.
+    pub steps: usize,
+    /// `[Df̃](C)`: the interval Jacobian over `C` (for the closeness radius's `c_k`).
+    pub jacobian_over_region: Vec<Interval>,
+    /// `[g](C)`, n×m.
+    pub g_over_region: Vec<Interval>,
+    /// `ℓ ≥ sup_{x∈C} ‖g(x)‖`.
+    pub input_gain: f64,
+}
+
+impl ReachProblem {
+    /// Compiles a scenario with its network and `M_C`.
+    pub fn new(scenario: &Scenario, network: Mlp, m_c: f64) -> Result<ReachProblem, ReachError> {
+        let (n, m) = (scenario.n(), scenario.m());
+        if network.input_dim() != n || network.output_dim() != m {
+            return Err(ReachError::NetworkShape {
+                net_in: network.input_dim(),
+                net_out: network.output_dim(),
+                n,
+                m,
+            });
+        }
+        if !(m_c.is_finite() && m_c >= 0.0) {
+            return Err(ReachError::Settings(format!(
+                "M_C must be a finite number ≥ 0, found {m_c}"
+            )));
+        }
+        let g_constant: Option<Vec<f64>> =
+            scenario.g.iter().flatten().map(|e| e.as_constant()).collect();
+        let region = scenario.reach.region.clone();
+        let c: Vec<Interval> = region
+            .lower
+            .iter()
+            .zip(&region.upper)
+            .map(|(&l, &u)| Interval::new(l, u))
+            .collect();
+        let jacobian_over_region = scenario
+            .f_tilde_jacobian
+            .iter()
+            .flatten()
+            .map(|e| e.eval_interval(&c))
+            .collect();
+        let g_over_region: Vec<Interval> =
+            scenario.g.iter().flatten().map(|e| e.eval_interval(&c)).collect();
+        let input_gain = closeness::induced_norm(&g_over_region, n, m, scenario.reach.norm);
+        Ok(ReachProblem {
+            dynamics: Dynamics {
+                n,
+                m,
+                f_tilde: scenario.f_tilde.clone(),
+                f_tilde_jacobian: scenario.f_tilde_jacobian.clone(),
+                g: scenario.g.clone(),
+                g_constant,
+            },
+            network,
+            region,
+            m_c,
+            norm: scenario.reach.norm,
+            dt: scenario.reach.dt,
+            steps: scenario.reach.steps(),
+            jacobian_over_region,
+            g_over_region,
+            input_gain,
+        })
+    }
+
+    /// Checks initial boxes: dimension n and inside `C`.
+    pub fn check_initial(&self, boxes: &[IntervalBox]) -> Result<(), ReachError> {
+        for (index, b) in boxes.iter().enumerate() {
+            if b.dim() != self.dynamics.n {
+                return Err(ReachError::InitialBox {
+                    index,
+                    message: format!("has {} coordinates, expected {}", b.dim(), self.dynamics.n),
+                });
+            }
+            if !b.is_subset_of(&self.region) {
+                return Err(ReachError::InitialBox {
+                    index,
+                    message: format!(
+                        "{:?}…{:?} does not lie in the region C {:?}…{:?}",
+                        b.lower, b.upper, self.region.lower, self.region.upper
+                    ),
+                });
+            }
+        }
+        Ok(())
+    }
+}
+
+/// One recorded time of a tube.
+#[derive(Clone, Debug, Serialize)]
+pub struct TubeSample {
+    /// Time `t`.
+    pub t: f64,
+    /// Lower corner of the box.
+    pub lower: Vec<f64>,
+    /// Upper corner.
+    pub upper: Vec<f64>,
+    /// Closeness radius `r_t` to add (Minkowski method); 0 for the disturbance method.
+    pub radius: f64,
+}
+
+impl TubeSample {
+    /// The box `[lower − r, upper + r]`, which contains `[lower, upper] ⊕ B(r)` in every norm.
+    pub fn inflated(&self) -> IntervalBox {
+        IntervalBox {
+            lower: self.lower.iter().map(|v| v - self.radius).collect(),
+            upper: self.upper.iter().map(|v| v + self.radius).collect(),
+        }
+    }
+}
+
+/// The sets of one initial box over time.
+#[derive(Clone, Debug, Serialize)]
+pub struct Tube {
+    /// The initial box.
+    pub initial: IntervalBox,
+    /// Recorded times (every K-th step and the last).
+    pub tube: Vec<TubeSample>,
+    /// False when the set left `C` (the result says nothing from then on).
+    pub valid: bool,
+    /// Why the tube stopped early, if it did.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub note: Option<String>,
+}
+
+impl Tube {
+    /// The last recorded sample.
+    pub fn last(&self) -> Option<&TubeSample> {
+        self.tube.last()
+    }
+}
+
+/// What a backend returns.
+#[derive(Clone, Debug, Serialize)]
+pub struct ReachResult {
+    /// One tube per initial box, in order.
+    pub boxes: Vec<Tube>,
+    /// Wall times.
+    pub timing: ReachTiming,
+}
+
+/// Wall times of a run.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct ReachTiming {
+    /// The embedding system, network bounds included.
+    pub reach_s: f64,
+    /// The closeness radius and Minkowski sum (0 for the disturbance method).
+    pub minkowski_s: f64,
+}
+
+/// A reachability engine.
+pub trait Backend {
+    /// A name for reports (`cpu`, `gpu (adapter name)`).
+    fn name(&self) -> String;
+
+    /// Runs the embedding system from every initial box; `progress` is told after each step
+    /// (steps done, steps in all).
+    fn reach(
+        &self,
+        problem: &ReachProblem,
+        initial: &[IntervalBox],
+        settings: &ReachSettings,
+        progress: &(dyn Fn(usize, usize) + Sync),
+    ) -> Result<ReachResult, ReachError>;
+}

@@ -1,0 +1,243 @@
+//! Soundness of the CPU reach engine by sampling (DESIGN §3): NN-system trajectories stay in
+//! the embedding boxes, and filtered-system trajectories stay in the disturbance sets when
+//! `M_C` is a certified bound on `‖N − v‖∞` over `C`.
+
+mod common;
+
+use cbfreach::bounds::{network_bounds, BoundMethod};
+use cbfreach::filter::SafetyFilter;
+use cbfreach::network::Mlp;
+use cbfreach::reach::{Backend, CpuBackend, ReachMethod, ReachProblem, ReachSettings, Tube};
+use cbfreach::scenario::Scenario;
+use cbfreach::simulate::{integrate, sample_box, simulate_filtered, Integrator};
+use common::{double_integrator, from_text, integrator};
+
+/// A random network scaled so that its outputs stay within ±`scale`-ish: a small
+/// perturbation of the zero controller correction.
+fn small_network(widths: &[usize], seed: u64, scale: f64) -> Mlp {
+    let mut net = Mlp::random(widths, seed);
+    if let Some(last) = net.layers.last_mut() {
+        last.weight.iter_mut().for_each(|w| *w *= scale);
+        last.bias.iter_mut().for_each(|b| *b *= scale);
+    }
+    net
+}
+
+/// The NN closed loop `f̃(x) + g(x) N(x)`.
+fn nn_field(s: &Scenario, net: &Mlp, x: &[f64]) -> Result<Vec<f64>, String> {
+    let (n, m) = (s.n(), s.m());
+    let f = s.f_tilde_at(x);
+    let g = s.g_at(x);
+    let u = net.forward(x);
+    Ok((0..n)
+        .map(|i| f[i] + (0..m).map(|k| g[i * m + k] * u[k]).sum::<f64>())
+        .collect())
+}
+
+/// Runs the engine with M = `m_c` on boxes around the given centres.
+fn run(
+    s: &Scenario,
+    net: &Mlp,
+    m_c: f64,
+    bounds: BoundMethod,
+    centres: &[[f64; 2]],
+    half_width: f64,
+) -> Vec<Tube> {
+    let problem = ReachProblem::new(s, net.clone(), m_c).unwrap();
+    let boxes: Vec<_> = centres
+        .iter()
+        .map(|c| {
+            cbfreach::IntervalBox::new(
+                c.iter().map(|v| v - half_width).collect(),
+                c.iter().map(|v| v + half_width).collect(),
+            )
+            .unwrap()
+        })
+        .collect();
+    let settings = ReachSettings {
+        bounds,
+        method: ReachMethod::Disturbance,
+        every: 1,
+    };
+    CpuBackend
+        .reach(&problem, &boxes, &settings, &|_, _| {})
+        .unwrap()
+        .boxes
+}
+
+/// Asserts that the trajectory (sampled every `sub` fine steps) lies in the tube while valid,
+/// up to `tol(k)` at recorded step k; returns the number of (point, time) checks made.
+fn assert_inside(
+    tube: &Tube,
+    xs: &[Vec<f64>],
+    sub: usize,
+    tol: impl Fn(usize) -> f64,
+    what: &str,
+) -> usize {
+    let mut checks = 0;
+    for sample in &tube.tube {
+        let step = (sample.t / tube_dt(tube) + 0.5) as usize;
+        let Some(x) = xs.get(step * sub) else { break };
+        let set = sample.inflated();
+        let tol = tol(step);
+        for i in 0..x.len() {
+            assert!(
+                set.lower[i] - tol <= x[i] && x[i] <= set.upper[i] + tol,
+                "{what}: at t = {} coordinate {i} = {} escapes [{}, {}] (tube from {:?})",
+                sample.t,
+                x[i],
+                set.lower[i],
+                set.upper[i],
+                tube.initial
+            );
+        }
+        checks += 1;
+    }
+    checks
+}
+
+fn tube_dt(tube: &Tube) -> f64 {
+    tube.tube.get(1).map_or(1.0, |s| s.t - tube.tube[0].t)
+}
+
+/// NN-system trajectories with the same Euler step as the embedding must lie in its boxes
+/// exactly (the Euler embedding bounds the Euler map for these step sizes). Trajectories with a
+/// ten times finer step (closer to the continuous system) may miss a box by no more than the
+/// Euler error of the point simulation itself, `‖x_dt(t) − x_fine(t)‖∞`: that keeps the
+/// step's error visible (README, Limitations) without hiding a wrong bound.
+fn nn_trajectories_inside(s: &Scenario, net: &Mlp, centres: &[[f64; 2]], bounds: BoundMethod) {
+    let tubes = run(s, net, 0.0, bounds, centres, 0.1);
+    let dt = s.reach.dt;
+    let steps = s.reach.steps();
+    let mut checks = 0;
+    for tube in &tubes {
+        for x0 in sample_box(&tube.initial, 12, 7) {
+            let same = integrate(|x: &[f64]| nn_field(s, net, x), &x0, dt, steps, Integrator::Euler);
+            checks += assert_inside(tube, &same.x, 1, |_| 1e-12, "same-step NN trajectory");
+            let fine =
+                integrate(|x: &[f64]| nn_field(s, net, x), &x0, dt / 10.0, steps * 10, Integrator::Euler);
+            let euler_error = |k: usize| {
+                same.x[k]
+                    .iter()
+                    .zip(&fine.x[10 * k])
+                    .map(|(a, b)| (a - b).abs())
+                    .fold(0.0, f64::max)
+                    + 1e-9
+            };
+            assert_inside(tube, &fine.x, 10, euler_error, "fine-step NN trajectory");
+        }
+    }
+    assert!(checks > 100, "too few checks ({checks}): tubes died early?");
+}
+
+#[test]
+fn nn_system_inside_embedding_boxes_scenario_1() {
+    let s = integrator();
+    let net = small_network(&[2, 16, 16, 2], 1, 0.2);
+    for bounds in [BoundMethod::Crown, BoundMethod::CrownSameSlope, BoundMethod::Ibp] {
+        nn_trajectories_inside(&s, &net, &[[-2.0, 2.0], [1.0, -2.0], [-3.0, 0.0]], bounds);
+    }
+}
+
+#[test]
+fn nn_system_inside_embedding_boxes_scenario_2() {
+    let s = double_integrator();
+    let net = small_network(&[2, 16, 16, 1], 2, 0.2);
+    nn_trajectories_inside(&s, &net, &[[-2.0, 1.0], [-1.0, -1.0]], BoundMethod::Crown);
+}
+
+#[test]
+fn nn_system_inside_embedding_boxes_nonlinear_state_dependent_g() {
+    // A damped pendulum-like system with state-dependent input gain: exercises the interval
+    // Jacobian and the [g](box)·[N] path of the embedding.
+    let text = r#"
+name = "pendulum"
+[system]
+states = ["q", "w"]
+inputs = ["u"]
+f = ["w", "-sin(q) - 0.5*w"]
+g = [["0"], ["1 + 0.2*cos(q)"]]
+kappa = ["-q - w"]
+[reach]
+region = { lower = [-4, -4], upper = [4, 4] }
+m_c = 0
+dt = 0.02
+horizon = 3
+goal = { lower = [-0.1, -0.1], upper = [0.1, 0.1] }
+"#;
+    let s = from_text(text).unwrap();
+    let net = small_network(&[2, 16, 16, 1], 3, 0.2);
+    nn_trajectories_inside(&s, &net, &[[1.0, 0.5], [-1.5, 0.0]], BoundMethod::Crown);
+}
+
+/// With v ≡ 0 on C (the CBF never acts there) and N a small perturbation, `M_C = sup_C |N|`
+/// is certified by IBP over C; then every filtered trajectory must lie in the disturbance sets.
+#[test]
+fn filtered_system_inside_disturbance_sets_with_certified_margin() {
+    let text = r#"
+name = "inactive"
+[system]
+states = ["x1", "x2"]
+inputs = ["u1", "u2"]
+f = ["0", "0"]
+g = [["1", "0"], ["0", "1"]]
+kappa = ["-x1", "-5*x2"]
+[[cbf]]
+h = "100 - x1^2 - x2^2"
+[reach]
+region = { lower = [-3, -3], upper = [3, 3] }
+m_c = 0
+dt = 0.04
+horizon = 4
+goal = { lower = [-0.5, -0.5], upper = [0.5, 0.5] }
+"#;
+    let s = from_text(text).unwrap();
+    let filter = SafetyFilter::new(&s);
+    let net = small_network(&[2, 16, 16, 2], 4, 0.05);
+    // sup_C |N| by IBP over a partition of C: a certified bound.
+    let m_c = s
+        .reach
+        .region
+        .partition(&[24, 24])
+        .iter()
+        .map(|cell| {
+            let b = network_bounds(&net, &cell.lower, &cell.upper, BoundMethod::Ibp).unwrap();
+            b.lower.iter().chain(&b.upper).fold(0.0_f64, |a, v| a.max(v.abs()))
+        })
+        .fold(0.0_f64, f64::max);
+    assert!(m_c > 0.0 && m_c < 1.0, "M_C = {m_c}");
+    let tubes = run(&s, &net, m_c, BoundMethod::Crown, &[[-2.0, 2.0], [2.0, -1.0]], 0.1);
+    let mut checks = 0;
+    for tube in &tubes {
+        assert!(tube.valid, "{:?}", tube.note);
+        for x0 in sample_box(&tube.initial, 16, 9) {
+            let t = simulate_filtered(&filter, &x0, s.reach.dt, s.reach.steps(), Integrator::Euler);
+            checks += assert_inside(tube, &t.x, 1, |_| 1e-12, "filtered trajectory");
+        }
+    }
+    assert!(checks > 1000);
+    // The sets end near the origin and no wider than the disturbance allows (≈ 2M/rate).
+    for tube in &tubes {
+        let last = tube.last().unwrap();
+        let set = last.inflated();
+        assert!(set.widths()[0] < 2.0 * m_c / 1.0 + 0.25, "{:?}", set);
+    }
+}
+
+#[test]
+fn leaving_c_marks_the_tube_invalid() {
+    let s = integrator();
+    // A strongly destabilising network pushes the box out of C.
+    let mut net = small_network(&[2, 8, 2], 5, 0.0);
+    net.layers[1].bias = vec![20.0, 0.0];
+    let tubes = run(&s, &net, 0.0, BoundMethod::Ibp, &[[0.0, 0.0]], 0.1);
+    assert!(!tubes[0].valid);
+    assert!(tubes[0].note.as_deref().unwrap_or_default().contains("left the region C"));
+}
+
+#[test]
+fn wrong_network_shape_is_an_error() {
+    let s = integrator();
+    let err = ReachProblem::new(&s, Mlp::random(&[2, 8, 1], 0), 0.1).unwrap_err();
+    assert!(err.to_string().contains("ℝ^2 → ℝ^1"), "{err}");
+}
