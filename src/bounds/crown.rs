@@ -7,7 +7,7 @@
 //! Layers are `z_k = W_k a_k + b_k` (`k = 0..L−1`, `a_0 = x`, `a_{k+1} = ReLU(z_k)`). To bound
 //! `z_k` from above, start from the exact `z_k = Λ a_k + β` with `Λ = W_k`, `β = b_k`, and for
 //! `j = k−1, …, 0` replace `a_{j+1} = ReLU(z_j)` by the upper line `s̄ z_j + t̄` where `Λ ≥ 0` and
-//! by the lower line `s̲ z_j` where `Λ < 0` ([`relu_lines`]), then substitute
+//! by the lower line `s̲ z_j` where `Λ < 0` (`relu_lines`), then substitute
 //! `z_j = W_j a_j + b_j`:
 //!
 //! ```text
@@ -33,7 +33,7 @@
 //! bias sum (`2 n_j` products) errs by at most `γ Σ_m (|Λ̂∘s|_m |b_j|_m + |Λ̂_m| t_m)`. So one
 //! magnitude per row, `E = Σ_m |Λ̂∘s|_m w_m + |Λ̂_m| t_m` with `w = |W_j| mag_j + |b_j|`
 //! (a matrix–vector product per layer and box), bounds both, and `β̂` moves outward by
-//! [`err_bound`]`(2 n_j + 2, E, 1 + Σ w + Σ mag_j)` (the `+2` counts the two roundings inside
+//! `err_bound``(2 n_j + 2, E, 1 + Σ w + Σ mag_j)` (the `+2` counts the two roundings inside
 //! each product chain; the scale covers underflowing coefficients times `z_j` and `a_j`).
 
 use super::network_bounds_batch_into;
@@ -283,6 +283,7 @@ fn backward_pass(net: &Mlp, k: usize, stacked: bool, ws: &mut Workspace) {
 }
 
 #[cfg(test)]
+#[allow(clippy::needless_range_loop)]
 mod tests {
     use super::*;
     use crate::bounds::test_support::*;

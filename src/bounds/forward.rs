@@ -16,7 +16,7 @@
 //!   rounding magnitudes below.
 //! * **ReLU.** Concretise `l = min(Ĉ − R̂)`, `u = max(Ĉ + R̂)` over the box (by its centre and
 //!   radius); if `u ≤ 0` the forms become 0, if `l ≥ 0` they stay; otherwise with the adaptive
-//!   lines `s̲ z ≤ ReLU(z) ≤ s̄ z + t̄` ([`relu_lines`]) `ReLU(z) ∈ [s̲(Ĉ − R̂), s̄(Ĉ + R̂) + t̄]`,
+//!   lines `s̲ z ≤ ReLU(z) ≤ s̄ z + t̄` (`relu_lines`) `ReLU(z) ∈ [s̲(Ĉ − R̂), s̄(Ĉ + R̂) + t̄]`,
 //!   whose centre–radius form is `Ĉ ← αĈ + βR̂ + t̄/2`, `R̂ ← βĈ + αR̂ + t̄/2` with
 //!   `α = (s̄ + s̲)/2`, `β = (s̄ − s̲)/2`.
 //! * **Output.** `C̲ = Ĉ − R̂`, `C̄ = Ĉ + R̂`, concretised over the box.
@@ -34,7 +34,8 @@
 //!   the concretisation of `l, u` errs by at most `γ V`;
 //! * output: forming `Ĉ ∓ R̂` errs by at most `γ V`, subtracted from / added to the constant.
 //!
-//! The absolute (underflow) part uses the scale `1 + Σ_q mag_q` ([`err_bound`]).
+//! The absolute (underflow) part uses the scale `1 + Σ_q mag_q` (`err_bound`).
+#![allow(clippy::needless_range_loop)] // index loops read as the formulas
 
 use super::{
     add_down, add_up, affine_max, affine_min, err_bound, gemm, network_bounds_batch_into, next_up,
@@ -300,7 +301,7 @@ mod tests {
 
     #[test]
     fn batched_forward_equals_one_box_at_a_time() {
-        // Group boundaries must not change any box's result (bit for bit: same operations).
+        // Group boundaries must not change any box's result (beyond GEMM summation order).
         let net = Mlp::random(&[3, 32, 32, 2], 11);
         let mut rng = case_rng(5);
         let (mut lo, mut hi) = (Vec::new(), Vec::new());
@@ -341,7 +342,7 @@ mod tests {
 
     #[test]
     fn forward_vs_crown_measured() {
-        // Forward is never tighter than backward CROWN in theory-free practice; measured only.
+        // Forward vs backward CROWN: no ordering theorem, so measured only.
         let (mut sum_f, mut sum_c, mut n) = (0.0f64, 0.0f64, 0);
         for_each_case(30, |case| {
             let f = forward(&case.net, &case.lo, &case.hi).unwrap();

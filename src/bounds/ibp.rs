@@ -1,13 +1,21 @@
 //! Interval bound propagation (IBP, Gowal et al. 2018): `C = 0`, `d̲, d̄` the interval bounds.
 //!
-//! Layer by layer, `z ∈ [W⁺l + W⁻u + b, W⁺u + W⁻l + b]` and `ReLU` is monotone. Each of those
-//! sums is a dot product of `n_in + 1` terms (the bias as a term times 1), widened outward by
-//! [`err_bound`] with the magnitude `|W|·max(|l|, |u|) + |b|` (module error model, via
-//! [`affine_max`] / [`affine_min`]).
+//! Intervals are kept as centre and radius, `z ∈ [c − r, c + r]`; an affine layer maps them to
+//! `(W c + b, |W| r)` (equal to `[W⁺l + W⁻u + b, W⁺u + W⁻l + b]`), and `ReLU` is monotone:
+//! `[max(l, 0), max(u, 0)]`. For a group of `G` boxes a layer is three GEMMs
+//! `(n_k × n_{k−1})·(n_{k−1} × G)`: `W c`, `|W| r`, and the rounding magnitude `|W| (|c| + r)`.
+//!
+//! Rounding (module error model of [`crate::bounds`]): the computed `W c + b` and `|W| r` err by
+//! at most `γ (|W| (|c| + r) + |b|)` together (`n_{k−1} + 1` terms), which is added to `r`
+//! rounded up; the centre and radius of an interval are chosen so that `[l, u] ⊆ [c − r, c + r]`
+//! exactly (`r` rounded up), and `c ∓ r` are rounded outward.
 
-use super::{affine_max, affine_min, magnitudes, AffineBounds, AffineBoundsBatch, BoundsError};
-use super::{network_bounds_batch_into, BoundMethod, OutRow};
+use super::{add_down, add_up, err_bound, gemm, next_up};
+use super::{
+    network_bounds_batch_into, AffineBounds, AffineBoundsBatch, BoundMethod, BoundsError, OutRow,
+};
 use crate::network::Mlp;
+use rayon::prelude::*;
 
 /// IBP bounds of `net` over `[lower, upper]` (affine forms with `C = 0`).
 pub fn ibp(net: &Mlp, lower: &[f64], upper: &[f64]) -> Result<AffineBounds, BoundsError> {
@@ -18,55 +26,119 @@ pub fn ibp(net: &Mlp, lower: &[f64], upper: &[f64]) -> Result<AffineBounds, Boun
         .unwrap_or_else(|| AffineBounds::unbounded(net.input_dim(), net.output_dim())))
 }
 
-/// Rigorous interval bounds of every layer's *pre-activation* `z_k` over the box, input first.
-/// Assumes a validated network and box.
-pub(crate) fn ibp_pre_activations(
-    net: &Mlp,
-    lower: &[f64],
-    upper: &[f64],
-) -> Vec<(Vec<f64>, Vec<f64>)> {
-    let mut out: Vec<(Vec<f64>, Vec<f64>)> = Vec::with_capacity(net.layers.len());
-    let (mut lo, mut hi) = (lower.to_vec(), upper.to_vec());
-    let mut mag = Vec::new();
-    for (k, layer) in net.layers.iter().enumerate() {
-        if k > 0 {
-            // a = ReLU(z) is monotone: [max(l, 0), max(u, 0)], exact.
-            lo.iter_mut().for_each(|v| *v = v.max(0.0));
-            hi.iter_mut().for_each(|v| *v = v.max(0.0));
-        }
-        magnitudes(&lo, &hi, &mut mag);
-        let rows = layer.weight.chunks_exact(layer.n_in).zip(&layer.bias);
-        let (zl, zu): (Vec<f64>, Vec<f64>) = rows
-            .map(|(w, &b)| {
-                (
-                    affine_min(w, b, &lo, &hi, &mag),
-                    affine_max(w, b, &lo, &hi, &mag),
-                )
-            })
-            .unzip();
-        out.push((zl.clone(), zu.clone()));
-        lo = zl;
-        hi = zu;
-    }
-    out
+/// Buffers for one group of boxes.
+#[derive(Default)]
+struct Workspace {
+    c: Vec<f64>,
+    r: Vec<f64>,
+    v: Vec<f64>,
+    c_next: Vec<f64>,
+    r_next: Vec<f64>,
+    e: Vec<f64>,
 }
 
-/// IBP into one output row; assumes a validated network and box.
-pub(crate) fn ibp_into(net: &Mlp, lower: &[f64], upper: &[f64], row: &mut OutRow<'_>) {
-    let bounds = ibp_pre_activations(net, lower, upper);
-    let Some((l, u)) = bounds.last() else {
-        row.set_unbounded();
+/// IBP for a validated batch, into `rows` (one per box): groups of boxes as GEMMs, in parallel.
+pub(crate) fn ibp_batch_into(net: &Mlp, lower: &[f64], upper: &[f64], rows: &mut [OutRow<'_>]) {
+    let n0 = net.input_dim();
+    if rows.is_empty() {
         return;
-    };
-    row.a_lower.fill(0.0);
-    row.a_upper.fill(0.0);
-    row.b_lower.copy_from_slice(l);
-    row.lower.copy_from_slice(l);
-    row.b_upper.copy_from_slice(u);
-    row.upper.copy_from_slice(u);
+    }
+    let threads = rayon::current_num_threads().max(1);
+    let group = rows.len().div_ceil(threads).clamp(1, MAX_GROUP);
+    let abs_w: Vec<Vec<f64>> = net
+        .layers
+        .iter()
+        .map(|l| l.weight.iter().map(|w| w.abs()).collect())
+        .collect();
+    rows.par_chunks_mut(group)
+        .zip(lower.par_chunks(group * n0))
+        .zip(upper.par_chunks(group * n0))
+        .for_each_init(Workspace::default, |ws, ((rows, lo), hi)| {
+            ibp_group(net, &abs_w, lo, hi, rows, ws);
+            rows.iter_mut().for_each(|row| row.sanitize());
+        });
+}
+
+/// Largest number of boxes propagated together in one GEMM.
+const MAX_GROUP: usize = 256;
+
+/// One group of boxes; intervals as `[c − r, c + r]`, matrices `n_k × G` (column = box).
+fn ibp_group(
+    net: &Mlp,
+    abs_w: &[Vec<f64>],
+    lower: &[f64],
+    upper: &[f64],
+    rows: &mut [OutRow<'_>],
+    ws: &mut Workspace,
+) {
+    let n0 = net.input_dim();
+    let g_count = rows.len();
+    ws.c.clear();
+    ws.c.resize(n0 * g_count, 0.0);
+    ws.r.clear();
+    ws.r.resize(n0 * g_count, 0.0);
+    for g in 0..g_count {
+        for p in 0..n0 {
+            let (l, h) = (lower[g * n0 + p], upper[g * n0 + p]);
+            let (c, r) = centre_radius(l, h);
+            ws.c[p * g_count + g] = c;
+            ws.r[p * g_count + g] = r;
+        }
+    }
+    let n_layers = net.layers.len();
+    for (k, layer) in net.layers.iter().enumerate() {
+        let (n, n_prev) = (layer.n_out, layer.n_in);
+        ws.v.clear();
+        ws.v.extend(ws.c.iter().zip(&ws.r).map(|(c, r)| c.abs() + r));
+        for buf in [&mut ws.c_next, &mut ws.r_next, &mut ws.e] {
+            buf.clear();
+            buf.resize(n * g_count, 0.0);
+        }
+        gemm(n, n_prev, g_count, &layer.weight, &ws.c, &mut ws.c_next);
+        gemm(n, n_prev, g_count, &abs_w[k], &ws.r, &mut ws.r_next);
+        gemm(n, n_prev, g_count, &abs_w[k], &ws.v, &mut ws.e);
+        for i in 0..n {
+            let b = layer.bias[i];
+            for g in 0..g_count {
+                let at = i * g_count + g;
+                ws.c_next[at] += b;
+                let err = err_bound(n_prev + 1, ws.e[at] + b.abs(), 1.0);
+                ws.r_next[at] = add_up(ws.r_next[at], err);
+            }
+        }
+        std::mem::swap(&mut ws.c, &mut ws.c_next);
+        std::mem::swap(&mut ws.r, &mut ws.r_next);
+        if k + 1 < n_layers {
+            // ReLU is monotone: [max(l, 0), max(u, 0)], back to centre–radius.
+            for (c, r) in ws.c.iter_mut().zip(ws.r.iter_mut()) {
+                let l = add_down(*c, -*r).max(0.0);
+                let u = add_up(*c, *r).max(0.0);
+                (*c, *r) = centre_radius(l, u);
+            }
+        }
+    }
+    for (g, row) in rows.iter_mut().enumerate() {
+        for i in 0..row.lower.len() {
+            let (c, r) = (ws.c[i * g_count + g], ws.r[i * g_count + g]);
+            row.lower[i] = add_down(c, -r);
+            row.upper[i] = add_up(c, r);
+        }
+        row.a_lower.fill(0.0);
+        row.a_upper.fill(0.0);
+        row.b_lower.copy_from_slice(row.lower);
+        row.b_upper.copy_from_slice(row.upper);
+    }
+}
+
+/// `(c, r)` with `[l, h] ⊆ [c − r, c + r]` in exact arithmetic (`r` rounded up).
+#[inline]
+fn centre_radius(l: f64, h: f64) -> (f64, f64) {
+    let c = 0.5 * l + 0.5 * h;
+    (c, next_up(h - c).max(next_up(c - l)))
 }
 
 #[cfg(test)]
+#[allow(clippy::needless_range_loop)]
 mod tests {
     use super::*;
     use crate::bounds::test_support::*;

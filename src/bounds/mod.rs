@@ -33,19 +33,19 @@
 //!   form has anyway); `m̂` is itself a sum of non-negative rounded terms, so
 //!   `Σ|t_j| ≤ m̂ / (1 − γ_{N+2})`. Hence, for `N ≤ 2³⁰`,
 //!   `|ŝ − Σ t_j| ≤ γ̂_N m̂ + N·2⁻¹⁰⁷²` with `γ̂_N = (N+3)·2⁻⁵²` (twice `γ_{N+3}`, which covers
-//!   both `1/(1−γ)` factors). [`err_bound`] evaluates that bound and rounds it up. When the
+//!   both `1/(1−γ)` factors). `err_bound` evaluates that bound and rounds it up. When the
 //!   computed numbers are *coefficients* later multiplied by variables bounded by `mag`, the
 //!   absolute (underflow) part is scaled by `1 + Σ mag`; relative errors are already carried
 //!   through the magnitude sums.
 //! * **Outward steps.** `fl(a + b)` is within half an ulp of `a + b`, so
-//!   `next_up(fl(a + b)) ≥ a + b` and `next_down(fl(a + b)) ≤ a + b` ([`add_up`], [`add_down`]).
+//!   `next_up(fl(a + b)) ≥ a + b` and `next_down(fl(a + b)) ≤ a + b` (`add_up`, `add_down`).
 //!   Every widened bound is `add_up(ŝ, err_bound(N, m̂))` or `add_down(ŝ, −err_bound(N, m̂))`.
 //! * **Overflow and NaN.** Inputs and weights are checked finite. If any intermediate bound still
 //!   overflows, the affected output rows are replaced by the trivially sound `(0, ∓∞)`; a NaN is
-//!   never laundered into a finite bound (see [`OutRow::sanitize`]).
+//!   never laundered into a finite bound (see `OutRow::sanitize`).
 //!
 //! The per-method modules document how the model is applied to their steps (relaxation lines in
-//! [`relu_lines`], backward products in `crown.rs`, the centre–radius forms in `forward.rs`).
+//! `relu_lines`, backward products in `crown.rs`, the centre–radius forms in `forward.rs`).
 
 mod crown;
 mod forward;
@@ -358,8 +358,8 @@ pub fn network_bounds_batch(
 /// As [`network_bounds_batch`], writing into `out` and reusing its allocations (for a reach
 /// engine that bounds thousands of boxes every Euler step).
 ///
-/// Boxes run in parallel (rayon): one box per task for IBP and CROWN, groups of boxes as GEMMs
-/// for [`BoundMethod::Forward`].
+/// Boxes run in parallel (rayon): one box per task for CROWN, groups of boxes as GEMMs for
+/// [`BoundMethod::Ibp`] and [`BoundMethod::Forward`].
 pub fn network_bounds_batch_into(
     net: &Mlp,
     lower: &[f64],
@@ -373,14 +373,7 @@ pub fn network_bounds_batch_into(
     let mut rows = out.rows_mut();
     rows.truncate(n_boxes);
     match method {
-        BoundMethod::Ibp => run_per_box(
-            net,
-            lower,
-            upper,
-            &mut rows,
-            || (),
-            |_, lo, hi, row| ibp::ibp_into(net, lo, hi, row),
-        ),
+        BoundMethod::Ibp => ibp::ibp_batch_into(net, lower, upper, &mut rows),
         BoundMethod::Crown | BoundMethod::CrownSameSlope => {
             let relaxation = if method == BoundMethod::Crown {
                 Relaxation::Adaptive
@@ -620,7 +613,7 @@ pub(crate) fn err_bound(n_terms: usize, magnitude: f64, scale: f64) -> f64 {
     next_up(next_up(gamma_hat(n_terms) * magnitude) + underflow)
 }
 
-/// Slopes below this are flushed to zero in [`relu_lines`].
+/// Slopes below this are flushed to zero in `relu_lines`.
 const TINY_SLOPE: f64 = 1e-290;
 
 /// A rigorous upper bound of `max_{x∈[lo,hi]} w·x + b`; `mag[p] ≥ max(|lo[p]|, |hi[p]|)`.

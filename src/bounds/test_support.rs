@@ -1,6 +1,7 @@
 //! Shared test fixtures for the bounds modules: seeded random networks and boxes, sample points,
 //! and a containment check that evaluates the network and the affine forms in double-double
 //! arithmetic (≈ 106 bits), so that a sound bound is never failed by the check's own rounding.
+#![allow(clippy::needless_range_loop)] // index loops read as the formulas
 
 use super::AffineBounds;
 use crate::network::Mlp;

@@ -16,13 +16,13 @@ pub struct SimulateArgs {
     /// The scenario file (TOML).
     scenario: PathBuf,
     /// Start from this point (comma-separated, one number per state); repeatable.
-    #[arg(long = "from", value_name = "X1,X2,...")]
+    #[arg(long = "from", value_name = "X1,X2,...", allow_hyphen_values = true)]
     from: Vec<String>,
     /// Start from N random safe points of --box (default: the region C).
     #[arg(long, value_name = "N")]
     samples: Option<usize>,
     /// Box to sample, as LOWER:UPPER with comma-separated corners, e.g. -1,-1:1,1.
-    #[arg(long = "box", value_name = "LOWER:UPPER")]
+    #[arg(long = "box", value_name = "LOWER:UPPER", allow_hyphen_values = true)]
     sample_box: Option<String>,
     /// Seed for the samples.
     #[arg(long, default_value_t = 0)]
