@@ -332,7 +332,7 @@ fn kkt_point(rows: &ConstraintRows, m: usize, active: &[usize]) -> Option<Vec<f6
     let ga = nalgebra::DMatrix::from_fn(active.len(), m, |r, j| rows.g[active[r] * m + j]);
     let qa = nalgebra::DVector::from_iterator(active.len(), active.iter().map(|&r| rows.q[r]));
     let mu = -(&ga * ga.transpose()).lu().solve(&qa)?;
-    if mu.iter().any(|&l| !(l >= 0.0)) {
+    if !mu.iter().all(|l| *l >= 0.0) {
         return None;
     }
     Some((-(ga.transpose() * mu)).iter().copied().collect())

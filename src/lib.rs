@@ -22,6 +22,7 @@ pub mod network;
 pub mod reach;
 pub mod scenario;
 pub mod simulate;
+pub mod surrogate_error;
 
 pub use error::Error;
 pub use boxes::IntervalBox;

@@ -30,6 +30,9 @@ enum Command {
     Dataset(cli::train::DatasetArgs),
     /// Train the surrogate ReLU network N ≈ v and save it as safetensors.
     Train(cli::train::TrainArgs),
+    /// Measured and certified error of the network against the filter (M_C), slope error,
+    /// bound looseness; writes the error map beside the network.
+    Error(cli::error::ErrorArgs),
     /// Reachable sets of the filtered system from the scenario's initial boxes.
     Reach(cli::reach::ReachArgs),
     /// Find, classify and list the equilibria of the filtered system inside C.
@@ -51,6 +54,7 @@ fn main() -> ExitCode {
         Some(Command::Reach(a)) => cli::reach::run(&a),
         Some(Command::Dataset(a)) => cli::train::run_dataset(&a),
         Some(Command::Train(a)) => cli::train::run_train(&a),
+        Some(Command::Error(a)) => cli::error::run(&a),
         Some(Command::Equilibria { scenario, json }) => cli::equilibria::run(&scenario, json),
     };
     match result {

@@ -80,12 +80,12 @@ fn assert_inside(
         let Some(x) = xs.get(step * sub) else { break };
         let set = sample.inflated();
         let tol = tol(step);
-        for i in 0..x.len() {
+        for (i, &xi) in x.iter().enumerate() {
             assert!(
-                set.lower[i] - tol <= x[i] && x[i] <= set.upper[i] + tol,
+                set.lower[i] - tol <= xi && xi <= set.upper[i] + tol,
                 "{what}: at t = {} coordinate {i} = {} escapes [{}, {}] (tube from {:?})",
                 sample.t,
-                x[i],
+                xi,
                 set.lower[i],
                 set.upper[i],
                 tube.initial

@@ -2,6 +2,7 @@
 
 pub mod check;
 pub mod equilibria;
+pub mod error;
 pub mod reach;
 pub mod report;
 pub mod simulate;

@@ -52,13 +52,7 @@ struct ReachJson<'a> {
 
 /// Loads the network named by `--network` or by the scenario.
 pub fn load_network(s: &Scenario, path: Option<&PathBuf>) -> Result<Mlp, Box<dyn std::error::Error>> {
-    let path = match (path, &s.network) {
-        (Some(p), _) => p.clone(),
-        (None, Some(net)) => net.file.clone(),
-        (None, None) => {
-            return Err(format!("{}: no [network] section and no --network given", s.file).into())
-        }
-    };
+    let path = network_path(s, path)?;
     if !path.exists() {
         return Err(format!(
             "{}: network file {} does not exist (train one with `cbfreach train {}`)",
@@ -71,17 +65,37 @@ pub fn load_network(s: &Scenario, path: Option<&PathBuf>) -> Result<Mlp, Box<dyn
     Ok(Mlp::load_safetensors(&path)?)
 }
 
-/// `M_C` from the flag or the scenario.
-pub fn resolve_margin(s: &Scenario, flag: Option<f64>) -> Result<f64, String> {
+/// The network file named by `--network` or by the scenario.
+pub fn network_path(
+    s: &Scenario,
+    path: Option<&PathBuf>,
+) -> Result<PathBuf, Box<dyn std::error::Error>> {
+    match (path, &s.network) {
+        (Some(p), _) => Ok(p.clone()),
+        (None, Some(net)) => Ok(net.file.clone()),
+        (None, None) => {
+            Err(format!("{}: no [network] section and no --network given", s.file).into())
+        }
+    }
+}
+
+/// `M_C` from the flag or the scenario; `"certified"` / `"measured"` come from the error map
+/// beside `network` (written by `cbfreach error`).
+pub fn resolve_margin(
+    s: &Scenario,
+    flag: Option<f64>,
+    network: &std::path::Path,
+) -> Result<f64, String> {
     match (flag, s.reach.m_c) {
         (Some(v), _) if v.is_finite() && v >= 0.0 => Ok(v),
         (Some(v), _) => Err(format!("--m-c: expected a finite number ≥ 0, found {v}")),
         (None, Margin::Value(v)) => Ok(v),
-        (None, other) => Err(format!(
-            "{}: reach.m_c = {other:?} needs the network's error report, which this version \
-             cannot compute yet; give --m-c",
-            s.file
-        )),
+        (None, other) => cbfreach::surrogate_error::resolve_margin(s, network).map_err(|e| {
+            format!(
+                "{}: reach.m_c = {other:?}: {e} (run `cbfreach error {}` first, or give --m-c)",
+                s.file, s.file
+            )
+        }),
     }
 }
 
@@ -92,7 +106,7 @@ pub fn run(args: &ReachArgs) -> CliResult {
         return Err(format!("--backend {}: only `cpu` exists so far", args.backend).into());
     }
     let network = load_network(&s, args.network.as_ref())?;
-    let m_c = resolve_margin(&s, args.m_c)?;
+    let m_c = resolve_margin(&s, args.m_c, &network_path(&s, args.network.as_ref())?)?;
     let problem = ReachProblem::new(&s, network, m_c)?;
     let settings = ReachSettings {
         bounds: args.bounds,

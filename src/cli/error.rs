@@ -1,0 +1,159 @@
+//! `cbfreach error <scenario>`: measured and certified `M_C`, slope error and bound looseness
+//! of the surrogate network, and the error map beside the network.
+
+use std::path::PathBuf;
+
+use cbfreach::surrogate_error::{
+    certify, error_map_path, looseness, measure, ErrorMap, ErrorSettings, Looseness, Percentiles,
+};
+use serde::Serialize;
+
+use super::reach::{load_network, network_path};
+use super::{fmt_point, load_scenario, progress_bar, CliResult};
+
+/// Arguments of `cbfreach error`.
+#[derive(clap::Args)]
+pub struct ErrorArgs {
+    /// The scenario file (TOML).
+    pub scenario: PathBuf,
+    /// Use this network instead of the scenario's.
+    #[arg(long)]
+    pub network: Option<PathBuf>,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    pub json: bool,
+    /// Cell evaluations allowed to the certified bound.
+    #[arg(long, default_value_t = 20_000)]
+    pub budget: usize,
+    /// Measurement grid: this many times the training grid's points per axis.
+    #[arg(long, default_value_t = 2)]
+    pub refine: usize,
+    /// Looseness: at most this many 0.1-wide boxes across C ∩ S (0 skips the looseness).
+    #[arg(long, default_value_t = 300)]
+    pub looseness_boxes: usize,
+    /// Do not write the error map beside the network.
+    #[arg(long)]
+    pub no_map: bool,
+}
+
+#[derive(Serialize)]
+struct ErrorJson {
+    linf: f64,
+    l2: f64,
+    argmax: Vec<f64>,
+    argmax_l2: Vec<f64>,
+    mean: f64,
+    certified_linf: Option<f64>,
+    cells: usize,
+    dropped_cells: usize,
+    evaluated_cells: usize,
+    budget_spent: bool,
+    grid_points: usize,
+    samples: usize,
+    slope: Percentiles,
+    looseness: Option<Looseness>,
+    error_map: Option<String>,
+}
+
+/// Runs the command.
+pub fn run(args: &ErrorArgs) -> CliResult {
+    let s = load_scenario(&args.scenario)?;
+    let path = network_path(&s, args.network.as_ref())?;
+    let net = load_network(&s, Some(&path))?;
+    let settings = ErrorSettings {
+        refine: args.refine.max(1),
+        budget: args.budget,
+        looseness_boxes: args.looseness_boxes,
+        ..ErrorSettings::default()
+    };
+
+    let bar = progress_bar(0, "filter on the measurement grid");
+    let measured = measure(&s, &net, &settings, &|d| bar.set_position(d as u64))?;
+    bar.finish_and_clear();
+
+    let loose = if args.looseness_boxes > 0 {
+        Some(looseness(&s, &net, &settings)?)
+    } else {
+        None
+    };
+
+    let bar = progress_bar(args.budget as u64, "certifying cells");
+    let certified = certify(&s, &net, measured.linf, &settings, &|done, worst| {
+        bar.set_position(done as u64);
+        bar.set_message(format!("worst cell bound {worst:.4}"));
+    })?;
+    bar.finish_and_clear();
+
+    let map_file = if args.no_map {
+        None
+    } else {
+        let map = ErrorMap::new(&path, &s.reach.region, &measured, certified.as_ref())?;
+        let file = error_map_path(&path);
+        map.save(&file)?;
+        Some(file)
+    };
+
+    let out = ErrorJson {
+        linf: measured.linf,
+        l2: measured.l2,
+        argmax: measured.argmax.clone(),
+        argmax_l2: measured.argmax_l2.clone(),
+        mean: measured.mean,
+        certified_linf: certified.as_ref().map(|c| c.linf),
+        cells: certified.as_ref().map_or(0, |c| c.cells.len()),
+        dropped_cells: certified.as_ref().map_or(0, |c| c.dropped),
+        evaluated_cells: certified.as_ref().map_or(0, |c| c.evaluated),
+        budget_spent: certified.as_ref().is_some_and(|c| c.budget_spent),
+        grid_points: measured.grid_points,
+        samples: measured.samples,
+        slope: measured.slope,
+        looseness: loose,
+        error_map: map_file.as_ref().map(|p| p.display().to_string()),
+    };
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&out)?);
+        return Ok(());
+    }
+    println!("{}: network {}", s.file, path.display());
+    println!(
+        "measured on {} points of C ∩ S ({} grid points, {} infeasible skipped):",
+        measured.samples, measured.grid_points, measured.infeasible
+    );
+    println!(
+        "  max ℓ∞ error {:.4} at {}, max ℓ2 error {:.4} at {}, mean ℓ∞ {:.4}",
+        out.linf,
+        fmt_point(&out.argmax),
+        out.l2,
+        fmt_point(&out.argmax_l2),
+        out.mean
+    );
+    println!(
+        "  slope error max_ij |DN − Dv|_ij: median {:.3}, 95th percentile {:.3}, max {:.3}",
+        out.slope.median, out.slope.p95, out.slope.max
+    );
+    if let Some(l) = &loose {
+        println!(
+            "bound looseness (width / sampled range) on {} boxes 0.1 wide: IBP median {:.3}, max {:.3}; CROWN median {:.3}, max {:.3}",
+            l.boxes, l.ibp.median, l.ibp.max, l.crown.median, l.crown.max
+        );
+    }
+    match &certified {
+        Some(c) => println!(
+            "certified M_C over C ∩ S: {:.4} ({} cells kept, {} proven unsafe, {} evaluated{})",
+            c.linf,
+            c.cells.len(),
+            c.dropped,
+            c.evaluated,
+            if c.budget_spent {
+                "; budget spent before reaching 1.1 × the measured error"
+            } else {
+                ""
+            }
+        ),
+        None => println!("certified M_C: none (the filter is a general QP without a closed form)"),
+    }
+    if let Some(f) = map_file {
+        println!("error map written to {}", f.display());
+    }
+    Ok(())
+}

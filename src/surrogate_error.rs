@@ -1,0 +1,934 @@
+//! How far the surrogate network `N` is from the filter `v` (DESIGN §2.1, §2b; issue 6).
+//!
+//! * [`measure`]: `M_C` *measured* on a grid finer than the training grid and offset from it,
+//!   over `C ∩ S` — max ℓ∞ and ℓ2 error and where they occur — and the slope error
+//!   `max_ij |DN − Dv|_ij` (the largest absolute entry of the Jacobian difference, `Dv` by
+//!   central differences) as median, 95th percentile and max.
+//! * [`looseness`]: over small boxes across `C ∩ S`, the ratio of the bound width (IBP and
+//!   CROWN) to the output range of `N` seen on samples of the box.
+//! * [`certify`]: a **certified** `M_C ≥ sup_{x ∈ C ∩ S} ‖N(x) − v(x)‖∞` for the closed-form
+//!   filters (one constraint row, or a scalar input). `C` is cut into cells; cells on which some
+//!   `hᵢ < 0` (interval evaluation) are dropped; on every other cell `N` is bounded by IBP (and
+//!   backward CROWN when IBP is not tight enough) and `v` by an interval evaluation of the closed
+//!   form ([`v_enclosure`]); the worst cells are bisected until the bound is within a tolerance of
+//!   the measured value or a budget of cell evaluations is spent. The bound holds on each whole
+//!   kept cell (a superset of its part of `C ∩ S`), floating-point error included.
+//! * [`ErrorMap`]: the certified per-cell bounds, stored beside the network
+//!   (`<network stem>.errormap.json`, [`error_map_path`]), so that reachability can use a local
+//!   bound over the cells that a box meets ([`ErrorMap::local_bound`]) instead of the global
+//!   `M_C`; [`resolve_margin`] turns a scenario's `m_c = "certified"` / `"measured"` into a number.
+
+use std::cmp::Ordering;
+use std::collections::BinaryHeap;
+use std::path::{Path, PathBuf};
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::bounds::{network_bounds, BoundMethod, BoundsError};
+use crate::boxes::IntervalBox;
+use crate::dataset::{filter_dataset, grid_points};
+use crate::filter::{FilterMethod, SafetyFilter};
+use crate::intervals::{round_up, Interval};
+use crate::network::NetworkError;
+use crate::network::train::pointwise_errors;
+use crate::network::Mlp;
+use crate::scenario::{Margin, Scenario};
+
+/// Why an error analysis (or an error map) failed.
+#[derive(Debug, thiserror::Error)]
+pub enum AnalysisError {
+    /// The network does not fit the scenario, or evaluating it failed.
+    #[error(transparent)]
+    Network(#[from] NetworkError),
+    /// Bounding the network failed.
+    #[error(transparent)]
+    Bounds(#[from] BoundsError),
+    /// The network's input/output dimensions differ from the scenario's `n`/`m`.
+    #[error("the network maps {net_in} → {net_out} but the scenario has n = {n}, m = {m}")]
+    Dimensions {
+        /// Network input dimension.
+        net_in: usize,
+        /// Network output dimension.
+        net_out: usize,
+        /// Scenario state dimension.
+        n: usize,
+        /// Scenario input dimension.
+        m: usize,
+    },
+    /// No grid point of `C ∩ S` where the filter is feasible.
+    #[error("no grid point of C ∩ S where the filter is feasible: nothing to measure")]
+    NoSamples,
+    /// Reading or writing a file failed.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// An error map file is not valid.
+    #[error("{path}: not a valid error map: {message}")]
+    Format {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+    /// The error map was computed for another network (its file changed since).
+    #[error(
+        "{path} was computed for another version of {network} (run `cbfreach error` again)"
+    )]
+    StaleMap {
+        /// The error map.
+        path: PathBuf,
+        /// The network file.
+        network: PathBuf,
+    },
+    /// The map has no certified bound (the filter is a general QP).
+    #[error("{path} holds no certified bound (the scenario's filter has no closed form); use a number or \"measured\"")]
+    NotCertified {
+        /// The error map.
+        path: PathBuf,
+    },
+    /// A box that the map does not cover.
+    #[error("box {lower:?}..{upper:?} is not inside the mapped region {region_lower:?}..{region_upper:?}")]
+    OutsideMap {
+        /// The box's lower corner.
+        lower: Vec<f64>,
+        /// The box's upper corner.
+        upper: Vec<f64>,
+        /// The region's lower corner.
+        region_lower: Vec<f64>,
+        /// The region's upper corner.
+        region_upper: Vec<f64>,
+    },
+}
+
+/// Settings of the analysis; every field has a default.
+#[derive(Clone, Debug)]
+pub struct ErrorSettings {
+    /// Measurement grid: this many times the training grid's points per axis (default 2, i.e.
+    /// 4× the points in the plane), cell-centred on `C` so that it is offset from the training
+    /// grid.
+    pub refine: usize,
+    /// Points per axis of the measurement grid (overrides `refine` when set).
+    pub grid: Option<Vec<usize>>,
+    /// Cell evaluations allowed to the certification (default 20,000).
+    pub budget: usize,
+    /// Stop refining when the certified bound is within this fraction of the measured one
+    /// (default 0.1).
+    pub tolerance: f64,
+    /// Width of the initial cells of the certification (default 0.25).
+    pub initial_cell: f64,
+    /// Width of the looseness boxes (default 0.1).
+    pub looseness_width: f64,
+    /// At most this many looseness boxes, spread over `C` (default 300).
+    pub looseness_boxes: usize,
+    /// Random samples per looseness box, besides its corners (default 16).
+    pub looseness_samples: usize,
+    /// Seed of the looseness samples (default 0).
+    pub seed: u64,
+}
+
+impl Default for ErrorSettings {
+    fn default() -> Self {
+        ErrorSettings {
+            refine: 2,
+            grid: None,
+            budget: 20_000,
+            tolerance: 0.1,
+            initial_cell: 0.25,
+            looseness_width: 0.1,
+            looseness_boxes: 300,
+            looseness_samples: 16,
+            seed: 0,
+        }
+    }
+}
+
+/// Median, 95th percentile and max of a sample.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Percentiles {
+    /// Median.
+    pub median: f64,
+    /// 95th percentile (nearest rank).
+    pub p95: f64,
+    /// Maximum.
+    pub max: f64,
+}
+
+impl Percentiles {
+    /// Of `values` (NaN sorts last); zeros for an empty sample.
+    pub fn of(values: &[f64]) -> Percentiles {
+        if values.is_empty() {
+            return Percentiles::default();
+        }
+        let mut v = values.to_vec();
+        v.sort_by(f64::total_cmp);
+        let at = |q: f64| v[((q * v.len() as f64).ceil() as usize).clamp(1, v.len()) - 1];
+        Percentiles {
+            median: at(0.5),
+            p95: at(0.95),
+            max: v[v.len() - 1],
+        }
+    }
+}
+
+/// The measured error of `N` on a grid over `C ∩ S`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Measured {
+    /// `max ‖N(x) − v(x)‖∞` over the grid points of `C ∩ S`.
+    pub linf: f64,
+    /// `max ‖N(x) − v(x)‖₂` over the same points.
+    pub l2: f64,
+    /// Where `linf` is attained.
+    pub argmax: Vec<f64>,
+    /// Where `l2` is attained.
+    pub argmax_l2: Vec<f64>,
+    /// Mean `‖N(x) − v(x)‖∞`.
+    pub mean: f64,
+    /// Points of the full grid over `C`.
+    pub grid_points: usize,
+    /// Points of `C ∩ S` where the filter is feasible (the ones measured).
+    pub samples: usize,
+    /// Points of `C ∩ S` where the filter is infeasible (skipped).
+    pub infeasible: usize,
+    /// `max_ij |DN − Dv|_ij` over the samples (largest absolute entry, not spectral).
+    pub slope: Percentiles,
+}
+
+fn check_dims(s: &Scenario, net: &Mlp) -> Result<(), AnalysisError> {
+    if net.input_dim() != s.n() || net.output_dim() != s.m() {
+        return Err(AnalysisError::Dimensions {
+            net_in: net.input_dim(),
+            net_out: net.output_dim(),
+            n: s.n(),
+            m: s.m(),
+        });
+    }
+    Ok(())
+}
+
+/// Points per axis of the measurement grid.
+pub fn measurement_counts(s: &Scenario, settings: &ErrorSettings) -> Vec<usize> {
+    match &settings.grid {
+        Some(g) if g.len() == s.n() => g.iter().map(|&k| k.max(1)).collect(),
+        _ => s
+            .training
+            .grid
+            .iter()
+            .map(|&k| k.max(2) * settings.refine.max(1))
+            .collect(),
+    }
+}
+
+/// The cell-centred grid with `counts[i]` points along axis i: `lᵢ + (j + ½)(uᵢ − lᵢ)/countsᵢ`.
+/// With `counts = 2k` over the training region it never lands on the training grid's interior
+/// lines except by accident of rounding.
+pub fn centred_grid(region: &IntervalBox, counts: &[usize]) -> Vec<Vec<f64>> {
+    let h: Vec<f64> = (0..region.dim())
+        .map(|i| (region.upper[i] - region.lower[i]) / counts[i].max(1) as f64)
+        .collect();
+    let inner = IntervalBox {
+        lower: (0..region.dim())
+            .map(|i| region.lower[i] + 0.5 * h[i])
+            .collect(),
+        upper: (0..region.dim())
+            .map(|i| region.upper[i] - 0.5 * h[i])
+            .collect(),
+    };
+    if counts.iter().any(|&k| k < 2) {
+        // A single point per axis: the centre.
+        let c = region.center();
+        let counts2: Vec<usize> = counts.iter().map(|&k| k.max(1)).collect();
+        if counts2.iter().all(|&k| k == 1) {
+            return vec![c];
+        }
+    }
+    grid_points(&inner, counts)
+}
+
+/// Measures the error of `net` against the scenario's filter on a grid over `C ∩ S`
+/// ([`ErrorSettings::refine`] times the training grid per axis, offset from it).
+pub fn measure(
+    s: &Scenario,
+    net: &Mlp,
+    settings: &ErrorSettings,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<Measured, AnalysisError> {
+    check_dims(s, net)?;
+    let counts = measurement_counts(s, settings);
+    let all = centred_grid(&s.reach.region, &counts);
+    let grid_points = all.len();
+    let safe: Vec<Vec<f64>> = all.into_iter().filter(|x| s.is_safe(x)).collect();
+    let filter = SafetyFilter::new(s);
+    let (data, summary) = filter_dataset(&filter, &safe, true, progress);
+    if data.is_empty() {
+        return Err(AnalysisError::NoSamples);
+    }
+    let pe = pointwise_errors(net, &data)?;
+    let n = s.n();
+    let argmax_of = |v: &[f64]| {
+        (0..v.len())
+            .max_by(|&a, &b| v[a].total_cmp(&v[b]))
+            .unwrap_or(0)
+    };
+    let (k, k2) = (argmax_of(&pe.value), argmax_of(&pe.value_l2));
+    Ok(Measured {
+        linf: pe.value[k],
+        l2: pe.value_l2[k2],
+        argmax: data.inputs[k * n..(k + 1) * n].to_vec(),
+        argmax_l2: data.inputs[k2 * n..(k2 + 1) * n].to_vec(),
+        mean: pe.value.iter().sum::<f64>() / pe.value.len() as f64,
+        grid_points,
+        samples: summary.samples,
+        infeasible: summary.infeasible,
+        slope: Percentiles::of(pe.slope.as_deref().unwrap_or(&[])),
+    })
+}
+
+/// Median and max of a bound-width-to-sampled-range ratio.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Ratio {
+    /// Median over the boxes.
+    pub median: f64,
+    /// Max over the boxes.
+    pub max: f64,
+}
+
+/// Bound looseness of a network over small boxes across `C ∩ S`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Looseness {
+    /// Boxes measured.
+    pub boxes: usize,
+    /// IBP.
+    pub ibp: Ratio,
+    /// Backward CROWN (adaptive relaxation).
+    pub crown: Ratio,
+}
+
+/// A small deterministic generator (splitmix64) for sample points.
+struct SplitMix(u64);
+
+impl SplitMix {
+    fn next_f64(&mut self) -> f64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^= z >> 31;
+        (z >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+/// Bound looseness: boxes of width [`ErrorSettings::looseness_width`] centred on a grid over `C`
+/// (at most [`ErrorSettings::looseness_boxes`]; those with a safe centre), and for each the ratio
+/// `maxⱼ (N̄ⱼ − N̲ⱼ) / maxⱼ rangeⱼ`, where `rangeⱼ` is the spread of `Nⱼ` over the box's corners
+/// and [`ErrorSettings::looseness_samples`] random points (floored at 1e-12).
+pub fn looseness(
+    s: &Scenario,
+    net: &Mlp,
+    settings: &ErrorSettings,
+) -> Result<Looseness, AnalysisError> {
+    check_dims(s, net)?;
+    let c = &s.reach.region;
+    let n = s.n();
+    let w = settings.looseness_width;
+    let spacing = w.max((c.volume() / settings.looseness_boxes.max(1) as f64).powf(1.0 / n as f64));
+    let counts: Vec<usize> = c
+        .widths()
+        .iter()
+        .map(|&wi| ((wi / spacing).floor() as usize).max(1))
+        .collect();
+    let boxes: Vec<IntervalBox> = centred_grid(c, &counts)
+        .into_iter()
+        .filter(|x| s.is_safe(x))
+        .map(|x| IntervalBox {
+            lower: x.iter().map(|v| v - 0.5 * w).collect(),
+            upper: x.iter().map(|v| v + 0.5 * w).collect(),
+        })
+        .collect();
+    let ratios: Vec<Result<(f64, f64), AnalysisError>> = boxes
+        .par_iter()
+        .enumerate()
+        .map(|(k, b)| {
+            let mut rng = SplitMix(settings.seed ^ (k as u64).wrapping_mul(0x2545_F491_4F6C_DD1D));
+            let mut pts: Vec<Vec<f64>> = (0..1usize << n)
+                .map(|mask| {
+                    (0..n)
+                        .map(|i| if mask >> i & 1 == 1 { b.upper[i] } else { b.lower[i] })
+                        .collect()
+                })
+                .collect();
+            for _ in 0..settings.looseness_samples {
+                let u: Vec<f64> = (0..n).map(|_| rng.next_f64()).collect();
+                pts.push(b.point_at(&u));
+            }
+            let m = net.output_dim();
+            let (mut lo, mut hi) = (vec![f64::INFINITY; m], vec![f64::NEG_INFINITY; m]);
+            for p in &pts {
+                for (j, y) in net.forward(p).into_iter().enumerate() {
+                    lo[j] = lo[j].min(y);
+                    hi[j] = hi[j].max(y);
+                }
+            }
+            let range = (0..m).map(|j| hi[j] - lo[j]).fold(0.0, f64::max).max(1e-12);
+            let width = |method| -> Result<f64, AnalysisError> {
+                let bd = network_bounds(net, &b.lower, &b.upper, method)?;
+                Ok((0..m).map(|j| bd.upper[j] - bd.lower[j]).fold(0.0, f64::max))
+            };
+            Ok((
+                width(BoundMethod::Ibp)? / range,
+                width(BoundMethod::Crown)? / range,
+            ))
+        })
+        .collect();
+    let mut ibp = Vec::with_capacity(ratios.len());
+    let mut crown = Vec::with_capacity(ratios.len());
+    for r in ratios {
+        let (a, b) = r?;
+        ibp.push(a);
+        crown.push(b);
+    }
+    let ratio = |v: &[f64]| {
+        let p = Percentiles::of(v);
+        Ratio {
+            median: p.median,
+            max: p.max,
+        }
+    };
+    Ok(Looseness {
+        boxes: ibp.len(),
+        ibp: ratio(&ibp),
+        crown: ratio(&crown),
+    })
+}
+
+fn sum(it: impl Iterator<Item = Interval>) -> Interval {
+    it.fold(Interval::point(0.0), |a, b| a + b)
+}
+
+/// The constraint rows `aₖ·θ ≤ bₖ` of the filter (as in
+/// [`SafetyFilter::constraint_rows`]) enclosed over a box by interval evaluation: `(a, b)` with
+/// `a` row-major (rows × m).
+pub fn interval_rows(s: &Scenario, cell: &IntervalBox) -> (Vec<Interval>, Vec<Interval>) {
+    let (n, m) = (s.n(), s.m());
+    let xs: Vec<Interval> = (0..n)
+        .map(|i| Interval::new(cell.lower[i], cell.upper[i]))
+        .collect();
+    let ft: Vec<Interval> = s.f_tilde.iter().map(|e| e.eval_interval(&xs)).collect();
+    let g: Vec<Interval> = s.g.iter().flatten().map(|e| e.eval_interval(&xs)).collect();
+    let (mut a, mut b) = (Vec::new(), Vec::new());
+    for cbf in &s.cbfs {
+        let grad: Vec<Interval> = cbf.gradient.iter().map(|e| e.eval_interval(&xs)).collect();
+        let h = cbf.h.eval_interval(&xs);
+        for j in 0..m {
+            a.push(-sum((0..n).map(|i| grad[i] * g[i * m + j])));
+        }
+        b.push(sum((0..n).map(|i| grad[i] * ft[i])) + h * cbf.alpha);
+    }
+    if let Some(bounds) = &s.input_bounds {
+        let kappa: Vec<Interval> = s.kappa.iter().map(|e| e.eval_interval(&xs)).collect();
+        for j in 0..m {
+            let mut row = vec![Interval::point(0.0); m];
+            row[j] = Interval::point(1.0);
+            a.extend(row.iter().copied());
+            b.push(Interval::point(bounds.upper[j]) - kappa[j]);
+            row[j] = Interval::point(-1.0);
+            a.extend(row);
+            b.push(kappa[j] - Interval::point(bounds.lower[j]));
+        }
+    }
+    for c in &s.constraints {
+        a.extend(c.a.iter().map(|e| e.eval_interval(&xs)));
+        b.push(c.b.eval_interval(&xs));
+    }
+    (a, b)
+}
+
+/// `max(0, −B)` for an interval `B`.
+fn neg_part(b: Interval) -> Interval {
+    Interval::new((-b.upper).max(0.0), (-b.lower).max(0.0))
+}
+
+/// An enclosure of the filter `v` over a box, by interval evaluation of its closed form:
+/// `Some(v)` with `v[j] ∋ vⱼ(x)` for every `x` of the box where the filter is feasible, or `None`
+/// when the filter has no closed form ([`FilterMethod::Qp`]). Ends may be infinite (e.g. when
+/// `‖L_g h‖²` may vanish on the box): refine the box.
+///
+/// * One row `a·θ ≤ b`: `v = −max(0, −b)/‖a‖² · a`.
+/// * Scalar input: with `cₖ = max(0, −bₖ)`, `v = max(0, max_{aₖ<0} cₖ/|aₖ|) − max(0,
+///   max_{aₖ>0} cₖ/aₖ)` (which is `clamp(0, lo, hi)` wherever `lo ≤ hi`); a row whose `aₖ` may
+///   vanish with `cₖ > 0` makes the enclosure unbounded.
+pub fn v_enclosure(s: &Scenario, method: FilterMethod, cell: &IntervalBox) -> Option<Vec<Interval>> {
+    let m = s.m();
+    let (a, b) = interval_rows(s, cell);
+    let bad = || Some(vec![Interval::ENTIRE; m]);
+    if a.iter().chain(&b).any(|v| v.is_nan()) {
+        return bad();
+    }
+    match method {
+        FilterMethod::Qp => None,
+        FilterMethod::ClosedFormSingle => {
+            if b.len() != 1 || a.len() != m {
+                return bad();
+            }
+            let c = neg_part(b[0]);
+            if c.upper == 0.0 {
+                return Some(vec![Interval::point(0.0); m]);
+            }
+            let norm2 = sum(a.iter().map(|&aj| aj.sqr()));
+            if norm2.lower <= 0.0 {
+                return bad();
+            }
+            let scale = c / norm2;
+            Some(a.iter().map(|&aj| -(scale * aj)).collect())
+        }
+        FilterMethod::ClosedFormScalar => {
+            if m != 1 || a.len() != b.len() {
+                return bad();
+            }
+            // lo⁺ ∈ [lo_l, lo_u], hi⁻ ∈ [hi_l, hi_u]  (both ≥ 0)
+            let (mut lo_l, mut lo_u, mut hi_l, mut hi_u) = (0.0_f64, 0.0_f64, 0.0_f64, 0.0_f64);
+            for (&ak, &bk) in a.iter().zip(&b) {
+                let c = neg_part(bk);
+                if c.upper == 0.0 {
+                    continue;
+                }
+                if ak.lower > 0.0 {
+                    let q = c / ak;
+                    hi_l = hi_l.max(q.lower);
+                    hi_u = hi_u.max(q.upper);
+                } else if ak.upper < 0.0 {
+                    let q = c / (-ak);
+                    lo_l = lo_l.max(q.lower);
+                    lo_u = lo_u.max(q.upper);
+                } else {
+                    return bad();
+                }
+            }
+            Some(vec![Interval::new(lo_l, lo_u) - Interval::new(hi_l, hi_u)])
+        }
+    }
+}
+
+/// Whether some `hᵢ < 0` on the whole box (by interval evaluation): the box misses `S`.
+pub fn proven_unsafe(s: &Scenario, cell: &IntervalBox) -> bool {
+    let xs: Vec<Interval> = (0..s.n())
+        .map(|i| Interval::new(cell.lower[i], cell.upper[i]))
+        .collect();
+    s.cbfs.iter().any(|c| {
+        let h = c.h.eval_interval(&xs);
+        !h.is_nan() && h.upper < 0.0
+    })
+}
+
+/// `max_j max(N̄ⱼ − v̲ⱼ, v̄ⱼ − N̲ⱼ)`, rounded up; +∞ when anything is unbounded or NaN.
+fn error_from(n_lo: &[f64], n_hi: &[f64], v: &[Interval]) -> f64 {
+    let mut e = 0.0_f64;
+    for j in 0..v.len() {
+        let a = round_up(n_hi[j] - v[j].lower);
+        let b = round_up(v[j].upper - n_lo[j]);
+        if a.is_nan() || b.is_nan() {
+            return f64::INFINITY;
+        }
+        e = e.max(a).max(b);
+    }
+    e
+}
+
+/// A certified bound of `‖N(x) − v(x)‖∞` over one box (all of it, not only its safe part):
+/// IBP first, then backward CROWN (intersected with IBP) when the IBP bound exceeds `good_enough`.
+/// `None` without a closed-form filter; +∞ when an enclosure is unbounded.
+pub fn cell_error_bound(
+    s: &Scenario,
+    net: &Mlp,
+    method: FilterMethod,
+    cell: &IntervalBox,
+    good_enough: f64,
+) -> Result<Option<f64>, AnalysisError> {
+    let Some(v) = v_enclosure(s, method, cell) else {
+        return Ok(None);
+    };
+    if v.iter().any(|vi| vi.lower == f64::NEG_INFINITY || vi.upper == f64::INFINITY) {
+        return Ok(Some(f64::INFINITY));
+    }
+    let ibp = network_bounds(net, &cell.lower, &cell.upper, BoundMethod::Ibp)?;
+    let e = error_from(&ibp.lower, &ibp.upper, &v);
+    if e <= good_enough {
+        return Ok(Some(e));
+    }
+    let crown = network_bounds(net, &cell.lower, &cell.upper, BoundMethod::Crown)?;
+    let lo: Vec<f64> = (0..v.len()).map(|j| ibp.lower[j].max(crown.lower[j])).collect();
+    let hi: Vec<f64> = (0..v.len()).map(|j| ibp.upper[j].min(crown.upper[j])).collect();
+    Ok(Some(e.min(error_from(&lo, &hi, &v))))
+}
+
+/// One cell of an error map and its certified bound.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CellBound {
+    /// Lower corner.
+    pub lower: Vec<f64>,
+    /// Upper corner.
+    pub upper: Vec<f64>,
+    /// `sup ‖N(x) − v(x)‖∞` over the cell is at most this.
+    pub bound: f64,
+}
+
+impl CellBound {
+    /// Whether the (closed) cell meets the (closed) box.
+    pub fn meets(&self, b: &IntervalBox) -> bool {
+        (0..self.lower.len()).all(|i| self.lower[i] <= b.upper[i] && b.lower[i] <= self.upper[i])
+    }
+}
+
+/// The outcome of [`certify`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct Certified {
+    /// `max` of the cells' bounds: a certified `M_C` over `C ∩ S`.
+    pub linf: f64,
+    /// The kept cells (they and the dropped ones tile `C`).
+    pub cells: Vec<CellBound>,
+    /// Cells dropped as proven unsafe.
+    pub dropped: usize,
+    /// Cell evaluations spent.
+    pub evaluated: usize,
+    /// Whether the refinement stopped on the budget rather than on the target.
+    pub budget_spent: bool,
+}
+
+#[derive(PartialEq)]
+struct Entry(f64, IntervalBox);
+
+impl Eq for Entry {}
+
+impl PartialOrd for Entry {
+    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+impl Ord for Entry {
+    fn cmp(&self, other: &Self) -> Ordering {
+        self.0.total_cmp(&other.0)
+    }
+}
+
+/// Cells narrower than this are not bisected further.
+const MIN_CELL: f64 = 1e-7;
+
+/// A certified `M_C` over `C ∩ S` (see the [module docs](self)): refines until the bound is at
+/// most `(1 + tolerance)·target` (`target`: the measured error) or `budget` cell evaluations are
+/// spent. `None` when the filter is a general QP. `progress` is told the evaluations so far.
+pub fn certify(
+    s: &Scenario,
+    net: &Mlp,
+    target: f64,
+    settings: &ErrorSettings,
+    progress: &(dyn Fn(usize, f64) + Sync),
+) -> Result<Option<Certified>, AnalysisError> {
+    check_dims(s, net)?;
+    let method = SafetyFilter::new(s).method();
+    if method == FilterMethod::Qp {
+        return Ok(None);
+    }
+    let goal = target.max(0.0) * (1.0 + settings.tolerance.max(0.0));
+    let c = &s.reach.region;
+    let counts: Vec<usize> = c
+        .widths()
+        .iter()
+        .map(|&w| ((w / settings.initial_cell.max(1e-6)).ceil() as usize).max(1))
+        .collect();
+    let mut heap = BinaryHeap::new();
+    let mut done: Vec<CellBound> = Vec::new();
+    let mut dropped = 0;
+    let mut evaluated = 0;
+    let eval = |cells: Vec<IntervalBox>| -> Result<Vec<Option<Entry>>, AnalysisError> {
+        cells
+            .into_par_iter()
+            .map(|cell| {
+                if proven_unsafe(s, &cell) {
+                    return Ok(None);
+                }
+                let e = cell_error_bound(s, net, method, &cell, goal)?.unwrap_or(f64::INFINITY);
+                Ok(Some(Entry(e, cell)))
+            })
+            .collect()
+    };
+    let mut absorb = |res: Vec<Option<Entry>>, heap: &mut BinaryHeap<Entry>| {
+        for r in res {
+            match r {
+                None => dropped += 1,
+                Some(e) => heap.push(e),
+            }
+        }
+    };
+    let initial = c.partition(&counts);
+    evaluated += initial.len();
+    absorb(eval(initial)?, &mut heap);
+    let batch = 4 * rayon::current_num_threads().max(1);
+    let mut budget_spent = false;
+    loop {
+        let worst = heap.peek().map_or(0.0, |e| e.0);
+        progress(evaluated, worst);
+        if worst <= goal {
+            break;
+        }
+        if evaluated >= settings.budget {
+            budget_spent = true;
+            break;
+        }
+        let mut children = Vec::new();
+        while children.len() < batch {
+            match heap.peek() {
+                Some(e) if e.0 > goal => {}
+                _ => break,
+            }
+            let Some(Entry(bound, cell)) = heap.pop() else {
+                break;
+            };
+            if cell.widths().iter().fold(0.0_f64, |a, &b| a.max(b)) < MIN_CELL {
+                done.push(CellBound {
+                    lower: cell.lower,
+                    upper: cell.upper,
+                    bound,
+                });
+                continue;
+            }
+            let (l, r) = cell.bisect();
+            children.push(l);
+            children.push(r);
+        }
+        if children.is_empty() {
+            break;
+        }
+        evaluated += children.len();
+        absorb(eval(children)?, &mut heap);
+    }
+    done.extend(heap.into_iter().map(|Entry(bound, cell)| CellBound {
+        lower: cell.lower,
+        upper: cell.upper,
+        bound,
+    }));
+    let linf = done.iter().map(|c| c.bound).fold(0.0, f64::max);
+    Ok(Some(Certified {
+        linf,
+        cells: done,
+        dropped,
+        evaluated,
+        budget_spent,
+    }))
+}
+
+/// The certified per-cell error bounds of one network, stored beside it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ErrorMap {
+    /// Format tag, `cbfreach-errormap-1`.
+    pub format: String,
+    /// The network file's name (informational).
+    pub network: String,
+    /// FNV-1a 64 of the network file's bytes, hex: a map for another file is refused.
+    pub network_hash: String,
+    /// The mapped region `C`.
+    pub region: IntervalBox,
+    /// The norm of the bounds (`inf`).
+    pub norm: String,
+    /// Measured `max ‖N − v‖∞` over a grid of `C ∩ S`.
+    pub measured_linf: f64,
+    /// Measured `max ‖N − v‖₂`.
+    pub measured_l2: f64,
+    /// The certified global bound (max over the cells), `None` for a QP filter.
+    pub certified_linf: Option<f64>,
+    /// Kept cells with their bounds; cells of `region` not listed were proven to miss `S`
+    /// (where the filtered system never goes), so they contribute nothing.
+    pub cells: Vec<CellBound>,
+}
+
+/// The format tag of [`ErrorMap`] files.
+pub const ERROR_MAP_FORMAT: &str = "cbfreach-errormap-1";
+
+/// `<network stem>.errormap.json` beside the network.
+pub fn error_map_path(network: &Path) -> PathBuf {
+    let stem = network
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "network".into());
+    network.with_file_name(format!("{stem}.errormap.json"))
+}
+
+/// FNV-1a 64 of a byte string, as 16 hex digits.
+pub fn fnv1a_hex(bytes: &[u8]) -> String {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for &b in bytes {
+        h ^= b as u64;
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    format!("{h:016x}")
+}
+
+fn hash_file(path: &Path) -> Result<String, AnalysisError> {
+    let bytes = std::fs::read(path).map_err(|source| AnalysisError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    Ok(fnv1a_hex(&bytes))
+}
+
+impl ErrorMap {
+    /// A map for the network file `network` from a measurement and (optionally) a certification.
+    pub fn new(
+        network: &Path,
+        region: &IntervalBox,
+        measured: &Measured,
+        certified: Option<&Certified>,
+    ) -> Result<ErrorMap, AnalysisError> {
+        Ok(ErrorMap {
+            format: ERROR_MAP_FORMAT.into(),
+            network: network
+                .file_name()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_default(),
+            network_hash: hash_file(network)?,
+            region: region.clone(),
+            norm: "inf".into(),
+            measured_linf: measured.linf,
+            measured_l2: measured.l2,
+            certified_linf: certified.map(|c| c.linf),
+            cells: certified.map(|c| c.cells.clone()).unwrap_or_default(),
+        })
+    }
+
+    /// Reads and checks a map file.
+    pub fn load(path: &Path) -> Result<ErrorMap, AnalysisError> {
+        let text = std::fs::read_to_string(path).map_err(|source| AnalysisError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let bad = |message: String| AnalysisError::Format {
+            path: path.to_path_buf(),
+            message,
+        };
+        let map: ErrorMap = serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?;
+        if map.format != ERROR_MAP_FORMAT {
+            return Err(bad(format!(
+                "format `{}`, expected `{ERROR_MAP_FORMAT}`",
+                map.format
+            )));
+        }
+        let n = map.region.dim();
+        if n == 0
+            || map.region.upper.len() != n
+            || (0..n).any(|i| !(map.region.lower[i] <= map.region.upper[i]))
+        {
+            return Err(bad("`region` is not a box".into()));
+        }
+        for (k, c) in map.cells.iter().enumerate() {
+            if c.lower.len() != n
+                || c.upper.len() != n
+                || (0..n).any(|i| !(c.lower[i] <= c.upper[i]))
+                || c.bound.is_nan()
+                || c.bound < 0.0
+            {
+                return Err(bad(format!("cell {k} is malformed")));
+            }
+        }
+        Ok(map)
+    }
+
+    /// Loads the map beside `network` and checks that it was made for that file.
+    pub fn load_for(network: &Path) -> Result<ErrorMap, AnalysisError> {
+        let path = error_map_path(network);
+        let map = ErrorMap::load(&path)?;
+        if map.network_hash != hash_file(network)? {
+            return Err(AnalysisError::StaleMap {
+                path,
+                network: network.to_path_buf(),
+            });
+        }
+        Ok(map)
+    }
+
+    /// Writes the map as JSON.
+    pub fn save(&self, path: &Path) -> Result<(), AnalysisError> {
+        let text = serde_json::to_string(self).map_err(|e| AnalysisError::Format {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })?;
+        std::fs::write(path, text).map_err(|source| AnalysisError::Io {
+            path: path.to_path_buf(),
+            source,
+        })
+    }
+
+    /// The certified bound of `‖N − v‖∞` over `b ∩ S`: the max over the cells that meet `b` (0
+    /// when `b` meets only cells proven unsafe). +∞ when `b` is not inside the mapped region (or
+    /// the map holds no certified cells); see [`ErrorMap::try_local_bound`] for an error instead.
+    pub fn local_bound(&self, b: &IntervalBox) -> f64 {
+        self.try_local_bound(b).unwrap_or(f64::INFINITY)
+    }
+
+    /// As [`ErrorMap::local_bound`], with an error for a box outside the region.
+    pub fn try_local_bound(&self, b: &IntervalBox) -> Result<f64, AnalysisError> {
+        if self.certified_linf.is_none() {
+            return Ok(f64::INFINITY);
+        }
+        if b.dim() != self.region.dim() || !b.is_subset_of(&self.region) {
+            return Err(AnalysisError::OutsideMap {
+                lower: b.lower.clone(),
+                upper: b.upper.clone(),
+                region_lower: self.region.lower.clone(),
+                region_upper: self.region.upper.clone(),
+            });
+        }
+        Ok(self
+            .cells
+            .iter()
+            .filter(|c| c.meets(b))
+            .map(|c| c.bound)
+            .fold(0.0, f64::max))
+    }
+}
+
+/// `M_C` for a scenario: its number, or `"certified"` / `"measured"` from the error map beside
+/// `network` (written by `cbfreach error`).
+pub fn resolve_margin(s: &Scenario, network: &Path) -> Result<f64, AnalysisError> {
+    match s.reach.m_c {
+        Margin::Value(v) => Ok(v),
+        Margin::Measured => Ok(ErrorMap::load_for(network)?.measured_linf),
+        Margin::Certified => {
+            let map = ErrorMap::load_for(network)?;
+            map.certified_linf.ok_or(AnalysisError::NotCertified {
+                path: error_map_path(network),
+            })
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn percentiles_by_nearest_rank() {
+        let v: Vec<f64> = (1..=100).map(f64::from).collect();
+        let p = Percentiles::of(&v);
+        assert_eq!((p.median, p.p95, p.max), (50.0, 95.0, 100.0));
+        assert_eq!(Percentiles::of(&[]), Percentiles::default());
+    }
+
+    #[test]
+    fn map_path_sits_beside_the_network() {
+        assert_eq!(
+            error_map_path(Path::new("scenarios/integrator.safetensors")),
+            PathBuf::from("scenarios/integrator.errormap.json")
+        );
+    }
+
+    #[test]
+    fn centred_grid_avoids_the_ends() {
+        let b = IntervalBox::new(vec![0.0], vec![1.0]).unwrap();
+        let g = centred_grid(&b, &[4]);
+        assert_eq!(g, vec![vec![0.125], vec![0.375], vec![0.625], vec![0.875]]);
+    }
+}
