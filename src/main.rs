@@ -35,6 +35,8 @@ enum Command {
     Error(cli::error::ErrorArgs),
     /// Reachable sets of the filtered system from the scenario's initial boxes.
     Reach(cli::reach::ReachArgs),
+    /// Sound affine and interval bounds of a network over a box.
+    Bounds(cli::bounds::BoundsArgs),
     /// Find, classify and list the equilibria of the filtered system inside C.
     Equilibria {
         /// The scenario file (TOML).
@@ -52,6 +54,7 @@ fn main() -> ExitCode {
         Some(Command::Check { scenario }) => cli::check::run(&scenario),
         Some(Command::Simulate(a)) => cli::simulate::run(&a),
         Some(Command::Reach(a)) => cli::reach::run(&a),
+        Some(Command::Bounds(a)) => cli::bounds::run(&a),
         Some(Command::Dataset(a)) => cli::train::run_dataset(&a),
         Some(Command::Train(a)) => cli::train::run_train(&a),
         Some(Command::Error(a)) => cli::error::run(&a),

@@ -191,6 +191,31 @@ pub struct ReachSection {
     /// A box partitioned into `counts[i]` cells along axis i.
     #[serde(default)]
     pub partition: Option<PartitionSection>,
+    /// Coordinates of the embedding: `"none"` (default), `"auto"` (from the closed loop's
+    /// linearisation at the goal) or a matrix `T` (`z = T x`, rows).
+    #[serde(default)]
+    pub transform: Option<TransformSpec>,
+}
+
+/// `reach.transform` as written.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum TransformSpec {
+    /// `"none"` or `"auto"`.
+    Name(String),
+    /// `T`, as rows.
+    Matrix(Vec<Vec<f64>>),
+}
+
+/// The embedding's coordinates, checked.
+#[derive(Clone, Debug, PartialEq)]
+pub enum TransformChoice {
+    /// x itself.
+    Identity,
+    /// Chosen from the closed loop's linearisation at the goal's centre.
+    Auto,
+    /// `z = T x` with this `T` (n×n, row-major).
+    Matrix(Vec<f64>),
 }
 
 fn default_norm() -> String {
@@ -295,6 +320,8 @@ pub struct ReachConfig {
     pub goal: IntervalBox,
     /// Initial boxes: the explicit ones, then the partition's cells.
     pub initial: Vec<IntervalBox>,
+    /// Coordinates of the embedding.
+    pub transform: TransformChoice,
 }
 
 impl ReachConfig {
@@ -757,7 +784,32 @@ fn compile_reach(c: &Compiler, r: &ReachSection, n: usize) -> Result<ReachConfig
         }
         initial.extend(whole.partition(&p.counts));
     }
+    let transform = match &r.transform {
+        None => TransformChoice::Identity,
+        Some(TransformSpec::Name(s)) if s == "none" => TransformChoice::Identity,
+        Some(TransformSpec::Name(s)) if s == "auto" => TransformChoice::Auto,
+        Some(TransformSpec::Name(s)) => {
+            return Err(c.invalid(
+                "reach.transform",
+                format!("expected \"none\", \"auto\" or an {n}×{n} matrix, found \"{s}\""),
+            ))
+        }
+        Some(TransformSpec::Matrix(rows)) => {
+            if rows.len() != n || rows.iter().any(|r| r.len() != n) {
+                return Err(c.invalid(
+                    "reach.transform",
+                    format!("expected an {n}×{n} matrix (n rows of n numbers)"),
+                ));
+            }
+            let flat: Vec<f64> = rows.iter().flatten().copied().collect();
+            if flat.iter().any(|v| !v.is_finite()) {
+                return Err(c.invalid("reach.transform", "entries must be finite"));
+            }
+            TransformChoice::Matrix(flat)
+        }
+    };
     Ok(ReachConfig {
+        transform,
         region,
         norm,
         m_c,

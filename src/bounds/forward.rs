@@ -37,6 +37,7 @@
 //! The absolute (underflow) part uses the scale `1 + Σ_q mag_q` (`err_bound`).
 #![allow(clippy::needless_range_loop)] // index loops read as the formulas
 
+use super::ibp::centre_radius;
 use super::{
     add_down, add_up, affine_max, affine_min, err_bound, gemm, network_bounds_batch_into, next_up,
     relu_lines, AffineBounds, AffineBoundsBatch, BoundMethod, BoundsError, OutRow, Relaxation,
@@ -56,9 +57,20 @@ pub fn forward(net: &Mlp, lower: &[f64], upper: &[f64]) -> Result<AffineBounds, 
         .unwrap_or_else(|| AffineBounds::unbounded(net.input_dim(), net.output_dim())))
 }
 
+/// What [`forward_group`] does besides the plain forward pass.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct ForwardOptions {
+    /// Keep every hidden layer's concrete pre-activation bounds in [`Workspace::pre_lo`] and
+    /// [`Workspace::pre_hi`] (for the backward pass of `forward-backward`).
+    pub(crate) record: bool,
+    /// Propagate IBP alongside, starting each layer from the intersected bounds of the one
+    /// before, and intersect every concrete bound (pre-activation and output) with it.
+    pub(crate) ibp: bool,
+}
+
 /// Buffers for one group of boxes, reused across the groups of one rayon task.
 #[derive(Default)]
-struct Workspace {
+pub(crate) struct Workspace {
     c: Vec<f64>,
     r: Vec<f64>,
     c_next: Vec<f64>,
@@ -73,7 +85,18 @@ struct Workspace {
     /// Underflow scale `1 + Σ mag` per box.
     scale: Vec<f64>,
     /// Whether a box's bounds overflowed.
-    poisoned: Vec<bool>,
+    pub(crate) poisoned: Vec<bool>,
+    /// Per hidden layer `k` (with [`ForwardOptions::record`]): concrete bounds of `z_k`,
+    /// `n_k × G` neuron-major (`i·G + g`).
+    pub(crate) pre_lo: Vec<Vec<f64>>,
+    pub(crate) pre_hi: Vec<Vec<f64>>,
+    /// IBP centre and radius of the current layer's input (post-ReLU) and of its output
+    /// (pre-activation), `n × G` neuron-major, with [`ForwardOptions::ibp`].
+    ic: Vec<f64>,
+    ir: Vec<f64>,
+    ipre_c: Vec<f64>,
+    ipre_r: Vec<f64>,
+    ie: Vec<f64>,
 }
 
 /// Forward bounds for a validated batch, into `rows` (one per box).
@@ -84,28 +107,39 @@ pub(crate) fn forward_batch_into(net: &Mlp, lower: &[f64], upper: &[f64], rows: 
     }
     let threads = rayon::current_num_threads().max(1);
     let group = rows.len().div_ceil(threads).clamp(1, MAX_GROUP);
-    let abs_w: Vec<Vec<f64>> = net
-        .layers
-        .iter()
-        .map(|l| l.weight.iter().map(|w| w.abs()).collect())
-        .collect();
+    let abs_w = abs_weights(net);
     rows.par_chunks_mut(group)
         .zip(lower.par_chunks(group * n0))
         .zip(upper.par_chunks(group * n0))
         .for_each_init(Workspace::default, |ws, ((rows, lo), hi)| {
-            forward_group(net, &abs_w, lo, hi, rows, ws);
+            forward_group(net, &abs_w, lo, hi, rows, ws, ForwardOptions::default());
             rows.iter_mut().for_each(|row| row.sanitize());
         });
 }
 
-/// Propagates one group of `rows.len()` boxes through the network.
-fn forward_group(
+/// `|W_k|` of every layer.
+pub(crate) fn abs_weights(net: &Mlp) -> Vec<Vec<f64>> {
+    net.layers
+        .iter()
+        .map(|l| l.weight.iter().map(|w| w.abs()).collect())
+        .collect()
+}
+
+/// Propagates one group of `rows.len()` boxes through the network and writes the forward
+/// output forms into `rows` (not sanitised).
+///
+/// With [`ForwardOptions::ibp`], IBP runs alongside (three more GEMMs of `G` columns a layer):
+/// layer `k`'s interval is `W_k [ReLU(l_{k−1}), ReLU(u_{k−1})] + b_k` from the *intersected*
+/// bounds of layer `k − 1`, with the rounding model of [`super::ibp`]; both enclosures are
+/// rigorous, so their intersection is too, and the ReLU lines chosen on it stay valid.
+pub(crate) fn forward_group(
     net: &Mlp,
     abs_w: &[Vec<f64>],
     lower: &[f64],
     upper: &[f64],
     rows: &mut [OutRow<'_>],
     ws: &mut Workspace,
+    opts: ForwardOptions,
 ) {
     let n0 = net.input_dim();
     let g_count = rows.len();
@@ -179,11 +213,28 @@ fn forward_group(
             }
             std::mem::swap(&mut ws.c, &mut ws.c_next);
             std::mem::swap(&mut ws.r, &mut ws.r_next);
+            if opts.ibp {
+                ibp_layer(layer, &abs_w[k], g_count, ws);
+            }
         }
 
         if k + 1 == n_layers {
-            write_output(n, n0, ws, lower, upper, rows);
+            write_output(n, n0, ws, lower, upper, rows, opts.ibp && k > 0);
             return;
+        }
+        if opts.record {
+            ws.pre_lo.resize(n_layers - 1, Vec::new());
+            ws.pre_hi.resize(n_layers - 1, Vec::new());
+            for v in [&mut ws.pre_lo[k], &mut ws.pre_hi[k]] {
+                v.clear();
+                v.resize(n * g_count, 0.0);
+            }
+        }
+        if opts.ibp {
+            ws.ic.clear();
+            ws.ic.resize(n * g_count, 0.0);
+            ws.ir.clear();
+            ws.ir.resize(n * g_count, 0.0);
         }
 
         // ReLU relaxation, per neuron and box; V of the result for the next layer.
@@ -211,9 +262,24 @@ fn forward_group(
                     mag += (cf[p].abs() + rf[p].abs()) * xmag[p];
                 }
                 let err = err_bound(3 * n0 + 3, mag, ws.scale[g]);
-                let (l, u) = (add_down(sl, -err), add_up(su, err));
+                let (mut l, mut u) = (add_down(sl, -err), add_up(su, err));
                 if !(l.is_finite() && u.is_finite()) {
                     ws.poisoned[g] = true;
+                }
+                let at = i * g_count + g;
+                if opts.ibp {
+                    if k > 0 {
+                        let (c, r) = (ws.ipre_c[at], ws.ipre_r[at]);
+                        l = l.max(add_down(c, -r));
+                        u = u.min(add_up(c, r));
+                    }
+                    let (c, r) = centre_radius(l.max(0.0), u.max(0.0));
+                    ws.ic[at] = c;
+                    ws.ir[at] = r;
+                }
+                if opts.record {
+                    ws.pre_lo[k][at] = l;
+                    ws.pre_hi[k][at] = u;
                 }
                 let v = if u <= 0.0 {
                     cf.fill(0.0);
@@ -246,7 +312,34 @@ fn forward_group(
     }
 }
 
-/// Output forms `Ĉ ∓ R̂` with widened constants, and their concretisation over each box.
+/// IBP through affine layer `layer` for the group: from `ws.ic ± ws.ir` (post-ReLU, `n_in × G`)
+/// to `ws.ipre_c ± ws.ipre_r` (`n_out × G`), rounding as in [`super::ibp`].
+fn ibp_layer(layer: &crate::network::Layer, abs_w: &[f64], g_count: usize, ws: &mut Workspace) {
+    let (n, n_prev) = (layer.n_out, layer.n_in);
+    for buf in [&mut ws.ipre_c, &mut ws.ipre_r, &mut ws.ie] {
+        buf.clear();
+        buf.resize(n * g_count, 0.0);
+    }
+    // Magnitude |c| + r, reusing `v_next` as scratch (it is rebuilt before its next use).
+    ws.v_next.clear();
+    ws.v_next
+        .extend(ws.ic.iter().zip(&ws.ir).map(|(c, r)| c.abs() + r));
+    gemm(n, n_prev, g_count, &layer.weight, &ws.ic, &mut ws.ipre_c);
+    gemm(n, n_prev, g_count, abs_w, &ws.ir, &mut ws.ipre_r);
+    gemm(n, n_prev, g_count, abs_w, &ws.v_next, &mut ws.ie);
+    for i in 0..n {
+        let b = layer.bias[i];
+        for g in 0..g_count {
+            let at = i * g_count + g;
+            ws.ipre_c[at] += b;
+            let err = err_bound(n_prev + 1, ws.ie[at] + b.abs(), 1.0);
+            ws.ipre_r[at] = add_up(ws.ipre_r[at], err);
+        }
+    }
+}
+
+/// Output forms `Ĉ ∓ R̂` with widened constants, and their concretisation over each box;
+/// with `ibp`, the concrete bounds are intersected with the IBP ones in `ws.ipre_*`.
 fn write_output(
     m: usize,
     n0: usize,
@@ -254,7 +347,9 @@ fn write_output(
     lower: &[f64],
     upper: &[f64],
     rows: &mut [OutRow<'_>],
+    ibp: bool,
 ) {
+    let g_count = rows.len();
     let k_cols = n0 + 1;
     let cols = rows.len() * k_cols;
     for (g, row) in rows.iter_mut().enumerate() {
@@ -280,6 +375,11 @@ fn write_output(
             let a_up = &row.a_upper[i * n0..(i + 1) * n0];
             row.lower[i] = affine_min(a_lo, row.b_lower[i], lo, hi, xmag);
             row.upper[i] = affine_max(a_up, row.b_upper[i], lo, hi, xmag);
+            if ibp {
+                let (c, r) = (ws.ipre_c[i * g_count + g], ws.ipre_r[i * g_count + g]);
+                row.lower[i] = row.lower[i].max(add_down(c, -r));
+                row.upper[i] = row.upper[i].min(add_up(c, r));
+            }
         }
     }
 }

@@ -132,7 +132,7 @@ fn ibp_group(
 
 /// `(c, r)` with `[l, h] ⊆ [c − r, c + r]` in exact arithmetic (`r` rounded up).
 #[inline]
-fn centre_radius(l: f64, h: f64) -> (f64, f64) {
+pub(crate) fn centre_radius(l: f64, h: f64) -> (f64, f64) {
     let c = 0.5 * l + 0.5 * h;
     (c, next_up(h - c).max(next_up(c - l)))
 }

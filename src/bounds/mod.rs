@@ -15,6 +15,8 @@
 //! | [`BoundMethod::Crown`] | [`crown()`] | backward CROWN (auto_LiRPA's `CROWN`), adaptive ReLU relaxation |
 //! | [`BoundMethod::CrownSameSlope`] | [`crown()`] | backward CROWN, lower and upper lines share the chord slope |
 //! | [`BoundMethod::Forward`] | [`forward()`] | forward linear bounds (auto_LiRPA's `Forward`), GEMM-batched |
+//! | [`BoundMethod::ForwardBackward`] | [`forward_backward()`] | forward (∩ IBP) intermediate bounds, one backward CROWN pass from the output (auto_LiRPA's `Forward+Backward`), GEMM-batched |
+//! | [`BoundMethod::ForwardBackwardSameSlope`] | [`forward_backward()`] | the same, same-slope relaxation in the backward pass: one `C` |
 //!
 //! # Floating-point error model (DESIGN.md §3)
 //!
@@ -49,12 +51,14 @@
 
 mod crown;
 mod forward;
+mod forward_backward;
 mod ibp;
 #[cfg(test)]
 pub(crate) mod test_support;
 
 pub use crown::crown;
 pub use forward::forward;
+pub use forward_backward::forward_backward;
 pub use ibp::ibp;
 
 use crate::network::Mlp;
@@ -84,6 +88,37 @@ pub enum BoundMethod {
     CrownSameSlope,
     /// Forward linear bound propagation, batched as GEMMs: fast for low input dimension.
     Forward,
+    /// Forward+Backward: intermediate bounds by forward propagation intersected with IBP, then
+    /// one backward CROWN pass from the output (adaptive relaxation). Close to forward's cost,
+    /// close to CROWN's tightness.
+    ForwardBackward,
+    /// Forward+Backward with the same-slope relaxation in the backward pass: one `C` for both
+    /// sides.
+    ForwardBackwardSameSlope,
+}
+
+impl BoundMethod {
+    /// Every method, in the order of the documentation table.
+    pub const ALL: [BoundMethod; 6] = [
+        BoundMethod::Ibp,
+        BoundMethod::Crown,
+        BoundMethod::CrownSameSlope,
+        BoundMethod::Forward,
+        BoundMethod::ForwardBackward,
+        BoundMethod::ForwardBackwardSameSlope,
+    ];
+
+    /// The command-line and JSON name (`forward-backward`, …).
+    pub fn name(self) -> &'static str {
+        match self {
+            BoundMethod::Ibp => "ibp",
+            BoundMethod::Crown => "crown",
+            BoundMethod::CrownSameSlope => "crown-same-slope",
+            BoundMethod::Forward => "forward",
+            BoundMethod::ForwardBackward => "forward-backward",
+            BoundMethod::ForwardBackwardSameSlope => "forward-backward-same-slope",
+        }
+    }
 }
 
 /// The linear relaxation of an unstable ReLU (`l < 0 < u`) used by [`crown()`].
@@ -359,7 +394,7 @@ pub fn network_bounds_batch(
 /// engine that bounds thousands of boxes every Euler step).
 ///
 /// Boxes run in parallel (rayon): one box per task for CROWN, groups of boxes as GEMMs for
-/// [`BoundMethod::Ibp`] and [`BoundMethod::Forward`].
+/// [`BoundMethod::Ibp`], [`BoundMethod::Forward`] and the Forward+Backward methods.
 pub fn network_bounds_batch_into(
     net: &Mlp,
     lower: &[f64],
@@ -390,6 +425,20 @@ pub fn network_bounds_batch_into(
             )
         }
         BoundMethod::Forward => forward::forward_batch_into(net, lower, upper, &mut rows),
+        BoundMethod::ForwardBackward => forward_backward::forward_backward_batch_into(
+            net,
+            lower,
+            upper,
+            Relaxation::Adaptive,
+            &mut rows,
+        ),
+        BoundMethod::ForwardBackwardSameSlope => forward_backward::forward_backward_batch_into(
+            net,
+            lower,
+            upper,
+            Relaxation::SameSlope,
+            &mut rows,
+        ),
     }
     Ok(())
 }
@@ -826,44 +875,70 @@ mod tests {
                         .sum::<f64>()
             })
             .sum();
-        let mut rng = test_support::case_rng(3);
-        for (method, n_boxes, madds) in [
-            (BoundMethod::Ibp, 2048, 3.0 * pairs),
-            (BoundMethod::Forward, 2048, fwd_madds),
-            (BoundMethod::CrownSameSlope, 16, crown_pass),
-            (BoundMethod::Crown, 16, 2.0 * crown_pass),
-        ] {
-            for width in [0.5, 0.01] {
-                let (mut lo, mut hi) = (Vec::new(), Vec::new());
-                for _ in 0..n_boxes {
-                    let (l, h) = test_support::random_box(&mut rng, 2, test_support::BoxKind::Wide);
-                    let c = [0.5 * (l[0] + h[0]), 0.5 * (l[1] + h[1])];
-                    lo.extend(c.iter().map(|c| c - width / 2.0));
-                    hi.extend(c.iter().map(|c| c + width / 2.0));
-                }
+        // Forward+Backward: forward forms, IBP (3 columns), the backward magnitudes (1 column)
+        // and R = 2m (adaptive) or m backward rows.
+        let m_out = widths[widths.len() - 1];
+        let fb_madds = |r: usize| (2 * (n_in + 1) + 1 + 3 + 1 + r) as f64 * pairs;
+        for width in [0.5, 0.01] {
+            let mut rng = test_support::case_rng(3);
+            let (mut lo, mut hi) = (Vec::new(), Vec::new());
+            for _ in 0..2048 {
+                let (l, h) = test_support::random_box(&mut rng, 2, test_support::BoxKind::Wide);
+                let c = [0.5 * (l[0] + h[0]), 0.5 * (l[1] + h[1])];
+                lo.extend(c.iter().map(|c| c - width / 2.0));
+                hi.extend(c.iter().map(|c| c + width / 2.0));
+            }
+            // Tightness on the first 32 boxes, against CROWN.
+            let n_tight = 32;
+            let crown_ref = network_bounds_batch(
+                &net,
+                &lo[..2 * n_tight],
+                &hi[..2 * n_tight],
+                BoundMethod::Crown,
+            )
+            .unwrap();
+            for (method, n_boxes, madds) in [
+                (BoundMethod::Ibp, 2048, 3.0 * pairs),
+                (BoundMethod::Forward, 2048, fwd_madds),
+                (BoundMethod::ForwardBackward, 2048, fb_madds(2 * m_out)),
+                (BoundMethod::ForwardBackwardSameSlope, 2048, fb_madds(m_out)),
+                (BoundMethod::CrownSameSlope, 16, crown_pass),
+                (BoundMethod::Crown, 16, 2.0 * crown_pass),
+            ] {
+                let (lo, hi) = (&lo[..2 * n_boxes], &hi[..2 * n_boxes]);
                 let mut out = AffineBoundsBatch::new();
-                network_bounds_batch_into(&net, &lo, &hi, method, &mut out).unwrap();
+                network_bounds_batch_into(&net, lo, hi, method, &mut out).unwrap();
                 let t = Instant::now();
                 let reps = 3;
                 for _ in 0..reps {
-                    network_bounds_batch_into(&net, &lo, &hi, method, &mut out).unwrap();
+                    network_bounds_batch_into(&net, lo, hi, method, &mut out).unwrap();
                 }
                 let secs = t.elapsed().as_secs_f64() / reps as f64;
                 let per_s = n_boxes as f64 / secs;
-                let mean_width: f64 = out
-                    .upper
-                    .iter()
-                    .zip(&out.lower)
-                    .map(|(u, l)| u - l)
-                    .sum::<f64>()
-                    / out.upper.len() as f64;
+                let tight = network_bounds_batch(
+                    &net,
+                    &lo[..2 * n_tight.min(n_boxes)],
+                    &hi[..2 * n_tight.min(n_boxes)],
+                    method,
+                )
+                .unwrap();
+                let (mut log_ratio, mut n_ratio) = (0.0, 0);
+                for o in 0..tight.upper.len() {
+                    let wc = crown_ref.upper[o] - crown_ref.lower[o];
+                    if wc > 0.0 {
+                        log_ratio += ((tight.upper[o] - tight.lower[o]) / wc).ln();
+                        n_ratio += 1;
+                    }
+                }
                 eprintln!(
-                    "{method:?} box width {width}: {per_s:.0} boxes/s ({n_boxes} boxes, \
-                     {:.2} ms each), model {:.1} M mult-adds/box -> {:.2} GFLOP/s; \
-                     mean output width {mean_width:.3e}",
+                    "{:<28} box width {width}: {per_s:>8.0} boxes/s ({n_boxes} boxes, {:.3} ms \
+                     each), model {:.2} M mult-adds/box -> {:.2} GFLOP/s; width / crown width \
+                     (geometric mean) {:.3}",
+                    method.name(),
                     1e3 / per_s,
                     madds / 1e6,
-                    2.0 * madds * per_s / 1e9
+                    2.0 * madds * per_s / 1e9,
+                    (log_ratio / n_ratio.max(1) as f64).exp()
                 );
             }
         }

@@ -4,8 +4,10 @@ use std::path::PathBuf;
 
 use cbfreach::bounds::BoundMethod;
 use cbfreach::network::Mlp;
-use cbfreach::reach::{Backend, CpuBackend, ReachMethod, ReachProblem, ReachResult, ReachSettings};
-use cbfreach::scenario::{Margin, Scenario};
+use cbfreach::reach::{
+    Backend, CpuBackend, ReachMethod, ReachProblem, ReachResult, ReachSettings, Transform,
+};
+use cbfreach::scenario::{Margin, Scenario, TransformChoice};
 use serde::Serialize;
 
 use super::{fmt_point, load_scenario, progress_bar, CliResult};
@@ -33,6 +35,9 @@ pub struct ReachArgs {
     /// Use this network instead of the scenario's.
     #[arg(long)]
     pub network: Option<PathBuf>,
+    /// Coordinates of the embedding: `none`, `auto`, or the scenario's choice when absent.
+    #[arg(long)]
+    pub transform: Option<String>,
     /// Write the tubes as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
@@ -107,7 +112,17 @@ pub fn run(args: &ReachArgs) -> CliResult {
     }
     let network = load_network(&s, args.network.as_ref())?;
     let m_c = resolve_margin(&s, args.m_c, &network_path(&s, args.network.as_ref())?)?;
-    let problem = ReachProblem::new(&s, network, m_c)?;
+    let choice = match args.transform.as_deref() {
+        None => s.reach.transform.clone(),
+        Some("none") => TransformChoice::Identity,
+        Some("auto") => TransformChoice::Auto,
+        Some(other) => return Err(format!("--transform {other}: expected none or auto").into()),
+    };
+    let transform = Transform::for_scenario(&s, &choice)?;
+    if let Some(t) = &transform {
+        println!("embedding in z = T x, T = {:?} (ρ = {:.1e})", t.t, t.rho);
+    }
+    let problem = ReachProblem::with_transform(&s, network, m_c, transform)?;
     let settings = ReachSettings {
         bounds: args.bounds,
         method: args.method,
@@ -131,7 +146,7 @@ pub fn run(args: &ReachArgs) -> CliResult {
     );
     for tube in &result.boxes {
         if let Some(last) = tube.last() {
-            let set = last.inflated();
+            let set = last.filtered_set().clone();
             let width = set.widths().iter().fold(0.0_f64, |a, &b| a.max(b));
             let where_ = if set.is_subset_of(&s.reach.goal) {
                 "in the goal set".to_string()

@@ -50,6 +50,15 @@ pub struct TrainArgs {
     /// Seed of the initial weights and the shuffles.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Train on the unsafe part of the grid only within this distance of S (checked along the
+    /// axes at the distance and half of it): deep inside an obstacle `v` grows without bound
+    /// where `L_g h → 0`, and those points would dominate the loss. Negative: keep every
+    /// feasible point.
+    #[arg(long, default_value_t = 0.3, allow_negative_numbers = true)]
+    pub unsafe_band: f64,
+    /// Save the weights as F32 (exact: the trainer works in f32) instead of F64.
+    #[arg(long)]
+    pub f32: bool,
     /// Continue from the checkpoint beside the output file.
     #[arg(long)]
     pub resume: bool,
@@ -134,6 +143,33 @@ pub fn validation_points(s: &Scenario, grid: &[usize]) -> Vec<Vec<f64>> {
         .collect()
 }
 
+/// Gives weight 0 to the unsafe samples with no safe point at distance `band` or `band/2`
+/// along an axis; returns how many.
+fn restrict_to_band(s: &Scenario, data: &mut Dataset, band: f64) -> usize {
+    let n = s.n();
+    let mut weights = data.weights.clone().unwrap_or_else(|| vec![1.0; data.len()]);
+    let mut excluded = 0;
+    for (k, w) in weights.iter_mut().enumerate() {
+        let x = &data.inputs[k * n..(k + 1) * n];
+        if s.is_safe(x) {
+            continue;
+        }
+        let near = (0..n).any(|i| {
+            [band, -band, 0.5 * band, -0.5 * band].iter().any(|&d| {
+                let mut y = x.to_vec();
+                y[i] += d;
+                s.is_safe(&y)
+            })
+        });
+        if !near {
+            *w = 0.0;
+            excluded += 1;
+        }
+    }
+    data.weights = Some(weights);
+    excluded
+}
+
 /// Runs `cbfreach train`.
 pub fn run_train(args: &TrainArgs) -> CliResult {
     let s = load_scenario(&args.scenario)?;
@@ -159,8 +195,15 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
         (None, None) => return Err("give --out FILE".into()),
     };
     let points = training_points(&s, args.grid.as_ref())?;
-    let (data, summary) = build(&s, &points, "training data");
+    let (mut data, summary) = build(&s, &points, "training data");
     print_summary(&s, &summary);
+    if args.unsafe_band >= 0.0 {
+        let excluded = restrict_to_band(&s, &mut data, args.unsafe_band);
+        println!(
+            "{excluded} unsafe samples farther than {} from S left out of the training",
+            args.unsafe_band
+        );
+    }
     let grid = args.grid.clone().unwrap_or(s.training.grid.clone());
     let (validation, vsummary) = build(&s, &validation_points(&s, &grid), "validation data");
 
@@ -190,7 +233,11 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
     metadata.insert("scenario".into(), s.name.clone());
     metadata.insert("validation_max_linf".into(), val.max_error.to_string());
     metadata.insert("validation_max_l2".into(), val.max_error_l2.to_string());
-    net.save_safetensors(&out, &metadata)?;
+    if args.f32 {
+        net.save_safetensors_f32(&out, &metadata)?;
+    } else {
+        net.save_safetensors(&out, &metadata)?;
+    }
     println!(
         "trained {} in {:.1} s ({} epochs): training max ℓ∞ error {:.4}",
         net.architecture(),

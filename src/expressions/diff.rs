@@ -163,6 +163,22 @@ fn call(f: Func, u: Node) -> Node {
 }
 
 /// `∂n/∂x_var`, simplified.
+/// `n` with every `Var(i)` replaced by `with[i]`, simplified on the way up.
+pub(super) fn substitute(n: &Node, with: &[Node]) -> Node {
+    let sub = |u: &Node| substitute(u, with);
+    match n {
+        Node::Const(c) => Node::Const(*c),
+        Node::Var(i) => with[*i].clone(),
+        Node::Neg(u) => neg(sub(u)),
+        Node::Add(a, b) => add(sub(a), sub(b)),
+        Node::Sub(a, b) => self::sub(sub(a), sub(b)),
+        Node::Mul(a, b) => mul(sub(a), sub(b)),
+        Node::Div(a, b) => div(sub(a), sub(b)),
+        Node::Pow(u, k) => pow(sub(u), *k),
+        Node::Call(f, args) => Node::Call(*f, args.iter().map(sub).collect()),
+    }
+}
+
 pub(super) fn derivative(n: &Node, var: usize) -> Node {
     let d = |u: &Node| derivative(u, var);
     match n {

@@ -194,6 +194,15 @@ impl Expr {
         Expr { node: Node::Var(i) }
     }
 
+    /// The expression with `x_i` replaced by `with[i]` (a change of variables, e.g.
+    /// `x = T⁻¹z`); `with` must cover every variable the expression uses.
+    pub fn substitute(&self, with: &[Expr]) -> Expr {
+        let nodes: Vec<Node> = with.iter().map(|e| e.node.clone()).collect();
+        Expr {
+            node: diff::substitute(&self.node, &nodes),
+        }
+    }
+
     /// `Some(c)` when the (simplified) tree is the constant `c`.
     pub fn as_constant(&self) -> Option<f64> {
         match self.node {

@@ -101,6 +101,46 @@ impl Mlp {
     }
 }
 
+impl Mlp {
+    /// As [`Mlp::save_safetensors`], with F32 tensors (half the size). Refuses
+    /// ([`NetworkError::Settings`]) a network whose weights are not all exactly representable
+    /// in f32, so the saved network is the same function (e.g. any network from the f32
+    /// trainer).
+    pub fn save_safetensors_f32(
+        &self,
+        path: &Path,
+        extra_metadata: &BTreeMap<String, String>,
+    ) -> Result<(), NetworkError> {
+        self.validate("<network being saved>")?;
+        let exact = |v: &[f64]| v.iter().all(|&x| (x as f32) as f64 == x);
+        if !self.layers.iter().all(|l| exact(&l.weight) && exact(&l.bias)) {
+            return Err(NetworkError::Settings {
+                message: "the weights are not exactly representable in f32: save as F64".into(),
+            });
+        }
+        let mut tensors: Vec<RawTensor> = Vec::new();
+        let f32s = |v: &[f64]| f32_bytes(&v.iter().map(|&x| x as f32).collect::<Vec<f32>>());
+        for (k, l) in self.layers.iter().enumerate() {
+            tensors.push((
+                format!("{}.weight", 2 * k),
+                Dtype::F32,
+                vec![l.n_out, l.n_in],
+                f32s(&l.weight),
+            ));
+            tensors.push((format!("{}.bias", 2 * k), Dtype::F32, vec![l.n_out], f32s(&l.bias)));
+        }
+        let mut meta: HashMap<String, String> = extra_metadata
+            .iter()
+            .map(|(k, v)| (k.clone(), v.clone()))
+            .collect();
+        meta.insert("format".into(), FORMAT_NAME.into());
+        meta.insert("architecture".into(), self.architecture());
+        meta.insert("activation".into(), "relu".into());
+        let bytes = serialize(&tensors, meta, Path::new("<network being saved>"))?;
+        write_atomically(path, &bytes)
+    }
+}
+
 /// Writes `bytes` to `path.tmp` and renames it to `path`.
 pub(crate) fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), NetworkError> {
     let mut tmp = path.as_os_str().to_owned();

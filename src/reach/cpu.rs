@@ -14,7 +14,7 @@ use super::{Backend, ReachError, ReachMethod, ReachProblem, ReachResult, ReachSe
 use super::{ReachTiming, Tube, TubeSample};
 use crate::bounds::{network_bounds_batch_into, AffineBoundsBatch};
 use crate::boxes::IntervalBox;
-use crate::intervals::Interval;
+use crate::intervals::{round_down, round_up, Interval};
 
 /// The CPU engine.
 #[derive(Clone, Copy, Debug, Default)]
@@ -44,28 +44,34 @@ impl Backend for CpuBackend {
         problem.check_initial(initial)?;
         let every = settings.every.max(1);
         let (n, m) = (problem.dynamics.n, problem.dynamics.m);
+        // The transformed network's rounding enters as a disturbance in both methods.
         let margin = match settings.method {
-            ReachMethod::Disturbance => vec![problem.m_c; m],
-            ReachMethod::Minkowski => vec![0.0; m],
+            ReachMethod::Disturbance => {
+                vec![round_up(problem.m_c + problem.network_slack); m]
+            }
+            ReachMethod::Minkowski => vec![problem.network_slack; m],
         };
         let mut live: Vec<Live> = initial
             .iter()
-            .map(|b| Live {
-                lower: b.lower.clone(),
-                upper: b.upper.clone(),
-                radius: 0.0,
-                tube: Tube {
-                    initial: b.clone(),
-                    tube: vec![TubeSample {
-                        t: 0.0,
-                        lower: b.lower.clone(),
-                        upper: b.upper.clone(),
-                        radius: 0.0,
-                    }],
-                    valid: true,
-                    note: None,
-                },
-                done: false,
+            .map(|b| {
+                let z = match &problem.transform {
+                    Some(t) => t.to_z_box(b),
+                    None => b.clone(),
+                };
+                let mut state = Live {
+                    lower: z.lower,
+                    upper: z.upper,
+                    radius: 0.0,
+                    tube: Tube {
+                        initial: b.clone(),
+                        tube: Vec::new(),
+                        valid: true,
+                        note: None,
+                    },
+                    done: false,
+                };
+                state.tube.tube.push(sample(problem, &state, 0.0));
+                state
             })
             .collect();
 
@@ -99,8 +105,12 @@ impl Backend for CpuBackend {
                 .enumerate()
                 .map(|(slot, state)| {
                     let nn = bounds_of(&batch, slot, n, m);
-                    let (dl, du) =
+                    let (mut dl, mut du) =
                         embedding_field(&problem.dynamics, &state.lower, &state.upper, nn, &margin);
+                    if problem.field_slack > 0.0 {
+                        dl.iter_mut().for_each(|v| *v = round_down(*v - problem.field_slack));
+                        du.iter_mut().for_each(|v| *v = round_up(*v + problem.field_slack));
+                    }
                     let mut mink = 0.0;
                     if settings.method == ReachMethod::Minkowski {
                         let clock = Instant::now();
@@ -165,20 +175,55 @@ fn closeness_rate(problem: &ReachProblem, nn: NetworkBoundsRef) -> f64 {
     log_norm(&a, n, problem.norm)
 }
 
+/// The recorded sample of a state: x-boxes of the NN-system set and of the filtered-system set
+/// (the Minkowski sum is taken in the embedding's coordinates, where `r` is an ℓ∞ radius).
+fn sample(problem: &ReachProblem, state: &Live, t: f64) -> TubeSample {
+    let r = state.radius;
+    let grown = |v: &[f64], sign: f64| -> Vec<f64> {
+        v.iter()
+            .map(|&x| {
+                let y = Interval::point(x) + Interval::point(sign * r);
+                if sign < 0.0 {
+                    y.lower
+                } else {
+                    y.upper
+                }
+            })
+            .collect()
+    };
+    let (lo_r, hi_r) = (grown(&state.lower, -1.0), grown(&state.upper, 1.0));
+    match &problem.transform {
+        None => TubeSample {
+            t,
+            lower: state.lower.clone(),
+            upper: state.upper.clone(),
+            radius: r,
+            z_lower: None,
+            z_upper: None,
+            set: IntervalBox {
+                lower: lo_r,
+                upper: hi_r,
+            },
+        },
+        Some(tr) => {
+            let nn = tr.to_x_box(&state.lower, &state.upper);
+            TubeSample {
+                t,
+                lower: nn.lower,
+                upper: nn.upper,
+                radius: r,
+                z_lower: Some(state.lower.clone()),
+                z_upper: Some(state.upper.clone()),
+                set: tr.to_x_box(&lo_r, &hi_r),
+            }
+        }
+    }
+}
+
 /// After a step: checks the set against `C` and the box's orientation, records a sample.
 fn advance(problem: &ReachProblem, state: &mut Live, t: f64, record: bool) {
-    let r = state.radius;
     let inverted = state.lower.iter().zip(&state.upper).any(|(l, u)| l > u);
     let finite = state.lower.iter().chain(&state.upper).all(|v| v.is_finite());
-    let inside = (0..state.lower.len()).all(|i| {
-        problem.region.lower[i] <= state.lower[i] - r && state.upper[i] + r <= problem.region.upper[i]
-    });
-    let sample = TubeSample {
-        t,
-        lower: state.lower.clone(),
-        upper: state.upper.clone(),
-        radius: r,
-    };
     if inverted || !finite {
         state.tube.valid = false;
         state.tube.note = Some(format!(
@@ -186,7 +231,10 @@ fn advance(problem: &ReachProblem, state: &mut Live, t: f64, record: bool) {
             if finite { "inverted" } else { "non-finite" }
         ));
         state.done = true;
-    } else if !inside {
+        return;
+    }
+    let sample = sample(problem, state, t);
+    if !sample.set.is_subset_of(&problem.region) {
         state.tube.valid = false;
         state.tube.note = Some(format!("t = {t}: the set left the region C"));
         state.tube.tube.push(sample);

@@ -16,6 +16,7 @@
 pub mod closeness;
 pub mod cpu;
 pub mod embedding;
+pub mod transform;
 
 use serde::Serialize;
 
@@ -25,6 +26,7 @@ use crate::intervals::Interval;
 use crate::network::Mlp;
 use crate::scenario::{Norm, Scenario};
 use embedding::Dynamics;
+pub use transform::Transform;
 
 pub use cpu::CpuBackend;
 
@@ -102,13 +104,20 @@ pub struct ReachProblem {
     pub region: IntervalBox,
     /// `M_C`, the bound on `‖N − v‖∞` over `C` (per input).
     pub m_c: f64,
+    /// Coordinates `z = T x` the embedding runs in (`None`: x itself).
+    pub transform: Option<Transform>,
+    /// Extra input disturbance from rounding `W₁S` in the transformed network.
+    pub network_slack: f64,
+    /// Extra state-derivative slack from using `T` for `S⁻¹` (0 without a transform).
+    pub field_slack: f64,
     /// Norm of the closeness radius.
     pub norm: Norm,
     /// Euler step.
     pub dt: f64,
     /// Number of steps.
     pub steps: usize,
-    /// `[Df̃](C)`: the interval Jacobian over `C` (for the closeness radius's `c_k`).
+    /// `[Df̃](C)`: the interval Jacobian over `C` (over `C`'s z-box with a transform), for the
+    /// closeness radius's `c_k`.
     pub jacobian_over_region: Vec<Interval>,
     /// `[g](C)`, n×m.
     pub g_over_region: Vec<Interval>,
@@ -117,8 +126,19 @@ pub struct ReachProblem {
 }
 
 impl ReachProblem {
-    /// Compiles a scenario with its network and `M_C`.
+    /// Compiles a scenario with its network and `M_C`, in x coordinates.
     pub fn new(scenario: &Scenario, network: Mlp, m_c: f64) -> Result<ReachProblem, ReachError> {
+        ReachProblem::with_transform(scenario, network, m_c, None)
+    }
+
+    /// Compiles a scenario with its network and `M_C`, the embedding running in `z = T x`
+    /// when a transform is given (DESIGN §2b).
+    pub fn with_transform(
+        scenario: &Scenario,
+        network: Mlp,
+        m_c: f64,
+        transform: Option<Transform>,
+    ) -> Result<ReachProblem, ReachError> {
         let (n, m) = (scenario.n(), scenario.m());
         if network.input_dim() != n || network.output_dim() != m {
             return Err(ReachError::NetworkShape {
@@ -133,36 +153,98 @@ impl ReachProblem {
                 "M_C must be a finite number ≥ 0, found {m_c}"
             )));
         }
-        let g_constant: Option<Vec<f64>> =
-            scenario.g.iter().flatten().map(|e| e.as_constant()).collect();
+        if let Some(t) = &transform {
+            if t.n != n {
+                return Err(ReachError::Settings(format!(
+                    "the transform is {}×{} but the system has {n} states",
+                    t.n, t.n
+                )));
+            }
+        }
         let region = scenario.reach.region.clone();
-        let c: Vec<Interval> = region
-            .lower
-            .iter()
-            .zip(&region.upper)
-            .map(|(&l, &u)| Interval::new(l, u))
-            .collect();
-        let jacobian_over_region = scenario
-            .f_tilde_jacobian
+        let as_intervals = |b: &IntervalBox| -> Vec<Interval> {
+            b.lower
+                .iter()
+                .zip(&b.upper)
+                .map(|(&l, &u)| Interval::new(l, u))
+                .collect()
+        };
+        let c = as_intervals(&region);
+        let (f_tilde, g, network, network_slack, field_slack, region_z) = match &transform {
+            None => (
+                scenario.f_tilde.clone(),
+                scenario.g.clone(),
+                network,
+                0.0,
+                0.0,
+                region.clone(),
+            ),
+            Some(t) => {
+                let region_z = t.to_z_box(&region);
+                let z_max = region_z
+                    .lower
+                    .iter()
+                    .chain(&region_z.upper)
+                    .fold(0.0_f64, |a, v| a.max(v.abs()));
+                let (net_z, network_slack) = t.network(&network, z_max);
+                // ‖F‖∞ on C for F = f̃ + g(N + w), to bound the error of T for S⁻¹.
+                let n_over_c = crate::bounds::network_bounds(
+                    &network,
+                    &region.lower,
+                    &region.upper,
+                    BoundMethod::Ibp,
+                )?;
+                let u_max = Interval::point(
+                    n_over_c
+                        .lower
+                        .iter()
+                        .chain(&n_over_c.upper)
+                        .fold(0.0_f64, |a, v| a.max(v.abs())),
+                ) + Interval::point(m_c)
+                    + Interval::point(network_slack);
+                let f_max = (0..n)
+                    .map(|i| {
+                        let gi = (0..m).fold(Interval::point(0.0), |a, k| {
+                            a + Interval::point(scenario.g[i][k].eval_interval(&c).mag()) * u_max
+                        });
+                        (Interval::point(scenario.f_tilde[i].eval_interval(&c).mag()) + gi).upper
+                    })
+                    .fold(0.0, f64::max);
+                (
+                    t.vector_field(&scenario.f_tilde),
+                    t.input_matrix(&scenario.g),
+                    net_z,
+                    network_slack,
+                    t.field_slack(f_max),
+                    region_z,
+                )
+            }
+        };
+        let f_tilde_jacobian = crate::expressions::jacobian(&f_tilde, n);
+        let g_constant: Option<Vec<f64>> = g.iter().flatten().map(|e| e.as_constant()).collect();
+        let cz = as_intervals(&region_z);
+        let jacobian_over_region = f_tilde_jacobian
             .iter()
             .flatten()
-            .map(|e| e.eval_interval(&c))
+            .map(|e| e.eval_interval(&cz))
             .collect();
-        let g_over_region: Vec<Interval> =
-            scenario.g.iter().flatten().map(|e| e.eval_interval(&c)).collect();
+        let g_over_region: Vec<Interval> = g.iter().flatten().map(|e| e.eval_interval(&cz)).collect();
         let input_gain = closeness::induced_norm(&g_over_region, n, m, scenario.reach.norm);
         Ok(ReachProblem {
             dynamics: Dynamics {
                 n,
                 m,
-                f_tilde: scenario.f_tilde.clone(),
-                f_tilde_jacobian: scenario.f_tilde_jacobian.clone(),
-                g: scenario.g.clone(),
+                f_tilde,
+                f_tilde_jacobian,
+                g,
                 g_constant,
             },
             network,
             region,
             m_c,
+            transform,
+            network_slack,
+            field_slack,
             norm: scenario.reach.norm,
             dt: scenario.reach.dt,
             steps: scenario.reach.steps(),
@@ -200,21 +282,29 @@ impl ReachProblem {
 pub struct TubeSample {
     /// Time `t`.
     pub t: f64,
-    /// Lower corner of the box.
+    /// Lower corner of the box (x coordinates; with a transform, of the parallelotope's
+    /// bounding box).
     pub lower: Vec<f64>,
     /// Upper corner.
     pub upper: Vec<f64>,
-    /// Closeness radius `r_t` to add (Minkowski method); 0 for the disturbance method.
+    /// Closeness radius `r_t` to add (Minkowski method; in z's ℓ∞ norm with a transform);
+    /// 0 for the disturbance method.
     pub radius: f64,
+    /// The z-box, with a transform.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub z_lower: Option<Vec<f64>>,
+    /// The z-box, with a transform.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub z_upper: Option<Vec<f64>>,
+    /// A box in x that contains the filtered system's set: `[lower, upper]` for the
+    /// disturbance method, the bounding box of the Minkowski sum otherwise.
+    pub set: IntervalBox,
 }
 
 impl TubeSample {
-    /// The box `[lower − r, upper + r]`, which contains `[lower, upper] ⊕ B(r)` in every norm.
-    pub fn inflated(&self) -> IntervalBox {
-        IntervalBox {
-            lower: self.lower.iter().map(|v| v - self.radius).collect(),
-            upper: self.upper.iter().map(|v| v + self.radius).collect(),
-        }
+    /// The box in x that bounds the filtered system's states at `t`.
+    pub fn filtered_set(&self) -> &IntervalBox {
+        &self.set
     }
 }
 

@@ -1,0 +1,236 @@
+//! Coordinates `z = T x` for the embedding (DESIGN §2b, the wrapping effect).
+//!
+//! In scenario 2's x coordinates boxes cannot shrink; in coordinates where the closed loop's
+//! linear part contracts in ℓ∞ they can. Sets are then parallelotopes `S·[z̲, z̄]` in x.
+//!
+//! Floating point: the change of variables is *defined* by the f64 matrix `S` (`x = S z`
+//! exactly); `T ≈ S⁻¹` is only approximate. With `R = I − T S` and `‖R‖∞ < 1`,
+//! `S⁻¹ y = T y + e`, `‖e‖∞ ≤ ρ ‖T y‖∞`, `ρ = ‖R‖/(1 − ‖R‖)` (Neumann series), all computed
+//! in interval arithmetic. Every place that uses `T` for `S⁻¹` widens by that `ρ` term:
+//! boxes mapped to z ([`Transform::to_z_box`]) and the vector field `ż = S⁻¹F(Sz)`
+//! (the slack of [`Transform::field_slack`]). The network's first layer absorbs `S`
+//! (`W₁S`, rounded); its rounding error is bounded in [`Transform::network_slack`].
+
+use nalgebra::DMatrix;
+
+use crate::boxes::IntervalBox;
+use crate::expressions::Expr;
+use crate::intervals::{round_up, Interval};
+use crate::filter::SafetyFilter;
+use crate::network::Mlp;
+use crate::scenario::{Scenario, TransformChoice};
+
+/// A change of coordinates `z = T x`, `x = S z`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Transform {
+    /// State dimension.
+    pub n: usize,
+    /// `T`, n×n row-major.
+    pub t: Vec<f64>,
+    /// `S = T⁻¹` as computed, n×n row-major; it defines the coordinates exactly.
+    pub s: Vec<f64>,
+    /// `ρ`: `‖S⁻¹y − Ty‖∞ ≤ ρ‖Ty‖∞`.
+    pub rho: f64,
+}
+
+fn ip(x: f64) -> Interval {
+    Interval::point(x)
+}
+
+/// `[M]·[v]` for an f64 matrix and an interval vector.
+fn mat_vec(m: &[f64], v: &[Interval], n: usize) -> Vec<Interval> {
+    (0..n)
+        .map(|i| (0..n).fold(ip(0.0), |acc, j| acc + ip(m[i * n + j]) * v[j]))
+        .collect()
+}
+
+impl Transform {
+    /// The transform with the given `T` (n×n, row-major); an error if `T` is not safely
+    /// invertible.
+    pub fn from_matrix(t: Vec<f64>, n: usize) -> Result<Transform, String> {
+        if t.len() != n * n || t.iter().any(|v| !v.is_finite()) {
+            return Err(format!("expected {n}×{n} finite numbers"));
+        }
+        let inv = DMatrix::from_row_slice(n, n, &t)
+            .try_inverse()
+            .ok_or("the matrix is singular")?;
+        let s: Vec<f64> = (0..n * n).map(|k| inv[(k / n, k % n)]).collect();
+        // R = I − T S in interval arithmetic; ρ = ‖R‖/(1 − ‖R‖).
+        let r_norm = (0..n)
+            .map(|i| {
+                (0..n)
+                    .fold(ip(0.0), |acc, j| {
+                        let ts = (0..n).fold(ip(0.0), |a, k| a + ip(t[i * n + k]) * ip(s[k * n + j]));
+                        acc + ip((ip(if i == j { 1.0 } else { 0.0 }) - ts).mag())
+                    })
+                    .upper
+            })
+            .fold(0.0, f64::max);
+        if r_norm >= 0.5 {
+            return Err(format!("the matrix is too ill-conditioned (‖I − TS‖ = {r_norm:.2e})"));
+        }
+        let rho = (ip(r_norm) / (ip(1.0) - ip(r_norm))).upper;
+        Ok(Transform { n, t, s, rho })
+    }
+
+    /// The identity.
+    pub fn identity(n: usize) -> Transform {
+        let t: Vec<f64> = (0..n * n).map(|k| if k / n == k % n { 1.0 } else { 0.0 }).collect();
+        Transform { n, s: t.clone(), t, rho: 0.0 }
+    }
+
+    /// Coordinates in which `A` (the closed loop's linearisation at the goal) contracts in ℓ∞
+    /// as far as a real Schur form allows: `A = Q U Qᵀ`, `T = D⁻¹Qᵀ` with `D = diag(δ⁰, δ¹, …)`
+    /// shrinking `U`'s off-diagonal part until `μ∞(TAT⁻¹)` is within half of the slowest rate.
+    pub fn contracting(a: &[f64], n: usize) -> Result<Transform, String> {
+        let am = DMatrix::from_row_slice(n, n, a);
+        let (q, u) = am.clone().schur().unpack();
+        let slowest = (0..n).map(|i| u[(i, i)]).fold(f64::NEG_INFINITY, f64::max);
+        let mu_inf = |m: &DMatrix<f64>| {
+            (0..n)
+                .map(|i| m[(i, i)] + (0..n).filter(|&j| j != i).map(|j| m[(i, j)].abs()).sum::<f64>())
+                .fold(f64::NEG_INFINITY, f64::max)
+        };
+        let target = if slowest < 0.0 { 0.5 * slowest } else { slowest };
+        let mut delta: f64 = 1.0;
+        let mut best = None;
+        for _ in 0..40 {
+            let d_inv = DMatrix::from_fn(n, n, |i, j| if i == j { delta.powi(-(i as i32)) } else { 0.0 });
+            let t = &d_inv * q.transpose();
+            let scaled = {
+                let d = DMatrix::from_fn(n, n, |i, j| if i == j { delta.powi(i as i32) } else { 0.0 });
+                &d_inv * &u * d
+            };
+            best = Some(t);
+            if mu_inf(&scaled) <= target {
+                break;
+            }
+            delta *= 0.5;
+        }
+        let t = best.ok_or("empty matrix")?;
+        Transform::from_matrix((0..n * n).map(|k| t[(k / n, k % n)]).collect(), n)
+    }
+
+    /// The transform a scenario asks for: `None` for x itself, `auto` from the filtered closed
+    /// loop's Jacobian at the goal's centre (the filter is usually inactive there, so this is
+    /// `Df̃`).
+    pub fn for_scenario(
+        scenario: &Scenario,
+        choice: &TransformChoice,
+    ) -> Result<Option<Transform>, String> {
+        let n = scenario.n();
+        match choice {
+            TransformChoice::Identity => Ok(None),
+            TransformChoice::Matrix(t) => Transform::from_matrix(t.clone(), n)
+                .map(Some)
+                .map_err(|e| format!("{}: reach.transform: {e}", scenario.file)),
+            TransformChoice::Auto => {
+                let goal = scenario.reach.goal.center();
+                let a = SafetyFilter::new(scenario)
+                    .closed_loop_jacobian(&goal)
+                    .map_err(|e| format!("{}: reach.transform = \"auto\": {e}", scenario.file))?;
+                Transform::contracting(&a, n)
+                    .map(Some)
+                    .map_err(|e| format!("{}: reach.transform = \"auto\": {e}", scenario.file))
+            }
+        }
+    }
+
+    /// A sound z-box of `S⁻¹·X`.
+    pub fn to_z_box(&self, x: &IntervalBox) -> IntervalBox {
+        let xi: Vec<Interval> = (0..self.n).map(|i| Interval::new(x.lower[i], x.upper[i])).collect();
+        let z = mat_vec(&self.t, &xi, self.n);
+        let size = z.iter().fold(0.0_f64, |a, v| a.max(v.mag()));
+        let pad = round_up((ip(self.rho) * ip(size)).upper);
+        IntervalBox {
+            lower: z.iter().map(|v| (ip(v.lower) - ip(pad)).lower).collect(),
+            upper: z.iter().map(|v| (ip(v.upper) + ip(pad)).upper).collect(),
+        }
+    }
+
+    /// The bounding box of the parallelotope `S·[z̲, z̄]`.
+    pub fn to_x_box(&self, lower: &[f64], upper: &[f64]) -> IntervalBox {
+        let zi: Vec<Interval> = (0..self.n).map(|i| Interval::new(lower[i], upper[i])).collect();
+        let x = mat_vec(&self.s, &zi, self.n);
+        IntervalBox {
+            lower: x.iter().map(|v| v.lower).collect(),
+            upper: x.iter().map(|v| v.upper).collect(),
+        }
+    }
+
+    /// `e ↦ e(S z)`: an expression in x rewritten in z.
+    fn in_z(&self, e: &Expr) -> Expr {
+        let x_of_z: Vec<Expr> = (0..self.n)
+            .map(|i| {
+                (0..self.n).fold(Expr::constant(0.0), |acc, j| {
+                    acc + Expr::constant(self.s[i * self.n + j]) * Expr::variable(j)
+                })
+            })
+            .collect();
+        e.substitute(&x_of_z)
+    }
+
+    /// `T·v(Sz)` for a vector of expressions in x (n of them, or the columns of an n×m matrix).
+    pub fn vector_field(&self, v: &[Expr]) -> Vec<Expr> {
+        let vz: Vec<Expr> = v.iter().map(|e| self.in_z(e)).collect();
+        (0..self.n)
+            .map(|i| {
+                (0..self.n).fold(Expr::constant(0.0), |acc, k| {
+                    acc + Expr::constant(self.t[i * self.n + k]) * vz[k].clone()
+                })
+            })
+            .collect()
+    }
+
+    /// `T·g(Sz)`, n×m.
+    pub fn input_matrix(&self, g: &[Vec<Expr>]) -> Vec<Vec<Expr>> {
+        let m = g.first().map_or(0, Vec::len);
+        let columns: Vec<Vec<Expr>> = (0..m)
+            .map(|k| self.vector_field(&g.iter().map(|row| row[k].clone()).collect::<Vec<_>>()))
+            .collect();
+        (0..self.n)
+            .map(|i| (0..m).map(|k| columns[k][i].clone()).collect())
+            .collect()
+    }
+
+    /// A bound on `‖S⁻¹F − TF‖∞` given `‖F‖∞ ≤ f_max` on `C`: the slack added to each side of
+    /// the embedding's derivative bounds.
+    pub fn field_slack(&self, f_max: f64) -> f64 {
+        let t_norm = (0..self.n)
+            .map(|i| (0..self.n).fold(ip(0.0), |a, j| a + ip(self.t[i * self.n + j].abs())).upper)
+            .fold(0.0, f64::max);
+        round_up((ip(self.rho) * ip(t_norm) * ip(f_max)).upper)
+    }
+
+    /// The network in z coordinates, `N(S z)`, with `W₁S` rounded, and a bound on
+    /// `|N(Sz) − N_z(z)|` over `|z| ≤ z_max` from that rounding: `γ_n·(|W₁||S| z_max)`
+    /// carried through the remaining layers by their ∞-norms (ReLU is 1-Lipschitz).
+    pub fn network(&self, net: &Mlp, z_max: f64) -> (Mlp, f64) {
+        let mut out = net.clone();
+        let Some(first) = out.layers.first_mut() else {
+            return (out, 0.0);
+        };
+        let n = self.n;
+        let w = first.weight.clone();
+        let mut err = 0.0_f64;
+        for r in 0..first.n_out {
+            let mut row_err = ip(0.0);
+            for j in 0..n {
+                let exact_ish = (0..n).fold(ip(0.0), |a, k| a + ip(w[r * n + k]) * ip(self.s[k * n + j]));
+                let value: f64 = (0..n).map(|k| w[r * n + k] * self.s[k * n + j]).sum();
+                first.weight[r * n + j] = value;
+                // |value − Σ W S| ≤ width of the enclosure around it.
+                let e = (exact_ish - ip(value)).mag();
+                row_err = row_err + ip(e) * ip(z_max);
+            }
+            err = err.max(row_err.upper);
+        }
+        let lipschitz = net.layers[1..].iter().fold(ip(1.0), |acc, l| {
+            let norm = (0..l.n_out)
+                .map(|r| (0..l.n_in).fold(ip(0.0), |a, c| a + ip(l.weight[r * l.n_in + c].abs())).upper)
+                .fold(0.0, f64::max);
+            acc * ip(norm)
+        });
+        (out, round_up((ip(err) * lipschitz).upper))
+    }
+}

@@ -1,0 +1,241 @@
+//! The measured and certified error of a surrogate network, and the error map (issue 6).
+//!
+//! A 2×16×16×2 network is trained here, in a second or so, on scenario 1 restricted to a small
+//! region around the obstacle; every certified number is then checked against dense sampling.
+
+mod common;
+
+use std::sync::OnceLock;
+
+use cbfreach::boxes::IntervalBox;
+use cbfreach::dataset::{filter_dataset, grid_points};
+use cbfreach::filter::{FilterMethod, SafetyFilter};
+use cbfreach::network::train::{train, TrainSettings};
+use cbfreach::network::Mlp;
+use cbfreach::scenario::{Margin, Scenario};
+use cbfreach::surrogate_error::{
+    certify, error_map_path, measure, proven_unsafe, resolve_margin, v_enclosure, Certified,
+    ErrorMap, ErrorSettings, Measured,
+};
+
+/// Scenario 1 on `C = [0.5, 3.5] × [−1.5, 1.5]` (the obstacle and its surroundings).
+fn small_scenario() -> Scenario {
+    let mut s = common::integrator();
+    let region = IntervalBox::new(vec![0.5, -1.5], vec![3.5, 1.5]).unwrap();
+    s.reach.region = region.clone();
+    s.training.region = region;
+    s.training.grid = vec![40, 40];
+    s
+}
+
+struct Fixture {
+    s: Scenario,
+    net: Mlp,
+    measured: Measured,
+    certified: Certified,
+}
+
+fn fixture() -> &'static Fixture {
+    static F: OnceLock<Fixture> = OnceLock::new();
+    F.get_or_init(|| {
+        let s = small_scenario();
+        let filter = SafetyFilter::new(&s);
+        let pts = grid_points(&s.training.region, &s.training.grid);
+        let (data, _) = filter_dataset(&filter, &pts, true, &|_| {});
+        let settings = TrainSettings {
+            epochs: 40,
+            learning_rate: 3e-3,
+            batch_size: 64,
+            jacobian_weight: 0.01,
+            ..TrainSettings::default()
+        };
+        let (net, _) = train(Mlp::random(&[2, 16, 16, 2], 1), &data, &settings, |_| {}).unwrap();
+        let es = ErrorSettings {
+            budget: 3000,
+            ..ErrorSettings::default()
+        };
+        let measured = measure(&s, &net, &es, &|_| {}).unwrap();
+        let certified = certify(&s, &net, measured.linf, &es, &|_, _| {})
+            .unwrap()
+            .expect("one CBF row: a closed form");
+        Fixture {
+            s,
+            net,
+            measured,
+            certified,
+        }
+    })
+}
+
+/// `‖N(x) − v(x)‖∞` at the feasible safe points of a dense grid over the region.
+fn dense_errors(f: &Fixture, counts: &[usize]) -> Vec<(Vec<f64>, f64)> {
+    let filter = SafetyFilter::new(&f.s);
+    grid_points(&f.s.reach.region, counts)
+        .into_iter()
+        .filter(|x| f.s.is_safe(x))
+        .filter_map(|x| {
+            let v = filter.eval(&x).ok()?;
+            let n = f.net.forward(&x);
+            let e = v.iter().zip(&n).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+            Some((x, e))
+        })
+        .collect()
+}
+
+#[test]
+fn certified_bound_is_never_below_a_sampled_error() {
+    let f = fixture();
+    let c = &f.certified;
+    assert!(c.linf.is_finite(), "certified bound {}", c.linf);
+    assert!(c.linf >= f.measured.linf, "{} < measured {}", c.linf, f.measured.linf);
+    let errors = dense_errors(f, &[301, 301]);
+    assert!(errors.len() > 50_000);
+    let worst = errors.iter().map(|e| e.1).fold(0.0, f64::max);
+    assert!(worst > 0.0);
+    assert!(worst <= c.linf, "sampled error {worst} > certified {}", c.linf);
+    // Per cell too: the error at every sample is within the bound of each kept cell holding it,
+    // and every safe sample lies in some kept cell (dropped cells miss S).
+    for (x, e) in &errors {
+        let holders: Vec<_> = c
+            .cells
+            .iter()
+            .filter(|cell| (0..2).all(|i| cell.lower[i] <= x[i] && x[i] <= cell.upper[i]))
+            .collect();
+        assert!(!holders.is_empty(), "safe point {x:?} is in no kept cell");
+        for cell in holders {
+            assert!(*e <= cell.bound, "error {e} at {x:?} > cell bound {}", cell.bound);
+        }
+    }
+}
+
+#[test]
+fn v_enclosure_contains_sampled_v_on_random_cells() {
+    for (s, method) in [
+        (common::integrator(), FilterMethod::ClosedFormSingle),
+        (common::double_integrator(), FilterMethod::ClosedFormScalar),
+    ] {
+        let filter = SafetyFilter::new(&s);
+        assert_eq!(filter.method(), method);
+        let c = &s.reach.region;
+        let mut seed = 12345_u64;
+        let mut rnd = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let (mut finite, mut active) = (0, 0);
+        for _ in 0..400 {
+            let w = 0.01 + 0.5 * rnd();
+            let lo: Vec<f64> = (0..2)
+                .map(|i| c.lower[i] + rnd() * (c.upper[i] - c.lower[i] - w))
+                .collect();
+            let cell = IntervalBox::new(lo.clone(), lo.iter().map(|l| l + w).collect()).unwrap();
+            let v = v_enclosure(&s, method, &cell).unwrap();
+            if v.iter().all(|i| i.lower.is_finite() && i.upper.is_finite()) {
+                finite += 1;
+            }
+            for _ in 0..40 {
+                let x = cell.point_at(&[rnd(), rnd()]);
+                let Ok(vx) = filter.eval(&x) else { continue };
+                for j in 0..vx.len() {
+                    assert!(
+                        v[j].contains(vx[j]),
+                        "v_{j}({x:?}) = {} not in {} (cell {cell:?})",
+                        vx[j],
+                        v[j]
+                    );
+                    active += usize::from(vx[j] != 0.0);
+                }
+            }
+        }
+        assert!(finite > 200, "{}: only {finite} finite enclosures", s.name);
+        assert!(active > 1000, "{}: the filter hardly acted ({active})", s.name);
+    }
+}
+
+#[test]
+fn unsafe_cells_are_dropped_and_safe_ones_kept() {
+    let s = common::integrator();
+    // Inside the obstacle (radius 1 around (2, 0)).
+    let inside = IntervalBox::new(vec![1.7, -0.3], vec![2.3, 0.3]).unwrap();
+    assert!(proven_unsafe(&s, &inside));
+    // Straddling the boundary, and entirely outside.
+    let straddle = IntervalBox::new(vec![2.8, -0.1], vec![3.2, 0.1]).unwrap();
+    let outside = IntervalBox::new(vec![-1.0, -1.0], vec![-0.5, -0.5]).unwrap();
+    assert!(!proven_unsafe(&s, &straddle));
+    assert!(!proven_unsafe(&s, &outside));
+    // Random cells: a dropped cell never holds a safe sample.
+    let mut seed = 7_u64;
+    let mut rnd = || {
+        seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (seed >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let mut dropped = 0;
+    for _ in 0..2000 {
+        let w = 0.05 + 0.6 * rnd();
+        let lo = [0.5 + 3.0 * rnd(), -1.5 + 3.0 * rnd()];
+        let cell = IntervalBox::new(lo.to_vec(), lo.iter().map(|l| l + w).collect()).unwrap();
+        if proven_unsafe(&s, &cell) {
+            dropped += 1;
+            for _ in 0..50 {
+                let x = cell.point_at(&[rnd(), rnd()]);
+                assert!(!s.is_safe(&x), "dropped cell {cell:?} holds the safe point {x:?}");
+            }
+        }
+    }
+    assert!(dropped > 20, "only {dropped} cells dropped");
+    assert!(fixture().certified.dropped > 0);
+}
+
+#[test]
+fn error_map_local_bounds_are_sound_and_below_the_global_one() {
+    let f = fixture();
+    let dir = std::env::temp_dir().join(format!("cbfreach-errormap-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let net_path = dir.join("small.safetensors");
+    f.net.save_safetensors(&net_path, &Default::default()).unwrap();
+    let map = ErrorMap::new(&net_path, &f.s.reach.region, &f.measured, Some(&f.certified)).unwrap();
+    let map_path = error_map_path(&net_path);
+    map.save(&map_path).unwrap();
+    let map = ErrorMap::load_for(&net_path).unwrap();
+    let global = map.certified_linf.unwrap();
+    assert_eq!(global, f.certified.linf);
+
+    let errors = dense_errors(f, &[121, 121]);
+    let mut below = 0;
+    for k in 0..200 {
+        let t = k as f64 / 200.0;
+        let w = 0.05 + 0.4 * ((k * 37 % 200) as f64 / 200.0);
+        let lo = [0.5 + (3.0 - w) * t, -1.5 + (3.0 - w) * ((k * 71 % 200) as f64 / 200.0)];
+        let b = IntervalBox::new(lo.to_vec(), lo.iter().map(|l| l + w).collect()).unwrap();
+        let local = map.local_bound(&b);
+        assert!(local <= global);
+        below += usize::from(local < 0.5 * global);
+        for (x, e) in &errors {
+            if b.contains(x) {
+                assert!(*e <= local, "error {e} at {x:?} > local bound {local} of {b:?}");
+            }
+        }
+    }
+    assert!(below > 0, "no box had a local bound below half the global one");
+    // Outside the mapped region.
+    let out = IntervalBox::new(vec![3.4, 0.0], vec![3.7, 0.2]).unwrap();
+    assert_eq!(map.local_bound(&out), f64::INFINITY);
+    assert!(map.try_local_bound(&out).is_err());
+
+    // The scenario's m_c resolves from the map; a changed network makes the map stale.
+    let mut s = f.s.clone();
+    s.reach.m_c = Margin::Certified;
+    assert_eq!(resolve_margin(&s, &net_path).unwrap(), global);
+    s.reach.m_c = Margin::Measured;
+    assert_eq!(resolve_margin(&s, &net_path).unwrap(), f.measured.linf);
+    let mut other = f.net.clone();
+    other.layers[0].bias[0] += 1.0;
+    other.save_safetensors(&net_path, &Default::default()).unwrap();
+    let err = resolve_margin(&s, &net_path).unwrap_err().to_string();
+    assert!(err.contains("another version"), "{err}");
+    std::fs::remove_dir_all(&dir).ok();
+}
