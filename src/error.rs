@@ -12,6 +12,18 @@ pub enum Error {
     /// The safety filter could not be evaluated.
     #[error(transparent)]
     Filter(#[from] crate::filter::FilterError),
+    /// Bounding a network over a box failed (bad box or network).
+    #[error(transparent)]
+    Bounds(#[from] crate::bounds::BoundsError),
+    /// A reach run could not start.
+    #[error(transparent)]
+    Reach(#[from] crate::reach::ReachError),
+    /// A verification run or a merge failed.
+    #[error(transparent)]
+    Verify(#[from] crate::verify::VerifyError),
+    /// A picture could not be drawn.
+    #[error(transparent)]
+    Plot(#[from] crate::plot::PlotError),
     /// Reading or writing a file failed.
     #[error("{path}: {source}")]
     Io {

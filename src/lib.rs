@@ -19,10 +19,12 @@ pub mod expressions;
 pub mod filter;
 pub mod intervals;
 pub mod network;
+pub mod plot;
 pub mod reach;
 pub mod scenario;
 pub mod simulate;
 pub mod surrogate_error;
+pub mod verify;
 
 pub use error::Error;
 pub use boxes::IntervalBox;

@@ -9,7 +9,7 @@ use clap::{Parser, Subcommand};
 
 /// Sound, batched interval reachability for systems with CBF safety filters.
 ///
-/// With no command, runs the main job on the built-in scenario 1 of the paper.
+/// With no command, reproduces the paper's scenario 1 (figures into out/).
 #[derive(Parser)]
 #[command(name = "cbfreach", version, about, long_about = None)]
 struct Cli {
@@ -35,6 +35,15 @@ enum Command {
     Error(cli::error::ErrorArgs),
     /// Reachable sets of the filtered system from the scenario's initial boxes.
     Reach(cli::reach::ReachArgs),
+    /// A verdict per box of a partitioned region (converges, trapped, unknown, invalid, …),
+    /// with adaptive refinement and shards.
+    Verify(cli::verify::VerifyArgs),
+    /// Merge the JSON files of `verify --shard K/N` runs into one verdict map.
+    Merge(cli::verify::MergeArgs),
+    /// Draw a figure: trajectories, tubes, minkowski, or a verdict map.
+    Plot(cli::plot::PlotArgs),
+    /// Reproduce both experiments of the paper: figures, verdicts, times.
+    Paper(cli::paper::PaperArgs),
     /// Sound affine and interval bounds of a network over a box.
     Bounds(cli::bounds::BoundsArgs),
     /// Find, classify and list the equilibria of the filtered system inside C.
@@ -54,6 +63,10 @@ fn main() -> ExitCode {
         Some(Command::Check { scenario }) => cli::check::run(&scenario),
         Some(Command::Simulate(a)) => cli::simulate::run(&a),
         Some(Command::Reach(a)) => cli::reach::run(&a),
+        Some(Command::Verify(a)) => cli::verify::run(&a),
+        Some(Command::Merge(a)) => cli::verify::run_merge(&a),
+        Some(Command::Plot(a)) => cli::plot::run(&a),
+        Some(Command::Paper(a)) => cli::paper::run(&a),
         Some(Command::Bounds(a)) => cli::bounds::run(&a),
         Some(Command::Dataset(a)) => cli::train::run_dataset(&a),
         Some(Command::Train(a)) => cli::train::run_train(&a),

@@ -30,9 +30,9 @@ use crate::boxes::IntervalBox;
 use crate::dataset::{filter_dataset, grid_points};
 use crate::filter::{FilterMethod, SafetyFilter};
 use crate::intervals::{round_up, Interval};
-use crate::network::NetworkError;
 use crate::network::train::pointwise_errors;
 use crate::network::Mlp;
+use crate::network::NetworkError;
 use crate::scenario::{Margin, Scenario};
 
 /// Why an error analysis (or an error map) failed.
@@ -76,9 +76,7 @@ pub enum AnalysisError {
         message: String,
     },
     /// The error map was computed for another network (its file changed since).
-    #[error(
-        "{path} was computed for another version of {network} (run `cbfreach error` again)"
-    )]
+    #[error("{path} was computed for another version of {network} (run `cbfreach error` again)")]
     StaleMap {
         /// The error map.
         path: PathBuf,
@@ -357,7 +355,13 @@ pub fn looseness(
             let mut pts: Vec<Vec<f64>> = (0..1usize << n)
                 .map(|mask| {
                     (0..n)
-                        .map(|i| if mask >> i & 1 == 1 { b.upper[i] } else { b.lower[i] })
+                        .map(|i| {
+                            if mask >> i & 1 == 1 {
+                                b.upper[i]
+                            } else {
+                                b.lower[i]
+                            }
+                        })
                         .collect()
                 })
                 .collect();
@@ -376,7 +380,9 @@ pub fn looseness(
             let range = (0..m).map(|j| hi[j] - lo[j]).fold(0.0, f64::max).max(1e-12);
             let width = |method| -> Result<f64, AnalysisError> {
                 let bd = network_bounds(net, &b.lower, &b.upper, method)?;
-                Ok((0..m).map(|j| bd.upper[j] - bd.lower[j]).fold(0.0, f64::max))
+                Ok((0..m)
+                    .map(|j| bd.upper[j] - bd.lower[j])
+                    .fold(0.0, f64::max))
             };
             Ok((
                 width(BoundMethod::Ibp)? / range,
@@ -461,7 +467,11 @@ fn neg_part(b: Interval) -> Interval {
 /// * Scalar input: with `cₖ = max(0, −bₖ)`, `v = max(0, max_{aₖ<0} cₖ/|aₖ|) − max(0,
 ///   max_{aₖ>0} cₖ/aₖ)` (which is `clamp(0, lo, hi)` wherever `lo ≤ hi`); a row whose `aₖ` may
 ///   vanish with `cₖ > 0` makes the enclosure unbounded.
-pub fn v_enclosure(s: &Scenario, method: FilterMethod, cell: &IntervalBox) -> Option<Vec<Interval>> {
+pub fn v_enclosure(
+    s: &Scenario,
+    method: FilterMethod,
+    cell: &IntervalBox,
+) -> Option<Vec<Interval>> {
     let m = s.m();
     let (a, b) = interval_rows(s, cell);
     let bad = || Some(vec![Interval::ENTIRE; m]);
@@ -551,7 +561,9 @@ pub fn cell_error_bound(
     let Some(v) = v_enclosure(s, method, cell) else {
         return Ok(None);
     };
-    if v.iter().any(|vi| vi.lower == f64::NEG_INFINITY || vi.upper == f64::INFINITY) {
+    if v.iter()
+        .any(|vi| vi.lower == f64::NEG_INFINITY || vi.upper == f64::INFINITY)
+    {
         return Ok(Some(f64::INFINITY));
     }
     let ibp = network_bounds(net, &cell.lower, &cell.upper, BoundMethod::Ibp)?;
@@ -560,8 +572,12 @@ pub fn cell_error_bound(
         return Ok(Some(e));
     }
     let crown = network_bounds(net, &cell.lower, &cell.upper, BoundMethod::Crown)?;
-    let lo: Vec<f64> = (0..v.len()).map(|j| ibp.lower[j].max(crown.lower[j])).collect();
-    let hi: Vec<f64> = (0..v.len()).map(|j| ibp.upper[j].min(crown.upper[j])).collect();
+    let lo: Vec<f64> = (0..v.len())
+        .map(|j| ibp.lower[j].max(crown.lower[j]))
+        .collect();
+    let hi: Vec<f64> = (0..v.len())
+        .map(|j| ibp.upper[j].min(crown.upper[j]))
+        .collect();
     Ok(Some(e.min(error_from(&lo, &hi, &v))))
 }
 

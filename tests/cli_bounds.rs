@@ -138,4 +138,5 @@ fn table_and_named_errors() {
     ]);
     assert_ne!(code, 0);
     assert!(stderr.contains("--method"), "{stderr}");
+    let _ = std::fs::remove_dir_all(path.parent().unwrap());
 }

@@ -76,7 +76,11 @@ fn dense_errors(f: &Fixture, counts: &[usize]) -> Vec<(Vec<f64>, f64)> {
         .filter_map(|x| {
             let v = filter.eval(&x).ok()?;
             let n = f.net.forward(&x);
-            let e = v.iter().zip(&n).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+            let e = v
+                .iter()
+                .zip(&n)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max);
             Some((x, e))
         })
         .collect()
@@ -87,12 +91,21 @@ fn certified_bound_is_never_below_a_sampled_error() {
     let f = fixture();
     let c = &f.certified;
     assert!(c.linf.is_finite(), "certified bound {}", c.linf);
-    assert!(c.linf >= f.measured.linf, "{} < measured {}", c.linf, f.measured.linf);
+    assert!(
+        c.linf >= f.measured.linf,
+        "{} < measured {}",
+        c.linf,
+        f.measured.linf
+    );
     let errors = dense_errors(f, &[301, 301]);
     assert!(errors.len() > 50_000);
     let worst = errors.iter().map(|e| e.1).fold(0.0, f64::max);
     assert!(worst > 0.0);
-    assert!(worst <= c.linf, "sampled error {worst} > certified {}", c.linf);
+    assert!(
+        worst <= c.linf,
+        "sampled error {worst} > certified {}",
+        c.linf
+    );
     // Per cell too: the error at every sample is within the bound of each kept cell holding it,
     // and every safe sample lies in some kept cell (dropped cells miss S).
     for (x, e) in &errors {
@@ -103,7 +116,11 @@ fn certified_bound_is_never_below_a_sampled_error() {
             .collect();
         assert!(!holders.is_empty(), "safe point {x:?} is in no kept cell");
         for cell in holders {
-            assert!(*e <= cell.bound, "error {e} at {x:?} > cell bound {}", cell.bound);
+            assert!(
+                *e <= cell.bound,
+                "error {e} at {x:?} > cell bound {}",
+                cell.bound
+            );
         }
     }
 }
@@ -150,7 +167,11 @@ fn v_enclosure_contains_sampled_v_on_random_cells() {
             }
         }
         assert!(finite > 200, "{}: only {finite} finite enclosures", s.name);
-        assert!(active > 1000, "{}: the filter hardly acted ({active})", s.name);
+        assert!(
+            active > 1000,
+            "{}: the filter hardly acted ({active})",
+            s.name
+        );
     }
 }
 
@@ -182,7 +203,10 @@ fn unsafe_cells_are_dropped_and_safe_ones_kept() {
             dropped += 1;
             for _ in 0..50 {
                 let x = cell.point_at(&[rnd(), rnd()]);
-                assert!(!s.is_safe(&x), "dropped cell {cell:?} holds the safe point {x:?}");
+                assert!(
+                    !s.is_safe(&x),
+                    "dropped cell {cell:?} holds the safe point {x:?}"
+                );
             }
         }
     }
@@ -196,8 +220,16 @@ fn error_map_local_bounds_are_sound_and_below_the_global_one() {
     let dir = std::env::temp_dir().join(format!("cbfreach-errormap-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let net_path = dir.join("small.safetensors");
-    f.net.save_safetensors(&net_path, &Default::default()).unwrap();
-    let map = ErrorMap::new(&net_path, &f.s.reach.region, &f.measured, Some(&f.certified)).unwrap();
+    f.net
+        .save_safetensors(&net_path, &Default::default())
+        .unwrap();
+    let map = ErrorMap::new(
+        &net_path,
+        &f.s.reach.region,
+        &f.measured,
+        Some(&f.certified),
+    )
+    .unwrap();
     let map_path = error_map_path(&net_path);
     map.save(&map_path).unwrap();
     let map = ErrorMap::load_for(&net_path).unwrap();
@@ -209,18 +241,27 @@ fn error_map_local_bounds_are_sound_and_below_the_global_one() {
     for k in 0..200 {
         let t = k as f64 / 200.0;
         let w = 0.05 + 0.4 * ((k * 37 % 200) as f64 / 200.0);
-        let lo = [0.5 + (3.0 - w) * t, -1.5 + (3.0 - w) * ((k * 71 % 200) as f64 / 200.0)];
+        let lo = [
+            0.5 + (3.0 - w) * t,
+            -1.5 + (3.0 - w) * ((k * 71 % 200) as f64 / 200.0),
+        ];
         let b = IntervalBox::new(lo.to_vec(), lo.iter().map(|l| l + w).collect()).unwrap();
         let local = map.local_bound(&b);
         assert!(local <= global);
         below += usize::from(local < 0.5 * global);
         for (x, e) in &errors {
             if b.contains(x) {
-                assert!(*e <= local, "error {e} at {x:?} > local bound {local} of {b:?}");
+                assert!(
+                    *e <= local,
+                    "error {e} at {x:?} > local bound {local} of {b:?}"
+                );
             }
         }
     }
-    assert!(below > 0, "no box had a local bound below half the global one");
+    assert!(
+        below > 0,
+        "no box had a local bound below half the global one"
+    );
     // Outside the mapped region.
     let out = IntervalBox::new(vec![3.4, 0.0], vec![3.7, 0.2]).unwrap();
     assert_eq!(map.local_bound(&out), f64::INFINITY);
@@ -234,7 +275,9 @@ fn error_map_local_bounds_are_sound_and_below_the_global_one() {
     assert_eq!(resolve_margin(&s, &net_path).unwrap(), f.measured.linf);
     let mut other = f.net.clone();
     other.layers[0].bias[0] += 1.0;
-    other.save_safetensors(&net_path, &Default::default()).unwrap();
+    other
+        .save_safetensors(&net_path, &Default::default())
+        .unwrap();
     let err = resolve_margin(&s, &net_path).unwrap_err().to_string();
     assert!(err.contains("another version"), "{err}");
     std::fs::remove_dir_all(&dir).ok();

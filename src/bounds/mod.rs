@@ -97,6 +97,12 @@ pub enum BoundMethod {
     ForwardBackwardSameSlope,
 }
 
+impl std::fmt::Display for BoundMethod {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
 impl BoundMethod {
     /// Every method, in the order of the documentation table.
     pub const ALL: [BoundMethod; 6] = [

@@ -107,7 +107,7 @@ fn print_table(net: &Mlp, args: &BoundsArgs, lower: &[f64], upper: &[f64], b: &A
             .join(" ")
     };
     println!(
-        "{}: {} network, {} bounds over [{}] × … box:",
+        "{}: {} network, {} bounds over the box {}:",
         args.network.display(),
         net.architecture(),
         args.method.name(),

@@ -4,10 +4,13 @@ pub mod bounds;
 pub mod check;
 pub mod equilibria;
 pub mod error;
+pub mod paper;
+pub mod plot;
 pub mod reach;
 pub mod report;
 pub mod simulate;
 pub mod train;
+pub mod verify;
 
 use std::path::Path;
 

@@ -41,6 +41,9 @@ pub struct ReachArgs {
     /// Write the tubes as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
+    /// Draw the tubes here (.png or .svg).
+    #[arg(long)]
+    pub plot: Option<PathBuf>,
 }
 
 #[derive(Serialize)]
@@ -56,7 +59,10 @@ struct ReachJson<'a> {
 }
 
 /// Loads the network named by `--network` or by the scenario.
-pub fn load_network(s: &Scenario, path: Option<&PathBuf>) -> Result<Mlp, Box<dyn std::error::Error>> {
+pub fn load_network(
+    s: &Scenario,
+    path: Option<&PathBuf>,
+) -> Result<Mlp, Box<dyn std::error::Error>> {
     let path = network_path(s, path)?;
     if !path.exists() {
         return Err(format!(
@@ -185,6 +191,9 @@ pub fn run(args: &ReachArgs) -> CliResult {
         std::fs::write(path, serde_json::to_string(&json)?)
             .map_err(|e| format!("{}: {e}", path.display()))?;
         println!("  tubes written to {}", path.display());
+    }
+    if let Some(path) = &args.plot {
+        super::plot::plot_tubes(&s, &result, args.every, m_c, path)?;
     }
     Ok(())
 }

@@ -1,38 +1,30 @@
-//! `cbfreach` with no arguments: the main job on the built-in scenario.
-//!
-//! For now: equilibria of the filtered system and simulated trajectories from the centres of
-//! the scenario's initial boxes, with where each one ends.
+//! `cbfreach` with no arguments runs the paper's scenario 1 ([`super::paper::run_default`]);
+//! this file keeps the endpoint summary it prints: where the filtered trajectories from the
+//! centres of the scenario's initial boxes end.
 
-use cbfreach::equilibria::{find_equilibria, EquilibriumSearch};
+use cbfreach::equilibria::{Equilibrium, Stability};
 use cbfreach::filter::SafetyFilter;
 use cbfreach::scenario::Scenario;
 use cbfreach::simulate::{simulate_filtered, Integrator};
 
-use super::{equilibria::print_table, fmt_point, CliResult};
+use super::{fmt_point, CliResult};
 
 /// Runs the default job.
 pub fn run_default() -> CliResult {
-    let s = Scenario::builtin()?;
-    println!("cbfreach — built-in scenario `{}` ({})", s.name, s.file);
-    println!("  {}\n", s.description.replace('\n', "\n  "));
-    let filter = SafetyFilter::new(&s);
-    let found = find_equilibria(&filter, &s.reach.region, &EquilibriumSearch::default());
-    println!("Equilibria of the filtered system in C ({}):", found.len());
-    print_table(&found);
+    super::paper::run_default()
+}
 
-    println!(
-        "\nFiltered trajectories from the centres of the {} initial boxes (Euler, dt = {}, T = {}):",
-        s.reach.initial.len(),
-        s.reach.dt,
-        s.reach.horizon
-    );
+/// One line per initial box: its centre, where its filtered trajectory ends, and which stable
+/// equilibrium (if any) that is.
+pub fn print_endpoints(s: &Scenario, found: &[Equilibrium]) {
+    let filter = SafetyFilter::new(s);
     for b in &s.reach.initial {
         let x0 = b.center();
         let t = simulate_filtered(&filter, &x0, s.reach.dt, s.reach.steps(), Integrator::Euler);
         let end = t.last();
         let nearest = found
             .iter()
-            .filter(|e| e.kind == cbfreach::equilibria::Stability::Stable)
+            .filter(|e| e.kind == Stability::Stable)
             .min_by(|a, b| dist(&a.x, end).total_cmp(&dist(&b.x, end)));
         let label = match nearest {
             Some(e) if dist(&e.x, end) < 0.05 => {
@@ -46,8 +38,6 @@ pub fn run_default() -> CliResult {
         };
         println!("  {} → {}   {label}", fmt_point(&x0), fmt_point(end));
     }
-    println!("\nNext: `cbfreach simulate`, `cbfreach equilibria`, `cbfreach check` (see --help).");
-    Ok(())
 }
 
 fn dist(a: &[f64], b: &[f64]) -> f64 {

@@ -70,7 +70,10 @@ pub struct TrainArgs {
 fn training_points(s: &Scenario, grid: Option<&Vec<usize>>) -> Result<Vec<Vec<f64>>, String> {
     let grid = grid.unwrap_or(&s.training.grid);
     if grid.len() != s.n() || grid.iter().any(|&k| k < 2) {
-        return Err(format!("--grid: expected {} counts, each at least 2", s.n()));
+        return Err(format!(
+            "--grid: expected {} counts, each at least 2",
+            s.n()
+        ));
     }
     Ok(grid_points(&s.training.region, grid))
 }
@@ -104,14 +107,20 @@ pub fn run_dataset(args: &DatasetArgs) -> CliResult {
             .iter()
             .cloned()
             .chain(s.inputs.iter().map(|u| format!("v_{u}")))
-            .chain(s.inputs.iter().flat_map(|u| s.states.iter().map(move |x| format!("d{u}_d{x}"))))
+            .chain(
+                s.inputs
+                    .iter()
+                    .flat_map(|u| s.states.iter().map(move |x| format!("d{u}_d{x}"))),
+            )
             .collect();
         text.push_str(&names.join(","));
         text.push('\n');
         let (n, m) = (s.n(), s.m());
         for k in 0..data.len() {
-            let mut row: Vec<String> =
-                data.inputs[k * n..(k + 1) * n].iter().map(f64::to_string).collect();
+            let mut row: Vec<String> = data.inputs[k * n..(k + 1) * n]
+                .iter()
+                .map(f64::to_string)
+                .collect();
             row.extend(data.targets[k * m..(k + 1) * m].iter().map(f64::to_string));
             if let Some(j) = &data.jacobians {
                 row.extend(j[k * m * n..(k + 1) * m * n].iter().map(f64::to_string));
@@ -147,7 +156,10 @@ pub fn validation_points(s: &Scenario, grid: &[usize]) -> Vec<Vec<f64>> {
 /// along an axis; returns how many.
 fn restrict_to_band(s: &Scenario, data: &mut Dataset, band: f64) -> usize {
     let n = s.n();
-    let mut weights = data.weights.clone().unwrap_or_else(|| vec![1.0; data.len()]);
+    let mut weights = data
+        .weights
+        .clone()
+        .unwrap_or_else(|| vec![1.0; data.len()]);
     let mut excluded = 0;
     for (k, w) in weights.iter_mut().enumerate() {
         let x = &data.inputs[k * n..(k + 1) * n];
@@ -225,7 +237,12 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
     let (net, report) = if args.resume && checkpoint.exists() {
         train::resume(&checkpoint, &data, &settings, progress)?
     } else {
-        train::train(Mlp::random(&architecture, args.seed), &data, &settings, progress)?
+        train::train(
+            Mlp::random(&architecture, args.seed),
+            &data,
+            &settings,
+            progress,
+        )?
     };
     bar.finish_and_clear();
     let val = train::evaluate(&net, &validation)?;

@@ -113,7 +113,11 @@ impl Mlp {
     ) -> Result<(), NetworkError> {
         self.validate("<network being saved>")?;
         let exact = |v: &[f64]| v.iter().all(|&x| (x as f32) as f64 == x);
-        if !self.layers.iter().all(|l| exact(&l.weight) && exact(&l.bias)) {
+        if !self
+            .layers
+            .iter()
+            .all(|l| exact(&l.weight) && exact(&l.bias))
+        {
             return Err(NetworkError::Settings {
                 message: "the weights are not exactly representable in f32: save as F64".into(),
             });
@@ -127,7 +131,12 @@ impl Mlp {
                 vec![l.n_out, l.n_in],
                 f32s(&l.weight),
             ));
-            tensors.push((format!("{}.bias", 2 * k), Dtype::F32, vec![l.n_out], f32s(&l.bias)));
+            tensors.push((
+                format!("{}.bias", 2 * k),
+                Dtype::F32,
+                vec![l.n_out],
+                f32s(&l.bias),
+            ));
         }
         let mut meta: HashMap<String, String> = extra_metadata
             .iter()

@@ -1,0 +1,55 @@
+//! Box-steps per second of the CPU reach engine, per bound method (issue 5 item 7).
+//!
+//! Scenario 1's dynamics with a random 2×400×400×400×2 network whose last layer is scaled by
+//! 0.05 (so that the closed loop stays close to the nominal one and tubes stay bounded), the
+//! scenario's 12 initial boxes, 250 Euler steps (`dt = 0.04`, horizon 10): the paper's
+//! experiment, whose reported wall time is 2.15 s. divan's time per iteration is the wall time of
+//! the whole 12 × 250 run; throughput is in box-steps. `CBFREACH_BENCH_QUICK=1` runs 25 steps.
+//! `M_C = 0`: the bound method, not the margin, is what is timed.
+
+use cbfreach::bounds::BoundMethod;
+use cbfreach::network::Mlp;
+use cbfreach::reach::{Backend, CpuBackend, ReachMethod, ReachProblem, ReachSettings};
+use cbfreach::scenario::Scenario;
+use divan::counter::ItemsCount;
+use divan::Bencher;
+
+fn quick() -> bool {
+    std::env::var("CBFREACH_BENCH_QUICK").is_ok_and(|v| !v.is_empty() && v != "0")
+}
+
+fn problem() -> (ReachProblem, Vec<cbfreach::boxes::IntervalBox>) {
+    let scenario = Scenario::builtin().expect("built-in scenario 1");
+    let mut net = Mlp::random(&[2, 400, 400, 400, 2], 1);
+    if let Some(last) = net.layers.last_mut() {
+        last.weight.iter_mut().for_each(|w| *w *= 0.05);
+        last.bias.iter_mut().for_each(|b| *b *= 0.05);
+    }
+    let mut problem = ReachProblem::new(&scenario, net, 0.0).expect("problem compiles");
+    if quick() {
+        problem.steps = problem.steps.min(25);
+    }
+    (problem, scenario.reach.initial.clone())
+}
+
+#[divan::bench(args = BoundMethod::ALL, sample_count = 1, sample_size = 1)]
+fn reach_12_boxes(bencher: Bencher, method: BoundMethod) {
+    let (problem, initial) = problem();
+    let settings = ReachSettings {
+        bounds: method,
+        method: ReachMethod::Disturbance,
+        every: 50,
+    };
+    bencher
+        .counter(ItemsCount::new(initial.len() * problem.steps))
+        .bench_local(|| {
+            let result = CpuBackend
+                .reach(&problem, &initial, &settings, &|_, _| {})
+                .expect("reach runs");
+            divan::black_box(result)
+        });
+}
+
+fn main() {
+    divan::main();
+}

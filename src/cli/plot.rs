@@ -1,0 +1,243 @@
+//! `cbfreach plot <scenario> --figure …`: the paper's figures and verdict maps.
+
+use std::path::{Path, PathBuf};
+
+use cbfreach::boxes::IntervalBox;
+use cbfreach::bounds::BoundMethod;
+use cbfreach::equilibria::{find_equilibria, EquilibriumSearch};
+use cbfreach::filter::SafetyFilter;
+use cbfreach::plot::{self, Figure};
+use cbfreach::reach::{ReachMethod, ReachProblem, ReachResult, ReachSettings};
+use cbfreach::scenario::Scenario;
+use cbfreach::simulate::{sample_box, simulate_filtered, Integrator, Trajectory};
+use cbfreach::verify::VerifyReport;
+
+use super::verify::{backend, compile};
+use super::{load_scenario, progress_bar, CliResult};
+
+/// Which picture.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum FigureKind {
+    /// Paper Fig. 1: filtered-system trajectories, the unsafe set, equilibria.
+    Trajectories,
+    /// Paper Fig. 2: reach tubes (disturbance method) from the scenario's initial boxes.
+    Tubes,
+    /// Paper Fig. 3: NN-system boxes with and without the closeness inflation, and filtered
+    /// trajectories inside them.
+    Minkowski,
+    /// A verdict map from `cbfreach verify --json` (give it with --input).
+    Verdicts,
+}
+
+/// Arguments of `cbfreach plot`.
+#[derive(clap::Args)]
+pub struct PlotArgs {
+    /// The scenario file (TOML).
+    pub scenario: PathBuf,
+    /// Which picture.
+    #[arg(long, value_enum)]
+    pub figure: FigureKind,
+    /// Input data: the verdict JSON for `verdicts`.
+    #[arg(long)]
+    pub input: Option<PathBuf>,
+    /// Output file, .png or .svg.
+    #[arg(long, short)]
+    pub out: PathBuf,
+    /// Pixel size WIDTH,HEIGHT (default: 1000 wide, the region's aspect ratio).
+    #[arg(long)]
+    pub size: Option<String>,
+    /// Draw every K-th Euler step of the tubes.
+    #[arg(long, default_value_t = 10)]
+    pub every: usize,
+    /// How the network is bounded over each box (tubes, minkowski).
+    #[arg(long, value_enum, default_value_t = BoundMethod::Crown)]
+    pub bounds: BoundMethod,
+    /// Use this network instead of the scenario's.
+    #[arg(long)]
+    pub network: Option<PathBuf>,
+    /// Override M_C.
+    #[arg(long = "m-c")]
+    pub m_c: Option<f64>,
+    /// Coordinates of the embedding: `none`, `auto`, or the scenario's choice when absent.
+    #[arg(long)]
+    pub transform: Option<String>,
+}
+
+fn parse_size(text: &str) -> Result<(u32, u32), String> {
+    let bad = || format!("--size: expected WIDTH,HEIGHT in pixels, e.g. 1000,750, found `{text}`");
+    let (w, h) = text.split_once(',').ok_or_else(bad)?;
+    Ok((
+        w.trim().parse().map_err(|_| bad())?,
+        h.trim().parse().map_err(|_| bad())?,
+    ))
+}
+
+/// Starting points for Figure 1: the initial boxes' centres and the safe points of a 7×5 grid
+/// over C.
+pub fn figure_points(s: &Scenario) -> Vec<Vec<f64>> {
+    let mut points: Vec<Vec<f64>> = s.reach.initial.iter().map(IntervalBox::center).collect();
+    let counts: Vec<usize> = (0..s.n()).map(|i| if i == 0 { 7 } else { 5 }).collect();
+    points.extend(
+        s.reach
+            .region
+            .partition(&counts)
+            .iter()
+            .map(IntervalBox::center)
+            .filter(|x| s.cbfs.iter().all(|c| c.h.eval(x) > 0.0)),
+    );
+    points
+}
+
+/// Filtered trajectories from `points` over the scenario's horizon.
+pub fn trajectories(s: &Scenario, points: &[Vec<f64>]) -> Vec<Trajectory> {
+    let filter = SafetyFilter::new(s);
+    points
+        .iter()
+        .map(|x| simulate_filtered(&filter, x, s.reach.dt, s.reach.steps(), Integrator::Euler))
+        .collect()
+}
+
+/// `per_box` filtered trajectories from points of each initial box (corners first).
+pub fn box_trajectories(s: &Scenario, boxes: &[IntervalBox], per_box: usize) -> Vec<Trajectory> {
+    let points: Vec<Vec<f64>> = boxes
+        .iter()
+        .enumerate()
+        .flat_map(|(k, b)| sample_box(b, per_box, k as u64))
+        .collect();
+    trajectories(s, &points)
+}
+
+/// Reach from the scenario's initial boxes with a progress bar.
+pub fn reach_initial(
+    s: &Scenario,
+    problem: &ReachProblem,
+    bounds: BoundMethod,
+    method: ReachMethod,
+    every: usize,
+) -> Result<ReachResult, Box<dyn std::error::Error>> {
+    let engine = backend("cpu")?;
+    let settings = ReachSettings {
+        bounds,
+        method,
+        every,
+    };
+    let bar = progress_bar(problem.steps as u64, "Euler steps");
+    let r = engine.reach(problem, &s.reach.initial, &settings, &|d, _| {
+        bar.set_position(d as u64)
+    })?;
+    bar.finish_and_clear();
+    Ok(r)
+}
+
+/// Runs `plot`.
+pub fn run(args: &PlotArgs) -> CliResult {
+    let s = load_scenario(&args.scenario)?;
+    let size = match &args.size {
+        Some(t) => parse_size(t)?,
+        None => plot::default_size(&s.reach.region, 1000),
+    };
+    let out: &Path = &args.out;
+    match args.figure {
+        FigureKind::Trajectories => {
+            let found = find_equilibria(
+                &SafetyFilter::new(&s),
+                &s.reach.region,
+                &EquilibriumSearch::default(),
+            );
+            let t = trajectories(&s, &figure_points(&s));
+            plot::save(
+                &Figure::Trajectories {
+                    scenario: &s,
+                    trajectories: &t,
+                    equilibria: &found,
+                },
+                out,
+                size,
+            )?;
+        }
+        FigureKind::Tubes | FigureKind::Minkowski => {
+            let problem = compile(&s, args.network.as_ref(), args.m_c, args.transform.as_deref())?;
+            let method = if args.figure == FigureKind::Tubes {
+                ReachMethod::Disturbance
+            } else {
+                ReachMethod::Minkowski
+            };
+            let r = reach_initial(&s, &problem, args.bounds, method, args.every.max(1))?;
+            if method == ReachMethod::Disturbance {
+                plot::save(
+                    &Figure::Tubes {
+                        scenario: &s,
+                        tubes: &r.boxes,
+                        every: 1,
+                        title: tubes_title(&s, problem.m_c, args.every.max(1)),
+                    },
+                    out,
+                    size,
+                )?;
+            } else {
+                let t = box_trajectories(&s, &s.reach.initial, 8);
+                plot::save(
+                    &Figure::Minkowski {
+                        scenario: &s,
+                        tubes: &r.boxes,
+                        trajectories: &t,
+                        every: 1,
+                    },
+                    out,
+                    size,
+                )?;
+            }
+        }
+        FigureKind::Verdicts => {
+            let input = args
+                .input
+                .as_ref()
+                .ok_or("--figure verdicts needs --input FILE (from `cbfreach verify --json FILE`)")?;
+            let name = input.display().to_string();
+            let text = std::fs::read_to_string(input).map_err(|e| format!("{name}: {e}"))?;
+            let report = VerifyReport::from_json(&text, &name)?;
+            plot::save(
+                &Figure::Verdicts {
+                    scenario: &s,
+                    report: &report,
+                },
+                out,
+                size,
+            )?;
+        }
+    }
+    println!("{} written ({}×{} px)", out.display(), size.0, size.1);
+    Ok(())
+}
+
+/// The title of a tubes figure.
+pub fn tubes_title(s: &Scenario, m_c: f64, every: usize) -> String {
+    format!(
+        "`{}`: reachable sets of the filtered system (M_C = {m_c}), every {every} steps",
+        s.name
+    )
+}
+
+/// Draws the tubes of a `reach` run (about 25 boxes per tube) and says where.
+pub fn plot_tubes(
+    s: &Scenario,
+    r: &ReachResult,
+    recorded_every: usize,
+    m_c: f64,
+    out: &Path,
+) -> CliResult {
+    let samples = r.boxes.iter().map(|t| t.tube.len()).max().unwrap_or(1);
+    let every = (samples / 25).max(1);
+    plot::save(
+        &Figure::Tubes {
+            scenario: s,
+            tubes: &r.boxes,
+            every,
+            title: tubes_title(s, m_c, every * recorded_every.max(1)),
+        },
+        out,
+        plot::default_size(&s.reach.region, 1000),
+    )?;
+    println!("  tubes drawn to {}", out.display());
+    Ok(())
+}

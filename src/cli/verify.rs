@@ -1,0 +1,357 @@
+//! `cbfreach verify <scenario>`: a verdict per box of a partitioned region, with refinement and
+//! shards; `cbfreach merge`: shard files into one verdict map.
+
+use std::path::{Path, PathBuf};
+
+use cbfreach::bounds::BoundMethod;
+use cbfreach::equilibria::{find_equilibria, EquilibriumSearch};
+use cbfreach::filter::SafetyFilter;
+use cbfreach::plot::{self, Figure};
+use cbfreach::reach::{Backend, CpuBackend, ReachMethod, ReachProblem, ReachSettings, Transform};
+use cbfreach::scenario::{Scenario, TransformChoice};
+use cbfreach::verify::{
+    merge, traps_from_equilibria, Shard, Stage, Verdict, Verifier, VerifyReport, VerifySettings,
+};
+
+use super::reach::{load_network, network_path, resolve_margin};
+use super::simulate::parse_box;
+use super::{load_scenario, progress_bar, CliResult};
+
+/// Arguments of `cbfreach verify`.
+#[derive(clap::Args)]
+pub struct VerifyArgs {
+    /// The scenario file (TOML).
+    pub scenario: PathBuf,
+    /// Region to partition, LOWER:UPPER (e.g. -3.5,-3:4.5,3); default: the region C.
+    #[arg(long, value_name = "LOWER:UPPER", allow_hyphen_values = true)]
+    pub region: Option<String>,
+    /// Cells per axis, e.g. 64,64.
+    #[arg(long, default_value = "64,64")]
+    pub grid: String,
+    /// Engine: `cpu`.
+    #[arg(long, default_value = "cpu")]
+    pub backend: String,
+    /// How the network is bounded over each box.
+    #[arg(long, value_enum, default_value_t = BoundMethod::Crown)]
+    pub bounds: BoundMethod,
+    /// How the network's error enters the sets.
+    #[arg(long, value_enum, default_value_t = ReachMethod::Disturbance)]
+    pub method: ReachMethod,
+    /// Coordinates of the embedding: `none`, `auto`, or the scenario's choice when absent.
+    #[arg(long)]
+    pub transform: Option<String>,
+    /// Override M_C.
+    #[arg(long = "m-c")]
+    pub m_c: Option<f64>,
+    /// Use this network instead of the scenario's.
+    #[arg(long)]
+    pub network: Option<PathBuf>,
+    /// Bisection rounds of `unknown` and `invalid` boxes.
+    #[arg(long, default_value_t = 0)]
+    pub refine: usize,
+    /// Most extra boxes refinement may run (per shard).
+    #[arg(long, default_value_t = 8192)]
+    pub budget: usize,
+    /// Run only the K-th of N contiguous slices of the cells (1 ≤ K ≤ N); merge the JSON files
+    /// with `cbfreach merge`.
+    #[arg(long, value_name = "K/N")]
+    pub shard: Option<String>,
+    /// Write the verdicts as JSON here.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+    /// Draw the verdict map here (.png or .svg).
+    #[arg(long)]
+    pub plot: Option<PathBuf>,
+}
+
+/// Arguments of `cbfreach merge`.
+#[derive(clap::Args)]
+pub struct MergeArgs {
+    /// Verdict files written by `cbfreach verify --shard K/N --json …`.
+    #[arg(required = true)]
+    pub inputs: Vec<PathBuf>,
+    /// Write the merged verdicts here.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+    /// Draw the merged verdict map here (.png or .svg).
+    #[arg(long)]
+    pub plot: Option<PathBuf>,
+    /// The scenario file, for the picture (default: the one named in the inputs).
+    #[arg(long)]
+    pub scenario: Option<PathBuf>,
+}
+
+/// Parses `N,M,…` cell counts.
+pub fn parse_grid(text: &str, n: usize) -> Result<Vec<usize>, String> {
+    let counts: Vec<usize> = text
+        .split(',')
+        .map(|s| {
+            s.trim().parse::<usize>().map_err(|_| {
+                format!("--grid: `{s}` is not a whole number (expected e.g. 64,64)")
+            })
+        })
+        .collect::<Result<_, _>>()?;
+    if counts.len() != n {
+        return Err(format!(
+            "--grid: expected {n} counts (one per state), found {}",
+            counts.len()
+        ));
+    }
+    if counts.contains(&0) {
+        return Err("--grid: every count must be at least 1".into());
+    }
+    Ok(counts)
+}
+
+/// The embedding's coordinates from `--transform` or the scenario.
+pub fn transform_choice(s: &Scenario, flag: Option<&str>) -> Result<TransformChoice, String> {
+    match flag {
+        None => Ok(s.reach.transform.clone()),
+        Some("none") => Ok(TransformChoice::Identity),
+        Some("auto") => Ok(TransformChoice::Auto),
+        Some(other) => Err(format!("--transform {other}: expected none or auto")),
+    }
+}
+
+/// Compiles the reach problem of a scenario with its (or the given) network.
+pub fn compile(
+    s: &Scenario,
+    network: Option<&PathBuf>,
+    m_c: Option<f64>,
+    transform: Option<&str>,
+) -> Result<ReachProblem, Box<dyn std::error::Error>> {
+    let net = load_network(s, network)?;
+    let m_c = resolve_margin(s, m_c, &network_path(s, network)?)?;
+    let transform = Transform::for_scenario(s, &transform_choice(s, transform)?)?;
+    Ok(ReachProblem::with_transform(s, net, m_c, transform)?)
+}
+
+/// The engine named by `--backend`.
+pub fn backend(name: &str) -> Result<Box<dyn Backend + Sync>, String> {
+    match name {
+        "cpu" | "auto" => Ok(Box::new(CpuBackend)),
+        other => Err(format!("--backend {other}: only `cpu` exists so far")),
+    }
+}
+
+/// Runs `verify`.
+pub fn run(args: &VerifyArgs) -> CliResult {
+    let s = load_scenario(&args.scenario)?;
+    let region = match &args.region {
+        Some(t) => parse_box("--region", t, s.n())?,
+        None => s.reach.region.clone(),
+    };
+    let shard = args.shard.as_deref().map(str::parse::<Shard>).transpose()?;
+    let settings = VerifySettings {
+        region,
+        grid: parse_grid(&args.grid, s.n())?,
+        refine_depth: args.refine,
+        budget: args.budget,
+        shard,
+        chunk: 512,
+    };
+    settings.validate(&s)?;
+    let engine = backend(&args.backend)?;
+    let problem = compile(&s, args.network.as_ref(), args.m_c, args.transform.as_deref())?;
+    let reach = ReachSettings {
+        bounds: args.bounds,
+        method: args.method,
+        every: 1,
+    };
+    let report = run_verify(&s, &problem, engine.as_ref(), reach, &settings)?;
+    print_summary(&report);
+    write_outputs(&s, &report, args.json.as_deref(), args.plot.as_deref())?;
+    fail_if_unsafe(&report)
+}
+
+/// Finds the traps and runs the verifier with progress bars.
+pub fn run_verify(
+    s: &Scenario,
+    problem: &ReachProblem,
+    engine: &dyn Backend,
+    reach: ReachSettings,
+    settings: &VerifySettings,
+) -> Result<VerifyReport, Box<dyn std::error::Error>> {
+    let found = find_equilibria(
+        &SafetyFilter::new(s),
+        &s.reach.region,
+        &EquilibriumSearch::default(),
+    );
+    let half: Vec<f64> = s.reach.goal.widths().iter().map(|w| 0.5 * w).collect();
+    let verifier = Verifier {
+        scenario: s,
+        problem,
+        backend: engine,
+        reach,
+        traps: traps_from_equilibria(&found, &half),
+    };
+    let bar = std::sync::Mutex::new(None::<(Stage, indicatif::ProgressBar)>);
+    let progress = |stage: Stage, done: usize, total: usize| {
+        let Ok(mut slot) = bar.lock() else { return };
+        if slot.as_ref().map(|(s, _)| *s) != Some(stage) {
+            if let Some((_, b)) = slot.take() {
+                b.finish_and_clear();
+            }
+            let what = match stage {
+                Stage::Cells => "boxes".to_string(),
+                Stage::Refine(d) => format!("refinement {d}"),
+            };
+            *slot = Some((stage, progress_bar(total as u64, &what)));
+        }
+        if let Some((_, b)) = slot.as_ref() {
+            b.set_length(total as u64);
+            b.set_position(done as u64);
+        }
+    };
+    let report = verifier.run(settings, &progress)?;
+    if let Ok(mut slot) = bar.lock() {
+        if let Some((_, b)) = slot.take() {
+            b.finish_and_clear();
+        }
+    }
+    Ok(report)
+}
+
+/// The summary table: boxes and area share per verdict, before and after refinement.
+pub fn print_summary(r: &VerifyReport) {
+    let (b, a) = (r.shares_before(), r.shares_after());
+    let refined = r.run.refine_depth > 0;
+    println!(
+        "{} ({}): region {:?}…{:?}, grid {:?}{}, {} bounds, {} method, M_C = {}",
+        r.run.scenario,
+        r.run.scenario_file,
+        r.run.region.lower,
+        r.run.region.upper,
+        r.run.grid,
+        r.shard.map_or(String::new(), |s| format!(", shard {s} (cells {}..{})", r.cells[0], r.cells[1])),
+        r.run.bounds,
+        r.run.method,
+        r.run.m_c
+    );
+    if refined {
+        println!(
+            "  {:<14} {:>7} {:>8}   {:>7} {:>8}",
+            "verdict", "boxes", "share", "leaves", "share"
+        );
+    } else {
+        println!("  {:<14} {:>7} {:>8}", "verdict", "boxes", "share");
+    }
+    for v in Verdict::ALL {
+        let (nb, na) = (
+            b.count.get(&v).copied().unwrap_or(0),
+            a.count.get(&v).copied().unwrap_or(0),
+        );
+        if nb == 0 && na == 0 {
+            continue;
+        }
+        let mut line = format!(
+            "  {:<14} {:>7} {:>7.1}%",
+            v.name(),
+            nb,
+            100.0 * b.share(v)
+        );
+        if refined {
+            line += &format!("   {:>7} {:>7.1}%", na, 100.0 * a.share(v));
+        }
+        println!("{line}");
+    }
+    println!("  (shares of the safe area; unsafe-start and partly-unsafe: of the whole region)");
+    if refined {
+        println!(
+            "  verified share (converges ∪ trapped) of the safe area: {:.1}% before refinement, {:.1}% after ({} rounds, {} extra boxes)",
+            100.0 * b.verified_share,
+            100.0 * a.verified_share,
+            r.run.refine_depth,
+            r.timing.boxes_run - b.count.iter().filter(|(v, _)| v.starts_safe()).map(|(_, c)| c).sum::<usize>()
+        );
+    } else {
+        println!(
+            "  verified share (converges ∪ trapped) of the safe area: {:.1}%",
+            100.0 * b.verified_share
+        );
+    }
+    println!(
+        "  time: {:.2} s ({:.2} s in the engine, {} boxes, {:.0} box-steps/s)",
+        r.timing.total_s,
+        r.timing.reach_s,
+        r.timing.boxes_run,
+        r.timing.box_steps as f64 / r.timing.reach_s.max(1e-9)
+    );
+}
+
+/// Writes `--json` and `--plot`.
+pub fn write_outputs(
+    s: &Scenario,
+    r: &VerifyReport,
+    json: Option<&Path>,
+    plot_to: Option<&Path>,
+) -> CliResult {
+    if let Some(path) = json {
+        std::fs::write(path, r.to_json()).map_err(|e| format!("{}: {e}", path.display()))?;
+        println!("  verdicts written to {}", path.display());
+    }
+    if let Some(path) = plot_to {
+        let size = plot::default_size(&r.run.region, 1000);
+        plot::save(
+            &Figure::Verdicts {
+                scenario: s,
+                report: r,
+            },
+            path,
+            size,
+        )?;
+        println!("  verdict map drawn to {}", path.display());
+    }
+    Ok(())
+}
+
+/// Prints a loud banner and fails when some set met the unsafe set.
+pub fn fail_if_unsafe(r: &VerifyReport) -> CliResult {
+    let bad = r.unsafe_boxes();
+    if bad.is_empty() {
+        return Ok(());
+    }
+    eprintln!("\n!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!");
+    eprintln!("!!! UNSAFE: {} box(es) that start safe have a reachable set lying", bad.len());
+    eprintln!("!!! entirely in the unsafe set. A correct filter cannot do this: this is");
+    eprintln!("!!! a bug in the filter, the network's error bound M_C, or the engine.");
+    for b in bad.iter().take(10) {
+        eprintln!(
+            "!!!   {:?}…{:?}: {}",
+            b.initial.lower,
+            b.initial.upper,
+            b.note.as_deref().unwrap_or("")
+        );
+    }
+    eprintln!("!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!\n");
+    Err(format!("{} box(es) judged unsafe (see above)", bad.len()).into())
+}
+
+/// Runs `merge`.
+pub fn run_merge(args: &MergeArgs) -> CliResult {
+    let mut parts = Vec::new();
+    for p in &args.inputs {
+        let name = p.display().to_string();
+        let text = std::fs::read_to_string(p).map_err(|e| format!("{name}: {e}"))?;
+        parts.push((name.clone(), VerifyReport::from_json(&text, &name)?));
+    }
+    let merged = merge(parts)?;
+    print_summary(&merged);
+    let s = match (&args.scenario, args.plot.is_some()) {
+        (Some(p), _) => Some(load_scenario(p)?),
+        (None, true) => Some(
+            load_scenario(Path::new(&merged.run.scenario_file)).map_err(|e| {
+                format!("{e} (the picture needs the scenario; give it with --scenario)")
+            })?,
+        ),
+        (None, false) => None,
+    };
+    if let Some(path) = &args.json {
+        std::fs::write(path, merged.to_json()).map_err(|e| format!("{}: {e}", path.display()))?;
+        println!("  merged verdicts written to {}", path.display());
+    }
+    if let (Some(s), Some(path)) = (&s, &args.plot) {
+        write_outputs(s, &merged, None, Some(path))?;
+    }
+    fail_if_unsafe(&merged)
+}

@@ -1,0 +1,627 @@
+//! Pictures with plotters: the paper's Figures 1–3 and a verdict map, as PNG or SVG (by the
+//! file's extension).
+//!
+//! - [`Figure::Trajectories`] (paper Fig. 1): filtered-system trajectories, coloured by where
+//!   they end, over the unsafe set, with the equilibria marked by kind;
+//! - [`Figure::Tubes`] (Fig. 2): the boxes of reach tubes every K recorded samples, coloured by
+//!   the tube's outcome, with the initial boxes and the goal;
+//! - [`Figure::Minkowski`] (Fig. 3): the NN-system boxes and the same boxes inflated by the
+//!   closeness radius `r_t`, with filtered trajectories from points of the initial boxes;
+//! - [`Figure::Verdicts`]: every box of a [`VerifyReport`] coloured by its verdict.
+//!
+//! The unsafe set is shaded cell by cell: a cell of a fine grid over the plot is grey when some
+//! `hᵢ < 0` at its centre (a picture, not a proof). Text uses the embedded DejaVu Sans
+//! (`assets/DejaVuSans.ttf`, license beside it), registered once as `sans-serif`.
+
+use std::path::Path;
+use std::sync::Once;
+
+use plotters::coord::Shift;
+use plotters::prelude::*;
+
+use crate::boxes::IntervalBox;
+use crate::equilibria::{Equilibrium, Stability};
+use crate::reach::Tube;
+use crate::scenario::Scenario;
+use crate::simulate::Trajectory;
+use crate::verify::{Verdict, VerifyReport};
+
+const FONT: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
+static REGISTER: Once = Once::new();
+
+/// Why a picture could not be made.
+#[derive(Debug, thiserror::Error)]
+pub enum PlotError {
+    /// The output's extension is neither `.png` nor `.svg`.
+    #[error("{0}: unknown picture format (use a .png or .svg file name)")]
+    Format(String),
+    /// Bad figure data or size.
+    #[error("{0}")]
+    Input(String),
+    /// Drawing or writing the file failed.
+    #[error("{path}: {message}")]
+    Draw {
+        /// The output file.
+        path: String,
+        /// What went wrong.
+        message: String,
+    },
+}
+
+/// What to draw.
+pub enum Figure<'a> {
+    /// Filtered-system trajectories with the unsafe set and the equilibria.
+    Trajectories {
+        /// The scenario (region, CBFs, state names).
+        scenario: &'a Scenario,
+        /// The trajectories.
+        trajectories: &'a [Trajectory],
+        /// The equilibria.
+        equilibria: &'a [Equilibrium],
+    },
+    /// Reach tubes: boxes every `every` recorded samples.
+    Tubes {
+        /// The scenario.
+        scenario: &'a Scenario,
+        /// The tubes.
+        tubes: &'a [Tube],
+        /// Draw every K-th recorded sample (and the last).
+        every: usize,
+        /// The title.
+        title: String,
+    },
+    /// Minkowski-method tubes: NN-system boxes and inflated sets, with filtered trajectories.
+    Minkowski {
+        /// The scenario.
+        scenario: &'a Scenario,
+        /// Tubes of the Minkowski method.
+        tubes: &'a [Tube],
+        /// Filtered trajectories from points of the initial boxes.
+        trajectories: &'a [Trajectory],
+        /// Draw every K-th recorded sample (and the last).
+        every: usize,
+    },
+    /// A verdict map.
+    Verdicts {
+        /// The scenario (for names and the unsafe set).
+        scenario: &'a Scenario,
+        /// The verdicts.
+        report: &'a VerifyReport,
+    },
+}
+
+/// A pixel size with the region's aspect ratio: about `width` wide, height between 300 and 1000.
+pub fn default_size(region: &IntervalBox, width: u32) -> (u32, u32) {
+    let w = region.widths();
+    let ratio = if w.len() >= 2 && w[0] > 0.0 { w[1] / w[0] } else { 0.75 };
+    let plot_w = width.saturating_sub(120) as f64;
+    let h = (plot_w * ratio + 130.0).clamp(300.0, 1000.0) as u32;
+    (width, h)
+}
+
+/// Draws `figure` into `path` (`.png` or `.svg`) at `size` pixels.
+pub fn save(figure: &Figure, path: &Path, size: (u32, u32)) -> Result<(), PlotError> {
+    REGISTER.call_once(|| {
+        // The embedded font is valid; if registration failed, text would be missing but the
+        // drawing itself still errors clearly below.
+        let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, FONT);
+    });
+    if size.0 < 100 || size.1 < 100 || size.0 > 20_000 || size.1 > 20_000 {
+        return Err(PlotError::Input(format!(
+            "picture size {}×{}: each side must be between 100 and 20000 pixels",
+            size.0, size.1
+        )));
+    }
+    let name = path.display().to_string();
+    let draw_err = |e: String| PlotError::Draw {
+        path: name.clone(),
+        message: e,
+    };
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    match ext.as_deref() {
+        Some("png") => {
+            let root = BitMapBackend::new(path, size).into_drawing_area();
+            draw(&root, figure).map_err(draw_err)?;
+            root.present().map_err(|e| draw_err(e.to_string()))
+        }
+        Some("svg") => {
+            let root = SVGBackend::new(path, size).into_drawing_area();
+            draw(&root, figure).map_err(draw_err)?;
+            root.present().map_err(|e| draw_err(e.to_string()))
+        }
+        _ => Err(PlotError::Format(name)),
+    }
+}
+
+// Palette (colour-blind-friendly, Okabe–Ito).
+const BLUE: RGBColor = RGBColor(0, 114, 178);
+const VERMILION: RGBColor = RGBColor(213, 94, 0);
+const GREEN: RGBColor = RGBColor(0, 158, 115);
+const ORANGE: RGBColor = RGBColor(230, 159, 0);
+const PURPLE: RGBColor = RGBColor(204, 121, 167);
+const SKY: RGBColor = RGBColor(86, 180, 233);
+const GREY: RGBColor = RGBColor(150, 150, 150);
+const OBSTACLE: RGBColor = RGBColor(205, 205, 205);
+const DARK: RGBColor = RGBColor(60, 60, 60);
+
+fn verdict_colour(v: Verdict) -> RGBColor {
+    match v {
+        Verdict::Converges => GREEN,
+        Verdict::Trapped => VERMILION,
+        Verdict::Unknown => RGBColor(235, 235, 235),
+        Verdict::Invalid => ORANGE,
+        Verdict::Unsafe => RGBColor(255, 0, 255),
+        Verdict::PartlyUnsafe => RGBColor(175, 175, 175),
+        Verdict::UnsafeStart => RGBColor(110, 110, 110),
+    }
+}
+
+type Chart<'a, DB> = ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
+
+fn draw<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    figure: &Figure,
+) -> Result<(), String> {
+    root.fill(&WHITE).map_err(|e| e.to_string())?;
+    match figure {
+        Figure::Trajectories {
+            scenario,
+            trajectories,
+            equilibria,
+        } => draw_trajectories(root, scenario, trajectories, equilibria),
+        Figure::Tubes {
+            scenario,
+            tubes,
+            every,
+            title,
+        } => draw_tubes(root, scenario, tubes, *every, title),
+        Figure::Minkowski {
+            scenario,
+            tubes,
+            trajectories,
+            every,
+        } => draw_minkowski(root, scenario, tubes, trajectories, *every),
+        Figure::Verdicts { scenario, report } => draw_verdicts(root, scenario, report),
+    }
+}
+
+fn chart<'a, DB: DrawingBackend>(
+    root: &'a DrawingArea<DB, Shift>,
+    scenario: &Scenario,
+    region: &IntervalBox,
+    title: &str,
+) -> Result<Chart<'a, DB>, String> {
+    if scenario.n() != 2 || region.dim() != 2 {
+        return Err(format!(
+            "pictures need a system with 2 states; {} has {}",
+            scenario.file,
+            scenario.n()
+        ));
+    }
+    let mut chart = ChartBuilder::on(root)
+        .caption(title, ("sans-serif", 22))
+        .margin(12)
+        .x_label_area_size(48)
+        .y_label_area_size(58)
+        .build_cartesian_2d(
+            region.lower[0]..region.upper[0],
+            region.lower[1]..region.upper[1],
+        )
+        .map_err(|e| e.to_string())?;
+    chart
+        .configure_mesh()
+        .x_desc(scenario.states[0].as_str())
+        .y_desc(scenario.states[1].as_str())
+        .axis_desc_style(("sans-serif", 18))
+        .label_style(("sans-serif", 14))
+        .light_line_style(RGBColor(245, 245, 245))
+        .bold_line_style(RGBColor(225, 225, 225))
+        .draw()
+        .map_err(|e| e.to_string())?;
+    Ok(chart)
+}
+
+/// Shades the cells of a fine grid over `region` where some `hᵢ < 0` at the centre.
+fn shade_unsafe<DB: DrawingBackend>(
+    chart: &mut Chart<DB>,
+    scenario: &Scenario,
+    region: &IntervalBox,
+) -> Result<(), String> {
+    let (nx, ny) = (240usize, 180usize);
+    let cells = region.partition(&[nx, ny]);
+    let bad: Vec<&IntervalBox> = cells
+        .iter()
+        .filter(|c| {
+            let x = c.center();
+            scenario.cbfs.iter().any(|h| h.h.eval(&x) < 0.0)
+        })
+        .collect();
+    if bad.is_empty() {
+        return Ok(());
+    }
+    chart
+        .draw_series(bad.iter().map(|c| {
+            Rectangle::new(
+                [(c.lower[0], c.lower[1]), (c.upper[0], c.upper[1])],
+                OBSTACLE.filled(),
+            )
+        }))
+        .map_err(|e| e.to_string())?
+        .label("unsafe set (some h < 0)")
+        .legend(|(x, y)| Rectangle::new([(x, y - 6), (x + 14, y + 6)], OBSTACLE.filled()));
+    Ok(())
+}
+
+fn legend<DB: DrawingBackend>(chart: &mut Chart<DB>) -> Result<(), String> {
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperLeft)
+        .background_style(WHITE.mix(0.85))
+        .border_style(DARK)
+        .label_font(("sans-serif", 14))
+        .draw()
+        .map_err(|e| e.to_string())
+}
+
+fn clamp_box(b: &IntervalBox, r: &IntervalBox) -> [(f64, f64); 2] {
+    let c = |v: f64, i: usize| v.clamp(r.lower[i], r.upper[i]);
+    [
+        (c(b.lower[0], 0), c(b.lower[1], 1)),
+        (c(b.upper[0], 0), c(b.upper[1], 1)),
+    ]
+}
+
+fn box_series<DB: DrawingBackend>(
+    chart: &mut Chart<DB>,
+    boxes: &[IntervalBox],
+    region: &IntervalBox,
+    style: ShapeStyle,
+    label: Option<&str>,
+) -> Result<(), String> {
+    if boxes.is_empty() {
+        return Ok(());
+    }
+    let series = chart
+        .draw_series(
+            boxes
+                .iter()
+                .map(|b| Rectangle::new(clamp_box(b, region), style)),
+        )
+        .map_err(|e| e.to_string())?;
+    if let Some(l) = label {
+        series
+            .label(l)
+            .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 14, y + 6)], style));
+    }
+    Ok(())
+}
+
+/// The end-point class of a trajectory: 0 goal, 1 an undesirable stable equilibrium, 2 other.
+fn ending(scenario: &Scenario, equilibria: &[Equilibrium], end: &[f64]) -> usize {
+    let near = |e: &Equilibrium| {
+        e.x.iter()
+            .zip(end)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max)
+            < 0.05
+    };
+    if equilibria
+        .iter()
+        .any(|e| e.kind == Stability::Stable && e.undesirable && near(e))
+    {
+        1
+    } else if scenario.reach.goal.contains(end) {
+        0
+    } else {
+        2
+    }
+}
+
+fn draw_equilibria<DB: DrawingBackend>(
+    chart: &mut Chart<DB>,
+    equilibria: &[Equilibrium],
+) -> Result<(), String> {
+    type Kind = (&'static str, fn(&Equilibrium) -> bool, RGBColor, u8);
+    let kinds: [Kind; 4] = [
+        ("stable equilibrium (goal)", |e| e.kind == Stability::Stable && !e.undesirable, BLUE, 0),
+        ("stable undesirable equilibrium", |e| e.kind == Stability::Stable && e.undesirable, VERMILION, 0),
+        ("saddle", |e| e.kind == Stability::Saddle, DARK, 1),
+        ("unstable / non-hyperbolic", |e| {
+            matches!(e.kind, Stability::Unstable | Stability::NonHyperbolic)
+        }, PURPLE, 2),
+    ];
+    for (label, pick, colour, shape) in kinds {
+        let pts: Vec<(f64, f64)> = equilibria
+            .iter()
+            .filter(|e| pick(e) && e.x.len() == 2)
+            .map(|e| (e.x[0], e.x[1]))
+            .collect();
+        if pts.is_empty() {
+            continue;
+        }
+        let marker = move |(x, y): (f64, f64)| -> DynElement<'static, DB, (f64, f64)> {
+            match shape {
+                0 => (EmptyElement::at((x, y))
+                    + Circle::new((0, 0), 7, colour.filled())
+                    + Circle::new((0, 0), 7, BLACK.stroke_width(1)))
+                .into_dyn(),
+                1 => (EmptyElement::at((x, y)) + Cross::new((0, 0), 7, colour.stroke_width(3)))
+                    .into_dyn(),
+                _ => (EmptyElement::at((x, y))
+                    + TriangleMarker::new((0, 0), 8, colour.filled()))
+                .into_dyn(),
+            }
+        };
+        chart
+            .draw_series(pts.into_iter().map(marker))
+            .map_err(|e| e.to_string())?
+            .label(label)
+            .legend(move |(x, y)| match shape {
+                0 => (EmptyElement::at((x + 7, y)) + Circle::new((0, 0), 6, colour.filled()))
+                    .into_dyn(),
+                1 => (EmptyElement::at((x + 7, y)) + Cross::new((0, 0), 6, colour.stroke_width(3)))
+                    .into_dyn(),
+                _ => (EmptyElement::at((x + 7, y))
+                    + TriangleMarker::new((0, 0), 7, colour.filled()))
+                .into_dyn(),
+            });
+    }
+    Ok(())
+}
+
+fn draw_lines<DB: DrawingBackend>(
+    chart: &mut Chart<DB>,
+    lines: &[&Trajectory],
+    style: ShapeStyle,
+    label: Option<&str>,
+    starts: bool,
+) -> Result<(), String> {
+    let mut first = true;
+    for t in lines {
+        let s = chart
+            .draw_series(LineSeries::new(
+                t.x.iter().filter(|x| x.len() == 2).map(|x| (x[0], x[1])),
+                style,
+            ))
+            .map_err(|e| e.to_string())?;
+        if first {
+            if let Some(l) = label {
+                s.label(l).legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 16, y)], style.stroke_width(3))
+                });
+            }
+            first = false;
+        }
+        if starts && t.x0.len() == 2 {
+            chart
+                .draw_series(std::iter::once(Circle::new(
+                    (t.x0[0], t.x0[1]),
+                    3,
+                    style.color.filled(),
+                )))
+                .map_err(|e| e.to_string())?;
+        }
+    }
+    Ok(())
+}
+
+fn draw_trajectories<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    scenario: &Scenario,
+    trajectories: &[Trajectory],
+    equilibria: &[Equilibrium],
+) -> Result<(), String> {
+    let region = &scenario.reach.region;
+    let title = format!("Filtered system `{}`: trajectories and equilibria", scenario.name);
+    let mut chart = chart(root, scenario, region, &title)?;
+    shade_unsafe(&mut chart, scenario, region)?;
+    let labels = [
+        ("ends at the goal", BLUE),
+        ("ends at an undesirable equilibrium", VERMILION),
+        ("ends elsewhere", GREY),
+    ];
+    for (class, (label, colour)) in labels.iter().enumerate() {
+        let lines: Vec<&Trajectory> = trajectories
+            .iter()
+            .filter(|t| ending(scenario, equilibria, t.last()) == class)
+            .collect();
+        draw_lines(&mut chart, &lines, colour.stroke_width(2), Some(label), true)?;
+    }
+    draw_equilibria(&mut chart, equilibria)?;
+    legend(&mut chart)?;
+    Ok(())
+}
+
+/// The colour and label of a tube by its outcome.
+fn tube_class(scenario: &Scenario, tube: &Tube) -> (RGBColor, &'static str) {
+    match tube.last() {
+        _ if !tube.valid => (ORANGE, "left C (invalid)"),
+        Some(s) if s.set.is_subset_of(&scenario.reach.goal) => (BLUE, "reaches the goal"),
+        _ => (VERMILION, "does not reach the goal"),
+    }
+}
+
+fn pick_samples(tube: &Tube, every: usize) -> impl Iterator<Item = &crate::reach::TubeSample> {
+    let n = tube.tube.len();
+    let every = every.max(1);
+    tube.tube
+        .iter()
+        .enumerate()
+        .filter(move |(k, _)| k % every == 0 || k + 1 == n)
+        .map(|(_, s)| s)
+}
+
+fn draw_goal<DB: DrawingBackend>(
+    chart: &mut Chart<DB>,
+    scenario: &Scenario,
+) -> Result<(), String> {
+    box_series(
+        chart,
+        std::slice::from_ref(&scenario.reach.goal),
+        &scenario.reach.region,
+        GREEN.stroke_width(2),
+        Some("goal set"),
+    )
+}
+
+fn draw_tubes<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    scenario: &Scenario,
+    tubes: &[Tube],
+    every: usize,
+    title: &str,
+) -> Result<(), String> {
+    let region = &scenario.reach.region;
+    let mut chart = chart(root, scenario, region, title)?;
+    shade_unsafe(&mut chart, scenario, region)?;
+    let mut seen: Vec<&str> = Vec::new();
+    for tube in tubes {
+        let (colour, label) = tube_class(scenario, tube);
+        let boxes: Vec<IntervalBox> = pick_samples(tube, every).map(|s| s.set.clone()).collect();
+        let new = !seen.contains(&label);
+        if new {
+            seen.push(label);
+        }
+        box_series(
+            &mut chart,
+            &boxes,
+            region,
+            colour.mix(0.8).stroke_width(1),
+            new.then_some(label),
+        )?;
+    }
+    let initial: Vec<IntervalBox> = tubes.iter().map(|t| t.initial.clone()).collect();
+    box_series(
+        &mut chart,
+        &initial,
+        region,
+        BLACK.filled(),
+        Some("initial boxes"),
+    )?;
+    draw_goal(&mut chart, scenario)?;
+    legend(&mut chart)?;
+    Ok(())
+}
+
+fn draw_minkowski<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    scenario: &Scenario,
+    tubes: &[Tube],
+    trajectories: &[Trajectory],
+    every: usize,
+) -> Result<(), String> {
+    let region = &scenario.reach.region;
+    let title = format!(
+        "`{}`: NN-system boxes and closeness-inflated sets (Minkowski, paper Thm. 2)",
+        scenario.name
+    );
+    let mut chart = chart(root, scenario, region, &title)?;
+    shade_unsafe(&mut chart, scenario, region)?;
+    let mut inflated = Vec::new();
+    let mut nn = Vec::new();
+    for tube in tubes {
+        for s in pick_samples(tube, every) {
+            inflated.push(s.set.clone());
+            nn.push(IntervalBox {
+                lower: s.lower.clone(),
+                upper: s.upper.clone(),
+            });
+        }
+    }
+    box_series(
+        &mut chart,
+        &inflated,
+        region,
+        VERMILION.mix(0.7).stroke_width(1),
+        Some("with closeness radius r_t (filtered system)"),
+    )?;
+    box_series(
+        &mut chart,
+        &nn,
+        region,
+        BLUE.stroke_width(1),
+        Some("without (NN system)"),
+    )?;
+    let lines: Vec<&Trajectory> = trajectories.iter().collect();
+    draw_lines(
+        &mut chart,
+        &lines,
+        BLACK.mix(0.6).stroke_width(1),
+        Some("filtered trajectories"),
+        false,
+    )?;
+    draw_goal(&mut chart, scenario)?;
+    legend(&mut chart)?;
+    Ok(())
+}
+
+fn draw_verdicts<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    scenario: &Scenario,
+    report: &VerifyReport,
+) -> Result<(), String> {
+    let region = &report.run.region;
+    let (before, after) = (report.shares_before(), report.shares_after());
+    let refined = report.after.len() != report.before.len();
+    let title = if refined {
+        format!(
+            "`{}` {}×{}: verified {:.1}% of the safe area ({:.1}% before refinement)",
+            report.run.scenario,
+            report.run.grid.first().copied().unwrap_or(0),
+            report.run.grid.get(1).copied().unwrap_or(0),
+            100.0 * after.verified_share,
+            100.0 * before.verified_share
+        )
+    } else {
+        format!(
+            "`{}` {}×{}: verified {:.1}% of the safe area",
+            report.run.scenario,
+            report.run.grid.first().copied().unwrap_or(0),
+            report.run.grid.get(1).copied().unwrap_or(0),
+            100.0 * after.verified_share
+        )
+    };
+    let mut chart = chart(root, scenario, region, &title)?;
+    for v in Verdict::ALL {
+        let boxes: Vec<IntervalBox> = report
+            .after
+            .iter()
+            .filter(|b| b.verdict == v)
+            .map(|b| b.initial.clone())
+            .collect();
+        if boxes.is_empty() {
+            continue;
+        }
+        let colour = verdict_colour(v);
+        let label = format!(
+            "{} ({:.1}%)",
+            v.name(),
+            100.0 * after.share(v)
+        );
+        box_series(&mut chart, &boxes, region, colour.filled(), Some(&label))?;
+    }
+    // Thin cell borders so the refinement is visible.
+    let all: Vec<IntervalBox> = report.after.iter().map(|b| b.initial.clone()).collect();
+    box_series(&mut chart, &all, region, WHITE.mix(0.6).stroke_width(1), None)?;
+    let traps: Vec<IntervalBox> = report.traps.iter().map(|t| t.region.clone()).collect();
+    box_series(&mut chart, &traps, region, VERMILION.stroke_width(2), Some("trap boxes"))?;
+    box_series(
+        &mut chart,
+        std::slice::from_ref(&report.run.goal),
+        region,
+        BLUE.stroke_width(2),
+        Some("goal set"),
+    )?;
+    let _ = SKY;
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperLeft)
+        .background_style(WHITE.mix(0.9))
+        .border_style(DARK)
+        .label_font(("sans-serif", 14))
+        .draw()
+        .map_err(|e| e.to_string())
+}
