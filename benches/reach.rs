@@ -46,10 +46,20 @@ fn reach_12_boxes(bencher: Bencher, method: BoundMethod) {
             let result = CpuBackend
                 .reach(&problem, &initial, &settings, &|_, _| {})
                 .expect("reach runs");
+            let valid = result.boxes.iter().filter(|t| t.valid).count();
+            eprintln!(
+                "{method}: {valid}/{} tubes valid to the end",
+                result.boxes.len()
+            );
             divan::black_box(result)
         });
 }
 
 fn main() {
+    // One level of parallelism (rayon over boxes), as the `cbfreach` binary does for `reach`
+    // and `bounds`; set MATMUL_NUM_THREADS to compare.
+    if std::env::var_os("MATMUL_NUM_THREADS").is_none() {
+        std::env::set_var("MATMUL_NUM_THREADS", "1");
+    }
     divan::main();
 }

@@ -17,6 +17,7 @@ pub mod equilibria;
 pub mod error;
 pub mod expressions;
 pub mod filter;
+pub mod gpu;
 pub mod intervals;
 pub mod network;
 pub mod plot;

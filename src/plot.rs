@@ -16,6 +16,7 @@
 use std::path::Path;
 use std::sync::Once;
 
+use plotters::coord::types::RangedCoordf64;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
@@ -93,7 +94,11 @@ pub enum Figure<'a> {
 /// A pixel size with the region's aspect ratio: about `width` wide, height between 300 and 1000.
 pub fn default_size(region: &IntervalBox, width: u32) -> (u32, u32) {
     let w = region.widths();
-    let ratio = if w.len() >= 2 && w[0] > 0.0 { w[1] / w[0] } else { 0.75 };
+    let ratio = if w.len() >= 2 && w[0] > 0.0 {
+        w[1] / w[0]
+    } else {
+        0.75
+    };
     let plot_w = width.saturating_sub(120) as f64;
     let h = (plot_w * ratio + 130.0).clamp(300.0, 1000.0) as u32;
     (width, h)
@@ -142,7 +147,6 @@ const VERMILION: RGBColor = RGBColor(213, 94, 0);
 const GREEN: RGBColor = RGBColor(0, 158, 115);
 const ORANGE: RGBColor = RGBColor(230, 159, 0);
 const PURPLE: RGBColor = RGBColor(204, 121, 167);
-const SKY: RGBColor = RGBColor(86, 180, 233);
 const GREY: RGBColor = RGBColor(150, 150, 150);
 const OBSTACLE: RGBColor = RGBColor(205, 205, 205);
 const DARK: RGBColor = RGBColor(60, 60, 60);
@@ -161,10 +165,7 @@ fn verdict_colour(v: Verdict) -> RGBColor {
 
 type Chart<'a, DB> = ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
 
-fn draw<DB: DrawingBackend>(
-    root: &DrawingArea<DB, Shift>,
-    figure: &Figure,
-) -> Result<(), String> {
+fn draw<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, figure: &Figure) -> Result<(), String> {
     root.fill(&WHITE).map_err(|e| e.to_string())?;
     match figure {
         Figure::Trajectories {
@@ -225,8 +226,8 @@ fn chart<'a, DB: DrawingBackend>(
 }
 
 /// Shades the cells of a fine grid over `region` where some `hᵢ < 0` at the centre.
-fn shade_unsafe<DB: DrawingBackend>(
-    chart: &mut Chart<DB>,
+fn shade_unsafe<'a, DB: DrawingBackend + 'a>(
+    chart: &mut Chart<'a, DB>,
     scenario: &Scenario,
     region: &IntervalBox,
 ) -> Result<(), String> {
@@ -255,7 +256,7 @@ fn shade_unsafe<DB: DrawingBackend>(
     Ok(())
 }
 
-fn legend<DB: DrawingBackend>(chart: &mut Chart<DB>) -> Result<(), String> {
+fn legend<'a, DB: DrawingBackend + 'a>(chart: &mut Chart<'a, DB>) -> Result<(), String> {
     chart
         .configure_series_labels()
         .position(SeriesLabelPosition::UpperLeft)
@@ -274,8 +275,8 @@ fn clamp_box(b: &IntervalBox, r: &IntervalBox) -> [(f64, f64); 2] {
     ]
 }
 
-fn box_series<DB: DrawingBackend>(
-    chart: &mut Chart<DB>,
+fn box_series<'a, DB: DrawingBackend + 'a>(
+    chart: &mut Chart<'a, DB>,
     boxes: &[IntervalBox],
     region: &IntervalBox,
     style: ShapeStyle,
@@ -320,18 +321,31 @@ fn ending(scenario: &Scenario, equilibria: &[Equilibrium], end: &[f64]) -> usize
     }
 }
 
-fn draw_equilibria<DB: DrawingBackend>(
-    chart: &mut Chart<DB>,
+fn draw_equilibria<'a, DB: DrawingBackend + 'a>(
+    chart: &mut Chart<'a, DB>,
     equilibria: &[Equilibrium],
 ) -> Result<(), String> {
     type Kind = (&'static str, fn(&Equilibrium) -> bool, RGBColor, u8);
     let kinds: [Kind; 4] = [
-        ("stable equilibrium (goal)", |e| e.kind == Stability::Stable && !e.undesirable, BLUE, 0),
-        ("stable undesirable equilibrium", |e| e.kind == Stability::Stable && e.undesirable, VERMILION, 0),
+        (
+            "stable equilibrium (goal)",
+            |e| e.kind == Stability::Stable && !e.undesirable,
+            BLUE,
+            0,
+        ),
+        (
+            "stable undesirable equilibrium",
+            |e| e.kind == Stability::Stable && e.undesirable,
+            VERMILION,
+            0,
+        ),
         ("saddle", |e| e.kind == Stability::Saddle, DARK, 1),
-        ("unstable / non-hyperbolic", |e| {
-            matches!(e.kind, Stability::Unstable | Stability::NonHyperbolic)
-        }, PURPLE, 2),
+        (
+            "unstable / non-hyperbolic",
+            |e| matches!(e.kind, Stability::Unstable | Stability::NonHyperbolic),
+            PURPLE,
+            2,
+        ),
     ];
     for (label, pick, colour, shape) in kinds {
         let pts: Vec<(f64, f64)> = equilibria
@@ -342,38 +356,40 @@ fn draw_equilibria<DB: DrawingBackend>(
         if pts.is_empty() {
             continue;
         }
-        let marker = move |(x, y): (f64, f64)| -> DynElement<'static, DB, (f64, f64)> {
-            match shape {
-                0 => (EmptyElement::at((x, y))
+        let series = match shape {
+            0 => chart.draw_series(pts.into_iter().map(|p| {
+                EmptyElement::at(p)
                     + Circle::new((0, 0), 7, colour.filled())
-                    + Circle::new((0, 0), 7, BLACK.stroke_width(1)))
-                .into_dyn(),
-                1 => (EmptyElement::at((x, y)) + Cross::new((0, 0), 7, colour.stroke_width(3)))
-                    .into_dyn(),
-                _ => (EmptyElement::at((x, y))
-                    + TriangleMarker::new((0, 0), 8, colour.filled()))
-                .into_dyn(),
-            }
+                    + Circle::new((0, 0), 7, BLACK.stroke_width(1))
+            })),
+            1 => chart.draw_series(
+                pts.into_iter()
+                    .map(|p| EmptyElement::at(p) + Cross::new((0, 0), 7, colour.stroke_width(3))),
+            ),
+            _ => chart
+                .draw_series(pts.into_iter().map(|p| {
+                    EmptyElement::at(p) + TriangleMarker::new((0, 0), 8, colour.filled())
+                })),
+        }
+        .map_err(|e| e.to_string())?;
+        let style: ShapeStyle = if shape == 1 {
+            colour.stroke_width(3)
+        } else {
+            colour.filled()
         };
-        chart
-            .draw_series(pts.into_iter().map(marker))
-            .map_err(|e| e.to_string())?
-            .label(label)
-            .legend(move |(x, y)| match shape {
-                0 => (EmptyElement::at((x + 7, y)) + Circle::new((0, 0), 6, colour.filled()))
-                    .into_dyn(),
-                1 => (EmptyElement::at((x + 7, y)) + Cross::new((0, 0), 6, colour.stroke_width(3)))
-                    .into_dyn(),
-                _ => (EmptyElement::at((x + 7, y))
-                    + TriangleMarker::new((0, 0), 7, colour.filled()))
-                .into_dyn(),
-            });
+        series.label(label).legend(move |(x, y)| {
+            if shape == 1 {
+                Cross::new((x + 7, y), 6, style).into_dyn()
+            } else {
+                Circle::new((x + 7, y), 6, style).into_dyn()
+            }
+        });
     }
     Ok(())
 }
 
-fn draw_lines<DB: DrawingBackend>(
-    chart: &mut Chart<DB>,
+fn draw_lines<'a, DB: DrawingBackend + 'a>(
+    chart: &mut Chart<'a, DB>,
     lines: &[&Trajectory],
     style: ShapeStyle,
     label: Option<&str>,
@@ -415,7 +431,10 @@ fn draw_trajectories<DB: DrawingBackend>(
     equilibria: &[Equilibrium],
 ) -> Result<(), String> {
     let region = &scenario.reach.region;
-    let title = format!("Filtered system `{}`: trajectories and equilibria", scenario.name);
+    let title = format!(
+        "Filtered system `{}`: trajectories and equilibria",
+        scenario.name
+    );
     let mut chart = chart(root, scenario, region, &title)?;
     shade_unsafe(&mut chart, scenario, region)?;
     let labels = [
@@ -428,7 +447,13 @@ fn draw_trajectories<DB: DrawingBackend>(
             .iter()
             .filter(|t| ending(scenario, equilibria, t.last()) == class)
             .collect();
-        draw_lines(&mut chart, &lines, colour.stroke_width(2), Some(label), true)?;
+        draw_lines(
+            &mut chart,
+            &lines,
+            colour.stroke_width(2),
+            Some(label),
+            true,
+        )?;
     }
     draw_equilibria(&mut chart, equilibria)?;
     legend(&mut chart)?;
@@ -454,8 +479,8 @@ fn pick_samples(tube: &Tube, every: usize) -> impl Iterator<Item = &crate::reach
         .map(|(_, s)| s)
 }
 
-fn draw_goal<DB: DrawingBackend>(
-    chart: &mut Chart<DB>,
+fn draw_goal<'a, DB: DrawingBackend + 'a>(
+    chart: &mut Chart<'a, DB>,
     scenario: &Scenario,
 ) -> Result<(), String> {
     box_series(
@@ -498,7 +523,7 @@ fn draw_tubes<DB: DrawingBackend>(
         &mut chart,
         &initial,
         region,
-        BLACK.filled(),
+        BLACK.stroke_width(2),
         Some("initial boxes"),
     )?;
     draw_goal(&mut chart, scenario)?;
@@ -596,18 +621,28 @@ fn draw_verdicts<DB: DrawingBackend>(
             continue;
         }
         let colour = verdict_colour(v);
-        let label = format!(
-            "{} ({:.1}%)",
-            v.name(),
-            100.0 * after.share(v)
-        );
+        let label = format!("{} ({:.1}%)", v.name(), 100.0 * after.share(v));
         box_series(&mut chart, &boxes, region, colour.filled(), Some(&label))?;
     }
-    // Thin cell borders so the refinement is visible.
-    let all: Vec<IntervalBox> = report.after.iter().map(|b| b.initial.clone()).collect();
-    box_series(&mut chart, &all, region, WHITE.mix(0.6).stroke_width(1), None)?;
+    // Thin cell borders so the refinement is visible (left out when cells are tiny).
+    if report.after.len() <= 3000 {
+        let all: Vec<IntervalBox> = report.after.iter().map(|b| b.initial.clone()).collect();
+        box_series(
+            &mut chart,
+            &all,
+            region,
+            WHITE.mix(0.6).stroke_width(1),
+            None,
+        )?;
+    }
     let traps: Vec<IntervalBox> = report.traps.iter().map(|t| t.region.clone()).collect();
-    box_series(&mut chart, &traps, region, VERMILION.stroke_width(2), Some("trap boxes"))?;
+    box_series(
+        &mut chart,
+        &traps,
+        region,
+        VERMILION.stroke_width(2),
+        Some("trap boxes"),
+    )?;
     box_series(
         &mut chart,
         std::slice::from_ref(&report.run.goal),
@@ -615,7 +650,6 @@ fn draw_verdicts<DB: DrawingBackend>(
         BLUE.stroke_width(2),
         Some("goal set"),
     )?;
-    let _ = SKY;
     chart
         .configure_series_labels()
         .position(SeriesLabelPosition::UpperLeft)

@@ -11,8 +11,11 @@
 //!   `hᵢ < 0` (interval evaluation) are dropped; on every other cell `N` is bounded by IBP (and
 //!   backward CROWN when IBP is not tight enough) and `v` by an interval evaluation of the closed
 //!   form ([`v_enclosure`]); the worst cells are bisected until the bound is within a tolerance of
-//!   the measured value or a budget of cell evaluations is spent. The bound holds on each whole
-//!   kept cell (a superset of its part of `C ∩ S`), floating-point error included.
+//!   the measured value or a budget of cell evaluations is spent. The bound holds on
+//!   `cell ∩ S` for each kept cell (at the points where the filter is feasible), floating-point
+//!   error included. Where `v` is unbounded or discontinuous inside `S` (scenario 2 at the
+//!   obstacle's ends `(1, 0)`, `(3, 0)`, where `L_g h = 0`) cells stay infinite: the
+//!   certified bound is then `+∞` (`null` in JSON), honestly.
 //! * [`ErrorMap`]: the certified per-cell bounds, stored beside the network
 //!   (`<network stem>.errormap.json`, [`error_map_path`]), so that reachability can use a local
 //!   bound over the cells that a box meets ([`ErrorMap::local_bound`]) instead of the global
@@ -416,8 +419,8 @@ fn sum(it: impl Iterator<Item = Interval>) -> Interval {
 }
 
 /// The constraint rows `aₖ·θ ≤ bₖ` of the filter (as in
-/// [`SafetyFilter::constraint_rows`]) enclosed over a box by interval evaluation: `(a, b)` with
-/// `a` row-major (rows × m).
+/// [`SafetyFilter::constraint_rows`]) enclosed over `box ∩ S` by interval evaluation: `(a, b)`
+/// with `a` row-major (rows × m). Each `hᵢ` enters as `hᵢ(box) ∩ [0, ∞)`, since `hᵢ ≥ 0` on `S`.
 pub fn interval_rows(s: &Scenario, cell: &IntervalBox) -> (Vec<Interval>, Vec<Interval>) {
     let (n, m) = (s.n(), s.m());
     let xs: Vec<Interval> = (0..n)
@@ -428,7 +431,13 @@ pub fn interval_rows(s: &Scenario, cell: &IntervalBox) -> (Vec<Interval>, Vec<In
     let (mut a, mut b) = (Vec::new(), Vec::new());
     for cbf in &s.cbfs {
         let grad: Vec<Interval> = cbf.gradient.iter().map(|e| e.eval_interval(&xs)).collect();
-        let h = cbf.h.eval_interval(&xs);
+        // Only the points of S matter (v is bounded on `box ∩ S`), where every `hᵢ ≥ 0`.
+        let h_all = cbf.h.eval_interval(&xs);
+        let h = if h_all.is_nan() {
+            h_all
+        } else {
+            Interval::new(h_all.lower.max(0.0), h_all.upper.max(0.0))
+        };
         for j in 0..m {
             a.push(-sum((0..n).map(|i| grad[i] * g[i * m + j])));
         }
@@ -458,8 +467,8 @@ fn neg_part(b: Interval) -> Interval {
     Interval::new((-b.upper).max(0.0), (-b.lower).max(0.0))
 }
 
-/// An enclosure of the filter `v` over a box, by interval evaluation of its closed form:
-/// `Some(v)` with `v[j] ∋ vⱼ(x)` for every `x` of the box where the filter is feasible, or `None`
+/// An enclosure of the filter `v` over `box ∩ S`, by interval evaluation of its closed form:
+/// `Some(v)` with `v[j] ∋ vⱼ(x)` for every `x ∈ box ∩ S` where the filter is feasible, or `None`
 /// when the filter has no closed form ([`FilterMethod::Qp`]). Ends may be infinite (e.g. when
 /// `‖L_g h‖²` may vanish on the box): refine the box.
 ///
@@ -548,7 +557,7 @@ fn error_from(n_lo: &[f64], n_hi: &[f64], v: &[Interval]) -> f64 {
     e
 }
 
-/// A certified bound of `‖N(x) − v(x)‖∞` over one box (all of it, not only its safe part):
+/// A certified bound of `‖N(x) − v(x)‖∞` over `box ∩ S` (where `v` is feasible):
 /// IBP first, then backward CROWN (intersected with IBP) when the IBP bound exceeds `good_enough`.
 /// `None` without a closed-form filter; +∞ when an enclosure is unbounded.
 pub fn cell_error_bound(
@@ -588,7 +597,9 @@ pub struct CellBound {
     pub lower: Vec<f64>,
     /// Upper corner.
     pub upper: Vec<f64>,
-    /// `sup ‖N(x) − v(x)‖∞` over the cell is at most this.
+    /// `sup ‖N(x) − v(x)‖∞` over `cell ∩ S` is at most this (+∞, written `"inf"`, when
+    /// nothing could be certified on the cell).
+    #[serde(with = "inf_as_string")]
     pub bound: f64,
 }
 
@@ -612,6 +623,11 @@ pub struct Certified {
     pub evaluated: usize,
     /// Whether the refinement stopped on the budget rather than on the target.
     pub budget_spent: bool,
+    /// Kept cells whose bound is +∞ (e.g. tiny cells at points where `L_g h = 0` on the
+    /// boundary of `S`, where the interval closed form cannot resolve `0/0`).
+    pub uncertified: usize,
+    /// The max over the cells with a finite bound (a bound over `C ∩ S` minus those cells).
+    pub finite_linf: f64,
 }
 
 #[derive(PartialEq)]
@@ -728,8 +744,16 @@ pub fn certify(
         bound,
     }));
     let linf = done.iter().map(|c| c.bound).fold(0.0, f64::max);
+    let uncertified = done.iter().filter(|c| !c.bound.is_finite()).count();
+    let finite_linf = done
+        .iter()
+        .map(|c| c.bound)
+        .filter(|b| b.is_finite())
+        .fold(0.0, f64::max);
     Ok(Some(Certified {
         linf,
+        uncertified,
+        finite_linf,
         cells: done,
         dropped,
         evaluated,
@@ -754,11 +778,66 @@ pub struct ErrorMap {
     pub measured_linf: f64,
     /// Measured `max ‖N − v‖₂`.
     pub measured_l2: f64,
-    /// The certified global bound (max over the cells), `None` for a QP filter.
+    /// The certified global bound (max over the cells; `"inf"` when some cell could not be
+    /// certified), `None` for a QP filter.
+    #[serde(with = "opt_inf_as_string")]
     pub certified_linf: Option<f64>,
     /// Kept cells with their bounds; cells of `region` not listed were proven to miss `S`
     /// (where the filtered system never goes), so they contribute nothing.
     pub cells: Vec<CellBound>,
+}
+
+/// JSON has no ∞: a non-finite bound is written as the string `"inf"`.
+mod inf_as_string {
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    #[derive(Deserialize)]
+    #[serde(untagged)]
+    pub(super) enum NumOrText {
+        Num(f64),
+        Text(String),
+    }
+
+    pub(super) fn to_f64(v: NumOrText) -> Result<f64, String> {
+        match v {
+            NumOrText::Num(x) => Ok(x),
+            NumOrText::Text(s) if s == "inf" => Ok(f64::INFINITY),
+            NumOrText::Text(s) => Err(format!("`{s}` is not a bound (a number or \"inf\")")),
+        }
+    }
+
+    pub fn serialize<S: Serializer>(x: &f64, s: S) -> Result<S::Ok, S::Error> {
+        if x.is_finite() {
+            s.serialize_f64(*x)
+        } else {
+            s.serialize_str("inf")
+        }
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+        to_f64(NumOrText::deserialize(d)?).map_err(serde::de::Error::custom)
+    }
+}
+
+/// [`inf_as_string`] for an optional bound (`null` for `None`).
+mod opt_inf_as_string {
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    use super::inf_as_string::{to_f64, NumOrText};
+
+    pub fn serialize<S: Serializer>(x: &Option<f64>, s: S) -> Result<S::Ok, S::Error> {
+        match x {
+            None => s.serialize_none(),
+            Some(v) => super::inf_as_string::serialize(v, s),
+        }
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Option<f64>, D::Error> {
+        Option::<NumOrText>::deserialize(d)?
+            .map(to_f64)
+            .transpose()
+            .map_err(serde::de::Error::custom)
+    }
 }
 
 /// The format tag of [`ErrorMap`] files.
@@ -931,6 +1010,22 @@ mod tests {
         let p = Percentiles::of(&v);
         assert_eq!((p.median, p.p95, p.max), (50.0, 95.0, 100.0));
         assert_eq!(Percentiles::of(&[]), Percentiles::default());
+    }
+
+    #[test]
+    fn infinite_bounds_round_trip_through_json() {
+        let c = CellBound {
+            lower: vec![0.0],
+            upper: vec![1.0],
+            bound: f64::INFINITY,
+        };
+        let text = serde_json::to_string(&c).unwrap();
+        assert!(text.contains("\"inf\""), "{text}");
+        let back: CellBound = serde_json::from_str(&text).unwrap();
+        assert_eq!(back.bound, f64::INFINITY);
+        assert!(
+            serde_json::from_str::<CellBound>(r#"{"lower":[0],"upper":[1],"bound":"x"}"#).is_err()
+        );
     }
 
     #[test]

@@ -50,9 +50,7 @@ use crate::scenario::Scenario;
 pub const FORMAT: &str = "cbfreach-verify-1";
 
 /// What a box's reachable sets show.
-#[derive(
-    Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize,
-)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Verdict {
     /// The set at the final time lies in the goal box.
@@ -169,8 +167,14 @@ impl FromStr for Shard {
             ))
         };
         let (k, n) = s.split_once('/').ok_or_else(|| bad("no `/`"))?;
-        let k: usize = k.trim().parse().map_err(|_| bad("K is not a whole number"))?;
-        let n: usize = n.trim().parse().map_err(|_| bad("N is not a whole number"))?;
+        let k: usize = k
+            .trim()
+            .parse()
+            .map_err(|_| bad("K is not a whole number"))?;
+        let n: usize = n
+            .trim()
+            .parse()
+            .map_err(|_| bad("N is not a whole number"))?;
         if n == 0 {
             return Err(bad("N must be at least 1"));
         }
@@ -313,7 +317,7 @@ impl Shares {
             .iter()
             .filter(|(v, _)| v.is_verified())
             .map(|(_, a)| a)
-            .sum();
+            .fold(0.0, |x, y| x + y);
         s.verified_share = if s.safe_area > 0.0 {
             verified / s.safe_area
         } else {
@@ -483,7 +487,11 @@ pub enum Stage {
 /// evaluation of every CBF over the box.
 pub fn start_verdict(scenario: &Scenario, b: &IntervalBox) -> Option<Verdict> {
     let x = as_intervals(b);
-    let hs: Vec<Interval> = scenario.cbfs.iter().map(|c| c.h.eval_interval(&x)).collect();
+    let hs: Vec<Interval> = scenario
+        .cbfs
+        .iter()
+        .map(|c| c.h.eval_interval(&x))
+        .collect();
     // NaN bounds (an expression undefined somewhere on the box) count as "maybe unsafe".
     if hs.iter().any(|h| h.upper < 0.0) {
         Some(Verdict::UnsafeStart)
@@ -503,7 +511,11 @@ fn as_intervals(b: &IntervalBox) -> Vec<Interval> {
 }
 
 /// Judges one tube (see the module docs for the order of the checks).
-pub fn judge(scenario: &Scenario, traps: &[Trap], tube: &Tube) -> (Verdict, Option<usize>, Option<String>) {
+pub fn judge(
+    scenario: &Scenario,
+    traps: &[Trap],
+    tube: &Tube,
+) -> (Verdict, Option<usize>, Option<String>) {
     for s in &tube.tube {
         let x = as_intervals(&s.set);
         for cbf in &scenario.cbfs {
@@ -559,14 +571,10 @@ impl Verifier<'_> {
         settings.validate(self.scenario)?;
         let clock = Instant::now();
         let all = settings.region.partition(&settings.grid);
-        let range = settings
-            .shard
-            .map_or(0..all.len(), |s| s.range(all.len()));
+        let range = settings.shard.map_or(0..all.len(), |s| s.range(all.len()));
         let mut timing = VerifyTiming::default();
-        let cells: Vec<(usize, usize, IntervalBox)> = range
-            .clone()
-            .map(|k| (k, 0, all[k].clone()))
-            .collect();
+        let cells: Vec<(usize, usize, IntervalBox)> =
+            range.clone().map(|k| (k, 0, all[k].clone())).collect();
         let before = self.run_boxes(&cells, settings.chunk, &mut timing, &|d, t| {
             progress(Stage::Cells, d, t)
         })?;
@@ -667,16 +675,17 @@ impl Verifier<'_> {
             let initial: Vec<IntervalBox> = idx.iter().map(|&i| out[i].initial.clone()).collect();
             let done = c * chunk;
             let clock = Instant::now();
-            let result = self.backend.reach(self.problem, &initial, &settings, &|s, all| {
-                progress(done + idx.len() * s / all.max(1), total)
-            })?;
+            let result = self
+                .backend
+                .reach(self.problem, &initial, &settings, &|s, all| {
+                    progress(done + idx.len() * s / all.max(1), total)
+                })?;
             timing.reach_s += clock.elapsed().as_secs_f64();
             timing.boxes_run += idx.len();
             for (&i, tube) in idx.iter().zip(&result.boxes) {
                 let (verdict, trap, note) = judge(self.scenario, &self.traps, tube);
                 let last = tube.last();
-                timing.box_steps +=
-                    last.map_or(0, |s| (s.t / self.problem.dt).round() as usize);
+                timing.box_steps += last.map_or(0, |s| (s.t / self.problem.dt).round() as usize);
                 let b = &mut out[i];
                 b.verdict = verdict;
                 b.trap = trap;
@@ -715,7 +724,12 @@ pub fn merge(parts: Vec<(String, VerifyReport)>) -> Result<VerifyReport, VerifyE
                 (serde_json::Value::Object(a), serde_json::Value::Object(b)) => a
                     .iter()
                     .filter(|(k, v)| b.get(*k) != Some(v))
-                    .map(|(k, v)| format!("{k}: {v} in {first_name} but {} in {name}", b.get(k).cloned().unwrap_or_default()))
+                    .map(|(k, v)| {
+                        format!(
+                            "{k}: {v} in {first_name} but {} in {name}",
+                            b.get(k).cloned().unwrap_or_default()
+                        )
+                    })
                     .collect(),
                 _ => vec![],
             };
@@ -804,7 +818,10 @@ mod tests {
 
     #[test]
     fn shard_parsing_explains_errors() {
-        assert_eq!("2/8".parse::<Shard>().unwrap(), Shard { index: 2, count: 8 });
+        assert_eq!(
+            "2/8".parse::<Shard>().unwrap(),
+            Shard { index: 2, count: 8 }
+        );
         for bad in ["0/4", "5/4", "1/0", "a/2", "3", "1/-2"] {
             let e = bad.parse::<Shard>().unwrap_err().to_string();
             assert!(e.contains("--shard"), "{e}");

@@ -300,11 +300,13 @@ fn backward_group(
             let span = i * n0..(i + 1) * n0;
             let fwd_form_hi = affine_max(&row.a_upper[span.clone()], row.b_upper[i], lo, hi, xmag);
             let fwd_form_lo = affine_min(&row.a_lower[span], row.b_lower[i], lo, hi, xmag);
-            if !stacked || !(fwd_form_hi < hi_b) {
+            let keep_fwd_hi = stacked && fwd_form_hi < hi_b;
+            if !keep_fwd_hi {
                 row.a_upper[i * n0..(i + 1) * n0].copy_from_slice(au);
                 row.b_upper[i] = bu;
             }
-            if !stacked || !(fwd_form_lo > lo_b) {
+            let keep_fwd_lo = stacked && fwd_form_lo > lo_b;
+            if !keep_fwd_lo {
                 row.a_lower[i * n0..(i + 1) * n0].copy_from_slice(al);
                 row.b_lower[i] = bl;
             }

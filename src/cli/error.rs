@@ -43,8 +43,11 @@ struct ErrorJson {
     argmax: Vec<f64>,
     argmax_l2: Vec<f64>,
     mean: f64,
-    certified_linf: Option<f64>,
+    /// A number, `"inf"` when some cell could not be certified, `null` for a QP filter.
+    certified_linf: serde_json::Value,
     cells: usize,
+    uncertified_cells: usize,
+    certified_linf_finite_cells: Option<f64>,
     dropped_cells: usize,
     evaluated_cells: usize,
     budget_spent: bool,
@@ -99,8 +102,14 @@ pub fn run(args: &ErrorArgs) -> CliResult {
         argmax: measured.argmax.clone(),
         argmax_l2: measured.argmax_l2.clone(),
         mean: measured.mean,
-        certified_linf: certified.as_ref().map(|c| c.linf),
+        certified_linf: match certified.as_ref().map(|c| c.linf) {
+            None => serde_json::Value::Null,
+            Some(v) if v.is_finite() => serde_json::json!(v),
+            Some(_) => serde_json::json!("inf"),
+        },
         cells: certified.as_ref().map_or(0, |c| c.cells.len()),
+        uncertified_cells: certified.as_ref().map_or(0, |c| c.uncertified),
+        certified_linf_finite_cells: certified.as_ref().map(|c| c.finite_linf),
         dropped_cells: certified.as_ref().map_or(0, |c| c.dropped),
         evaluated_cells: certified.as_ref().map_or(0, |c| c.evaluated),
         budget_spent: certified.as_ref().is_some_and(|c| c.budget_spent),
@@ -151,6 +160,13 @@ pub fn run(args: &ErrorArgs) -> CliResult {
             }
         ),
         None => println!("certified M_C: none (the filter is a general QP without a closed form)"),
+    }
+    if let Some(c) = certified.as_ref().filter(|c| c.uncertified > 0) {
+        println!(
+            "  {} cells could not be certified (+∞; e.g. where L_g h = 0 on the boundary of S); \
+             the other cells are within {:.4}",
+            c.uncertified, c.finite_linf
+        );
     }
     if let Some(f) = map_file {
         println!("error map written to {}", f.display());

@@ -95,7 +95,10 @@ pub fn run_default() -> CliResult {
     };
     let out = PathBuf::from("out");
     std::fs::create_dir_all(&out).map_err(|e| format!("{}: {e}", out.display()))?;
-    println!("cbfreach — the paper's scenario 1, `{}` ({})", s.name, s.file);
+    println!(
+        "cbfreach — the paper's scenario 1, `{}` ({})",
+        s.name, s.file
+    );
     println!("  {}\n", s.description.replace('\n', "\n  "));
     let times = run_scenario(&s, None, &out, BoundMethod::Crown, (2.15, 0.02))?;
     if let Some(t) = times {
@@ -186,7 +189,11 @@ fn run_scenario(
             v.name(),
             match (&set, note) {
                 (_, Some(n)) => n,
-                (Some(b), None) => format!("final set {} … {}", fmt_point(&b.lower), fmt_point(&b.upper)),
+                (Some(b), None) => format!(
+                    "final set {} … {}",
+                    fmt_point(&b.lower),
+                    fmt_point(&b.upper)
+                ),
                 (None, None) => String::new(),
             }
         );
@@ -207,7 +214,10 @@ fn run_scenario(
         &path,
         size,
     )?;
-    println!("Figure 3 (with and without the closeness radius): {}", path.display());
+    println!(
+        "Figure 3 (with and without the closeness radius): {}",
+        path.display()
+    );
     let escapes = count_escapes(&mink.boxes, &lines, s.reach.initial.len(), 8);
     if escapes > 0 {
         println!(
@@ -268,7 +278,11 @@ fn print_times(times: &[PaperTimes]) {
     println!("Times (this machine, CPU backend) next to the paper's:");
     println!(
         "  {:<20} {:>6}  {:>28}  {:>26}  {:>16}",
-        "scenario", "boxes", "embedding: paper / cbfreach", "radius r_t: paper / ours", "disturbance"
+        "scenario",
+        "boxes",
+        "embedding: paper / cbfreach",
+        "radius r_t: paper / ours",
+        "disturbance"
     );
     for t in times {
         println!(

@@ -2,8 +2,8 @@
 
 use std::path::{Path, PathBuf};
 
-use cbfreach::boxes::IntervalBox;
 use cbfreach::bounds::BoundMethod;
+use cbfreach::boxes::IntervalBox;
 use cbfreach::equilibria::{find_equilibria, EquilibriumSearch};
 use cbfreach::filter::SafetyFilter;
 use cbfreach::plot::{self, Figure};
@@ -156,7 +156,12 @@ pub fn run(args: &PlotArgs) -> CliResult {
             )?;
         }
         FigureKind::Tubes | FigureKind::Minkowski => {
-            let problem = compile(&s, args.network.as_ref(), args.m_c, args.transform.as_deref())?;
+            let problem = compile(
+                &s,
+                args.network.as_ref(),
+                args.m_c,
+                args.transform.as_deref(),
+            )?;
             let method = if args.figure == FigureKind::Tubes {
                 ReachMethod::Disturbance
             } else {
@@ -189,10 +194,9 @@ pub fn run(args: &PlotArgs) -> CliResult {
             }
         }
         FigureKind::Verdicts => {
-            let input = args
-                .input
-                .as_ref()
-                .ok_or("--figure verdicts needs --input FILE (from `cbfreach verify --json FILE`)")?;
+            let input = args.input.as_ref().ok_or(
+                "--figure verdicts needs --input FILE (from `cbfreach verify --json FILE`)",
+            )?;
             let name = input.display().to_string();
             let text = std::fs::read_to_string(input).map_err(|e| format!("{name}: {e}"))?;
             let report = VerifyReport::from_json(&text, &name)?;

@@ -17,9 +17,14 @@ use super::{fmt_point, load_scenario, progress_bar, CliResult};
 pub struct ReachArgs {
     /// The scenario file (TOML).
     pub scenario: PathBuf,
-    /// Engine: `cpu` (the GPU engine is not built yet).
+    /// Engine: `cpu`, `gpu` (wgpu; forward bounds), or `auto` (the GPU when an adapter exists
+    /// and runs these settings, else the CPU with a notice).
     #[arg(long, default_value = "cpu")]
     pub backend: String,
+    /// GPU adapter whose name contains this (case-insensitive); default: a real GPU before a
+    /// software one.
+    #[arg(long)]
+    pub adapter: Option<String>,
     /// How the network is bounded over each box.
     #[arg(long, value_enum, default_value_t = BoundMethod::Crown)]
     pub bounds: BoundMethod,
@@ -113,8 +118,8 @@ pub fn resolve_margin(
 /// Runs the command.
 pub fn run(args: &ReachArgs) -> CliResult {
     let s = load_scenario(&args.scenario)?;
-    if args.backend != "cpu" && args.backend != "auto" {
-        return Err(format!("--backend {}: only `cpu` exists so far", args.backend).into());
+    if !matches!(args.backend.as_str(), "cpu" | "gpu" | "auto") {
+        return Err(format!("--backend {}: expected cpu, gpu or auto", args.backend).into());
     }
     let network = load_network(&s, args.network.as_ref())?;
     let m_c = resolve_margin(&s, args.m_c, &network_path(&s, args.network.as_ref())?)?;
@@ -134,7 +139,7 @@ pub fn run(args: &ReachArgs) -> CliResult {
         method: args.method,
         every: args.every,
     };
-    let backend = CpuBackend;
+    let backend = choose_backend(&args.backend, args.adapter.as_deref(), &settings)?;
     let bar = progress_bar(problem.steps as u64, "Euler steps");
     let result = backend.reach(&problem, &s.reach.initial, &settings, &|done, _| {
         bar.set_position(done as u64)
@@ -196,4 +201,36 @@ pub fn run(args: &ReachArgs) -> CliResult {
         super::plot::plot_tubes(&s, &result, args.every, m_c, path)?;
     }
     Ok(())
+}
+
+/// The engine `--backend` and `--adapter` ask for; `auto` falls back to the CPU with a notice.
+fn choose_backend(
+    which: &str,
+    adapter: Option<&str>,
+    settings: &ReachSettings,
+) -> Result<Box<dyn Backend>, Box<dyn std::error::Error>> {
+    if which == "cpu" {
+        return Ok(Box::new(CpuBackend));
+    }
+    let supported = cbfreach::gpu::GpuBackend::supports(settings);
+    if which == "auto" && !supported {
+        println!(
+            "notice: --backend auto: the GPU engine has no {} bounds yet; using the CPU",
+            settings.bounds
+        );
+        return Ok(Box::new(CpuBackend));
+    }
+    match cbfreach::gpu::GpuContext::with_adapter(adapter) {
+        Ok(ctx) => {
+            println!("GPU adapter: {}", ctx.describe());
+            Ok(Box::new(cbfreach::gpu::GpuBackend::new(
+                std::sync::Arc::new(ctx),
+            )))
+        }
+        Err(e) if which == "auto" => {
+            println!("notice: --backend auto: {e}; using the CPU");
+            Ok(Box::new(CpuBackend))
+        }
+        Err(e) => Err(e.into()),
+    }
 }

@@ -86,9 +86,9 @@ pub fn parse_grid(text: &str, n: usize) -> Result<Vec<usize>, String> {
     let counts: Vec<usize> = text
         .split(',')
         .map(|s| {
-            s.trim().parse::<usize>().map_err(|_| {
-                format!("--grid: `{s}` is not a whole number (expected e.g. 64,64)")
-            })
+            s.trim()
+                .parse::<usize>()
+                .map_err(|_| format!("--grid: `{s}` is not a whole number (expected e.g. 64,64)"))
         })
         .collect::<Result<_, _>>()?;
     if counts.len() != n {
@@ -152,7 +152,12 @@ pub fn run(args: &VerifyArgs) -> CliResult {
     };
     settings.validate(&s)?;
     let engine = backend(&args.backend)?;
-    let problem = compile(&s, args.network.as_ref(), args.m_c, args.transform.as_deref())?;
+    let problem = compile(
+        &s,
+        args.network.as_ref(),
+        args.m_c,
+        args.transform.as_deref(),
+    )?;
     let reach = ReachSettings {
         bounds: args.bounds,
         method: args.method,
@@ -223,7 +228,10 @@ pub fn print_summary(r: &VerifyReport) {
         r.run.region.lower,
         r.run.region.upper,
         r.run.grid,
-        r.shard.map_or(String::new(), |s| format!(", shard {s} (cells {}..{})", r.cells[0], r.cells[1])),
+        r.shard.map_or(String::new(), |s| format!(
+            ", shard {s} (cells {}..{})",
+            r.cells[0], r.cells[1]
+        )),
         r.run.bounds,
         r.run.method,
         r.run.m_c
@@ -244,12 +252,7 @@ pub fn print_summary(r: &VerifyReport) {
         if nb == 0 && na == 0 {
             continue;
         }
-        let mut line = format!(
-            "  {:<14} {:>7} {:>7.1}%",
-            v.name(),
-            nb,
-            100.0 * b.share(v)
-        );
+        let mut line = format!("  {:<14} {:>7} {:>7.1}%", v.name(), nb, 100.0 * b.share(v));
         if refined {
             line += &format!("   {:>7} {:>7.1}%", na, 100.0 * a.share(v));
         }
@@ -312,7 +315,10 @@ pub fn fail_if_unsafe(r: &VerifyReport) -> CliResult {
         return Ok(());
     }
     eprintln!("\n!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!");
-    eprintln!("!!! UNSAFE: {} box(es) that start safe have a reachable set lying", bad.len());
+    eprintln!(
+        "!!! UNSAFE: {} box(es) that start safe have a reachable set lying",
+        bad.len()
+    );
     eprintln!("!!! entirely in the unsafe set. A correct filter cannot do this: this is");
     eprintln!("!!! a bug in the filter, the network's error bound M_C, or the engine.");
     for b in bad.iter().take(10) {
@@ -337,15 +343,14 @@ pub fn run_merge(args: &MergeArgs) -> CliResult {
     }
     let merged = merge(parts)?;
     print_summary(&merged);
-    let s = match (&args.scenario, args.plot.is_some()) {
-        (Some(p), _) => Some(load_scenario(p)?),
-        (None, true) => Some(
-            load_scenario(Path::new(&merged.run.scenario_file)).map_err(|e| {
-                format!("{e} (the picture needs the scenario; give it with --scenario)")
-            })?,
-        ),
-        (None, false) => None,
-    };
+    let s =
+        match (&args.scenario, args.plot.is_some()) {
+            (Some(p), _) => Some(load_scenario(p)?),
+            (None, true) => Some(load_scenario(Path::new(&merged.run.scenario_file)).map_err(
+                |e| format!("{e} (the picture needs the scenario; give it with --scenario)"),
+            )?),
+            (None, false) => None,
+        };
     if let Some(path) = &args.json {
         std::fs::write(path, merged.to_json()).map_err(|e| format!("{}: {e}", path.display()))?;
         println!("  merged verdicts written to {}", path.display());

@@ -91,6 +91,9 @@ pub enum ReachError {
     /// The network bounds failed.
     #[error(transparent)]
     Bounds(#[from] crate::bounds::BoundsError),
+    /// The GPU engine failed (`gpu::GpuError`, as text).
+    #[error("{0}")]
+    Gpu(String),
 }
 
 /// The compiled reach problem: plain data that every backend reads.

@@ -1,0 +1,72 @@
+//! The GPU engine (wgpu, WGSL compute shaders): whole batches of boxes bounded and integrated
+//! on the device, sound in f32 (issue 3; DESIGN §3–§5).
+//!
+//! - [`context`]: adapter selection (a real GPU before a software one, `--adapter NAME`), the
+//!   device with the adapter's limits.
+//! - [`kernels`]: one struct per pipeline (`shaders/*.wgsl`, included at compile time).
+//! - [`buffers`]: `#[repr(C)]` images of what the kernels read; the device layout.
+//! - [`codegen`]: scenario expressions as WGSL interval inclusion functions.
+//! - [`GpuBackend`]: [`crate::reach::Backend`] on the device (forward linear bounds).
+//!
+//! # f32 error model (DESIGN §3)
+//!
+//! The device computes in f32 with no rounding-mode control; Vulkan allows round-to-nearest or
+//! towards zero, so a computed `+ − ×` is within one ulp (`u = 2⁻²³` relative) of the exact
+//! result, and subnormals may be flushed. The kernels keep the CPU's invariant (the *computed*
+//! forms, evaluated exactly, bound the exact network with the stored f64 weights) by:
+//!
+//! - **Dot products** (a layer's `W·Ĉ`, `|W|·R̂`): the computed sum of `N` terms, each the
+//!   product of an f32-rounded weight and a coefficient (two roundings), errs by at most
+//!   `γ̂_N·Σ|W||·| + N·scale·ABS_UNIT` with `γ̂_N = (N+3)·2⁻²¹ ≥ 2γ_{N+3}`,
+//!   `γ_k = k u/(1 − k u)` (the factor 2 covers the rounding of the magnitude sum, which the
+//!   GEMM computes as `|W|·V`), and `ABS_UNIT = (1 + max|W|)·2⁻¹²⁰` for flushed subnormals. The
+//!   bound is added to the constant of the radius form `R̂`, rounded up (`err_bound` in
+//!   `shaders/common.wgsl`); layer widths are limited to 2¹⁸ so that `N u ≤ 1/32`.
+//! - **First layer**: `Ĉ = [fl(W₁) | fl(b₁)]` with the conversion error
+//!   `≤ 2⁻²⁴(Σ|W₁|·|x| + |b₁|)` in `R̂`'s constant.
+//! - **ReLU and output**: as `bounds::forward` on the CPU, with `γ̂` for f32.
+//! - **Single operations** (interval arithmetic, concretisation, Euler step): each result is
+//!   stepped one ulp outward through its bit pattern (`up`, `down`); divisions three ulps
+//!   (2.5 ulp accurate); `exp`, `ln`, `sqrt`, `sin`, `cos` widened by the WGSL accuracy table.
+//!   f64 constants enter as the f32 intervals that contain them; `dt` as `[↓dt, ↑dt]`.
+//! - **Overflow, NaN**: WGSL does not promise IEEE infinities, so every bound is compared with
+//!   `1e30`; a box past it is reported as non-finite, as the CPU reports an overflow.
+//!
+//! The Euler step itself is the paper's, not a validated integrator (README, Limitations).
+
+pub mod backend;
+pub mod buffers;
+pub mod codegen;
+pub mod context;
+pub mod kernels;
+
+pub use backend::GpuBackend;
+pub use context::GpuContext;
+
+/// Why the GPU engine could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum GpuError {
+    /// No adapter (or none with the requested name).
+    #[error("no GPU adapter{}; available: {}", requested.as_ref().map(|r| format!(" named like `{r}`")).unwrap_or_default(), if available.is_empty() { "none (install a Vulkan driver, e.g. mesa-vulkan-drivers)".to_string() } else { available.join(", ") })]
+    NoAdapter {
+        /// The `--adapter` name, if one was given.
+        requested: Option<String>,
+        /// Every adapter found.
+        available: Vec<String>,
+    },
+    /// The device could not be created or reported an error.
+    #[error("GPU device: {0}")]
+    Device(String),
+    /// A shader did not compile (a bug, or a dynamics expression the emitter got wrong).
+    #[error("GPU shader: {0}")]
+    Shader(String),
+    /// The problem does not fit the engine.
+    #[error("GPU engine: {0}")]
+    Problem(String),
+    /// A buffer or dispatch would exceed the device's limits even after splitting.
+    #[error("GPU limits: {0}")]
+    TooLarge(String),
+    /// The engine does not implement these settings yet.
+    #[error("not on the GPU yet: {0}")]
+    Unsupported(String),
+}
