@@ -843,6 +843,11 @@ mod opt_inf_as_string {
 /// The format tag of [`ErrorMap`] files.
 pub const ERROR_MAP_FORMAT: &str = "cbfreach-errormap-1";
 
+/// Whether `[lo, hi]` is not an interval (inverted or NaN).
+fn inverted(lo: f64, hi: f64) -> bool {
+    lo.is_nan() || hi.is_nan() || lo > hi
+}
+
 /// `<network stem>.errormap.json` beside the network.
 pub fn error_map_path(network: &Path) -> PathBuf {
     let stem = network
@@ -914,14 +919,14 @@ impl ErrorMap {
         let n = map.region.dim();
         if n == 0
             || map.region.upper.len() != n
-            || (0..n).any(|i| !(map.region.lower[i] <= map.region.upper[i]))
+            || (0..n).any(|i| inverted(map.region.lower[i], map.region.upper[i]))
         {
             return Err(bad("`region` is not a box".into()));
         }
         for (k, c) in map.cells.iter().enumerate() {
             if c.lower.len() != n
                 || c.upper.len() != n
-                || (0..n).any(|i| !(c.lower[i] <= c.upper[i]))
+                || (0..n).any(|i| inverted(c.lower[i], c.upper[i]))
                 || c.bound.is_nan()
                 || c.bound < 0.0
             {

@@ -2,6 +2,8 @@
 //! (lavapipe in CI). Without an adapter the tests skip with a message, unless
 //! `CBFREACH_REQUIRE_GPU=1`, where a missing adapter fails.
 
+#![allow(clippy::needless_range_loop)] // index loops read as the formulas
+
 mod common;
 
 use std::sync::Arc;

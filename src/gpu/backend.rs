@@ -57,7 +57,8 @@ impl GpuBackend {
     /// one binding and the dispatch limits.
     pub fn chunk_size(&self, problem: &ReachProblem, every: usize, boxes: usize) -> usize {
         let lim = &self.ctx.limits;
-        let binding = (lim.max_storage_buffer_binding_size as u64)
+        let binding = lim
+            .max_storage_buffer_binding_size
             .min(lim.max_buffer_size)
             .min(MAX_BINDING);
         let n = problem.dynamics.n as u64;
