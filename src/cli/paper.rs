@@ -14,8 +14,7 @@ use cbfreach::verify::{judge, traps_from_equilibria, Verdict};
 
 use super::equilibria::print_table;
 use super::plot::{box_trajectories, figure_points, reach_initial, trajectories, tubes_title};
-use super::reach::network_path;
-use super::verify::compile;
+use super::reach::{compile, network_path, ProblemArgs};
 use super::{fmt_point, CliResult};
 
 /// Arguments of `cbfreach paper`.
@@ -155,7 +154,13 @@ fn run_scenario(
         );
         return Ok(None);
     }
-    let problem = compile(s, network, None, None)?;
+    let problem = compile(
+        s,
+        &ProblemArgs {
+            network: network.cloned(),
+            ..ProblemArgs::default()
+        },
+    )?;
     let every = 10;
     let dist = reach_initial(s, &problem, bounds, ReachMethod::Disturbance, 1)?;
     let path = fig("tubes");

@@ -12,7 +12,8 @@ use cbfreach::scenario::Scenario;
 use cbfreach::simulate::{sample_box, simulate_filtered, Integrator, Trajectory};
 use cbfreach::verify::VerifyReport;
 
-use super::verify::{backend, compile};
+use super::reach::{compile, ProblemArgs};
+use super::verify::backend;
 use super::{load_scenario, progress_bar, CliResult};
 
 /// Which picture.
@@ -52,15 +53,9 @@ pub struct PlotArgs {
     /// How the network is bounded over each box (tubes, minkowski).
     #[arg(long, value_enum, default_value_t = BoundMethod::Crown)]
     pub bounds: BoundMethod,
-    /// Use this network instead of the scenario's.
-    #[arg(long)]
-    pub network: Option<PathBuf>,
-    /// Override M_C.
-    #[arg(long = "m-c")]
-    pub m_c: Option<f64>,
-    /// Coordinates of the embedding: `none`, `auto`, or the scenario's choice when absent.
-    #[arg(long)]
-    pub transform: Option<String>,
+    /// The network, `M_C` and coordinates.
+    #[command(flatten)]
+    pub problem: ProblemArgs,
 }
 
 fn parse_size(text: &str) -> Result<(u32, u32), String> {
@@ -156,12 +151,7 @@ pub fn run(args: &PlotArgs) -> CliResult {
             )?;
         }
         FigureKind::Tubes | FigureKind::Minkowski => {
-            let problem = compile(
-                &s,
-                args.network.as_ref(),
-                args.m_c,
-                args.transform.as_deref(),
-            )?;
+            let problem = compile(&s, &args.problem)?;
             let method = if args.figure == FigureKind::Tubes {
                 ReachMethod::Disturbance
             } else {

@@ -34,15 +34,9 @@ pub struct ReachArgs {
     /// Record every K-th step (the last is always recorded).
     #[arg(long, default_value_t = 1)]
     pub every: usize,
-    /// Override M_C.
-    #[arg(long = "m-c")]
-    pub m_c: Option<f64>,
-    /// Use this network instead of the scenario's.
-    #[arg(long)]
-    pub network: Option<PathBuf>,
-    /// Coordinates of the embedding: `none`, `auto`, or the scenario's choice when absent.
-    #[arg(long)]
-    pub transform: Option<String>,
+    /// The network, `M_C` and coordinates.
+    #[command(flatten)]
+    pub problem: ProblemArgs,
     /// Write the tubes as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
@@ -61,6 +55,53 @@ struct ReachJson<'a> {
     m_c: f64,
     #[serde(flatten)]
     result: &'a ReachResult,
+}
+
+/// What `reach`, `verify` and `plot` need to compile a problem.
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct ProblemArgs {
+    /// Override M_C.
+    #[arg(long = "m-c")]
+    pub m_c: Option<f64>,
+    /// Use this network instead of the scenario's.
+    #[arg(long)]
+    pub network: Option<PathBuf>,
+    /// Coordinates of the embedding: `none`, `auto`, or the scenario's choice when absent.
+    #[arg(long)]
+    pub transform: Option<String>,
+    /// Disturbance method: use the certified local error bounds of the error map beside the
+    /// network (written by `cbfreach error`) instead of one global M_C.
+    #[arg(long)]
+    pub local_margin: bool,
+}
+
+/// `--transform` or the scenario's choice.
+pub fn transform_choice(s: &Scenario, flag: Option<&str>) -> Result<TransformChoice, String> {
+    match flag {
+        None => Ok(s.reach.transform.clone()),
+        Some("none") => Ok(TransformChoice::Identity),
+        Some("auto") => Ok(TransformChoice::Auto),
+        Some(other) => Err(format!("--transform {other}: expected none or auto")),
+    }
+}
+
+/// Compiles the reach problem of a scenario with its (or the given) network.
+pub fn compile(
+    s: &Scenario,
+    args: &ProblemArgs,
+) -> Result<ReachProblem, Box<dyn std::error::Error>> {
+    let net = load_network(s, args.network.as_ref())?;
+    let path = network_path(s, args.network.as_ref())?;
+    let m_c = resolve_margin(s, args.m_c, &path)?;
+    let transform =
+        Transform::for_scenario(s, &transform_choice(s, args.transform.as_deref())?)?;
+    let problem = ReachProblem::with_transform(s, net, m_c, transform)?;
+    if !args.local_margin {
+        return Ok(problem);
+    }
+    let map = cbfreach::surrogate_error::ErrorMap::load_for(&path)
+        .map_err(|e| format!("--local-margin: {e} (run `cbfreach error {}` first)", s.file))?;
+    Ok(problem.with_error_map(map)?)
 }
 
 /// Loads the network named by `--network` or by the scenario.
@@ -121,19 +162,11 @@ pub fn run(args: &ReachArgs) -> CliResult {
     if !matches!(args.backend.as_str(), "cpu" | "gpu" | "auto") {
         return Err(format!("--backend {}: expected cpu, gpu or auto", args.backend).into());
     }
-    let network = load_network(&s, args.network.as_ref())?;
-    let m_c = resolve_margin(&s, args.m_c, &network_path(&s, args.network.as_ref())?)?;
-    let choice = match args.transform.as_deref() {
-        None => s.reach.transform.clone(),
-        Some("none") => TransformChoice::Identity,
-        Some("auto") => TransformChoice::Auto,
-        Some(other) => return Err(format!("--transform {other}: expected none or auto").into()),
-    };
-    let transform = Transform::for_scenario(&s, &choice)?;
-    if let Some(t) = &transform {
+    let problem = compile(&s, &args.problem)?;
+    let m_c = problem.m_c;
+    if let Some(t) = &problem.transform {
         println!("embedding in z = T x, T = {:?} (ρ = {:.1e})", t.t, t.rho);
     }
-    let problem = ReachProblem::with_transform(&s, network, m_c, transform)?;
     let settings = ReachSettings {
         bounds: args.bounds,
         method: args.method,

@@ -7,13 +7,13 @@ use cbfreach::bounds::BoundMethod;
 use cbfreach::equilibria::{find_equilibria, EquilibriumSearch};
 use cbfreach::filter::SafetyFilter;
 use cbfreach::plot::{self, Figure};
-use cbfreach::reach::{Backend, CpuBackend, ReachMethod, ReachProblem, ReachSettings, Transform};
-use cbfreach::scenario::{Scenario, TransformChoice};
+use cbfreach::reach::{Backend, CpuBackend, ReachMethod, ReachProblem, ReachSettings};
+use cbfreach::scenario::Scenario;
 use cbfreach::verify::{
     merge, traps_from_equilibria, Shard, Stage, Verdict, Verifier, VerifyReport, VerifySettings,
 };
 
-use super::reach::{load_network, network_path, resolve_margin};
+use super::reach::{compile, ProblemArgs};
 use super::simulate::parse_box;
 use super::{load_scenario, progress_bar, CliResult};
 
@@ -37,15 +37,9 @@ pub struct VerifyArgs {
     /// How the network's error enters the sets.
     #[arg(long, value_enum, default_value_t = ReachMethod::Disturbance)]
     pub method: ReachMethod,
-    /// Coordinates of the embedding: `none`, `auto`, or the scenario's choice when absent.
-    #[arg(long)]
-    pub transform: Option<String>,
-    /// Override M_C.
-    #[arg(long = "m-c")]
-    pub m_c: Option<f64>,
-    /// Use this network instead of the scenario's.
-    #[arg(long)]
-    pub network: Option<PathBuf>,
+    /// The network, `M_C` and coordinates.
+    #[command(flatten)]
+    pub problem: ProblemArgs,
     /// Bisection rounds of `unknown` and `invalid` boxes.
     #[arg(long, default_value_t = 0)]
     pub refine: usize,
@@ -103,29 +97,6 @@ pub fn parse_grid(text: &str, n: usize) -> Result<Vec<usize>, String> {
     Ok(counts)
 }
 
-/// The embedding's coordinates from `--transform` or the scenario.
-pub fn transform_choice(s: &Scenario, flag: Option<&str>) -> Result<TransformChoice, String> {
-    match flag {
-        None => Ok(s.reach.transform.clone()),
-        Some("none") => Ok(TransformChoice::Identity),
-        Some("auto") => Ok(TransformChoice::Auto),
-        Some(other) => Err(format!("--transform {other}: expected none or auto")),
-    }
-}
-
-/// Compiles the reach problem of a scenario with its (or the given) network.
-pub fn compile(
-    s: &Scenario,
-    network: Option<&PathBuf>,
-    m_c: Option<f64>,
-    transform: Option<&str>,
-) -> Result<ReachProblem, Box<dyn std::error::Error>> {
-    let net = load_network(s, network)?;
-    let m_c = resolve_margin(s, m_c, &network_path(s, network)?)?;
-    let transform = Transform::for_scenario(s, &transform_choice(s, transform)?)?;
-    Ok(ReachProblem::with_transform(s, net, m_c, transform)?)
-}
-
 /// The engine named by `--backend`.
 pub fn backend(name: &str) -> Result<Box<dyn Backend + Sync>, String> {
     match name {
@@ -152,12 +123,7 @@ pub fn run(args: &VerifyArgs) -> CliResult {
     };
     settings.validate(&s)?;
     let engine = backend(&args.backend)?;
-    let problem = compile(
-        &s,
-        args.network.as_ref(),
-        args.m_c,
-        args.transform.as_deref(),
-    )?;
+    let problem = compile(&s, &args.problem)?;
     let reach = ReachSettings {
         bounds: args.bounds,
         method: args.method,

@@ -44,12 +44,22 @@ impl Backend for CpuBackend {
         problem.check_initial(initial)?;
         let every = settings.every.max(1);
         let (n, m) = (problem.dynamics.n, problem.dynamics.m);
-        // The transformed network's rounding enters as a disturbance in both methods.
-        let margin = match settings.method {
-            ReachMethod::Disturbance => {
-                vec![round_up(problem.m_c + problem.network_slack); m]
+        // The transformed network's rounding enters as a disturbance in both methods; the
+        // disturbance method adds M (global, or local from the error map per box and step).
+        let margin_of = |state: &Live| -> Vec<f64> {
+            match settings.method {
+                ReachMethod::Disturbance => {
+                    let x_box = match &problem.transform {
+                        Some(t) => t.to_x_box(&state.lower, &state.upper),
+                        None => IntervalBox {
+                            lower: state.lower.clone(),
+                            upper: state.upper.clone(),
+                        },
+                    };
+                    vec![round_up(problem.margin_for(&x_box) + problem.network_slack); m]
+                }
+                ReachMethod::Minkowski => vec![problem.network_slack; m],
             }
-            ReachMethod::Minkowski => vec![problem.network_slack; m],
         };
         let mut live: Vec<Live> = initial
             .iter()
@@ -105,6 +115,7 @@ impl Backend for CpuBackend {
                 .enumerate()
                 .map(|(slot, state)| {
                     let nn = bounds_of(&batch, slot, n, m);
+                    let margin = margin_of(state);
                     let (mut dl, mut du) =
                         embedding_field(&problem.dynamics, &state.lower, &state.upper, nn, &margin);
                     if problem.field_slack > 0.0 {

@@ -107,6 +107,9 @@ pub struct ReachProblem {
     pub region: IntervalBox,
     /// `M_C`, the bound on `‖N − v‖∞` over `C` (per input).
     pub m_c: f64,
+    /// Certified per-cell error bounds (`cbfreach error`): when present the disturbance method
+    /// uses the bound over the cells that the current set meets (a local `M`) instead of `m_c`.
+    pub error_map: Option<crate::surrogate_error::ErrorMap>,
     /// Coordinates `z = T x` the embedding runs in (`None`: x itself).
     pub transform: Option<Transform>,
     /// Extra input disturbance from rounding `W₁S` in the transformed network.
@@ -245,6 +248,7 @@ impl ReachProblem {
             network,
             region,
             m_c,
+            error_map: None,
             transform,
             network_slack,
             field_slack,
@@ -255,6 +259,30 @@ impl ReachProblem {
             g_over_region,
             input_gain,
         })
+    }
+
+    /// Uses the local bounds of a certified error map instead of the global `M_C` (disturbance
+    /// method); the map must cover `C`.
+    pub fn with_error_map(
+        mut self,
+        map: crate::surrogate_error::ErrorMap,
+    ) -> Result<ReachProblem, ReachError> {
+        if map.certified_linf.is_none() || !self.region.is_subset_of(&map.region) {
+            return Err(ReachError::Settings(
+                "the error map holds no certified bounds over the region C".into(),
+            ));
+        }
+        self.error_map = Some(map);
+        Ok(self)
+    }
+
+    /// The disturbance bound `M` for a set whose x-bounding box is `x_box`: the error map's
+    /// local bound when there is one, else `M_C`.
+    pub fn margin_for(&self, x_box: &IntervalBox) -> f64 {
+        match &self.error_map {
+            Some(map) => map.local_bound(x_box),
+            None => self.m_c,
+        }
     }
 
     /// Checks initial boxes: dimension n and inside `C`.
