@@ -7,13 +7,12 @@ use cbfreach::boxes::IntervalBox;
 use cbfreach::equilibria::{find_equilibria, EquilibriumSearch};
 use cbfreach::filter::SafetyFilter;
 use cbfreach::plot::{self, Figure};
-use cbfreach::reach::{ReachMethod, ReachProblem, ReachResult, ReachSettings};
+use cbfreach::reach::{Backend, CpuBackend, ReachMethod, ReachProblem, ReachResult, ReachSettings};
 use cbfreach::scenario::Scenario;
 use cbfreach::simulate::{sample_box, simulate_filtered, Integrator, Trajectory};
 use cbfreach::verify::VerifyReport;
 
 use super::reach::{compile, ProblemArgs};
-use super::verify::backend;
 use super::{load_scenario, progress_bar, CliResult};
 
 /// Which picture.
@@ -110,7 +109,7 @@ pub fn reach_initial(
     method: ReachMethod,
     every: usize,
 ) -> Result<ReachResult, Box<dyn std::error::Error>> {
-    let engine = backend("cpu")?;
+    let engine = CpuBackend;
     let settings = ReachSettings {
         bounds,
         method,

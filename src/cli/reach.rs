@@ -237,11 +237,16 @@ pub fn run(args: &ReachArgs) -> CliResult {
 }
 
 /// The engine `--backend` and `--adapter` ask for; `auto` falls back to the CPU with a notice.
-fn choose_backend(
+/// The engine named by `--backend` (`cpu`, `gpu`, or `auto`: a GPU when an adapter exists and
+/// supports the bound method, else the CPU with a one-line notice).
+pub fn choose_backend(
     which: &str,
     adapter: Option<&str>,
     settings: &ReachSettings,
-) -> Result<Box<dyn Backend>, Box<dyn std::error::Error>> {
+) -> Result<Box<dyn Backend + Sync>, Box<dyn std::error::Error>> {
+    if !matches!(which, "cpu" | "gpu" | "auto") {
+        return Err(format!("--backend {which}: expected cpu, gpu or auto").into());
+    }
     if which == "cpu" {
         return Ok(Box::new(CpuBackend));
     }

@@ -7,13 +7,13 @@ use cbfreach::bounds::BoundMethod;
 use cbfreach::equilibria::{find_equilibria, EquilibriumSearch};
 use cbfreach::filter::SafetyFilter;
 use cbfreach::plot::{self, Figure};
-use cbfreach::reach::{Backend, CpuBackend, ReachMethod, ReachProblem, ReachSettings};
+use cbfreach::reach::{Backend, ReachMethod, ReachProblem, ReachSettings};
 use cbfreach::scenario::Scenario;
 use cbfreach::verify::{
     merge, traps_from_equilibria, Shard, Stage, Verdict, Verifier, VerifyReport, VerifySettings,
 };
 
-use super::reach::{compile, ProblemArgs};
+use super::reach::{choose_backend, compile, ProblemArgs};
 use super::simulate::parse_box;
 use super::{load_scenario, progress_bar, CliResult};
 
@@ -28,7 +28,7 @@ pub struct VerifyArgs {
     /// Cells per axis, e.g. 64,64.
     #[arg(long, default_value = "64,64")]
     pub grid: String,
-    /// Engine: `cpu`.
+    /// Engine: `cpu`, `gpu`, or `auto` (a GPU when one exists and supports the bounds).
     #[arg(long, default_value = "cpu")]
     pub backend: String,
     /// How the network is bounded over each box.
@@ -97,14 +97,6 @@ pub fn parse_grid(text: &str, n: usize) -> Result<Vec<usize>, String> {
     Ok(counts)
 }
 
-/// The engine named by `--backend`.
-pub fn backend(name: &str) -> Result<Box<dyn Backend + Sync>, String> {
-    match name {
-        "cpu" | "auto" => Ok(Box::new(CpuBackend)),
-        other => Err(format!("--backend {other}: only `cpu` exists so far")),
-    }
-}
-
 /// Runs `verify`.
 pub fn run(args: &VerifyArgs) -> CliResult {
     let s = load_scenario(&args.scenario)?;
@@ -122,13 +114,13 @@ pub fn run(args: &VerifyArgs) -> CliResult {
         chunk: 512,
     };
     settings.validate(&s)?;
-    let engine = backend(&args.backend)?;
     let problem = compile(&s, &args.problem)?;
     let reach = ReachSettings {
         bounds: args.bounds,
         method: args.method,
         every: 1,
     };
+    let engine = choose_backend(&args.backend, None, &reach)?;
     let report = run_verify(&s, &problem, engine.as_ref(), reach, &settings)?;
     print_summary(&report);
     write_outputs(&s, &report, args.json.as_deref(), args.plot.as_deref())?;
