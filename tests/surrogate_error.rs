@@ -285,3 +285,45 @@ fn error_map_local_bounds_are_sound_and_below_the_global_one() {
     assert!(err.contains("another version"), "{err}");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn shipped_networks_have_the_paper_architectures_and_their_error_maps() {
+    for (file, widths) in [
+        ("integrator.safetensors", vec![2, 400, 400, 400, 2]),
+        ("double-integrator.safetensors", vec![2, 500, 500, 500, 1]),
+    ] {
+        let path = common::scenario_path(file);
+        let net = Mlp::load_safetensors(&path).unwrap();
+        assert_eq!(net.widths(), widths, "{file}");
+        let size = std::fs::metadata(&path).unwrap().len();
+        assert!(size < 3_000_000, "{file}: {size} bytes");
+        // The error map beside it was computed for this very file.
+        let map = ErrorMap::load_for(&path).unwrap();
+        assert!(map.measured_linf > 0.0);
+        let certified = map.certified_linf.expect("closed-form filters");
+        assert!(
+            certified >= map.measured_linf,
+            "{file}: certified below measured"
+        );
+        let local = map.local_bound(&IntervalBox::new(vec![-0.2, -0.2], vec![0.2, 0.2]).unwrap());
+        assert!(local <= certified);
+    }
+}
+
+#[test]
+fn f32_weights_save_exactly_or_are_refused() {
+    let dir = std::env::temp_dir().join(format!("cbfreach-f32-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("n.safetensors");
+    // The trainer works in f32, so its networks are exactly representable.
+    let net = &fixture().net;
+    net.save_safetensors_f32(&path, &Default::default())
+        .unwrap();
+    assert_eq!(&Mlp::load_safetensors(&path).unwrap(), net);
+    let mut other = net.clone();
+    other.layers[0].weight[0] = 0.1; // not an f32
+    assert!(other
+        .save_safetensors_f32(&path, &Default::default())
+        .is_err());
+    std::fs::remove_dir_all(&dir).ok();
+}
