@@ -28,7 +28,9 @@ impl IntervalBox {
         }
         for (i, (&l, &u)) in lower.iter().zip(&upper).enumerate() {
             if !l.is_finite() || !u.is_finite() {
-                return Err(format!("coordinate {i}: bounds must be finite, found [{l}, {u}]"));
+                return Err(format!(
+                    "coordinate {i}: bounds must be finite, found [{l}, {u}]"
+                ));
             }
             if l > u {
                 return Err(format!(
@@ -76,8 +78,7 @@ impl IntervalBox {
 
     /// `self ⊆ other`.
     pub fn is_subset_of(&self, other: &IntervalBox) -> bool {
-        (0..self.dim())
-            .all(|i| other.lower[i] <= self.lower[i] && self.upper[i] <= other.upper[i])
+        (0..self.dim()).all(|i| other.lower[i] <= self.lower[i] && self.upper[i] <= other.upper[i])
     }
 
     /// The point `x̲ + s ⊙ (x̄ − x̲)` for `s ∈ [0, 1]ⁿ` (for sampling).

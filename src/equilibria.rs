@@ -104,13 +104,20 @@ pub fn find_equilibria(
     let scale = region.widths().iter().fold(0.0_f64, |a, &b| a.max(b));
     let mut unique: Vec<Vec<f64>> = Vec::new();
     for x in found {
-        if !unique.iter().any(|u| max_dist(u, &x) < 1e-6 * scale.max(1.0)) {
+        if !unique
+            .iter()
+            .any(|u| max_dist(u, &x) < 1e-6 * scale.max(1.0))
+        {
             unique.push(x);
         }
     }
-    unique.sort_by(|a, b| a.iter().zip(b).fold(std::cmp::Ordering::Equal, |o, (p, q)| {
-        o.then(p.total_cmp(q))
-    }));
+    unique.sort_by(|a, b| {
+        a.iter()
+            .zip(b)
+            .fold(std::cmp::Ordering::Equal, |o, (p, q)| {
+                o.then(p.total_cmp(q))
+            })
+    });
     unique
         .into_iter()
         .filter_map(|x| classify(filter, x, search))
@@ -118,7 +125,10 @@ pub fn find_equilibria(
 }
 
 fn max_dist(a: &[f64], b: &[f64]) -> f64 {
-    a.iter().zip(b).map(|(p, q)| (p - q).abs()).fold(0.0, f64::max)
+    a.iter()
+        .zip(b)
+        .map(|(p, q)| (p - q).abs())
+        .fold(0.0, f64::max)
 }
 
 /// Newton's method on a scalar `h` towards `h = 0` along `∇h` (a few steps; None if it fails).
@@ -136,7 +146,9 @@ fn project_to_zero_level(
         if h.abs() < 1e-13 {
             return Some(x);
         }
-        x.iter_mut().zip(&grad).for_each(|(xi, gi)| *xi -= h * gi / norm2);
+        x.iter_mut()
+            .zip(&grad)
+            .for_each(|(xi, gi)| *xi -= h * gi / norm2);
     }
     let (h, _) = h_and_grad(&x);
     (h.abs() < 1e-9).then_some(x)
@@ -179,11 +191,7 @@ fn newton(filter: &SafetyFilter, x0: &[f64], search: &EquilibriumSearch) -> Opti
     (r < search.residual_tolerance).then_some(x)
 }
 
-fn classify(
-    filter: &SafetyFilter,
-    x: Vec<f64>,
-    search: &EquilibriumSearch,
-) -> Option<Equilibrium> {
+fn classify(filter: &SafetyFilter, x: Vec<f64>, search: &EquilibriumSearch) -> Option<Equilibrium> {
     let n = x.len();
     let jac = filter.closed_loop_jacobian(&x).ok()?;
     let mut eigenvalues: Vec<[f64; 2]> = DMatrix::from_row_slice(n, n, &jac)

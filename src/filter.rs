@@ -147,11 +147,13 @@ impl<'a> SafetyFilter<'a> {
                 row[j] = 1.0;
                 rows.g.extend(&row);
                 rows.q.push(bounds.upper[j] - kappa[j]);
-                rows.labels.push(format!("{} ≤ {}", s.inputs[j], bounds.upper[j]));
+                rows.labels
+                    .push(format!("{} ≤ {}", s.inputs[j], bounds.upper[j]));
                 row[j] = -1.0;
                 rows.g.extend(&row);
                 rows.q.push(kappa[j] - bounds.lower[j]);
-                rows.labels.push(format!("{} ≥ {}", s.inputs[j], bounds.lower[j]));
+                rows.labels
+                    .push(format!("{} ≥ {}", s.inputs[j], bounds.lower[j]));
             }
         }
         for (k, c) in s.constraints.iter().enumerate() {
@@ -364,13 +366,12 @@ fn solve_qp(rows: &ConstraintRows, m: usize, x: &[f64]) -> Result<Vec<f64>, Filt
             x: x.to_vec(),
         })?;
     let q = vec![0.0; m];
-    let mut solver =
-        DefaultSolver::new(&p, &q, &a, &rows.q, &cones, settings).map_err(|e| {
-            FilterError::Solver {
-                status: format!("setup: {e}"),
-                x: x.to_vec(),
-            }
-        })?;
+    let mut solver = DefaultSolver::new(&p, &q, &a, &rows.q, &cones, settings).map_err(|e| {
+        FilterError::Solver {
+            status: format!("setup: {e}"),
+            x: x.to_vec(),
+        }
+    })?;
     solver.solve();
     let sol = &solver.solution;
     match sol.status {
@@ -384,7 +385,10 @@ fn solve_qp(rows: &ConstraintRows, m: usize, x: &[f64]) -> Result<Vec<f64>, Filt
         SolverStatus::PrimalInfeasible | SolverStatus::AlmostPrimalInfeasible => {
             Err(FilterError::Infeasible {
                 x: x.to_vec(),
-                reason: format!("clarabel certifies that {} are incompatible", rows.labels.join(", ")),
+                reason: format!(
+                    "clarabel certifies that {} are incompatible",
+                    rows.labels.join(", ")
+                ),
             })
         }
         status => Err(FilterError::Solver {

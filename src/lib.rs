@@ -27,7 +27,7 @@ pub mod simulate;
 pub mod surrogate_error;
 pub mod verify;
 
-pub use error::Error;
 pub use boxes::IntervalBox;
+pub use error::Error;
 pub use intervals::Interval;
 pub use network::Mlp;

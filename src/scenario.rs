@@ -15,8 +15,8 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::expressions::{self, Expr};
 use crate::boxes::IntervalBox;
+use crate::expressions::{self, Expr};
 
 /// The built-in default scenario (the paper's scenario 1), so that `cbfreach` runs anywhere.
 pub const DEFAULT_SCENARIO: &str = include_str!("../scenarios/integrator.toml");
@@ -712,7 +712,9 @@ fn check_names(c: &Compiler, key: &str, names: &[String]) -> Result<(), Scenario
             .chars()
             .next()
             .is_some_and(|ch| ch.is_ascii_alphabetic() || ch == '_')
-            && name.chars().all(|ch| ch.is_ascii_alphanumeric() || ch == '_');
+            && name
+                .chars()
+                .all(|ch| ch.is_ascii_alphanumeric() || ch == '_');
         if !ok {
             return Err(c.invalid(
                 format!("{key}[{i}]"),

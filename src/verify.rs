@@ -446,7 +446,7 @@ impl VerifySettings {
                 "--region: every side must have positive width".into(),
             ));
         }
-        if self.grid.len() != n || self.grid.iter().any(|&k| k == 0) {
+        if self.grid.len() != n || self.grid.contains(&0) {
             return Err(VerifyError::Settings(format!(
                 "--grid: expected {n} positive cell counts (e.g. 64,64), found {:?}",
                 self.grid
@@ -495,7 +495,7 @@ pub fn start_verdict(scenario: &Scenario, b: &IntervalBox) -> Option<Verdict> {
     // NaN bounds (an expression undefined somewhere on the box) count as "maybe unsafe".
     if hs.iter().any(|h| h.upper < 0.0) {
         Some(Verdict::UnsafeStart)
-    } else if hs.iter().any(|h| !(h.lower >= 0.0)) {
+    } else if !hs.iter().all(|h| h.lower >= 0.0) {
         Some(Verdict::PartlyUnsafe)
     } else {
         None

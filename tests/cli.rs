@@ -26,7 +26,10 @@ fn equilibria_json_lists_the_papers_four() {
     assert_eq!(list.len(), 4);
     let kinds: Vec<&str> = list.iter().map(|e| e["kind"].as_str().unwrap()).collect();
     assert_eq!(kinds, ["stable", "saddle", "saddle", "stable"]);
-    let undesirable: Vec<bool> = list.iter().map(|e| e["undesirable"].as_bool().unwrap()).collect();
+    let undesirable: Vec<bool> = list
+        .iter()
+        .map(|e| e["undesirable"].as_bool().unwrap())
+        .collect();
     assert_eq!(undesirable, [false, true, true, true]);
     let eig = &list[3]["eigenvalues"];
     assert!((eig[0][0].as_f64().unwrap() + 2.0).abs() < 1e-4);
@@ -48,7 +51,11 @@ fn simulate_writes_csv_that_ends_at_the_right_equilibria() {
     let lines: Vec<&str> = stdout.lines().collect();
     assert_eq!(lines[0], "trajectory,t,x1,x2");
     let last_of = |k: &str| -> Vec<f64> {
-        let row = lines.iter().rev().find(|l| l.starts_with(&format!("{k},"))).unwrap();
+        let row = lines
+            .iter()
+            .rev()
+            .find(|l| l.starts_with(&format!("{k},")))
+            .unwrap();
         row.split(',').skip(2).map(|v| v.parse().unwrap()).collect()
     };
     let a = last_of("0");
@@ -65,13 +72,19 @@ fn bad_input_gives_a_clear_error_and_exit_code_2() {
     std::fs::write(&bad, common::SMALL.replace("-x - y", "-x - q")).unwrap();
     let (code, _, stderr) = cbfreach(&["check", bad.to_str().unwrap()]);
     assert_eq!(code, 2);
-    assert!(stderr.contains("bad.toml") && stderr.contains("system.kappa[0]"), "{stderr}");
+    assert!(
+        stderr.contains("bad.toml") && stderr.contains("system.kappa[0]"),
+        "{stderr}"
+    );
     assert!(stderr.contains("column"), "{stderr}");
 
     let path = common::scenario_path("integrator.toml");
     let (code, _, stderr) = cbfreach(&["simulate", path.to_str().unwrap(), "--from", "1,x"]);
     assert_eq!(code, 2);
-    assert!(stderr.contains("--from") && stderr.contains("`x`"), "{stderr}");
+    assert!(
+        stderr.contains("--from") && stderr.contains("`x`"),
+        "{stderr}"
+    );
     let (code, _, stderr) = cbfreach(&["simulate", path.to_str().unwrap(), "--from", "1,2,3"]);
     assert_eq!(code, 2);
     assert!(stderr.contains("expected 2 numbers"), "{stderr}");
@@ -92,7 +105,10 @@ fn check_summarises_both_paper_scenarios() {
 fn default_command_reports_equilibria_and_endpoints() {
     let (code, stdout, stderr) = cbfreach(&[]);
     assert_eq!(code, 0, "{stderr}");
-    assert!(stdout.contains("Equilibria of the filtered system in C (4)"), "{stdout}");
+    assert!(
+        stdout.contains("Equilibria of the filtered system in C (4)"),
+        "{stdout}"
+    );
     assert!(stdout.contains("trapped at (3.0000, 0.0000)"), "{stdout}");
     assert!(stdout.contains("reaches the origin"), "{stdout}");
 }

@@ -25,11 +25,17 @@ fn scenario_1_has_exactly_the_papers_equilibria() {
     ];
     assert_eq!(found.len(), 4, "found {found:#?}");
     for (e, (x, kind, eig, undesirable)) in found.iter().zip(expected) {
-        assert!((e.x[0] - x[0]).abs() < 1e-6 && (e.x[1] - x[1]).abs() < 1e-6, "{e:?}");
+        assert!(
+            (e.x[0] - x[0]).abs() < 1e-6 && (e.x[1] - x[1]).abs() < 1e-6,
+            "{e:?}"
+        );
         assert_eq!(e.kind, kind, "{e:?}");
         assert_eq!(e.undesirable, undesirable, "{e:?}");
         for (z, want) in e.eigenvalues.iter().zip(eig) {
-            assert!((z[0] - want).abs() < EIG_TOL && z[1].abs() < EIG_TOL, "{e:?}");
+            assert!(
+                (z[0] - want).abs() < EIG_TOL && z[1].abs() < EIG_TOL,
+                "{e:?}"
+            );
         }
     }
 }
@@ -47,7 +53,10 @@ fn scenario_2_origin_is_stable_and_every_equilibrium_is_a_zero() {
     assert!(!origin.undesirable);
     for e in &found {
         let r = f.closed_loop(&e.x).unwrap();
-        assert!(r.iter().all(|v| v.abs() < 1e-8), "{e:?} is not an equilibrium");
+        assert!(
+            r.iter().all(|v| v.abs() < 1e-8),
+            "{e:?} is not an equilibrium"
+        );
         assert!(s.reach.region.contains(&e.x));
     }
 }

@@ -10,7 +10,10 @@ use common::{double_integrator, from_text, integrator, SMALL};
 const CLOSED_FORM_VS_QP: f64 = 1e-7;
 
 fn max_diff(a: &[f64], b: &[f64]) -> f64 {
-    a.iter().zip(b).map(|(p, q)| (p - q).abs()).fold(0.0, f64::max)
+    a.iter()
+        .zip(b)
+        .map(|(p, q)| (p - q).abs())
+        .fold(0.0, f64::max)
 }
 
 /// Relative to the size of v (v reaches ~100 far from the obstacle in scenario 1).
@@ -60,7 +63,10 @@ fn scalar_closed_form_matches_clarabel() {
 
 #[test]
 fn scalar_closed_form_with_input_bounds_matches_clarabel() {
-    let s = from_text(&format!("{SMALL}\n[input_bounds]\nlower = [-1.5]\nupper = [2.0]\n")).unwrap();
+    let s = from_text(&format!(
+        "{SMALL}\n[input_bounds]\nlower = [-1.5]\nupper = [2.0]\n"
+    ))
+    .unwrap();
     let qp = SafetyFilter::with_method(&s, FilterMethod::Qp);
     let closed = SafetyFilter::new(&s);
     let (mut feasible, mut infeasible) = (0, 0);
@@ -77,7 +83,10 @@ fn scalar_closed_form_with_input_bounds_matches_clarabel() {
             (a, b) => panic!("at {x:?}: closed form {a:?} but clarabel {b:?}"),
         }
     }
-    assert!(feasible > 100 && infeasible > 10, "{feasible} / {infeasible}");
+    assert!(
+        feasible > 100 && infeasible > 10,
+        "{feasible} / {infeasible}"
+    );
 }
 
 #[test]
@@ -114,13 +123,15 @@ goal = { lower = [-0.1, -0.1], upper = [0.1, 0.1] }
         // Primal feasibility, to solver tolerance.
         for (k, q) in rows.q.iter().enumerate() {
             let lhs: f64 = (0..2).map(|j| rows.g[k * 2 + j] * theta[j]).sum();
-            assert!(lhs <= q + 1e-7 * q.abs().max(1.0), "row {k} violated at {x:?}");
+            assert!(
+                lhs <= q + 1e-7 * q.abs().max(1.0),
+                "row {k} violated at {x:?}"
+            );
         }
         // Optimality: θ is no longer than any feasible point on the segment towards 0.
         let shorter: Vec<f64> = theta.iter().map(|t| 0.999 * t).collect();
-        let feasible_shorter = (0..rows.q.len()).all(|k| {
-            (0..2).map(|j| rows.g[k * 2 + j] * shorter[j]).sum::<f64>() <= rows.q[k]
-        });
+        let feasible_shorter = (0..rows.q.len())
+            .all(|k| (0..2).map(|j| rows.g[k * 2 + j] * shorter[j]).sum::<f64>() <= rows.q[k]);
         assert!(
             !feasible_shorter || theta.iter().all(|t| t.abs() < 1e-9),
             "θ = {theta:?} at {x:?} is not minimal"
@@ -134,9 +145,15 @@ fn infeasible_qp_is_reported_not_zeroed() {
     let text = SMALL
         .replace(r#"h = "y + 2""#, r#"h = "y - 2""#)
         .replace("m_c = 0.1", "m_c = 0.1\n");
-    let s = from_text(&format!("{text}\n[input_bounds]\nlower = [-0.1]\nupper = [0.1]\n")).unwrap();
+    let s = from_text(&format!(
+        "{text}\n[input_bounds]\nlower = [-0.1]\nupper = [0.1]\n"
+    ))
+    .unwrap();
     let x = [0.0, 0.0]; // h = −2: the CBF condition needs u ≥ 2 − (−x − y) …, beyond 0.1
-    for f in [SafetyFilter::new(&s), SafetyFilter::with_method(&s, FilterMethod::Qp)] {
+    for f in [
+        SafetyFilter::new(&s),
+        SafetyFilter::with_method(&s, FilterMethod::Qp),
+    ] {
         match f.eval(&x) {
             Err(FilterError::Infeasible { x: at, reason }) => {
                 assert_eq!(at, x.to_vec());

@@ -114,10 +114,21 @@ fn nn_trajectories_inside(s: &Scenario, net: &Mlp, centres: &[[f64; 2]], bounds:
     let mut checks = 0;
     for tube in &tubes {
         for x0 in sample_box(&tube.initial, 12, 7) {
-            let same = integrate(|x: &[f64]| nn_field(s, net, x), &x0, dt, steps, Integrator::Euler);
+            let same = integrate(
+                |x: &[f64]| nn_field(s, net, x),
+                &x0,
+                dt,
+                steps,
+                Integrator::Euler,
+            );
             checks += assert_inside(tube, &same.x, 1, |_| 1e-12, "same-step NN trajectory");
-            let fine =
-                integrate(|x: &[f64]| nn_field(s, net, x), &x0, dt / 10.0, steps * 10, Integrator::Euler);
+            let fine = integrate(
+                |x: &[f64]| nn_field(s, net, x),
+                &x0,
+                dt / 10.0,
+                steps * 10,
+                Integrator::Euler,
+            );
             let euler_error = |k: usize| {
                 same.x[k]
                     .iter()
@@ -136,7 +147,11 @@ fn nn_trajectories_inside(s: &Scenario, net: &Mlp, centres: &[[f64; 2]], bounds:
 fn nn_system_inside_embedding_boxes_scenario_1() {
     let s = integrator();
     let net = small_network(&[2, 16, 16, 2], 1, 0.2);
-    for bounds in [BoundMethod::Crown, BoundMethod::CrownSameSlope, BoundMethod::Ibp] {
+    for bounds in [
+        BoundMethod::Crown,
+        BoundMethod::CrownSameSlope,
+        BoundMethod::Ibp,
+    ] {
         nn_trajectories_inside(&s, &net, &[[-2.0, 2.0], [1.0, -2.0], [-3.0, 0.0]], bounds);
     }
 }
@@ -204,11 +219,21 @@ goal = { lower = [-0.5, -0.5], upper = [0.5, 0.5] }
         .iter()
         .map(|cell| {
             let b = network_bounds(&net, &cell.lower, &cell.upper, BoundMethod::Ibp).unwrap();
-            b.lower.iter().chain(&b.upper).fold(0.0_f64, |a, v| a.max(v.abs()))
+            b.lower
+                .iter()
+                .chain(&b.upper)
+                .fold(0.0_f64, |a, v| a.max(v.abs()))
         })
         .fold(0.0_f64, f64::max);
     assert!(m_c > 0.0 && m_c < 1.0, "M_C = {m_c}");
-    let tubes = run(&s, &net, m_c, BoundMethod::Crown, &[[-2.0, 2.0], [2.0, -1.0]], 0.1);
+    let tubes = run(
+        &s,
+        &net,
+        m_c,
+        BoundMethod::Crown,
+        &[[-2.0, 2.0], [2.0, -1.0]],
+        0.1,
+    );
     let mut checks = 0;
     for tube in &tubes {
         assert!(tube.valid, "{:?}", tube.note);
@@ -234,7 +259,11 @@ fn leaving_c_marks_the_tube_invalid() {
     net.layers[1].bias = vec![20.0, 0.0];
     let tubes = run(&s, &net, 0.0, BoundMethod::Ibp, &[[0.0, 0.0]], 0.1);
     assert!(!tubes[0].valid);
-    assert!(tubes[0].note.as_deref().unwrap_or_default().contains("left the region C"));
+    assert!(tubes[0]
+        .note
+        .as_deref()
+        .unwrap_or_default()
+        .contains("left the region C"));
 }
 
 #[test]
@@ -259,7 +288,10 @@ fn run_double_integrator(net: &Mlp, transform: bool, m_c: f64) -> (Vec<Tube>, Op
         every: 1,
     };
     let boxes = &s.reach.initial[..3];
-    let tubes = CpuBackend.reach(&problem, boxes, &settings, &|_, _| {}).unwrap().boxes;
+    let tubes = CpuBackend
+        .reach(&problem, boxes, &settings, &|_, _| {})
+        .unwrap()
+        .boxes;
     (tubes, t)
 }
 
@@ -282,11 +314,20 @@ fn transformed_embedding_contains_nn_trajectories_in_z() {
             for sample in &tube.tube {
                 let k = (sample.t / s.reach.dt + 0.5) as usize;
                 let x = &traj.x[k];
-                let (zl, zu) = (sample.z_lower.as_ref().unwrap(), sample.z_upper.as_ref().unwrap());
+                let (zl, zu) = (
+                    sample.z_lower.as_ref().unwrap(),
+                    sample.z_upper.as_ref().unwrap(),
+                );
                 for i in 0..2 {
                     // z = T x, evaluated in f64; a sound bound must hold up to that rounding.
                     let z: f64 = (0..2).map(|j| t.t[i * 2 + j] * x[j]).sum();
-                    assert!(zl[i] - 1e-9 <= z && z <= zu[i] + 1e-9, "t = {}: z{i} = {z} ∉ [{}, {}]", sample.t, zl[i], zu[i]);
+                    assert!(
+                        zl[i] - 1e-9 <= z && z <= zu[i] + 1e-9,
+                        "t = {}: z{i} = {z} ∉ [{}, {}]",
+                        sample.t,
+                        zl[i],
+                        zu[i]
+                    );
                 }
                 assert!(sample.filtered_set().contains(x));
                 checks += 1;
@@ -317,7 +358,11 @@ fn transform_lets_scenario_2_boxes_shrink() {
         "x coordinates should not contract"
     );
     assert!(transformed.iter().all(|t| t.valid));
-    assert!(width(&transformed) < 0.25 * w0, "width {}", width(&transformed));
+    assert!(
+        width(&transformed) < 0.25 * w0,
+        "width {}",
+        width(&transformed)
+    );
 }
 
 #[test]
@@ -326,7 +371,9 @@ fn z_boxes_contain_the_image_of_x_boxes() {
     let b = cbfreach::IntervalBox::new(vec![-1.0, 0.5], vec![2.0, 0.75]).unwrap();
     let z = t.to_z_box(&b);
     for x in sample_box(&b, 200, 1) {
-        let zx: Vec<f64> = (0..2).map(|i| (0..2).map(|j| t.t[i * 2 + j] * x[j]).sum()).collect();
+        let zx: Vec<f64> = (0..2)
+            .map(|i| (0..2).map(|j| t.t[i * 2 + j] * x[j]).sum())
+            .collect();
         assert!(z.contains(&zx));
         // And back: the parallelotope's bounding box contains x.
         assert!(t.to_x_box(&z.lower, &z.upper).contains(&x));

@@ -56,9 +56,18 @@ fn wrong_dimension_of_g() {
 
 #[test]
 fn empty_or_inverted_boxes() {
-    let m = error_for("lower = [-1, -1], upper = [1, 1]", "lower = [1, -1], upper = [-1, 1]");
-    assert_mentions(&m, &["test.toml", "reach.region", "inverted", "coordinate 0"]);
-    let m = error_for("lower = [-1, -1], upper = [1, 1]", "lower = [-1], upper = [1]");
+    let m = error_for(
+        "lower = [-1, -1], upper = [1, 1]",
+        "lower = [1, -1], upper = [-1, 1]",
+    );
+    assert_mentions(
+        &m,
+        &["test.toml", "reach.region", "inverted", "coordinate 0"],
+    );
+    let m = error_for(
+        "lower = [-1, -1], upper = [1, 1]",
+        "lower = [-1], upper = [1]",
+    );
     assert_mentions(&m, &["reach.region", "length 2"]);
     let m = error_for(
         "goal = { lower = [-0.1, -0.1], upper = [0.1, 0.1] }",
@@ -71,14 +80,20 @@ fn empty_or_inverted_boxes() {
 fn non_positive_dt_and_horizon() {
     assert_mentions(&error_for("dt = 0.05", "dt = 0"), &["reach.dt", "dt > 0"]);
     assert_mentions(&error_for("dt = 0.05", "dt = -1"), &["reach.dt", "dt > 0"]);
-    assert_mentions(&error_for("horizon = 1.0", "horizon = -2"), &["reach.horizon"]);
+    assert_mentions(
+        &error_for("horizon = 1.0", "horizon = -2"),
+        &["reach.horizon"],
+    );
     assert_mentions(&error_for("dt = 0.05", "dt = nan"), &["reach.dt", "finite"]);
 }
 
 #[test]
 fn bad_settings_and_unknown_keys() {
     assert_mentions(&error_for("m_c = 0.1", "m_c = -0.1"), &["reach.m_c"]);
-    assert_mentions(&error_for("m_c = 0.1", r#"m_c = "guessed""#), &["reach.m_c", "certified"]);
+    assert_mentions(
+        &error_for("m_c = 0.1", r#"m_c = "guessed""#),
+        &["reach.m_c", "certified"],
+    );
     assert_mentions(
         &error_for("m_c = 0.1", "m_c = 0.1\nnorm = \"3\""),
         &["reach.norm", "\"inf\""],
@@ -86,13 +101,19 @@ fn bad_settings_and_unknown_keys() {
     // A typo in a key is caught, not ignored.
     assert_mentions(&error_for("dt = 0.05", "dtt = 0.05"), &["test.toml", "dtt"]);
     // Invalid TOML says where.
-    assert_mentions(&error_for("dt = 0.05", "dt = = 0.05"), &["test.toml", "line"]);
+    assert_mentions(
+        &error_for("dt = 0.05", "dt = = 0.05"),
+        &["test.toml", "line"],
+    );
     assert_mentions(
         &error_for(r#"states = ["x", "y"]"#, r#"states = ["x", "x"]"#),
         &["system.states[1]", "twice"],
     );
     assert_mentions(
-        &error_for("[[cbf]]\nh = \"y + 2\"", "[[cbf]]\nh = \"y + 2\"\nalpha = 0"),
+        &error_for(
+            "[[cbf]]\nh = \"y + 2\"",
+            "[[cbf]]\nh = \"y + 2\"\nalpha = 0",
+        ),
         &["cbf[0].alpha", "positive"],
     );
 }
@@ -100,7 +121,9 @@ fn bad_settings_and_unknown_keys() {
 #[test]
 fn network_architecture_must_match_the_system() {
     let text = format!("{SMALL}\n[network]\nfile = \"n.safetensors\"\narchitecture = [2, 8, 2]\n");
-    let m = from_text(&text).expect_err("m = 1 but the network has 2 outputs").to_string();
+    let m = from_text(&text)
+        .expect_err("m = 1 but the network has 2 outputs")
+        .to_string();
     assert_mentions(&m, &["network.architecture", "2×…×1"]);
 }
 

@@ -7,7 +7,11 @@ use cbfreach::simulate::{simulate_filtered, Integrator};
 use common::{double_integrator, integrator};
 
 fn dist(a: &[f64], b: &[f64]) -> f64 {
-    a.iter().zip(b).map(|(p, q)| (p - q).powi(2)).sum::<f64>().sqrt()
+    a.iter()
+        .zip(b)
+        .map(|(p, q)| (p - q).powi(2))
+        .sum::<f64>()
+        .sqrt()
 }
 
 #[test]
@@ -18,7 +22,11 @@ fn scenario_1_endpoints() {
     for integrator in [Integrator::Euler, Integrator::Rk4] {
         let behind = simulate_filtered(&f, &[6.0, 0.3], s.reach.dt, steps, integrator);
         assert!(behind.stopped.is_none());
-        assert!(dist(behind.last(), &[3.0, 0.0]) < 1e-2, "{:?}", behind.last());
+        assert!(
+            dist(behind.last(), &[3.0, 0.0]) < 1e-2,
+            "{:?}",
+            behind.last()
+        );
         let front = simulate_filtered(&f, &[-2.0, 2.0], s.reach.dt, steps, integrator);
         assert!(dist(front.last(), &[0.0, 0.0]) < 1e-3, "{:?}", front.last());
     }
@@ -32,7 +40,11 @@ fn scenario_1_endpoints() {
 fn check_invariance(s: &cbfreach::scenario::Scenario, starts: usize, max_stopped: usize) {
     let f = SafetyFilter::new(s);
     let points = cbfreach::simulate::sample_box(&s.reach.region, 4 * starts, 11);
-    let safe: Vec<_> = points.into_iter().filter(|x| s.is_safe(x)).take(starts).collect();
+    let safe: Vec<_> = points
+        .into_iter()
+        .filter(|x| s.is_safe(x))
+        .take(starts)
+        .collect();
     assert_eq!(safe.len(), starts);
     let worst = |dt: f64| {
         let steps = (4.0 / dt) as usize;
@@ -48,13 +60,19 @@ fn check_invariance(s: &cbfreach::scenario::Scenario, starts: usize, max_stopped
                 worst = worst.min(s.min_h(x));
             }
         }
-        assert!(stopped <= max_stopped, "{stopped} trajectories hit an infeasible QP");
+        assert!(
+            stopped <= max_stopped,
+            "{stopped} trajectories hit an infeasible QP"
+        );
         worst
     };
     let coarse = worst(s.reach.dt);
     let fine = worst(s.reach.dt / 10.0);
     assert!(coarse > -0.05, "h fell to {coarse} with the scenario's dt");
-    assert!(fine > -0.05 / 50.0, "h fell to {fine} with dt/10 (coarse: {coarse})");
+    assert!(
+        fine > -0.05 / 50.0,
+        "h fell to {fine} with dt/10 (coarse: {coarse})"
+    );
 }
 
 #[test]

@@ -26,10 +26,19 @@ pub fn run(path: &Path) -> CliResult {
         println!("  f̃[{}] = {}", s.states[i], show(e));
     }
     for c in &s.cbfs {
-        println!("  CBF {}: h = {}   α(s) = {}·s", c.name, show(&c.h), c.alpha);
+        println!(
+            "  CBF {}: h = {}   α(s) = {}·s",
+            c.name,
+            show(&c.h),
+            c.alpha
+        );
     }
     if let Some(b) = &s.input_bounds {
-        println!("  input bounds {} … {}", fmt_point(&b.lower), fmt_point(&b.upper));
+        println!(
+            "  input bounds {} … {}",
+            fmt_point(&b.lower),
+            fmt_point(&b.upper)
+        );
     }
     println!(
         "  filter: {:?} ({} constraint rows)",
@@ -65,7 +74,11 @@ pub fn run(path: &Path) -> CliResult {
                 .map(|w| w.to_string())
                 .collect::<Vec<_>>()
                 .join("×"),
-            if net.file.exists() { "" } else { ", file not present yet" }
+            if net.file.exists() {
+                ""
+            } else {
+                ", file not present yet"
+            }
         ),
         None => println!("  no network"),
     }

@@ -43,7 +43,11 @@ pub fn print_table(found: &[Equilibrium]) {
             "  {:<24} {:<15} {:<11} {}",
             fmt_point(&e.x),
             e.kind.to_string(),
-            if e.undesirable { "undesirable" } else { "desired" },
+            if e.undesirable {
+                "undesirable"
+            } else {
+                "desired"
+            },
             eig.join(", ")
         );
     }

@@ -93,14 +93,17 @@ pub fn compile(
     let net = load_network(s, args.network.as_ref())?;
     let path = network_path(s, args.network.as_ref())?;
     let m_c = resolve_margin(s, args.m_c, &path)?;
-    let transform =
-        Transform::for_scenario(s, &transform_choice(s, args.transform.as_deref())?)?;
+    let transform = Transform::for_scenario(s, &transform_choice(s, args.transform.as_deref())?)?;
     let problem = ReachProblem::with_transform(s, net, m_c, transform)?;
     if !args.local_margin {
         return Ok(problem);
     }
-    let map = cbfreach::surrogate_error::ErrorMap::load_for(&path)
-        .map_err(|e| format!("--local-margin: {e} (run `cbfreach error {}` first)", s.file))?;
+    let map = cbfreach::surrogate_error::ErrorMap::load_for(&path).map_err(|e| {
+        format!(
+            "--local-margin: {e} (run `cbfreach error {}` first)",
+            s.file
+        )
+    })?;
     Ok(problem.with_error_map(map)?)
 }
 

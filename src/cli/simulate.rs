@@ -57,7 +57,9 @@ pub fn parse_box(option: &str, text: &str, n: usize) -> Result<IntervalBox, Stri
         .ok_or_else(|| format!("{option}: expected LOWER:UPPER, e.g. -1,-1:1,1, found `{text}`"))?;
     let (lower, upper) = (parse_point(option, lo)?, parse_point(option, hi)?);
     if lower.len() != n || upper.len() != n {
-        return Err(format!("{option}: expected {n} numbers on each side of `:`"));
+        return Err(format!(
+            "{option}: expected {n} numbers on each side of `:`"
+        ));
     }
     IntervalBox::new(lower, upper).map_err(|e| format!("{option}: {e}"))
 }
@@ -101,7 +103,12 @@ pub fn safe_samples(
     let mut round = 0;
     while points.len() < count {
         let batch = sample_box(b, 4 * count.max(16), seed.wrapping_add(round));
-        points.extend(batch.into_iter().filter(|x| s.is_safe(x)).take(count - points.len()));
+        points.extend(
+            batch
+                .into_iter()
+                .filter(|x| s.is_safe(x))
+                .take(count - points.len()),
+        );
         round += 1;
         if round > 64 {
             return Err("the sampled box has (almost) no safe points".into());
@@ -116,7 +123,9 @@ pub fn run(args: &SimulateArgs) -> CliResult {
     let dt = args.dt.unwrap_or(s.reach.dt);
     let horizon = args.horizon.unwrap_or(s.reach.horizon);
     if !(dt > 0.0 && horizon > 0.0) {
-        return Err(format!("--dt and --horizon must be positive, found {dt} and {horizon}").into());
+        return Err(
+            format!("--dt and --horizon must be positive, found {dt} and {horizon}").into(),
+        );
     }
     let steps = (horizon / dt - 1e-9).ceil() as usize;
     let filter = SafetyFilter::new(&s);

@@ -312,7 +312,11 @@ mod tests {
         }
         assert_eq!(f32_down(1.0), 1.0);
         assert_eq!(f32_up(0.5), 0.5);
-        assert_eq!(f32_up(3.0e39), HUGE, "beyond HUGE is infinite to the shaders");
+        assert_eq!(
+            f32_up(3.0e39),
+            HUGE,
+            "beyond HUGE is infinite to the shaders"
+        );
     }
 
     #[test]

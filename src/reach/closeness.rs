@@ -20,14 +20,16 @@ pub fn log_norm(a: &[Interval], n: usize, norm: Norm) -> f64 {
     let entry = |i: usize, j: usize| a[i * n + j];
     (0..n)
         .map(|i| {
-            let off: Interval = (0..n).filter(|&j| j != i).fold(Interval::point(0.0), |s, j| {
-                let m = match norm {
-                    Norm::Inf => entry(i, j).mag(),
-                    Norm::One => entry(j, i).mag(),
-                    Norm::Two => ((entry(i, j) + entry(j, i)) * 0.5).mag(),
-                };
-                s + Interval::point(m)
-            });
+            let off: Interval = (0..n)
+                .filter(|&j| j != i)
+                .fold(Interval::point(0.0), |s, j| {
+                    let m = match norm {
+                        Norm::Inf => entry(i, j).mag(),
+                        Norm::One => entry(j, i).mag(),
+                        Norm::Two => ((entry(i, j) + entry(j, i)) * 0.5).mag(),
+                    };
+                    s + Interval::point(m)
+                });
             (entry(i, i) + off).upper
         })
         .fold(f64::NEG_INFINITY, f64::max)
@@ -45,10 +47,12 @@ pub fn induced_norm(g: &[Interval], n: usize, m: usize, norm: Norm) -> f64 {
         Norm::One => (0..m)
             .map(|j| (0..n).fold(zero, |s, i| s + mag(i, j)).upper)
             .fold(0.0, f64::max),
-        Norm::Two => (0..n * m)
-            .fold(zero, |s, k| s + mag(k / m, k % m).sqr())
-            .sqrt()
-            .upper,
+        Norm::Two => {
+            (0..n * m)
+                .fold(zero, |s, k| s + mag(k / m, k % m).sqr())
+                .sqrt()
+                .upper
+        }
     }
 }
 

@@ -119,8 +119,10 @@ impl Backend for CpuBackend {
                     let (mut dl, mut du) =
                         embedding_field(&problem.dynamics, &state.lower, &state.upper, nn, &margin);
                     if problem.field_slack > 0.0 {
-                        dl.iter_mut().for_each(|v| *v = round_down(*v - problem.field_slack));
-                        du.iter_mut().for_each(|v| *v = round_up(*v + problem.field_slack));
+                        dl.iter_mut()
+                            .for_each(|v| *v = round_down(*v - problem.field_slack));
+                        du.iter_mut()
+                            .for_each(|v| *v = round_up(*v + problem.field_slack));
                     }
                     let mut mink = 0.0;
                     if settings.method == ReachMethod::Minkowski {
@@ -234,7 +236,11 @@ fn sample(problem: &ReachProblem, state: &Live, t: f64) -> TubeSample {
 /// After a step: checks the set against `C` and the box's orientation, records a sample.
 fn advance(problem: &ReachProblem, state: &mut Live, t: f64, record: bool) {
     let inverted = state.lower.iter().zip(&state.upper).any(|(l, u)| l > u);
-    let finite = state.lower.iter().chain(&state.upper).all(|v| v.is_finite());
+    let finite = state
+        .lower
+        .iter()
+        .chain(&state.upper)
+        .all(|v| v.is_finite());
     if inverted || !finite {
         state.tube.valid = false;
         state.tube.note = Some(format!(

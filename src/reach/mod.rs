@@ -234,7 +234,8 @@ impl ReachProblem {
             .flatten()
             .map(|e| e.eval_interval(&cz))
             .collect();
-        let g_over_region: Vec<Interval> = g.iter().flatten().map(|e| e.eval_interval(&cz)).collect();
+        let g_over_region: Vec<Interval> =
+            g.iter().flatten().map(|e| e.eval_interval(&cz)).collect();
         let input_gain = closeness::induced_norm(&g_over_region, n, m, scenario.reach.norm);
         Ok(ReachProblem {
             dynamics: Dynamics {

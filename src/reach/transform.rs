@@ -15,8 +15,8 @@ use nalgebra::DMatrix;
 
 use crate::boxes::IntervalBox;
 use crate::expressions::Expr;
-use crate::intervals::{round_up, Interval};
 use crate::filter::SafetyFilter;
+use crate::intervals::{round_up, Interval};
 use crate::network::Mlp;
 use crate::scenario::{Scenario, TransformChoice};
 
@@ -60,14 +60,17 @@ impl Transform {
             .map(|i| {
                 (0..n)
                     .fold(ip(0.0), |acc, j| {
-                        let ts = (0..n).fold(ip(0.0), |a, k| a + ip(t[i * n + k]) * ip(s[k * n + j]));
+                        let ts =
+                            (0..n).fold(ip(0.0), |a, k| a + ip(t[i * n + k]) * ip(s[k * n + j]));
                         acc + ip((ip(if i == j { 1.0 } else { 0.0 }) - ts).mag())
                     })
                     .upper
             })
             .fold(0.0, f64::max);
         if r_norm >= 0.5 {
-            return Err(format!("the matrix is too ill-conditioned (‖I − TS‖ = {r_norm:.2e})"));
+            return Err(format!(
+                "the matrix is too ill-conditioned (‖I − TS‖ = {r_norm:.2e})"
+            ));
         }
         let rho = (ip(r_norm) / (ip(1.0) - ip(r_norm))).upper;
         Ok(Transform { n, t, s, rho })
@@ -75,8 +78,15 @@ impl Transform {
 
     /// The identity.
     pub fn identity(n: usize) -> Transform {
-        let t: Vec<f64> = (0..n * n).map(|k| if k / n == k % n { 1.0 } else { 0.0 }).collect();
-        Transform { n, s: t.clone(), t, rho: 0.0 }
+        let t: Vec<f64> = (0..n * n)
+            .map(|k| if k / n == k % n { 1.0 } else { 0.0 })
+            .collect();
+        Transform {
+            n,
+            s: t.clone(),
+            t,
+            rho: 0.0,
+        }
     }
 
     /// Coordinates in which `A` (the closed loop's linearisation at the goal) contracts in ℓ∞
@@ -88,17 +98,32 @@ impl Transform {
         let slowest = (0..n).map(|i| u[(i, i)]).fold(f64::NEG_INFINITY, f64::max);
         let mu_inf = |m: &DMatrix<f64>| {
             (0..n)
-                .map(|i| m[(i, i)] + (0..n).filter(|&j| j != i).map(|j| m[(i, j)].abs()).sum::<f64>())
+                .map(|i| {
+                    m[(i, i)]
+                        + (0..n)
+                            .filter(|&j| j != i)
+                            .map(|j| m[(i, j)].abs())
+                            .sum::<f64>()
+                })
                 .fold(f64::NEG_INFINITY, f64::max)
         };
-        let target = if slowest < 0.0 { 0.5 * slowest } else { slowest };
+        let target = if slowest < 0.0 {
+            0.5 * slowest
+        } else {
+            slowest
+        };
         let mut delta: f64 = 1.0;
         let mut best = None;
         for _ in 0..40 {
-            let d_inv = DMatrix::from_fn(n, n, |i, j| if i == j { delta.powi(-(i as i32)) } else { 0.0 });
+            let d_inv = DMatrix::from_fn(
+                n,
+                n,
+                |i, j| if i == j { delta.powi(-(i as i32)) } else { 0.0 },
+            );
             let t = &d_inv * q.transpose();
             let scaled = {
-                let d = DMatrix::from_fn(n, n, |i, j| if i == j { delta.powi(i as i32) } else { 0.0 });
+                let d =
+                    DMatrix::from_fn(n, n, |i, j| if i == j { delta.powi(i as i32) } else { 0.0 });
                 &d_inv * &u * d
             };
             best = Some(t);
@@ -138,7 +163,9 @@ impl Transform {
 
     /// A sound z-box of `S⁻¹·X`.
     pub fn to_z_box(&self, x: &IntervalBox) -> IntervalBox {
-        let xi: Vec<Interval> = (0..self.n).map(|i| Interval::new(x.lower[i], x.upper[i])).collect();
+        let xi: Vec<Interval> = (0..self.n)
+            .map(|i| Interval::new(x.lower[i], x.upper[i]))
+            .collect();
         let z = mat_vec(&self.t, &xi, self.n);
         let size = z.iter().fold(0.0_f64, |a, v| a.max(v.mag()));
         let pad = round_up((ip(self.rho) * ip(size)).upper);
@@ -150,7 +177,9 @@ impl Transform {
 
     /// The bounding box of the parallelotope `S·[z̲, z̄]`.
     pub fn to_x_box(&self, lower: &[f64], upper: &[f64]) -> IntervalBox {
-        let zi: Vec<Interval> = (0..self.n).map(|i| Interval::new(lower[i], upper[i])).collect();
+        let zi: Vec<Interval> = (0..self.n)
+            .map(|i| Interval::new(lower[i], upper[i]))
+            .collect();
         let x = mat_vec(&self.s, &zi, self.n);
         IntervalBox {
             lower: x.iter().map(|v| v.lower).collect(),
@@ -197,7 +226,11 @@ impl Transform {
     /// the embedding's derivative bounds.
     pub fn field_slack(&self, f_max: f64) -> f64 {
         let t_norm = (0..self.n)
-            .map(|i| (0..self.n).fold(ip(0.0), |a, j| a + ip(self.t[i * self.n + j].abs())).upper)
+            .map(|i| {
+                (0..self.n)
+                    .fold(ip(0.0), |a, j| a + ip(self.t[i * self.n + j].abs()))
+                    .upper
+            })
             .fold(0.0, f64::max);
         round_up((ip(self.rho) * ip(t_norm) * ip(f_max)).upper)
     }
@@ -216,7 +249,8 @@ impl Transform {
         for r in 0..first.n_out {
             let mut row_err = ip(0.0);
             for j in 0..n {
-                let exact_ish = (0..n).fold(ip(0.0), |a, k| a + ip(w[r * n + k]) * ip(self.s[k * n + j]));
+                let exact_ish =
+                    (0..n).fold(ip(0.0), |a, k| a + ip(w[r * n + k]) * ip(self.s[k * n + j]));
                 let value: f64 = (0..n).map(|k| w[r * n + k] * self.s[k * n + j]).sum();
                 first.weight[r * n + j] = value;
                 // |value − Σ W S| ≤ width of the enclosure around it.
@@ -227,7 +261,11 @@ impl Transform {
         }
         let lipschitz = net.layers[1..].iter().fold(ip(1.0), |acc, l| {
             let norm = (0..l.n_out)
-                .map(|r| (0..l.n_in).fold(ip(0.0), |a, c| a + ip(l.weight[r * l.n_in + c].abs())).upper)
+                .map(|r| {
+                    (0..l.n_in)
+                        .fold(ip(0.0), |a, c| a + ip(l.weight[r * l.n_in + c].abs()))
+                        .upper
+                })
                 .fold(0.0, f64::max);
             acc * ip(norm)
         });
