@@ -28,7 +28,8 @@ use std::path::{Path, PathBuf};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::bounds::{network_bounds, BoundMethod, BoundsError};
+use crate::bounds::{network_bounds, AffineBounds, BoundMethod, BoundsError};
+use crate::expressions::Expr;
 use crate::boxes::IntervalBox;
 use crate::dataset::{filter_dataset, grid_points};
 use crate::filter::{FilterMethod, SafetyFilter};
@@ -120,7 +121,7 @@ pub struct ErrorSettings {
     /// Stop refining when the certified bound is within this fraction of the measured one
     /// (default 0.1).
     pub tolerance: f64,
-    /// Width of the initial cells of the certification (default 0.25).
+    /// Width of the initial cells of the certification (default 0.125).
     pub initial_cell: f64,
     /// Width of the looseness boxes (default 0.1).
     pub looseness_width: f64,
@@ -130,6 +131,16 @@ pub struct ErrorSettings {
     pub looseness_samples: usize,
     /// Seed of the looseness samples (default 0).
     pub seed: u64,
+    /// Refine a cell while its bound exceeds this many times its sampled error (default 1.5).
+    pub local_ratio: f64,
+    /// ... or this absolute floor, whichever is larger (default 0.01).
+    pub floor: f64,
+    /// Random sample points per cell besides its corners and centre (default 4).
+    pub cell_samples: usize,
+    /// At most this many kept cells in the map (default 24,000: about 2 MB of JSON).
+    pub max_cells: usize,
+    /// Priority factor of cells that meet the scenario's goal set (default 4).
+    pub goal_weight: f64,
 }
 
 impl Default for ErrorSettings {
@@ -139,11 +150,16 @@ impl Default for ErrorSettings {
             grid: None,
             budget: 20_000,
             tolerance: 0.1,
-            initial_cell: 0.25,
+            initial_cell: 0.125,
             looseness_width: 0.1,
             looseness_boxes: 300,
             looseness_samples: 16,
             seed: 0,
+            local_ratio: 1.5,
+            floor: 0.01,
+            cell_samples: 4,
+            max_cells: 24_000,
+            goal_weight: 4.0,
         }
     }
 }
@@ -590,6 +606,366 @@ pub fn cell_error_bound(
     Ok(Some(e.min(error_from(&lo, &hi, &v))))
 }
 
+/// A smooth expression with its symbolic gradient, for mean-value (centred) enclosures.
+#[derive(Clone, Debug)]
+struct Smooth {
+    e: Expr,
+    grad: Vec<Expr>,
+}
+
+/// `e(c)` and `∇e(X)` over a box, and the centred form `e(c) + ∇e(X)·(X − c)`.
+struct CentredForm {
+    value: Interval,
+    grad: Vec<Interval>,
+    enclosure: Interval,
+}
+
+impl Smooth {
+    fn new(e: Expr, n: usize) -> Smooth {
+        let grad = (0..n).map(|i| e.derivative(i)).collect();
+        Smooth { e, grad }
+    }
+
+    /// The mean-value form over `xs` around `c` (a point of the box); valid wherever `e` is
+    /// differentiable (or Lipschitz, with the interval derivative enclosing its Clarke gradient)
+    /// on the box. Every evaluation is outward rounded.
+    fn centred(&self, xs: &[Interval], c: &[Interval], dx: &[Interval]) -> CentredForm {
+        let value = self.e.eval_interval(c);
+        let grad: Vec<Interval> = self.grad.iter().map(|g| g.eval_interval(xs)).collect();
+        let enclosure = value + sum(grad.iter().zip(dx).map(|(&g, &d)| g * d));
+        CentredForm {
+            value,
+            grad,
+            enclosure,
+        }
+    }
+}
+
+/// `a ∩ b`, or `a` when they are disjoint or `b` is NaN (both enclose the same values, so
+/// disjointness means no point to enclose; keeping `a` is sound either way).
+fn meet(a: Interval, b: Interval) -> Interval {
+    if b.is_nan() {
+        return a;
+    }
+    a.intersection(&b).unwrap_or(a)
+}
+
+/// `v` equals one smooth function on `cell ∩ S` (where feasible): `v(x) ∈ value + jac·(x − c)`
+/// for every such `x`, with `jac` (m × n, row-major) enclosing the derivatives over the cell.
+#[derive(Clone, Debug)]
+pub struct SmoothV {
+    /// The centre `c` of the cell.
+    pub centre: Vec<f64>,
+    /// An enclosure of `v(c)` (of the smooth function that equals `v` on the cell).
+    pub value: Vec<Interval>,
+    /// An enclosure of its Jacobian over the cell, `m × n` row-major.
+    pub jac: Vec<Interval>,
+}
+
+/// The closed-form filter as expressions with symbolic gradients, built once per scenario for
+/// [`VForms::enclose`] (mean-value enclosures of `v`, DESIGN §2.1).
+#[derive(Clone, Debug)]
+pub struct VForms {
+    method: FilterMethod,
+    n: usize,
+    m: usize,
+    /// `bₖ(x)` of every row (with `hᵢ` itself, not clamped: equal to the clamped one on `S`).
+    b: Vec<Smooth>,
+    /// One row: `Fⱼ = b·aⱼ/‖a‖²` (equal to `vⱼ` where the row is active).
+    f: Vec<Smooth>,
+    /// One row: `pⱼ = aⱼ/‖a‖²`.
+    p: Vec<Smooth>,
+    /// Scalar input: `rₖ = bₖ/aₖ` per row.
+    r: Vec<Smooth>,
+}
+
+impl VForms {
+    /// The forms of the scenario's closed-form filter; `None` for a general QP.
+    pub fn new(s: &Scenario) -> Option<VForms> {
+        let method = SafetyFilter::new(s).method();
+        if method == FilterMethod::Qp {
+            return None;
+        }
+        let (n, m) = (s.n(), s.m());
+        let zero = || Expr::constant(0.0);
+        let sum_e = |it: &mut dyn Iterator<Item = Expr>| it.fold(zero(), |a, b| a + b);
+        let mut a_rows: Vec<Vec<Expr>> = Vec::new();
+        let mut b_rows: Vec<Expr> = Vec::new();
+        for cbf in &s.cbfs {
+            let row: Vec<Expr> = (0..m)
+                .map(|j| {
+                    -sum_e(&mut (0..n).map(|i| cbf.gradient[i].clone() * s.g[i][j].clone()))
+                })
+                .collect();
+            a_rows.push(row);
+            b_rows.push(
+                sum_e(&mut (0..n).map(|i| cbf.gradient[i].clone() * s.f_tilde[i].clone()))
+                    + Expr::constant(cbf.alpha) * cbf.h.clone(),
+            );
+        }
+        if let Some(bounds) = &s.input_bounds {
+            for j in 0..m {
+                let mut row = vec![zero(); m];
+                row[j] = Expr::constant(1.0);
+                a_rows.push(row.clone());
+                b_rows.push(Expr::constant(bounds.upper[j]) - s.kappa[j].clone());
+                row[j] = Expr::constant(-1.0);
+                a_rows.push(row);
+                b_rows.push(s.kappa[j].clone() - Expr::constant(bounds.lower[j]));
+            }
+        }
+        for c in &s.constraints {
+            a_rows.push(c.a.clone());
+            b_rows.push(c.b.clone());
+        }
+        let b: Vec<Smooth> = b_rows.iter().map(|e| Smooth::new(e.clone(), n)).collect();
+        let (mut f, mut p, mut r) = (Vec::new(), Vec::new(), Vec::new());
+        match method {
+            FilterMethod::ClosedFormSingle if a_rows.len() == 1 => {
+                let a = &a_rows[0];
+                let norm2 = sum_e(&mut a.iter().map(|aj| aj.clone() * aj.clone()));
+                for aj in a {
+                    let pj = aj.clone() / norm2.clone();
+                    f.push(Smooth::new(b_rows[0].clone() * pj.clone(), n));
+                    p.push(Smooth::new(pj, n));
+                }
+            }
+            FilterMethod::ClosedFormScalar if m == 1 => {
+                for (a, bk) in a_rows.iter().zip(&b_rows) {
+                    r.push(Smooth::new(bk.clone() / a[0].clone(), n));
+                }
+            }
+            _ => {}
+        }
+        Some(VForms {
+            method,
+            n,
+            m,
+            b,
+            f,
+            p,
+            r,
+        })
+    }
+
+    /// An enclosure of `v` over `cell ∩ S` (where feasible), the natural one of
+    /// [`v_enclosure`] intersected with mean-value forms where those apply, and, when `v` is one
+    /// smooth function on the cell (the filter provably inactive: `v ≡ 0`; or one row provably
+    /// active on the whole cell), its centred form for a joint bound of `N − v`.
+    pub fn enclose(&self, s: &Scenario, cell: &IntervalBox) -> (Vec<Interval>, Option<SmoothV>) {
+        let (n, m) = (self.n, self.m);
+        let natural =
+            v_enclosure(s, self.method, cell).unwrap_or_else(|| vec![Interval::ENTIRE; m]);
+        let xs: Vec<Interval> = (0..n)
+            .map(|i| Interval::new(cell.lower[i], cell.upper[i]))
+            .collect();
+        let centre = cell.center();
+        let cs: Vec<Interval> = centre.iter().map(|&c| Interval::point(c)).collect();
+        let dx: Vec<Interval> = (0..n).map(|i| xs[i] - cs[i]).collect();
+        let zero_v = || SmoothV {
+            centre: centre.clone(),
+            value: vec![Interval::point(0.0); m],
+            jac: vec![Interval::point(0.0); m * n],
+        };
+        let (a_nat, b_nat) = interval_rows(s, cell);
+        if b_nat.len() != self.b.len() || a_nat.iter().chain(&b_nat).any(|v| v.is_nan()) {
+            return (natural, None);
+        }
+        let b_enc: Vec<Interval> = self
+            .b
+            .iter()
+            .zip(&b_nat)
+            .map(|(bk, &nat)| meet(nat, bk.centred(&xs, &cs, &dx).enclosure))
+            .collect();
+        let smooth_of = |forms: Vec<CentredForm>| SmoothV {
+            centre: centre.clone(),
+            value: forms.iter().map(|f| f.value).collect(),
+            jac: forms.iter().flat_map(|f| f.grad.iter().copied()).collect(),
+        };
+        match self.method {
+            FilterMethod::ClosedFormSingle if !self.f.is_empty() => {
+                let b = b_enc[0];
+                if b.lower >= 0.0 {
+                    return (vec![Interval::point(0.0); m], Some(zero_v()));
+                }
+                let norm2 = sum(a_nat.iter().map(|&aj| aj.sqr()));
+                if !(norm2.lower > 0.0) {
+                    return (natural, None);
+                }
+                let forms: Vec<CentredForm> =
+                    self.f.iter().map(|f| f.centred(&xs, &cs, &dx)).collect();
+                if forms.iter().any(|f| f.grad.iter().any(|g| g.is_nan())) {
+                    return (natural, None);
+                }
+                if b.upper <= 0.0 {
+                    let enc = (0..m).map(|j| meet(natural[j], forms[j].enclosure)).collect();
+                    return (enc, Some(smooth_of(forms)));
+                }
+                // Active on part of the cell: vⱼ = min(0, b)·pⱼ = min(0, Fⱼ) where pⱼ ≥ 0,
+                // max(0, Fⱼ) where pⱼ ≤ 0.
+                let zero = Interval::point(0.0);
+                let enc = (0..m)
+                    .map(|j| {
+                        let pj = meet(
+                            a_nat[j] / norm2,
+                            self.p[j].centred(&xs, &cs, &dx).enclosure,
+                        );
+                        let fj = forms[j].enclosure;
+                        let e = if pj.lower >= 0.0 {
+                            fj.min(zero)
+                        } else if pj.upper <= 0.0 {
+                            fj.max(zero)
+                        } else {
+                            b.min(zero) * pj
+                        };
+                        meet(natural[j], e)
+                    })
+                    .collect();
+                (enc, None)
+            }
+            FilterMethod::ClosedFormScalar if self.r.len() == b_enc.len() => {
+                let zero = Interval::point(0.0);
+                let (mut lo, mut hi) = (zero, zero);
+                let mut active: Vec<usize> = Vec::new();
+                for k in 0..b_enc.len() {
+                    if b_enc[k].lower >= 0.0 {
+                        continue; // the row never binds on the cell
+                    }
+                    let ak = a_nat[k];
+                    if ak.lower <= 0.0 && ak.upper >= 0.0 {
+                        return (natural, None);
+                    }
+                    active.push(k);
+                    let rk = meet(b_nat[k] / ak, self.r[k].centred(&xs, &cs, &dx).enclosure);
+                    if ak.upper < 0.0 {
+                        lo = lo.max(rk);
+                    } else {
+                        hi = hi.min(rk);
+                    }
+                }
+                if active.is_empty() {
+                    return (vec![zero], Some(zero_v()));
+                }
+                let enc = vec![meet(natural[0], lo + hi)];
+                if active.len() == 1 && b_enc[active[0]].upper <= 0.0 {
+                    let form = self.r[active[0]].centred(&xs, &cs, &dx);
+                    if !form.grad.iter().any(|g| g.is_nan()) {
+                        return (enc, Some(smooth_of(vec![form])));
+                    }
+                }
+                (enc, None)
+            }
+            _ => (natural, None),
+        }
+    }
+}
+
+/// `sup ‖N − v‖∞` over the cell from CROWN's affine forms of `N` and the centred form of `v`,
+/// both linear in `x − c`, so that their common slope cancels:
+/// `N − v ≤ (C̄c + d̄ − v(c)) + (C̄ − Jᵥ(X))(X − c)` and likewise below. +∞ on NaN.
+fn joint_error(ab: &AffineBounds, sv: &SmoothV, cell: &IntervalBox) -> f64 {
+    let (m, n) = (ab.n_out, ab.n_in);
+    let cs: Vec<Interval> = sv.centre.iter().map(|&c| Interval::point(c)).collect();
+    let dx: Vec<Interval> = (0..n)
+        .map(|i| Interval::new(cell.lower[i], cell.upper[i]) - cs[i])
+        .collect();
+    let mut e = 0.0_f64;
+    for j in 0..m {
+        for (a, d, upper) in [
+            (ab.a_upper_row(j), ab.b_upper[j], true),
+            (ab.a_lower_row(j), ab.b_lower[j], false),
+        ] {
+            let at_c = sum((0..n).map(|i| Interval::point(a[i]) * cs[i])) + Interval::point(d);
+            let slope = sum((0..n).map(|i| (Interval::point(a[i]) - sv.jac[j * n + i]) * dx[i]));
+            let diff = at_c - sv.value[j] + slope;
+            let side = if upper { diff.upper } else { -diff.lower };
+            if side.is_nan() {
+                return f64::INFINITY;
+            }
+            e = e.max(round_up(side));
+        }
+    }
+    e
+}
+
+/// [`cell_error_bound`] with the mean-value enclosure of `v` ([`VForms::enclose`]) and, where
+/// `v` is smooth on the cell, the joint affine bound of `N − v` ([`joint_error`]); the least of
+/// the separate and joint bounds (each sound). +∞ when an enclosure is unbounded.
+pub fn cell_error_bound_mv(
+    forms: &VForms,
+    s: &Scenario,
+    net: &Mlp,
+    cell: &IntervalBox,
+    good_enough: f64,
+) -> Result<f64, AnalysisError> {
+    let (v, smooth) = forms.enclose(s, cell);
+    if v.iter()
+        .any(|vi| vi.is_nan() || vi.lower == f64::NEG_INFINITY || vi.upper == f64::INFINITY)
+    {
+        return Ok(f64::INFINITY);
+    }
+    let ibp = network_bounds(net, &cell.lower, &cell.upper, BoundMethod::Ibp)?;
+    let e = error_from(&ibp.lower, &ibp.upper, &v);
+    if e <= good_enough {
+        return Ok(e);
+    }
+    let crown = network_bounds(net, &cell.lower, &cell.upper, BoundMethod::Crown)?;
+    let lo: Vec<f64> = (0..v.len())
+        .map(|j| ibp.lower[j].max(crown.lower[j]))
+        .collect();
+    let hi: Vec<f64> = (0..v.len())
+        .map(|j| ibp.upper[j].min(crown.upper[j]))
+        .collect();
+    let mut e = e.min(error_from(&lo, &hi, &v));
+    if let Some(sv) = smooth {
+        e = e.min(joint_error(&crown, &sv, cell));
+    }
+    Ok(e)
+}
+
+/// `max ‖N(x) − v(x)‖∞` over a few points of `cell ∩ S` where the filter is feasible: the
+/// corners, the centre and `extra` seeded random points (0 when none is safe and feasible).
+pub fn sampled_cell_error(
+    s: &Scenario,
+    filter: &SafetyFilter,
+    net: &Mlp,
+    cell: &IntervalBox,
+    extra: usize,
+    seed: u64,
+) -> f64 {
+    let n = cell.dim();
+    let mut pts: Vec<Vec<f64>> = (0..1usize << n)
+        .map(|mask| {
+            (0..n)
+                .map(|i| {
+                    if mask >> i & 1 == 1 {
+                        cell.upper[i]
+                    } else {
+                        cell.lower[i]
+                    }
+                })
+                .collect()
+        })
+        .collect();
+    pts.push(cell.center());
+    let mut rng = SplitMix(seed);
+    for _ in 0..extra {
+        let u: Vec<f64> = (0..n).map(|_| rng.next_f64()).collect();
+        pts.push(cell.point_at(&u));
+    }
+    let mut e = 0.0_f64;
+    for x in pts {
+        if !s.is_safe(&x) {
+            continue;
+        }
+        let Ok(v) = filter.eval(&x) else { continue };
+        for (vj, nj) in v.iter().zip(net.forward(&x)) {
+            e = e.max((vj - nj).abs());
+        }
+    }
+    e
+}
+
 /// One cell of an error map and its certified bound.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct CellBound {
@@ -628,10 +1004,23 @@ pub struct Certified {
     pub uncertified: usize,
     /// The max over the cells with a finite bound (a bound over `C ∩ S` minus those cells).
     pub finite_linf: f64,
+    /// Kept cells whose bound met their local target `max(local_ratio · sampled, floor)`.
+    pub satisfied: usize,
 }
 
-#[derive(PartialEq)]
-struct Entry(f64, IntervalBox);
+/// A cell waiting for refinement, ordered by its priority (the weighted gap between its bound
+/// and its target).
+struct Entry {
+    priority: f64,
+    bound: f64,
+    cell: IntervalBox,
+}
+
+impl PartialEq for Entry {
+    fn eq(&self, other: &Self) -> bool {
+        self.priority.total_cmp(&other.priority) == Ordering::Equal
+    }
+}
 
 impl Eq for Entry {}
 
@@ -643,16 +1032,26 @@ impl PartialOrd for Entry {
 
 impl Ord for Entry {
     fn cmp(&self, other: &Self) -> Ordering {
-        self.0.total_cmp(&other.0)
+        self.priority.total_cmp(&other.priority)
     }
 }
 
 /// Cells narrower than this are not bisected further.
 const MIN_CELL: f64 = 1e-7;
 
-/// A certified `M_C` over `C ∩ S` (see the [module docs](self)): refines until the bound is at
-/// most `(1 + tolerance)·target` (`target`: the measured error) or `budget` cell evaluations are
-/// spent. `None` when the filter is a general QP. `progress` is told the evaluations so far.
+/// A certified `M_C` over `C ∩ S` with local bounds (see the [module docs](self)).
+///
+/// `C` is cut into cells of [`ErrorSettings::initial_cell`]; every cell gets a certified bound
+/// ([`cell_error_bound_mv`]) and a cheap sampled error `e` (corners, centre and
+/// [`ErrorSettings::cell_samples`] random points). A cell is refined (bisected) while its bound
+/// exceeds its target `max(local_ratio · e, floor)` ([`ErrorSettings::local_ratio`],
+/// [`ErrorSettings::floor`]), the largest gaps `bound − target` first (weighted by
+/// [`ErrorSettings::goal_weight`] on cells that meet the scenario's goal set), in parallel
+/// batches, until every cell meets its target, [`ErrorSettings::budget`] cell evaluations are
+/// spent, or the map holds [`ErrorSettings::max_cells`] cells. `target` (the measured global
+/// error) is a lower floor of nothing and only kept for the report: the local criterion subsumes
+/// the old global one. `None` when the filter is a general QP. `progress` is told the
+/// evaluations so far and the largest bound still waiting for refinement.
 pub fn certify(
     s: &Scenario,
     net: &Mlp,
@@ -661,63 +1060,102 @@ pub fn certify(
     progress: &(dyn Fn(usize, f64) + Sync),
 ) -> Result<Option<Certified>, AnalysisError> {
     check_dims(s, net)?;
-    let method = SafetyFilter::new(s).method();
-    if method == FilterMethod::Qp {
+    let _ = target;
+    let Some(forms) = VForms::new(s) else {
         return Ok(None);
-    }
-    let goal = target.max(0.0) * (1.0 + settings.tolerance.max(0.0));
+    };
+    let filter = SafetyFilter::new(s);
     let c = &s.reach.region;
     let counts: Vec<usize> = c
         .widths()
         .iter()
         .map(|&w| ((w / settings.initial_cell.max(1e-6)).ceil() as usize).max(1))
         .collect();
-    let mut heap = BinaryHeap::new();
+    let ratio = settings.local_ratio.max(1.0);
+    let floor = settings.floor.max(0.0);
+    let goal = &s.reach.goal;
+    let weight = |cell: &IntervalBox| {
+        let meets = goal.dim() == cell.dim()
+            && (0..cell.dim()).all(|i| cell.lower[i] <= goal.upper[i] && goal.lower[i] <= cell.upper[i]);
+        if meets {
+            settings.goal_weight.max(1.0)
+        } else {
+            1.0
+        }
+    };
+    let mut heap: BinaryHeap<Entry> = BinaryHeap::new();
     let mut done: Vec<CellBound> = Vec::new();
     let mut dropped = 0;
     let mut evaluated = 0;
-    let eval = |cells: Vec<IntervalBox>| -> Result<Vec<Option<Entry>>, AnalysisError> {
+    let mut satisfied = 0;
+    // Each cell: dropped (None) or (bound, its target).
+    let eval = |cells: Vec<IntervalBox>, salt: usize| -> Result<Vec<Option<(f64, f64, IntervalBox)>>, AnalysisError> {
         cells
             .into_par_iter()
-            .map(|cell| {
+            .enumerate()
+            .map(|(k, cell)| {
                 if proven_unsafe(s, &cell) {
                     return Ok(None);
                 }
-                let e = cell_error_bound(s, net, method, &cell, goal)?.unwrap_or(f64::INFINITY);
-                Ok(Some(Entry(e, cell)))
+                let seed = settings.seed
+                    ^ ((salt + k) as u64).wrapping_mul(0x2545_F491_4F6C_DD1D);
+                let e = sampled_cell_error(s, &filter, net, &cell, settings.cell_samples, seed);
+                let tgt = (ratio * e).max(floor);
+                let b = cell_error_bound_mv(&forms, s, net, &cell, tgt)?;
+                Ok(Some((b, tgt, cell)))
             })
             .collect()
     };
-    let mut absorb = |res: Vec<Option<Entry>>, heap: &mut BinaryHeap<Entry>| {
+    let mut absorb = |res: Vec<Option<(f64, f64, IntervalBox)>>,
+                      heap: &mut BinaryHeap<Entry>,
+                      done: &mut Vec<CellBound>| {
         for r in res {
             match r {
                 None => dropped += 1,
-                Some(e) => heap.push(e),
+                Some((bound, tgt, cell)) => {
+                    if bound <= tgt {
+                        satisfied += 1;
+                        done.push(CellBound {
+                            lower: cell.lower,
+                            upper: cell.upper,
+                            bound,
+                        });
+                    } else {
+                        let gap = if bound.is_finite() { bound - tgt } else { f64::MAX };
+                        heap.push(Entry {
+                            priority: gap * weight(&cell),
+                            bound,
+                            cell,
+                        });
+                    }
+                }
             }
         }
     };
     let initial = c.partition(&counts);
     evaluated += initial.len();
-    absorb(eval(initial)?, &mut heap);
-    let batch = 4 * rayon::current_num_threads().max(1);
+    let res = eval(initial, 0)?;
+    absorb(res, &mut heap, &mut done);
+    let batch = 16 * rayon::current_num_threads().max(1);
     let mut budget_spent = false;
     loop {
-        let worst = heap.peek().map_or(0.0, |e| e.0);
+        let worst = heap.iter().map(|e| e.bound).fold(0.0, f64::max);
         progress(evaluated, worst);
-        if worst <= goal {
+        if heap.is_empty() {
             break;
         }
-        if evaluated >= settings.budget {
+        if evaluated >= settings.budget || heap.len() + done.len() >= settings.max_cells {
             budget_spent = true;
             break;
         }
+        let room = settings
+            .max_cells
+            .saturating_sub(heap.len() + done.len())
+            .min(settings.budget.saturating_sub(evaluated) / 2)
+            .clamp(1, batch);
         let mut children = Vec::new();
-        while children.len() < batch {
-            match heap.peek() {
-                Some(e) if e.0 > goal => {}
-                _ => break,
-            }
-            let Some(Entry(bound, cell)) = heap.pop() else {
+        while children.len() < 2 * room {
+            let Some(Entry { bound, cell, .. }) = heap.pop() else {
                 break;
             };
             if cell.widths().iter().fold(0.0_f64, |a, &b| a.max(b)) < MIN_CELL {
@@ -735,13 +1173,15 @@ pub fn certify(
         if children.is_empty() {
             break;
         }
+        let salt = evaluated;
         evaluated += children.len();
-        absorb(eval(children)?, &mut heap);
+        let res = eval(children, salt)?;
+        absorb(res, &mut heap, &mut done);
     }
-    done.extend(heap.into_iter().map(|Entry(bound, cell)| CellBound {
-        lower: cell.lower,
-        upper: cell.upper,
-        bound,
+    done.extend(heap.into_iter().map(|e| CellBound {
+        lower: e.cell.lower,
+        upper: e.cell.upper,
+        bound: e.bound,
     }));
     let linf = done.iter().map(|c| c.bound).fold(0.0, f64::max);
     let uncertified = done.iter().filter(|c| !c.bound.is_finite()).count();
@@ -758,6 +1198,7 @@ pub fn certify(
         dropped,
         evaluated,
         budget_spent,
+        satisfied,
     }))
 }
 

@@ -16,9 +16,8 @@ use super::kernels::{Kernels, GEMM_TILE, WORKGROUP};
 use super::{GpuContext, GpuError};
 use crate::bounds::BoundMethod;
 use crate::boxes::IntervalBox;
-use crate::intervals::Interval;
 use crate::reach::{
-    Backend, ReachError, ReachProblem, ReachResult, ReachSettings, ReachTiming, Tube, TubeSample,
+    Backend, ReachError, ReachProblem, ReachResult, ReachSettings, ReachTiming, Tube,
 };
 
 /// The largest buffer one chunk binds, whatever the device allows (bytes).
@@ -139,7 +138,7 @@ impl Backend for GpuBackend {
             .zip(&z_boxes)
             .map(|(b, z)| Tube {
                 initial: b.clone(),
-                tube: vec![sample(problem, &z.lower, &z.upper, 0.0, 0.0)],
+                tube: vec![problem.tube_sample(&z.lower, &z.upper, 0.0, 0.0)],
                 valid: true,
                 note: None,
             })
@@ -480,7 +479,7 @@ fn fill_tube(
         let at = (slot * nb + g) * sw;
         let (lo, hi, r) = read(&res.snap[at..at + sw]);
         tube.tube
-            .push(sample(problem, &lo, &hi, r, s as f64 * problem.dt));
+            .push(problem.tube_sample(&lo, &hi, r, s as f64 * problem.dt));
     }
     let t = stop as f64 * problem.dt;
     match st {
@@ -488,7 +487,7 @@ fn fill_tube(
             let (lo, hi, r) = read(&res.state[g * sw..(g + 1) * sw]);
             tube.valid = false;
             tube.note = Some(format!("t = {t}: the set left the region C"));
-            tube.tube.push(sample(problem, &lo, &hi, r, t));
+            tube.tube.push(problem.tube_sample(&lo, &hi, r, t));
         }
         status::INVERTED | status::NON_FINITE => {
             tube.valid = false;
@@ -502,48 +501,5 @@ fn fill_tube(
             ));
         }
         _ => {}
-    }
-}
-
-/// As the CPU engine's sample: x-boxes of the NN-system set and of the filtered-system set.
-fn sample(problem: &ReachProblem, lower: &[f64], upper: &[f64], r: f64, t: f64) -> TubeSample {
-    let grown = |v: &[f64], sign: f64| -> Vec<f64> {
-        v.iter()
-            .map(|&x| {
-                let y = Interval::point(x) + Interval::point(sign * r);
-                if sign < 0.0 {
-                    y.lower
-                } else {
-                    y.upper
-                }
-            })
-            .collect()
-    };
-    let (lo_r, hi_r) = (grown(lower, -1.0), grown(upper, 1.0));
-    match &problem.transform {
-        None => TubeSample {
-            t,
-            lower: lower.to_vec(),
-            upper: upper.to_vec(),
-            radius: r,
-            z_lower: None,
-            z_upper: None,
-            set: IntervalBox {
-                lower: lo_r,
-                upper: hi_r,
-            },
-        },
-        Some(tr) => {
-            let nn = tr.to_x_box(lower, upper);
-            TubeSample {
-                t,
-                lower: nn.lower,
-                upper: nn.upper,
-                radius: r,
-                z_lower: Some(lower.to_vec()),
-                z_upper: Some(upper.to_vec()),
-                set: tr.to_x_box(&lo_r, &hi_r),
-            }
-        }
     }
 }

@@ -11,7 +11,7 @@ use rayon::prelude::*;
 use super::closeness::{closeness_step, log_norm};
 use super::embedding::{embedding_field, embedding_step, NetworkBoundsRef};
 use super::{Backend, ReachError, ReachMethod, ReachProblem, ReachResult, ReachSettings};
-use super::{ReachTiming, Tube, TubeSample};
+use super::{ReachTiming, Tube};
 use crate::bounds::{network_bounds_batch_into, AffineBoundsBatch};
 use crate::boxes::IntervalBox;
 use crate::intervals::{round_down, round_up, Interval};
@@ -80,7 +80,10 @@ impl Backend for CpuBackend {
                     },
                     done: false,
                 };
-                state.tube.tube.push(sample(problem, &state, 0.0));
+                state
+                    .tube
+                    .tube
+                    .push(problem.tube_sample(&state.lower, &state.upper, 0.0, 0.0));
                 state
             })
             .collect();
@@ -188,51 +191,6 @@ fn closeness_rate(problem: &ReachProblem, nn: NetworkBoundsRef) -> f64 {
     log_norm(&a, n, problem.norm)
 }
 
-/// The recorded sample of a state: x-boxes of the NN-system set and of the filtered-system set
-/// (the Minkowski sum is taken in the embedding's coordinates, where `r` is an ℓ∞ radius).
-fn sample(problem: &ReachProblem, state: &Live, t: f64) -> TubeSample {
-    let r = state.radius;
-    let grown = |v: &[f64], sign: f64| -> Vec<f64> {
-        v.iter()
-            .map(|&x| {
-                let y = Interval::point(x) + Interval::point(sign * r);
-                if sign < 0.0 {
-                    y.lower
-                } else {
-                    y.upper
-                }
-            })
-            .collect()
-    };
-    let (lo_r, hi_r) = (grown(&state.lower, -1.0), grown(&state.upper, 1.0));
-    match &problem.transform {
-        None => TubeSample {
-            t,
-            lower: state.lower.clone(),
-            upper: state.upper.clone(),
-            radius: r,
-            z_lower: None,
-            z_upper: None,
-            set: IntervalBox {
-                lower: lo_r,
-                upper: hi_r,
-            },
-        },
-        Some(tr) => {
-            let nn = tr.to_x_box(&state.lower, &state.upper);
-            TubeSample {
-                t,
-                lower: nn.lower,
-                upper: nn.upper,
-                radius: r,
-                z_lower: Some(state.lower.clone()),
-                z_upper: Some(state.upper.clone()),
-                set: tr.to_x_box(&lo_r, &hi_r),
-            }
-        }
-    }
-}
-
 /// After a step: checks the set against `C` and the box's orientation, records a sample.
 fn advance(problem: &ReachProblem, state: &mut Live, t: f64, record: bool) {
     let inverted = state.lower.iter().zip(&state.upper).any(|(l, u)| l > u);
@@ -250,7 +208,7 @@ fn advance(problem: &ReachProblem, state: &mut Live, t: f64, record: bool) {
         state.done = true;
         return;
     }
-    let sample = sample(problem, state, t);
+    let sample = problem.tube_sample(&state.lower, &state.upper, state.radius, t);
     if !sample.set.is_subset_of(&problem.region) {
         state.tube.valid = false;
         state.tube.note = Some(format!("t = {t}: the set left the region C"));

@@ -286,6 +286,52 @@ impl ReachProblem {
         }
     }
 
+    /// The recorded sample of an embedding state `[lower, upper]` (z coordinates with a
+    /// transform) with closeness radius `r`: x-boxes of the NN-system set and of the
+    /// filtered-system set (the Minkowski sum is taken in the embedding's coordinates, where
+    /// `r` is an ℓ∞ radius). Shared by every backend.
+    pub fn tube_sample(&self, lower: &[f64], upper: &[f64], r: f64, t: f64) -> TubeSample {
+        let grown = |v: &[f64], sign: f64| -> Vec<f64> {
+            v.iter()
+                .map(|&x| {
+                    let y = Interval::point(x) + Interval::point(sign * r);
+                    if sign < 0.0 {
+                        y.lower
+                    } else {
+                        y.upper
+                    }
+                })
+                .collect()
+        };
+        let (lo_r, hi_r) = (grown(lower, -1.0), grown(upper, 1.0));
+        match &self.transform {
+            None => TubeSample {
+                t,
+                lower: lower.to_vec(),
+                upper: upper.to_vec(),
+                radius: r,
+                z_lower: None,
+                z_upper: None,
+                set: IntervalBox {
+                    lower: lo_r,
+                    upper: hi_r,
+                },
+            },
+            Some(tr) => {
+                let nn = tr.to_x_box(lower, upper);
+                TubeSample {
+                    t,
+                    lower: nn.lower,
+                    upper: nn.upper,
+                    radius: r,
+                    z_lower: Some(lower.to_vec()),
+                    z_upper: Some(upper.to_vec()),
+                    set: tr.to_x_box(&lo_r, &hi_r),
+                }
+            }
+        }
+    }
+
     /// Checks initial boxes: dimension n and inside `C`.
     pub fn check_initial(&self, boxes: &[IntervalBox]) -> Result<(), ReachError> {
         for (index, b) in boxes.iter().enumerate() {
