@@ -39,6 +39,7 @@ fn reach_12_boxes(bencher: Bencher, method: BoundMethod) {
         bounds: method,
         method: ReachMethod::Disturbance,
         every: 50,
+        face_local: false,
     };
     bencher
         .counter(ItemsCount::new(initial.len() * problem.steps))

@@ -65,6 +65,7 @@ fn settings(method: ReachMethod) -> ReachSettings {
         bounds: BoundMethod::Forward,
         method,
         every: 1,
+        face_local: false,
     }
 }
 

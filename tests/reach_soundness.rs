@@ -39,6 +39,7 @@ fn nn_field(s: &Scenario, net: &Mlp, x: &[f64]) -> Result<Vec<f64>, String> {
 /// Runs the engine with M = `m_c` on boxes around the given centres.
 fn run(
     s: &Scenario,
+    face_local: bool,
     net: &Mlp,
     m_c: f64,
     bounds: BoundMethod,
@@ -60,6 +61,7 @@ fn run(
         bounds,
         method: ReachMethod::Disturbance,
         every: 1,
+        face_local,
     };
     CpuBackend
         .reach(&problem, &boxes, &settings, &|_, _| {})
@@ -108,7 +110,19 @@ fn tube_dt(tube: &Tube) -> f64 {
 /// Euler error of the point simulation itself, `‖x_dt(t) − x_fine(t)‖∞`: that keeps the
 /// step's error visible (README, Limitations) without hiding a wrong bound.
 fn nn_trajectories_inside(s: &Scenario, net: &Mlp, centres: &[[f64; 2]], bounds: BoundMethod) {
-    let tubes = run(s, net, 0.0, bounds, centres, 0.1);
+    for face_local in [false, true] {
+        nn_trajectories_inside_with(s, net, centres, bounds, face_local);
+    }
+}
+
+fn nn_trajectories_inside_with(
+    s: &Scenario,
+    net: &Mlp,
+    centres: &[[f64; 2]],
+    bounds: BoundMethod,
+    face_local: bool,
+) {
+    let tubes = run(s, face_local, net, 0.0, bounds, centres, 0.1);
     let dt = s.reach.dt;
     let steps = s.reach.steps();
     let mut checks = 0;
@@ -228,6 +242,7 @@ goal = { lower = [-0.5, -0.5], upper = [0.5, 0.5] }
     assert!(m_c > 0.0 && m_c < 1.0, "M_C = {m_c}");
     let tubes = run(
         &s,
+        true,
         &net,
         m_c,
         BoundMethod::Crown,
@@ -257,7 +272,7 @@ fn leaving_c_marks_the_tube_invalid() {
     // A strongly destabilising network pushes the box out of C.
     let mut net = small_network(&[2, 8, 2], 5, 0.0);
     net.layers[1].bias = vec![20.0, 0.0];
-    let tubes = run(&s, &net, 0.0, BoundMethod::Ibp, &[[0.0, 0.0]], 0.1);
+    let tubes = run(&s, false, &net, 0.0, BoundMethod::Ibp, &[[0.0, 0.0]], 0.1);
     assert!(!tubes[0].valid);
     assert!(tubes[0]
         .note
@@ -286,6 +301,7 @@ fn run_double_integrator(net: &Mlp, transform: bool, m_c: f64) -> (Vec<Tube>, Op
         bounds: BoundMethod::Crown,
         method: ReachMethod::Disturbance,
         every: 1,
+        face_local: false,
     };
     let boxes = &s.reach.initial[..3];
     let tubes = CpuBackend

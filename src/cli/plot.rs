@@ -114,6 +114,7 @@ pub fn reach_initial(
         bounds,
         method,
         every,
+        face_local: false,
     };
     let bar = progress_bar(problem.steps as u64, "Euler steps");
     let r = engine.reach(problem, &s.reach.initial, &settings, &|d, _| {

@@ -49,7 +49,7 @@ impl GpuBackend {
 
     /// Whether this engine runs `settings` (forward bounds only, for now).
     pub fn supports(settings: &ReachSettings) -> bool {
-        settings.bounds == BoundMethod::Forward
+        settings.bounds == BoundMethod::Forward && !settings.face_local
     }
 
     /// Boxes per chunk for a problem: the forms, magnitudes and snapshots of one chunk must fit

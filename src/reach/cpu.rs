@@ -9,7 +9,9 @@ use std::time::Instant;
 use rayon::prelude::*;
 
 use super::closeness::{closeness_step, log_norm};
-use super::embedding::{embedding_field, embedding_step, NetworkBoundsRef};
+use super::embedding::{
+    embedding_field, embedding_field_by_face, embedding_step, NetworkBoundsRef,
+};
 use super::{Backend, ReachError, ReachMethod, ReachProblem, ReachResult, ReachSettings};
 use super::{ReachTiming, Tube};
 use crate::bounds::{network_bounds_batch_into, AffineBoundsBatch};
@@ -42,6 +44,7 @@ impl Backend for CpuBackend {
         progress: &(dyn Fn(usize, usize) + Sync),
     ) -> Result<ReachResult, ReachError> {
         problem.check_initial(initial)?;
+        settings.validate()?;
         let every = settings.every.max(1);
         let (n, m) = (problem.dynamics.n, problem.dynamics.m);
         // The transformed network's rounding enters as a disturbance in both methods; the
@@ -100,8 +103,27 @@ impl Backend for CpuBackend {
             flat_lo.clear();
             flat_hi.clear();
             for &k in &active {
-                flat_lo.extend(&live[k].lower);
-                flat_hi.extend(&live[k].upper);
+                let (lo, hi) = (&live[k].lower, &live[k].upper);
+                if settings.face_local {
+                    // 2n faces per box, in the order (0, lower), (0, upper), (1, lower), …
+                    for i in 0..n {
+                        for v in [lo[i], hi[i]] {
+                            flat_lo.extend(
+                                lo.iter()
+                                    .enumerate()
+                                    .map(|(j, &x)| if j == i { v } else { x }),
+                            );
+                            flat_hi.extend(
+                                hi.iter()
+                                    .enumerate()
+                                    .map(|(j, &x)| if j == i { v } else { x }),
+                            );
+                        }
+                    }
+                } else {
+                    flat_lo.extend(lo);
+                    flat_hi.extend(hi);
+                }
             }
             network_bounds_batch_into(
                 &problem.network,
@@ -117,10 +139,31 @@ impl Backend for CpuBackend {
                 .par_iter_mut()
                 .enumerate()
                 .map(|(slot, state)| {
-                    let nn = bounds_of(&batch, slot, n, m);
                     let margin = margin_of(state);
-                    let (mut dl, mut du) =
-                        embedding_field(&problem.dynamics, &state.lower, &state.upper, nn, &margin);
+                    let (nn, (mut dl, mut du)) = if settings.face_local {
+                        // (Minkowski is refused with face-local bounds: its rate needs one C.)
+                        let face = |i: usize, up: bool| {
+                            bounds_of(&batch, slot * 2 * n + 2 * i + usize::from(up), n, m)
+                        };
+                        let field = embedding_field_by_face(
+                            &problem.dynamics,
+                            &state.lower,
+                            &state.upper,
+                            face,
+                            &margin,
+                        );
+                        (face(0, false), field)
+                    } else {
+                        let nn = bounds_of(&batch, slot, n, m);
+                        let field = embedding_field(
+                            &problem.dynamics,
+                            &state.lower,
+                            &state.upper,
+                            nn,
+                            &margin,
+                        );
+                        (nn, field)
+                    };
                     if problem.field_slack > 0.0 {
                         dl.iter_mut()
                             .for_each(|v| *v = round_down(*v - problem.field_slack));

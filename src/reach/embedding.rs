@@ -71,7 +71,7 @@ fn boxed(lower: &[f64], upper: &[f64]) -> Vec<Interval> {
 }
 
 /// Sound bounds `(dx̲/dt, dx̄/dt)` of the embedding system at the box `[lower, upper]`, for the
-/// disturbance `w ∈ [−margin, margin]` (per input).
+/// disturbance `w ∈ [−margin, margin]` (per input), with one network bound for the whole box.
 pub fn embedding_field(
     dynamics: &Dynamics,
     lower: &[f64],
@@ -79,7 +79,20 @@ pub fn embedding_field(
     nn: NetworkBoundsRef,
     margin: &[f64],
 ) -> (Vec<f64>, Vec<f64>) {
-    let (n, m) = (dynamics.n, dynamics.m);
+    embedding_field_by_face(dynamics, lower, upper, |_, _| nn, margin)
+}
+
+/// As [`embedding_field`], with the network bounded separately on each face: `nn(i, upper)`
+/// gives the bounds over the face `xᵢ = x̄ᵢ` (`upper`) or `xᵢ = x̲ᵢ` (immrax's `local` mode;
+/// tighter, since each face is a thinner box).
+pub fn embedding_field_by_face<'a>(
+    dynamics: &Dynamics,
+    lower: &[f64],
+    upper: &[f64],
+    nn: impl Fn(usize, bool) -> NetworkBoundsRef<'a>,
+    margin: &[f64],
+) -> (Vec<f64>, Vec<f64>) {
+    let n = dynamics.n;
     let x = boxed(lower, upper);
     let centre: Vec<f64> = lower
         .iter()
@@ -92,36 +105,7 @@ pub fn embedding_field(
         .flatten()
         .map(|e| e.eval_interval(&x))
         .collect();
-    // Interaction-aware rows m̲, m̄ (n×n) and offsets δ̲, δ̄ (n), for constant g.
-    let linear = dynamics.g_constant.as_ref().map(|b| {
-        let mut m_lo = vec![point(0.0); n * n];
-        let mut m_hi = vec![point(0.0); n * n];
-        let mut d_lo = vec![point(0.0); n];
-        let mut d_hi = vec![point(0.0); n];
-        for i in 0..n {
-            for k in 0..m {
-                let bik = b[i * m + k];
-                if bik == 0.0 {
-                    continue;
-                }
-                let dl = point(nn.b_lower[k]) - point(margin[k]);
-                let du = point(nn.b_upper[k]) + point(margin[k]);
-                let (c_for_lo, d_for_lo, c_for_hi, d_for_hi) = if bik > 0.0 {
-                    (nn.a_lower, dl, nn.a_upper, du)
-                } else {
-                    (nn.a_upper, du, nn.a_lower, dl)
-                };
-                for j in 0..n {
-                    m_lo[i * n + j] = m_lo[i * n + j] + point(bik) * point(c_for_lo[k * n + j]);
-                    m_hi[i * n + j] = m_hi[i * n + j] + point(bik) * point(c_for_hi[k * n + j]);
-                }
-                d_lo[i] = d_lo[i] + point(bik) * d_for_lo;
-                d_hi[i] = d_hi[i] + point(bik) * d_for_hi;
-            }
-        }
-        (m_lo, m_hi, d_lo, d_hi)
-    });
-    // Input enclosure for state-dependent g: [g](box) · [N̲ − M, N̄ + M].
+    // For state-dependent g: [g](box), multiplied by the input enclosure [N̲ − M, N̄ + M].
     let g_box: Vec<Interval> = match dynamics.g_constant {
         Some(_) => Vec::new(),
         None => dynamics
@@ -131,39 +115,32 @@ pub fn embedding_field(
             .map(|e| e.eval_interval(&x))
             .collect(),
     };
-    let input: Vec<Interval> = (0..m)
-        .map(|k| {
-            Interval::new(
-                (point(nn.lower[k]) - point(margin[k])).lower,
-                (point(nn.upper[k]) + point(margin[k])).upper,
-            )
-        })
-        .collect();
 
     let face = |i: usize, on_upper: bool| -> Interval {
+        let bounds = nn(i, on_upper);
         let mut p: Vec<f64> = centre.clone();
         p[i] = if on_upper { upper[i] } else { lower[i] };
         let p_box: Vec<Interval> = p.iter().map(|&v| point(v)).collect();
         let mut total = dynamics.f_tilde[i].eval_interval(&p_box);
         // Offsets xⱼ − pⱼ over the face (zero for j = i).
         let offset = |j: usize| Interval::new(lower[j], upper[j]) - point(p[j]);
-        match &linear {
-            Some((m_lo, m_hi, d_lo, d_hi)) => {
-                let (rows, delta) = if on_upper { (m_hi, d_hi) } else { (m_lo, d_lo) };
+        match &dynamics.g_constant {
+            Some(b) => {
+                let (row, delta) = interaction_row(b, dynamics, bounds, margin, i, on_upper);
                 for j in 0..n {
-                    total = total + rows[i * n + j] * point(p[j]);
+                    total = total + row[j] * point(p[j]);
                 }
-                total = total + delta[i];
+                total = total + delta;
                 for j in (0..n).filter(|&j| j != i) {
-                    total = total + (jac[i * n + j] + rows[i * n + j]) * offset(j);
+                    total = total + (jac[i * n + j] + row[j]) * offset(j);
                 }
             }
             None => {
                 for j in (0..n).filter(|&j| j != i) {
                     total = total + jac[i * n + j] * offset(j);
                 }
-                for k in 0..m {
-                    total = total + g_box[i * m + k] * input[k];
+                for (k, u) in input_enclosure(bounds, margin).into_iter().enumerate() {
+                    total = total + g_box[i * dynamics.m + k] * u;
                 }
             }
         }
@@ -172,6 +149,55 @@ pub fn embedding_field(
     let d_lower = (0..n).map(|i| face(i, false).lower).collect();
     let d_upper = (0..n).map(|i| face(i, true).upper).collect();
     (d_lower, d_upper)
+}
+
+/// Row i of the interaction-aware matrix and its offset for constant `g = B`: for the lower
+/// side `m̲ᵢ = Σₖ B⁺ᵢₖ C̲ₖ + B⁻ᵢₖ C̄ₖ`, `δ̲ᵢ = Σₖ B⁺ᵢₖ d̲ₖ + B⁻ᵢₖ d̄ₖ` (so `Σₖ Bᵢₖ Nₖ(x) ≥ m̲ᵢ·x + δ̲ᵢ`),
+/// and symmetrically for the upper side; `d̲, d̄` widened by the disturbance.
+fn interaction_row(
+    b: &[f64],
+    dynamics: &Dynamics,
+    nn: NetworkBoundsRef,
+    margin: &[f64],
+    i: usize,
+    on_upper: bool,
+) -> (Vec<Interval>, Interval) {
+    let (n, m) = (dynamics.n, dynamics.m);
+    let mut row = vec![point(0.0); n];
+    let mut delta = point(0.0);
+    for k in 0..m {
+        let bik = b[i * m + k];
+        if bik == 0.0 {
+            continue;
+        }
+        let d_lo = point(nn.b_lower[k]) - point(margin[k]);
+        let d_hi = point(nn.b_upper[k]) + point(margin[k]);
+        // A lower bound of Bᵢₖ Nₖ takes Nₖ's lower form when Bᵢₖ > 0, its upper one otherwise.
+        let (c, d) = if (bik > 0.0) != on_upper {
+            (nn.a_lower, d_lo)
+        } else {
+            (nn.a_upper, d_hi)
+        };
+        for j in 0..n {
+            row[j] = row[j] + point(bik) * point(c[k * n + j]);
+        }
+        delta = delta + point(bik) * d;
+    }
+    (row, delta)
+}
+
+/// `[N̲ₖ − Mₖ, N̄ₖ + Mₖ]` per input.
+fn input_enclosure(nn: NetworkBoundsRef, margin: &[f64]) -> Vec<Interval> {
+    margin
+        .iter()
+        .enumerate()
+        .map(|(k, &mk)| {
+            Interval::new(
+                (point(nn.lower[k]) - point(mk)).lower,
+                (point(nn.upper[k]) + point(mk)).upper,
+            )
+        })
+        .collect()
 }
 
 /// One explicit Euler step `x ← x + dt·ẋ` of the embedding state, rounded outward.

@@ -50,6 +50,24 @@ pub struct ReachSettings {
     pub method: ReachMethod,
     /// Record every K-th step (and always the last).
     pub every: usize,
+    /// Bound the network on each face of the box separately (tighter, 2n× the bound cost;
+    /// immrax's `local` mode).
+    pub face_local: bool,
+}
+
+impl ReachSettings {
+    /// Checks combinations: the Minkowski method's closeness rate needs one slope matrix `C`
+    /// for the whole box, which face-local bounds do not give.
+    pub fn validate(&self) -> Result<(), ReachError> {
+        if self.face_local && self.method == ReachMethod::Minkowski {
+            return Err(ReachError::Settings(
+                "--face-local works with the disturbance method only (the Minkowski method's \
+                 closeness rate needs one C for the whole box)"
+                    .into(),
+            ));
+        }
+        Ok(())
+    }
 }
 
 impl Default for ReachSettings {
@@ -58,6 +76,7 @@ impl Default for ReachSettings {
             bounds: BoundMethod::Crown,
             method: ReachMethod::Disturbance,
             every: 1,
+            face_local: false,
         }
     }
 }
