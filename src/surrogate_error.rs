@@ -29,9 +29,9 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::bounds::{network_bounds, AffineBounds, BoundMethod, BoundsError};
-use crate::expressions::Expr;
 use crate::boxes::IntervalBox;
 use crate::dataset::{filter_dataset, grid_points};
+use crate::expressions::Expr;
 use crate::filter::{FilterMethod, SafetyFilter};
 use crate::intervals::{round_up, Interval};
 use crate::network::train::pointwise_errors;
@@ -693,9 +693,7 @@ impl VForms {
         let mut b_rows: Vec<Expr> = Vec::new();
         for cbf in &s.cbfs {
             let row: Vec<Expr> = (0..m)
-                .map(|j| {
-                    -sum_e(&mut (0..n).map(|i| cbf.gradient[i].clone() * s.g[i][j].clone()))
-                })
+                .map(|j| -sum_e(&mut (0..n).map(|i| cbf.gradient[i].clone() * s.g[i][j].clone())))
                 .collect();
             a_rows.push(row);
             b_rows.push(
@@ -798,7 +796,9 @@ impl VForms {
                     return (natural, None);
                 }
                 if b.upper <= 0.0 {
-                    let enc = (0..m).map(|j| meet(natural[j], forms[j].enclosure)).collect();
+                    let enc = (0..m)
+                        .map(|j| meet(natural[j], forms[j].enclosure))
+                        .collect();
                     return (enc, Some(smooth_of(forms)));
                 }
                 // Active on part of the cell: vⱼ = min(0, b)·pⱼ = min(0, Fⱼ) where pⱼ ≥ 0,
@@ -806,10 +806,7 @@ impl VForms {
                 let zero = Interval::point(0.0);
                 let enc = (0..m)
                     .map(|j| {
-                        let pj = meet(
-                            a_nat[j] / norm2,
-                            self.p[j].centred(&xs, &cs, &dx).enclosure,
-                        );
+                        let pj = meet(a_nat[j] / norm2, self.p[j].centred(&xs, &cs, &dx).enclosure);
                         let fj = forms[j].enclosure;
                         let e = if pj.lower >= 0.0 {
                             fj.min(zero)
@@ -1076,7 +1073,8 @@ pub fn certify(
     let goal = &s.reach.goal;
     let weight = |cell: &IntervalBox| {
         let meets = goal.dim() == cell.dim()
-            && (0..cell.dim()).all(|i| cell.lower[i] <= goal.upper[i] && goal.lower[i] <= cell.upper[i]);
+            && (0..cell.dim())
+                .all(|i| cell.lower[i] <= goal.upper[i] && goal.lower[i] <= cell.upper[i]);
         if meets {
             settings.goal_weight.max(1.0)
         } else {
@@ -1089,7 +1087,9 @@ pub fn certify(
     let mut evaluated = 0;
     let mut satisfied = 0;
     // Each cell: dropped (None) or (bound, its target).
-    let eval = |cells: Vec<IntervalBox>, salt: usize| -> Result<Vec<Option<(f64, f64, IntervalBox)>>, AnalysisError> {
+    let eval = |cells: Vec<IntervalBox>,
+                salt: usize|
+     -> Result<Vec<Option<(f64, f64, IntervalBox)>>, AnalysisError> {
         cells
             .into_par_iter()
             .enumerate()
@@ -1097,8 +1097,7 @@ pub fn certify(
                 if proven_unsafe(s, &cell) {
                     return Ok(None);
                 }
-                let seed = settings.seed
-                    ^ ((salt + k) as u64).wrapping_mul(0x2545_F491_4F6C_DD1D);
+                let seed = settings.seed ^ ((salt + k) as u64).wrapping_mul(0x2545_F491_4F6C_DD1D);
                 let e = sampled_cell_error(s, &filter, net, &cell, settings.cell_samples, seed);
                 let tgt = (ratio * e).max(floor);
                 let b = cell_error_bound_mv(&forms, s, net, &cell, tgt)?;
@@ -1121,7 +1120,11 @@ pub fn certify(
                             bound,
                         });
                     } else {
-                        let gap = if bound.is_finite() { bound - tgt } else { f64::MAX };
+                        let gap = if bound.is_finite() {
+                            bound - tgt
+                        } else {
+                            f64::MAX
+                        };
                         heap.push(Entry {
                             priority: gap * weight(&cell),
                             bound,
@@ -1226,6 +1229,95 @@ pub struct ErrorMap {
     /// Kept cells with their bounds; cells of `region` not listed were proven to miss `S`
     /// (where the filtered system never goes), so they contribute nothing.
     pub cells: Vec<CellBound>,
+    /// Buckets of cells for [`ErrorMap::local_bound`], built on first use (not serialised; a
+    /// map whose `cells` are changed afterwards must be rebuilt with [`ErrorMap::reindexed`]).
+    #[serde(skip)]
+    index: LazyIndex,
+}
+
+/// The lazily built [`CellIndex`]; a cache, so it takes no part in equality.
+#[derive(Clone, Debug, Default)]
+struct LazyIndex(std::sync::OnceLock<CellIndex>);
+
+impl PartialEq for LazyIndex {
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
+}
+
+/// A uniform grid of buckets over the mapped region, each listing the cells whose closed extent
+/// meets it (so two closed boxes that meet share a bucket: the bucket of a common point, since
+/// the bucket index `⌊(x − l)/h⌋`, clamped, is monotone in `x` in floating point too).
+#[derive(Clone, Debug, Default)]
+struct CellIndex {
+    counts: Vec<usize>,
+    lower: Vec<f64>,
+    step: Vec<f64>,
+    /// Bucket `k` (row-major, axis 0 slowest) lists `cells[start[k]..start[k + 1]]`.
+    start: Vec<u32>,
+    cells: Vec<u32>,
+}
+
+impl CellIndex {
+    fn build(region: &IntervalBox, cells: &[CellBound]) -> CellIndex {
+        let n = region.dim();
+        let per_axis =
+            ((cells.len().max(1) as f64).powf(1.0 / n as f64).ceil() as usize).clamp(1, 512);
+        let counts = vec![per_axis; n];
+        let step: Vec<f64> = (0..n)
+            .map(|i| ((region.upper[i] - region.lower[i]) / per_axis as f64).max(f64::MIN_POSITIVE))
+            .collect();
+        let mut idx = CellIndex {
+            counts,
+            lower: region.lower.clone(),
+            step,
+            start: Vec::new(),
+            cells: Vec::new(),
+        };
+        let total: usize = idx.counts.iter().product();
+        let mut lists: Vec<Vec<u32>> = vec![Vec::new(); total];
+        for (k, c) in cells.iter().enumerate() {
+            idx.for_each_bucket(&c.lower, &c.upper, |b| lists[b].push(k as u32));
+        }
+        idx.start.push(0);
+        for l in lists {
+            idx.cells.extend(l);
+            idx.start.push(idx.cells.len() as u32);
+        }
+        idx
+    }
+
+    fn bucket(&self, i: usize, x: f64) -> usize {
+        let t = ((x - self.lower[i]) / self.step[i]).floor();
+        if t.is_nan() || t < 0.0 {
+            0
+        } else {
+            (t as usize).min(self.counts[i] - 1)
+        }
+    }
+
+    fn for_each_bucket(&self, lower: &[f64], upper: &[f64], mut f: impl FnMut(usize)) {
+        let n = self.counts.len();
+        let lo: Vec<usize> = (0..n).map(|i| self.bucket(i, lower[i])).collect();
+        let hi: Vec<usize> = (0..n).map(|i| self.bucket(i, upper[i])).collect();
+        let mut at = lo.clone();
+        loop {
+            let k = (0..n).fold(0, |acc, i| acc * self.counts[i] + at[i]);
+            f(k);
+            let mut i = n;
+            loop {
+                if i == 0 {
+                    return;
+                }
+                i -= 1;
+                if at[i] < hi[i] {
+                    at[i] += 1;
+                    break;
+                }
+                at[i] = lo[i];
+            }
+        }
+    }
 }
 
 /// JSON has no ∞: a non-finite bound is written as the string `"inf"`.
@@ -1337,6 +1429,7 @@ impl ErrorMap {
             measured_l2: measured.l2,
             certified_linf: certified.map(|c| c.linf),
             cells: certified.map(|c| c.cells.clone()).unwrap_or_default(),
+            index: LazyIndex::default(),
         })
     }
 
@@ -1422,12 +1515,27 @@ impl ErrorMap {
                 region_upper: self.region.upper.clone(),
             });
         }
-        Ok(self
-            .cells
-            .iter()
-            .filter(|c| c.meets(b))
-            .map(|c| c.bound)
-            .fold(0.0, f64::max))
+        let index = self
+            .index
+            .0
+            .get_or_init(|| CellIndex::build(&self.region, &self.cells));
+        let mut worst = 0.0_f64;
+        index.for_each_bucket(&b.lower, &b.upper, |k| {
+            for &c in &index.cells[index.start[k] as usize..index.start[k + 1] as usize] {
+                let c = &self.cells[c as usize];
+                if c.meets(b) {
+                    worst = worst.max(c.bound);
+                }
+            }
+        });
+        Ok(worst)
+    }
+
+    /// The map with its bucket index dropped (to be rebuilt on the next query), for a map
+    /// whose `cells` were changed after a query.
+    pub fn reindexed(mut self) -> ErrorMap {
+        self.index = LazyIndex::default();
+        self
     }
 }
 

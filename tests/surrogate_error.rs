@@ -14,8 +14,8 @@ use cbfreach::network::train::{train, TrainSettings};
 use cbfreach::network::Mlp;
 use cbfreach::scenario::{Margin, Scenario};
 use cbfreach::surrogate_error::{
-    certify, error_map_path, measure, proven_unsafe, resolve_margin, v_enclosure, Certified,
-    ErrorMap, ErrorSettings, Measured,
+    cell_error_bound_mv, certify, error_map_path, measure, proven_unsafe, resolve_margin,
+    v_enclosure, Certified, ErrorMap, ErrorSettings, Measured, VForms,
 };
 
 /// Scenario 1 on `C = [0.5, 3.5] × [−1.5, 1.5]` (the obstacle and its surroundings).
@@ -176,6 +176,187 @@ fn v_enclosure_contains_sampled_v_on_random_cells() {
             s.name
         );
     }
+}
+
+#[test]
+fn mean_value_enclosure_contains_sampled_v_on_random_cells() {
+    for (s, method) in [
+        (common::integrator(), FilterMethod::ClosedFormSingle),
+        (common::double_integrator(), FilterMethod::ClosedFormScalar),
+    ] {
+        let filter = SafetyFilter::new(&s);
+        let forms = VForms::new(&s).expect("closed form");
+        let c = &s.reach.region;
+        let mut seed = 424242_u64;
+        let mut rnd = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let (mut smooth_active, mut tighter, mut checked) = (0, 0, 0);
+        for k in 0..600 {
+            // Small cells too, and cells along the obstacle where the filter acts.
+            let w = if k % 2 == 0 {
+                0.005 + 0.1 * rnd()
+            } else {
+                0.01 + 0.5 * rnd()
+            };
+            let lo: Vec<f64> = (0..2)
+                .map(|i| c.lower[i] + rnd() * (c.upper[i] - c.lower[i] - w))
+                .collect();
+            let cell = IntervalBox::new(lo.clone(), lo.iter().map(|l| l + w).collect()).unwrap();
+            let natural = v_enclosure(&s, method, &cell).unwrap();
+            let (v, smooth) = forms.enclose(&s, &cell);
+            for j in 0..v.len() {
+                assert!(v[j].is_subset_of(&natural[j]) || natural[j].is_nan());
+                if v[j].width() < 0.9 * natural[j].width() {
+                    tighter += 1;
+                }
+            }
+            let n = cell.dim();
+            if let Some(sv) = &smooth {
+                if sv.jac.iter().any(|g| g.width() > 0.0 || g.lower != 0.0) {
+                    smooth_active += 1;
+                }
+            }
+            for _ in 0..40 {
+                let x = cell.point_at(&[rnd(), rnd()]);
+                if !s.is_safe(&x) {
+                    continue;
+                }
+                let Ok(vx) = filter.eval(&x) else { continue };
+                checked += 1;
+                for j in 0..vx.len() {
+                    assert!(
+                        v[j].contains(vx[j]),
+                        "{}: v_{j}({x:?}) = {} not in the mean-value enclosure {} (cell {cell:?})",
+                        s.name,
+                        vx[j],
+                        v[j]
+                    );
+                    if let Some(sv) = &smooth {
+                        // v(x) ∈ v(c) + J(X)·(x − c), evaluated in intervals.
+                        let mut e = sv.value[j];
+                        for i in 0..n {
+                            let d = cbfreach::intervals::Interval::point(x[i])
+                                - cbfreach::intervals::Interval::point(sv.centre[i]);
+                            e = e + sv.jac[j * n + i] * d;
+                        }
+                        assert!(
+                            e.contains(vx[j]),
+                            "{}: v_{j}({x:?}) = {} not in the centred form {e} (cell {cell:?})",
+                            s.name,
+                            vx[j]
+                        );
+                    }
+                }
+            }
+        }
+        assert!(checked > 5000, "{}: {checked} samples", s.name);
+        assert!(
+            smooth_active > 10,
+            "{}: {smooth_active} active smooth cells",
+            s.name
+        );
+        assert!(
+            tighter > 10,
+            "{}: the mean-value form never helped ({tighter})",
+            s.name
+        );
+    }
+}
+
+#[test]
+fn mean_value_cell_bounds_hold_at_samples() {
+    let f = fixture();
+    let forms = VForms::new(&f.s).unwrap();
+    let filter = SafetyFilter::new(&f.s);
+    let mut seed = 99_u64;
+    let mut rnd = || {
+        seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (seed >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let mut finite = 0;
+    for _ in 0..300 {
+        let w = 0.002 + 0.2 * rnd();
+        let lo = [0.5 + (3.0 - w) * rnd(), -1.5 + (3.0 - w) * rnd()];
+        let cell = IntervalBox::new(lo.to_vec(), lo.iter().map(|l| l + w).collect()).unwrap();
+        let bound = cell_error_bound_mv(&forms, &f.s, &f.net, &cell, 0.0).unwrap();
+        finite += usize::from(bound.is_finite());
+        for _ in 0..30 {
+            let x = cell.point_at(&[rnd(), rnd()]);
+            if !f.s.is_safe(&x) {
+                continue;
+            }
+            let Ok(v) = filter.eval(&x) else { continue };
+            let n = f.net.forward(&x);
+            let e = v
+                .iter()
+                .zip(&n)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max);
+            assert!(e <= bound, "error {e} at {x:?} > bound {bound} of {cell:?}");
+        }
+    }
+    assert!(finite > 200, "{finite}");
+}
+
+#[test]
+fn indexed_local_bounds_equal_a_linear_scan() {
+    let f = fixture();
+    let dir = std::env::temp_dir().join(format!("cbfreach-errormap-ix-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let net_path = dir.join("small.safetensors");
+    f.net
+        .save_safetensors(&net_path, &Default::default())
+        .unwrap();
+    let map = ErrorMap::new(
+        &net_path,
+        &f.s.reach.region,
+        &f.measured,
+        Some(&f.certified),
+    )
+    .unwrap();
+    let mut seed = 5_u64;
+    let mut rnd = || {
+        seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (seed >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let r = &f.s.reach.region;
+    for k in 0..2000 {
+        // Some boxes are points or sit exactly on cell edges.
+        let w = if k % 3 == 0 { 0.0 } else { 0.5 * rnd() };
+        let mut lo: Vec<f64> = (0..2)
+            .map(|i| r.lower[i] + (r.upper[i] - r.lower[i] - w) * rnd())
+            .collect();
+        if k % 5 == 0 {
+            let c = &map.cells[k % map.cells.len()];
+            lo = if w == 0.0 {
+                c.upper.clone()
+            } else {
+                vec![c.upper[0], c.lower[1] - w]
+            };
+            lo[1] = lo[1].max(r.lower[1]);
+        }
+        let up: Vec<f64> = lo.iter().map(|l| l + w).collect();
+        let b = IntervalBox::new(lo, up).unwrap();
+        if !b.is_subset_of(r) {
+            continue;
+        }
+        let scan = map
+            .cells
+            .iter()
+            .filter(|c| c.meets(&b))
+            .map(|c| c.bound)
+            .fold(0.0, f64::max);
+        assert_eq!(map.local_bound(&b), scan, "{b:?}");
+    }
+    std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]

@@ -23,8 +23,17 @@ pub struct ErrorArgs {
     #[arg(long)]
     pub json: bool,
     /// Cell evaluations allowed to the certified bound.
-    #[arg(long, default_value_t = 20_000)]
+    #[arg(long, default_value_t = 40_000)]
     pub budget: usize,
+    /// Refine each cell until its bound is within this many times its sampled error ...
+    #[arg(long, default_value_t = 1.5)]
+    pub local_ratio: f64,
+    /// ... or below this absolute floor.
+    #[arg(long, default_value_t = 0.01)]
+    pub floor: f64,
+    /// At most this many cells in the error map (about 80 bytes of JSON each).
+    #[arg(long, default_value_t = 24_000)]
+    pub max_cells: usize,
     /// Measurement grid: this many times the training grid's points per axis.
     #[arg(long, default_value_t = 2)]
     pub refine: usize,
@@ -49,6 +58,8 @@ struct ErrorJson {
     uncertified_cells: usize,
     certified_linf_finite_cells: Option<f64>,
     dropped_cells: usize,
+    /// Kept cells whose bound is within `max(local_ratio × sampled error, floor)`.
+    satisfied_cells: usize,
     evaluated_cells: usize,
     budget_spent: bool,
     grid_points: usize,
@@ -67,6 +78,9 @@ pub fn run(args: &ErrorArgs) -> CliResult {
         refine: args.refine.max(1),
         budget: args.budget,
         looseness_boxes: args.looseness_boxes,
+        local_ratio: args.local_ratio,
+        floor: args.floor,
+        max_cells: args.max_cells,
         ..ErrorSettings::default()
     };
 
@@ -111,6 +125,7 @@ pub fn run(args: &ErrorArgs) -> CliResult {
         uncertified_cells: certified.as_ref().map_or(0, |c| c.uncertified),
         certified_linf_finite_cells: certified.as_ref().map(|c| c.finite_linf),
         dropped_cells: certified.as_ref().map_or(0, |c| c.dropped),
+        satisfied_cells: certified.as_ref().map_or(0, |c| c.satisfied),
         evaluated_cells: certified.as_ref().map_or(0, |c| c.evaluated),
         budget_spent: certified.as_ref().is_some_and(|c| c.budget_spent),
         grid_points: measured.grid_points,
@@ -154,10 +169,20 @@ pub fn run(args: &ErrorArgs) -> CliResult {
             c.dropped,
             c.evaluated,
             if c.budget_spent {
-                "; budget spent before reaching 1.1 × the measured error"
+                "; budget or cell cap reached"
             } else {
                 ""
             }
+        ),
+        None => println!("certified M_C: none (the filter is a general QP without a closed form)"),
+    }
+    match &certified {
+        Some(c) => println!(
+            "  local: {} of {} cells within max({} × their sampled error, {})",
+            c.satisfied,
+            c.cells.len(),
+            args.local_ratio,
+            args.floor
         ),
         None => println!("certified M_C: none (the filter is a general QP without a closed form)"),
     }

@@ -50,6 +50,19 @@ pub struct TrainArgs {
     /// Seed of the initial weights and the shuffles.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Weight λ_ibp of the certified-training term: λ_ibp times the mean IBP output width over
+    /// the boxes [x − ε, x + ε] around each batch's inputs (0 disables).
+    #[arg(long, default_value_t = 0.0)]
+    pub ibp_weight: f64,
+    /// Half-width ε of the IBP boxes: one value, or one per state.
+    #[arg(long, value_delimiter = ',', default_value = "0.05")]
+    pub ibp_radius: Vec<f64>,
+    /// Epoch (over the whole run, resumed epochs included) from which the IBP term is on.
+    #[arg(long, default_value_t = 0)]
+    pub ibp_start: usize,
+    /// Epochs over which ε ramps up linearly from the IBP start.
+    #[arg(long, default_value_t = 0)]
+    pub ibp_ramp: usize,
     /// Train on the unsafe part of the grid only within this distance of S (checked along the
     /// axes at the distance and half of it): deep inside an obstacle `v` grows without bound
     /// where `L_g h → 0`, and those points would dominate the loss. Negative: keep every
@@ -59,6 +72,10 @@ pub struct TrainArgs {
     /// Save the weights as F32 (exact: the trainer works in f32) instead of F64.
     #[arg(long)]
     pub f32: bool,
+    /// Start from this network (safetensors) instead of random weights, with fresh Adam
+    /// moments and the full learning-rate schedule (fine-tuning); ignored when resuming.
+    #[arg(long)]
+    pub init: Option<PathBuf>,
     /// Continue from the checkpoint beside the output file.
     #[arg(long)]
     pub resume: bool,
@@ -226,23 +243,43 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
         learning_rate: args.lr,
         jacobian_weight: args.jacobian_weight,
         seed: args.seed,
+        ibp_weight: args.ibp_weight,
+        ibp_radius: args.ibp_radius.clone(),
+        ibp_start: args.ibp_start,
+        ibp_ramp: args.ibp_ramp,
         checkpoint: Some(checkpoint.clone()),
         ..TrainSettings::default()
     };
     let bar = progress_bar(args.epochs as u64, "epochs");
     let progress = |e: &train::EpochStats| {
         bar.set_position(e.epoch as u64);
-        bar.set_message(format!("loss {:.3e}, max error {:.4}", e.loss, e.max_error));
+        match e.ibp_width {
+            Some(w) => bar.set_message(format!(
+                "loss {:.3e}, max error {:.4}, IBP width {w:.4}",
+                e.loss, e.max_error
+            )),
+            None => bar.set_message(format!("loss {:.3e}, max error {:.4}", e.loss, e.max_error)),
+        }
     };
     let (net, report) = if args.resume && checkpoint.exists() {
         train::resume(&checkpoint, &data, &settings, progress)?
     } else {
-        train::train(
-            Mlp::random(&architecture, args.seed),
-            &data,
-            &settings,
-            progress,
-        )?
+        let init = match &args.init {
+            Some(path) => {
+                let net = Mlp::load_safetensors(path)?;
+                if net.architecture() != Mlp::random(&architecture, 0).architecture() {
+                    return Err(format!(
+                        "--init {}: architecture {} differs from {architecture:?}",
+                        path.display(),
+                        net.architecture()
+                    )
+                    .into());
+                }
+                net
+            }
+            None => Mlp::random(&architecture, args.seed),
+        };
+        train::train(init, &data, &settings, progress)?
     };
     bar.finish_and_clear();
     let val = train::evaluate(&net, &validation)?;
@@ -262,6 +299,12 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
         report.epochs.len(),
         report.final_errors.max_error
     );
+    if let Some(w) = report.epochs.last().and_then(|e| e.ibp_width) {
+        println!(
+            "mean IBP output width of the last epoch (ε = {:?}): {w:.4}",
+            args.ibp_radius
+        );
+    }
     println!(
         "validation on {} unseen points of C ∩ S: max ℓ∞ {:.4}, max ℓ2 {:.4}, mean ℓ∞ {:.4}, max slope error {:.3}",
         vsummary.samples,

@@ -400,6 +400,229 @@ impl<T: Scalar> Workspace<T> {
     }
 }
 
+/// Buffers of the interval-bound-propagation (IBP) width penalty of certified training
+/// (Gowal et al. 2018): a batch of boxes `[c − ε, c + ε]` propagated in centre–radius form,
+///
+/// ```text
+/// ẑ_c = W c + b,  ẑ_r = |W| r,   l = ẑ_c − ẑ_r,  u = ẑ_c + ẑ_r,
+/// c' = (relu(u) + relu(l))/2,   r' = (relu(u) − relu(l))/2        (hidden layers),
+/// ```
+///
+/// each layer two GEMMs over the `B` boxes (one with `W`, one with `|W|`). The backward pass
+/// goes through both: `∂L/∂W = G_cᵀ C + sign(W) ⊙ (G_rᵀ R)`, `∂L/∂b = Σ G_c`, and through the
+/// ReLU interval map with the same `ReLU'(0) = 0` convention as the primal pass.
+pub(crate) struct IbpWorkspace<T> {
+    /// Centre and radius of each layer's input, `B × n_in` (index 0: the boxes).
+    c: Vec<Vec<T>>,
+    r: Vec<Vec<T>>,
+    /// Pre-activation bounds `l`, `u` of each hidden layer, `B × n_out`.
+    lo: Vec<Vec<T>>,
+    hi: Vec<Vec<T>>,
+    /// `|W_k|`.
+    abs_w: Vec<Vec<T>>,
+    /// Output centre and radius, `B × m`.
+    pub out_c: Vec<T>,
+    pub out_r: Vec<T>,
+    /// Scratch of the backward pass.
+    gc: Vec<T>,
+    gr: Vec<T>,
+    tc: Vec<T>,
+    tr: Vec<T>,
+    /// Boxes in the batch.
+    pub b: usize,
+}
+
+impl<T: Scalar> IbpWorkspace<T> {
+    pub fn new(n_layers: usize) -> Self {
+        IbpWorkspace {
+            c: vec![Vec::new(); n_layers],
+            r: vec![Vec::new(); n_layers],
+            lo: vec![Vec::new(); n_layers],
+            hi: vec![Vec::new(); n_layers],
+            abs_w: vec![Vec::new(); n_layers],
+            out_c: Vec::new(),
+            out_r: Vec::new(),
+            gc: Vec::new(),
+            gr: Vec::new(),
+            tc: Vec::new(),
+            tr: Vec::new(),
+            b: 0,
+        }
+    }
+
+    /// Propagates the `b` boxes of centre `centre(i)` and radius `radius` (one entry per input)
+    /// through `net`; afterwards `out_c`, `out_r` hold the output intervals' centres and radii.
+    pub fn forward<'a>(
+        &mut self,
+        net: &[Params<T>],
+        b: usize,
+        centre: impl Fn(usize) -> &'a [f64],
+        radius: &[f64],
+    ) {
+        let nl = net.len();
+        let n_in = net[0].n_in;
+        self.b = b;
+        let c0 = &mut self.c[0];
+        c0.clear();
+        let r0 = &mut self.r[0];
+        r0.clear();
+        for i in 0..b {
+            c0.extend(centre(i)[..n_in].iter().map(|&x| T::from_f64(x)));
+            r0.extend(radius[..n_in].iter().map(|&x| T::from_f64(x)));
+        }
+        for (k, p) in net.iter().enumerate() {
+            let aw = &mut self.abs_w[k];
+            aw.clear();
+            aw.extend(
+                p.w.iter()
+                    .map(|&w| if w < T::ZERO { T::ZERO - w } else { w }),
+            );
+            let mut zc = vec![T::ZERO; b * p.n_out];
+            let mut zr = vec![T::ZERO; b * p.n_out];
+            let (m, kk, n) = (b, p.n_in, p.n_out);
+            gemm(
+                (m, kk, n),
+                &self.c[k],
+                (kk, 1),
+                &p.w,
+                (1, kk),
+                &mut zc,
+                (n, 1),
+            );
+            gemm(
+                (m, kk, n),
+                &self.r[k],
+                (kk, 1),
+                aw,
+                (1, kk),
+                &mut zr,
+                (n, 1),
+            );
+            for row in zc.chunks_exact_mut(n) {
+                for (z, &bias) in row.iter_mut().zip(&p.b) {
+                    *z += bias;
+                }
+            }
+            if k + 1 < nl {
+                let half = T::from_f64(0.5);
+                let (lo, hi) = (&mut self.lo[k], &mut self.hi[k]);
+                lo.clear();
+                hi.clear();
+                let (cn, rn) = (&mut self.c[k + 1], &mut self.r[k + 1]);
+                cn.clear();
+                rn.clear();
+                for (&c, &r) in zc.iter().zip(&zr) {
+                    let (l, u) = (c - r, c + r);
+                    lo.push(l);
+                    hi.push(u);
+                    let rl = if is_active(l) { l } else { T::ZERO };
+                    let ru = if is_active(u) { u } else { T::ZERO };
+                    cn.push(half * (ru + rl));
+                    rn.push(half * (ru - rl));
+                }
+            } else {
+                self.out_c = zc;
+                self.out_r = zr;
+            }
+        }
+    }
+
+    /// Backward pass from `∂L/∂out_c` and `∂L/∂out_r` (`B × m` each) into `grads`
+    /// (overwritten).
+    pub fn backward(&mut self, net: &[Params<T>], g_c: &[T], g_r: &[T], grads: &mut [Params<T>]) {
+        let b = self.b;
+        self.gc.clear();
+        self.gc.extend_from_slice(g_c);
+        self.gr.clear();
+        self.gr.extend_from_slice(g_r);
+        for k in (0..net.len()).rev() {
+            let p = &net[k];
+            let (n_in, n_out) = (p.n_in, p.n_out);
+            if k + 1 < net.len() {
+                // Through the ReLU interval map: gc, gr are w.r.t. this layer's (c', r').
+                let half = T::from_f64(0.5);
+                for idx in 0..b * n_out {
+                    let (gcv, grv) = (self.gc[idx], self.gr[idx]);
+                    let gu = if is_active(self.hi[k][idx]) {
+                        half * (gcv + grv)
+                    } else {
+                        T::ZERO
+                    };
+                    let gl = if is_active(self.lo[k][idx]) {
+                        half * (gcv - grv)
+                    } else {
+                        T::ZERO
+                    };
+                    self.gc[idx] = gu + gl;
+                    self.gr[idx] = gu - gl;
+                }
+            }
+            let gw = &mut grads[k];
+            // ∂L/∂W = G_cᵀ C + sign(W) ⊙ (G_rᵀ R).
+            gemm(
+                (n_out, b, n_in),
+                &self.gc,
+                (1, n_out),
+                &self.c[k],
+                (n_in, 1),
+                &mut gw.w,
+                (n_in, 1),
+            );
+            self.tc.clear();
+            self.tc.resize(n_out * n_in, T::ZERO);
+            gemm(
+                (n_out, b, n_in),
+                &self.gr,
+                (1, n_out),
+                &self.r[k],
+                (n_in, 1),
+                &mut self.tc,
+                (n_in, 1),
+            );
+            for ((d, &t), &w) in gw.w.iter_mut().zip(&self.tc).zip(&p.w) {
+                if w > T::ZERO {
+                    *d += t;
+                } else if w < T::ZERO {
+                    *d = *d - t;
+                }
+            }
+            gw.b.iter_mut().for_each(|v| *v = T::ZERO);
+            for row in self.gc.chunks_exact(n_out) {
+                for (d, &v) in gw.b.iter_mut().zip(row) {
+                    *d += v;
+                }
+            }
+            if k > 0 {
+                self.tc.clear();
+                self.tc.resize(b * n_in, T::ZERO);
+                self.tr.clear();
+                self.tr.resize(b * n_in, T::ZERO);
+                let (m, kk, n) = (b, n_out, n_in);
+                gemm(
+                    (m, kk, n),
+                    &self.gc,
+                    (kk, 1),
+                    &p.w,
+                    (n, 1),
+                    &mut self.tc,
+                    (n, 1),
+                );
+                gemm(
+                    (m, kk, n),
+                    &self.gr,
+                    (kk, 1),
+                    &self.abs_w[k],
+                    (n, 1),
+                    &mut self.tr,
+                    (n, 1),
+                );
+                std::mem::swap(&mut self.gc, &mut self.tc);
+                std::mem::swap(&mut self.gr, &mut self.tr);
+            }
+        }
+    }
+}
+
 /// The ReLU derivative's convention: a neuron is active iff its pre-activation is `> 0`
 /// (NaN counts as inactive).
 fn is_active<T: Scalar>(z: T) -> bool {
