@@ -79,30 +79,6 @@ fn boxes(boxes: usize) -> (Vec<f64>, Vec<f64>) {
     (lo, hi)
 }
 
-/// Mult-adds per box by DESIGN.md §5's model.
-fn model_madds(widths: &[usize], method: BoundMethod) -> f64 {
-    let n_in = widths[0];
-    let m = widths[widths.len() - 1];
-    let pairs: f64 = widths.windows(2).map(|w| (w[0] * w[1]) as f64).sum();
-    let crown_pass: f64 = (1..widths.len())
-        .map(|k| {
-            widths[k] as f64
-                * (1..k)
-                    .map(|j| (widths[j] * widths[j - 1]) as f64)
-                    .sum::<f64>()
-        })
-        .sum();
-    let fwd = (2 * (n_in + 1) + 1) as f64 * pairs;
-    match method {
-        BoundMethod::Ibp => 3.0 * pairs,
-        BoundMethod::Forward => fwd,
-        BoundMethod::ForwardBackward => fwd + (3 + 1 + 2 * m) as f64 * pairs,
-        BoundMethod::ForwardBackwardSameSlope => fwd + (3 + 1 + m) as f64 * pairs,
-        BoundMethod::Crown => 2.0 * crown_pass,
-        BoundMethod::CrownSameSlope => crown_pass,
-    }
-}
-
 #[divan::bench(args = cases(), sample_count = 5, sample_size = 1)]
 fn bounds(bencher: Bencher, case: Case) {
     let net = network(case.arch);
@@ -128,7 +104,7 @@ fn main() {
         for method in BoundMethod::ALL {
             eprintln!(
                 "  {widths:?} {method}: {:.2} M",
-                model_madds(widths, method) / 1e6
+                cbfreach::bounds::model_multiply_adds(widths, method) / 1e6
             );
         }
     }

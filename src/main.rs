@@ -46,6 +46,9 @@ enum Command {
     Paper(cli::paper::PaperArgs),
     /// Sound affine and interval bounds of a network over a box.
     Bounds(cli::bounds::BoundsArgs),
+    /// Box-steps per second of the reach engines (CPU and GPU side by side), GFLOP/s by the
+    /// FLOP model and the fraction of a peak rate.
+    Bench(cli::bench::BenchArgs),
     /// Find, classify and list the equilibria of the filtered system inside C.
     Equilibria {
         /// The scenario file (TOML).
@@ -60,7 +63,11 @@ fn main() -> ExitCode {
     let args = Cli::parse();
     if matches!(
         args.command,
-        None | Some(Command::Reach(_)) | Some(Command::Bounds(_))
+        None | Some(Command::Reach(_))
+            | Some(Command::Bounds(_))
+            | Some(Command::Verify(_))
+            | Some(Command::Paper(_))
+            | Some(Command::Bench(_))
     ) {
         cli::bounds::single_threaded_gemm();
     }
@@ -69,6 +76,7 @@ fn main() -> ExitCode {
         Some(Command::Check { scenario }) => cli::check::run(&scenario),
         Some(Command::Simulate(a)) => cli::simulate::run(&a),
         Some(Command::Reach(a)) => cli::reach::run(&a),
+        Some(Command::Bench(a)) => cli::bench::run(&a),
         Some(Command::Verify(a)) => cli::verify::run(&a),
         Some(Command::Merge(a)) => cli::verify::run_merge(&a),
         Some(Command::Plot(a)) => cli::plot::run(&a),

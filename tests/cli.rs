@@ -112,3 +112,30 @@ fn default_command_reports_equilibria_and_endpoints() {
     assert!(stdout.contains("trapped at (3.0000, 0.0000)"), "{stdout}");
     assert!(stdout.contains("reaches the origin"), "{stdout}");
 }
+
+#[test]
+fn bench_reports_rates_for_each_method_and_batch() {
+    let (code, stdout, stderr) = cbfreach(&[
+        "bench",
+        "--backend",
+        "cpu",
+        "--boxes",
+        "1,4",
+        "--steps",
+        "2",
+        "--bounds",
+        "forward,ibp",
+        "--peak",
+        "100",
+    ]);
+    assert_eq!(code, 0, "{stderr}");
+    let rows: Vec<&str> = stdout
+        .lines()
+        .filter(|l| l.trim_start().starts_with("cpu"))
+        .collect();
+    assert_eq!(rows.len(), 4, "{stdout}");
+    for row in rows {
+        let rate: f64 = row.split_whitespace().nth(3).unwrap().parse().unwrap();
+        assert!(rate > 0.0, "{row}");
+    }
+}

@@ -367,6 +367,33 @@ pub enum BoundsError {
     },
 }
 
+/// Multiply–adds per box of a bound method on a network with widths `n_0..n_L`, by DESIGN §5's
+/// model (forward: centre and radius forms, `2(n_in+1)+1` products per weight with the rounding
+/// magnitudes; CROWN: `Σ_k n_k Σ_{j<k} n_j n_{j−1}` per backward pass, two passes for the
+/// adaptive relaxation). Benchmarks turn it into GFLOP/s as `2 × this × boxes/s`.
+pub fn model_multiply_adds(widths: &[usize], method: BoundMethod) -> f64 {
+    let n_in = widths[0];
+    let m = widths[widths.len() - 1];
+    let pairs: f64 = widths.windows(2).map(|w| (w[0] * w[1]) as f64).sum();
+    let crown_pass: f64 = (1..widths.len())
+        .map(|k| {
+            widths[k] as f64
+                * (1..k)
+                    .map(|j| (widths[j] * widths[j - 1]) as f64)
+                    .sum::<f64>()
+        })
+        .sum();
+    let fwd = (2 * (n_in + 1) + 1) as f64 * pairs;
+    match method {
+        BoundMethod::Ibp => 3.0 * pairs,
+        BoundMethod::Forward => fwd,
+        BoundMethod::ForwardBackward => fwd + (3 + 1 + 2 * m) as f64 * pairs,
+        BoundMethod::ForwardBackwardSameSlope => fwd + (3 + 1 + m) as f64 * pairs,
+        BoundMethod::Crown => 2.0 * crown_pass,
+        BoundMethod::CrownSameSlope => crown_pass,
+    }
+}
+
 /// Bounds of `net` over the box `[lower, upper]` by `method`, validated.
 pub fn network_bounds(
     net: &Mlp,

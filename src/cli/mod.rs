@@ -1,5 +1,6 @@
 //! One file per subcommand; each turns arguments into library calls and prints the result.
 
+pub mod bench;
 pub mod bounds;
 pub mod check;
 pub mod equilibria;

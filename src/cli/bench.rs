@@ -1,0 +1,207 @@
+//! `cbfreach bench`: box-steps per second of the reach engines, side by side in one process,
+//! with the GFLOP/s they reach by DESIGN §5's model and the fraction of a peak rate.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Instant;
+
+use cbfreach::bounds::{model_multiply_adds, BoundMethod};
+use cbfreach::boxes::IntervalBox;
+use cbfreach::network::Mlp;
+use cbfreach::reach::{Backend, CpuBackend, ReachProblem, ReachSettings};
+use cbfreach::scenario::Scenario;
+
+use super::{load_scenario, CliResult};
+
+/// Arguments of `cbfreach bench`.
+#[derive(clap::Args)]
+pub struct BenchArgs {
+    /// Engines to run: `cpu`, `gpu`, or both (comma-separated).
+    #[arg(long, value_delimiter = ',', default_value = "cpu,gpu")]
+    pub backend: Vec<String>,
+    /// Batch sizes (boxes).
+    #[arg(long, value_delimiter = ',', default_value = "1,16,256,4096")]
+    pub boxes: Vec<usize>,
+    /// Euler steps per run.
+    #[arg(long, default_value_t = 10)]
+    pub steps: usize,
+    /// Bound methods (comma-separated).
+    #[arg(
+        long,
+        value_enum,
+        value_delimiter = ',',
+        default_value = "forward,forward-backward"
+    )]
+    pub bounds: Vec<BoundMethod>,
+    /// Scenario (default: the built-in scenario 1).
+    #[arg(long)]
+    pub scenario: Option<PathBuf>,
+    /// Network (default: a seeded random network of the scenario's architecture, its last
+    /// layer scaled by 0.05 so that tubes stay in C).
+    #[arg(long)]
+    pub network: Option<PathBuf>,
+    /// Peak rate in GFLOP/s to compare with (default: measured with a plain f64 matrix product
+    /// on the CPU; none for the GPU).
+    #[arg(long)]
+    pub peak: Option<f64>,
+}
+
+/// The CPU's f64 rate on plain 512³ matrix products, one per rayon thread at once (each
+/// single-threaded, as the engine runs them), GFLOP/s: the best of five rounds.
+fn measured_cpu_peak() -> f64 {
+    use rayon::prelude::*;
+    let n = 512;
+    let threads = rayon::current_num_threads();
+    let a = vec![1.0e-3; n * n];
+    let b = vec![1.0e-3; n * n];
+    let mut best = f64::INFINITY;
+    for _ in 0..5 {
+        let start = Instant::now();
+        (0..threads).into_par_iter().for_each(|_| {
+            let mut c = vec![0.0; n * n];
+            // SAFETY: the slices hold n·n elements; the strides describe row-major n×n matrices.
+            unsafe {
+                matrixmultiply::dgemm(
+                    n,
+                    n,
+                    n,
+                    1.0,
+                    a.as_ptr(),
+                    n as isize,
+                    1,
+                    b.as_ptr(),
+                    n as isize,
+                    1,
+                    0.0,
+                    c.as_mut_ptr(),
+                    n as isize,
+                    1,
+                );
+            }
+        });
+        best = best.min(start.elapsed().as_secs_f64());
+    }
+    2.0 * (threads * n * n * n) as f64 / best / 1e9
+}
+
+/// `count` boxes 0.02 wide around points spread over the middle of C's safe part.
+fn bench_boxes(s: &Scenario, count: usize) -> Vec<IntervalBox> {
+    let c = &s.reach.region;
+    let inner = IntervalBox {
+        lower: (0..s.n())
+            .map(|i| c.lower[i] + 0.3 * (c.upper[i] - c.lower[i]))
+            .collect(),
+        upper: (0..s.n())
+            .map(|i| c.upper[i] - 0.3 * (c.upper[i] - c.lower[i]))
+            .collect(),
+    };
+    cbfreach::simulate::sample_box(&inner, 4 * count + 16, 1)
+        .into_iter()
+        .filter(|x| s.is_safe(x))
+        .take(count)
+        .map(|x| IntervalBox {
+            lower: x.iter().map(|v| v - 0.01).collect(),
+            upper: x.iter().map(|v| v + 0.01).collect(),
+        })
+        .collect()
+}
+
+/// Runs the command.
+pub fn run(args: &BenchArgs) -> CliResult {
+    let s = match &args.scenario {
+        Some(p) => load_scenario(p)?,
+        None => Scenario::builtin()?,
+    };
+    let net = match (&args.network, &s.network) {
+        (Some(p), _) => Mlp::load_safetensors(p)?,
+        (None, Some(cfg)) => {
+            let mut net = Mlp::random(&cfg.architecture, 7);
+            if let Some(last) = net.layers.last_mut() {
+                last.weight.iter_mut().for_each(|w| *w *= 0.05);
+                last.bias.iter_mut().for_each(|b| *b *= 0.05);
+            }
+            net
+        }
+        (None, None) => return Err("the scenario has no [network]: give --network".into()),
+    };
+    let widths = net.widths();
+    let mut problem = ReachProblem::new(&s, net, 0.0)?;
+    problem.steps = args.steps.max(1);
+    let cpu_peak = args.peak.unwrap_or_else(measured_cpu_peak);
+    println!(
+        "cbfreach bench: `{}`, network {}, {} steps, CPU peak {cpu_peak:.1} GFLOP/s ({})",
+        s.name,
+        widths
+            .iter()
+            .map(|w| w.to_string())
+            .collect::<Vec<_>>()
+            .join("×"),
+        problem.steps,
+        if args.peak.is_some() {
+            "given"
+        } else {
+            "measured: 512³ f64 matrix products on every thread"
+        }
+    );
+
+    let mut engines: Vec<(String, Box<dyn Backend + Sync>, Option<f64>)> = Vec::new();
+    for name in &args.backend {
+        match name.as_str() {
+            "cpu" => engines.push(("cpu".into(), Box::new(CpuBackend), Some(cpu_peak))),
+            "gpu" => match cbfreach::gpu::GpuContext::with_adapter(None) {
+                Ok(ctx) => {
+                    let name: String = ctx.info.name.chars().take(24).collect();
+                    let label = format!("gpu ({name})");
+                    let backend = cbfreach::gpu::GpuBackend::new(Arc::new(ctx));
+                    engines.push((label, Box::new(backend), args.peak));
+                }
+                Err(e) => println!("notice: no GPU engine: {e}"),
+            },
+            other => return Err(format!("--backend {other}: expected cpu or gpu").into()),
+        }
+    }
+    println!(
+        "  {:<30} {:<28} {:>7} {:>14} {:>10} {:>8}",
+        "engine", "bounds", "boxes", "box-steps/s", "GFLOP/s", "of peak"
+    );
+    for (label, engine, peak) in &engines {
+        for &method in &args.bounds {
+            let settings = ReachSettings {
+                bounds: method,
+                ..ReachSettings::default()
+            };
+            if label.starts_with("gpu") && !cbfreach::gpu::GpuBackend::supports(&settings) {
+                println!(
+                    "  {label:<30} {:<28} (not on the GPU yet)",
+                    method.to_string()
+                );
+                continue;
+            }
+            for &count in &args.boxes {
+                let boxes = bench_boxes(&s, count);
+                let start = Instant::now();
+                let result = engine.reach(&problem, &boxes, &settings, &|_, _| {})?;
+                let seconds = start.elapsed().as_secs_f64();
+                // Count the box-steps actually run (a tube that leaves C stops).
+                let box_steps: f64 = result
+                    .boxes
+                    .iter()
+                    .map(|t| t.last().map_or(0.0, |l| l.t / problem.dt))
+                    .sum();
+                let rate = box_steps / seconds;
+                let gflops = 2.0 * model_multiply_adds(&widths, method) * rate / 1e9;
+                let share = peak.map_or("-".to_string(), |p| format!("{:.0}%", 100.0 * gflops / p));
+                println!(
+                    "  {label:<30} {:<28} {:>7} {:>14.0} {:>10.1} {:>8}",
+                    method.to_string(),
+                    boxes.len(),
+                    rate,
+                    gflops,
+                    share
+                );
+            }
+        }
+    }
+    println!("  (GFLOP/s by DESIGN §5's model of the network bounds only; GPU times include upload, shader compilation and readback)");
+    Ok(())
+}
