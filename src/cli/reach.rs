@@ -186,12 +186,21 @@ pub fn run(args: &ReachArgs) -> CliResult {
     })?;
     bar.finish_and_clear();
 
+    let margin = match &problem.error_map {
+        Some(map) if args.method == ReachMethod::Disturbance => format!(
+            "M = local bounds of the error map (certified global {})",
+            map.certified_linf
+                .map_or("none".into(), |v| format!("{v:.4}"))
+        ),
+        _ => format!("M_C = {m_c}"),
+    };
     println!(
-        "{}: {} boxes × {} steps, {:?} bounds, {:?} method, M_C = {m_c}, backend {}",
+        "{}: {} boxes × {} steps, {} bounds{}, {:?} method, {margin}, backend {}",
         s.file,
         result.boxes.len(),
         problem.steps,
         args.bounds,
+        if args.face_local { " (face-local)" } else { "" },
         args.method,
         backend.name()
     );
