@@ -259,6 +259,12 @@ pub struct RunInfo {
     pub bounds: String,
     /// `M_C`.
     pub m_c: f64,
+    /// The disturbance came from the local bounds of a certified error map, not from `m_c`.
+    #[serde(default)]
+    pub local_margin: bool,
+    /// Face-local network bounds.
+    #[serde(default)]
+    pub face_local: bool,
     /// Euler step.
     pub dt: f64,
     /// Euler steps.
@@ -625,6 +631,8 @@ impl Verifier<'_> {
                 method: serde_name(&self.reach.method),
                 bounds: self.reach.bounds.name().to_string(),
                 m_c: self.problem.m_c,
+                local_margin: self.problem.error_map.is_some(),
+                face_local: self.reach.face_local,
                 dt: self.problem.dt,
                 steps: self.problem.steps,
                 transformed: self.problem.transform.is_some(),

@@ -184,7 +184,7 @@ pub fn print_summary(r: &VerifyReport) {
     let (b, a) = (r.shares_before(), r.shares_after());
     let refined = r.run.refine_depth > 0;
     println!(
-        "{} ({}): region {:?}…{:?}, grid {:?}{}, {} bounds, {} method, M_C = {}",
+        "{} ({}): region {:?}…{:?}, grid {:?}{}, {} bounds{}, {} method, {}",
         r.run.scenario,
         r.run.scenario_file,
         r.run.region.lower,
@@ -195,8 +195,17 @@ pub fn print_summary(r: &VerifyReport) {
             r.cells[0], r.cells[1]
         )),
         r.run.bounds,
+        if r.run.face_local {
+            " (face-local)"
+        } else {
+            ""
+        },
         r.run.method,
-        r.run.m_c
+        if r.run.local_margin {
+            "M = local bounds of the certified error map".to_string()
+        } else {
+            format!("M_C = {}", r.run.m_c)
+        }
     );
     if refined {
         println!(
