@@ -486,13 +486,13 @@ fn fill_tube(
         status::LEFT_REGION => {
             let (lo, hi, r) = read(&res.state[g * sw..(g + 1) * sw]);
             tube.valid = false;
-            tube.note = Some(format!("t = {t}: the set left the region C"));
+            tube.note = Some(format!("t = {t:.3}: the set left the region C"));
             tube.tube.push(problem.tube_sample(&lo, &hi, r, t));
         }
         status::INVERTED | status::NON_FINITE => {
             tube.valid = false;
             tube.note = Some(format!(
-                "t = {t}: the embedding state became {} (Euler step too large for this system?)",
+                "t = {t:.3}: the embedding state became {} (Euler step too large for this system?)",
                 if st == status::INVERTED {
                     "inverted"
                 } else {

@@ -245,7 +245,7 @@ fn advance(problem: &ReachProblem, state: &mut Live, t: f64, record: bool) {
     if inverted || !finite {
         state.tube.valid = false;
         state.tube.note = Some(format!(
-            "t = {t}: the embedding state became {} (Euler step too large for this system?)",
+            "t = {t:.3}: the embedding state became {} (Euler step too large for this system?)",
             if finite { "inverted" } else { "non-finite" }
         ));
         state.done = true;
@@ -254,7 +254,7 @@ fn advance(problem: &ReachProblem, state: &mut Live, t: f64, record: bool) {
     let sample = problem.tube_sample(&state.lower, &state.upper, state.radius, t);
     if !sample.set.is_subset_of(&problem.region) {
         state.tube.valid = false;
-        state.tube.note = Some(format!("t = {t}: the set left the region C"));
+        state.tube.note = Some(format!("t = {t:.3}: the set left the region C"));
         state.tube.tube.push(sample);
         state.done = true;
     } else if record {
