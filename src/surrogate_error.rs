@@ -787,7 +787,8 @@ impl VForms {
                     return (vec![Interval::point(0.0); m], Some(zero_v()));
                 }
                 let norm2 = sum(a_nat.iter().map(|&aj| aj.sqr()));
-                if !(norm2.lower > 0.0) {
+                // (NaN counts as "maybe zero".)
+                if norm2.lower.is_nan() || norm2.lower <= 0.0 {
                     return (natural, None);
                 }
                 let forms: Vec<CentredForm> =
@@ -1089,7 +1090,7 @@ pub fn certify(
     // Each cell: dropped (None) or (bound, its target).
     let eval = |cells: Vec<IntervalBox>,
                 salt: usize|
-     -> Result<Vec<Option<(f64, f64, IntervalBox)>>, AnalysisError> {
+     -> Result<Vec<Option<CellOutcome>>, AnalysisError> {
         cells
             .into_par_iter()
             .enumerate()
@@ -1204,6 +1205,9 @@ pub fn certify(
         satisfied,
     }))
 }
+
+/// A kept cell's certified bound, its refinement target, and the cell.
+type CellOutcome = (f64, f64, IntervalBox);
 
 /// The certified per-cell error bounds of one network, stored beside it.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

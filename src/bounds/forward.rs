@@ -43,7 +43,6 @@ use super::{
     relu_lines, AffineBounds, AffineBoundsBatch, BoundMethod, BoundsError, OutRow, Relaxation,
 };
 use crate::network::Mlp;
-use rayon::prelude::*;
 
 /// Largest number of boxes propagated together in one GEMM.
 const MAX_GROUP: usize = 128;
@@ -101,20 +100,17 @@ pub(crate) struct Workspace {
 
 /// Forward bounds for a validated batch, into `rows` (one per box).
 pub(crate) fn forward_batch_into(net: &Mlp, lower: &[f64], upper: &[f64], rows: &mut [OutRow<'_>]) {
-    let n0 = net.input_dim();
-    if rows.is_empty() {
-        return;
-    }
-    let threads = rayon::current_num_threads().max(1);
-    let group = rows.len().div_ceil(threads).clamp(1, MAX_GROUP);
     let abs_w = abs_weights(net);
-    rows.par_chunks_mut(group)
-        .zip(lower.par_chunks(group * n0))
-        .zip(upper.par_chunks(group * n0))
-        .for_each_init(Workspace::default, |ws, ((rows, lo), hi)| {
-            forward_group(net, &abs_w, lo, hi, rows, ws, ForwardOptions::default());
-            rows.iter_mut().for_each(|row| row.sanitize());
-        });
+    super::for_each_group(
+        net,
+        lower,
+        upper,
+        rows,
+        MAX_GROUP,
+        |ws: &mut Workspace, lo, hi, rows| {
+            forward_group(net, &abs_w, lo, hi, rows, ws, ForwardOptions::default())
+        },
+    );
 }
 
 /// `|W_k|` of every layer.

@@ -43,7 +43,6 @@ use super::{
     relu_lines, AffineBounds, AffineBoundsBatch, BoundMethod, BoundsError, OutRow, Relaxation,
 };
 use crate::network::Mlp;
-use rayon::prelude::*;
 
 /// Largest number of boxes propagated together.
 const MAX_GROUP: usize = 128;
@@ -101,27 +100,24 @@ pub(crate) fn forward_backward_batch_into(
     relaxation: Relaxation,
     rows: &mut [OutRow<'_>],
 ) {
-    let n0 = net.input_dim();
-    if rows.is_empty() {
-        return;
-    }
-    let threads = rayon::current_num_threads().max(1);
-    let group = rows.len().div_ceil(threads).clamp(1, MAX_GROUP);
     let abs_w = abs_weights(net);
-    rows.par_chunks_mut(group)
-        .zip(lower.par_chunks(group * n0))
-        .zip(upper.par_chunks(group * n0))
-        .for_each_init(Workspace::default, |ws, ((rows, lo), hi)| {
-            let opts = ForwardOptions {
-                record: true,
-                ibp: true,
-            };
+    let opts = ForwardOptions {
+        record: true,
+        ibp: true,
+    };
+    super::for_each_group(
+        net,
+        lower,
+        upper,
+        rows,
+        MAX_GROUP,
+        |ws: &mut Workspace, lo, hi, rows| {
             forward_group(net, &abs_w, lo, hi, rows, &mut ws.fwd, opts);
             if net.layers.len() > 1 {
                 backward_group(net, &abs_w, lo, hi, relaxation, rows, ws);
             }
-            rows.iter_mut().for_each(|row| row.sanitize());
-        });
+        },
+    );
 }
 
 /// One backward pass from the output for every box of the group; `rows` hold forward's output

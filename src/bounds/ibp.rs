@@ -15,7 +15,6 @@ use super::{
     network_bounds_batch_into, AffineBounds, AffineBoundsBatch, BoundMethod, BoundsError, OutRow,
 };
 use crate::network::Mlp;
-use rayon::prelude::*;
 
 /// IBP bounds of `net` over `[lower, upper]` (affine forms with `C = 0`).
 pub fn ibp(net: &Mlp, lower: &[f64], upper: &[f64]) -> Result<AffineBounds, BoundsError> {
@@ -39,24 +38,15 @@ struct Workspace {
 
 /// IBP for a validated batch, into `rows` (one per box): groups of boxes as GEMMs, in parallel.
 pub(crate) fn ibp_batch_into(net: &Mlp, lower: &[f64], upper: &[f64], rows: &mut [OutRow<'_>]) {
-    let n0 = net.input_dim();
-    if rows.is_empty() {
-        return;
-    }
-    let threads = rayon::current_num_threads().max(1);
-    let group = rows.len().div_ceil(threads).clamp(1, MAX_GROUP);
-    let abs_w: Vec<Vec<f64>> = net
-        .layers
-        .iter()
-        .map(|l| l.weight.iter().map(|w| w.abs()).collect())
-        .collect();
-    rows.par_chunks_mut(group)
-        .zip(lower.par_chunks(group * n0))
-        .zip(upper.par_chunks(group * n0))
-        .for_each_init(Workspace::default, |ws, ((rows, lo), hi)| {
-            ibp_group(net, &abs_w, lo, hi, rows, ws);
-            rows.iter_mut().for_each(|row| row.sanitize());
-        });
+    let abs_w = super::forward::abs_weights(net);
+    super::for_each_group(
+        net,
+        lower,
+        upper,
+        rows,
+        MAX_GROUP,
+        |ws: &mut Workspace, lo, hi, rows| ibp_group(net, &abs_w, lo, hi, rows, ws),
+    );
 }
 
 /// Largest number of boxes propagated together in one GEMM.

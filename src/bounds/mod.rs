@@ -394,6 +394,34 @@ pub fn model_multiply_adds(widths: &[usize], method: BoundMethod) -> f64 {
     }
 }
 
+/// Runs `group_fn` on groups of at most `max_group` boxes in parallel (one rayon task per
+/// group, each with its own workspace from `W::default()`), then sanitises every row. Shared by
+/// the GEMM-batched methods (IBP, forward, forward-backward): a group is one set of matrix
+/// products whose columns are boxes.
+pub(crate) fn for_each_group<W: Default + Send>(
+    net: &Mlp,
+    lower: &[f64],
+    upper: &[f64],
+    rows: &mut [OutRow<'_>],
+    max_group: usize,
+    group_fn: impl Fn(&mut W, &[f64], &[f64], &mut [OutRow<'_>]) + Sync + Send,
+) {
+    use rayon::prelude::*;
+    let n0 = net.input_dim();
+    if rows.is_empty() {
+        return;
+    }
+    let threads = rayon::current_num_threads().max(1);
+    let group = rows.len().div_ceil(threads).clamp(1, max_group);
+    rows.par_chunks_mut(group)
+        .zip(lower.par_chunks(group * n0))
+        .zip(upper.par_chunks(group * n0))
+        .for_each_init(W::default, |ws, ((rows, lo), hi)| {
+            group_fn(ws, lo, hi, rows);
+            rows.iter_mut().for_each(|row| row.sanitize());
+        });
+}
+
 /// Bounds of `net` over the box `[lower, upper]` by `method`, validated.
 pub fn network_bounds(
     net: &Mlp,

@@ -62,30 +62,7 @@ impl Mlp {
         &self,
         extra_metadata: &BTreeMap<String, String>,
     ) -> Result<Vec<u8>, NetworkError> {
-        self.validate("<network being saved>")?;
-        let mut tensors: Vec<RawTensor> = Vec::new();
-        for (k, l) in self.layers.iter().enumerate() {
-            tensors.push((
-                format!("{}.weight", 2 * k),
-                Dtype::F64,
-                vec![l.n_out, l.n_in],
-                f64_bytes(&l.weight),
-            ));
-            tensors.push((
-                format!("{}.bias", 2 * k),
-                Dtype::F64,
-                vec![l.n_out],
-                f64_bytes(&l.bias),
-            ));
-        }
-        let mut meta: HashMap<String, String> = extra_metadata
-            .iter()
-            .map(|(k, v)| (k.clone(), v.clone()))
-            .collect();
-        meta.insert("format".into(), FORMAT_NAME.into());
-        meta.insert("architecture".into(), self.architecture());
-        meta.insert("activation".into(), "relu".into());
-        serialize(&tensors, meta, Path::new("<network being saved>"))
+        self.serialize_as(Dtype::F64, extra_metadata)
     }
 
     /// Writes the network to `path` (F64, PyTorch `nn.Sequential` names, see the
@@ -122,20 +99,36 @@ impl Mlp {
                 message: "the weights are not exactly representable in f32: save as F64".into(),
             });
         }
+        let bytes = self.serialize_as(Dtype::F32, extra_metadata)?;
+        write_atomically(path, &bytes)
+    }
+
+    /// The network as safetensors bytes with `dtype` tensors (F64, or F32 when the caller has
+    /// checked that the weights are exactly representable) under PyTorch `nn.Sequential`
+    /// names, and the standard metadata keys over `extra_metadata`.
+    fn serialize_as(
+        &self,
+        dtype: Dtype,
+        extra_metadata: &BTreeMap<String, String>,
+    ) -> Result<Vec<u8>, NetworkError> {
+        self.validate("<network being saved>")?;
+        let bytes = |v: &[f64]| match dtype {
+            Dtype::F32 => f32_bytes(&v.iter().map(|&x| x as f32).collect::<Vec<f32>>()),
+            _ => f64_bytes(v),
+        };
         let mut tensors: Vec<RawTensor> = Vec::new();
-        let f32s = |v: &[f64]| f32_bytes(&v.iter().map(|&x| x as f32).collect::<Vec<f32>>());
         for (k, l) in self.layers.iter().enumerate() {
             tensors.push((
                 format!("{}.weight", 2 * k),
-                Dtype::F32,
+                dtype,
                 vec![l.n_out, l.n_in],
-                f32s(&l.weight),
+                bytes(&l.weight),
             ));
             tensors.push((
                 format!("{}.bias", 2 * k),
-                Dtype::F32,
+                dtype,
                 vec![l.n_out],
-                f32s(&l.bias),
+                bytes(&l.bias),
             ));
         }
         let mut meta: HashMap<String, String> = extra_metadata
@@ -145,8 +138,7 @@ impl Mlp {
         meta.insert("format".into(), FORMAT_NAME.into());
         meta.insert("architecture".into(), self.architecture());
         meta.insert("activation".into(), "relu".into());
-        let bytes = serialize(&tensors, meta, Path::new("<network being saved>"))?;
-        write_atomically(path, &bytes)
+        serialize(&tensors, meta, Path::new("<network being saved>"))
     }
 }
 
