@@ -3,6 +3,7 @@
 
 use std::path::PathBuf;
 
+use cbfreach::bounds::BoundMethod;
 use cbfreach::surrogate_error::{
     certify, error_map_path, looseness, measure, ErrorMap, ErrorSettings, Looseness, Percentiles,
 };
@@ -40,6 +41,9 @@ pub struct ErrorArgs {
     /// Looseness: at most this many 0.1-wide boxes across C ∩ S (0 skips the looseness).
     #[arg(long, default_value_t = 300)]
     pub looseness_boxes: usize,
+    /// How the network is bounded on a cell where IBP is not tight enough.
+    #[arg(long, value_enum, default_value_t = BoundMethod::ForwardBackward)]
+    pub cell_bounds: BoundMethod,
     /// Do not write the error map beside the network.
     #[arg(long)]
     pub no_map: bool,
@@ -81,6 +85,7 @@ pub fn run(args: &ErrorArgs) -> CliResult {
         local_ratio: args.local_ratio,
         floor: args.floor,
         max_cells: args.max_cells,
+        cell_bounds: args.cell_bounds,
         ..ErrorSettings::default()
     };
 
