@@ -9,11 +9,15 @@ use cbfreach::equilibria::{find_equilibria, Equilibrium, EquilibriumSearch};
 use cbfreach::filter::SafetyFilter;
 use cbfreach::plot::{self, Figure};
 use cbfreach::reach::ReachMethod;
+use cbfreach::reach::Tube;
 use cbfreach::scenario::Scenario;
-use cbfreach::verify::{judge, traps_from_equilibria, Verdict};
+use cbfreach::surrogate_error::ErrorMap;
+use cbfreach::verify::{judge, traps_from_equilibria, Trap, Verdict};
 
 use super::equilibria::print_table;
-use super::plot::{box_trajectories, figure_points, reach_initial, trajectories, tubes_title};
+use super::plot::{
+    box_trajectories, figure_points, reach_initial, trajectories, tubes_title, tubes_title_local,
+};
 use super::reach::{compile, network_path, ProblemArgs};
 use super::{fmt_point, CliResult};
 
@@ -29,19 +33,31 @@ pub struct PaperArgs {
     /// Network of scenario 2 (default: the scenario's).
     #[arg(long)]
     pub network_2: Option<PathBuf>,
-    /// How the network is bounded over each box.
-    #[arg(long, value_enum, default_value_t = BoundMethod::Crown)]
+    /// How the network is bounded for the sound verdicts (on each face of a box: immrax's
+    /// `local` mode).
+    #[arg(long, value_enum, default_value_t = BoundMethod::ForwardBackward)]
     pub bounds: BoundMethod,
+    /// Bound methods whose run times are set next to the paper's (comma-separated).
+    #[arg(
+        long,
+        value_enum,
+        value_delimiter = ',',
+        default_value = "forward,forward-backward"
+    )]
+    pub timed: Vec<BoundMethod>,
 }
 
-/// The paper's times: the embedding for every initial box, and the closeness radius.
+/// The paper's times (the embedding for every initial box, and the closeness radius) and ours:
+/// the paper's construction per timed bound method, and the sound verdicts' run.
 struct PaperTimes {
     name: String,
     boxes: usize,
+    steps: usize,
     paper: (f64, f64),
-    minkowski_embedding_s: f64,
-    minkowski_radius_s: f64,
-    disturbance_s: f64,
+    /// `(bounds, embedding s, radius s)` of the Minkowski method.
+    minkowski: Vec<(BoundMethod, f64, f64)>,
+    /// The sound run: its settings in words and its time.
+    sound: (String, f64),
 }
 
 /// Where a scenario of the paper lives: `scenarios/<file>` from the working folder, else the
@@ -71,7 +87,8 @@ pub fn run(args: &PaperArgs) -> CliResult {
     {
         println!("══ Scenario {} ══", k + 1);
         let s = Scenario::load(&scenario_path(file))?;
-        if let Some(t) = run_scenario(&s, net.as_ref(), &args.out, args.bounds, paper)? {
+        if let Some(t) = run_scenario(&s, net.as_ref(), &args.out, args.bounds, &args.timed, paper)?
+        {
             times.push(t);
         }
         println!();
@@ -99,7 +116,15 @@ pub fn run_default() -> CliResult {
         s.name, s.file
     );
     println!("  {}\n", s.description.replace('\n', "\n  "));
-    let times = run_scenario(&s, None, &out, BoundMethod::Crown, (2.15, 0.02))?;
+    let timed = [BoundMethod::Forward, BoundMethod::ForwardBackward];
+    let times = run_scenario(
+        &s,
+        None,
+        &out,
+        BoundMethod::ForwardBackward,
+        &timed,
+        (2.15, 0.02),
+    )?;
     if let Some(t) = times {
         println!();
         print_times(&[t]);
@@ -121,6 +146,7 @@ fn run_scenario(
     network: Option<&PathBuf>,
     out: &Path,
     bounds: BoundMethod,
+    timed: &[BoundMethod],
     paper: (f64, f64),
 ) -> Result<Option<PaperTimes>, Box<dyn std::error::Error>> {
     let filter = SafetyFilter::new(s);
@@ -154,22 +180,36 @@ fn run_scenario(
         );
         return Ok(None);
     }
+    // The sound run: the disturbance method, with the certified local bounds of the error map
+    // when the network has one (else the scenario's M_C), face-local bounds.
+    let local = ErrorMap::load_for(&net_path).is_ok();
     let problem = compile(
         s,
         &ProblemArgs {
             network: network.cloned(),
+            local_margin: local,
             ..ProblemArgs::default()
         },
     )?;
+    let margin = if local {
+        "certified local M of the error map".to_string()
+    } else {
+        format!("M_C = {} (no error map: run `cbfreach error`)", problem.m_c)
+    };
     let every = 10;
-    let dist = reach_initial(s, &problem, bounds, ReachMethod::Disturbance, 1)?;
+    let dist = reach_initial(s, &problem, bounds, ReachMethod::Disturbance, 1, true)?;
     let path = fig("tubes");
+    let title = if local {
+        tubes_title_local(s, every)
+    } else {
+        tubes_title(s, problem.m_c, every)
+    };
     plot::save(
         &Figure::Tubes {
             scenario: s,
             tubes: &dist.boxes,
             every,
-            title: tubes_title(s, problem.m_c, every),
+            title,
         },
         &path,
         size,
@@ -178,13 +218,67 @@ fn run_scenario(
     let half: Vec<f64> = s.reach.goal.widths().iter().map(|w| 0.5 * w).collect();
     let traps = traps_from_equilibria(&found, &half);
     println!(
-        "Verdicts of the {} initial boxes (disturbance method, {bounds} bounds, M_C = {}):",
+        "Sound verdicts of the {} initial boxes (disturbance method, {bounds} bounds on faces, {margin}):",
         s.reach.initial.len(),
-        problem.m_c
     );
+    print_verdicts(s, &traps, &dist.boxes);
+
+    // The paper's construction (Theorem 2) with the scenario's M_C, timed per bound method.
+    let paper_problem = compile(
+        s,
+        &ProblemArgs {
+            network: network.cloned(),
+            ..ProblemArgs::default()
+        },
+    )?;
+    let mut minkowski = Vec::new();
+    let mut figure3 = None;
+    for &method in timed {
+        let mink = reach_initial(s, &paper_problem, method, ReachMethod::Minkowski, 1, false)?;
+        minkowski.push((method, mink.timing.reach_s, mink.timing.minkowski_s));
+        figure3.get_or_insert(mink);
+    }
+    if let Some(mink) = figure3 {
+        let lines = box_trajectories(s, &s.reach.initial, 8);
+        let path = fig("minkowski");
+        plot::save(
+            &Figure::Minkowski {
+                scenario: s,
+                tubes: &mink.boxes,
+                trajectories: &lines,
+                every,
+            },
+            &path,
+            size,
+        )?;
+        println!(
+            "Figure 3 (the paper's sets with and without the closeness radius, M_C = {}): {}",
+            paper_problem.m_c,
+            path.display()
+        );
+        let escapes = count_escapes(&mink.boxes, &lines, s.reach.initial.len(), 8);
+        if escapes > 0 {
+            println!(
+                "  note: {escapes} sampled filtered states lie outside the Minkowski sets (DESIGN §2.6: \
+                 the paper's method is not sound in general)"
+            );
+        }
+    }
+    Ok(Some(PaperTimes {
+        name: s.name.clone(),
+        boxes: s.reach.initial.len(),
+        steps: problem.steps,
+        paper,
+        minkowski,
+        sound: (format!("{bounds}, faces"), dist.timing.reach_s),
+    }))
+}
+
+/// One line per initial box: its verdict and final set, then the tally.
+fn print_verdicts(s: &Scenario, traps: &[Trap], tubes: &[Tube]) {
     let mut counts = std::collections::BTreeMap::<Verdict, usize>::new();
-    for tube in &dist.boxes {
-        let (v, _, note) = judge(s, &traps, tube);
+    for tube in tubes {
+        let (v, _, note) = judge(s, traps, tube);
         *counts.entry(v).or_default() += 1;
         let set = tube.last().map(|l| l.set.clone());
         println!(
@@ -205,39 +299,6 @@ fn run_scenario(
     }
     let tally: Vec<String> = counts.iter().map(|(v, c)| format!("{c} {v}")).collect();
     println!("  → {}", tally.join(", "));
-
-    let mink = reach_initial(s, &problem, bounds, ReachMethod::Minkowski, 1)?;
-    let lines = box_trajectories(s, &s.reach.initial, 8);
-    let path = fig("minkowski");
-    plot::save(
-        &Figure::Minkowski {
-            scenario: s,
-            tubes: &mink.boxes,
-            trajectories: &lines,
-            every,
-        },
-        &path,
-        size,
-    )?;
-    println!(
-        "Figure 3 (with and without the closeness radius): {}",
-        path.display()
-    );
-    let escapes = count_escapes(&mink.boxes, &lines, s.reach.initial.len(), 8);
-    if escapes > 0 {
-        println!(
-            "  note: {escapes} sampled filtered states lie outside the Minkowski sets (DESIGN §2.6: \
-             the paper's method is not sound in general)"
-        );
-    }
-    Ok(Some(PaperTimes {
-        name: s.name.clone(),
-        boxes: s.reach.initial.len(),
-        paper,
-        minkowski_embedding_s: mink.timing.reach_s,
-        minkowski_radius_s: mink.timing.minkowski_s,
-        disturbance_s: dist.timing.reach_s,
-    }))
 }
 
 /// Sampled filtered states outside their box's Minkowski set at the recorded times.
@@ -280,29 +341,45 @@ fn print_times(times: &[PaperTimes]) {
         println!("No times to compare: no network was available.");
         return;
     }
-    println!("Times (this machine, CPU backend) next to the paper's:");
+    println!("Times (this machine, CPU backend, network bounds included) next to the paper's:");
     println!(
-        "  {:<20} {:>6}  {:>28}  {:>26}  {:>16}",
-        "scenario",
-        "boxes",
-        "embedding: paper / cbfreach",
-        "radius r_t: paper / ours",
-        "disturbance"
+        "  {:<18} {:>5} {:>6}  {:<32} {:>10} {:>10} {:>12} {:>10}",
+        "scenario", "boxes", "steps", "run", "embedding", "radius", "box-steps/s", "vs paper"
     );
     for t in times {
+        let box_steps = (t.boxes * t.steps) as f64;
         println!(
-            "  {:<20} {:>6}  {:>12.2} s / {:>8.3} s  {:>11.3} s / {:>8.4} s  {:>14.3} s",
-            t.name,
-            t.boxes,
-            t.paper.0,
-            t.minkowski_embedding_s,
-            t.paper.1,
-            t.minkowski_radius_s,
-            t.disturbance_s
+            "  {:<18} {:>5} {:>6}  {:<32} {:>8.2} s {:>8.3} s {:>12} {:>10}",
+            t.name, t.boxes, t.steps, "paper (Theorem 2)", t.paper.0, t.paper.1, "", ""
+        );
+        for &(method, emb, radius) in &t.minkowski {
+            println!(
+                "  {:<18} {:>5} {:>6}  {:<32} {:>8.3} s {:>8.4} s {:>12.0} {:>9.1}×",
+                "",
+                "",
+                "",
+                format!("Theorem 2, {method}"),
+                emb,
+                radius,
+                box_steps / emb.max(1e-9),
+                t.paper.0 / emb.max(1e-9)
+            );
+        }
+        println!(
+            "  {:<18} {:>5} {:>6}  {:<32} {:>8.3} s {:>10} {:>12.0} {:>10}",
+            "",
+            "",
+            "",
+            format!("sound ({})", t.sound.0),
+            t.sound.1,
+            "",
+            box_steps / t.sound.1.max(1e-9),
+            ""
         );
     }
     println!(
-        "  (embedding: the Minkowski method's NN-system tubes, all boxes, network bounds included; \
-         radius: the closeness radius; disturbance: the sound default method's tubes)"
+        "  (embedding: the NN-system tubes of every initial box; radius: the closeness radius r_t; \
+         sound: the disturbance method's tubes behind the verdicts; × = the paper's embedding time \
+         over ours)"
     );
 }

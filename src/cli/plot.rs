@@ -108,13 +108,14 @@ pub fn reach_initial(
     bounds: BoundMethod,
     method: ReachMethod,
     every: usize,
+    face_local: bool,
 ) -> Result<ReachResult, Box<dyn std::error::Error>> {
     let engine = CpuBackend;
     let settings = ReachSettings {
         bounds,
         method,
         every,
-        face_local: false,
+        face_local,
     };
     let bar = progress_bar(problem.steps as u64, "Euler steps");
     let r = engine.reach(problem, &s.reach.initial, &settings, &|d, _| {
@@ -157,7 +158,7 @@ pub fn run(args: &PlotArgs) -> CliResult {
             } else {
                 ReachMethod::Minkowski
             };
-            let r = reach_initial(&s, &problem, args.bounds, method, args.every.max(1))?;
+            let r = reach_initial(&s, &problem, args.bounds, method, args.every.max(1), false)?;
             if method == ReachMethod::Disturbance {
                 plot::save(
                     &Figure::Tubes {
@@ -208,6 +209,14 @@ pub fn run(args: &PlotArgs) -> CliResult {
 pub fn tubes_title(s: &Scenario, m_c: f64, every: usize) -> String {
     format!(
         "`{}`: reachable sets of the filtered system (M_C = {m_c}), every {every} steps",
+        s.name
+    )
+}
+
+/// [`tubes_title`] for sets widened by the error map's local bounds.
+pub fn tubes_title_local(s: &Scenario, every: usize) -> String {
+    format!(
+        "`{}`: reachable sets of the filtered system (certified local M), every {every} steps",
         s.name
     )
 }
