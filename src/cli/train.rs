@@ -47,6 +47,10 @@ pub struct TrainArgs {
     /// Weight λ of the Jacobian term λ‖DN − Dv‖² (0 disables).
     #[arg(long, default_value_t = 0.1)]
     pub jacobian_weight: f64,
+    /// Leave samples whose target slope |∂vᵢ/∂xⱼ| exceeds this out of the Jacobian term (where
+    /// v jumps, e.g. scenario 2 at (1, 0) and (3, 0), finite-difference slopes are ~1/step).
+    #[arg(long)]
+    pub jacobian_cap: Option<f64>,
     /// Seed of the initial weights and the shuffles.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -242,6 +246,7 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
         batch_size: args.batch_size,
         learning_rate: args.lr,
         jacobian_weight: args.jacobian_weight,
+        jacobian_cap: args.jacobian_cap,
         seed: args.seed,
         ibp_weight: args.ibp_weight,
         ibp_radius: args.ibp_radius.clone(),

@@ -224,6 +224,11 @@ pub struct TrainSettings {
     pub lr_schedule: LrSchedule,
     /// `λ` of the Sobolev term `λ‖DN − Dv‖²` (default 0; needs [`Dataset::jacobians`]).
     pub jacobian_weight: f64,
+    /// Leave a sample out of the Sobolev term when some `|∂vᵢ/∂xⱼ|` of its target exceeds this
+    /// (default none): where `v` jumps (scenario 2 at the obstacle's ends, where `L_g h = 0`)
+    /// the central-difference targets are of order 1/step, and a few such samples would
+    /// otherwise dominate the loss.
+    pub jacobian_cap: Option<f64>,
     /// Fraction of the samples, those of largest loss in the previous epoch, visited a second
     /// time in each late epoch (default 0.1; 0 disables).
     pub hard_example_fraction: f64,
@@ -268,6 +273,7 @@ impl Default for TrainSettings {
             lr_min: 1e-5,
             lr_schedule: LrSchedule::Cosine,
             jacobian_weight: 0.0,
+            jacobian_cap: None,
             hard_example_fraction: 0.1,
             hard_example_start: 0.5,
             seed: 0,
@@ -310,6 +316,11 @@ impl TrainSettings {
                 return bad(format!(
                     "step schedule needs every ≥ 1 and factor in (0, 1], got {every} and {factor}"
                 ));
+            }
+        }
+        if let Some(cap) = self.jacobian_cap {
+            if !pos(cap) {
+                return bad(format!("jacobian_cap = {cap} must be > 0"));
             }
         }
         if !(self.jacobian_weight.is_finite() && self.jacobian_weight >= 0.0) {
@@ -635,7 +646,7 @@ pub fn pointwise_errors(mlp: &Mlp, data: &Dataset) -> Result<PointErrors, Networ
         ws.load_inputs(data.n_in, chunk.len(), tangents, |i| data.input(chunk[i]));
         ws.forward(&params);
         for (i, &s) in chunk.iter().enumerate() {
-            let e = sample_errors(&ws, data, i, s);
+            let e = sample_errors(&ws, data, i, s, None);
             out.value[s] = e.value;
             out.value_l2[s] = e.value_sq.sqrt();
             if let Some(sl) = &mut out.slope {
@@ -708,7 +719,22 @@ struct SampleErrors {
     slope_sq: f64,
 }
 
-fn sample_errors<T: Scalar>(ws: &Workspace<T>, data: &Dataset, i: usize, s: usize) -> SampleErrors {
+/// Sample `s`'s Jacobian target `Dv` (`m × n`, row-major), unless the data has none or one of
+/// its entries is not finite or exceeds `cap` ([`TrainSettings::jacobian_cap`]).
+fn slope_target(data: &Dataset, s: usize, cap: Option<f64>) -> Option<&[f64]> {
+    let k = data.n_out * data.n_in;
+    let dv = &data.jacobians.as_ref()?[s * k..(s + 1) * k];
+    let cap = cap.unwrap_or(f64::INFINITY);
+    dv.iter().all(|d| d.abs() <= cap).then_some(dv)
+}
+
+fn sample_errors<T: Scalar>(
+    ws: &Workspace<T>,
+    data: &Dataset,
+    i: usize,
+    s: usize,
+    cap: Option<f64>,
+) -> SampleErrors {
     let (n, m, b) = (data.n_in, data.n_out, ws.b);
     let mut e = SampleErrors {
         value: 0.0,
@@ -722,8 +748,7 @@ fn sample_errors<T: Scalar>(ws: &Workspace<T>, data: &Dataset, i: usize, s: usiz
         e.value_sq += d * d;
     }
     if ws.r > 1 {
-        if let Some(jac) = &data.jacobians {
-            let dv = &jac[s * m * n..(s + 1) * m * n];
+        if let Some(dv) = slope_target(data, s, cap) {
             for j in 0..n {
                 for o in 0..m {
                     let d = ws.out[((j + 1) * b + i) * m + o].to_f64() - dv[o * n + j];
@@ -1011,8 +1036,7 @@ fn run<T: Scalar>(
                     ws.g[i * n_out + o] = T::from_f64(c * d);
                 }
                 if r > 1 {
-                    if let Some(jac) = &data.jacobians {
-                        let dv = &jac[s * n_out * n_in..(s + 1) * n_out * n_in];
+                    if let Some(dv) = slope_target(data, s, settings.jacobian_cap) {
                         for j in 0..n_in {
                             for o in 0..n_out {
                                 let row = ((j + 1) * b + i) * n_out + o;
@@ -1022,7 +1046,7 @@ fn run<T: Scalar>(
                         }
                     }
                 }
-                let se = sample_errors(&ws, data, i, s);
+                let se = sample_errors(&ws, data, i, s, settings.jacobian_cap);
                 let l = w * (se.value_sq + lambda * se.slope_sq);
                 loss_sum += l;
                 st.score[s] = l;
@@ -1198,6 +1222,39 @@ mod tests {
         assert!(rep.final_errors.max_error < 0.03, "{:?}", rep.final_errors);
         assert!(rep.final_errors.mean_error < 0.01, "{:?}", rep.final_errors);
         assert!(rep.epochs[999].loss < rep.epochs[0].loss / 100.0);
+    }
+
+    #[test]
+    fn capped_slope_targets_leave_the_sobolev_term() {
+        // A few samples with absurd slope targets, as at a jump of `v`: with the cap, what the
+        // targets are no longer matters (bit-identical weights for two different absurd values),
+        // and training matches the smooth data's slope; without it, they wreck the fit.
+        let spoil = |value: f64| {
+            let mut d = smooth_data(21);
+            if let Some(jac) = &mut d.jacobians {
+                for s in [40, 200, 330] {
+                    jac[4 * s] = value;
+                }
+            }
+            d
+        };
+        let init = Mlp::random(&[2, 16, 16, 2], 3);
+        let capped = TrainSettings {
+            jacobian_cap: Some(50.0),
+            ..quick(60, 0.1)
+        };
+        let (a, _) = train(init.clone(), &spoil(1e4), &capped, |_| {}).unwrap();
+        let (b, _) = train(init.clone(), &spoil(-3e5), &capped, |_| {}).unwrap();
+        assert_eq!(a, b, "capped targets still steer the training");
+        let (c, _) = train(init, &spoil(1e4), &quick(60, 0.1), |_| {}).unwrap();
+        let (ea, ec) = (max_slope_error(&a), max_slope_error(&c));
+        assert!(ea < 0.5 * ec, "capped {ea} vs uncapped {ec}");
+        assert!(TrainSettings {
+            jacobian_cap: Some(0.0),
+            ..quick(1, 0.1)
+        }
+        .validate()
+        .is_err());
     }
 
     #[test]
