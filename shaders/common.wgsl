@@ -1,71 +1,51 @@
-// Shared by every cbfreach kernel: outward rounding in f32 and interval arithmetic.
+// Shared by every cbfreach kernel: outward rounding and interval arithmetic in `real` (f32, or
+// f64 with --f64: the precision prelude real_f32.wgsl / real_f64.wgsl comes first).
 //
-// Error model (DESIGN §3, written out in src/gpu/mod.rs): WGSL/Vulkan round f32 `+ − ×` either
+// Error model (DESIGN §3, written out in src/gpu/mod.rs): WGSL/Vulkan round `+ − ×` either
 // to nearest or towards zero, so a computed result is within one ulp of the exact one; `up(x)` /
-// `down(x)` step one ulp outward through the bit pattern, so `up(fl(a ∘ b)) ≥ a ∘ b` and
+// `down(x)` (the prelude's) step outward, so `up(fl(a ∘ b)) ≥ a ∘ b` and
 // `down(fl(a ∘ b)) ≤ a ∘ b` for every single operation. Subnormals may be flushed to zero, so
 // the step from 0 (or from a subnormal) is to the smallest normal number. Division is 2.5 ulp
 // accurate: three steps. Infinities and NaN are not reliable in WGSL: every magnitude is checked
 // against BIG instead, and a box whose numbers exceed it is poisoned (reported invalid).
 
-const BIG: f32 = 1.0e30;
-const HUGE: f32 = 3.0e38;
-const MIN_NORMAL: f32 = 1.17549435e-38;
+const BIG: real = 1.0e30;
 
-fn up(x: f32) -> f32 {
-    if (abs(x) < MIN_NORMAL) {
-        return MIN_NORMAL;
-    }
-    let b = bitcast<u32>(x);
-    if (x > 0.0) {
-        return bitcast<f32>(b + 1u);
-    }
-    return bitcast<f32>(b - 1u);
-}
-
-fn down(x: f32) -> f32 {
+fn down(x: real) -> real {
     return -up(-x);
 }
 
-fn up3(x: f32) -> f32 {
+fn up3(x: real) -> real {
     return up(up(up(x)));
 }
 
-fn down3(x: f32) -> f32 {
+fn down3(x: real) -> real {
     return down(down(down(x)));
 }
 
-// `x` widened by `k` ulps of relative error (k·2⁻²³·|x|) and one more step, upward.
-fn up_rel(x: f32, k: f32) -> f32 {
-    return up(up(x + up(abs(x) * k * 1.1920929e-7)));
-}
-
-fn down_rel(x: f32, k: f32) -> f32 {
-    return -up_rel(-x, k);
-}
-
-fn finite(x: f32) -> bool {
+fn finite(x: real) -> bool {
     return abs(x) <= BIG;
 }
 
 // Rigorous bound on the rounding error of a computed sum of `n` products (each of at most three
 // floats, two roundings, f64 weights rounded to f32 counting as one), whose computed magnitude
-// sum is `mag`: γ̂_n·mag + n·scale·ABS_UNIT, with γ̂_n = (n+3)·2⁻²¹ ≥ 2γ_{n+3} for u = 2⁻²³
-// (one ulp: round-to-nearest or towards zero) and n ≤ 2¹⁸, and ABS_UNIT = (1 + max|W|)·2⁻¹²⁰
-// covering flushed subnormal operands and results (each at most 2⁻¹²⁶ times the other factor).
-fn err_bound(n: u32, mag: f32, scale: f32) -> f32 {
-    let g = f32(n + 3u) * 4.76837158e-7;
+// sum is `mag`: γ̂_n·mag + n·scale·ABS_UNIT, with γ̂_n = (n+3)·GAMMA_UNIT ≥ 2γ_{n+3} for the
+// prelude's u (one ulp: round-to-nearest or towards zero) and n ≤ 2¹⁸, and
+// ABS_UNIT = (1 + max|W|)·64·MIN_NORMAL covering flushed subnormal operands and results (each
+// at most MIN_NORMAL times the other factor).
+fn err_bound(n: u32, mag: real, scale: real) -> real {
+    let g = real(n + 3u) * GAMMA_UNIT;
     let rel = up(g * mag);
-    let a = up(up(f32(n) * scale) * ABS_UNIT);
+    let a = up(up(real(n) * scale) * ABS_UNIT);
     return up(rel + a);
 }
 
 struct Iv {
-    lo: f32,
-    hi: f32,
+    lo: real,
+    hi: real,
 }
 
-fn iv_point(x: f32) -> Iv {
+fn iv_point(x: real) -> Iv {
     return Iv(x, x);
 }
 
@@ -93,7 +73,7 @@ fn iv_mul(a: Iv, b: Iv) -> Iv {
     return Iv(down(min(min(p1, p2), min(p3, p4))), up(max(max(p1, p2), max(p3, p4))));
 }
 
-fn iv_mag(a: Iv) -> f32 {
+fn iv_mag(a: Iv) -> real {
     return max(abs(a.lo), abs(a.hi));
 }
 
@@ -113,16 +93,16 @@ fn iv_div(a: Iv, b: Iv) -> Iv {
 }
 
 // x^n for x ≥ 0, rounded down / up (every product of non-negative numbers is monotone).
-fn pow_down(x: f32, n: u32) -> f32 {
-    var r = 1.0;
+fn pow_down(x: real, n: u32) -> real {
+    var r: real = 1.0;
     for (var i = 0u; i < n; i++) {
         r = max(down(r * x), 0.0);
     }
     return r;
 }
 
-fn pow_up(x: f32, n: u32) -> f32 {
-    var r = 1.0;
+fn pow_up(x: real, n: u32) -> real {
+    var r: real = 1.0;
     for (var i = 0u; i < n; i++) {
         r = up(r * x);
     }
@@ -142,8 +122,8 @@ fn iv_pow(a: Iv, n: i32) -> Iv {
         }
         p = Iv(pow_down(mig, m), pow_up(iv_mag(a), m));
     } else {
-        var lo: f32;
-        var hi: f32;
+        var lo: real;
+        var hi: real;
         if (a.lo >= 0.0) {
             lo = pow_down(a.lo, m);
         } else {
@@ -162,30 +142,41 @@ fn iv_pow(a: Iv, n: i32) -> Iv {
     return iv_div(iv_point(1.0), p);
 }
 
+// Transcendental built-ins are evaluated in f32 (both precisions: see to32_up in the f64
+// prelude) at arguments on the safe side of a monotone function, and widened by the WGSL
+// accuracy table; the f32 result converts exactly to `real`.
+
 // sqrt: WGSL's accuracy is inherited from 1/inverseSqrt (2 + 2.5 ulp); widened by 8 ulp.
 fn iv_sqrt(a: Iv) -> Iv {
     if (a.hi < 0.0) {
         return iv_entire();
     }
-    return Iv(max(down_rel(sqrt(max(a.lo, 0.0)), 8.0), 0.0), up_rel(sqrt(a.hi), 8.0));
+    var hi = HUGE;
+    if (a.hi <= 1.0e37) {
+        hi = from32(up_rel32(sqrt(to32_up(a.hi)), 8.0));
+    }
+    let lo = max(down_rel32(sqrt(max(to32_down(max(a.lo, 0.0)), 0.0)), 8.0), 0.0);
+    return Iv(from32(lo), hi);
 }
 
 // exp: 3 + 2|x| ulp accurate (WGSL); widened by 4 + 2|x| ulp.
-fn exp_down(x: f32) -> f32 {
+fn exp_down(x: real) -> real {
     if (x < -80.0) {
         return 0.0;
     }
-    return max(down_rel(exp(x), 4.0 + 2.0 * abs(x)), 0.0);
+    let xf = to32_down(x);
+    return from32(max(down_rel32(exp(xf), 4.0 + 2.0 * abs(xf)), 0.0));
 }
 
-fn exp_up(x: f32) -> f32 {
+fn exp_up(x: real) -> real {
     if (x > 80.0) {
         return HUGE;
     }
     if (x < -80.0) {
         return 1.0e-30;
     }
-    return up_rel(exp(x), 4.0 + 2.0 * abs(x));
+    let xf = to32_up(x);
+    return from32(up_rel32(exp(xf), 4.0 + 2.0 * abs(xf)));
 }
 
 fn iv_exp(a: Iv) -> Iv {
@@ -193,20 +184,24 @@ fn iv_exp(a: Iv) -> Iv {
 }
 
 // ln: absolute error 2⁻²¹ on [0.5, 2], 3 ulp elsewhere (WGSL); widened by both.
-fn ln_down(x: f32) -> f32 {
-    if (x <= 0.0) {
+fn ln_down(x: real) -> real {
+    let xf = to32_down(x);
+    if (xf <= 0.0) {
         return -HUGE;
     }
-    let v = log(x);
-    return down_rel(down(v - 9.5367431640625e-7), 4.0);
+    let v = log(xf);
+    return from32(down_rel32(down32(v - 9.5367431640625e-7), 4.0));
 }
 
-fn ln_up(x: f32) -> f32 {
+fn ln_up(x: real) -> real {
     if (x <= 0.0) {
         return -HUGE;
     }
-    let v = log(x);
-    return up_rel(up(v + 9.5367431640625e-7), 4.0);
+    if (x > 1.0e37) {
+        return HUGE;
+    }
+    let v = log(to32_up(x));
+    return from32(up_rel32(up32(v + 9.5367431640625e-7), 4.0));
 }
 
 fn iv_ln(a: Iv) -> Iv {
@@ -216,21 +211,32 @@ fn iv_ln(a: Iv) -> Iv {
     return Iv(ln_down(a.lo), ln_up(a.hi));
 }
 
-// sin, cos: WGSL promises an absolute error of 2⁻¹¹ on [−π, π] only. Mean-value enclosure
-// around the (computed) centre m with radius r ≥ max(hi − m, m − lo): f(m) ± (r + 2⁻¹¹·1.01),
-// and [−1, 1] when |m| > 3 or r ≥ 1.
+// sin, cos over [lo, hi] ⊆ [−3, 3] ⊂ (−π, π) (else [−1, 1]): the range of the values at the ends
+// (the prelude's `trig`, within TRIG_ERR: WGSL's built-ins in f32, a polynomial in f64), and the
+// extrema inside: sin's ±1 at ±π/2, cos's 1 at 0 (π/2 ∈ [1.5707963, 1.5707964]).
 fn iv_trig(a: Iv, is_cos: bool) -> Iv {
-    let m = a.lo + 0.5 * (a.hi - a.lo);
-    let r = up(max(up(a.hi - m), up(m - a.lo)));
-    if (!(abs(m) <= 3.0) || !(r < 1.0)) {
+    if (!(a.lo >= -3.0 && a.hi <= 3.0)) {
         return Iv(-1.0, 1.0);
     }
-    var v = sin(m);
+    let fl = trig(a.lo, is_cos);
+    let fh = trig(a.hi, is_cos);
+    var lo = down(min(fl, fh) - TRIG_ERR);
+    var hi = up(max(fl, fh) + TRIG_ERR);
+    let half_pi_lo: real = 1.5707963;
+    let half_pi_hi: real = 1.5707964;
     if (is_cos) {
-        v = cos(m);
+        if (a.lo <= 0.0 && 0.0 <= a.hi) {
+            hi = 1.0;
+        }
+    } else {
+        if (a.lo <= half_pi_hi && half_pi_lo <= a.hi) {
+            hi = 1.0;
+        }
+        if (a.lo <= -half_pi_lo && -half_pi_hi <= a.hi) {
+            lo = -1.0;
+        }
     }
-    let e = up(r + 4.9e-4);
-    return Iv(max(down(v - e), -1.0), min(up(v + e), 1.0));
+    return Iv(max(lo, -1.0), min(hi, 1.0));
 }
 
 // tanh(x) = 1 − 2/(e^{2x} + 1), in interval arithmetic on exp's enclosure; clamped to [−1, 1].

@@ -1,25 +1,19 @@
-// One Euler step of the embedding system per box (src/reach/embedding.rs is the f64 original):
-// finishes the network's output layer into C̲x + d̲ ≤ N(x) ≤ C̄x + d̄ and N̲ ≤ N ≤ N̄ over the box,
+// One Euler step of the embedding system per box (src/reach/embedding.rs is the original):
+// from the network's bounds C̲x + d̲ ≤ N(x) ≤ C̄x + d̄ and N̲ ≤ N ≤ N̄ over the box (output.wgsl),
 // bounds the embedding field on each face in interval arithmetic (generated ft_iv, jac_iv, g_iv),
 // advances the closeness radius (Minkowski), takes the Euler step, checks the set against C and
 // writes the recorded snapshot. `tick` then advances the step counter.
 
-// Params of the output layer.
+// Params (boxes).
 @group(0) @binding(0) var<uniform> p: Params;
-// Every layer's W and b, f32.
-@group(0) @binding(1) var<storage, read> net: array<f32>;
 // Per box lo[N0], hi[N0], radius (embedding coordinates).
-@group(0) @binding(2) var<storage, read_write> state: array<f32>;
-// Output layer's W·Ĉ, M_OUT × boxes·KC.
-@group(0) @binding(3) var<storage, read> cf: array<f32>;
-// Output layer's |W|·R̂.
-@group(0) @binding(4) var<storage, read> rf: array<f32>;
-// Output layer's |W|·V, M_OUT × boxes.
-@group(0) @binding(5) var<storage, read> vg: array<f32>;
+@group(0) @binding(1) var<storage, read_write> state: array<real>;
+// The network's bounds over each box (shaders/output.wgsl).
+@group(0) @binding(2) var<storage, read> nnb: array<real>;
 // Per box [poisoned, status, stop step], then the step counter.
-@group(0) @binding(6) var<storage, read_write> flags: array<atomic<u32>>;
-// Recorded states: slot-major, SW floats per box.
-@group(0) @binding(7) var<storage, read_write> snap: array<f32>;
+@group(0) @binding(3) var<storage, read_write> flags: array<atomic<u32>>;
+// Recorded states: slot-major, SW reals per box.
+@group(0) @binding(4) var<storage, read_write> snap: array<real>;
 
 const LIVE: u32 = 0u;
 const LEFT_REGION: u32 = 1u;
@@ -32,7 +26,7 @@ fn stop(g: u32, status: u32, step: u32) {
 }
 
 // φ(z) = (eᶻ − 1)/z ≤ phi_up(z): Taylor with a remainder bound for |z| ≤ 1/2, else from exp.
-fn phi_up(z: f32) -> f32 {
+fn phi_up(z: real) -> real {
     if (abs(z) <= 0.5) {
         let z2 = up(z * z);
         let s = up(up(1.0 + 0.5 * z) + up3(z2 / 6.0));
@@ -63,9 +57,8 @@ fn embed(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let step = atomicLoad(&flags[3u * p.boxes]);
-    let bx = box_info(g);
-    var lo: array<f32, N0>;
-    var hi: array<f32, N0>;
+    var lo: array<real, N0>;
+    var hi: array<real, N0>;
     for (var j = 0u; j < N0; j++) {
         lo[j] = state[g * SW + j];
         hi[j] = state[g * SW + N0 + j];
@@ -73,74 +66,33 @@ fn embed(@builtin(global_invocation_id) gid: vec3<u32>) {
     var radius = state[g * SW + 2u * N0];
     var bad = atomicLoad(&flags[g * 3u]) != 0u;
 
-    // The network's bounds over the box.
-    var a_lo: array<f32, M_OUT * N0>;
-    var a_hi: array<f32, M_OUT * N0>;
-    var d_lo: array<f32, M_OUT>;
-    var d_hi: array<f32, M_OUT>;
-    var n_lo: array<f32, M_OUT>;
-    var n_hi: array<f32, M_OUT>;
-    let cols = p.boxes * KC;
-    for (var i = 0u; i < M_OUT; i++) {
-        var c: array<f32, KC>;
-        var r: array<f32, KC>;
-        let b = net[p.b_off + i];
-        if (p.first != 0u) {
-            var m0 = abs(b);
-            for (var q = 0u; q < N0; q++) {
-                let w = net[p.w_off + i * N0 + q];
-                c[q] = w;
-                r[q] = 0.0;
-                m0 = up(m0 + up(abs(w) * bx.xmag[q]));
-            }
-            c[N0] = b;
-            r[N0] = err_bound(2u, m0, bx.scale);
-        } else {
-            let base = i * cols + g * KC;
-            for (var q = 0u; q < KC; q++) {
-                c[q] = cf[base + q];
-                r[q] = rf[base + q];
-            }
-            c[N0] = c[N0] + b;
-            let e = err_bound(p.n_prev + 1u, up(vg[i * p.boxes + g] + abs(b)), bx.scale);
-            r[N0] = up(r[N0] + e);
-        }
-        var mag = abs(c[N0]) + abs(r[N0]);
-        for (var q = 0u; q < N0; q++) {
-            a_lo[i * N0 + q] = c[q] - r[q];
-            a_hi[i * N0 + q] = c[q] + r[q];
-            mag += (abs(c[q]) + abs(r[q])) * bx.xmag[q];
-        }
-        let e = err_bound(2u, mag, bx.scale);
-        d_lo[i] = down(down(c[N0] - r[N0]) - e);
-        d_hi[i] = up(up(c[N0] + r[N0]) + e);
-        // Concretisation over the box (affine_min / affine_max).
-        var s_lo = d_lo[i];
-        var s_hi = d_hi[i];
-        var m_lo = abs(d_lo[i]);
-        var m_hi = abs(d_hi[i]);
-        for (var q = 0u; q < N0; q++) {
-            let wl = a_lo[i * N0 + q];
-            let wh = a_hi[i * N0 + q];
-            s_lo += select(wl * hi[q], wl * lo[q], wl >= 0.0);
-            s_hi += select(wh * lo[q], wh * hi[q], wh >= 0.0);
-            m_lo += abs(wl) * bx.xmag[q];
-            m_hi += abs(wh) * bx.xmag[q];
-        }
-        n_lo[i] = down(s_lo - err_bound(N0 + 1u, m_lo, 1.0));
-        n_hi[i] = up(s_hi + err_bound(N0 + 1u, m_hi, 1.0));
-        if (!(finite(n_lo[i]) && finite(n_hi[i]) && finite(mag) && finite(m_lo) && finite(m_hi))) {
-            bad = true;
-        }
+    // The network's bounds over the box (shaders/output.wgsl).
+    var a_lo: array<real, M_OUT * N0>;
+    var a_hi: array<real, M_OUT * N0>;
+    var d_lo: array<real, M_OUT>;
+    var d_hi: array<real, M_OUT>;
+    var n_lo: array<real, M_OUT>;
+    var n_hi: array<real, M_OUT>;
+    let at = g * NB_W;
+    for (var k = 0u; k < M_OUT * N0; k++) {
+        a_lo[k] = nnb[at + k];
+        a_hi[k] = nnb[at + M_OUT * N0 + k];
     }
-    if (bad) {
+    let o = at + 2u * M_OUT * N0;
+    for (var k = 0u; k < M_OUT; k++) {
+        d_lo[k] = nnb[o + k];
+        d_hi[k] = nnb[o + M_OUT + k];
+        n_lo[k] = nnb[o + 2u * M_OUT + k];
+        n_hi[k] = nnb[o + 3u * M_OUT + k];
+    }
+    if (bad || nnb[at + NB_W - 1u] != 0.0) {
         stop(g, NON_FINITE, step);
         return;
     }
 
     // The embedding field (embedding_field in src/reach/embedding.rs).
     var xb: array<Iv, N0>;
-    var cen: array<f32, N0>;
+    var cen: array<real, N0>;
     for (var j = 0u; j < N0; j++) {
         xb[j] = Iv(lo[j], hi[j]);
         cen[j] = clamp(lo[j] + 0.5 * (hi[j] - lo[j]), lo[j], hi[j]);
@@ -204,8 +156,8 @@ fn embed(@builtin(global_invocation_id) gid: vec3<u32>) {
             input[k] = Iv(down(n_lo[k] - MARGIN), up(n_hi[k] + MARGIN));
         }
     }
-    var dxl: array<f32, N0>;
-    var dxu: array<f32, N0>;
+    var dxl: array<real, N0>;
+    var dxu: array<real, N0>;
     for (var i = 0u; i < N0; i++) {
         for (var side = 0u; side < 2u; side++) {
             var pt = cen;
@@ -274,7 +226,7 @@ fn embed(@builtin(global_invocation_id) gid: vec3<u32>) {
             }
         }
         for (var i = 0u; i < N0; i++) {
-            var off = 0.0;
+            var off: real = 0.0;
             for (var j = 0u; j < N0; j++) {
                 if (j == i) {
                     continue;
@@ -322,7 +274,7 @@ fn embed(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     state[g * SW + 2u * N0] = radius;
 
-    // The filtered system's set in x against C (inner f32 rounding of C).
+    // The filtered system's set in x against C (C rounded inward).
     var sb: array<Iv, N0>;
     for (var j = 0u; j < N0; j++) {
         if (radius > 0.0) {

@@ -1,44 +1,62 @@
-// Y (rows × cols) = op(W) (rows × inner) · X (inner × cols), row-major, op = identity or |·|.
+// Y (rows × cols) = op(W) (rows × inner) · X (inner × cols), op = W, |W|, Wᵀ or |W|ᵀ; X read as
+// x[k·ldx + x_off + c] (through max(·, 0) with relu_x), Y written at y[r·ldy + y_off + c].
 // 64 × 64 output tiles, 16 × 16 threads with 4 × 4 outputs each; W and X tiles of depth 16 are
 // staged in workgroup memory, so every weight is read once per tile of 64 columns (DESIGN §4).
+// Forward layers are `W·Ĉ`, `|W|·R̂`, `|W|·V`; backward substitutions are `Λ ← Wᵀ·(Λ∘s)` with
+// Λ stored transposed (neuron-major), so one GEMM serves every box: the shared weights are the
+// left factor, each box only scales its own columns (shaders/backward.wgsl). Rounding: the
+// consumers bound it by γ̂·(magnitude GEMM) for any summation order (common.wgsl: err_bound).
 
 // Params of this dispatch.
 @group(0) @binding(0) var<uniform> p: Params;
-// Every layer's W and b, f32.
-@group(0) @binding(1) var<storage, read> net: array<f32>;
-// X, inner × cols.
-@group(0) @binding(2) var<storage, read> x: array<f32>;
-// Y, rows × cols.
-@group(0) @binding(3) var<storage, read_write> y: array<f32>;
+// Every layer's W and b.
+@group(0) @binding(1) var<storage, read> net: array<real>;
+// X.
+@group(0) @binding(2) var<storage, read> x: array<real>;
+// Y.
+@group(0) @binding(3) var<storage, read_write> y: array<real>;
 
 const TM: u32 = 64u;
 const TN: u32 = 64u;
 const TK: u32 = 16u;
 
-var<workgroup> a_tile: array<f32, 1024>;
-var<workgroup> x_tile: array<f32, 1024>;
+var<workgroup> a_tile: array<real, 1024>;
+var<workgroup> x_tile: array<real, 1024>;
+
+// op(W)[r, k] (0 outside).
+fn weight(r: u32, k: u32) -> real {
+    if (r >= p.rows || k >= p.inner) {
+        return 0.0;
+    }
+    var v: real;
+    if (p.trans_w != 0u) {
+        v = net[p.w_off + k * p.rows + r];
+    } else {
+        v = net[p.w_off + r * p.inner + k];
+    }
+    if (p.abs_w != 0u) {
+        v = abs(v);
+    }
+    return v;
+}
 
 @compute @workgroup_size(16, 16)
 fn gemm(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
     let row0 = wid.y * TM;
     let col0 = wid.x * TN;
     let t = lid.y * 16u + lid.x;
-    var acc: array<f32, 16>;
+    var acc: array<real, 16>;
     for (var k0 = 0u; k0 < p.inner; k0 += TK) {
         for (var e = 0u; e < 4u; e++) {
             let idx = t + e * 256u;
-            let r = idx / TK;
-            let kk = idx % TK;
-            let gr = row0 + r;
-            let gk = k0 + kk;
-            var v = 0.0;
-            if (gr < p.rows && gk < p.inner) {
-                v = net[p.w_off + gr * p.inner + gk];
-                if (p.abs_w != 0u) {
-                    v = abs(v);
-                }
+            // Consecutive threads read consecutive addresses of W (or of Wᵀ's storage).
+            var r = idx / TK;
+            var kk = idx % TK;
+            if (p.trans_w != 0u) {
+                r = idx % TM;
+                kk = idx / TM;
             }
-            a_tile[kk * TM + r] = v;
+            a_tile[kk * TM + r] = weight(row0 + r, k0 + kk);
         }
         for (var e = 0u; e < 4u; e++) {
             let idx = t + e * 256u;
@@ -46,16 +64,19 @@ fn gemm(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid
             let c = idx % TN;
             let gk = k0 + kk;
             let gc = col0 + c;
-            var v = 0.0;
+            var v: real = 0.0;
             if (gk < p.inner && gc < p.cols) {
-                v = x[gk * p.cols + gc];
+                v = x[gk * p.ldx + p.x_off + gc];
+                if (p.relu_x != 0u) {
+                    v = max(v, 0.0);
+                }
             }
             x_tile[kk * TN + c] = v;
         }
         workgroupBarrier();
         for (var kk = 0u; kk < TK; kk++) {
-            var a: array<f32, 4>;
-            var b: array<f32, 4>;
+            var a: array<real, 4>;
+            var b: array<real, 4>;
             for (var i = 0u; i < 4u; i++) {
                 a[i] = a_tile[kk * TM + lid.y + 16u * i];
                 b[i] = x_tile[kk * TN + lid.x + 16u * i];
@@ -73,7 +94,7 @@ fn gemm(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid
         for (var j = 0u; j < 4u; j++) {
             let gc = col0 + lid.x + 16u * j;
             if (gr < p.rows && gc < p.cols) {
-                y[gr * p.cols + gc] = acc[i * 4u + j];
+                y[gr * p.ldy + p.y_off + gc] = acc[i * 4u + j];
             }
         }
     }

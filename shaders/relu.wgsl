@@ -1,26 +1,35 @@
 // Finishes a hidden layer and applies its ReLU relaxation, one thread per (neuron i, box g):
 // adds the bias, widens the radius's constant by the layer's rounding error, concretises the
-// neuron's bounds over the box and replaces the centre–radius forms by those of the adaptive
+// neuron's bounds over the box, intersects them with IBP (IBP, forward-backward), records them
+// for the backward pass (RECORD), and replaces the centre–radius forms by those of the adaptive
 // relaxation (src/bounds/forward.rs is the f64 original; its comments give the algebra).
 //
 // Forms are stored neuron-major: C[i, g·KC + q], q < N0 the coefficients, q = N0 the constant.
+// Per-neuron vectors (`aux`) hold AUX sections of `boxes` entries per neuron:
+// [IBP centre | form magnitude V | IBP radius | IBP magnitude |c| + r].
 
 // Params of this layer.
 @group(0) @binding(0) var<uniform> p: Params;
-// Every layer's W and b, f32.
-@group(0) @binding(1) var<storage, read> net: array<f32>;
+// Every layer's W and b.
+@group(0) @binding(1) var<storage, read> net: array<real>;
 // Per box lo[N0], hi[N0], radius.
-@group(0) @binding(2) var<storage, read> state: array<f32>;
+@group(0) @binding(2) var<storage, read> state: array<real>;
 // Centre forms Ĉ, rows × boxes·KC (in: W·Ĉ of the layer's input; out: relaxed).
-@group(0) @binding(3) var<storage, read_write> cf: array<f32>;
+@group(0) @binding(3) var<storage, read_write> cf: array<real>;
 // Radius forms R̂, the same shape.
-@group(0) @binding(4) var<storage, read_write> rf: array<f32>;
-// |W|·V of the layer's input, rows × boxes.
-@group(0) @binding(5) var<storage, read> vg: array<f32>;
-// V of this layer's output (after ReLU), rows × boxes, for the next layer.
-@group(0) @binding(6) var<storage, read_write> vout: array<f32>;
+@group(0) @binding(4) var<storage, read_write> rf: array<real>;
+// The layer's GEMMs of the per-neuron vectors: W·c, |W|·V, |W|·r, |W|·(|c| + r).
+@group(0) @binding(5) var<storage, read> aux_g: array<real>;
+// The per-neuron vectors of this layer's output (after ReLU), for the next layer.
+@group(0) @binding(6) var<storage, read_write> aux: array<real>;
 // Per box [poisoned, status, stop step], then the step counter.
 @group(0) @binding(7) var<storage, read_write> flags: array<atomic<u32>>;
+// Recorded pre-activation bounds l, u of every layer (RECORD).
+@group(0) @binding(8) var<storage, read_write> pre: array<real>;
+
+fn aux_at(i: u32, section: u32, g: u32) -> u32 {
+    return (i * AUX + section) * p.boxes + g;
+}
 
 @compute @workgroup_size(64)
 fn relu(@builtin(global_invocation_id) gid: vec3<u32>) {
@@ -33,8 +42,8 @@ fn relu(@builtin(global_invocation_id) gid: vec3<u32>) {
     let cols = p.boxes * KC;
     let base = i * cols + g * KC;
     let b = net[p.b_off + i];
-    var c: array<f32, KC>;
-    var r: array<f32, KC>;
+    var c: array<real, KC>;
+    var r: array<real, KC>;
     if (p.first != 0u) {
         // Ĉ = [W₁ᵢ | b₁ᵢ] rounded to f32; the rounding (≤ 2⁻²⁴ relative) goes into R̂'s constant.
         var mag = abs(b);
@@ -52,7 +61,7 @@ fn relu(@builtin(global_invocation_id) gid: vec3<u32>) {
             r[q] = rf[base + q];
         }
         c[N0] = c[N0] + b;
-        let e = err_bound(p.n_prev + 1u, up(vg[i * p.boxes + g] + abs(b)), bx.scale);
+        let e = err_bound(p.n_prev + 1u, up(aux_g[aux_at(i, S_V, g)] + abs(b)), bx.scale);
         r[N0] = up(r[N0] + e);
     }
     // Concretise l ≤ z ≤ u over the box.
@@ -67,12 +76,33 @@ fn relu(@builtin(global_invocation_id) gid: vec3<u32>) {
         mag += (abs(c[q]) + abs(r[q])) * bx.xmag[q];
     }
     let err = err_bound(3u * N0 + 3u, mag, bx.scale);
-    let l = down(sl - err);
-    let u = up(su + err);
+    var l = down(sl - err);
+    var u = up(su + err);
     if (!(finite(l) && finite(u) && finite(mag))) {
         atomicStore(&flags[g * 3u], 1u);
     }
-    var v = 0.0;
+    if (IBP) {
+        // IBP through this layer from the previous layer's intersected bounds (ibp_layer in
+        // forward.rs): W·c + b ± (|W|·r + err_bound(n + 1, |W|·(|c| + r) + |b|)); both
+        // enclosures are rigorous, so is their intersection.
+        if (p.first == 0u) {
+            let ic = aux_g[aux_at(i, S_IC, g)] + b;
+            let ie = err_bound(p.n_prev + 1u, up(aux_g[aux_at(i, S_IV, g)] + abs(b)), 1.0);
+            let ir = up(aux_g[aux_at(i, S_IR, g)] + ie);
+            l = max(l, down(ic - ir));
+            u = min(u, up(ic + ir));
+        }
+        // ReLU is monotone: the next layer's IBP input [max(l, 0), max(u, 0)].
+        let cr = centre_radius(max(l, 0.0), max(u, 0.0));
+        aux[aux_at(i, S_IC, g)] = cr.x;
+        aux[aux_at(i, S_IR, g)] = cr.y;
+        aux[aux_at(i, S_IV, g)] = abs(cr.x) + cr.y;
+    }
+    if (RECORD) {
+        pre[p.pre_off + i * p.boxes + g] = l;
+        pre[p.pre_off + (p.rows + i) * p.boxes + g] = u;
+    }
+    var v: real = 0.0;
     if (u <= 0.0) {
         for (var q = 0u; q < KC; q++) {
             c[q] = 0.0;
@@ -81,28 +111,18 @@ fn relu(@builtin(global_invocation_id) gid: vec3<u32>) {
     } else if (l >= 0.0) {
         v = mag;
     } else {
-        // relu_lines: s̄ the chord slope (flushed to 0 below 1e-30), s̲ adaptive, t̄ rounded up
-        // so that the upper line lies above ReLU at both ends.
-        var s = clamp(u / (u - l), 0.0, 1.0);
-        if (s < 1.0e-30) {
-            s = 0.0;
-        }
-        let t = max(up(-s * l), up(u - down(s * u)));
-        var s_lo = 0.0;
-        if (u >= -l) {
-            s_lo = 1.0;
-        }
-        let alpha = 0.5 * (s + s_lo);
-        let beta = 0.5 * (s - s_lo);
+        let ln = relu_lines(l, u, false);
+        let alpha = 0.5 * (ln.s_up + ln.s_lo);
+        let beta = 0.5 * (ln.s_up - ln.s_lo);
         for (var q = 0u; q < KC; q++) {
             let cq = c[q];
             let rq = r[q];
             c[q] = alpha * cq + beta * rq;
             r[q] = beta * cq + alpha * rq;
         }
-        c[N0] = c[N0] + 0.5 * t;
-        r[N0] = r[N0] + 0.5 * t;
-        let e = err_bound(8u, up(up(max(s, s_lo) * mag) + t), bx.scale);
+        c[N0] = c[N0] + 0.5 * ln.t;
+        r[N0] = r[N0] + 0.5 * ln.t;
+        let e = err_bound(8u, up(up(max(ln.s_up, ln.s_lo) * mag) + ln.t), bx.scale);
         r[N0] = up(r[N0] + e);
         v = abs(c[N0]) + abs(r[N0]);
         for (var q = 0u; q < N0; q++) {
@@ -113,5 +133,5 @@ fn relu(@builtin(global_invocation_id) gid: vec3<u32>) {
         cf[base + q] = c[q];
         rf[base + q] = r[q];
     }
-    vout[i * p.boxes + g] = v;
+    aux[aux_at(i, S_V, g)] = v;
 }

@@ -1,6 +1,11 @@
-//! The GPU engine against the CPU reference (issue 3), on whatever Vulkan adapter exists
-//! (lavapipe in CI). Without an adapter the tests skip with a message, unless
-//! `CBFREACH_REQUIRE_GPU=1`, where a missing adapter fails.
+//! The GPU engine against the CPU reference (issues 3 and "GPU engine"), on whatever Vulkan
+//! adapter exists (lavapipe in CI). Without an adapter the tests skip with a message, unless
+//! `CBFREACH_REQUIRE_GPU=1`, where a missing adapter (or one without f64 shaders, for the f64
+//! tests) fails.
+//!
+//! Every bound method the GPU runs (forward, forward-backward, crown, each relaxation) is
+//! checked in f64 against the CPU to `REL_TOL`, in f32 to contain the CPU's sets and be at most
+//! `F32_FACTOR` wider, and in both for containing sampled NN-system trajectories.
 
 #![allow(clippy::needless_range_loop)] // index loops read as the formulas
 
@@ -9,7 +14,7 @@ mod common;
 use std::sync::Arc;
 
 use cbfreach::bounds::BoundMethod;
-use cbfreach::gpu::{GpuBackend, GpuContext};
+use cbfreach::gpu::{GpuBackend, GpuContext, Precision};
 use cbfreach::network::Mlp;
 use cbfreach::reach::{
     Backend, CpuBackend, ReachMethod, ReachProblem, ReachSettings, Transform, Tube,
@@ -19,8 +24,27 @@ use cbfreach::simulate::{integrate, sample_box, Integrator};
 use cbfreach::IntervalBox;
 use common::{double_integrator, integrator};
 
-/// Relative agreement of GPU (f32, widened) and CPU (f64) tubes.
+/// Relative agreement of GPU (f32 widened, or f64) and CPU (f64) tubes.
 const REL_TOL: f64 = 1e-4;
+
+/// The bound methods with a backward pass (the new GPU methods).
+const BACKWARD_METHODS: [BoundMethod; 4] = [
+    BoundMethod::ForwardBackward,
+    BoundMethod::ForwardBackwardSameSlope,
+    BoundMethod::Crown,
+    BoundMethod::CrownSameSlope,
+];
+
+/// In f32 a GPU set may be wider than the CPU's by this fraction of its scale `max(1, |x|)`
+/// (the rigorous f32 rounding bounds, measured ≲ 1e-4 on these networks).
+const F32_FACTOR: f64 = 1e-3;
+
+/// f32 with sin and cos (WGSL: 2⁻¹¹ absolute accuracy, widened by that every step).
+const F32_TRIG: f64 = 2e-3;
+
+fn require_gpu() -> bool {
+    std::env::var("CBFREACH_REQUIRE_GPU").as_deref() == Ok("1")
+}
 
 fn gpu() -> Option<GpuBackend> {
     match GpuContext::new() {
@@ -29,10 +53,34 @@ fn gpu() -> Option<GpuBackend> {
             Some(GpuBackend::new(Arc::new(ctx)))
         }
         Err(e) => {
-            if std::env::var("CBFREACH_REQUIRE_GPU").as_deref() == Ok("1") {
+            if require_gpu() {
                 panic!("CBFREACH_REQUIRE_GPU=1 but {e}");
             }
             eprintln!("skipping GPU test: {e}");
+            None
+        }
+    }
+}
+
+/// The f64 engine, when the adapter has f64 shaders (lavapipe and NVIDIA do).
+fn gpu_f64() -> Option<GpuBackend> {
+    let ctx = match GpuContext::new() {
+        Ok(ctx) => Arc::new(ctx),
+        Err(e) => {
+            if require_gpu() {
+                panic!("CBFREACH_REQUIRE_GPU=1 but {e}");
+            }
+            eprintln!("skipping GPU test: {e}");
+            return None;
+        }
+    };
+    match GpuBackend::with_precision(ctx, Precision::F64) {
+        Ok(g) => Some(g),
+        Err(e) => {
+            if require_gpu() {
+                panic!("CBFREACH_REQUIRE_GPU=1 but {e}");
+            }
+            eprintln!("skipping f64 GPU test: {e}");
             None
         }
     }
@@ -61,16 +109,26 @@ fn boxes(centres: &[[f64; 2]], half: f64) -> Vec<IntervalBox> {
 }
 
 fn settings(method: ReachMethod) -> ReachSettings {
+    with_bounds(BoundMethod::Forward, method)
+}
+
+fn with_bounds(bounds: BoundMethod, method: ReachMethod) -> ReachSettings {
     ReachSettings {
-        bounds: BoundMethod::Forward,
+        bounds,
         method,
         every: 1,
         face_local: false,
     }
 }
 
-/// Largest relative difference between two runs' sets (and their radii), where both are valid.
+/// Largest relative difference between two runs' sets (and their radii), where both are valid;
+/// fails above `REL_TOL`.
 fn compare(cpu: &[Tube], gpu: &[Tube], what: &str) -> f64 {
+    compare_within(cpu, gpu, what, REL_TOL)
+}
+
+/// As [`compare`], failing above `tol`.
+fn compare_within(cpu: &[Tube], gpu: &[Tube], what: &str, tol: f64) -> f64 {
     assert_eq!(cpu.len(), gpu.len());
     let mut worst = 0.0f64;
     for (k, (a, b)) in cpu.iter().zip(gpu).enumerate() {
@@ -94,14 +152,14 @@ fn compare(cpu: &[Tube], gpu: &[Tube], what: &str) -> f64 {
                 let rel = (x - y).abs() / x.abs().max(1.0);
                 worst = worst.max(rel);
                 assert!(
-                    rel <= REL_TOL,
+                    rel <= tol,
                     "{what} box {k} t = {}: cpu {x} gpu {y} (relative {rel:.2e})",
                     sa.t
                 );
             }
             let rel = (sa.radius - sb.radius).abs() / sa.radius.abs().max(1.0);
             assert!(
-                rel <= REL_TOL,
+                rel <= tol,
                 "{what} box {k} t = {}: radius {} vs {}",
                 sa.t,
                 sa.radius,
@@ -119,11 +177,21 @@ fn run_both(
     initial: &[IntervalBox],
     method: ReachMethod,
 ) -> (Vec<Tube>, Vec<Tube>) {
-    let s = settings(method);
+    run_both_with(gpu, problem, initial, &settings(method))
+}
+
+fn run_both_with(
+    gpu: &GpuBackend,
+    problem: &ReachProblem,
+    initial: &[IntervalBox],
+    s: &ReachSettings,
+) -> (Vec<Tube>, Vec<Tube>) {
+    let s = s.clone();
     let cpu = CpuBackend.reach(problem, initial, &s, &|_, _| {}).unwrap();
     let g = gpu.reach(problem, initial, &s, &|_, _| {}).unwrap();
     eprintln!(
-        "{} boxes × {} steps: cpu {:.3} s, gpu {:.3} s",
+        "{} bounds, {} boxes × {} steps: cpu {:.3} s, gpu {:.3} s",
+        s.bounds,
         initial.len(),
         problem.steps,
         cpu.timing.reach_s,
@@ -174,85 +242,103 @@ fn paper_size_network_end_to_end() {
     let mut problem = ReachProblem::new(&s, net, 0.1).unwrap();
     problem.steps = 5;
     let init = boxes(&[[-2.0, 2.0], [1.0, -2.0], [3.0, 1.5]], 0.02);
-    let (c, g) = run_both(&gpu, &problem, &init, ReachMethod::Disturbance);
-    // f32's rigorous rounding bound grows with Σ|W||a| over 400-wide layers: the GPU's sets are
-    // wider than the CPU's f64 ones by more than REL_TOL here. Check that they contain the
-    // CPU's (up to REL_TOL) and measure the excess.
-    let mut excess = 0.0f64;
-    for (k, (a, b)) in c.iter().zip(&g).enumerate() {
-        assert_eq!(a.valid, b.valid);
-        for (sa, sb) in a.tube.iter().zip(&b.tube) {
-            for i in 0..2 {
-                let scale = sa.set.lower[i].abs().max(sa.set.upper[i].abs()).max(1.0);
-                assert!(
-                    sb.set.lower[i] <= sa.set.lower[i] + REL_TOL * scale
-                        && sa.set.upper[i] <= sb.set.upper[i] + REL_TOL * scale,
-                    "box {k} t = {}: gpu {:?} does not contain cpu {:?}",
-                    sa.t,
-                    sb.set,
-                    sa.set
-                );
-                let (wa, wb) = (
-                    sa.set.upper[i] - sa.set.lower[i],
-                    sb.set.upper[i] - sb.set.lower[i],
-                );
-                excess = excess.max((wb - wa) / scale);
+    for bounds in [BoundMethod::Forward, BoundMethod::ForwardBackward] {
+        let st = with_bounds(bounds, ReachMethod::Disturbance);
+        let (c, g) = run_both_with(&gpu, &problem, &init, &st);
+        // f32's rigorous rounding bound grows with Σ|W||a| over 400-wide layers: the GPU's sets
+        // are wider than the CPU's f64 ones by more than REL_TOL here. Check that they contain
+        // the CPU's (up to REL_TOL) and measure the excess.
+        let mut excess = 0.0f64;
+        for (k, (a, b)) in c.iter().zip(&g).enumerate() {
+            assert_eq!(a.valid, b.valid);
+            for (sa, sb) in a.tube.iter().zip(&b.tube) {
+                for i in 0..2 {
+                    let scale = sa.set.lower[i].abs().max(sa.set.upper[i].abs()).max(1.0);
+                    assert!(
+                        sb.set.lower[i] <= sa.set.lower[i] + REL_TOL * scale
+                            && sa.set.upper[i] <= sb.set.upper[i] + REL_TOL * scale,
+                        "{bounds} box {k} t = {}: gpu {:?} does not contain cpu {:?}",
+                        sa.t,
+                        sb.set,
+                        sa.set
+                    );
+                    let (wa, wb) = (
+                        sa.set.upper[i] - sa.set.lower[i],
+                        sb.set.upper[i] - sb.set.lower[i],
+                    );
+                    excess = excess.max((wb - wa) / scale);
+                }
             }
         }
+        eprintln!(
+            "2×400×400×400×2 {bounds}: the GPU's f32 sets are wider by up to {excess:.2e} \
+             (relative)"
+        );
+        assert!(excess < 0.05, "{bounds}: f32 widening too large: {excess}");
     }
-    eprintln!("2×400×400×400×2: the GPU's sets are wider by up to {excess:.2e} (relative)");
-    assert!(excess < 0.05, "f32 widening too large: {excess}");
 }
 
-/// NN-system trajectories (same Euler step) lie in the GPU's boxes.
+/// NN-system trajectories (same Euler step) lie in the GPU's boxes, for every bound method the
+/// GPU runs, in f32 and f64.
 #[test]
 fn gpu_sets_contain_nn_trajectories() {
-    let Some(gpu) = gpu() else { return };
+    let Some(gpu32) = gpu() else { return };
+    let mut engines = vec![gpu32];
+    engines.extend(gpu_f64());
     for (s, net) in [
         (integrator(), small_network(&[2, 16, 16, 2], 4, 0.2)),
         (double_integrator(), small_network(&[2, 16, 16, 1], 5, 0.2)),
     ] {
         let mut problem = ReachProblem::new(&s, net.clone(), 0.0).unwrap();
-        problem.steps = 80;
+        problem.steps = 60;
         let init = boxes(&[[-2.0, 1.0], [1.0, -1.0], [-3.0, 0.0]], 0.1);
-        let tubes = gpu
-            .reach(
-                &problem,
-                &init,
-                &settings(ReachMethod::Disturbance),
-                &|_, _| {},
-            )
-            .unwrap()
-            .boxes;
-        let mut checks = 0;
-        for tube in &tubes {
-            for x0 in sample_box(&tube.initial, 12, 7) {
-                let traj = integrate(
-                    |x: &[f64]| Ok::<_, String>(nn_field(&s, &net, x)),
-                    &x0,
-                    problem.dt,
-                    problem.steps,
-                    Integrator::Euler,
-                );
-                for sample in &tube.tube {
-                    let k = (sample.t / problem.dt).round() as usize;
-                    let Some(x) = traj.x.get(k) else { break };
-                    for i in 0..2 {
-                        assert!(
-                            sample.set.lower[i] <= x[i] && x[i] <= sample.set.upper[i],
-                            "{}: t = {} x{i} = {} escapes [{}, {}]",
-                            s.file,
-                            sample.t,
-                            x[i],
-                            sample.set.lower[i],
-                            sample.set.upper[i]
-                        );
+        let trajectories: Vec<Vec<Vec<Vec<f64>>>> = init
+            .iter()
+            .map(|b| {
+                sample_box(b, 12, 7)
+                    .into_iter()
+                    .map(|x0| {
+                        integrate(
+                            |x: &[f64]| Ok::<_, String>(nn_field(&s, &net, x)),
+                            &x0,
+                            problem.dt,
+                            problem.steps,
+                            Integrator::Euler,
+                        )
+                        .x
+                    })
+                    .collect()
+            })
+            .collect();
+        for gpu in &engines {
+            for bounds in [BoundMethod::Forward].into_iter().chain(BACKWARD_METHODS) {
+                let st = with_bounds(bounds, ReachMethod::Disturbance);
+                let tubes = gpu.reach(&problem, &init, &st, &|_, _| {}).unwrap().boxes;
+                let mut checks = 0;
+                for (tube, trajs) in tubes.iter().zip(&trajectories) {
+                    for traj in trajs {
+                        for sample in &tube.tube {
+                            let k = (sample.t / problem.dt).round() as usize;
+                            let Some(x) = traj.get(k) else { break };
+                            for i in 0..2 {
+                                assert!(
+                                    sample.set.lower[i] <= x[i] && x[i] <= sample.set.upper[i],
+                                    "{} {bounds} {:?}: t = {} x{i} = {} escapes [{}, {}]",
+                                    s.file,
+                                    gpu.precision(),
+                                    sample.t,
+                                    x[i],
+                                    sample.set.lower[i],
+                                    sample.set.upper[i]
+                                );
+                            }
+                            checks += 1;
+                        }
                     }
-                    checks += 1;
                 }
+                assert!(checks > 1000, "{bounds}: too few checks: {checks}");
             }
         }
-        assert!(checks > 1000, "too few checks: {checks}");
     }
 }
 
@@ -285,7 +371,7 @@ fn batch_of_65536_boxes_runs_and_splits() {
     let st = settings(ReachMethod::Disturbance);
     for max_chunk in [None, Some(20_000)] {
         gpu.max_chunk = max_chunk;
-        eprintln!("chunk size {}", gpu.chunk_size(&problem, 1, n));
+        eprintln!("chunk size {}", gpu.chunk_size(&problem, &st, n));
         let t = std::time::Instant::now();
         let g = gpu.reach(&problem, &init, &st, &|_, _| {}).unwrap();
         eprintln!(
@@ -299,6 +385,166 @@ fn batch_of_65536_boxes_runs_and_splits() {
         let c = CpuBackend.reach(&problem, &sub, &st, &|_, _| {}).unwrap();
         let gsub: Vec<Tube> = picks.iter().map(|&k| g.boxes[k].clone()).collect();
         compare(&c.boxes, &gsub, "65,536 boxes");
+    }
+}
+
+/// Forward-backward and crown (both relaxations) on the GPU in f64 agree with the CPU to
+/// `REL_TOL`, on both paper scenarios (with the transform and the Minkowski method once).
+#[test]
+fn backward_methods_match_cpu_in_f64() {
+    let Some(gpu) = gpu_f64() else { return };
+    let s1 = integrator();
+    let mut p1 = ReachProblem::new(&s1, small_network(&[2, 16, 16, 2], 1, 0.05), 0.05).unwrap();
+    p1.steps = 40;
+    let init1 = boxes(&[[-2.0, 2.0], [1.0, -2.0], [3.5, 2.0]], 0.1);
+    let s2 = double_integrator();
+    let t = Transform::for_scenario(&s2, &TransformChoice::Auto).unwrap();
+    let mut p2 =
+        ReachProblem::with_transform(&s2, small_network(&[2, 16, 16, 1], 2, 0.05), 0.02, t)
+            .unwrap();
+    p2.steps = 40;
+    let init2 = boxes(&[[-1.0, 0.5], [0.5, 1.0]], 0.05);
+    let mut worst = Vec::new();
+    for bounds in [BoundMethod::Forward].into_iter().chain(BACKWARD_METHODS) {
+        let mut w = 0.0f64;
+        for (problem, init, method) in [
+            (&p1, &init1, ReachMethod::Disturbance),
+            (&p2, &init2, ReachMethod::Disturbance),
+            (&p1, &init1, ReachMethod::Minkowski),
+        ] {
+            let st = with_bounds(bounds, method);
+            let (c, g) = run_both_with(&gpu, problem, init, &st);
+            w = w.max(compare(&c, &g, &format!("f64 {bounds} {method:?}")));
+        }
+        worst.push((bounds, w));
+    }
+    eprintln!("f64 GPU vs CPU, worst relative difference per method: {worst:?}");
+}
+
+/// In f32 the same runs stay within `F32_FACTOR` of the CPU's f64 sets.
+#[test]
+fn backward_methods_close_to_cpu_in_f32() {
+    let Some(gpu) = gpu() else { return };
+    let s = integrator();
+    let mut problem = ReachProblem::new(&s, small_network(&[2, 16, 16, 2], 1, 0.05), 0.05).unwrap();
+    problem.steps = 40;
+    let init = boxes(&[[-2.0, 2.0], [1.0, -2.0], [3.5, 2.0]], 0.1);
+    let mut worst = Vec::new();
+    for bounds in BACKWARD_METHODS {
+        let st = with_bounds(bounds, ReachMethod::Disturbance);
+        let (c, g) = run_both_with(&gpu, &problem, &init, &st);
+        let w = compare_within(&c, &g, &format!("f32 {bounds}"), F32_FACTOR);
+        worst.push((bounds, w));
+    }
+    eprintln!("f32 GPU vs CPU, worst relative difference per method: {worst:?}");
+}
+
+/// The shipped 2×400×400×400×2 network of scenario 1, forward-backward on the GPU in f64:
+/// end to end, agreeing with the CPU to `REL_TOL` (and crown-same-slope for one step).
+#[test]
+fn paper_network_forward_backward_f64_matches_cpu() {
+    let Some(gpu) = gpu_f64() else { return };
+    let s = integrator();
+    let path = common::scenario_path("integrator.safetensors");
+    let net = Mlp::load_safetensors(&path).unwrap();
+    assert_eq!(net.widths(), vec![2, 400, 400, 400, 2]);
+    let mut problem = ReachProblem::new(&s, net, 0.19).unwrap();
+    problem.steps = 4;
+    let init = boxes(&[[-2.0, 2.0], [1.0, -2.0], [3.0, 1.5]], 0.05);
+    for bounds in [
+        BoundMethod::ForwardBackward,
+        BoundMethod::ForwardBackwardSameSlope,
+    ] {
+        let st = with_bounds(bounds, ReachMethod::Disturbance);
+        let (c, g) = run_both_with(&gpu, &problem, &init, &st);
+        compare(&c, &g, &format!("2×400³×2 f64 {bounds}"));
+    }
+    problem.steps = 1;
+    let st = with_bounds(BoundMethod::CrownSameSlope, ReachMethod::Disturbance);
+    let (c, g) = run_both_with(&gpu, &problem, &init[..1], &st);
+    compare(&c, &g, "2×400³×2 f64 crown-same-slope");
+}
+
+/// Nonlinear dynamics with every transcendental built-in: f64 (sin, cos as polynomials, exp,
+/// ln, sqrt in f32 widened by the WGSL accuracy) agrees with the CPU to `REL_TOL`; f32 within
+/// `F32_TRIG`, as WGSL promises sin and cos only to 2⁻¹¹ absolute.
+#[test]
+fn transcendental_dynamics_match_cpu() {
+    let Some(gpu32) = gpu() else { return };
+    let text = common::SMALL.replace(
+        r#"f = ["y", "-x"]"#,
+        r#"f = ["y + 0.1*tanh(x) - 0.05*sqrt(1 + x^2)", "-sin(x) + 0.1*cos(y) + 0.05*exp(-x*x) - 0.02*ln(2 + y)"]"#,
+    );
+    assert_ne!(text, common::SMALL);
+    let s = common::from_text(&text).unwrap();
+    let mut problem = ReachProblem::new(&s, small_network(&[2, 8, 8, 1], 9, 0.1), 0.02).unwrap();
+    problem.steps = 15;
+    let init = boxes(&[[-0.3, 0.2], [0.4, -0.1]], 0.05);
+    for bounds in [BoundMethod::Forward, BoundMethod::ForwardBackward] {
+        for method in [ReachMethod::Disturbance, ReachMethod::Minkowski] {
+            let st = with_bounds(bounds, method);
+            let (c, g) = run_both_with(&gpu32, &problem, &init, &st);
+            compare_within(&c, &g, &format!("f32 {bounds} {method:?}"), F32_TRIG);
+            if let Some(gpu64) = gpu_f64() {
+                let (c, g) = run_both_with(&gpu64, &problem, &init, &st);
+                compare(&c, &g, &format!("f64 {bounds} {method:?}"));
+            }
+        }
+    }
+    // The NN system's trajectories (M = 0) stay in the f32 sets.
+    problem.m_c = 0.0;
+    let st = with_bounds(BoundMethod::ForwardBackward, ReachMethod::Disturbance);
+    let tubes = gpu32.reach(&problem, &init, &st, &|_, _| {}).unwrap().boxes;
+    let mut checks = 0;
+    for tube in &tubes {
+        for x0 in sample_box(&tube.initial, 16, 3) {
+            let traj = integrate(
+                |x: &[f64]| Ok::<_, String>(nn_field(&s, &problem.network, x)),
+                &x0,
+                problem.dt,
+                problem.steps,
+                Integrator::Euler,
+            );
+            for sample in &tube.tube {
+                let x = &traj.x[(sample.t / problem.dt).round() as usize];
+                for i in 0..2 {
+                    assert!(sample.set.lower[i] <= x[i] && x[i] <= sample.set.upper[i]);
+                }
+                checks += 1;
+            }
+        }
+    }
+    assert!(checks > 300, "too few checks: {checks}");
+}
+
+/// Forward-backward and crown batches split into chunks give the same tubes as one chunk (the
+/// Λ, β, record buffers are shared by the chunks).
+#[test]
+fn backward_methods_split_into_chunks() {
+    let Some(mut gpu) = gpu_f64() else { return };
+    let s = integrator();
+    let mut problem = ReachProblem::new(&s, small_network(&[2, 24, 24, 2], 6, 0.05), 0.05).unwrap();
+    problem.steps = 3;
+    let centres: Vec<[f64; 2]> = (0..300)
+        .map(|k| {
+            let (i, j) = ((k % 20) as f64, (k / 20) as f64);
+            [-3.0 + 7.0 * i / 19.0, -2.5 + 5.0 * j / 14.0]
+        })
+        .collect();
+    let init = boxes(&centres, 0.02);
+    for bounds in [BoundMethod::ForwardBackward, BoundMethod::Crown] {
+        let st = with_bounds(bounds, ReachMethod::Disturbance);
+        let whole = gpu.reach(&problem, &init, &st, &|_, _| {}).unwrap().boxes;
+        gpu.max_chunk = Some(128);
+        assert_eq!(gpu.chunk_size(&problem, &st, init.len()), 128);
+        let split = gpu.reach(&problem, &init, &st, &|_, _| {}).unwrap().boxes;
+        gpu.max_chunk = None;
+        compare_within(&whole, &split, &format!("{bounds} split"), 1e-12);
+        let picks = [0usize, 127, 128, 255, 256, 299];
+        let sub: Vec<IntervalBox> = picks.iter().map(|&k| init[k].clone()).collect();
+        let c = CpuBackend.reach(&problem, &sub, &st, &|_, _| {}).unwrap();
+        let gsub: Vec<Tube> = picks.iter().map(|&k| split[k].clone()).collect();
+        compare(&c.boxes, &gsub, &format!("{bounds} split vs cpu"));
     }
 }
 
@@ -347,6 +593,7 @@ fn bench_box_steps_per_second() {
 #[test]
 fn cli_backend_gpu_and_auto() {
     let Some(_gpu) = gpu() else { return };
+    let gpu = GpuContext::new().expect("the adapter found above");
     let dir = std::env::temp_dir().join(format!("cbfreach-gpu-cli-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let net_path = dir.join("net.safetensors");
@@ -375,8 +622,36 @@ fn cli_backend_gpu_and_auto() {
         ok && text.contains("GPU adapter:") && text.contains("backend gpu"),
         "{text}"
     );
-    let (ok, text) = run(&["--backend", "auto", "--bounds", "crown"]);
+    let (ok, text) = run(&["--backend", "auto", "--bounds", "ibp"]);
     assert!(ok && text.contains("using the CPU"), "{text}");
+    let (ok, text) = run(&["--backend", "auto", "--bounds", "crown"]);
+    if gpu.is_software() {
+        // A software adapter is slower than the CPU engine: auto passes it over...
+        assert!(
+            ok && text.contains("software") && text.contains("using the CPU"),
+            "{text}"
+        );
+        // ... unless it is named.
+        let name = gpu.describe();
+        let first = name.split_whitespace().next().unwrap_or("");
+        let (ok, text) = run(&[
+            "--backend",
+            "auto",
+            "--bounds",
+            "forward",
+            "--adapter",
+            first,
+        ]);
+        assert!(ok && text.contains("backend gpu"), "{text}");
+    } else {
+        assert!(ok && text.contains("backend gpu"), "{text}");
+    }
+    if gpu_f64().is_some() {
+        let (ok, text) = run(&["--backend", "gpu", "--bounds", "forward-backward", "--f64"]);
+        assert!(ok && text.contains("f64)"), "{text}");
+    }
+    let (ok, text) = run(&["--backend", "cpu", "--f64"]);
+    assert!(!ok && text.contains("--f64"), "{text}");
     let (ok, text) = run(&[
         "--backend",
         "gpu",

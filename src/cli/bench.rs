@@ -11,6 +11,7 @@ use cbfreach::network::Mlp;
 use cbfreach::reach::{Backend, CpuBackend, ReachProblem, ReachSettings};
 use cbfreach::scenario::Scenario;
 
+use super::reach::GpuArgs;
 use super::{load_scenario, CliResult};
 
 /// Arguments of `cbfreach bench`.
@@ -44,6 +45,9 @@ pub struct BenchArgs {
     /// on the CPU; none for the GPU).
     #[arg(long)]
     pub peak: Option<f64>,
+    /// GPU adapter and precision (`--f64`: the GPU engine in f64).
+    #[command(flatten)]
+    pub gpu: GpuArgs,
 }
 
 /// The CPU's f64 rate on plain 512³ matrix products, one per rayon thread at once (each
@@ -148,11 +152,13 @@ pub fn run(args: &BenchArgs) -> CliResult {
     for name in &args.backend {
         match name.as_str() {
             "cpu" => engines.push(("cpu".into(), Box::new(CpuBackend), Some(cpu_peak))),
-            "gpu" => match cbfreach::gpu::GpuContext::with_adapter(None) {
+            "gpu" => match cbfreach::gpu::GpuContext::with_adapter(args.gpu.adapter.as_deref()) {
                 Ok(ctx) => {
-                    let name: String = ctx.info.name.chars().take(24).collect();
-                    let label = format!("gpu ({name})");
-                    let backend = cbfreach::gpu::GpuBackend::new(Arc::new(ctx));
+                    let precision = args.gpu.precision();
+                    let name: String = ctx.info.name.chars().take(20).collect();
+                    let label = format!("gpu ({name}, {})", precision.name());
+                    let backend =
+                        cbfreach::gpu::GpuBackend::with_precision(Arc::new(ctx), precision)?;
                     engines.push((label, Box::new(backend), args.peak));
                 }
                 Err(e) => println!("notice: no GPU engine: {e}"),
@@ -161,7 +167,7 @@ pub fn run(args: &BenchArgs) -> CliResult {
         }
     }
     println!(
-        "  {:<30} {:<28} {:>7} {:>14} {:>10} {:>8}",
+        "  {:<34} {:<28} {:>7} {:>14} {:>10} {:>8}",
         "engine", "bounds", "boxes", "box-steps/s", "GFLOP/s", "of peak"
     );
     for (label, engine, peak) in &engines {
@@ -172,7 +178,7 @@ pub fn run(args: &BenchArgs) -> CliResult {
             };
             if label.starts_with("gpu") && !cbfreach::gpu::GpuBackend::supports(&settings) {
                 println!(
-                    "  {label:<30} {:<28} (not on the GPU yet)",
+                    "  {label:<34} {:<28} (not on the GPU yet)",
                     method.to_string()
                 );
                 continue;
@@ -192,7 +198,7 @@ pub fn run(args: &BenchArgs) -> CliResult {
                 let gflops = 2.0 * model_multiply_adds(&widths, method) * rate / 1e9;
                 let share = peak.map_or("-".to_string(), |p| format!("{:.0}%", 100.0 * gflops / p));
                 println!(
-                    "  {label:<30} {:<28} {:>7} {:>14.0} {:>10.1} {:>8}",
+                    "  {label:<34} {:<28} {:>7} {:>14.0} {:>10.1} {:>8}",
                     method.to_string(),
                     boxes.len(),
                     rate,

@@ -17,14 +17,13 @@ use super::{fmt_point, load_scenario, progress_bar, CliResult};
 pub struct ReachArgs {
     /// The scenario file (TOML).
     pub scenario: PathBuf,
-    /// Engine: `cpu`, `gpu` (wgpu; forward bounds), or `auto` (the GPU when an adapter exists
-    /// and runs these settings, else the CPU with a notice).
+    /// Engine: `cpu`, `gpu` (wgpu; forward, forward-backward and crown bounds), or `auto` (the
+    /// GPU when an adapter exists and runs these settings, else the CPU with a notice).
     #[arg(long, default_value = "cpu")]
     pub backend: String,
-    /// GPU adapter whose name contains this (case-insensitive); default: a real GPU before a
-    /// software one.
-    #[arg(long)]
-    pub adapter: Option<String>,
+    /// GPU adapter and precision.
+    #[command(flatten)]
+    pub gpu: GpuArgs,
     /// How the network is bounded over each box.
     #[arg(long, value_enum, default_value_t = BoundMethod::Crown)]
     pub bounds: BoundMethod,
@@ -58,6 +57,30 @@ struct ReachJson<'a> {
     m_c: f64,
     #[serde(flatten)]
     result: &'a ReachResult,
+}
+
+/// How the GPU engine runs (`reach`, `verify`, `bench`).
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct GpuArgs {
+    /// GPU adapter whose name contains this (case-insensitive); default: a real GPU before a
+    /// software one.
+    #[arg(long)]
+    pub adapter: Option<String>,
+    /// GPU engine in f64 (shaders with wgpu's SHADER_F64; an error where the adapter lacks
+    /// it). The CPU engine computes in f64 always.
+    #[arg(long = "f64")]
+    pub f64: bool,
+}
+
+impl GpuArgs {
+    /// The GPU number type asked for.
+    pub fn precision(&self) -> cbfreach::gpu::Precision {
+        if self.f64 {
+            cbfreach::gpu::Precision::F64
+        } else {
+            cbfreach::gpu::Precision::F32
+        }
+    }
 }
 
 /// What `reach`, `verify` and `plot` need to compile a problem.
@@ -179,7 +202,12 @@ pub fn run(args: &ReachArgs) -> CliResult {
         every: args.every,
         face_local: args.face_local,
     };
-    let backend = choose_backend(&args.backend, args.adapter.as_deref(), &settings)?;
+    let backend = choose_backend(
+        &args.backend,
+        &args.gpu,
+        &settings,
+        args.problem.local_margin,
+    )?;
     let bar = progress_bar(problem.steps as u64, "Euler steps");
     let result = backend.reach(&problem, &s.reach.initial, &settings, &|done, _| {
         bar.set_position(done as u64)
@@ -221,7 +249,11 @@ pub fn run(args: &ReachArgs) -> CliResult {
                 fmt_point(&set.lower),
                 fmt_point(&set.upper),
                 where_,
-                if tube.valid { "" } else { "  INVALID (left C)" }
+                match (tube.valid, &tube.note) {
+                    (true, _) => String::new(),
+                    (false, Some(note)) => format!("  INVALID ({note})"),
+                    (false, None) => "  INVALID".to_string(),
+                }
             );
         }
     }
@@ -252,34 +284,73 @@ pub fn run(args: &ReachArgs) -> CliResult {
     Ok(())
 }
 
-/// The engine `--backend` and `--adapter` ask for; `auto` falls back to the CPU with a notice.
 /// The engine named by `--backend` (`cpu`, `gpu`, or `auto`: a GPU when an adapter exists and
-/// supports the bound method, else the CPU with a one-line notice).
+/// supports the bound method, else the CPU with a one-line notice), on `--adapter`, in f32 or
+/// (`--f64`) f64; `--f64` on an adapter without f64 shaders is an error, also with `auto`.
+///
+/// `auto` takes the GPU only where it computes the same sets as the CPU would (no local error
+/// margins yet) and is a real GPU (a software adapter is many times slower than the CPU engine).
 pub fn choose_backend(
     which: &str,
-    adapter: Option<&str>,
+    gpu: &GpuArgs,
     settings: &ReachSettings,
+    local_margin: bool,
 ) -> Result<Box<dyn Backend + Sync>, Box<dyn std::error::Error>> {
     if !matches!(which, "cpu" | "gpu" | "auto") {
         return Err(format!("--backend {which}: expected cpu, gpu or auto").into());
     }
     if which == "cpu" {
+        if gpu.f64 {
+            return Err(
+                "--f64 selects the GPU engine's f64 shaders; the CPU engine computes in f64 \
+                 always (drop --f64, or use --backend gpu/auto)"
+                    .into(),
+            );
+        }
         return Ok(Box::new(CpuBackend));
     }
     let supported = cbfreach::gpu::GpuBackend::supports(settings);
     if which == "auto" && !supported {
         println!(
-            "notice: --backend auto: the GPU engine has no {} bounds yet; using the CPU",
-            settings.bounds
+            "notice: --backend auto: the GPU engine has no {} bounds{} yet; using the CPU",
+            settings.bounds,
+            if settings.face_local {
+                " with --face-local"
+            } else {
+                ""
+            }
         );
         return Ok(Box::new(CpuBackend));
     }
-    match cbfreach::gpu::GpuContext::with_adapter(adapter) {
+    if local_margin {
+        if which == "gpu" {
+            return Err(
+                "--local-margin: the GPU engine has no local error margins yet \
+                        (use --backend cpu, or a global M_C)"
+                    .into(),
+            );
+        }
+        println!(
+            "notice: --backend auto: the GPU engine has no local error margins yet; using the CPU"
+        );
+        return Ok(Box::new(CpuBackend));
+    }
+    match cbfreach::gpu::GpuContext::with_adapter(gpu.adapter.as_deref()) {
+        Ok(ctx) if which == "auto" && ctx.is_software() && gpu.adapter.is_none() => {
+            println!(
+                "notice: --backend auto: the only GPU adapter is a software one ({}); using the \
+                 CPU (name it with --adapter to use it anyway)",
+                ctx.describe()
+            );
+            Ok(Box::new(CpuBackend))
+        }
         Ok(ctx) => {
             println!("GPU adapter: {}", ctx.describe());
-            Ok(Box::new(cbfreach::gpu::GpuBackend::new(
+            let engine = cbfreach::gpu::GpuBackend::with_precision(
                 std::sync::Arc::new(ctx),
-            )))
+                gpu.precision(),
+            )?;
+            Ok(Box::new(engine))
         }
         Err(e) if which == "auto" => {
             println!("notice: --backend auto: {e}; using the CPU");

@@ -13,7 +13,7 @@ use cbfreach::verify::{
     merge, traps_from_equilibria, Shard, Stage, Verdict, Verifier, VerifyReport, VerifySettings,
 };
 
-use super::reach::{choose_backend, compile, ProblemArgs};
+use super::reach::{choose_backend, compile, GpuArgs, ProblemArgs};
 use super::simulate::parse_box;
 use super::{load_scenario, progress_bar, CliResult};
 
@@ -31,6 +31,9 @@ pub struct VerifyArgs {
     /// Engine: `cpu`, `gpu`, or `auto` (a GPU when one exists and supports the bounds).
     #[arg(long, default_value = "cpu")]
     pub backend: String,
+    /// GPU adapter and precision.
+    #[command(flatten)]
+    pub gpu: GpuArgs,
     /// How the network is bounded over each box.
     #[arg(long, value_enum, default_value_t = BoundMethod::Crown)]
     pub bounds: BoundMethod,
@@ -124,7 +127,7 @@ pub fn run(args: &VerifyArgs) -> CliResult {
         every: 1,
         face_local: args.face_local,
     };
-    let engine = choose_backend(&args.backend, None, &reach)?;
+    let engine = choose_backend(&args.backend, &args.gpu, &reach, args.problem.local_margin)?;
     let report = run_verify(&s, &problem, engine.as_ref(), reach, &settings)?;
     print_summary(&report);
     write_outputs(&s, &report, args.json.as_deref(), args.plot.as_deref())?;

@@ -1,19 +1,31 @@
 //! [`GpuBackend`]: the reach engine on the device (DESIGN §4).
 //!
-//! Every box of a chunk stays on the device for the whole horizon. One step is, per layer,
-//! three GEMM dispatches (`W·Ĉ`, `|W|·R̂`, `|W|·V`) and one ReLU dispatch, then the embedding
-//! dispatch and the step counter's tick; steps are recorded into a few command buffers (a
-//! progress report between them, no readback), and the snapshots are read back once at the end.
-//! Batches larger than the device's binding or dispatch limits allow are split into chunks that
-//! run one after the other on the same buffers.
+//! Every box of a chunk stays on the device for the whole horizon. One step is a fixed list of
+//! dispatches (`StepPlan`), recorded into a few command buffers (a progress report between
+//! them, no readback); the snapshots are read back once at the end. By bound method:
+//!
+//! - `forward`: per layer the GEMMs `W·Ĉ`, `|W|·R̂`, `|W|·V` and the ReLU kernel;
+//! - `forward-backward[-same-slope]`: the same with IBP alongside (`W·c`, `|W|·[r, |c| + r]`),
+//!   every hidden layer's bounds recorded, `|W_k| max(u, 0)` per layer for the rounding bounds,
+//!   then ONE backward pass from the output: per hidden layer a per-box scaling `Λ∘s` and ONE
+//!   GEMM `Λ ← Wⱼᵀ·(Λ∘s)` shared by all boxes;
+//! - `crown[-same-slope]`: a backward pass from every layer, each layer's bounds from its own
+//!   pass (`2 n_k` or `n_k` rows of `Λ` per box).
+//!
+//! Then the output kernel (the network's bounds per box), the embedding step and the step
+//! counter's tick. Batches larger than the device's binding, memory or dispatch limits allow
+//! are split into chunks that run one after the other on the same buffers.
 
 use std::sync::Arc;
 use std::time::Instant;
 
-use super::buffers::{flatten_network, status, storage, storage_init, uniform, Params};
-use super::codegen::{f32_down, f32_up, problem_wgsl};
-use super::kernels::{Kernels, GEMM_TILE, WORKGROUP};
-use super::{GpuContext, GpuError};
+use super::buffers::{
+    device_bytes, flatten_network, from_device_bytes, status, storage, storage_init, uniform,
+    Params,
+};
+use super::codegen::{nnb_width, problem_wgsl, round_down, round_up, MethodFlags, AUX};
+use super::kernels::{Kernel, Kernels, GEMM_TILE, WORKGROUP};
+use super::{GpuContext, GpuError, Precision};
 use crate::bounds::BoundMethod;
 use crate::boxes::IntervalBox;
 use crate::reach::{
@@ -22,24 +34,46 @@ use crate::reach::{
 
 /// The largest buffer one chunk binds, whatever the device allows (bytes).
 const MAX_BINDING: u64 = 1 << 30;
+/// The most device memory one chunk's buffers take together (bytes).
+const MAX_CHUNK_BYTES: u64 = 3 << 29;
 /// Steps recorded into one command buffer at most (progress is reported between them).
 const STEPS_PER_SUBMIT: usize = 25;
+/// Storage buffers the widest kernel binds (relu, output).
+const STORAGE_BINDINGS: u32 = 8;
 
 /// The wgpu engine.
 #[derive(Clone, Debug)]
 pub struct GpuBackend {
     ctx: Arc<GpuContext>,
+    precision: Precision,
     /// Most boxes in one chunk (`None`: as many as the limits allow); for tests of the split.
     pub max_chunk: Option<usize>,
 }
 
 impl GpuBackend {
-    /// An engine on a device.
+    /// An f32 engine on a device.
     pub fn new(ctx: Arc<GpuContext>) -> GpuBackend {
         GpuBackend {
             ctx,
+            precision: Precision::F32,
             max_chunk: None,
         }
+    }
+
+    /// An engine in `precision`; [`GpuError::NoF64`] when f64 is asked of a device without
+    /// `wgpu::Features::SHADER_F64`.
+    pub fn with_precision(
+        ctx: Arc<GpuContext>,
+        precision: Precision,
+    ) -> Result<GpuBackend, GpuError> {
+        if precision == Precision::F64 && !ctx.has_f64() {
+            return Err(GpuError::NoF64(ctx.info.name.clone()));
+        }
+        Ok(GpuBackend {
+            ctx,
+            precision,
+            max_chunk: None,
+        })
     }
 
     /// The device.
@@ -47,27 +81,44 @@ impl GpuBackend {
         &self.ctx
     }
 
-    /// Whether this engine runs `settings` (forward bounds only, for now).
-    pub fn supports(settings: &ReachSettings) -> bool {
-        settings.bounds == BoundMethod::Forward && !settings.face_local
+    /// The device's number type.
+    pub fn precision(&self) -> Precision {
+        self.precision
     }
 
-    /// Boxes per chunk for a problem: the forms, magnitudes and snapshots of one chunk must fit
-    /// one binding and the dispatch limits.
-    pub fn chunk_size(&self, problem: &ReachProblem, every: usize, boxes: usize) -> usize {
+    /// Whether this engine runs `settings`: forward, forward-backward and CROWN bounds (either
+    /// relaxation), not IBP alone or face-local bounds.
+    pub fn supports(settings: &ReachSettings) -> bool {
+        !settings.face_local && method_flags(settings.bounds, 2).is_some()
+    }
+
+    /// Boxes per chunk for a problem: every buffer of one chunk must fit one binding, all of
+    /// them together 1.5 GiB, and the dispatches the device's limits.
+    pub fn chunk_size(
+        &self,
+        problem: &ReachProblem,
+        settings: &ReachSettings,
+        boxes: usize,
+    ) -> usize {
         let lim = &self.ctx.limits;
         let binding = lim
             .max_storage_buffer_binding_size
             .min(lim.max_buffer_size)
             .min(MAX_BINDING);
-        let n = problem.dynamics.n as u64;
-        let width = problem.network.widths().into_iter().max().unwrap_or(1) as u64;
-        let slots = problem.steps.div_ceil(every.max(1)).max(1) as u64;
-        let per_box = (width * (n + 1) * 4).max(slots * (2 * n + 1) * 4);
-        let by_binding = (binding / per_box.max(1)).max(1);
+        let shape = Shape::new(problem, settings);
+        let bytes = self.precision.bytes();
+        let per_box = shape.per_box();
+        let largest = per_box.iter().map(|(_, n, _)| *n).max().unwrap_or(1) * bytes;
+        let total: u64 = per_box.iter().map(|(_, n, copies)| n * copies).sum::<u64>() * bytes;
+        let by_binding = (binding / largest.max(1)).max(1);
+        let by_memory = (MAX_CHUNK_BYTES / total.max(1)).max(1);
         let groups = lim.max_compute_workgroups_per_dimension as u64;
-        let by_dispatch = (groups * GEMM_TILE as u64 / (n + 1)).min(groups * WORKGROUP as u64);
-        let mut c = by_binding.min(by_dispatch).min(boxes.max(1) as u64) as usize;
+        let widest = shape.kc.max(shape.r_max).max(3) as u64;
+        let by_dispatch = (groups * GEMM_TILE as u64 / widest).min(groups * WORKGROUP as u64);
+        let mut c = by_binding
+            .min(by_memory)
+            .min(by_dispatch)
+            .min(boxes.max(1) as u64) as usize;
         if let Some(m) = self.max_chunk {
             c = c.min(m.max(1));
         }
@@ -81,6 +132,133 @@ impl From<GpuError> for ReachError {
     }
 }
 
+/// The passes a bound method runs on the device (`None`: not on the GPU).
+fn method_flags(bounds: BoundMethod, n_layers: usize) -> Option<MethodFlags> {
+    let forward = MethodFlags {
+        forward: true,
+        ibp: false,
+        record: false,
+        backward: false,
+        same_slope: false,
+    };
+    let same_slope = matches!(
+        bounds,
+        BoundMethod::CrownSameSlope | BoundMethod::ForwardBackwardSameSlope
+    );
+    match bounds {
+        BoundMethod::Ibp => None,
+        BoundMethod::Forward => Some(forward),
+        // One affine layer: its forward forms are exact (the first layer's), so every method
+        // is forward's.
+        _ if n_layers < 2 => Some(forward),
+        BoundMethod::ForwardBackward | BoundMethod::ForwardBackwardSameSlope => Some(MethodFlags {
+            ibp: true,
+            record: true,
+            backward: true,
+            same_slope,
+            ..forward
+        }),
+        BoundMethod::Crown | BoundMethod::CrownSameSlope => Some(MethodFlags {
+            forward: false,
+            ibp: false,
+            record: true,
+            backward: true,
+            same_slope,
+        }),
+    }
+}
+
+/// Rows of Λ per box in a backward pass from layer k (widths `w`): `n_k` shared rows with the
+/// same-slope relaxation, else `2 n_k` (upper, then lower).
+fn pass_rows(w: &[usize], same_slope: bool, k: usize) -> usize {
+    if same_slope {
+        w[k + 1]
+    } else {
+        2 * w[k + 1]
+    }
+}
+
+/// Sizes of one problem's device arrays, per box.
+struct Shape {
+    /// Widths `w[0] = n, w[k+1] = n_k`.
+    w: Vec<usize>,
+    n: usize,
+    kc: usize,
+    flags: MethodFlags,
+    /// Whether every layer gets its own backward pass (crown).
+    crown: bool,
+    /// Rows of Λ per box of the largest pass, and Λ's reals per box (height × rows, the
+    /// largest over the passes).
+    r_max: usize,
+    lam: usize,
+    slots: usize,
+}
+
+impl Shape {
+    fn new(problem: &ReachProblem, settings: &ReachSettings) -> Shape {
+        let w = problem.network.widths();
+        let n_layers = w.len() - 1;
+        let flags = method_flags(settings.bounds, n_layers).unwrap_or(MethodFlags {
+            forward: true,
+            ibp: false,
+            record: false,
+            backward: false,
+            same_slope: false,
+        });
+        let crown = flags.backward && !flags.forward;
+        let rows = |k: usize| pass_rows(&w, flags.same_slope, k);
+        // Passes start at every layer ≥ 1 (crown) or at the output; a pass from layer k keeps
+        // Λ of heights w[k] … w[0].
+        let starts: Vec<usize> = match (flags.backward, crown) {
+            (false, _) => vec![],
+            (true, true) => (1..n_layers).collect(),
+            (true, false) => vec![n_layers - 1],
+        };
+        let r_max = starts.iter().map(|&k| rows(k)).max().unwrap_or(0);
+        let lam = starts
+            .iter()
+            .map(|&k| w[..=k].iter().copied().max().unwrap_or(0) * rows(k))
+            .max()
+            .unwrap_or(0);
+        let every = settings.every.max(1);
+        Shape {
+            n: problem.dynamics.n,
+            kc: problem.dynamics.n + 1,
+            slots: problem.steps.div_ceil(every).max(1),
+            w,
+            flags,
+            crown,
+            r_max,
+            lam,
+        }
+    }
+
+    /// Rows of Λ per box in the pass from layer k.
+    fn rows(&self, k: usize) -> usize {
+        pass_rows(&self.w, self.flags.same_slope, k)
+    }
+
+    /// Per box: (buffer, reals, copies) of every chunk buffer.
+    fn per_box(&self) -> Vec<(&'static str, u64, u64)> {
+        let width = *self.w.iter().max().unwrap_or(&1) as u64;
+        let sum: u64 = self.w[1..].iter().map(|&x| x as u64).sum();
+        let (kc, sw) = (self.kc as u64, 2 * self.n as u64 + 1);
+        let forms = if self.flags.forward { width * kc } else { 0 };
+        let record = if self.flags.record { sum } else { 0 };
+        vec![
+            ("forms", forms, 4),
+            ("aux", width * AUX as u64, 2),
+            ("pre", 2 * record, 1),
+            ("wm", record, 1),
+            ("lam", self.lam as u64, 2),
+            ("beta", 2 * self.r_max as u64, 1),
+            ("nnb", nnb_width(self.n, self.w[self.w.len() - 1]) as u64, 1),
+            ("state", sw, 2),
+            ("snap", self.slots as u64 * sw, 2),
+        ]
+    }
+}
+
 /// Device buffers of one run, sized for the largest chunk.
 struct Buffers {
     net: wgpu::Buffer,
@@ -89,21 +267,29 @@ struct Buffers {
     snap: wgpu::Buffer,
     c: [wgpu::Buffer; 2],
     r: [wgpu::Buffer; 2],
-    v_in: wgpu::Buffer,
-    v_gemm: wgpu::Buffer,
+    aux: wgpu::Buffer,
+    aux_g: wgpu::Buffer,
+    pre: wgpu::Buffer,
+    wm: wgpu::Buffer,
+    lam: [wgpu::Buffer; 2],
+    beta: wgpu::Buffer,
+    nnb: wgpu::Buffer,
     staging: wgpu::Buffer,
 }
 
 /// What one chunk's readback holds.
 struct ChunkResult {
-    snap: Vec<f32>,
-    state: Vec<f32>,
+    snap: Vec<f64>,
+    state: Vec<f64>,
     flags: Vec<u32>,
 }
 
 impl Backend for GpuBackend {
     fn name(&self) -> String {
-        format!("gpu ({})", self.ctx.info.name)
+        match self.precision {
+            Precision::F32 => format!("gpu ({})", self.ctx.info.name),
+            Precision::F64 => format!("gpu ({}, f64)", self.ctx.info.name),
+        }
     }
 
     fn reach(
@@ -114,10 +300,17 @@ impl Backend for GpuBackend {
         progress: &(dyn Fn(usize, usize) + Sync),
     ) -> Result<ReachResult, ReachError> {
         problem.check_initial(initial)?;
+        settings.validate()?;
         if !GpuBackend::supports(settings) {
             return Err(GpuError::Unsupported(format!(
-                "{} bounds (the GPU engine has forward bounds; use --bounds forward or the CPU)",
-                settings.bounds
+                "{} bounds{} (the GPU engine has forward, forward-backward and crown bounds, \
+                 without --face-local; use one of them or the CPU)",
+                settings.bounds,
+                if settings.face_local {
+                    " with --face-local"
+                } else {
+                    ""
+                }
             ))
             .into());
         }
@@ -155,13 +348,22 @@ impl Backend for GpuBackend {
                 GpuError::Problem(format!("network widths {widths:?} not supported")).into(),
             );
         }
-        let source = problem_wgsl(problem, settings)?;
-        let kernels = Kernels::new(&self.ctx.device, &source)?;
-        let chunk = self.chunk_size(problem, every, initial.len());
-        let bufs = self.buffers(problem, chunk, slots)?;
+        let stage_limit = self.ctx.limits.max_storage_buffers_per_shader_stage;
+        if stage_limit < STORAGE_BINDINGS {
+            return Err(GpuError::TooLarge(format!(
+                "the kernels bind {STORAGE_BINDINGS} storage buffers; the device allows \
+                 {stage_limit}"
+            ))
+            .into());
+        }
+        let shape = Shape::new(problem, settings);
+        let source = problem_wgsl(problem, settings, shape.flags, self.precision)?;
+        let kernels = Kernels::new(&self.ctx.device, self.precision, &source)?;
+        let chunk = self.chunk_size(problem, settings, initial.len());
+        let bufs = self.buffers(problem, &shape, chunk)?;
         let n_chunks = initial.len().div_ceil(chunk);
         for (ci, boxes) in z_boxes.chunks(chunk).enumerate() {
-            let res = self.run_chunk(problem, &kernels, &bufs, boxes, slots, &|s| {
+            let res = self.run_chunk(problem, &shape, &kernels, &bufs, boxes, slots, &|s| {
                 progress(((ci * steps + s) / n_chunks).min(steps), steps)
             })?;
             let first = ci * chunk;
@@ -179,41 +381,358 @@ impl Backend for GpuBackend {
     }
 }
 
+/// One dispatch of a step.
+struct Op<'k> {
+    kernel: &'k Kernel,
+    bind: wgpu::BindGroup,
+    groups: [u32; 3],
+}
+
+/// The dispatches of one Euler step for one chunk (see the module documentation).
+struct StepPlan<'a> {
+    device: &'a wgpu::Device,
+    kernels: &'a Kernels,
+    bufs: &'a Buffers,
+    shape: &'a Shape,
+    /// Offsets of every layer's `W` and `b` in `net`.
+    offsets: Vec<(u32, u32)>,
+    /// Boxes in this chunk.
+    nb: u32,
+    ops: Vec<Op<'a>>,
+}
+
+impl<'a> StepPlan<'a> {
+    fn push(&mut self, kernel: &'a Kernel, p: &Params, bufs: &[&wgpu::Buffer], groups: [u32; 3]) {
+        let u = uniform(self.device, "params", p);
+        let mut entries = vec![wgpu::BindGroupEntry {
+            binding: 0,
+            resource: u.as_entire_binding(),
+        }];
+        for (i, b) in bufs.iter().enumerate() {
+            entries.push(wgpu::BindGroupEntry {
+                binding: i as u32 + 1,
+                resource: b.as_entire_binding(),
+            });
+        }
+        let bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: None,
+            layout: &kernel.layout,
+            entries: &entries,
+        });
+        self.ops.push(Op {
+            kernel,
+            bind,
+            groups,
+        });
+    }
+
+    /// Width `n_k` of layer k's output.
+    fn n(&self, k: usize) -> u32 {
+        self.shape.w[k + 1] as u32
+    }
+
+    /// Offset of layer k's recorded `l` in `pre` (its `u` follows, `n_k × B` later).
+    fn pre_off(&self, k: usize) -> u32 {
+        2 * self.nb * self.shape.w[1..=k].iter().sum::<usize>() as u32
+    }
+
+    /// Offset of layer k's `|W_k| max(u_{k−1}, 0)` in `wm`.
+    fn wm_off(&self, k: usize) -> u32 {
+        self.nb * self.shape.w[1..=k].iter().sum::<usize>() as u32
+    }
+
+    /// `Y = op(W_k)·X` over `cols` columns.
+    fn gemm(
+        &mut self,
+        k: usize,
+        base: Params,
+        x: &'a wgpu::Buffer,
+        y: &'a wgpu::Buffer,
+        cols: u32,
+    ) {
+        let (rows, inner) = if base.trans_w != 0 {
+            (self.shape.w[k] as u32, self.n(k))
+        } else {
+            (self.n(k), self.shape.w[k] as u32)
+        };
+        let p = Params {
+            rows,
+            inner,
+            cols,
+            w_off: self.offsets[k].0,
+            ..base
+        };
+        let groups = [cols.div_ceil(GEMM_TILE), rows.div_ceil(GEMM_TILE), 1];
+        let net = &self.bufs.net;
+        self.push(&self.kernels.gemm, &p, &[net, x, y], groups);
+    }
+
+    /// Layer k > 0's forward GEMMs: forms, form magnitudes, and IBP with `flags.ibp`.
+    fn forward_gemms(&mut self, k: usize) {
+        let b = self.bufs;
+        let (cur, prev) = (k % 2, 1 - k % 2);
+        let cols = self.nb * self.shape.kc as u32;
+        let forms = Params {
+            ldx: cols,
+            ldy: cols,
+            ..Default::default()
+        };
+        self.gemm(k, forms, &b.c[prev], &b.c[cur], cols);
+        self.gemm(k, Params { abs_w: 1, ..forms }, &b.r[prev], &b.r[cur], cols);
+        // Sections of aux: [c | V | r | |c| + r], `nb` columns each.
+        let ld = AUX as u32 * self.nb;
+        let vectors = Params {
+            ldx: ld,
+            ldy: ld,
+            ..Default::default()
+        };
+        if self.shape.flags.ibp {
+            self.gemm(k, vectors, &b.aux, &b.aux_g, self.nb);
+        }
+        let sections = if self.shape.flags.ibp { 3 } else { 1 };
+        let mags = Params {
+            abs_w: 1,
+            x_off: self.nb,
+            y_off: self.nb,
+            ..vectors
+        };
+        self.gemm(k, mags, &b.aux, &b.aux_g, sections * self.nb);
+    }
+
+    /// `wm_k = |W_k| max(u_{k−1}, 0)`, the magnitudes of layer k's terms (k ≥ 1).
+    fn weight_magnitudes(&mut self, k: usize) {
+        let p = Params {
+            abs_w: 1,
+            relu_x: 1,
+            x_off: self.pre_off(k - 1) + self.shape.w[k] as u32 * self.nb,
+            ldx: self.nb,
+            y_off: self.wm_off(k),
+            ldy: self.nb,
+            ..Default::default()
+        };
+        let (pre, wm) = (&self.bufs.pre, &self.bufs.wm);
+        self.gemm(k, p, pre, wm, self.nb);
+    }
+
+    /// Hidden layer k's bias, IBP, record and ReLU relaxation.
+    fn relu(&mut self, k: usize) {
+        let b = self.bufs;
+        let cur = k % 2;
+        let p = Params {
+            rows: self.n(k),
+            w_off: self.offsets[k].0,
+            b_off: self.offsets[k].1,
+            n_prev: self.shape.w[k] as u32,
+            first: (k == 0) as u32,
+            boxes: self.nb,
+            pre_off: self.pre_off(k),
+            ..Default::default()
+        };
+        let groups = [self.nb.div_ceil(WORKGROUP), p.rows, 1];
+        let bufs = [
+            &b.net, &b.state, &b.c[cur], &b.r[cur], &b.aux_g, &b.aux, &b.flags, &b.pre,
+        ];
+        self.push(&self.kernels.relu, &p, &bufs, groups);
+    }
+
+    /// The backward pass from layer k ≥ 1: returns the index of the Λ buffer holding the final
+    /// `N0 × B·R` coefficients (the intercepts are in `beta`).
+    fn backward_pass(&mut self, k: usize) -> usize {
+        let b = self.bufs;
+        let rpb = self.shape.rows(k) as u32;
+        let cols = self.nb * rpb;
+        let mut cur = 0;
+        for j in (0..k).rev() {
+            let p = Params {
+                rows: self.n(j),
+                n_prev: self.shape.w[j] as u32,
+                first: (j + 1 == k) as u32,
+                boxes: self.nb,
+                rpb,
+                w_off: self.offsets[j].0,
+                b_off: self.offsets[j].1,
+                pre_off: self.pre_off(j),
+                wm_off: self.wm_off(j),
+                prev_u_off: if j > 0 {
+                    self.pre_off(j - 1) + self.shape.w[j] as u32 * self.nb
+                } else {
+                    0
+                },
+                at_input: (j == 0) as u32,
+                k_w_off: self.offsets[k].0,
+                k_b_off: self.offsets[k].1,
+                k_rows: self.n(k),
+                k_wm_off: self.wm_off(k),
+                ..Default::default()
+            };
+            let bufs = [
+                &b.net,
+                &b.state,
+                &b.pre,
+                &b.wm,
+                &b.lam[cur],
+                &b.beta,
+                &b.flags,
+            ];
+            self.push(
+                &self.kernels.bwd_scale,
+                &p,
+                &bufs,
+                [cols.div_ceil(WORKGROUP), 1, 1],
+            );
+            let t = Params {
+                trans_w: 1,
+                ldx: cols,
+                ldy: cols,
+                ..Default::default()
+            };
+            self.gemm(j, t, &b.lam[cur], &b.lam[1 - cur], cols);
+            cur = 1 - cur;
+        }
+        cur
+    }
+
+    /// Layer k's concrete bounds from its finished pass (crown), or from `W₀` for k = 0.
+    fn pass_bounds(&mut self, k: usize, lam: usize) {
+        let b = self.bufs;
+        let p = Params {
+            boxes: self.nb,
+            rpb: self.shape.rows(k) as u32,
+            first: (k == 0) as u32,
+            pre_off: self.pre_off(k),
+            k_w_off: self.offsets[k].0,
+            k_b_off: self.offsets[k].1,
+            k_rows: self.n(k),
+            ..Default::default()
+        };
+        let bufs = [
+            &b.net,
+            &b.state,
+            &b.pre,
+            &b.wm,
+            &b.lam[lam],
+            &b.beta,
+            &b.flags,
+        ];
+        let groups = [self.nb.div_ceil(WORKGROUP), p.k_rows, 1];
+        self.push(&self.kernels.bwd_bounds, &p, &bufs, groups);
+    }
+
+    /// The network's bounds per box, the Euler step and the tick.
+    fn finish(&mut self, lam: usize) {
+        let b = self.bufs;
+        let last = self.shape.w.len() - 2;
+        let p = Params {
+            w_off: self.offsets[last].0,
+            b_off: self.offsets[last].1,
+            n_prev: self.shape.w[last] as u32,
+            first: (last == 0) as u32,
+            boxes: self.nb,
+            rpb: if self.shape.flags.backward {
+                self.shape.rows(last) as u32
+            } else {
+                0
+            },
+            ..Default::default()
+        };
+        let cur = last % 2;
+        let groups = [self.nb.div_ceil(WORKGROUP), 1, 1];
+        let bufs = [
+            &b.net,
+            &b.state,
+            &b.c[cur],
+            &b.r[cur],
+            &b.aux_g,
+            &b.lam[lam],
+            &b.beta,
+            &b.nnb,
+        ];
+        self.push(&self.kernels.output, &p, &bufs, groups);
+        let group = [&b.state, &b.nnb, &b.flags, &b.snap];
+        self.push(&self.kernels.embed, &p, &group, groups);
+        self.push(&self.kernels.tick, &p, &group, [1, 1, 1]);
+    }
+
+    /// Every dispatch of one step.
+    fn build(mut self) -> Vec<Op<'a>> {
+        let n_layers = self.shape.w.len() - 1;
+        let last = n_layers - 1;
+        if self.shape.crown {
+            self.pass_bounds(0, 0);
+            let mut lam = 0;
+            for k in 1..n_layers {
+                self.weight_magnitudes(k);
+                lam = self.backward_pass(k);
+                if k < last {
+                    self.pass_bounds(k, lam);
+                }
+            }
+            self.finish(lam);
+            return self.ops;
+        }
+        for k in 0..n_layers {
+            if k > 0 {
+                self.forward_gemms(k);
+                if self.shape.flags.record {
+                    self.weight_magnitudes(k);
+                }
+            }
+            if k < last {
+                self.relu(k);
+            }
+        }
+        let lam = if self.shape.flags.backward {
+            self.backward_pass(last)
+        } else {
+            0
+        };
+        self.finish(lam);
+        self.ops
+    }
+}
+
 impl GpuBackend {
     fn buffers(
         &self,
         problem: &ReachProblem,
+        shape: &Shape,
         chunk: usize,
-        slots: usize,
     ) -> Result<Buffers, GpuError> {
         let d = &self.ctx.device;
-        let n = problem.dynamics.n as u64;
+        let bytes = self.precision.bytes();
         let b = chunk as u64;
-        let width = problem.network.widths().into_iter().max().unwrap_or(1) as u64;
-        let (net, _) = flatten_network(&problem.network);
-        let form = width * b * (n + 1) * 4;
-        let state = b * (2 * n + 1) * 4;
-        let flags = (3 * b + 1) * 4;
-        let snap = slots as u64 * state;
+        let sizes: std::collections::HashMap<&str, u64> = shape
+            .per_box()
+            .into_iter()
+            .map(|(name, n, _)| (name, n * b * bytes))
+            .collect();
         let limit = self.ctx.limits.max_buffer_size;
-        if [form, snap, state].iter().any(|&s| s > limit) {
+        if let Some((name, size)) = sizes.iter().find(|(_, &s)| s > limit) {
             return Err(GpuError::TooLarge(format!(
-                "a chunk of {chunk} boxes needs {} bytes in one buffer",
-                form.max(snap)
+                "a chunk of {chunk} boxes needs {size} bytes in one buffer ({name})"
             )));
         }
+        let (net, _) = flatten_network(&problem.network);
+        let flags = (3 * b + 1) * 4;
+        let sz = |name: &str| sizes.get(name).copied().unwrap_or(4);
+        let (snap, state) = (sz("snap"), sz("state"));
         Ok(Buffers {
-            net: storage_init(d, "net", &net),
+            net: storage_init(d, "net", &device_bytes(&net, self.precision)),
             state: storage(d, "state", state),
             flags: storage(d, "flags", flags),
             snap: storage(d, "snap", snap),
-            c: [storage(d, "c0", form), storage(d, "c1", form)],
-            r: [storage(d, "r0", form), storage(d, "r1", form)],
-            v_in: storage(d, "v_in", width * b * 4),
-            v_gemm: storage(d, "v_gemm", width * b * 4),
+            c: [storage(d, "c0", sz("forms")), storage(d, "c1", sz("forms"))],
+            r: [storage(d, "r0", sz("forms")), storage(d, "r1", sz("forms"))],
+            aux: storage(d, "aux", sz("aux")),
+            aux_g: storage(d, "aux_g", sz("aux")),
+            pre: storage(d, "pre", sz("pre")),
+            wm: storage(d, "wm", sz("wm")),
+            lam: [storage(d, "lam0", sz("lam")), storage(d, "lam1", sz("lam"))],
+            beta: storage(d, "beta", sz("beta")),
+            nnb: storage(d, "nnb", sz("nnb")),
             staging: d.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("staging"),
-                size: (snap + state + flags).next_multiple_of(4),
+                size: (snap + state + flags).next_multiple_of(8),
                 usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
                 mapped_at_creation: false,
             }),
@@ -221,9 +740,11 @@ impl GpuBackend {
     }
 
     /// Runs every step for one chunk of boxes and reads its results back.
+    #[allow(clippy::too_many_arguments)]
     fn run_chunk(
         &self,
         problem: &ReachProblem,
+        shape: &Shape,
         kernels: &Kernels,
         bufs: &Buffers,
         boxes: &[IntervalBox],
@@ -231,138 +752,42 @@ impl GpuBackend {
         progress: &dyn Fn(usize),
     ) -> Result<ChunkResult, GpuError> {
         let (d, q) = (&self.ctx.device, &self.ctx.queue);
+        let prec = self.precision;
         let n = problem.dynamics.n;
-        let nb = boxes.len() as u32;
-        let kc = (n + 1) as u32;
         let sw = 2 * n + 1;
-        // Initial states, rounded outward to f32.
+        // Initial states, rounded outward to the device's numbers.
         let mut init = Vec::with_capacity(boxes.len() * sw);
         for b in boxes {
-            init.extend(b.lower.iter().map(|&v| f32_down(v)));
-            init.extend(b.upper.iter().map(|&v| f32_up(v)));
-            init.push(0.0f32);
+            init.extend(b.lower.iter().map(|&v| round_down(v, prec)));
+            init.extend(b.upper.iter().map(|&v| round_up(v, prec)));
+            init.push(0.0);
         }
         if init.iter().any(|v| v.abs() > 1e30) {
             return Err(GpuError::Problem("an initial box exceeds 1e30".into()));
         }
-        q.write_buffer(&bufs.state, 0, bytemuck::cast_slice(&init));
+        q.write_buffer(&bufs.state, 0, &device_bytes(&init, prec));
         q.write_buffer(
             &bufs.flags,
             0,
             bytemuck::cast_slice(&vec![0u32; 3 * boxes.len() + 1]),
         );
 
-        // Bind groups and parameters of every dispatch of one step.
-        let (_, offsets) = flatten_network(&problem.network);
-        let layers = &problem.network.layers;
-        let n_layers = layers.len();
-        let bind = |k: &super::kernels::Kernel, p: &Params, bs: &[&wgpu::Buffer]| {
-            let u = uniform(d, "params", p);
-            let mut e = vec![wgpu::BindGroupEntry {
-                binding: 0,
-                resource: u.as_entire_binding(),
-            }];
-            for (i, b) in bs.iter().enumerate() {
-                e.push(wgpu::BindGroupEntry {
-                    binding: i as u32 + 1,
-                    resource: b.as_entire_binding(),
-                });
-            }
-            d.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: None,
-                layout: &k.layout,
-                entries: &e,
-            })
+        let plan = StepPlan {
+            device: d,
+            kernels,
+            bufs,
+            shape,
+            offsets: flatten_network(&problem.network).1,
+            nb: boxes.len() as u32,
+            ops: Vec::new(),
         };
-        enum Op {
-            Gemm(wgpu::BindGroup, u32, u32),
-            Relu(wgpu::BindGroup, u32),
-            Embed(wgpu::BindGroup),
-            Tick(wgpu::BindGroup),
-        }
-        let mut ops = Vec::new();
-        let groups_1d = nb.div_ceil(WORKGROUP);
-        for (k, layer) in layers.iter().enumerate() {
-            let (w_off, b_off) = offsets[k];
-            let base = Params {
-                rows: layer.n_out as u32,
-                inner: layer.n_in as u32,
-                w_off,
-                b_off,
-                n_prev: layer.n_in as u32,
-                first: (k == 0) as u32,
-                boxes: nb,
-                ..Default::default()
-            };
-            let cur = k % 2;
-            if k > 0 {
-                let prev = 1 - cur;
-                for (abs_w, x, y, cols) in [
-                    (0, &bufs.c[prev], &bufs.c[cur], nb * kc),
-                    (1, &bufs.r[prev], &bufs.r[cur], nb * kc),
-                    (1, &bufs.v_in, &bufs.v_gemm, nb),
-                ] {
-                    let p = Params {
-                        cols,
-                        abs_w,
-                        ..base
-                    };
-                    let bg = bind(&kernels.gemm.0, &p, &[&bufs.net, x, y]);
-                    ops.push(Op::Gemm(
-                        bg,
-                        cols.div_ceil(GEMM_TILE),
-                        p.rows.div_ceil(GEMM_TILE),
-                    ));
-                }
-            }
-            let tail = [
-                &bufs.net,
-                &bufs.state,
-                &bufs.c[cur],
-                &bufs.r[cur],
-                &bufs.v_gemm,
-            ];
-            if k + 1 < n_layers {
-                let bg = bind(
-                    &kernels.relu.0,
-                    &base,
-                    &[
-                        tail[0],
-                        tail[1],
-                        tail[2],
-                        tail[3],
-                        tail[4],
-                        &bufs.v_in,
-                        &bufs.flags,
-                    ],
-                );
-                ops.push(Op::Relu(bg, base.rows));
-            } else {
-                let group = [
-                    tail[0],
-                    tail[1],
-                    tail[2],
-                    tail[3],
-                    tail[4],
-                    &bufs.flags,
-                    &bufs.snap,
-                ];
-                ops.push(Op::Embed(bind(&kernels.embed.0, &base, &group)));
-                ops.push(Op::Tick(bind(&kernels.tick.0, &base, &group)));
-            }
-        }
+        let ops = plan.build();
         let limit = self.ctx.limits.max_compute_workgroups_per_dimension;
-        for op in &ops {
-            let (x, y) = match op {
-                Op::Gemm(_, x, y) => (*x, *y),
-                Op::Relu(_, rows) => (groups_1d, *rows),
-                _ => (groups_1d, 1),
-            };
-            if x > limit || y > limit {
-                return Err(GpuError::TooLarge(format!(
-                    "a dispatch of {x} × {y} workgroups exceeds the device's {limit}"
-                )));
-            }
+        if let Some(op) = ops.iter().find(|op| op.groups.iter().any(|&g| g > limit)) {
+            return Err(GpuError::TooLarge(format!(
+                "a dispatch of {:?} workgroups exceeds the device's {limit}",
+                op.groups
+            )));
         }
 
         let steps = problem.steps;
@@ -374,28 +799,9 @@ impl GpuBackend {
                 let mut pass = enc.begin_compute_pass(&Default::default());
                 for _ in 0..batch {
                     for op in &ops {
-                        match op {
-                            Op::Gemm(bg, x, y) => {
-                                pass.set_pipeline(&kernels.gemm.0.pipeline);
-                                pass.set_bind_group(0, bg, &[]);
-                                pass.dispatch_workgroups(*x, *y, 1);
-                            }
-                            Op::Relu(bg, rows) => {
-                                pass.set_pipeline(&kernels.relu.0.pipeline);
-                                pass.set_bind_group(0, bg, &[]);
-                                pass.dispatch_workgroups(groups_1d, *rows, 1);
-                            }
-                            Op::Embed(bg) => {
-                                pass.set_pipeline(&kernels.embed.0.pipeline);
-                                pass.set_bind_group(0, bg, &[]);
-                                pass.dispatch_workgroups(groups_1d, 1, 1);
-                            }
-                            Op::Tick(bg) => {
-                                pass.set_pipeline(&kernels.tick.0.pipeline);
-                                pass.set_bind_group(0, bg, &[]);
-                                pass.dispatch_workgroups(1, 1, 1);
-                            }
-                        }
+                        pass.set_pipeline(&op.kernel.pipeline);
+                        pass.set_bind_group(0, &op.bind, &[]);
+                        pass.dispatch_workgroups(op.groups[0], op.groups[1], op.groups[2]);
                     }
                 }
             }
@@ -406,8 +812,9 @@ impl GpuBackend {
         }
 
         // One readback: snapshots, final states, flags.
-        let snap_bytes = (slots * boxes.len() * sw * 4) as u64;
-        let state_bytes = (boxes.len() * sw * 4) as u64;
+        let bytes = prec.bytes();
+        let snap_bytes = (slots * boxes.len() * sw) as u64 * bytes;
+        let state_bytes = (boxes.len() * sw) as u64 * bytes;
         let flag_bytes = ((3 * boxes.len() + 1) * 4) as u64;
         let mut enc = d.create_command_encoder(&Default::default());
         enc.copy_buffer_to_buffer(&bufs.snap, 0, &bufs.staging, 0, snap_bytes);
@@ -438,8 +845,8 @@ impl GpuBackend {
             let (a, rest) = bytes.split_at(snap_bytes as usize);
             let (b, c) = rest.split_at(state_bytes as usize);
             ChunkResult {
-                snap: bytemuck::pod_collect_to_vec(a),
-                state: bytemuck::pod_collect_to_vec(b),
+                snap: from_device_bytes(a, prec),
+                state: from_device_bytes(b, prec),
                 flags: bytemuck::pod_collect_to_vec(c),
             }
         };
@@ -462,12 +869,8 @@ fn fill_tube(
     let steps = problem.steps;
     let st = res.flags[3 * g + 1];
     let stop = res.flags[3 * g + 2] as usize + 1; // 1-based step at which it stopped
-    let read = |v: &[f32]| -> (Vec<f64>, Vec<f64>, f64) {
-        (
-            v[..n].iter().map(|&x| x as f64).collect(),
-            v[n..2 * n].iter().map(|&x| x as f64).collect(),
-            v[2 * n] as f64,
-        )
+    let read = |v: &[f64]| -> (Vec<f64>, Vec<f64>, f64) {
+        (v[..n].to_vec(), v[n..2 * n].to_vec(), v[2 * n])
     };
     for (slot, s) in (1..=steps)
         .filter(|s| s % every == 0 || *s == steps)

@@ -1,15 +1,24 @@
 //! Host-side images of what the kernels read (`#[repr(C)]`, bytemuck) and buffer helpers.
 //!
-//! Device layout of one chunk of `B` boxes (`n` states, `K = n + 1` columns per form):
-//! - `state`: per box `lo[n], hi[n], r` (`2n + 1` f32, the embedding coordinates);
+//! Device layout of one chunk of `B` boxes (`n` states, `K = n + 1` columns per form), every
+//! number a `real` (f32, or f64 with `--f64`):
+//! - `state`: per box `lo[n], hi[n], r` (`2n + 1` reals, the embedding coordinates);
 //! - `flags`: per box `[poisoned, status, stop step]` (u32), then the step counter;
 //! - `snap`: per recorded slot and box the state, slot-major;
-//! - forms `Ĉ, R̂`: `width × B·K`, neuron-major; magnitudes `V`: `width × B`.
+//! - forms `Ĉ, R̂`: `width × B·K`, neuron-major; per-neuron vectors `aux` (form magnitude `V`,
+//!   IBP centre, radius and magnitude): `width × 4B`;
+//! - `pre`: per layer its pre-activation bounds `l, u` (`n_k × B` each); `wm`: per layer
+//!   `|W_k| max(u_{k−1}, 0)` (`n_k × B`);
+//! - `Λ`: `height × B·R` (neuron-major, `R` rows per box), `β`: `2 × B·R`;
+//! - `nnb`: per box the network's bounds (`codegen::nnb_width`).
 
 use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
 
-/// Parameters of one dispatch; the same fields in the same order as `shaders/params.wgsl`.
+use super::Precision;
+
+/// Parameters of one dispatch; the same fields in the same order as `shaders/params.wgsl`
+/// (whose comments say what each kernel reads from them).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
 pub struct Params {
@@ -27,12 +36,40 @@ pub struct Params {
     pub b_off: u32,
     /// Its input width.
     pub n_prev: u32,
-    /// 1 for the first layer.
+    /// 1 for the first layer, or the first substitution of a backward pass.
     pub first: u32,
     /// Boxes in the chunk.
     pub boxes: u32,
-    /// Padding to 16 bytes.
-    pub pad: [u32; 3],
+    /// GEMM: 1 for `Wᵀ`.
+    pub trans_w: u32,
+    /// GEMM: 1 to read `X` through `max(·, 0)`.
+    pub relu_x: u32,
+    /// GEMM: offset of `X` in its buffer.
+    pub x_off: u32,
+    /// GEMM: row stride of `X`.
+    pub ldx: u32,
+    /// GEMM: offset of `Y` in its buffer.
+    pub y_off: u32,
+    /// GEMM: row stride of `Y`.
+    pub ldy: u32,
+    /// Backward passes: columns of `Λ` per box.
+    pub rpb: u32,
+    /// Offset of the layer's recorded `l` (then `u`) in `pre`.
+    pub pre_off: u32,
+    /// Offset of the layer's `|W| max(u_prev, 0)` in `wm`.
+    pub wm_off: u32,
+    /// Offset of the previous layer's `u` in `pre`.
+    pub prev_u_off: u32,
+    /// 1 when the layer's input is the box itself.
+    pub at_input: u32,
+    /// The backward pass's start layer `k`: offset of `W_k`.
+    pub k_w_off: u32,
+    /// Offset of `b_k`.
+    pub k_b_off: u32,
+    /// `n_k`.
+    pub k_rows: u32,
+    /// Offset of layer `k`'s `|W| max(u_prev, 0)` in `wm`.
+    pub k_wm_off: u32,
 }
 
 /// Box status codes written by the embedding kernel.
@@ -47,11 +84,11 @@ pub mod status {
     pub const NON_FINITE: u32 = 3;
 }
 
-/// A storage buffer of `bytes` bytes (at least 4).
+/// A storage buffer of `bytes` bytes (at least 16, a multiple of 8).
 pub fn storage(device: &wgpu::Device, label: &str, bytes: u64) -> wgpu::Buffer {
     device.create_buffer(&wgpu::BufferDescriptor {
         label: Some(label),
-        size: bytes.max(4).next_multiple_of(4),
+        size: bytes.max(16).next_multiple_of(8),
         usage: wgpu::BufferUsages::STORAGE
             | wgpu::BufferUsages::COPY_DST
             | wgpu::BufferUsages::COPY_SRC,
@@ -60,10 +97,10 @@ pub fn storage(device: &wgpu::Device, label: &str, bytes: u64) -> wgpu::Buffer {
 }
 
 /// A storage buffer holding `data`.
-pub fn storage_init<T: Pod>(device: &wgpu::Device, label: &str, data: &[T]) -> wgpu::Buffer {
+pub fn storage_init(device: &wgpu::Device, label: &str, data: &[u8]) -> wgpu::Buffer {
     device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
         label: Some(label),
-        contents: bytemuck::cast_slice(data),
+        contents: data,
         usage: wgpu::BufferUsages::STORAGE
             | wgpu::BufferUsages::COPY_DST
             | wgpu::BufferUsages::COPY_SRC,
@@ -79,16 +116,40 @@ pub fn uniform(device: &wgpu::Device, label: &str, p: &Params) -> wgpu::Buffer {
     })
 }
 
-/// The network as one f32 array (each layer's `W` row-major, then its `b`) and the offsets.
-pub fn flatten_network(net: &crate::network::Mlp) -> (Vec<f32>, Vec<(u32, u32)>) {
+/// The network as one array (each layer's `W` row-major, then its `b`) and the offsets.
+pub fn flatten_network(net: &crate::network::Mlp) -> (Vec<f64>, Vec<(u32, u32)>) {
     let mut data = Vec::new();
     let mut offsets = Vec::new();
     for layer in &net.layers {
         let w_off = data.len() as u32;
-        data.extend(layer.weight.iter().map(|&w| w as f32));
+        data.extend(&layer.weight);
         let b_off = data.len() as u32;
-        data.extend(layer.bias.iter().map(|&b| b as f32));
+        data.extend(&layer.bias);
         offsets.push((w_off, b_off));
     }
     (data, offsets)
+}
+
+/// Numbers in the device's type: f64 as is, or rounded to the nearest f32 (exact for numbers
+/// already rounded outward to f32; the network's weights, whose conversion error the kernels
+/// bound).
+pub fn device_bytes(values: &[f64], precision: Precision) -> Vec<u8> {
+    match precision {
+        Precision::F32 => {
+            let v: Vec<f32> = values.iter().map(|&x| x as f32).collect();
+            bytemuck::cast_slice(&v).to_vec()
+        }
+        Precision::F64 => bytemuck::cast_slice(values).to_vec(),
+    }
+}
+
+/// Device numbers read back, as f64 (exact).
+pub fn from_device_bytes(bytes: &[u8], precision: Precision) -> Vec<f64> {
+    match precision {
+        Precision::F32 => bytemuck::pod_collect_to_vec::<u8, f32>(bytes)
+            .into_iter()
+            .map(f64::from)
+            .collect(),
+        Precision::F64 => bytemuck::pod_collect_to_vec(bytes),
+    }
 }

@@ -4,12 +4,14 @@
 //! Every expression becomes a sound f32 interval inclusion function built from the helpers of
 //! `shaders/common.wgsl` (`iv_add`, `iv_mul`, …, each rounded outward by one ulp, transcendental
 //! built-ins widened by the WGSL spec's accuracy). A constant `c` (an f64) becomes the f32
-//! interval `[↓c, ↑c]` that contains it, so the enclosure is sound for the f64 expression the
-//! CPU evaluates.
+//! interval `[↓c, ↑c]` that contains it (in f64 mode: `[c, c]`, flushed subnormals outward), so
+//! the enclosure is sound for the f64 expression the CPU evaluates. Literals carry the type's
+//! suffix (`f`, `lf`) and print the exact device value (Rust's shortest round-trip form, which
+//! naga parses back correctly rounded).
 
 use std::fmt::Write;
 
-use super::GpuError;
+use super::{GpuError, Precision};
 use crate::expressions::{Expr, Func, Node};
 use crate::intervals::Interval;
 use crate::reach::{ReachMethod, ReachProblem, ReachSettings};
@@ -69,19 +71,75 @@ pub fn literal(x: f32) -> String {
     }
 }
 
+/// The largest f64 the f64 shaders treat as a number (`HUGE` in `real_f64.wgsl`).
+const HUGE_F64: f64 = 1.0e300;
+
+/// The largest device number `≤ x` in `precision`, as an f64 (exact).
+pub fn round_down(x: f64, precision: Precision) -> f64 {
+    match precision {
+        Precision::F32 => f32_down(x) as f64,
+        Precision::F64 => {
+            if x.is_nan() || x < -HUGE_F64 {
+                -HUGE_F64
+            } else if x > HUGE_F64 {
+                HUGE_F64
+            } else if x.abs() < f64::MIN_POSITIVE && x != 0.0 {
+                // The device may flush subnormals: step to zero or the smallest normal outward.
+                if x < 0.0 {
+                    -f64::MIN_POSITIVE
+                } else {
+                    0.0
+                }
+            } else {
+                x
+            }
+        }
+    }
+}
+
+/// The smallest device number `≥ x` in `precision` (see [`round_down`]).
+pub fn round_up(x: f64, precision: Precision) -> f64 {
+    -round_down(-x, precision)
+}
+
+/// A device number (exact in `precision`) as a WGSL literal of type `real`.
+pub fn real_literal(x: f64, precision: Precision) -> String {
+    match precision {
+        Precision::F32 => literal(x as f32),
+        Precision::F64 => {
+            let x = if x.is_finite() {
+                x
+            } else {
+                HUGE_F64.copysign(x)
+            };
+            let s = format!("{x:?}");
+            if s.contains('.') || s.contains('e') {
+                format!("{s}lf")
+            } else {
+                format!("{s}.0lf")
+            }
+        }
+    }
+}
+
 /// The interval `[↓lo, ↑hi]` as a WGSL `Iv`.
-fn iv_literal(lo: f64, hi: f64) -> String {
-    format!("Iv({}, {})", literal(f32_down(lo)), literal(f32_up(hi)))
+fn iv_literal(lo: f64, hi: f64, precision: Precision) -> String {
+    format!(
+        "Iv({}, {})",
+        real_literal(round_down(lo, precision), precision),
+        real_literal(round_up(hi, precision), precision)
+    )
 }
 
 /// The WGSL interval inclusion of an expression over `x: array<Iv, N0>`.
-pub fn interval_expr(e: &Expr) -> String {
+pub fn interval_expr(e: &Expr, precision: Precision) -> String {
     let mut out = String::new();
-    emit(e.node(), &mut out);
+    emit(e.node(), precision, &mut out);
     out
 }
 
-fn emit(node: &Node, out: &mut String) {
+fn emit(node: &Node, precision: Precision, out: &mut String) {
+    let emit = |node: &Node, out: &mut String| emit(node, precision, out);
     let call = |name: &str, args: &[&Node], out: &mut String| {
         out.push_str(name);
         out.push('(');
@@ -94,7 +152,7 @@ fn emit(node: &Node, out: &mut String) {
         out.push(')');
     };
     match node {
-        Node::Const(c) => out.push_str(&iv_literal(*c, *c)),
+        Node::Const(c) => out.push_str(&iv_literal(*c, *c, precision)),
         Node::Var(i) => {
             let _ = write!(out, "x[{i}]");
         }
@@ -136,29 +194,60 @@ fn emit(node: &Node, out: &mut String) {
 }
 
 /// `fn name(i: u32, …, x: array<Iv, N0>) -> Iv`, a `switch` over the flattened index.
-fn switch_fn(name: &str, index_args: &str, index: &str, exprs: &[&Expr]) -> String {
+fn switch_fn(
+    name: &str,
+    index_args: &str,
+    index: &str,
+    exprs: &[&Expr],
+    precision: Precision,
+) -> String {
     let mut s =
         format!("fn {name}({index_args}, x: array<Iv, N0>) -> Iv {{\n    switch ({index}) {{\n");
     for (k, e) in exprs.iter().enumerate() {
-        let _ = writeln!(s, "        case {k}u: {{ return {}; }}", interval_expr(e));
+        let _ = writeln!(
+            s,
+            "        case {k}u: {{ return {}; }}",
+            interval_expr(e, precision)
+        );
     }
     s.push_str("        default: { return iv_entire(); }\n    }\n}\n");
     s
 }
 
-fn private_f32(name: &str, values: impl Iterator<Item = f32>) -> String {
-    let v: Vec<String> = values.map(literal).collect();
+/// A private `array<real, n>` of device numbers.
+fn private_real(name: &str, values: impl Iterator<Item = f64>, precision: Precision) -> String {
+    let v: Vec<String> = values.map(|x| real_literal(x, precision)).collect();
     format!(
-        "var<private> {name}: array<f32, {}> = array<f32, {}>({});\n",
+        "var<private> {name}: array<real, {}> = array<real, {}>({});\n",
         v.len(),
         v.len(),
         v.join(", ")
     )
 }
 
+/// The bound method as the kernels see it (src/gpu/backend.rs decides which passes run).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct MethodFlags {
+    /// Forward forms through every layer.
+    pub forward: bool,
+    /// IBP alongside, intersected with the forward bounds.
+    pub ibp: bool,
+    /// Hidden layers' pre-activation bounds recorded (for backward passes).
+    pub record: bool,
+    /// A backward pass from the output.
+    pub backward: bool,
+    /// The backward passes use the same-slope relaxation.
+    pub same_slope: bool,
+}
+
 /// Everything problem-specific the kernels need: sizes, constants and the dynamics' inclusion
-/// functions `ft_iv(i, x)`, `jac_iv(i, j, x)`, `g_iv(i, k, x)`.
-pub fn problem_wgsl(problem: &ReachProblem, settings: &ReachSettings) -> Result<String, GpuError> {
+/// functions `ft_iv(i, x)`, `jac_iv(i, j, x)`, `g_iv(i, k, x)`, in `precision`.
+pub fn problem_wgsl(
+    problem: &ReachProblem,
+    settings: &ReachSettings,
+    flags: MethodFlags,
+    precision: Precision,
+) -> Result<String, GpuError> {
     let d = &problem.dynamics;
     let (n, m) = (d.n, d.m);
     let every = settings.every.max(1);
@@ -168,8 +257,15 @@ pub fn problem_wgsl(problem: &ReachProblem, settings: &ReachSettings) -> Result<
         .iter()
         .flat_map(|l| l.weight.iter().chain(&l.bias))
         .fold(0.0_f64, |a, w| a.max(w.abs()));
-    // (1 + max|W|)·2⁻¹²⁰, rounded up (common.wgsl: err_bound).
-    let abs_unit = f32_up((1.0 + w_max) * 2f64.powi(-120) * (1.0 + 1e-6));
+    let down = |x: f64| round_down(x, precision);
+    let up = |x: f64| round_up(x, precision);
+    let lit = |x: f64| real_literal(x, precision);
+    // (1 + max|W|)·64·MIN_NORMAL, rounded up (common.wgsl: err_bound).
+    let min_normal_log2 = match precision {
+        Precision::F32 => -126,
+        Precision::F64 => -1022,
+    };
+    let abs_unit = up((1.0 + w_max) * 2f64.powi(min_normal_log2 + 6) * (1.0 + 1e-6));
     let margin = match settings.method {
         ReachMethod::Disturbance => {
             (Interval::point(problem.m_c) + Interval::point(problem.network_slack)).upper
@@ -180,17 +276,32 @@ pub fn problem_wgsl(problem: &ReachProblem, settings: &ReachSettings) -> Result<
     let _ = writeln!(s, "const N0: u32 = {n}u;");
     let _ = writeln!(s, "const KC: u32 = {}u;", n + 1);
     let _ = writeln!(s, "const M_OUT: u32 = {m}u;");
-    let _ = writeln!(s, "const ABS_UNIT: f32 = {};", literal(abs_unit));
+    // The per-box record of the network's bounds (shaders/output.wgsl).
+    let _ = writeln!(s, "const NB_W: u32 = {}u;", nnb_width(n, m));
+    // Sections of the per-neuron vectors (shaders/relu.wgsl).
+    let _ = writeln!(s, "const AUX: u32 = {AUX}u;");
+    let _ = writeln!(s, "const S_IC: u32 = 0u;\nconst S_V: u32 = 1u;");
+    let _ = writeln!(s, "const S_IR: u32 = 2u;\nconst S_IV: u32 = 3u;");
+    for (name, v) in [
+        ("FORWARD", flags.forward),
+        ("IBP", flags.ibp),
+        ("RECORD", flags.record),
+        ("BACKWARD", flags.backward),
+        ("SAME_SLOPE", flags.same_slope),
+    ] {
+        let _ = writeln!(s, "const {name}: bool = {v};");
+    }
+    let _ = writeln!(s, "const ABS_UNIT: real = {};", lit(abs_unit));
     let _ = writeln!(s, "const STEPS: u32 = {}u;", problem.steps);
     let _ = writeln!(s, "const EVERY: u32 = {every}u;");
-    let _ = writeln!(s, "const DT_LO: f32 = {};", literal(f32_down(problem.dt)));
-    let _ = writeln!(s, "const DT_HI: f32 = {};", literal(f32_up(problem.dt)));
-    let _ = writeln!(s, "const MARGIN: f32 = {};", literal(f32_up(margin)));
+    let _ = writeln!(s, "const DT_LO: real = {};", lit(down(problem.dt)));
+    let _ = writeln!(s, "const DT_HI: real = {};", lit(up(problem.dt)));
+    let _ = writeln!(s, "const MARGIN: real = {};", lit(up(margin)));
     let _ = writeln!(
         s,
-        "const FIELD_SLACK: f32 = {};",
-        literal(if problem.field_slack > 0.0 {
-            f32_up(problem.field_slack)
+        "const FIELD_SLACK: real = {};",
+        lit(if problem.field_slack > 0.0 {
+            up(problem.field_slack)
         } else {
             0.0
         })
@@ -201,7 +312,7 @@ pub fn problem_wgsl(problem: &ReachProblem, settings: &ReachSettings) -> Result<
         settings.method == ReachMethod::Minkowski
     );
     let ell_mc = (Interval::point(problem.input_gain) * Interval::point(problem.m_c)).upper;
-    let _ = writeln!(s, "const ELL_MC: f32 = {};", literal(f32_up(ell_mc)));
+    let _ = writeln!(s, "const ELL_MC: real = {};", lit(up(ell_mc)));
     let norm = match problem.norm {
         Norm::Inf => 0,
         Norm::One => 1,
@@ -214,14 +325,18 @@ pub fn problem_wgsl(problem: &ReachProblem, settings: &ReachSettings) -> Result<
         "const TRANSFORM: bool = {};",
         problem.transform.is_some()
     );
-    // Region C, rounded inward: a set inside the f32 box is inside C.
-    s += &private_f32("REGION_LO", problem.region.lower.iter().map(|&v| f32_up(v)));
-    s += &private_f32(
-        "REGION_HI",
-        problem.region.upper.iter().map(|&v| f32_down(v)),
+    let arr = |name: &str, v: &mut dyn Iterator<Item = f64>| private_real(name, v, precision);
+    // Region C, rounded inward: a set inside the device box is inside C.
+    s += &arr(
+        "REGION_LO",
+        &mut problem.region.lower.iter().map(|&v| up(v)),
     );
-    let (s_lo, s_hi): (Vec<f32>, Vec<f32>) = match &problem.transform {
-        Some(t) => t.s.iter().map(|&v| (f32_down(v), f32_up(v))).unzip(),
+    s += &arr(
+        "REGION_HI",
+        &mut problem.region.upper.iter().map(|&v| down(v)),
+    );
+    let (s_lo, s_hi): (Vec<f64>, Vec<f64>) = match &problem.transform {
+        Some(t) => t.s.iter().map(|&v| (down(v), up(v))).unzip(),
         None => (0..n * n)
             .map(|k| {
                 if k / n == k % n {
@@ -232,11 +347,11 @@ pub fn problem_wgsl(problem: &ReachProblem, settings: &ReachSettings) -> Result<
             })
             .unzip(),
     };
-    s += &private_f32("S_LO", s_lo.into_iter());
-    s += &private_f32("S_HI", s_hi.into_iter());
+    s += &arr("S_LO", &mut s_lo.into_iter());
+    s += &arr("S_HI", &mut s_hi.into_iter());
     let b: Vec<f64> = d.g_constant.clone().unwrap_or_else(|| vec![0.0; n * m]);
-    s += &private_f32("B_LO", b.iter().map(|&v| f32_down(v)));
-    s += &private_f32("B_HI", b.iter().map(|&v| f32_up(v)));
+    s += &arr("B_LO", &mut b.iter().map(|&v| down(v)));
+    s += &arr("B_HI", &mut b.iter().map(|&v| up(v)));
     let signs: Vec<String> = b
         .iter()
         .map(|&v| {
@@ -266,25 +381,12 @@ pub fn problem_wgsl(problem: &ReachProblem, settings: &ReachSettings) -> Result<
     };
     check(&problem.jacobian_over_region, "[Df̃](C)")?;
     check(&problem.g_over_region, "[g](C)")?;
-    s += &private_f32(
-        "JR_LO",
-        problem
-            .jacobian_over_region
-            .iter()
-            .map(|v| f32_down(v.lower)),
-    );
-    s += &private_f32(
-        "JR_HI",
-        problem.jacobian_over_region.iter().map(|v| f32_up(v.upper)),
-    );
-    s += &private_f32(
-        "GR_LO",
-        problem.g_over_region.iter().map(|v| f32_down(v.lower)),
-    );
-    s += &private_f32(
-        "GR_HI",
-        problem.g_over_region.iter().map(|v| f32_up(v.upper)),
-    );
+    let jr = &problem.jacobian_over_region;
+    let gr = &problem.g_over_region;
+    s += &arr("JR_LO", &mut jr.iter().map(|v| down(v.lower)));
+    s += &arr("JR_HI", &mut jr.iter().map(|v| up(v.upper)));
+    s += &arr("GR_LO", &mut gr.iter().map(|v| down(v.lower)));
+    s += &arr("GR_HI", &mut gr.iter().map(|v| up(v.upper)));
     if d.f_tilde.len() != n || d.f_tilde_jacobian.len() != n || d.g.len() != n {
         return Err(GpuError::Problem("dynamics have the wrong shape".into()));
     }
@@ -294,10 +396,19 @@ pub fn problem_wgsl(problem: &ReachProblem, settings: &ReachSettings) -> Result<
     if jac.len() != n * n || g.len() != n * m {
         return Err(GpuError::Problem("dynamics have the wrong shape".into()));
     }
-    s += &switch_fn("ft_iv", "i: u32", "i", &ft);
-    s += &switch_fn("jac_iv", "i: u32, j: u32", "i * N0 + j", &jac);
-    s += &switch_fn("g_iv", "i: u32, k: u32", "i * M_OUT + k", &g);
+    s += &switch_fn("ft_iv", "i: u32", "i", &ft, precision);
+    s += &switch_fn("jac_iv", "i: u32, j: u32", "i * N0 + j", &jac, precision);
+    s += &switch_fn("g_iv", "i: u32, k: u32", "i * M_OUT + k", &g, precision);
     Ok(s)
+}
+
+/// Sections of the per-neuron vectors (IBP centre, form magnitude, IBP radius, IBP magnitude).
+pub const AUX: usize = 4;
+
+/// Reals per box in the record of the network's bounds: `C̲, C̄` (m × n each), `d̲, d̄, N̲, N̄`
+/// (m each) and a non-finite flag.
+pub fn nnb_width(n: usize, m: usize) -> usize {
+    2 * m * n + 4 * m + 1
 }
 
 #[cfg(test)]
@@ -328,11 +439,22 @@ mod tests {
     }
 
     #[test]
+    fn f64_literals_are_exact_and_suffixed() {
+        assert_eq!(real_literal(1.0, Precision::F64), "1.0lf");
+        assert_eq!(real_literal(0.1, Precision::F64), "0.1lf");
+        assert_eq!(real_literal(1e-300, Precision::F64), "1e-300lf");
+        assert_eq!(round_down(0.1, Precision::F64), 0.1);
+        assert_eq!(round_down(1e-310, Precision::F64), 0.0);
+        assert_eq!(round_up(1e-310, Precision::F64), f64::MIN_POSITIVE);
+        assert!(round_down(0.1, Precision::F32) < 0.1 && round_up(0.1, Precision::F32) > 0.1);
+    }
+
+    #[test]
     fn expressions_become_interval_calls() {
         let names = vec!["x1".to_string(), "x2".to_string()];
         let e = crate::expressions::parse("-x1 + 2*x2^2 - sin(x1)", &names, &Default::default())
             .unwrap();
-        let w = interval_expr(&e);
+        let w = interval_expr(&e, Precision::F32);
         assert!(w.contains("iv_pow(x[1], 2)"), "{w}");
         assert!(w.contains("iv_trig(x[0], false)"), "{w}");
         assert!(w.contains("Iv(2.0f, 2.0f)"), "{w}");

@@ -16,6 +16,8 @@ pub struct GpuContext {
     pub info: wgpu::AdapterInfo,
     /// The device's limits (the adapter's, not the WebGPU defaults).
     pub limits: wgpu::Limits,
+    /// The optional features the device was created with (`SHADER_F64` where available).
+    pub features: wgpu::Features,
     errors: Arc<Mutex<Vec<String>>>,
 }
 
@@ -81,9 +83,11 @@ impl GpuContext {
             })?;
         let info = adapter.get_info();
         let limits = adapter.limits();
+        // f64 shaders (`--f64`) where the adapter has them; nothing else is optional.
+        let features = adapter.features() & wgpu::Features::SHADER_F64;
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("cbfreach"),
-            required_features: wgpu::Features::empty(),
+            required_features: features,
             required_limits: limits.clone(),
             ..Default::default()
         }))
@@ -100,6 +104,7 @@ impl GpuContext {
             queue,
             info,
             limits,
+            features,
             errors,
         })
     }
@@ -110,6 +115,11 @@ impl GpuContext {
             "{} ({:?}, {} {})",
             self.info.name, self.info.device_type, self.info.driver, self.info.driver_info
         )
+    }
+
+    /// Whether the device runs f64 shaders (`wgpu::Features::SHADER_F64`).
+    pub fn has_f64(&self) -> bool {
+        self.features.contains(wgpu::Features::SHADER_F64)
     }
 
     /// Whether the adapter is a software rasteriser (lavapipe, SwiftShader).

@@ -1,13 +1,22 @@
 //! The compute pipelines, one struct each, built once per problem (the dynamics are spliced
 //! into the WGSL as generated code, `codegen`).
+//!
+//! Every shader is written once in terms of `real`; a precision prelude
+//! (`shaders/real_f32.wgsl` or `shaders/real_f64.wgsl`) fixes the type and its rounding unit, so
+//! the f32 and f64 engines share one source.
 
-use super::GpuError;
+use super::{GpuError, Precision};
 
+const REAL_F32: &str = include_str!("../../shaders/real_f32.wgsl");
+const REAL_F64: &str = include_str!("../../shaders/real_f64.wgsl");
+const F32_BITS: &str = include_str!("../../shaders/f32_bits.wgsl");
 const COMMON: &str = include_str!("../../shaders/common.wgsl");
 const PARAMS: &str = include_str!("../../shaders/params.wgsl");
 const BOX: &str = include_str!("../../shaders/box.wgsl");
 const GEMM: &str = include_str!("../../shaders/gemm.wgsl");
 const RELU: &str = include_str!("../../shaders/relu.wgsl");
+const BACKWARD: &str = include_str!("../../shaders/backward.wgsl");
+const OUTPUT: &str = include_str!("../../shaders/output.wgsl");
 const EMBED: &str = include_str!("../../shaders/embed.wgsl");
 
 /// Workgroup size of the one-dimensional kernels (`@workgroup_size(64)` in the shaders).
@@ -23,26 +32,22 @@ pub struct Kernel {
     pub layout: wgpu::BindGroupLayout,
 }
 
-/// `Y = op(W)·X`, tiled (shaders/gemm.wgsl).
-pub struct GemmKernel(pub Kernel);
-/// Bias, rounding widening and ReLU relaxation of a hidden layer (shaders/relu.wgsl).
-pub struct ReluKernel(pub Kernel);
-/// Output bounds, embedding field, radius, Euler step, region check, snapshot
-/// (shaders/embed.wgsl).
-pub struct EmbedKernel(pub Kernel);
-/// Advances the device's step counter (shaders/embed.wgsl, `tick`).
-pub struct TickKernel(pub Kernel);
-
 /// Every pipeline of the engine.
 pub struct Kernels {
-    /// GEMM.
-    pub gemm: GemmKernel,
-    /// ReLU.
-    pub relu: ReluKernel,
-    /// Embedding step.
-    pub embed: EmbedKernel,
-    /// Step counter.
-    pub tick: TickKernel,
+    /// `Y = op(W)·X`, tiled (shaders/gemm.wgsl).
+    pub gemm: Kernel,
+    /// Bias, rounding widening, IBP and ReLU relaxation of a hidden layer (shaders/relu.wgsl).
+    pub relu: Kernel,
+    /// One backward substitution's per-box part: `Λ∘s`, `β` (shaders/backward.wgsl).
+    pub bwd_scale: Kernel,
+    /// Concrete bounds of a finished backward pass (shaders/backward.wgsl).
+    pub bwd_bounds: Kernel,
+    /// The network's bounds over each box (shaders/output.wgsl).
+    pub output: Kernel,
+    /// Embedding field, radius, Euler step, region check, snapshot (shaders/embed.wgsl).
+    pub embed: Kernel,
+    /// Advances the device's step counter (shaders/embed.wgsl, `tick`).
+    pub tick: Kernel,
 }
 
 /// Binding kinds after the uniform at binding 0: `true` = read-only storage.
@@ -98,23 +103,28 @@ fn kernel(
     Kernel { pipeline, layout }
 }
 
-/// The WGSL of a kernel: shared helpers, the generated problem constants and the kernel.
-pub fn shader_source(problem_wgsl: &str, kernel: &str) -> String {
+/// The WGSL of a module: the precision prelude, shared helpers, the generated problem constants
+/// and the module's kernels (`gemm`, `relu`, `backward`, `output`, `embed`).
+pub fn shader_source(precision: Precision, problem_wgsl: &str, module: &str) -> String {
+    let prelude = match precision {
+        Precision::F32 => REAL_F32,
+        Precision::F64 => REAL_F64,
+    };
     let mut s = String::new();
-    for part in [PARAMS, COMMON, problem_wgsl] {
+    for part in [prelude, F32_BITS, PARAMS, COMMON, problem_wgsl] {
         s.push_str(part);
         s.push('\n');
     }
-    match kernel {
-        "gemm" => s.push_str(GEMM),
-        "relu" => {
-            s.push_str(BOX);
-            s.push_str(RELU);
-        }
-        _ => {
-            s.push_str(BOX);
-            s.push_str(EMBED);
-        }
+    let body: &[&str] = match module {
+        "gemm" => &[GEMM],
+        "relu" => &[BOX, RELU],
+        "backward" => &[BOX, BACKWARD],
+        "output" => &[BOX, OUTPUT],
+        _ => &[BOX, EMBED],
+    };
+    for part in body {
+        s.push_str(part);
+        s.push('\n');
     }
     s
 }
@@ -122,35 +132,47 @@ pub fn shader_source(problem_wgsl: &str, kernel: &str) -> String {
 impl Kernels {
     /// Compiles every pipeline for a problem's generated WGSL; shader errors become
     /// [`GpuError::Shader`].
-    pub fn new(device: &wgpu::Device, problem_wgsl: &str) -> Result<Kernels, GpuError> {
+    pub fn new(
+        device: &wgpu::Device,
+        precision: Precision,
+        problem_wgsl: &str,
+    ) -> Result<Kernels, GpuError> {
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         let module = |name: &str| {
             device.create_shader_module(wgpu::ShaderModuleDescriptor {
                 label: Some(name),
-                source: wgpu::ShaderSource::Wgsl(shader_source(problem_wgsl, name).into()),
+                source: wgpu::ShaderSource::Wgsl(
+                    shader_source(precision, problem_wgsl, name).into(),
+                ),
             })
         };
-        let (gemm_m, relu_m, embed_m) = (module("gemm"), module("relu"), module("embed"));
+        let (gemm_m, relu_m, bwd_m, out_m, embed_m) = (
+            module("gemm"),
+            module("relu"),
+            module("backward"),
+            module("output"),
+            module("embed"),
+        );
+        let backward = [true, true, false, true, false, false, false];
+        let embed = [false, true, false, false];
         let kernels = Kernels {
-            gemm: GemmKernel(kernel(device, &gemm_m, "gemm", &[true, true, false])),
-            relu: ReluKernel(kernel(
+            gemm: kernel(device, &gemm_m, "gemm", &[true, true, false]),
+            relu: kernel(
                 device,
                 &relu_m,
                 "relu",
-                &[true, true, false, false, true, false, false],
-            )),
-            embed: EmbedKernel(kernel(
+                &[true, true, false, false, true, false, false, false],
+            ),
+            bwd_scale: kernel(device, &bwd_m, "bwd_scale", &backward),
+            bwd_bounds: kernel(device, &bwd_m, "bwd_bounds", &backward),
+            output: kernel(
                 device,
-                &embed_m,
-                "embed",
-                &[true, false, true, true, true, false, false],
-            )),
-            tick: TickKernel(kernel(
-                device,
-                &embed_m,
-                "tick",
-                &[true, false, true, true, true, false, false],
-            )),
+                &out_m,
+                "output",
+                &[true, true, true, true, true, true, true, false],
+            ),
+            embed: kernel(device, &embed_m, "embed", &embed),
+            tick: kernel(device, &embed_m, "tick", &embed),
         };
         match pollster::block_on(scope.pop()) {
             Some(e) => Err(GpuError::Shader(e.to_string())),

@@ -6,14 +6,19 @@
 //! - [`kernels`]: one struct per pipeline (`shaders/*.wgsl`, included at compile time).
 //! - [`buffers`]: `#[repr(C)]` images of what the kernels read; the device layout.
 //! - [`codegen`]: scenario expressions as WGSL interval inclusion functions.
-//! - [`GpuBackend`]: [`crate::reach::Backend`] on the device (forward linear bounds).
+//! - [`GpuBackend`]: [`crate::reach::Backend`] on the device: forward linear bounds,
+//!   forward-backward (forward ∩ IBP intermediate bounds, one backward CROWN pass from the
+//!   output) and backward CROWN, each in f32 or (`--f64`, [`Precision::F64`]) f64.
 //!
-//! # f32 error model (DESIGN §3)
+//! # Error model (DESIGN §3)
 //!
-//! The device computes in f32 with no rounding-mode control; Vulkan allows round-to-nearest or
-//! towards zero, so a computed `+ − ×` is within one ulp (`u = 2⁻²³` relative) of the exact
-//! result, and subnormals may be flushed. The kernels keep the CPU's invariant (the *computed*
-//! forms, evaluated exactly, bound the exact network with the stored f64 weights) by:
+//! The device computes in f32 (or f64) with no rounding-mode control; Vulkan allows
+//! round-to-nearest or towards zero, so a computed `+ − ×` is within one ulp (`u = 2⁻²³`
+//! relative in f32, `2⁻⁵²` in f64) of the exact result, and subnormals may be flushed. Every
+//! shader is written once over `real`; the precision prelude (`shaders/real_f32.wgsl`,
+//! `real_f64.wgsl`) sets `u`, `γ̂_N = 4(N+3)u`, the outward step and the smallest normal
+//! number. The kernels keep the CPU's invariant (the *computed* forms, evaluated exactly, bound
+//! the exact network with the stored f64 weights) by:
 //!
 //! - **Dot products** (a layer's `W·Ĉ`, `|W|·R̂`): the computed sum of `N` terms, each the
 //!   product of an f32-rounded weight and a coefficient (two roundings), errs by at most
@@ -24,11 +29,25 @@
 //!   `shaders/common.wgsl`); layer widths are limited to 2¹⁸ so that `N u ≤ 1/32`.
 //! - **First layer**: `Ĉ = [fl(W₁) | fl(b₁)]` with the conversion error
 //!   `≤ 2⁻²⁴(Σ|W₁|·|x| + |b₁|)` in `R̂`'s constant.
-//! - **ReLU and output**: as `bounds::forward` on the CPU, with `γ̂` for f32.
+//! - **ReLU and output**: as `bounds::forward` on the CPU, with the device's `γ̂`; IBP alongside
+//!   (forward-backward) as `bounds::ibp`, intersected.
+//! - **Backward passes** (`shaders/backward.wgsl`): as `bounds::crown`: `Λ ← Wⱼᵀ·(Λ∘s)` is one
+//!   GEMM for all boxes, and `β` moves outward by `err_bound(2nⱼ + 2, Σ|Λ∘s| w + |Λt|)`, with
+//!   `w = |Wⱼ| magⱼ + |bⱼ|` from a GEMM of `max(u, 0)`; the pass's start `Λ = fl(W_k)` adds its
+//!   conversion error `err_bound(2, |W_k| mag_k + |b_k|)` to `β`.
 //! - **Single operations** (interval arithmetic, concretisation, Euler step): each result is
-//!   stepped one ulp outward through its bit pattern (`up`, `down`); divisions three ulps
-//!   (2.5 ulp accurate); `exp`, `ln`, `sqrt`, `sin`, `cos` widened by the WGSL accuracy table.
-//!   f64 constants enter as the f32 intervals that contain them; `dt` as `[↓dt, ↑dt]`.
+//!   stepped outward (`up`, `down`: one ulp through the bit pattern in f32; `max(|x|·2⁻⁵⁰,
+//!   MIN_NORMAL)` arithmetically in f64, which WGSL cannot bitcast without 64-bit integers);
+//!   divisions three steps (2.5 ulp accurate); `exp`, `ln`, `sqrt`, `sin`, `cos` widened by the
+//!   WGSL accuracy table. f64 constants enter as the device intervals that contain them; `dt`
+//!   as `[↓dt, ↑dt]`.
+//! - **f64**: Vulkan itself promises f64 operations only single precision; the f64 engine
+//!   assumes IEEE-754 `+ − ×` (correctly rounded: lavapipe's LLVM code, NVIDIA, AMD) and
+//!   widens by one ulp (`u = 2⁻⁵²`) as above, divisions by three steps. SPIR-V has `exp`,
+//!   `log` for 32-bit floats only, so the f64 shaders evaluate `exp`, `ln`, `sqrt` in f32 at an
+//!   argument on the safe side and widen by the f32 accuracy (relative ~1e-6); `sin`, `cos` are
+//!   f64 polynomials with a rigorous remainder (`real_f64.wgsl`), over the exact range of the
+//!   interval (endpoints and extrema), as on the CPU.
 //! - **Overflow, NaN**: WGSL does not promise IEEE infinities, so every bound is compared with
 //!   `1e30`; a box past it is reported as non-finite, as the CPU reports an overflow.
 //!
@@ -42,6 +61,34 @@ pub mod kernels;
 
 pub use backend::GpuBackend;
 pub use context::GpuContext;
+
+/// The device's number type.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum Precision {
+    /// f32 (every device).
+    #[default]
+    F32,
+    /// f64 (`wgpu::Features::SHADER_F64`; `--f64`).
+    F64,
+}
+
+impl Precision {
+    /// Bytes per number.
+    pub fn bytes(self) -> u64 {
+        match self {
+            Precision::F32 => 4,
+            Precision::F64 => 8,
+        }
+    }
+
+    /// `f32` or `f64`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Precision::F32 => "f32",
+            Precision::F64 => "f64",
+        }
+    }
+}
 
 /// Why the GPU engine could not run.
 #[derive(Debug, thiserror::Error)]
@@ -66,6 +113,9 @@ pub enum GpuError {
     /// A buffer or dispatch would exceed the device's limits even after splitting.
     #[error("GPU limits: {0}")]
     TooLarge(String),
+    /// `--f64` on an adapter without f64 shaders.
+    #[error("adapter `{0}` has no f64 shaders (wgpu::Features::SHADER_F64); run without --f64, or pick another adapter with --adapter")]
+    NoF64(String),
     /// The engine does not implement these settings yet.
     #[error("not on the GPU yet: {0}")]
     Unsupported(String),

@@ -140,6 +140,18 @@ impl Backend for CpuBackend {
                 .enumerate()
                 .map(|(slot, state)| {
                     let margin = margin_of(state);
+                    if margin.iter().any(|v| !v.is_finite()) {
+                        // The error map has no finite bound where the set is (e.g. where `v`
+                        // jumps): nothing sound can be said from here on.
+                        state.tube.valid = false;
+                        state.tube.note = Some(format!(
+                            "t = {:.3}: the set meets cells of the error map with no certified \
+                             bound (M = ∞)",
+                            t - problem.dt
+                        ));
+                        state.done = true;
+                        return 0.0;
+                    }
                     let (nn, (mut dl, mut du)) = if settings.face_local {
                         // (Minkowski is refused with face-local bounds: its rate needs one C.)
                         let face = |i: usize, up: bool| {
