@@ -50,7 +50,7 @@ pub struct PlotArgs {
     #[arg(long, default_value_t = 10)]
     pub every: usize,
     /// How the network is bounded over each box (tubes, minkowski).
-    #[arg(long, value_enum, default_value_t = BoundMethod::Crown)]
+    #[arg(long, value_enum, default_value_t = BoundMethod::ForwardBackward)]
     pub bounds: BoundMethod,
     /// The network, `M_C` and coordinates.
     #[command(flatten)]

@@ -25,7 +25,7 @@ pub struct ReachArgs {
     #[command(flatten)]
     pub gpu: GpuArgs,
     /// How the network is bounded over each box.
-    #[arg(long, value_enum, default_value_t = BoundMethod::Crown)]
+    #[arg(long, value_enum, default_value_t = BoundMethod::ForwardBackward)]
     pub bounds: BoundMethod,
     /// How the network's error enters the sets.
     #[arg(long, value_enum, default_value_t = ReachMethod::Disturbance)]
