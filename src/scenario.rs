@@ -192,7 +192,8 @@ pub struct ReachSection {
     #[serde(default)]
     pub partition: Option<PartitionSection>,
     /// Coordinates of the embedding: `"none"` (default), `"auto"` (from the closed loop's
-    /// linearisation at the goal) or a matrix `T` (`z = T x`, rows).
+    /// linearisation at the goal), `"lyapunov"` (`T = P^{1/2}`, for `‖·‖_P`) or a matrix `T`
+    /// (`z = T x`, rows).
     #[serde(default)]
     pub transform: Option<TransformSpec>,
 }
@@ -201,7 +202,7 @@ pub struct ReachSection {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(untagged)]
 pub enum TransformSpec {
-    /// `"none"` or `"auto"`.
+    /// `"none"`, `"auto"` or `"lyapunov"`.
     Name(String),
     /// `T`, as rows.
     Matrix(Vec<Vec<f64>>),
@@ -214,6 +215,8 @@ pub enum TransformChoice {
     Identity,
     /// Chosen from the closed loop's linearisation at the goal's centre.
     Auto,
+    /// `T = P^{1/2}` of the Lyapunov equation `AᵀP + PA = −I` at the goal: ℓ2 in z is `‖·‖_P`.
+    Lyapunov,
     /// `z = T x` with this `T` (n×n, row-major).
     Matrix(Vec<f64>),
 }
@@ -790,10 +793,13 @@ fn compile_reach(c: &Compiler, r: &ReachSection, n: usize) -> Result<ReachConfig
         None => TransformChoice::Identity,
         Some(TransformSpec::Name(s)) if s == "none" => TransformChoice::Identity,
         Some(TransformSpec::Name(s)) if s == "auto" => TransformChoice::Auto,
+        Some(TransformSpec::Name(s)) if s == "lyapunov" => TransformChoice::Lyapunov,
         Some(TransformSpec::Name(s)) => {
             return Err(c.invalid(
                 "reach.transform",
-                format!("expected \"none\", \"auto\" or an {n}×{n} matrix, found \"{s}\""),
+                format!(
+                    "expected \"none\", \"auto\", \"lyapunov\" or an {n}×{n} matrix, found \"{s}\""
+                ),
             ))
         }
         Some(TransformSpec::Matrix(rows)) => {

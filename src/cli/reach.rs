@@ -92,7 +92,7 @@ pub struct ProblemArgs {
     /// Use this network instead of the scenario's.
     #[arg(long)]
     pub network: Option<PathBuf>,
-    /// Coordinates of the embedding: `none`, `auto`, or the scenario's choice when absent.
+    /// Coordinates of the embedding: `none`, `auto`, `lyapunov`, or the scenario's choice when absent.
     #[arg(long)]
     pub transform: Option<String>,
     /// Disturbance method: use the certified local error bounds of the error map beside the
@@ -107,7 +107,10 @@ pub fn transform_choice(s: &Scenario, flag: Option<&str>) -> Result<TransformCho
         None => Ok(s.reach.transform.clone()),
         Some("none") => Ok(TransformChoice::Identity),
         Some("auto") => Ok(TransformChoice::Auto),
-        Some(other) => Err(format!("--transform {other}: expected none or auto")),
+        Some("lyapunov") => Ok(TransformChoice::Lyapunov),
+        Some(other) => Err(format!(
+            "--transform {other}: expected none, auto or lyapunov"
+        )),
     }
 }
 
@@ -202,12 +205,7 @@ pub fn run(args: &ReachArgs) -> CliResult {
         every: args.every,
         face_local: args.face_local,
     };
-    let backend = choose_backend(
-        &args.backend,
-        &args.gpu,
-        &settings,
-        args.problem.local_margin,
-    )?;
+    let backend = choose_backend(&args.backend, &args.gpu, &settings)?;
     let bar = progress_bar(problem.steps as u64, "Euler steps");
     let result = backend.reach(&problem, &s.reach.initial, &settings, &|done, _| {
         bar.set_position(done as u64)
@@ -288,13 +286,13 @@ pub fn run(args: &ReachArgs) -> CliResult {
 /// supports the bound method, else the CPU with a one-line notice), on `--adapter`, in f32 or
 /// (`--f64`) f64; `--f64` on an adapter without f64 shaders is an error, also with `auto`.
 ///
-/// `auto` takes the GPU only where it computes the same sets as the CPU would (no local error
-/// margins yet) and is a real GPU (a software adapter is many times slower than the CPU engine).
+/// `auto` takes the GPU where it runs the bound method (local error margins and face-local
+/// bounds included) and is a real GPU (a software adapter is many times slower than the CPU
+/// engine).
 pub fn choose_backend(
     which: &str,
     gpu: &GpuArgs,
     settings: &ReachSettings,
-    local_margin: bool,
 ) -> Result<Box<dyn Backend + Sync>, Box<dyn std::error::Error>> {
     if !matches!(which, "cpu" | "gpu" | "auto") {
         return Err(format!("--backend {which}: expected cpu, gpu or auto").into());
@@ -312,26 +310,8 @@ pub fn choose_backend(
     let supported = cbfreach::gpu::GpuBackend::supports(settings);
     if which == "auto" && !supported {
         println!(
-            "notice: --backend auto: the GPU engine has no {} bounds{} yet; using the CPU",
-            settings.bounds,
-            if settings.face_local {
-                " with --face-local"
-            } else {
-                ""
-            }
-        );
-        return Ok(Box::new(CpuBackend));
-    }
-    if local_margin {
-        if which == "gpu" {
-            return Err(
-                "--local-margin: the GPU engine has no local error margins yet \
-                        (use --backend cpu, or a global M_C)"
-                    .into(),
-            );
-        }
-        println!(
-            "notice: --backend auto: the GPU engine has no local error margins yet; using the CPU"
+            "notice: --backend auto: the GPU engine has no {} bounds yet; using the CPU",
+            settings.bounds
         );
         return Ok(Box::new(CpuBackend));
     }

@@ -11,7 +11,7 @@
 //! (the slack of [`Transform::field_slack`]). The network's first layer absorbs `S`
 //! (`W₁S`, rounded); its rounding error is bounded in [`Transform::network_slack`].
 
-use nalgebra::DMatrix;
+use nalgebra::{DMatrix, DVector};
 
 use crate::boxes::IntervalBox;
 use crate::expressions::Expr;
@@ -136,6 +136,38 @@ impl Transform {
         Transform::from_matrix((0..n * n).map(|k| t[(k / n, k % n)]).collect(), n)
     }
 
+    /// The weighted-ℓ2 coordinates of a quadratic Lyapunov function of `A` (the closed loop's
+    /// linearisation at the goal): `P` solves `AᵀP + PA = −I`, `T = P^{1/2}`, so that
+    /// `‖z‖₂ = ‖x‖_P` and `μ₂(TAT⁻¹) = −1/(2λ_max(P)) < 0`. With `norm = "2"` the Minkowski
+    /// method's radius is then the paper's radius in `‖·‖_P`. Refused unless `A` is Hurwitz.
+    pub fn lyapunov(a: &[f64], n: usize) -> Result<Transform, String> {
+        let am = DMatrix::from_row_slice(n, n, a);
+        // vec(AᵀP + PA) = (I ⊗ Aᵀ + Aᵀ ⊗ I) vec(P), column-major vec.
+        let at = am.transpose();
+        let eye = DMatrix::<f64>::identity(n, n);
+        let k = eye.kronecker(&at) + at.kronecker(&eye);
+        let rhs = DVector::from_iterator(
+            n * n,
+            (0..n * n).map(|i| if i % (n + 1) == 0 { -1.0 } else { 0.0 }),
+        );
+        let vec_p = k
+            .lu()
+            .solve(&rhs)
+            .ok_or("A has eigenvalues λᵢ + λⱼ = 0: no Lyapunov function")?;
+        let p = DMatrix::from_column_slice(n, n, vec_p.as_slice());
+        let p = (&p + p.transpose()) * 0.5;
+        let eig = p.clone().symmetric_eigen();
+        if eig.eigenvalues.iter().any(|&l| !(l > 0.0)) {
+            return Err(
+                "the closed loop is not stable at the goal (P is not positive definite)".into(),
+            );
+        }
+        let sqrt = &eig.eigenvectors
+            * DMatrix::from_diagonal(&eig.eigenvalues.map(f64::sqrt))
+            * eig.eigenvectors.transpose();
+        Transform::from_matrix((0..n * n).map(|k| sqrt[(k / n, k % n)]).collect(), n)
+    }
+
     /// The transform a scenario asks for: `None` for x itself, `auto` from the filtered closed
     /// loop's Jacobian at the goal's centre (the filter is usually inactive there, so this is
     /// `Df̃`).
@@ -149,6 +181,17 @@ impl Transform {
             TransformChoice::Matrix(t) => Transform::from_matrix(t.clone(), n)
                 .map(Some)
                 .map_err(|e| format!("{}: reach.transform: {e}", scenario.file)),
+            TransformChoice::Lyapunov => {
+                let goal = scenario.reach.goal.center();
+                let a = SafetyFilter::new(scenario)
+                    .closed_loop_jacobian(&goal)
+                    .map_err(|e| {
+                        format!("{}: reach.transform = \"lyapunov\": {e}", scenario.file)
+                    })?;
+                Transform::lyapunov(&a, n)
+                    .map(Some)
+                    .map_err(|e| format!("{}: reach.transform = \"lyapunov\": {e}", scenario.file))
+            }
             TransformChoice::Auto => {
                 let goal = scenario.reach.goal.center();
                 let a = SafetyFilter::new(scenario)
@@ -270,5 +313,34 @@ impl Transform {
             acc * ip(norm)
         });
         (out, round_up((ip(err) * lipschitz).upper))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `T = P^{1/2}` solves the Lyapunov equation and makes `A` contract in ℓ2: checked on the
+    /// double integrator's closed loop (which does not contract in x, `μ₂ > 0`) and a skewed rotation.
+    #[test]
+    fn lyapunov_coordinates_contract_in_l2() {
+        let mu2 = |m: &DMatrix<f64>| (m + m.transpose()).symmetric_eigen().eigenvalues.max() / 2.0;
+        for a in [vec![0.0, 1.0, -1.0, -2.0], vec![-0.1, 3.0, -0.3, -0.1]] {
+            let am = DMatrix::from_row_slice(2, 2, &a);
+            assert!(mu2(&am) >= 0.0, "the test needs a non-contracting A");
+            let tr = Transform::lyapunov(&a, 2).unwrap();
+            let t = DMatrix::from_row_slice(2, 2, &tr.t);
+            let s = DMatrix::from_row_slice(2, 2, &tr.s);
+            let p = t.transpose() * &t;
+            let residual = am.transpose() * &p + &p * &am + DMatrix::identity(2, 2);
+            assert!(residual.norm() < 1e-9, "{residual}");
+            let lam_max = p.symmetric_eigen().eigenvalues.max();
+            let rate = mu2(&(&t * &am * s));
+            assert!(
+                (rate + 0.5 / lam_max).abs() < 1e-9,
+                "μ₂ = {rate}, λmax(P) = {lam_max}"
+            );
+        }
+        assert!(Transform::lyapunov(&[1.0, 0.0, 0.0, -1.0], 2).is_err());
     }
 }
