@@ -22,7 +22,8 @@
 @group(0) @binding(0) var<uniform> p: Params;
 // Every layer's W and b.
 @group(0) @binding(1) var<storage, read> net: array<real>;
-// Per box lo[N0], hi[N0], radius.
+// Per bound box lo[N0], hi[N0], radius: the boxes, or their faces (FACES per box,
+// shaders/faces.wgsl).
 @group(0) @binding(2) var<storage, read> state: array<real>;
 // Recorded pre-activation bounds: per layer l then u, `n_j × boxes` each.
 @group(0) @binding(3) var<storage, read_write> pre: array<real>;
@@ -32,7 +33,8 @@
 @group(0) @binding(5) var<storage, read_write> lamb: array<real>;
 // Per column [β̄, β̲].
 @group(0) @binding(6) var<storage, read_write> beta: array<real>;
-// Per box [poisoned, status, stop step], then the step counter.
+// Per box [poisoned, status, stop step], then the step counter; bound box g poisons box
+// g / FACES.
 @group(0) @binding(7) var<storage, read_write> flags: array<atomic<u32>>;
 
 // Σ_p mag_j[p]: the magnitudes of layer j's input (the box, or max(u_{j−1}, 0)).
@@ -171,7 +173,7 @@ fn bwd_bounds(@builtin(global_invocation_id) gid: vec3<u32>) {
     let u = affine_max(au, bu, bx);
     let l = affine_min(al, bl, bx);
     if (!(finite(l) && finite(u))) {
-        atomicStore(&flags[g * 3u], 1u);
+        atomicStore(&flags[(g / FACES) * 3u], 1u);
     }
     pre[p.pre_off + i * p.boxes + g] = l;
     pre[p.pre_off + (p.k_rows + i) * p.boxes + g] = u;

@@ -1,14 +1,16 @@
 // One Euler step of the embedding system per box (src/reach/embedding.rs is the original):
-// from the network's bounds C̲x + d̲ ≤ N(x) ≤ C̄x + d̄ and N̲ ≤ N ≤ N̄ over the box (output.wgsl),
-// bounds the embedding field on each face in interval arithmetic (generated ft_iv, jac_iv, g_iv),
-// advances the closeness radius (Minkowski), takes the Euler step, checks the set against C and
-// writes the recorded snapshot. `tick` then advances the step counter.
+// takes the disturbance bound M (global, or the error map's local bound over the box's x-box:
+// LOCAL_MARGIN), then from the network's bounds C̲x + d̲ ≤ N(x) ≤ C̄x + d̄ and N̲ ≤ N ≤ N̄ over the
+// box, or over each of its 2n faces (FACES = 2N0, face-local; output.wgsl), bounds the embedding
+// field on each face in interval arithmetic (generated ft_iv, jac_iv, g_iv), advances the
+// closeness radius (Minkowski), takes the Euler step, checks the set against C and writes the
+// recorded snapshot. `tick` then advances the step counter.
 
 // Params (boxes).
 @group(0) @binding(0) var<uniform> p: Params;
 // Per box lo[N0], hi[N0], radius (embedding coordinates).
 @group(0) @binding(1) var<storage, read_write> state: array<real>;
-// The network's bounds over each box (shaders/output.wgsl).
+// The network's bounds over each bound box, FACES per box (shaders/output.wgsl).
 @group(0) @binding(2) var<storage, read> nnb: array<real>;
 // Per box [poisoned, status, stop step], then the step counter.
 @group(0) @binding(3) var<storage, read_write> flags: array<atomic<u32>>;
@@ -47,6 +49,238 @@ fn tick() {
     atomicAdd(&flags[3u * p.boxes], 1u);
 }
 
+// The error map's cells for local margins (LOCAL_MARGIN; src/gpu/margins.rs): bucket starts
+// (MAP_BUCKETS + 1) then cell ids; per cell lo[N0], hi[N0] (rounded outward) and its bound.
+@group(0) @binding(5) var<storage, read> map_index: array<u32>;
+@group(0) @binding(6) var<storage, read> map_cells: array<real>;
+
+const NO_BOUND: u32 = 4u;
+const CELL_W: u32 = 2u * N0 + 1u;
+
+// The network's bounds over one bound box (a box, or one of its faces with FACES > 1):
+// C̲x + d̲ ≤ N(x) ≤ C̄x + d̄ and N̲ ≤ N ≤ N̄ (shaders/output.wgsl).
+struct NetBounds {
+    a_lo: array<real, M_OUT * N0>,
+    a_hi: array<real, M_OUT * N0>,
+    d_lo: array<real, M_OUT>,
+    d_hi: array<real, M_OUT>,
+    n_lo: array<real, M_OUT>,
+    n_hi: array<real, M_OUT>,
+}
+
+fn load_bounds(k: u32) -> NetBounds {
+    var b: NetBounds;
+    let at = k * NB_W;
+    for (var q = 0u; q < M_OUT * N0; q++) {
+        b.a_lo[q] = nnb[at + q];
+        b.a_hi[q] = nnb[at + M_OUT * N0 + q];
+    }
+    let o = at + 2u * M_OUT * N0;
+    for (var q = 0u; q < M_OUT; q++) {
+        b.d_lo[q] = nnb[o + q];
+        b.d_hi[q] = nnb[o + M_OUT + q];
+        b.n_lo[q] = nnb[o + 2u * M_OUT + q];
+        b.n_hi[q] = nnb[o + 3u * M_OUT + q];
+    }
+    return b;
+}
+
+// The bound box of face (i, side) of box g: g·2N0 + 2i + side with face-local bounds (the order
+// of src/reach/cpu.rs and shaders/faces.wgsl), else the box itself.
+fn face_index(g: u32, i: u32, side: u32) -> u32 {
+    if (FACES == 1u) {
+        return g;
+    }
+    return g * FACES + 2u * i + side;
+}
+
+// Whether every bound box of box g is finite.
+fn bounds_finite(g: u32) -> bool {
+    var fin = true;
+    for (var f = 0u; f < FACES; f++) {
+        fin = fin && nnb[(g * FACES + f) * NB_W + NB_W - 1u] == 0.0;
+    }
+    return fin;
+}
+
+// The x-box of an embedding-coordinate box: S·z in interval arithmetic (identity without a
+// transform), as Transform::to_x_box.
+fn x_box(z: array<Iv, N0>) -> array<Iv, N0> {
+    if (!TRANSFORM) {
+        return z;
+    }
+    var x: array<Iv, N0>;
+    for (var i = 0u; i < N0; i++) {
+        var xi = iv_point(0.0);
+        for (var j = 0u; j < N0; j++) {
+            xi = iv_add(xi, iv_mul(Iv(S_LO[i * N0 + j], S_HI[i * N0 + j]), z[j]));
+        }
+        x[i] = xi;
+    }
+    return x;
+}
+
+// The bucket of x along axis i, moved by d bucket units (clamped; src/gpu/margins.rs).
+fn map_bucket(i: u32, x: real, d: real) -> u32 {
+    let t = floor((x - MAP_ORIGIN[i]) * MAP_INV_STEP[i] + d);
+    return u32(clamp(t, 0.0, real(MAP_COUNT[i] - 1u)));
+}
+
+// Whether map cell c (closed, rounded outward) meets the box xb.
+fn cell_meets(c: u32, xb: array<Iv, N0>) -> bool {
+    var meets = true;
+    for (var i = 0u; i < N0; i++) {
+        let lo = map_cells[c * CELL_W + i];
+        let hi = map_cells[c * CELL_W + N0 + i];
+        meets = meets && lo <= xb[i].hi && xb[i].lo <= hi;
+    }
+    return meets;
+}
+
+// The local error bound M over the x-box xb (ErrorMap::local_bound): the largest bound of the
+// cells meeting it, over every bucket the box meets (over-covered by MAP_DELTA); HUGE (+∞) for
+// an uncertified map, a box outside the map's region, or a cell with no certified bound.
+// src/gpu/margins.rs has the soundness argument.
+fn local_margin(xb: array<Iv, N0>) -> real {
+    if (!MAP_CERTIFIED) {
+        return HUGE;
+    }
+    var first: array<u32, N0>;
+    var last: array<u32, N0>;
+    for (var i = 0u; i < N0; i++) {
+        if (!(finite(xb[i].lo) && finite(xb[i].hi)) || xb[i].lo < MAP_LO[i] || xb[i].hi > MAP_HI[i]) {
+            return HUGE;
+        }
+        first[i] = map_bucket(i, xb[i].lo, -MAP_DELTA);
+        last[i] = map_bucket(i, xb[i].hi, MAP_DELTA);
+    }
+    var worst: real = 0.0;
+    var at = first;
+    loop {
+        var k = 0u;
+        for (var i = 0u; i < N0; i++) {
+            k = k * MAP_COUNT[i] + at[i];
+        }
+        for (var e = map_index[k]; e < map_index[k + 1u]; e++) {
+            let c = map_index[MAP_BUCKETS + 1u + e];
+            if (cell_meets(c, xb)) {
+                worst = max(worst, map_cells[c * CELL_W + 2u * N0]);
+            }
+        }
+        // The next bucket of the range (an odometer, the last axis fastest).
+        var i = N0;
+        var more = false;
+        loop {
+            if (i == 0u) {
+                break;
+            }
+            i -= 1u;
+            if (at[i] < last[i]) {
+                at[i] += 1u;
+                more = true;
+                break;
+            }
+            at[i] = first[i];
+        }
+        if (!more) {
+            break;
+        }
+    }
+    return worst;
+}
+
+// The disturbance bound of box g (embedding coordinates z): the error map's local bound over its
+// x-box plus the network slack (LOCAL_MARGIN), else the global MARGIN; HUGE for +∞.
+fn margin_of(z: array<Iv, N0>) -> real {
+    if (!LOCAL_MARGIN) {
+        return MARGIN;
+    }
+    let m = local_margin(x_box(z));
+    if (m >= HUGE) {
+        return HUGE;
+    }
+    return up(m + SLACK);
+}
+
+// Row i of the interaction-aware matrix and its offset for one side of the embedding
+// (interaction_row in src/reach/embedding.rs): for the lower side (side 0) m̲ᵢ = Σₖ B⁺ᵢₖ C̲ₖ +
+// B⁻ᵢₖ C̄ₖ, δ̲ᵢ = Σₖ B⁺ᵢₖ d̲ₖ + B⁻ᵢₖ d̄ₖ with d̲, d̄ widened by the margin; symmetrically above.
+struct InteractionRow {
+    row: array<Iv, N0>,
+    delta: Iv,
+}
+
+fn interaction_row(nb: NetBounds, margin: real, i: u32, side: u32) -> InteractionRow {
+    var r: InteractionRow;
+    r.delta = iv_point(0.0);
+    for (var j = 0u; j < N0; j++) {
+        r.row[j] = iv_point(0.0);
+    }
+    for (var k = 0u; k < M_OUT; k++) {
+        let sign = B_SIGN[i * M_OUT + k];
+        if (sign == 0) {
+            continue;
+        }
+        let bik = Iv(B_LO[i * M_OUT + k], B_HI[i * M_OUT + k]);
+        // A lower bound of Bᵢₖ Nₖ takes Nₖ's lower form when Bᵢₖ > 0, its upper one otherwise.
+        let lower_form = (sign > 0) == (side == 0u);
+        var d = iv_add(iv_point(nb.d_hi[k]), iv_point(margin));
+        if (lower_form) {
+            d = iv_sub(iv_point(nb.d_lo[k]), iv_point(margin));
+        }
+        for (var j = 0u; j < N0; j++) {
+            var c = nb.a_hi[k * N0 + j];
+            if (lower_form) {
+                c = nb.a_lo[k * N0 + j];
+            }
+            r.row[j] = iv_add(r.row[j], iv_mul(bik, iv_point(c)));
+        }
+        r.delta = iv_add(r.delta, iv_mul(bik, d));
+    }
+    return r;
+}
+
+// The embedding field's bound on face (i, side) of the box (embedding_field_by_face in
+// src/reach/embedding.rs), with the network bounded over that face (or the whole box): f̃ᵢ at
+// the face's centre point p, the interval Jacobian times the offsets over the face, and the
+// network's affine forms (constant g) or [g](box)·[N̲ − M, N̄ + M] (state-dependent g).
+fn face_field(i: u32, side: u32, xb: array<Iv, N0>, cen: array<real, N0>, jac: array<Iv, N0 * N0>, nb: NetBounds, margin: real) -> Iv {
+    var pt = cen;
+    if (side == 0u) {
+        pt[i] = xb[i].lo;
+    } else {
+        pt[i] = xb[i].hi;
+    }
+    var pb: array<Iv, N0>;
+    for (var j = 0u; j < N0; j++) {
+        pb[j] = iv_point(pt[j]);
+    }
+    var total = ft_iv(i, pb);
+    if (G_CONSTANT) {
+        let ir = interaction_row(nb, margin, i, side);
+        for (var j = 0u; j < N0; j++) {
+            total = iv_add(total, iv_mul(ir.row[j], iv_point(pt[j])));
+            if (j != i) {
+                let off = iv_sub(xb[j], iv_point(pt[j]));
+                total = iv_add(total, iv_mul(iv_add(jac[i * N0 + j], ir.row[j]), off));
+            }
+        }
+        total = iv_add(total, ir.delta);
+    } else {
+        for (var j = 0u; j < N0; j++) {
+            if (j != i) {
+                let off = iv_sub(xb[j], iv_point(pt[j]));
+                total = iv_add(total, iv_mul(jac[i * N0 + j], off));
+            }
+        }
+        for (var k = 0u; k < M_OUT; k++) {
+            let input = Iv(down(nb.n_lo[k] - margin), up(nb.n_hi[k] + margin));
+            total = iv_add(total, iv_mul(g_iv(i, k, xb), input));
+        }
+    }
+    return total;
+}
+
 @compute @workgroup_size(64)
 fn embed(@builtin(global_invocation_id) gid: vec3<u32>) {
     let g = gid.x;
@@ -59,152 +293,39 @@ fn embed(@builtin(global_invocation_id) gid: vec3<u32>) {
     let step = atomicLoad(&flags[3u * p.boxes]);
     var lo: array<real, N0>;
     var hi: array<real, N0>;
+    var xb: array<Iv, N0>;
+    var cen: array<real, N0>;
     for (var j = 0u; j < N0; j++) {
         lo[j] = state[g * SW + j];
         hi[j] = state[g * SW + N0 + j];
+        xb[j] = Iv(lo[j], hi[j]);
+        cen[j] = clamp(lo[j] + 0.5 * (hi[j] - lo[j]), lo[j], hi[j]);
     }
     var radius = state[g * SW + 2u * N0];
-    var bad = atomicLoad(&flags[g * 3u]) != 0u;
 
-    // The network's bounds over the box (shaders/output.wgsl).
-    var a_lo: array<real, M_OUT * N0>;
-    var a_hi: array<real, M_OUT * N0>;
-    var d_lo: array<real, M_OUT>;
-    var d_hi: array<real, M_OUT>;
-    var n_lo: array<real, M_OUT>;
-    var n_hi: array<real, M_OUT>;
-    let at = g * NB_W;
-    for (var k = 0u; k < M_OUT * N0; k++) {
-        a_lo[k] = nnb[at + k];
-        a_hi[k] = nnb[at + M_OUT * N0 + k];
+    // The disturbance bound first, as src/reach/cpu.rs: M = ∞ ends the box.
+    let margin = margin_of(xb);
+    if (margin >= HUGE) {
+        stop(g, NO_BOUND, step);
+        return;
     }
-    let o = at + 2u * M_OUT * N0;
-    for (var k = 0u; k < M_OUT; k++) {
-        d_lo[k] = nnb[o + k];
-        d_hi[k] = nnb[o + M_OUT + k];
-        n_lo[k] = nnb[o + 2u * M_OUT + k];
-        n_hi[k] = nnb[o + 3u * M_OUT + k];
-    }
-    if (bad || nnb[at + NB_W - 1u] != 0.0) {
+    if (atomicLoad(&flags[g * 3u]) != 0u || !bounds_finite(g)) {
         stop(g, NON_FINITE, step);
         return;
     }
 
-    // The embedding field (embedding_field in src/reach/embedding.rs).
-    var xb: array<Iv, N0>;
-    var cen: array<real, N0>;
-    for (var j = 0u; j < N0; j++) {
-        xb[j] = Iv(lo[j], hi[j]);
-        cen[j] = clamp(lo[j] + 0.5 * (hi[j] - lo[j]), lo[j], hi[j]);
-    }
+    // The embedding field, face by face (embedding_field_by_face in src/reach/embedding.rs).
     var jac: array<Iv, N0 * N0>;
     for (var i = 0u; i < N0; i++) {
         for (var j = 0u; j < N0; j++) {
             jac[i * N0 + j] = jac_iv(i, j, xb);
         }
     }
-    var rows_lo: array<Iv, N0 * N0>;
-    var rows_hi: array<Iv, N0 * N0>;
-    var delta_lo: array<Iv, N0>;
-    var delta_hi: array<Iv, N0>;
-    var g_box: array<Iv, N0 * M_OUT>;
-    var input: array<Iv, M_OUT>;
-    for (var i = 0u; i < N0; i++) {
-        delta_lo[i] = iv_point(0.0);
-        delta_hi[i] = iv_point(0.0);
-        for (var j = 0u; j < N0; j++) {
-            rows_lo[i * N0 + j] = iv_point(0.0);
-            rows_hi[i * N0 + j] = iv_point(0.0);
-        }
-    }
-    if (G_CONSTANT) {
-        for (var i = 0u; i < N0; i++) {
-            for (var k = 0u; k < M_OUT; k++) {
-                let sign = B_SIGN[i * M_OUT + k];
-                if (sign == 0) {
-                    continue;
-                }
-                let bik = Iv(B_LO[i * M_OUT + k], B_HI[i * M_OUT + k]);
-                let dl = iv_sub(iv_point(d_lo[k]), iv_point(MARGIN));
-                let du = iv_add(iv_point(d_hi[k]), iv_point(MARGIN));
-                for (var j = 0u; j < N0; j++) {
-                    var c_for_lo = a_lo[k * N0 + j];
-                    var c_for_hi = a_hi[k * N0 + j];
-                    if (sign < 0) {
-                        c_for_lo = a_hi[k * N0 + j];
-                        c_for_hi = a_lo[k * N0 + j];
-                    }
-                    rows_lo[i * N0 + j] = iv_add(rows_lo[i * N0 + j], iv_mul(bik, iv_point(c_for_lo)));
-                    rows_hi[i * N0 + j] = iv_add(rows_hi[i * N0 + j], iv_mul(bik, iv_point(c_for_hi)));
-                }
-                if (sign > 0) {
-                    delta_lo[i] = iv_add(delta_lo[i], iv_mul(bik, dl));
-                    delta_hi[i] = iv_add(delta_hi[i], iv_mul(bik, du));
-                } else {
-                    delta_lo[i] = iv_add(delta_lo[i], iv_mul(bik, du));
-                    delta_hi[i] = iv_add(delta_hi[i], iv_mul(bik, dl));
-                }
-            }
-        }
-    } else {
-        for (var i = 0u; i < N0; i++) {
-            for (var k = 0u; k < M_OUT; k++) {
-                g_box[i * M_OUT + k] = g_iv(i, k, xb);
-            }
-        }
-        for (var k = 0u; k < M_OUT; k++) {
-            input[k] = Iv(down(n_lo[k] - MARGIN), up(n_hi[k] + MARGIN));
-        }
-    }
     var dxl: array<real, N0>;
     var dxu: array<real, N0>;
     for (var i = 0u; i < N0; i++) {
-        for (var side = 0u; side < 2u; side++) {
-            var pt = cen;
-            if (side == 0u) {
-                pt[i] = lo[i];
-            } else {
-                pt[i] = hi[i];
-            }
-            var pb: array<Iv, N0>;
-            for (var j = 0u; j < N0; j++) {
-                pb[j] = iv_point(pt[j]);
-            }
-            var total = ft_iv(i, pb);
-            if (G_CONSTANT) {
-                for (var j = 0u; j < N0; j++) {
-                    var row = rows_lo[i * N0 + j];
-                    if (side == 1u) {
-                        row = rows_hi[i * N0 + j];
-                    }
-                    total = iv_add(total, iv_mul(row, iv_point(pt[j])));
-                    if (j != i) {
-                        let off = iv_sub(xb[j], iv_point(pt[j]));
-                        total = iv_add(total, iv_mul(iv_add(jac[i * N0 + j], row), off));
-                    }
-                }
-                if (side == 0u) {
-                    total = iv_add(total, delta_lo[i]);
-                } else {
-                    total = iv_add(total, delta_hi[i]);
-                }
-            } else {
-                for (var j = 0u; j < N0; j++) {
-                    if (j != i) {
-                        let off = iv_sub(xb[j], iv_point(pt[j]));
-                        total = iv_add(total, iv_mul(jac[i * N0 + j], off));
-                    }
-                }
-                for (var k = 0u; k < M_OUT; k++) {
-                    total = iv_add(total, iv_mul(g_box[i * M_OUT + k], input[k]));
-                }
-            }
-            if (side == 0u) {
-                dxl[i] = total.lo;
-            } else {
-                dxu[i] = total.hi;
-            }
-        }
+        dxl[i] = face_field(i, 0u, xb, cen, jac, load_bounds(face_index(g, i, 0u)), margin).lo;
+        dxu[i] = face_field(i, 1u, xb, cen, jac, load_bounds(face_index(g, i, 1u)), margin).hi;
         if (FIELD_SLACK > 0.0) {
             dxl[i] = down(dxl[i] - FIELD_SLACK);
             dxu[i] = up(dxu[i] + FIELD_SLACK);
@@ -213,6 +334,9 @@ fn embed(@builtin(global_invocation_id) gid: vec3<u32>) {
 
     // The closeness radius (Minkowski): c ≥ μ([Df̃](C) + [g](C)·hull(C̲, C̄)).
     if (MINKOWSKI) {
+        let nb0 = load_bounds(face_index(g, 0u, 0u));
+        let a_lo = nb0.a_lo;
+        let a_hi = nb0.a_hi;
         var rate = -HUGE;
         var am: array<Iv, N0 * N0>;
         for (var i = 0u; i < N0; i++) {
@@ -283,16 +407,10 @@ fn embed(@builtin(global_invocation_id) gid: vec3<u32>) {
             sb[j] = Iv(lo[j], hi[j]);
         }
     }
+    let xs = x_box(sb);
     var inside = true;
     for (var i = 0u; i < N0; i++) {
-        var xi = sb[i];
-        if (TRANSFORM) {
-            xi = iv_point(0.0);
-            for (var j = 0u; j < N0; j++) {
-                xi = iv_add(xi, iv_mul(Iv(S_LO[i * N0 + j], S_HI[i * N0 + j]), sb[j]));
-            }
-        }
-        inside = inside && REGION_LO[i] <= xi.lo && xi.hi <= REGION_HI[i];
+        inside = inside && REGION_LO[i] <= xs[i].lo && xs[i].hi <= REGION_HI[i];
     }
     if (!inside) {
         stop(g, LEFT_REGION, step);

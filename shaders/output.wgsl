@@ -10,7 +10,8 @@
 @group(0) @binding(0) var<uniform> p: Params;
 // Every layer's W and b.
 @group(0) @binding(1) var<storage, read> net: array<real>;
-// Per box lo[N0], hi[N0], radius (embedding coordinates).
+// Per bound box lo[N0], hi[N0], radius (embedding coordinates): the boxes, or their faces
+// (FACES per box, shaders/faces.wgsl).
 @group(0) @binding(2) var<storage, read> state: array<real>;
 // Output layer's W·Ĉ, M_OUT × boxes·KC.
 @group(0) @binding(3) var<storage, read> cf: array<real>;

@@ -12,7 +12,8 @@
 @group(0) @binding(0) var<uniform> p: Params;
 // Every layer's W and b.
 @group(0) @binding(1) var<storage, read> net: array<real>;
-// Per box lo[N0], hi[N0], radius.
+// Per bound box lo[N0], hi[N0], radius: the boxes, or their faces (FACES per box,
+// shaders/faces.wgsl).
 @group(0) @binding(2) var<storage, read> state: array<real>;
 // Centre forms Ĉ, rows × boxes·KC (in: W·Ĉ of the layer's input; out: relaxed).
 @group(0) @binding(3) var<storage, read_write> cf: array<real>;
@@ -22,7 +23,8 @@
 @group(0) @binding(5) var<storage, read> aux_g: array<real>;
 // The per-neuron vectors of this layer's output (after ReLU), for the next layer.
 @group(0) @binding(6) var<storage, read_write> aux: array<real>;
-// Per box [poisoned, status, stop step], then the step counter.
+// Per box [poisoned, status, stop step], then the step counter; bound box g poisons box
+// g / FACES.
 @group(0) @binding(7) var<storage, read_write> flags: array<atomic<u32>>;
 // Recorded pre-activation bounds l, u of every layer (RECORD).
 @group(0) @binding(8) var<storage, read_write> pre: array<real>;
@@ -79,7 +81,7 @@ fn relu(@builtin(global_invocation_id) gid: vec3<u32>) {
     var l = down(sl - err);
     var u = up(su + err);
     if (!(finite(l) && finite(u) && finite(mag))) {
-        atomicStore(&flags[g * 3u], 1u);
+        atomicStore(&flags[(g / FACES) * 3u], 1u);
     }
     if (IBP) {
         // IBP through this layer from the previous layer's intersected bounds (ibp_layer in

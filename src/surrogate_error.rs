@@ -997,8 +997,12 @@ pub fn cell_error_bound_mv(
         return Ok(coarse);
     }
     let ab = network_bounds(net, &cell.lower, &cell.upper, method)?;
-    let n_lo: Vec<f64> = (0..ab.n_out).map(|j| ibp.lower[j].max(ab.lower[j])).collect();
-    let n_hi: Vec<f64> = (0..ab.n_out).map(|j| ibp.upper[j].min(ab.upper[j])).collect();
+    let n_lo: Vec<f64> = (0..ab.n_out)
+        .map(|j| ibp.lower[j].max(ab.lower[j]))
+        .collect();
+    let n_hi: Vec<f64> = (0..ab.n_out)
+        .map(|j| ibp.upper[j].min(ab.upper[j]))
+        .collect();
     let (v_whole, smooth_whole) = forms.enclose(s, cell);
     let whole = if unbounded(&v_whole) {
         f64::INFINITY

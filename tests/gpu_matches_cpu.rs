@@ -5,7 +5,9 @@
 //!
 //! Every bound method the GPU runs (forward, forward-backward, crown, each relaxation) is
 //! checked in f64 against the CPU to `REL_TOL`, in f32 to contain the CPU's sets and be at most
-//! `F32_FACTOR` wider, and in both for containing sampled NN-system trajectories.
+//! `F32_FACTOR` wider, and in both for containing sampled NN-system trajectories. Face-local
+//! bounds and local error margins (an error map with a +∞ cell, and the shipped map) are
+//! checked in f64 to `F64_TOL`.
 
 #![allow(clippy::needless_range_loop)] // index loops read as the formulas
 
@@ -650,6 +652,23 @@ fn cli_backend_gpu_and_auto() {
         let (ok, text) = run(&["--backend", "gpu", "--bounds", "forward-backward", "--f64"]);
         assert!(ok && text.contains("f64)"), "{text}");
     }
+    // Local error margins and face-local bounds run on the GPU (the map beside the network).
+    let mut map = small_error_map(&integrator().reach.region);
+    map.network_hash = cbfreach::surrogate_error::fnv1a_hex(&std::fs::read(&net_path).unwrap());
+    map.save(&cbfreach::surrogate_error::error_map_path(&net_path))
+        .unwrap();
+    let (ok, text) = run(&[
+        "--backend",
+        "gpu",
+        "--bounds",
+        "forward-backward",
+        "--face-local",
+        "--local-margin",
+    ]);
+    assert!(
+        ok && text.contains("backend gpu") && text.contains("local bounds of the error map"),
+        "{text}"
+    );
     let (ok, text) = run(&["--backend", "cpu", "--f64"]);
     assert!(!ok && text.contains("--f64"), "{text}");
     let (ok, text) = run(&[
@@ -663,4 +682,313 @@ fn cli_backend_gpu_and_auto() {
     assert!(!ok && text.contains("no GPU adapter named like"), "{text}");
     assert!(!text.contains("panicked"), "{text}");
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// GPU (f64) against CPU for face-local bounds and local error margins: the same arithmetic up
+/// to rounding order, so the sets agree far below `REL_TOL`.
+const F64_TOL: f64 = 1e-9;
+
+fn with_faces(bounds: BoundMethod) -> ReachSettings {
+    ReachSettings {
+        face_local: true,
+        ..with_bounds(bounds, ReachMethod::Disturbance)
+    }
+}
+
+/// Face-local bounds (immrax's local mode) on the GPU agree with the CPU: in f64 to `F64_TOL`,
+/// in f32 within `F32_FACTOR`, for constant `g` (both paper scenarios, with the transform) and
+/// a state-dependent `g`; and they are no wider than whole-box bounds.
+#[test]
+fn face_local_matches_cpu() {
+    let Some(gpu32) = gpu() else { return };
+    let gpu64 = gpu_f64();
+    let s1 = integrator();
+    let mut p1 = ReachProblem::new(&s1, small_network(&[2, 16, 16, 2], 1, 0.05), 0.05).unwrap();
+    p1.steps = 30;
+    let init1 = boxes(&[[-2.0, 2.0], [1.0, -2.0], [3.5, 2.0]], 0.1);
+    let s2 = double_integrator();
+    let t = Transform::for_scenario(&s2, &TransformChoice::Auto).unwrap();
+    let mut p2 =
+        ReachProblem::with_transform(&s2, small_network(&[2, 16, 16, 1], 2, 0.05), 0.02, t)
+            .unwrap();
+    p2.steps = 30;
+    let init2 = boxes(&[[-1.0, 0.5], [0.5, 1.0]], 0.05);
+    let s3 = common::from_text(&common::SMALL.replace(r#"["1"]"#, r#"["1 + 0.2*x"]"#)).unwrap();
+    let mut p3 = ReachProblem::new(&s3, small_network(&[2, 8, 8, 1], 9, 0.1), 0.02).unwrap();
+    p3.steps = 15;
+    let init3 = boxes(&[[-0.3, 0.2], [0.4, -0.1]], 0.05);
+    let mut worst = (0.0f64, 0.0f64);
+    for bounds in [
+        BoundMethod::Forward,
+        BoundMethod::ForwardBackward,
+        BoundMethod::Crown,
+    ] {
+        let st = with_faces(bounds);
+        // Every method on scenario 1, forward-backward (the default) on the others.
+        let others = bounds == BoundMethod::ForwardBackward;
+        for (problem, init, name) in [
+            (&p1, &init1, "scenario 1"),
+            (&p2, &init2, "scenario 2 (transform)"),
+            (&p3, &init3, "state-dependent g"),
+        ]
+        .into_iter()
+        .filter(|c| others || c.2 == "scenario 1")
+        {
+            let (c, g) = run_both_with(&gpu32, problem, init, &st);
+            let w = compare_within(
+                &c,
+                &g,
+                &format!("f32 face-local {bounds} {name}"),
+                F32_FACTOR,
+            );
+            worst.0 = worst.0.max(w);
+            if let Some(gpu64) = &gpu64 {
+                let (c, g) = run_both_with(gpu64, problem, init, &st);
+                let w = compare_within(&c, &g, &format!("f64 face-local {bounds} {name}"), F64_TOL);
+                worst.1 = worst.1.max(w);
+            }
+        }
+    }
+    // Face-local bounds are tighter than whole-box ones (the point of the mode).
+    let whole = gpu32
+        .reach(
+            &p1,
+            &init1,
+            &with_bounds(BoundMethod::Forward, ReachMethod::Disturbance),
+            &|_, _| {},
+        )
+        .unwrap();
+    let local = gpu32
+        .reach(&p1, &init1, &with_faces(BoundMethod::Forward), &|_, _| {})
+        .unwrap();
+    let width = |t: &Tube| t.last().unwrap().set.widths().iter().sum::<f64>();
+    for (a, b) in whole.boxes.iter().zip(&local.boxes) {
+        assert!(
+            width(b) <= width(a) * (1.0 + 1e-6),
+            "{} vs {}",
+            width(b),
+            width(a)
+        );
+    }
+    eprintln!(
+        "face-local GPU vs CPU, worst relative difference: f32 {:.2e}, f64 {:.2e}",
+        worst.0, worst.1
+    );
+}
+
+/// A certified-looking error map over scenario 1's region: 8 × 6 cells of width 1 with bounds
+/// between 0.01 and 0.03, and no certified bound (+∞) on the cell `[0.5, 1.5] × [-0.5, 0.5]`.
+fn small_error_map(region: &IntervalBox) -> cbfreach::surrogate_error::ErrorMap {
+    let mut cells = Vec::new();
+    for i in 0..8 {
+        for j in 0..6 {
+            let lower = [region.lower[0] + i as f64, region.lower[1] + j as f64];
+            let upper = [lower[0] + 1.0, lower[1] + 1.0];
+            let bound = if (i, j) == (4, 2) {
+                "\"inf\"".to_string()
+            } else {
+                format!("{}", 0.01 + 0.005 * ((i * 7 + j * 3) % 5) as f64)
+            };
+            cells.push(format!(
+                "{{\"lower\": [{}, {}], \"upper\": [{}, {}], \"bound\": {bound}}}",
+                lower[0], lower[1], upper[0], upper[1]
+            ));
+        }
+    }
+    let json = format!(
+        "{{\"format\": \"cbfreach-errormap-1\", \"network\": \"test\", \"network_hash\": \"0\", \
+         \"region\": {{\"lower\": [{}, {}], \"upper\": [{}, {}]}}, \"norm\": \"inf\", \
+         \"measured_linf\": 0.03, \"measured_l2\": 0.03, \"certified_linf\": \"inf\", \
+         \"cells\": [{}]}}",
+        region.lower[0],
+        region.lower[1],
+        region.upper[0],
+        region.upper[1],
+        cells.join(", ")
+    );
+    serde_json::from_str(&json).unwrap()
+}
+
+/// Local error margins on the GPU agree with the CPU (f64 to `F64_TOL`, f32 within
+/// `F32_FACTOR`), with whole-box and face-local bounds; a box that reaches the cell without a
+/// certified bound is marked invalid by both engines at the same step, with the same note.
+#[test]
+fn local_margins_match_cpu() {
+    let Some(gpu32) = gpu() else { return };
+    let gpu64 = gpu_f64();
+    let s = integrator();
+    let net = small_network(&[2, 16, 16, 2], 1, 0.05);
+    let mut problem = ReachProblem::new(&s, net, 0.5).unwrap();
+    let map = small_error_map(&problem.region);
+    problem = problem.with_error_map(map).unwrap();
+    problem.steps = 40;
+    // Box 0 converges into the +∞ cell (x₁ → 0 at rate 1 from 2.2); the others cross cells of
+    // finite bounds.
+    let init = boxes(&[[2.2, 0.3], [-2.0, 2.0], [-3.0, -1.3], [0.2, 2.5]], 0.1);
+    let mut worst = (0.0f64, 0.0f64);
+    for st in [
+        with_bounds(BoundMethod::ForwardBackward, ReachMethod::Disturbance),
+        with_faces(BoundMethod::ForwardBackward),
+        with_bounds(BoundMethod::Forward, ReachMethod::Disturbance),
+    ] {
+        let what = format!("{} face-local {}", st.bounds, st.face_local);
+        let (c, g) = run_both_with(&gpu32, &problem, &init, &st);
+        assert!(
+            !c[0].valid && c[1..].iter().all(|t| t.valid),
+            "{:?}",
+            c[0].note
+        );
+        assert!(c[0].note.as_ref().unwrap().contains("M = ∞"));
+        assert_eq!(c[0].note, g[0].note);
+        worst.0 = worst.0.max(compare_within(
+            &c,
+            &g,
+            &format!("f32 local margins {what}"),
+            F32_FACTOR,
+        ));
+        if let Some(gpu64) = &gpu64 {
+            let (c, g) = run_both_with(gpu64, &problem, &init, &st);
+            assert_eq!(c[0].note, g[0].note);
+            worst.1 = worst.1.max(compare_within(
+                &c,
+                &g,
+                &format!("f64 local margins {what}"),
+                F64_TOL,
+            ));
+        }
+    }
+    eprintln!(
+        "local margins GPU vs CPU, worst relative difference: f32 {:.2e}, f64 {:.2e}",
+        worst.0, worst.1
+    );
+}
+
+/// The setting that verifies the most boxes (forward-backward, face-local, local margins) with
+/// the shipped network and its certified error map, a few boxes and steps: the GPU agrees with
+/// the CPU (f64 to `F64_TOL`, f32 containing the CPU's sets within `F32_FACTOR`).
+#[test]
+fn shipped_error_map_face_local_matches_cpu() {
+    let Some(gpu32) = gpu() else { return };
+    let s = integrator();
+    let net = Mlp::load_safetensors(&common::scenario_path("integrator.safetensors")).unwrap();
+    let map = cbfreach::surrogate_error::ErrorMap::load(&common::scenario_path(
+        "integrator.errormap.json",
+    ))
+    .unwrap();
+    let m_c = map.certified_linf.unwrap();
+    let mut problem = ReachProblem::new(&s, net, m_c)
+        .unwrap()
+        .with_error_map(map)
+        .unwrap();
+    problem.steps = 3;
+    let init = boxes(&[[-2.0, 2.0], [3.0, 1.5]], 0.02);
+    let st = with_faces(BoundMethod::ForwardBackward);
+    let (c, g) = run_both_with(&gpu32, &problem, &init, &st);
+    // f32's rigorous rounding bounds over 400-wide layers widen the sets by more than
+    // F32_FACTOR (paper_size_network_end_to_end): check containment and measure the excess.
+    let mut w32 = 0.0f64;
+    for (a, b) in c.iter().zip(&g) {
+        assert_eq!(a.valid, b.valid, "{:?} vs {:?}", a.note, b.note);
+        assert_eq!(a.tube.len(), b.tube.len());
+        for (sa, sb) in a.tube.iter().zip(&b.tube) {
+            for i in 0..2 {
+                let scale = sa.set.lower[i].abs().max(sa.set.upper[i].abs()).max(1.0);
+                assert!(
+                    sb.set.lower[i] <= sa.set.lower[i] && sa.set.upper[i] <= sb.set.upper[i],
+                    "t = {}: gpu {:?} does not contain cpu {:?}",
+                    sa.t,
+                    sb.set,
+                    sa.set
+                );
+                let excess =
+                    (sa.set.lower[i] - sb.set.lower[i]).max(sb.set.upper[i] - sa.set.upper[i]);
+                w32 = w32.max(excess / scale);
+            }
+        }
+    }
+    assert!(w32 < 0.05, "f32 widening too large: {w32}");
+    if let Some(gpu64) = gpu_f64() {
+        let (c, g) = run_both_with(&gpu64, &problem, &init, &st);
+        let w64 = compare_within(&c, &g, "shipped map f64", F64_TOL);
+        eprintln!(
+            "shipped map, forward-backward face-local local margins: f32 {w32:.2e}, f64 {w64:.2e}"
+        );
+    }
+}
+
+/// Trajectories of the NN system with a disturbance within the smallest cell bound (so within
+/// every local margin) stay in the GPU's face-local, local-margin sets, in f32 and f64.
+#[test]
+fn face_local_local_margin_sets_contain_trajectories() {
+    let Some(gpu32) = gpu() else { return };
+    let mut engines = vec![gpu32];
+    engines.extend(gpu_f64());
+    let s = integrator();
+    let net = small_network(&[2, 16, 16, 2], 4, 0.2);
+    let problem = ReachProblem::new(&s, net.clone(), 0.5).unwrap();
+    let map = small_error_map(&problem.region);
+    let mut problem = problem.with_error_map(map).unwrap();
+    problem.steps = 40;
+    let w = 0.01; // the smallest bound of small_error_map
+                  // (Away from the +∞ cell.)
+    let init = boxes(&[[-2.0, 1.0], [-1.0, -1.0], [-3.0, 0.0]], 0.1);
+    let trajectories: Vec<Vec<Vec<Vec<f64>>>> = init
+        .iter()
+        .map(|b| {
+            sample_box(b, 12, 7)
+                .into_iter()
+                .enumerate()
+                .map(|(k, x0)| {
+                    // A disturbance of ±w per input, its signs fixed per trajectory.
+                    let sign = [
+                        if k % 2 == 0 { w } else { -w },
+                        if k % 3 == 0 { w } else { -w },
+                    ];
+                    integrate(
+                        |x: &[f64]| {
+                            let mut f = nn_field(&s, &net, x);
+                            f.iter_mut().zip(sign).for_each(|(v, d)| *v += d);
+                            Ok::<_, String>(f)
+                        },
+                        &x0,
+                        problem.dt,
+                        problem.steps,
+                        Integrator::Euler,
+                    )
+                    .x
+                })
+                .collect()
+        })
+        .collect();
+    for gpu in &engines {
+        for st in [
+            with_faces(BoundMethod::ForwardBackward),
+            with_faces(BoundMethod::Crown),
+        ] {
+            let tubes = gpu.reach(&problem, &init, &st, &|_, _| {}).unwrap().boxes;
+            let mut checks = 0;
+            for (tube, trajs) in tubes.iter().zip(&trajectories) {
+                assert!(tube.valid, "{:?}", tube.note);
+                for traj in trajs {
+                    for sample in &tube.tube {
+                        let x = &traj[(sample.t / problem.dt).round() as usize];
+                        for i in 0..2 {
+                            assert!(
+                                sample.set.lower[i] <= x[i] && x[i] <= sample.set.upper[i],
+                                "{} {:?}: t = {} x{i} = {} escapes [{}, {}]",
+                                st.bounds,
+                                gpu.precision(),
+                                sample.t,
+                                x[i],
+                                sample.set.lower[i],
+                                sample.set.upper[i]
+                            );
+                        }
+                        checks += 1;
+                    }
+                }
+            }
+            assert!(checks > 1000, "too few checks: {checks}");
+        }
+    }
 }

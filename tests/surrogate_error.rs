@@ -239,9 +239,9 @@ fn mean_value_enclosure_contains_sampled_v_on_random_cells() {
                     if let Some(sv) = &smooth {
                         // v(x) ∈ v(c) + J(X)·(x − c), evaluated in intervals.
                         let mut e = sv.value[j];
-                        for i in 0..n {
-                            let d = cbfreach::intervals::Interval::point(x[i])
-                                - cbfreach::intervals::Interval::point(sv.centre[i]);
+                        for (i, (&xi, &ci)) in x.iter().zip(&sv.centre).enumerate() {
+                            let d = cbfreach::intervals::Interval::point(xi)
+                                - cbfreach::intervals::Interval::point(ci);
                             e = e + sv.jac[j * n + i] * d;
                         }
                         assert!(

@@ -127,7 +127,7 @@ pub fn run(args: &VerifyArgs) -> CliResult {
         every: 1,
         face_local: args.face_local,
     };
-    let engine = choose_backend(&args.backend, &args.gpu, &reach, args.problem.local_margin)?;
+    let engine = choose_backend(&args.backend, &args.gpu, &reach)?;
     let report = run_verify(&s, &problem, engine.as_ref(), reach, &settings)?;
     print_summary(&report);
     write_outputs(&s, &report, args.json.as_deref(), args.plot.as_deref())?;

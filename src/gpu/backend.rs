@@ -15,6 +15,13 @@
 //! Then the output kernel (the network's bounds per box), the embedding step and the step
 //! counter's tick. Batches larger than the device's binding, memory or dispatch limits allow
 //! are split into chunks that run one after the other on the same buffers.
+//!
+//! With face-local bounds (`--face-local`) a step starts with the `faces` kernel, which writes
+//! the `2n` faces of every box (`shaders/faces.wgsl`); the bound kernels then run on `2n·B`
+//! bound boxes, and the embedding step bounds each face of the field with its own face's
+//! network bounds. With local error margins (`--local-margin`, an error map on the problem)
+//! the embedding step takes each box's `M` from the map (`margins`), and a box that meets a
+//! cell without a certified bound stops as invalid (`status::NO_BOUND`), as on the CPU.
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -23,8 +30,11 @@ use super::buffers::{
     device_bytes, flatten_network, from_device_bytes, status, storage, storage_init, uniform,
     Params,
 };
-use super::codegen::{nnb_width, problem_wgsl, round_down, round_up, MethodFlags, AUX};
+use super::codegen::{
+    faces_per_box, nnb_width, problem_wgsl, round_down, round_up, MethodFlags, AUX,
+};
 use super::kernels::{Kernel, Kernels, GEMM_TILE, WORKGROUP};
+use super::margins::MarginMap;
 use super::{GpuContext, GpuError, Precision};
 use crate::bounds::BoundMethod;
 use crate::boxes::IntervalBox;
@@ -87,9 +97,10 @@ impl GpuBackend {
     }
 
     /// Whether this engine runs `settings`: forward, forward-backward and CROWN bounds (either
-    /// relaxation), not IBP alone or face-local bounds.
+    /// relaxation, whole-box or face-local), not IBP alone. Local error margins (a problem
+    /// with an error map) run on every setting.
     pub fn supports(settings: &ReachSettings) -> bool {
-        !settings.face_local && method_flags(settings.bounds, 2).is_some()
+        method_flags(settings.bounds, 2).is_some()
     }
 
     /// Boxes per chunk for a problem: every buffer of one chunk must fit one binding, all of
@@ -113,7 +124,7 @@ impl GpuBackend {
         let by_binding = (binding / largest.max(1)).max(1);
         let by_memory = (MAX_CHUNK_BYTES / total.max(1)).max(1);
         let groups = lim.max_compute_workgroups_per_dimension as u64;
-        let widest = shape.kc.max(shape.r_max).max(3) as u64;
+        let widest = (shape.kc.max(shape.r_max).max(3) * shape.faces) as u64;
         let by_dispatch = (groups * GEMM_TILE as u64 / widest).min(groups * WORKGROUP as u64);
         let mut c = by_binding
             .min(by_memory)
@@ -192,6 +203,8 @@ struct Shape {
     r_max: usize,
     lam: usize,
     slots: usize,
+    /// Bound boxes per box (`2n` face-local, else 1).
+    faces: usize,
 }
 
 impl Shape {
@@ -225,6 +238,7 @@ impl Shape {
             n: problem.dynamics.n,
             kc: problem.dynamics.n + 1,
             slots: problem.steps.div_ceil(every).max(1),
+            faces: faces_per_box(problem.dynamics.n, settings),
             w,
             flags,
             crown,
@@ -238,21 +252,28 @@ impl Shape {
         pass_rows(&self.w, self.flags.same_slope, k)
     }
 
-    /// Per box: (buffer, reals, copies) of every chunk buffer.
+    /// Per box: (buffer, reals, copies) of every chunk buffer; the bound kernels' buffers hold
+    /// `faces` bound boxes per box.
     fn per_box(&self) -> Vec<(&'static str, u64, u64)> {
         let width = *self.w.iter().max().unwrap_or(&1) as u64;
         let sum: u64 = self.w[1..].iter().map(|&x| x as u64).sum();
-        let (kc, sw) = (self.kc as u64, 2 * self.n as u64 + 1);
+        let (kc, sw, f) = (self.kc as u64, 2 * self.n as u64 + 1, self.faces as u64);
         let forms = if self.flags.forward { width * kc } else { 0 };
         let record = if self.flags.record { sum } else { 0 };
+        let faces = if self.faces > 1 { f * sw } else { 0 };
         vec![
-            ("forms", forms, 4),
-            ("aux", width * AUX as u64, 2),
-            ("pre", 2 * record, 1),
-            ("wm", record, 1),
-            ("lam", self.lam as u64, 2),
-            ("beta", 2 * self.r_max as u64, 1),
-            ("nnb", nnb_width(self.n, self.w[self.w.len() - 1]) as u64, 1),
+            ("forms", f * forms, 4),
+            ("aux", f * width * AUX as u64, 2),
+            ("pre", f * 2 * record, 1),
+            ("wm", f * record, 1),
+            ("lam", f * self.lam as u64, 2),
+            ("beta", f * 2 * self.r_max as u64, 1),
+            (
+                "nnb",
+                f * nnb_width(self.n, self.w[self.w.len() - 1]) as u64,
+                1,
+            ),
+            ("faces", faces, 1),
             ("state", sw, 2),
             ("snap", self.slots as u64 * sw, 2),
         ]
@@ -274,7 +295,23 @@ struct Buffers {
     lam: [wgpu::Buffer; 2],
     beta: wgpu::Buffer,
     nnb: wgpu::Buffer,
+    /// The face boxes (face-local bounds; unused otherwise).
+    faces: wgpu::Buffer,
+    /// The error map for local margins (`margins::MarginMap`).
+    map_index: wgpu::Buffer,
+    map_cells: wgpu::Buffer,
     staging: wgpu::Buffer,
+}
+
+impl Buffers {
+    /// What the bound kernels read as their boxes: the faces, or the states themselves.
+    fn bound_boxes(&self, shape: &Shape) -> &wgpu::Buffer {
+        if shape.faces > 1 {
+            &self.faces
+        } else {
+            &self.state
+        }
+    }
 }
 
 /// What one chunk's readback holds.
@@ -303,14 +340,9 @@ impl Backend for GpuBackend {
         settings.validate()?;
         if !GpuBackend::supports(settings) {
             return Err(GpuError::Unsupported(format!(
-                "{} bounds{} (the GPU engine has forward, forward-backward and crown bounds, \
-                 without --face-local; use one of them or the CPU)",
-                settings.bounds,
-                if settings.face_local {
-                    " with --face-local"
-                } else {
-                    ""
-                }
+                "{} bounds (the GPU engine has forward, forward-backward and crown bounds; use \
+                 one of them or the CPU)",
+                settings.bounds
             ))
             .into());
         }
@@ -357,10 +389,11 @@ impl Backend for GpuBackend {
             .into());
         }
         let shape = Shape::new(problem, settings);
-        let source = problem_wgsl(problem, settings, shape.flags, self.precision)?;
+        let margins = MarginMap::for_problem(problem, settings, self.precision);
+        let source = problem_wgsl(problem, settings, shape.flags, self.precision, &margins)?;
         let kernels = Kernels::new(&self.ctx.device, self.precision, &source)?;
         let chunk = self.chunk_size(problem, settings, initial.len());
-        let bufs = self.buffers(problem, &shape, chunk)?;
+        let bufs = self.buffers(problem, &shape, &margins, chunk)?;
         let n_chunks = initial.len().div_ceil(chunk);
         for (ci, boxes) in z_boxes.chunks(chunk).enumerate() {
             let res = self.run_chunk(problem, &shape, &kernels, &bufs, boxes, slots, &|s| {
@@ -396,8 +429,10 @@ struct StepPlan<'a> {
     shape: &'a Shape,
     /// Offsets of every layer's `W` and `b` in `net`.
     offsets: Vec<(u32, u32)>,
-    /// Boxes in this chunk.
+    /// Bound boxes in this chunk (`faces` per box): the columns of the bound kernels.
     nb: u32,
+    /// Boxes in this chunk.
+    boxes: u32,
     ops: Vec<Op<'a>>,
 }
 
@@ -530,7 +565,14 @@ impl<'a> StepPlan<'a> {
         };
         let groups = [self.nb.div_ceil(WORKGROUP), p.rows, 1];
         let bufs = [
-            &b.net, &b.state, &b.c[cur], &b.r[cur], &b.aux_g, &b.aux, &b.flags, &b.pre,
+            &b.net,
+            b.bound_boxes(self.shape),
+            &b.c[cur],
+            &b.r[cur],
+            &b.aux_g,
+            &b.aux,
+            &b.flags,
+            &b.pre,
         ];
         self.push(&self.kernels.relu, &p, &bufs, groups);
     }
@@ -567,7 +609,7 @@ impl<'a> StepPlan<'a> {
             };
             let bufs = [
                 &b.net,
-                &b.state,
+                b.bound_boxes(self.shape),
                 &b.pre,
                 &b.wm,
                 &b.lam[cur],
@@ -607,7 +649,7 @@ impl<'a> StepPlan<'a> {
         };
         let bufs = [
             &b.net,
-            &b.state,
+            b.bound_boxes(self.shape),
             &b.pre,
             &b.wm,
             &b.lam[lam],
@@ -639,7 +681,7 @@ impl<'a> StepPlan<'a> {
         let groups = [self.nb.div_ceil(WORKGROUP), 1, 1];
         let bufs = [
             &b.net,
-            &b.state,
+            b.bound_boxes(self.shape),
             &b.c[cur],
             &b.r[cur],
             &b.aux_g,
@@ -648,15 +690,41 @@ impl<'a> StepPlan<'a> {
             &b.nnb,
         ];
         self.push(&self.kernels.output, &p, &bufs, groups);
-        let group = [&b.state, &b.nnb, &b.flags, &b.snap];
-        self.push(&self.kernels.embed, &p, &group, groups);
-        self.push(&self.kernels.tick, &p, &group, [1, 1, 1]);
+        let per_box = Params {
+            boxes: self.boxes,
+            ..Default::default()
+        };
+        let groups = [self.boxes.div_ceil(WORKGROUP), 1, 1];
+        let group = [
+            &b.state,
+            &b.nnb,
+            &b.flags,
+            &b.snap,
+            &b.map_index,
+            &b.map_cells,
+        ];
+        self.push(&self.kernels.embed, &per_box, &group, groups);
+        self.push(&self.kernels.tick, &per_box, &group, [1, 1, 1]);
+    }
+
+    /// The face boxes of every box (face-local bounds), first in a step.
+    fn faces(&mut self) {
+        if self.shape.faces > 1 {
+            let p = Params {
+                boxes: self.boxes,
+                ..Default::default()
+            };
+            let b = self.bufs;
+            let groups = [self.boxes.div_ceil(WORKGROUP), 1, 1];
+            self.push(&self.kernels.faces, &p, &[&b.state, &b.faces], groups);
+        }
     }
 
     /// Every dispatch of one step.
     fn build(mut self) -> Vec<Op<'a>> {
         let n_layers = self.shape.w.len() - 1;
         let last = n_layers - 1;
+        self.faces();
         if self.shape.crown {
             self.pass_bounds(0, 0);
             let mut lam = 0;
@@ -696,6 +764,7 @@ impl GpuBackend {
         &self,
         problem: &ReachProblem,
         shape: &Shape,
+        margins: &MarginMap,
         chunk: usize,
     ) -> Result<Buffers, GpuError> {
         let d = &self.ctx.device;
@@ -730,6 +799,17 @@ impl GpuBackend {
             lam: [storage(d, "lam0", sz("lam")), storage(d, "lam1", sz("lam"))],
             beta: storage(d, "beta", sz("beta")),
             nnb: storage(d, "nnb", sz("nnb")),
+            faces: storage(d, "faces", sz("faces")),
+            map_index: storage_init(
+                d,
+                "map_index",
+                &padded(bytemuck::cast_slice(&margins.index)),
+            ),
+            map_cells: storage_init(
+                d,
+                "map_cells",
+                &padded(&device_bytes(&margins.cells, self.precision)),
+            ),
             staging: d.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("staging"),
                 size: (snap + state + flags).next_multiple_of(8),
@@ -778,7 +858,8 @@ impl GpuBackend {
             bufs,
             shape,
             offsets: flatten_network(&problem.network).1,
-            nb: boxes.len() as u32,
+            nb: (shape.faces * boxes.len()) as u32,
+            boxes: boxes.len() as u32,
             ops: Vec::new(),
         };
         let ops = plan.build();
@@ -886,6 +967,14 @@ fn fill_tube(
     }
     let t = stop as f64 * problem.dt;
     match st {
+        status::NO_BOUND => {
+            // The step's start, as the CPU engine reports it.
+            tube.valid = false;
+            tube.note = Some(format!(
+                "t = {:.3}: the set meets cells of the error map with no certified bound (M = ∞)",
+                t - problem.dt
+            ));
+        }
         status::LEFT_REGION => {
             let (lo, hi, r) = read(&res.state[g * sw..(g + 1) * sw]);
             tube.valid = false;
@@ -905,4 +994,11 @@ fn fill_tube(
         }
         _ => {}
     }
+}
+
+/// `bytes` padded with zeros to a non-empty multiple of 8 (a buffer may not be empty).
+fn padded(bytes: &[u8]) -> Vec<u8> {
+    let mut v = bytes.to_vec();
+    v.resize(bytes.len().max(8).next_multiple_of(8), 0);
+    v
 }

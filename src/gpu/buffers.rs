@@ -10,7 +10,10 @@
 //! - `pre`: per layer its pre-activation bounds `l, u` (`n_k × B` each); `wm`: per layer
 //!   `|W_k| max(u_{k−1}, 0)` (`n_k × B`);
 //! - `Λ`: `height × B·R` (neuron-major, `R` rows per box), `β`: `2 × B·R`;
-//! - `nnb`: per box the network's bounds (`codegen::nnb_width`).
+//! - `nnb`: per bound box the network's bounds (`codegen::nnb_width`); with face-local bounds
+//!   the bound boxes are the `2n` faces of each box (`faces`, `2n` states per box), and every
+//!   per-box array of the bound kernels above has `2n·B` boxes;
+//! - `map_index`, `map_cells`: the error map for local margins (`margins::MarginMap`).
 
 use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
@@ -82,6 +85,8 @@ pub mod status {
     pub const INVERTED: u32 = 2;
     /// A bound overflowed.
     pub const NON_FINITE: u32 = 3;
+    /// The set met error-map cells with no certified bound (`M = ∞`, local margins).
+    pub const NO_BOUND: u32 = 4;
 }
 
 /// A storage buffer of `bytes` bytes (at least 16, a multiple of 8).

@@ -11,6 +11,7 @@
 
 use std::fmt::Write;
 
+use super::margins::MarginMap;
 use super::{GpuError, Precision};
 use crate::expressions::{Expr, Func, Node};
 use crate::intervals::Interval;
@@ -240,13 +241,24 @@ pub struct MethodFlags {
     pub same_slope: bool,
 }
 
-/// Everything problem-specific the kernels need: sizes, constants and the dynamics' inclusion
-/// functions `ft_iv(i, x)`, `jac_iv(i, j, x)`, `g_iv(i, k, x)`, in `precision`.
+/// Bound boxes per box: the 2n faces with face-local bounds (`--face-local`), else the box.
+pub fn faces_per_box(n: usize, settings: &ReachSettings) -> usize {
+    if settings.face_local {
+        2 * n
+    } else {
+        1
+    }
+}
+
+/// Everything problem-specific the kernels need: sizes, constants, the local-margin map's
+/// geometry (`margins`, with `--local-margin`) and the dynamics' inclusion functions
+/// `ft_iv(i, x)`, `jac_iv(i, j, x)`, `g_iv(i, k, x)`, in `precision`.
 pub fn problem_wgsl(
     problem: &ReachProblem,
     settings: &ReachSettings,
     flags: MethodFlags,
     precision: Precision,
+    margins: &MarginMap,
 ) -> Result<String, GpuError> {
     let d = &problem.dynamics;
     let (n, m) = (d.n, d.m);
@@ -297,6 +309,12 @@ pub fn problem_wgsl(
     let _ = writeln!(s, "const DT_LO: real = {};", lit(down(problem.dt)));
     let _ = writeln!(s, "const DT_HI: real = {};", lit(up(problem.dt)));
     let _ = writeln!(s, "const MARGIN: real = {};", lit(up(margin)));
+    // Local margins (disturbance method with an error map): M = local bound + SLACK per box.
+    let local = settings.method == ReachMethod::Disturbance && problem.error_map.is_some();
+    let _ = writeln!(s, "const LOCAL_MARGIN: bool = {local};");
+    let _ = writeln!(s, "const SLACK: real = {};", lit(up(problem.network_slack)));
+    s += &margins.wgsl(precision);
+    let _ = writeln!(s, "const FACES: u32 = {}u;", faces_per_box(n, settings));
     let _ = writeln!(
         s,
         "const FIELD_SLACK: real = {};",

@@ -18,6 +18,7 @@ const RELU: &str = include_str!("../../shaders/relu.wgsl");
 const BACKWARD: &str = include_str!("../../shaders/backward.wgsl");
 const OUTPUT: &str = include_str!("../../shaders/output.wgsl");
 const EMBED: &str = include_str!("../../shaders/embed.wgsl");
+const FACES: &str = include_str!("../../shaders/faces.wgsl");
 
 /// Workgroup size of the one-dimensional kernels (`@workgroup_size(64)` in the shaders).
 pub const WORKGROUP: u32 = 64;
@@ -48,6 +49,8 @@ pub struct Kernels {
     pub embed: Kernel,
     /// Advances the device's step counter (shaders/embed.wgsl, `tick`).
     pub tick: Kernel,
+    /// The 2n face boxes of every box, for face-local bounds (shaders/faces.wgsl).
+    pub faces: Kernel,
 }
 
 /// Binding kinds after the uniform at binding 0: `true` = read-only storage.
@@ -104,7 +107,7 @@ fn kernel(
 }
 
 /// The WGSL of a module: the precision prelude, shared helpers, the generated problem constants
-/// and the module's kernels (`gemm`, `relu`, `backward`, `output`, `embed`).
+/// and the module's kernels (`gemm`, `relu`, `backward`, `output`, `faces`, `embed`).
 pub fn shader_source(precision: Precision, problem_wgsl: &str, module: &str) -> String {
     let prelude = match precision {
         Precision::F32 => REAL_F32,
@@ -120,6 +123,7 @@ pub fn shader_source(precision: Precision, problem_wgsl: &str, module: &str) -> 
         "relu" => &[BOX, RELU],
         "backward" => &[BOX, BACKWARD],
         "output" => &[BOX, OUTPUT],
+        "faces" => &[BOX, FACES],
         _ => &[BOX, EMBED],
     };
     for part in body {
@@ -146,15 +150,16 @@ impl Kernels {
                 ),
             })
         };
-        let (gemm_m, relu_m, bwd_m, out_m, embed_m) = (
+        let (gemm_m, relu_m, bwd_m, out_m, faces_m, embed_m) = (
             module("gemm"),
             module("relu"),
             module("backward"),
             module("output"),
+            module("faces"),
             module("embed"),
         );
         let backward = [true, true, false, true, false, false, false];
-        let embed = [false, true, false, false];
+        let embed = [false, true, false, false, true, true];
         let kernels = Kernels {
             gemm: kernel(device, &gemm_m, "gemm", &[true, true, false]),
             relu: kernel(
@@ -173,6 +178,7 @@ impl Kernels {
             ),
             embed: kernel(device, &embed_m, "embed", &embed),
             tick: kernel(device, &embed_m, "tick", &embed),
+            faces: kernel(device, &faces_m, "faces_of", &[true, false]),
         };
         match pollster::block_on(scope.pop()) {
             Some(e) => Err(GpuError::Shader(e.to_string())),

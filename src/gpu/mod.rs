@@ -6,6 +6,8 @@
 //! - [`kernels`]: one struct per pipeline (`shaders/*.wgsl`, included at compile time).
 //! - [`buffers`]: `#[repr(C)]` images of what the kernels read; the device layout.
 //! - [`codegen`]: scenario expressions as WGSL interval inclusion functions.
+//! - [`margins`]: the error map's cells and a bucket index on the device, for local error
+//!   margins (`--local-margin`).
 //! - [`GpuBackend`]: [`crate::reach::Backend`] on the device: forward linear bounds,
 //!   forward-backward (forward ∩ IBP intermediate bounds, one backward CROWN pass from the
 //!   output) and backward CROWN, each in f32 or (`--f64`, [`Precision::F64`]) f64.
@@ -51,6 +53,10 @@
 //! - **Overflow, NaN**: WGSL does not promise IEEE infinities, so every bound is compared with
 //!   `1e30`; a box past it is reported as non-finite, as the CPU reports an overflow.
 //!
+//! - **Local error margins**: the map's cells rounded outward, their bounds rounded up, a
+//!   bucket range that can only over-cover (`margins`): `M` on the device is at least the
+//!   CPU's `ErrorMap::local_bound` of the computed x-box.
+//!
 //! The Euler step itself is the paper's, not a validated integrator (README, Limitations).
 
 pub mod backend;
@@ -58,6 +64,7 @@ pub mod buffers;
 pub mod codegen;
 pub mod context;
 pub mod kernels;
+pub mod margins;
 
 pub use backend::GpuBackend;
 pub use context::GpuContext;

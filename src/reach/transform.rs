@@ -157,7 +157,7 @@ impl Transform {
         let p = DMatrix::from_column_slice(n, n, vec_p.as_slice());
         let p = (&p + p.transpose()) * 0.5;
         let eig = p.clone().symmetric_eigen();
-        if eig.eigenvalues.iter().any(|&l| !(l > 0.0)) {
+        if eig.eigenvalues.iter().any(|l| l.is_nan() || *l <= 0.0) {
             return Err(
                 "the closed loop is not stable at the goal (P is not positive definite)".into(),
             );
