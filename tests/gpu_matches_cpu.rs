@@ -316,28 +316,8 @@ fn gpu_sets_contain_nn_trajectories() {
             for bounds in [BoundMethod::Forward].into_iter().chain(BACKWARD_METHODS) {
                 let st = with_bounds(bounds, ReachMethod::Disturbance);
                 let tubes = gpu.reach(&problem, &init, &st, &|_, _| {}).unwrap().boxes;
-                let mut checks = 0;
-                for (tube, trajs) in tubes.iter().zip(&trajectories) {
-                    for traj in trajs {
-                        for sample in &tube.tube {
-                            let k = (sample.t / problem.dt).round() as usize;
-                            let Some(x) = traj.get(k) else { break };
-                            for i in 0..2 {
-                                assert!(
-                                    sample.set.lower[i] <= x[i] && x[i] <= sample.set.upper[i],
-                                    "{} {bounds} {:?}: t = {} x{i} = {} escapes [{}, {}]",
-                                    s.file,
-                                    gpu.precision(),
-                                    sample.t,
-                                    x[i],
-                                    sample.set.lower[i],
-                                    sample.set.upper[i]
-                                );
-                            }
-                            checks += 1;
-                        }
-                    }
-                }
+                let label = format!("{} {bounds} {:?}", s.file, gpu.precision());
+                let checks = count_contained(&tubes, &trajectories, problem.dt, &label);
                 assert!(checks > 1000, "{bounds}: too few checks: {checks}");
             }
         }
@@ -966,29 +946,44 @@ fn face_local_local_margin_sets_contain_trajectories() {
             with_faces(BoundMethod::Crown),
         ] {
             let tubes = gpu.reach(&problem, &init, &st, &|_, _| {}).unwrap().boxes;
-            let mut checks = 0;
-            for (tube, trajs) in tubes.iter().zip(&trajectories) {
+            for tube in &tubes {
                 assert!(tube.valid, "{:?}", tube.note);
-                for traj in trajs {
-                    for sample in &tube.tube {
-                        let x = &traj[(sample.t / problem.dt).round() as usize];
-                        for i in 0..2 {
-                            assert!(
-                                sample.set.lower[i] <= x[i] && x[i] <= sample.set.upper[i],
-                                "{} {:?}: t = {} x{i} = {} escapes [{}, {}]",
-                                st.bounds,
-                                gpu.precision(),
-                                sample.t,
-                                x[i],
-                                sample.set.lower[i],
-                                sample.set.upper[i]
-                            );
-                        }
-                        checks += 1;
-                    }
-                }
             }
+            let label = format!("{} {:?}", st.bounds, gpu.precision());
+            let checks = count_contained(&tubes, &trajectories, problem.dt, &label);
             assert!(checks > 1000, "too few checks: {checks}");
         }
     }
+}
+
+/// Asserts that every recorded set of each tube contains its box's sampled trajectories at that
+/// time (trajectories recorded every `dt`); returns the number of checks.
+fn count_contained(
+    tubes: &[Tube],
+    trajectories: &[Vec<Vec<Vec<f64>>>],
+    dt: f64,
+    label: &str,
+) -> usize {
+    let mut checks = 0;
+    for (tube, trajs) in tubes.iter().zip(trajectories) {
+        for traj in trajs {
+            for sample in &tube.tube {
+                let Some(x) = traj.get((sample.t / dt).round() as usize) else {
+                    break;
+                };
+                for i in 0..x.len() {
+                    assert!(
+                        sample.set.lower[i] <= x[i] && x[i] <= sample.set.upper[i],
+                        "{label}: t = {} x{i} = {} escapes [{}, {}]",
+                        sample.t,
+                        x[i],
+                        sample.set.lower[i],
+                        sample.set.upper[i]
+                    );
+                }
+                checks += 1;
+            }
+        }
+    }
+    checks
 }
