@@ -463,7 +463,7 @@ fn draw_trajectories<DB: DrawingBackend>(
 /// The colour and label of a tube by its outcome.
 fn tube_class(scenario: &Scenario, tube: &Tube) -> (RGBColor, &'static str) {
     match tube.last() {
-        _ if !tube.valid => (ORANGE, "left C (invalid)"),
+        _ if !tube.valid => (ORANGE, "invalid (left C, or M = ∞)"),
         Some(s) if s.set.is_subset_of(&scenario.reach.goal) => (BLUE, "reaches the goal"),
         _ => (VERMILION, "does not reach the goal"),
     }

@@ -141,6 +141,11 @@ pub struct ErrorSettings {
     pub max_cells: usize,
     /// Priority factor of cells that meet the scenario's goal set (default 4).
     pub goal_weight: f64,
+    /// Cells narrower than this are not bisected further (default `initial_cell / 32`): where
+    /// `v` jumps or the QP is infeasible along a curve (scenario 2 on `x₂ = −2` near
+    /// `x₁ ≈ 4`), the bound stays large however fine the cells, and refining there would
+    /// spend the whole budget.
+    pub min_cell: f64,
     /// Affine bounds of `N` on a cell when IBP is not tight enough (default forward-backward:
     /// within about 1 % of backward CROWN on small cells at a twentieth of its cost).
     pub cell_bounds: BoundMethod,
@@ -164,6 +169,7 @@ impl Default for ErrorSettings {
             max_cells: 24_000,
             goal_weight: 4.0,
             cell_bounds: BoundMethod::ForwardBackward,
+            min_cell: 0.125 / 32.0,
         }
     }
 }
@@ -1071,6 +1077,25 @@ pub fn sampled_cell_error(
     e
 }
 
+/// Whether the filter is infeasible at a safe corner or at the centre of the cell.
+fn meets_infeasibility(s: &Scenario, filter: &SafetyFilter, cell: &IntervalBox) -> bool {
+    let n = cell.dim();
+    let corners = (0..1usize << n).map(|mask| {
+        (0..n)
+            .map(|i| {
+                if mask >> i & 1 == 1 {
+                    cell.upper[i]
+                } else {
+                    cell.lower[i]
+                }
+            })
+            .collect::<Vec<f64>>()
+    });
+    corners
+        .chain(std::iter::once(cell.center()))
+        .any(|x| s.is_safe(&x) && filter.eval(&x).is_err())
+}
+
 /// One cell of an error map and its certified bound.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct CellBound {
@@ -1141,8 +1166,6 @@ impl Ord for Entry {
     }
 }
 
-/// Cells narrower than this are not bisected further.
-const MIN_CELL: f64 = 1e-7;
 
 /// A certified `M_C` over `C ∩ S` with local bounds (see the [module docs](self)).
 ///
@@ -1150,8 +1173,9 @@ const MIN_CELL: f64 = 1e-7;
 /// ([`cell_error_bound_mv`]) and a cheap sampled error `e` (corners, centre and
 /// [`ErrorSettings::cell_samples`] random points). A cell is refined (bisected) while its bound
 /// exceeds its target `max(local_ratio · e, floor)` ([`ErrorSettings::local_ratio`],
-/// [`ErrorSettings::floor`]), the largest gaps `bound − target` first (weighted by
-/// [`ErrorSettings::goal_weight`] on cells that meet the scenario's goal set), in parallel
+/// [`ErrorSettings::floor`]), the largest gaps `bound − target` times cell width first (weighted
+/// by [`ErrorSettings::goal_weight`] on cells that meet the scenario's goal set), down to
+/// [`ErrorSettings::min_cell`], in parallel
 /// batches, until every cell meets its target, [`ErrorSettings::budget`] cell evaluations are
 /// spent, or the map holds [`ErrorSettings::max_cells`] cells. `target` (the measured global
 /// error) is a lower floor of nothing and only kept for the report: the local criterion subsumes
@@ -1178,6 +1202,7 @@ pub fn certify(
         .collect();
     let ratio = settings.local_ratio.max(1.0);
     let floor = settings.floor.max(0.0);
+    let min_cell = settings.min_cell.max(1e-9);
     let goal = &s.reach.goal;
     let weight = |cell: &IntervalBox| {
         let meets = goal.dim() == cell.dim()
@@ -1209,6 +1234,13 @@ pub fn certify(
                 let e = sampled_cell_error(s, &filter, net, &cell, settings.cell_samples, seed);
                 let tgt = (ratio * e).max(floor);
                 let b = cell_error_bound_mv(&forms, s, net, &cell, settings.cell_bounds, tgt)?;
+                // Where the QP is infeasible on part of the cell, the enclosure of `v` stays
+                // wide however small the cell: keep the cell's bound as it is (target = bound).
+                let tgt = if meets_infeasibility(s, &filter, &cell) {
+                    tgt.max(b)
+                } else {
+                    tgt
+                };
                 Ok(Some((b, tgt, cell)))
             })
             .collect()
@@ -1233,8 +1265,11 @@ pub fn certify(
                         } else {
                             f64::MAX
                         };
+                        // Larger cells first at equal gaps: a cell's bound reaches every box
+                        // that meets it, and tiny cells at singular sets gain nothing.
+                        let size = cell.widths().iter().fold(0.0_f64, |a, &b| a.max(b));
                         heap.push(Entry {
-                            priority: gap * weight(&cell),
+                            priority: gap * size * weight(&cell),
                             bound,
                             cell,
                         });
@@ -1269,7 +1304,7 @@ pub fn certify(
             let Some(Entry { bound, cell, .. }) = heap.pop() else {
                 break;
             };
-            if cell.widths().iter().fold(0.0_f64, |a, &b| a.max(b)) < MIN_CELL {
+            if cell.widths().iter().fold(0.0_f64, |a, &b| a.max(b)) < min_cell {
                 done.push(CellBound {
                     lower: cell.lower,
                     upper: cell.upper,

@@ -41,6 +41,9 @@ pub struct ErrorArgs {
     /// Looseness: at most this many 0.1-wide boxes across C ∩ S (0 skips the looseness).
     #[arg(long, default_value_t = 300)]
     pub looseness_boxes: usize,
+    /// Cells narrower than this are not refined further.
+    #[arg(long, default_value_t = 0.125 / 32.0)]
+    pub min_cell: f64,
     /// How the network is bounded on a cell where IBP is not tight enough.
     #[arg(long, value_enum, default_value_t = BoundMethod::ForwardBackward)]
     pub cell_bounds: BoundMethod,
@@ -86,6 +89,7 @@ pub fn run(args: &ErrorArgs) -> CliResult {
         floor: args.floor,
         max_cells: args.max_cells,
         cell_bounds: args.cell_bounds,
+        min_cell: args.min_cell,
         ..ErrorSettings::default()
     };
 
