@@ -7,7 +7,7 @@
 //! the scenario's named parameters (see [`crate::expressions`]).
 //!
 //! Loading is two steps, so that every error can name its file and key: [`ScenarioFile`] is the
-//! file as serde reads it, and [`Scenario::compile`] checks it and turns it into expression
+//! file as serde reads it, and [`Scenario::from_toml`] checks it and turns it into expression
 //! trees and plain arrays (DESIGN §4's *compiled problem*).
 
 use std::collections::BTreeMap;

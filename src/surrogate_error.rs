@@ -9,9 +9,10 @@
 //! * [`certify`]: a **certified** `M_C ≥ sup_{x ∈ C ∩ S} ‖N(x) − v(x)‖∞` for the closed-form
 //!   filters (one constraint row, or a scalar input). `C` is cut into cells; cells on which some
 //!   `hᵢ < 0` (interval evaluation) are dropped; on every other cell `N` is bounded by IBP (and
-//!   backward CROWN when IBP is not tight enough) and `v` by an interval evaluation of the closed
-//!   form ([`v_enclosure`]); the worst cells are bisected until the bound is within a tolerance of
-//!   the measured value or a budget of cell evaluations is spent. The bound holds on
+//!   forward-backward or CROWN affine bounds when IBP is not tight enough) and `v` by mean-value
+//!   forms of the closed form on 8 × 8 pieces of the cell ([`cell_error_bound_mv`]); cells are
+//!   bisected until each bound is within a factor of the error sampled on the cell, or a budget
+//!   of cell evaluations is spent. The bound holds on
 //!   `cell ∩ S` for each kept cell (at the points where the filter is feasible), floating-point
 //!   error included. Where `v` is unbounded or discontinuous inside `S` (scenario 2 at the
 //!   obstacle's ends `(1, 0)`, `(3, 0)`, where `L_g h = 0`) cells stay infinite: the
@@ -977,7 +978,7 @@ fn piece_error(
 
 /// [`cell_error_bound`] with the mean-value enclosures of `v` ([`VForms::enclose`]) on the
 /// pieces of the cell ([`enclosure_pieces`]) and, where `v` is smooth on a piece, the joint
-/// affine bound of `N − v` there ([`joint_error`]): `N` is bounded once over the cell (IBP, and
+/// affine bound of `N − v` there (`joint_error`): `N` is bounded once over the cell (IBP, and
 /// `method`'s affine bounds when IBP does not already meet `good_enough`), and the bound is the
 /// max over the pieces of the least of their sound bounds. +∞ when an enclosure is unbounded.
 pub fn cell_error_bound_mv(

@@ -9,7 +9,7 @@
 //! in interval arithmetic. Every place that uses `T` for `S⁻¹` widens by that `ρ` term:
 //! boxes mapped to z ([`Transform::to_z_box`]) and the vector field `ż = S⁻¹F(Sz)`
 //! (the slack of [`Transform::field_slack`]). The network's first layer absorbs `S`
-//! (`W₁S`, rounded); its rounding error is bounded in [`Transform::network_slack`].
+//! (`W₁S`, rounded); its rounding error is bounded in [`Transform::network`].
 
 use nalgebra::{DMatrix, DVector};
 
