@@ -1167,7 +1167,6 @@ impl Ord for Entry {
     }
 }
 
-
 /// A certified `M_C` over `C ∩ S` with local bounds (see the [module docs](self)).
 ///
 /// `C` is cut into cells of [`ErrorSettings::initial_cell`]; every cell gets a certified bound
