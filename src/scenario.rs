@@ -164,7 +164,7 @@ pub struct ConstraintSection {
 pub enum MarginSpec {
     /// A fixed bound on `‖N(x) − v(x)‖` over `C`.
     Value(f64),
-    /// `"certified"` or `"measured"`: taken from the network's error report.
+    /// `"certified"`, `"measured"` or `"local"`: taken from the network's error map.
     Source(String),
 }
 
@@ -304,6 +304,10 @@ pub enum Margin {
     Certified,
     /// The network's measured bound (`cbfreach error`).
     Measured,
+    /// The certified bound of the error map's cells that the current set meets (a local `M`,
+    /// per box and step; `cbfreach error` writes the map). Sound, and much smaller than the
+    /// global bound near the goal and the traps (DESIGN §2b).
+    Local,
 }
 
 /// Reachability settings, checked.
@@ -754,10 +758,13 @@ fn compile_reach(c: &Compiler, r: &ReachSection, n: usize) -> Result<ReachConfig
         }
         MarginSpec::Source(s) if s == "certified" => Margin::Certified,
         MarginSpec::Source(s) if s == "measured" => Margin::Measured,
+        MarginSpec::Source(s) if s == "local" => Margin::Local,
         MarginSpec::Source(s) => {
             return Err(c.invalid(
                 "reach.m_c",
-                format!("expected a number, \"certified\" or \"measured\", found \"{s}\""),
+                format!(
+                    "expected a number, \"certified\", \"measured\" or \"local\", found \"{s}\""
+                ),
             ))
         }
     };

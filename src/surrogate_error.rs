@@ -1641,6 +1641,15 @@ impl ErrorMap {
         })
     }
 
+    /// The largest finite cell bound: `M_C` over `C ∩ S` minus the cells with no bound.
+    pub fn finite_max(&self) -> f64 {
+        self.cells
+            .iter()
+            .map(|c| c.bound)
+            .filter(|b| b.is_finite())
+            .fold(0.0, f64::max)
+    }
+
     /// The certified bound of `‖N − v‖∞` over `b ∩ S`: the max over the cells that meet `b` (0
     /// when `b` meets only cells proven unsafe). +∞ when `b` is not inside the mapped region (or
     /// the map holds no certified cells); see [`ErrorMap::try_local_bound`] for an error instead.
@@ -1696,6 +1705,17 @@ pub fn resolve_margin(s: &Scenario, network: &Path) -> Result<f64, AnalysisError
             map.certified_linf.ok_or(AnalysisError::NotCertified {
                 path: error_map_path(network),
             })
+        }
+        // The global number beside local bounds: the largest finite cell bound, which bounds
+        // every local M a set can get without being stopped (cells with +∞ stop it).
+        Margin::Local => {
+            let map = ErrorMap::load_for(network)?;
+            if map.certified_linf.is_none() {
+                return Err(AnalysisError::NotCertified {
+                    path: error_map_path(network),
+                });
+            }
+            Ok(map.finite_max())
         }
     }
 }

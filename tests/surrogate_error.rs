@@ -460,6 +460,9 @@ fn error_map_local_bounds_are_sound_and_below_the_global_one() {
     assert_eq!(resolve_margin(&s, &net_path).unwrap(), global);
     s.reach.m_c = Margin::Measured;
     assert_eq!(resolve_margin(&s, &net_path).unwrap(), f.measured.linf);
+    s.reach.m_c = Margin::Local;
+    assert_eq!(resolve_margin(&s, &net_path).unwrap(), map.finite_max());
+    assert!(map.finite_max() <= global);
     let mut other = f.net.clone();
     other.layers[0].bias[0] += 1.0;
     other

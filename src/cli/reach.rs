@@ -96,7 +96,8 @@ pub struct ProblemArgs {
     #[arg(long)]
     pub transform: Option<String>,
     /// Disturbance method: use the certified local error bounds of the error map beside the
-    /// network (written by `cbfreach error`) instead of one global M_C.
+    /// network (written by `cbfreach error`) instead of one global M_C (the default when the
+    /// scenario says `m_c = "local"`).
     #[arg(long)]
     pub local_margin: bool,
 }
@@ -124,12 +125,14 @@ pub fn compile(
     let m_c = resolve_margin(s, args.m_c, &path)?;
     let transform = Transform::for_scenario(s, &transform_choice(s, args.transform.as_deref())?)?;
     let problem = ReachProblem::with_transform(s, net, m_c, transform)?;
-    if !args.local_margin {
+    // Local bounds on request, or by the scenario's `m_c = "local"` unless --m-c overrides it.
+    let local = args.local_margin || (args.m_c.is_none() && s.reach.m_c == Margin::Local);
+    if !local {
         return Ok(problem);
     }
     let map = cbfreach::surrogate_error::ErrorMap::load_for(&path).map_err(|e| {
         format!(
-            "--local-margin: {e} (run `cbfreach error {}` first)",
+            "local error margins: {e} (run `cbfreach error {}` first)",
             s.file
         )
     })?;
