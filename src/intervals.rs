@@ -412,12 +412,41 @@ impl Neg for Interval {
     }
 }
 
+/// The rounding error `(a + b) − s` of the computed sum `s = a + b` (Knuth's TwoSum: exact
+/// under round-to-nearest when `s` is finite).
+fn sum_error(a: f64, b: f64, s: f64) -> f64 {
+    let bb = s - a;
+    (a - (s - bb)) + (b - bb)
+}
+
+/// A lower bound of the exact `a + b`: the computed sum itself when TwoSum shows that it is not
+/// above the exact one (exact sums such as `x₂ − x₂,min = 0` stay exact), else one ulp below
+/// (also near overflow, where TwoSum's own steps could overflow).
+fn sum_down(a: f64, b: f64) -> f64 {
+    let s = a + b;
+    if s.is_finite() && a.abs().max(b.abs()) < 1e300 && sum_error(a, b, s) >= 0.0 {
+        s
+    } else {
+        round_down(s)
+    }
+}
+
+/// An upper bound of the exact `a + b` (see [`sum_down`]).
+fn sum_up(a: f64, b: f64) -> f64 {
+    let s = a + b;
+    if s.is_finite() && a.abs().max(b.abs()) < 1e300 && sum_error(a, b, s) <= 0.0 {
+        s
+    } else {
+        round_up(s)
+    }
+}
+
 impl Add for Interval {
     type Output = Interval;
     fn add(self, rhs: Interval) -> Interval {
         Interval {
-            lower: round_down(self.lower + rhs.lower),
-            upper: round_up(self.upper + rhs.upper),
+            lower: sum_down(self.lower, rhs.lower),
+            upper: sum_up(self.upper, rhs.upper),
         }
     }
 }
@@ -426,8 +455,8 @@ impl Sub for Interval {
     type Output = Interval;
     fn sub(self, rhs: Interval) -> Interval {
         Interval {
-            lower: round_down(self.lower - rhs.upper),
-            upper: round_up(self.upper - rhs.lower),
+            lower: sum_down(self.lower, -rhs.upper),
+            upper: sum_up(self.upper, -rhs.lower),
         }
     }
 }
@@ -490,6 +519,45 @@ scalar_ops!(Add add, Sub sub, Mul mul, Div div);
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Sums are outward rounded only when inexact: checked against exact integer arithmetic
+    /// (every f64 of magnitude ≥ 2⁵³ is an integer, so i128 holds the exact sums).
+    #[test]
+    fn sums_are_exact_when_exact_and_enclosing_otherwise() {
+        let mut seed = 0x9E37_79B9_7F4A_7C15_u64;
+        let mut next = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            seed
+        };
+        let (mut exact, mut widened) = (0, 0);
+        for _ in 0..20_000 {
+            let a = ((next() >> 2) | 1 << 61) as f64;
+            let b = ((next() >> 3) | 1 << 60) as f64;
+            let b = if next() % 2 == 0 { b } else { -b };
+            let truth = a as i128 + b as i128;
+            let x = Interval::point(a) + Interval::point(b);
+            assert!(
+                x.lower as i128 <= truth && truth <= x.upper as i128,
+                "{a} + {b}"
+            );
+            let y = Interval::point(a) - Interval::point(-b);
+            assert_eq!((x.lower, x.upper), (y.lower, y.upper));
+            if x.lower == x.upper {
+                assert_eq!(x.lower as i128, truth);
+                exact += 1;
+            } else {
+                widened += 1;
+            }
+        }
+        assert!(
+            exact > 1000 && widened > 1000,
+            "{exact} exact, {widened} widened"
+        );
+        let z = Interval::point(-2.0) - Interval::point(-2.0);
+        assert_eq!((z.lower, z.upper), (0.0, 0.0));
+    }
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
