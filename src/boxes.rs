@@ -55,6 +55,23 @@ impl IntervalBox {
             .collect()
     }
 
+    /// The `2ⁿ` corners, corner `k` taking `x̄ᵢ` where bit `i` of `k` is set (exact: no
+    /// arithmetic on the coordinates).
+    pub fn corners(&self) -> impl Iterator<Item = Vec<f64>> + '_ {
+        let n = self.dim();
+        (0..1usize << n).map(move |mask| {
+            (0..n)
+                .map(|i| {
+                    if mask >> i & 1 == 1 {
+                        self.upper[i]
+                    } else {
+                        self.lower[i]
+                    }
+                })
+                .collect()
+        })
+    }
+
     /// Widths `x̄ − x̲`.
     pub fn widths(&self) -> Vec<f64> {
         self.lower

@@ -382,19 +382,7 @@ pub fn looseness(
         .enumerate()
         .map(|(k, b)| {
             let mut rng = SplitMix(settings.seed ^ (k as u64).wrapping_mul(0x2545_F491_4F6C_DD1D));
-            let mut pts: Vec<Vec<f64>> = (0..1usize << n)
-                .map(|mask| {
-                    (0..n)
-                        .map(|i| {
-                            if mask >> i & 1 == 1 {
-                                b.upper[i]
-                            } else {
-                                b.lower[i]
-                            }
-                        })
-                        .collect()
-                })
-                .collect();
+            let mut pts: Vec<Vec<f64>> = b.corners().collect();
             for _ in 0..settings.looseness_samples {
                 let u: Vec<f64> = (0..n).map(|_| rng.next_f64()).collect();
                 pts.push(b.point_at(&u));
@@ -1046,19 +1034,7 @@ pub fn sampled_cell_error(
     seed: u64,
 ) -> f64 {
     let n = cell.dim();
-    let mut pts: Vec<Vec<f64>> = (0..1usize << n)
-        .map(|mask| {
-            (0..n)
-                .map(|i| {
-                    if mask >> i & 1 == 1 {
-                        cell.upper[i]
-                    } else {
-                        cell.lower[i]
-                    }
-                })
-                .collect()
-        })
-        .collect();
+    let mut pts: Vec<Vec<f64>> = cell.corners().collect();
     pts.push(cell.center());
     let mut rng = SplitMix(seed);
     for _ in 0..extra {
@@ -1080,19 +1056,7 @@ pub fn sampled_cell_error(
 
 /// Whether the filter is infeasible at a safe corner or at the centre of the cell.
 fn meets_infeasibility(s: &Scenario, filter: &SafetyFilter, cell: &IntervalBox) -> bool {
-    let n = cell.dim();
-    let corners = (0..1usize << n).map(|mask| {
-        (0..n)
-            .map(|i| {
-                if mask >> i & 1 == 1 {
-                    cell.upper[i]
-                } else {
-                    cell.lower[i]
-                }
-            })
-            .collect::<Vec<f64>>()
-    });
-    corners
+    cell.corners()
         .chain(std::iter::once(cell.center()))
         .any(|x| s.is_safe(&x) && filter.eval(&x).is_err())
 }
