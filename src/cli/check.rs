@@ -4,6 +4,7 @@ use std::path::Path;
 
 use cbfreach::expressions::Expr;
 use cbfreach::filter::SafetyFilter;
+use cbfreach::scenario::Margin;
 
 use super::{fmt_point, load_scenario, CliResult};
 
@@ -50,14 +51,19 @@ pub fn run(path: &Path) -> CliResult {
     );
     let r = &s.reach;
     println!(
-        "  reach: C = {} × … {}, dt = {}, T = {} ({} steps), norm {:?}, M_C {:?}",
+        "  reach: C = {} … {}, dt = {}, T = {} ({} steps), norm {:?}, {}",
         fmt_point(&r.region.lower),
         fmt_point(&r.region.upper),
         r.dt,
         r.horizon,
         r.steps(),
         r.norm,
-        r.m_c
+        match r.m_c {
+            Margin::Value(v) => format!("M_C = {v} (taken as given)"),
+            Margin::Certified => "M_C = the error map's certified bound".to_string(),
+            Margin::Measured => "M_C = the error map's measured error (not a bound)".to_string(),
+            Margin::Local => "M = the error map's certified local bounds".to_string(),
+        }
     );
     println!(
         "  goal {} … {}, {} initial boxes",
