@@ -294,24 +294,7 @@ fn gpu_sets_contain_nn_trajectories() {
         let mut problem = ReachProblem::new(&s, net.clone(), 0.0).unwrap();
         problem.steps = 60;
         let init = boxes(&[[-2.0, 1.0], [1.0, -1.0], [-3.0, 0.0]], 0.1);
-        let trajectories: Vec<Vec<Vec<Vec<f64>>>> = init
-            .iter()
-            .map(|b| {
-                sample_box(b, 12, 7)
-                    .into_iter()
-                    .map(|x0| {
-                        integrate(
-                            |x: &[f64]| Ok::<_, String>(nn_field(&s, &net, x)),
-                            &x0,
-                            problem.dt,
-                            problem.steps,
-                            Integrator::Euler,
-                        )
-                        .x
-                    })
-                    .collect()
-            })
-            .collect();
+        let trajectories = nn_trajectories(&s, &net, &init, problem.dt, problem.steps, 0.0);
         for gpu in &engines {
             for bounds in [BoundMethod::Forward].into_iter().chain(BACKWARD_METHODS) {
                 let st = with_bounds(bounds, ReachMethod::Disturbance);
@@ -322,6 +305,45 @@ fn gpu_sets_contain_nn_trajectories() {
             }
         }
     }
+}
+
+/// Euler trajectories of the NN system from 12 sampled points of each box, plus a constant
+/// `±w` on each component of the field, its signs fixed per trajectory (the input disturbance
+/// of the disturbance method where `g = I`; `w = 0`: none).
+fn nn_trajectories(
+    s: &Scenario,
+    net: &Mlp,
+    init: &[IntervalBox],
+    dt: f64,
+    steps: usize,
+    w: f64,
+) -> Vec<Vec<Vec<Vec<f64>>>> {
+    init.iter()
+        .map(|b| {
+            sample_box(b, 12, 7)
+                .into_iter()
+                .enumerate()
+                .map(|(k, x0)| {
+                    let sign = [
+                        if k % 2 == 0 { w } else { -w },
+                        if k % 3 == 0 { w } else { -w },
+                    ];
+                    integrate(
+                        |x: &[f64]| {
+                            let mut f = nn_field(s, net, x);
+                            f.iter_mut().zip(sign).for_each(|(v, d)| *v += d);
+                            Ok::<_, String>(f)
+                        },
+                        &x0,
+                        dt,
+                        steps,
+                        Integrator::Euler,
+                    )
+                    .x
+                })
+                .collect()
+        })
+        .collect()
 }
 
 fn nn_field(s: &Scenario, net: &Mlp, x: &[f64]) -> Vec<f64> {
@@ -912,34 +934,7 @@ fn face_local_local_margin_sets_contain_trajectories() {
     let w = 0.01; // the smallest bound of small_error_map
                   // (Away from the +∞ cell.)
     let init = boxes(&[[-2.0, 1.0], [-1.0, -1.0], [-3.0, 0.0]], 0.1);
-    let trajectories: Vec<Vec<Vec<Vec<f64>>>> = init
-        .iter()
-        .map(|b| {
-            sample_box(b, 12, 7)
-                .into_iter()
-                .enumerate()
-                .map(|(k, x0)| {
-                    // A disturbance of ±w per input, its signs fixed per trajectory.
-                    let sign = [
-                        if k % 2 == 0 { w } else { -w },
-                        if k % 3 == 0 { w } else { -w },
-                    ];
-                    integrate(
-                        |x: &[f64]| {
-                            let mut f = nn_field(&s, &net, x);
-                            f.iter_mut().zip(sign).for_each(|(v, d)| *v += d);
-                            Ok::<_, String>(f)
-                        },
-                        &x0,
-                        problem.dt,
-                        problem.steps,
-                        Integrator::Euler,
-                    )
-                    .x
-                })
-                .collect()
-        })
-        .collect();
+    let trajectories = nn_trajectories(&s, &net, &init, problem.dt, problem.steps, w);
     for gpu in &engines {
         for st in [
             with_faces(BoundMethod::ForwardBackward),

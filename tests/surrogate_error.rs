@@ -5,6 +5,7 @@
 
 mod common;
 
+use std::path::PathBuf;
 use std::sync::OnceLock;
 
 use cbfreach::bounds::BoundMethod;
@@ -135,13 +136,7 @@ fn v_enclosure_contains_sampled_v_on_random_cells() {
         let filter = SafetyFilter::new(&s);
         assert_eq!(filter.method(), method);
         let c = &s.reach.region;
-        let mut seed = 12345_u64;
-        let mut rnd = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rnd = uniform(12345_u64);
         let (mut finite, mut active) = (0, 0);
         for _ in 0..400 {
             let w = 0.01 + 0.5 * rnd();
@@ -188,13 +183,7 @@ fn mean_value_enclosure_contains_sampled_v_on_random_cells() {
         let filter = SafetyFilter::new(&s);
         let forms = VForms::new(&s).expect("closed form");
         let c = &s.reach.region;
-        let mut seed = 424242_u64;
-        let mut rnd = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rnd = uniform(424242_u64);
         let (mut smooth_active, mut tighter, mut checked) = (0, 0, 0);
         for k in 0..600 {
             // Small cells too, and cells along the obstacle where the filter acts.
@@ -273,13 +262,7 @@ fn mean_value_cell_bounds_hold_at_samples() {
     let f = fixture();
     let forms = VForms::new(&f.s).unwrap();
     let filter = SafetyFilter::new(&f.s);
-    let mut seed = 99_u64;
-    let mut rnd = || {
-        seed = seed
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (seed >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut rnd = uniform(99_u64);
     let mut finite = 0;
     for _ in 0..300 {
         let w = 0.002 + 0.2 * rnd();
@@ -307,10 +290,20 @@ fn mean_value_cell_bounds_hold_at_samples() {
     assert!(finite > 200, "{finite}");
 }
 
-#[test]
-fn indexed_local_bounds_equal_a_linear_scan() {
-    let f = fixture();
-    let dir = std::env::temp_dir().join(format!("cbfreach-errormap-ix-{}", std::process::id()));
+/// A seeded generator of uniform numbers in [0, 1) (a 64-bit LCG's top 53 bits).
+fn uniform(mut seed: u64) -> impl FnMut() -> f64 {
+    move || {
+        seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (seed >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+/// The fixture's network saved in a fresh temporary folder (named after `tag`) and its error
+/// map (not yet saved): `(folder, network path, map)`.
+fn saved_network_and_map(f: &Fixture, tag: &str) -> (PathBuf, PathBuf, ErrorMap) {
+    let dir = std::env::temp_dir().join(format!("cbfreach-errormap-{tag}-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let net_path = dir.join("small.safetensors");
     f.net
@@ -323,13 +316,14 @@ fn indexed_local_bounds_equal_a_linear_scan() {
         Some(&f.certified),
     )
     .unwrap();
-    let mut seed = 5_u64;
-    let mut rnd = || {
-        seed = seed
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (seed >> 11) as f64 / (1u64 << 53) as f64
-    };
+    (dir, net_path, map)
+}
+
+#[test]
+fn indexed_local_bounds_equal_a_linear_scan() {
+    let f = fixture();
+    let (dir, _net_path, map) = saved_network_and_map(f, "ix");
+    let mut rnd = uniform(5_u64);
     let r = &f.s.reach.region;
     for k in 0..2000 {
         // Some boxes are points or sit exactly on cell edges.
@@ -374,13 +368,7 @@ fn unsafe_cells_are_dropped_and_safe_ones_kept() {
     assert!(!proven_unsafe(&s, &straddle));
     assert!(!proven_unsafe(&s, &outside));
     // Random cells: a dropped cell never holds a safe sample.
-    let mut seed = 7_u64;
-    let mut rnd = || {
-        seed = seed
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (seed >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut rnd = uniform(7_u64);
     let mut dropped = 0;
     for _ in 0..2000 {
         let w = 0.05 + 0.6 * rnd();
@@ -404,19 +392,7 @@ fn unsafe_cells_are_dropped_and_safe_ones_kept() {
 #[test]
 fn error_map_local_bounds_are_sound_and_below_the_global_one() {
     let f = fixture();
-    let dir = std::env::temp_dir().join(format!("cbfreach-errormap-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let net_path = dir.join("small.safetensors");
-    f.net
-        .save_safetensors(&net_path, &Default::default())
-        .unwrap();
-    let map = ErrorMap::new(
-        &net_path,
-        &f.s.reach.region,
-        &f.measured,
-        Some(&f.certified),
-    )
-    .unwrap();
+    let (dir, net_path, map) = saved_network_and_map(f, "sound");
     let map_path = error_map_path(&net_path);
     map.save(&map_path).unwrap();
     let map = ErrorMap::load_for(&net_path).unwrap();
