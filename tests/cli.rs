@@ -190,3 +190,46 @@ fn default_run_reproduces_the_papers_verdicts_and_they_are_true() {
         }
     }
 }
+
+/// `cbfreach paper`: scenario 2's boxes that are not verified whole are split, and the four
+/// that every piece of proves `converges` do reach the goal set under the ground-truth filter
+/// (25 starts per box); the run prints the times table.
+#[test]
+fn paper_verifies_split_boxes_of_scenario_2_truly() {
+    use cbfreach::filter::SafetyFilter;
+    use cbfreach::simulate::{simulate_filtered, Integrator};
+
+    let dir = std::env::temp_dir().join(format!("cbfreach-paper-{}", std::process::id()));
+    let (code, stdout, stderr) = cbfreach(&["paper", "-o", dir.to_str().unwrap()]);
+    assert_eq!(code, 0, "{stderr}");
+    let _ = std::fs::remove_dir_all(&dir);
+    assert!(stdout.contains("next to the paper's"), "{stdout}");
+    let scenario_2 = &stdout[stdout.find("Scenario 2").expect("scenario 2 runs")..];
+    let s = common::double_integrator();
+    let filter = SafetyFilter::new(&s);
+    let mut proven = 0;
+    for b in &s.reach.initial {
+        let line = scenario_2
+            .lines()
+            .find(|l| {
+                l.trim_start()
+                    .starts_with(&format!("({:.4}, {:.4})", b.lower[0], b.lower[1]))
+            })
+            .expect("a verdict line per box");
+        if !line.contains("converges") {
+            continue;
+        }
+        proven += 1;
+        for i in 0..5 {
+            for j in 0..5 {
+                let x0 = b.point_at(&[i as f64 / 4.0, j as f64 / 4.0]);
+                let tr =
+                    simulate_filtered(&filter, &x0, s.reach.dt, s.reach.steps(), Integrator::Euler);
+                let end = tr.x.last().unwrap();
+                assert!(s.reach.goal.contains(end), "{line}: {x0:?} ends at {end:?}");
+            }
+        }
+    }
+    assert!(proven >= 4, "{scenario_2}");
+    assert!(scenario_2.contains("every piece converges"), "{scenario_2}");
+}
