@@ -54,6 +54,16 @@ pub struct TrainArgs {
     /// Seed of the initial weights and the shuffles.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Fraction of the samples, those of largest loss in the previous epoch, revisited in each
+    /// late epoch (0 disables).
+    #[arg(long, default_value_t = 0.1)]
+    pub hard_fraction: f64,
+    /// Extra visits of each of those samples per late epoch.
+    #[arg(long, default_value_t = 1)]
+    pub hard_repeats: usize,
+    /// Fraction of the epochs after which hard examples are revisited.
+    #[arg(long, default_value_t = 0.5)]
+    pub hard_start: f64,
     /// Weight λ_ibp of the certified-training term: λ_ibp times the mean IBP output width over
     /// the boxes [x − ε, x + ε] around each batch's inputs (0 disables).
     #[arg(long, default_value_t = 0.0)]
@@ -248,6 +258,9 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
         jacobian_weight: args.jacobian_weight,
         jacobian_cap: args.jacobian_cap,
         seed: args.seed,
+        hard_example_fraction: args.hard_fraction,
+        hard_example_repeats: args.hard_repeats,
+        hard_example_start: args.hard_start,
         ibp_weight: args.ibp_weight,
         ibp_radius: args.ibp_radius.clone(),
         ibp_start: args.ibp_start,
