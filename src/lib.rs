@@ -19,6 +19,7 @@ pub mod expressions;
 pub mod filter;
 pub mod gpu;
 pub mod intervals;
+pub mod matmul;
 pub mod network;
 pub mod plot;
 pub mod reach;

@@ -35,7 +35,8 @@
 //!   form has anyway); `m̂` is itself a sum of non-negative rounded terms, so
 //!   `Σ|t_j| ≤ m̂ / (1 − γ_{N+2})`. Hence, for `N ≤ 2³⁰`,
 //!   `|ŝ − Σ t_j| ≤ γ̂_N m̂ + N·2⁻¹⁰⁷²` with `γ̂_N = (N+3)·2⁻⁵²` (twice `γ_{N+3}`, which covers
-//!   both `1/(1−γ)` factors). `err_bound` evaluates that bound and rounds it up. When the
+//!   both `1/(1−γ)` factors). `err_bound` evaluates that bound, with the underflow part taken
+//!   as `N·2⁻¹⁰²²` (a normal number: subnormal arithmetic is slow), and rounds it up. When the
 //!   computed numbers are *coefficients* later multiplied by variables bounded by `mag`, the
 //!   absolute (underflow) part is scaled by `1 + Σ mag`; relative errors are already carried
 //!   through the magnitude sums.
@@ -711,15 +712,19 @@ pub(crate) fn gamma_hat(n_terms: usize) -> f64 {
 }
 
 /// Rigorous bound on the rounding error of a computed sum of `n_terms` products of at most three
-/// floats whose computed magnitude sum is `magnitude`: `γ̂_N·m̂ + N·2⁻¹⁰⁷²·scale`, rounded up.
+/// floats whose computed magnitude sum is `magnitude`: `γ̂_N·m̂ + N·2⁻¹⁰²²·scale`, rounded up.
 ///
 /// `scale ≥ 1` bounds what an underflowing coefficient is later multiplied by (`1` for a plain
 /// sum; `1 + Σ mag` when the computed numbers are coefficients of variables bounded by `mag`):
-/// each underflowing product errs by at most `2⁻¹⁰⁷⁵` absolutely, at most 8 per term.
+/// each underflowing product errs by at most `2⁻¹⁰⁷⁵` absolutely, at most 8 per term, so
+/// `N·2⁻¹⁰⁷²·scale` would do. The term is taken 2⁵⁰ times larger, `N·2⁻¹⁰²²·scale`, because
+/// that is a normal number: arithmetic on subnormals takes a microcode assist of ~100 cycles on
+/// x86, and this one product was a quarter of the forward method's time.
 #[inline]
 pub(crate) fn err_bound(n_terms: usize, magnitude: f64, scale: f64) -> f64 {
-    // n·2⁻¹⁰⁷² is exact for n < 2⁵⁰ (a subnormal with n's bits).
-    let underflow = next_up(n_terms as f64 * f64::from_bits(4) * scale);
+    // `N·2⁻¹⁰²²` is exact (N < 2⁵³); the product with `scale ≥ 1` is normal, and rounding it to
+    // nearest loses at most a factor 1 − 2⁻⁵³ of a term 2⁵⁰ times larger than needed.
+    let underflow = n_terms as f64 * f64::MIN_POSITIVE * scale;
     next_up(next_up(gamma_hat(n_terms) * magnitude) + underflow)
 }
 
@@ -794,38 +799,10 @@ pub(crate) fn relu_lines(l: f64, u: f64, relaxation: Relaxation) -> (f64, f64, f
     (s_lower, s, t)
 }
 
-/// `C = A·B` for row-major `A (m×k)`, `B (k×n)`, `C (m×n)`, by matrixmultiply's dgemm.
-///
-/// Panics only on an internal shape bug (slices shorter than the shapes), never on user input.
+/// `C = A·B` for row-major `A (m×k)`, `B (k×n)`, `C (m×n)`, single-threaded (the bound
+/// methods run one group of boxes per rayon task).
 pub(crate) fn gemm(m: usize, k: usize, n: usize, a: &[f64], b: &[f64], c: &mut [f64]) {
-    assert!(a.len() >= m * k && b.len() >= k * n && c.len() >= m * n);
-    if m == 0 || n == 0 {
-        return;
-    }
-    if k == 0 {
-        c[..m * n].fill(0.0);
-        return;
-    }
-    // SAFETY: the assertion above keeps every access (row strides k, n, n; unit column strides)
-    // inside the three slices; `c` is exclusively borrowed and does not alias `a` or `b`.
-    unsafe {
-        matrixmultiply::dgemm(
-            m,
-            k,
-            n,
-            1.0,
-            a.as_ptr(),
-            k as isize,
-            1,
-            b.as_ptr(),
-            n as isize,
-            1,
-            0.0,
-            c.as_mut_ptr(),
-            n as isize,
-            1,
-        );
-    }
+    crate::matmul::matmul((m, k, n), a, b, c, crate::matmul::Threads::One);
 }
 
 #[cfg(test)]

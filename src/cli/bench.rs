@@ -7,6 +7,7 @@ use std::time::Instant;
 
 use cbfreach::bounds::{model_multiply_adds, BoundMethod};
 use cbfreach::boxes::IntervalBox;
+use cbfreach::matmul::{matmul, Threads};
 use cbfreach::network::Mlp;
 use cbfreach::reach::{Backend, CpuBackend, ReachProblem, ReachSettings};
 use cbfreach::scenario::Scenario;
@@ -63,25 +64,7 @@ fn measured_cpu_peak() -> f64 {
         let start = Instant::now();
         (0..threads).into_par_iter().for_each(|_| {
             let mut c = vec![0.0; n * n];
-            // SAFETY: the slices hold n·n elements; the strides describe row-major n×n matrices.
-            unsafe {
-                matrixmultiply::dgemm(
-                    n,
-                    n,
-                    n,
-                    1.0,
-                    a.as_ptr(),
-                    n as isize,
-                    1,
-                    b.as_ptr(),
-                    n as isize,
-                    1,
-                    0.0,
-                    c.as_mut_ptr(),
-                    n as isize,
-                    1,
-                );
-            }
+            matmul((n, n, n), &a, &b, &mut c, Threads::One);
         });
         best = best.min(start.elapsed().as_secs_f64());
     }

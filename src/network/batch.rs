@@ -26,10 +26,11 @@ use safetensors::tensor::Dtype;
 
 use super::io::{f32_bytes, f64_bytes, RawTensors};
 use super::{Layer, Mlp, NetworkError};
+use crate::matmul::{matmul_strided, MatmulScalar, Strides, Threads};
 
 /// The float type a training run computes in.
 pub(crate) trait Scalar:
-    Copy
+    MatmulScalar
     + Default
     + PartialOrd
     + Send
@@ -43,40 +44,15 @@ pub(crate) trait Scalar:
     + MulAssign
     + 'static
 {
-    const ZERO: Self;
-    const ONE: Self;
     const DTYPE: Dtype;
     fn from_f64(x: f64) -> Self;
     fn to_f64(self) -> f64;
     fn sqrt(self) -> Self;
     fn to_bytes(v: &[Self]) -> Vec<u8>;
     fn read(raw: &RawTensors<'_>, name: &str) -> Result<Vec<Self>, NetworkError>;
-    /// `C ← α A B + β C` with arbitrary strides.
-    ///
-    /// # Safety
-    /// The strided index ranges must lie inside the pointed-to buffers.
-    #[allow(clippy::too_many_arguments)]
-    unsafe fn gemm_raw(
-        m: usize,
-        k: usize,
-        n: usize,
-        alpha: Self,
-        a: *const Self,
-        rsa: isize,
-        csa: isize,
-        b: *const Self,
-        rsb: isize,
-        csb: isize,
-        beta: Self,
-        c: *mut Self,
-        rsc: isize,
-        csc: isize,
-    );
 }
 
 impl Scalar for f32 {
-    const ZERO: Self = 0.0;
-    const ONE: Self = 1.0;
     const DTYPE: Dtype = Dtype::F32;
     fn from_f64(x: f64) -> Self {
         x as f32
@@ -93,29 +69,9 @@ impl Scalar for f32 {
     fn read(raw: &RawTensors<'_>, name: &str) -> Result<Vec<Self>, NetworkError> {
         raw.f32s(name)
     }
-    unsafe fn gemm_raw(
-        m: usize,
-        k: usize,
-        n: usize,
-        alpha: Self,
-        a: *const Self,
-        rsa: isize,
-        csa: isize,
-        b: *const Self,
-        rsb: isize,
-        csb: isize,
-        beta: Self,
-        c: *mut Self,
-        rsc: isize,
-        csc: isize,
-    ) {
-        matrixmultiply::sgemm(m, k, n, alpha, a, rsa, csa, b, rsb, csb, beta, c, rsc, csc)
-    }
 }
 
 impl Scalar for f64 {
-    const ZERO: Self = 0.0;
-    const ONE: Self = 1.0;
     const DTYPE: Dtype = Dtype::F64;
     fn from_f64(x: f64) -> Self {
         x
@@ -132,41 +88,11 @@ impl Scalar for f64 {
     fn read(raw: &RawTensors<'_>, name: &str) -> Result<Vec<Self>, NetworkError> {
         raw.f64s(name)
     }
-    unsafe fn gemm_raw(
-        m: usize,
-        k: usize,
-        n: usize,
-        alpha: Self,
-        a: *const Self,
-        rsa: isize,
-        csa: isize,
-        b: *const Self,
-        rsb: isize,
-        csb: isize,
-        beta: Self,
-        c: *mut Self,
-        rsc: isize,
-        csc: isize,
-    ) {
-        matrixmultiply::dgemm(m, k, n, alpha, a, rsa, csa, b, rsb, csb, beta, c, rsc, csc)
-    }
 }
 
-/// Strides `(row, column)` of a matrix view.
-type Strides = (usize, usize);
-
-/// Smallest buffer length that holds an `rows × cols` view with these strides.
-fn needed(rows: usize, cols: usize, (rs, cs): Strides) -> usize {
-    if rows == 0 || cols == 0 {
-        0
-    } else {
-        (rows - 1) * rs + (cols - 1) * cs + 1
-    }
-}
-
-/// Safe `C = A B` (`A: m×k`, `B: k×n`, `C: m×n`), bounds checked.
+/// `C = A B` (`A: m×k`, `B: k×n`, `C: m×n`) on rayon's pool.
 fn gemm<T: Scalar>(
-    (m, k, n): (usize, usize, usize),
+    shape: (usize, usize, usize),
     a: &[T],
     sa: Strides,
     b: &[T],
@@ -174,38 +100,7 @@ fn gemm<T: Scalar>(
     c: &mut [T],
     sc: Strides,
 ) {
-    // Internal invariant (shapes come from a validated network), not user input.
-    assert!(
-        a.len() >= needed(m, k, sa) && b.len() >= needed(k, n, sb) && c.len() >= needed(m, n, sc),
-        "gemm buffer too small"
-    );
-    if m == 0 || n == 0 {
-        return;
-    }
-    if k == 0 {
-        c.iter_mut().for_each(|v| *v = T::ZERO);
-        return;
-    }
-    // SAFETY: the assertion above keeps every strided access inside the slices; `c` does not
-    // alias `a` or `b` (distinct borrows).
-    unsafe {
-        T::gemm_raw(
-            m,
-            k,
-            n,
-            T::ONE,
-            a.as_ptr(),
-            sa.0 as isize,
-            sa.1 as isize,
-            b.as_ptr(),
-            sb.0 as isize,
-            sb.1 as isize,
-            T::ZERO,
-            c.as_mut_ptr(),
-            sc.0 as isize,
-            sc.1 as isize,
-        )
-    }
+    matmul_strided(shape, a, sa, b, sb, c, sc, Threads::Pool);
 }
 
 /// One layer's parameters (or their gradients / Adam moments) in the working precision.
