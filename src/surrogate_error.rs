@@ -29,7 +29,7 @@ use std::path::{Path, PathBuf};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::bounds::{network_bounds, AffineBounds, BoundMethod, BoundsError};
+use crate::bounds::{network_bounds, AffineBounds, BoundMethod, BoundsError, PreparedNetwork};
 use crate::boxes::IntervalBox;
 use crate::dataset::{filter_dataset, grid_points};
 use crate::expressions::Expr;
@@ -972,7 +972,7 @@ fn piece_error(
 pub fn cell_error_bound_mv(
     forms: &VForms,
     s: &Scenario,
-    net: &Mlp,
+    net: &PreparedNetwork<'_>,
     cell: &IntervalBox,
     method: BoundMethod,
     good_enough: f64,
@@ -982,7 +982,7 @@ pub fn cell_error_bound_mv(
         v.iter()
             .any(|vi| vi.is_nan() || vi.lower == f64::NEG_INFINITY || vi.upper == f64::INFINITY)
     };
-    let ibp = network_bounds(net, &cell.lower, &cell.upper, BoundMethod::Ibp)?;
+    let ibp = net.bounds(&cell.lower, &cell.upper, BoundMethod::Ibp)?;
     let coarse = if unbounded(&v) {
         f64::INFINITY
     } else {
@@ -991,7 +991,7 @@ pub fn cell_error_bound_mv(
     if coarse <= good_enough {
         return Ok(coarse);
     }
-    let ab = network_bounds(net, &cell.lower, &cell.upper, method)?;
+    let ab = net.bounds(&cell.lower, &cell.upper, method)?;
     let n_lo: Vec<f64> = (0..ab.n_out)
         .map(|j| ibp.lower[j].max(ab.lower[j]))
         .collect();
@@ -1158,6 +1158,7 @@ pub fn certify(
         return Ok(None);
     };
     let filter = SafetyFilter::new(s);
+    let prepared = PreparedNetwork::new(net)?;
     let c = &s.reach.region;
     let counts: Vec<usize> = c
         .widths()
@@ -1197,7 +1198,8 @@ pub fn certify(
                 let seed = settings.seed ^ ((salt + k) as u64).wrapping_mul(0x2545_F491_4F6C_DD1D);
                 let e = sampled_cell_error(s, &filter, net, &cell, settings.cell_samples, seed);
                 let tgt = (ratio * e).max(floor);
-                let b = cell_error_bound_mv(&forms, s, net, &cell, settings.cell_bounds, tgt)?;
+                let b =
+                    cell_error_bound_mv(&forms, s, &prepared, &cell, settings.cell_bounds, tgt)?;
                 // Where the QP is infeasible on part of the cell, the enclosure of `v` stays
                 // wide however small the cell: keep the cell's bound as it is (target = bound).
                 let tgt = if meets_infeasibility(s, &filter, &cell) {

@@ -40,7 +40,8 @@
 use super::ibp::centre_radius;
 use super::{
     add_down, add_up, affine_max, affine_min, err_bound, gemm, network_bounds_batch_into, next_up,
-    relu_lines, AffineBounds, AffineBoundsBatch, BoundMethod, BoundsError, OutRow, Relaxation,
+    relu_lines, AffineBounds, AffineBoundsBatch, BoundMethod, BoundsError, OutRow, PreparedNetwork,
+    Relaxation,
 };
 use crate::network::Mlp;
 
@@ -99,8 +100,13 @@ pub(crate) struct Workspace {
 }
 
 /// Forward bounds for a validated batch, into `rows` (one per box).
-pub(crate) fn forward_batch_into(net: &Mlp, lower: &[f64], upper: &[f64], rows: &mut [OutRow<'_>]) {
-    let abs_w = abs_weights(net);
+pub(crate) fn forward_batch_into(
+    prepared: &PreparedNetwork<'_>,
+    lower: &[f64],
+    upper: &[f64],
+    rows: &mut [OutRow<'_>],
+) {
+    let (net, abs_w) = (prepared.net(), &prepared.abs_w);
     super::for_each_group(
         net,
         lower,
@@ -108,17 +114,9 @@ pub(crate) fn forward_batch_into(net: &Mlp, lower: &[f64], upper: &[f64], rows: 
         rows,
         MAX_GROUP,
         |ws: &mut Workspace, lo, hi, rows| {
-            forward_group(net, &abs_w, lo, hi, rows, ws, ForwardOptions::default())
+            forward_group(net, abs_w, lo, hi, rows, ws, ForwardOptions::default())
         },
     );
-}
-
-/// `|W_k|` of every layer.
-pub(crate) fn abs_weights(net: &Mlp) -> Vec<Vec<f64>> {
-    net.layers
-        .iter()
-        .map(|l| l.weight.iter().map(|w| w.abs()).collect())
-        .collect()
 }
 
 /// Propagates one group of `rows.len()` boxes through the network and writes the forward

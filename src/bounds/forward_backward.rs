@@ -37,10 +37,11 @@
 //!   backward forms are always kept, so `C̲ = C̄` bit for bit.
 #![allow(clippy::needless_range_loop)] // index loops read as the formulas
 
-use super::forward::{abs_weights, forward_group, ForwardOptions, Workspace as FwdWorkspace};
+use super::forward::{forward_group, ForwardOptions, Workspace as FwdWorkspace};
 use super::{
     add_down, add_up, affine_max, affine_min, err_bound, gemm, network_bounds_batch_into,
-    relu_lines, AffineBounds, AffineBoundsBatch, BoundMethod, BoundsError, OutRow, Relaxation,
+    relu_lines, AffineBounds, AffineBoundsBatch, BoundMethod, BoundsError, OutRow, PreparedNetwork,
+    Relaxation,
 };
 use crate::network::Mlp;
 
@@ -94,13 +95,13 @@ struct Workspace {
 
 /// Forward+Backward for a validated batch, into `rows` (one per box).
 pub(crate) fn forward_backward_batch_into(
-    net: &Mlp,
+    prepared: &PreparedNetwork<'_>,
     lower: &[f64],
     upper: &[f64],
     relaxation: Relaxation,
     rows: &mut [OutRow<'_>],
 ) {
-    let abs_w = abs_weights(net);
+    let (net, abs_w) = (prepared.net(), &prepared.abs_w);
     let opts = ForwardOptions {
         record: true,
         ibp: true,
@@ -112,9 +113,9 @@ pub(crate) fn forward_backward_batch_into(
         rows,
         MAX_GROUP,
         |ws: &mut Workspace, lo, hi, rows| {
-            forward_group(net, &abs_w, lo, hi, rows, &mut ws.fwd, opts);
+            forward_group(net, abs_w, lo, hi, rows, &mut ws.fwd, opts);
             if net.layers.len() > 1 {
-                backward_group(net, &abs_w, lo, hi, relaxation, rows, ws);
+                backward_group(net, abs_w, lo, hi, relaxation, rows, ws);
             }
         },
     );

@@ -13,6 +13,7 @@
 use super::{add_down, add_up, err_bound, gemm, next_up};
 use super::{
     network_bounds_batch_into, AffineBounds, AffineBoundsBatch, BoundMethod, BoundsError, OutRow,
+    PreparedNetwork,
 };
 use crate::network::Mlp;
 
@@ -37,15 +38,20 @@ struct Workspace {
 }
 
 /// IBP for a validated batch, into `rows` (one per box): groups of boxes as GEMMs, in parallel.
-pub(crate) fn ibp_batch_into(net: &Mlp, lower: &[f64], upper: &[f64], rows: &mut [OutRow<'_>]) {
-    let abs_w = super::forward::abs_weights(net);
+pub(crate) fn ibp_batch_into(
+    prepared: &PreparedNetwork<'_>,
+    lower: &[f64],
+    upper: &[f64],
+    rows: &mut [OutRow<'_>],
+) {
+    let (net, abs_w) = (prepared.net(), &prepared.abs_w);
     super::for_each_group(
         net,
         lower,
         upper,
         rows,
         MAX_GROUP,
-        |ws: &mut Workspace, lo, hi, rows| ibp_group(net, &abs_w, lo, hi, rows, ws),
+        |ws: &mut Workspace, lo, hi, rows| ibp_group(net, abs_w, lo, hi, rows, ws),
     );
 }
 

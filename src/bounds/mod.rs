@@ -452,11 +452,10 @@ pub fn network_bounds_batch(
     Ok(out)
 }
 
-/// As [`network_bounds_batch`], writing into `out` and reusing its allocations (for a reach
-/// engine that bounds thousands of boxes every Euler step).
+/// As [`network_bounds_batch`], writing into `out` and reusing its allocations.
 ///
-/// Boxes run in parallel (rayon): one box per task for CROWN, groups of boxes as GEMMs for
-/// [`BoundMethod::Ibp`], [`BoundMethod::Forward`] and the Forward+Backward methods.
+/// Checks the whole network on every call; a reach engine that bounds boxes every Euler step
+/// prepares it once with [`PreparedNetwork`] instead.
 pub fn network_bounds_batch_into(
     net: &Mlp,
     lower: &[f64],
@@ -464,45 +463,106 @@ pub fn network_bounds_batch_into(
     method: BoundMethod,
     out: &mut AffineBoundsBatch,
 ) -> Result<(), BoundsError> {
-    let n_boxes = validate(net, lower, upper)?;
-    let (n_in, n_out) = (net.input_dim(), net.output_dim());
-    out.reset(n_in, n_out, n_boxes);
-    let mut rows = out.rows_mut();
-    rows.truncate(n_boxes);
-    match method {
-        BoundMethod::Ibp => ibp::ibp_batch_into(net, lower, upper, &mut rows),
-        BoundMethod::Crown | BoundMethod::CrownSameSlope => {
-            let relaxation = if method == BoundMethod::Crown {
-                Relaxation::Adaptive
-            } else {
-                Relaxation::SameSlope
-            };
-            run_per_box(
-                net,
+    PreparedNetwork::new(net)?.bounds_batch_into(lower, upper, method, out)
+}
+
+/// A network checked once for bounding (shapes, widths, finite weights) with `|W_k|` of every
+/// layer computed once: what a loop that bounds many batches of boxes holds.
+///
+/// It borrows the network, so the weights cannot change while `|W|` is kept.
+pub struct PreparedNetwork<'a> {
+    net: &'a Mlp,
+    /// `|W_k|` of every layer, row-major like `W_k`.
+    pub(crate) abs_w: Vec<Vec<f64>>,
+}
+
+impl<'a> PreparedNetwork<'a> {
+    /// Checks `net` ([`BoundsError::InvalidNetwork`], [`BoundsError::EmptyNetwork`]) and
+    /// computes `|W|`.
+    pub fn new(net: &'a Mlp) -> Result<PreparedNetwork<'a>, BoundsError> {
+        validate_network(net)?;
+        let abs_w = net
+            .layers
+            .iter()
+            .map(|l| l.weight.iter().map(|w| w.abs()).collect())
+            .collect();
+        Ok(PreparedNetwork { net, abs_w })
+    }
+
+    /// The network.
+    pub fn net(&self) -> &'a Mlp {
+        self.net
+    }
+
+    /// Bounds over one box, as [`network_bounds`].
+    pub fn bounds(
+        &self,
+        lower: &[f64],
+        upper: &[f64],
+        method: BoundMethod,
+    ) -> Result<AffineBounds, BoundsError> {
+        let mut out = AffineBoundsBatch::new();
+        self.bounds_batch_into(lower, upper, method, &mut out)?;
+        out.get(0).ok_or(BoundsError::BatchShape {
+            lower_len: lower.len(),
+            upper_len: upper.len(),
+            n_in: self.net.input_dim(),
+        })
+    }
+
+    /// Bounds over a batch of boxes given flat and box-major, as [`network_bounds_batch`],
+    /// writing into `out` and reusing its allocations.
+    ///
+    /// Boxes run in parallel (rayon): one box per task for CROWN, groups of boxes as GEMMs for
+    /// [`BoundMethod::Ibp`], [`BoundMethod::Forward`] and the Forward+Backward methods.
+    pub fn bounds_batch_into(
+        &self,
+        lower: &[f64],
+        upper: &[f64],
+        method: BoundMethod,
+        out: &mut AffineBoundsBatch,
+    ) -> Result<(), BoundsError> {
+        let net = self.net;
+        let n_boxes = validate_boxes(net, lower, upper)?;
+        let (n_in, n_out) = (net.input_dim(), net.output_dim());
+        out.reset(n_in, n_out, n_boxes);
+        let mut rows = out.rows_mut();
+        rows.truncate(n_boxes);
+        match method {
+            BoundMethod::Ibp => ibp::ibp_batch_into(self, lower, upper, &mut rows),
+            BoundMethod::Crown | BoundMethod::CrownSameSlope => {
+                let relaxation = if method == BoundMethod::Crown {
+                    Relaxation::Adaptive
+                } else {
+                    Relaxation::SameSlope
+                };
+                run_per_box(
+                    net,
+                    lower,
+                    upper,
+                    &mut rows,
+                    || crown::Workspace::new(net),
+                    |ws, lo, hi, row| crown::crown_into(net, lo, hi, relaxation, ws, row),
+                )
+            }
+            BoundMethod::Forward => forward::forward_batch_into(self, lower, upper, &mut rows),
+            BoundMethod::ForwardBackward => forward_backward::forward_backward_batch_into(
+                self,
                 lower,
                 upper,
+                Relaxation::Adaptive,
                 &mut rows,
-                || crown::Workspace::new(net),
-                |ws, lo, hi, row| crown::crown_into(net, lo, hi, relaxation, ws, row),
-            )
+            ),
+            BoundMethod::ForwardBackwardSameSlope => forward_backward::forward_backward_batch_into(
+                self,
+                lower,
+                upper,
+                Relaxation::SameSlope,
+                &mut rows,
+            ),
         }
-        BoundMethod::Forward => forward::forward_batch_into(net, lower, upper, &mut rows),
-        BoundMethod::ForwardBackward => forward_backward::forward_backward_batch_into(
-            net,
-            lower,
-            upper,
-            Relaxation::Adaptive,
-            &mut rows,
-        ),
-        BoundMethod::ForwardBackwardSameSlope => forward_backward::forward_backward_batch_into(
-            net,
-            lower,
-            upper,
-            Relaxation::SameSlope,
-            &mut rows,
-        ),
+        Ok(())
     }
-    Ok(())
 }
 
 /// Runs `f` on every box in parallel, with one workspace per rayon task.
@@ -530,9 +590,8 @@ fn run_per_box<W, I, F>(
 /// Largest layer width (and input dimension) the error model is stated for.
 const MAX_WIDTH: usize = 1 << 30;
 
-/// Checks the network and the flat batch of boxes; returns the number of boxes.
-pub(crate) fn validate(net: &Mlp, lower: &[f64], upper: &[f64]) -> Result<usize, BoundsError> {
-    validate_network(net)?;
+/// Checks the flat batch of boxes against a checked network; returns the number of boxes.
+fn validate_boxes(net: &Mlp, lower: &[f64], upper: &[f64]) -> Result<usize, BoundsError> {
     let n = net.input_dim();
     if lower.len() != upper.len() || lower.len() % n != 0 {
         return Err(BoundsError::BatchShape {

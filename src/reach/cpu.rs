@@ -14,7 +14,7 @@ use super::embedding::{
 };
 use super::{Backend, ReachError, ReachMethod, ReachProblem, ReachResult, ReachSettings};
 use super::{ReachTiming, Tube};
-use crate::bounds::{network_bounds_batch_into, AffineBoundsBatch};
+use crate::bounds::{AffineBoundsBatch, PreparedNetwork};
 use crate::boxes::IntervalBox;
 use crate::intervals::{round_down, round_up, Interval};
 
@@ -93,6 +93,7 @@ impl Backend for CpuBackend {
 
         let start = Instant::now();
         let mut minkowski_s = 0.0;
+        let network = PreparedNetwork::new(&problem.network)?;
         let mut batch = AffineBoundsBatch::new();
         let (mut flat_lo, mut flat_hi) = (Vec::new(), Vec::new());
         for step in 0..problem.steps {
@@ -125,13 +126,7 @@ impl Backend for CpuBackend {
                     flat_hi.extend(hi);
                 }
             }
-            network_bounds_batch_into(
-                &problem.network,
-                &flat_lo,
-                &flat_hi,
-                settings.bounds,
-                &mut batch,
-            )?;
+            network.bounds_batch_into(&flat_lo, &flat_hi, settings.bounds, &mut batch)?;
             let t = (step + 1) as f64 * problem.dt;
             let record = (step + 1) % every == 0 || step + 1 == problem.steps;
             let mut selected: Vec<&mut Live> = live.iter_mut().filter(|l| !l.done).collect();
