@@ -1267,6 +1267,30 @@ mod tests {
     }
 
     #[test]
+    fn hard_examples_are_revisited_as_often_as_asked() {
+        // Scores 0..100: the top 5 % are samples 95..99; each must appear 1 + repeats times.
+        let active: Vec<usize> = (0..100).collect();
+        let score: Vec<f64> = (0..100).map(|s| s as f64).collect();
+        for repeats in [0, 1, 4] {
+            let settings = TrainSettings {
+                epochs: 10,
+                hard_example_fraction: 0.05,
+                hard_example_start: 0.0,
+                hard_example_repeats: repeats,
+                ..TrainSettings::default()
+            };
+            let order = epoch_order(3, &active, &score, &settings);
+            assert_eq!(order.len(), 100 + 5 * repeats);
+            for s in 0..100 {
+                let visits = order.iter().filter(|&&o| o == s).count();
+                assert_eq!(visits, if s >= 95 { 1 + repeats } else { 1 }, "sample {s}");
+            }
+            // Epoch 0 never oversamples: there are no scores yet.
+            assert_eq!(epoch_order(0, &active, &score, &settings).len(), 100);
+        }
+    }
+
+    #[test]
     fn jacobian_term_lowers_slope_error() {
         let data = smooth_data(21);
         let init = Mlp::random(&[2, 16, 16, 2], 3);
