@@ -40,8 +40,8 @@
 use super::ibp::centre_radius;
 use super::{
     add_down, add_up, affine_max, affine_min, err_bound, gemm, network_bounds_batch_into, next_up,
-    relu_lines, AffineBounds, AffineBoundsBatch, BoundMethod, BoundsError, OutRow, PreparedNetwork,
-    Relaxation,
+    next_up_keep_zero, relu_lines, AffineBounds, AffineBoundsBatch, BoundMethod, BoundsError,
+    OutRow, PreparedNetwork, Relaxation,
 };
 use crate::network::Mlp;
 
@@ -153,8 +153,8 @@ pub(crate) fn forward_group(
         for p in 0..n0 {
             let (l, h) = (lower[g * n0 + p], upper[g * n0 + p]);
             let c = 0.5 * l + 0.5 * h;
-            let r = next_up(h - c).max(next_up(c - l));
-            let m = next_up(c.abs() + r);
+            let r = next_up_keep_zero(h - c).max(next_up_keep_zero(c - l));
+            let m = next_up_keep_zero(c.abs() + r);
             ws.xc.push(c);
             ws.xr.push(r);
             ws.xmag.push(m);

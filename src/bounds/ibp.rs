@@ -10,7 +10,7 @@
 //! rounded up; the centre and radius of an interval are chosen so that `[l, u] ⊆ [c − r, c + r]`
 //! exactly (`r` rounded up), and `c ∓ r` are rounded outward.
 
-use super::{add_down, add_up, err_bound, gemm, next_up};
+use super::{add_down, add_up, err_bound, gemm, next_up_keep_zero};
 use super::{
     network_bounds_batch_into, AffineBounds, AffineBoundsBatch, BoundMethod, BoundsError, OutRow,
     PreparedNetwork,
@@ -130,7 +130,7 @@ fn ibp_group(
 #[inline]
 pub(crate) fn centre_radius(l: f64, h: f64) -> (f64, f64) {
     let c = 0.5 * l + 0.5 * h;
-    (c, next_up(h - c).max(next_up(c - l)))
+    (c, next_up_keep_zero(h - c).max(next_up_keep_zero(c - l)))
 }
 
 #[cfg(test)]
@@ -138,6 +138,43 @@ pub(crate) fn centre_radius(l: f64, h: f64) -> (f64, f64) {
 mod tests {
     use super::*;
     use crate::bounds::test_support::*;
+
+    #[test]
+    fn centre_radius_contains_the_interval_and_keeps_flat_ones_exact() {
+        let tiny = f64::from_bits(1);
+        let cases = [
+            (1.0, 1.0),
+            (0.0, 0.0),
+            (-3.5, -3.5),
+            (tiny, tiny),
+            (-tiny, tiny),
+            (0.1, 0.3),
+            (-1e300, 1e300),
+            (1.0, 1.0 + f64::EPSILON),
+            (-2.0 * tiny, 3.0 * tiny),
+        ];
+        for (l, h) in cases {
+            let (c, r) = centre_radius(l, h);
+            // [l, h] ⊆ [c − r, c + r] in exact arithmetic, compared through TwoSum: c ∓ r is
+            // exactly s + e, and rounding is monotone, so s decides unless s equals the bound.
+            let two_sum = |a: f64, b: f64| {
+                let s = a + b;
+                let bb = s - a;
+                (s, (a - (s - bb)) + (b - bb))
+            };
+            let (s_lo, e_lo) = two_sum(c, -r);
+            let (s_hi, e_hi) = two_sum(c, r);
+            assert!(
+                (s_lo < l || s_lo == l && e_lo <= 0.0) && (s_hi > h || s_hi == h && e_hi >= 0.0),
+                "[{l}, {h}] → ({c}, {r})"
+            );
+            if l == h && l.abs() >= f64::MIN_POSITIVE || l == 0.0 && h == 0.0 {
+                // Flat intervals of normal numbers: exact centre and no subnormal radius.
+                assert_eq!((c, r), (l, 0.0), "[{l}, {h}]");
+            }
+            assert!(r == 0.0 || r >= tiny);
+        }
+    }
 
     #[test]
     fn ibp_is_sound_on_random_networks_and_boxes() {
