@@ -5,15 +5,14 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use cbfreach::bounds::BoundMethod;
-use cbfreach::boxes::IntervalBox;
 use cbfreach::equilibria::{find_equilibria, Equilibrium, EquilibriumSearch};
 use cbfreach::filter::SafetyFilter;
 use cbfreach::plot::{self, Figure};
 use cbfreach::reach::Tube;
-use cbfreach::reach::{Backend, CpuBackend, ReachMethod, ReachProblem, ReachSettings};
+use cbfreach::reach::{CpuBackend, ReachMethod, ReachProblem, ReachSettings};
 use cbfreach::scenario::Scenario;
 use cbfreach::surrogate_error::ErrorMap;
-use cbfreach::verify::{judge, traps_from_equilibria, Trap, Verdict};
+use cbfreach::verify::{judge, traps_from_equilibria, Trap, Verdict, Verifier, VerifySettings};
 
 use super::equilibria::print_table;
 use super::plot::{
@@ -46,6 +45,11 @@ pub struct PaperArgs {
         default_value = "forward,forward-backward"
     )]
     pub timed: Vec<BoundMethod>,
+    /// Rounds of bisection of the pieces of an initial box that are not verified (as
+    /// `verify --refine`; at most 256 extra pieces per box). Scenario 2's box at (1, −1.5)
+    /// needs 2.
+    #[arg(long, default_value_t = 0)]
+    pub refine: usize,
 }
 
 /// What the paper reports for one experiment: its times and its sampled `M_C`.
@@ -113,8 +117,11 @@ pub fn run(args: &PaperArgs) -> CliResult {
     {
         println!("══ Scenario {} ══", k + 1);
         let s = Scenario::load(&scenario_path(file))?;
-        if let Some(t) = run_scenario(&s, net.as_ref(), &args.out, args.bounds, &args.timed, paper)?
-        {
+        let verdicts = VerdictSettings {
+            bounds: args.bounds,
+            refine: args.refine,
+        };
+        if let Some(t) = run_scenario(&s, net.as_ref(), &args.out, verdicts, &args.timed, paper)? {
             times.push(t);
         }
         println!();
@@ -143,14 +150,11 @@ pub fn run_default() -> CliResult {
     );
     println!("  {}\n", s.description.replace('\n', "\n  "));
     let timed = [BoundMethod::Forward, BoundMethod::ForwardBackward];
-    let times = run_scenario(
-        &s,
-        None,
-        &out,
-        BoundMethod::ForwardBackward,
-        &timed,
-        SCENARIO_1,
-    )?;
+    let verdicts = VerdictSettings {
+        bounds: BoundMethod::ForwardBackward,
+        refine: 0,
+    };
+    let times = run_scenario(&s, None, &out, verdicts, &timed, SCENARIO_1)?;
     if let Some(t) = times {
         println!();
         print_times(&[t]);
@@ -171,10 +175,11 @@ fn run_scenario(
     s: &Scenario,
     network: Option<&PathBuf>,
     out: &Path,
-    bounds: BoundMethod,
+    verdict_settings: VerdictSettings,
     timed: &[BoundMethod],
     paper: PaperFigures,
 ) -> Result<Option<PaperTimes>, Box<dyn std::error::Error>> {
+    let bounds = verdict_settings.bounds;
     let filter = SafetyFilter::new(s);
     let found = find_equilibria(&filter, &s.reach.region, &EquilibriumSearch::default());
     println!("Equilibria of the filtered system in C ({}):", found.len());
@@ -252,7 +257,7 @@ fn run_scenario(
         "Sound verdicts of the {} initial boxes (disturbance method, {bounds} bounds on faces, {margin}):",
         s.reach.initial.len(),
     );
-    let verdicts = box_verdicts(s, &problem, bounds, &traps, &dist.boxes)?;
+    let verdicts = box_verdicts(s, &problem, verdict_settings, &traps, &dist.boxes)?;
     print_verdicts(&dist.boxes, &verdicts);
 
     // The paper's construction (Theorem 2) with the scenario's M_C, timed per bound method.
@@ -325,15 +330,28 @@ fn steps_run(tubes: &[Tube], dt: f64) -> usize {
         .sum()
 }
 
+/// How the sound verdicts of the initial boxes are reached.
+#[derive(Clone, Copy)]
+struct VerdictSettings {
+    /// Network bounds (on each face of a box).
+    bounds: BoundMethod,
+    /// Bisection rounds of the pieces not verified.
+    refine: usize,
+}
+
 /// Pieces per axis of an initial box that is not verified whole.
 const SPLIT: usize = 4;
 
+/// Extra pieces refinement may run per initial box.
+const REFINE_BUDGET: usize = 256;
+
 /// The verdict of each initial box, with a note: from its own tube, or, where that proves
-/// nothing, from its `SPLITⁿ` pieces (run together), which must all share one verified verdict.
+/// nothing, from its `SPLITⁿ` pieces and `refine` rounds of bisection of the pieces not
+/// verified (the refinement of `verify`), whose leaves must all share one verified verdict.
 fn box_verdicts(
     s: &Scenario,
     problem: &ReachProblem,
-    bounds: BoundMethod,
+    settings: VerdictSettings,
     traps: &[Trap],
     tubes: &[Tube],
 ) -> Result<Vec<(Verdict, String)>, Box<dyn std::error::Error>> {
@@ -355,45 +373,69 @@ fn box_verdicts(
     let retry: Vec<usize> = (0..tubes.len())
         .filter(|&k| !out[k].0.is_verified() && out[k].0 != Verdict::Unsafe)
         .collect();
-    if retry.is_empty() {
-        return Ok(out);
-    }
-    let counts = vec![SPLIT; s.n()];
-    let per = SPLIT.pow(s.n() as u32);
-    let pieces: Vec<IntervalBox> = retry
-        .iter()
-        .flat_map(|&k| tubes[k].initial.partition(&counts))
-        .collect();
-    let settings = ReachSettings {
-        bounds,
-        method: ReachMethod::Disturbance,
-        every: problem.steps.max(1),
-        face_local: true,
+    let verifier = Verifier {
+        scenario: s,
+        problem,
+        backend: &CpuBackend,
+        reach: ReachSettings {
+            bounds: settings.bounds,
+            method: ReachMethod::Disturbance,
+            every: 1,
+            face_local: true,
+        },
+        traps: traps.to_vec(),
     };
-    let bar = super::progress_bar(problem.steps as u64, "Euler steps (split boxes)");
-    let r = CpuBackend.reach(problem, &pieces, &settings, &|d, _| {
-        bar.set_position(d as u64)
-    })?;
-    bar.finish_and_clear();
-    for (j, &k) in retry.iter().enumerate() {
-        let verdicts: Vec<Verdict> = r.boxes[j * per..(j + 1) * per]
+    let bar = super::progress_bar(retry.len() as u64, "initial boxes split");
+    for &k in &retry {
+        let report = verifier.run(
+            &VerifySettings {
+                region: tubes[k].initial.clone(),
+                grid: vec![SPLIT; s.n()],
+                refine_depth: settings.refine,
+                budget: REFINE_BUDGET,
+                shard: None,
+                chunk: 512,
+            },
+            &|_, _, _| {},
+        )?;
+        bar.inc(1);
+        let leaves = &report.after;
+        let proven = leaves.iter().filter(|b| b.verdict.is_verified()).count();
+        // A piece's size is its widest side (bisection halves one side at a time).
+        let (narrow, wide) = leaves
             .iter()
-            .map(|t| judge(s, traps, t).0)
-            .collect();
-        let proven = verdicts.iter().filter(|v| v.is_verified()).count();
-        let width = tubes[k].initial.widths()[0] / SPLIT as f64;
-        if proven == per && verdicts.iter().all(|v| *v == verdicts[0]) {
-            out[k] = (
-                verdicts[0],
-                format!(
-                    "as {per} pieces {width:.3} wide: every piece {}",
-                    verdicts[0].name()
-                ),
-            );
+            .map(|b| b.initial.widths().into_iter().fold(0.0_f64, f64::max))
+            .fold((f64::INFINITY, 0.0_f64), |(lo, hi), w| {
+                (lo.min(w), hi.max(w))
+            });
+        let (narrow, wide) = (format!("{narrow:.3}"), format!("{wide:.3}"));
+        let size = if narrow == wide {
+            wide
         } else {
-            out[k].1 = format!("{} ({proven} of {per} pieces verified)", out[k].1);
+            format!("{narrow}–{wide}")
+        };
+        let first = leaves.first().map(|b| b.verdict);
+        match first {
+            Some(v) if proven == leaves.len() && leaves.iter().all(|b| b.verdict == v) => {
+                out[k] = (
+                    v,
+                    format!(
+                        "as {} pieces {size} wide: every piece {}",
+                        leaves.len(),
+                        v.name()
+                    ),
+                );
+            }
+            _ => {
+                out[k].1 = format!(
+                    "{} ({proven} of {} pieces {size} wide verified)",
+                    out[k].1,
+                    leaves.len()
+                );
+            }
         }
     }
+    bar.finish_and_clear();
     Ok(out)
 }
 
