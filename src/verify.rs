@@ -805,6 +805,83 @@ pub fn merge(parts: Vec<(String, VerifyReport)>) -> Result<VerifyReport, VerifyE
     Ok(merged)
 }
 
+/// What simulating starts in the verified boxes with the ground-truth filter found
+/// ([`simulation_check`]).
+#[derive(Clone, Debug, Default)]
+pub struct SimulationCheck {
+    /// Verified leaves simulated.
+    pub boxes: usize,
+    /// Starts simulated.
+    pub starts: usize,
+    /// Starts whose trajectory stopped early (an infeasible QP): the filtered system is not
+    /// defined there, so they neither confirm nor refute the verdict.
+    pub stopped: usize,
+    /// Starts that end elsewhere than their box's verdict says: `(start, verdict, end)`.
+    pub disagreements: Vec<(Vec<f64>, Verdict, Vec<f64>)>,
+}
+
+/// An independent check of the verdicts: simulates a `per_axis`ⁿ grid of starts (corners
+/// included) in every `converges` or `trapped` leaf of `report` with the ground-truth filter
+/// (Euler at the scenario's `dt` over its horizon, as the engine integrates) and checks that
+/// each trajectory ends in the goal set or in its trap box. The sets bound the filtered system,
+/// so a disagreement means a bug, an unsound `M`, or Euler's error across a basin boundary.
+pub fn simulation_check(s: &Scenario, report: &VerifyReport, per_axis: usize) -> SimulationCheck {
+    use crate::filter::SafetyFilter;
+    use crate::simulate::{simulate_filtered, Integrator};
+    use rayon::prelude::*;
+    let filter = SafetyFilter::new(s);
+    let steps = s.reach.steps();
+    let k = per_axis.max(1);
+    let fraction = |i: usize| {
+        if k == 1 {
+            0.5
+        } else {
+            i as f64 / (k - 1) as f64
+        }
+    };
+    let leaves: Vec<&BoxVerdict> = report
+        .after
+        .iter()
+        .filter(|b| b.verdict.is_verified())
+        .collect();
+    let per_box: Vec<SimulationCheck> = leaves
+        .par_iter()
+        .map(|b| {
+            let mut out = SimulationCheck {
+                boxes: 1,
+                ..SimulationCheck::default()
+            };
+            let target = match (b.verdict, b.trap) {
+                (Verdict::Trapped, Some(t)) => &report.traps[t].region,
+                _ => &s.reach.goal,
+            };
+            for code in 0..k.pow(s.n() as u32) {
+                let at: Vec<f64> = (0..s.n())
+                    .map(|d| fraction(code / k.pow(d as u32) % k))
+                    .collect();
+                let x0 = b.initial.point_at(&at);
+                let tr = simulate_filtered(&filter, &x0, s.reach.dt, steps, Integrator::Euler);
+                out.starts += 1;
+                if tr.stopped.is_some() {
+                    out.stopped += 1;
+                } else if !target.contains(tr.last()) {
+                    out.disagreements.push((x0, b.verdict, tr.last().to_vec()));
+                }
+            }
+            out
+        })
+        .collect();
+    per_box
+        .into_iter()
+        .fold(SimulationCheck::default(), |mut all, one| {
+            all.boxes += one.boxes;
+            all.starts += one.starts;
+            all.stopped += one.stopped;
+            all.disagreements.extend(one.disagreements);
+            all
+        })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

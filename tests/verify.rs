@@ -18,7 +18,8 @@ use cbfreach::reach::{Backend, CpuBackend, ReachProblem, ReachSettings};
 use cbfreach::scenario::Scenario;
 use cbfreach::simulate::{simulate_filtered, Integrator};
 use cbfreach::verify::{
-    merge, traps_from_equilibria, Shard, Verdict, Verifier, VerifyReport, VerifySettings,
+    merge, simulation_check, traps_from_equilibria, Shard, Verdict, Verifier, VerifyReport,
+    VerifySettings,
 };
 
 /// `M_C` for the small network trained here (see the module docs).
@@ -82,6 +83,7 @@ fn run(s: &Scenario, grid: [usize; 2], refine: usize, shard: Option<Shard>) -> V
         backend: &CpuBackend,
         reach: ReachSettings {
             bounds: cbfreach::bounds::BoundMethod::ForwardBackward,
+            face_local: true,
             ..ReachSettings::default()
         },
         traps: traps_from_equilibria(&found, &half),
@@ -155,11 +157,43 @@ fn verified_boxes_agree_with_dense_simulation() {
             }
         }
     }
+    // Face-local bounds verify about two thirds of the safe area with this network; without
+    // them it verified nothing and the dense check above was vacuous.
+    assert!(
+        checked > 1000,
+        "only {checked} simulated points: too few boxes verified"
+    );
     eprintln!(
         "{checked} simulated points in verified boxes; verified share {:.1}% → {:.1}%",
         100.0 * report.shares_before().verified_share,
         100.0 * report.shares_after().verified_share
     );
+    // The library's ground-truth check (`verify --check`) agrees, and catches wrong verdicts:
+    // with every verified verdict swapped (converges ↔ trapped), every start disagrees.
+    let check = simulation_check(&s, &report, 3);
+    assert!(
+        check.boxes > 0 && check.starts == 9 * check.boxes && check.stopped == 0,
+        "{} boxes, {} starts, {} stopped",
+        check.boxes,
+        check.starts,
+        check.stopped
+    );
+    assert!(
+        check.disagreements.is_empty(),
+        "{:?}",
+        check.disagreements.first()
+    );
+    let mut wrong = report.clone();
+    for b in wrong.after.iter_mut().filter(|b| b.verdict.is_verified()) {
+        (b.verdict, b.trap) = match b.verdict {
+            Verdict::Converges => (Verdict::Trapped, Some(0)),
+            _ => (Verdict::Converges, None),
+        };
+    }
+    let caught = simulation_check(&s, &wrong, 3);
+    assert_eq!(caught.starts, check.starts);
+    assert_eq!(caught.disagreements.len(), caught.starts);
+
     // Refinement never loses verified area and leaves the safe area unchanged.
     let (b, a) = (report.shares_before(), report.shares_after());
     assert!(a.verified_share >= b.verified_share - 1e-12);

@@ -10,12 +10,13 @@ use cbfreach::plot::{self, Figure};
 use cbfreach::reach::{Backend, ReachMethod, ReachProblem, ReachSettings};
 use cbfreach::scenario::Scenario;
 use cbfreach::verify::{
-    merge, traps_from_equilibria, Shard, Stage, Verdict, Verifier, VerifyReport, VerifySettings,
+    merge, simulation_check, traps_from_equilibria, Shard, SimulationCheck, Stage, Verdict,
+    Verifier, VerifyReport, VerifySettings,
 };
 
 use super::reach::{choose_backend, compile, GpuArgs, ProblemArgs};
 use super::simulate::parse_box;
-use super::{load_scenario, progress_bar, CliResult};
+use super::{fmt_point, load_scenario, progress_bar, CliResult};
 
 /// Arguments of `cbfreach verify`.
 #[derive(clap::Args)]
@@ -62,6 +63,10 @@ pub struct VerifyArgs {
     /// Draw the verdict map here (.png or .svg).
     #[arg(long)]
     pub plot: Option<PathBuf>,
+    /// Check the verdicts against the ground-truth filter: simulate a K × K (× …) grid of
+    /// starts in every verified box and report any that ends elsewhere (0: no check).
+    #[arg(long, value_name = "K", default_value_t = 0)]
+    pub check: usize,
 }
 
 /// Arguments of `cbfreach merge`.
@@ -131,7 +136,42 @@ pub fn run(args: &VerifyArgs) -> CliResult {
     let report = run_verify(&s, &problem, engine.as_ref(), reach, &settings)?;
     print_summary(&report);
     write_outputs(&s, &report, args.json.as_deref(), args.plot.as_deref())?;
+    if args.check > 0 {
+        print_check(&simulation_check(&s, &report, args.check))?;
+    }
     fail_if_unsafe(&report)
+}
+
+/// Prints what [`simulation_check`] found; an error when a start disagrees with its verdict.
+fn print_check(c: &SimulationCheck) -> CliResult {
+    println!(
+        "  ground-truth check: {} starts in {} verified boxes simulated, {} disagree{}",
+        c.starts,
+        c.boxes,
+        c.disagreements.len(),
+        if c.stopped > 0 {
+            format!(" ({} stopped at an infeasible QP)", c.stopped)
+        } else {
+            String::new()
+        }
+    );
+    for (x0, verdict, end) in c.disagreements.iter().take(10) {
+        println!(
+            "    {} says {}, the trajectory ends at {}",
+            fmt_point(x0),
+            verdict.name(),
+            fmt_point(end)
+        );
+    }
+    if c.disagreements.is_empty() {
+        Ok(())
+    } else {
+        Err(format!(
+            "{} simulated starts end elsewhere than their box's verdict says",
+            c.disagreements.len()
+        )
+        .into())
+    }
 }
 
 /// Finds the traps and runs the verifier with progress bars.
