@@ -430,13 +430,7 @@ pub fn network_bounds(
     upper: &[f64],
     method: BoundMethod,
 ) -> Result<AffineBounds, BoundsError> {
-    let mut out = AffineBoundsBatch::new();
-    network_bounds_batch_into(net, lower, upper, method, &mut out)?;
-    out.get(0).ok_or(BoundsError::BatchShape {
-        lower_len: lower.len(),
-        upper_len: upper.len(),
-        n_in: net.input_dim(),
-    })
+    PreparedNetwork::new(net)?.bounds(lower, upper, method)
 }
 
 /// Bounds of `net` over a batch of boxes given flat and box-major: box `k` is
