@@ -392,22 +392,30 @@ fn batch_of_65536_boxes_runs_and_splits() {
     }
 }
 
-/// Forward-backward and crown (both relaxations) on the GPU in f64 agree with the CPU to
-/// `REL_TOL`, on both paper scenarios (with the transform and the Minkowski method once).
-#[test]
-fn backward_methods_match_cpu_in_f64() {
-    let Some(gpu) = gpu_f64() else { return };
+/// Both paper scenarios with small networks, `steps` Euler steps each, and a few initial boxes:
+/// scenario 1 in x, scenario 2 in the automatic coordinates `z = T x`.
+fn paper_problems(steps: usize) -> [(ReachProblem, Vec<IntervalBox>); 2] {
     let s1 = integrator();
     let mut p1 = ReachProblem::new(&s1, small_network(&[2, 16, 16, 2], 1, 0.05), 0.05).unwrap();
-    p1.steps = 40;
-    let init1 = boxes(&[[-2.0, 2.0], [1.0, -2.0], [3.5, 2.0]], 0.1);
+    p1.steps = steps;
     let s2 = double_integrator();
     let t = Transform::for_scenario(&s2, &TransformChoice::Auto).unwrap();
     let mut p2 =
         ReachProblem::with_transform(&s2, small_network(&[2, 16, 16, 1], 2, 0.05), 0.02, t)
             .unwrap();
-    p2.steps = 40;
-    let init2 = boxes(&[[-1.0, 0.5], [0.5, 1.0]], 0.05);
+    p2.steps = steps;
+    [
+        (p1, boxes(&[[-2.0, 2.0], [1.0, -2.0], [3.5, 2.0]], 0.1)),
+        (p2, boxes(&[[-1.0, 0.5], [0.5, 1.0]], 0.05)),
+    ]
+}
+
+/// Forward-backward and crown (both relaxations) on the GPU in f64 agree with the CPU to
+/// `REL_TOL`, on both paper scenarios (with the transform and the Minkowski method once).
+#[test]
+fn backward_methods_match_cpu_in_f64() {
+    let Some(gpu) = gpu_f64() else { return };
+    let [(p1, init1), (p2, init2)] = paper_problems(40);
     let mut worst = Vec::new();
     for bounds in [BoundMethod::Forward].into_iter().chain(BACKWARD_METHODS) {
         let mut w = 0.0f64;
@@ -704,17 +712,7 @@ fn with_faces(bounds: BoundMethod) -> ReachSettings {
 fn face_local_matches_cpu() {
     let Some(gpu32) = gpu() else { return };
     let gpu64 = gpu_f64();
-    let s1 = integrator();
-    let mut p1 = ReachProblem::new(&s1, small_network(&[2, 16, 16, 2], 1, 0.05), 0.05).unwrap();
-    p1.steps = 30;
-    let init1 = boxes(&[[-2.0, 2.0], [1.0, -2.0], [3.5, 2.0]], 0.1);
-    let s2 = double_integrator();
-    let t = Transform::for_scenario(&s2, &TransformChoice::Auto).unwrap();
-    let mut p2 =
-        ReachProblem::with_transform(&s2, small_network(&[2, 16, 16, 1], 2, 0.05), 0.02, t)
-            .unwrap();
-    p2.steps = 30;
-    let init2 = boxes(&[[-1.0, 0.5], [0.5, 1.0]], 0.05);
+    let [(p1, init1), (p2, init2)] = paper_problems(30);
     let s3 = common::from_text(&common::SMALL.replace(r#"["1"]"#, r#"["1 + 0.2*x"]"#)).unwrap();
     let mut p3 = ReachProblem::new(&s3, small_network(&[2, 8, 8, 1], 9, 0.1), 0.02).unwrap();
     p3.steps = 15;

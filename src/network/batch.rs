@@ -26,7 +26,7 @@ use safetensors::tensor::Dtype;
 
 use super::io::{f32_bytes, f64_bytes, RawTensors};
 use super::{Layer, Mlp, NetworkError};
-use crate::matmul::{matmul_strided, MatmulScalar, Strides, Threads};
+use crate::matmul::{matmul_strided, MatmulScalar, Threads};
 
 /// The float type a training run computes in.
 pub(crate) trait Scalar:
@@ -88,19 +88,6 @@ impl Scalar for f64 {
     fn read(raw: &RawTensors<'_>, name: &str) -> Result<Vec<Self>, NetworkError> {
         raw.f64s(name)
     }
-}
-
-/// `C = A B` (`A: m×k`, `B: k×n`, `C: m×n`) on rayon's pool.
-fn gemm<T: Scalar>(
-    shape: (usize, usize, usize),
-    a: &[T],
-    sa: Strides,
-    b: &[T],
-    sb: Strides,
-    c: &mut [T],
-    sc: Strides,
-) {
-    matmul_strided(shape, a, sa, b, sb, c, sc, Threads::Pool);
 }
 
 /// One layer's parameters (or their gradients / Adam moments) in the working precision.
@@ -218,7 +205,7 @@ impl<T: Scalar> Workspace<T> {
             };
             output.clear();
             output.resize(rows * p.n_out, T::ZERO);
-            gemm(
+            matmul_strided(
                 (rows, p.n_in, p.n_out),
                 input,
                 (p.n_in, 1),
@@ -226,6 +213,7 @@ impl<T: Scalar> Workspace<T> {
                 (1, p.n_in),
                 output,
                 (p.n_out, 1),
+                Threads::Pool,
             );
             let (primal, tangents) = output.split_at_mut(self.b * p.n_out);
             for row in primal.chunks_exact_mut(p.n_out) {
@@ -253,7 +241,7 @@ impl<T: Scalar> Workspace<T> {
             let gr = &mut grads[k];
             let input = &self.acts[k];
             // ∂L/∂W = Gᵀ A: (n_out × rows)(rows × n_in)
-            gemm(
+            matmul_strided(
                 (p.n_out, rows, p.n_in),
                 &self.g,
                 (1, p.n_out),
@@ -261,6 +249,7 @@ impl<T: Scalar> Workspace<T> {
                 (p.n_in, 1),
                 &mut gr.w,
                 (p.n_in, 1),
+                Threads::Pool,
             );
             gr.b.iter_mut().for_each(|v| *v = T::ZERO);
             for row in self.g[..self.b * p.n_out].chunks_exact(p.n_out) {
@@ -271,7 +260,7 @@ impl<T: Scalar> Workspace<T> {
             if k > 0 {
                 self.tmp.clear();
                 self.tmp.resize(rows * p.n_in, T::ZERO);
-                gemm(
+                matmul_strided(
                     (rows, p.n_out, p.n_in),
                     &self.g,
                     (p.n_out, 1),
@@ -279,6 +268,7 @@ impl<T: Scalar> Workspace<T> {
                     (p.n_in, 1),
                     &mut self.tmp,
                     (p.n_in, 1),
+                    Threads::Pool,
                 );
                 // D_{k}: the primal ReLU pattern of this layer's input, for every row group.
                 let mask_src = &input[..self.b * p.n_in];
@@ -375,7 +365,7 @@ impl<T: Scalar> IbpWorkspace<T> {
             let mut zc = vec![T::ZERO; b * p.n_out];
             let mut zr = vec![T::ZERO; b * p.n_out];
             let (m, kk, n) = (b, p.n_in, p.n_out);
-            gemm(
+            matmul_strided(
                 (m, kk, n),
                 &self.c[k],
                 (kk, 1),
@@ -383,8 +373,9 @@ impl<T: Scalar> IbpWorkspace<T> {
                 (1, kk),
                 &mut zc,
                 (n, 1),
+                Threads::Pool,
             );
-            gemm(
+            matmul_strided(
                 (m, kk, n),
                 &self.r[k],
                 (kk, 1),
@@ -392,6 +383,7 @@ impl<T: Scalar> IbpWorkspace<T> {
                 (1, kk),
                 &mut zr,
                 (n, 1),
+                Threads::Pool,
             );
             for row in zc.chunks_exact_mut(n) {
                 for (z, &bias) in row.iter_mut().zip(&p.b) {
@@ -454,7 +446,7 @@ impl<T: Scalar> IbpWorkspace<T> {
             }
             let gw = &mut grads[k];
             // ∂L/∂W = G_cᵀ C + sign(W) ⊙ (G_rᵀ R).
-            gemm(
+            matmul_strided(
                 (n_out, b, n_in),
                 &self.gc,
                 (1, n_out),
@@ -462,10 +454,11 @@ impl<T: Scalar> IbpWorkspace<T> {
                 (n_in, 1),
                 &mut gw.w,
                 (n_in, 1),
+                Threads::Pool,
             );
             self.tc.clear();
             self.tc.resize(n_out * n_in, T::ZERO);
-            gemm(
+            matmul_strided(
                 (n_out, b, n_in),
                 &self.gr,
                 (1, n_out),
@@ -473,6 +466,7 @@ impl<T: Scalar> IbpWorkspace<T> {
                 (n_in, 1),
                 &mut self.tc,
                 (n_in, 1),
+                Threads::Pool,
             );
             for ((d, &t), &w) in gw.w.iter_mut().zip(&self.tc).zip(&p.w) {
                 if w > T::ZERO {
@@ -493,7 +487,7 @@ impl<T: Scalar> IbpWorkspace<T> {
                 self.tr.clear();
                 self.tr.resize(b * n_in, T::ZERO);
                 let (m, kk, n) = (b, n_out, n_in);
-                gemm(
+                matmul_strided(
                     (m, kk, n),
                     &self.gc,
                     (kk, 1),
@@ -501,8 +495,9 @@ impl<T: Scalar> IbpWorkspace<T> {
                     (n, 1),
                     &mut self.tc,
                     (n, 1),
+                    Threads::Pool,
                 );
-                gemm(
+                matmul_strided(
                     (m, kk, n),
                     &self.gr,
                     (kk, 1),
@@ -510,6 +505,7 @@ impl<T: Scalar> IbpWorkspace<T> {
                     (n, 1),
                     &mut self.tr,
                     (n, 1),
+                    Threads::Pool,
                 );
                 std::mem::swap(&mut self.gc, &mut self.tc);
                 std::mem::swap(&mut self.gr, &mut self.tr);
