@@ -281,6 +281,47 @@ fn face_field(i: u32, side: u32, xb: array<Iv, N0>, cen: array<real, N0>, jac: a
     return total;
 }
 
+// The intersection of a box with the safe set's half-spaces `normal·v + offset ≥ 0`, rows
+// [first, first + count) of the HS_ tables (src/gpu/codegen.rs: safe_set_wgsl), one coordinate
+// at a time as src/reach/safe_set.rs: clip_to_safe_set. The filtered system stays in S, so the
+// result still holds every true state. An empty intersection (a set outside S, which no true
+// trajectory can reach) leaves the box as it was, as on the CPU.
+fn clip_to_safe_set(b: array<Iv, N0>, first: u32, count: u32) -> array<Iv, N0> {
+    var v = b;
+    for (var k = first; k < first + count; k++) {
+        for (var j = 0u; j < N0; j++) {
+            let kind = HS_KIND[k * N0 + j];
+            if (kind == 0u) {
+                continue;
+            }
+            var bound = HS_CONST[k * N0 + j];
+            if (kind >= 3u) {
+                // normalⱼ vⱼ ≥ −offset − Σ_{i≠j} normalᵢ vᵢ, divided by every normalⱼ.
+                var rest = Iv(HS_OFF_LO[k], HS_OFF_HI[k]);
+                for (var i = 0u; i < N0; i++) {
+                    if (i != j) {
+                        rest = iv_add(rest, iv_mul(Iv(HS_N_LO[k * N0 + i], HS_N_HI[k * N0 + i]), v[i]));
+                    }
+                }
+                let l = -rest.hi;
+                let q = iv_div(Iv(l, l), Iv(HS_N_LO[k * N0 + j], HS_N_HI[k * N0 + j]));
+                bound = select(q.hi, q.lo, kind == 3u);
+            }
+            if (kind == 1u || kind == 3u) {
+                v[j].lo = max(v[j].lo, bound);
+            } else {
+                v[j].hi = min(v[j].hi, bound);
+            }
+        }
+    }
+    for (var j = 0u; j < N0; j++) {
+        if (!(v[j].lo <= v[j].hi)) {
+            return b;
+        }
+    }
+    return v;
+}
+
 @compute @workgroup_size(64)
 fn embed(@builtin(global_invocation_id) gid: vec3<u32>) {
     let g = gid.x;
@@ -392,13 +433,24 @@ fn embed(@builtin(global_invocation_id) gid: vec3<u32>) {
         stop(g, INVERTED, step);
         return;
     }
+    if (HS_Z > 0u) {
+        var zb: array<Iv, N0>;
+        for (var j = 0u; j < N0; j++) {
+            zb[j] = Iv(lo[j], hi[j]);
+        }
+        zb = clip_to_safe_set(zb, 0u, HS_Z);
+        for (var j = 0u; j < N0; j++) {
+            lo[j] = zb[j].lo;
+            hi[j] = zb[j].hi;
+        }
+    }
     for (var j = 0u; j < N0; j++) {
         state[g * SW + j] = lo[j];
         state[g * SW + N0 + j] = hi[j];
     }
     state[g * SW + 2u * N0] = radius;
 
-    // The filtered system's set in x against C (C rounded inward).
+    // The filtered system's set in x (within S) against C (C rounded inward).
     var sb: array<Iv, N0>;
     for (var j = 0u; j < N0; j++) {
         if (radius > 0.0) {
@@ -407,7 +459,7 @@ fn embed(@builtin(global_invocation_id) gid: vec3<u32>) {
             sb[j] = Iv(lo[j], hi[j]);
         }
     }
-    let xs = x_box(sb);
+    let xs = clip_to_safe_set(x_box(sb), HS_Z, HS_X);
     var inside = true;
     for (var i = 0u; i < N0; i++) {
         inside = inside && REGION_LO[i] <= xs[i].lo && xs[i].hi <= REGION_HI[i];

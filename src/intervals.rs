@@ -119,6 +119,23 @@ fn mul_ends(a: f64, b: f64) -> f64 {
     }
 }
 
+/// A lower bound for `a / b` (finite `a`, `b ≠ 0`): the rounded quotient itself when the
+/// division was exact (its residual `q·b − a`, exact under FMA away from underflow, is 0), else
+/// the next number below.
+pub fn div_down(a: f64, b: f64) -> f64 {
+    let q = a / b;
+    if q.is_finite() && q.abs() >= f64::MIN_POSITIVE && q.mul_add(b, -a) == 0.0 {
+        q
+    } else {
+        round_down(q)
+    }
+}
+
+/// An upper bound for `a / b`, as [`div_down`].
+pub fn div_up(a: f64, b: f64) -> f64 {
+    -div_down(-a, b)
+}
+
 /// The hull of four end candidates, rounded outward.
 fn outward_hull(p: [f64; 4]) -> Interval {
     let lo = p.iter().fold(f64::INFINITY, |m, &v| m.min(v));

@@ -221,7 +221,10 @@ fn scenario_2_small_network_matches_cpu_with_and_without_transform() {
     let Some(gpu) = gpu() else { return };
     let s = double_integrator();
     let net = small_network(&[2, 16, 16, 1], 2, 0.05);
-    let init = boxes(&[[-1.0, 0.5], [3.0, -1.0], [0.5, 1.0]], 0.05);
+    // The last box is driven into the velocity bound x₂ ≥ −2 (κ < 0 there), where the
+    // disturbance method's sets are intersected with it: a constant bound in x, a computed one
+    // in z with the transform (src/reach/safe_set.rs, shaders/embed.wgsl).
+    let init = boxes(&[[-1.0, 0.5], [3.0, -1.0], [0.5, 1.0], [5.0, -1.85]], 0.05);
     for transform in [
         None,
         Transform::for_scenario(&s, &TransformChoice::Auto).unwrap(),
@@ -232,6 +235,16 @@ fn scenario_2_small_network_matches_cpu_with_and_without_transform() {
         for method in [ReachMethod::Disturbance, ReachMethod::Minkowski] {
             let (c, g) = run_both(&gpu, &problem, &init, method);
             compare(&c, &g, &format!("scenario 2 transform {with} {method:?}"));
+            let at_edge = |t: &Tube| t.tube.iter().any(|x| x.set.lower[1] == -2.0);
+            if method == ReachMethod::Disturbance {
+                assert!(at_edge(&c[3]) && at_edge(&g[3]), "transform {with}");
+            } else {
+                assert!(
+                    !c[3].valid && !g[3].valid,
+                    "transform {with}: {:?}",
+                    c[3].note
+                );
+            }
         }
     }
 }

@@ -396,3 +396,90 @@ fn z_boxes_contain_the_image_of_x_boxes() {
     }
     assert!(Transform::from_matrix(vec![1.0, 2.0, 2.0, 4.0], 2).is_err());
 }
+
+/// Scenario 2's box at (5, 1) with its shipped network and certified error map: its sets reach
+/// the velocity bound `x₂ ≥ −2` (also the lower edge of C) and are intersected with it
+/// (src/reach/safe_set.rs). Ground-truth trajectories (Euler with a 10× finer step) stay in
+/// the intersected sets at every step, up to the point simulation's own Euler error, and the
+/// intersection does act: without it the set leaves C.
+#[test]
+fn filtered_trajectories_stay_in_sets_intersected_with_the_safe_set() {
+    use cbfreach::surrogate_error::ErrorMap;
+
+    let s = double_integrator();
+    let path = common::scenario_path("double-integrator.safetensors");
+    let net = Mlp::load_safetensors(&path).unwrap();
+    let transform = Transform::for_scenario(&s, &s.reach.transform).unwrap();
+    let problem = ReachProblem::with_transform(&s, net, 0.0, transform)
+        .unwrap()
+        .with_error_map(ErrorMap::load_for(&path).unwrap())
+        .unwrap();
+    assert_eq!(problem.safe_set.x.len(), 1, "the velocity bound is affine");
+    let settings = ReachSettings {
+        bounds: BoundMethod::ForwardBackward,
+        method: ReachMethod::Disturbance,
+        every: 1,
+        face_local: true,
+    };
+    let initial = [cbfreach::IntervalBox::new(vec![4.9, 0.9], vec![5.1, 1.1]).unwrap()];
+    let run = |problem: &ReachProblem| {
+        CpuBackend
+            .reach(problem, &initial, &settings, &|_, _| {})
+            .unwrap()
+            .boxes
+            .remove(0)
+    };
+    let tube = run(&problem);
+    let mut unclipped = problem.clone();
+    unclipped.safe_set = Default::default();
+    let plain = run(&unclipped);
+    assert!(!plain.valid && plain.note.as_deref().unwrap().contains("left the region C"));
+    let at_edge = tube
+        .tube
+        .iter()
+        .filter(|sample| sample.set.lower[1] == -2.0)
+        .count();
+    assert!(at_edge > 0, "the intersection never acted");
+    // It then stops where the set meets the cells near (3.5, −2) where the filter's QP is
+    // infeasible (M = ∞), not at C's edge.
+    assert!(tube.tube.len() >= plain.tube.len());
+    assert!(!tube
+        .note
+        .as_deref()
+        .unwrap_or_default()
+        .contains("left the region C"));
+
+    let filter = SafetyFilter::new(&s);
+    let (dt, steps, sub) = (s.reach.dt, s.reach.steps(), 10);
+    let mut checks = 0;
+    for x0 in sample_box(&initial[0], 12, 3) {
+        let coarse = simulate_filtered(&filter, &x0, dt, steps, Integrator::Euler);
+        let fine = simulate_filtered(
+            &filter,
+            &x0,
+            dt / sub as f64,
+            steps * sub,
+            Integrator::Euler,
+        );
+        // The fine simulation's distance from the embedding's own (dt) Euler map.
+        let euler_error = |k: usize| -> f64 {
+            (0..=k)
+                .map(|i| {
+                    coarse.x[i]
+                        .iter()
+                        .zip(&fine.x[i * sub])
+                        .fold(0.0_f64, |a, (p, q)| a.max((p - q).abs()))
+                })
+                .fold(0.0, f64::max)
+        };
+        checks += assert_inside(&tube, &coarse.x, 1, |_| 0.0, "filtered trajectory (dt)");
+        checks += assert_inside(
+            &tube,
+            &fine.x,
+            sub,
+            euler_error,
+            "filtered trajectory (dt/10)",
+        );
+    }
+    assert!(checks > 500, "{checks} checks");
+}

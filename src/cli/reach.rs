@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use cbfreach::bounds::BoundMethod;
 use cbfreach::network::Mlp;
 use cbfreach::reach::{
-    Backend, CpuBackend, ReachMethod, ReachProblem, ReachResult, ReachSettings, Transform,
+    Backend, CpuBackend, ReachMethod, ReachProblem, ReachResult, ReachSettings, SafeSet, Transform,
 };
 use cbfreach::scenario::{Margin, Scenario, TransformChoice};
 use serde::Serialize;
@@ -100,6 +100,11 @@ pub struct ProblemArgs {
     /// scenario says `m_c = "local"`).
     #[arg(long)]
     pub local_margin: bool,
+    /// Disturbance method: do not intersect the sets with the safe set's affine half-spaces
+    /// (`S` is forward invariant under the filter, so intersecting is sound; this switch is for
+    /// comparisons).
+    #[arg(long)]
+    pub no_safe_set: bool,
 }
 
 /// `--transform` or the scenario's choice.
@@ -124,7 +129,10 @@ pub fn compile(
     let path = network_path(s, args.network.as_ref())?;
     let m_c = resolve_margin(s, args.m_c, &path)?;
     let transform = Transform::for_scenario(s, &transform_choice(s, args.transform.as_deref())?)?;
-    let problem = ReachProblem::with_transform(s, net, m_c, transform)?;
+    let mut problem = ReachProblem::with_transform(s, net, m_c, transform)?;
+    if args.no_safe_set {
+        problem.safe_set = SafeSet::default();
+    }
     // Local bounds on request, or by the scenario's `m_c = "local"` unless --m-c overrides it.
     let local = args.local_margin || (args.m_c.is_none() && s.reach.m_c == Margin::Local);
     if !local {

@@ -39,7 +39,7 @@ use super::{GpuContext, GpuError, Precision};
 use crate::bounds::BoundMethod;
 use crate::boxes::IntervalBox;
 use crate::reach::{
-    Backend, ReachError, ReachProblem, ReachResult, ReachSettings, ReachTiming, Tube,
+    Backend, ReachError, ReachProblem, ReachResult, ReachSettings, ReachTiming, SafeSet, Tube,
 };
 
 /// The largest buffer one chunk binds, whatever the device allows (bytes).
@@ -351,19 +351,17 @@ impl Backend for GpuBackend {
         let (n, steps) = (problem.dynamics.n, problem.steps);
         let sw = 2 * n + 1;
         let slots = steps.div_ceil(every);
+        let safe = problem.safe_set_for(settings.method);
         let z_boxes: Vec<IntervalBox> = initial
             .iter()
-            .map(|b| match &problem.transform {
-                Some(t) => t.to_z_box(b),
-                None => b.clone(),
-            })
+            .map(|b| problem.initial_state(b, settings.method))
             .collect();
         let mut tubes: Vec<Tube> = initial
             .iter()
             .zip(&z_boxes)
             .map(|(b, z)| Tube {
                 initial: b.clone(),
-                tube: vec![problem.tube_sample(&z.lower, &z.upper, 0.0, 0.0)],
+                tube: vec![problem.tube_sample(&z.lower, &z.upper, 0.0, 0.0, safe)],
                 valid: true,
                 note: None,
             })
@@ -401,7 +399,7 @@ impl Backend for GpuBackend {
             })?;
             let first = ci * chunk;
             for (g, tube) in tubes[first..first + boxes.len()].iter_mut().enumerate() {
-                fill_tube(problem, tube, &res, g, boxes.len(), every, sw);
+                fill_tube(problem, safe, tube, &res, g, boxes.len(), every, sw);
             }
         }
         Ok(ReachResult {
@@ -937,8 +935,10 @@ impl GpuBackend {
 }
 
 /// A tube's samples from a chunk's readback (the CPU engine's recording rules).
+#[allow(clippy::too_many_arguments)]
 fn fill_tube(
     problem: &ReachProblem,
+    safe: &SafeSet,
     tube: &mut Tube,
     res: &ChunkResult,
     g: usize,
@@ -963,7 +963,7 @@ fn fill_tube(
         let at = (slot * nb + g) * sw;
         let (lo, hi, r) = read(&res.snap[at..at + sw]);
         tube.tube
-            .push(problem.tube_sample(&lo, &hi, r, s as f64 * problem.dt));
+            .push(problem.tube_sample(&lo, &hi, r, s as f64 * problem.dt, safe));
     }
     let t = stop as f64 * problem.dt;
     match st {
@@ -979,7 +979,7 @@ fn fill_tube(
             let (lo, hi, r) = read(&res.state[g * sw..(g + 1) * sw]);
             tube.valid = false;
             tube.note = Some(format!("t = {t:.3}: the set left the region C"));
-            tube.tube.push(problem.tube_sample(&lo, &hi, r, t));
+            tube.tube.push(problem.tube_sample(&lo, &hi, r, t, safe));
         }
         status::INVERTED | status::NON_FINITE => {
             tube.valid = false;

@@ -15,7 +15,8 @@ use super::margins::MarginMap;
 use super::{GpuError, Precision};
 use crate::expressions::{Expr, Func, Node};
 use crate::intervals::Interval;
-use crate::reach::{ReachMethod, ReachProblem, ReachSettings};
+use crate::reach::safe_set::{SafeHalfspace, Tightening};
+use crate::reach::{ReachMethod, ReachProblem, ReachSettings, SafeSet};
 use crate::scenario::Norm;
 
 /// The largest f32 the shaders treat as a number (`HUGE` in `common.wgsl`).
@@ -226,6 +227,59 @@ fn private_real(name: &str, values: impl Iterator<Item = f64>, precision: Precis
     )
 }
 
+/// The safe set's half-spaces for `clip_to_safe_set` in shaders/embed.wgsl: the z-state's
+/// (`HS_Z` rows), then the x-box's (`HS_X` rows). Per row and coordinate `HS_KIND` says how the
+/// coordinate is bounded: 0 not at all, 1/2 below/above by the constant `HS_CONST` (the row
+/// holds no other coordinate; computed here as the CPU computes it, so both give −2 for
+/// `x₂ + 2 ≥ 0`), 3/4 below/above by interval arithmetic on the device.
+fn safe_set_wgsl(safe: &SafeSet, n: usize, precision: Precision) -> String {
+    let down = |x: f64| round_down(x, precision);
+    let up = |x: f64| round_up(x, precision);
+    let rows: Vec<&SafeHalfspace> = safe.z.iter().chain(&safe.x).collect();
+    let (mut kind, mut constant) = (Vec::new(), Vec::new());
+    let (mut n_lo, mut n_hi, mut o_lo, mut o_hi) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let any = vec![0.0; n];
+    for hs in &rows {
+        for j in 0..n {
+            let (k, c) = match hs.tightening(j, &any, &any) {
+                None => (0, 0.0),
+                Some(Tightening::Lower(b)) if hs.only_on(j) => (1, down(b)),
+                Some(Tightening::Upper(b)) if hs.only_on(j) => (2, up(b)),
+                Some(Tightening::Lower(_)) => (3, 0.0),
+                Some(Tightening::Upper(_)) => (4, 0.0),
+            };
+            kind.push(k.to_string() + "u");
+            constant.push(c);
+            n_lo.push(down(hs.normal[j].lower));
+            n_hi.push(up(hs.normal[j].upper));
+        }
+        o_lo.push(down(hs.offset.lower));
+        o_hi.push(up(hs.offset.upper));
+    }
+    if rows.is_empty() {
+        // WGSL has no empty arrays: one row that bounds nothing.
+        kind = vec!["0u".to_string(); n];
+        (constant, n_lo, n_hi) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+        (o_lo, o_hi) = (vec![0.0], vec![0.0]);
+    }
+    let mut s = String::new();
+    let _ = writeln!(s, "const HS_Z: u32 = {}u;", safe.z.len());
+    let _ = writeln!(s, "const HS_X: u32 = {}u;", safe.x.len());
+    let _ = writeln!(
+        s,
+        "var<private> HS_KIND: array<u32, {}> = array<u32, {}>({});",
+        kind.len(),
+        kind.len(),
+        kind.join(", ")
+    );
+    s += &private_real("HS_CONST", constant.into_iter(), precision);
+    s += &private_real("HS_N_LO", n_lo.into_iter(), precision);
+    s += &private_real("HS_N_HI", n_hi.into_iter(), precision);
+    s += &private_real("HS_OFF_LO", o_lo.into_iter(), precision);
+    s += &private_real("HS_OFF_HI", o_hi.into_iter(), precision);
+    s
+}
+
 /// The bound method as the kernels see it (src/gpu/backend.rs decides which passes run).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct MethodFlags {
@@ -343,6 +397,7 @@ pub fn problem_wgsl(
         "const TRANSFORM: bool = {};",
         problem.transform.is_some()
     );
+    s += &safe_set_wgsl(problem.safe_set_for(settings.method), n, precision);
     let arr = |name: &str, v: &mut dyn Iterator<Item = f64>| private_real(name, v, precision);
     // Region C, rounded inward: a set inside the device box is inside C.
     s += &arr(

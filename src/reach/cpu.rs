@@ -12,6 +12,7 @@ use super::closeness::{closeness_step, log_norm};
 use super::embedding::{
     embedding_field, embedding_field_by_face, embedding_step, NetworkBoundsRef,
 };
+use super::safe_set::{clip_to_safe_set, SafeSet};
 use super::{Backend, ReachError, ReachMethod, ReachProblem, ReachResult, ReachSettings};
 use super::{ReachTiming, Tube};
 use crate::bounds::{AffineBoundsBatch, PreparedNetwork};
@@ -64,13 +65,11 @@ impl Backend for CpuBackend {
                 ReachMethod::Minkowski => vec![problem.network_slack; m],
             }
         };
+        let safe = problem.safe_set_for(settings.method);
         let mut live: Vec<Live> = initial
             .iter()
             .map(|b| {
-                let z = match &problem.transform {
-                    Some(t) => t.to_z_box(b),
-                    None => b.clone(),
-                };
+                let z = problem.initial_state(b, settings.method);
                 let mut state = Live {
                     lower: z.lower,
                     upper: z.upper,
@@ -83,10 +82,13 @@ impl Backend for CpuBackend {
                     },
                     done: false,
                 };
-                state
-                    .tube
-                    .tube
-                    .push(problem.tube_sample(&state.lower, &state.upper, 0.0, 0.0));
+                state.tube.tube.push(problem.tube_sample(
+                    &state.lower,
+                    &state.upper,
+                    0.0,
+                    0.0,
+                    safe,
+                ));
                 state
             })
             .collect();
@@ -191,7 +193,7 @@ impl Backend for CpuBackend {
                         mink = clock.elapsed().as_secs_f64();
                     }
                     embedding_step(&mut state.lower, &mut state.upper, &dl, &du, problem.dt);
-                    advance(problem, state, t, record);
+                    advance(problem, state, t, record, safe);
                     mink
                 })
                 .sum();
@@ -241,8 +243,9 @@ fn closeness_rate(problem: &ReachProblem, nn: NetworkBoundsRef) -> f64 {
     log_norm(&a, n, problem.norm)
 }
 
-/// After a step: checks the set against `C` and the box's orientation, records a sample.
-fn advance(problem: &ReachProblem, state: &mut Live, t: f64, record: bool) {
+/// After a step: checks the box's orientation, intersects it with `S`'s half-spaces, checks
+/// the set against `C`, records a sample.
+fn advance(problem: &ReachProblem, state: &mut Live, t: f64, record: bool, safe: &SafeSet) {
     let inverted = state.lower.iter().zip(&state.upper).any(|(l, u)| l > u);
     let finite = state
         .lower
@@ -258,7 +261,8 @@ fn advance(problem: &ReachProblem, state: &mut Live, t: f64, record: bool) {
         state.done = true;
         return;
     }
-    let sample = problem.tube_sample(&state.lower, &state.upper, state.radius, t);
+    clip_to_safe_set(&mut state.lower, &mut state.upper, &safe.z);
+    let sample = problem.tube_sample(&state.lower, &state.upper, state.radius, t, safe);
     if !sample.set.is_subset_of(&problem.region) {
         state.tube.valid = false;
         state.tube.note = Some(format!("t = {t:.3}: the set left the region C"));

@@ -10,12 +10,15 @@
 //! - [`ReachMethod::Minkowski`] (the paper's Theorem 2, labelled as such): the NN-system box
 //!   plus the closeness radius `r_t` of [`closeness`]. DESIGN §2.6 explains the gap in its proof.
 //!
-//! Every box's result is marked invalid from the first step where its set leaves `C`: the
-//! theorem (and `M_C`) only hold inside `C`.
+//! The disturbance method's sets are intersected with the safe set's affine half-spaces at
+//! every step ([`safe_set`]: the filter keeps the system in `S`). Every box's result is marked
+//! invalid from the first step where its set leaves `C`: the theorem (and `M_C`) only hold
+//! inside `C`.
 
 pub mod closeness;
 pub mod cpu;
 pub mod embedding;
+pub mod safe_set;
 pub mod transform;
 
 use serde::Serialize;
@@ -26,6 +29,7 @@ use crate::intervals::Interval;
 use crate::network::Mlp;
 use crate::scenario::{Norm, Scenario};
 use embedding::Dynamics;
+pub use safe_set::SafeSet;
 pub use transform::Transform;
 
 pub use cpu::CpuBackend;
@@ -148,6 +152,9 @@ pub struct ReachProblem {
     pub g_over_region: Vec<Interval>,
     /// `ℓ ≥ sup_{x∈C} ‖g(x)‖`.
     pub input_gain: f64,
+    /// The affine CBFs' half-spaces: the disturbance method's sets are intersected with them at
+    /// every step ([`safe_set`]; `SafeSet::default()` switches it off).
+    pub safe_set: SafeSet,
 }
 
 impl ReachProblem {
@@ -256,6 +263,7 @@ impl ReachProblem {
         let g_over_region: Vec<Interval> =
             g.iter().flatten().map(|e| e.eval_interval(&cz)).collect();
         let input_gain = closeness::induced_norm(&g_over_region, n, m, scenario.reach.norm);
+        let safe_set = SafeSet::of(scenario, transform.as_ref());
         Ok(ReachProblem {
             dynamics: Dynamics {
                 n,
@@ -278,6 +286,7 @@ impl ReachProblem {
             jacobian_over_region,
             g_over_region,
             input_gain,
+            safe_set,
         })
     }
 
@@ -296,6 +305,26 @@ impl ReachProblem {
         Ok(self)
     }
 
+    /// The half-spaces of `S` that bound the method's sets: the filtered system's (disturbance)
+    /// stay in `S`, the NN system's (Minkowski) need not.
+    pub fn safe_set_for(&self, method: ReachMethod) -> &SafeSet {
+        match method {
+            ReachMethod::Disturbance => &self.safe_set,
+            ReachMethod::Minkowski => &safe_set::NO_SAFE_SET,
+        }
+    }
+
+    /// The embedding's initial state for an initial box: its z-box (the box itself without a
+    /// transform), intersected with the method's half-spaces of `S`.
+    pub fn initial_state(&self, initial: &IntervalBox, method: ReachMethod) -> IntervalBox {
+        let mut z = match &self.transform {
+            Some(t) => t.to_z_box(initial),
+            None => initial.clone(),
+        };
+        safe_set::clip_to_safe_set(&mut z.lower, &mut z.upper, &self.safe_set_for(method).z);
+        z
+    }
+
     /// The disturbance bound `M` for a set whose x-bounding box is `x_box`: the error map's
     /// local bound when there is one, else `M_C`.
     pub fn margin_for(&self, x_box: &IntervalBox) -> f64 {
@@ -308,8 +337,16 @@ impl ReachProblem {
     /// The recorded sample of an embedding state `[lower, upper]` (z coordinates with a
     /// transform) with closeness radius `r`: x-boxes of the NN-system set and of the
     /// filtered-system set (the Minkowski sum is taken in the embedding's coordinates, where
-    /// `r` is an ℓ∞ radius). Shared by every backend.
-    pub fn tube_sample(&self, lower: &[f64], upper: &[f64], r: f64, t: f64) -> TubeSample {
+    /// `r` is an ℓ∞ radius), the latter intersected with `safe`'s x half-spaces. Shared by
+    /// every backend.
+    pub fn tube_sample(
+        &self,
+        lower: &[f64],
+        upper: &[f64],
+        r: f64,
+        t: f64,
+        safe: &SafeSet,
+    ) -> TubeSample {
         let grown = |v: &[f64], sign: f64| -> Vec<f64> {
             v.iter()
                 .map(|&x| {
@@ -323,7 +360,7 @@ impl ReachProblem {
                 .collect()
         };
         let (lo_r, hi_r) = (grown(lower, -1.0), grown(upper, 1.0));
-        match &self.transform {
+        let mut sample = match &self.transform {
             None => TubeSample {
                 t,
                 lower: lower.to_vec(),
@@ -348,7 +385,9 @@ impl ReachProblem {
                     set: tr.to_x_box(&lo_r, &hi_r),
                 }
             }
-        }
+        };
+        safe_set::clip_to_safe_set(&mut sample.set.lower, &mut sample.set.upper, &safe.x);
+        sample
     }
 
     /// Checks initial boxes: dimension n and inside `C`.

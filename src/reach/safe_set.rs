@@ -1,0 +1,227 @@
+//! Intersecting the filtered system's sets with the safe set `S = {x : hᵢ(x) ≥ 0}`.
+//!
+//! The filter imposes `ḣᵢ ≥ −aᵢhᵢ` wherever its QP is feasible, so every `hᵢ ≥ 0` is forward
+//! invariant along the filtered system's trajectories (Nagumo; the CBF theorem). A trajectory
+//! that starts in `S` stays in `S`, and any set that bounds it may be intersected with `S`.
+//! The analysis already assumes the filter is defined along the trajectories it bounds (the
+//! disturbance method needs `v(x) ∈ N(x) + [−M, M]` there), so this adds no assumption; it
+//! narrows what the sets bound to trajectories that *start* in `S` (the safe part of each
+//! initial box, which is all of it for the boxes `verify` runs). It applies to the disturbance
+//! method only: the Minkowski method's boxes bound the NN system, which `S` does not constrain.
+//!
+//! Only the affine `hᵢ` are used (`h(x) = a·x + b`, e.g. scenario 2's velocity bound
+//! `x₂ − x₂,min`): `S`'s half-space is then exact in the embedding's coordinates too
+//! (`x = S z`, so `a·x + b = (aS)·z + b`), and intersecting a box with it is a closed-form
+//! tightening of each coordinate. Why it matters: where the true system runs close to a
+//! constraint that is also an edge of `C`, the over-approximation pokes out of `C` and the
+//! result would be invalid, although the true set never leaves `S`.
+
+use crate::intervals::{div_down, div_up, Interval};
+use crate::scenario::Scenario;
+
+use super::Transform;
+
+/// One affine CBF as a half-space `normal·z + offset ≥ 0` of the embedding's coordinates,
+/// with enclosures of the exact coefficients.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SafeHalfspace {
+    /// The CBF's name, for reports.
+    pub name: String,
+    /// `aS` (or `a` without a transform), n enclosures.
+    pub normal: Vec<Interval>,
+    /// `b`.
+    pub offset: Interval,
+}
+
+/// `S`'s affine half-spaces in the embedding's coordinates (to intersect the z-box with) and
+/// in x (to intersect the parallelotope's x-bounding box with: `S·[z̲, z̄] ∩ H` lies in both).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SafeSet {
+    /// In the embedding's coordinates `z`.
+    pub z: Vec<SafeHalfspace>,
+    /// In `x` (the same as `z` without a transform).
+    pub x: Vec<SafeHalfspace>,
+}
+
+/// No half-spaces: nothing is clipped.
+pub static NO_SAFE_SET: SafeSet = SafeSet {
+    z: Vec::new(),
+    x: Vec::new(),
+};
+
+impl SafeSet {
+    /// The half-spaces of the scenario's affine CBFs.
+    pub fn of(scenario: &Scenario, transform: Option<&Transform>) -> SafeSet {
+        SafeSet {
+            z: halfspaces(scenario, transform),
+            x: halfspaces(scenario, None),
+        }
+    }
+}
+
+fn halfspaces(scenario: &Scenario, transform: Option<&Transform>) -> Vec<SafeHalfspace> {
+    let n = scenario.n();
+    scenario
+        .cbfs
+        .iter()
+        .filter_map(|cbf| {
+            // Affine: every partial derivative simplifies to a constant.
+            let a: Vec<f64> = cbf
+                .gradient
+                .iter()
+                .map(|d| d.as_constant())
+                .collect::<Option<_>>()?;
+            if a.iter().all(|&v| v == 0.0) || a.iter().any(|v| !v.is_finite()) {
+                return None;
+            }
+            let offset = cbf.h.eval_interval(&vec![Interval::point(0.0); n]);
+            if !(offset.lower.is_finite() && offset.upper.is_finite()) {
+                return None;
+            }
+            let normal: Vec<Interval> = match transform {
+                None => a.iter().map(|&v| Interval::point(v)).collect(),
+                Some(t) => (0..n)
+                    .map(|j| {
+                        (0..n).fold(Interval::point(0.0), |acc, i| {
+                            acc + Interval::point(a[i]) * Interval::point(t.s[i * n + j])
+                        })
+                    })
+                    .collect(),
+            };
+            Some(SafeHalfspace {
+                name: cbf.name.clone(),
+                normal,
+                offset,
+            })
+        })
+        .collect()
+}
+
+/// A bound on one coordinate implied by a half-space.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Tightening {
+    /// `zⱼ ≥` this.
+    Lower(f64),
+    /// `zⱼ ≤` this.
+    Upper(f64),
+}
+
+impl SafeHalfspace {
+    /// Whether coordinate `j` alone enters the half-space (its bound on `zⱼ` is then a
+    /// constant, whatever the box).
+    pub fn only_on(&self, j: usize) -> bool {
+        self.normal
+            .iter()
+            .enumerate()
+            .all(|(k, c)| k == j || *c == Interval::point(0.0))
+    }
+
+    /// The bound on coordinate `j` over the box `[lo, hi]`: `normalⱼ zⱼ ≥ L` with
+    /// `L ≤ −offset − Σ_{k≠j} normalₖ zₖ`, divided by every `normalⱼ` of its enclosure and
+    /// rounded outward (exact where the arithmetic is: `x₂ + 2 ≥ 0` gives −2 itself). `None`
+    /// where `normalⱼ`'s enclosure holds 0.
+    pub fn tightening(&self, j: usize, lo: &[f64], hi: &[f64]) -> Option<Tightening> {
+        let c = self.normal[j];
+        if c.contains(0.0) {
+            return None;
+        }
+        let rest = (0..lo.len())
+            .filter(|&k| k != j && self.normal[k] != Interval::point(0.0))
+            .fold(self.offset, |acc, k| {
+                acc + self.normal[k] * Interval::new(lo[k], hi[k])
+            });
+        let l = (-rest).lower;
+        Some(if c.lower > 0.0 {
+            Tightening::Lower(div_down(l, c.lower).min(div_down(l, c.upper)))
+        } else {
+            Tightening::Upper(div_up(l, c.lower).max(div_up(l, c.upper)))
+        })
+    }
+}
+
+/// Intersects the box `[lower, upper]` with every half-space, one coordinate at a time
+/// ([`SafeHalfspace::tightening`]); the result contains the exact intersection. Returns false,
+/// leaving the box as it was, if the intersection is empty: the set then lies outside `S`,
+/// which no true trajectory can, and callers must see that (`verify` reports such a set as
+/// `unsafe`). shaders/embed.wgsl does the same on the device.
+pub fn clip_to_safe_set(
+    lower: &mut [f64],
+    upper: &mut [f64],
+    halfspaces: &[SafeHalfspace],
+) -> bool {
+    let (mut lo, mut hi) = (lower.to_vec(), upper.to_vec());
+    for hs in halfspaces {
+        for j in 0..lo.len() {
+            match hs.tightening(j, &lo, &hi) {
+                Some(Tightening::Lower(b)) => lo[j] = lo[j].max(b),
+                Some(Tightening::Upper(b)) => hi[j] = hi[j].min(b),
+                None => {}
+            }
+        }
+    }
+    if lo.iter().zip(&hi).any(|(l, h)| l > h) {
+        return false;
+    }
+    lower.copy_from_slice(&lo);
+    upper.copy_from_slice(&hi);
+    true
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn halfspace(normal: &[f64], offset: f64) -> SafeHalfspace {
+        SafeHalfspace {
+            name: "h".into(),
+            normal: normal.iter().map(|&v| Interval::point(v)).collect(),
+            offset: Interval::point(offset),
+        }
+    }
+
+    #[test]
+    fn a_bound_on_one_coordinate_is_applied_exactly() {
+        // x₂ + 2 ≥ 0.
+        let hs = [halfspace(&[0.0, 1.0], 2.0)];
+        let (mut lo, mut hi) = (vec![-1.0, -2.5], vec![1.0, 0.5]);
+        assert!(clip_to_safe_set(&mut lo, &mut hi, &hs));
+        assert_eq!((lo, hi), (vec![-1.0, -2.0], vec![1.0, 0.5]));
+    }
+
+    #[test]
+    fn an_oblique_halfspace_keeps_every_point_of_the_intersection() {
+        // x₁ + 2x₂ − 1 ≥ 0 and −x₁ + 0.5 ≥ 0 (upper bound on x₁) over [−3, 3]²: each corner
+        // of the exact intersection polygon must stay inside the tightened box.
+        let hs = [halfspace(&[1.0, 2.0], -1.0), halfspace(&[-1.0, 0.0], 0.5)];
+        let (mut lo, mut hi) = (vec![-3.0, -3.0], vec![3.0, 3.0]);
+        assert!(clip_to_safe_set(&mut lo, &mut hi, &hs));
+        // x₂ ≥ (1 − x₁)/2 ≥ (1 − 3)/2 = −1; x₁ ≤ 0.5; x₁ ≥ 1 − 2·3 = −5 (no change).
+        assert!(lo[1] <= -1.0 && lo[1] > -1.0 - 1e-12, "{lo:?}");
+        assert!(hi[0] >= 0.5 && hi[0] < 0.5 + 1e-12, "{hi:?}");
+        assert_eq!((lo[0], hi[1]), (-3.0, 3.0));
+        let mut state = 12345_u64;
+        let mut uniform = |a: f64, b: f64| {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            a + (b - a) * ((state >> 11) as f64 / (1u64 << 53) as f64)
+        };
+        let mut inside = 0;
+        for _ in 0..20_000 {
+            let (x1, x2) = (uniform(-3.0, 3.0), uniform(-3.0, 3.0));
+            if x1 + 2.0 * x2 - 1.0 >= 0.0 && 0.5 - x1 >= 0.0 {
+                inside += 1;
+                assert!(lo[0] <= x1 && x1 <= hi[0] && lo[1] <= x2 && x2 <= hi[1]);
+            }
+        }
+        assert!(inside > 1000);
+    }
+
+    #[test]
+    fn an_empty_intersection_leaves_the_box_alone() {
+        let hs = [halfspace(&[0.0, 1.0], 2.0)];
+        let (mut lo, mut hi) = (vec![0.0, -5.0], vec![1.0, -3.0]);
+        assert!(!clip_to_safe_set(&mut lo, &mut hi, &hs));
+        assert_eq!((lo, hi), (vec![0.0, -5.0], vec![1.0, -3.0]));
+    }
+}
