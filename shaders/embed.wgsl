@@ -190,12 +190,12 @@ fn local_margin(xb: array<Iv, N0>) -> real {
 }
 
 // The disturbance bound of box g (embedding coordinates z): the error map's local bound over its
-// x-box plus the network slack (LOCAL_MARGIN), else the global MARGIN; HUGE for +∞.
+// x-box within S plus the network slack (LOCAL_MARGIN), else the global MARGIN; HUGE for +∞.
 fn margin_of(z: array<Iv, N0>) -> real {
     if (!LOCAL_MARGIN) {
         return MARGIN;
     }
-    let m = local_margin(x_box(z));
+    let m = local_margin(clip_to_safe_set(x_box(z), HS_Z, HS_X));
     if (m >= HUGE) {
         return HUGE;
     }

@@ -789,14 +789,22 @@ fn face_local_matches_cpu() {
     );
 }
 
-/// A certified-looking error map over scenario 1's region: 8 × 6 cells of width 1 with bounds
-/// between 0.01 and 0.03, and no certified bound (+∞) on the cell `[0.5, 1.5] × [-0.5, 0.5]`.
+/// A certified-looking error map over a region: 8 × 6 cells (of width 1 on scenario 1's region)
+/// with bounds between 0.01 and 0.03, and no certified bound (+∞) on cell (4, 2) (scenario 1:
+/// `[0.5, 1.5] × [-0.5, 0.5]`).
 fn small_error_map(region: &IntervalBox) -> cbfreach::surrogate_error::ErrorMap {
     let mut cells = Vec::new();
+    let w = [
+        (region.upper[0] - region.lower[0]) / 8.0,
+        (region.upper[1] - region.lower[1]) / 6.0,
+    ];
     for i in 0..8 {
         for j in 0..6 {
-            let lower = [region.lower[0] + i as f64, region.lower[1] + j as f64];
-            let upper = [lower[0] + 1.0, lower[1] + 1.0];
+            let lower = [
+                region.lower[0] + i as f64 * w[0],
+                region.lower[1] + j as f64 * w[1],
+            ];
+            let upper = [lower[0] + w[0], lower[1] + w[1]];
             let bound = if (i, j) == (4, 2) {
                 "\"inf\"".to_string()
             } else {
@@ -992,4 +1000,40 @@ fn count_contained(
         }
     }
     checks
+}
+
+/// Scenario 2 in z coordinates with local margins, a box driven into the velocity bound
+/// x₂ ≥ −2 (the lower edge of C): the parallelotope's x-box pokes out of C, and only its part in
+/// S (src/reach/safe_set.rs) is looked up in the error map, so the margin stays finite. The GPU
+/// agrees with the CPU (f32 within `F32_FACTOR`, f64 to `F64_TOL`).
+#[test]
+fn safe_set_keeps_local_margins_finite_at_the_edge_of_c() {
+    let Some(gpu32) = gpu() else { return };
+    let s = double_integrator();
+    let net = small_network(&[2, 16, 16, 1], 2, 0.05);
+    let t = Transform::for_scenario(&s, &TransformChoice::Auto).unwrap();
+    let mut problem = ReachProblem::with_transform(&s, net, 0.5, t).unwrap();
+    let map = small_error_map(&problem.region);
+    problem = problem.with_error_map(map).unwrap();
+    problem.steps = 30;
+    let init = boxes(&[[5.0, -1.85], [-1.0, 0.5]], 0.05);
+    let st = with_faces(BoundMethod::ForwardBackward);
+    let (c, g) = run_both_with(&gpu32, &problem, &init, &st);
+    assert!(c[0].tube.iter().any(|x| x.set.lower[1] == -2.0));
+    assert!(
+        c[0].tube.iter().any(|x| x.lower[1] < -2.0),
+        "the x-box of the z-box should leave C"
+    );
+    for t in &c {
+        assert!(
+            !t.note.as_deref().unwrap_or_default().contains("M = ∞"),
+            "{:?}",
+            t.note
+        );
+    }
+    compare_within(&c, &g, "f32 safe set, local margins", F32_FACTOR);
+    if let Some(gpu64) = gpu_f64() {
+        let (c, g) = run_both_with(&gpu64, &problem, &init, &st);
+        compare_within(&c, &g, "f64 safe set, local margins", F64_TOL);
+    }
 }

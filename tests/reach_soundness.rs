@@ -440,14 +440,13 @@ fn filtered_trajectories_stay_in_sets_intersected_with_the_safe_set() {
         .filter(|sample| sample.set.lower[1] == -2.0)
         .count();
     assert!(at_edge > 0, "the intersection never acted");
-    // It then stops where the set meets the cells near (3.5, −2) where the filter's QP is
-    // infeasible (M = ∞), not at C's edge.
-    assert!(tube.tube.len() >= plain.tube.len());
-    assert!(!tube
-        .note
-        .as_deref()
-        .unwrap_or_default()
-        .contains("left the region C"));
+    // It goes on past the step where the plain set left C.
+    assert!(
+        tube.tube.len() > plain.tube.len(),
+        "{} vs {} steps",
+        tube.tube.len(),
+        plain.tube.len()
+    );
 
     let filter = SafetyFilter::new(&s);
     let (dt, steps, sub) = (s.reach.dt, s.reach.steps(), 10);

@@ -50,22 +50,16 @@ impl Backend for CpuBackend {
         let (n, m) = (problem.dynamics.n, problem.dynamics.m);
         // The transformed network's rounding enters as a disturbance in both methods; the
         // disturbance method adds M (global, or local from the error map per box and step).
+        let safe = problem.safe_set_for(settings.method);
         let margin_of = |state: &Live| -> Vec<f64> {
             match settings.method {
                 ReachMethod::Disturbance => {
-                    let x_box = match &problem.transform {
-                        Some(t) => t.to_x_box(&state.lower, &state.upper),
-                        None => IntervalBox {
-                            lower: state.lower.clone(),
-                            upper: state.upper.clone(),
-                        },
-                    };
+                    let x_box = problem.x_box_in_safe_set(&state.lower, &state.upper, safe);
                     vec![round_up(problem.margin_for(&x_box) + problem.network_slack); m]
                 }
                 ReachMethod::Minkowski => vec![problem.network_slack; m],
             }
         };
-        let safe = problem.safe_set_for(settings.method);
         let mut live: Vec<Live> = initial
             .iter()
             .map(|b| {

@@ -325,6 +325,20 @@ impl ReachProblem {
         z
     }
 
+    /// The x-box of the embedding state `[lower, upper]` (its parallelotope's bounding box with
+    /// a transform), intersected with `safe`'s x half-spaces: every true state lies in it.
+    pub fn x_box_in_safe_set(&self, lower: &[f64], upper: &[f64], safe: &SafeSet) -> IntervalBox {
+        let mut x = match &self.transform {
+            Some(t) => t.to_x_box(lower, upper),
+            None => IntervalBox {
+                lower: lower.to_vec(),
+                upper: upper.to_vec(),
+            },
+        };
+        safe_set::clip_to_safe_set(&mut x.lower, &mut x.upper, &safe.x);
+        x
+    }
+
     /// The disturbance bound `M` for a set whose x-bounding box is `x_box`: the error map's
     /// local bound when there is one, else `M_C`.
     pub fn margin_for(&self, x_box: &IntervalBox) -> f64 {
@@ -360,34 +374,17 @@ impl ReachProblem {
                 .collect()
         };
         let (lo_r, hi_r) = (grown(lower, -1.0), grown(upper, 1.0));
-        let mut sample = match &self.transform {
-            None => TubeSample {
-                t,
-                lower: lower.to_vec(),
-                upper: upper.to_vec(),
-                radius: r,
-                z_lower: None,
-                z_upper: None,
-                set: IntervalBox {
-                    lower: lo_r,
-                    upper: hi_r,
-                },
-            },
-            Some(tr) => {
-                let nn = tr.to_x_box(lower, upper);
-                TubeSample {
-                    t,
-                    lower: nn.lower,
-                    upper: nn.upper,
-                    radius: r,
-                    z_lower: Some(lower.to_vec()),
-                    z_upper: Some(upper.to_vec()),
-                    set: tr.to_x_box(&lo_r, &hi_r),
-                }
-            }
-        };
-        safe_set::clip_to_safe_set(&mut sample.set.lower, &mut sample.set.upper, &safe.x);
-        sample
+        let nn = self.x_box_in_safe_set(lower, upper, &SafeSet::default());
+        let transformed = self.transform.is_some();
+        TubeSample {
+            t,
+            lower: nn.lower,
+            upper: nn.upper,
+            radius: r,
+            z_lower: transformed.then(|| lower.to_vec()),
+            z_upper: transformed.then(|| upper.to_vec()),
+            set: self.x_box_in_safe_set(&lo_r, &hi_r, safe),
+        }
     }
 
     /// Checks initial boxes: dimension n and inside `C`.
