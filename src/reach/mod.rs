@@ -349,10 +349,10 @@ impl ReachProblem {
     }
 
     /// The recorded sample of an embedding state `[lower, upper]` (z coordinates with a
-    /// transform) with closeness radius `r`: x-boxes of the NN-system set and of the
+    /// transform) with closeness radius `r`: x-boxes of the embedding's set and of the
     /// filtered-system set (the Minkowski sum is taken in the embedding's coordinates, where
-    /// `r` is an ℓ∞ radius), the latter intersected with `safe`'s x half-spaces. Shared by
-    /// every backend.
+    /// `r` is an ℓ∞ radius), both intersected with `safe`'s x half-spaces (none for the
+    /// Minkowski method, whose embedding bounds the NN system). Shared by every backend.
     pub fn tube_sample(
         &self,
         lower: &[f64],
@@ -374,7 +374,7 @@ impl ReachProblem {
                 .collect()
         };
         let (lo_r, hi_r) = (grown(lower, -1.0), grown(upper, 1.0));
-        let nn = self.x_box_in_safe_set(lower, upper, &SafeSet::default());
+        let nn = self.x_box_in_safe_set(lower, upper, safe);
         let transformed = self.transform.is_some();
         TubeSample {
             t,
@@ -430,7 +430,8 @@ pub struct TubeSample {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub z_upper: Option<Vec<f64>>,
     /// A box in x that contains the filtered system's set: `[lower, upper]` for the
-    /// disturbance method, the bounding box of the Minkowski sum otherwise.
+    /// disturbance method (both within the safe set's half-spaces), the bounding box of the
+    /// Minkowski sum otherwise.
     pub set: IntervalBox,
 }
 
