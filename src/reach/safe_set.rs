@@ -50,6 +50,11 @@ pub static NO_SAFE_SET: SafeSet = SafeSet {
 };
 
 impl SafeSet {
+    /// The names of the CBFs whose half-spaces bound the sets (empty when none do).
+    pub fn names(&self) -> Vec<&str> {
+        self.x.iter().map(|h| h.name.as_str()).collect()
+    }
+
     /// The half-spaces of the scenario's affine CBFs.
     pub fn of(scenario: &Scenario, transform: Option<&Transform>) -> SafeSet {
         SafeSet {
