@@ -349,7 +349,6 @@ impl Backend for GpuBackend {
         let start = Instant::now();
         let every = settings.every.max(1);
         let (n, steps) = (problem.dynamics.n, problem.steps);
-        let sw = 2 * n + 1;
         let slots = steps.div_ceil(every);
         let safe = problem.safe_set_for(settings.method);
         let z_boxes: Vec<IntervalBox> = initial
@@ -399,7 +398,7 @@ impl Backend for GpuBackend {
             })?;
             let first = ci * chunk;
             for (g, tube) in tubes[first..first + boxes.len()].iter_mut().enumerate() {
-                fill_tube(problem, safe, tube, &res, g, boxes.len(), every, sw);
+                fill_tube(problem, safe, tube, &res, g, boxes.len(), every);
             }
         }
         Ok(ReachResult {
@@ -935,7 +934,6 @@ impl GpuBackend {
 }
 
 /// A tube's samples from a chunk's readback (the CPU engine's recording rules).
-#[allow(clippy::too_many_arguments)]
 fn fill_tube(
     problem: &ReachProblem,
     safe: &SafeSet,
@@ -944,9 +942,9 @@ fn fill_tube(
     g: usize,
     nb: usize,
     every: usize,
-    sw: usize,
 ) {
     let n = problem.dynamics.n;
+    let sw = 2 * n + 1; // a box's record: lower, upper, radius
     let steps = problem.steps;
     let st = res.flags[3 * g + 1];
     let stop = res.flags[3 * g + 2] as usize + 1; // 1-based step at which it stopped
