@@ -20,8 +20,9 @@
 //! [`Relaxation::SameSlope`] `s̲ = s̄`, so `Λ` is shared and one pass of `n_k` rows serves both
 //! sides (only the intercept terms differ): `C̲ = C̄`, bit for bit.
 //!
-//! Neurons with `u ≤ 0` contribute nothing and are dropped from the product (`Λ∘s` keeps only
-//! the columns of live neurons and `W_j` only their rows): exact, and cheaper on small boxes.
+//! Neurons with `u ≤ 0` contribute nothing and are dropped from the products (`Λ` keeps only
+//! the columns of live neurons, `W_j` only their rows and the next layer's live columns): exact,
+//! and cheaper on small boxes.
 //!
 //! # Rounding (module error model of [`crate::bounds`])
 //!
@@ -82,6 +83,8 @@ pub(crate) struct Workspace {
     lam_next: Vec<f64>,
     lam_s: Vec<f64>,
     w_live: Vec<f64>,
+    /// The relaxation of the current layer's live neurons, gathered in `live` order.
+    lines: LiveLines,
     beta_u: Vec<f64>,
     beta_l: Vec<f64>,
     z_lo: Vec<f64>,
@@ -105,6 +108,7 @@ impl Workspace {
             lam_next: Vec::with_capacity(2 * n_max * n_max),
             lam_s: Vec::with_capacity(2 * n_max * n_max),
             w_live: Vec::with_capacity(n_max * n_max),
+            lines: LiveLines::default(),
             beta_u: Vec::with_capacity(2 * n_max),
             beta_l: Vec::with_capacity(2 * n_max),
             z_lo: Vec::with_capacity(n_max),
@@ -213,72 +217,178 @@ pub(crate) fn crown_into(
 /// coefficients (`R = 2 n_k` stacked upper-then-lower rows, or `n_k` shared rows) and
 /// `ws.beta_u`, `ws.beta_l` the rigorous intercepts (`beta_u` meaningful on upper rows, `beta_l`
 /// on lower rows; both on shared rows).
+///
+/// `Λ` only ever holds the columns of live neurons: the relaxation zeroes the others, so every
+/// product computes just the live columns of the next layer (and all inputs at the end).
 fn backward_pass(net: &Mlp, k: usize, stacked: bool, ws: &mut Workspace) {
     let layer = &net.layers[k];
     let n_k = layer.n_out;
     let copies = if stacked { 2 } else { 1 };
     let rows = copies * n_k;
-    ws.lam.clear();
     ws.beta_u.clear();
     ws.beta_l.clear();
     for _ in 0..copies {
-        ws.lam.extend_from_slice(&layer.weight);
         ws.beta_u.extend_from_slice(&layer.bias);
         ws.beta_l.extend_from_slice(&layer.bias);
     }
-    let mut width = layer.n_in; // columns of Λ: the width of a_{j+1}
+    // Λ = W_k, on the live neurons of layer k − 1.
+    ws.lam.clear();
+    for _ in 0..copies {
+        gather_columns(
+            &layer.weight,
+            layer.n_in,
+            0..n_k,
+            k.checked_sub(1).map(|j| &ws.live[j][..]),
+            &mut ws.lam,
+        );
+    }
     for j in (0..k).rev() {
         let lj = &net.layers[j];
-        debug_assert_eq!(width, lj.n_out);
         let live = &ws.live[j];
-        let (s_lo, s_up, t_up) = (&ws.s_lo[j], &ws.s_up[j], &ws.t_up[j]);
-        let wmag = &ws.wmag[j];
-        let scale = ws.scale[j];
         let n_live = live.len();
+        ws.lines.gather(
+            live,
+            (&ws.s_lo[j], &ws.s_up[j], &ws.t_up[j]),
+            lj,
+            &ws.wmag[j],
+        );
+        let scale = ws.scale[j];
         ws.lam_s.clear();
         ws.lam_s.resize(rows * n_live, 0.0);
         let n_terms = 2 * lj.n_out + 2;
         for r in 0..rows {
             let upper_side = !stacked || r < n_k;
-            let lam_row = &ws.lam[r * width..(r + 1) * width];
-            let out = &mut ws.lam_s[r * n_live..(r + 1) * n_live];
-            // Bias sums for the upper and the lower side, and their common magnitude.
-            let (mut su, mut sl, mut mag) = (0.0, 0.0, 0.0);
-            for (c, &m) in live.iter().enumerate() {
-                let lam = lam_row[m];
-                // Slope: the upper line where this side needs an upper bound of Λ_m a_m.
-                let upper_line = (lam >= 0.0) == upper_side;
-                let ls = lam * if upper_line { s_up[m] } else { s_lo[m] };
-                out[c] = ls;
-                // Intercept: the upper side uses the upper line where Λ ≥ 0, the lower side
-                // where Λ < 0 (for shared rows s̲ = s̄, so both sides hold with one `ls`).
-                let lt = lam * t_up[m];
-                let lb = ls * lj.bias[m];
-                if lam >= 0.0 {
-                    su += lb + lt;
-                    sl += lb;
-                } else {
-                    su += lb;
-                    sl += lb + lt;
-                }
-                mag += ls.abs() * wmag[m] + lt.abs();
-            }
+            let (su, sl, mag) = ws.lines.relax_row(
+                &ws.lam[r * n_live..(r + 1) * n_live],
+                &mut ws.lam_s[r * n_live..(r + 1) * n_live],
+                upper_side,
+            );
             let err = err_bound(n_terms, mag, scale);
             ws.beta_u[r] = add_up(add_up(ws.beta_u[r], su), err);
             ws.beta_l[r] = add_down(add_down(ws.beta_l[r], sl), -err);
         }
-        // Rows of W_j for the live neurons, then Λ ← (Λ∘s)_live · W_j[live].
-        let n_in = lj.n_in;
+        // Λ ← (Λ∘s) · W_j[live rows, live columns of layer j − 1 (all inputs at j = 0)].
+        let next = j.checked_sub(1).map(|i| &ws.live[i][..]);
+        let width = next.map_or(lj.n_in, <[usize]>::len);
         ws.w_live.clear();
-        for &m in live {
-            ws.w_live
-                .extend_from_slice(&lj.weight[m * n_in..(m + 1) * n_in]);
-        }
+        gather_columns(
+            &lj.weight,
+            lj.n_in,
+            live.iter().copied(),
+            next,
+            &mut ws.w_live,
+        );
         ws.lam_next.clear();
-        ws.lam_next.resize(rows * n_in, 0.0);
-        gemm(rows, n_live, n_in, &ws.lam_s, &ws.w_live, &mut ws.lam_next);
+        ws.lam_next.resize(rows * width, 0.0);
+        if n_live > 0 && width > 0 {
+            gemm(rows, n_live, width, &ws.lam_s, &ws.w_live, &mut ws.lam_next);
+        }
         std::mem::swap(&mut ws.lam, &mut ws.lam_next);
-        width = n_in;
+    }
+}
+
+/// Appends the given rows of the row-major `w` (`n_in` columns), restricted to `columns` (all
+/// when `None`), to `out`.
+fn gather_columns(
+    w: &[f64],
+    n_in: usize,
+    rows: impl Iterator<Item = usize>,
+    columns: Option<&[usize]>,
+    out: &mut Vec<f64>,
+) {
+    for i in rows {
+        let row = &w[i * n_in..(i + 1) * n_in];
+        match columns {
+            Some(cols) => out.extend(cols.iter().map(|&c| row[c])),
+            None => out.extend_from_slice(row),
+        }
+    }
+}
+
+/// A layer's ReLU lines, bias and rounding magnitude `w` on its live neurons, contiguous so that
+/// [`LiveLines::relax_row`] runs without indirection or branches.
+#[derive(Default)]
+struct LiveLines {
+    s_lo: Vec<f64>,
+    s_up: Vec<f64>,
+    t_up: Vec<f64>,
+    bias: Vec<f64>,
+    wmag: Vec<f64>,
+}
+
+impl LiveLines {
+    fn gather(
+        &mut self,
+        live: &[usize],
+        (s_lo, s_up, t_up): (&[f64], &[f64], &[f64]),
+        layer: &crate::network::Layer,
+        wmag: &[f64],
+    ) {
+        for (dst, src) in [
+            (&mut self.s_lo, s_lo),
+            (&mut self.s_up, s_up),
+            (&mut self.t_up, t_up),
+            (&mut self.bias, &layer.bias[..]),
+            (&mut self.wmag, wmag),
+        ] {
+            dst.clear();
+            dst.extend(live.iter().map(|&m| src[m]));
+        }
+    }
+
+    /// One row of `Λ∘s` into `out`, and the row's upper and lower intercept sums and rounding
+    /// magnitude `(Σ_upper, Σ_lower, E)`. Slope: the upper line where this side needs an upper
+    /// bound of `Λ_m a_m` (`Λ ≥ 0` on the upper side, `Λ < 0` on the lower); intercept: the
+    /// upper side uses the upper line's `t̄` where `Λ ≥ 0`, the lower side where `Λ < 0` (for
+    /// shared rows `s̲ = s̄`, so both sides hold with one `Λ∘s`). Four partial sums, so that the
+    /// loop vectorises; the error bound holds for any order of summation.
+    fn relax_row(&self, lam: &[f64], out: &mut [f64], upper_side: bool) -> (f64, f64, f64) {
+        const LANES: usize = 4;
+        let (mut su, mut sl, mut mag) = ([0.0; LANES], [0.0; LANES], [0.0; LANES]);
+        let n = lam.len();
+        let whole = n - n % LANES;
+        let lines = |at: usize| -> [[f64; LANES]; 5] {
+            let pick = |v: &[f64]| -> [f64; LANES] { v[at..at + LANES].try_into().unwrap() };
+            [
+                pick(&self.s_lo),
+                pick(&self.s_up),
+                pick(&self.t_up),
+                pick(&self.bias),
+                pick(&self.wmag),
+            ]
+        };
+        for at in (0..whole).step_by(LANES) {
+            let [s_lo, s_up, t_up, bias, wmag] = lines(at);
+            let l: [f64; LANES] = lam[at..at + LANES].try_into().unwrap();
+            let mut ls = [0.0; LANES];
+            for q in 0..LANES {
+                let pos = l[q] >= 0.0;
+                ls[q] = l[q] * if pos == upper_side { s_up[q] } else { s_lo[q] };
+                let lt = l[q] * t_up[q];
+                let lb = ls[q] * bias[q];
+                su[q] += lb + if pos { lt } else { 0.0 };
+                sl[q] += lb + if pos { 0.0 } else { lt };
+                mag[q] += ls[q].abs() * wmag[q] + lt.abs();
+            }
+            out[at..at + LANES].copy_from_slice(&ls);
+        }
+        for c in whole..n {
+            let l = lam[c];
+            let pos = l >= 0.0;
+            let ls = l * if pos == upper_side {
+                self.s_up[c]
+            } else {
+                self.s_lo[c]
+            };
+            let lt = l * self.t_up[c];
+            let lb = ls * self.bias[c];
+            su[0] += lb + if pos { lt } else { 0.0 };
+            sl[0] += lb + if pos { 0.0 } else { lt };
+            mag[0] += ls.abs() * self.wmag[c] + lt.abs();
+            out[c] = ls;
+        }
+        let total = |v: [f64; LANES]| (v[0] + v[1]) + (v[2] + v[3]);
+        (total(su), total(sl), total(mag))
     }
 }
 
