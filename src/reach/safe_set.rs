@@ -70,25 +70,34 @@ fn halfspaces(scenario: &Scenario, transform: Option<&Transform>) -> Vec<SafeHal
         .cbfs
         .iter()
         .filter_map(|cbf| {
-            // Affine: every partial derivative simplifies to a constant.
-            let a: Vec<f64> = cbf
+            // Affine: no partial derivative depends on x. The coefficients are then enclosed
+            // from h itself, `aⱼ = h(eⱼ) − h(0)` (a derivative such as the 1/3 of `x₂/3` has
+            // no exact f64 value).
+            if cbf
                 .gradient
                 .iter()
-                .map(|d| d.as_constant())
-                .collect::<Option<_>>()?;
-            if a.iter().all(|&v| v == 0.0) || a.iter().any(|v| !v.is_finite()) {
+                .any(|d| (0..n).any(|i| d.uses_variable(i)))
+            {
                 return None;
             }
-            let offset = cbf.h.eval_interval(&vec![Interval::point(0.0); n]);
-            if !(offset.lower.is_finite() && offset.upper.is_finite()) {
+            let at = |j: Option<usize>| {
+                let x: Vec<Interval> = (0..n)
+                    .map(|i| Interval::point(if Some(i) == j { 1.0 } else { 0.0 }))
+                    .collect();
+                cbf.h.eval_interval(&x)
+            };
+            let offset = at(None);
+            let a: Vec<Interval> = (0..n).map(|j| at(Some(j)) - offset).collect();
+            let finite = |v: &Interval| v.lower.is_finite() && v.upper.is_finite();
+            if !finite(&offset) || !a.iter().all(finite) || a.iter().all(|c| c.contains(0.0)) {
                 return None;
             }
             let normal: Vec<Interval> = match transform {
-                None => a.iter().map(|&v| Interval::point(v)).collect(),
+                None => a,
                 Some(t) => (0..n)
                     .map(|j| {
                         (0..n).fold(Interval::point(0.0), |acc, i| {
-                            acc + Interval::point(a[i]) * Interval::point(t.s[i * n + j])
+                            acc + a[i] * Interval::point(t.s[i * n + j])
                         })
                     })
                     .collect(),
@@ -220,6 +229,45 @@ mod tests {
             }
         }
         assert!(inside > 1000);
+    }
+
+    #[test]
+    fn affine_cbfs_become_halfspaces_with_enclosed_coefficients() {
+        // `x₂/3 + 1 ≥ 0` is `x₂ ≥ −3`: the folded derivative 1/3 is rounded, the enclosure
+        // from h itself is not, and the bound must never cut above −3. The obstacle is not
+        // affine and is left out.
+        let text = r#"
+name = "t"
+[system]
+states = ["x1", "x2"]
+inputs = ["u"]
+f = ["x2", "0"]
+g = [["0"], ["1"]]
+kappa = ["-x1 - x2"]
+[[cbf]]
+name = "obstacle"
+h = "(x1 - 2)^2 + x2^2 - 1"
+[[cbf]]
+name = "third"
+h = "x2/3 + 1"
+[reach]
+region = { lower = [-4, -4], upper = [4, 4] }
+m_c = 0
+dt = 0.1
+horizon = 1
+goal = { lower = [-1, -1], upper = [1, 1] }
+"#;
+        let s = Scenario::from_toml(text, "t.toml", std::path::Path::new(".")).unwrap();
+        let safe = SafeSet::of(&s, None);
+        assert_eq!(safe.names(), vec!["third"]);
+        let hs = &safe.x[0];
+        assert!(
+            hs.normal[1].contains(1.0 / 3.0) && hs.normal[1].upper - hs.normal[1].lower < 1e-15
+        );
+        assert!(hs.normal[0].contains(0.0) && hs.normal[0].upper - hs.normal[0].lower < 1e-15);
+        let (mut lo, mut hi) = (vec![-1.0, -5.0], vec![1.0, 0.0]);
+        assert!(clip_to_safe_set(&mut lo, &mut hi, &safe.x));
+        assert!(lo[1] <= -3.0 && lo[1] > -3.0 - 1e-12, "{lo:?}");
     }
 
     #[test]
