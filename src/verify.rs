@@ -271,6 +271,10 @@ pub struct RunInfo {
     pub steps: usize,
     /// Whether the embedding ran in transformed coordinates.
     pub transformed: bool,
+    /// The CBFs whose half-spaces bounded the sets (`reach::safe_set`; empty with
+    /// `--no-safe-set` or none affine).
+    #[serde(default)]
+    pub safe_set: Vec<String>,
     /// Refinement depth.
     pub refine_depth: usize,
     /// Refinement budget (extra boxes, per shard).
@@ -636,6 +640,10 @@ impl Verifier<'_> {
                 dt: self.problem.dt,
                 steps: self.problem.steps,
                 transformed: self.problem.transform.is_some(),
+                safe_set: (self.problem.safe_set_for(self.reach.method).names())
+                    .into_iter()
+                    .map(String::from)
+                    .collect(),
                 refine_depth: settings.refine_depth,
                 budget: settings.budget,
             },
