@@ -185,11 +185,9 @@ pub(crate) fn forward_group(
         let n = layer.n_out;
         if k > 0 {
             let n_prev = layer.n_in;
-            ws.c_next.clear();
+            // The products overwrite their outputs: sizing them needs no zeroing.
             ws.c_next.resize(n * cols, 0.0);
-            ws.r_next.clear();
             ws.r_next.resize(n * cols, 0.0);
-            ws.v_next.clear();
             ws.v_next.resize(n * g_count, 0.0);
             gemm(n, n_prev, cols, &layer.weight, &ws.c, &mut ws.c_next);
             let (r, r_next) = (&ws.r, &mut ws.r_next);
@@ -360,8 +358,7 @@ fn gemm_skipping_zero_rows(
 fn ibp_layer(layer: &crate::network::Layer, abs_w: &[f64], g_count: usize, ws: &mut Workspace) {
     let (n, n_prev) = (layer.n_out, layer.n_in);
     for buf in [&mut ws.ipre_c, &mut ws.ipre_r, &mut ws.ie] {
-        buf.clear();
-        buf.resize(n * g_count, 0.0);
+        buf.resize(n * g_count, 0.0); // overwritten by the products below
     }
     // Magnitude |c| + r, reusing `v_next` as scratch (it is rebuilt before its next use).
     ws.v_next.clear();

@@ -87,8 +87,7 @@ fn ibp_group(
         ws.v.clear();
         ws.v.extend(ws.c.iter().zip(&ws.r).map(|(c, r)| c.abs() + r));
         for buf in [&mut ws.c_next, &mut ws.r_next, &mut ws.e] {
-            buf.clear();
-            buf.resize(n * g_count, 0.0);
+            buf.resize(n * g_count, 0.0); // overwritten by the products below
         }
         gemm(n, n_prev, g_count, &layer.weight, &ws.c, &mut ws.c_next);
         gemm(n, n_prev, g_count, &abs_w[k], &ws.r, &mut ws.r_next);
