@@ -537,6 +537,32 @@ scalar_ops!(Add add, Sub sub, Mul mul, Div div);
 mod tests {
     use super::*;
 
+    #[test]
+    fn quotients_are_bounded_and_exact_ones_kept() {
+        // Exact quotients stay themselves (what keeps `x₂ ≥ −2` at −2 in reach::safe_set).
+        assert_eq!((div_down(-2.0, 1.0), div_up(-2.0, 1.0)), (-2.0, -2.0));
+        assert_eq!((div_down(3.0, -4.0), div_up(3.0, -4.0)), (-0.75, -0.75));
+        // Inexact ones straddle the real quotient: by the exact FMA residual's sign,
+        // lo·b ≤ a ≤ hi·b for b > 0 (reversed for b < 0), and they differ by one step.
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        for _ in 0..20_000 {
+            let a: f64 = rng.random_range(-1e3..1e3);
+            let b: f64 =
+                rng.random_range(0.1..10.0) * if rng.random::<bool>() { 1.0 } else { -1.0 };
+            let (lo, hi) = (div_down(a, b), div_up(a, b));
+            assert!(
+                lo <= hi && hi <= round_up(round_up(lo)),
+                "{a}/{b}: [{lo}, {hi}]"
+            );
+            let (rl, rh) = (lo.mul_add(b, -a), hi.mul_add(b, -a));
+            if b > 0.0 {
+                assert!(rl <= 0.0 && rh >= 0.0, "{a}/{b}: [{lo}, {hi}]");
+            } else {
+                assert!(rl >= 0.0 && rh <= 0.0, "{a}/{b}: [{lo}, {hi}]");
+            }
+        }
+    }
+
     /// Sums are outward rounded only when inexact: checked against exact integer arithmetic
     /// (every f64 of magnitude ≥ 2⁵³ is an integer, so i128 holds the exact sums).
     #[test]

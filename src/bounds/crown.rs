@@ -37,6 +37,7 @@
 //! `err_bound``(2 n_j + 2, E, 1 + Σ w + Σ mag_j)` (the `+2` counts the two roundings inside
 //! each product chain; the scale covers underflowing coefficients times `z_j` and `a_j`).
 
+use super::live::{gather_columns, LiveLines};
 use super::network_bounds_batch_into;
 use super::{
     add_down, add_up, affine_max, affine_min, err_bound, gemm, magnitudes, relu_lines,
@@ -246,19 +247,16 @@ fn backward_pass(net: &Mlp, k: usize, stacked: bool, ws: &mut Workspace) {
         let lj = &net.layers[j];
         let live = &ws.live[j];
         let n_live = live.len();
-        ws.lines.gather(
-            live,
-            (&ws.s_lo[j], &ws.s_up[j], &ws.t_up[j]),
-            lj,
-            &ws.wmag[j],
-        );
+        let wmag = &ws.wmag[j];
+        let lines = (&ws.s_lo[j][..], &ws.s_up[j][..], &ws.t_up[j][..]);
+        ws.lines.gather(live, lines, &lj.bias, |m| wmag[m]);
         let scale = ws.scale[j];
         ws.lam_s.clear();
         ws.lam_s.resize(rows * n_live, 0.0);
         let n_terms = 2 * lj.n_out + 2;
         for r in 0..rows {
             let upper_side = !stacked || r < n_k;
-            let (su, sl, mag) = ws.lines.relax_row(
+            let [su, sl, mag] = ws.lines.relax_row(
                 &ws.lam[r * n_live..(r + 1) * n_live],
                 &mut ws.lam_s[r * n_live..(r + 1) * n_live],
                 upper_side,
@@ -284,111 +282,6 @@ fn backward_pass(net: &Mlp, k: usize, stacked: bool, ws: &mut Workspace) {
             gemm(rows, n_live, width, &ws.lam_s, &ws.w_live, &mut ws.lam_next);
         }
         std::mem::swap(&mut ws.lam, &mut ws.lam_next);
-    }
-}
-
-/// Appends the given rows of the row-major `w` (`n_in` columns), restricted to `columns` (all
-/// when `None`), to `out`.
-fn gather_columns(
-    w: &[f64],
-    n_in: usize,
-    rows: impl Iterator<Item = usize>,
-    columns: Option<&[usize]>,
-    out: &mut Vec<f64>,
-) {
-    for i in rows {
-        let row = &w[i * n_in..(i + 1) * n_in];
-        match columns {
-            Some(cols) => out.extend(cols.iter().map(|&c| row[c])),
-            None => out.extend_from_slice(row),
-        }
-    }
-}
-
-/// A layer's ReLU lines, bias and rounding magnitude `w` on its live neurons, contiguous so that
-/// [`LiveLines::relax_row`] runs without indirection or branches.
-#[derive(Default)]
-struct LiveLines {
-    s_lo: Vec<f64>,
-    s_up: Vec<f64>,
-    t_up: Vec<f64>,
-    bias: Vec<f64>,
-    wmag: Vec<f64>,
-}
-
-impl LiveLines {
-    fn gather(
-        &mut self,
-        live: &[usize],
-        (s_lo, s_up, t_up): (&[f64], &[f64], &[f64]),
-        layer: &crate::network::Layer,
-        wmag: &[f64],
-    ) {
-        for (dst, src) in [
-            (&mut self.s_lo, s_lo),
-            (&mut self.s_up, s_up),
-            (&mut self.t_up, t_up),
-            (&mut self.bias, &layer.bias[..]),
-            (&mut self.wmag, wmag),
-        ] {
-            dst.clear();
-            dst.extend(live.iter().map(|&m| src[m]));
-        }
-    }
-
-    /// One row of `Λ∘s` into `out`, and the row's upper and lower intercept sums and rounding
-    /// magnitude `(Σ_upper, Σ_lower, E)`. Slope: the upper line where this side needs an upper
-    /// bound of `Λ_m a_m` (`Λ ≥ 0` on the upper side, `Λ < 0` on the lower); intercept: the
-    /// upper side uses the upper line's `t̄` where `Λ ≥ 0`, the lower side where `Λ < 0` (for
-    /// shared rows `s̲ = s̄`, so both sides hold with one `Λ∘s`). Four partial sums, so that the
-    /// loop vectorises; the error bound holds for any order of summation.
-    fn relax_row(&self, lam: &[f64], out: &mut [f64], upper_side: bool) -> (f64, f64, f64) {
-        const LANES: usize = 4;
-        let (mut su, mut sl, mut mag) = ([0.0; LANES], [0.0; LANES], [0.0; LANES]);
-        let n = lam.len();
-        let whole = n - n % LANES;
-        let lines = |at: usize| -> [[f64; LANES]; 5] {
-            let pick = |v: &[f64]| -> [f64; LANES] { v[at..at + LANES].try_into().unwrap() };
-            [
-                pick(&self.s_lo),
-                pick(&self.s_up),
-                pick(&self.t_up),
-                pick(&self.bias),
-                pick(&self.wmag),
-            ]
-        };
-        for at in (0..whole).step_by(LANES) {
-            let [s_lo, s_up, t_up, bias, wmag] = lines(at);
-            let l: [f64; LANES] = lam[at..at + LANES].try_into().unwrap();
-            let mut ls = [0.0; LANES];
-            for q in 0..LANES {
-                let pos = l[q] >= 0.0;
-                ls[q] = l[q] * if pos == upper_side { s_up[q] } else { s_lo[q] };
-                let lt = l[q] * t_up[q];
-                let lb = ls[q] * bias[q];
-                su[q] += lb + if pos { lt } else { 0.0 };
-                sl[q] += lb + if pos { 0.0 } else { lt };
-                mag[q] += ls[q].abs() * wmag[q] + lt.abs();
-            }
-            out[at..at + LANES].copy_from_slice(&ls);
-        }
-        for c in whole..n {
-            let l = lam[c];
-            let pos = l >= 0.0;
-            let ls = l * if pos == upper_side {
-                self.s_up[c]
-            } else {
-                self.s_lo[c]
-            };
-            let lt = l * self.t_up[c];
-            let lb = ls * self.bias[c];
-            su[0] += lb + if pos { lt } else { 0.0 };
-            sl[0] += lb + if pos { 0.0 } else { lt };
-            mag[0] += ls.abs() * self.wmag[c] + lt.abs();
-            out[c] = ls;
-        }
-        let total = |v: [f64; LANES]| (v[0] + v[1]) + (v[2] + v[3]);
-        (total(su), total(sl), total(mag))
     }
 }
 

@@ -38,6 +38,7 @@
 #![allow(clippy::needless_range_loop)] // index loops read as the formulas
 
 use super::ibp::centre_radius;
+use super::live::gather_columns;
 use super::{
     add_down, add_up, affine_max, affine_min, err_bound, gemm, network_bounds_batch_into, next_up,
     next_up_keep_zero, relu_lines, AffineBounds, AffineBoundsBatch, BoundMethod, BoundsError,
@@ -343,9 +344,7 @@ fn gemm_skipping_zero_rows(
         return;
     }
     scratch.a.clear();
-    for row in a.chunks(k).take(m) {
-        scratch.a.extend(scratch.rows.iter().map(|&j| row[j]));
-    }
+    gather_columns(a, k, 0..m, Some(&scratch.rows), &mut scratch.a);
     scratch.b.clear();
     for &j in &scratch.rows {
         scratch.b.extend_from_slice(&b[j * n..(j + 1) * n]);

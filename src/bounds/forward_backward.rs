@@ -38,6 +38,7 @@
 #![allow(clippy::needless_range_loop)] // index loops read as the formulas
 
 use super::forward::{forward_group, ForwardOptions, Workspace as FwdWorkspace};
+use super::live::LiveLines;
 use super::{
     add_down, add_up, affine_max, affine_min, err_bound, gemm, network_bounds_batch_into,
     relu_lines, AffineBounds, AffineBoundsBatch, BoundMethod, BoundsError, OutRow, PreparedNetwork,
@@ -86,6 +87,10 @@ struct Workspace {
     lam: Vec<f64>,
     lam_next: Vec<f64>,
     lam_s: Vec<f64>,
+    /// One row of `Λ` on the live neurons.
+    lam_live: Vec<f64>,
+    /// The current layer's relaxation on the live neurons, for one box.
+    lines: LiveLines,
     w_live: Vec<f64>,
     beta_u: Vec<f64>,
     beta_l: Vec<f64>,
@@ -221,34 +226,24 @@ fn backward_group(
         ws.lam_s.resize(rows_total * n_live, 0.0);
         let n_terms = 2 * n_j + 2;
         for g in 0..g_count {
-            let (s_lo, s_up, t_up) = (
-                &ws.s_lo[g * n_j..(g + 1) * n_j],
-                &ws.s_up[g * n_j..(g + 1) * n_j],
-                &ws.t_up[g * n_j..(g + 1) * n_j],
+            let span = g * n_j..(g + 1) * n_j;
+            let lines = (
+                &ws.s_lo[span.clone()],
+                &ws.s_up[span.clone()],
+                &ws.t_up[span],
             );
+            let wmag = &ws.wmag;
+            ws.lines
+                .gather(&ws.live, lines, &lj.bias, |q| wmag[q * g_count + g]);
             let scale = ws.scale[g];
             for r in 0..r_count {
                 let row = g * r_count + r;
                 let upper_side = !stacked || r < m;
                 let lam_row = &ws.lam[row * width..(row + 1) * width];
+                ws.lam_live.clear();
+                ws.lam_live.extend(ws.live.iter().map(|&q| lam_row[q]));
                 let out = &mut ws.lam_s[row * n_live..(row + 1) * n_live];
-                let (mut su, mut sl, mut mag) = (0.0, 0.0, 0.0);
-                for (c, &q) in ws.live.iter().enumerate() {
-                    let lam = lam_row[q];
-                    let upper_line = (lam >= 0.0) == upper_side;
-                    let ls = lam * if upper_line { s_up[q] } else { s_lo[q] };
-                    out[c] = ls;
-                    let lt = lam * t_up[q];
-                    let lb = ls * lj.bias[q];
-                    if lam >= 0.0 {
-                        su += lb + lt;
-                        sl += lb;
-                    } else {
-                        su += lb;
-                        sl += lb + lt;
-                    }
-                    mag += ls.abs() * ws.wmag[q * g_count + g] + lt.abs();
-                }
+                let [su, sl, mag] = ws.lines.relax_row(&ws.lam_live, out, upper_side);
                 let err = err_bound(n_terms, mag, scale);
                 ws.beta_u[row] = add_up(add_up(ws.beta_u[row], su), err);
                 ws.beta_l[row] = add_down(add_down(ws.beta_l[row], sl), -err);

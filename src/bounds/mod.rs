@@ -54,6 +54,7 @@ mod crown;
 mod forward;
 mod forward_backward;
 mod ibp;
+mod live;
 #[cfg(test)]
 pub(crate) mod test_support;
 

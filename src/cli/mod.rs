@@ -47,6 +47,16 @@ pub fn parse_point(option: &str, text: &str) -> Result<Vec<f64>, String> {
         .collect()
 }
 
+/// `, sets within S's half-spaces (velocity)` for the CBFs whose half-spaces bounded the sets
+/// (`reach::safe_set`), empty for none.
+pub fn safe_set_clause<S: AsRef<str>>(names: &[S]) -> String {
+    if names.is_empty() {
+        return String::new();
+    }
+    let names: Vec<&str> = names.iter().map(AsRef::as_ref).collect();
+    format!(", sets within S's half-spaces ({})", names.join(", "))
+}
+
 /// Formats a vector compactly: `(1.000, -2.500)`.
 pub fn fmt_point(x: &[f64]) -> String {
     // Values that print as zero print without a sign.

@@ -231,12 +231,7 @@ pub fn run(args: &ReachArgs) -> CliResult {
         ),
         _ => format!("M_C = {m_c}"),
     };
-    let names = problem.safe_set_for(args.method).names();
-    let within = if names.is_empty() {
-        String::new()
-    } else {
-        format!(", sets within S's half-spaces ({})", names.join(", "))
-    };
+    let within = super::safe_set_clause(&problem.safe_set_for(args.method).names());
     println!(
         "{}: {} boxes × {} steps, {} bounds{}, {:?} method, {margin}{within}, backend {}",
         s.file,

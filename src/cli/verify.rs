@@ -226,14 +226,7 @@ pub fn run_verify(
 pub fn print_summary(r: &VerifyReport) {
     let (b, a) = (r.shares_before(), r.shares_after());
     let refined = r.run.refine_depth > 0;
-    let within = if r.run.safe_set.is_empty() {
-        String::new()
-    } else {
-        format!(
-            ", sets within S's half-spaces ({})",
-            r.run.safe_set.join(", ")
-        )
-    };
+    let within = super::safe_set_clause(&r.run.safe_set);
     println!(
         "{} ({}): region {:?}…{:?}, grid {:?}{}, {} bounds{}, {} method, {}{within}",
         r.run.scenario,

@@ -361,20 +361,24 @@ impl ReachProblem {
         t: f64,
         safe: &SafeSet,
     ) -> TubeSample {
-        let grown = |v: &[f64], sign: f64| -> Vec<f64> {
-            v.iter()
-                .map(|&x| {
-                    let y = Interval::point(x) + Interval::point(sign * r);
-                    if sign < 0.0 {
-                        y.lower
-                    } else {
-                        y.upper
-                    }
-                })
-                .collect()
-        };
-        let (lo_r, hi_r) = (grown(lower, -1.0), grown(upper, 1.0));
         let nn = self.x_box_in_safe_set(lower, upper, safe);
+        let set = if r == 0.0 {
+            nn.clone()
+        } else {
+            let grown = |v: &[f64], sign: f64| -> Vec<f64> {
+                v.iter()
+                    .map(|&x| {
+                        let y = Interval::point(x) + Interval::point(sign * r);
+                        if sign < 0.0 {
+                            y.lower
+                        } else {
+                            y.upper
+                        }
+                    })
+                    .collect()
+            };
+            self.x_box_in_safe_set(&grown(lower, -1.0), &grown(upper, 1.0), safe)
+        };
         let transformed = self.transform.is_some();
         TubeSample {
             t,
@@ -383,7 +387,7 @@ impl ReachProblem {
             radius: r,
             z_lower: transformed.then(|| lower.to_vec()),
             z_upper: transformed.then(|| upper.to_vec()),
-            set: self.x_box_in_safe_set(&lo_r, &hi_r, safe),
+            set,
         }
     }
 
