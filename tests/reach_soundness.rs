@@ -482,3 +482,81 @@ fn filtered_trajectories_stay_in_sets_intersected_with_the_safe_set() {
     }
     assert!(checks > 500, "{checks} checks");
 }
+
+/// How the CPU engine splits boxes over threads (chunks integrated over the whole horizon,
+/// each with its own buffers) does not change the sets: one thread and three threads give
+/// the same tubes up to the products' summation order, with boxes that leave `C` early in
+/// some chunks and face-local bounds (2n rows per box) in the mix; and the progress reports
+/// end at the horizon.
+#[test]
+fn tubes_do_not_depend_on_the_thread_count() {
+    let s = integrator();
+    // A push to the right: boxes on the right of C leave it early, the others stay.
+    let mut net = small_network(&[2, 16, 16, 2], 3, 0.5);
+    net.layers[2].bias[0] += 5.0;
+    let mut problem = ReachProblem::new(&s, net, 0.05).unwrap();
+    problem.steps = problem.steps.min(60);
+    let boxes: Vec<_> = (0..23)
+        .map(|k| {
+            let c = [-3.4 + 0.35 * k as f64, 2.9 - 0.26 * k as f64];
+            cbfreach::IntervalBox::new(
+                c.iter().map(|v| v - 0.05).collect(),
+                c.iter().map(|v| v + 0.05).collect(),
+            )
+            .unwrap()
+        })
+        .collect();
+    for face_local in [false, true] {
+        let settings = ReachSettings {
+            bounds: BoundMethod::Forward,
+            method: ReachMethod::Disturbance,
+            every: 7,
+            face_local,
+        };
+        let run_on = |threads: usize| {
+            let last = std::sync::atomic::AtomicUsize::new(0);
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let tubes = pool.install(|| {
+                CpuBackend
+                    .reach(&problem, &boxes, &settings, &|done, total| {
+                        assert_eq!(total, problem.steps);
+                        last.fetch_max(done, std::sync::atomic::Ordering::Relaxed);
+                    })
+                    .unwrap()
+                    .boxes
+            });
+            assert_eq!(
+                last.into_inner(),
+                problem.steps,
+                "progress ends at the horizon"
+            );
+            tubes
+        };
+        let (one, three) = (run_on(1), run_on(3));
+        let invalid = one.iter().filter(|t| !t.valid).count();
+        assert!(
+            invalid > 0 && invalid < boxes.len(),
+            "the case should mix boxes that stay in C with boxes that leave it ({invalid})"
+        );
+        for (k, (a, b)) in one.iter().zip(&three).enumerate() {
+            assert_eq!((a.valid, &a.note), (b.valid, &b.note), "box {k}");
+            assert_eq!(a.tube.len(), b.tube.len(), "box {k}");
+            for (p, q) in a.tube.iter().zip(&b.tube) {
+                assert_eq!(p.t, q.t);
+                let (ps, qs) = (
+                    p.lower.iter().chain(&p.upper),
+                    q.lower.iter().chain(&q.upper),
+                );
+                for (x, y) in ps.zip(qs) {
+                    assert!(
+                        (x - y).abs() <= 1e-9 * (1.0 + x.abs()),
+                        "box {k}: {x} vs {y}"
+                    );
+                }
+            }
+        }
+    }
+}

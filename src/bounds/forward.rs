@@ -42,7 +42,7 @@ use super::live::gather_columns;
 use super::{
     add_down, add_up, affine_max, affine_min, err_bound, gemm, network_bounds_batch_into, next_up,
     next_up_keep_zero, relu_lines, AffineBounds, AffineBoundsBatch, BoundMethod, BoundsError,
-    OutRow, PreparedNetwork, Relaxation,
+    OutRow, PreparedNetwork, Relaxation, Schedule,
 };
 use crate::network::Mlp;
 
@@ -107,6 +107,7 @@ pub(crate) fn forward_batch_into(
     prepared: &PreparedNetwork<'_>,
     lower: &[f64],
     upper: &[f64],
+    schedule: Schedule<'_, Workspace>,
     rows: &mut [OutRow<'_>],
 ) {
     let (net, abs_w) = (prepared.net(), &prepared.abs_w);
@@ -116,6 +117,7 @@ pub(crate) fn forward_batch_into(
         upper,
         rows,
         MAX_GROUP,
+        schedule,
         |ws: &mut Workspace, lo, hi, rows| {
             forward_group(net, abs_w, lo, hi, rows, ws, ForwardOptions::default())
         },

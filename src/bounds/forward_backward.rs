@@ -42,7 +42,7 @@ use super::live::LiveLines;
 use super::{
     add_down, add_up, affine_max, affine_min, err_bound, gemm, network_bounds_batch_into,
     relu_lines, AffineBounds, AffineBoundsBatch, BoundMethod, BoundsError, OutRow, PreparedNetwork,
-    Relaxation,
+    Relaxation, Schedule,
 };
 use crate::network::Mlp;
 
@@ -70,7 +70,7 @@ pub fn forward_backward(
 
 /// Buffers of one rayon task.
 #[derive(Default)]
-struct Workspace {
+pub(crate) struct Workspace {
     fwd: FwdWorkspace,
     /// `mag_j`, `n_{j−1} × G` neuron-major (the input magnitude for `j = 0`).
     mag: Vec<f64>,
@@ -104,6 +104,7 @@ pub(crate) fn forward_backward_batch_into(
     lower: &[f64],
     upper: &[f64],
     relaxation: Relaxation,
+    schedule: Schedule<'_, Workspace>,
     rows: &mut [OutRow<'_>],
 ) {
     let (net, abs_w) = (prepared.net(), &prepared.abs_w);
@@ -117,6 +118,7 @@ pub(crate) fn forward_backward_batch_into(
         upper,
         rows,
         MAX_GROUP,
+        schedule,
         |ws: &mut Workspace, lo, hi, rows| {
             forward_group(net, abs_w, lo, hi, rows, &mut ws.fwd, opts);
             if net.layers.len() > 1 {

@@ -13,7 +13,7 @@
 use super::{add_down, add_up, err_bound, gemm, next_up_keep_zero};
 use super::{
     network_bounds_batch_into, AffineBounds, AffineBoundsBatch, BoundMethod, BoundsError, OutRow,
-    PreparedNetwork,
+    PreparedNetwork, Schedule,
 };
 use crate::network::Mlp;
 
@@ -28,7 +28,7 @@ pub fn ibp(net: &Mlp, lower: &[f64], upper: &[f64]) -> Result<AffineBounds, Boun
 
 /// Buffers for one group of boxes.
 #[derive(Default)]
-struct Workspace {
+pub(crate) struct Workspace {
     c: Vec<f64>,
     r: Vec<f64>,
     v: Vec<f64>,
@@ -42,6 +42,7 @@ pub(crate) fn ibp_batch_into(
     prepared: &PreparedNetwork<'_>,
     lower: &[f64],
     upper: &[f64],
+    schedule: Schedule<'_, Workspace>,
     rows: &mut [OutRow<'_>],
 ) {
     let (net, abs_w) = (prepared.net(), &prepared.abs_w);
@@ -51,6 +52,7 @@ pub(crate) fn ibp_batch_into(
         upper,
         rows,
         MAX_GROUP,
+        schedule,
         |ws: &mut Workspace, lo, hi, rows| ibp_group(net, abs_w, lo, hi, rows, ws),
     );
 }

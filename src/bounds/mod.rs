@@ -396,32 +396,50 @@ pub fn model_multiply_adds(widths: &[usize], method: BoundMethod) -> f64 {
     }
 }
 
-/// Runs `group_fn` on groups of at most `max_group` boxes in parallel (one rayon task per
-/// group, each with its own workspace from `W::default()`), then sanitises every row. Shared by
-/// the GEMM-batched methods (IBP, forward, forward-backward): a group is one set of matrix
-/// products whose columns are boxes.
+/// Where the groups of a batch run: in parallel (rayon, a fresh workspace per task), or one
+/// after another in the calling thread with the caller's workspace (a reach engine that gives
+/// each thread its own boxes for the whole horizon, with no fork–join per Euler step).
+pub(crate) enum Schedule<'w, W> {
+    Parallel,
+    Serial(&'w mut W),
+}
+
+/// Runs `group_fn` on groups of at most `max_group` boxes as `schedule` says (in parallel, one
+/// rayon task per group, each with its own workspace from `W::default()`), then sanitises every
+/// row. Shared by the GEMM-batched methods (IBP, forward, forward-backward): a group is one set
+/// of matrix products whose columns are boxes.
 pub(crate) fn for_each_group<W: Default + Send>(
     net: &Mlp,
     lower: &[f64],
     upper: &[f64],
     rows: &mut [OutRow<'_>],
     max_group: usize,
+    schedule: Schedule<'_, W>,
     group_fn: impl Fn(&mut W, &[f64], &[f64], &mut [OutRow<'_>]) + Sync + Send,
 ) {
-    use rayon::prelude::*;
     let n0 = net.input_dim();
     if rows.is_empty() {
         return;
     }
-    let threads = rayon::current_num_threads().max(1);
-    let group = rows.len().div_ceil(threads).clamp(1, max_group);
-    rows.par_chunks_mut(group)
-        .zip(lower.par_chunks(group * n0))
-        .zip(upper.par_chunks(group * n0))
-        .for_each_init(W::default, |ws, ((rows, lo), hi)| {
-            group_fn(ws, lo, hi, rows);
-            rows.iter_mut().for_each(|row| row.sanitize());
-        });
+    let run = |ws: &mut W, ((rows, lo), hi): ((&mut [OutRow<'_>], &[f64]), &[f64])| {
+        group_fn(ws, lo, hi, rows);
+        rows.iter_mut().for_each(|row| row.sanitize());
+    };
+    match schedule {
+        Schedule::Serial(ws) => rows
+            .chunks_mut(max_group)
+            .zip(lower.chunks(max_group * n0))
+            .zip(upper.chunks(max_group * n0))
+            .for_each(|group| run(ws, group)),
+        Schedule::Parallel => {
+            let threads = rayon::current_num_threads().max(1);
+            let group = rows.len().div_ceil(threads).clamp(1, max_group);
+            rows.par_chunks_mut(group)
+                .zip(lower.par_chunks(group * n0))
+                .zip(upper.par_chunks(group * n0))
+                .for_each_init(W::default, run);
+        }
+    }
 }
 
 /// Bounds of `net` over the box `[lower, upper]` by `method`, validated.
@@ -517,6 +535,36 @@ impl<'a> PreparedNetwork<'a> {
         method: BoundMethod,
         out: &mut AffineBoundsBatch,
     ) -> Result<(), BoundsError> {
+        self.run_batch(lower, upper, method, None, out)
+    }
+
+    /// As [`PreparedNetwork::bounds_batch_into`], but in the calling thread with the buffers
+    /// of `ws`: for callers that parallelise over batches themselves (the CPU reach engine runs
+    /// each thread's boxes for the whole horizon), so that no step pays a fork–join or fresh
+    /// buffers. Same bounds as the parallel call, up to the summation order of the products.
+    pub fn bounds_serial_into(
+        &self,
+        lower: &[f64],
+        upper: &[f64],
+        method: BoundMethod,
+        ws: &mut BoundsWorkspace,
+        out: &mut AffineBoundsBatch,
+    ) -> Result<(), BoundsError> {
+        self.run_batch(lower, upper, method, Some(ws), out)
+    }
+
+    /// The validated batch, in parallel (`ws` = `None`) or serially in `ws`.
+    fn run_batch(
+        &self,
+        lower: &[f64],
+        upper: &[f64],
+        method: BoundMethod,
+        ws: Option<&mut BoundsWorkspace>,
+        out: &mut AffineBoundsBatch,
+    ) -> Result<(), BoundsError> {
+        fn schedule<W>(ws: Option<&mut W>) -> Schedule<'_, W> {
+            ws.map_or(Schedule::Parallel, Schedule::Serial)
+        }
         let net = self.net;
         let n_boxes = validate_boxes(net, lower, upper)?;
         let (n_in, n_out) = (net.input_dim(), net.output_dim());
@@ -524,48 +572,65 @@ impl<'a> PreparedNetwork<'a> {
         let mut rows = out.rows_mut();
         rows.truncate(n_boxes);
         match method {
-            BoundMethod::Ibp => ibp::ibp_batch_into(self, lower, upper, &mut rows),
+            BoundMethod::Ibp => {
+                let ws = schedule(ws.map(|w| &mut w.ibp));
+                ibp::ibp_batch_into(self, lower, upper, ws, &mut rows)
+            }
             BoundMethod::Crown | BoundMethod::CrownSameSlope => {
                 let relaxation = if method == BoundMethod::Crown {
                     Relaxation::Adaptive
                 } else {
                     Relaxation::SameSlope
                 };
+                let ws = ws.map(|w| w.crown.get_or_insert_with(|| crown::Workspace::new(net)));
                 run_per_box(
                     net,
                     lower,
                     upper,
                     &mut rows,
+                    ws,
                     || crown::Workspace::new(net),
                     |ws, lo, hi, row| crown::crown_into(net, lo, hi, relaxation, ws, row),
                 )
             }
-            BoundMethod::Forward => forward::forward_batch_into(self, lower, upper, &mut rows),
-            BoundMethod::ForwardBackward => forward_backward::forward_backward_batch_into(
-                self,
-                lower,
-                upper,
-                Relaxation::Adaptive,
-                &mut rows,
-            ),
-            BoundMethod::ForwardBackwardSameSlope => forward_backward::forward_backward_batch_into(
-                self,
-                lower,
-                upper,
-                Relaxation::SameSlope,
-                &mut rows,
-            ),
+            BoundMethod::Forward => {
+                let ws = schedule(ws.map(|w| &mut w.forward));
+                forward::forward_batch_into(self, lower, upper, ws, &mut rows)
+            }
+            BoundMethod::ForwardBackward | BoundMethod::ForwardBackwardSameSlope => {
+                let relaxation = if method == BoundMethod::ForwardBackward {
+                    Relaxation::Adaptive
+                } else {
+                    Relaxation::SameSlope
+                };
+                let ws = schedule(ws.map(|w| &mut w.forward_backward));
+                forward_backward::forward_backward_batch_into(
+                    self, lower, upper, relaxation, ws, &mut rows,
+                )
+            }
         }
         Ok(())
     }
 }
 
-/// Runs `f` on every box in parallel, with one workspace per rayon task.
+/// The buffers of every bound method for [`PreparedNetwork::bounds_serial_into`]: one per
+/// thread, reused across calls (they grow to the largest batch and stay).
+#[derive(Default)]
+pub struct BoundsWorkspace {
+    ibp: ibp::Workspace,
+    forward: forward::Workspace,
+    forward_backward: forward_backward::Workspace,
+    crown: Option<crown::Workspace>,
+}
+
+/// Runs `f` on every box: in parallel with one workspace per rayon task from `init`, or one
+/// after another in `serial`.
 fn run_per_box<W, I, F>(
     net: &Mlp,
     lower: &[f64],
     upper: &[f64],
     rows: &mut [OutRow<'_>],
+    serial: Option<&mut W>,
     init: I,
     f: F,
 ) where
@@ -573,13 +638,22 @@ fn run_per_box<W, I, F>(
     F: Fn(&mut W, &[f64], &[f64], &mut OutRow<'_>) + Sync + Send,
 {
     let n = net.input_dim();
-    rows.par_iter_mut()
-        .zip(lower.par_chunks(n))
-        .zip(upper.par_chunks(n))
-        .for_each_init(init, |ws, ((row, lo), hi)| {
-            f(ws, lo, hi, row);
-            row.sanitize();
-        });
+    let run = |ws: &mut W, ((row, lo), hi): ((&mut OutRow<'_>, &[f64]), &[f64])| {
+        f(ws, lo, hi, row);
+        row.sanitize();
+    };
+    match serial {
+        Some(ws) => rows
+            .iter_mut()
+            .zip(lower.chunks(n))
+            .zip(upper.chunks(n))
+            .for_each(|one| run(ws, one)),
+        None => rows
+            .par_iter_mut()
+            .zip(lower.par_chunks(n))
+            .zip(upper.par_chunks(n))
+            .for_each_init(init, run),
+    }
 }
 
 /// Largest layer width (and input dimension) the error model is stated for.
@@ -877,6 +951,62 @@ pub(crate) fn gemm(m: usize, k: usize, n: usize, a: &[f64], b: &[f64], c: &mut [
 mod tests {
     use super::test_support::Dd;
     use super::*;
+
+    /// The serial schedule (one workspace reused across calls, methods and batch sizes) gives
+    /// the parallel schedule's bounds: sound at sampled points and equal up to the summation
+    /// order of the products (groups are cut differently).
+    #[test]
+    fn serial_bounds_match_parallel_with_a_reused_workspace() {
+        use test_support::{case_rng, check_bounds, random_box, sample_points, BoxKind};
+        let net = Mlp::random(&[2, 24, 24, 3], 5);
+        let prepared = PreparedNetwork::new(&net).unwrap();
+        let mut rng = case_rng(11);
+        let mut ws = BoundsWorkspace::default();
+        let (mut serial, mut parallel) = (AffineBoundsBatch::new(), AffineBoundsBatch::new());
+        // Large batch first, so that later smaller ones run on grown, stale buffers.
+        for (round, n_boxes) in [300, 7, 130, 1].into_iter().enumerate() {
+            let (mut lo, mut hi, mut points) = (Vec::new(), Vec::new(), Vec::new());
+            for b in 0..n_boxes {
+                let kind = BoxKind::ALL[(b + round) % BoxKind::ALL.len()];
+                let (l, h) = random_box(&mut rng, 2, kind);
+                points.push(sample_points(&mut rng, &l, &h, 6));
+                lo.extend(l);
+                hi.extend(h);
+            }
+            for method in BoundMethod::ALL {
+                prepared
+                    .bounds_serial_into(&lo, &hi, method, &mut ws, &mut serial)
+                    .unwrap();
+                prepared
+                    .bounds_batch_into(&lo, &hi, method, &mut parallel)
+                    .unwrap();
+                assert_eq!(serial.len(), n_boxes);
+                for k in 0..n_boxes {
+                    let (s, p) = (serial.get(k).unwrap(), parallel.get(k).unwrap());
+                    let (l, h) = (&lo[2 * k..2 * k + 2], &hi[2 * k..2 * k + 2]);
+                    check_bounds(&net, l, h, &s, &points[k])
+                        .unwrap_or_else(|e| panic!("{method}, box {k} of {n_boxes}: {e}"));
+                    let pairs = [
+                        (&s.lower, &p.lower),
+                        (&s.upper, &p.upper),
+                        (&s.a_lower, &p.a_lower),
+                        (&s.a_upper, &p.a_upper),
+                        (&s.b_lower, &p.b_lower),
+                        (&s.b_upper, &p.b_upper),
+                    ];
+                    for (a, b) in pairs {
+                        for (x, y) in a.iter().zip(b.iter()) {
+                            let tol = 1e-12 * (1.0 + x.abs().max(y.abs()));
+                            assert!(
+                                (x - y).abs() <= tol,
+                                "{method}, box {k} of {n_boxes}: serial {x} vs parallel {y}"
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
 
     #[test]
     fn next_up_down_step_one_ulp() {

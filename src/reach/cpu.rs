@@ -1,9 +1,12 @@
 //! The CPU reference engine: f64 with outward rounding, rayon over boxes.
 //!
-//! Each Euler step bounds the network over every live box in one batch (GEMM-batched for
-//! forward bounds, one task per box for CROWN and IBP), then advances each box's embedding
-//! state in parallel.
+//! The boxes are split into chunks, one rayon task each, and a task integrates its chunk over
+//! the whole horizon: each Euler step bounds the network over the chunk's live boxes in one
+//! batch (GEMM-batched for IBP, forward and forward-backward bounds, box by box for CROWN) in
+//! that thread, then advances each box's embedding state. Boxes are independent, so the
+//! threads never wait for each other between steps.
 
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
 use rayon::prelude::*;
@@ -15,7 +18,7 @@ use super::embedding::{
 use super::safe_set::{clip_to_safe_set, SafeSet};
 use super::{Backend, ReachError, ReachMethod, ReachProblem, ReachResult, ReachSettings};
 use super::{ReachTiming, Tube};
-use crate::bounds::{AffineBoundsBatch, PreparedNetwork};
+use crate::bounds::{AffineBoundsBatch, BoundsWorkspace, PreparedNetwork};
 use crate::boxes::IntervalBox;
 use crate::intervals::{round_down, round_up, Interval};
 
@@ -47,7 +50,7 @@ impl Backend for CpuBackend {
         problem.check_initial(initial)?;
         settings.validate()?;
         let every = settings.every.max(1);
-        let (n, m) = (problem.dynamics.n, problem.dynamics.m);
+        let m = problem.dynamics.m;
         // The transformed network's rounding enters as a disturbance in both methods; the
         // disturbance method adds M (global, or local from the error map per box and step).
         let safe = problem.safe_set_for(settings.method);
@@ -88,112 +91,32 @@ impl Backend for CpuBackend {
             .collect();
 
         let start = Instant::now();
-        let mut minkowski_s = 0.0;
         let network = PreparedNetwork::new(&problem.network)?;
-        let mut batch = AffineBoundsBatch::new();
-        let (mut flat_lo, mut flat_hi) = (Vec::new(), Vec::new());
-        for step in 0..problem.steps {
-            let active: Vec<usize> = (0..live.len()).filter(|&k| !live[k].done).collect();
-            if active.is_empty() {
-                break;
-            }
-            flat_lo.clear();
-            flat_hi.clear();
-            for &k in &active {
-                let (lo, hi) = (&live[k].lower, &live[k].upper);
-                if settings.face_local {
-                    // 2n faces per box, in the order (0, lower), (0, upper), (1, lower), …
-                    for i in 0..n {
-                        for v in [lo[i], hi[i]] {
-                            flat_lo.extend(
-                                lo.iter()
-                                    .enumerate()
-                                    .map(|(j, &x)| if j == i { v } else { x }),
-                            );
-                            flat_hi.extend(
-                                hi.iter()
-                                    .enumerate()
-                                    .map(|(j, &x)| if j == i { v } else { x }),
-                            );
-                        }
-                    }
-                } else {
-                    flat_lo.extend(lo);
-                    flat_hi.extend(hi);
-                }
-            }
-            network.bounds_batch_into(&flat_lo, &flat_hi, settings.bounds, &mut batch)?;
-            let t = (step + 1) as f64 * problem.dt;
-            let record = (step + 1) % every == 0 || step + 1 == problem.steps;
-            let mut selected: Vec<&mut Live> = live.iter_mut().filter(|l| !l.done).collect();
-            let mink_time: f64 = selected
-                .par_iter_mut()
-                .enumerate()
-                .map(|(slot, state)| {
-                    let margin = margin_of(state);
-                    if margin.iter().any(|v| !v.is_finite()) {
-                        // The error map has no finite bound where the set is (e.g. where `v`
-                        // jumps): nothing sound can be said from here on.
-                        state.tube.valid = false;
-                        state.tube.note = Some(format!(
-                            "t = {:.3}: the set meets cells of the error map with no certified \
-                             bound (M = ∞)",
-                            t - problem.dt
-                        ));
-                        state.done = true;
-                        return 0.0;
-                    }
-                    let (nn, (mut dl, mut du)) = if settings.face_local {
-                        // (Minkowski is refused with face-local bounds: its rate needs one C.)
-                        let face = |i: usize, up: bool| {
-                            bounds_of(&batch, slot * 2 * n + 2 * i + usize::from(up), n, m)
-                        };
-                        let field = embedding_field_by_face(
-                            &problem.dynamics,
-                            &state.lower,
-                            &state.upper,
-                            face,
-                            &margin,
-                        );
-                        (face(0, false), field)
-                    } else {
-                        let nn = bounds_of(&batch, slot, n, m);
-                        let field = embedding_field(
-                            &problem.dynamics,
-                            &state.lower,
-                            &state.upper,
-                            nn,
-                            &margin,
-                        );
-                        (nn, field)
-                    };
-                    if problem.field_slack > 0.0 {
-                        dl.iter_mut()
-                            .for_each(|v| *v = round_down(*v - problem.field_slack));
-                        du.iter_mut()
-                            .for_each(|v| *v = round_up(*v + problem.field_slack));
-                    }
-                    let mut mink = 0.0;
-                    if settings.method == ReachMethod::Minkowski {
-                        let clock = Instant::now();
-                        let c = closeness_rate(problem, nn);
-                        state.radius = closeness_step(
-                            state.radius,
-                            c,
-                            problem.input_gain,
-                            problem.m_c,
-                            problem.dt,
-                        );
-                        mink = clock.elapsed().as_secs_f64();
-                    }
-                    embedding_step(&mut state.lower, &mut state.upper, &dl, &du, problem.dt);
-                    advance(problem, state, t, record, safe);
-                    mink
-                })
-                .sum();
-            minkowski_s += mink_time / rayon::current_num_threads() as f64;
-            progress(step + 1, problem.steps);
-        }
+        let chunk = chunk_len(live.len(), rayon::current_num_threads());
+        let accounted = AtomicUsize::new(0);
+        let (n_boxes, steps) = (live.len(), problem.steps);
+        let report = |box_steps: usize| {
+            let done = accounted.fetch_add(box_steps, Ordering::Relaxed) + box_steps;
+            progress(done / n_boxes.max(1), steps);
+        };
+        let run = ChunkRun {
+            problem,
+            settings,
+            network: &network,
+            margin_of: &margin_of,
+            safe,
+            every,
+            report: &report,
+        };
+        let minkowski_s: f64 = live
+            .par_chunks_mut(chunk)
+            .map_init(ChunkBuffers::default, |buffers, states| {
+                run.horizon(states, buffers)
+            })
+            .collect::<Result<Vec<f64>, ReachError>>()?
+            .iter()
+            .sum::<f64>()
+            / rayon::current_num_threads() as f64;
         let elapsed = start.elapsed().as_secs_f64();
         Ok(ReachResult {
             boxes: live.into_iter().map(|l| l.tube).collect(),
@@ -203,6 +126,146 @@ impl Backend for CpuBackend {
             },
         })
     }
+}
+
+/// Boxes per chunk: an even share of the threads, at most [`MAX_CHUNK`] so that large batches
+/// make many chunks for rayon to balance (boxes that fail early leave their chunk lighter).
+fn chunk_len(n_boxes: usize, threads: usize) -> usize {
+    n_boxes.div_ceil(threads.max(1)).clamp(1, MAX_CHUNK)
+}
+
+/// Largest number of boxes one thread integrates together (a forward-bounds group of 64
+/// boxes is GEMMs with 192 columns: past the size where wider panels gain).
+const MAX_CHUNK: usize = 64;
+
+/// Buffers of one thread, reused across its chunks and steps.
+#[derive(Default)]
+struct ChunkBuffers {
+    bounds: BoundsWorkspace,
+    batch: AffineBoundsBatch,
+    flat_lo: Vec<f64>,
+    flat_hi: Vec<f64>,
+}
+
+/// What every chunk's run shares.
+struct ChunkRun<'a> {
+    problem: &'a ReachProblem,
+    settings: &'a ReachSettings,
+    network: &'a PreparedNetwork<'a>,
+    /// The additive bound on `N`'s error for a box (see [`CpuBackend::reach`]).
+    margin_of: &'a (dyn Fn(&Live) -> Vec<f64> + Sync),
+    safe: &'a SafeSet,
+    every: usize,
+    /// Told how many box-steps were accounted for (run, or skipped by finished boxes).
+    report: &'a (dyn Fn(usize) + Sync),
+}
+
+impl ChunkRun<'_> {
+    /// Integrates `states` over the whole horizon in this thread: each Euler step bounds the
+    /// network over the chunk's live boxes as one batch, then advances each box. Boxes are
+    /// independent, so chunks need no synchronisation between steps. Returns the time spent
+    /// on the closeness radius.
+    fn horizon(&self, states: &mut [Live], buf: &mut ChunkBuffers) -> Result<f64, ReachError> {
+        let (problem, settings) = (self.problem, self.settings);
+        let (n, m) = (problem.dynamics.n, problem.dynamics.m);
+        let mut minkowski_s = 0.0;
+        for step in 0..problem.steps {
+            if states.iter().all(|s| s.done) {
+                (self.report)((problem.steps - step) * states.len());
+                break;
+            }
+            buf.flat_lo.clear();
+            buf.flat_hi.clear();
+            for state in states.iter().filter(|s| !s.done) {
+                let (lo, hi) = (&state.lower, &state.upper);
+                if settings.face_local {
+                    // 2n faces per box, in the order (0, lower), (0, upper), (1, lower), …
+                    for i in 0..n {
+                        for v in [lo[i], hi[i]] {
+                            buf.flat_lo.extend(pinned(lo, i, v));
+                            buf.flat_hi.extend(pinned(hi, i, v));
+                        }
+                    }
+                } else {
+                    buf.flat_lo.extend(lo);
+                    buf.flat_hi.extend(hi);
+                }
+            }
+            self.network.bounds_serial_into(
+                &buf.flat_lo,
+                &buf.flat_hi,
+                settings.bounds,
+                &mut buf.bounds,
+                &mut buf.batch,
+            )?;
+            let t = (step + 1) as f64 * problem.dt;
+            let record = (step + 1) % self.every == 0 || step + 1 == problem.steps;
+            let batch = &buf.batch;
+            for (slot, state) in states.iter_mut().filter(|s| !s.done).enumerate() {
+                let margin = (self.margin_of)(state);
+                if margin.iter().any(|v| !v.is_finite()) {
+                    // The error map has no finite bound where the set is (e.g. where `v`
+                    // jumps): nothing sound can be said from here on.
+                    state.tube.valid = false;
+                    state.tube.note = Some(format!(
+                        "t = {:.3}: the set meets cells of the error map with no certified \
+                         bound (M = ∞)",
+                        t - problem.dt
+                    ));
+                    state.done = true;
+                    continue;
+                }
+                let (nn, (mut dl, mut du)) = if settings.face_local {
+                    // (Minkowski is refused with face-local bounds: its rate needs one C.)
+                    let face = |i: usize, up: bool| {
+                        bounds_of(batch, slot * 2 * n + 2 * i + usize::from(up), n, m)
+                    };
+                    let field = embedding_field_by_face(
+                        &problem.dynamics,
+                        &state.lower,
+                        &state.upper,
+                        face,
+                        &margin,
+                    );
+                    (face(0, false), field)
+                } else {
+                    let nn = bounds_of(batch, slot, n, m);
+                    let field =
+                        embedding_field(&problem.dynamics, &state.lower, &state.upper, nn, &margin);
+                    (nn, field)
+                };
+                if problem.field_slack > 0.0 {
+                    dl.iter_mut()
+                        .for_each(|v| *v = round_down(*v - problem.field_slack));
+                    du.iter_mut()
+                        .for_each(|v| *v = round_up(*v + problem.field_slack));
+                }
+                if settings.method == ReachMethod::Minkowski {
+                    let clock = Instant::now();
+                    let c = closeness_rate(problem, nn);
+                    state.radius = closeness_step(
+                        state.radius,
+                        c,
+                        problem.input_gain,
+                        problem.m_c,
+                        problem.dt,
+                    );
+                    minkowski_s += clock.elapsed().as_secs_f64();
+                }
+                embedding_step(&mut state.lower, &mut state.upper, &dl, &du, problem.dt);
+                advance(problem, state, t, record, self.safe);
+            }
+            (self.report)(states.len());
+        }
+        Ok(minkowski_s)
+    }
+}
+
+/// `x` with coordinate `i` set to `v` (a face of a box).
+fn pinned(x: &[f64], i: usize, v: f64) -> impl Iterator<Item = f64> + '_ {
+    x.iter()
+        .enumerate()
+        .map(move |(j, &x_j)| if j == i { v } else { x_j })
 }
 
 fn bounds_of(batch: &AffineBoundsBatch, k: usize, n: usize, m: usize) -> NetworkBoundsRef<'_> {
