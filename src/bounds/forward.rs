@@ -235,77 +235,102 @@ pub(crate) fn forward_group(
             ws.ir.resize(n * g_count, 0.0);
         }
 
-        // ReLU relaxation, per neuron and box; V of the result for the next layer.
-        ws.v.clear();
-        ws.v.resize(n * g_count, 0.0);
-        for i in 0..n {
-            for g in 0..g_count {
-                let span = i * cols + g * k_cols..i * cols + (g + 1) * k_cols;
-                let (xc, xr, xmag) = (
-                    &ws.xc[g * n0..(g + 1) * n0],
-                    &ws.xr[g * n0..(g + 1) * n0],
-                    &ws.xmag[g * n0..(g + 1) * n0],
-                );
-                let cf = &mut ws.c[span.clone()];
-                let rf = &mut ws.r[span];
-                let (mut su, mut sl, mut mag) = (
-                    cf[n0] + rf[n0],
-                    cf[n0] - rf[n0],
-                    cf[n0].abs() + rf[n0].abs(),
-                );
-                for p in 0..n0 {
-                    let (up, lo) = (cf[p] + rf[p], cf[p] - rf[p]);
-                    su += up * xc[p] + up.abs() * xr[p];
-                    sl += lo * xc[p] - lo.abs() * xr[p];
-                    mag += (cf[p].abs() + rf[p].abs()) * xmag[p];
-                }
-                let err = err_bound(3 * n0 + 3, mag, ws.scale[g]);
-                let (mut l, mut u) = (add_down(sl, -err), add_up(su, err));
-                if !(l.is_finite() && u.is_finite()) {
-                    ws.poisoned[g] = true;
-                }
-                let at = i * g_count + g;
-                if opts.ibp {
-                    if k > 0 {
-                        let (c, r) = (ws.ipre_c[at], ws.ipre_r[at]);
-                        l = l.max(add_down(c, -r));
-                        u = u.min(add_up(c, r));
-                    }
-                    let (c, r) = centre_radius(l.max(0.0), u.max(0.0));
-                    ws.ic[at] = c;
-                    ws.ir[at] = r;
-                }
-                if opts.record {
-                    ws.pre_lo[k][at] = l;
-                    ws.pre_hi[k][at] = u;
-                }
-                let v = if u <= 0.0 {
-                    cf.fill(0.0);
-                    rf.fill(0.0);
-                    0.0
-                } else if l >= 0.0 {
-                    mag
-                } else {
-                    let (s_lo, s_up, t) = relu_lines(l, u, Relaxation::Adaptive);
-                    let alpha = 0.5 * (s_up + s_lo);
-                    let beta = 0.5 * (s_up - s_lo);
-                    for p in 0..k_cols {
-                        let (c, r) = (cf[p], rf[p]);
-                        cf[p] = alpha * c + beta * r;
-                        rf[p] = beta * c + alpha * r;
-                    }
-                    cf[n0] += 0.5 * t;
-                    rf[n0] += 0.5 * t;
-                    let err = err_bound(8, s_up.max(s_lo) * mag + t, ws.scale[g]);
-                    rf[n0] = add_up(rf[n0], err);
-                    let mut v = cf[n0].abs() + rf[n0].abs();
-                    for p in 0..n0 {
-                        v += (cf[p].abs() + rf[p].abs()) * xmag[p];
-                    }
-                    v
-                };
-                ws.v[i * g_count + g] = v;
+        // ReLU relaxation, per neuron and box; V of the result for the next layer. The
+        // common input dimensions get their own copy of the loop, unrolled by the compiler.
+        match n0 {
+            1 => relax_layer::<2>(k, n, g_count, n0, ws, opts),
+            2 => relax_layer::<3>(k, n, g_count, n0, ws, opts),
+            3 => relax_layer::<4>(k, n, g_count, n0, ws, opts),
+            4 => relax_layer::<5>(k, n, g_count, n0, ws, opts),
+            _ => relax_layer::<0>(k, n, g_count, n0, ws, opts),
+        }
+    }
+}
+
+/// The ReLU relaxation of hidden layer `k` (`n` neurons) for every box of the group, in place
+/// on `ws.c`, `ws.r`, with each result's form magnitude into `ws.v` (and, as `opts` asks, the
+/// concrete bounds recorded and the IBP interval after the ReLU). `K` is `n0 + 1` when it is a
+/// compile-time constant (the loops over coefficients unroll), or 0 to read `n0` at run time.
+fn relax_layer<const K: usize>(
+    k: usize,
+    n: usize,
+    g_count: usize,
+    n0: usize,
+    ws: &mut Workspace,
+    opts: ForwardOptions,
+) {
+    let k_cols = if K == 0 { n0 + 1 } else { K };
+    let n0 = k_cols - 1;
+    let cols = g_count * k_cols;
+    ws.v.clear();
+    ws.v.resize(n * g_count, 0.0);
+    for i in 0..n {
+        for g in 0..g_count {
+            let span = i * cols + g * k_cols..i * cols + (g + 1) * k_cols;
+            let (xc, xr, xmag) = (
+                &ws.xc[g * n0..(g + 1) * n0],
+                &ws.xr[g * n0..(g + 1) * n0],
+                &ws.xmag[g * n0..(g + 1) * n0],
+            );
+            let cf = &mut ws.c[span.clone()];
+            let rf = &mut ws.r[span];
+            let (mut su, mut sl, mut mag) = (
+                cf[n0] + rf[n0],
+                cf[n0] - rf[n0],
+                cf[n0].abs() + rf[n0].abs(),
+            );
+            for p in 0..n0 {
+                let (up, lo) = (cf[p] + rf[p], cf[p] - rf[p]);
+                su += up * xc[p] + up.abs() * xr[p];
+                sl += lo * xc[p] - lo.abs() * xr[p];
+                mag += (cf[p].abs() + rf[p].abs()) * xmag[p];
             }
+            let err = err_bound(3 * n0 + 3, mag, ws.scale[g]);
+            let (mut l, mut u) = (add_down(sl, -err), add_up(su, err));
+            if !(l.is_finite() && u.is_finite()) {
+                ws.poisoned[g] = true;
+            }
+            let at = i * g_count + g;
+            if opts.ibp {
+                if k > 0 {
+                    let (c, r) = (ws.ipre_c[at], ws.ipre_r[at]);
+                    l = l.max(add_down(c, -r));
+                    u = u.min(add_up(c, r));
+                }
+                let (c, r) = centre_radius(l.max(0.0), u.max(0.0));
+                ws.ic[at] = c;
+                ws.ir[at] = r;
+            }
+            if opts.record {
+                ws.pre_lo[k][at] = l;
+                ws.pre_hi[k][at] = u;
+            }
+            let v = if u <= 0.0 {
+                cf.fill(0.0);
+                rf.fill(0.0);
+                0.0
+            } else if l >= 0.0 {
+                mag
+            } else {
+                let (s_lo, s_up, t) = relu_lines(l, u, Relaxation::Adaptive);
+                let alpha = 0.5 * (s_up + s_lo);
+                let beta = 0.5 * (s_up - s_lo);
+                for p in 0..k_cols {
+                    let (c, r) = (cf[p], rf[p]);
+                    cf[p] = alpha * c + beta * r;
+                    rf[p] = beta * c + alpha * r;
+                }
+                cf[n0] += 0.5 * t;
+                rf[n0] += 0.5 * t;
+                let err = err_bound(8, s_up.max(s_lo) * mag + t, ws.scale[g]);
+                rf[n0] = add_up(rf[n0], err);
+                let mut v = cf[n0].abs() + rf[n0].abs();
+                for p in 0..n0 {
+                    v += (cf[p].abs() + rf[p].abs()) * xmag[p];
+                }
+                v
+            };
+            ws.v[at] = v;
         }
     }
 }
