@@ -44,6 +44,7 @@ use super::{
     next_up_keep_zero, relu_lines, AffineBounds, AffineBoundsBatch, BoundMethod, BoundsError,
     OutRow, PreparedNetwork, Relaxation, Schedule,
 };
+use crate::matmul::{matmul_strided, Threads::One};
 use crate::network::Mlp;
 
 /// Largest number of boxes propagated together in one GEMM.
@@ -72,13 +73,14 @@ pub(crate) struct ForwardOptions {
 /// Buffers for one group of boxes, reused across the groups of one rayon task.
 #[derive(Default)]
 pub(crate) struct Workspace {
+    /// Centre forms `Ĉ`, `n_k × G(n+1)`.
     c: Vec<f64>,
-    r: Vec<f64>,
     c_next: Vec<f64>,
-    r_next: Vec<f64>,
-    /// Form magnitude `V` per neuron and box, `n_k × G`.
-    v: Vec<f64>,
-    v_next: Vec<f64>,
+    /// Radius forms `R̂` and form magnitudes `V` side by side, `n_k × (G(n+1) + G)`: row `i`
+    /// is neuron `i`'s `R̂` for every box, then its `V` for every box, so that one product
+    /// with `|W|` gives both (see [`magnitude_products`]).
+    rv: Vec<f64>,
+    rv_next: Vec<f64>,
     /// Box centre, radius and magnitude bound, `G × n` each.
     xc: Vec<f64>,
     xr: Vec<f64>,
@@ -98,7 +100,9 @@ pub(crate) struct Workspace {
     ipre_c: Vec<f64>,
     ipre_r: Vec<f64>,
     ie: Vec<f64>,
-    /// Scratch of [`gemm_skipping_zero_rows`].
+    /// IBP magnitude `|c| + r` of the current layer's input.
+    imag: Vec<f64>,
+    /// Scratch of [`magnitude_products`].
     sparse: SparseScratch,
 }
 
@@ -144,6 +148,7 @@ pub(crate) fn forward_group(
     let g_count = rows.len();
     let k_cols = n0 + 1;
     let cols = g_count * k_cols;
+    let stride = cols + g_count;
     let n_layers = net.layers.len();
 
     // The box as centre ± radius, rigorously containing it, and |x| ≤ xmag.
@@ -172,8 +177,8 @@ pub(crate) fn forward_group(
     let first = &net.layers[0];
     ws.c.clear();
     ws.c.resize(first.n_out * cols, 0.0);
-    ws.r.clear();
-    ws.r.resize(first.n_out * cols, 0.0);
+    ws.rv.clear();
+    ws.rv.resize(first.n_out * stride, 0.0);
     for i in 0..first.n_out {
         let w_row = &first.weight[i * n0..(i + 1) * n0];
         for g in 0..g_count {
@@ -190,27 +195,28 @@ pub(crate) fn forward_group(
             let n_prev = layer.n_in;
             // The products overwrite their outputs: sizing them needs no zeroing.
             ws.c_next.resize(n * cols, 0.0);
-            ws.r_next.resize(n * cols, 0.0);
-            ws.v_next.resize(n * g_count, 0.0);
+            ws.rv_next.resize(n * stride, 0.0);
             gemm(n, n_prev, cols, &layer.weight, &ws.c, &mut ws.c_next);
-            let (r, r_next) = (&ws.r, &mut ws.r_next);
-            gemm_skipping_zero_rows(n, n_prev, cols, &abs_w[k], r, r_next, &mut ws.sparse);
-            gemm(n, n_prev, g_count, &abs_w[k], &ws.v, &mut ws.v_next);
+            let (rv, rv_next) = (&ws.rv, &mut ws.rv_next);
+            magnitude_products(
+                (n, n_prev, cols, g_count),
+                &abs_w[k],
+                rv,
+                rv_next,
+                &mut ws.sparse,
+            );
             for i in 0..n {
                 let b = layer.bias[i];
+                let (r_row, v_row) = ws.rv_next[i * stride..(i + 1) * stride].split_at_mut(cols);
                 for g in 0..g_count {
-                    let at = i * cols + g * k_cols + n0;
-                    ws.c_next[at] += b;
-                    let err = err_bound(
-                        n_prev + 1,
-                        ws.v_next[i * g_count + g] + b.abs(),
-                        ws.scale[g],
-                    );
-                    ws.r_next[at] = add_up(ws.r_next[at], err);
+                    let at = g * k_cols + n0;
+                    ws.c_next[i * cols + at] += b;
+                    let err = err_bound(n_prev + 1, v_row[g] + b.abs(), ws.scale[g]);
+                    r_row[at] = add_up(r_row[at], err);
                 }
             }
             std::mem::swap(&mut ws.c, &mut ws.c_next);
-            std::mem::swap(&mut ws.r, &mut ws.r_next);
+            std::mem::swap(&mut ws.rv, &mut ws.rv_next);
             if opts.ibp {
                 ibp_layer(layer, &abs_w[k], g_count, ws);
             }
@@ -262,18 +268,18 @@ fn relax_layer<const K: usize>(
     let k_cols = if K == 0 { n0 + 1 } else { K };
     let n0 = k_cols - 1;
     let cols = g_count * k_cols;
-    ws.v.clear();
-    ws.v.resize(n * g_count, 0.0);
+    let stride = cols + g_count;
     for i in 0..n {
+        let (r_row, v_row) = ws.rv[i * stride..(i + 1) * stride].split_at_mut(cols);
         for g in 0..g_count {
-            let span = i * cols + g * k_cols..i * cols + (g + 1) * k_cols;
+            let span = g * k_cols..(g + 1) * k_cols;
             let (xc, xr, xmag) = (
                 &ws.xc[g * n0..(g + 1) * n0],
                 &ws.xr[g * n0..(g + 1) * n0],
                 &ws.xmag[g * n0..(g + 1) * n0],
             );
-            let cf = &mut ws.c[span.clone()];
-            let rf = &mut ws.r[span];
+            let cf = &mut ws.c[i * cols..(i + 1) * cols][span.clone()];
+            let rf = &mut r_row[span];
             let (mut su, mut sl, mut mag) = (
                 cf[n0] + rf[n0],
                 cf[n0] - rf[n0],
@@ -330,12 +336,12 @@ fn relax_layer<const K: usize>(
                 }
                 v
             };
-            ws.v[at] = v;
+            v_row[g] = v;
         }
     }
 }
 
-/// Buffers of [`gemm_skipping_zero_rows`].
+/// Buffers of [`magnitude_products`].
 #[derive(Default)]
 struct SparseScratch {
     rows: Vec<usize>,
@@ -343,40 +349,67 @@ struct SparseScratch {
     b: Vec<f64>,
 }
 
-/// `out = A·B` (`A` `m × k`, `B` `k × n`, row-major), leaving out the rows of `B` that are zero
-/// in every column, and `A`'s matching columns, when they are at least half of them: after the
-/// exact first layer `R̂` is nonzero only for neurons unstable in some box of the group, so the
-/// second layer's `|W|R̂` shrinks to a product over those few (1.14× on the paper's 12 boxes).
-/// Leaving out exact zeros changes no sum, so the rounding model is unchanged.
-fn gemm_skipping_zero_rows(
-    m: usize,
-    k: usize,
-    n: usize,
-    a: &[f64],
-    b: &[f64],
+/// `[R̂' | V'] = |W|·[R̂ | V]` for the layout of [`Workspace::rv`]: `|W|` is `m × k`, each of
+/// the `k` rows of `rv` holds `cols` entries of `R̂` then `g` of `V`.
+///
+/// Usually one product over the whole row: one pass over `|W|` for both (the `G`-column
+/// product of `V` alone costs two thirds of the `G(n+1)`-column one at small `G`). But after
+/// the exact first layer `R̂` is nonzero only for the neurons unstable in some box of the
+/// group: when those are at most half the rows, `R̂'` is the product over them alone (the
+/// others are exact zeros, so no sum and no rounding bound changes) and `V'` a product of its
+/// own.
+fn magnitude_products(
+    (m, k, cols, g): (usize, usize, usize, usize),
+    abs_w: &[f64],
+    rv: &[f64],
     out: &mut [f64],
     scratch: &mut SparseScratch,
 ) {
+    let stride = cols + g;
     scratch.rows.clear();
     scratch
         .rows
-        .extend((0..k).filter(|&j| b[j * n..(j + 1) * n].iter().any(|&x| x != 0.0)));
+        .extend((0..k).filter(|&j| rv[j * stride..j * stride + cols].iter().any(|&x| x != 0.0)));
     let live = scratch.rows.len();
     if 2 * live > k {
-        gemm(m, k, n, a, b, out);
+        gemm(m, k, stride, abs_w, rv, out);
         return;
     }
+    let by_rows = |row_stride: usize| (row_stride, 1);
     if live == 0 {
-        out.fill(0.0);
-        return;
+        out.chunks_mut(stride).for_each(|row| row[..cols].fill(0.0));
+    } else {
+        scratch.a.clear();
+        gather_columns(abs_w, k, 0..m, Some(&scratch.rows), &mut scratch.a);
+        scratch.b.clear();
+        for &j in &scratch.rows {
+            scratch
+                .b
+                .extend_from_slice(&rv[j * stride..j * stride + cols]);
+        }
+        let (a, b) = (&scratch.a, &scratch.b);
+        matmul_strided(
+            (m, live, cols),
+            a,
+            by_rows(live),
+            b,
+            by_rows(cols),
+            out,
+            by_rows(stride),
+            One,
+        );
     }
-    scratch.a.clear();
-    gather_columns(a, k, 0..m, Some(&scratch.rows), &mut scratch.a);
-    scratch.b.clear();
-    for &j in &scratch.rows {
-        scratch.b.extend_from_slice(&b[j * n..(j + 1) * n]);
-    }
-    gemm(m, live, n, &scratch.a, &scratch.b, out);
+    let (v, v_out) = (&rv[cols..], &mut out[cols..]);
+    matmul_strided(
+        (m, k, g),
+        abs_w,
+        by_rows(k),
+        v,
+        by_rows(stride),
+        v_out,
+        by_rows(stride),
+        One,
+    );
 }
 
 /// IBP through affine layer `layer` for the group: from `ws.ic ± ws.ir` (post-ReLU, `n_in × G`)
@@ -386,13 +419,12 @@ fn ibp_layer(layer: &crate::network::Layer, abs_w: &[f64], g_count: usize, ws: &
     for buf in [&mut ws.ipre_c, &mut ws.ipre_r, &mut ws.ie] {
         buf.resize(n * g_count, 0.0); // overwritten by the products below
     }
-    // Magnitude |c| + r, reusing `v_next` as scratch (it is rebuilt before its next use).
-    ws.v_next.clear();
-    ws.v_next
+    ws.imag.clear();
+    ws.imag
         .extend(ws.ic.iter().zip(&ws.ir).map(|(c, r)| c.abs() + r));
     gemm(n, n_prev, g_count, &layer.weight, &ws.ic, &mut ws.ipre_c);
     gemm(n, n_prev, g_count, abs_w, &ws.ir, &mut ws.ipre_r);
-    gemm(n, n_prev, g_count, abs_w, &ws.v_next, &mut ws.ie);
+    gemm(n, n_prev, g_count, abs_w, &ws.imag, &mut ws.ie);
     for i in 0..n {
         let b = layer.bias[i];
         for g in 0..g_count {
@@ -417,7 +449,8 @@ fn write_output(
 ) {
     let g_count = rows.len();
     let k_cols = n0 + 1;
-    let cols = rows.len() * k_cols;
+    let cols = g_count * k_cols;
+    let stride = cols + g_count;
     for (g, row) in rows.iter_mut().enumerate() {
         if ws.poisoned[g] {
             row.set_unbounded();
@@ -426,8 +459,8 @@ fn write_output(
         let (lo, hi) = (&lower[g * n0..(g + 1) * n0], &upper[g * n0..(g + 1) * n0]);
         let xmag = &ws.xmag[g * n0..(g + 1) * n0];
         for i in 0..m {
-            let at = i * cols + g * k_cols;
-            let (cf, rf) = (&ws.c[at..at + k_cols], &ws.r[at..at + k_cols]);
+            let (at, at_r) = (i * cols + g * k_cols, i * stride + g * k_cols);
+            let (cf, rf) = (&ws.c[at..at + k_cols], &ws.rv[at_r..at_r + k_cols]);
             let mut mag = cf[n0].abs() + rf[n0].abs();
             for p in 0..n0 {
                 row.a_lower[i * n0 + p] = cf[p] - rf[p];
@@ -456,24 +489,34 @@ mod tests {
     use crate::bounds::test_support::*;
     use crate::bounds::{crown, network_bounds_batch};
 
+    /// The magnitude products give the dense product of `|W|` with `[R̂ | V]`, whichever way
+    /// they take (one product, or `R̂`'s few nonzero rows and `V` apart), and write every entry.
     #[test]
-    fn skipping_zero_rows_gives_the_dense_product() {
+    fn magnitude_products_give_the_dense_product() {
         use rand::{Rng, SeedableRng};
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
-        let (m, k, n) = (37, 50, 9);
-        let a: Vec<f64> = (0..m * k).map(|_| rng.random_range(-1.0..1.0)).collect();
+        let (m, k, cols, g) = (37, 50, 9, 3);
+        let stride = cols + g;
+        let a: Vec<f64> = (0..m * k).map(|_| rng.random_range(0.0..1.0)).collect();
         for live in [0, 3, 25, 26, 50] {
-            // `live` nonzero rows of B, spread over the 50.
-            let mut b = vec![0.0; k * n];
-            for j in (0..k).filter(|j| j * live / k != (j + 1) * live / k) {
-                b[j * n..(j + 1) * n]
+            // `live` nonzero rows of R̂, spread over the 50; V nonzero everywhere.
+            let mut rv = vec![0.0; k * stride];
+            for j in 0..k {
+                let row = &mut rv[j * stride..(j + 1) * stride];
+                row[cols..]
                     .iter_mut()
-                    .for_each(|x| *x = rng.random_range(-1.0..1.0));
+                    .for_each(|x| *x = rng.random_range(0.0..1.0));
+                if j * live / k != (j + 1) * live / k {
+                    row[..cols]
+                        .iter_mut()
+                        .for_each(|x| *x = rng.random_range(0.0..1.0));
+                }
             }
-            let (mut dense, mut sparse) = (vec![0.0; m * n], vec![f64::NAN; m * n]);
-            gemm(m, k, n, &a, &b, &mut dense);
-            gemm_skipping_zero_rows(m, k, n, &a, &b, &mut sparse, &mut SparseScratch::default());
-            for (x, y) in dense.iter().zip(&sparse) {
+            let (mut dense, mut out) = (vec![0.0; m * stride], vec![f64::NAN; m * stride]);
+            gemm(m, k, stride, &a, &rv, &mut dense);
+            let mut scratch = SparseScratch::default();
+            magnitude_products((m, k, cols, g), &a, &rv, &mut out, &mut scratch);
+            for (x, y) in dense.iter().zip(&out) {
                 assert!((x - y).abs() <= 1e-13, "{live} live rows: {x} vs {y}");
             }
         }
