@@ -12,8 +12,8 @@
 //! * **Affine layer** `z' = W a + b`: `|z' − (WĈ + b)| = |W (a − Ĉ)| ≤ |W| R̂`, so
 //!   `(Ĉ, R̂) ← (W Ĉ + b, |W| R̂)`. For a group of `G` boxes the forms are matrices
 //!   `n_k × G(n+1)` (columns box-major, `n` coefficients then the constant), and a layer is two
-//!   GEMMs `(n_k × n_{k−1})·(n_{k−1} × G(n+1))` plus one `(n_k × n_{k−1})·(n_{k−1} × G)` for the
-//!   rounding magnitudes below.
+//!   GEMMs: `W·Ĉ`, and `|W|·[R̂ | V]` with the rounding magnitudes `V` below as `G` more
+//!   columns beside `R̂` (one pass over `|W|` for both).
 //! * **ReLU.** Concretise `l = min(Ĉ − R̂)`, `u = max(Ĉ + R̂)` over the box (by its centre and
 //!   radius); if `u ≤ 0` the forms become 0, if `l ≥ 0` they stay; otherwise with the adaptive
 //!   lines `s̲ z ≤ ReLU(z) ≤ s̄ z + t̄` (`relu_lines`) `ReLU(z) ∈ [s̲(Ĉ − R̂), s̄(Ĉ + R̂) + t̄]`,
@@ -28,7 +28,7 @@
 //! `V = Σ_q (|Ĉ_q| + |R̂_q|) mag_q + |Ĉ_0| + |R̂_0|` for a neuron's form magnitude over the box
 //! (`mag_q ≥ |x_q|`). Then
 //! * affine layer: the computed `WĈ + b` and `|W|R̂` err, over the box, by at most
-//!   `γ (|W| V + |b|)` together (the third GEMM computes `|W| V`), `N = n_{k−1} + 1` terms;
+//!   `γ (|W| V + |b|)` together (the `V` columns of the second GEMM give `|W| V`), `N = n_{k−1} + 1` terms;
 //! * ReLU: computing `αĈ + βR̂ + t̄/2` and `βĈ + αR̂ + t̄/2` (a handful of roundings per
 //!   coefficient, `α, |β| ≤ max(s̄, s̲)`) errs by at most `γ (max(s̄, s̲) V + t̄)`;
 //!   the concretisation of `l, u` errs by at most `γ V`;
