@@ -28,7 +28,8 @@
 //! `V = Σ_q (|Ĉ_q| + |R̂_q|) mag_q + |Ĉ_0| + |R̂_0|` for a neuron's form magnitude over the box
 //! (`mag_q ≥ |x_q|`). Then
 //! * affine layer: the computed `WĈ + b` and `|W|R̂` err, over the box, by at most
-//!   `γ (|W| V + |b|)` together (the `V` columns of the second GEMM give `|W| V`), `N = n_{k−1} + 1` terms;
+//!   `γ (|W| V + |b|)` together (the `V` columns of the second GEMM give `|W| V`),
+//!   `N = n_{k−1} + 1` terms;
 //! * ReLU: computing `αĈ + βR̂ + t̄/2` and `βĈ + αR̂ + t̄/2` (a handful of roundings per
 //!   coefficient, `α, |β| ≤ max(s̄, s̲)`) errs by at most `γ (max(s̄, s̲) V + t̄)`;
 //!   the concretisation of `l, u` errs by at most `γ V`;
