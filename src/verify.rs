@@ -701,7 +701,7 @@ impl Verifier<'_> {
             for (&i, tube) in idx.iter().zip(&result.boxes) {
                 let (verdict, trap, note) = judge(self.scenario, &self.traps, tube);
                 let last = tube.last();
-                timing.box_steps += last.map_or(0, |s| (s.t / self.problem.dt).round() as usize);
+                timing.box_steps += tube.steps_run(self.problem.dt);
                 let b = &mut out[i];
                 b.verdict = verdict;
                 b.trap = trap;

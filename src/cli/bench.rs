@@ -175,7 +175,7 @@ pub fn run(args: &BenchArgs) -> CliResult {
                 let box_steps: f64 = result
                     .boxes
                     .iter()
-                    .map(|t| t.last().map_or(0.0, |l| l.t / problem.dt))
+                    .map(|t| t.steps_run(problem.dt) as f64)
                     .sum();
                 let rate = box_steps / seconds;
                 let gflops = 2.0 * model_multiply_adds(&widths, method) * rate / 1e9;

@@ -323,11 +323,7 @@ fn run_scenario(
 
 /// Euler steps the tubes actually ran (a box stops where its set leaves `C`).
 fn steps_run(tubes: &[Tube], dt: f64) -> usize {
-    tubes
-        .iter()
-        .filter_map(|t| t.last())
-        .map(|l| (l.t / dt).round() as usize)
-        .sum()
+    tubes.iter().map(|t| t.steps_run(dt)).sum()
 }
 
 /// How the sound verdicts of the initial boxes are reached.

@@ -465,6 +465,12 @@ impl Tube {
     pub fn last(&self) -> Option<&TubeSample> {
         self.tube.last()
     }
+
+    /// Euler steps of size `dt` this tube ran: a box stops where its set leaves `C`, so rates
+    /// count these, not boxes × steps.
+    pub fn steps_run(&self, dt: f64) -> usize {
+        self.last().map_or(0, |l| (l.t / dt).round() as usize)
+    }
 }
 
 /// What a backend returns.
