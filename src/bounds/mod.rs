@@ -127,6 +127,17 @@ impl BoundMethod {
             BoundMethod::ForwardBackwardSameSlope => "forward-backward-same-slope",
         }
     }
+
+    /// The ReLU relaxation of the method's backward pass: same-slope for the `*-same-slope`
+    /// methods, adaptive otherwise (IBP and forward have no backward pass).
+    pub fn relaxation(self) -> Relaxation {
+        match self {
+            BoundMethod::CrownSameSlope | BoundMethod::ForwardBackwardSameSlope => {
+                Relaxation::SameSlope
+            }
+            _ => Relaxation::Adaptive,
+        }
+    }
 }
 
 /// The linear relaxation of an unstable ReLU (`l < 0 < u`) used by [`crown()`].
@@ -577,11 +588,7 @@ impl<'a> PreparedNetwork<'a> {
                 ibp::ibp_batch_into(self, lower, upper, ws, &mut rows)
             }
             BoundMethod::Crown | BoundMethod::CrownSameSlope => {
-                let relaxation = if method == BoundMethod::Crown {
-                    Relaxation::Adaptive
-                } else {
-                    Relaxation::SameSlope
-                };
+                let relaxation = method.relaxation();
                 let ws = ws.map(|w| w.crown.get_or_insert_with(|| crown::Workspace::new(net)));
                 run_per_box(
                     net,
@@ -598,12 +605,8 @@ impl<'a> PreparedNetwork<'a> {
                 forward::forward_batch_into(self, lower, upper, ws, &mut rows)
             }
             BoundMethod::ForwardBackward | BoundMethod::ForwardBackwardSameSlope => {
-                let relaxation = if method == BoundMethod::ForwardBackward {
-                    Relaxation::Adaptive
-                } else {
-                    Relaxation::SameSlope
-                };
                 let ws = schedule(ws.map(|w| &mut w.forward_backward));
+                let relaxation = method.relaxation();
                 forward_backward::forward_backward_batch_into(
                     self, lower, upper, relaxation, ws, &mut rows,
                 )

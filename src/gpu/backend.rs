@@ -36,7 +36,7 @@ use super::codegen::{
 use super::kernels::{Kernel, Kernels, GEMM_TILE, WORKGROUP};
 use super::margins::MarginMap;
 use super::{GpuContext, GpuError, Precision};
-use crate::bounds::BoundMethod;
+use crate::bounds::{BoundMethod, Relaxation};
 use crate::boxes::IntervalBox;
 use crate::reach::{
     Backend, ReachError, ReachProblem, ReachResult, ReachSettings, ReachTiming, SafeSet, Tube,
@@ -152,10 +152,7 @@ fn method_flags(bounds: BoundMethod, n_layers: usize) -> Option<MethodFlags> {
         backward: false,
         same_slope: false,
     };
-    let same_slope = matches!(
-        bounds,
-        BoundMethod::CrownSameSlope | BoundMethod::ForwardBackwardSameSlope
-    );
+    let same_slope = bounds.relaxation() == Relaxation::SameSlope;
     match bounds {
         BoundMethod::Ibp => None,
         BoundMethod::Forward => Some(forward),
