@@ -94,6 +94,11 @@ pub(crate) struct Workspace {
     /// `n_k × G` neuron-major (`i·G + g`).
     pub(crate) pre_lo: Vec<Vec<f64>>,
     pub(crate) pre_hi: Vec<Vec<f64>>,
+    /// Per layer `k ≥ 1` (with [`ForwardOptions::record`] and [`ForwardOptions::ibp`]): the
+    /// computed `|W_k|(|ĉ| + r̂)` of IBP's input interval `ĉ ± r̂` (`n_k × G`). `ĉ + r̂` bounds
+    /// `max(pre_hi[k − 1], 0)` from above (the interval contains `[0, u]`'s ReLU image), so it
+    /// stands for the backward pass's `|W_k| mag_k` in the rounding model.
+    pub(crate) input_magnitude_products: Vec<Vec<f64>>,
     /// IBP centre and radius of the current layer's input (post-ReLU) and of its output
     /// (pre-activation), `n × G` neuron-major, with [`ForwardOptions::ibp`].
     ic: Vec<f64>,
@@ -220,6 +225,11 @@ pub(crate) fn forward_group(
             std::mem::swap(&mut ws.rv, &mut ws.rv_next);
             if opts.ibp {
                 ibp_layer(layer, &abs_w[k], g_count, ws);
+                if opts.record {
+                    // Keep `|W_k|(|ĉ| + r̂)` for the backward pass (`ie` is rebuilt each layer).
+                    ws.input_magnitude_products.resize(n_layers, Vec::new());
+                    std::mem::swap(&mut ws.ie, &mut ws.input_magnitude_products[k]);
+                }
             }
         }
 

@@ -182,8 +182,14 @@ fn backward_group(
             }
         }
         ws.wmag.clear();
-        ws.wmag.resize(n_j * g_count, 0.0);
-        gemm(n_j, n_in, g_count, &abs_w[j], &ws.mag, &mut ws.wmag);
+        if j == 0 {
+            ws.wmag.resize(n_j * g_count, 0.0);
+            gemm(n_j, n_in, g_count, &abs_w[j], &ws.mag, &mut ws.wmag);
+        } else {
+            // The forward pass's IBP computed `|W_j|` times a bound of `mag_j` already.
+            ws.wmag
+                .extend_from_slice(&ws.fwd.input_magnitude_products[j]);
+        }
         ws.scale.clear();
         ws.scale.resize(g_count, 1.0);
         for i in 0..n_j {
