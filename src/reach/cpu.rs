@@ -134,8 +134,10 @@ fn chunk_len(n_boxes: usize, threads: usize) -> usize {
     n_boxes.div_ceil(threads.max(1)).clamp(1, MAX_CHUNK)
 }
 
-/// Largest number of boxes one thread integrates together (a forward-bounds group of 64
-/// boxes is GEMMs with 192 columns: past the size where wider panels gain).
+/// Largest number of boxes one thread integrates together: a forward-bounds group of 64 boxes
+/// is GEMMs of 192–256 columns, wide enough to amortise the pass over `W` (at 4,096 boxes
+/// chunks of 64 ran faster than the former groups of 128, 30.3–30.9k vs 24.4–24.5k
+/// box-steps/s with forward bounds).
 const MAX_CHUNK: usize = 64;
 
 /// Buffers of one thread, reused across its chunks and steps.
