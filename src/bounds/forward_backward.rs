@@ -324,6 +324,49 @@ mod tests {
     use crate::bounds::test_support::*;
     use crate::bounds::{crown, forward, network_bounds_batch};
 
+    /// The backward pass takes `|W_j| mag_j` from the forward pass's IBP product: that must
+    /// bound the product with `mag_j = max(pre_hi, 0)` itself from above (up to the products'
+    /// own rounding), layer by layer.
+    #[test]
+    fn ibp_input_magnitudes_bound_the_backward_magnitudes() {
+        let net = Mlp::random(&[2, 30, 30, 30, 2], 4);
+        let prepared = PreparedNetwork::new(&net).unwrap();
+        let mut rng = case_rng(5);
+        let g = 9;
+        let (mut lo, mut hi) = (Vec::new(), Vec::new());
+        for b in 0..g {
+            let (l, h) = random_box(&mut rng, 2, BoxKind::ALL[b % BoxKind::ALL.len()]);
+            lo.extend(l);
+            hi.extend(h);
+        }
+        let mut out = AffineBoundsBatch::new();
+        out.reset(2, 2, g);
+        let mut rows = out.rows_mut();
+        let mut ws = FwdWorkspace::default();
+        let opts = ForwardOptions {
+            record: true,
+            ibp: true,
+        };
+        forward_group(&net, &prepared.abs_w, &lo, &hi, &mut rows, &mut ws, opts);
+        let mut positive = 0;
+        for j in 1..net.layers.len() - 1 {
+            let (n_j, n_in) = (net.layers[j].n_out, net.layers[j].n_in);
+            let mag: Vec<f64> = ws.pre_hi[j - 1].iter().map(|u| u.max(0.0)).collect();
+            let mut direct = vec![0.0; n_j * g];
+            gemm(n_j, n_in, g, &prepared.abs_w[j], &mag, &mut direct);
+            let reused = &ws.input_magnitude_products[j];
+            assert_eq!(reused.len(), direct.len(), "layer {j}");
+            for (r, d) in reused.iter().zip(&direct) {
+                assert!(
+                    *r >= d * (1.0 - 1e-12),
+                    "layer {j}: reused {r} < direct {d}"
+                );
+                positive += usize::from(*d > 0.0);
+            }
+        }
+        assert!(positive > 0, "the case should have live neurons");
+    }
+
     #[test]
     fn forward_backward_is_sound_on_random_networks_and_boxes() {
         for relaxation in [Relaxation::Adaptive, Relaxation::SameSlope] {
