@@ -15,6 +15,8 @@ pub(crate) const SHAPES: &[&[usize]] = &[
     &[3, 32, 32, 32, 2],
     &[1, 8, 1],
     &[4, 24, 3],
+    // Past the input dimensions that forward's ReLU loop is compiled for: its run-time path.
+    &[5, 12, 12, 2],
 ];
 
 /// Kinds of random boxes.

@@ -50,17 +50,16 @@ impl Backend for CpuBackend {
         problem.check_initial(initial)?;
         settings.validate()?;
         let every = settings.every.max(1);
-        let m = problem.dynamics.m;
         // The transformed network's rounding enters as a disturbance in both methods; the
         // disturbance method adds M (global, or local from the error map per box and step).
         let safe = problem.safe_set_for(settings.method);
-        let margin_of = |state: &Live| -> Vec<f64> {
+        let margin_of = |state: &Live| -> f64 {
             match settings.method {
                 ReachMethod::Disturbance => {
                     let x_box = problem.x_box_in_safe_set(&state.lower, &state.upper, safe);
-                    vec![round_up(problem.margin_for(&x_box) + problem.network_slack); m]
+                    round_up(problem.margin_for(&x_box) + problem.network_slack)
                 }
-                ReachMethod::Minkowski => vec![problem.network_slack; m],
+                ReachMethod::Minkowski => problem.network_slack,
             }
         };
         let mut live: Vec<Live> = initial
@@ -92,7 +91,8 @@ impl Backend for CpuBackend {
 
         let start = Instant::now();
         let network = PreparedNetwork::new(&problem.network)?;
-        let chunk = chunk_len(live.len(), rayon::current_num_threads());
+        let threads = rayon::current_num_threads().max(1);
+        let chunk = chunk_len(live.len(), threads);
         let accounted = AtomicUsize::new(0);
         let (n_boxes, steps) = (live.len(), problem.steps);
         let report = |box_steps: usize| {
@@ -116,7 +116,7 @@ impl Backend for CpuBackend {
             .collect::<Result<Vec<f64>, ReachError>>()?
             .iter()
             .sum::<f64>()
-            / rayon::current_num_threads() as f64;
+            / threads as f64;
         let elapsed = start.elapsed().as_secs_f64();
         Ok(ReachResult {
             boxes: live.into_iter().map(|l| l.tube).collect(),
@@ -147,6 +147,8 @@ struct ChunkBuffers {
     batch: AffineBoundsBatch,
     flat_lo: Vec<f64>,
     flat_hi: Vec<f64>,
+    /// The error margin per input, `m` copies of the box's bound.
+    margin: Vec<f64>,
 }
 
 /// What every chunk's run shares.
@@ -154,8 +156,8 @@ struct ChunkRun<'a> {
     problem: &'a ReachProblem,
     settings: &'a ReachSettings,
     network: &'a PreparedNetwork<'a>,
-    /// The additive bound on `N`'s error for a box (see [`CpuBackend::reach`]).
-    margin_of: &'a (dyn Fn(&Live) -> Vec<f64> + Sync),
+    /// The additive bound on every input of `N`'s error over a box (see [`CpuBackend::reach`]).
+    margin_of: &'a (dyn Fn(&Live) -> f64 + Sync),
     safe: &'a SafeSet,
     every: usize,
     /// Told how many box-steps were accounted for (run, or skipped by finished boxes).
@@ -202,10 +204,10 @@ impl ChunkRun<'_> {
             )?;
             let t = (step + 1) as f64 * problem.dt;
             let record = (step + 1) % self.every == 0 || step + 1 == problem.steps;
-            let batch = &buf.batch;
+            let (batch, margin) = (&buf.batch, &mut buf.margin);
             for (slot, state) in states.iter_mut().filter(|s| !s.done).enumerate() {
-                let margin = (self.margin_of)(state);
-                if margin.iter().any(|v| !v.is_finite()) {
+                let bound = (self.margin_of)(state);
+                if !bound.is_finite() {
                     // The error map has no finite bound where the set is (e.g. where `v`
                     // jumps): nothing sound can be said from here on.
                     state.tube.valid = false;
@@ -217,6 +219,8 @@ impl ChunkRun<'_> {
                     state.done = true;
                     continue;
                 }
+                margin.clear();
+                margin.resize(m, bound);
                 let (nn, (mut dl, mut du)) = if settings.face_local {
                     // (Minkowski is refused with face-local bounds: its rate needs one C.)
                     let face = |i: usize, up: bool| {
@@ -227,13 +231,13 @@ impl ChunkRun<'_> {
                         &state.lower,
                         &state.upper,
                         face,
-                        &margin,
+                        margin,
                     );
                     (face(0, false), field)
                 } else {
                     let nn = bounds_of(batch, slot, n, m);
                     let field =
-                        embedding_field(&problem.dynamics, &state.lower, &state.upper, nn, &margin);
+                        embedding_field(&problem.dynamics, &state.lower, &state.upper, nn, margin);
                     (nn, field)
                 };
                 if problem.field_slack > 0.0 {
