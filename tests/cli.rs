@@ -233,3 +233,53 @@ fn paper_verifies_split_boxes_of_scenario_2_truly() {
     assert!(proven >= 4, "{scenario_2}");
     assert!(scenario_2.contains("every piece converges"), "{scenario_2}");
 }
+
+#[test]
+fn train_adds_finer_samples_only_where_v_is_steep() {
+    // Scenario 1's filter is steep near (4.1, 0.8): `--dense-slope` adds a 4× finer grid
+    // within one spacing of each steep grid point of S (at most 9² − 3² new points each);
+    // a threshold above every slope adds none.
+    let dir = std::env::temp_dir().join(format!("cbfreach-dense-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let out = dir.join("net.safetensors");
+    let path = common::scenario_path("integrator.toml");
+    let added = |slope: &str| {
+        let (code, stdout, stderr) = cbfreach(&[
+            "train",
+            path.to_str().unwrap(),
+            "--architecture",
+            "2,8,2",
+            "--grid",
+            "41,31",
+            "--epochs",
+            "1",
+            "--jacobian-huber",
+            "1",
+            "--dense-slope",
+            slope,
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert_eq!(code, 0, "{stderr}");
+        let line = stdout
+            .lines()
+            .find(|l| l.contains("finer added around"))
+            .unwrap_or_else(|| panic!("no dense-sample line in {stdout}"));
+        let numbers: Vec<usize> = line
+            .split_whitespace()
+            .filter_map(|w| w.parse().ok())
+            .collect();
+        (numbers[0], numbers[1])
+    };
+    let (points, seeds) = added("5");
+    assert!(
+        seeds > 0 && points > 0,
+        "{points} points around {seeds} seeds"
+    );
+    assert!(
+        points <= seeds * (81 - 9),
+        "{points} points around {seeds} seeds"
+    );
+    assert_eq!(added("1e9"), (0, 0));
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use cbfreach::boxes::IntervalBox;
-use cbfreach::dataset::{filter_dataset, grid_points, DatasetSummary};
+use cbfreach::dataset::{filter_dataset, grid_points, refinement_points, DatasetSummary};
 use cbfreach::filter::SafetyFilter;
 use cbfreach::network::train::{self, Dataset, TrainSettings};
 use cbfreach::network::Mlp;
@@ -51,6 +51,10 @@ pub struct TrainArgs {
     /// v jumps, e.g. scenario 2 at (1, 0) and (3, 0), finite-difference slopes are ~1/step).
     #[arg(long)]
     pub jacobian_cap: Option<f64>,
+    /// Huber threshold of the Jacobian term: slope residuals beyond it cost linearly, so the few
+    /// samples on a steep kink do not steer every step.
+    #[arg(long)]
+    pub jacobian_huber: Option<f64>,
     /// Seed of the initial weights and the shuffles.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -83,6 +87,14 @@ pub struct TrainArgs {
     /// feasible point.
     #[arg(long, default_value_t = 0.3, allow_negative_numbers = true)]
     pub unsafe_band: f64,
+    /// Add samples around the grid points where `v` is steep (some |∂vᵢ/∂xⱼ| above this): a grid
+    /// `--dense-factor` times finer within one spacing of each, so that the network sees the
+    /// shape of kinks the grid does not resolve.
+    #[arg(long)]
+    pub dense_slope: Option<f64>,
+    /// How many times finer per axis the added samples are than the training grid.
+    #[arg(long, default_value_t = 4)]
+    pub dense_factor: usize,
     /// Save the weights as F32 (exact: the trainer works in f32) instead of F64.
     #[arg(long)]
     pub f32: bool,
@@ -213,6 +225,24 @@ fn restrict_to_band(s: &Scenario, data: &mut Dataset, band: f64) -> usize {
     excluded
 }
 
+/// The inputs of the samples in `S` where some target slope `|∂vᵢ/∂xⱼ|` exceeds `slope`
+/// (inside an obstacle `v` steepens without bound, and `M_C` is not measured there).
+fn steep_samples<'a>(s: &Scenario, data: &'a Dataset, slope: f64) -> Vec<&'a [f64]> {
+    let Some(jacobians) = &data.jacobians else {
+        return Vec::new();
+    };
+    let mn = data.n_in * data.n_out;
+    (0..data.len())
+        .filter(|&k| {
+            jacobians[k * mn..(k + 1) * mn]
+                .iter()
+                .any(|d| d.abs() > slope)
+        })
+        .map(|k| &data.inputs[k * data.n_in..(k + 1) * data.n_in])
+        .filter(|x| s.is_safe(x))
+        .collect()
+}
+
 /// Runs `cbfreach train`.
 pub fn run_train(args: &TrainArgs) -> CliResult {
     let s = load_scenario(&args.scenario)?;
@@ -237,8 +267,26 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
         (None, Some(net)) => net.file.clone(),
         (None, None) => return Err("give --out FILE".into()),
     };
-    let points = training_points(&s, args.grid.as_ref())?;
-    let (mut data, summary) = build(&s, &points, "training data");
+    let grid = args.grid.clone().unwrap_or(s.training.grid.clone());
+    let mut points = training_points(&s, Some(&grid))?;
+    let (mut data, mut summary) = build(&s, &points, "training data");
+    if let Some(slope) = args.dense_slope {
+        let seeds = steep_samples(&s, &data, slope);
+        let added = refinement_points(
+            &s.training.region,
+            &grid,
+            seeds.iter().copied(),
+            args.dense_factor,
+        );
+        println!(
+            "{} samples {}× finer added around the {} grid points of S where some |∂vᵢ/∂xⱼ| > {slope}",
+            added.len(),
+            args.dense_factor,
+            seeds.len()
+        );
+        points.extend(added);
+        (data, summary) = build(&s, &points, "training data");
+    }
     print_summary(&s, &summary);
     if args.unsafe_band >= 0.0 {
         let excluded = restrict_to_band(&s, &mut data, args.unsafe_band);
@@ -247,7 +295,6 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
             args.unsafe_band
         );
     }
-    let grid = args.grid.clone().unwrap_or(s.training.grid.clone());
     let (validation, vsummary) = build(&s, &validation_points(&s, &grid), "validation data");
 
     let checkpoint = out.with_extension("ckpt");
@@ -257,6 +304,7 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
         learning_rate: args.lr,
         jacobian_weight: args.jacobian_weight,
         jacobian_cap: args.jacobian_cap,
+        jacobian_huber: args.jacobian_huber,
         seed: args.seed,
         hard_example_fraction: args.hard_fraction,
         hard_example_repeats: args.hard_repeats,
