@@ -88,6 +88,12 @@ fn bad_input_gives_a_clear_error_and_exit_code_2() {
     let (code, _, stderr) = cbfreach(&["simulate", path.to_str().unwrap(), "--from", "1,2,3"]);
     assert_eq!(code, 2);
     assert!(stderr.contains("expected 2 numbers"), "{stderr}");
+    let (code, _, stderr) = cbfreach(&["reach", path.to_str().unwrap(), "--every", "0"]);
+    assert_eq!(code, 2);
+    assert!(
+        stderr.contains("--every") && stderr.contains("whole number ≥ 1"),
+        "{stderr}"
+    );
     std::fs::remove_dir_all(&dir).ok();
 }
 

@@ -57,6 +57,14 @@ pub fn safe_set_clause<S: AsRef<str>>(names: &[S]) -> String {
     format!(", sets within S's half-spaces ({})", names.join(", "))
 }
 
+/// Parses a whole number of at least `min` (a step stride, a refinement factor) for clap.
+pub fn whole_at_least(text: &str, min: usize) -> Result<usize, String> {
+    text.parse::<usize>()
+        .ok()
+        .filter(|&k| k >= min)
+        .ok_or_else(|| format!("expected a whole number ≥ {min}"))
+}
+
 /// Formats a vector compactly: `(1.000, -2.500)`.
 pub fn fmt_point(x: &[f64]) -> String {
     // Values that print as zero print without a sign.

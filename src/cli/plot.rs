@@ -47,7 +47,7 @@ pub struct PlotArgs {
     #[arg(long)]
     pub size: Option<String>,
     /// Draw every K-th Euler step of the tubes.
-    #[arg(long, default_value_t = 10)]
+    #[arg(long, default_value_t = 10, value_parser = |s: &str| super::whole_at_least(s, 1))]
     pub every: usize,
     /// How the network is bounded over each box (tubes, minkowski).
     #[arg(long, value_enum, default_value_t = BoundMethod::ForwardBackward)]

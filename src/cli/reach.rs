@@ -34,7 +34,7 @@ pub struct ReachArgs {
     #[arg(long)]
     pub face_local: bool,
     /// Record every K-th step (the last is always recorded).
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, value_parser = |s: &str| super::whole_at_least(s, 1))]
     pub every: usize,
     /// The network, `M_C` and coordinates.
     #[command(flatten)]
@@ -277,6 +277,19 @@ pub fn run(args: &ReachArgs) -> CliResult {
         run as f64 / result.timing.reach_s.max(1e-12),
         result.timing.minkowski_s
     );
+    let invalid = result.boxes.iter().filter(|t| !t.valid).count();
+    if invalid > 0 {
+        println!(
+            "  {invalid} of {} sets stopped (INVALID): {}`cbfreach verify` splits boxes until they \
+             verify",
+            result.boxes.len(),
+            if args.face_local {
+                ""
+            } else {
+                "bounds on each face of a box (--face-local, 2n× the bound cost) are tighter, and "
+            }
+        );
+    }
     if let Some(path) = &args.json {
         let json = ReachJson {
             scenario: &s.file,

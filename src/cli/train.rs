@@ -93,7 +93,7 @@ pub struct TrainArgs {
     #[arg(long)]
     pub dense_slope: Option<f64>,
     /// How many times finer per axis the added samples are than the training grid.
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = 4, value_parser = |s: &str| super::whole_at_least(s, 2))]
     pub dense_factor: usize,
     /// Save the weights as F32 (exact: the trainer works in f32) instead of F64.
     #[arg(long)]
@@ -271,6 +271,9 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
     let mut points = training_points(&s, Some(&grid))?;
     let (mut data, mut summary) = build(&s, &points, "training data");
     if let Some(slope) = args.dense_slope {
+        if !(slope.is_finite() && slope >= 0.0) {
+            return Err(format!("--dense-slope {slope}: expected a finite slope ≥ 0").into());
+        }
         let seeds = steep_samples(&s, &data, slope);
         let added = refinement_points(
             &s.training.region,
