@@ -890,6 +890,76 @@ pub fn simulation_check(s: &Scenario, report: &VerifyReport, per_axis: usize) ->
         })
 }
 
+/// Where the ground-truth filtered system goes from the centre of each leaf that was not
+/// verified (`unknown` or `invalid`), as shares of the leaves' safe area
+/// ([`explain_unverified`]). A diagnostic, not a proof: it separates what no sound set can
+/// show (the system itself leaves `C`, or the horizon ends elsewhere) from what the network's
+/// error and the over-approximation left open.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct UnverifiedCauses {
+    /// Not verified (the sum of the four below).
+    pub unverified: f64,
+    /// The centre's trajectory leaves `C`, where `M_C` no longer holds.
+    pub leaves_region: f64,
+    /// The centre's trajectory stops at an infeasible QP.
+    pub infeasible: f64,
+    /// The centre's trajectory ends at `T` in neither the goal nor a trap box.
+    pub ends_elsewhere: f64,
+    /// The centre's trajectory ends in the goal or a trap box: the sets were too loose.
+    pub too_loose: f64,
+}
+
+/// Simulates the centre of every `unknown` or `invalid` leaf of `report` with the ground-truth
+/// filter (Euler at the scenario's `dt` over its horizon, as the engine integrates) and sorts
+/// the leaves' area into [`UnverifiedCauses`].
+pub fn explain_unverified(s: &Scenario, report: &VerifyReport) -> UnverifiedCauses {
+    use crate::filter::SafetyFilter;
+    use crate::simulate::{simulate_filtered, Integrator};
+    use rayon::prelude::*;
+    let filter = SafetyFilter::new(s);
+    let safe_area = Shares::of(&report.after).safe_area;
+    if safe_area <= 0.0 {
+        return UnverifiedCauses::default();
+    }
+    let ends_in_target =
+        |x: &[f64]| s.reach.goal.contains(x) || report.traps.iter().any(|t| t.region.contains(x));
+    report
+        .after
+        .par_iter()
+        .filter(|b| b.verdict.is_refinable())
+        .map(|b| {
+            let share = b.initial.volume() / safe_area;
+            let tr = simulate_filtered(
+                &filter,
+                &b.initial.center(),
+                s.reach.dt,
+                s.reach.steps(),
+                Integrator::Euler,
+            );
+            let mut c = UnverifiedCauses {
+                unverified: share,
+                ..UnverifiedCauses::default()
+            };
+            if tr.x.iter().any(|x| !s.reach.region.contains(x)) {
+                c.leaves_region = share;
+            } else if tr.stopped.is_some() {
+                c.infeasible = share;
+            } else if ends_in_target(tr.last()) {
+                c.too_loose = share;
+            } else {
+                c.ends_elsewhere = share;
+            }
+            c
+        })
+        .reduce(UnverifiedCauses::default, |a, b| UnverifiedCauses {
+            unverified: a.unverified + b.unverified,
+            leaves_region: a.leaves_region + b.leaves_region,
+            infeasible: a.infeasible + b.infeasible,
+            ends_elsewhere: a.ends_elsewhere + b.ends_elsewhere,
+            too_loose: a.too_loose + b.too_loose,
+        })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

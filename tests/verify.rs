@@ -327,3 +327,43 @@ fn bad_options_give_clear_errors() {
         );
     }
 }
+
+#[test]
+fn unverified_area_is_sorted_by_where_the_true_system_goes() {
+    // Hand-placed leaves on scenario 1 (traps and run information from a real 2 × 2 run):
+    // at C's left corner the filter drives the true system out of C (v = (−7.1, −3.6) at
+    // (−3.44, −2.95), so ẋ₁ < 0 at x₁ = −3.5); from (−1, 2) it reaches the origin and from
+    // (4, 0) the trap at (3, 0) (too loose); from the saddle (2.5, √3/2) it stays there (ends
+    // elsewhere). A verified leaf counts in the safe area only.
+    use cbfreach::boxes::IntervalBox;
+    use cbfreach::verify::explain_unverified;
+    let s = common::integrator();
+    let mut report = run(&s, [2, 2], 0, None);
+    let template = report.before[0].clone();
+    let leaf = |lower: [f64; 2], upper: [f64; 2], verdict: Verdict| {
+        let mut b = template.clone();
+        b.initial = IntervalBox {
+            lower: lower.to_vec(),
+            upper: upper.to_vec(),
+        };
+        b.verdict = verdict;
+        b
+    };
+    let y = 0.75f64.sqrt();
+    report.after = vec![
+        leaf([-3.5, -3.0], [-3.4, -2.9], Verdict::Invalid),
+        leaf([-1.1, 1.9], [-0.9, 2.1], Verdict::Unknown),
+        leaf([3.9, -0.1], [4.1, 0.1], Verdict::Invalid),
+        leaf([2.49, y - 0.01], [2.51, y + 0.01], Verdict::Unknown),
+        leaf([0.0, 0.0], [0.5, 0.5], Verdict::Converges),
+    ];
+    let area: Vec<f64> = report.after.iter().map(|b| b.initial.volume()).collect();
+    let total: f64 = area.iter().sum();
+    let c = explain_unverified(&s, &report);
+    let close = |a: f64, b: f64| (a - b).abs() < 1e-12;
+    assert!(close(c.leaves_region, area[0] / total), "{c:?}");
+    assert!(close(c.too_loose, (area[1] + area[2]) / total), "{c:?}");
+    assert!(close(c.ends_elsewhere, area[3] / total), "{c:?}");
+    assert_eq!(c.infeasible, 0.0);
+    assert!(close(c.unverified, 1.0 - area[4] / total), "{c:?}");
+}

@@ -87,9 +87,9 @@ pub struct TrainArgs {
     /// feasible point.
     #[arg(long, default_value_t = 0.3, allow_negative_numbers = true)]
     pub unsafe_band: f64,
-    /// Add samples around the grid points where `v` is steep (some |∂vᵢ/∂xⱼ| above this): a grid
-    /// `--dense-factor` times finer within one spacing of each, so that the network sees the
-    /// shape of kinks the grid does not resolve.
+    /// Add samples around the grid points of S where `v` is steep (some |∂vᵢ/∂xⱼ| above this):
+    /// the points of S on a grid `--dense-factor` times finer within one spacing of each, so
+    /// that the network sees the shape of kinks and jumps that the grid does not resolve.
     #[arg(long)]
     pub dense_slope: Option<f64>,
     /// How many times finer per axis the added samples are than the training grid.
@@ -275,12 +275,15 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
             return Err(format!("--dense-slope {slope}: expected a finite slope ≥ 0").into());
         }
         let seeds = steep_samples(&s, &data, slope);
-        let added = refinement_points(
+        // Only in S: inside an obstacle `v` can grow without bound (scenario 2 near (1, 0)),
+        // and more such targets would drag the fit on the safe side.
+        let mut added = refinement_points(
             &s.training.region,
             &grid,
             seeds.iter().copied(),
             args.dense_factor,
         );
+        added.retain(|x| s.is_safe(x));
         println!(
             "{} samples {}× finer added around the {} grid points of S where some |∂vᵢ/∂xⱼ| > {slope}",
             added.len(),

@@ -10,8 +10,8 @@ use cbfreach::plot::{self, Figure};
 use cbfreach::reach::{Backend, ReachMethod, ReachProblem, ReachSettings};
 use cbfreach::scenario::Scenario;
 use cbfreach::verify::{
-    merge, simulation_check, traps_from_equilibria, Shard, SimulationCheck, Stage, Verdict,
-    Verifier, VerifyReport, VerifySettings,
+    explain_unverified, merge, simulation_check, traps_from_equilibria, Shard, SimulationCheck,
+    Stage, UnverifiedCauses, Verdict, Verifier, VerifyReport, VerifySettings,
 };
 
 use super::reach::{choose_backend, compile, GpuArgs, ProblemArgs};
@@ -135,11 +135,31 @@ pub fn run(args: &VerifyArgs) -> CliResult {
     let engine = choose_backend(&args.backend, &args.gpu, &reach)?;
     let report = run_verify(&s, &problem, engine.as_ref(), reach, &settings)?;
     print_summary(&report);
+    print_causes(&explain_unverified(&s, &report));
     write_outputs(&s, &report, args.json.as_deref(), args.plot.as_deref())?;
     if args.check > 0 {
         print_check(&simulation_check(&s, &report, args.check))?;
     }
     fail_if_unsafe(&report)
+}
+
+/// Prints where the true system goes from the boxes that were not verified.
+fn print_causes(c: &UnverifiedCauses) {
+    if c.unverified <= 0.0 {
+        return;
+    }
+    println!(
+        "  not verified: {:.1}% of the safe area. From each such box's centre the true filtered system",
+        100.0 * c.unverified
+    );
+    println!(
+        "    leaves C on {:.1}%, meets an infeasible QP on {:.1}%, ends in neither the goal nor a trap \
+         on {:.1}%, and ends in one on {:.1}% (there the sets were too loose)",
+        100.0 * c.leaves_region,
+        100.0 * c.infeasible,
+        100.0 * c.ends_elsewhere,
+        100.0 * c.too_loose
+    );
 }
 
 /// Prints what [`simulation_check`] found; an error when a start disagrees with its verdict.
