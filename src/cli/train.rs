@@ -87,7 +87,8 @@ pub struct TrainArgs {
     /// feasible point.
     #[arg(long, default_value_t = 0.3, allow_negative_numbers = true)]
     pub unsafe_band: f64,
-    /// Add samples around the grid points of S where `v` is steep (some |∂vᵢ/∂xⱼ| above this):
+    /// Add samples around the grid points of S where `v` is steep (some |∂vᵢ/∂xⱼ| above this,
+    /// none above `--jacobian-cap`, which marks jumps):
     /// the points of S on a grid `--dense-factor` times finer within one spacing of each, so
     /// that the network sees the shape of kinks and jumps that the grid does not resolve.
     #[arg(long)]
@@ -225,18 +226,27 @@ fn restrict_to_band(s: &Scenario, data: &mut Dataset, band: f64) -> usize {
     excluded
 }
 
-/// The inputs of the samples in `S` where some target slope `|∂vᵢ/∂xⱼ|` exceeds `slope`
-/// (inside an obstacle `v` steepens without bound, and `M_C` is not measured there).
-fn steep_samples<'a>(s: &Scenario, data: &'a Dataset, slope: f64) -> Vec<&'a [f64]> {
+/// The inputs of the samples in `S` whose steepest target slope `max |∂vᵢ/∂xⱼ|` exceeds
+/// `slope` but not `cap` (inside an obstacle `v` steepens without bound, and `M_C` is not
+/// measured there; slopes above `--jacobian-cap` mark jumps of `v`, where no continuous
+/// network can be close and finer samples only add error that cannot be trained away).
+fn steep_samples<'a>(
+    s: &Scenario,
+    data: &'a Dataset,
+    slope: f64,
+    cap: Option<f64>,
+) -> Vec<&'a [f64]> {
     let Some(jacobians) = &data.jacobians else {
         return Vec::new();
     };
     let mn = data.n_in * data.n_out;
+    let cap = cap.unwrap_or(f64::INFINITY);
     (0..data.len())
         .filter(|&k| {
-            jacobians[k * mn..(k + 1) * mn]
+            let steepest = jacobians[k * mn..(k + 1) * mn]
                 .iter()
-                .any(|d| d.abs() > slope)
+                .fold(0.0f64, |a, d| a.max(d.abs()));
+            steepest > slope && steepest <= cap
         })
         .map(|k| &data.inputs[k * data.n_in..(k + 1) * data.n_in])
         .filter(|x| s.is_safe(x))
@@ -274,7 +284,7 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
         if !(slope.is_finite() && slope >= 0.0) {
             return Err(format!("--dense-slope {slope}: expected a finite slope ≥ 0").into());
         }
-        let seeds = steep_samples(&s, &data, slope);
+        let seeds = steep_samples(&s, &data, slope, args.jacobian_cap);
         // Only in S: inside an obstacle `v` can grow without bound (scenario 2 near (1, 0)),
         // and more such targets would drag the fit on the safe side.
         let mut added = refinement_points(
@@ -285,10 +295,12 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
         );
         added.retain(|x| s.is_safe(x));
         println!(
-            "{} samples {}× finer added around the {} grid points of S where some |∂vᵢ/∂xⱼ| > {slope}",
+            "{} samples {}× finer added around the {} grid points of S where some |∂vᵢ/∂xⱼ| > {slope}{}",
             added.len(),
             args.dense_factor,
-            seeds.len()
+            seeds.len(),
+            args.jacobian_cap
+                .map_or(String::new(), |cap| format!(" and none > {cap} (a jump)"))
         );
         points.extend(added);
         (data, summary) = build(&s, &points, "training data");
