@@ -369,6 +369,11 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
     let val = train::evaluate(&net, &validation)?;
     let mut metadata = report.metadata();
     metadata.insert("scenario".into(), s.name.clone());
+    if let Some(slope) = args.dense_slope {
+        // Not a trainer setting: the data it saw (reproducing the run needs both).
+        metadata.insert("dense_slope".into(), slope.to_string());
+        metadata.insert("dense_factor".into(), args.dense_factor.to_string());
+    }
     metadata.insert("validation_max_linf".into(), val.max_error.to_string());
     metadata.insert("validation_max_l2".into(), val.max_error_l2.to_string());
     if args.f32 {
