@@ -120,6 +120,8 @@ fn with_bounds(bounds: BoundMethod, method: ReachMethod) -> ReachSettings {
         method,
         every: 1,
         face_local: false,
+        // The GPU engine bounds the network everywhere: compare like with like.
+        exact_where_inactive: false,
     }
 }
 

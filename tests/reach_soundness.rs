@@ -62,6 +62,7 @@ fn run(
         method: ReachMethod::Disturbance,
         every: 1,
         face_local,
+        exact_where_inactive: false,
     };
     CpuBackend
         .reach(&problem, &boxes, &settings, &|_, _| {})
@@ -302,6 +303,7 @@ fn run_double_integrator(net: &Mlp, transform: bool, m_c: f64) -> (Vec<Tube>, Op
         method: ReachMethod::Disturbance,
         every: 1,
         face_local: false,
+        exact_where_inactive: false,
     };
     let boxes = &s.reach.initial[..3];
     let tubes = CpuBackend
@@ -420,6 +422,7 @@ fn filtered_trajectories_stay_in_sets_intersected_with_the_safe_set() {
         method: ReachMethod::Disturbance,
         every: 1,
         face_local: true,
+        exact_where_inactive: false,
     };
     let initial = [cbfreach::IntervalBox::new(vec![4.9, 0.9], vec![5.1, 1.1]).unwrap()];
     let run = |problem: &ReachProblem| {
@@ -448,10 +451,18 @@ fn filtered_trajectories_stay_in_sets_intersected_with_the_safe_set() {
         plain.tube.len()
     );
 
-    let filter = SafetyFilter::new(&s);
+    let checks = filtered_trajectories_inside(&s, &tube, 12);
+    assert!(checks > 500, "{checks} checks");
+}
+
+/// Asserts that ground-truth filtered trajectories from `samples` random starts in the tube's
+/// initial box lie in its sets: exactly with the embedding's step `dt`, and up to the point
+/// simulation's own Euler error with `dt/10`. Returns the number of (point, time) checks.
+fn filtered_trajectories_inside(s: &Scenario, tube: &Tube, samples: usize) -> usize {
+    let filter = SafetyFilter::new(s);
     let (dt, steps, sub) = (s.reach.dt, s.reach.steps(), 10);
     let mut checks = 0;
-    for x0 in sample_box(&initial[0], 12, 3) {
+    for x0 in sample_box(&tube.initial, samples, 3) {
         let coarse = simulate_filtered(&filter, &x0, dt, steps, Integrator::Euler);
         let fine = simulate_filtered(
             &filter,
@@ -471,16 +482,84 @@ fn filtered_trajectories_stay_in_sets_intersected_with_the_safe_set() {
                 })
                 .fold(0.0, f64::max)
         };
-        checks += assert_inside(&tube, &coarse.x, 1, |_| 0.0, "filtered trajectory (dt)");
+        checks += assert_inside(tube, &coarse.x, 1, |_| 0.0, "filtered trajectory (dt)");
         checks += assert_inside(
-            &tube,
+            tube,
             &fine.x,
             sub,
             euler_error,
             "filtered trajectory (dt/10)",
         );
     }
-    assert!(checks > 500, "{checks} checks");
+    checks
+}
+
+/// Where the filter is proven inactive the engine takes `v = 0` exactly: on both paper
+/// scenarios with their shipped networks and error maps, sets from boxes that pass through
+/// the goal region still contain the ground-truth filtered trajectories, and a box beside the
+/// goal of scenario 2 whose tube diverges with the network's error margin there now ends in the
+/// goal set.
+#[test]
+fn filtered_trajectories_stay_in_sets_where_v_is_exactly_zero() {
+    use cbfreach::surrogate_error::ErrorMap;
+
+    let near_goal =
+        cbfreach::IntervalBox::new(vec![0.1875, -0.3125], vec![0.25, -0.28125]).unwrap();
+    for (s, initial) in [
+        (
+            double_integrator(),
+            vec![
+                near_goal.clone(),
+                cbfreach::IntervalBox::new(vec![-1.1, -1.6], vec![-0.9, -1.4]).unwrap(),
+            ],
+        ),
+        (
+            integrator(),
+            vec![
+                cbfreach::IntervalBox::new(vec![-2.1, 1.9], vec![-1.9, 2.1]).unwrap(),
+                cbfreach::IntervalBox::new(vec![0.9, 1.9], vec![1.1, 2.1]).unwrap(),
+            ],
+        ),
+    ] {
+        let path = s.network.as_ref().unwrap().file.clone();
+        let net = Mlp::load_safetensors(&path).unwrap();
+        let transform = Transform::for_scenario(&s, &s.reach.transform).unwrap();
+        let problem = ReachProblem::with_transform(&s, net, 0.0, transform)
+            .unwrap()
+            .with_error_map(ErrorMap::load_for(&path).unwrap())
+            .unwrap();
+        let settings = |exact| ReachSettings {
+            bounds: BoundMethod::ForwardBackward,
+            method: ReachMethod::Disturbance,
+            every: 1,
+            face_local: true,
+            exact_where_inactive: exact,
+        };
+        let run = |exact| {
+            CpuBackend
+                .reach(&problem, &initial, &settings(exact), &|_, _| {})
+                .unwrap()
+                .boxes
+        };
+        let (exact, plain) = (run(true), run(false));
+        let mut checks = 0;
+        for (tube, before) in exact.iter().zip(&plain) {
+            assert!(tube.valid || !before.valid, "{}: {:?}", s.name, tube.note);
+            checks += filtered_trajectories_inside(&s, tube, 8);
+        }
+        assert!(checks > 1000, "{}: {checks} checks", s.name);
+        if initial[0] == near_goal {
+            let last = exact[0].last().unwrap().filtered_set().clone();
+            assert!(
+                exact[0].valid && last.is_subset_of(&s.reach.goal),
+                "{last:?}"
+            );
+            assert!(
+                !plain[0].valid,
+                "the network's margin alone already converges"
+            );
+        }
+    }
 }
 
 /// How the CPU engine splits boxes over threads (chunks integrated over the whole horizon,
@@ -512,6 +591,7 @@ fn tubes_do_not_depend_on_the_thread_count() {
             method: ReachMethod::Disturbance,
             every: 7,
             face_local,
+            exact_where_inactive: false,
         };
         let run_on = |threads: usize| {
             let last = std::sync::atomic::AtomicUsize::new(0);

@@ -378,6 +378,7 @@ fn box_verdicts(
             method: ReachMethod::Disturbance,
             every: 1,
             face_local: true,
+            exact_where_inactive: true,
         },
         traps: traps.to_vec(),
     };

@@ -33,6 +33,10 @@ pub struct ReachArgs {
     /// Bound the network on each face of a box separately (tighter, 2n× the bound cost).
     #[arg(long)]
     pub face_local: bool,
+    /// Bound the network on every set, also where the filter is proven inactive (by default the
+    /// CPU engine takes `v = 0` exactly there, with no error margin).
+    #[arg(long)]
+    pub network_everywhere: bool,
     /// Record every K-th step (the last is always recorded).
     #[arg(long, default_value_t = 1, value_parser = |s: &str| super::whole_at_least(s, 1))]
     pub every: usize,
@@ -215,6 +219,7 @@ pub fn run(args: &ReachArgs) -> CliResult {
         method: args.method,
         every: args.every,
         face_local: args.face_local,
+        exact_where_inactive: args.method == ReachMethod::Disturbance && !args.network_everywhere,
     };
     let backend = choose_backend(&args.backend, &args.gpu, &settings)?;
     let bar = progress_bar(problem.steps as u64, "Euler steps");

@@ -44,6 +44,10 @@ pub struct VerifyArgs {
     /// Bound the network on each face of a box separately (tighter, 2n× the bound cost).
     #[arg(long)]
     pub face_local: bool,
+    /// Bound the network on every set, also where the filter is proven inactive (by default the
+    /// CPU engine takes `v = 0` exactly there, with no error margin).
+    #[arg(long)]
+    pub network_everywhere: bool,
     /// The network, `M_C` and coordinates.
     #[command(flatten)]
     pub problem: ProblemArgs,
@@ -131,6 +135,7 @@ pub fn run(args: &VerifyArgs) -> CliResult {
         method: args.method,
         every: 1,
         face_local: args.face_local,
+        exact_where_inactive: args.method == ReachMethod::Disturbance && !args.network_everywhere,
     };
     let engine = choose_backend(&args.backend, &args.gpu, &reach)?;
     let report = run_verify(&s, &problem, engine.as_ref(), reach, &settings)?;

@@ -20,7 +20,7 @@ use super::{Backend, ReachError, ReachMethod, ReachProblem, ReachResult, ReachSe
 use super::{ReachTiming, Tube};
 use crate::bounds::{AffineBoundsBatch, BoundsWorkspace, PreparedNetwork};
 use crate::boxes::IntervalBox;
-use crate::intervals::{round_down, round_up, Interval};
+use crate::intervals::{round_up, Interval};
 
 /// The CPU engine.
 #[derive(Clone, Copy, Debug, Default)]
@@ -149,6 +149,10 @@ struct ChunkBuffers {
     flat_hi: Vec<f64>,
     /// The error margin per input, `m` copies of the box's bound.
     margin: Vec<f64>,
+    /// Per live box this step: whether the filter is proven inactive on its set (`v = 0`).
+    exact: Vec<bool>,
+    /// Zero forms and bounds, the network's stand-in where `v = 0` exactly.
+    zeros: Vec<f64>,
 }
 
 /// What every chunk's run shares.
@@ -165,6 +169,21 @@ struct ChunkRun<'a> {
 }
 
 impl ChunkRun<'_> {
+    /// Whether `v = 0` exactly on the state's set ([`ReachSettings::exact_where_inactive`],
+    /// disturbance method only: the Minkowski method's embedding bounds the NN system).
+    fn filter_proven_inactive(&self, state: &Live) -> bool {
+        self.settings.exact_where_inactive
+            && self.settings.method == ReachMethod::Disturbance
+            && self
+                .problem
+                .inactive
+                .proves(
+                    &self
+                        .problem
+                        .x_box_in_safe_set(&state.lower, &state.upper, self.safe),
+                )
+    }
+
     /// Integrates `states` over the whole horizon in this thread: each Euler step bounds the
     /// network over the chunk's live boxes as one batch, then advances each box. Boxes are
     /// independent, so chunks need no synchronisation between steps. Returns the time spent
@@ -180,7 +199,13 @@ impl ChunkRun<'_> {
             }
             buf.flat_lo.clear();
             buf.flat_hi.clear();
+            buf.exact.clear();
             for state in states.iter().filter(|s| !s.done) {
+                let exact = self.filter_proven_inactive(state);
+                buf.exact.push(exact);
+                if exact {
+                    continue;
+                }
                 let (lo, hi) = (&state.lower, &state.upper);
                 if settings.face_local {
                     // 2n faces per box, in the order (0, lower), (0, upper), (1, lower), …
@@ -195,17 +220,51 @@ impl ChunkRun<'_> {
                     buf.flat_hi.extend(hi);
                 }
             }
-            self.network.bounds_serial_into(
-                &buf.flat_lo,
-                &buf.flat_hi,
-                settings.bounds,
-                &mut buf.bounds,
-                &mut buf.batch,
-            )?;
+            if !buf.flat_lo.is_empty() {
+                self.network.bounds_serial_into(
+                    &buf.flat_lo,
+                    &buf.flat_hi,
+                    settings.bounds,
+                    &mut buf.bounds,
+                    &mut buf.batch,
+                )?;
+            }
             let t = (step + 1) as f64 * problem.dt;
             let record = (step + 1) % self.every == 0 || step + 1 == problem.steps;
             let (batch, margin) = (&buf.batch, &mut buf.margin);
-            for (slot, state) in states.iter_mut().filter(|s| !s.done).enumerate() {
+            buf.zeros.clear();
+            buf.zeros.resize(m * n.max(1), 0.0);
+            let mut next_slot = 0;
+            let live = states.iter_mut().filter(|s| !s.done);
+            for (state, &exact) in live.zip(&buf.exact) {
+                if exact {
+                    // `v = 0` on the whole set: the filtered system's own field, no margin.
+                    let z = &buf.zeros;
+                    let zero = NetworkBoundsRef {
+                        a_lower: &z[..m * n],
+                        b_lower: &z[..m],
+                        a_upper: &z[..m * n],
+                        b_upper: &z[..m],
+                        lower: &z[..m],
+                        upper: &z[..m],
+                    };
+                    margin.clear();
+                    margin.resize(m, 0.0);
+                    let (mut dl, mut du) = embedding_field(
+                        &problem.dynamics,
+                        &state.lower,
+                        &state.upper,
+                        zero,
+                        margin,
+                    );
+                    problem.widen_by_field_slack(&mut dl, &mut du);
+                    embedding_step(&mut state.lower, &mut state.upper, &dl, &du, problem.dt);
+                    advance(problem, state, t, record, self.safe);
+                    continue;
+                }
+                // This box's rows in the batch (boxes with `v = 0` have none).
+                let slot = next_slot;
+                next_slot += 1;
                 let bound = (self.margin_of)(state);
                 if !bound.is_finite() {
                     // The error map has no finite bound where the set is (e.g. where `v`
@@ -240,12 +299,7 @@ impl ChunkRun<'_> {
                         embedding_field(&problem.dynamics, &state.lower, &state.upper, nn, margin);
                     (nn, field)
                 };
-                if problem.field_slack > 0.0 {
-                    dl.iter_mut()
-                        .for_each(|v| *v = round_down(*v - problem.field_slack));
-                    du.iter_mut()
-                        .for_each(|v| *v = round_up(*v + problem.field_slack));
-                }
+                problem.widen_by_field_slack(&mut dl, &mut du);
                 if settings.method == ReachMethod::Minkowski {
                     let clock = Instant::now();
                     let c = closeness_rate(problem, nn);

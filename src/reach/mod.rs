@@ -18,6 +18,7 @@
 pub mod closeness;
 pub mod cpu;
 pub mod embedding;
+pub mod inactive;
 pub mod safe_set;
 pub mod transform;
 
@@ -57,6 +58,10 @@ pub struct ReachSettings {
     /// Bound the network on each face of the box separately (tighter, 2n× the bound cost;
     /// immrax's `local` mode).
     pub face_local: bool,
+    /// Disturbance method on the CPU: where the filter is proven inactive on the whole set
+    /// ([`inactive`]), take `v = 0` exactly instead of the network and its error margin. The
+    /// GPU engine bounds the network everywhere (sound, looser).
+    pub exact_where_inactive: bool,
 }
 
 impl ReachSettings {
@@ -81,6 +86,7 @@ impl Default for ReachSettings {
             method: ReachMethod::Disturbance,
             every: 1,
             face_local: false,
+            exact_where_inactive: false,
         }
     }
 }
@@ -155,6 +161,8 @@ pub struct ReachProblem {
     /// The affine CBFs' half-spaces: the disturbance method's sets are intersected with them at
     /// every step ([`safe_set`]; `SafeSet::default()` switches it off).
     pub safe_set: SafeSet,
+    /// The filter's rows, to prove it inactive over a set ([`ReachSettings::exact_where_inactive`]).
+    pub inactive: inactive::InactiveFilter,
 }
 
 impl ReachProblem {
@@ -287,6 +295,7 @@ impl ReachProblem {
             g_over_region,
             input_gain,
             safe_set,
+            inactive: inactive::InactiveFilter::new(scenario),
         })
     }
 
@@ -303,6 +312,16 @@ impl ReachProblem {
         }
         self.error_map = Some(map);
         Ok(self)
+    }
+
+    /// Widens an embedding field `[dl, du]` by [`ReachProblem::field_slack`] (outward).
+    pub fn widen_by_field_slack(&self, dl: &mut [f64], du: &mut [f64]) {
+        if self.field_slack > 0.0 {
+            dl.iter_mut()
+                .for_each(|v| *v = crate::intervals::round_down(*v - self.field_slack));
+            du.iter_mut()
+                .for_each(|v| *v = crate::intervals::round_up(*v + self.field_slack));
+        }
     }
 
     /// The half-spaces of `S` that bound the method's sets: the filtered system's (disturbance)
