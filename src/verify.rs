@@ -43,7 +43,7 @@ use serde::{Deserialize, Serialize};
 use crate::boxes::IntervalBox;
 use crate::equilibria::{Equilibrium, Stability};
 use crate::intervals::Interval;
-use crate::reach::{Backend, ReachError, ReachProblem, ReachSettings, Tube};
+use crate::reach::{Backend, ReachError, ReachMethod, ReachProblem, ReachSettings, Tube};
 use crate::scenario::Scenario;
 
 /// The `format` tag of verdict JSON files.
@@ -265,6 +265,9 @@ pub struct RunInfo {
     /// Face-local network bounds.
     #[serde(default)]
     pub face_local: bool,
+    /// `v = 0` exactly where the filter was proven inactive (`ReachSettings::exact_where_inactive`).
+    #[serde(default)]
+    pub exact_where_inactive: bool,
     /// Euler step.
     pub dt: f64,
     /// Euler steps.
@@ -637,6 +640,8 @@ impl Verifier<'_> {
                 m_c: self.problem.m_c,
                 local_margin: self.problem.error_map.is_some(),
                 face_local: self.reach.face_local,
+                exact_where_inactive: self.reach.exact_where_inactive
+                    && self.reach.method == ReachMethod::Disturbance,
                 dt: self.problem.dt,
                 steps: self.problem.steps,
                 transformed: self.problem.transform.is_some(),

@@ -214,7 +214,7 @@ pub fn run(args: &ReachArgs) -> CliResult {
     if let Some(t) = &problem.transform {
         println!("embedding in z = T x, T = {:?} (ρ = {:.1e})", t.t, t.rho);
     }
-    let settings = ReachSettings {
+    let mut settings = ReachSettings {
         bounds: args.bounds,
         method: args.method,
         every: args.every,
@@ -222,6 +222,8 @@ pub fn run(args: &ReachArgs) -> CliResult {
         exact_where_inactive: args.method == ReachMethod::Disturbance && !args.network_everywhere,
     };
     let backend = choose_backend(&args.backend, &args.gpu, &settings)?;
+    // The GPU engine bounds the network everywhere.
+    settings.exact_where_inactive &= backend.name() == "cpu";
     let bar = progress_bar(problem.steps as u64, "Euler steps");
     let result = backend.reach(&problem, &s.reach.initial, &settings, &|done, _| {
         bar.set_position(done as u64)
@@ -235,6 +237,10 @@ pub fn run(args: &ReachArgs) -> CliResult {
                 .map_or("none".into(), |v| format!("{v:.4}"))
         ),
         _ => format!("M_C = {m_c}"),
+    } + if settings.exact_where_inactive {
+        " (v = 0 where the filter is proven inactive)"
+    } else {
+        ""
     };
     let within = super::safe_set_clause(&problem.safe_set_for(args.method).names());
     println!(

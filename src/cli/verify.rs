@@ -130,7 +130,7 @@ pub fn run(args: &VerifyArgs) -> CliResult {
     };
     settings.validate(&s)?;
     let problem = compile(&s, &args.problem)?;
-    let reach = ReachSettings {
+    let mut reach = ReachSettings {
         bounds: args.bounds,
         method: args.method,
         every: 1,
@@ -138,6 +138,8 @@ pub fn run(args: &VerifyArgs) -> CliResult {
         exact_where_inactive: args.method == ReachMethod::Disturbance && !args.network_everywhere,
     };
     let engine = choose_backend(&args.backend, &args.gpu, &reach)?;
+    // The GPU engine bounds the network everywhere.
+    reach.exact_where_inactive &= engine.name() == "cpu";
     let report = run_verify(&s, &problem, engine.as_ref(), reach, &settings)?;
     print_summary(&report);
     print_causes(&explain_unverified(&s, &report));
@@ -274,6 +276,10 @@ pub fn print_summary(r: &VerifyReport) {
             "M = local bounds of the certified error map".to_string()
         } else {
             format!("M_C = {}", r.run.m_c)
+        } + if r.run.exact_where_inactive {
+            " (v = 0 where the filter is proven inactive)"
+        } else {
+            ""
         }
     );
     if refined {
