@@ -288,6 +288,10 @@ pub fn run(args: &ReachArgs) -> CliResult {
         run as f64 / result.timing.reach_s.max(1e-12),
         result.timing.minkowski_s
     );
+    if settings.exact_where_inactive {
+        let exact: usize = result.boxes.iter().map(|t| t.exact_steps).sum();
+        println!("  v = 0 exactly (the filter proven inactive on the set) on {exact} of the {run} box-steps");
+    }
     let invalid = result.boxes.iter().filter(|t| !t.valid).count();
     if invalid > 0 {
         println!(

@@ -360,6 +360,7 @@ impl Backend for GpuBackend {
                 tube: vec![problem.tube_sample(&z.lower, &z.upper, 0.0, 0.0, safe)],
                 valid: true,
                 note: None,
+                exact_steps: 0,
             })
             .collect();
         if initial.is_empty() || steps == 0 {

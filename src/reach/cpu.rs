@@ -75,6 +75,7 @@ impl Backend for CpuBackend {
                         tube: Vec::new(),
                         valid: true,
                         note: None,
+                        exact_steps: 0,
                     },
                     done: false,
                 };
@@ -259,6 +260,7 @@ impl ChunkRun<'_> {
                     );
                     problem.widen_by_field_slack(&mut dl, &mut du);
                     embedding_step(&mut state.lower, &mut state.upper, &dl, &du, problem.dt);
+                    state.tube.exact_steps += 1;
                     advance(problem, state, t, record, self.safe);
                     continue;
                 }

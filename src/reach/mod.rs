@@ -477,6 +477,9 @@ pub struct Tube {
     /// Why the tube stopped early, if it did.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub note: Option<String>,
+    /// Steps that took `v = 0` exactly, the filter proven inactive on the set
+    /// ([`ReachSettings::exact_where_inactive`]).
+    pub exact_steps: usize,
 }
 
 impl Tube {
