@@ -558,6 +558,7 @@ fn filtered_trajectories_stay_in_sets_where_v_is_exactly_zero() {
                 !plain[0].valid,
                 "the network's margin alone already converges"
             );
+            assert!(exact[0].exact_steps > 0 && plain.iter().all(|t| t.exact_steps == 0));
         }
     }
 }
