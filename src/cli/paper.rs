@@ -552,7 +552,8 @@ fn print_times(times: &[PaperTimes]) {
     }
     println!(
         "  (embedding: the NN-system tubes of every initial box; radius: the closeness radius r_t; \
-         sound: the disturbance method's tubes behind the verdicts; ×: our box-steps per second over \
+         sound: the disturbance method's tubes behind the verdicts, v = 0 without the network where \
+         the filter is proven inactive; ×: our box-steps per second over \
          the paper's; (k%): the share of the box-steps run, as a box stops where its set leaves C)"
     );
 }
