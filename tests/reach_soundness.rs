@@ -406,16 +406,8 @@ fn z_boxes_contain_the_image_of_x_boxes() {
 /// intersection does act: without it the set leaves C.
 #[test]
 fn filtered_trajectories_stay_in_sets_intersected_with_the_safe_set() {
-    use cbfreach::surrogate_error::ErrorMap;
-
     let s = double_integrator();
-    let path = common::scenario_path("double-integrator.safetensors");
-    let net = Mlp::load_safetensors(&path).unwrap();
-    let transform = Transform::for_scenario(&s, &s.reach.transform).unwrap();
-    let problem = ReachProblem::with_transform(&s, net, 0.0, transform)
-        .unwrap()
-        .with_error_map(ErrorMap::load_for(&path).unwrap())
-        .unwrap();
+    let problem = shipped_problem(&s);
     assert_eq!(problem.safe_set.x.len(), 1, "the velocity bound is affine");
     let settings = ReachSettings {
         bounds: BoundMethod::ForwardBackward,
@@ -453,6 +445,19 @@ fn filtered_trajectories_stay_in_sets_intersected_with_the_safe_set() {
 
     let checks = filtered_trajectories_inside(&s, &tube, 12);
     assert!(checks > 500, "{checks} checks");
+}
+
+/// The scenario compiled as the CLI does: its shipped network, the transform it asks for and
+/// the network's certified error map.
+fn shipped_problem(s: &Scenario) -> ReachProblem {
+    use cbfreach::surrogate_error::ErrorMap;
+    let path = s.network.as_ref().unwrap().file.clone();
+    let net = Mlp::load_safetensors(&path).unwrap();
+    let transform = Transform::for_scenario(s, &s.reach.transform).unwrap();
+    ReachProblem::with_transform(s, net, 0.0, transform)
+        .unwrap()
+        .with_error_map(ErrorMap::load_for(&path).unwrap())
+        .unwrap()
 }
 
 /// Asserts that ground-truth filtered trajectories from `samples` random starts in the tube's
@@ -501,8 +506,6 @@ fn filtered_trajectories_inside(s: &Scenario, tube: &Tube, samples: usize) -> us
 /// goal set.
 #[test]
 fn filtered_trajectories_stay_in_sets_where_v_is_exactly_zero() {
-    use cbfreach::surrogate_error::ErrorMap;
-
     let near_goal =
         cbfreach::IntervalBox::new(vec![0.1875, -0.3125], vec![0.25, -0.28125]).unwrap();
     for (s, initial) in [
@@ -521,13 +524,7 @@ fn filtered_trajectories_stay_in_sets_where_v_is_exactly_zero() {
             ],
         ),
     ] {
-        let path = s.network.as_ref().unwrap().file.clone();
-        let net = Mlp::load_safetensors(&path).unwrap();
-        let transform = Transform::for_scenario(&s, &s.reach.transform).unwrap();
-        let problem = ReachProblem::with_transform(&s, net, 0.0, transform)
-            .unwrap()
-            .with_error_map(ErrorMap::load_for(&path).unwrap())
-            .unwrap();
+        let problem = shipped_problem(&s);
         let settings = |exact| ReachSettings {
             bounds: BoundMethod::ForwardBackward,
             method: ReachMethod::Disturbance,

@@ -1262,29 +1262,32 @@ mod tests {
         assert!(rep.epochs[999].loss < rep.epochs[0].loss / 100.0);
     }
 
+    /// `smooth_data(21)` with three samples' slope target `∂v₀/∂x₀` set to `value`, as at a
+    /// jump of `v`.
+    fn absurd_slopes(value: f64) -> Dataset {
+        let mut d = smooth_data(21);
+        if let Some(jac) = &mut d.jacobians {
+            for s in [40, 200, 330] {
+                jac[4 * s] = value;
+            }
+        }
+        d
+    }
+
     #[test]
     fn capped_slope_targets_leave_the_sobolev_term() {
         // A few samples with absurd slope targets, as at a jump of `v`: with the cap, what the
         // targets are no longer matters (bit-identical weights for two different absurd values),
         // and training matches the smooth data's slope; without it, they wreck the fit.
-        let spoil = |value: f64| {
-            let mut d = smooth_data(21);
-            if let Some(jac) = &mut d.jacobians {
-                for s in [40, 200, 330] {
-                    jac[4 * s] = value;
-                }
-            }
-            d
-        };
         let init = Mlp::random(&[2, 16, 16, 2], 3);
         let capped = TrainSettings {
             jacobian_cap: Some(50.0),
             ..quick(60, 0.1)
         };
-        let (a, _) = train(init.clone(), &spoil(1e4), &capped, |_| {}).unwrap();
-        let (b, _) = train(init.clone(), &spoil(-3e5), &capped, |_| {}).unwrap();
+        let (a, _) = train(init.clone(), &absurd_slopes(1e4), &capped, |_| {}).unwrap();
+        let (b, _) = train(init.clone(), &absurd_slopes(-3e5), &capped, |_| {}).unwrap();
         assert_eq!(a, b, "capped targets still steer the training");
-        let (c, _) = train(init, &spoil(1e4), &quick(60, 0.1), |_| {}).unwrap();
+        let (c, _) = train(init, &absurd_slopes(1e4), &quick(60, 0.1), |_| {}).unwrap();
         let (ea, ec) = (max_slope_error(&a), max_slope_error(&c));
         assert!(ea < 0.5 * ec, "capped {ea} vs uncapped {ec}");
         assert!(TrainSettings {
@@ -1300,15 +1303,6 @@ mod tests {
         // Beyond δ a residual pulls with force δ whatever its size: two absurd targets of the
         // same sign give bit-identical weights (the plain square does not), and a δ above
         // every residual is the plain square exactly.
-        let spoil = |value: f64| {
-            let mut d = smooth_data(21);
-            if let Some(jac) = &mut d.jacobians {
-                for s in [40, 200, 330] {
-                    jac[4 * s] = value;
-                }
-            }
-            d
-        };
         let init = Mlp::random(&[2, 16, 16, 2], 3);
         let plain = TrainSettings {
             hard_example_fraction: 0.0,
@@ -1321,10 +1315,16 @@ mod tests {
         let run = |data: &Dataset, settings: &TrainSettings| {
             train(init.clone(), data, settings, |_| {}).unwrap().0
         };
-        let (a, b) = (run(&spoil(1e3), &huber(1.0)), run(&spoil(1e4), &huber(1.0)));
+        let (a, b) = (
+            run(&absurd_slopes(1e3), &huber(1.0)),
+            run(&absurd_slopes(1e4), &huber(1.0)),
+        );
         assert_eq!(a, b, "Huber residuals beyond δ still pull by their size");
-        assert_ne!(run(&spoil(1e3), &plain), run(&spoil(1e4), &plain));
-        let data = spoil(1e3);
+        assert_ne!(
+            run(&absurd_slopes(1e3), &plain),
+            run(&absurd_slopes(1e4), &plain)
+        );
+        let data = absurd_slopes(1e3);
         assert_eq!(run(&data, &huber(1e9)), run(&data, &plain));
         assert!(huber(0.0).validate().is_err());
         assert!(huber(f64::NAN).validate().is_err());

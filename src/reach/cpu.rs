@@ -50,18 +50,7 @@ impl Backend for CpuBackend {
         problem.check_initial(initial)?;
         settings.validate()?;
         let every = settings.every.max(1);
-        // The transformed network's rounding enters as a disturbance in both methods; the
-        // disturbance method adds M (global, or local from the error map per box and step).
         let safe = problem.safe_set_for(settings.method);
-        let margin_of = |state: &Live| -> f64 {
-            match settings.method {
-                ReachMethod::Disturbance => {
-                    let x_box = problem.x_box_in_safe_set(&state.lower, &state.upper, safe);
-                    round_up(problem.margin_for(&x_box) + problem.network_slack)
-                }
-                ReachMethod::Minkowski => problem.network_slack,
-            }
-        };
         let mut live: Vec<Live> = initial
             .iter()
             .map(|b| {
@@ -104,7 +93,6 @@ impl Backend for CpuBackend {
             problem,
             settings,
             network: &network,
-            margin_of: &margin_of,
             safe,
             every,
             report: &report,
@@ -150,8 +138,9 @@ struct ChunkBuffers {
     flat_hi: Vec<f64>,
     /// The error margin per input, `m` copies of the box's bound.
     margin: Vec<f64>,
-    /// Per live box this step: whether the filter is proven inactive on its set (`v = 0`).
-    exact: Vec<bool>,
+    /// Per live box this step: its error margin, or `None` where `v = 0` exactly
+    /// ([`ChunkRun::step_margin`]).
+    margins: Vec<Option<f64>>,
     /// Zero forms and bounds, the network's stand-in where `v = 0` exactly.
     zeros: Vec<f64>,
 }
@@ -161,8 +150,6 @@ struct ChunkRun<'a> {
     problem: &'a ReachProblem,
     settings: &'a ReachSettings,
     network: &'a PreparedNetwork<'a>,
-    /// The additive bound on every input of `N`'s error over a box (see [`CpuBackend::reach`]).
-    margin_of: &'a (dyn Fn(&Live) -> f64 + Sync),
     safe: &'a SafeSet,
     every: usize,
     /// Told how many box-steps were accounted for (run, or skipped by finished boxes).
@@ -170,19 +157,23 @@ struct ChunkRun<'a> {
 }
 
 impl ChunkRun<'_> {
-    /// Whether `v = 0` exactly on the state's set ([`ReachSettings::exact_where_inactive`],
-    /// disturbance method only: the Minkowski method's embedding bounds the NN system).
-    fn filter_proven_inactive(&self, state: &Live) -> bool {
-        self.settings.exact_where_inactive
-            && self.settings.method == ReachMethod::Disturbance
-            && self
-                .problem
-                .inactive
-                .proves(
-                    &self
-                        .problem
-                        .x_box_in_safe_set(&state.lower, &state.upper, self.safe),
-                )
+    /// The additive bound on every input of `N`'s error over the state's set, or `None` where
+    /// `v = 0` exactly ([`ReachSettings::exact_where_inactive`]). The transformed network's
+    /// rounding enters as a disturbance in both methods; the disturbance method adds `M`
+    /// (global, or local from the error map). The Minkowski method's embedding bounds the NN
+    /// system, so it always uses the network.
+    fn step_margin(&self, state: &Live) -> Option<f64> {
+        let problem = self.problem;
+        match self.settings.method {
+            ReachMethod::Minkowski => Some(problem.network_slack),
+            ReachMethod::Disturbance => {
+                let x_box = problem.x_box_in_safe_set(&state.lower, &state.upper, self.safe);
+                if self.settings.exact_where_inactive && problem.inactive.proves(&x_box) {
+                    return None;
+                }
+                Some(round_up(problem.margin_for(&x_box) + problem.network_slack))
+            }
+        }
     }
 
     /// Integrates `states` over the whole horizon in this thread: each Euler step bounds the
@@ -200,11 +191,11 @@ impl ChunkRun<'_> {
             }
             buf.flat_lo.clear();
             buf.flat_hi.clear();
-            buf.exact.clear();
+            buf.margins.clear();
             for state in states.iter().filter(|s| !s.done) {
-                let exact = self.filter_proven_inactive(state);
-                buf.exact.push(exact);
-                if exact {
+                let margin = self.step_margin(state);
+                buf.margins.push(margin);
+                if margin.is_none() {
                     continue;
                 }
                 let (lo, hi) = (&state.lower, &state.upper);
@@ -237,8 +228,8 @@ impl ChunkRun<'_> {
             buf.zeros.resize(m * n.max(1), 0.0);
             let mut next_slot = 0;
             let live = states.iter_mut().filter(|s| !s.done);
-            for (state, &exact) in live.zip(&buf.exact) {
-                if exact {
+            for (state, &bound) in live.zip(&buf.margins) {
+                let Some(bound) = bound else {
                     // `v = 0` on the whole set: the filtered system's own field, no margin.
                     let z = &buf.zeros;
                     let zero = NetworkBoundsRef {
@@ -263,11 +254,10 @@ impl ChunkRun<'_> {
                     state.tube.exact_steps += 1;
                     advance(problem, state, t, record, self.safe);
                     continue;
-                }
+                };
                 // This box's rows in the batch (boxes with `v = 0` have none).
                 let slot = next_slot;
                 next_slot += 1;
-                let bound = (self.margin_of)(state);
                 if !bound.is_finite() {
                     // The error map has no finite bound where the set is (e.g. where `v`
                     // jumps): nothing sound can be said from here on.
