@@ -222,8 +222,7 @@ pub fn run(args: &ReachArgs) -> CliResult {
         exact_where_inactive: args.method == ReachMethod::Disturbance && !args.network_everywhere,
     };
     let backend = choose_backend(&args.backend, &args.gpu, &settings)?;
-    // The GPU engine bounds the network everywhere.
-    settings.exact_where_inactive &= backend.name() == "cpu";
+    settle_exact_where_inactive(&mut settings, backend.as_ref());
     let bar = progress_bar(problem.steps as u64, "Euler steps");
     let result = backend.reach(&problem, &s.reach.initial, &settings, &|done, _| {
         bar.set_position(done as u64)
@@ -323,6 +322,18 @@ pub fn run(args: &ReachArgs) -> CliResult {
         super::plot::plot_tubes(&s, &result, args.every, m_c, path)?;
     }
     Ok(())
+}
+
+/// `v = 0` where the filter is proven inactive is the CPU engine's: with the GPU engine the
+/// setting goes, with a notice (the network is bounded everywhere: sound, looser).
+pub fn settle_exact_where_inactive(settings: &mut ReachSettings, backend: &dyn Backend) {
+    if settings.exact_where_inactive && backend.name() != "cpu" {
+        settings.exact_where_inactive = false;
+        println!(
+            "note: the GPU engine bounds the network everywhere (taking v = 0 where the filter \
+             is proven inactive is the CPU engine's)"
+        );
+    }
 }
 
 /// The engine named by `--backend` (`cpu`, `gpu`, or `auto`: a GPU when an adapter exists and

@@ -138,8 +138,7 @@ pub fn run(args: &VerifyArgs) -> CliResult {
         exact_where_inactive: args.method == ReachMethod::Disturbance && !args.network_everywhere,
     };
     let engine = choose_backend(&args.backend, &args.gpu, &reach)?;
-    // The GPU engine bounds the network everywhere.
-    reach.exact_where_inactive &= engine.name() == "cpu";
+    super::reach::settle_exact_where_inactive(&mut reach, engine.as_ref());
     let report = run_verify(&s, &problem, engine.as_ref(), reach, &settings)?;
     print_summary(&report);
     print_causes(&explain_unverified(&s, &report));
