@@ -396,6 +396,9 @@ pub fn run_merge(args: &MergeArgs) -> CliResult {
             )?),
             (None, false) => None,
         };
+    if let Some(s) = &s {
+        print_causes(&explain_unverified(s, &merged));
+    }
     if let Some(path) = &args.json {
         std::fs::write(path, merged.to_json()).map_err(|e| format!("{}: {e}", path.display()))?;
         println!("  merged verdicts written to {}", path.display());
