@@ -289,3 +289,29 @@ fn train_adds_finer_samples_only_where_v_is_steep() {
     assert_eq!(added("1e9"), (0, 0));
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn reach_takes_v_zero_where_the_filter_is_proven_inactive_unless_told_not_to() {
+    // Scenario 2's three boxes at x₁ = −3 never meet an active filter: with the default every
+    // one of their steps takes v = 0; `--network-everywhere` bounds the network at each.
+    let path = common::scenario_path("double-integrator.toml");
+    let exact_steps = |extra: &[&str]| {
+        let mut args = vec!["reach", path.to_str().unwrap(), "--bounds", "forward"];
+        args.extend_from_slice(extra);
+        let (code, stdout, stderr) = cbfreach(&args);
+        assert_eq!(code, 0, "{stderr}");
+        stdout
+            .lines()
+            .find(|l| l.contains("v = 0 exactly"))
+            .map(|l| {
+                let numbers: Vec<usize> = l
+                    .split_whitespace()
+                    .filter_map(|w| w.parse().ok())
+                    .collect();
+                (numbers[1], numbers[2])
+            })
+    };
+    let (exact, run) = exact_steps(&[]).expect("the default takes v = 0 somewhere");
+    assert!(exact >= 3 * 200 && exact <= run, "{exact} of {run}");
+    assert_eq!(exact_steps(&["--network-everywhere"]), None);
+}
