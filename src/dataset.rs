@@ -27,6 +27,17 @@ pub struct DatasetSummary {
     pub active_samples: usize,
 }
 
+impl DatasetSummary {
+    /// Adds another build's counts (samples appended to this one's).
+    pub fn add(&mut self, other: &DatasetSummary) {
+        self.grid_points += other.grid_points;
+        self.samples += other.samples;
+        self.infeasible += other.infeasible;
+        self.unsafe_samples += other.unsafe_samples;
+        self.active_samples += other.active_samples;
+    }
+}
+
 /// The points of an equispaced grid with `counts[i]` points along axis i, both ends included,
 /// axis 0 fastest.
 pub fn grid_points(region: &IntervalBox, counts: &[usize]) -> Vec<Vec<f64>> {

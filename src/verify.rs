@@ -43,7 +43,7 @@ use serde::{Deserialize, Serialize};
 use crate::boxes::IntervalBox;
 use crate::equilibria::{Equilibrium, Stability};
 use crate::intervals::Interval;
-use crate::reach::{Backend, ReachError, ReachMethod, ReachProblem, ReachSettings, Tube};
+use crate::reach::{Backend, ReachError, ReachProblem, ReachSettings, Tube};
 use crate::scenario::Scenario;
 
 /// The `format` tag of verdict JSON files.
@@ -640,8 +640,7 @@ impl Verifier<'_> {
                 m_c: self.problem.m_c,
                 local_margin: self.problem.error_map.is_some(),
                 face_local: self.reach.face_local,
-                exact_where_inactive: self.reach.exact_where_inactive
-                    && self.reach.method == ReachMethod::Disturbance,
+                exact_where_inactive: self.reach.takes_v_zero_where_inactive(),
                 dt: self.problem.dt,
                 steps: self.problem.steps,
                 transformed: self.problem.transform.is_some(),

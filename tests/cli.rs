@@ -16,6 +16,16 @@ fn cbfreach(args: &[&str]) -> (i32, String, String) {
     )
 }
 
+/// The whole numbers on the first line of `stdout` that contains `needle`, in order.
+fn numbers_on_line(stdout: &str, needle: &str) -> Option<Vec<usize>> {
+    let line = stdout.lines().find(|l| l.contains(needle))?;
+    Some(
+        line.split_whitespace()
+            .filter_map(|w| w.parse().ok())
+            .collect(),
+    )
+}
+
 #[test]
 fn equilibria_json_lists_the_papers_four() {
     let path = common::scenario_path("integrator.toml");
@@ -244,7 +254,8 @@ fn paper_verifies_split_boxes_of_scenario_2_truly() {
 fn train_adds_finer_samples_only_where_v_is_steep() {
     // Scenario 1's filter is steep near (4.1, 0.8): `--dense-slope` adds a 4× finer grid
     // within one spacing of each steep grid point of S (at most 9² − 3² new points each);
-    // a threshold above every slope adds none.
+    // a threshold above every slope adds none. `--focus-box` weighs the grid's 6 × 5 points in
+    // [−0.5, 0.5]² (x₁ = −0.5, −0.3, …, 0.5 and x₂ = −0.4, …, 0.4; none of the finer ones).
     let dir = std::env::temp_dir().join(format!("cbfreach-dense-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let out = dir.join("net.safetensors");
@@ -263,18 +274,17 @@ fn train_adds_finer_samples_only_where_v_is_steep() {
             "1",
             "--dense-slope",
             slope,
+            "--focus-box=-0.5,-0.5:0.5,0.5",
+            "--focus-weight",
+            "10",
             "--out",
             out.to_str().unwrap(),
         ]);
         assert_eq!(code, 0, "{stderr}");
-        let line = stdout
-            .lines()
-            .find(|l| l.contains("finer added around"))
+        let focus = numbers_on_line(&stdout, "in the focus box weigh");
+        assert_eq!(focus, Some(vec![30, 10]), "{stdout}");
+        let numbers = numbers_on_line(&stdout, "finer added around")
             .unwrap_or_else(|| panic!("no dense-sample line in {stdout}"));
-        let numbers: Vec<usize> = line
-            .split_whitespace()
-            .filter_map(|w| w.parse().ok())
-            .collect();
         (numbers[0], numbers[1])
     };
     let (points, seeds) = added("5");
@@ -300,16 +310,7 @@ fn reach_takes_v_zero_where_the_filter_is_proven_inactive_unless_told_not_to() {
         args.extend_from_slice(extra);
         let (code, stdout, stderr) = cbfreach(&args);
         assert_eq!(code, 0, "{stderr}");
-        stdout
-            .lines()
-            .find(|l| l.contains("v = 0 exactly"))
-            .map(|l| {
-                let numbers: Vec<usize> = l
-                    .split_whitespace()
-                    .filter_map(|w| w.parse().ok())
-                    .collect();
-                (numbers[1], numbers[2])
-            })
+        numbers_on_line(&stdout, "v = 0 exactly").map(|numbers| (numbers[1], numbers[2]))
     };
     let (exact, run) = exact_steps(&[]).expect("the default takes v = 0 somewhere");
     assert!(exact >= 3 * 200 && exact <= run, "{exact} of {run}");

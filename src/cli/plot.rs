@@ -116,7 +116,7 @@ pub fn reach_initial(
         method,
         every,
         face_local,
-        exact_where_inactive: method == ReachMethod::Disturbance,
+        exact_where_inactive: true,
     };
     let bar = progress_bar(problem.steps as u64, "Euler steps");
     let r = engine.reach(problem, &s.reach.initial, &settings, &|d, _| {

@@ -219,7 +219,7 @@ pub fn run(args: &ReachArgs) -> CliResult {
         method: args.method,
         every: args.every,
         face_local: args.face_local,
-        exact_where_inactive: args.method == ReachMethod::Disturbance && !args.network_everywhere,
+        exact_where_inactive: !args.network_everywhere,
     };
     let backend = choose_backend(&args.backend, &args.gpu, &settings)?;
     settle_exact_where_inactive(&mut settings, backend.as_ref());
@@ -236,7 +236,7 @@ pub fn run(args: &ReachArgs) -> CliResult {
                 .map_or("none".into(), |v| format!("{v:.4}"))
         ),
         _ => format!("M_C = {m_c}"),
-    } + if settings.exact_where_inactive {
+    } + if settings.takes_v_zero_where_inactive() {
         " (v = 0 where the filter is proven inactive)"
     } else {
         ""
@@ -287,7 +287,7 @@ pub fn run(args: &ReachArgs) -> CliResult {
         run as f64 / result.timing.reach_s.max(1e-12),
         result.timing.minkowski_s
     );
-    if settings.exact_where_inactive {
+    if settings.takes_v_zero_where_inactive() {
         let exact: usize = result.boxes.iter().map(|t| t.exact_steps).sum();
         println!("  v = 0 exactly (the filter proven inactive on the set) on {exact} of the {run} box-steps");
     }
@@ -327,7 +327,7 @@ pub fn run(args: &ReachArgs) -> CliResult {
 /// `v = 0` where the filter is proven inactive is the CPU engine's: with the GPU engine the
 /// setting goes, with a notice (the network is bounded everywhere: sound, looser).
 pub fn settle_exact_where_inactive(settings: &mut ReachSettings, backend: &dyn Backend) {
-    if settings.exact_where_inactive && backend.name() != "cpu" {
+    if settings.takes_v_zero_where_inactive() && backend.name() != "cpu" {
         settings.exact_where_inactive = false;
         println!(
             "note: the GPU engine bounds the network everywhere (taking v = 0 where the filter \

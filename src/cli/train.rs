@@ -208,10 +208,8 @@ pub fn validation_points(s: &Scenario, grid: &[usize]) -> Vec<Vec<f64>> {
 /// along an axis; returns how many.
 fn restrict_to_band(s: &Scenario, data: &mut Dataset, band: f64) -> usize {
     let n = s.n();
-    let mut weights = data
-        .weights
-        .clone()
-        .unwrap_or_else(|| vec![1.0; data.len()]);
+    let len = data.len();
+    let weights = data.weights.get_or_insert_with(|| vec![1.0; len]);
     let mut excluded = 0;
     for (k, w) in weights.iter_mut().enumerate() {
         let x = &data.inputs[k * n..(k + 1) * n];
@@ -230,7 +228,6 @@ fn restrict_to_band(s: &Scenario, data: &mut Dataset, band: f64) -> usize {
             excluded += 1;
         }
     }
-    data.weights = Some(weights);
     excluded
 }
 
@@ -263,8 +260,8 @@ fn steep_samples<'a>(
 
 /// Multiplies the weights of the samples in `focus` by `weight`; returns how many.
 fn weigh_box(data: &mut Dataset, focus: &IntervalBox, weight: f64) -> usize {
-    let n = data.n_in;
-    let mut weights = data.weights.take().unwrap_or_else(|| vec![1.0; data.len()]);
+    let (n, len) = (data.n_in, data.len());
+    let weights = data.weights.get_or_insert_with(|| vec![1.0; len]);
     let mut count = 0;
     for (k, w) in weights.iter_mut().enumerate() {
         if focus.contains(&data.inputs[k * n..(k + 1) * n]) {
@@ -272,7 +269,6 @@ fn weigh_box(data: &mut Dataset, focus: &IntervalBox, weight: f64) -> usize {
             count += 1;
         }
     }
-    data.weights = Some(weights);
     count
 }
 
@@ -301,7 +297,7 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
         (None, None) => return Err("give --out FILE".into()),
     };
     let grid = args.grid.clone().unwrap_or(s.training.grid.clone());
-    let mut points = training_points(&s, Some(&grid))?;
+    let points = training_points(&s, Some(&grid))?;
     let (mut data, mut summary) = build(&s, &points, "training data");
     if let Some(slope) = args.dense_slope {
         if !(slope.is_finite() && slope >= 0.0) {
@@ -325,8 +321,9 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
             args.jacobian_cap
                 .map_or(String::new(), |cap| format!(" and none > {cap} (a jump)"))
         );
-        points.extend(added);
-        (data, summary) = build(&s, &points, "training data");
+        let (finer, finer_summary) = build(&s, &added, "finer samples");
+        data.append(finer)?;
+        summary.add(&finer_summary);
     }
     print_summary(&s, &summary);
     if args.unsafe_band >= 0.0 {

@@ -135,7 +135,7 @@ pub fn run(args: &VerifyArgs) -> CliResult {
         method: args.method,
         every: 1,
         face_local: args.face_local,
-        exact_where_inactive: args.method == ReachMethod::Disturbance && !args.network_everywhere,
+        exact_where_inactive: !args.network_everywhere,
     };
     let engine = choose_backend(&args.backend, &args.gpu, &reach)?;
     super::reach::settle_exact_where_inactive(&mut reach, engine.as_ref());

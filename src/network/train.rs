@@ -112,6 +112,37 @@ impl Dataset {
         self.weights.as_ref().map_or(1.0, |w| w[s])
     }
 
+    /// Appends `other`'s samples. Both must have the same dimensions and both or neither
+    /// carry Jacobians; a side without weights weighs its samples 1.
+    pub fn append(&mut self, other: Dataset) -> Result<(), NetworkError> {
+        if (self.n_in, self.n_out) != (other.n_in, other.n_out)
+            || self.jacobians.is_some() != other.jacobians.is_some()
+        {
+            return Err(NetworkError::Dataset {
+                message: format!(
+                    "cannot append samples of {}→{} (Jacobians: {}) to {}→{} (Jacobians: {})",
+                    other.n_in,
+                    other.n_out,
+                    other.jacobians.is_some(),
+                    self.n_in,
+                    self.n_out,
+                    self.jacobians.is_some()
+                ),
+            });
+        }
+        if self.weights.is_some() || other.weights.is_some() {
+            let (len, other_len) = (self.len(), other.len());
+            let w = self.weights.get_or_insert_with(|| vec![1.0; len]);
+            w.extend(other.weights.unwrap_or_else(|| vec![1.0; other_len]));
+        }
+        self.inputs.extend(other.inputs);
+        self.targets.extend(other.targets);
+        if let (Some(j), Some(o)) = (&mut self.jacobians, other.jacobians) {
+            j.extend(o);
+        }
+        Ok(())
+    }
+
     /// Checks lengths, dimensions and finiteness.
     pub fn validate(&self) -> Result<(), NetworkError> {
         let bad = |message: String| Err(NetworkError::Dataset { message });
@@ -1272,6 +1303,25 @@ mod tests {
             }
         }
         d
+    }
+
+    #[test]
+    fn appended_samples_follow_with_their_weights() {
+        let mut a = smooth_data(5);
+        let mut b = smooth_data(3);
+        let (la, lb) = (a.len(), b.len());
+        b.weights = Some(vec![2.0; lb]);
+        let (b_inputs, b_jac) = (b.inputs.clone(), b.jacobians.clone().unwrap());
+        a.append(b).unwrap();
+        a.validate().unwrap();
+        assert_eq!(a.len(), la + lb);
+        assert_eq!(&a.inputs[la * 2..], &b_inputs[..]);
+        assert_eq!(&a.jacobians.as_ref().unwrap()[la * 4..], &b_jac[..]);
+        let w = a.weights.unwrap();
+        assert!(w[..la].iter().all(|&x| x == 1.0) && w[la..].iter().all(|&x| x == 2.0));
+        let mut no_jacobians = smooth_data(3);
+        no_jacobians.jacobians = None;
+        assert!(smooth_data(3).append(no_jacobians).is_err());
     }
 
     #[test]

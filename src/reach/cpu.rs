@@ -141,7 +141,7 @@ struct ChunkBuffers {
     /// Per live box this step: its error margin, or `None` where `v = 0` exactly
     /// ([`ChunkRun::step_margin`]).
     margins: Vec<Option<f64>>,
-    /// Zero forms and bounds, the network's stand-in where `v = 0` exactly.
+    /// Zeros for [`zero_bounds`] (and the zero margin), sized once per chunk.
     zeros: Vec<f64>,
 }
 
@@ -158,17 +158,16 @@ struct ChunkRun<'a> {
 
 impl ChunkRun<'_> {
     /// The additive bound on every input of `N`'s error over the state's set, or `None` where
-    /// `v = 0` exactly ([`ReachSettings::exact_where_inactive`]). The transformed network's
-    /// rounding enters as a disturbance in both methods; the disturbance method adds `M`
-    /// (global, or local from the error map). The Minkowski method's embedding bounds the NN
-    /// system, so it always uses the network.
+    /// `v = 0` exactly ([`ReachSettings::takes_v_zero_where_inactive`]). The transformed
+    /// network's rounding enters as a disturbance in both methods; the disturbance method adds
+    /// `M` (global, or local from the error map).
     fn step_margin(&self, state: &Live) -> Option<f64> {
         let problem = self.problem;
         match self.settings.method {
             ReachMethod::Minkowski => Some(problem.network_slack),
             ReachMethod::Disturbance => {
                 let x_box = problem.x_box_in_safe_set(&state.lower, &state.upper, self.safe);
-                if self.settings.exact_where_inactive && problem.inactive.proves(&x_box) {
+                if self.settings.takes_v_zero_where_inactive() && problem.inactive.proves(&x_box) {
                     return None;
                 }
                 Some(round_up(problem.margin_for(&x_box) + problem.network_slack))
@@ -184,6 +183,8 @@ impl ChunkRun<'_> {
         let (problem, settings) = (self.problem, self.settings);
         let (n, m) = (problem.dynamics.n, problem.dynamics.m);
         let mut minkowski_s = 0.0;
+        buf.zeros.clear();
+        buf.zeros.resize(m * n.max(1), 0.0);
         for step in 0..problem.steps {
             if states.iter().all(|s| s.done) {
                 (self.report)((problem.steps - step) * states.len());
@@ -224,86 +225,77 @@ impl ChunkRun<'_> {
             let t = (step + 1) as f64 * problem.dt;
             let record = (step + 1) % self.every == 0 || step + 1 == problem.steps;
             let (batch, margin) = (&buf.batch, &mut buf.margin);
-            buf.zeros.clear();
-            buf.zeros.resize(m * n.max(1), 0.0);
             let mut next_slot = 0;
             let live = states.iter_mut().filter(|s| !s.done);
             for (state, &bound) in live.zip(&buf.margins) {
-                let Some(bound) = bound else {
-                    // `v = 0` on the whole set: the filtered system's own field, no margin.
-                    let z = &buf.zeros;
-                    let zero = NetworkBoundsRef {
-                        a_lower: &z[..m * n],
-                        b_lower: &z[..m],
-                        a_upper: &z[..m * n],
-                        b_upper: &z[..m],
-                        lower: &z[..m],
-                        upper: &z[..m],
-                    };
-                    margin.clear();
-                    margin.resize(m, 0.0);
-                    let (mut dl, mut du) = embedding_field(
-                        &problem.dynamics,
-                        &state.lower,
-                        &state.upper,
-                        zero,
-                        margin,
-                    );
-                    problem.widen_by_field_slack(&mut dl, &mut du);
-                    embedding_step(&mut state.lower, &mut state.upper, &dl, &du, problem.dt);
-                    state.tube.exact_steps += 1;
-                    advance(problem, state, t, record, self.safe);
-                    continue;
-                };
-                // This box's rows in the batch (boxes with `v = 0` have none).
-                let slot = next_slot;
-                next_slot += 1;
-                if !bound.is_finite() {
-                    // The error map has no finite bound where the set is (e.g. where `v`
-                    // jumps): nothing sound can be said from here on.
-                    state.tube.valid = false;
-                    state.tube.note = Some(format!(
-                        "t = {:.3}: the set meets cells of the error map with no certified \
-                         bound (M = ∞)",
-                        t - problem.dt
-                    ));
-                    state.done = true;
-                    continue;
-                }
-                margin.clear();
-                margin.resize(m, bound);
-                let (nn, (mut dl, mut du)) = if settings.face_local {
-                    // (Minkowski is refused with face-local bounds: its rate needs one C.)
-                    let face = |i: usize, up: bool| {
-                        bounds_of(batch, slot * 2 * n + 2 * i + usize::from(up), n, m)
-                    };
-                    let field = embedding_field_by_face(
-                        &problem.dynamics,
-                        &state.lower,
-                        &state.upper,
-                        face,
-                        margin,
-                    );
-                    (face(0, false), field)
-                } else {
-                    let nn = bounds_of(batch, slot, n, m);
-                    let field =
-                        embedding_field(&problem.dynamics, &state.lower, &state.upper, nn, margin);
-                    (nn, field)
+                let (mut dl, mut du) = match bound {
+                    None => {
+                        // `v = 0` on the whole set: the filtered system's own field, no margin.
+                        state.tube.exact_steps += 1;
+                        let zero = zero_bounds(&buf.zeros, n, m);
+                        embedding_field(
+                            &problem.dynamics,
+                            &state.lower,
+                            &state.upper,
+                            zero,
+                            zero.b_lower,
+                        )
+                    }
+                    Some(bound) => {
+                        // This box's rows in the batch (boxes with `v = 0` have none).
+                        let slot = next_slot;
+                        next_slot += 1;
+                        if !bound.is_finite() {
+                            // The error map has no finite bound where the set is (e.g. where
+                            // `v` jumps): nothing sound can be said from here on.
+                            state.tube.valid = false;
+                            state.tube.note = Some(format!(
+                                "t = {:.3}: the set meets cells of the error map with no \
+                                 certified bound (M = ∞)",
+                                t - problem.dt
+                            ));
+                            state.done = true;
+                            continue;
+                        }
+                        margin.clear();
+                        margin.resize(m, bound);
+                        if settings.face_local {
+                            // (Minkowski is refused with face-local bounds: its rate needs one C.)
+                            let face = |i: usize, up: bool| {
+                                bounds_of(batch, slot * 2 * n + 2 * i + usize::from(up), n, m)
+                            };
+                            embedding_field_by_face(
+                                &problem.dynamics,
+                                &state.lower,
+                                &state.upper,
+                                face,
+                                margin,
+                            )
+                        } else {
+                            let nn = bounds_of(batch, slot, n, m);
+                            if settings.method == ReachMethod::Minkowski {
+                                let clock = Instant::now();
+                                let c = closeness_rate(problem, nn);
+                                state.radius = closeness_step(
+                                    state.radius,
+                                    c,
+                                    problem.input_gain,
+                                    problem.m_c,
+                                    problem.dt,
+                                );
+                                minkowski_s += clock.elapsed().as_secs_f64();
+                            }
+                            embedding_field(
+                                &problem.dynamics,
+                                &state.lower,
+                                &state.upper,
+                                nn,
+                                margin,
+                            )
+                        }
+                    }
                 };
                 problem.widen_by_field_slack(&mut dl, &mut du);
-                if settings.method == ReachMethod::Minkowski {
-                    let clock = Instant::now();
-                    let c = closeness_rate(problem, nn);
-                    state.radius = closeness_step(
-                        state.radius,
-                        c,
-                        problem.input_gain,
-                        problem.m_c,
-                        problem.dt,
-                    );
-                    minkowski_s += clock.elapsed().as_secs_f64();
-                }
                 embedding_step(&mut state.lower, &mut state.upper, &dl, &du, problem.dt);
                 advance(problem, state, t, record, self.safe);
             }
@@ -318,6 +310,19 @@ fn pinned(x: &[f64], i: usize, v: f64) -> impl Iterator<Item = f64> + '_ {
     x.iter()
         .enumerate()
         .map(move |(j, &x_j)| if j == i { v } else { x_j })
+}
+
+/// The network's stand-in where `v = 0` exactly: zero forms and bounds (`zeros` holds at least
+/// `m·n` and `m` zeros).
+fn zero_bounds(zeros: &[f64], n: usize, m: usize) -> NetworkBoundsRef<'_> {
+    NetworkBoundsRef {
+        a_lower: &zeros[..m * n],
+        b_lower: &zeros[..m],
+        a_upper: &zeros[..m * n],
+        b_upper: &zeros[..m],
+        lower: &zeros[..m],
+        upper: &zeros[..m],
+    }
 }
 
 fn bounds_of(batch: &AffineBoundsBatch, k: usize, n: usize, m: usize) -> NetworkBoundsRef<'_> {

@@ -65,6 +65,12 @@ pub struct ReachSettings {
 }
 
 impl ReachSettings {
+    /// Whether steps take `v = 0` where the filter is proven inactive: asked for, and the
+    /// disturbance method (the Minkowski method's embedding bounds the NN system).
+    pub fn takes_v_zero_where_inactive(&self) -> bool {
+        self.exact_where_inactive && self.method == ReachMethod::Disturbance
+    }
+
     /// Checks combinations: the Minkowski method's closeness rate needs one slope matrix `C`
     /// for the whole box, which face-local bounds do not give.
     pub fn validate(&self) -> Result<(), ReachError> {
