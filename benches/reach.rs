@@ -9,7 +9,7 @@
 
 use cbfreach::bounds::BoundMethod;
 use cbfreach::network::Mlp;
-use cbfreach::reach::{Backend, CpuBackend, ReachMethod, ReachProblem, ReachSettings};
+use cbfreach::reach::{Backend, CpuBackend, ExactField, ReachMethod, ReachProblem, ReachSettings};
 use cbfreach::scenario::Scenario;
 use divan::counter::ItemsCount;
 use divan::Bencher;
@@ -41,7 +41,7 @@ fn reach_12_boxes(bencher: Bencher, method: BoundMethod) {
         every: 50,
         face_local: false,
         // Every step bounds the network: this measures the bound methods.
-        exact_where_inactive: false,
+        exact: ExactField::Nowhere,
     };
     bencher
         .counter(ItemsCount::new(initial.len() * problem.steps))

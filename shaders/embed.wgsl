@@ -242,9 +242,10 @@ fn interaction_row(nb: NetBounds, margin: real, i: u32, side: u32) -> Interactio
 
 // The embedding field's bound on face (i, side) of the box (embedding_field_by_face in
 // src/reach/embedding.rs), with the network bounded over that face (or the whole box): f̃ᵢ at
-// the face's centre point p, the interval Jacobian times the offsets over the face, and the
+// the face's centre point p, the interval Jacobian over the face (the mean-value form's
+// segments from p stay on it) times the offsets over the face, and the
 // network's affine forms (constant g) or [g](box)·[N̲ − M, N̄ + M] (state-dependent g).
-fn face_field(i: u32, side: u32, xb: array<Iv, N0>, cen: array<real, N0>, jac: array<Iv, N0 * N0>, nb: NetBounds, margin: real) -> Iv {
+fn face_field(i: u32, side: u32, xb: array<Iv, N0>, cen: array<real, N0>, nb: NetBounds, margin: real) -> Iv {
     var pt = cen;
     if (side == 0u) {
         pt[i] = xb[i].lo;
@@ -255,6 +256,12 @@ fn face_field(i: u32, side: u32, xb: array<Iv, N0>, cen: array<real, N0>, jac: a
     for (var j = 0u; j < N0; j++) {
         pb[j] = iv_point(pt[j]);
     }
+    var face = xb;
+    face[i] = pb[i];
+    var jac: array<Iv, N0>;
+    for (var j = 0u; j < N0; j++) {
+        jac[j] = jac_iv(i, j, face);
+    }
     var total = ft_iv(i, pb);
     if (G_CONSTANT) {
         let ir = interaction_row(nb, margin, i, side);
@@ -262,7 +269,7 @@ fn face_field(i: u32, side: u32, xb: array<Iv, N0>, cen: array<real, N0>, jac: a
             total = iv_add(total, iv_mul(ir.row[j], iv_point(pt[j])));
             if (j != i) {
                 let off = iv_sub(xb[j], iv_point(pt[j]));
-                total = iv_add(total, iv_mul(iv_add(jac[i * N0 + j], ir.row[j]), off));
+                total = iv_add(total, iv_mul(iv_add(jac[j], ir.row[j]), off));
             }
         }
         total = iv_add(total, ir.delta);
@@ -270,7 +277,7 @@ fn face_field(i: u32, side: u32, xb: array<Iv, N0>, cen: array<real, N0>, jac: a
         for (var j = 0u; j < N0; j++) {
             if (j != i) {
                 let off = iv_sub(xb[j], iv_point(pt[j]));
-                total = iv_add(total, iv_mul(jac[i * N0 + j], off));
+                total = iv_add(total, iv_mul(jac[j], off));
             }
         }
         for (var k = 0u; k < M_OUT; k++) {
@@ -356,17 +363,11 @@ fn embed(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
 
     // The embedding field, face by face (embedding_field_by_face in src/reach/embedding.rs).
-    var jac: array<Iv, N0 * N0>;
-    for (var i = 0u; i < N0; i++) {
-        for (var j = 0u; j < N0; j++) {
-            jac[i * N0 + j] = jac_iv(i, j, xb);
-        }
-    }
     var dxl: array<real, N0>;
     var dxu: array<real, N0>;
     for (var i = 0u; i < N0; i++) {
-        dxl[i] = face_field(i, 0u, xb, cen, jac, load_bounds(face_index(g, i, 0u)), margin).lo;
-        dxu[i] = face_field(i, 1u, xb, cen, jac, load_bounds(face_index(g, i, 1u)), margin).hi;
+        dxl[i] = face_field(i, 0u, xb, cen, load_bounds(face_index(g, i, 0u)), margin).lo;
+        dxu[i] = face_field(i, 1u, xb, cen, load_bounds(face_index(g, i, 1u)), margin).hi;
         if (FIELD_SLACK > 0.0) {
             dxl[i] = down(dxl[i] - FIELD_SLACK);
             dxu[i] = up(dxu[i] + FIELD_SLACK);

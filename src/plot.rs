@@ -609,20 +609,56 @@ fn draw_verdicts<DB: DrawingBackend>(
             100.0 * after.verified_share
         )
     };
+    let title = if after.verified_feasible_share < after.verified_share {
+        format!(
+            "{title}; {:.1}% with the QP proven feasible",
+            100.0 * after.verified_feasible_share
+        )
+    } else {
+        title
+    };
     let mut chart = chart(root, scenario, region, &title)?;
     for v in Verdict::ALL {
-        let boxes: Vec<IntervalBox> = report
-            .after
-            .iter()
-            .filter(|b| b.verdict == v)
-            .map(|b| b.initial.clone())
-            .collect();
-        if boxes.is_empty() {
-            continue;
+        // Verified boxes whose QP was not proven feasible on every set are drawn pale: their
+        // verdict speaks only of the trajectories that do not meet an infeasible QP.
+        for pale in [false, true] {
+            let boxes: Vec<IntervalBox> = report
+                .after
+                .iter()
+                .filter(|b| b.verdict == v && (b.feasible == Some(false)) == pale)
+                .map(|b| b.initial.clone())
+                .collect();
+            if boxes.is_empty() {
+                continue;
+            }
+            let share = |bs: &[IntervalBox]| {
+                let area: f64 = bs.iter().map(IntervalBox::volume).sum();
+                100.0 * area / after.safe_area.max(f64::MIN_POSITIVE)
+            };
+            let (colour, label) = if pale {
+                (
+                    verdict_colour(v).mix(0.4),
+                    format!(
+                        "{}, QP feasibility not proven ({:.1}%)",
+                        v.name(),
+                        share(&boxes)
+                    ),
+                )
+            } else if v.is_verified()
+                && boxes.len() < report.after.iter().filter(|b| b.verdict == v).count()
+            {
+                (
+                    verdict_colour(v).mix(1.0),
+                    format!("{}, QP proven feasible ({:.1}%)", v.name(), share(&boxes)),
+                )
+            } else {
+                (
+                    verdict_colour(v).mix(1.0),
+                    format!("{} ({:.1}%)", v.name(), 100.0 * after.share(v)),
+                )
+            };
+            box_series(&mut chart, &boxes, region, colour.filled(), Some(&label))?;
         }
-        let colour = verdict_colour(v);
-        let label = format!("{} ({:.1}%)", v.name(), 100.0 * after.share(v));
-        box_series(&mut chart, &boxes, region, colour.filled(), Some(&label))?;
     }
     // Thin cell borders so the refinement is visible (left out when cells are tiny).
     if report.after.len() <= 3000 {

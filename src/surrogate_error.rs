@@ -661,6 +661,22 @@ pub struct SmoothV {
     pub jac: Vec<Interval>,
 }
 
+/// One smooth piece of a closed-form filter `v` (the filter's active set held fixed).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FilterPiece {
+    /// Every row slack: `v = 0`.
+    Inactive,
+    /// Row `k` binds, every other row is slack.
+    Binding(usize),
+}
+
+/// The rows of the filter over a cell ([`VForms::rows`]).
+struct Rows {
+    a_nat: Vec<Interval>,
+    b_nat: Vec<Interval>,
+    b_enc: Vec<Interval>,
+}
+
 /// The closed-form filter as expressions with symbolic gradients, built once per scenario for
 /// [`VForms::enclose`] (mean-value enclosures of `v`, DESIGN §2.1).
 #[derive(Clone, Debug)]
@@ -676,7 +692,14 @@ pub struct VForms {
     p: Vec<Smooth>,
     /// Scalar input: `rₖ = bₖ/aₖ` per row.
     r: Vec<Smooth>,
+    /// Scalar input: `rₖ − rⱼ` at `k·rows + j` (`k ≠ j`), to prove one row dominant; empty
+    /// beyond [`MAX_DOMINANCE_ROWS`] rows.
+    r_diff: Vec<Option<Smooth>>,
 }
+
+/// Rows up to which [`VForms`] keeps the pairwise differences `rₖ − rⱼ` (their count grows
+/// with the square).
+const MAX_DOMINANCE_ROWS: usize = 8;
 
 impl VForms {
     /// The forms of the scenario's closed-form filter; `None` for a general QP.
@@ -734,6 +757,17 @@ impl VForms {
             }
             _ => {}
         }
+        let rows = r.len();
+        let r_diff = if rows <= MAX_DOMINANCE_ROWS {
+            (0..rows * rows)
+                .map(|kj| {
+                    let (k, j) = (kj / rows, kj % rows);
+                    (k != j).then(|| Smooth::new(r[k].e.clone() - r[j].e.clone(), n))
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
         Some(VForms {
             method,
             n,
@@ -742,7 +776,164 @@ impl VForms {
             f,
             p,
             r,
+            r_diff,
         })
+    }
+
+    /// The rows over `cell ∩ S`: natural enclosures of `a` and `b`, and `b` met with its
+    /// mean-value form; `None` when some row is undefined (NaN) on the cell.
+    fn rows(
+        &self,
+        s: &Scenario,
+        xs: &[Interval],
+        cs: &[Interval],
+        dx: &[Interval],
+        cell: &IntervalBox,
+    ) -> Option<Rows> {
+        let (a_nat, b_nat) = interval_rows(s, cell);
+        if b_nat.len() != self.b.len() || a_nat.iter().chain(&b_nat).any(|v| v.is_nan()) {
+            return None;
+        }
+        let b_enc = self
+            .b
+            .iter()
+            .zip(&b_nat)
+            .map(|(bk, &nat)| meet(nat, bk.centred(xs, cs, dx).enclosure))
+            .collect();
+        Some(Rows {
+            a_nat,
+            b_nat,
+            b_enc,
+        })
+    }
+
+    /// Which smooth piece of the closed form `v` is on the whole of `cell ∩ S` (where the
+    /// filter is feasible), if one provably is: every row slack (`bₖ ≥ 0`: `v = 0`), or one row
+    /// binding throughout (`bₖ ≤ 0`, its `aₖ` bounded away from 0) and every other row slack.
+    pub fn piece(&self, s: &Scenario, cell: &IntervalBox) -> Option<FilterPiece> {
+        let xs: Vec<Interval> = (0..self.n)
+            .map(|i| Interval::new(cell.lower[i], cell.upper[i]))
+            .collect();
+        let cs: Vec<Interval> = cell.center().into_iter().map(Interval::point).collect();
+        let dx: Vec<Interval> = (0..self.n).map(|i| xs[i] - cs[i]).collect();
+        let Rows {
+            a_nat,
+            b_nat,
+            b_enc,
+        } = self.rows(s, &xs, &cs, &dx, cell)?;
+        let may_bind: Vec<usize> = (0..b_enc.len()).filter(|&k| b_enc[k].lower < 0.0).collect();
+        if may_bind.is_empty() {
+            return Some(FilterPiece::Inactive);
+        }
+        match self.method {
+            FilterMethod::ClosedFormSingle if !self.f.is_empty() => {
+                let norm2 = sum(a_nat.iter().map(|&aj| aj.sqr()));
+                (b_enc[0].upper <= 0.0 && norm2.lower > 0.0).then_some(FilterPiece::Binding(0))
+            }
+            FilterMethod::ClosedFormScalar if self.r.len() == b_enc.len() => {
+                // `v = clamp(0, lo, hi)` with `lo` the largest `rₖ` of the rows with `aₖ < 0`
+                // and `hi` the smallest of those with `aₖ > 0`. A row that binds throughout
+                // (`bₖ ≤ 0`) fixes the sign of `v`, so only the rows on its own side compete:
+                // it is `v` where it dominates each of them that may bind.
+                let r_of = |k: usize| {
+                    meet(
+                        b_nat[k] / a_nat[k],
+                        self.r[k].centred(&xs, &cs, &dx).enclosure,
+                    )
+                };
+                let side = |k: usize| {
+                    let a = a_nat[k];
+                    (a.upper < 0.0)
+                        .then_some(false)
+                        .or((a.lower > 0.0).then_some(true))
+                };
+                let dominates = |k: usize, j: usize, upper: bool| {
+                    let Some(Some(form)) = self.r_diff.get(k * self.r.len() + j) else {
+                        return false;
+                    };
+                    let d = meet(r_of(k) - r_of(j), form.centred(&xs, &cs, &dx).enclosure);
+                    if upper {
+                        d.upper <= 0.0
+                    } else {
+                        d.lower >= 0.0
+                    }
+                };
+                may_bind
+                    .iter()
+                    .copied()
+                    .find(|&k| {
+                        let Some(upper) = side(k) else {
+                            return false;
+                        };
+                        b_enc[k].upper <= 0.0
+                            && may_bind.iter().all(|&j| {
+                                j == k
+                                    || match side(j) {
+                                        Some(u) if u != upper => true,
+                                        Some(_) => dominates(k, j, upper),
+                                        None => false,
+                                    }
+                            })
+                    })
+                    .map(FilterPiece::Binding)
+            }
+            _ => None,
+        }
+    }
+
+    /// Whether the filter's QP is feasible at every point of `cell ∩ S`. One row: `bₖ ≥ 0` or
+    /// `aₖ ≠ 0`. Scalar input: each row's set of `θ` is a half-line (or all of ℝ), and in one
+    /// dimension sets that meet pairwise have a common point (Helly), so it suffices that every
+    /// row alone is feasible and that no two rows point in opposite directions past each
+    /// other: `aⱼaₖ ≥ 0`, or `(bⱼaₖ − bₖaⱼ)·aₖ ≥ 0` (that is `bⱼ/aⱼ ≤ bₖ/aₖ` when `aⱼ < 0 < aₖ`),
+    /// or both rows slack at `θ = 0`.
+    pub fn proves_feasible(&self, s: &Scenario, cell: &IntervalBox) -> bool {
+        let xs: Vec<Interval> = (0..self.n)
+            .map(|i| Interval::new(cell.lower[i], cell.upper[i]))
+            .collect();
+        let cs: Vec<Interval> = cell.center().into_iter().map(Interval::point).collect();
+        let dx: Vec<Interval> = (0..self.n).map(|i| xs[i] - cs[i]).collect();
+        let Some(Rows { a_nat, b_enc, .. }) = self.rows(s, &xs, &cs, &dx, cell) else {
+            return false;
+        };
+        let slack = |k: usize| b_enc[k].lower >= 0.0;
+        match self.method {
+            FilterMethod::ClosedFormSingle => {
+                slack(0) || sum(a_nat.iter().map(|&aj| aj.sqr())).lower > 0.0
+            }
+            FilterMethod::ClosedFormScalar => {
+                let rows = b_enc.len();
+                let alone = (0..rows).all(|k| slack(k) || !a_nat[k].contains(0.0));
+                alone
+                    && (0..rows).all(|j| {
+                        (j + 1..rows).all(|k| {
+                            let (aj, ak) = (a_nat[j], a_nat[k]);
+                            (slack(j) && slack(k))
+                                || (aj * ak).lower >= 0.0
+                                || ((b_enc[j] * ak - b_enc[k] * aj) * ak).lower >= 0.0
+                        })
+                    })
+            }
+            FilterMethod::Qp => (0..b_enc.len()).all(slack),
+        }
+    }
+
+    /// `v` on a piece, as expressions in x (`m` of them): `0` where every row is slack;
+    /// `bₖ aⱼ/‖a‖²` (one row) or `bₖ/aₖ` (scalar input) where row `k` binds.
+    pub fn piece_input(&self, piece: FilterPiece) -> Vec<Expr> {
+        match piece {
+            FilterPiece::Inactive => vec![Expr::constant(0.0); self.m],
+            FilterPiece::Binding(k) => match self.method {
+                FilterMethod::ClosedFormSingle => self.f.iter().map(|f| f.e.clone()).collect(),
+                _ => vec![self.r[k].e.clone()],
+            },
+        }
+    }
+
+    /// Number of constraint rows (the pieces are [`FilterPiece::Inactive`] and one
+    /// [`FilterPiece::Binding`] per row).
+    pub fn rows_len(&self) -> usize {
+        self.b.len()
     }
 
     /// An enclosure of `v` over `cell ∩ S` (where feasible), the natural one of
@@ -764,16 +955,14 @@ impl VForms {
             value: vec![Interval::point(0.0); m],
             jac: vec![Interval::point(0.0); m * n],
         };
-        let (a_nat, b_nat) = interval_rows(s, cell);
-        if b_nat.len() != self.b.len() || a_nat.iter().chain(&b_nat).any(|v| v.is_nan()) {
+        let Some(Rows {
+            a_nat,
+            b_nat,
+            b_enc,
+        }) = self.rows(s, &xs, &cs, &dx, cell)
+        else {
             return (natural, None);
-        }
-        let b_enc: Vec<Interval> = self
-            .b
-            .iter()
-            .zip(&b_nat)
-            .map(|(bk, &nat)| meet(nat, bk.centred(&xs, &cs, &dx).enclosure))
-            .collect();
+        };
         let smooth_of = |forms: Vec<CentredForm>| SmoothV {
             centre: centre.clone(),
             value: forms.iter().map(|f| f.value).collect(),

@@ -33,6 +33,7 @@
 //! the same run and tile the grid exactly, and joins them. The refinement budget applies per
 //! shard.
 
+use crate::reach::ExactField;
 use std::collections::BTreeMap;
 use std::ops::Range;
 use std::str::FromStr;
@@ -238,6 +239,12 @@ pub struct BoxVerdict {
     /// Why (`unsafe`: when and which CBF; `invalid`: when it left `C`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub note: Option<String>,
+    /// For verified boxes: whether the filter's QP is proven feasible on every set of the tube
+    /// ([`crate::reach::pieces::FilterPieces::proves_feasible`]). Where it is not, some
+    /// trajectories may meet an infeasible QP and stop existing; the verdict speaks of those
+    /// that exist.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub feasible: Option<bool>,
 }
 
 /// What a run was: everything two shards must share to be merged.
@@ -265,9 +272,9 @@ pub struct RunInfo {
     /// Face-local network bounds.
     #[serde(default)]
     pub face_local: bool,
-    /// `v = 0` exactly where the filter was proven inactive (`ReachSettings::exact_where_inactive`).
+    /// Where the filtered system's own field replaced the network (`ReachSettings::exact`).
     #[serde(default)]
-    pub exact_where_inactive: bool,
+    pub exact: ExactField,
     /// Euler step.
     pub dt: f64,
     /// Euler steps.
@@ -310,6 +317,8 @@ pub struct Shares {
     pub safe_area: f64,
     /// `area(converges ∪ trapped) / safe_area` (0 when nothing starts safe).
     pub verified_share: f64,
+    /// The same for the verified boxes whose filter is proven feasible on every set.
+    pub verified_feasible_share: f64,
 }
 
 impl Shares {
@@ -331,11 +340,15 @@ impl Shares {
             .filter(|(v, _)| v.is_verified())
             .map(|(_, a)| a)
             .fold(0.0, |x, y| x + y);
-        s.verified_share = if s.safe_area > 0.0 {
-            verified / s.safe_area
-        } else {
-            0.0
-        };
+        let feasible: f64 = boxes
+            .iter()
+            .filter(|b| b.verdict.is_verified() && b.feasible == Some(true))
+            .map(|b| b.initial.volume())
+            .fold(0.0, |x, y| x + y);
+        if s.safe_area > 0.0 {
+            s.verified_share = verified / s.safe_area;
+            s.verified_feasible_share = feasible / s.safe_area;
+        }
         s
     }
 
@@ -640,7 +653,7 @@ impl Verifier<'_> {
                 m_c: self.problem.m_c,
                 local_margin: self.problem.error_map.is_some(),
                 face_local: self.reach.face_local,
-                exact_where_inactive: self.reach.takes_v_zero_where_inactive(),
+                exact: self.reach.exact_field(),
                 dt: self.problem.dt,
                 steps: self.problem.steps,
                 transformed: self.problem.transform.is_some(),
@@ -679,6 +692,7 @@ impl Verifier<'_> {
                 t_end: None,
                 trap: None,
                 note: None,
+                feasible: None,
             })
             .collect();
         let to_run: Vec<usize> = (0..out.len())
@@ -712,6 +726,11 @@ impl Verifier<'_> {
                 b.note = note;
                 b.final_set = last.map(|s| s.set.clone());
                 b.t_end = last.map(|s| s.t);
+                b.feasible = verdict.is_verified().then(|| {
+                    tube.tube
+                        .iter()
+                        .all(|s| self.problem.pieces.proves_feasible(&s.set))
+                });
             }
             progress((done + idx.len()).min(total), total);
         }
@@ -825,10 +844,12 @@ pub struct SimulationCheck {
     pub boxes: usize,
     /// Starts simulated.
     pub starts: usize,
-    /// Starts whose trajectory stopped early (an infeasible QP): the filtered system is not
-    /// defined there, so they neither confirm nor refute the verdict.
+    /// Starts whose trajectory stopped early (an infeasible QP) in boxes whose feasibility was
+    /// not proven: the filtered system is not defined there, so they neither confirm nor refute
+    /// the verdict (in boxes proven feasible they count as disagreements).
     pub stopped: usize,
-    /// Starts that end elsewhere than their box's verdict says: `(start, verdict, end)`.
+    /// Starts that end elsewhere than their box's verdict says, or stop at an infeasible QP in
+    /// a box proven feasible: `(start, verdict, end)`.
     pub disagreements: Vec<(Vec<f64>, Verdict, Vec<f64>)>,
 }
 
@@ -874,7 +895,11 @@ pub fn simulation_check(s: &Scenario, report: &VerifyReport, per_axis: usize) ->
                 let x0 = b.initial.point_at(&at);
                 let tr = simulate_filtered(&filter, &x0, s.reach.dt, steps, Integrator::Euler);
                 out.starts += 1;
-                if tr.stopped.is_some() {
+                if tr.stopped.is_some() && b.feasible == Some(true) {
+                    // The QP was proven feasible on every set, and the sets hold the Euler
+                    // trajectory at every step.
+                    out.disagreements.push((x0, b.verdict, tr.last().to_vec()));
+                } else if tr.stopped.is_some() {
                     out.stopped += 1;
                 } else if !target.contains(tr.last()) {
                     out.disagreements.push((x0, b.verdict, tr.last().to_vec()));

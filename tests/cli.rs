@@ -301,18 +301,35 @@ fn train_adds_finer_samples_only_where_v_is_steep() {
 }
 
 #[test]
-fn reach_takes_v_zero_where_the_filter_is_proven_inactive_unless_told_not_to() {
+fn reach_takes_the_filters_own_field_where_it_is_one_smooth_piece_unless_told_not_to() {
     // Scenario 2's three boxes at x₁ = −3 never meet an active filter: with the default every
-    // one of their steps takes v = 0; `--network-everywhere` bounds the network at each.
+    // one of their steps takes the filter's own field (v = 0), also with `--exact inactive`;
+    // `--network-everywhere` and `--exact nowhere` bound the network at each.
     let path = common::scenario_path("double-integrator.toml");
     let exact_steps = |extra: &[&str]| {
         let mut args = vec!["reach", path.to_str().unwrap(), "--bounds", "forward"];
         args.extend_from_slice(extra);
         let (code, stdout, stderr) = cbfreach(&args);
         assert_eq!(code, 0, "{stderr}");
-        numbers_on_line(&stdout, "v = 0 exactly").map(|numbers| (numbers[1], numbers[2]))
+        numbers_on_line(&stdout, "the filtered system's own field")
+            .map(|numbers| (numbers[0], numbers[1]))
     };
-    let (exact, run) = exact_steps(&[]).expect("the default takes v = 0 somewhere");
-    assert!(exact >= 3 * 200 && exact <= run, "{exact} of {run}");
+    let (pieces, run) = exact_steps(&[]).expect("the default takes the filter's field somewhere");
+    assert!(pieces >= 3 * 200 && pieces <= run, "{pieces} of {run}");
+    let (inactive, run) = exact_steps(&["--exact", "inactive"]).unwrap();
+    assert!(
+        inactive >= 3 * 200 && inactive <= run,
+        "{inactive} of {run}"
+    );
     assert_eq!(exact_steps(&["--network-everywhere"]), None);
+    assert_eq!(exact_steps(&["--exact", "nowhere"]), None);
+    let (code, _, stderr) = cbfreach(&[
+        "reach",
+        path.to_str().unwrap(),
+        "--exact",
+        "inactive",
+        "--network-everywhere",
+    ]);
+    assert_ne!(code, 0);
+    assert!(stderr.contains("--network-everywhere"), "{stderr}");
 }

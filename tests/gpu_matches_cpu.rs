@@ -19,7 +19,7 @@ use cbfreach::bounds::BoundMethod;
 use cbfreach::gpu::{GpuBackend, GpuContext, Precision};
 use cbfreach::network::Mlp;
 use cbfreach::reach::{
-    Backend, CpuBackend, ReachMethod, ReachProblem, ReachSettings, Transform, Tube,
+    Backend, CpuBackend, ExactField, ReachMethod, ReachProblem, ReachSettings, Transform, Tube,
 };
 use cbfreach::scenario::{Scenario, TransformChoice};
 use cbfreach::simulate::{integrate, sample_box, Integrator};
@@ -121,7 +121,7 @@ fn with_bounds(bounds: BoundMethod, method: ReachMethod) -> ReachSettings {
         every: 1,
         face_local: false,
         // The GPU engine bounds the network everywhere: compare like with like.
-        exact_where_inactive: false,
+        exact: ExactField::Nowhere,
     }
 }
 

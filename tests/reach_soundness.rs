@@ -8,7 +8,7 @@ use cbfreach::bounds::{network_bounds, BoundMethod};
 use cbfreach::filter::SafetyFilter;
 use cbfreach::network::Mlp;
 use cbfreach::reach::{
-    Backend, CpuBackend, ReachMethod, ReachProblem, ReachSettings, Transform, Tube,
+    Backend, CpuBackend, ExactField, ReachMethod, ReachProblem, ReachSettings, Transform, Tube,
 };
 use cbfreach::scenario::Scenario;
 use cbfreach::simulate::{integrate, sample_box, simulate_filtered, Integrator};
@@ -62,7 +62,7 @@ fn run(
         method: ReachMethod::Disturbance,
         every: 1,
         face_local,
-        exact_where_inactive: false,
+        exact: ExactField::Nowhere,
     };
     CpuBackend
         .reach(&problem, &boxes, &settings, &|_, _| {})
@@ -303,7 +303,7 @@ fn run_double_integrator(net: &Mlp, transform: bool, m_c: f64) -> (Vec<Tube>, Op
         method: ReachMethod::Disturbance,
         every: 1,
         face_local: false,
-        exact_where_inactive: false,
+        exact: ExactField::Nowhere,
     };
     let boxes = &s.reach.initial[..3];
     let tubes = CpuBackend
@@ -414,7 +414,7 @@ fn filtered_trajectories_stay_in_sets_intersected_with_the_safe_set() {
         method: ReachMethod::Disturbance,
         every: 1,
         face_local: true,
-        exact_where_inactive: false,
+        exact: ExactField::Nowhere,
     };
     let initial = [cbfreach::IntervalBox::new(vec![4.9, 0.9], vec![5.1, 1.1]).unwrap()];
     let run = |problem: &ReachProblem| {
@@ -499,20 +499,25 @@ fn filtered_trajectories_inside(s: &Scenario, tube: &Tube, samples: usize) -> us
     checks
 }
 
-/// Where the filter is proven inactive the engine takes `v = 0` exactly: on both paper
-/// scenarios with their shipped networks and error maps, sets from boxes that pass through
-/// the goal region still contain the ground-truth filtered trajectories, and a box beside the
-/// goal of scenario 2 whose tube diverges with the network's error margin there now ends in the
-/// goal set.
+/// Where the filter is provably one smooth function on the set the engine integrates the
+/// filtered system's own field (`v = 0` where inactive, the binding row's closed form met with
+/// the network's bounds where one constraint binds): on both paper scenarios with their shipped
+/// networks and error maps, sets from boxes that pass through the goal region and through the
+/// active region still contain the ground-truth filtered trajectories; a box beside the goal of
+/// scenario 2 whose tube diverges with the network's error margin there ends in the goal set
+/// with `v = 0`; and a box of scenario 2 that slides along the obstacle, lost with the network
+/// alone there, ends in the goal set with the binding pieces.
 #[test]
-fn filtered_trajectories_stay_in_sets_where_v_is_exactly_zero() {
+fn filtered_trajectories_stay_in_sets_where_the_filter_is_one_smooth_piece() {
     let near_goal =
         cbfreach::IntervalBox::new(vec![0.1875, -0.3125], vec![0.25, -0.28125]).unwrap();
+    let sliding = cbfreach::IntervalBox::new(vec![4.48, 1.48], vec![4.52, 1.52]).unwrap();
     for (s, initial) in [
         (
             double_integrator(),
             vec![
                 near_goal.clone(),
+                sliding.clone(),
                 cbfreach::IntervalBox::new(vec![-1.1, -1.6], vec![-0.9, -1.4]).unwrap(),
             ],
         ),
@@ -521,41 +526,61 @@ fn filtered_trajectories_stay_in_sets_where_v_is_exactly_zero() {
             vec![
                 cbfreach::IntervalBox::new(vec![-2.1, 1.9], vec![-1.9, 2.1]).unwrap(),
                 cbfreach::IntervalBox::new(vec![0.9, 1.9], vec![1.1, 2.1]).unwrap(),
+                cbfreach::IntervalBox::new(vec![3.4, -0.6], vec![3.5, -0.5]).unwrap(),
             ],
         ),
     ] {
         let problem = shipped_problem(&s);
-        let settings = |exact| ReachSettings {
-            bounds: BoundMethod::ForwardBackward,
-            method: ReachMethod::Disturbance,
-            every: 1,
-            face_local: true,
-            exact_where_inactive: exact,
-        };
         let run = |exact| {
+            let settings = ReachSettings {
+                bounds: BoundMethod::ForwardBackward,
+                method: ReachMethod::Disturbance,
+                every: 1,
+                face_local: true,
+                exact,
+            };
             CpuBackend
-                .reach(&problem, &initial, &settings(exact), &|_, _| {})
+                .reach(&problem, &initial, &settings, &|_, _| {})
                 .unwrap()
                 .boxes
         };
-        let (exact, plain) = (run(true), run(false));
+        let plain = run(ExactField::Nowhere);
+        let (inactive, pieces) = (run(ExactField::Inactive), run(ExactField::ClosedForm));
         let mut checks = 0;
-        for (tube, before) in exact.iter().zip(&plain) {
-            assert!(tube.valid || !before.valid, "{}: {:?}", s.name, tube.note);
-            checks += filtered_trajectories_inside(&s, tube, 8);
+        for (tubes, exact) in [
+            (&inactive, ExactField::Inactive),
+            (&pieces, ExactField::ClosedForm),
+        ] {
+            for (tube, before) in tubes.iter().zip(&plain) {
+                assert!(
+                    tube.valid || !before.valid,
+                    "{} {exact:?}: {:?}",
+                    s.name,
+                    tube.note
+                );
+                checks += filtered_trajectories_inside(&s, tube, 8);
+            }
         }
-        assert!(checks > 1000, "{}: {checks} checks", s.name);
+        assert!(checks > 2000, "{}: {checks} checks", s.name);
+        assert!(plain.iter().all(|t| t.exact_steps == 0));
+        for (k, (a, b)) in inactive.iter().zip(&pieces).enumerate() {
+            assert!(b.exact_steps >= a.exact_steps, "{} box {k}", s.name);
+        }
+        let ends_in_goal =
+            |t: &Tube| t.valid && t.last().unwrap().filtered_set().is_subset_of(&s.reach.goal);
         if initial[0] == near_goal {
-            let last = exact[0].last().unwrap().filtered_set().clone();
-            assert!(
-                exact[0].valid && last.is_subset_of(&s.reach.goal),
-                "{last:?}"
-            );
+            assert!(ends_in_goal(&inactive[0]) && ends_in_goal(&pieces[0]));
             assert!(
                 !plain[0].valid,
                 "the network's margin alone already converges"
             );
-            assert!(exact[0].exact_steps > 0 && plain.iter().all(|t| t.exact_steps == 0));
+            assert!(inactive[0].exact_steps > 0);
+            assert!(ends_in_goal(&pieces[1]), "{:?}", pieces[1].note);
+            assert!(
+                !inactive[1].valid,
+                "the network alone already verifies the sliding box"
+            );
+            assert!(pieces[1].exact_steps > inactive[1].exact_steps);
         }
     }
 }
@@ -589,7 +614,7 @@ fn tubes_do_not_depend_on_the_thread_count() {
             method: ReachMethod::Disturbance,
             every: 7,
             face_local,
-            exact_where_inactive: false,
+            exact: ExactField::Nowhere,
         };
         let run_on = |threads: usize| {
             let last = std::sync::atomic::AtomicUsize::new(0);

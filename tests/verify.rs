@@ -194,6 +194,45 @@ fn verified_boxes_agree_with_dense_simulation() {
     assert_eq!(caught.starts, check.starts);
     assert_eq!(caught.disagreements.len(), caught.starts);
 
+    // Scenario 1's one constraint is feasible wherever ∇h ≠ 0: every verified box is proven
+    // feasible on every set.
+    let after = report.shares_after();
+    assert!(report
+        .after
+        .iter()
+        .filter(|b| b.verdict.is_verified())
+        .all(|b| b.feasible == Some(true)));
+    assert_eq!(after.verified_feasible_share, after.verified_share);
+
+    // A start that meets an infeasible QP (scenario 2, where its two CBFs conflict) neither
+    // confirms nor refutes a verdict, unless its box was proven feasible.
+    let s2 = common::double_integrator();
+    let filter2 = SafetyFilter::new(&s2);
+    let r2 = &s2.reach.region;
+    let x = (0..400)
+        .map(|k| {
+            [
+                r2.lower[0] + k as f64 * r2.widths()[0] / 400.0,
+                r2.lower[1] + 0.01,
+            ]
+        })
+        .find(|x| s2.is_safe(x) && filter2.eval(x).is_err())
+        .expect("scenario 2's QP is infeasible somewhere along x₂ = −2");
+    let mut strip = report.clone();
+    strip.after = vec![report.after[0].clone()];
+    let b = &mut strip.after[0];
+    b.initial = cbfreach::IntervalBox::new(
+        x.iter().map(|v| v - 1e-4).collect(),
+        x.iter().map(|v| v + 1e-4).collect(),
+    )
+    .unwrap();
+    (b.verdict, b.trap, b.feasible) = (Verdict::Converges, None, None);
+    let unproven = simulation_check(&s2, &strip, 2);
+    assert_eq!((unproven.stopped, unproven.disagreements.len()), (4, 0));
+    strip.after[0].feasible = Some(true);
+    let proven = simulation_check(&s2, &strip, 2);
+    assert_eq!((proven.stopped, proven.disagreements.len()), (0, 4));
+
     // Refinement never loses verified area and leaves the safe area unchanged.
     let (b, a) = (report.shares_before(), report.shares_after());
     assert!(a.verified_share >= b.verified_share - 1e-12);

@@ -7,7 +7,9 @@ use cbfreach::boxes::IntervalBox;
 use cbfreach::equilibria::{find_equilibria, EquilibriumSearch};
 use cbfreach::filter::SafetyFilter;
 use cbfreach::plot::{self, Figure};
-use cbfreach::reach::{Backend, CpuBackend, ReachMethod, ReachProblem, ReachResult, ReachSettings};
+use cbfreach::reach::{
+    Backend, CpuBackend, ExactField, ReachMethod, ReachProblem, ReachResult, ReachSettings,
+};
 use cbfreach::scenario::Scenario;
 use cbfreach::simulate::{sample_box, simulate_filtered, Integrator, Trajectory};
 use cbfreach::verify::VerifyReport;
@@ -116,7 +118,7 @@ pub fn reach_initial(
         method,
         every,
         face_local,
-        exact_where_inactive: true,
+        exact: ExactField::ClosedForm,
     };
     let bar = progress_bar(problem.steps as u64, "Euler steps");
     let r = engine.reach(problem, &s.reach.initial, &settings, &|d, _| {

@@ -5,7 +5,8 @@ use std::path::PathBuf;
 use cbfreach::bounds::BoundMethod;
 use cbfreach::network::Mlp;
 use cbfreach::reach::{
-    Backend, CpuBackend, ReachMethod, ReachProblem, ReachResult, ReachSettings, SafeSet, Transform,
+    Backend, CpuBackend, ExactField, ReachMethod, ReachProblem, ReachResult, ReachSettings,
+    SafeSet, Transform,
 };
 use cbfreach::scenario::{Margin, Scenario, TransformChoice};
 use serde::Serialize;
@@ -33,10 +34,9 @@ pub struct ReachArgs {
     /// Bound the network on each face of a box separately (tighter, 2n× the bound cost).
     #[arg(long)]
     pub face_local: bool,
-    /// Bound the network on every set, also where the filter is proven inactive (by default the
-    /// CPU engine takes `v = 0` exactly there, with no error margin).
-    #[arg(long)]
-    pub network_everywhere: bool,
+    /// Where the CPU engine integrates the filtered system's own field instead of the network.
+    #[command(flatten)]
+    pub exact: ExactArgs,
     /// Record every K-th step (the last is always recorded).
     #[arg(long, default_value_t = 1, value_parser = |s: &str| super::whole_at_least(s, 1))]
     pub every: usize,
@@ -83,6 +83,31 @@ impl GpuArgs {
             cbfreach::gpu::Precision::F64
         } else {
             cbfreach::gpu::Precision::F32
+        }
+    }
+}
+
+/// Where the disturbance method takes the filter exactly (`reach`, `verify`).
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct ExactArgs {
+    /// Where the CPU engine uses the filter itself besides the network plus its error margin:
+    /// `closed-form` (closed-form filters: the filtered system's own field where the filter is
+    /// provably one smooth function on the set, its enclosures of `v` elsewhere), `inactive`
+    /// (only `v = 0` where the filter is proven inactive; any filter), `nowhere`.
+    #[arg(long, value_enum, default_value_t = ExactField::ClosedForm)]
+    pub exact: ExactField,
+    /// Bound the network on every set (the same as `--exact nowhere`).
+    #[arg(long, conflicts_with = "exact")]
+    pub network_everywhere: bool,
+}
+
+impl ExactArgs {
+    /// The setting asked for.
+    pub fn field(&self) -> ExactField {
+        if self.network_everywhere {
+            ExactField::Nowhere
+        } else {
+            self.exact
         }
     }
 }
@@ -219,10 +244,10 @@ pub fn run(args: &ReachArgs) -> CliResult {
         method: args.method,
         every: args.every,
         face_local: args.face_local,
-        exact_where_inactive: !args.network_everywhere,
+        exact: args.exact.field(),
     };
     let backend = choose_backend(&args.backend, &args.gpu, &settings)?;
-    settle_exact_where_inactive(&mut settings, backend.as_ref());
+    settle_exact_field(&mut settings, backend.as_ref());
     let bar = progress_bar(problem.steps as u64, "Euler steps");
     let result = backend.reach(&problem, &s.reach.initial, &settings, &|done, _| {
         bar.set_position(done as u64)
@@ -236,11 +261,7 @@ pub fn run(args: &ReachArgs) -> CliResult {
                 .map_or("none".into(), |v| format!("{v:.4}"))
         ),
         _ => format!("M_C = {m_c}"),
-    } + if settings.takes_v_zero_where_inactive() {
-        " (v = 0 where the filter is proven inactive)"
-    } else {
-        ""
-    };
+    } + settings.exact_field().clause();
     let within = super::safe_set_clause(&problem.safe_set_for(args.method).names());
     println!(
         "{}: {} boxes × {} steps, {} bounds{}, {:?} method, {margin}{within}, backend {}",
@@ -287,9 +308,12 @@ pub fn run(args: &ReachArgs) -> CliResult {
         run as f64 / result.timing.reach_s.max(1e-12),
         result.timing.minkowski_s
     );
-    if settings.takes_v_zero_where_inactive() {
+    if settings.exact_field() != ExactField::Nowhere {
         let exact: usize = result.boxes.iter().map(|t| t.exact_steps).sum();
-        println!("  v = 0 exactly (the filter proven inactive on the set) on {exact} of the {run} box-steps");
+        println!(
+            "  the filtered system's own field (the filter proven one smooth function on the set) \
+             on {exact} of the {run} box-steps"
+        );
     }
     let invalid = result.boxes.iter().filter(|t| !t.valid).count();
     if invalid > 0 {
@@ -324,14 +348,15 @@ pub fn run(args: &ReachArgs) -> CliResult {
     Ok(())
 }
 
-/// `v = 0` where the filter is proven inactive is the CPU engine's: with the GPU engine the
-/// setting goes, with a notice (the network is bounded everywhere: sound, looser).
-pub fn settle_exact_where_inactive(settings: &mut ReachSettings, backend: &dyn Backend) {
-    if settings.takes_v_zero_where_inactive() && backend.name() != "cpu" {
-        settings.exact_where_inactive = false;
+/// The filtered system's own field where the filter is one smooth function is the CPU
+/// engine's: with the GPU engine the setting goes, with a notice (the network is bounded
+/// everywhere: sound, looser).
+pub fn settle_exact_field(settings: &mut ReachSettings, backend: &dyn Backend) {
+    if settings.exact_field() != ExactField::Nowhere && backend.name() != "cpu" {
+        settings.exact = ExactField::Nowhere;
         println!(
-            "note: the GPU engine bounds the network everywhere (taking v = 0 where the filter \
-             is proven inactive is the CPU engine's)"
+            "note: the GPU engine bounds the network everywhere (the filter's own field where it \
+             is proven one smooth function is the CPU engine's)"
         );
     }
 }

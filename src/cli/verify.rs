@@ -44,10 +44,9 @@ pub struct VerifyArgs {
     /// Bound the network on each face of a box separately (tighter, 2n× the bound cost).
     #[arg(long)]
     pub face_local: bool,
-    /// Bound the network on every set, also where the filter is proven inactive (by default the
-    /// CPU engine takes `v = 0` exactly there, with no error margin).
-    #[arg(long)]
-    pub network_everywhere: bool,
+    /// Where the CPU engine integrates the filtered system's own field instead of the network.
+    #[command(flatten)]
+    pub exact: super::reach::ExactArgs,
     /// The network, `M_C` and coordinates.
     #[command(flatten)]
     pub problem: ProblemArgs,
@@ -135,10 +134,10 @@ pub fn run(args: &VerifyArgs) -> CliResult {
         method: args.method,
         every: 1,
         face_local: args.face_local,
-        exact_where_inactive: !args.network_everywhere,
+        exact: args.exact.field(),
     };
     let engine = choose_backend(&args.backend, &args.gpu, &reach)?;
-    super::reach::settle_exact_where_inactive(&mut reach, engine.as_ref());
+    super::reach::settle_exact_field(&mut reach, engine.as_ref());
     let report = run_verify(&s, &problem, engine.as_ref(), reach, &settings)?;
     print_summary(&report);
     print_causes(&explain_unverified(&s, &report));
@@ -176,7 +175,10 @@ fn print_check(c: &SimulationCheck) -> CliResult {
         c.boxes,
         c.disagreements.len(),
         if c.stopped > 0 {
-            format!(" ({} stopped at an infeasible QP)", c.stopped)
+            format!(
+                " ({} stopped at an infeasible QP, in boxes whose feasibility was not proven)",
+                c.stopped
+            )
         } else {
             String::new()
         }
@@ -275,11 +277,7 @@ pub fn print_summary(r: &VerifyReport) {
             "M = local bounds of the certified error map".to_string()
         } else {
             format!("M_C = {}", r.run.m_c)
-        } + if r.run.exact_where_inactive {
-            " (v = 0 where the filter is proven inactive)"
-        } else {
-            ""
-        }
+        } + r.run.exact.clause()
     );
     if refined {
         println!(
@@ -316,6 +314,14 @@ pub fn print_summary(r: &VerifyReport) {
         println!(
             "  verified share (converges ∪ trapped) of the safe area: {:.1}%",
             100.0 * b.verified_share
+        );
+    }
+    let last = if refined { &a } else { &b };
+    if last.verified_feasible_share < last.verified_share {
+        println!(
+            "  of which the filter's QP is proven feasible on every set: {:.1}% (elsewhere the \
+             verdicts speak of the trajectories that do not meet an infeasible QP)",
+            100.0 * last.verified_feasible_share
         );
     }
     println!(

@@ -13,14 +13,15 @@ use rayon::prelude::*;
 
 use super::closeness::{closeness_step, log_norm};
 use super::embedding::{
-    embedding_field, embedding_field_by_face, embedding_step, NetworkBoundsRef,
+    embedding_field, embedding_field_by_face, embedding_step, widen_by, NetworkBoundsRef,
 };
 use super::safe_set::{clip_to_safe_set, SafeSet};
-use super::{Backend, ReachError, ReachMethod, ReachProblem, ReachResult, ReachSettings};
-use super::{ReachTiming, Tube};
+use super::{Backend, ExactField, ReachError, ReachMethod, ReachProblem, ReachResult};
+use super::{ReachSettings, ReachTiming, Tube};
 use crate::bounds::{AffineBoundsBatch, BoundsWorkspace, PreparedNetwork};
 use crate::boxes::IntervalBox;
 use crate::intervals::{round_up, Interval};
+use crate::surrogate_error::FilterPiece;
 
 /// The CPU engine.
 #[derive(Clone, Copy, Debug, Default)]
@@ -95,6 +96,8 @@ impl Backend for CpuBackend {
             network: &network,
             safe,
             every,
+            encloses: settings.exact_field() == ExactField::ClosedForm
+                && problem.pieces.has_closed_form(),
             report: &report,
         };
         let minkowski_s: f64 = live
@@ -138,11 +141,12 @@ struct ChunkBuffers {
     flat_hi: Vec<f64>,
     /// The error margin per input, `m` copies of the box's bound.
     margin: Vec<f64>,
-    /// Per live box this step: its error margin, or `None` where `v = 0` exactly
-    /// ([`ChunkRun::step_margin`]).
-    margins: Vec<Option<f64>>,
+    /// Per live box this step: how `v` is bounded ([`ChunkRun::step_input`]).
+    inputs: Vec<StepInput>,
     /// Zeros for [`zero_bounds`] (and the zero margin), sized once per chunk.
     zeros: Vec<f64>,
+    /// `v`'s enclosure on each face of one set ([`ChunkRun::enclosure_field`]).
+    faces: Vec<f64>,
 }
 
 /// What every chunk's run shares.
@@ -152,27 +156,130 @@ struct ChunkRun<'a> {
     network: &'a PreparedNetwork<'a>,
     safe: &'a SafeSet,
     every: usize,
+    /// Whether sets with no proven piece also meet the network's bounds with the closed form's
+    /// enclosures of `v` ([`ExactField::ClosedForm`]).
+    encloses: bool,
     /// Told how many box-steps were accounted for (run, or skipped by finished boxes).
     report: &'a (dyn Fn(usize) + Sync),
 }
 
+/// What bounds `v` on one box-step: the filter's own field where it is provably one smooth
+/// function on the set, the network plus an error margin, or both (each sound, neither always
+/// the tighter: where a constraint binds, the mean-value form of its closed form can be looser
+/// than the network's affine bounds; the field is their meet).
+#[derive(Clone, Copy, Debug)]
+struct StepInput {
+    /// The piece `v` provably is on the set.
+    piece: Option<FilterPiece>,
+    /// The additive bound on every input of the network's error over the set, where the network
+    /// is bounded (`None` where `v = 0`, or where the error map has no finite bound).
+    margin: Option<f64>,
+}
+
 impl ChunkRun<'_> {
-    /// The additive bound on every input of `N`'s error over the state's set, or `None` where
-    /// `v = 0` exactly ([`ReachSettings::takes_v_zero_where_inactive`]). The transformed
-    /// network's rounding enters as a disturbance in both methods; the disturbance method adds
-    /// `M` (global, or local from the error map).
-    fn step_margin(&self, state: &Live) -> Option<f64> {
+    /// How `v` is bounded over the state's set: one smooth piece of the filter where the
+    /// settings take it and it is proven ([`ReachSettings::exact_field`]), the network with an
+    /// additive bound on every input's error except where `v = 0`. The transformed network's
+    /// rounding enters as a disturbance in both methods; the disturbance method adds `M`
+    /// (global, or local from the error map).
+    fn step_input(&self, state: &Live) -> StepInput {
         let problem = self.problem;
         match self.settings.method {
-            ReachMethod::Minkowski => Some(problem.network_slack),
+            ReachMethod::Minkowski => StepInput {
+                piece: None,
+                margin: Some(problem.network_slack),
+            },
             ReachMethod::Disturbance => {
                 let x_box = problem.x_box_in_safe_set(&state.lower, &state.upper, self.safe);
-                if self.settings.takes_v_zero_where_inactive() && problem.inactive.proves(&x_box) {
-                    return None;
+                let piece = match self.settings.exact_field() {
+                    ExactField::Nowhere => None,
+                    ExactField::Inactive => problem
+                        .pieces
+                        .proves_inactive(&x_box)
+                        .then_some(FilterPiece::Inactive),
+                    ExactField::ClosedForm => problem.pieces.piece_on(&x_box),
+                };
+                let margin = match piece {
+                    Some(FilterPiece::Inactive) => None,
+                    _ => Some(round_up(problem.margin_for(&x_box) + problem.network_slack)),
+                };
+                StepInput {
+                    piece,
+                    margin: margin.filter(|m| m.is_finite()),
                 }
-                Some(round_up(problem.margin_for(&x_box) + problem.network_slack))
             }
         }
+    }
+
+    /// The filtered system's own field on a piece over the state's set, widened by the
+    /// transform's slack.
+    fn piece_field(&self, state: &Live, piece: FilterPiece, zeros: &[f64]) -> (Vec<f64>, Vec<f64>) {
+        let problem = self.problem;
+        let (n, m) = (problem.dynamics.n, problem.dynamics.m);
+        let (dynamics, slack) = match piece {
+            FilterPiece::Inactive => (&problem.dynamics, problem.field_slack),
+            FilterPiece::Binding(k) => {
+                let x_box = problem.x_box_in_safe_set(&state.lower, &state.upper, self.safe);
+                (
+                    &problem.pieces.binding_field(k).dynamics,
+                    problem.pieces.binding_slack(k, &x_box),
+                )
+            }
+        };
+        let zero = zero_bounds(zeros, n, m);
+        let (mut dl, mut du) =
+            embedding_field(dynamics, &state.lower, &state.upper, zero, zero.b_lower);
+        widen_by(&mut dl, &mut du, slack);
+        (dl, du)
+    }
+
+    /// The filtered system's field with `v` enclosed by its closed form on each face of the set
+    /// ([`super::pieces::FilterPieces::enclosure`]), widened by the transform's slack; `None`
+    /// where an enclosure is unbounded (near a jump of `v`).
+    fn enclosure_field(
+        &self,
+        state: &Live,
+        faces: &mut Vec<f64>,
+        zeros: &[f64],
+    ) -> Option<(Vec<f64>, Vec<f64>)> {
+        let problem = self.problem;
+        let (n, m) = (problem.dynamics.n, problem.dynamics.m);
+        let (lower, upper) = (&state.lower, &state.upper);
+        faces.clear();
+        let mut slack = 0.0_f64;
+        // Per face, in the order (0, lower), (0, upper), (1, lower), …: `v`'s lower ends, then
+        // its upper ends.
+        for i in 0..n {
+            for at in [lower[i], upper[i]] {
+                let face_lo: Vec<f64> = pinned(lower, i, at).collect();
+                let face_hi: Vec<f64> = pinned(upper, i, at).collect();
+                let x_box = problem.x_box_in_safe_set(&face_lo, &face_hi, self.safe);
+                let v = problem.pieces.enclosure(&x_box)?;
+                if !v.iter().all(|e| e.lower.is_finite() && e.upper.is_finite()) {
+                    return None;
+                }
+                slack = slack.max(problem.pieces.field_slack(&x_box, &v));
+                faces.extend(v.iter().map(|e| e.lower));
+                faces.extend(v.iter().map(|e| e.upper));
+            }
+        }
+        let faces = &faces[..];
+        let face = |i: usize, up: bool| {
+            let k = (2 * i + usize::from(up)) * 2 * m;
+            let (lo, hi) = (&faces[k..k + m], &faces[k + m..k + 2 * m]);
+            NetworkBoundsRef {
+                a_lower: &zeros[..m * n],
+                b_lower: lo,
+                a_upper: &zeros[..m * n],
+                b_upper: hi,
+                lower: lo,
+                upper: hi,
+            }
+        };
+        let (mut dl, mut du) =
+            embedding_field_by_face(&problem.dynamics, lower, upper, face, &zeros[..m]);
+        widen_by(&mut dl, &mut du, slack);
+        Some((dl, du))
     }
 
     /// Integrates `states` over the whole horizon in this thread: each Euler step bounds the
@@ -192,11 +299,11 @@ impl ChunkRun<'_> {
             }
             buf.flat_lo.clear();
             buf.flat_hi.clear();
-            buf.margins.clear();
+            buf.inputs.clear();
             for state in states.iter().filter(|s| !s.done) {
-                let margin = self.step_margin(state);
-                buf.margins.push(margin);
-                if margin.is_none() {
+                let input = self.step_input(state);
+                buf.inputs.push(input);
+                if input.margin.is_none() {
                     continue;
                 }
                 let (lo, hi) = (&state.lower, &state.upper);
@@ -227,75 +334,72 @@ impl ChunkRun<'_> {
             let (batch, margin) = (&buf.batch, &mut buf.margin);
             let mut next_slot = 0;
             let live = states.iter_mut().filter(|s| !s.done);
-            for (state, &bound) in live.zip(&buf.margins) {
-                let (mut dl, mut du) = match bound {
-                    None => {
-                        // `v = 0` on the whole set: the filtered system's own field, no margin.
-                        state.tube.exact_steps += 1;
-                        let zero = zero_bounds(&buf.zeros, n, m);
-                        embedding_field(
+            for (state, &input) in live.zip(&buf.inputs) {
+                let exact = input.piece.map(|piece| {
+                    state.tube.exact_steps += 1;
+                    self.piece_field(state, piece, &buf.zeros)
+                });
+                let enclosed = if input.piece.is_none() && self.encloses {
+                    self.enclosure_field(state, &mut buf.faces, &buf.zeros)
+                } else {
+                    None
+                };
+                let network = input.margin.map(|bound| {
+                    // This box's rows in the batch (boxes without a margin have none).
+                    let slot = next_slot;
+                    next_slot += 1;
+                    margin.clear();
+                    margin.resize(m, bound);
+                    let (mut dl, mut du) = if settings.face_local {
+                        // (Minkowski is refused with face-local bounds: its rate needs one C.)
+                        let face = |i: usize, up: bool| {
+                            bounds_of(batch, slot * 2 * n + 2 * i + usize::from(up), n, m)
+                        };
+                        embedding_field_by_face(
                             &problem.dynamics,
                             &state.lower,
                             &state.upper,
-                            zero,
-                            zero.b_lower,
+                            face,
+                            margin,
                         )
-                    }
-                    Some(bound) => {
-                        // This box's rows in the batch (boxes with `v = 0` have none).
-                        let slot = next_slot;
-                        next_slot += 1;
-                        if !bound.is_finite() {
-                            // The error map has no finite bound where the set is (e.g. where
-                            // `v` jumps): nothing sound can be said from here on.
-                            state.tube.valid = false;
-                            state.tube.note = Some(format!(
-                                "t = {:.3}: the set meets cells of the error map with no \
-                                 certified bound (M = ∞)",
-                                t - problem.dt
-                            ));
-                            state.done = true;
-                            continue;
+                    } else {
+                        let nn = bounds_of(batch, slot, n, m);
+                        if settings.method == ReachMethod::Minkowski {
+                            let clock = Instant::now();
+                            let c = closeness_rate(problem, nn);
+                            state.radius = closeness_step(
+                                state.radius,
+                                c,
+                                problem.input_gain,
+                                problem.m_c,
+                                problem.dt,
+                            );
+                            minkowski_s += clock.elapsed().as_secs_f64();
                         }
-                        margin.clear();
-                        margin.resize(m, bound);
-                        if settings.face_local {
-                            // (Minkowski is refused with face-local bounds: its rate needs one C.)
-                            let face = |i: usize, up: bool| {
-                                bounds_of(batch, slot * 2 * n + 2 * i + usize::from(up), n, m)
-                            };
-                            embedding_field_by_face(
-                                &problem.dynamics,
-                                &state.lower,
-                                &state.upper,
-                                face,
-                                margin,
-                            )
-                        } else {
-                            let nn = bounds_of(batch, slot, n, m);
-                            if settings.method == ReachMethod::Minkowski {
-                                let clock = Instant::now();
-                                let c = closeness_rate(problem, nn);
-                                state.radius = closeness_step(
-                                    state.radius,
-                                    c,
-                                    problem.input_gain,
-                                    problem.m_c,
-                                    problem.dt,
-                                );
-                                minkowski_s += clock.elapsed().as_secs_f64();
-                            }
-                            embedding_field(
-                                &problem.dynamics,
-                                &state.lower,
-                                &state.upper,
-                                nn,
-                                margin,
-                            )
-                        }
+                        embedding_field(&problem.dynamics, &state.lower, &state.upper, nn, margin)
+                    };
+                    widen_by(&mut dl, &mut du, problem.field_slack);
+                    (dl, du)
+                });
+                let field = [exact, enclosed, network]
+                    .into_iter()
+                    .flatten()
+                    .reduce(meet_fields);
+                let (dl, du) = match field {
+                    Some(field) => field,
+                    None => {
+                        // The error map has no finite bound where the set is (e.g. where `v`
+                        // jumps): nothing sound can be said from here on.
+                        state.tube.valid = false;
+                        state.tube.note = Some(format!(
+                            "t = {:.3}: the set meets cells of the error map with no certified \
+                             bound (M = ∞)",
+                            t - problem.dt
+                        ));
+                        state.done = true;
+                        continue;
                     }
                 };
-                problem.widen_by_field_slack(&mut dl, &mut du);
                 embedding_step(&mut state.lower, &mut state.upper, &dl, &du, problem.dt);
                 advance(problem, state, t, record, self.safe);
             }
@@ -303,6 +407,18 @@ impl ChunkRun<'_> {
         }
         Ok(minkowski_s)
     }
+}
+
+/// The meet of two sound bounds `[dl, du]` of the same embedding field.
+fn meet_fields(
+    (mut dl, mut du): (Vec<f64>, Vec<f64>),
+    (dl2, du2): (Vec<f64>, Vec<f64>),
+) -> (Vec<f64>, Vec<f64>) {
+    for i in 0..dl.len() {
+        dl[i] = dl[i].max(dl2[i]);
+        du[i] = du[i].min(du2[i]);
+    }
+    (dl, du)
 }
 
 /// `x` with coordinate `i` set to `v` (a face of a box).

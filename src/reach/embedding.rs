@@ -11,7 +11,7 @@
 //! We bound them on each face with the point `p` (the box's centre with `pᵢ` on the face):
 //!
 //! - `f̃ᵢ(x) ∈ f̃ᵢ(p) + Σ_{j≠i} [Jᵢⱼ](xⱼ − pⱼ)`, `[J]` the interval Jacobian of `f̃` over the
-//!   box (mean-value form; exact for affine `f̃`);
+//!   face (mean-value form: the segments from `p` stay on the face; exact for affine `f̃`);
 //! - for constant `g = B`, `N(x) ≥ C̲x + d̲` gives `Σₖ Bᵢₖ Nₖ(x) ≥ m̲ᵢ·x + δ̲ᵢ` with
 //!   `m̲ = B⁺C̲ + B⁻C̄`, `δ̲ = B⁺d̲ + B⁻d̄` — the interaction-aware `M = A + BC` of DESIGN §2.3;
 //! - for state-dependent `g`, `Σₖ [gᵢₖ](box)·[N̲ₖ, N̄ₖ]` in interval arithmetic.
@@ -58,6 +58,22 @@ pub struct NetworkBoundsRef<'a> {
     pub upper: &'a [f64],
 }
 
+impl Dynamics {
+    /// The dynamics `ẋ = f̃(x) + g(x)u`, with `Df̃` and `g`'s constant form derived.
+    pub fn new(n: usize, m: usize, f_tilde: Vec<Expr>, g: Vec<Vec<Expr>>) -> Dynamics {
+        let f_tilde_jacobian = crate::expressions::jacobian(&f_tilde, n);
+        let g_constant = g.iter().flatten().map(|e| e.as_constant()).collect();
+        Dynamics {
+            n,
+            m,
+            f_tilde,
+            f_tilde_jacobian,
+            g,
+            g_constant,
+        }
+    }
+}
+
 fn point(x: f64) -> Interval {
     Interval::point(x)
 }
@@ -99,12 +115,15 @@ pub fn embedding_field_by_face<'a>(
         .zip(upper)
         .map(|(l, u)| l + 0.5 * (u - l))
         .collect();
-    let jac: Vec<Interval> = dynamics
-        .f_tilde_jacobian
-        .iter()
-        .flatten()
-        .map(|e| e.eval_interval(&x))
-        .collect();
+    // `Df̃` over one face: the mean-value form's segments from `p` stay on the face.
+    let jac_over_face = |i: usize, on_upper: bool| -> Vec<Interval> {
+        let mut face = x.clone();
+        face[i] = point(if on_upper { upper[i] } else { lower[i] });
+        dynamics.f_tilde_jacobian[i]
+            .iter()
+            .map(|e| e.eval_interval(&face))
+            .collect()
+    };
     // For state-dependent g: [g](box), multiplied by the input enclosure [N̲ − M, N̄ + M].
     let g_box: Vec<Interval> = match dynamics.g_constant {
         Some(_) => Vec::new(),
@@ -118,6 +137,7 @@ pub fn embedding_field_by_face<'a>(
 
     let face = |i: usize, on_upper: bool| -> Interval {
         let bounds = nn(i, on_upper);
+        let jac = jac_over_face(i, on_upper);
         let mut p: Vec<f64> = centre.clone();
         p[i] = if on_upper { upper[i] } else { lower[i] };
         let p_box: Vec<Interval> = p.iter().map(|&v| point(v)).collect();
@@ -132,12 +152,12 @@ pub fn embedding_field_by_face<'a>(
                 }
                 total = total + delta;
                 for j in (0..n).filter(|&j| j != i) {
-                    total = total + (jac[i * n + j] + row[j]) * offset(j);
+                    total = total + (jac[j] + row[j]) * offset(j);
                 }
             }
             None => {
                 for j in (0..n).filter(|&j| j != i) {
-                    total = total + jac[i * n + j] * offset(j);
+                    total = total + jac[j] * offset(j);
                 }
                 for (k, u) in input_enclosure(bounds, margin).into_iter().enumerate() {
                     total = total + g_box[i * dynamics.m + k] * u;
@@ -198,6 +218,17 @@ fn input_enclosure(nn: NetworkBoundsRef, margin: &[f64]) -> Vec<Interval> {
             )
         })
         .collect()
+}
+
+/// Widens an embedding field `[dl, du]` outward by `slack` on every side (the transform's
+/// slack, [`super::Transform::field_slack`]).
+pub fn widen_by(dl: &mut [f64], du: &mut [f64], slack: f64) {
+    if slack > 0.0 {
+        dl.iter_mut()
+            .for_each(|v| *v = (point(*v) - point(slack)).lower);
+        du.iter_mut()
+            .for_each(|v| *v = (point(*v) + point(slack)).upper);
+    }
 }
 
 /// One explicit Euler step `x ← x + dt·ẋ` of the embedding state, rounded outward.

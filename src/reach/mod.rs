@@ -18,11 +18,11 @@
 pub mod closeness;
 pub mod cpu;
 pub mod embedding;
-pub mod inactive;
+pub mod pieces;
 pub mod safe_set;
 pub mod transform;
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::bounds::BoundMethod;
 use crate::boxes::IntervalBox;
@@ -58,17 +58,51 @@ pub struct ReachSettings {
     /// Bound the network on each face of the box separately (tighter, 2n× the bound cost;
     /// immrax's `local` mode).
     pub face_local: bool,
-    /// Disturbance method on the CPU: where the filter is proven inactive on the whole set
-    /// ([`inactive`]), take `v = 0` exactly instead of the network and its error margin. The
-    /// GPU engine bounds the network everywhere (sound, looser).
-    pub exact_where_inactive: bool,
+    /// Disturbance method on the CPU: where the filtered system's own field (the filter's closed
+    /// form) replaces or tightens the network and its error margin ([`pieces`]). The GPU engine
+    /// bounds the network everywhere (sound, looser).
+    pub exact: ExactField,
+}
+
+/// Where the disturbance method uses the filter itself besides (or instead of) the network plus
+/// its error margin ([`pieces`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum ExactField {
+    /// Nowhere: the network and its margin on every step.
+    #[default]
+    Nowhere,
+    /// `v = 0` where the filter is proven inactive on the set (any filter, QP included).
+    Inactive,
+    /// Closed-form filters: the filtered system's own field where the filter is provably one
+    /// smooth function on the set (inactive, or one constraint binding throughout), met with
+    /// the network's bounds where a constraint binds; elsewhere the network's bounds met with
+    /// the closed form's enclosures of `v` on each face.
+    ClosedForm,
+}
+
+impl ExactField {
+    /// A clause for summaries (empty for [`ExactField::Nowhere`]).
+    pub fn clause(self) -> &'static str {
+        match self {
+            ExactField::Nowhere => "",
+            ExactField::Inactive => " (v = 0 where the filter is proven inactive)",
+            ExactField::ClosedForm => {
+                " (the filter's closed form: its own field where its active set is proven fixed \
+                 on the set, its enclosures elsewhere)"
+            }
+        }
+    }
 }
 
 impl ReachSettings {
-    /// Whether steps take `v = 0` where the filter is proven inactive: asked for, and the
-    /// disturbance method (the Minkowski method's embedding bounds the NN system).
-    pub fn takes_v_zero_where_inactive(&self) -> bool {
-        self.exact_where_inactive && self.method == ReachMethod::Disturbance
+    /// What the run takes exactly: as asked for with the disturbance method, nothing with the
+    /// Minkowski method (whose embedding bounds the NN system).
+    pub fn exact_field(&self) -> ExactField {
+        match self.method {
+            ReachMethod::Disturbance => self.exact,
+            ReachMethod::Minkowski => ExactField::Nowhere,
+        }
     }
 
     /// Checks combinations: the Minkowski method's closeness rate needs one slope matrix `C`
@@ -92,7 +126,7 @@ impl Default for ReachSettings {
             method: ReachMethod::Disturbance,
             every: 1,
             face_local: false,
-            exact_where_inactive: false,
+            exact: ExactField::Nowhere,
         }
     }
 }
@@ -167,8 +201,8 @@ pub struct ReachProblem {
     /// The affine CBFs' half-spaces: the disturbance method's sets are intersected with them at
     /// every step ([`safe_set`]; `SafeSet::default()` switches it off).
     pub safe_set: SafeSet,
-    /// The filter's rows, to prove it inactive over a set ([`ReachSettings::exact_where_inactive`]).
-    pub inactive: inactive::InactiveFilter,
+    /// The filter's smooth pieces over sets ([`ReachSettings::exact`]).
+    pub pieces: pieces::FilterPieces,
 }
 
 impl ReachProblem {
@@ -266,27 +300,25 @@ impl ReachProblem {
                 )
             }
         };
-        let f_tilde_jacobian = crate::expressions::jacobian(&f_tilde, n);
-        let g_constant: Option<Vec<f64>> = g.iter().flatten().map(|e| e.as_constant()).collect();
+        let dynamics = Dynamics::new(n, m, f_tilde, g);
         let cz = as_intervals(&region_z);
-        let jacobian_over_region = f_tilde_jacobian
+        let jacobian_over_region = dynamics
+            .f_tilde_jacobian
             .iter()
             .flatten()
             .map(|e| e.eval_interval(&cz))
             .collect();
-        let g_over_region: Vec<Interval> =
-            g.iter().flatten().map(|e| e.eval_interval(&cz)).collect();
+        let g_over_region: Vec<Interval> = dynamics
+            .g
+            .iter()
+            .flatten()
+            .map(|e| e.eval_interval(&cz))
+            .collect();
         let input_gain = closeness::induced_norm(&g_over_region, n, m, scenario.reach.norm);
         let safe_set = SafeSet::of(scenario, transform.as_ref());
+        let pieces = pieces::FilterPieces::new(scenario, &dynamics, transform.as_ref());
         Ok(ReachProblem {
-            dynamics: Dynamics {
-                n,
-                m,
-                f_tilde,
-                f_tilde_jacobian,
-                g,
-                g_constant,
-            },
+            dynamics,
             network,
             region,
             m_c,
@@ -301,7 +333,7 @@ impl ReachProblem {
             g_over_region,
             input_gain,
             safe_set,
-            inactive: inactive::InactiveFilter::new(scenario),
+            pieces,
         })
     }
 
@@ -318,16 +350,6 @@ impl ReachProblem {
         }
         self.error_map = Some(map);
         Ok(self)
-    }
-
-    /// Widens an embedding field `[dl, du]` by [`ReachProblem::field_slack`] (outward).
-    pub fn widen_by_field_slack(&self, dl: &mut [f64], du: &mut [f64]) {
-        if self.field_slack > 0.0 {
-            dl.iter_mut()
-                .for_each(|v| *v = crate::intervals::round_down(*v - self.field_slack));
-            du.iter_mut()
-                .for_each(|v| *v = crate::intervals::round_up(*v + self.field_slack));
-        }
     }
 
     /// The half-spaces of `S` that bound the method's sets: the filtered system's (disturbance)
@@ -483,8 +505,8 @@ pub struct Tube {
     /// Why the tube stopped early, if it did.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub note: Option<String>,
-    /// Steps that took `v = 0` exactly, the filter proven inactive on the set
-    /// ([`ReachSettings::exact_where_inactive`]).
+    /// Steps that integrated the filtered system's own field, the filter proven one smooth
+    /// function on the set ([`ReachSettings::exact`]).
     pub exact_steps: usize,
 }
 

@@ -1,0 +1,328 @@
+//! Where the filter is one smooth function on a set, the filtered system's own field.
+//!
+//! The filter's QP `min ½‖θ‖² s.t. aₖ(x)·θ ≤ bₖ(x)` is solved by `θ = 0` wherever every
+//! `bₖ(x) ≥ 0`: zero is feasible and minimises the objective. Evaluating the rows over a set's
+//! x-box by interval arithmetic ([`interval_rows`], on `box ∩ S` like the rest of the
+//! disturbance method) proves this for the whole set at once. The embedding then integrates
+//! the filtered system's own field `f̃` (nominal controller included) with `v = 0`: no network
+//! bounds and no error margin. Near the goal, where the nominal controller alone acts, this is
+//! what lets tubes contract: there the shipped networks err by 0.01–0.03, about what the
+//! closed loop's contraction can absorb (scenario 2's tubes diverge from the goal box with a
+//! constant `M` of 0.03 and converge with 0.02).
+//!
+//! For the closed-form filters (one constraint row, or a scalar input) the same holds on the
+//! other side: where one row provably binds on the whole set and every other row is slack,
+//! `v` is that row's closed form (`bₖaⱼ/‖a‖²`, or `bₖ/aₖ`), a smooth function of `x`
+//! ([`VForms::piece`]), and the filtered system's field `f̃ + g·v` is an expression whose
+//! mean-value form the embedding evaluates like `f̃`'s — again with no network error. The
+//! network is needed only where the active set changes inside the set, which is where its
+//! error (largest at the switches and jumps of `v`) is paid.
+
+use super::embedding::Dynamics;
+use super::transform::Transform;
+use crate::boxes::IntervalBox;
+use crate::expressions::Expr;
+use crate::intervals::Interval;
+use crate::scenario::Scenario;
+use crate::surrogate_error::{interval_rows, FilterPiece, VForms};
+
+/// Bisections [`FilterPieces::proves_feasible`] tries below a box (at most `2⁴` leaves).
+const FEASIBILITY_SPLITS: usize = 4;
+
+/// The filter's pieces over boxes, with the filtered system's field on each binding piece.
+#[derive(Clone, Debug)]
+pub struct FilterPieces {
+    scenario: Scenario,
+    /// The closed form (`None` for a filter that needs the QP: only inactivity is proven).
+    forms: Option<VForms>,
+    /// Per row `k`: the filtered system's field where row `k` alone binds, in the embedding's
+    /// coordinates, and the same field in x (for the transform's slack).
+    binding: Vec<BindingField>,
+    transform: Option<Transform>,
+}
+
+/// The filtered system's field on one binding piece.
+#[derive(Clone, Debug)]
+pub struct BindingField {
+    /// `T(f̃ + g·v)(Sz)` (or in x without a transform), as the embedding reads dynamics.
+    pub dynamics: Dynamics,
+    /// `f̃ + g·v` in x.
+    field_x: Vec<Expr>,
+}
+
+impl FilterPieces {
+    /// For the filter of `scenario`, the embedding running on `base` (its coordinates given
+    /// by `transform`).
+    pub fn new(scenario: &Scenario, base: &Dynamics, transform: Option<&Transform>) -> Self {
+        let forms = VForms::new(scenario);
+        let binding = forms.as_ref().map_or_else(Vec::new, |forms| {
+            (0..forms.rows_len())
+                .map(|k| {
+                    let v = forms.piece_input(FilterPiece::Binding(k));
+                    let field_x: Vec<Expr> = (0..scenario.n())
+                        .map(|i| {
+                            (0..scenario.m()).fold(scenario.f_tilde[i].clone(), |acc, j| {
+                                acc + scenario.g[i][j].clone() * v[j].clone()
+                            })
+                        })
+                        .collect();
+                    let f_tilde = match transform {
+                        Some(t) => t.vector_field(&field_x),
+                        None => field_x.clone(),
+                    };
+                    BindingField {
+                        dynamics: Dynamics::new(base.n, base.m, f_tilde, base.g.clone()),
+                        field_x,
+                    }
+                })
+                .collect()
+        });
+        FilterPieces {
+            scenario: scenario.clone(),
+            forms,
+            binding,
+            transform: transform.cloned(),
+        }
+    }
+
+    /// Whether `v(x) = 0` for every `x` in `x_box ∩ S`: every row's `bₖ ≥ 0` on it (a NaN or
+    /// an undefined expression proves nothing).
+    pub fn proves_inactive(&self, x_box: &IntervalBox) -> bool {
+        match &self.forms {
+            Some(forms) => forms.piece(&self.scenario, x_box) == Some(FilterPiece::Inactive),
+            None => {
+                let (_, b) = interval_rows(&self.scenario, x_box);
+                b.iter().all(|bk| bk.lower >= 0.0)
+            }
+        }
+    }
+
+    /// Whether the filter's QP is feasible at every point of `x_box ∩ S` (for a QP without a
+    /// closed form: only where `θ = 0` satisfies every row). Feasibility is pointwise, so where
+    /// the box as a whole is not proven its halves are tried, [`FEASIBILITY_SPLITS`] deep: the
+    /// interval rows of a smaller box lose less to dependency.
+    pub fn proves_feasible(&self, x_box: &IntervalBox) -> bool {
+        self.proves_feasible_split(x_box, FEASIBILITY_SPLITS)
+    }
+
+    fn proves_feasible_split(&self, x_box: &IntervalBox, splits: usize) -> bool {
+        let proven = match &self.forms {
+            Some(forms) => forms.proves_feasible(&self.scenario, x_box),
+            None => self.proves_inactive(x_box),
+        };
+        proven
+            || splits > 0 && {
+                let (left, right) = x_box.bisect();
+                self.proves_feasible_split(&left, splits - 1)
+                    && self.proves_feasible_split(&right, splits - 1)
+            }
+    }
+
+    /// The smooth piece `v` provably is on `x_box ∩ S` (where the filter is feasible), if any.
+    pub fn piece_on(&self, x_box: &IntervalBox) -> Option<FilterPiece> {
+        match &self.forms {
+            Some(forms) => forms.piece(&self.scenario, x_box),
+            None => self.proves_inactive(x_box).then_some(FilterPiece::Inactive),
+        }
+    }
+
+    /// An enclosure of `v` over `x_box ∩ S` (where the filter is feasible) from its closed form
+    /// ([`VForms::enclose`]; ends may be infinite where `v` may jump), or `None` for a filter
+    /// that needs the QP.
+    pub fn enclosure(&self, x_box: &IntervalBox) -> Option<Vec<Interval>> {
+        self.forms
+            .as_ref()
+            .map(|forms| forms.enclose(&self.scenario, x_box).0)
+    }
+
+    /// Whether the filter has a closed form ([`FilterPieces::enclosure`] gives enclosures).
+    pub fn has_closed_form(&self) -> bool {
+        self.forms.is_some()
+    }
+
+    /// The slack of the transform over `x_box` (0 without a transform) for the filtered field
+    /// `f̃ + g·v` with `v ∈ v_box`: [`Transform::field_slack`] of the field's bound there.
+    pub fn field_slack(&self, x_box: &IntervalBox, v_box: &[Interval]) -> f64 {
+        let Some(t) = &self.transform else {
+            return 0.0;
+        };
+        let xs = intervals_of(x_box);
+        let s = &self.scenario;
+        let f_max = (0..s.n())
+            .map(|i| {
+                let gv = (0..s.m()).fold(Interval::point(0.0), |acc, j| {
+                    acc + s.g[i][j].eval_interval(&xs) * v_box[j]
+                });
+                magnitude(s.f_tilde[i].eval_interval(&xs) + gv)
+            })
+            .fold(0.0, f64::max);
+        t.field_slack(f_max)
+    }
+
+    /// The filtered system's field where row `k` alone binds.
+    pub fn binding_field(&self, k: usize) -> &BindingField {
+        &self.binding[k]
+    }
+
+    /// The slack of the transform for this field over `x_box` (0 without a transform): the
+    /// bound of [`Transform::field_slack`] with `‖f̃ + g·v‖∞` over the box.
+    pub fn binding_slack(&self, k: usize, x_box: &IntervalBox) -> f64 {
+        let Some(t) = &self.transform else {
+            return 0.0;
+        };
+        let xs = intervals_of(x_box);
+        let f_max = self.binding[k]
+            .field_x
+            .iter()
+            .map(|e| magnitude(e.eval_interval(&xs)))
+            .fold(0.0, f64::max);
+        t.field_slack(f_max)
+    }
+}
+
+fn intervals_of(b: &IntervalBox) -> Vec<Interval> {
+    (0..b.dim())
+        .map(|i| Interval::new(b.lower[i], b.upper[i]))
+        .collect()
+}
+
+/// `max |x|` over an interval, `+∞` for NaN.
+fn magnitude(v: Interval) -> f64 {
+    if v.is_nan() {
+        f64::INFINITY
+    } else {
+        v.mag()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::filter::SafetyFilter;
+    use rand::{Rng, SeedableRng};
+
+    /// Whenever a box is proven to lie on one piece, the ground-truth filter equals that piece
+    /// at sampled points of it (exactly 0 where inactive, the binding row's closed form
+    /// otherwise), and the piece's field is the filtered system's; both kinds of proof succeed
+    /// on both paper scenarios (inactive near the goal, binding where the filter acts). Whenever
+    /// a box is proven feasible, the QP is feasible at its sampled points, and no box around an
+    /// infeasible point is.
+    #[test]
+    fn proven_pieces_are_the_filter() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios");
+        for (file, active_at) in [
+            ("integrator.toml", [3.9, 0.0]),
+            ("double-integrator.toml", [0.9, 1.5]),
+        ] {
+            let s = Scenario::load(&dir.join(file)).unwrap();
+            let base = Dynamics::new(s.n(), s.m(), s.f_tilde.clone(), s.g.clone());
+            let (pieces, filter) = (FilterPieces::new(&s, &base, None), SafetyFilter::new(&s));
+            let around = |c: [f64; 2], r: f64| IntervalBox {
+                lower: vec![c[0] - r, c[1] - r],
+                upper: vec![c[0] + r, c[1] + r],
+            };
+            assert!(
+                pieces.proves_inactive(&around([0.0, 0.0], 0.2)),
+                "{file}: goal"
+            );
+            assert!(
+                !pieces.proves_inactive(&around(active_at, 0.05)),
+                "{file}: {active_at:?}"
+            );
+            assert!(filter.eval(&active_at).unwrap().iter().any(|v| *v != 0.0));
+            if file == "double-integrator.toml" {
+                // At (1.5, 1.5) both rows ask for θ > 0 (the velocity row for θ ≥ 1, the
+                // obstacle's for θ ≥ 4.5): the obstacle's dominates, and `v` is its closed form.
+                let (_, b) = interval_rows(&s, &around([1.5, 1.5], 0.02));
+                assert!(b.iter().all(|bk| bk.upper < 0.0), "{b:?}");
+                assert_eq!(
+                    pieces.piece_on(&around([1.5, 1.5], 0.02)),
+                    Some(FilterPiece::Binding(0))
+                );
+            }
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+            let r = &s.reach.region;
+            let (mut inactive, mut binding, mut points, mut feasible) = (0, 0, 0, 0);
+            for _ in 0..600 {
+                // Small boxes, half of them near the goal, where the filter rests.
+                let w = rng.random_range(0.01..0.3);
+                let near = rng.random_bool(0.5);
+                let c: Vec<f64> = (0..2)
+                    .map(|i| {
+                        let (lo, hi) = (r.lower[i] + w, r.upper[i] - w);
+                        if near {
+                            rng.random_range(lo.max(-1.5)..hi.min(1.5))
+                        } else {
+                            rng.random_range(lo..hi)
+                        }
+                    })
+                    .collect();
+                let b = around([c[0], c[1]], w);
+                if pieces.proves_feasible(&b) {
+                    feasible += 1;
+                    for k in 0..25 {
+                        let x = b.point_at(&[(k % 5) as f64 / 4.0, (k / 5) as f64 / 4.0]);
+                        if s.is_safe(&x) {
+                            assert!(filter.eval(&x).is_ok(), "{file}: infeasible at {x:?}");
+                        }
+                    }
+                }
+                let Some(piece) = pieces.piece_on(&b) else {
+                    continue;
+                };
+                match piece {
+                    FilterPiece::Inactive => inactive += 1,
+                    FilterPiece::Binding(_) => binding += 1,
+                }
+                for k in 0..25 {
+                    let x = b.point_at(&[(k % 5) as f64 / 4.0, (k / 5) as f64 / 4.0]);
+                    let Ok(v) = filter.eval(&x) else {
+                        continue; // infeasible: no trajectory to speak of
+                    };
+                    if !s.is_safe(&x) {
+                        continue;
+                    }
+                    points += 1;
+                    match piece {
+                        FilterPiece::Inactive => assert_eq!(v, vec![0.0; s.m()], "{file}: {x:?}"),
+                        FilterPiece::Binding(k) => {
+                            let field = &pieces.binding_field(k).dynamics.f_tilde;
+                            for (i, field_i) in field.iter().enumerate() {
+                                let truth = s.f_tilde[i].eval(&x)
+                                    + (0..s.m()).map(|j| s.g[i][j].eval(&x) * v[j]).sum::<f64>();
+                                let piece = field_i.eval(&x);
+                                assert!(
+                                    (truth - piece).abs() <= 1e-9 * (1.0 + truth.abs()),
+                                    "{file}: row {k} at {x:?}: {piece} vs {truth}"
+                                );
+                            }
+                        }
+                    }
+                }
+            }
+            assert!(
+                inactive >= 10 && binding >= 10,
+                "{file}: {inactive} inactive, {binding} binding"
+            );
+            assert!(points >= 2000, "{file}: {points} points");
+            assert!(
+                feasible >= 300,
+                "{file}: {feasible} of 600 boxes proven feasible"
+            );
+            // Where the QP is infeasible (scenario 2: where its two CBFs conflict, along
+            // x₂ = −2), no box around the point is proven feasible.
+            let infeasible = (0..400)
+                .map(|k| {
+                    [
+                        r.lower[0] + k as f64 * r.widths()[0] / 400.0,
+                        r.lower[1] + 0.01,
+                    ]
+                })
+                .find(|x| s.is_safe(x) && filter.eval(x).is_err());
+            assert_eq!(infeasible.is_some(), file == "double-integrator.toml");
+            if let Some(x) = infeasible {
+                assert!(!pieces.proves_feasible(&around(x, 1e-6)), "{file}: {x:?}");
+            }
+        }
+    }
+}
