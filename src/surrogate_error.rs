@@ -670,6 +670,24 @@ pub enum FilterPiece {
     Binding(usize),
 }
 
+/// A cell as intervals `X`, its centre `c` as points, and `X − c`: what mean-value forms take.
+struct Centred {
+    xs: Vec<Interval>,
+    cs: Vec<Interval>,
+    dx: Vec<Interval>,
+}
+
+impl Centred {
+    fn of(cell: &IntervalBox) -> Centred {
+        let xs: Vec<Interval> = (0..cell.dim())
+            .map(|i| Interval::new(cell.lower[i], cell.upper[i]))
+            .collect();
+        let cs: Vec<Interval> = cell.center().into_iter().map(Interval::point).collect();
+        let dx = xs.iter().zip(&cs).map(|(&x, &c)| x - c).collect();
+        Centred { xs, cs, dx }
+    }
+}
+
 /// The rows of the filter over a cell ([`VForms::rows`]).
 struct Rows {
     a_nat: Vec<Interval>,
@@ -811,11 +829,7 @@ impl VForms {
     /// filter is feasible), if one provably is: every row slack (`bₖ ≥ 0`: `v = 0`), or one row
     /// binding throughout (`bₖ ≤ 0`, its `aₖ` bounded away from 0) and every other row slack.
     pub fn piece(&self, s: &Scenario, cell: &IntervalBox) -> Option<FilterPiece> {
-        let xs: Vec<Interval> = (0..self.n)
-            .map(|i| Interval::new(cell.lower[i], cell.upper[i]))
-            .collect();
-        let cs: Vec<Interval> = cell.center().into_iter().map(Interval::point).collect();
-        let dx: Vec<Interval> = (0..self.n).map(|i| xs[i] - cs[i]).collect();
+        let Centred { xs, cs, dx } = Centred::of(cell);
         let Rows {
             a_nat,
             b_nat,
@@ -888,11 +902,7 @@ impl VForms {
     /// other: `aⱼaₖ ≥ 0`, or `(bⱼaₖ − bₖaⱼ)·aₖ ≥ 0` (that is `bⱼ/aⱼ ≤ bₖ/aₖ` when `aⱼ < 0 < aₖ`),
     /// or both rows slack at `θ = 0`.
     pub fn proves_feasible(&self, s: &Scenario, cell: &IntervalBox) -> bool {
-        let xs: Vec<Interval> = (0..self.n)
-            .map(|i| Interval::new(cell.lower[i], cell.upper[i]))
-            .collect();
-        let cs: Vec<Interval> = cell.center().into_iter().map(Interval::point).collect();
-        let dx: Vec<Interval> = (0..self.n).map(|i| xs[i] - cs[i]).collect();
+        let Centred { xs, cs, dx } = Centred::of(cell);
         let Some(Rows { a_nat, b_enc, .. }) = self.rows(s, &xs, &cs, &dx, cell) else {
             return false;
         };
@@ -944,12 +954,8 @@ impl VForms {
         let (n, m) = (self.n, self.m);
         let natural =
             v_enclosure(s, self.method, cell).unwrap_or_else(|| vec![Interval::ENTIRE; m]);
-        let xs: Vec<Interval> = (0..n)
-            .map(|i| Interval::new(cell.lower[i], cell.upper[i]))
-            .collect();
         let centre = cell.center();
-        let cs: Vec<Interval> = centre.iter().map(|&c| Interval::point(c)).collect();
-        let dx: Vec<Interval> = (0..n).map(|i| xs[i] - cs[i]).collect();
+        let Centred { xs, cs, dx } = Centred::of(cell);
         let zero_v = || SmoothV {
             centre: centre.clone(),
             value: vec![Interval::point(0.0); m],

@@ -363,7 +363,12 @@ fn box_verdicts(
                 ),
                 None => String::new(),
             });
-            (v, note)
+            let feasible = v.is_verified().then(|| {
+                tube.tube
+                    .iter()
+                    .all(|sample| problem.pieces.proves_feasible(&sample.set))
+            });
+            (v, note + feasibility_clause(feasible))
         })
         .collect();
     let retry: Vec<usize> = (0..tubes.len())
@@ -414,12 +419,14 @@ fn box_verdicts(
         let first = leaves.first().map(|b| b.verdict);
         match first {
             Some(v) if proven == leaves.len() && leaves.iter().all(|b| b.verdict == v) => {
+                let feasible = leaves.iter().all(|b| b.feasible == Some(true));
                 out[k] = (
                     v,
                     format!(
-                        "as {} pieces {size} wide: every piece {}",
+                        "as {} pieces {size} wide: every piece {}{}",
                         leaves.len(),
-                        v.name()
+                        v.name(),
+                        feasibility_clause(Some(feasible))
                     ),
                 );
             }
@@ -434,6 +441,15 @@ fn box_verdicts(
     }
     bar.finish_and_clear();
     Ok(out)
+}
+
+/// Whether the filter's QP was proven feasible on every set of a verified box.
+fn feasibility_clause(feasible: Option<bool>) -> &'static str {
+    match feasible {
+        Some(true) => "; QP proven feasible",
+        Some(false) => "; QP feasibility not proven",
+        None => "",
+    }
 }
 
 /// One line per initial box: its verdict and note, then the tally.
