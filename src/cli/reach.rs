@@ -310,9 +310,15 @@ pub fn run(args: &ReachArgs) -> CliResult {
     );
     if settings.exact_field() != ExactField::Nowhere {
         let exact: usize = result.boxes.iter().map(|t| t.exact_steps).sum();
+        let enclosed: usize = result.boxes.iter().map(|t| t.enclosed_steps).sum();
         println!(
             "  the filtered system's own field (the filter proven one smooth function on the set) \
-             on {exact} of the {run} box-steps"
+             on {exact} of the {run} box-steps{}",
+            if enclosed > 0 {
+                format!(", the closed form's enclosures of v on {enclosed}")
+            } else {
+                String::new()
+            }
         );
     }
     let invalid = result.boxes.iter().filter(|t| !t.valid).count();

@@ -361,6 +361,7 @@ impl Backend for GpuBackend {
                 valid: true,
                 note: None,
                 exact_steps: 0,
+                enclosed_steps: 0,
             })
             .collect();
         if initial.is_empty() || steps == 0 {

@@ -66,6 +66,7 @@ impl Backend for CpuBackend {
                         valid: true,
                         note: None,
                         exact_steps: 0,
+                        enclosed_steps: 0,
                     },
                     done: false,
                 };
@@ -344,6 +345,7 @@ impl ChunkRun<'_> {
                 } else {
                     None
                 };
+                state.tube.enclosed_steps += usize::from(enclosed.is_some());
                 let network = input.margin.map(|bound| {
                     // This box's rows in the batch (boxes without a margin have none).
                     let slot = next_slot;

@@ -508,6 +508,9 @@ pub struct Tube {
     /// Steps that integrated the filtered system's own field, the filter proven one smooth
     /// function on the set ([`ReachSettings::exact`]).
     pub exact_steps: usize,
+    /// Steps whose field also took the closed form's enclosures of `v` on the set's faces
+    /// ([`ExactField::ClosedForm`], where no piece was proven).
+    pub enclosed_steps: usize,
 }
 
 impl Tube {
