@@ -170,8 +170,8 @@ struct ChunkRun<'a> {
 /// than the network's affine bounds; the field is their meet).
 #[derive(Clone, Copy, Debug)]
 struct StepInput {
-    /// The piece `v` provably is on the set.
-    piece: Option<FilterPiece>,
+    /// The piece `v` provably is on the set, with the transform's slack for its field there.
+    piece: Option<(FilterPiece, f64)>,
     /// The additive bound on every input of the network's error over the set, where the network
     /// is bounded (`None` where `v = 0`, or where the error map has no finite bound).
     margin: Option<f64>,
@@ -204,8 +204,12 @@ impl ChunkRun<'_> {
                     Some(FilterPiece::Inactive) => None,
                     _ => Some(round_up(problem.margin_for(&x_box) + problem.network_slack)),
                 };
+                let slack = |piece| match piece {
+                    FilterPiece::Inactive => problem.field_slack,
+                    FilterPiece::Binding(k) => problem.pieces.binding_slack(k, &x_box),
+                };
                 StepInput {
-                    piece,
+                    piece: piece.map(|p| (p, slack(p))),
                     margin: margin.filter(|m| m.is_finite()),
                 }
             }
@@ -214,18 +218,17 @@ impl ChunkRun<'_> {
 
     /// The filtered system's own field on a piece over the state's set, widened by the
     /// transform's slack.
-    fn piece_field(&self, state: &Live, piece: FilterPiece, zeros: &[f64]) -> (Vec<f64>, Vec<f64>) {
+    fn piece_field(
+        &self,
+        state: &Live,
+        (piece, slack): (FilterPiece, f64),
+        zeros: &[f64],
+    ) -> (Vec<f64>, Vec<f64>) {
         let problem = self.problem;
         let (n, m) = (problem.dynamics.n, problem.dynamics.m);
-        let (dynamics, slack) = match piece {
-            FilterPiece::Inactive => (&problem.dynamics, problem.field_slack),
-            FilterPiece::Binding(k) => {
-                let x_box = problem.x_box_in_safe_set(&state.lower, &state.upper, self.safe);
-                (
-                    &problem.pieces.binding_field(k).dynamics,
-                    problem.pieces.binding_slack(k, &x_box),
-                )
-            }
+        let dynamics = match piece {
+            FilterPiece::Inactive => &problem.dynamics,
+            FilterPiece::Binding(k) => &problem.pieces.binding_field(k).dynamics,
         };
         let zero = zero_bounds(zeros, n, m);
         let (mut dl, mut du) =

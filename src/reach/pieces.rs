@@ -1,4 +1,5 @@
-//! Where the filter is one smooth function on a set, the filtered system's own field.
+//! What the filter's own rows prove over a set: the smooth piece `v` is on it (and the filtered
+//! system's field there), an enclosure of `v`, and the QP's feasibility.
 //!
 //! The filter's QP `min ½‖θ‖² s.t. aₖ(x)·θ ≤ bₖ(x)` is solved by `θ = 0` wherever every
 //! `bₖ(x) ≥ 0`: zero is feasible and minimises the objective. Evaluating the rows over a set's
@@ -14,9 +15,13 @@
 //! other side: where one row provably binds on the whole set and every other row is slack,
 //! `v` is that row's closed form (`bₖaⱼ/‖a‖²`, or `bₖ/aₖ`), a smooth function of `x`
 //! ([`VForms::piece`]), and the filtered system's field `f̃ + g·v` is an expression whose
-//! mean-value form the embedding evaluates like `f̃`'s — again with no network error. The
-//! network is needed only where the active set changes inside the set, which is where its
-//! error (largest at the switches and jumps of `v`) is paid.
+//! mean-value form the embedding evaluates like `f̃`'s — again with no network error. Where the
+//! active set changes inside the set, the closed form still gives an enclosure of `v` on each
+//! face ([`FilterPieces::enclosure`]), which the engine meets with the network's bounds.
+//!
+//! The same rows decide whether the QP is feasible on a set ([`FilterPieces::proves_feasible`]):
+//! where it is not, the filtered system does not exist, and `verify` says which verdicts hold
+//! only for the trajectories that do.
 
 use super::embedding::Dynamics;
 use super::transform::Transform;
