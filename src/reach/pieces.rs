@@ -206,12 +206,95 @@ mod tests {
     use crate::filter::SafetyFilter;
     use rand::{Rng, SeedableRng};
 
-    /// Whenever a box is proven to lie on one piece, the ground-truth filter equals that piece
-    /// at sampled points of it (exactly 0 where inactive, the binding row's closed form
-    /// otherwise), and the piece's field is the filtered system's; both kinds of proof succeed
-    /// on both paper scenarios (inactive near the goal, binding where the filter acts). Whenever
-    /// a box is proven feasible, the QP is feasible at its sampled points, and no box around an
-    /// infeasible point is.
+    fn around(c: [f64; 2], r: f64) -> IntervalBox {
+        IntervalBox {
+            lower: vec![c[0] - r, c[1] - r],
+            upper: vec![c[0] + r, c[1] + r],
+        }
+    }
+
+    /// What [`sampled_proofs_hold`] found on 600 random small boxes.
+    struct Proven {
+        inactive: usize,
+        /// Boxes proven to lie on each row's binding piece.
+        binding: Vec<usize>,
+        feasible: usize,
+        points: usize,
+    }
+
+    /// On 600 random boxes of `s` (half of them near the goal, where the filter rests): every
+    /// box proven to lie on one piece has the ground-truth filter equal to that piece at 25
+    /// sampled points (exactly 0 where inactive; where a row binds, the piece's field equals
+    /// `f̃ + g·v` to 1e-9), and every box proven feasible has a feasible QP at them.
+    fn sampled_proofs_hold(s: &Scenario, file: &str) -> Proven {
+        let base = Dynamics::new(s.n(), s.m(), s.f_tilde.clone(), s.g.clone());
+        let (pieces, filter) = (FilterPieces::new(s, &base, None), SafetyFilter::new(s));
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+        let r = &s.reach.region;
+        let mut proven = Proven {
+            inactive: 0,
+            binding: vec![0; pieces.binding.len()],
+            feasible: 0,
+            points: 0,
+        };
+        for _ in 0..600 {
+            let w = rng.random_range(0.01..0.3);
+            let near = rng.random_bool(0.5);
+            let c: Vec<f64> = (0..2)
+                .map(|i| {
+                    let (lo, hi) = (r.lower[i] + w, r.upper[i] - w);
+                    if near {
+                        rng.random_range(lo.max(-1.5)..hi.min(1.5))
+                    } else {
+                        rng.random_range(lo..hi)
+                    }
+                })
+                .collect();
+            let b = around([c[0], c[1]], w);
+            let samples = (0..25)
+                .map(|k| b.point_at(&[(k % 5) as f64 / 4.0, (k / 5) as f64 / 4.0]))
+                .filter(|x| s.is_safe(x));
+            if pieces.proves_feasible(&b) {
+                proven.feasible += 1;
+                for x in samples.clone() {
+                    assert!(filter.eval(&x).is_ok(), "{file}: infeasible at {x:?}");
+                }
+            }
+            let Some(piece) = pieces.piece_on(&b) else {
+                continue;
+            };
+            match piece {
+                FilterPiece::Inactive => proven.inactive += 1,
+                FilterPiece::Binding(k) => proven.binding[k] += 1,
+            }
+            for x in samples {
+                let Ok(v) = filter.eval(&x) else {
+                    continue; // infeasible: no trajectory to speak of
+                };
+                proven.points += 1;
+                match piece {
+                    FilterPiece::Inactive => assert_eq!(v, vec![0.0; s.m()], "{file}: {x:?}"),
+                    FilterPiece::Binding(k) => {
+                        let field = &pieces.binding_field(k).dynamics.f_tilde;
+                        for (i, field_i) in field.iter().enumerate() {
+                            let truth = s.f_tilde[i].eval(&x)
+                                + (0..s.m()).map(|j| s.g[i][j].eval(&x) * v[j]).sum::<f64>();
+                            let piece = field_i.eval(&x);
+                            assert!(
+                                (truth - piece).abs() <= 1e-9 * (1.0 + truth.abs()),
+                                "{file}: row {k} at {x:?}: {piece} vs {truth}"
+                            );
+                        }
+                    }
+                }
+            }
+        }
+        proven
+    }
+
+    /// On both paper scenarios the sampled proofs hold, both kinds of piece are proven (inactive
+    /// near the goal, binding where the filter acts), most boxes are proven feasible, and no box
+    /// around an infeasible point is (scenario 2's CBFs conflict along x₂ = −2).
     #[test]
     fn proven_pieces_are_the_filter() {
         let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios");
@@ -222,10 +305,6 @@ mod tests {
             let s = Scenario::load(&dir.join(file)).unwrap();
             let base = Dynamics::new(s.n(), s.m(), s.f_tilde.clone(), s.g.clone());
             let (pieces, filter) = (FilterPieces::new(&s, &base, None), SafetyFilter::new(&s));
-            let around = |c: [f64; 2], r: f64| IntervalBox {
-                lower: vec![c[0] - r, c[1] - r],
-                upper: vec![c[0] + r, c[1] + r],
-            };
             assert!(
                 pieces.proves_inactive(&around([0.0, 0.0], 0.2)),
                 "{file}: goal"
@@ -245,77 +324,20 @@ mod tests {
                     Some(FilterPiece::Binding(0))
                 );
             }
-            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+            let proven = sampled_proofs_hold(&s, file);
+            let binding: usize = proven.binding.iter().sum();
+            assert!(
+                proven.inactive >= 10 && binding >= 10,
+                "{file}: {} inactive, {binding} binding",
+                proven.inactive
+            );
+            assert!(proven.points >= 2000, "{file}: {} points", proven.points);
+            assert!(
+                proven.feasible >= 300,
+                "{file}: {} of 600 feasible",
+                proven.feasible
+            );
             let r = &s.reach.region;
-            let (mut inactive, mut binding, mut points, mut feasible) = (0, 0, 0, 0);
-            for _ in 0..600 {
-                // Small boxes, half of them near the goal, where the filter rests.
-                let w = rng.random_range(0.01..0.3);
-                let near = rng.random_bool(0.5);
-                let c: Vec<f64> = (0..2)
-                    .map(|i| {
-                        let (lo, hi) = (r.lower[i] + w, r.upper[i] - w);
-                        if near {
-                            rng.random_range(lo.max(-1.5)..hi.min(1.5))
-                        } else {
-                            rng.random_range(lo..hi)
-                        }
-                    })
-                    .collect();
-                let b = around([c[0], c[1]], w);
-                if pieces.proves_feasible(&b) {
-                    feasible += 1;
-                    for k in 0..25 {
-                        let x = b.point_at(&[(k % 5) as f64 / 4.0, (k / 5) as f64 / 4.0]);
-                        if s.is_safe(&x) {
-                            assert!(filter.eval(&x).is_ok(), "{file}: infeasible at {x:?}");
-                        }
-                    }
-                }
-                let Some(piece) = pieces.piece_on(&b) else {
-                    continue;
-                };
-                match piece {
-                    FilterPiece::Inactive => inactive += 1,
-                    FilterPiece::Binding(_) => binding += 1,
-                }
-                for k in 0..25 {
-                    let x = b.point_at(&[(k % 5) as f64 / 4.0, (k / 5) as f64 / 4.0]);
-                    let Ok(v) = filter.eval(&x) else {
-                        continue; // infeasible: no trajectory to speak of
-                    };
-                    if !s.is_safe(&x) {
-                        continue;
-                    }
-                    points += 1;
-                    match piece {
-                        FilterPiece::Inactive => assert_eq!(v, vec![0.0; s.m()], "{file}: {x:?}"),
-                        FilterPiece::Binding(k) => {
-                            let field = &pieces.binding_field(k).dynamics.f_tilde;
-                            for (i, field_i) in field.iter().enumerate() {
-                                let truth = s.f_tilde[i].eval(&x)
-                                    + (0..s.m()).map(|j| s.g[i][j].eval(&x) * v[j]).sum::<f64>();
-                                let piece = field_i.eval(&x);
-                                assert!(
-                                    (truth - piece).abs() <= 1e-9 * (1.0 + truth.abs()),
-                                    "{file}: row {k} at {x:?}: {piece} vs {truth}"
-                                );
-                            }
-                        }
-                    }
-                }
-            }
-            assert!(
-                inactive >= 10 && binding >= 10,
-                "{file}: {inactive} inactive, {binding} binding"
-            );
-            assert!(points >= 2000, "{file}: {points} points");
-            assert!(
-                feasible >= 300,
-                "{file}: {feasible} of 600 boxes proven feasible"
-            );
-            // Where the QP is infeasible (scenario 2: where its two CBFs conflict, along
-            // x₂ = −2), no box around the point is proven feasible.
             let infeasible = (0..400)
                 .map(|k| {
                     [
@@ -329,5 +351,31 @@ mod tests {
                 assert!(!pieces.proves_feasible(&around(x, 1e-6)), "{file}: {x:?}");
             }
         }
+    }
+
+    /// With input bounds `|u| ≤ 3` on scenario 2 (four rows on a scalar input, two on each
+    /// side of `θ = 0`, so that dominance decides between rows and the bounds conflict with the
+    /// CBFs), the sampled proofs still hold, and the input bounds' own pieces are proven.
+    #[test]
+    fn proven_pieces_hold_with_input_bounds() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios");
+        let text = std::fs::read_to_string(dir.join("double-integrator.toml")).unwrap();
+        let text = text.replacen(
+            "[parameters]",
+            "input_bounds = { lower = [-3.0], upper = [3.0] }\n\n[parameters]",
+            1,
+        );
+        let s = Scenario::from_toml(&text, "bounded.toml", &dir).unwrap();
+        assert!(s.input_bounds.is_some());
+        let proven = sampled_proofs_hold(&s, "bounded.toml");
+        // Rows: the two CBFs, then u ≤ 3 and u ≥ −3.
+        assert_eq!(proven.binding.len(), 4);
+        assert!(
+            proven.binding[2] + proven.binding[3] >= 10,
+            "input-bound pieces: {:?}",
+            proven.binding
+        );
+        assert!(proven.inactive >= 10 && proven.points >= 2000);
+        assert!(proven.feasible >= 100, "{} feasible", proven.feasible);
     }
 }
