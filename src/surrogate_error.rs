@@ -827,7 +827,9 @@ impl VForms {
 
     /// Which smooth piece of the closed form `v` is on the whole of `cell ∩ S` (where the
     /// filter is feasible), if one provably is: every row slack (`bₖ ≥ 0`: `v = 0`), or one row
-    /// binding throughout (`bₖ ≤ 0`, its `aₖ` bounded away from 0) and every other row slack.
+    /// binding throughout (`bₖ ≤ 0`, its `aₖ` bounded away from 0) while every other row that
+    /// may bind is, for a scalar input, on the other side of `θ = 0` or dominated by it
+    /// (`rₖ − rⱼ` of one sign on the cell).
     pub fn piece(&self, s: &Scenario, cell: &IntervalBox) -> Option<FilterPiece> {
         let Centred { xs, cs, dx } = Centred::of(cell);
         let Rows {
