@@ -173,7 +173,7 @@ fn bwd_bounds(@builtin(global_invocation_id) gid: vec3<u32>) {
     let u = affine_max(au, bu, bx);
     let l = affine_min(al, bl, bx);
     if (!(finite(l) && finite(u))) {
-        atomicStore(&flags[(g / FACES) * 3u], 1u);
+        atomicStore(&flags[(g / FACES) * FLAG_W], 1u);
     }
     pre[p.pre_off + i * p.boxes + g] = l;
     pre[p.pre_off + (p.k_rows + i) * p.boxes + g] = u;

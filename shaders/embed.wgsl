@@ -23,8 +23,8 @@ const INVERTED: u32 = 2u;
 const NON_FINITE: u32 = 3u;
 
 fn stop(g: u32, status: u32, step: u32) {
-    atomicStore(&flags[g * 3u + 1u], status);
-    atomicStore(&flags[g * 3u + 2u], step);
+    atomicStore(&flags[g * FLAG_W + 1u], status);
+    atomicStore(&flags[g * FLAG_W + 2u], step);
 }
 
 // φ(z) = (eᶻ − 1)/z ≤ phi_up(z): Taylor with a remainder bound for |z| ≤ 1/2, else from exp.
@@ -46,7 +46,7 @@ fn phi_up(z: real) -> real {
 
 @compute @workgroup_size(1)
 fn tick() {
-    atomicAdd(&flags[3u * p.boxes], 1u);
+    atomicAdd(&flags[FLAG_W * p.boxes], 1u);
 }
 
 // The error map's cells for local margins (LOCAL_MARGIN; src/gpu/margins.rs): bucket starts
@@ -92,6 +92,30 @@ fn face_index(g: u32, i: u32, side: u32) -> u32 {
         return g;
     }
     return g * FACES + 2u * i + side;
+}
+
+// The network's bounds on face (i, side) of box g, or zero ones where v = 0 on the set.
+fn face_bounds(g: u32, i: u32, side: u32, inactive: bool) -> NetBounds {
+    if (inactive) {
+        var zero: NetBounds;
+        return zero;
+    }
+    return load_bounds(face_index(g, i, side));
+}
+
+// Whether v = 0 on the whole set of embedding state z (EXACT_INACTIVE): every row's b(x) ≥ 0
+// on its x-box ∩ S by natural interval evaluation (row_b_iv, src/reach/pieces.rs slack_rows).
+fn filter_inactive(z: array<Iv, N0>) -> bool {
+    if (!EXACT_INACTIVE) {
+        return false;
+    }
+    let x = clip_to_safe_set(x_box(z), HS_Z, HS_X);
+    for (var k = 0u; k < ROWS; k++) {
+        if (!(row_b_iv(k, x).lo >= 0.0)) {
+            return false;
+        }
+    }
+    return true;
 }
 
 // Whether every bound box of box g is finite.
@@ -335,10 +359,10 @@ fn embed(@builtin(global_invocation_id) gid: vec3<u32>) {
     if (g >= p.boxes) {
         return;
     }
-    if (atomicLoad(&flags[g * 3u + 1u]) != LIVE) {
+    if (atomicLoad(&flags[g * FLAG_W + 1u]) != LIVE) {
         return;
     }
-    let step = atomicLoad(&flags[3u * p.boxes]);
+    let step = atomicLoad(&flags[FLAG_W * p.boxes]);
     var lo: array<real, N0>;
     var hi: array<real, N0>;
     var xb: array<Iv, N0>;
@@ -351,23 +375,31 @@ fn embed(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     var radius = state[g * SW + 2u * N0];
 
-    // The disturbance bound first, as src/reach/cpu.rs: M = ∞ ends the box.
-    let margin = margin_of(xb);
-    if (margin >= HUGE) {
-        stop(g, NO_BOUND, step);
-        return;
-    }
-    if (atomicLoad(&flags[g * 3u]) != 0u || !bounds_finite(g)) {
-        stop(g, NON_FINITE, step);
-        return;
+    // Where the filter is proven inactive on the set, v = 0: the filtered system's own field,
+    // no network bounds and no margin (src/reach/cpu.rs, FilterPieces::proves_inactive).
+    let inactive = filter_inactive(xb);
+    var margin: real = 0.0;
+    if (inactive) {
+        atomicAdd(&flags[g * FLAG_W + 3u], 1u);
+    } else {
+        // The disturbance bound first, as src/reach/cpu.rs: M = ∞ ends the box.
+        margin = margin_of(xb);
+        if (margin >= HUGE) {
+            stop(g, NO_BOUND, step);
+            return;
+        }
+        if (atomicLoad(&flags[g * FLAG_W]) != 0u || !bounds_finite(g)) {
+            stop(g, NON_FINITE, step);
+            return;
+        }
     }
 
     // The embedding field, face by face (embedding_field_by_face in src/reach/embedding.rs).
     var dxl: array<real, N0>;
     var dxu: array<real, N0>;
     for (var i = 0u; i < N0; i++) {
-        dxl[i] = face_field(i, 0u, xb, cen, load_bounds(face_index(g, i, 0u)), margin).lo;
-        dxu[i] = face_field(i, 1u, xb, cen, load_bounds(face_index(g, i, 1u)), margin).hi;
+        dxl[i] = face_field(i, 0u, xb, cen, face_bounds(g, i, 0u, inactive), margin).lo;
+        dxu[i] = face_field(i, 1u, xb, cen, face_bounds(g, i, 1u, inactive), margin).hi;
         if (FIELD_SLACK > 0.0) {
             dxl[i] = down(dxl[i] - FIELD_SLACK);
             dxu[i] = up(dxu[i] + FIELD_SLACK);

@@ -81,7 +81,7 @@ fn relu(@builtin(global_invocation_id) gid: vec3<u32>) {
     var l = down(sl - err);
     var u = up(su + err);
     if (!(finite(l) && finite(u) && finite(mag))) {
-        atomicStore(&flags[(g / FACES) * 3u], 1u);
+        atomicStore(&flags[(g / FACES) * FLAG_W], 1u);
     }
     if (IBP) {
         // IBP through this layer from the previous layer's intersected bounds (ibp_layer in

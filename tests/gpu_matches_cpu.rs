@@ -1039,3 +1039,46 @@ fn safe_set_keeps_local_margins_finite_at_the_edge_of_c() {
         compare_within(&c, &g, "f64 safe set, local margins", F64_TOL);
     }
 }
+
+/// Where the filter is proven inactive both engines take `v = 0` (`ExactField::Inactive`, the
+/// same rows evaluated in the same interval arithmetic): on scenario 2 in z coordinates, with
+/// a box near the goal (inactive on every step), one where the filter acts and one that comes
+/// to rest, the GPU in f64 agrees with the CPU on the sets to `F64_TOL` and on the steps taken
+/// exactly; in f32 it takes no step exactly that the CPU does not, and the near-goal box's
+/// steps all.
+#[test]
+fn v_zero_where_the_filter_is_inactive_matches_cpu() {
+    let Some(gpu32) = gpu() else { return };
+    let s = double_integrator();
+    let net = small_network(&[2, 16, 16, 1], 6, 0.05);
+    let t = Transform::for_scenario(&s, &TransformChoice::Auto).unwrap();
+    let mut problem = ReachProblem::with_transform(&s, net, 0.02, t).unwrap();
+    problem.steps = 40;
+    let init = boxes(&[[0.1, -0.1], [1.0, 1.5], [-2.5, 0.5]], 0.05);
+    let settings = ReachSettings {
+        exact: ExactField::Inactive,
+        ..with_faces(BoundMethod::Forward)
+    };
+    let (c, g) = run_both_with(&gpu32, &problem, &init, &settings);
+    assert_eq!(c[0].exact_steps, problem.steps, "near the goal");
+    assert!(
+        c[1].exact_steps < c[1].steps_run(problem.dt),
+        "the filter acts at (1, 1.5)"
+    );
+    for (a, b) in c.iter().zip(&g) {
+        assert!(
+            b.exact_steps <= a.exact_steps,
+            "{} vs {}",
+            b.exact_steps,
+            a.exact_steps
+        );
+    }
+    assert_eq!(g[0].exact_steps, problem.steps);
+    if let Some(gpu64) = gpu_f64() {
+        let (c, g) = run_both_with(&gpu64, &problem, &init, &settings);
+        for (a, b) in c.iter().zip(&g) {
+            assert_eq!(a.exact_steps, b.exact_steps);
+        }
+        compare_within(&c, &g, "v = 0 where inactive, f64", F64_TOL);
+    }
+}

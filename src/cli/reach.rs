@@ -354,15 +354,15 @@ pub fn run(args: &ReachArgs) -> CliResult {
     Ok(())
 }
 
-/// The filtered system's own field where the filter is one smooth function is the CPU
-/// engine's: with the GPU engine the setting goes, with a notice (the network is bounded
-/// everywhere: sound, looser).
+/// The filter's closed form beyond `v = 0` where it is proven inactive is the CPU engine's: with
+/// the GPU engine `closed-form` becomes `inactive`, with a notice (elsewhere the network is
+/// bounded: sound, looser).
 pub fn settle_exact_field(settings: &mut ReachSettings, backend: &dyn Backend) {
-    if settings.exact_field() != ExactField::Nowhere && backend.name() != "cpu" {
-        settings.exact = ExactField::Nowhere;
+    if settings.exact_field() == ExactField::ClosedForm && backend.name() != "cpu" {
+        settings.exact = ExactField::Inactive;
         println!(
-            "note: the GPU engine bounds the network everywhere (the filter's own field where it \
-             is proven one smooth function is the CPU engine's)"
+            "note: the GPU engine takes v = 0 where the filter is proven inactive, but not yet the \
+             rest of its closed form (--exact closed-form is the CPU engine's): --exact inactive"
         );
     }
 }

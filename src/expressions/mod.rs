@@ -194,6 +194,13 @@ impl Expr {
         Expr { node: Node::Var(i) }
     }
 
+    /// `max(self, other)`.
+    pub fn max(self, other: Expr) -> Expr {
+        Expr {
+            node: Node::Call(Func::Max, vec![self.node, other.node]),
+        }
+    }
+
     /// The expression with `x_i` replaced by `with[i]` (a change of variables, e.g.
     /// `x = T⁻¹z`); `with` must cover every variable the expression uses.
     pub fn substitute(&self, with: &[Expr]) -> Expr {

@@ -31,7 +31,7 @@ use super::buffers::{
     Params,
 };
 use super::codegen::{
-    faces_per_box, nnb_width, problem_wgsl, round_down, round_up, MethodFlags, AUX,
+    faces_per_box, nnb_width, problem_wgsl, round_down, round_up, MethodFlags, AUX, FLAG_W,
 };
 use super::kernels::{Kernel, Kernels, GEMM_TILE, WORKGROUP};
 use super::margins::MarginMap;
@@ -778,7 +778,7 @@ impl GpuBackend {
             )));
         }
         let (net, _) = flatten_network(&problem.network);
-        let flags = (3 * b + 1) * 4;
+        let flags = (FLAG_W as u64 * b + 1) * 4;
         let sz = |name: &str| sizes.get(name).copied().unwrap_or(4);
         let (snap, state) = (sz("snap"), sz("state"));
         Ok(Buffers {
@@ -845,7 +845,7 @@ impl GpuBackend {
         q.write_buffer(
             &bufs.flags,
             0,
-            bytemuck::cast_slice(&vec![0u32; 3 * boxes.len() + 1]),
+            bytemuck::cast_slice(&vec![0u32; FLAG_W * boxes.len() + 1]),
         );
 
         let plan = StepPlan {
@@ -892,7 +892,7 @@ impl GpuBackend {
         let bytes = prec.bytes();
         let snap_bytes = (slots * boxes.len() * sw) as u64 * bytes;
         let state_bytes = (boxes.len() * sw) as u64 * bytes;
-        let flag_bytes = ((3 * boxes.len() + 1) * 4) as u64;
+        let flag_bytes = ((FLAG_W * boxes.len() + 1) * 4) as u64;
         let mut enc = d.create_command_encoder(&Default::default());
         enc.copy_buffer_to_buffer(&bufs.snap, 0, &bufs.staging, 0, snap_bytes);
         enc.copy_buffer_to_buffer(&bufs.state, 0, &bufs.staging, snap_bytes, state_bytes);
@@ -945,8 +945,9 @@ fn fill_tube(
     let n = problem.dynamics.n;
     let sw = 2 * n + 1; // a box's record: lower, upper, radius
     let steps = problem.steps;
-    let st = res.flags[3 * g + 1];
-    let stop = res.flags[3 * g + 2] as usize + 1; // 1-based step at which it stopped
+    let st = res.flags[FLAG_W * g + 1];
+    let stop = res.flags[FLAG_W * g + 2] as usize + 1; // 1-based step at which it stopped
+    tube.exact_steps = res.flags[FLAG_W * g + 3] as usize;
     let read = |v: &[f64]| -> (Vec<f64>, Vec<f64>, f64) {
         (v[..n].to_vec(), v[n..2 * n].to_vec(), v[2 * n])
     };

@@ -16,7 +16,7 @@ use super::{GpuError, Precision};
 use crate::expressions::{Expr, Func, Node};
 use crate::intervals::Interval;
 use crate::reach::safe_set::{SafeHalfspace, Tightening};
-use crate::reach::{ReachMethod, ReachProblem, ReachSettings, SafeSet};
+use crate::reach::{ExactField, ReachMethod, ReachProblem, ReachSettings, SafeSet};
 use crate::scenario::Norm;
 
 /// The largest f32 the shaders treat as a number (`HUGE` in `common.wgsl`).
@@ -342,6 +342,7 @@ pub fn problem_wgsl(
     let _ = writeln!(s, "const N0: u32 = {n}u;");
     let _ = writeln!(s, "const KC: u32 = {}u;", n + 1);
     let _ = writeln!(s, "const M_OUT: u32 = {m}u;");
+    let _ = writeln!(s, "const FLAG_W: u32 = {FLAG_W}u;");
     // The per-box record of the network's bounds (shaders/output.wgsl).
     let _ = writeln!(s, "const NB_W: u32 = {}u;", nnb_width(n, m));
     // Sections of the per-neuron vectors (shaders/relu.wgsl).
@@ -469,11 +470,24 @@ pub fn problem_wgsl(
     if jac.len() != n * n || g.len() != n * m {
         return Err(GpuError::Problem("dynamics have the wrong shape".into()));
     }
+    // v = 0 where the filter's rows are proven slack (the CPU engine's ExactField::Inactive).
+    let _ = writeln!(
+        s,
+        "const EXACT_INACTIVE: bool = {};",
+        settings.exact_field() != ExactField::Nowhere
+    );
+    let rows: Vec<&Expr> = problem.pieces.slack_rows().iter().collect();
+    let _ = writeln!(s, "const ROWS: u32 = {}u;", rows.len());
+    s += &switch_fn("row_b_iv", "k: u32", "k", &rows, precision);
     s += &switch_fn("ft_iv", "i: u32", "i", &ft, precision);
     s += &switch_fn("jac_iv", "i: u32, j: u32", "i * N0 + j", &jac, precision);
     s += &switch_fn("g_iv", "i: u32, k: u32", "i * M_OUT + k", &g, precision);
     Ok(s)
 }
+
+/// Per box in the flags buffer: the network's non-finite flag, the status, the step it stopped
+/// at, and the steps that took `v = 0`; one step counter follows the boxes.
+pub const FLAG_W: usize = 4;
 
 /// Sections of the per-neuron vectors (IBP centre, form magnitude, IBP radius, IBP magnitude).
 pub const AUX: usize = 4;

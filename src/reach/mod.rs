@@ -58,9 +58,10 @@ pub struct ReachSettings {
     /// Bound the network on each face of the box separately (tighter, 2n× the bound cost;
     /// immrax's `local` mode).
     pub face_local: bool,
-    /// Disturbance method on the CPU: where the filtered system's own field (the filter's closed
-    /// form) replaces or tightens the network and its error margin ([`pieces`]). The GPU engine
-    /// bounds the network everywhere (sound, looser).
+    /// Disturbance method: where the filtered system's own field (the filter's closed form)
+    /// replaces or tightens the network and its error margin ([`pieces`]). The GPU engine takes
+    /// `v = 0` where the filter is proven inactive and bounds the network elsewhere
+    /// ([`ExactField::ClosedForm`] acts there as [`ExactField::Inactive`]: sound, looser).
     pub exact: ExactField,
 }
 

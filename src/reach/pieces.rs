@@ -3,7 +3,7 @@
 //!
 //! The filter's QP `min ½‖θ‖² s.t. aₖ(x)·θ ≤ bₖ(x)` is solved by `θ = 0` wherever every
 //! `bₖ(x) ≥ 0`: zero is feasible and minimises the objective. Evaluating the rows over a set's
-//! x-box by interval arithmetic ([`interval_rows`], on `box ∩ S` like the rest of the
+//! x-box by interval arithmetic ([`FilterPieces::slack_rows`], on `box ∩ S` like the rest of the
 //! disturbance method) proves this for the whole set at once. The embedding then integrates
 //! the filtered system's own field `f̃` (nominal controller included) with `v = 0`: no network
 //! bounds and no error margin. Near the goal, where the nominal controller alone acts, this is
@@ -29,7 +29,7 @@ use crate::boxes::IntervalBox;
 use crate::expressions::Expr;
 use crate::intervals::Interval;
 use crate::scenario::Scenario;
-use crate::surrogate_error::{interval_rows, FilterPiece, VForms};
+use crate::surrogate_error::{FilterPiece, VForms};
 
 /// Bisections [`FilterPieces::proves_feasible`] tries below a box (at most `2⁴` leaves).
 const FEASIBILITY_SPLITS: usize = 4;
@@ -43,6 +43,10 @@ pub struct FilterPieces {
     /// Per row `k`: the filtered system's field where row `k` alone binds, in the embedding's
     /// coordinates, and the same field in x (for the transform's slack).
     binding: Vec<BindingField>,
+    /// `bₖ(x)` of every row of the QP `aₖ·θ ≤ bₖ`, each `hᵢ` as `max(hᵢ, 0)` (on `S`, `hᵢ ≥ 0`):
+    /// the rows whose natural enclosures prove the filter inactive, the same expressions on the
+    /// CPU and in the GPU's shaders.
+    slack_rows: Vec<Expr>,
     transform: Option<Transform>,
 }
 
@@ -86,20 +90,25 @@ impl FilterPieces {
             scenario: scenario.clone(),
             forms,
             binding,
+            slack_rows: slack_rows(scenario),
             transform: transform.cloned(),
         }
     }
 
-    /// Whether `v(x) = 0` for every `x` in `x_box ∩ S`: every row's `bₖ ≥ 0` on it (a NaN or
-    /// an undefined expression proves nothing).
+    /// `bₖ(x)` of every row, `hᵢ` taken as `max(hᵢ, 0)` ([`FilterPieces::proves_inactive`]).
+    pub fn slack_rows(&self) -> &[Expr] {
+        &self.slack_rows
+    }
+
+    /// Whether `v(x) = 0` for every `x` in `x_box ∩ S`: every row's `bₖ ≥ 0` on it by natural
+    /// interval evaluation of [`FilterPieces::slack_rows`] (any filter, QP included; a NaN or an
+    /// undefined expression proves nothing). [`FilterPieces::piece_on`] proves more for
+    /// closed-form filters, with mean-value forms.
     pub fn proves_inactive(&self, x_box: &IntervalBox) -> bool {
-        match &self.forms {
-            Some(forms) => forms.piece(&self.scenario, x_box) == Some(FilterPiece::Inactive),
-            None => {
-                let (_, b) = interval_rows(&self.scenario, x_box);
-                b.iter().all(|bk| bk.lower >= 0.0)
-            }
-        }
+        let xs = intervals_of(x_box);
+        self.slack_rows
+            .iter()
+            .all(|b| b.eval_interval(&xs).lower >= 0.0)
     }
 
     /// Whether the filter's QP is feasible at every point of `x_box ∩ S` (for a QP without a
@@ -185,6 +194,31 @@ impl FilterPieces {
     }
 }
 
+/// `bₖ(x)` of the QP's rows as [`crate::surrogate_error::interval_rows`] builds them, as expressions: per CBF
+/// `∇hᵢ·f̃ + αᵢ·max(hᵢ, 0)`, per input bound `u_max − κ` and `κ − u_min`, per extra constraint
+/// its `b`.
+fn slack_rows(s: &Scenario) -> Vec<Expr> {
+    let zero = || Expr::constant(0.0);
+    let mut rows: Vec<Expr> = s
+        .cbfs
+        .iter()
+        .map(|cbf| {
+            let lie = (0..s.n()).fold(zero(), |acc, i| {
+                acc + cbf.gradient[i].clone() * s.f_tilde[i].clone()
+            });
+            lie + Expr::constant(cbf.alpha) * cbf.h.clone().max(zero())
+        })
+        .collect();
+    if let Some(bounds) = &s.input_bounds {
+        for j in 0..s.m() {
+            rows.push(Expr::constant(bounds.upper[j]) - s.kappa[j].clone());
+            rows.push(s.kappa[j].clone() - Expr::constant(bounds.lower[j]));
+        }
+    }
+    rows.extend(s.constraints.iter().map(|c| c.b.clone()));
+    rows
+}
+
 fn intervals_of(b: &IntervalBox) -> Vec<Interval> {
     (0..b.dim())
         .map(|i| Interval::new(b.lower[i], b.upper[i]))
@@ -204,6 +238,7 @@ fn magnitude(v: Interval) -> f64 {
 mod tests {
     use super::*;
     use crate::filter::SafetyFilter;
+    use crate::surrogate_error::interval_rows;
     use rand::{Rng, SeedableRng};
 
     fn around(c: [f64; 2], r: f64) -> IntervalBox {
