@@ -477,6 +477,49 @@ pub fn interval_rows(s: &Scenario, cell: &IntervalBox) -> (Vec<Interval>, Vec<In
     (a, b)
 }
 
+/// The filter's constraint rows `aₖ(x)·θ ≤ bₖ(x)` as expressions, in the order of
+/// [`interval_rows`] (per CBF `aₖ = −∇hᵢ·g`, `bₖ = ∇hᵢ·f̃ + αᵢhᵢ`; per input bound; per extra
+/// constraint): `(a, b)` with `a` one row of `m` per constraint. With `clamp_h`, each `hᵢ`
+/// enters as `max(hᵢ, 0)` (equal on `S`; tighter over boxes that reach outside it).
+pub fn row_expressions(s: &Scenario, clamp_h: bool) -> (Vec<Vec<Expr>>, Vec<Expr>) {
+    let (n, m) = (s.n(), s.m());
+    let zero = || Expr::constant(0.0);
+    let sum_e = |it: &mut dyn Iterator<Item = Expr>| it.fold(zero(), |a, b| a + b);
+    let mut a_rows: Vec<Vec<Expr>> = Vec::new();
+    let mut b_rows: Vec<Expr> = Vec::new();
+    for cbf in &s.cbfs {
+        let row: Vec<Expr> = (0..m)
+            .map(|j| -sum_e(&mut (0..n).map(|i| cbf.gradient[i].clone() * s.g[i][j].clone())))
+            .collect();
+        a_rows.push(row);
+        let h = if clamp_h {
+            cbf.h.clone().max(zero())
+        } else {
+            cbf.h.clone()
+        };
+        b_rows.push(
+            sum_e(&mut (0..n).map(|i| cbf.gradient[i].clone() * s.f_tilde[i].clone()))
+                + Expr::constant(cbf.alpha) * h,
+        );
+    }
+    if let Some(bounds) = &s.input_bounds {
+        for j in 0..m {
+            let mut row = vec![zero(); m];
+            row[j] = Expr::constant(1.0);
+            a_rows.push(row.clone());
+            b_rows.push(Expr::constant(bounds.upper[j]) - s.kappa[j].clone());
+            row[j] = Expr::constant(-1.0);
+            a_rows.push(row);
+            b_rows.push(s.kappa[j].clone() - Expr::constant(bounds.lower[j]));
+        }
+    }
+    for c in &s.constraints {
+        a_rows.push(c.a.clone());
+        b_rows.push(c.b.clone());
+    }
+    (a_rows, b_rows)
+}
+
 /// `max(0, −B)` for an interval `B`.
 fn neg_part(b: Interval) -> Interval {
     Interval::new((-b.upper).max(0.0), (-b.lower).max(0.0))
@@ -727,35 +770,8 @@ impl VForms {
             return None;
         }
         let (n, m) = (s.n(), s.m());
-        let zero = || Expr::constant(0.0);
-        let sum_e = |it: &mut dyn Iterator<Item = Expr>| it.fold(zero(), |a, b| a + b);
-        let mut a_rows: Vec<Vec<Expr>> = Vec::new();
-        let mut b_rows: Vec<Expr> = Vec::new();
-        for cbf in &s.cbfs {
-            let row: Vec<Expr> = (0..m)
-                .map(|j| -sum_e(&mut (0..n).map(|i| cbf.gradient[i].clone() * s.g[i][j].clone())))
-                .collect();
-            a_rows.push(row);
-            b_rows.push(
-                sum_e(&mut (0..n).map(|i| cbf.gradient[i].clone() * s.f_tilde[i].clone()))
-                    + Expr::constant(cbf.alpha) * cbf.h.clone(),
-            );
-        }
-        if let Some(bounds) = &s.input_bounds {
-            for j in 0..m {
-                let mut row = vec![zero(); m];
-                row[j] = Expr::constant(1.0);
-                a_rows.push(row.clone());
-                b_rows.push(Expr::constant(bounds.upper[j]) - s.kappa[j].clone());
-                row[j] = Expr::constant(-1.0);
-                a_rows.push(row);
-                b_rows.push(s.kappa[j].clone() - Expr::constant(bounds.lower[j]));
-            }
-        }
-        for c in &s.constraints {
-            a_rows.push(c.a.clone());
-            b_rows.push(c.b.clone());
-        }
+        let (a_rows, b_rows) = row_expressions(s, false);
+        let sum_e = |it: &mut dyn Iterator<Item = Expr>| it.fold(Expr::constant(0.0), |a, b| a + b);
         let b: Vec<Smooth> = b_rows.iter().map(|e| Smooth::new(e.clone(), n)).collect();
         let (mut f, mut p, mut r) = (Vec::new(), Vec::new(), Vec::new());
         match method {

@@ -29,7 +29,7 @@ use crate::boxes::IntervalBox;
 use crate::expressions::Expr;
 use crate::intervals::Interval;
 use crate::scenario::Scenario;
-use crate::surrogate_error::{FilterPiece, VForms};
+use crate::surrogate_error::{row_expressions, FilterPiece, VForms};
 
 /// Bisections [`FilterPieces::proves_feasible`] tries below a box (at most `2⁴` leaves).
 const FEASIBILITY_SPLITS: usize = 4;
@@ -90,7 +90,7 @@ impl FilterPieces {
             scenario: scenario.clone(),
             forms,
             binding,
-            slack_rows: slack_rows(scenario),
+            slack_rows: row_expressions(scenario, true).1,
             transform: transform.cloned(),
         }
     }
@@ -192,31 +192,6 @@ impl FilterPieces {
             .fold(0.0, f64::max);
         t.field_slack(f_max)
     }
-}
-
-/// `bₖ(x)` of the QP's rows as [`crate::surrogate_error::interval_rows`] builds them, as expressions: per CBF
-/// `∇hᵢ·f̃ + αᵢ·max(hᵢ, 0)`, per input bound `u_max − κ` and `κ − u_min`, per extra constraint
-/// its `b`.
-fn slack_rows(s: &Scenario) -> Vec<Expr> {
-    let zero = || Expr::constant(0.0);
-    let mut rows: Vec<Expr> = s
-        .cbfs
-        .iter()
-        .map(|cbf| {
-            let lie = (0..s.n()).fold(zero(), |acc, i| {
-                acc + cbf.gradient[i].clone() * s.f_tilde[i].clone()
-            });
-            lie + Expr::constant(cbf.alpha) * cbf.h.clone().max(zero())
-        })
-        .collect();
-    if let Some(bounds) = &s.input_bounds {
-        for j in 0..s.m() {
-            rows.push(Expr::constant(bounds.upper[j]) - s.kappa[j].clone());
-            rows.push(s.kappa[j].clone() - Expr::constant(bounds.lower[j]));
-        }
-    }
-    rows.extend(s.constraints.iter().map(|c| c.b.clone()));
-    rows
 }
 
 fn intervals_of(b: &IntervalBox) -> Vec<Interval> {
