@@ -621,6 +621,10 @@ fn draw_verdicts<DB: DrawingBackend>(
     for v in Verdict::ALL {
         // Verified boxes whose QP was not proven feasible on every set are drawn pale: their
         // verdict speaks only of the trajectories that do not meet an infeasible QP.
+        let split = report
+            .after
+            .iter()
+            .any(|b| b.verdict == v && b.feasible == Some(false));
         for pale in [false, true] {
             let boxes: Vec<IntervalBox> = report
                 .after
@@ -644,9 +648,7 @@ fn draw_verdicts<DB: DrawingBackend>(
                         share(&boxes)
                     ),
                 )
-            } else if v.is_verified()
-                && boxes.len() < report.after.iter().filter(|b| b.verdict == v).count()
-            {
+            } else if split {
                 (
                     verdict_colour(v).mix(1.0),
                     format!("{}, QP proven feasible ({:.1}%)", v.name(), share(&boxes)),

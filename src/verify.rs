@@ -726,11 +726,9 @@ impl Verifier<'_> {
                 b.note = note;
                 b.final_set = last.map(|s| s.set.clone());
                 b.t_end = last.map(|s| s.t);
-                b.feasible = verdict.is_verified().then(|| {
-                    tube.tube
-                        .iter()
-                        .all(|s| self.problem.pieces.proves_feasible(&s.set))
-                });
+                b.feasible = verdict
+                    .is_verified()
+                    .then(|| self.problem.proves_feasible_along(tube));
             }
             progress((done + idx.len()).min(total), total);
         }

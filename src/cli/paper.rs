@@ -363,11 +363,7 @@ fn box_verdicts(
                 ),
                 None => String::new(),
             });
-            let feasible = v.is_verified().then(|| {
-                tube.tube
-                    .iter()
-                    .all(|sample| problem.pieces.proves_feasible(&sample.set))
-            });
+            let feasible = v.is_verified().then(|| problem.proves_feasible_along(tube));
             (v, note + feasibility_clause(feasible))
         })
         .collect();

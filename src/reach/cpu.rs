@@ -270,15 +270,7 @@ impl ChunkRun<'_> {
         let faces = &faces[..];
         let face = |i: usize, up: bool| {
             let k = (2 * i + usize::from(up)) * 2 * m;
-            let (lo, hi) = (&faces[k..k + m], &faces[k + m..k + 2 * m]);
-            NetworkBoundsRef {
-                a_lower: &zeros[..m * n],
-                b_lower: lo,
-                a_upper: &zeros[..m * n],
-                b_upper: hi,
-                lower: lo,
-                upper: hi,
-            }
+            constant_bounds(zeros, &faces[k..k + m], &faces[k + m..k + 2 * m], n)
         };
         let (mut dl, mut du) =
             embedding_field_by_face(&problem.dynamics, lower, upper, face, &zeros[..m]);
@@ -434,15 +426,26 @@ fn pinned(x: &[f64], i: usize, v: f64) -> impl Iterator<Item = f64> + '_ {
 }
 
 /// The network's stand-in where `v = 0` exactly: zero forms and bounds (`zeros` holds at least
-/// `m·n` and `m` zeros).
+/// `m·n` zeros).
 fn zero_bounds(zeros: &[f64], n: usize, m: usize) -> NetworkBoundsRef<'_> {
+    constant_bounds(zeros, &zeros[..m], &zeros[..m], n)
+}
+
+/// Bounds `lo ≤ v ≤ hi` with zero slopes (an enclosure of `v` in the network's place).
+fn constant_bounds<'a>(
+    zeros: &'a [f64],
+    lo: &'a [f64],
+    hi: &'a [f64],
+    n: usize,
+) -> NetworkBoundsRef<'a> {
+    let m = lo.len();
     NetworkBoundsRef {
         a_lower: &zeros[..m * n],
-        b_lower: &zeros[..m],
+        b_lower: lo,
         a_upper: &zeros[..m * n],
-        b_upper: &zeros[..m],
-        lower: &zeros[..m],
-        upper: &zeros[..m],
+        b_upper: hi,
+        lower: lo,
+        upper: hi,
     }
 }
 

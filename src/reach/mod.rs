@@ -396,6 +396,14 @@ impl ReachProblem {
         }
     }
 
+    /// Whether the filter's QP is proven feasible on every recorded set of `tube`
+    /// ([`pieces::FilterPieces::proves_feasible`]).
+    pub fn proves_feasible_along(&self, tube: &Tube) -> bool {
+        tube.tube
+            .iter()
+            .all(|sample| self.pieces.proves_feasible(&sample.set))
+    }
+
     /// The recorded sample of an embedding state `[lower, upper]` (z coordinates with a
     /// transform) with closeness radius `r`: x-boxes of the embedding's set and of the
     /// filtered-system set (the Minkowski sum is taken in the embedding's coordinates, where
