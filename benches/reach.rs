@@ -42,6 +42,7 @@ fn reach_12_boxes(bencher: Bencher, method: BoundMethod) {
         face_local: false,
         // Every step bounds the network: this measures the bound methods.
         exact: ExactField::Nowhere,
+        intersect_x: false,
     };
     bencher
         .counter(ItemsCount::new(initial.len() * problem.steps))

@@ -98,6 +98,21 @@ impl IntervalBox {
         (0..self.dim()).all(|i| other.lower[i] <= self.lower[i] && self.upper[i] <= other.upper[i])
     }
 
+    /// `self ∩ other`, or `None` when they are disjoint.
+    pub fn intersection(&self, other: &IntervalBox) -> Option<IntervalBox> {
+        let lower: Vec<f64> = (0..self.dim())
+            .map(|i| self.lower[i].max(other.lower[i]))
+            .collect();
+        let upper: Vec<f64> = (0..self.dim())
+            .map(|i| self.upper[i].min(other.upper[i]))
+            .collect();
+        lower
+            .iter()
+            .zip(&upper)
+            .all(|(l, u)| l <= u)
+            .then_some(IntervalBox { lower, upper })
+    }
+
     /// The point `x̲ + s ⊙ (x̄ − x̲)` for `s ∈ [0, 1]ⁿ` (for sampling).
     pub fn point_at(&self, s: &[f64]) -> Vec<f64> {
         (0..self.dim())

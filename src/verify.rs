@@ -275,6 +275,10 @@ pub struct RunInfo {
     /// Where the filtered system's own field replaced the network (`ReachSettings::exact`).
     #[serde(default)]
     pub exact: ExactField,
+    /// Whether the sets were the meet of a box in x and the parallelotope
+    /// (`ReachSettings::intersect_x`).
+    #[serde(default)]
+    pub intersect_x: bool,
     /// Euler step.
     pub dt: f64,
     /// Euler steps.
@@ -654,6 +658,7 @@ impl Verifier<'_> {
                 local_margin: self.problem.error_map.is_some(),
                 face_local: self.reach.face_local,
                 exact: self.reach.exact_field(),
+                intersect_x: self.problem.frames(&self.reach).len() > 1,
                 dt: self.problem.dt,
                 steps: self.problem.steps,
                 transformed: self.problem.transform.is_some(),

@@ -207,9 +207,10 @@ fn default_run_reproduces_the_papers_verdicts_and_they_are_true() {
     }
 }
 
-/// `cbfreach paper`: scenario 2's boxes that are not verified whole are split, and the four
-/// that every piece of proves `converges` do reach the goal set under the ground-truth filter
-/// (25 starts per box); the run prints the times table.
+/// `cbfreach paper`: scenario 2's boxes that are not verified whole are split and refined,
+/// every one of the nine is proven to converge (the two at (±1, 1.5) only as pieces), and each
+/// does reach the goal set under the ground-truth filter (25 starts per box); the run prints
+/// the times table.
 #[test]
 fn paper_verifies_split_boxes_of_scenario_2_truly() {
     use cbfreach::filter::SafetyFilter;
@@ -246,8 +247,9 @@ fn paper_verifies_split_boxes_of_scenario_2_truly() {
             }
         }
     }
-    assert!(proven >= 4, "{scenario_2}");
+    assert_eq!(proven, 9, "{scenario_2}");
     assert!(scenario_2.contains("every piece converges"), "{scenario_2}");
+    assert!(scenario_2.contains("→ 9 converges"), "{scenario_2}");
 }
 
 #[test]
@@ -332,4 +334,38 @@ fn reach_takes_the_filters_own_field_where_it_is_one_smooth_piece_unless_told_no
     ]);
     assert_ne!(code, 0);
     assert!(stderr.contains("--network-everywhere"), "{stderr}");
+}
+
+#[test]
+fn reach_meets_the_parallelotope_with_its_x_box_unless_told_not_to() {
+    // Scenario 2 runs in z = T x. By default the CPU engine keeps the meet of the parallelotope
+    // and a box in x, and says so; the box at (−1, 1.5), whose set turns over the obstacle,
+    // then stays valid longer than as a parallelotope alone (`--parallelotope-only`).
+    let path = common::scenario_path("double-integrator.toml");
+    let run = |extra: &[&str]| {
+        let mut args = vec!["reach", path.to_str().unwrap(), "--bounds", "forward"];
+        args.extend_from_slice(extra);
+        let (code, stdout, stderr) = cbfreach(&args);
+        assert_eq!(code, 0, "{stderr}");
+        let line = stdout
+            .lines()
+            .find(|l| l.trim_start().starts_with("(-1.1000, 1.4000)"))
+            .unwrap_or_else(|| panic!("{stdout}"))
+            .to_string();
+        let t: f64 = line
+            .split("t = ")
+            .nth(1)
+            .unwrap()
+            .split(':')
+            .next()
+            .unwrap()
+            .trim()
+            .parse()
+            .unwrap();
+        (stdout.contains("sets met with their x-boxes"), t)
+    };
+    let (met, t_met) = run(&[]);
+    let (alone, t_alone) = run(&["--parallelotope-only"]);
+    assert!(met && !alone);
+    assert!(t_met > t_alone, "{t_met} vs {t_alone}");
 }

@@ -122,6 +122,7 @@ fn with_bounds(bounds: BoundMethod, method: ReachMethod) -> ReachSettings {
         face_local: false,
         // The GPU engine bounds the network everywhere: compare like with like.
         exact: ExactField::Nowhere,
+        intersect_x: false,
     }
 }
 

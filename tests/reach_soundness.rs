@@ -63,6 +63,7 @@ fn run(
         every: 1,
         face_local,
         exact: ExactField::Nowhere,
+        intersect_x: false,
     };
     CpuBackend
         .reach(&problem, &boxes, &settings, &|_, _| {})
@@ -304,6 +305,7 @@ fn run_double_integrator(net: &Mlp, transform: bool, m_c: f64) -> (Vec<Tube>, Op
         every: 1,
         face_local: false,
         exact: ExactField::Nowhere,
+        intersect_x: false,
     };
     let boxes = &s.reach.initial[..3];
     let tubes = CpuBackend
@@ -415,6 +417,7 @@ fn filtered_trajectories_stay_in_sets_intersected_with_the_safe_set() {
         every: 1,
         face_local: true,
         exact: ExactField::Nowhere,
+        intersect_x: false,
     };
     let initial = [cbfreach::IntervalBox::new(vec![4.9, 0.9], vec![5.1, 1.1]).unwrap()];
     let run = |problem: &ReachProblem| {
@@ -538,6 +541,7 @@ fn filtered_trajectories_stay_in_sets_where_the_filter_is_one_smooth_piece() {
                 every: 1,
                 face_local: true,
                 exact,
+                intersect_x: false,
             };
             CpuBackend
                 .reach(&problem, &initial, &settings, &|_, _| {})
@@ -590,6 +594,103 @@ fn filtered_trajectories_stay_in_sets_where_the_filter_is_one_smooth_piece() {
     }
 }
 
+/// Sets kept as the meet of a box in x and the parallelotope of the transform
+/// (`intersect_x`): on scenario 2 with its shipped network and error map, ground-truth filtered
+/// trajectories lie in the recorded x-boxes (with `dt`, and with `dt/10` up to its Euler
+/// error) and their `z = T x` in the recorded z-boxes; every recorded set is within the
+/// parallelotope's own x-box; and a 0.00625-wide box at (0.9, 1.4), whose parallelotope alone
+/// wraps while it turns over the obstacle until it meets the jump of `v` near (3, 0), ends in
+/// the goal set. Without a transform the setting changes nothing.
+#[test]
+fn filtered_trajectories_stay_in_sets_met_with_their_x_boxes() {
+    let s = double_integrator();
+    let problem = shipped_problem(&s);
+    let turning = cbfreach::IntervalBox::new(vec![0.9, 1.4], vec![0.90625, 1.40625]).unwrap();
+    let initial = vec![
+        turning.clone(),
+        cbfreach::IntervalBox::new(vec![4.48, 1.48], vec![4.52, 1.52]).unwrap(),
+        cbfreach::IntervalBox::new(vec![-1.1, -1.6], vec![-0.9, -1.4]).unwrap(),
+        cbfreach::IntervalBox::new(vec![-3.02, 0.98], vec![-2.98, 1.02]).unwrap(),
+    ];
+    let run = |problem: &ReachProblem, intersect_x| {
+        let settings = ReachSettings {
+            bounds: BoundMethod::ForwardBackward,
+            method: ReachMethod::Disturbance,
+            every: 1,
+            face_local: true,
+            exact: ExactField::ClosedForm,
+            intersect_x,
+        };
+        CpuBackend
+            .reach(problem, &initial, &settings, &|_, _| {})
+            .unwrap()
+            .boxes
+    };
+    let (alone, met) = (run(&problem, false), run(&problem, true));
+    let t = problem.transform.as_ref().unwrap();
+    let mut checks = 0;
+    for (tube, plain) in met.iter().zip(&alone) {
+        checks += filtered_trajectories_inside(&s, tube, 8);
+        let filter = SafetyFilter::new(&s);
+        for x0 in sample_box(&tube.initial, 8, 5) {
+            let xs =
+                simulate_filtered(&filter, &x0, s.reach.dt, s.reach.steps(), Integrator::Euler).x;
+            for sample in &tube.tube {
+                let step = (sample.t / s.reach.dt + 0.5) as usize;
+                let Some(x) = xs.get(step) else { break };
+                let (lo, hi) = (
+                    sample.z_lower.as_ref().unwrap(),
+                    sample.z_upper.as_ref().unwrap(),
+                );
+                for i in 0..2 {
+                    let z = t.t[2 * i] * x[0] + t.t[2 * i + 1] * x[1];
+                    assert!(
+                        lo[i] - 1e-9 <= z && z <= hi[i] + 1e-9,
+                        "t = {}: z{i} = {z} escapes [{}, {}] (tube from {:?})",
+                        sample.t,
+                        lo[i],
+                        hi[i],
+                        tube.initial
+                    );
+                }
+                checks += 1;
+            }
+        }
+        for sample in &tube.tube {
+            let (lo, hi) = (
+                sample.z_lower.as_ref().unwrap(),
+                sample.z_upper.as_ref().unwrap(),
+            );
+            assert!(
+                sample.set.is_subset_of(&t.to_x_box(lo, hi)),
+                "t = {}",
+                sample.t
+            );
+        }
+        assert!(tube.valid || !plain.valid, "{:?}", tube.note);
+    }
+    assert!(checks > 3000, "{checks} checks");
+    let ends_in_goal =
+        |t: &Tube| t.valid && t.last().unwrap().filtered_set().is_subset_of(&s.reach.goal);
+    assert_eq!(initial[0], turning);
+    assert!(
+        !alone[0].valid,
+        "the parallelotope alone already verifies the turning box"
+    );
+    assert!(ends_in_goal(&met[0]), "{:?}", met[0].note);
+
+    // Without a transform there is one frame: the same tubes.
+    let plain = problem.in_x.as_deref().unwrap();
+    assert!(plain.transform.is_none() && plain.in_x.is_none());
+    let (a, b) = (run(plain, false), run(plain, true));
+    for (a, b) in a.iter().zip(&b) {
+        assert_eq!(a.tube.len(), b.tube.len());
+        for (p, q) in a.tube.iter().zip(&b.tube) {
+            assert_eq!((&p.lower, &p.upper), (&q.lower, &q.upper));
+        }
+    }
+}
+
 /// How the CPU engine splits boxes over threads (chunks integrated over the whole horizon,
 /// each with its own buffers) does not change the sets: one thread and three threads give
 /// the same tubes up to the products' summation order, with boxes that leave `C` early in
@@ -620,6 +721,7 @@ fn tubes_do_not_depend_on_the_thread_count() {
             every: 7,
             face_local,
             exact: ExactField::Nowhere,
+            intersect_x: false,
         };
         let run_on = |threads: usize| {
             let last = std::sync::atomic::AtomicUsize::new(0);

@@ -45,10 +45,11 @@ pub struct PaperArgs {
         default_value = "forward,forward-backward"
     )]
     pub timed: Vec<BoundMethod>,
-    /// Rounds of bisection of the pieces of an initial box that are not verified (as
-    /// `verify --refine`; at most 256 extra pieces per box). Scenario 2's box at (1, −1.5)
-    /// needs 2.
-    #[arg(long, default_value_t = 0)]
+    /// Rounds of bisection of the pieces of an initial box that are not verified whole (as
+    /// `verify --refine`; at most 4,096 extra pieces per box). Scenario 2's box at
+    /// (−1, 1.5), whose true trajectories pass 0.12–0.25 from the jump of `v` at (3, 0),
+    /// needs 10 (951 pieces).
+    #[arg(long, default_value_t = 10)]
     pub refine: usize,
 }
 
@@ -339,7 +340,7 @@ struct VerdictSettings {
 const SPLIT: usize = 4;
 
 /// Extra pieces refinement may run per initial box.
-const REFINE_BUDGET: usize = 256;
+const REFINE_BUDGET: usize = 4096;
 
 /// The verdict of each initial box, with a note: from its own tube, or, where that proves
 /// nothing, from its `SPLITⁿ` pieces and `refine` rounds of bisection of the pieces not
@@ -380,6 +381,7 @@ fn box_verdicts(
             every: 1,
             face_local: true,
             exact: ExactField::ClosedForm,
+            intersect_x: true,
         },
         traps: traps.to_vec(),
     };

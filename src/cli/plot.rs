@@ -119,6 +119,7 @@ pub fn reach_initial(
         every,
         face_local,
         exact: ExactField::ClosedForm,
+        intersect_x: true,
     };
     let bar = progress_bar(problem.steps as u64, "Euler steps");
     let r = engine.reach(problem, &s.reach.initial, &settings, &|d, _| {

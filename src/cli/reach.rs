@@ -37,6 +37,9 @@ pub struct ReachArgs {
     /// Where the CPU engine integrates the filtered system's own field instead of the network.
     #[command(flatten)]
     pub exact: ExactArgs,
+    /// The shape of the sets.
+    #[command(flatten)]
+    pub sets: SetArgs,
     /// Record every K-th step (the last is always recorded).
     #[arg(long, default_value_t = 1, value_parser = |s: &str| super::whole_at_least(s, 1))]
     pub every: usize,
@@ -99,6 +102,17 @@ pub struct ExactArgs {
     /// Bound the network on every set (the same as `--exact nowhere`).
     #[arg(long, conflicts_with = "exact")]
     pub network_everywhere: bool,
+}
+
+/// The shape of the sets (`reach`, `verify`).
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct SetArgs {
+    /// With a transform, keep the parallelotope alone. By default the CPU engine also runs the
+    /// embedding in x and keeps, at every step, the meet of the x-box and the parallelotope,
+    /// each tightening the other (about twice the work per step; a box in x follows sets that
+    /// turn, the parallelotope sets that contract).
+    #[arg(long)]
+    pub parallelotope_only: bool,
 }
 
 impl ExactArgs {
@@ -245,9 +259,10 @@ pub fn run(args: &ReachArgs) -> CliResult {
         every: args.every,
         face_local: args.face_local,
         exact: args.exact.field(),
+        intersect_x: !args.sets.parallelotope_only,
     };
     let backend = choose_backend(&args.backend, &args.gpu, &settings)?;
-    settle_exact_field(&mut settings, backend.as_ref());
+    settle_for_engine(&mut settings, backend.as_ref(), &problem);
     let bar = progress_bar(problem.steps as u64, "Euler steps");
     let result = backend.reach(&problem, &s.reach.initial, &settings, &|done, _| {
         bar.set_position(done as u64)
@@ -261,7 +276,12 @@ pub fn run(args: &ReachArgs) -> CliResult {
                 .map_or("none".into(), |v| format!("{v:.4}"))
         ),
         _ => format!("M_C = {m_c}"),
-    } + settings.exact_field().clause();
+    } + settings.exact_field().clause()
+        + if problem.frames(&settings).len() > 1 {
+            INTERSECT_X_CLAUSE
+        } else {
+            ""
+        };
     let within = super::safe_set_clause(&problem.safe_set_for(args.method).names());
     println!(
         "{}: {} boxes × {} steps, {} bounds{}, {:?} method, {margin}{within}, backend {}",
@@ -354,15 +374,33 @@ pub fn run(args: &ReachArgs) -> CliResult {
     Ok(())
 }
 
-/// The filter's closed form beyond `v = 0` where it is proven inactive is the CPU engine's: with
-/// the GPU engine `closed-form` becomes `inactive`, with a notice (elsewhere the network is
-/// bounded: sound, looser).
-pub fn settle_exact_field(settings: &mut ReachSettings, backend: &dyn Backend) {
-    if settings.exact_field() == ExactField::ClosedForm && backend.name() != "cpu" {
+/// For summaries: the sets are the meet of a box in x and the parallelotope.
+pub const INTERSECT_X_CLAUSE: &str = ", sets met with their x-boxes";
+
+/// What is the CPU engine's alone becomes, with the GPU engine, what that engine does, with a
+/// notice (sound, looser): the filter's closed form beyond `v = 0` where it is proven inactive
+/// (`closed-form` becomes `inactive`; elsewhere the network is bounded), and sets met with
+/// their x-boxes (the parallelotope alone).
+pub fn settle_for_engine(
+    settings: &mut ReachSettings,
+    backend: &dyn Backend,
+    problem: &ReachProblem,
+) {
+    if backend.name() == "cpu" {
+        return;
+    }
+    if settings.exact_field() == ExactField::ClosedForm {
         settings.exact = ExactField::Inactive;
         println!(
             "note: the GPU engine takes v = 0 where the filter is proven inactive, but not yet the \
              rest of its closed form (--exact closed-form is the CPU engine's): --exact inactive"
+        );
+    }
+    if problem.frames(settings).len() > 1 {
+        settings.intersect_x = false;
+        println!(
+            "note: the GPU engine keeps the parallelotope alone (sets met with their x-boxes are \
+             the CPU engine's): --parallelotope-only"
         );
     }
 }

@@ -14,7 +14,7 @@ use cbfreach::verify::{
     Stage, UnverifiedCauses, Verdict, Verifier, VerifyReport, VerifySettings,
 };
 
-use super::reach::{choose_backend, compile, GpuArgs, ProblemArgs};
+use super::reach::{choose_backend, compile, GpuArgs, ProblemArgs, INTERSECT_X_CLAUSE};
 use super::simulate::parse_box;
 use super::{fmt_point, load_scenario, progress_bar, CliResult};
 
@@ -47,6 +47,9 @@ pub struct VerifyArgs {
     /// Where the CPU engine integrates the filtered system's own field instead of the network.
     #[command(flatten)]
     pub exact: super::reach::ExactArgs,
+    /// The shape of the sets.
+    #[command(flatten)]
+    pub sets: super::reach::SetArgs,
     /// The network, `M_C` and coordinates.
     #[command(flatten)]
     pub problem: ProblemArgs,
@@ -135,9 +138,10 @@ pub fn run(args: &VerifyArgs) -> CliResult {
         every: 1,
         face_local: args.face_local,
         exact: args.exact.field(),
+        intersect_x: !args.sets.parallelotope_only,
     };
     let engine = choose_backend(&args.backend, &args.gpu, &reach)?;
-    super::reach::settle_exact_field(&mut reach, engine.as_ref());
+    super::reach::settle_for_engine(&mut reach, engine.as_ref(), &problem);
     let report = run_verify(&s, &problem, engine.as_ref(), reach, &settings)?;
     print_summary(&report);
     print_causes(&explain_unverified(&s, &report));
@@ -278,6 +282,11 @@ pub fn print_summary(r: &VerifyReport) {
         } else {
             format!("M_C = {}", r.run.m_c)
         } + r.run.exact.clause()
+            + if r.run.intersect_x {
+                INTERSECT_X_CLAUSE
+            } else {
+                ""
+            }
     );
     if refined {
         println!(

@@ -17,7 +17,7 @@ use super::embedding::{
 };
 use super::safe_set::{clip_to_safe_set, SafeSet};
 use super::{Backend, ExactField, ReachError, ReachMethod, ReachProblem, ReachResult};
-use super::{ReachSettings, ReachTiming, Tube};
+use super::{ReachSettings, ReachTiming, Tube, TubeSample};
 use crate::bounds::{AffineBoundsBatch, BoundsWorkspace, PreparedNetwork};
 use crate::boxes::IntervalBox;
 use crate::intervals::{round_up, Interval};
@@ -27,10 +27,20 @@ use crate::surrogate_error::FilterPiece;
 #[derive(Clone, Copy, Debug, Default)]
 pub struct CpuBackend;
 
+/// One coordinate frame the sets are kept in: the problem compiled in those coordinates, its
+/// network prepared for bounds, and the half-spaces of `S` its sets are clipped to.
+struct Frame<'a> {
+    problem: &'a ReachProblem,
+    network: PreparedNetwork<'a>,
+    safe: &'a SafeSet,
+}
+
 /// One box's embedding state while it is integrated.
 struct Live {
-    lower: Vec<f64>,
-    upper: Vec<f64>,
+    /// The embedding state in each frame (the first: the problem's own coordinates).
+    sets: Vec<IntervalBox>,
+    /// An x-box that every true state lies in: the frames' x-boxes met, within `S`.
+    known: IntervalBox,
     radius: f64,
     tube: Tube,
     done: bool,
@@ -50,57 +60,35 @@ impl Backend for CpuBackend {
     ) -> Result<ReachResult, ReachError> {
         problem.check_initial(initial)?;
         settings.validate()?;
-        let every = settings.every.max(1);
-        let safe = problem.safe_set_for(settings.method);
-        let mut live: Vec<Live> = initial
-            .iter()
-            .map(|b| {
-                let z = problem.initial_state(b, settings.method);
-                let mut state = Live {
-                    lower: z.lower,
-                    upper: z.upper,
-                    radius: 0.0,
-                    tube: Tube {
-                        initial: b.clone(),
-                        tube: Vec::new(),
-                        valid: true,
-                        note: None,
-                        exact_steps: 0,
-                        enclosed_steps: 0,
-                    },
-                    done: false,
-                };
-                state.tube.tube.push(problem.tube_sample(
-                    &state.lower,
-                    &state.upper,
-                    0.0,
-                    0.0,
-                    safe,
-                ));
-                state
-            })
-            .collect();
-
         let start = Instant::now();
-        let network = PreparedNetwork::new(&problem.network)?;
+        let frames = problem
+            .frames(settings)
+            .into_iter()
+            .map(|p| {
+                Ok(Frame {
+                    problem: p,
+                    network: PreparedNetwork::new(&p.network)?,
+                    safe: p.safe_set_for(settings.method),
+                })
+            })
+            .collect::<Result<Vec<Frame>, ReachError>>()?;
         let threads = rayon::current_num_threads().max(1);
-        let chunk = chunk_len(live.len(), threads);
         let accounted = AtomicUsize::new(0);
-        let (n_boxes, steps) = (live.len(), problem.steps);
+        let (n_boxes, steps) = (initial.len(), problem.steps);
         let report = |box_steps: usize| {
             let done = accounted.fetch_add(box_steps, Ordering::Relaxed) + box_steps;
             progress(done / n_boxes.max(1), steps);
         };
         let run = ChunkRun {
-            problem,
+            frames,
             settings,
-            network: &network,
-            safe,
-            every,
+            every: settings.every.max(1),
             encloses: settings.exact_field() == ExactField::ClosedForm
                 && problem.pieces.has_closed_form(),
             report: &report,
         };
+        let mut live: Vec<Live> = initial.iter().map(|b| run.start(b)).collect();
+        let chunk = chunk_len(live.len(), threads);
         let minkowski_s: f64 = live
             .par_chunks_mut(chunk)
             .map_init(ChunkBuffers::default, |buffers, states| {
@@ -133,29 +121,37 @@ fn chunk_len(n_boxes: usize, threads: usize) -> usize {
 /// narrow products).
 const MAX_CHUNK: usize = 64;
 
-/// Buffers of one thread, reused across its chunks and steps.
+/// One frame's buffers in one thread, reused across its chunks and steps.
 #[derive(Default)]
-struct ChunkBuffers {
+struct FrameBuffers {
     bounds: BoundsWorkspace,
     batch: AffineBoundsBatch,
     flat_lo: Vec<f64>,
     flat_hi: Vec<f64>,
-    /// The error margin per input, `m` copies of the box's bound.
-    margin: Vec<f64>,
     /// Per live box this step: how `v` is bounded ([`ChunkRun::step_input`]).
     inputs: Vec<StepInput>,
+}
+
+/// Buffers of one thread, reused across its chunks and steps.
+#[derive(Default)]
+struct ChunkBuffers {
+    frames: Vec<FrameBuffers>,
+    /// The error margin per input, `m` copies of the box's bound.
+    margin: Vec<f64>,
     /// Zeros for [`zero_bounds`] (and the zero margin), sized once per chunk.
     zeros: Vec<f64>,
     /// `v`'s enclosure on each face of one set ([`ChunkRun::enclosure_field`]).
     faces: Vec<f64>,
+    /// Per frame, whether the box's set stepped this step.
+    stepped: Vec<bool>,
 }
 
 /// What every chunk's run shares.
 struct ChunkRun<'a> {
-    problem: &'a ReachProblem,
+    /// The frames the sets are kept in; more than one only with
+    /// [`ReachSettings::intersect_x`].
+    frames: Vec<Frame<'a>>,
     settings: &'a ReachSettings,
-    network: &'a PreparedNetwork<'a>,
-    safe: &'a SafeSet,
     every: usize,
     /// Whether sets with no proven piece also meet the network's bounds with the closed form's
     /// enclosures of `v` ([`ExactField::ClosedForm`]).
@@ -178,35 +174,105 @@ struct StepInput {
 }
 
 impl ChunkRun<'_> {
-    /// How `v` is bounded over the state's set: one smooth piece of the filter where the
-    /// settings take it and it is proven ([`ReachSettings::exact_field`]), the network with an
-    /// additive bound on every input's error except where `v = 0`. The transformed network's
-    /// rounding enters as a disturbance in both methods; the disturbance method adds `M`
-    /// (global, or local from the error map).
-    fn step_input(&self, state: &Live) -> StepInput {
-        let problem = self.problem;
+    /// A box's state before the first step: its set in every frame, met.
+    fn start(&self, initial: &IntervalBox) -> Live {
+        let sets = self
+            .frames
+            .iter()
+            .map(|f| f.problem.initial_state(initial, self.settings.method))
+            .collect();
+        let mut state = Live {
+            sets,
+            known: initial.clone(),
+            radius: 0.0,
+            tube: Tube {
+                initial: initial.clone(),
+                tube: Vec::new(),
+                valid: true,
+                note: None,
+                exact_steps: 0,
+                enclosed_steps: 0,
+            },
+            done: false,
+        };
+        self.settle(&mut state, &vec![true; self.frames.len()]);
+        let sample = self.sample(&state, 0.0);
+        state.tube.tube.push(sample);
+        state
+    }
+
+    /// Meets the frames' sets after a step: `known` becomes the meet of the x-boxes of the sets
+    /// that stepped, and with several frames each set is met with the box of its coordinates
+    /// around `known` (replaced by it where the frame could not step). Every set keeps every
+    /// true state: each bounds them on its own.
+    fn settle(&self, state: &mut Live, stepped: &[bool]) {
+        let known = self
+            .frames
+            .iter()
+            .zip(&state.sets)
+            .zip(stepped)
+            .filter(|(_, &s)| s)
+            .map(|((f, set), _)| f.problem.x_box_in_safe_set(&set.lower, &set.upper, f.safe))
+            .reduce(|a, b| a.intersection(&b).unwrap_or(a));
+        let Some(known) = known else {
+            return;
+        };
+        if self.frames.len() > 1 {
+            for ((f, set), &s) in self.frames.iter().zip(&mut state.sets).zip(stepped) {
+                let around = f.problem.frame_box(&known);
+                *set = match s {
+                    true => set.intersection(&around).unwrap_or_else(|| set.clone()),
+                    false => around,
+                };
+                clip_to_safe_set(&mut set.lower, &mut set.upper, &f.safe.z);
+            }
+        }
+        state.known = known;
+    }
+
+    /// The recorded sample of a state: the first frame's, its x-box met with `known`.
+    fn sample(&self, state: &Live, t: f64) -> TubeSample {
+        let (f, set) = (&self.frames[0], &state.sets[0]);
+        let mut sample = f
+            .problem
+            .tube_sample(&set.lower, &set.upper, state.radius, t, f.safe);
+        if self.frames.len() > 1 {
+            if let Some(met) = sample.set.intersection(&state.known) {
+                sample.lower.clone_from(&met.lower);
+                sample.upper.clone_from(&met.upper);
+                sample.set = met;
+            }
+        }
+        sample
+    }
+
+    /// How `v` is bounded over a set whose true states lie in `x_box`, in one frame: one smooth
+    /// piece of the filter where the settings take it and it is proven
+    /// ([`ReachSettings::exact_field`]), the network with an additive bound on every input's
+    /// error except where `v = 0`. The transformed network's rounding enters as a disturbance
+    /// in both methods; the disturbance method adds `M` (global, or local from the error map).
+    fn step_input(&self, problem: &ReachProblem, x_box: &IntervalBox) -> StepInput {
         match self.settings.method {
             ReachMethod::Minkowski => StepInput {
                 piece: None,
                 margin: Some(problem.network_slack),
             },
             ReachMethod::Disturbance => {
-                let x_box = problem.x_box_in_safe_set(&state.lower, &state.upper, self.safe);
                 let piece = match self.settings.exact_field() {
                     ExactField::Nowhere => None,
                     ExactField::Inactive => problem
                         .pieces
-                        .proves_inactive(&x_box)
+                        .proves_inactive(x_box)
                         .then_some(FilterPiece::Inactive),
-                    ExactField::ClosedForm => problem.pieces.piece_on(&x_box),
+                    ExactField::ClosedForm => problem.pieces.piece_on(x_box),
                 };
                 let margin = match piece {
                     Some(FilterPiece::Inactive) => None,
-                    _ => Some(round_up(problem.margin_for(&x_box) + problem.network_slack)),
+                    _ => Some(round_up(problem.margin_for(x_box) + problem.network_slack)),
                 };
                 let slack = |piece| match piece {
                     FilterPiece::Inactive => problem.field_slack,
-                    FilterPiece::Binding(k) => problem.pieces.binding_slack(k, &x_box),
+                    FilterPiece::Binding(k) => problem.pieces.binding_slack(k, x_box),
                 };
                 StepInput {
                     piece: piece.map(|p| (p, slack(p))),
@@ -216,15 +282,13 @@ impl ChunkRun<'_> {
         }
     }
 
-    /// The filtered system's own field on a piece over the state's set, widened by the
-    /// transform's slack.
+    /// The filtered system's own field on a piece over a set, widened by the transform's slack.
     fn piece_field(
-        &self,
-        state: &Live,
+        problem: &ReachProblem,
+        set: &IntervalBox,
         (piece, slack): (FilterPiece, f64),
         zeros: &[f64],
     ) -> (Vec<f64>, Vec<f64>) {
-        let problem = self.problem;
         let (n, m) = (problem.dynamics.n, problem.dynamics.m);
         let dynamics = match piece {
             FilterPiece::Inactive => &problem.dynamics,
@@ -232,23 +296,26 @@ impl ChunkRun<'_> {
         };
         let zero = zero_bounds(zeros, n, m);
         let (mut dl, mut du) =
-            embedding_field(dynamics, &state.lower, &state.upper, zero, zero.b_lower);
+            embedding_field(dynamics, &set.lower, &set.upper, zero, zero.b_lower);
         widen_by(&mut dl, &mut du, slack);
         (dl, du)
     }
 
     /// The filtered system's field with `v` enclosed by its closed form on each face of the set
-    /// ([`super::pieces::FilterPieces::enclosure`]), widened by the transform's slack; `None`
-    /// where an enclosure is unbounded (near a jump of `v`).
+    /// ([`super::pieces::FilterPieces::enclosure`]; each face's x-box met with `known` where
+    /// frames are met), widened by the transform's slack; `None` where an enclosure is
+    /// unbounded (near a jump of `v`).
     fn enclosure_field(
         &self,
-        state: &Live,
+        frame: &Frame,
+        set: &IntervalBox,
+        known: &IntervalBox,
         faces: &mut Vec<f64>,
         zeros: &[f64],
     ) -> Option<(Vec<f64>, Vec<f64>)> {
-        let problem = self.problem;
+        let problem = frame.problem;
         let (n, m) = (problem.dynamics.n, problem.dynamics.m);
-        let (lower, upper) = (&state.lower, &state.upper);
+        let (lower, upper) = (&set.lower, &set.upper);
         faces.clear();
         let mut slack = 0.0_f64;
         // Per face, in the order (0, lower), (0, upper), (1, lower), …: `v`'s lower ends, then
@@ -257,7 +324,10 @@ impl ChunkRun<'_> {
             for at in [lower[i], upper[i]] {
                 let face_lo: Vec<f64> = pinned(lower, i, at).collect();
                 let face_hi: Vec<f64> = pinned(upper, i, at).collect();
-                let x_box = problem.x_box_in_safe_set(&face_lo, &face_hi, self.safe);
+                let mut x_box = problem.x_box_in_safe_set(&face_lo, &face_hi, frame.safe);
+                if self.frames.len() > 1 {
+                    x_box = x_box.intersection(known).unwrap_or(x_box);
+                }
                 let v = problem.pieces.enclosure(&x_box)?;
                 if !v.iter().all(|e| e.lower.is_finite() && e.upper.is_finite()) {
                     return None;
@@ -278,131 +348,195 @@ impl ChunkRun<'_> {
         Some((dl, du))
     }
 
+    /// The embedding field from the network's bounds of this box-step (`slot`: the box's rows
+    /// in the frame's batch) plus the error margin `bound`; the Minkowski method also advances
+    /// the closeness radius. Returns the field and the time spent on the radius.
+    fn network_field(
+        &self,
+        problem: &ReachProblem,
+        state: &mut Live,
+        frame: usize,
+        batch: &AffineBoundsBatch,
+        slot: usize,
+        margin: &[f64],
+    ) -> ((Vec<f64>, Vec<f64>), f64) {
+        let (n, m) = (problem.dynamics.n, problem.dynamics.m);
+        let set = &state.sets[frame];
+        let mut minkowski_s = 0.0;
+        let (mut dl, mut du) = if self.settings.face_local {
+            // (Minkowski is refused with face-local bounds: its rate needs one C.)
+            let face =
+                |i: usize, up: bool| bounds_of(batch, slot * 2 * n + 2 * i + usize::from(up), n, m);
+            embedding_field_by_face(&problem.dynamics, &set.lower, &set.upper, face, margin)
+        } else {
+            let nn = bounds_of(batch, slot, n, m);
+            let field = embedding_field(&problem.dynamics, &set.lower, &set.upper, nn, margin);
+            if self.settings.method == ReachMethod::Minkowski {
+                let clock = Instant::now();
+                let c = closeness_rate(problem, nn);
+                state.radius =
+                    closeness_step(state.radius, c, problem.input_gain, problem.m_c, problem.dt);
+                minkowski_s += clock.elapsed().as_secs_f64();
+            }
+            field
+        };
+        widen_by(&mut dl, &mut du, problem.field_slack);
+        ((dl, du), minkowski_s)
+    }
+
     /// Integrates `states` over the whole horizon in this thread: each Euler step bounds the
-    /// network over the chunk's live boxes as one batch, then advances each box. Boxes are
-    /// independent, so chunks need no synchronisation between steps. Returns the time spent
-    /// on the closeness radius.
+    /// network over the chunk's live boxes as one batch per frame, then advances each box.
+    /// Boxes are independent, so chunks need no synchronisation between steps. Returns the time
+    /// spent on the closeness radius.
     fn horizon(&self, states: &mut [Live], buf: &mut ChunkBuffers) -> Result<f64, ReachError> {
-        let (problem, settings) = (self.problem, self.settings);
+        let (problem, settings) = (self.frames[0].problem, self.settings);
         let (n, m) = (problem.dynamics.n, problem.dynamics.m);
         let mut minkowski_s = 0.0;
         buf.zeros.clear();
         buf.zeros.resize(m * n.max(1), 0.0);
+        buf.frames
+            .resize_with(self.frames.len(), FrameBuffers::default);
         for step in 0..problem.steps {
             if states.iter().all(|s| s.done) {
                 (self.report)((problem.steps - step) * states.len());
                 break;
             }
-            buf.flat_lo.clear();
-            buf.flat_hi.clear();
-            buf.inputs.clear();
-            for state in states.iter().filter(|s| !s.done) {
-                let input = self.step_input(state);
-                buf.inputs.push(input);
-                if input.margin.is_none() {
-                    continue;
-                }
-                let (lo, hi) = (&state.lower, &state.upper);
-                if settings.face_local {
-                    // 2n faces per box, in the order (0, lower), (0, upper), (1, lower), …
-                    for i in 0..n {
-                        for v in [lo[i], hi[i]] {
-                            buf.flat_lo.extend(pinned(lo, i, v));
-                            buf.flat_hi.extend(pinned(hi, i, v));
-                        }
+            for (f, (frame, fb)) in self.frames.iter().zip(&mut buf.frames).enumerate() {
+                fb.flat_lo.clear();
+                fb.flat_hi.clear();
+                fb.inputs.clear();
+                for state in states.iter().filter(|s| !s.done) {
+                    let input = self.step_input(frame.problem, &state.known);
+                    fb.inputs.push(input);
+                    if input.margin.is_none() {
+                        continue;
                     }
-                } else {
-                    buf.flat_lo.extend(lo);
-                    buf.flat_hi.extend(hi);
+                    let set = &state.sets[f];
+                    let (lo, hi) = (&set.lower, &set.upper);
+                    if settings.face_local {
+                        // 2n faces per box, in the order (0, lower), (0, upper), (1, lower), …
+                        for i in 0..n {
+                            for v in [lo[i], hi[i]] {
+                                fb.flat_lo.extend(pinned(lo, i, v));
+                                fb.flat_hi.extend(pinned(hi, i, v));
+                            }
+                        }
+                    } else {
+                        fb.flat_lo.extend(lo);
+                        fb.flat_hi.extend(hi);
+                    }
                 }
-            }
-            if !buf.flat_lo.is_empty() {
-                self.network.bounds_serial_into(
-                    &buf.flat_lo,
-                    &buf.flat_hi,
-                    settings.bounds,
-                    &mut buf.bounds,
-                    &mut buf.batch,
-                )?;
+                if !fb.flat_lo.is_empty() {
+                    frame.network.bounds_serial_into(
+                        &fb.flat_lo,
+                        &fb.flat_hi,
+                        settings.bounds,
+                        &mut fb.bounds,
+                        &mut fb.batch,
+                    )?;
+                }
             }
             let t = (step + 1) as f64 * problem.dt;
             let record = (step + 1) % self.every == 0 || step + 1 == problem.steps;
-            let (batch, margin) = (&buf.batch, &mut buf.margin);
-            let mut next_slot = 0;
+            let mut next_slot = vec![0; self.frames.len()];
             let live = states.iter_mut().filter(|s| !s.done);
-            for (state, &input) in live.zip(&buf.inputs) {
-                let exact = input.piece.map(|piece| {
-                    state.tube.exact_steps += 1;
-                    self.piece_field(state, piece, &buf.zeros)
-                });
-                let enclosed = if input.piece.is_none() && self.encloses {
-                    self.enclosure_field(state, &mut buf.faces, &buf.zeros)
-                } else {
-                    None
-                };
-                state.tube.enclosed_steps += usize::from(enclosed.is_some());
-                let network = input.margin.map(|bound| {
-                    // This box's rows in the batch (boxes without a margin have none).
-                    let slot = next_slot;
-                    next_slot += 1;
-                    margin.clear();
-                    margin.resize(m, bound);
-                    let (mut dl, mut du) = if settings.face_local {
-                        // (Minkowski is refused with face-local bounds: its rate needs one C.)
-                        let face = |i: usize, up: bool| {
-                            bounds_of(batch, slot * 2 * n + 2 * i + usize::from(up), n, m)
-                        };
-                        embedding_field_by_face(
-                            &problem.dynamics,
-                            &state.lower,
-                            &state.upper,
-                            face,
-                            margin,
-                        )
+            for (k, state) in live.enumerate() {
+                buf.stepped.clear();
+                for (f, frame) in self.frames.iter().enumerate() {
+                    let p = frame.problem;
+                    let input = buf.frames[f].inputs[k];
+                    let set = &state.sets[f];
+                    let exact = input
+                        .piece
+                        .map(|piece| Self::piece_field(p, set, piece, &buf.zeros));
+                    let enclosed = if input.piece.is_none() && self.encloses {
+                        self.enclosure_field(frame, set, &state.known, &mut buf.faces, &buf.zeros)
                     } else {
-                        let nn = bounds_of(batch, slot, n, m);
-                        if settings.method == ReachMethod::Minkowski {
-                            let clock = Instant::now();
-                            let c = closeness_rate(problem, nn);
-                            state.radius = closeness_step(
-                                state.radius,
-                                c,
-                                problem.input_gain,
-                                problem.m_c,
-                                problem.dt,
-                            );
-                            minkowski_s += clock.elapsed().as_secs_f64();
-                        }
-                        embedding_field(&problem.dynamics, &state.lower, &state.upper, nn, margin)
+                        None
                     };
-                    widen_by(&mut dl, &mut du, problem.field_slack);
-                    (dl, du)
-                });
-                let field = [exact, enclosed, network]
-                    .into_iter()
-                    .flatten()
-                    .reduce(meet_fields);
-                let (dl, du) = match field {
-                    Some(field) => field,
-                    None => {
-                        // The error map has no finite bound where the set is (e.g. where `v`
-                        // jumps): nothing sound can be said from here on.
-                        state.tube.valid = false;
-                        state.tube.note = Some(format!(
-                            "t = {:.3}: the set meets cells of the error map with no certified \
-                             bound (M = ∞)",
-                            t - problem.dt
-                        ));
-                        state.done = true;
-                        continue;
+                    if f == 0 {
+                        state.tube.exact_steps += usize::from(exact.is_some());
+                        state.tube.enclosed_steps += usize::from(enclosed.is_some());
                     }
-                };
-                embedding_step(&mut state.lower, &mut state.upper, &dl, &du, problem.dt);
-                advance(problem, state, t, record, self.safe);
+                    let network = input.margin.map(|bound| {
+                        // This box's rows in the batch (boxes without a margin have none).
+                        let slot = next_slot[f];
+                        next_slot[f] += 1;
+                        buf.margin.clear();
+                        buf.margin.resize(m, bound);
+                        let batch = &buf.frames[f].batch;
+                        let (field, s) = self.network_field(p, state, f, batch, slot, &buf.margin);
+                        minkowski_s += s;
+                        field
+                    });
+                    let field = [exact, enclosed, network]
+                        .into_iter()
+                        .flatten()
+                        .reduce(meet_fields);
+                    if let Some((dl, du)) = &field {
+                        let set = &mut state.sets[f];
+                        embedding_step(&mut set.lower, &mut set.upper, dl, du, problem.dt);
+                    }
+                    buf.stepped.push(field.is_some());
+                }
+                if !buf.stepped.iter().any(|&s| s) {
+                    // The error map has no finite bound where the set is (e.g. where `v`
+                    // jumps), in every frame: nothing sound can be said from here on.
+                    state.tube.valid = false;
+                    state.tube.note = Some(format!(
+                        "t = {:.3}: the set meets cells of the error map with no certified \
+                         bound (M = ∞)",
+                        t - problem.dt
+                    ));
+                    state.done = true;
+                    continue;
+                }
+                self.advance(state, t, record, &buf.stepped);
             }
             (self.report)(states.len());
         }
         Ok(minkowski_s)
+    }
+
+    /// After a step: checks the sets' orientation, intersects them with `S`'s half-spaces and
+    /// with each other, checks the set against `C`, records a sample.
+    fn advance(&self, state: &mut Live, t: f64, record: bool, stepped: &[bool]) {
+        let sets = state.sets.iter().zip(stepped).filter(|(_, &s)| s);
+        let inverted = sets
+            .clone()
+            .any(|(set, _)| set.lower.iter().zip(&set.upper).any(|(l, u)| l > u));
+        let finite = sets
+            .flat_map(|(set, _)| set.lower.iter().chain(&set.upper))
+            .all(|v| v.is_finite());
+        if inverted || !finite {
+            state.tube.valid = false;
+            state.tube.note = Some(format!(
+                "t = {t:.3}: the embedding state became {} (Euler step too large for this system?)",
+                if finite { "inverted" } else { "non-finite" }
+            ));
+            state.done = true;
+            return;
+        }
+        for ((f, set), _) in self
+            .frames
+            .iter()
+            .zip(&mut state.sets)
+            .zip(stepped)
+            .filter(|(_, &s)| s)
+        {
+            clip_to_safe_set(&mut set.lower, &mut set.upper, &f.safe.z);
+        }
+        self.settle(state, stepped);
+        let sample = self.sample(state, t);
+        let problem = self.frames[0].problem;
+        if !sample.set.is_subset_of(&problem.region) {
+            state.tube.valid = false;
+            state.tube.note = Some(format!("t = {t:.3}: the set left the region C"));
+            state.tube.tube.push(sample);
+            state.done = true;
+        } else if record {
+            state.tube.tube.push(sample);
+        }
     }
 }
 
@@ -479,34 +613,4 @@ fn closeness_rate(problem: &ReachProblem, nn: NetworkBoundsRef) -> f64 {
         })
         .collect();
     log_norm(&a, n, problem.norm)
-}
-
-/// After a step: checks the box's orientation, intersects it with `S`'s half-spaces, checks
-/// the set against `C`, records a sample.
-fn advance(problem: &ReachProblem, state: &mut Live, t: f64, record: bool, safe: &SafeSet) {
-    let inverted = state.lower.iter().zip(&state.upper).any(|(l, u)| l > u);
-    let finite = state
-        .lower
-        .iter()
-        .chain(&state.upper)
-        .all(|v| v.is_finite());
-    if inverted || !finite {
-        state.tube.valid = false;
-        state.tube.note = Some(format!(
-            "t = {t:.3}: the embedding state became {} (Euler step too large for this system?)",
-            if finite { "inverted" } else { "non-finite" }
-        ));
-        state.done = true;
-        return;
-    }
-    clip_to_safe_set(&mut state.lower, &mut state.upper, &safe.z);
-    let sample = problem.tube_sample(&state.lower, &state.upper, state.radius, t, safe);
-    if !sample.set.is_subset_of(&problem.region) {
-        state.tube.valid = false;
-        state.tube.note = Some(format!("t = {t:.3}: the set left the region C"));
-        state.tube.tube.push(sample);
-        state.done = true;
-    } else if record {
-        state.tube.tube.push(sample);
-    }
 }

@@ -63,6 +63,11 @@ pub struct ReachSettings {
     /// `v = 0` where the filter is proven inactive and bounds the network elsewhere
     /// ([`ExactField::ClosedForm`] acts there as [`ExactField::Inactive`]: sound, looser).
     pub exact: ExactField,
+    /// Disturbance method with a transform: also run the embedding in x coordinates and keep, at
+    /// every step, the intersection of the x-box with the parallelotope, each tightened by the
+    /// other (CPU engine). A box in x follows the flow where it turns the set (sliding along a
+    /// constraint) and the parallelotope where it contracts (near the goal).
+    pub intersect_x: bool,
 }
 
 /// Where the disturbance method uses the filter itself besides (or instead of) the network plus
@@ -128,6 +133,7 @@ impl Default for ReachSettings {
             every: 1,
             face_local: false,
             exact: ExactField::Nowhere,
+            intersect_x: false,
         }
     }
 }
@@ -204,6 +210,8 @@ pub struct ReachProblem {
     pub safe_set: SafeSet,
     /// The filter's smooth pieces over sets ([`ReachSettings::exact`]).
     pub pieces: pieces::FilterPieces,
+    /// With a transform: the same problem in x coordinates, for [`ReachSettings::intersect_x`].
+    pub in_x: Option<Box<ReachProblem>>,
 }
 
 impl ReachProblem {
@@ -251,6 +259,15 @@ impl ReachProblem {
                 .collect()
         };
         let c = as_intervals(&region);
+        let in_x = match &transform {
+            Some(_) => Some(Box::new(ReachProblem::with_transform(
+                scenario,
+                network.clone(),
+                m_c,
+                None,
+            )?)),
+            None => None,
+        };
         let (f_tilde, g, network, network_slack, field_slack, region_z) = match &transform {
             None => (
                 scenario.f_tilde.clone(),
@@ -335,6 +352,7 @@ impl ReachProblem {
             input_gain,
             safe_set,
             pieces,
+            in_x,
         })
     }
 
@@ -348,6 +366,9 @@ impl ReachProblem {
             return Err(ReachError::Settings(
                 "the error map holds no certified bounds over the region C".into(),
             ));
+        }
+        if let Some(x) = self.in_x.take() {
+            self.in_x = Some(Box::new(x.with_error_map(map.clone())?));
         }
         self.error_map = Some(map);
         Ok(self)
@@ -371,6 +392,25 @@ impl ReachProblem {
         };
         safe_set::clip_to_safe_set(&mut z.lower, &mut z.upper, &self.safe_set_for(method).z);
         z
+    }
+
+    /// The problems whose coordinates the sets are kept in under `settings`: this one, and
+    /// the same in x where [`ReachSettings::intersect_x`] applies (disturbance method, a
+    /// transform).
+    pub fn frames(&self, settings: &ReachSettings) -> Vec<&ReachProblem> {
+        let in_x = match (&self.in_x, settings.method) {
+            (Some(x), ReachMethod::Disturbance) if settings.intersect_x => Some(&**x),
+            _ => None,
+        };
+        std::iter::once(self).chain(in_x).collect()
+    }
+
+    /// The box of this problem's coordinates around an x-box (its z-box with a transform).
+    pub fn frame_box(&self, x: &IntervalBox) -> IntervalBox {
+        match &self.transform {
+            Some(t) => t.to_z_box(x),
+            None => x.clone(),
+        }
     }
 
     /// The x-box of the embedding state `[lower, upper]` (its parallelotope's bounding box with
