@@ -302,6 +302,16 @@ fn train_adds_finer_samples_only_where_v_is_steep() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// `cbfreach reach` on scenario 2 with forward bounds and `extra` arguments: its stdout.
+fn reach_scenario_2(extra: &[&str]) -> String {
+    let path = common::scenario_path("double-integrator.toml");
+    let mut args = vec!["reach", path.to_str().unwrap(), "--bounds", "forward"];
+    args.extend_from_slice(extra);
+    let (code, stdout, stderr) = cbfreach(&args);
+    assert_eq!(code, 0, "{stderr}");
+    stdout
+}
+
 #[test]
 fn reach_takes_the_filters_own_field_where_it_is_one_smooth_piece_unless_told_not_to() {
     // Scenario 2's three boxes at x₁ = −3 never meet an active filter: with the default every
@@ -309,11 +319,7 @@ fn reach_takes_the_filters_own_field_where_it_is_one_smooth_piece_unless_told_no
     // `--network-everywhere` and `--exact nowhere` bound the network at each.
     let path = common::scenario_path("double-integrator.toml");
     let exact_steps = |extra: &[&str]| {
-        let mut args = vec!["reach", path.to_str().unwrap(), "--bounds", "forward"];
-        args.extend_from_slice(extra);
-        let (code, stdout, stderr) = cbfreach(&args);
-        assert_eq!(code, 0, "{stderr}");
-        numbers_on_line(&stdout, "the filtered system's own field")
+        numbers_on_line(&reach_scenario_2(extra), "the filtered system's own field")
             .map(|numbers| (numbers[0], numbers[1]))
     };
     let (pieces, run) = exact_steps(&[]).expect("the default takes the filter's field somewhere");
@@ -341,12 +347,8 @@ fn reach_meets_the_parallelotope_with_its_x_box_unless_told_not_to() {
     // Scenario 2 runs in z = T x. By default the CPU engine keeps the meet of the parallelotope
     // and a box in x, and says so; the box at (−1, 1.5), whose set turns over the obstacle,
     // then stays valid longer than as a parallelotope alone (`--parallelotope-only`).
-    let path = common::scenario_path("double-integrator.toml");
     let run = |extra: &[&str]| {
-        let mut args = vec!["reach", path.to_str().unwrap(), "--bounds", "forward"];
-        args.extend_from_slice(extra);
-        let (code, stdout, stderr) = cbfreach(&args);
-        assert_eq!(code, 0, "{stderr}");
+        let stdout = reach_scenario_2(extra);
         let line = stdout
             .lines()
             .find(|l| l.trim_start().starts_with("(-1.1000, 1.4000)"))
