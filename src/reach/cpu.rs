@@ -681,8 +681,8 @@ mod tests {
         let tm = &problem.transform.as_ref().unwrap().t;
         for x in narrow.corners() {
             let zx = [tm[0] * x[0] + tm[1] * x[1], tm[2] * x[0] + tm[3] * x[1]];
-            for i in 0..2 {
-                assert!(met.lower[i] - 1e-12 <= zx[i] && zx[i] <= met.upper[i] + 1e-12);
+            for (i, v) in zx.into_iter().enumerate() {
+                assert!(met.lower[i] - 1e-12 <= v && v <= met.upper[i] + 1e-12);
             }
         }
         let sample = run.sample(&state, 0.0);
