@@ -428,9 +428,7 @@ fn filtered_trajectories_stay_in_sets_intersected_with_the_safe_set() {
             .remove(0)
     };
     let tube = run(&problem);
-    let mut unclipped = problem.clone();
-    unclipped.safe_set = Default::default();
-    let plain = run(&unclipped);
+    let plain = run(&problem.clone().without_safe_set());
     assert!(!plain.valid && plain.note.as_deref().unwrap().contains("left the region C"));
     let at_edge = tube
         .tube

@@ -6,7 +6,7 @@ use cbfreach::bounds::BoundMethod;
 use cbfreach::network::Mlp;
 use cbfreach::reach::{
     Backend, CpuBackend, ExactField, ReachMethod, ReachProblem, ReachResult, ReachSettings,
-    SafeSet, Transform,
+    Transform,
 };
 use cbfreach::scenario::{Margin, Scenario, TransformChoice};
 use serde::Serialize;
@@ -174,7 +174,7 @@ pub fn compile(
     let transform = Transform::for_scenario(s, &transform_choice(s, args.transform.as_deref())?)?;
     let mut problem = ReachProblem::with_transform(s, net, m_c, transform)?;
     if args.no_safe_set {
-        problem.safe_set = SafeSet::default();
+        problem = problem.without_safe_set();
     }
     // Local bounds on request, or by the scenario's `m_c = "local"` unless --m-c overrides it.
     let local = args.local_margin || (args.m_c.is_none() && s.reach.m_c == Margin::Local);

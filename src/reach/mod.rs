@@ -374,6 +374,14 @@ impl ReachProblem {
         Ok(self)
     }
 
+    /// Without `S`'s half-spaces: sets are not intersected with them (for comparisons), in every
+    /// frame.
+    pub fn without_safe_set(mut self) -> ReachProblem {
+        self.safe_set = SafeSet::default();
+        self.in_x = self.in_x.map(|x| Box::new(x.without_safe_set()));
+        self
+    }
+
     /// The half-spaces of `S` that bound the method's sets: the filtered system's (disturbance)
     /// stay in `S`, the NN system's (Minkowski) need not.
     pub fn safe_set_for(&self, method: ReachMethod) -> &SafeSet {
@@ -386,10 +394,7 @@ impl ReachProblem {
     /// The embedding's initial state for an initial box: its z-box (the box itself without a
     /// transform), intersected with the method's half-spaces of `S`.
     pub fn initial_state(&self, initial: &IntervalBox, method: ReachMethod) -> IntervalBox {
-        let mut z = match &self.transform {
-            Some(t) => t.to_z_box(initial),
-            None => initial.clone(),
-        };
+        let mut z = self.frame_box(initial);
         safe_set::clip_to_safe_set(&mut z.lower, &mut z.upper, &self.safe_set_for(method).z);
         z
     }
