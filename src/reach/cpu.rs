@@ -142,6 +142,10 @@ struct ChunkBuffers {
     zeros: Vec<f64>,
     /// `v`'s enclosure on each face of one set ([`ChunkRun::enclosure_field`]).
     faces: Vec<f64>,
+    /// Per live box this step: what its frames share ([`ChunkRun::set_facts`]).
+    facts: Vec<SetFacts>,
+    /// Per frame, the next box's rows in the frame's batch.
+    slots: Vec<usize>,
     /// Per frame, whether the box's set stepped this step.
     stepped: Vec<bool>,
 }
@@ -158,6 +162,15 @@ struct ChunkRun<'a> {
     encloses: bool,
     /// Told how many box-steps were accounted for (run, or skipped by finished boxes).
     report: &'a (dyn Fn(usize) + Sync),
+}
+
+/// What the frames of one box-step share ([`ChunkRun::set_facts`]).
+#[derive(Clone, Copy, Debug)]
+struct SetFacts {
+    /// The piece `v` provably is on the set.
+    piece: Option<FilterPiece>,
+    /// The bound on the network's error over the set, where the network is bounded.
+    m: Option<f64>,
 }
 
 /// What bounds `v` on one box-step: the filter's own field where it is provably one smooth
@@ -246,39 +259,53 @@ impl ChunkRun<'_> {
         sample
     }
 
-    /// How `v` is bounded over a set whose true states lie in `x_box`, in one frame: one smooth
-    /// piece of the filter where the settings take it and it is proven
-    /// ([`ReachSettings::exact_field`]), the network with an additive bound on every input's
-    /// error except where `v = 0`. The transformed network's rounding enters as a disturbance
-    /// in both methods; the disturbance method adds `M` (global, or local from the error map).
-    fn step_input(&self, problem: &ReachProblem, x_box: &IntervalBox) -> StepInput {
-        match self.settings.method {
-            ReachMethod::Minkowski => StepInput {
+    /// What the frames of one box-step share, as both depend on the x-box `known` alone: the
+    /// piece of the filter proven there where the settings take one
+    /// ([`ReachSettings::exact_field`]), and the error bound `M` there (global, or local from
+    /// the error map) except where `v = 0`.
+    fn set_facts(&self, x_box: &IntervalBox) -> SetFacts {
+        let problem = self.frames[0].problem;
+        let piece = match self.settings.exact_field() {
+            ExactField::Nowhere => None,
+            ExactField::Inactive => problem
+                .pieces
+                .proves_inactive(x_box)
+                .then_some(FilterPiece::Inactive),
+            ExactField::ClosedForm => problem.pieces.piece_on(x_box),
+        };
+        let m = match (self.settings.method, piece) {
+            (ReachMethod::Minkowski, _) | (_, Some(FilterPiece::Inactive)) => None,
+            _ => Some(problem.margin_for(x_box)),
+        };
+        SetFacts { piece, m }
+    }
+
+    /// How `v` is bounded over a set whose true states lie in `x_box`, in one frame: the proven
+    /// piece of `facts` with this frame's slack for its field, and the network with an additive
+    /// bound on every input's error except where `v = 0`. The transformed network's rounding
+    /// enters as a disturbance in both methods; the disturbance method adds `M`.
+    fn step_input(
+        &self,
+        problem: &ReachProblem,
+        x_box: &IntervalBox,
+        facts: SetFacts,
+    ) -> StepInput {
+        if self.settings.method == ReachMethod::Minkowski {
+            return StepInput {
                 piece: None,
                 margin: Some(problem.network_slack),
-            },
-            ReachMethod::Disturbance => {
-                let piece = match self.settings.exact_field() {
-                    ExactField::Nowhere => None,
-                    ExactField::Inactive => problem
-                        .pieces
-                        .proves_inactive(x_box)
-                        .then_some(FilterPiece::Inactive),
-                    ExactField::ClosedForm => problem.pieces.piece_on(x_box),
-                };
-                let margin = match piece {
-                    Some(FilterPiece::Inactive) => None,
-                    _ => Some(round_up(problem.margin_for(x_box) + problem.network_slack)),
-                };
-                let slack = |piece| match piece {
-                    FilterPiece::Inactive => problem.field_slack,
-                    FilterPiece::Binding(k) => problem.pieces.binding_slack(k, x_box),
-                };
-                StepInput {
-                    piece: piece.map(|p| (p, slack(p))),
-                    margin: margin.filter(|m| m.is_finite()),
-                }
-            }
+            };
+        }
+        let slack = |piece| match piece {
+            FilterPiece::Inactive => problem.field_slack,
+            FilterPiece::Binding(k) => problem.pieces.binding_slack(k, x_box),
+        };
+        StepInput {
+            piece: facts.piece.map(|p| (p, slack(p))),
+            margin: facts
+                .m
+                .map(|m| round_up(m + problem.network_slack))
+                .filter(|m| m.is_finite()),
         }
     }
 
@@ -401,12 +428,17 @@ impl ChunkRun<'_> {
                 (self.report)((problem.steps - step) * states.len());
                 break;
             }
+            buf.facts.clear();
+            let live = states.iter().filter(|s| !s.done);
+            buf.facts
+                .extend(live.map(|state| self.set_facts(&state.known)));
             for (f, (frame, fb)) in self.frames.iter().zip(&mut buf.frames).enumerate() {
                 fb.flat_lo.clear();
                 fb.flat_hi.clear();
                 fb.inputs.clear();
-                for state in states.iter().filter(|s| !s.done) {
-                    let input = self.step_input(frame.problem, &state.known);
+                let live = states.iter().filter(|s| !s.done);
+                for (state, &facts) in live.zip(&buf.facts) {
+                    let input = self.step_input(frame.problem, &state.known, facts);
                     fb.inputs.push(input);
                     if input.margin.is_none() {
                         continue;
@@ -438,7 +470,8 @@ impl ChunkRun<'_> {
             }
             let t = (step + 1) as f64 * problem.dt;
             let record = (step + 1) % self.every == 0 || step + 1 == problem.steps;
-            let mut next_slot = vec![0; self.frames.len()];
+            buf.slots.clear();
+            buf.slots.resize(self.frames.len(), 0);
             let live = states.iter_mut().filter(|s| !s.done);
             for (k, state) in live.enumerate() {
                 buf.stepped.clear();
@@ -460,8 +493,8 @@ impl ChunkRun<'_> {
                     }
                     let network = input.margin.map(|bound| {
                         // This box's rows in the batch (boxes without a margin have none).
-                        let slot = next_slot[f];
-                        next_slot[f] += 1;
+                        let slot = buf.slots[f];
+                        buf.slots[f] += 1;
                         buf.margin.clear();
                         buf.margin.resize(m, bound);
                         let batch = &buf.frames[f].batch;
