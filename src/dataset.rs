@@ -67,12 +67,26 @@ fn lattice_coordinate(region: &IntervalBox, i: usize, j: usize, count: usize) ->
     }
 }
 
-/// `v` and `Dv` at every point where the filter is feasible, in parallel; `progress` is told
-/// the number of points done (in chunks).
+/// The slope targets a dataset carries.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Slopes {
+    /// None: values only.
+    Omitted,
+    /// The Jacobian `Dv(x)` at each point ([`SafetyFilter::jacobian`]): what the slope error
+    /// is measured against.
+    Pointwise,
+    /// Secant slopes over `±h` per axis ([`SafetyFilter::secant_jacobian`]): training targets
+    /// that a network can meet across a kink of `v` between grid points. A point whose secant
+    /// reaches where the filter is infeasible is skipped with it.
+    Secant(Vec<f64>),
+}
+
+/// `v` and its slopes at every point where the filter is feasible, in parallel; `progress` is
+/// told the number of points done (in chunks).
 pub fn filter_dataset(
     filter: &SafetyFilter,
     points: &[Vec<f64>],
-    with_jacobians: bool,
+    slopes: &Slopes,
     progress: &(dyn Fn(usize) + Sync),
 ) -> (Dataset, DatasetSummary) {
     let scenario = filter.scenario();
@@ -85,10 +99,10 @@ pub fn filter_dataset(
                 .iter()
                 .map(|x| {
                     let v = filter.eval(x).ok()?;
-                    let dv = if with_jacobians {
-                        filter.jacobian(x).ok()?
-                    } else {
-                        Vec::new()
+                    let dv = match slopes {
+                        Slopes::Omitted => Vec::new(),
+                        Slopes::Pointwise => filter.jacobian(x).ok()?,
+                        Slopes::Secant(h) => filter.secant_jacobian(x, h).ok()?,
                     };
                     Some((v, dv))
                 })
@@ -104,7 +118,7 @@ pub fn filter_dataset(
         n_out: m,
         inputs: Vec::new(),
         targets: Vec::new(),
-        jacobians: with_jacobians.then(Vec::new),
+        jacobians: (*slopes != Slopes::Omitted).then(Vec::new),
         weights: None,
     };
     let mut summary = DatasetSummary {

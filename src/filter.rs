@@ -203,26 +203,50 @@ impl<'a> SafetyFilter<'a> {
     /// `ε·max(1, |xᵢ|)`, `ε = 1e-6`. `v` is piecewise smooth: across a switching surface of the
     /// active set the result mixes the two one-sided Jacobians.
     pub fn jacobian(&self, x: &[f64]) -> Result<Vec<f64>, FilterError> {
-        central_jacobian(|y| self.eval(y), x, self.scenario.m())
+        central_jacobian(|y| self.eval(y), x, self.scenario.m(), pointwise_step)
+    }
+
+    /// Secant slopes `(v(x + hⱼeⱼ) − v(x − hⱼeⱼ)) / 2hⱼ` (m×n, row-major), `h` one step or one
+    /// per state: the mean slope of `v` over `[xⱼ − hⱼ, xⱼ + hⱼ]`. Where `v` has a kink
+    /// between two training points, the pointwise slopes on either side cannot both be met by
+    /// a network that bends anywhere between them; their secants can.
+    pub fn secant_jacobian(&self, x: &[f64], h: &[f64]) -> Result<Vec<f64>, FilterError> {
+        central_jacobian(
+            |y| self.eval(y),
+            x,
+            self.scenario.m(),
+            |j, _| h[if h.len() == 1 { 0 } else { j }],
+        )
     }
 
     /// The Jacobian `DF(x)` (n×n, row-major) of the filtered vector field.
     pub fn closed_loop_jacobian(&self, x: &[f64]) -> Result<Vec<f64>, FilterError> {
-        central_jacobian(|y| self.closed_loop(y), x, self.scenario.n())
+        central_jacobian(
+            |y| self.closed_loop(y),
+            x,
+            self.scenario.n(),
+            pointwise_step,
+        )
     }
 }
 
-/// Central-difference Jacobian of `map: ℝⁿ → ℝᵏ`, row-major k×n.
+/// The step of a pointwise central difference along axis `j` at `xⱼ`.
+fn pointwise_step(_j: usize, xj: f64) -> f64 {
+    1e-6 * xj.abs().max(1.0)
+}
+
+/// Central-difference Jacobian of `map: ℝⁿ → ℝᵏ`, row-major k×n, with step `step(j, xⱼ)`.
 fn central_jacobian(
     map: impl Fn(&[f64]) -> Result<Vec<f64>, FilterError>,
     x: &[f64],
     k: usize,
+    step: impl Fn(usize, f64) -> f64,
 ) -> Result<Vec<f64>, FilterError> {
     let n = x.len();
     let mut jac = vec![0.0; k * n];
     let mut y = x.to_vec();
     for j in 0..n {
-        let step = 1e-6 * x[j].abs().max(1.0);
+        let step = step(j, x[j]);
         y[j] = x[j] + step;
         let plus = map(&y)?;
         y[j] = x[j] - step;

@@ -31,7 +31,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::bounds::{network_bounds, AffineBounds, BoundMethod, BoundsError, PreparedNetwork};
 use crate::boxes::IntervalBox;
-use crate::dataset::{filter_dataset, grid_points};
+use crate::dataset::{filter_dataset, grid_points, Slopes};
 use crate::expressions::Expr;
 use crate::filter::{FilterMethod, SafetyFilter};
 use crate::intervals::{round_up, Interval};
@@ -291,7 +291,7 @@ pub fn measure(
     let grid_points = all.len();
     let safe: Vec<Vec<f64>> = all.into_iter().filter(|x| s.is_safe(x)).collect();
     let filter = SafetyFilter::new(s);
-    let (data, summary) = filter_dataset(&filter, &safe, true, progress);
+    let (data, summary) = filter_dataset(&filter, &safe, &Slopes::Pointwise, progress);
     if data.is_empty() {
         return Err(AnalysisError::NoSamples);
     }

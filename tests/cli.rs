@@ -302,6 +302,46 @@ fn train_adds_finer_samples_only_where_v_is_steep() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+#[test]
+fn train_takes_secant_slope_targets_and_records_their_step() {
+    let dir = std::env::temp_dir().join(format!("cbfreach-secant-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let out = dir.join("net.safetensors");
+    let path = common::scenario_path("integrator.toml");
+    let train = |step: &str| {
+        cbfreach(&[
+            "train",
+            path.to_str().unwrap(),
+            "--architecture",
+            "2,8,2",
+            "--grid",
+            "21,16",
+            "--epochs",
+            "1",
+            "--slope-step",
+            step,
+            "--out",
+            out.to_str().unwrap(),
+        ])
+    };
+    let (code, _, stderr) = train("0.02,0.01");
+    assert_eq!(code, 0, "{stderr}");
+    let (_, metadata) = cbfreach::network::Mlp::load_safetensors_with_metadata(&out).unwrap();
+    assert_eq!(
+        metadata.get("slope_step").map(String::as_str),
+        Some("[0.02, 0.01]")
+    );
+    for (bad, says) in [
+        ("0", "--slope-step 0: expected a finite step > 0"),
+        ("0.1,0.1,0.1", "3 values, expected one or one per state (2)"),
+    ] {
+        let (code, _, stderr) = train(bad);
+        assert_ne!(code, 0);
+        assert!(stderr.contains(says), "{bad}: {stderr}");
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 /// `cbfreach reach` on scenario 2 with forward bounds and `extra` arguments: its stdout.
 fn reach_scenario_2(extra: &[&str]) -> String {
     let path = common::scenario_path("double-integrator.toml");

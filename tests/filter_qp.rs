@@ -190,3 +190,46 @@ fn closed_form_is_the_papers_formula() {
         assert!(max_diff(&v, &[scale * grad[0], scale * grad[1]]) < 1e-9 * (1.0 + scale));
     }
 }
+
+#[test]
+fn secant_slopes_are_the_mean_pointwise_slope_over_the_step() {
+    // Scenario 1's filter has a kink at (4.095, 0.8): v = 0 to its right, slope ~8–20 to its
+    // left. At (4.105, 0.8) the pointwise slope along x₁ is 0 but the secant over ±0.02 crosses
+    // the kink; in both cases it is the mean of the pointwise slope over the segment
+    // (trapezoid rule on 2,000 pieces), axis by axis with the axis's own step.
+    let s = integrator();
+    let filter = SafetyFilter::new(&s);
+    let h = [0.02, 0.005];
+    for x in [[4.105, 0.8], [4.0, 2.0], [-2.0, 0.5]] {
+        let secant = filter.secant_jacobian(&x, &h).unwrap();
+        let (n, m) = (2, 2);
+        for j in 0..n {
+            let pieces = 2000;
+            let mut mean = vec![0.0; m];
+            for k in 0..=pieces {
+                let mut y = x.to_vec();
+                y[j] += h[j] * (2.0 * k as f64 / pieces as f64 - 1.0);
+                let d = filter.jacobian(&y).unwrap();
+                let w = if k == 0 || k == pieces { 0.5 } else { 1.0 } / pieces as f64;
+                for (i, mi) in mean.iter_mut().enumerate() {
+                    *mi += w * d[i * n + j];
+                }
+            }
+            for i in 0..m {
+                let got = secant[i * n + j];
+                assert!(
+                    (got - mean[i]).abs() <= 2e-3 * (1.0 + mean[i].abs()),
+                    "at {x:?}, ∂v{i}/∂x{j}: secant {got} vs mean slope {}",
+                    mean[i]
+                );
+            }
+        }
+    }
+    let at_kink = filter.jacobian(&[4.105, 0.8]).unwrap();
+    let across = filter.secant_jacobian(&[4.105, 0.8], &h).unwrap();
+    assert!(
+        at_kink[0].abs() < 1e-6 && at_kink[2].abs() < 1e-6,
+        "{at_kink:?}"
+    );
+    assert!(across[2] < -1.0, "the secant crosses the kink: {across:?}");
+}

@@ -10,7 +10,7 @@ use std::sync::OnceLock;
 
 use cbfreach::bounds::{BoundMethod, PreparedNetwork};
 use cbfreach::boxes::IntervalBox;
-use cbfreach::dataset::{filter_dataset, grid_points};
+use cbfreach::dataset::{filter_dataset, grid_points, Slopes};
 use cbfreach::filter::{FilterMethod, SafetyFilter};
 use cbfreach::network::train::{train, TrainSettings};
 use cbfreach::network::Mlp;
@@ -43,7 +43,7 @@ fn fixture() -> &'static Fixture {
         let s = small_scenario();
         let filter = SafetyFilter::new(&s);
         let pts = grid_points(&s.training.region, &s.training.grid);
-        let (data, _) = filter_dataset(&filter, &pts, true, &|_| {});
+        let (data, _) = filter_dataset(&filter, &pts, &Slopes::Pointwise, &|_| {});
         let settings = TrainSettings {
             epochs: 40,
             learning_rate: 3e-3,

@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use cbfreach::boxes::IntervalBox;
-use cbfreach::dataset::{filter_dataset, grid_points, refinement_points, DatasetSummary};
+use cbfreach::dataset::{filter_dataset, grid_points, refinement_points, DatasetSummary, Slopes};
 use cbfreach::filter::SafetyFilter;
 use cbfreach::network::train::{self, Dataset, TrainSettings};
 use cbfreach::network::Mlp;
@@ -41,9 +41,13 @@ pub struct TrainArgs {
     /// Samples per Adam step.
     #[arg(long, default_value_t = 256)]
     pub batch_size: usize,
-    /// Initial learning rate (cosine decay to 1e-5).
+    /// Initial learning rate (cosine decay to `--lr-min`).
     #[arg(long, default_value_t = 1e-3)]
     pub lr: f64,
+    /// Final learning rate. A fine-tune (`--init`) starts Adam afresh, and its first steps move
+    /// every weight by about `--lr`: start it near where the previous run ended.
+    #[arg(long, default_value_t = 1e-5)]
+    pub lr_min: f64,
     /// Weight λ of the Jacobian term λ‖DN − Dv‖² (0 disables).
     #[arg(long, default_value_t = 0.1)]
     pub jacobian_weight: f64,
@@ -51,6 +55,12 @@ pub struct TrainArgs {
     /// v jumps, e.g. scenario 2 at (1, 0) and (3, 0), finite-difference slopes are ~1/step).
     #[arg(long)]
     pub jacobian_cap: Option<f64>,
+    /// Slope targets as secants over ±this step (one value or one per state) instead of the
+    /// pointwise Jacobian: where `v` has a kink between grid points (scenario 1 near
+    /// (4.1, 0.8), slope 0 on one side and ~20 on the other) no network meets both one-sided
+    /// slopes, and their pull bends the fit's values; half the grid's spacing is a good start.
+    #[arg(long, value_delimiter = ',')]
+    pub slope_step: Option<Vec<f64>>,
     /// Huber threshold of the Jacobian term: slope residuals beyond it cost linearly, so the few
     /// samples on a steep kink do not steer every step.
     #[arg(long)]
@@ -131,10 +141,17 @@ fn training_points(s: &Scenario, grid: Option<&Vec<usize>>) -> Result<Vec<Vec<f6
 }
 
 /// The filter on a set of points, with a progress bar.
-fn build(s: &Scenario, points: &[Vec<f64>], what: &str) -> (Dataset, DatasetSummary) {
+fn build(
+    s: &Scenario,
+    points: &[Vec<f64>],
+    slopes: &Slopes,
+    what: &str,
+) -> (Dataset, DatasetSummary) {
     let filter = SafetyFilter::new(s);
     let bar = progress_bar(points.len() as u64, what);
-    let out = filter_dataset(&filter, points, true, &|done| bar.set_position(done as u64));
+    let out = filter_dataset(&filter, points, slopes, &|done| {
+        bar.set_position(done as u64)
+    });
     bar.finish_and_clear();
     out
 }
@@ -150,7 +167,7 @@ fn print_summary(s: &Scenario, d: &DatasetSummary) {
 pub fn run_dataset(args: &DatasetArgs) -> CliResult {
     let s = load_scenario(&args.scenario)?;
     let points = training_points(&s, args.grid.as_ref())?;
-    let (data, summary) = build(&s, &points, "filter on the grid");
+    let (data, summary) = build(&s, &points, &Slopes::Pointwise, "filter on the grid");
     print_summary(&s, &summary);
     if let Some(path) = &args.out {
         let mut text = String::new();
@@ -298,7 +315,24 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
     };
     let grid = args.grid.clone().unwrap_or(s.training.grid.clone());
     let points = training_points(&s, Some(&grid))?;
-    let (mut data, mut summary) = build(&s, &points, "training data");
+    let slopes = match &args.slope_step {
+        None => Slopes::Pointwise,
+        Some(h) if h.len() == 1 || h.len() == s.n() => {
+            if let Some(bad) = h.iter().find(|h| !(h.is_finite() && **h > 0.0)) {
+                return Err(format!("--slope-step {bad}: expected a finite step > 0").into());
+            }
+            Slopes::Secant(h.clone())
+        }
+        Some(h) => {
+            return Err(format!(
+                "--slope-step: {} values, expected one or one per state ({})",
+                h.len(),
+                s.n()
+            )
+            .into())
+        }
+    };
+    let (mut data, mut summary) = build(&s, &points, &slopes, "training data");
     if let Some(slope) = args.dense_slope {
         if !(slope.is_finite() && slope >= 0.0) {
             return Err(format!("--dense-slope {slope}: expected a finite slope ≥ 0").into());
@@ -321,7 +355,7 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
             args.jacobian_cap
                 .map_or(String::new(), |cap| format!(" and none > {cap} (a jump)"))
         );
-        let (finer, finer_summary) = build(&s, &added, "finer samples");
+        let (finer, finer_summary) = build(&s, &added, &slopes, "finer samples");
         data.append(finer)?;
         summary.add(&finer_summary);
     }
@@ -348,13 +382,20 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
             args.focus_weight
         );
     }
-    let (validation, vsummary) = build(&s, &validation_points(&s, &grid), "validation data");
+    // Validated against the pointwise slopes, as `cbfreach error` measures.
+    let (validation, vsummary) = build(
+        &s,
+        &validation_points(&s, &grid),
+        &Slopes::Pointwise,
+        "validation data",
+    );
 
     let checkpoint = out.with_extension("ckpt");
     let settings = TrainSettings {
         epochs: args.epochs,
         batch_size: args.batch_size,
         learning_rate: args.lr,
+        lr_min: args.lr_min,
         jacobian_weight: args.jacobian_weight,
         jacobian_cap: args.jacobian_cap,
         jacobian_huber: args.jacobian_huber,
@@ -408,6 +449,9 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
         // Not a trainer setting: the data it saw (reproducing the run needs both).
         metadata.insert("dense_slope".into(), slope.to_string());
         metadata.insert("dense_factor".into(), args.dense_factor.to_string());
+    }
+    if let Slopes::Secant(h) = &slopes {
+        metadata.insert("slope_step".into(), format!("{h:?}"));
     }
     if let Some(text) = &args.focus_box {
         metadata.insert("focus_box".into(), text.clone());
