@@ -70,8 +70,6 @@ fn lattice_coordinate(region: &IntervalBox, i: usize, j: usize, count: usize) ->
 /// The slope targets a dataset carries.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Slopes {
-    /// None: values only.
-    Omitted,
     /// The Jacobian `Dv(x)` at each point ([`SafetyFilter::jacobian`]): what the slope error
     /// is measured against.
     Pointwise,
@@ -100,7 +98,6 @@ pub fn filter_dataset(
                 .map(|x| {
                     let v = filter.eval(x).ok()?;
                     let dv = match slopes {
-                        Slopes::Omitted => Vec::new(),
                         Slopes::Pointwise => filter.jacobian(x).ok()?,
                         Slopes::Secant(h) => filter.secant_jacobian(x, h).ok()?,
                     };
@@ -118,7 +115,7 @@ pub fn filter_dataset(
         n_out: m,
         inputs: Vec::new(),
         targets: Vec::new(),
-        jacobians: (*slopes != Slopes::Omitted).then(Vec::new),
+        jacobians: Some(Vec::new()),
         weights: None,
     };
     let mut summary = DatasetSummary {

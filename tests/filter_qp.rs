@@ -2,6 +2,7 @@
 
 mod common;
 
+use cbfreach::dataset::{filter_dataset, Slopes};
 use cbfreach::filter::{FilterError, FilterMethod, SafetyFilter};
 use cbfreach::simulate::sample_box;
 use common::{double_integrator, from_text, integrator, SMALL};
@@ -232,4 +233,13 @@ fn secant_slopes_are_the_mean_pointwise_slope_over_the_step() {
         "{at_kink:?}"
     );
     assert!(across[2] < -1.0, "the secant crosses the kink: {across:?}");
+    // Datasets carry what they are asked for.
+    let points = vec![vec![4.105, 0.8]];
+    for (slopes, want) in [
+        (Slopes::Pointwise, at_kink),
+        (Slopes::Secant(h.to_vec()), across),
+    ] {
+        let (data, _) = filter_dataset(&filter, &points, &slopes, &|_| {});
+        assert_eq!(data.jacobians, Some(want), "{slopes:?}");
+    }
 }
