@@ -215,7 +215,7 @@ impl<'a> SafetyFilter<'a> {
             |y| self.eval(y),
             x,
             self.scenario.m(),
-            |j, _| h[if h.len() == 1 { 0 } else { j }],
+            |j, _| h[j.min(h.len() - 1)],
         )
     }
 

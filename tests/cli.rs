@@ -252,6 +252,26 @@ fn paper_verifies_split_boxes_of_scenario_2_truly() {
     assert!(scenario_2.contains("→ 9 converges"), "{scenario_2}");
 }
 
+/// `cbfreach train` of a 2×8×2 network for one epoch on scenario 1's `grid` (points per
+/// axis), written to `out`, with `extra` arguments.
+fn train_small(grid: &str, out: &std::path::Path, extra: &[&str]) -> (i32, String, String) {
+    let path = common::scenario_path("integrator.toml");
+    let mut args = vec![
+        "train",
+        path.to_str().unwrap(),
+        "--architecture",
+        "2,8,2",
+        "--grid",
+        grid,
+        "--epochs",
+        "1",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    cbfreach(&args)
+}
+
 #[test]
 fn train_adds_finer_samples_only_where_v_is_steep() {
     // Scenario 1's filter is steep near (4.1, 0.8): `--dense-slope` adds a 4× finer grid
@@ -261,27 +281,20 @@ fn train_adds_finer_samples_only_where_v_is_steep() {
     let dir = std::env::temp_dir().join(format!("cbfreach-dense-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let out = dir.join("net.safetensors");
-    let path = common::scenario_path("integrator.toml");
     let added = |slope: &str| {
-        let (code, stdout, stderr) = cbfreach(&[
-            "train",
-            path.to_str().unwrap(),
-            "--architecture",
-            "2,8,2",
-            "--grid",
+        let (code, stdout, stderr) = train_small(
             "41,31",
-            "--epochs",
-            "1",
-            "--jacobian-huber",
-            "1",
-            "--dense-slope",
-            slope,
-            "--focus-box=-0.5,-0.5:0.5,0.5",
-            "--focus-weight",
-            "10",
-            "--out",
-            out.to_str().unwrap(),
-        ]);
+            &out,
+            &[
+                "--jacobian-huber",
+                "1",
+                "--dense-slope",
+                slope,
+                "--focus-box=-0.5,-0.5:0.5,0.5",
+                "--focus-weight",
+                "10",
+            ],
+        );
         assert_eq!(code, 0, "{stderr}");
         let focus = numbers_on_line(&stdout, "in the focus box weigh");
         assert_eq!(focus, Some(vec![30, 10]), "{stdout}");
@@ -307,23 +320,7 @@ fn train_takes_secant_slope_targets_and_records_their_step() {
     let dir = std::env::temp_dir().join(format!("cbfreach-secant-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let out = dir.join("net.safetensors");
-    let path = common::scenario_path("integrator.toml");
-    let train = |step: &str| {
-        cbfreach(&[
-            "train",
-            path.to_str().unwrap(),
-            "--architecture",
-            "2,8,2",
-            "--grid",
-            "21,16",
-            "--epochs",
-            "1",
-            "--slope-step",
-            step,
-            "--out",
-            out.to_str().unwrap(),
-        ])
-    };
+    let train = |step: &str| train_small("21,16", &out, &["--slope-step", step]);
     let (code, _, stderr) = train("0.02,0.01");
     assert_eq!(code, 0, "{stderr}");
     let (_, metadata) = cbfreach::network::Mlp::load_safetensors_with_metadata(&out).unwrap();
