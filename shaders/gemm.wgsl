@@ -45,7 +45,10 @@ fn gemm(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid
     let row0 = wid.y * TM;
     let col0 = wid.x * TN;
     let t = lid.y * 16u + lid.x;
-    var acc: array<real, 16>;
+    var acc0 = vec4<real>(0.0);
+    var acc1 = vec4<real>(0.0);
+    var acc2 = vec4<real>(0.0);
+    var acc3 = vec4<real>(0.0);
     for (var k0 = 0u; k0 < p.inner; k0 += TK) {
         for (var e = 0u; e < 4u; e++) {
             let idx = t + e * 256u;
@@ -74,28 +77,43 @@ fn gemm(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid
             x_tile[kk * TN + c] = v;
         }
         workgroupBarrier();
+        // Accumulators in named vectors, not an indexed array: the driver then keeps them in
+        // registers (row i of the thread's 4 × 4 block is acc_i, its columns the components).
         for (var kk = 0u; kk < TK; kk++) {
-            var a: array<real, 4>;
-            var b: array<real, 4>;
-            for (var i = 0u; i < 4u; i++) {
-                a[i] = a_tile[kk * TM + lid.y + 16u * i];
-                b[i] = x_tile[kk * TN + lid.x + 16u * i];
-            }
-            for (var i = 0u; i < 4u; i++) {
-                for (var j = 0u; j < 4u; j++) {
-                    acc[i * 4u + j] += a[i] * b[j];
-                }
-            }
+            let a = vec4<real>(
+                a_tile[kk * TM + lid.y],
+                a_tile[kk * TM + lid.y + 16u],
+                a_tile[kk * TM + lid.y + 32u],
+                a_tile[kk * TM + lid.y + 48u],
+            );
+            let b = vec4<real>(
+                x_tile[kk * TN + lid.x],
+                x_tile[kk * TN + lid.x + 16u],
+                x_tile[kk * TN + lid.x + 32u],
+                x_tile[kk * TN + lid.x + 48u],
+            );
+            acc0 += a.x * b;
+            acc1 += a.y * b;
+            acc2 += a.z * b;
+            acc3 += a.w * b;
         }
         workgroupBarrier();
     }
-    for (var i = 0u; i < 4u; i++) {
-        let gr = row0 + lid.y + 16u * i;
-        for (var j = 0u; j < 4u; j++) {
-            let gc = col0 + lid.x + 16u * j;
-            if (gr < p.rows && gc < p.cols) {
-                y[gr * p.ldy + p.y_off + gc] = acc[i * 4u + j];
-            }
+    store_row(row0 + lid.y, col0 + lid.x, acc0);
+    store_row(row0 + lid.y + 16u, col0 + lid.x, acc1);
+    store_row(row0 + lid.y + 32u, col0 + lid.x, acc2);
+    store_row(row0 + lid.y + 48u, col0 + lid.x, acc3);
+}
+
+// Row `gr` of Y at columns gc, gc + 16, gc + 32, gc + 48 (those inside Y).
+fn store_row(gr: u32, gc: u32, v: vec4<real>) {
+    if (gr >= p.rows) {
+        return;
+    }
+    let base = gr * p.ldy + p.y_off;
+    for (var j = 0u; j < 4u; j++) {
+        if (gc + 16u * j < p.cols) {
+            y[base + gc + 16u * j] = v[j];
         }
     }
 }

@@ -219,6 +219,33 @@ fn scenario_1_small_network_matches_cpu() {
     }
 }
 
+/// One engine reuses its compiled pipelines while the problem's generated WGSL is unchanged and
+/// compiles anew when it changes: a stale pipeline (the previous `M_C`, baked into the WGSL)
+/// would make the second problem's sets differ from the CPU's, and a repeat must give the same
+/// sets bit for bit.
+#[test]
+fn pipelines_are_reused_only_for_the_same_problem() {
+    let Some(gpu) = gpu() else { return };
+    let s = integrator();
+    let init = boxes(&[[-2.0, 2.0], [1.0, -2.0]], 0.1);
+    let mut runs = Vec::new();
+    for m_c in [0.05, 0.2, 0.05] {
+        let net = small_network(&[2, 16, 16, 2], 1, 0.05);
+        let mut problem = ReachProblem::new(&s, net, m_c).unwrap();
+        problem.steps = 30;
+        let (c, g) = run_both(&gpu, &problem, &init, ReachMethod::Disturbance);
+        compare(&c, &g, &format!("M_C = {m_c}"));
+        runs.push(g);
+    }
+    let widest = |tubes: &[Tube]| tubes[0].tube.last().unwrap().set.widths()[0];
+    assert!(widest(&runs[1]) > widest(&runs[0]) + 0.1);
+    for (a, b) in runs[0].iter().zip(&runs[2]) {
+        for (sa, sb) in a.tube.iter().zip(&b.tube) {
+            assert_eq!(sa.set, sb.set);
+        }
+    }
+}
+
 #[test]
 fn scenario_2_small_network_matches_cpu_with_and_without_transform() {
     let Some(gpu) = gpu() else { return };

@@ -46,6 +46,9 @@ pub struct BenchArgs {
     /// on the CPU; none for the GPU).
     #[arg(long)]
     pub peak: Option<f64>,
+    /// Print where a GPU step's time goes: every kind of dispatch timed on its own (stderr).
+    #[arg(long)]
+    pub profile: bool,
     /// GPU adapter and precision (`--f64`: the GPU engine in f64).
     #[command(flatten)]
     pub gpu: GpuArgs,
@@ -140,8 +143,9 @@ pub fn run(args: &BenchArgs) -> CliResult {
                     let precision = args.gpu.precision();
                     let name: String = ctx.info.name.chars().take(20).collect();
                     let label = format!("gpu ({name}, {})", precision.name());
-                    let backend =
+                    let mut backend =
                         cbfreach::gpu::GpuBackend::with_precision(Arc::new(ctx), precision)?;
+                    backend.profile = args.profile;
                     engines.push((label, Box::new(backend), args.peak));
                 }
                 Err(e) => println!("notice: no GPU engine: {e}"),

@@ -122,15 +122,7 @@ pub fn run(args: &VerifyArgs) -> CliResult {
         None => s.reach.region.clone(),
     };
     let shard = args.shard.as_deref().map(str::parse::<Shard>).transpose()?;
-    let settings = VerifySettings {
-        region,
-        grid: parse_grid(&args.grid, s.n())?,
-        refine_depth: args.refine,
-        budget: args.budget,
-        shard,
-        chunk: 512,
-    };
-    settings.validate(&s)?;
+    let grid = parse_grid(&args.grid, s.n())?;
     let problem = compile(&s, &args.problem)?;
     let mut reach = ReachSettings {
         bounds: args.bounds,
@@ -142,6 +134,15 @@ pub fn run(args: &VerifyArgs) -> CliResult {
     };
     let engine = choose_backend(&args.backend, &args.gpu, &reach)?;
     super::reach::settle_for_engine(&mut reach, engine.as_ref(), &problem);
+    let settings = VerifySettings {
+        region,
+        grid,
+        refine_depth: args.refine,
+        budget: args.budget,
+        shard,
+        chunk: engine.preferred_batch(),
+    };
+    settings.validate(&s)?;
     let report = run_verify(&s, &problem, engine.as_ref(), reach, &settings)?;
     print_summary(&report);
     print_causes(&explain_unverified(&s, &report));

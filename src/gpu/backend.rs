@@ -23,7 +23,7 @@
 //! the embedding step takes each box's `M` from the map (`margins`), and a box that meets a
 //! cell without a certified bound stops as invalid (`status::NO_BOUND`), as on the CPU.
 
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use super::buffers::{
@@ -58,6 +58,49 @@ pub struct GpuBackend {
     precision: Precision,
     /// Most boxes in one chunk (`None`: as many as the limits allow); for tests of the split.
     pub max_chunk: Option<usize>,
+    /// After each chunk, time every kind of dispatch of a step on its own and print the
+    /// breakdown to stderr (`bench --profile`; the chunk's results are read back first).
+    pub profile: bool,
+    /// The pipelines of the last problem run, reused while its generated WGSL is unchanged
+    /// (`verify` calls the engine once per batch; compiling every pipeline takes ~1 s on an
+    /// NVIDIA driver).
+    kernels: KernelCache,
+}
+
+/// Pipelines with the generated WGSL they were compiled from.
+type CompiledKernels = (String, Arc<Kernels>);
+
+/// The last pipelines an engine compiled.
+#[derive(Clone, Default)]
+struct KernelCache(Arc<Mutex<Option<CompiledKernels>>>);
+
+impl std::fmt::Debug for KernelCache {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("KernelCache")
+    }
+}
+
+impl KernelCache {
+    /// The pipelines for `source`, compiled only when it differs from the last one's.
+    fn get(
+        &self,
+        device: &wgpu::Device,
+        precision: Precision,
+        source: String,
+    ) -> Result<Arc<Kernels>, GpuError> {
+        let mut last = self
+            .0
+            .lock()
+            .map_err(|_| GpuError::Device("kernel cache poisoned".into()))?;
+        if let Some((s, k)) = last.as_ref() {
+            if *s == source {
+                return Ok(k.clone());
+            }
+        }
+        let kernels = Arc::new(Kernels::new(device, precision, &source)?);
+        *last = Some((source, kernels.clone()));
+        Ok(kernels)
+    }
 }
 
 impl GpuBackend {
@@ -67,6 +110,8 @@ impl GpuBackend {
             ctx,
             precision: Precision::F32,
             max_chunk: None,
+            profile: false,
+            kernels: KernelCache::default(),
         }
     }
 
@@ -83,6 +128,8 @@ impl GpuBackend {
             ctx,
             precision,
             max_chunk: None,
+            profile: false,
+            kernels: KernelCache::default(),
         })
     }
 
@@ -319,6 +366,12 @@ struct ChunkResult {
 }
 
 impl Backend for GpuBackend {
+    /// Thousands of boxes: a step of 4,096 boxes of a 2×400×400×400×2 network takes 2–5 ms
+    /// on an H100, of 256 boxes nearly as long.
+    fn preferred_batch(&self) -> usize {
+        8192
+    }
+
     fn name(&self) -> String {
         match self.precision {
             Precision::F32 => format!("gpu ({})", self.ctx.info.name),
@@ -387,7 +440,7 @@ impl Backend for GpuBackend {
         let shape = Shape::new(problem, settings);
         let margins = MarginMap::for_problem(problem, settings, self.precision);
         let source = problem_wgsl(problem, settings, shape.flags, self.precision, &margins)?;
-        let kernels = Kernels::new(&self.ctx.device, self.precision, &source)?;
+        let kernels = self.kernels.get(&self.ctx.device, self.precision, source)?;
         let chunk = self.chunk_size(problem, settings, initial.len());
         let bufs = self.buffers(problem, &shape, &margins, chunk)?;
         let n_chunks = initial.len().div_ceil(chunk);
@@ -415,6 +468,8 @@ struct Op<'k> {
     kernel: &'k Kernel,
     bind: wgpu::BindGroup,
     groups: [u32; 3],
+    /// A GEMM's `[rows, inner, cols]` (profiles report its rate).
+    gemm: Option<[u32; 3]>,
 }
 
 /// The dispatches of one Euler step for one chunk (see the module documentation).
@@ -454,6 +509,7 @@ impl<'a> StepPlan<'a> {
             kernel,
             bind,
             groups,
+            gemm: None,
         });
     }
 
@@ -496,6 +552,9 @@ impl<'a> StepPlan<'a> {
         let groups = [cols.div_ceil(GEMM_TILE), rows.div_ceil(GEMM_TILE), 1];
         let net = &self.bufs.net;
         self.push(&self.kernels.gemm, &p, &[net, x, y], groups);
+        if let Some(op) = self.ops.last_mut() {
+            op.gemm = Some([rows, inner, cols]);
+        }
     }
 
     /// Layer k > 0's forward GEMMs: forms, form magnitudes, and IBP with `flags.ibp`.
@@ -928,7 +987,66 @@ impl GpuBackend {
             }
         };
         bufs.staging.unmap();
+        if self.profile {
+            self.profile_step(&ops, boxes.len())?;
+        }
         Ok(result)
+    }
+
+    /// Times one step's dispatches by kernel (each kind repeated on its own, then the whole
+    /// step) and prints ms per step, share and GFLOP/s of the GEMMs to stderr. The repeats
+    /// overwrite the chunk's buffers, so this runs after its readback.
+    fn profile_step(&self, ops: &[Op], boxes: usize) -> Result<(), GpuError> {
+        const REPEATS: usize = 10;
+        let time = |ops: &[&Op]| -> Result<f64, GpuError> {
+            let d = &self.ctx.device;
+            let mut enc = d.create_command_encoder(&Default::default());
+            {
+                let mut pass = enc.begin_compute_pass(&Default::default());
+                for _ in 0..REPEATS {
+                    for op in ops {
+                        pass.set_pipeline(&op.kernel.pipeline);
+                        pass.set_bind_group(0, &op.bind, &[]);
+                        pass.dispatch_workgroups(op.groups[0], op.groups[1], op.groups[2]);
+                    }
+                }
+            }
+            self.ctx.wait()?;
+            let start = Instant::now();
+            self.ctx.queue.submit([enc.finish()]);
+            self.ctx.wait()?;
+            Ok(start.elapsed().as_secs_f64() * 1e3 / REPEATS as f64)
+        };
+        let all: Vec<&Op> = ops.iter().collect();
+        let step_ms = time(&all)?;
+        eprintln!(
+            "profile ({boxes} boxes, {} dispatches a step): {step_ms:.3} ms a step",
+            ops.len()
+        );
+        let mut names: Vec<&str> = ops.iter().map(|o| o.kernel.name).collect();
+        names.dedup();
+        names.sort_unstable();
+        names.dedup();
+        for name in names {
+            let group: Vec<&Op> = ops.iter().filter(|o| o.kernel.name == name).collect();
+            let ms = time(&group)?;
+            eprintln!(
+                "  {name:<12} {:>3}×  {ms:>9.3} ms  {:>5.1}%",
+                group.len(),
+                100.0 * ms / step_ms
+            );
+        }
+        for op in ops {
+            if let Some([rows, inner, cols]) = op.gemm {
+                let ms = time(&[op])?;
+                let flops = 2.0 * rows as f64 * inner as f64 * cols as f64;
+                eprintln!(
+                    "    gemm {rows} × {inner} · {inner} × {cols}: {ms:.3} ms, {:.0} GFLOP/s",
+                    flops / ms / 1e6
+                );
+            }
+        }
+        Ok(())
     }
 }
 

@@ -612,4 +612,10 @@ pub trait Backend {
         settings: &ReachSettings,
         progress: &(dyn Fn(usize, usize) + Sync),
     ) -> Result<ReachResult, ReachError>;
+
+    /// Boxes per call that keep the engine busy, for callers that batch many boxes (`verify`):
+    /// a few hundred fill the CPU's threads; a GPU wants thousands.
+    fn preferred_batch(&self) -> usize {
+        512
+    }
 }
