@@ -34,6 +34,7 @@
 //! shard.
 
 use crate::reach::ExactField;
+use rayon::prelude::*;
 use std::collections::BTreeMap;
 use std::ops::Range;
 use std::str::FromStr;
@@ -721,8 +722,24 @@ impl Verifier<'_> {
                 })?;
             timing.reach_s += clock.elapsed().as_secs_f64();
             timing.boxes_run += idx.len();
-            for (&i, tube) in idx.iter().zip(&result.boxes) {
-                let (verdict, trap, note) = judge(self.scenario, &self.traps, tube);
+            // Judging (and the feasibility proof along each verified tube, an interval
+            // evaluation of the QP's rows at every step) is per tube: in parallel, or it takes
+            // longer than a GPU's reach.
+            let (scenario, traps, problem) = (self.scenario, &self.traps, self.problem);
+            let judged: Vec<_> = result
+                .boxes
+                .par_iter()
+                .map(|tube| {
+                    let (verdict, trap, note) = judge(scenario, traps, tube);
+                    let feasible = verdict
+                        .is_verified()
+                        .then(|| problem.proves_feasible_along(tube));
+                    (verdict, trap, note, feasible)
+                })
+                .collect();
+            for ((&i, tube), (verdict, trap, note, feasible)) in
+                idx.iter().zip(&result.boxes).zip(judged)
+            {
                 let last = tube.last();
                 timing.box_steps += tube.steps_run(self.problem.dt);
                 let b = &mut out[i];
@@ -731,9 +748,7 @@ impl Verifier<'_> {
                 b.note = note;
                 b.final_set = last.map(|s| s.set.clone());
                 b.t_end = last.map(|s| s.t);
-                b.feasible = verdict
-                    .is_verified()
-                    .then(|| self.problem.proves_feasible_along(tube));
+                b.feasible = feasible;
             }
             progress((done + idx.len()).min(total), total);
         }
@@ -864,7 +879,6 @@ pub struct SimulationCheck {
 pub fn simulation_check(s: &Scenario, report: &VerifyReport, per_axis: usize) -> SimulationCheck {
     use crate::filter::SafetyFilter;
     use crate::simulate::{simulate_filtered, Integrator};
-    use rayon::prelude::*;
     let filter = SafetyFilter::new(s);
     let steps = s.reach.steps();
     let k = per_axis.max(1);
@@ -947,7 +961,6 @@ pub struct UnverifiedCauses {
 pub fn explain_unverified(s: &Scenario, report: &VerifyReport) -> UnverifiedCauses {
     use crate::filter::SafetyFilter;
     use crate::simulate::{simulate_filtered, Integrator};
-    use rayon::prelude::*;
     let filter = SafetyFilter::new(s);
     let safe_area = Shares::of(&report.after).safe_area;
     if safe_area <= 0.0 {

@@ -24,6 +24,8 @@
 //! cell without a certified bound stops as invalid (`status::NO_BOUND`), as on the CPU.
 
 use std::sync::{Arc, Mutex};
+
+use rayon::prelude::*;
 use std::time::Instant;
 
 use super::buffers::{
@@ -449,9 +451,12 @@ impl Backend for GpuBackend {
                 progress(((ci * steps + s) / n_chunks).min(steps), steps)
             })?;
             let first = ci * chunk;
-            for (g, tube) in tubes[first..first + boxes.len()].iter_mut().enumerate() {
-                fill_tube(problem, safe, tube, &res, g, boxes.len(), every);
-            }
+            // Turning snapshots into samples is per box: in parallel, or the host takes longer
+            // than the device.
+            tubes[first..first + boxes.len()]
+                .par_iter_mut()
+                .enumerate()
+                .for_each(|(g, tube)| fill_tube(problem, safe, tube, &res, g, boxes.len(), every));
         }
         Ok(ReachResult {
             boxes: tubes,
