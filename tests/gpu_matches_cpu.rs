@@ -677,6 +677,10 @@ fn cli_backend_gpu_and_auto() {
         ok && text.contains("GPU adapter:") && text.contains("backend gpu"),
         "{text}"
     );
+    // f64 by default where the adapter has f64 shaders (its sets match the CPU's; f32's a-priori
+    // rounding bounds cost verdicts), f32 on request.
+    let default_type = if gpu.has_f64() { "f64)" } else { "f32)" };
+    assert!(text.contains(default_type), "{text}");
     let (ok, text) = run(&["--backend", "auto", "--bounds", "ibp"]);
     assert!(ok && text.contains("using the CPU"), "{text}");
     let (ok, text) = run(&["--backend", "auto", "--bounds", "crown"]);
@@ -705,6 +709,13 @@ fn cli_backend_gpu_and_auto() {
         let (ok, text) = run(&["--backend", "gpu", "--bounds", "forward-backward", "--f64"]);
         assert!(ok && text.contains("f64)"), "{text}");
     }
+    let (ok, text) = run(&["--backend", "gpu", "--bounds", "forward", "--f32"]);
+    assert!(ok && text.contains("f32)"), "{text}");
+    let (ok, text) = run(&["--backend", "gpu", "--f32", "--f64"]);
+    assert!(
+        !ok && text.contains("--f32") && text.contains("--f64"),
+        "{text}"
+    );
     // Local error margins and face-local bounds run on the GPU (the map beside the network).
     let mut map = small_error_map(&integrator().reach.region);
     map.network_hash = cbfreach::surrogate_error::fnv1a_hex(&std::fs::read(&net_path).unwrap());
@@ -724,6 +735,8 @@ fn cli_backend_gpu_and_auto() {
     );
     let (ok, text) = run(&["--backend", "cpu", "--f64"]);
     assert!(!ok && text.contains("--f64"), "{text}");
+    let (ok, text) = run(&["--backend", "cpu", "--f32"]);
+    assert!(!ok && text.contains("--f32"), "{text}");
     let (ok, text) = run(&[
         "--backend",
         "gpu",

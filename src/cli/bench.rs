@@ -49,7 +49,7 @@ pub struct BenchArgs {
     /// Print where a GPU step's time goes: every kind of dispatch timed on its own (stderr).
     #[arg(long)]
     pub profile: bool,
-    /// GPU adapter and precision (`--f64`: the GPU engine in f64).
+    /// GPU adapter and number type (f64 where the adapter has it; `--f32`, `--f64`).
     #[command(flatten)]
     pub gpu: GpuArgs,
 }
@@ -140,7 +140,7 @@ pub fn run(args: &BenchArgs) -> CliResult {
             "cpu" => engines.push(("cpu".into(), Box::new(CpuBackend), Some(cpu_peak))),
             "gpu" => match cbfreach::gpu::GpuContext::with_adapter(args.gpu.adapter.as_deref()) {
                 Ok(ctx) => {
-                    let precision = args.gpu.precision();
+                    let precision = args.gpu.precision_for(&ctx);
                     let name: String = ctx.info.name.chars().take(20).collect();
                     let label = format!("gpu ({name}, {})", precision.name());
                     let mut backend =

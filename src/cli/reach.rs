@@ -74,18 +74,26 @@ pub struct GpuArgs {
     #[arg(long)]
     pub adapter: Option<String>,
     /// GPU engine in f64 (shaders with wgpu's SHADER_F64; an error where the adapter lacks
-    /// it). The CPU engine computes in f64 always.
-    #[arg(long = "f64")]
+    /// it). The default wherever the adapter has f64 shaders. The CPU engine computes in f64
+    /// always.
+    #[arg(long = "f64", conflicts_with = "f32")]
     pub f64: bool,
+    /// GPU engine in f32: faster (1.75× for forward-backward on an H100), but every sum's
+    /// rounding is bounded a priori, which for 400-wide layers widens the network's bounds by
+    /// ~10⁻⁴ of their magnitude at every step: sets are measurably wider than in f64, and some
+    /// boxes that verify in f64 do not.
+    #[arg(long = "f32")]
+    pub f32: bool,
 }
 
 impl GpuArgs {
-    /// The GPU number type asked for.
-    pub fn precision(&self) -> cbfreach::gpu::Precision {
-        if self.f64 {
-            cbfreach::gpu::Precision::F64
+    /// The GPU number type for a device: as asked, else f64 where the device has f64 shaders.
+    pub fn precision_for(&self, ctx: &cbfreach::gpu::GpuContext) -> cbfreach::gpu::Precision {
+        use cbfreach::gpu::Precision;
+        if self.f32 || (!self.f64 && !ctx.has_f64()) {
+            Precision::F32
         } else {
-            cbfreach::gpu::Precision::F32
+            Precision::F64
         }
     }
 }
@@ -406,8 +414,9 @@ pub fn settle_for_engine(
 }
 
 /// The engine named by `--backend` (`cpu`, `gpu`, or `auto`: a GPU when an adapter exists and
-/// supports the bound method, else the CPU with a one-line notice), on `--adapter`, in f32 or
-/// (`--f64`) f64; `--f64` on an adapter without f64 shaders is an error, also with `auto`.
+/// supports the bound method, else the CPU with a one-line notice), on `--adapter`, in f64
+/// where the adapter has f64 shaders (else, or with `--f32`, f32); `--f64` on an adapter
+/// without f64 shaders is an error, also with `auto`.
 ///
 /// `auto` takes the GPU where it runs the bound method (local error margins and face-local
 /// bounds included) and is a real GPU (a software adapter is many times slower than the CPU
@@ -421,12 +430,13 @@ pub fn choose_backend(
         return Err(format!("--backend {which}: expected cpu, gpu or auto").into());
     }
     if which == "cpu" {
-        if gpu.f64 {
-            return Err(
-                "--f64 selects the GPU engine's f64 shaders; the CPU engine computes in f64 \
-                 always (drop --f64, or use --backend gpu/auto)"
-                    .into(),
-            );
+        if gpu.f64 || gpu.f32 {
+            let flag = if gpu.f64 { "--f64" } else { "--f32" };
+            return Err(format!(
+                "{flag} selects the GPU engine's number type; the CPU engine computes in f64 \
+                 always (drop {flag}, or use --backend gpu/auto)"
+            )
+            .into());
         }
         return Ok(Box::new(CpuBackend));
     }
@@ -449,10 +459,9 @@ pub fn choose_backend(
         }
         Ok(ctx) => {
             println!("GPU adapter: {}", ctx.describe());
-            let engine = cbfreach::gpu::GpuBackend::with_precision(
-                std::sync::Arc::new(ctx),
-                gpu.precision(),
-            )?;
+            let precision = gpu.precision_for(&ctx);
+            let engine =
+                cbfreach::gpu::GpuBackend::with_precision(std::sync::Arc::new(ctx), precision)?;
             Ok(Box::new(engine))
         }
         Err(e) if which == "auto" => {

@@ -376,7 +376,7 @@ impl Backend for GpuBackend {
 
     fn name(&self) -> String {
         match self.precision {
-            Precision::F32 => format!("gpu ({})", self.ctx.info.name),
+            Precision::F32 => format!("gpu ({}, f32)", self.ctx.info.name),
             Precision::F64 => format!("gpu ({}, f64)", self.ctx.info.name),
         }
     }
