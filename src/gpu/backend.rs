@@ -24,9 +24,9 @@
 //! cell without a certified bound stops as invalid (`status::NO_BOUND`), as on the CPU.
 
 use std::sync::{Arc, Mutex};
+use std::time::Instant;
 
 use rayon::prelude::*;
-use std::time::Instant;
 
 use super::buffers::{
     device_bytes, flatten_network, from_device_bytes, status, storage, storage_init, uniform,
@@ -127,11 +127,8 @@ impl GpuBackend {
             return Err(GpuError::NoF64(ctx.info.name.clone()));
         }
         Ok(GpuBackend {
-            ctx,
             precision,
-            max_chunk: None,
-            profile: false,
-            kernels: KernelCache::default(),
+            ..GpuBackend::new(ctx)
         })
     }
 
@@ -1029,7 +1026,6 @@ impl GpuBackend {
             ops.len()
         );
         let mut names: Vec<&str> = ops.iter().map(|o| o.kernel.name).collect();
-        names.dedup();
         names.sort_unstable();
         names.dedup();
         for name in names {

@@ -164,10 +164,11 @@ impl Kernels {
                 ),
             };
             // SAFETY: without the loop guard an infinite loop would be undefined behaviour;
-            // every loop in shaders/ and in the generated code ends: `for` loops count a u32
-            // up to a bound below 2³¹ (constants, or network widths ≤ 2¹⁸ checked in
-            // `GpuBackend::reach`), and the error map's odometer (embed.wgsl, `local_margin`)
-            // advances a mixed-radix counter that stops at its last value.
+            // every loop in shaders/ and in the generated code ends: `for` loops step a counter
+            // by 1 (the GEMM's by its tile depth, towards a width ≤ 2¹⁸ checked in
+            // `GpuBackend::reach`, so it cannot wrap) towards a bound they stop at, the one in
+            // real_f64.wgsl counts down from 12 to 0, and the error map's odometer (embed.wgsl,
+            // `local_margin`) advances a mixed-radix counter that stops at its last value.
             unsafe { device.create_shader_module_trusted(desc, checks) }
         };
         let (gemm_m, relu_m, bwd_m, out_m, faces_m, embed_m) = (
