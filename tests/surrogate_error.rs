@@ -474,9 +474,9 @@ fn shipped_networks_have_the_paper_architectures_and_their_error_maps() {
         assert!(local <= certified);
     }
     // The alternative network of scenario 1 meets the paper's accuracy on the error map's
-    // measurement grid (4× finer than the training grid, offset from it): max ℓ∞ ≤ 0.19 and
-    // max ℓ2 ≤ 0.2.
-    let map = ErrorMap::load_for(&common::scenario_path("integrator-accurate.safetensors")).unwrap();
+    // measurement grid (4× the training grid's points): max ℓ∞ ≤ 0.19 and max ℓ2 ≤ 0.2.
+    let map =
+        ErrorMap::load_for(&common::scenario_path("integrator-accurate.safetensors")).unwrap();
     assert!(map.measured_linf <= 0.19, "{}", map.measured_linf);
     assert!(map.measured_l2 <= 0.2, "{}", map.measured_l2);
 }
