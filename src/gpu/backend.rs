@@ -932,18 +932,7 @@ impl GpuBackend {
         let mut done = 0;
         while done < steps {
             let batch = STEPS_PER_SUBMIT.min(steps - done);
-            let mut enc = d.create_command_encoder(&Default::default());
-            {
-                let mut pass = enc.begin_compute_pass(&Default::default());
-                for _ in 0..batch {
-                    for op in &ops {
-                        pass.set_pipeline(&op.kernel.pipeline);
-                        pass.set_bind_group(0, &op.bind, &[]);
-                        pass.dispatch_workgroups(op.groups[0], op.groups[1], op.groups[2]);
-                    }
-                }
-            }
-            q.submit([enc.finish()]);
+            q.submit([encode_steps(d, ops.iter(), batch)]);
             self.ctx.wait()?;
             done += batch;
             progress(done);
@@ -1001,21 +990,10 @@ impl GpuBackend {
     fn profile_step(&self, ops: &[Op], boxes: usize) -> Result<(), GpuError> {
         const REPEATS: usize = 10;
         let time = |ops: &[&Op]| -> Result<f64, GpuError> {
-            let d = &self.ctx.device;
-            let mut enc = d.create_command_encoder(&Default::default());
-            {
-                let mut pass = enc.begin_compute_pass(&Default::default());
-                for _ in 0..REPEATS {
-                    for op in ops {
-                        pass.set_pipeline(&op.kernel.pipeline);
-                        pass.set_bind_group(0, &op.bind, &[]);
-                        pass.dispatch_workgroups(op.groups[0], op.groups[1], op.groups[2]);
-                    }
-                }
-            }
+            let commands = encode_steps(&self.ctx.device, ops.iter().copied(), REPEATS);
             self.ctx.wait()?;
             let start = Instant::now();
-            self.ctx.queue.submit([enc.finish()]);
+            self.ctx.queue.submit([commands]);
             self.ctx.wait()?;
             Ok(start.elapsed().as_secs_f64() * 1e3 / REPEATS as f64)
         };
@@ -1049,6 +1027,26 @@ impl GpuBackend {
         }
         Ok(())
     }
+}
+
+/// One command buffer that runs `ops` (a step's dispatches, or some of them) `repeats` times.
+fn encode_steps<'o, 'k: 'o>(
+    device: &wgpu::Device,
+    ops: impl Iterator<Item = &'o Op<'k>> + Clone,
+    repeats: usize,
+) -> wgpu::CommandBuffer {
+    let mut enc = device.create_command_encoder(&Default::default());
+    {
+        let mut pass = enc.begin_compute_pass(&Default::default());
+        for _ in 0..repeats {
+            for op in ops.clone() {
+                pass.set_pipeline(&op.kernel.pipeline);
+                pass.set_bind_group(0, &op.bind, &[]);
+                pass.dispatch_workgroups(op.groups[0], op.groups[1], op.groups[2]);
+            }
+        }
+    }
+    enc.finish()
 }
 
 /// A tube's samples from a chunk's readback (the CPU engine's recording rules).
