@@ -185,15 +185,14 @@ pub fn run(args: &ErrorArgs) -> CliResult {
         ),
         None => println!("certified M_C: none (the filter is a general QP without a closed form)"),
     }
-    match &certified {
-        Some(c) => println!(
+    if let Some(c) = &certified {
+        println!(
             "  local: {} of {} cells within max({} × their sampled error, {})",
             c.satisfied,
             c.cells.len(),
             args.local_ratio,
             args.floor
-        ),
-        None => println!("certified M_C: none (the filter is a general QP without a closed form)"),
+        );
     }
     if let Some(c) = certified.as_ref().filter(|c| c.uncertified > 0) {
         println!(
