@@ -296,6 +296,8 @@ fn train_adds_finer_samples_only_where_v_is_steep() {
             ],
         );
         assert_eq!(code, 0, "{stderr}");
+        // stderr is not a terminal here: a line per epoch stands in for the hidden bar.
+        assert!(stderr.contains("epoch 1/1: loss "), "{stderr}");
         let focus = numbers_on_line(&stdout, "in the focus box weigh");
         assert_eq!(focus, Some(vec![30, 10]), "{stdout}");
         let numbers = numbers_on_line(&stdout, "finer added around")

@@ -1,5 +1,6 @@
 //! `cbfreach dataset` and `cbfreach train`: the surrogate network `N ≈ v`.
 
+use std::io::IsTerminal;
 use std::path::PathBuf;
 
 use cbfreach::boxes::IntervalBox;
@@ -411,14 +412,23 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
         ..TrainSettings::default()
     };
     let bar = progress_bar(args.epochs as u64, "epochs");
+    // A run takes minutes to hours: where the bar is hidden (stderr to a log file, a batch
+    // job), a line per epoch takes its place.
+    let logged = !std::io::stderr().is_terminal();
     let progress = |e: &train::EpochStats| {
         bar.set_position(e.epoch as u64);
-        match e.ibp_width {
-            Some(w) => bar.set_message(format!(
-                "loss {:.3e}, max error {:.4}, IBP width {w:.4}",
-                e.loss, e.max_error
-            )),
-            None => bar.set_message(format!("loss {:.3e}, max error {:.4}", e.loss, e.max_error)),
+        let ibp = e
+            .ibp_width
+            .map_or(String::new(), |w| format!(", IBP width {w:.4}"));
+        bar.set_message(format!(
+            "loss {:.3e}, max error {:.4}{ibp}",
+            e.loss, e.max_error
+        ));
+        if logged {
+            eprintln!(
+                "epoch {}/{}: loss {:.4e}, max error {:.4}, mean error {:.4}{ibp}, lr {:.2e}, {:.1} s",
+                e.epoch, e.epochs, e.loss, e.max_error, e.mean_error, e.lr, e.seconds
+            );
         }
     };
     let (net, report) = if args.resume && checkpoint.exists() {
