@@ -7,7 +7,10 @@
 //!   the tube's outcome, with the initial boxes and the goal;
 //! - [`Figure::Minkowski`] (Fig. 3): the NN-system boxes and the same boxes inflated by the
 //!   closeness radius `r_t`, with filtered trajectories from points of the initial boxes;
-//! - [`Figure::Verdicts`]: every box of a [`VerifyReport`] coloured by its verdict.
+//! - [`Figure::Verdicts`]: every box of a [`VerifyReport`] coloured by its verdict;
+//! - [`Figure::ErrorMap`]: every cell of a network's [`ErrorMap`] coloured by its certified
+//!   bound on `‖N − v‖∞`, the local `M` the reach engine uses (DESIGN.md §2b: where it is
+//!   large, tubes grow).
 //!
 //! The unsafe set is shaded cell by cell: a cell of a fine grid over the plot is grey when some
 //! `hᵢ < 0` at its centre (a picture, not a proof). Text uses the embedded DejaVu Sans
@@ -25,6 +28,7 @@ use crate::equilibria::{Equilibrium, Stability};
 use crate::reach::Tube;
 use crate::scenario::Scenario;
 use crate::simulate::Trajectory;
+use crate::surrogate_error::ErrorMap;
 use crate::verify::{Verdict, VerifyReport};
 
 const FONT: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
@@ -88,6 +92,13 @@ pub enum Figure<'a> {
         scenario: &'a Scenario,
         /// The verdicts.
         report: &'a VerifyReport,
+    },
+    /// An error map: each cell coloured by its certified bound.
+    ErrorMap {
+        /// The scenario (for names, the unsafe set and the goal).
+        scenario: &'a Scenario,
+        /// The map (`cbfreach error`).
+        map: &'a ErrorMap,
     },
 }
 
@@ -186,6 +197,7 @@ fn draw<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, figure: &Figure) -> R
             every,
         } => draw_minkowski(root, scenario, tubes, trajectories, *every),
         Figure::Verdicts { scenario, report } => draw_verdicts(root, scenario, report),
+        Figure::ErrorMap { scenario, map } => draw_error_map(root, scenario, map),
     }
 }
 
@@ -696,4 +708,108 @@ fn draw_verdicts<DB: DrawingBackend>(
         .label_font(("sans-serif", 14))
         .draw()
         .map_err(|e| e.to_string())
+}
+
+/// Upper ends of the error map's colour classes (the last class is everything finite above).
+pub const ERROR_CLASSES: [f64; 7] = [0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5];
+
+/// The class of a cell bound: `i` for `bound ≤ ERROR_CLASSES[i]` (the first such `i`),
+/// `ERROR_CLASSES.len()` for larger finite bounds, one more for +∞ (not certified).
+pub fn error_class(bound: f64) -> usize {
+    if !bound.is_finite() {
+        return ERROR_CLASSES.len() + 1;
+    }
+    ERROR_CLASSES
+        .iter()
+        .position(|&t| bound <= t)
+        .unwrap_or(ERROR_CLASSES.len())
+}
+
+/// Viridis, light (small error) to dark (large), one colour per finite class.
+const ERROR_COLOURS: [RGBColor; 8] = [
+    RGBColor(253, 231, 37),
+    RGBColor(160, 218, 57),
+    RGBColor(74, 193, 109),
+    RGBColor(31, 161, 135),
+    RGBColor(39, 127, 142),
+    RGBColor(54, 92, 141),
+    RGBColor(70, 50, 126),
+    RGBColor(68, 1, 84),
+];
+
+fn error_class_label(class: usize) -> String {
+    match class {
+        0 => format!("M ≤ {}", ERROR_CLASSES[0]),
+        c if c < ERROR_CLASSES.len() => {
+            format!("{} < M ≤ {}", ERROR_CLASSES[c - 1], ERROR_CLASSES[c])
+        }
+        c if c == ERROR_CLASSES.len() => format!("M > {}", ERROR_CLASSES[c - 1]),
+        _ => "not certified (M = ∞)".to_string(),
+    }
+}
+
+fn draw_error_map<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    scenario: &Scenario,
+    map: &ErrorMap,
+) -> Result<(), String> {
+    let region = &map.region;
+    let certified = match map.certified_linf {
+        Some(m) if m.is_finite() => format!("{m:.3}"),
+        Some(_) => "∞".to_string(),
+        None => "none".to_string(),
+    };
+    let title = format!(
+        "{}: certified local bound M on ‖N − v‖∞ (max {certified}; measured {:.3})",
+        map.network, map.measured_linf
+    );
+    let mut chart = chart(root, scenario, region, &title)?;
+    let cell_box = |c: &crate::surrogate_error::CellBound| IntervalBox {
+        lower: c.lower.clone(),
+        upper: c.upper.clone(),
+    };
+    let total: f64 = map.cells.iter().map(|c| cell_box(c).volume()).sum();
+    for class in 0..=ERROR_CLASSES.len() + 1 {
+        let boxes: Vec<IntervalBox> = map
+            .cells
+            .iter()
+            .filter(|c| error_class(c.bound) == class)
+            .map(cell_box)
+            .collect();
+        if boxes.is_empty() {
+            continue;
+        }
+        let colour = ERROR_COLOURS.get(class).copied().unwrap_or(VERMILION);
+        let area: f64 = boxes.iter().map(IntervalBox::volume).sum();
+        let share = 100.0 * area / total.max(f64::MIN_POSITIVE);
+        let share = if share < 0.05 {
+            "< 0.1%".to_string()
+        } else {
+            format!("{share:.1}%")
+        };
+        let label = format!("{} ({share} of the mapped area)", error_class_label(class));
+        box_series(&mut chart, &boxes, region, colour.filled(), Some(&label))?;
+    }
+    shade_unsafe(&mut chart, scenario, region)?;
+    // Uncertified cells are few and tiny (where `L_g h = 0` on S's boundary): ring them, over
+    // the shading of the unsafe set they straddle.
+    let uncertified: Vec<IntervalBox> = (map.cells.iter())
+        .filter(|c| !c.bound.is_finite())
+        .map(cell_box)
+        .collect();
+    box_series(
+        &mut chart,
+        &uncertified,
+        region,
+        VERMILION.stroke_width(3),
+        None,
+    )?;
+    box_series(
+        &mut chart,
+        std::slice::from_ref(&scenario.reach.goal),
+        region,
+        BLUE.stroke_width(2),
+        Some("goal set"),
+    )?;
+    legend(&mut chart)
 }

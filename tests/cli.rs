@@ -219,6 +219,11 @@ fn paper_verifies_split_boxes_of_scenario_2_truly() {
     let dir = std::env::temp_dir().join(format!("cbfreach-paper-{}", std::process::id()));
     let (code, stdout, stderr) = cbfreach(&["paper", "-o", dir.to_str().unwrap()]);
     assert_eq!(code, 0, "{stderr}");
+    // Beside the paper's figures, each shipped network's error map.
+    for name in ["integrator", "double-integrator"] {
+        let map = dir.join(format!("{name}-error-map.png"));
+        assert!(map.exists(), "{} missing: {stdout}", map.display());
+    }
     let _ = std::fs::remove_dir_all(&dir);
     assert!(stdout.contains("next to the paper's"), "{stdout}");
     let scenario_2 = &stdout[stdout.find("Scenario 2").expect("scenario 2 runs")..];
@@ -409,4 +414,40 @@ fn reach_meets_the_parallelotope_with_its_x_box_unless_told_not_to() {
     let (alone, t_alone) = run(&["--parallelotope-only"]);
     assert!(met && !alone);
     assert!(t_met > t_alone, "{t_met} vs {t_alone}");
+}
+
+#[test]
+fn plot_error_map_reads_the_map_beside_the_network_or_the_given_one() {
+    let dir = std::env::temp_dir().join(format!("cbfreach-plot-map-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let png = dir.join("map.png");
+    let scenario = common::scenario_path("integrator.toml");
+    let accurate = common::scenario_path("integrator-accurate.safetensors");
+    let (code, stdout, stderr) = cbfreach(&[
+        "plot",
+        scenario.to_str().unwrap(),
+        "--figure",
+        "error-map",
+        "--network",
+        accurate.to_str().unwrap(),
+        "-o",
+        png.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(stdout.contains("written"), "{stdout}");
+    assert!(std::fs::metadata(&png).unwrap().len() > 5_000);
+    let missing = dir.join("no-such.errormap.json");
+    let (code, _, stderr) = cbfreach(&[
+        "plot",
+        scenario.to_str().unwrap(),
+        "--figure",
+        "error-map",
+        "--input",
+        missing.to_str().unwrap(),
+        "-o",
+        png.to_str().unwrap(),
+    ]);
+    assert_ne!(code, 0);
+    assert!(stderr.contains("no-such.errormap.json"), "{stderr}");
+    std::fs::remove_dir_all(&dir).ok();
 }

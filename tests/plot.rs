@@ -75,3 +75,69 @@ fn unknown_extension_and_bad_size_are_errors() {
     let e = trajectories_figure(&dir.join("fig.png"), (10, 480)).unwrap_err();
     assert!(e.to_string().contains("pixels"), "{e}");
 }
+
+#[test]
+fn error_map_colours_each_cell_by_its_certified_bound() {
+    use cbfreach::plot::{error_class, ERROR_CLASSES};
+    use cbfreach::surrogate_error::ErrorMap;
+    // Class edges are inclusive above, and +∞ (not certified) has a class of its own.
+    assert_eq!(ERROR_CLASSES, [0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5]);
+    assert_eq!(error_class(0.0), 0);
+    assert_eq!(error_class(0.005), 0);
+    assert_eq!(error_class(0.0051), 1);
+    assert_eq!(error_class(0.368), 6);
+    assert_eq!(error_class(0.51), 7);
+    assert_eq!(error_class(f64::INFINITY), 8);
+
+    let s = common::integrator();
+    let map = ErrorMap::load_for(&common::scenario_path("integrator.safetensors")).unwrap();
+    let dir = std::env::temp_dir().join(format!("cbfreach-errormap-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let svg = dir.join("map.svg");
+    save(
+        &Figure::ErrorMap {
+            scenario: &s,
+            map: &map,
+        },
+        &svg,
+        (1000, 790),
+    )
+    .unwrap();
+    let text = std::fs::read_to_string(&svg).unwrap();
+    // Viridis, light to dark: every cell is one rectangle in its class's colour, plus one
+    // legend swatch per class present (none of these colours is used for anything else).
+    let colours = [
+        "#FDE725", "#A0DA39", "#4AC16D", "#1FA187", "#277F8E", "#365C8D", "#46327E", "#440154",
+    ];
+    let mut drawn = 0;
+    for (k, colour) in colours.iter().enumerate() {
+        let cells = map
+            .cells
+            .iter()
+            .filter(|c| {
+                let lower = if k == 0 {
+                    f64::NEG_INFINITY
+                } else {
+                    ERROR_CLASSES[k - 1]
+                };
+                let upper = ERROR_CLASSES.get(k).copied().unwrap_or(f64::INFINITY);
+                c.bound.is_finite() && c.bound > lower && c.bound <= upper
+            })
+            .count();
+        let fills = text.matches(&format!("fill=\"{colour}\"")).count();
+        let expected = if cells == 0 { 0 } else { cells + 1 };
+        assert_eq!(fills, expected, "class {k} ({colour}): {cells} cells");
+        drawn += cells;
+    }
+    assert_eq!(
+        drawn,
+        map.cells.len(),
+        "every cell of the shipped map is certified"
+    );
+    // The title gives the certified and measured maxima; the legend the classes.
+    assert!(
+        text.contains("max 0.368") && text.contains("0.2 &lt; M ≤ 0.5"),
+        "legend or title"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}

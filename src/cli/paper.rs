@@ -214,7 +214,16 @@ fn run_scenario(
     }
     // The sound run: the disturbance method, with the certified local bounds of the error map
     // when the network has one (else the scenario's M_C), face-local bounds.
-    let local = ErrorMap::load_for(&net_path).is_ok();
+    let map = ErrorMap::load_for(&net_path).ok();
+    let local = map.is_some();
+    if let Some(map) = &map {
+        let path = fig("error-map");
+        plot::save(&Figure::ErrorMap { scenario: s, map }, &path, size)?;
+        println!(
+            "Error map (certified local bound on ‖N − v‖∞ per cell): {}",
+            path.display()
+        );
+    }
     let problem = compile(
         s,
         &ProblemArgs {

@@ -12,9 +12,10 @@ use cbfreach::reach::{
 };
 use cbfreach::scenario::Scenario;
 use cbfreach::simulate::{sample_box, simulate_filtered, Integrator, Trajectory};
+use cbfreach::surrogate_error::{error_map_path, ErrorMap};
 use cbfreach::verify::VerifyReport;
 
-use super::reach::{compile, ProblemArgs};
+use super::reach::{compile, network_path, ProblemArgs};
 use super::{load_scenario, progress_bar, CliResult};
 
 /// Which picture.
@@ -29,6 +30,9 @@ pub enum FigureKind {
     Minkowski,
     /// A verdict map from `cbfreach verify --json` (give it with --input).
     Verdicts,
+    /// The network's error map (`cbfreach error`): each cell coloured by its certified bound
+    /// on ‖N − v‖∞ (the map beside the network, or the one given with --input).
+    ErrorMap,
 }
 
 /// Arguments of `cbfreach plot`.
@@ -39,7 +43,8 @@ pub struct PlotArgs {
     /// Which picture.
     #[arg(long, value_enum)]
     pub figure: FigureKind,
-    /// Input data: the verdict JSON for `verdicts`.
+    /// Input data: the verdict JSON for `verdicts`; for `error-map` a map file instead of
+    /// the one beside the network.
     #[arg(long)]
     pub input: Option<PathBuf>,
     /// Output file, .png or .svg.
@@ -199,6 +204,21 @@ pub fn run(args: &PlotArgs) -> CliResult {
                 &Figure::Verdicts {
                     scenario: &s,
                     report: &report,
+                },
+                out,
+                size,
+            )?;
+        }
+        FigureKind::ErrorMap => {
+            let file = match &args.input {
+                Some(f) => f.clone(),
+                None => error_map_path(&network_path(&s, args.problem.network.as_ref())?),
+            };
+            let map = ErrorMap::load(&file)?;
+            plot::save(
+                &Figure::ErrorMap {
+                    scenario: &s,
+                    map: &map,
                 },
                 out,
                 size,
