@@ -793,7 +793,9 @@ fn draw_error_map<DB: DrawingBackend>(
     shade_unsafe(&mut chart, scenario, region)?;
     // Uncertified cells are few and tiny (where `L_g h = 0` on S's boundary): ring them, over
     // the shading of the unsafe set they straddle.
-    let uncertified: Vec<IntervalBox> = (map.cells.iter())
+    let uncertified: Vec<IntervalBox> = map
+        .cells
+        .iter()
         .filter(|c| !c.bound.is_finite())
         .map(cell_box)
         .collect();
