@@ -764,21 +764,17 @@ fn draw_error_map<DB: DrawingBackend>(
         map.network, map.measured_linf
     );
     let mut chart = chart(root, scenario, region, &title)?;
-    let cell_box = |c: &crate::surrogate_error::CellBound| IntervalBox {
-        lower: c.lower.clone(),
-        upper: c.upper.clone(),
-    };
-    let total: f64 = map.cells.iter().map(|c| cell_box(c).volume()).sum();
-    for class in 0..=ERROR_CLASSES.len() + 1 {
-        let boxes: Vec<IntervalBox> = map
-            .cells
-            .iter()
-            .filter(|c| error_class(c.bound) == class)
-            .map(cell_box)
-            .collect();
-        if boxes.is_empty() {
-            continue;
-        }
+    // The cells as boxes, sorted into their classes in one pass.
+    let uncertified_class = ERROR_CLASSES.len() + 1;
+    let mut classes: Vec<Vec<IntervalBox>> = vec![Vec::new(); uncertified_class + 1];
+    for c in &map.cells {
+        classes[error_class(c.bound)].push(IntervalBox {
+            lower: c.lower.clone(),
+            upper: c.upper.clone(),
+        });
+    }
+    let total: f64 = classes.iter().flatten().map(IntervalBox::volume).sum();
+    for (class, boxes) in classes.iter().enumerate().filter(|(_, b)| !b.is_empty()) {
         let colour = ERROR_COLOURS.get(class).copied().unwrap_or(VERMILION);
         let area: f64 = boxes.iter().map(IntervalBox::volume).sum();
         let share = 100.0 * area / total.max(f64::MIN_POSITIVE);
@@ -788,20 +784,14 @@ fn draw_error_map<DB: DrawingBackend>(
             format!("{share:.1}%")
         };
         let label = format!("{} ({share} of the mapped area)", error_class_label(class));
-        box_series(&mut chart, &boxes, region, colour.filled(), Some(&label))?;
+        box_series(&mut chart, boxes, region, colour.filled(), Some(&label))?;
     }
     shade_unsafe(&mut chart, scenario, region)?;
     // Uncertified cells are few and tiny (where `L_g h = 0` on S's boundary): ring them, over
     // the shading of the unsafe set they straddle.
-    let uncertified: Vec<IntervalBox> = map
-        .cells
-        .iter()
-        .filter(|c| !c.bound.is_finite())
-        .map(cell_box)
-        .collect();
     box_series(
         &mut chart,
-        &uncertified,
+        &classes[uncertified_class],
         region,
         VERMILION.stroke_width(3),
         None,
