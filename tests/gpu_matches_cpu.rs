@@ -1123,3 +1123,40 @@ fn v_zero_where_the_filter_is_inactive_matches_cpu() {
         compare_within(&c, &g, "v = 0 where inactive, f64", F64_TOL);
     }
 }
+
+/// Point boxes with no error margin: the NN system's trajectory is one point per step, and only
+/// the engines' rounding treatment separates it from the sets' edges. Both GPU engines' sets
+/// must contain the f64 Euler trajectory. Near the origin, where a state's ulp is far below
+/// the rounding of the network's sums, an f32 engine with neither its outward steps nor its a-priori bounds on
+/// every sum's rounding fails this at the first step (checked); either alone still covers a
+/// 64-wide network's sums here, so the test checks the two together.
+#[test]
+fn point_boxes_contain_the_nn_trajectory_despite_rounding() {
+    let Some(gpu32) = gpu() else { return };
+    let mut engines = vec![gpu32];
+    engines.extend(gpu_f64());
+    let s = integrator();
+    let net = small_network(&[2, 64, 64, 2], 4, 0.2);
+    let mut problem = ReachProblem::new(&s, net.clone(), 0.0).unwrap();
+    problem.steps = 40;
+    // Two centres near the origin, one far from it; none exact in f32.
+    let init = boxes(
+        &[
+            [1e-3 / 3.0, -1e-3 / 7.0],
+            [2e-4 / 9.0, 1e-4 / 11.0],
+            [-2.9, 0.3],
+        ],
+        0.0,
+    );
+    let trajectories = nn_trajectories(&s, &net, &init, problem.dt, problem.steps, 0.0);
+    for gpu in &engines {
+        for bounds in [BoundMethod::Forward].into_iter().chain(BACKWARD_METHODS) {
+            let st = with_bounds(bounds, ReachMethod::Disturbance);
+            let tubes = gpu.reach(&problem, &init, &st, &|_, _| {}).unwrap().boxes;
+            assert!(tubes.iter().all(|t| t.valid), "{bounds}");
+            let label = format!("point boxes {bounds} {:?}", gpu.precision());
+            let checks = count_contained(&tubes, &trajectories, problem.dt, &label);
+            assert!(checks >= 3 * 12 * 40, "{label}: {checks} checks");
+        }
+    }
+}
