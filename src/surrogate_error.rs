@@ -224,6 +224,10 @@ pub struct Measured {
     pub infeasible: usize,
     /// `max_ij |DN − Dv|_ij` over the samples (largest absolute entry, not spectral).
     pub slope: Percentiles,
+    /// Neurons of each hidden layer active at one or more of the samples: the rest are dead
+    /// on `C ∩ S` and add no linear regions there.
+    #[serde(default)]
+    pub live_neurons: Vec<usize>,
 }
 
 fn check_dims(s: &Scenario, net: &Mlp) -> Result<(), AnalysisError> {
@@ -313,6 +317,7 @@ pub fn measure(
         samples: summary.samples,
         infeasible: summary.infeasible,
         slope: Percentiles::of(pe.slope.as_deref().unwrap_or(&[])),
+        live_neurons: net.live_neurons(&data.inputs),
     })
 }
 

@@ -16,8 +16,9 @@ use cbfreach::network::train::{train, TrainSettings};
 use cbfreach::network::Mlp;
 use cbfreach::scenario::{Margin, Scenario};
 use cbfreach::surrogate_error::{
-    cell_error_bound_mv, certify, error_map_path, measure, proven_unsafe, resolve_margin,
-    v_enclosure, Certified, ErrorMap, ErrorSettings, Measured, VForms,
+    cell_error_bound_mv, centred_grid, certify, error_map_path, measure, measurement_counts,
+    proven_unsafe, resolve_margin, v_enclosure, Certified, ErrorMap, ErrorSettings, Measured,
+    VForms,
 };
 
 /// Scenario 1 on `C = [0.5, 3.5] × [−1.5, 1.5]` (the obstacle and its surroundings).
@@ -448,6 +449,30 @@ fn error_map_local_bounds_are_sound_and_below_the_global_one() {
     let err = resolve_margin(&s, &net_path).unwrap_err().to_string();
     assert!(err.contains("another version"), "{err}");
     std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn live_neurons_are_those_active_at_some_measured_point() {
+    let f = fixture();
+    let counts = measurement_counts(&f.s, &ErrorSettings::default());
+    let points: Vec<Vec<f64>> = centred_grid(&f.s.reach.region, &counts)
+        .into_iter()
+        .filter(|x| f.s.is_safe(x))
+        .collect();
+    assert_eq!(f.measured.infeasible, 0, "every safe point is measured");
+    let mut fires = [[false; 16]; 2];
+    for x in &points {
+        for (k, z) in f.net.pre_activations(x).iter().enumerate() {
+            for (j, &z) in z.iter().enumerate() {
+                fires[k][j] |= z > 0.0;
+            }
+        }
+    }
+    let live: Vec<usize> = fires
+        .iter()
+        .map(|l| l.iter().filter(|&&b| b).count())
+        .collect();
+    assert_eq!(f.measured.live_neurons, live);
 }
 
 #[test]

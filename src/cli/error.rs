@@ -72,6 +72,8 @@ struct ErrorJson {
     grid_points: usize,
     samples: usize,
     slope: Percentiles,
+    /// Neurons of each hidden layer active somewhere on the measurement grid.
+    live_neurons: Vec<usize>,
     looseness: Option<Looseness>,
     error_map: Option<String>,
 }
@@ -140,6 +142,7 @@ pub fn run(args: &ErrorArgs) -> CliResult {
         grid_points: measured.grid_points,
         samples: measured.samples,
         slope: measured.slope,
+        live_neurons: measured.live_neurons.clone(),
         looseness: loose,
         error_map: map_file.as_ref().map(|p| p.display().to_string()),
     };
@@ -163,6 +166,17 @@ pub fn run(args: &ErrorArgs) -> CliResult {
     println!(
         "  slope error max_ij |DN − Dv|_ij: median {:.3}, 95th percentile {:.3}, max {:.3}",
         out.slope.median, out.slope.p95, out.slope.max
+    );
+    let widths = net.widths();
+    let hidden = &widths[1..widths.len() - 1];
+    println!(
+        "  live neurons (active at some measured point) per hidden layer: {}",
+        out.live_neurons
+            .iter()
+            .zip(hidden)
+            .map(|(live, width)| format!("{live}/{width}"))
+            .collect::<Vec<_>>()
+            .join(", ")
     );
     if let Some(l) = &loose {
         println!(

@@ -92,6 +92,12 @@ pub struct TrainArgs {
     /// Epochs over which ε ramps up linearly from the IBP start.
     #[arg(long, default_value_t = 0)]
     pub ibp_ramp: usize,
+    /// Every this many epochs, give the hidden neurons that no training sample activates fresh
+    /// incoming weights and zero outgoing ones (the network's function is unchanged): dead
+    /// ReLUs get no gradient, and without this the paper-size networks lose most of their
+    /// deeper neurons early in training. 0 disables.
+    #[arg(long, default_value_t = 0)]
+    pub revive_every: usize,
     /// Train on the unsafe part of the grid only within this distance of S (checked along the
     /// axes at the distance and half of it): deep inside an obstacle `v` grows without bound
     /// where `L_g h → 0`, and those points would dominate the loss. Negative: keep every
@@ -408,6 +414,7 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
         ibp_radius: args.ibp_radius.clone(),
         ibp_start: args.ibp_start,
         ibp_ramp: args.ibp_ramp,
+        revive_every: args.revive_every,
         checkpoint: Some(checkpoint.clone()),
         ..TrainSettings::default()
     };
@@ -420,13 +427,17 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
         let ibp = e
             .ibp_width
             .map_or(String::new(), |w| format!(", IBP width {w:.4}"));
+        let revived = match e.revived {
+            0 => String::new(),
+            n => format!(", {n} dormant neurons revived"),
+        };
         bar.set_message(format!(
             "loss {:.3e}, max error {:.4}{ibp}",
             e.loss, e.max_error
         ));
         if logged {
             eprintln!(
-                "epoch {}/{}: loss {:.4e}, max error {:.4}, mean error {:.4}{ibp}, lr {:.2e}, {:.1} s",
+                "epoch {}/{}: loss {:.4e}, max error {:.4}, mean error {:.4}{ibp}, lr {:.2e}, {:.1} s{revived}",
                 e.epoch, e.epochs, e.loss, e.max_error, e.mean_error, e.lr, e.seconds
             );
         }

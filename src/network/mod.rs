@@ -11,6 +11,7 @@ mod adam;
 mod batch;
 mod error;
 pub mod io;
+mod revive;
 pub mod train;
 
 pub use error::NetworkError;
@@ -79,6 +80,33 @@ impl Mlp {
             }
         }
         a
+    }
+
+    /// The pre-activations `z_k = W_k a_{k−1} + b_k` of the hidden layers at `x` (input side
+    /// first), in f64.
+    pub fn pre_activations(&self, x: &[f64]) -> Vec<Vec<f64>> {
+        let hidden = self.layers.len().saturating_sub(1);
+        let mut zs: Vec<Vec<f64>> = Vec::with_capacity(hidden);
+        let mut a = x.to_vec();
+        for layer in &self.layers[..hidden] {
+            let z = layer.apply(&a);
+            a = z.iter().map(|v| v.max(0.0)).collect();
+            zs.push(z);
+        }
+        zs
+    }
+
+    /// How many neurons of each hidden layer are active (pre-activation `> 0`) at one or more
+    /// of `points` (row-major, [`Self::input_dim`] wide). A neuron active nowhere in the
+    /// region is dead weight: it adds no linear regions there (see `train`'s revival of
+    /// dormant neurons).
+    pub fn live_neurons(&self, points: &[f64]) -> Vec<usize> {
+        let n = self.input_dim().max(1);
+        let params = batch::to_params::<f64>(self);
+        revive::dormant_neurons(&params, points.len() / n, |i| &points[i * n..(i + 1) * n])
+            .iter()
+            .map(|layer| layer.iter().filter(|&&d| !d).count())
+            .collect()
     }
 
     /// The Jacobian `DN(x)`, `m × n` row-major (`J[i * n + j] = ∂N_i/∂x_j`).

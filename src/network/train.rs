@@ -66,6 +66,7 @@ use serde::{Deserialize, Serialize};
 use super::adam::Adam;
 use super::batch::{to_mlp, to_params, IbpWorkspace, Params, Scalar, Workspace};
 use super::io::{serialize, write_atomically, RawTensor, RawTensors};
+use super::revive;
 use super::{Mlp, NetworkError};
 
 /// Training data: inputs `x_s`, targets `v(x_s)`, optionally `Dv(x_s)` and sample weights.
@@ -303,6 +304,10 @@ pub struct TrainSettings {
     /// Epochs over which `ε` ramps linearly from `ε/ibp_ramp` to `ε` after `ibp_start`
     /// (default 0: full `ε` at once).
     pub ibp_ramp: usize,
+    /// Every this many epochs (0: never, the default), give the hidden neurons that no
+    /// training sample activates fresh incoming weights and zero outgoing ones (see
+    /// [`revive`](super::revive)): the function is unchanged, and the neurons can learn again.
+    pub revive_every: usize,
 }
 
 impl Default for TrainSettings {
@@ -330,6 +335,7 @@ impl Default for TrainSettings {
             ibp_radius: vec![0.05],
             ibp_start: 0,
             ibp_ramp: 0,
+            revive_every: 0,
         }
     }
 }
@@ -479,11 +485,14 @@ pub struct EpochStats {
     /// Mean IBP output width `2 r_o` over the epoch's boxes, when the IBP term is on.
     #[serde(default)]
     pub ibp_width: Option<f64>,
+    /// Dormant hidden neurons revived after this epoch ([`TrainSettings::revive_every`]).
+    #[serde(default)]
+    pub revived: usize,
 }
 
 impl EpochStats {
     /// Numbers per history row in a checkpoint.
-    const ROW: usize = 10;
+    const ROW: usize = 11;
 
     fn to_row(&self) -> [f64; Self::ROW] {
         [
@@ -497,6 +506,7 @@ impl EpochStats {
             self.samples as f64,
             self.seconds,
             self.ibp_width.unwrap_or(f64::NAN),
+            self.revived as f64,
         ]
     }
 
@@ -513,6 +523,7 @@ impl EpochStats {
             seconds: r[8],
             // Checkpoints from before the IBP term have 9 columns.
             ibp_width: r.get(9).copied().filter(|x| !x.is_nan()),
+            revived: r.get(10).map_or(0, |&x| x as usize),
         }
     }
 }
@@ -1150,6 +1161,18 @@ fn run<T: Scalar>(
             max_s = max_s.max(slope_err[s]);
         }
         st.epoch += 1;
+        let revived = if settings.revive_every > 0
+            && st.epoch % settings.revive_every == 0
+            && st.epoch < settings.epochs
+        {
+            let input = |i: usize| data.input(active[i]);
+            let dormant = revive::dormant_neurons(&st.params, active.len(), input);
+            let mut rng = revive::revival_rng(settings.seed, st.epoch);
+            let (params, adam) = (&mut st.params, &mut st.adam);
+            revive::revive_dormant(params, adam, &dormant, active.len(), input, &mut rng)
+        } else {
+            0
+        };
         let stats = EpochStats {
             epoch: st.epoch,
             epochs: settings.epochs,
@@ -1163,6 +1186,7 @@ fn run<T: Scalar>(
             ibp_width: ibp_radius
                 .is_some()
                 .then(|| width_sum / width_count.max(1) as f64),
+            revived,
         };
         let finite = st
             .params
@@ -1527,7 +1551,9 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("cbfreach-train-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let ck = dir.join("ck.safetensors");
-        let init = Mlp::random(&[2, 16, 16, 2], 4);
+        let mut init = Mlp::random(&[2, 16, 16, 2], 4);
+        // Dead neurons, revived after epochs 3, 6 and 9: across the interruption too.
+        init.layers[1].bias[..3].fill(-100.0);
         for precision in [Precision::F32, Precision::F64] {
             // The IBP term (f32 run), ramping across the interruption, resumes bit-identically.
             let ibp = precision == Precision::F32;
@@ -1537,6 +1563,7 @@ mod tests {
                 ibp_weight: if ibp { 0.01 } else { 0.0 },
                 ibp_start: 2,
                 ibp_ramp: 6,
+                revive_every: 3,
                 ..quick(12, 0.1)
             };
             let (a, ra) = train(init.clone(), &data, &full, |_| {}).unwrap();
@@ -1559,6 +1586,7 @@ mod tests {
             assert_eq!(seen, (6..=12).collect::<Vec<_>>());
             assert_eq!(ra.epochs[1].ibp_width, None);
             assert_eq!(ra.epochs[2].ibp_width.is_some(), ibp);
+            assert!(ra.epochs[2].revived >= 3, "{:?}", ra.epochs[2]);
             assert_eq!(a, b);
             assert_eq!(rb.resumed_from, Some(5));
             assert_eq!(rb.epochs.len(), 12);
@@ -1576,6 +1604,42 @@ mod tests {
             assert_eq!(a, c);
             assert_eq!(ra.final_errors, rb.final_errors);
         }
+    }
+
+    /// A network whose second hidden layer is mostly dead fits worse than one whose dead
+    /// neurons are revived during training, and revival leaves them live.
+    #[test]
+    fn revived_neurons_learn() {
+        let data = smooth_data(21);
+        let mut init = Mlp::random(&[2, 16, 16, 2], 1);
+        init.layers[1].bias[..12].fill(-100.0);
+        let points = &data.inputs;
+        assert_eq!(init.live_neurons(points), vec![16, 4]);
+        let run = |revive_every| {
+            let settings = TrainSettings {
+                revive_every,
+                ..quick(300, 0.0)
+            };
+            let (mlp, rep) = train(init.clone(), &data, &settings, |_| {}).unwrap();
+            let revived: usize = rep.epochs.iter().map(|e| e.revived).sum();
+            (
+                mlp.live_neurons(points),
+                rep.final_errors.mean_error,
+                revived,
+            )
+        };
+        let (live_dead, err_dead, none) = run(0);
+        let (live, err, revived) = run(50);
+        eprintln!("without revival: live {live_dead:?}, mean error {err_dead}");
+        eprintln!("with revival: live {live:?}, mean error {err}, {revived} revivals");
+        assert_eq!(none, 0);
+        assert_eq!(
+            live_dead[1], 4,
+            "dead neurons have no gradient and stay dead"
+        );
+        assert!(revived >= 12);
+        assert!(live[1] >= 14, "{live:?}");
+        assert!(err < 0.75 * err_dead, "{err} vs {err_dead}");
     }
 
     /// The IBP workspace's intervals are those of `crate::bounds` (IBP), and its gradient of

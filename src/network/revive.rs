@@ -1,0 +1,258 @@
+//! Recycling dormant ReLU neurons during training (ReDo: Sokar et al., "The Dormant Neuron
+//! Phenomenon in Deep Reinforcement Learning", ICML 2023).
+//!
+//! A hidden ReLU that is inactive on every training sample has zero gradient, so Adam never
+//! brings it back. Trained on a 2-D state, the paper's networks lose most of their deeper
+//! neurons this way early on (scenario 1's 2×400×400×400×2 kept 46 live neurons in its second
+//! hidden layer and 150 in its third): the network that is left has too few linear regions to
+//! follow `v`'s curvature, and its slope error shows it as a sawtooth (README, "Networks").
+//!
+//! Every few epochs the trainer gives each dormant neuron fresh incoming weights, a bias that
+//! makes it active on a random share of the samples, and **zero outgoing weights**: the
+//! network's function is unchanged at that moment, and training can move the neuron's kink to
+//! where it lowers the loss. Adam's moments of the touched weights restart from zero.
+
+use rand::seq::index::sample;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use super::adam::Adam;
+use super::batch::{Params, Scalar, Workspace};
+
+/// Samples per forward pass when scanning for dormant neurons.
+const SCAN_BATCH: usize = 1024;
+/// Samples whose activations place a revived neuron's kink.
+const PROBE_SAMPLES: usize = 4096;
+/// A revived neuron is active on a share of the probe drawn uniformly from this range.
+const ACTIVE_SHARE: (f64, f64) = (0.1, 0.9);
+
+/// `dormant[k][j]`: hidden neuron `j` of layer `k` is inactive (pre-activation ≤ 0) at every
+/// one of the `n` inputs `x(0..n)`.
+pub(crate) fn dormant_neurons<'a, T: Scalar>(
+    params: &[Params<T>],
+    n: usize,
+    x: impl Fn(usize) -> &'a [f64],
+) -> Vec<Vec<bool>> {
+    let hidden = params.len() - 1;
+    let mut dormant: Vec<Vec<bool>> = params[..hidden]
+        .iter()
+        .map(|p| vec![true; p.n_out])
+        .collect();
+    let mut ws = Workspace::<T>::new(params.len());
+    let n_in = params[0].n_in;
+    for start in (0..n).step_by(SCAN_BATCH) {
+        let b = SCAN_BATCH.min(n - start);
+        ws.load_inputs(n_in, b, false, |i| x(start + i));
+        ws.forward(params);
+        for (k, d) in dormant.iter_mut().enumerate() {
+            let width = params[k].n_out;
+            for row in ws.acts[k + 1].chunks_exact(width) {
+                for (dj, &a) in d.iter_mut().zip(row) {
+                    if a > T::ZERO {
+                        *dj = false;
+                    }
+                }
+            }
+        }
+    }
+    dormant
+}
+
+/// Gives every neuron marked in `dormant` new incoming weights (of the typical norm of its
+/// layer's live rows, random direction) and a bias that makes it active on a random share of
+/// the probe inputs drawn from `x(0..n)`, and zeroes its outgoing weights; resets Adam's moments
+/// of all of these. The network's outputs are unchanged. Returns how many neurons were revived.
+pub(crate) fn revive_dormant<'a, T: Scalar>(
+    params: &mut [Params<T>],
+    adam: &mut Adam<T>,
+    dormant: &[Vec<bool>],
+    n: usize,
+    x: impl Fn(usize) -> &'a [f64],
+    rng: &mut ChaCha8Rng,
+) -> usize {
+    let count = dormant.iter().flatten().filter(|&&d| d).count();
+    if count == 0 || n == 0 {
+        return 0;
+    }
+    let probe: Vec<usize> = sample(rng, n, PROBE_SAMPLES.min(n)).into_vec();
+    let n_in = params[0].n_in;
+    let mut ws = Workspace::<T>::new(params.len());
+    ws.load_inputs(n_in, probe.len(), false, |i| x(probe[i]));
+    for (k, dead) in dormant.iter().enumerate() {
+        if !dead.iter().any(|&d| d) {
+            continue;
+        }
+        // The probe's inputs to layer k, with the neurons revived in earlier layers.
+        ws.forward(params);
+        let inputs: Vec<f64> = ws.acts[k].iter().map(|a| a.to_f64()).collect();
+        let scale = typical_row_norm(&params[k], dead);
+        for (j, _) in dead.iter().enumerate().filter(|(_, &d)| d) {
+            let row = random_row(params[k].n_in, scale, rng);
+            let share = rng.random_range(ACTIVE_SHARE.0..ACTIVE_SHARE.1);
+            let bias = -quantile_of_projections(&inputs, &row, 1.0 - share);
+            set_incoming(&mut params[k], j, &row, bias);
+            zero_outgoing(&mut params[k + 1], j);
+            reset_moments(adam, k, j);
+        }
+    }
+    count
+}
+
+/// Median Euclidean norm of the rows of `p.w` not marked dead (1 where all are).
+fn typical_row_norm<T: Scalar>(p: &Params<T>, dead: &[bool]) -> f64 {
+    let mut norms: Vec<f64> =
+        p.w.chunks_exact(p.n_in)
+            .zip(dead)
+            .filter(|(_, &d)| !d)
+            .map(|(row, _)| row.iter().map(|w| w.to_f64().powi(2)).sum::<f64>().sqrt())
+            .collect();
+    if norms.is_empty() {
+        return 1.0;
+    }
+    norms.sort_by(f64::total_cmp);
+    norms[norms.len() / 2]
+}
+
+/// A row of `n` weights with a uniformly random direction and Euclidean norm `norm`.
+fn random_row(n: usize, norm: f64, rng: &mut ChaCha8Rng) -> Vec<f64> {
+    loop {
+        // Box–Muller normals give a uniformly random direction.
+        let row: Vec<f64> = (0..n)
+            .map(|_| {
+                let (u, v): (f64, f64) = (rng.random_range(f64::EPSILON..1.0), rng.random());
+                (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+            })
+            .collect();
+        let r = row.iter().map(|w| w * w).sum::<f64>().sqrt();
+        if r > 0.0 {
+            return row.iter().map(|w| w * norm / r).collect();
+        }
+    }
+}
+
+/// The `q`-quantile of `row · a` over the rows `a` of `inputs` (row-major, `row.len()` wide).
+fn quantile_of_projections(inputs: &[f64], row: &[f64], q: f64) -> f64 {
+    let mut z: Vec<f64> = inputs
+        .chunks_exact(row.len())
+        .map(|a| a.iter().zip(row).map(|(a, w)| a * w).sum())
+        .collect();
+    let i = ((q * z.len() as f64) as usize).min(z.len() - 1);
+    *z.select_nth_unstable_by(i, f64::total_cmp).1
+}
+
+fn set_incoming<T: Scalar>(p: &mut Params<T>, j: usize, row: &[f64], bias: f64) {
+    for (w, &r) in p.w[j * p.n_in..(j + 1) * p.n_in].iter_mut().zip(row) {
+        *w = T::from_f64(r);
+    }
+    p.b[j] = T::from_f64(bias);
+}
+
+fn zero_outgoing<T: Scalar>(next: &mut Params<T>, j: usize) {
+    for o in 0..next.n_out {
+        next.w[o * next.n_in + j] = T::ZERO;
+    }
+}
+
+fn reset_moments<T: Scalar>(adam: &mut Adam<T>, k: usize, j: usize) {
+    for moments in [&mut adam.m, &mut adam.v] {
+        let n_in = moments[k].n_in;
+        moments[k].w[j * n_in..(j + 1) * n_in].fill(T::ZERO);
+        moments[k].b[j] = T::ZERO;
+        zero_outgoing(&mut moments[k + 1], j);
+    }
+}
+
+/// The random stream of the revival after epoch `epoch` (deterministic, so a resumed run
+/// revives the same neurons the same way).
+pub(crate) fn revival_rng(seed: u64, epoch: usize) -> ChaCha8Rng {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x7265_7669_7665);
+    rng.set_stream(epoch as u64);
+    rng
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::network::batch::{to_mlp, to_params};
+    use crate::network::Mlp;
+
+    fn grid(n: usize) -> Vec<Vec<f64>> {
+        (0..n * n)
+            .map(|i| {
+                let (a, b) = (i / n, i % n);
+                vec![
+                    -1.0 + 2.0 * a as f64 / (n - 1) as f64,
+                    -1.0 + 2.0 * b as f64 / (n - 1) as f64,
+                ]
+            })
+            .collect()
+    }
+
+    /// Kills neurons 0..4 of the second hidden layer by a large negative bias.
+    fn with_dead_neurons() -> Vec<Params<f64>> {
+        let mut p = to_params::<f64>(&Mlp::random(&[2, 16, 12, 2], 5));
+        for j in 0..4 {
+            p[1].b[j] = -1e3;
+        }
+        p
+    }
+
+    #[test]
+    fn finds_exactly_the_neurons_that_never_fire() {
+        let xs = grid(30);
+        let p = with_dead_neurons();
+        let d = dormant_neurons(&p, xs.len(), |i| &xs[i]);
+        // Brute force from the pointwise forward pass.
+        let mlp = to_mlp(&p);
+        for (k, layer) in d.iter().enumerate() {
+            for (j, &dead) in layer.iter().enumerate() {
+                let fires = xs.iter().any(|x| mlp.pre_activations(x)[k][j] > 0.0);
+                assert_eq!(dead, !fires, "layer {k} neuron {j}");
+            }
+        }
+        assert!(d[1][..4].iter().all(|&x| x));
+    }
+
+    #[test]
+    fn revival_keeps_the_function_and_makes_the_neurons_fire() {
+        let xs = grid(30);
+        let mut p = with_dead_neurons();
+        let before = to_mlp(&p);
+        let mut adam = Adam::new(&p, 0.9, 0.999, 1e-8);
+        adam.m[1].w.fill(1.0);
+        adam.m[2].w.fill(1.0);
+        let d = dormant_neurons(&p, xs.len(), |i| &xs[i]);
+        let revived = revive_dormant(
+            &mut p,
+            &mut adam,
+            &d,
+            xs.len(),
+            |i| &xs[i],
+            &mut revival_rng(0, 3),
+        );
+        assert_eq!(revived, d.iter().flatten().filter(|&&x| x).count());
+        let after = to_mlp(&p);
+        for x in &xs {
+            let (a, b) = (before.forward(x), after.forward(x));
+            assert_eq!(a, b, "output changed at {x:?}");
+        }
+        let d2 = dormant_neurons(&p, xs.len(), |i| &xs[i]);
+        for (j, &dormant) in d2[1].iter().enumerate().take(4) {
+            assert!(!dormant, "neuron {j} still dormant");
+            // Active on 10–90 % of the inputs, as drawn (the probe is the whole grid here).
+            let share = xs
+                .iter()
+                .filter(|x| after.pre_activations(x)[1][j] > 0.0)
+                .count() as f64
+                / xs.len() as f64;
+            assert!(
+                (0.09..=0.91).contains(&share),
+                "neuron {j} active on {share}"
+            );
+            assert_eq!(adam.m[1].w[j * 16], 0.0);
+            assert_eq!(adam.m[2].w[j], 0.0);
+        }
+        // Untouched neurons keep their moments.
+        assert_eq!(adam.m[1].w[4 * 16], 1.0);
+    }
+}
