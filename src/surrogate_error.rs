@@ -1881,7 +1881,14 @@ impl ErrorMap {
 /// `M_C` for a scenario: its number, or `"certified"` / `"measured"` from the error map beside
 /// `network` (written by `cbfreach error`).
 pub fn resolve_margin(s: &Scenario, network: &Path) -> Result<f64, AnalysisError> {
-    match s.reach.m_c {
+    margin_value(s.reach.m_c, network)
+}
+
+/// The global `M_C` that `margin` stands for with `network`: a fixed value, or the error
+/// map's certified or measured maximum, or (for local bounds) the map's largest finite cell
+/// bound.
+pub fn margin_value(margin: Margin, network: &Path) -> Result<f64, AnalysisError> {
+    match margin {
         Margin::Value(v) => Ok(v),
         Margin::Measured => Ok(ErrorMap::load_for(network)?.measured_linf),
         Margin::Certified => {

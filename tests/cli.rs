@@ -447,3 +447,50 @@ fn plot_error_map_reads_the_map_beside_the_network_or_the_given_one() {
     assert!(stderr.contains("no-such.errormap.json"), "{stderr}");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// `--m-c` takes a number or, as the scenario file's `m_c`, where in the network's error map
+/// to read `M_C`; anything else is refused with the accepted forms.
+#[test]
+fn m_c_flag_takes_a_number_or_reads_the_error_map() {
+    use cbfreach::surrogate_error::ErrorMap;
+    let map = ErrorMap::load_for(&common::scenario_path("integrator.safetensors")).unwrap();
+    let scenario = common::scenario_path("integrator.toml");
+    let dir = std::env::temp_dir().join(format!("cbfreach-m-c-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    for (flag, want) in [
+        ("certified", map.certified_linf.unwrap()),
+        ("measured", map.measured_linf),
+        ("local", map.finite_max()),
+        ("0.25", 0.25),
+    ] {
+        let json = dir.join(format!("{flag}.json"));
+        let (code, stdout, stderr) = cbfreach(&[
+            "verify",
+            scenario.to_str().unwrap(),
+            "--grid",
+            "2,2",
+            "--m-c",
+            flag,
+            "--json",
+            json.to_str().unwrap(),
+        ]);
+        assert_eq!(code, 0, "{flag}: {stdout}{stderr}");
+        let v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+        assert_eq!(v["run"]["m_c"].as_f64(), Some(want), "{flag}");
+        assert_eq!(v["run"]["local_margin"].as_bool(), Some(flag == "local"));
+    }
+    for bad in ["bogus", "-0.1", "nan"] {
+        let (code, _, stderr) = cbfreach(&[
+            "verify",
+            scenario.to_str().unwrap(),
+            &format!("--m-c={bad}"),
+        ]);
+        assert_ne!(code, 0);
+        assert!(
+            stderr.contains("expected a number ≥ 0, certified, measured or local"),
+            "{bad}: {stderr}"
+        );
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -10,7 +10,7 @@ use cbfreach::filter::SafetyFilter;
 use cbfreach::plot::{self, Figure};
 use cbfreach::reach::Tube;
 use cbfreach::reach::{CpuBackend, ExactField, ReachMethod, ReachProblem, ReachSettings};
-use cbfreach::scenario::Scenario;
+use cbfreach::scenario::{Margin, Scenario};
 use cbfreach::surrogate_error::ErrorMap;
 use cbfreach::verify::{judge, traps_from_equilibria, Trap, Verdict, Verifier, VerifySettings};
 
@@ -229,7 +229,7 @@ fn run_scenario(
         &ProblemArgs {
             network: network.cloned(),
             local_margin: local,
-            m_c: (!local).then_some(paper.m_c),
+            m_c: (!local).then_some(Margin::Value(paper.m_c)),
             ..ProblemArgs::default()
         },
     )?;
@@ -275,7 +275,7 @@ fn run_scenario(
         s,
         &ProblemArgs {
             network: network.cloned(),
-            m_c: Some(paper.m_c),
+            m_c: Some(Margin::Value(paper.m_c)),
             ..ProblemArgs::default()
         },
     )?;

@@ -137,9 +137,10 @@ impl ExactArgs {
 /// What `reach`, `verify` and `plot` need to compile a problem.
 #[derive(clap::Args, Clone, Debug, Default)]
 pub struct ProblemArgs {
-    /// Override M_C.
-    #[arg(long = "m-c")]
-    pub m_c: Option<f64>,
+    /// Override the scenario's M_C: a number ≥ 0, or `certified`, `measured` or `local` (from
+    /// the error map beside the network, as in the scenario file).
+    #[arg(long = "m-c", value_parser = parse_margin)]
+    pub m_c: Option<Margin>,
     /// Use this network instead of the scenario's.
     #[arg(long)]
     pub network: Option<PathBuf>,
@@ -185,7 +186,7 @@ pub fn compile(
         problem = problem.without_safe_set();
     }
     // Local bounds on request, or by the scenario's `m_c = "local"` unless --m-c overrides it.
-    let local = args.local_margin || (args.m_c.is_none() && s.reach.m_c == Margin::Local);
+    let local = args.local_margin || args.m_c.unwrap_or(s.reach.m_c) == Margin::Local;
     if !local {
         return Ok(problem);
     }
@@ -230,24 +231,39 @@ pub fn network_path(
     }
 }
 
-/// `M_C` from the flag or the scenario; `"certified"` / `"measured"` come from the error map
-/// beside `network` (written by `cbfreach error`).
+/// `--m-c`: a number ≥ 0, or where in the error map to take `M_C` from.
+fn parse_margin(text: &str) -> Result<Margin, String> {
+    match text {
+        "certified" => Ok(Margin::Certified),
+        "measured" => Ok(Margin::Measured),
+        "local" => Ok(Margin::Local),
+        _ => match text.parse::<f64>() {
+            Ok(v) if v.is_finite() && v >= 0.0 => Ok(Margin::Value(v)),
+            _ => Err(format!(
+                "expected a number ≥ 0, certified, measured or local, found {text:?}"
+            )),
+        },
+    }
+}
+
+/// `M_C` from the flag or the scenario; `"certified"` / `"measured"` / `"local"` come from the
+/// error map beside `network` (written by `cbfreach error`).
 pub fn resolve_margin(
     s: &Scenario,
-    flag: Option<f64>,
+    flag: Option<Margin>,
     network: &std::path::Path,
 ) -> Result<f64, String> {
-    match (flag, s.reach.m_c) {
-        (Some(v), _) if v.is_finite() && v >= 0.0 => Ok(v),
-        (Some(v), _) => Err(format!("--m-c: expected a finite number ≥ 0, found {v}")),
-        (None, Margin::Value(v)) => Ok(v),
-        (None, other) => cbfreach::surrogate_error::resolve_margin(s, network).map_err(|e| {
-            format!(
-                "{}: reach.m_c = {other:?}: {e} (run `cbfreach error {}` first, or give --m-c)",
-                s.file, s.file
-            )
-        }),
-    }
+    let margin = flag.unwrap_or(s.reach.m_c);
+    cbfreach::surrogate_error::margin_value(margin, network).map_err(|e| {
+        let source = match flag {
+            Some(_) => "--m-c".to_string(),
+            None => format!("{}: reach.m_c", s.file),
+        };
+        format!(
+            "{source} = {margin:?}: {e} (run `cbfreach error {}` first, or give --m-c)",
+            s.file
+        )
+    })
 }
 
 /// Runs the command.
