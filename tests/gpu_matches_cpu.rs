@@ -573,7 +573,7 @@ fn transcendental_dynamics_match_cpu() {
 }
 
 /// Forward-backward and crown batches split into chunks give the same tubes as one chunk (the
-/// Λ, β, record buffers are shared by the chunks).
+/// Λ, β, record buffers are shared by the chunks), with or without the profile runs.
 #[test]
 fn backward_methods_split_into_chunks() {
     let Some(mut gpu) = gpu_f64() else { return };
@@ -593,8 +593,14 @@ fn backward_methods_split_into_chunks() {
         gpu.max_chunk = Some(128);
         assert_eq!(gpu.chunk_size(&problem, &st, init.len()), 128);
         let split = gpu.reach(&problem, &init, &st, &|_, _| {}).unwrap().boxes;
+        // `bench --profile` re-runs each chunk's dispatches over its buffers after the
+        // readback: neither that chunk's results nor the next chunk may see any of it.
+        gpu.profile = true;
+        let profiled = gpu.reach(&problem, &init, &st, &|_, _| {}).unwrap().boxes;
+        gpu.profile = false;
         gpu.max_chunk = None;
         compare_within(&whole, &split, &format!("{bounds} split"), 1e-12);
+        compare_within(&split, &profiled, &format!("{bounds} profiled"), 0.0);
         let picks = [0usize, 127, 128, 255, 256, 299];
         let sub: Vec<IntervalBox> = picks.iter().map(|&k| init[k].clone()).collect();
         let c = CpuBackend.reach(&problem, &sub, &st, &|_, _| {}).unwrap();
@@ -747,6 +753,42 @@ fn cli_backend_gpu_and_auto() {
     ]);
     assert!(!ok && text.contains("no GPU adapter named like"), "{text}");
     assert!(!text.contains("panicked"), "{text}");
+    // `bench --profile`: a step's time, one line per kind of dispatch, one per GEMM.
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_cbfreach"))
+        .args([
+            "bench",
+            "--backend",
+            "gpu",
+            "--profile",
+            "--boxes",
+            "8",
+            "--steps",
+            "2",
+        ])
+        .args(["--bounds", "forward-backward", "--scenario"])
+        .arg(&scenario)
+        .arg("--network")
+        .arg(&net_path)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(out.status.success(), "{text}");
+    assert!(text.contains("profile (8 boxes,"), "{text}");
+    let kernel_count = |name: &str| -> usize {
+        let line = text
+            .lines()
+            .find(|l| l.trim_start().starts_with(&format!("{name} ")))
+            .unwrap_or_else(|| panic!("no {name} line: {text}"));
+        let field = line.split_whitespace().nth(1).unwrap();
+        field.trim_end_matches('×').parse().unwrap()
+    };
+    let gemm_lines = text
+        .lines()
+        .filter(|l| l.trim_start().starts_with("gemm ") && l.contains("GFLOP/s"))
+        .count();
+    assert!(gemm_lines > 0, "{text}");
+    assert_eq!(kernel_count("gemm"), gemm_lines, "{text}");
+    assert_eq!(kernel_count("embed"), 1, "{text}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 
