@@ -17,7 +17,7 @@ use std::sync::Arc;
 
 use cbfreach::bounds::BoundMethod;
 use cbfreach::gpu::{GpuBackend, GpuContext, Precision};
-use cbfreach::network::Mlp;
+use cbfreach::network::{Layer, Mlp};
 use cbfreach::reach::{
     Backend, CpuBackend, ExactField, ReachMethod, ReachProblem, ReachSettings, Transform, Tube,
 };
@@ -1169,18 +1169,16 @@ fn v_zero_where_the_filter_is_inactive_matches_cpu() {
 /// Point boxes with no error margin: the NN system's trajectory is one point per step, and only
 /// the engines' rounding treatment separates it from the sets' edges. Both GPU engines' sets
 /// must contain the f64 Euler trajectory. Near the origin, where a state's ulp is far below
-/// the rounding of the network's sums, an f32 engine with neither its outward steps nor its a-priori bounds on
-/// every sum's rounding fails this at the first step (checked); either alone still covers a
-/// 64-wide network's sums here, so the test checks the two together.
+/// the rounding of the network's sums, an f32 engine with neither its outward steps nor its
+/// a-priori bounds on every sum's rounding fails this at the first step with the random
+/// network (checked), though either alone covers that network's sums; with the cancelling
+/// network (below) an engine without the a-priori bounds fails at the first step (checked).
 #[test]
 fn point_boxes_contain_the_nn_trajectory_despite_rounding() {
     let Some(gpu32) = gpu() else { return };
     let mut engines = vec![gpu32];
     engines.extend(gpu_f64());
     let s = integrator();
-    let net = small_network(&[2, 64, 64, 2], 4, 0.2);
-    let mut problem = ReachProblem::new(&s, net.clone(), 0.0).unwrap();
-    problem.steps = 40;
     // Two centres near the origin, one far from it; none exact in f32.
     let init = boxes(
         &[
@@ -1190,15 +1188,72 @@ fn point_boxes_contain_the_nn_trajectory_despite_rounding() {
         ],
         0.0,
     );
-    let trajectories = nn_trajectories(&s, &net, &init, problem.dt, problem.steps, 0.0);
-    for gpu in &engines {
-        for bounds in [BoundMethod::Forward].into_iter().chain(BACKWARD_METHODS) {
-            let st = with_bounds(bounds, ReachMethod::Disturbance);
-            let tubes = gpu.reach(&problem, &init, &st, &|_, _| {}).unwrap().boxes;
-            assert!(tubes.iter().all(|t| t.valid), "{bounds}");
-            let label = format!("point boxes {bounds} {:?}", gpu.precision());
-            let checks = count_contained(&tubes, &trajectories, problem.dt, &label);
-            assert!(checks >= 3 * 12 * 40, "{label}: {checks} checks");
+    for (name, net) in [
+        ("random", small_network(&[2, 64, 64, 2], 4, 0.2)),
+        ("cancelling", cancelling_network()),
+    ] {
+        let mut problem = ReachProblem::new(&s, net.clone(), 0.0).unwrap();
+        problem.steps = 40;
+        let trajectories = nn_trajectories(&s, &net, &init, problem.dt, problem.steps, 0.0);
+        for gpu in &engines {
+            for bounds in [BoundMethod::Forward].into_iter().chain(BACKWARD_METHODS) {
+                let st = with_bounds(bounds, ReachMethod::Disturbance);
+                let tubes = gpu.reach(&problem, &init, &st, &|_, _| {}).unwrap().boxes;
+                let label = format!(
+                    "point boxes, {name} network, {bounds} {:?}",
+                    gpu.precision()
+                );
+                for t in &tubes {
+                    assert!(t.valid, "{label}: {:?}", t.note);
+                }
+                let checks = count_contained(&tubes, &trajectories, problem.dt, &label);
+                assert!(checks >= 3 * 12 * 40, "{label}: {checks} checks");
+            }
         }
+    }
+}
+
+/// A 2×64×64×2 network whose second layer sums 64 terms of size ~30 that cancel in pairs to
+/// ~0.1 each: its first layer's neurons come in pairs, the second of each 1.0033 times the
+/// first, weighed +A and −A. The f32 sums then err by many ulps of their results, so the outward
+/// steps alone do not cover them: only the a-priori bounds on every sum's rounding do (an f32
+/// engine whose `err_bound` returns 0 fails here; checked).
+fn cancelling_network() -> Mlp {
+    let base = Mlp::random(&[2, 32, 64, 2], 9);
+    let (l1, l2, l3) = (&base.layers[0], &base.layers[1], &base.layers[2]);
+    let mut w1 = Vec::with_capacity(128);
+    let mut b1 = Vec::with_capacity(64);
+    for k in 0..32 {
+        let row = &l1.weight[2 * k..2 * k + 2];
+        for f in [1.0, 1.0 + 1.0 / 300.0] {
+            w1.extend(row.iter().map(|w| f * w));
+            b1.push(f * (0.5 + 0.1 * l1.bias[k]));
+        }
+    }
+    let a = 64.0;
+    let mut w2 = Vec::with_capacity(64 * 64);
+    for i in 0..64 {
+        for k in 0..32 {
+            let c = a * l2.weight[i * 32 + k].signum();
+            w2.extend([c, -c]);
+        }
+    }
+    let layer = |weight: Vec<f64>, bias: Vec<f64>, n_in: usize, n_out: usize| Layer {
+        weight,
+        bias,
+        n_in,
+        n_out,
+    };
+    Mlp {
+        layers: vec![
+            layer(w1, b1, 2, 64),
+            layer(w2, vec![0.5; 64], 64, 64),
+            layer(
+                l3.weight.iter().map(|w| 0.01 * w).collect(),
+                vec![0.0; 2],
+                64,
+                2,
+            ),
+        ],
     }
 }
