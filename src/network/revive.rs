@@ -33,13 +33,16 @@ pub(crate) fn dormant_neurons<'a, T: Scalar>(
     n: usize,
     x: impl Fn(usize) -> &'a [f64],
 ) -> Vec<Vec<bool>> {
+    let Some(first) = params.first() else {
+        return Vec::new();
+    };
     let hidden = params.len() - 1;
     let mut dormant: Vec<Vec<bool>> = params[..hidden]
         .iter()
         .map(|p| vec![true; p.n_out])
         .collect();
     let mut ws = Workspace::<T>::new(params.len());
-    let n_in = params[0].n_in;
+    let n_in = first.n_in;
     for start in (0..n).step_by(SCAN_BATCH) {
         let b = SCAN_BATCH.min(n - start);
         ws.load_inputs(n_in, b, false, |i| x(start + i));
