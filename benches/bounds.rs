@@ -94,11 +94,6 @@ fn bounds(bencher: Bencher, case: Case) {
 }
 
 fn main() {
-    // One level of parallelism (rayon over boxes), as the `cbfreach` binary does for `reach`
-    // and `bounds`; set MATMUL_NUM_THREADS to compare.
-    if std::env::var_os("MATMUL_NUM_THREADS").is_none() {
-        std::env::set_var("MATMUL_NUM_THREADS", "1");
-    }
     eprintln!("FLOP model (DESIGN.md §5), mult-adds per box; GFLOP/s = 2 × this × boxes/s / 1e9:");
     for widths in ARCHS {
         for method in BoundMethod::ALL {

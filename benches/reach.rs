@@ -60,10 +60,5 @@ fn reach_12_boxes(bencher: Bencher, method: BoundMethod) {
 }
 
 fn main() {
-    // One level of parallelism (rayon over boxes), as the `cbfreach` binary does for `reach`
-    // and `bounds`; set MATMUL_NUM_THREADS to compare.
-    if std::env::var_os("MATMUL_NUM_THREADS").is_none() {
-        std::env::set_var("MATMUL_NUM_THREADS", "1");
-    }
     divan::main();
 }

@@ -61,16 +61,6 @@ enum Command {
 
 fn main() -> ExitCode {
     let args = Cli::parse();
-    if matches!(
-        args.command,
-        None | Some(Command::Reach(_))
-            | Some(Command::Bounds(_))
-            | Some(Command::Verify(_))
-            | Some(Command::Paper(_))
-            | Some(Command::Bench(_))
-    ) {
-        cli::bounds::single_threaded_gemm();
-    }
     let result = match args.command {
         None => cli::report::run_default(),
         Some(Command::Check { scenario }) => cli::check::run(&scenario),

@@ -72,18 +72,6 @@ fn check_box(net: &Mlp, lower: &[f64], upper: &[f64]) -> Result<(), String> {
     Ok(())
 }
 
-/// Makes `matrixmultiply` single-threaded (unless `MATMUL_NUM_THREADS` is set), so that the
-/// bound code has one level of parallelism: rayon over boxes or box groups. Measured on
-/// 2×400³×2 with 2 cores (rayon 2 × matrixmultiply 2 threads vs rayon 2 × 1): forward 64
-/// boxes 14 ms → 8–10 ms, forward-backward 16 boxes 10 ms → 3–5 ms, crown-same-slope 64 boxes
-/// 420–440 ms → 220–260 ms; one box was no slower. Call before any GEMM runs (the variable is
-/// read once) and before other threads exist.
-pub fn single_threaded_gemm() {
-    if std::env::var_os("MATMUL_NUM_THREADS").is_none() {
-        std::env::set_var("MATMUL_NUM_THREADS", "1");
-    }
-}
-
 /// Runs the command.
 pub fn run(args: &BoundsArgs) -> CliResult {
     let net = Mlp::load_safetensors(&args.network)?;

@@ -1,4 +1,4 @@
-//! Batched forward and backward passes with forward-mode tangents, on `matrixmultiply` GEMMs.
+//! Batched forward and backward passes with forward-mode tangents, on the GEMMs of [`crate::matmul`].
 //!
 //! A batch of `B` samples with `n_t` tangent directions is one matrix of `r·B` rows,
 //! `r = 1 + n_t`: rows `0..B` are the primal activations, rows `(j+1)B..(j+2)B` the tangents
@@ -13,7 +13,7 @@
 //! `G_{k−1} = D_{k−1} (G_k W_k)`, `∂L/∂W_k = G_kᵀ A_{k−1}` (one GEMM over all `r·B` rows),
 //! `∂L/∂b_k = Σ_primal rows G_k`. The cost is about `r×` a plain forward/backward.
 //!
-//! Determinism: `matrixmultiply` threads only its loops over output blocks (m and n); each
+//! Determinism: the `gemm` crate threads only its loops over output blocks (m and n); each
 //! output entry's sum over `k` runs in one fixed order, so results do not depend on the
 //! thread count or on scheduling. They may differ between CPUs with different SIMD kernels
 //! (FMA or not), as any floating-point code.

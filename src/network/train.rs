@@ -50,7 +50,7 @@
 //!
 //! **Determinism.** For a fixed seed the result is bitwise reproducible on one machine: the
 //! shuffle of epoch `e` comes from `ChaCha8Rng` seeded with `seed` on stream `e`, the hard
-//! examples are chosen with a total order (score, then index), and `matrixmultiply`'s threads
+//! examples are chosen with a total order (score, then index), and the GEMMs' threads
 //! split only output blocks, never a sum. A run resumed from a checkpoint (weights, Adam
 //! moments and step, per-sample scores, epoch) continues bit-identically.
 
