@@ -72,7 +72,8 @@ pub(crate) fn dormant_neurons<'a, T: Scalar>(
 /// Gives every neuron marked in `dormant` new incoming weights (of the typical norm of its
 /// layer's live rows, random direction) and a bias that makes it active on a random share of
 /// the probe inputs drawn from `x(0..n)`, and zeroes its outgoing weights; restarts Adam's
-/// moments of all of these (see the module's documentation). The network's outputs are unchanged. Returns how many neurons were revived.
+/// moments of all of these (see the module's documentation). The network's outputs are
+/// unchanged. Returns how many neurons were revived.
 pub(crate) fn revive_dormant<'a, T: Scalar>(
     params: &mut [Params<T>],
     adam: &mut Adam<T>,
@@ -168,41 +169,16 @@ fn zero_outgoing<T: Scalar>(next: &mut Params<T>, j: usize) {
 /// second moments the mean over the live neurons of the same input (incoming weights and
 /// bias) or the same output (outgoing weights). Where no neuron of the layer is live, 0.
 fn restart_moments<T: Scalar>(adam: &mut Adam<T>, k: usize, dead: &[bool]) {
-    let live = dead.iter().filter(|&&d| !d).count();
-    let mean = |sum: f64| T::from_f64(if live == 0 { 0.0 } else { sum / live as f64 });
     let (m, v) = (&mut adam.m, &mut adam.v);
-    let n_in = v[k].n_in;
-    let live_rows: Vec<&[T]> = v[k]
-        .w
-        .chunks_exact(n_in)
-        .zip(dead)
-        .filter(|(_, &d)| !d)
-        .map(|(row, _)| row)
-        .collect();
+    let (n_in, next_in) = (v[k].n_in, v[k + 1].n_in);
     let incoming: Vec<T> = (0..n_in)
-        .map(|i| mean(live_rows.iter().map(|r| r[i].to_f64()).sum()))
+        .map(|i| live_mean(v[k].w.iter().skip(i).step_by(n_in), dead))
         .collect();
-    let bias = mean(
-        v[k].b
-            .iter()
-            .zip(dead)
-            .filter(|(_, &d)| !d)
-            .map(|(b, _)| b.to_f64())
-            .sum(),
-    );
-    let next = &v[k + 1];
-    let outgoing: Vec<T> = next
+    let bias = live_mean(&v[k].b, dead);
+    let outgoing: Vec<T> = v[k + 1]
         .w
-        .chunks_exact(next.n_in)
-        .map(|row| {
-            mean(
-                row.iter()
-                    .zip(dead)
-                    .filter(|(_, &d)| !d)
-                    .map(|(w, _)| w.to_f64())
-                    .sum(),
-            )
-        })
+        .chunks_exact(next_in)
+        .map(|row| live_mean(row, dead))
         .collect();
     for (j, _) in dead.iter().enumerate().filter(|(_, &d)| d) {
         m[k].w[j * n_in..(j + 1) * n_in].fill(T::ZERO);
@@ -210,11 +186,20 @@ fn restart_moments<T: Scalar>(adam: &mut Adam<T>, k: usize, dead: &[bool]) {
         zero_outgoing(&mut m[k + 1], j);
         v[k].w[j * n_in..(j + 1) * n_in].copy_from_slice(&incoming);
         v[k].b[j] = bias;
-        let next_in = v[k + 1].n_in;
         for (o, &value) in outgoing.iter().enumerate() {
             v[k + 1].w[o * next_in + j] = value;
         }
     }
+}
+
+/// Mean of the `values` whose neuron (same position in `dead`) is live; 0 if none is.
+fn live_mean<'a, T: Scalar>(values: impl IntoIterator<Item = &'a T>, dead: &[bool]) -> T {
+    let (sum, count) = values
+        .into_iter()
+        .zip(dead)
+        .filter(|(_, &d)| !d)
+        .fold((0.0, 0usize), |(s, c), (x, _)| (s + x.to_f64(), c + 1));
+    T::from_f64(if count == 0 { 0.0 } else { sum / count as f64 })
 }
 
 /// The random stream of the revival after epoch `epoch` (deterministic, so a resumed run
@@ -330,8 +315,9 @@ mod tests {
             }
             if dead_zero {
                 // Dead neurons get no gradient, in or out.
+                let n_in = g[1].n_in;
                 for (j, _) in d[1].iter().enumerate().filter(|(_, &x)| x) {
-                    g[1].w[j * 16..(j + 1) * 16].fill(0.0);
+                    g[1].w[j * n_in..(j + 1) * n_in].fill(0.0);
                     g[1].b[j] = 0.0;
                     zero_outgoing(&mut g[2], j);
                 }
@@ -357,8 +343,9 @@ mod tests {
         let step = |k: usize, i: usize| (p[k].w[i] - before[k].w[i]).abs();
         let (mut revived, mut live) = (0.0f64, 0.0f64);
         for (j, &dead) in d[1].iter().enumerate() {
-            let incoming = (j * 16..(j + 1) * 16).map(|i| step(1, i));
-            let outgoing = (0..2).map(|o| step(2, o * 12 + j));
+            let (n_in, next_in) = (p[1].n_in, p[2].n_in);
+            let incoming = (j * n_in..(j + 1) * n_in).map(|i| step(1, i));
+            let outgoing = (0..p[2].n_out).map(|o| step(2, o * next_in + j));
             let largest = incoming.chain(outgoing).fold(0.0, f64::max);
             if dead {
                 revived = revived.max(largest);
