@@ -42,6 +42,12 @@ pub struct TrainArgs {
     /// Samples per Adam step.
     #[arg(long, default_value_t = 256)]
     pub batch_size: usize,
+    /// Samples per gradient chunk: a batch's chunks run side by side on the cores and their
+    /// gradients are added in a fixed order, so a seed gives the same network on any number of
+    /// threads (but not with another chunk size). `--chunk-size` ≥ `--batch-size` reproduces
+    /// runs made before chunks existed.
+    #[arg(long, default_value_t = 128)]
+    pub chunk_size: usize,
     /// Initial learning rate (cosine decay to `--lr-min`).
     #[arg(long, default_value_t = 1e-3)]
     pub lr: f64,
@@ -401,6 +407,7 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
     let settings = TrainSettings {
         epochs: args.epochs,
         batch_size: args.batch_size,
+        chunk_size: args.chunk_size,
         learning_rate: args.lr,
         lr_min: args.lr_min,
         jacobian_weight: args.jacobian_weight,

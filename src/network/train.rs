@@ -43,16 +43,25 @@
 //! the result is widened exactly to f64. Reported final errors are always measured on that f64
 //! network with f64 arithmetic.
 //!
-//! **Speed** (release, 2 cores, `2×400×400×400×2`, 100k points, batch 256): f32 1.8 s per
-//! epoch, 4.2 s with the Jacobian term (6.3 s with the IBP term too, where the Jacobian term
-//! alone measured 3.5 s on the same run); f64 3.0 s and 7.6 s. Batch 1024 is faster (1.4 s /
-//! 2.9 s) but converges much more slowly per epoch.
+//! **Speed** (release, 2 cores, `2×400×400×400×2`, 100k points, batch 256, chunks of 128,
+//! `cargo test --release --lib bench_epoch -- --ignored --nocapture`): f32 2.0 s per epoch,
+//! 4.5 s with the Jacobian term, 9.0 s with the IBP term too; f64 with the Jacobian term 7.5 s.
+//! Batch 1024 is faster (3.9 s with the Jacobian term) but converges much more slowly per epoch.
 //!
-//! **Determinism.** For a fixed seed the result is bitwise reproducible on one machine: the
-//! shuffle of epoch `e` comes from `ChaCha8Rng` seeded with `seed` on stream `e`, the hard
-//! examples are chosen with a total order (score, then index), and the GEMMs' threads
-//! split only output blocks, never a sum. A run resumed from a checkpoint (weights, Adam
-//! moments and step, per-sample scores, epoch) continues bit-identically.
+//! **Parallelism.** A batch is cut into chunks of [`TrainSettings::chunk_size`] samples whose
+//! gradients are computed side by side on rayon's threads (each chunk's products may split
+//! further) and added in chunk order. The matrix products of one 256-sample batch are too small
+//! to keep two threads busy on their own (150 % CPU): in the same run as above, one chunk of 256
+//! took 5.5 s (Jacobian term), 11.1 s (with IBP) and 8.9 s (f64), so two chunks of 128 are
+//! 1.2× faster. Smaller chunks lose it again (with IBP, 64: 10.6 s, 32: 12.5 s): every chunk
+//! writes a whole weight gradient, and those products grow inefficient as the chunk shrinks.
+//!
+//! **Determinism.** For a fixed seed and chunk size the result is bitwise reproducible on any
+//! number of threads: the shuffle of epoch `e` comes from `ChaCha8Rng` seeded with `seed` on
+//! stream `e`, the hard examples are chosen with a total order (score, then index), the GEMMs'
+//! threads split only output blocks, never a sum, and the chunks' gradients are added in a
+//! fixed order. A run resumed from a checkpoint (weights, Adam moments and step, per-sample
+//! scores, epoch) continues bit-identically.
 
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
@@ -61,6 +70,7 @@ use std::time::Instant;
 use rand::seq::SliceRandom;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::adam::Adam;
@@ -248,6 +258,11 @@ pub struct TrainSettings {
     pub epochs: usize,
     /// Samples per Adam step (default 256).
     pub batch_size: usize,
+    /// Samples per gradient chunk (default 128): each batch's gradient is the sum of its
+    /// chunks' gradients, computed side by side on rayon's threads and added in chunk order, so
+    /// the result depends on this but not on the number of threads. At least `batch_size`: one
+    /// chunk (the arithmetic of runs made before chunks existed).
+    pub chunk_size: usize,
     /// Initial learning rate (default 1e-3).
     pub learning_rate: f64,
     /// Final learning rate of the decaying schedules (default 1e-5).
@@ -315,6 +330,7 @@ impl Default for TrainSettings {
         TrainSettings {
             epochs: 100,
             batch_size: 256,
+            chunk_size: 128,
             learning_rate: 1e-3,
             lr_min: 1e-5,
             lr_schedule: LrSchedule::Cosine,
@@ -347,6 +363,9 @@ impl TrainSettings {
         let pos = |x: f64| x.is_finite() && x > 0.0;
         if self.batch_size == 0 {
             return bad("batch_size must be ≥ 1".into());
+        }
+        if self.chunk_size == 0 {
+            return bad("chunk_size must be ≥ 1".into());
         }
         if !pos(self.learning_rate) {
             return bad(format!(
@@ -1071,6 +1090,102 @@ fn epoch_order(e: usize, active: &[usize], score: &[f64], settings: &TrainSettin
     order
 }
 
+/// What one visit of a sample found: its loss (the hard-example score) and errors.
+struct Visit {
+    sample: usize,
+    loss: f64,
+    value: f64,
+    slope: f64,
+}
+
+/// Buffers for one chunk of a batch ([`TrainSettings::chunk_size`]): its share of the batch's
+/// gradient, the visits of its samples and the sum of its IBP widths.
+struct ChunkWorker<T> {
+    ws: Workspace<T>,
+    ibp: IbpWorkspace<T>,
+    grads: Vec<Params<T>>,
+    ibp_grads: Vec<Params<T>>,
+    visits: Vec<Visit>,
+    width_sum: f64,
+}
+
+impl<T: Scalar> ChunkWorker<T> {
+    fn new(params: &[Params<T>]) -> Self {
+        ChunkWorker {
+            ws: Workspace::new(params.len()),
+            ibp: IbpWorkspace::new(params.len()),
+            grads: params.iter().map(|p| p.zeros_like()).collect(),
+            ibp_grads: params.iter().map(|p| p.zeros_like()).collect(),
+            visits: Vec::new(),
+            width_sum: 0.0,
+        }
+    }
+
+    /// The gradient of the samples `chunk` of a batch of `batch_len` samples into `grads`
+    /// (overwritten): their terms of the batch loss (a mean over the whole batch), the IBP term
+    /// too where `ibp_radius` is given.
+    fn gradient(
+        &mut self,
+        params: &[Params<T>],
+        data: &Dataset,
+        chunk: &[usize],
+        batch_len: usize,
+        settings: &TrainSettings,
+        ibp_radius: Option<&[f64]>,
+    ) {
+        let (n_in, n_out) = (data.n_in, data.n_out);
+        let lambda = settings.jacobian_weight;
+        let ws = &mut self.ws;
+        let b = chunk.len();
+        ws.load_inputs(n_in, b, lambda > 0.0, |i| data.input(chunk[i]));
+        ws.forward(params);
+        // ∂L/∂out, L = (1/batch_len) Σ w_s (‖e‖² + λ‖E‖²).
+        ws.g.clear();
+        ws.g.resize(ws.out.len(), T::ZERO);
+        self.visits.clear();
+        for (i, &s) in chunk.iter().enumerate() {
+            let w = data.weight(s);
+            let c = 2.0 * w / batch_len as f64;
+            for (o, &t) in data.target(s).iter().enumerate() {
+                let d = ws.out[i * n_out + o].to_f64() - t;
+                ws.g[i * n_out + o] = T::from_f64(c * d);
+            }
+            if ws.r > 1 {
+                if let Some(dv) = slope_target(data, s, settings.jacobian_cap) {
+                    for j in 0..n_in {
+                        for o in 0..n_out {
+                            let row = ((j + 1) * b + i) * n_out + o;
+                            let d = ws.out[row].to_f64() - dv[o * n_in + j];
+                            let d = slope_cost_half_derivative(d, settings.jacobian_huber);
+                            ws.g[row] = T::from_f64(c * lambda * d);
+                        }
+                    }
+                }
+            }
+            let se = sample_errors(ws, data, i, s, settings);
+            self.visits.push(Visit {
+                sample: s,
+                loss: w * (se.value_sq + lambda * se.slope_sq),
+                value: se.value,
+                slope: se.slope,
+            });
+        }
+        ws.backward(params, &mut self.grads);
+        self.width_sum = 0.0;
+        if let Some(radius) = ibp_radius {
+            let (lambda_ibp, count) = (settings.ibp_weight, batch_len * n_out);
+            let centre = |i: usize| data.input(chunk[i]);
+            let (ibp, grads) = (&mut self.ibp, &mut self.ibp_grads);
+            self.width_sum = ibp_term(ibp, params, grads, lambda_ibp, count, b, centre, radius);
+            for (g, gi) in self.grads.iter_mut().zip(&self.ibp_grads) {
+                for (d, &v) in g.w.iter_mut().zip(&gi.w).chain(g.b.iter_mut().zip(&gi.b)) {
+                    *d += v;
+                }
+            }
+        }
+    }
+}
+
 fn run<T: Scalar>(
     mut st: State<T>,
     data: &Dataset,
@@ -1080,16 +1195,16 @@ fn run<T: Scalar>(
 ) -> Result<(Mlp, TrainReport), NetworkError> {
     let t_start = Instant::now();
     let (n_in, n_out) = (data.n_in, data.n_out);
-    let lambda = settings.jacobian_weight;
-    let tangents = lambda > 0.0;
+    let tangents = settings.jacobian_weight > 0.0;
     let active: Vec<usize> = (0..data.len()).filter(|&s| data.weight(s) > 0.0).collect();
-    let mut ws = Workspace::<T>::new(st.params.len());
-    let mut grads: Vec<Params<T>> = st.params.iter().map(|p| p.zeros_like()).collect();
+    let has_jac = data.jacobians.is_some();
     let mut value_err = vec![0.0f64; data.len()];
     let mut slope_err = vec![0.0f64; data.len()];
-    let has_jac = data.jacobians.is_some();
-    let mut ibp = IbpWorkspace::<T>::new(st.params.len());
-    let mut ibp_grads: Vec<Params<T>> = st.params.iter().map(|p| p.zeros_like()).collect();
+    let chunk_size = settings.chunk_size.clamp(1, settings.batch_size);
+    let n_chunks = settings.batch_size.div_ceil(chunk_size);
+    let mut workers: Vec<ChunkWorker<T>> = (0..n_chunks)
+        .map(|_| ChunkWorker::new(&st.params))
+        .collect();
 
     while st.epoch < settings.epochs {
         let e = st.epoch;
@@ -1100,58 +1215,43 @@ fn run<T: Scalar>(
         let mut loss_sum = 0.0;
         let (mut width_sum, mut width_count) = (0.0f64, 0usize);
         for batch in order.chunks(settings.batch_size) {
-            let b = batch.len();
-            ws.load_inputs(n_in, b, tangents, |i| data.input(batch[i]));
-            ws.forward(&st.params);
-            // ∂L/∂out, L = (1/b) Σ w_s (‖e‖² + λ‖E‖²).
-            ws.g.clear();
-            ws.g.resize(ws.out.len(), T::ZERO);
-            let r = ws.r;
-            for (i, &s) in batch.iter().enumerate() {
-                let w = data.weight(s);
-                let c = 2.0 * w / b as f64;
-                for (o, &t) in data.target(s).iter().enumerate() {
-                    let d = ws.out[i * n_out + o].to_f64() - t;
-                    ws.g[i * n_out + o] = T::from_f64(c * d);
-                }
-                if r > 1 {
-                    if let Some(dv) = slope_target(data, s, settings.jacobian_cap) {
-                        for j in 0..n_in {
-                            for o in 0..n_out {
-                                let row = ((j + 1) * b + i) * n_out + o;
-                                let d = ws.out[row].to_f64() - dv[o * n_in + j];
-                                let d = slope_cost_half_derivative(d, settings.jacobian_huber);
-                                ws.g[row] = T::from_f64(c * lambda * d);
-                            }
-                        }
-                    }
-                }
-                let se = sample_errors(&ws, data, i, s, settings);
-                let l = w * (se.value_sq + lambda * se.slope_sq);
-                loss_sum += l;
-                st.score[s] = l;
-                value_err[s] = se.value;
-                slope_err[s] = se.slope;
-            }
-            ws.backward(&st.params, &mut grads);
-            if let Some(radius) = &ibp_radius {
-                width_sum += ibp_term(
-                    &mut ibp,
-                    &st.params,
-                    &mut ibp_grads,
-                    settings.ibp_weight,
-                    b,
-                    |i| data.input(batch[i]),
-                    radius,
-                );
-                width_count += b * n_out;
-                for (g, gi) in grads.iter_mut().zip(&ibp_grads) {
+            let chunks: Vec<&[usize]> = batch.chunks(chunk_size).collect();
+            let busy = &mut workers[..chunks.len()];
+            let params = &st.params;
+            busy.par_iter_mut()
+                .zip(&chunks)
+                .for_each(|(worker, chunk)| {
+                    worker.gradient(
+                        params,
+                        data,
+                        chunk,
+                        batch.len(),
+                        settings,
+                        ibp_radius.as_deref(),
+                    )
+                });
+            // Added in chunk order whatever the threads did: the step is deterministic.
+            let (first, rest) = busy.split_first_mut().expect("a batch has a chunk");
+            for worker in rest.iter() {
+                for (g, gi) in first.grads.iter_mut().zip(&worker.grads) {
                     for (d, &v) in g.w.iter_mut().zip(&gi.w).chain(g.b.iter_mut().zip(&gi.b)) {
                         *d += v;
                     }
                 }
             }
-            st.adam.step(&mut st.params, &grads, lr);
+            for worker in busy.iter() {
+                for visit in &worker.visits {
+                    loss_sum += visit.loss;
+                    st.score[visit.sample] = visit.loss;
+                    value_err[visit.sample] = visit.value;
+                    slope_err[visit.sample] = visit.slope;
+                }
+                width_sum += worker.width_sum;
+            }
+            if ibp_radius.is_some() {
+                width_count += batch.len() * n_out;
+            }
+            st.adam.step(&mut st.params, &busy[0].grads, lr);
         }
         // Slope errors of an epoch without tangents: measure them on demand only at the end.
         let (mut max_e, mut sum_e, mut max_s) = (0.0f64, 0.0, 0.0f64);
@@ -1219,13 +1319,16 @@ fn run<T: Scalar>(
     Ok((mlp, report))
 }
 
-/// The IBP term `λ · mean_{i,o} 2 r_o(c_i, ε)` over the boxes of centres `centre(i)`,
-/// `i < b`: its gradient goes to `grads` (overwritten); returns the sum of the widths `2 r_o`.
+/// The IBP term `λ · (1/count) Σ_{i,o} 2 r_o(c_i, ε)` over the boxes of centres `centre(i)`,
+/// `i < b` (`count`: the widths of the whole batch, of which these are a part): its gradient
+/// goes to `grads` (overwritten); returns the sum of the widths `2 r_o`.
+#[allow(clippy::too_many_arguments)]
 fn ibp_term<'a, T: Scalar>(
     ws: &mut IbpWorkspace<T>,
     params: &[Params<T>],
     grads: &mut [Params<T>],
     lambda: f64,
+    count: usize,
     b: usize,
     centre: impl Fn(usize) -> &'a [f64],
     radius: &[f64],
@@ -1233,7 +1336,7 @@ fn ibp_term<'a, T: Scalar>(
     ws.forward(params, b, centre, radius);
     let n = ws.out_r.len();
     let g_c = vec![T::ZERO; n];
-    let g_r = vec![T::from_f64(2.0 * lambda / n.max(1) as f64); n];
+    let g_r = vec![T::from_f64(2.0 * lambda / count.max(1) as f64); n];
     ws.backward(params, &g_c, &g_r, grads);
     ws.out_r.iter().map(|r| 2.0 * r.to_f64()).sum()
 }
@@ -1445,6 +1548,88 @@ mod tests {
         assert!(es < ep, "Sobolev {es} not below plain {ep}");
         assert!(rs.final_errors.max_slope_error < rp.final_errors.max_slope_error);
         assert!(rs.final_errors.max_error < 0.1, "{:?}", rs.final_errors);
+    }
+
+    /// A batch's gradient summed from uneven chunks is the whole batch's gradient (value,
+    /// Sobolev and IBP terms: each chunk's part is a mean over the whole batch), and each
+    /// sample's visit is the same.
+    #[test]
+    fn chunked_gradient_is_the_batch_gradient() {
+        let data = smooth_data(6);
+        let net = to_params::<f64>(&Mlp::random(&[2, 12, 12, 2], 5));
+        let radius = [0.05, 0.05];
+        let batch: Vec<usize> = (0..data.len()).rev().collect();
+        let gradient = |chunks: &[&[usize]], ibp_weight: f64| {
+            let s = TrainSettings {
+                jacobian_weight: 0.3,
+                ibp_weight,
+                ..Default::default()
+            };
+            let mut sum: Vec<Params<f64>> = net.iter().map(|p| p.zeros_like()).collect();
+            let (mut visits, mut width) = (Vec::new(), 0.0);
+            for chunk in chunks {
+                let mut worker = ChunkWorker::new(&net);
+                worker.gradient(&net, &data, chunk, batch.len(), &s, Some(&radius));
+                for (g, gi) in sum.iter_mut().zip(&worker.grads) {
+                    for (d, &v) in g.w.iter_mut().zip(&gi.w).chain(g.b.iter_mut().zip(&gi.b)) {
+                        *d += v;
+                    }
+                }
+                visits.extend(worker.visits.iter().map(|v| (v.sample, v.loss)));
+                width += worker.width_sum;
+            }
+            let flat: Vec<f64> = sum
+                .iter()
+                .flat_map(|p| p.w.iter().chain(&p.b))
+                .copied()
+                .collect();
+            (flat, visits, width)
+        };
+        let uneven: Vec<&[usize]> = batch.chunks(7).collect();
+        let (whole, whole_visits, whole_width) = gradient(&[&batch], 0.02);
+        let (chunked, chunked_visits, chunked_width) = gradient(&uneven, 0.02);
+        let (no_ibp, _, _) = gradient(&[&batch], 0.0);
+        let scale = whole.iter().fold(0.0f64, |m, g| m.max(g.abs()));
+        let gap = |a: &[f64], b: &[f64]| {
+            a.iter()
+                .zip(b)
+                .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()))
+        };
+        assert!(
+            gap(&whole, &chunked) <= 1e-12 * scale,
+            "{}",
+            gap(&whole, &chunked)
+        );
+        // The IBP term's share is far above that tolerance: a chunk weighing it by its own
+        // size instead of the batch's would fail the test.
+        assert!(gap(&whole, &no_ibp) > 1e-3 * scale);
+        assert_eq!(whole_visits.len(), batch.len());
+        for ((s, a), (t, b)) in whole_visits.iter().zip(&chunked_visits) {
+            assert_eq!(s, t);
+            assert!((a - b).abs() <= 1e-12 * a.abs().max(1.0));
+        }
+        assert!((whole_width - chunked_width).abs() <= 1e-12 * whole_width);
+    }
+
+    /// Chunks are added in a fixed order: one thread or three give the same network.
+    #[test]
+    fn chunked_training_does_not_depend_on_threads() {
+        let data = smooth_data(9);
+        let s = TrainSettings {
+            chunk_size: 8,
+            ibp_weight: 0.01,
+            hard_example_start: 0.3,
+            ..quick(4, 0.1)
+        };
+        let init = Mlp::random(&[2, 16, 16, 2], 2);
+        let on = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| train(init.clone(), &data, &s, |_| {}).unwrap().0)
+        };
+        assert_eq!(on(1), on(3));
     }
 
     #[test]
@@ -1716,6 +1901,7 @@ mod tests {
             &net,
             &mut g2,
             0.3,
+            2 * centres.len(),
             centres.len(),
             |i| &centres[i],
             &radius,
@@ -1836,18 +2022,26 @@ mod bench {
             }
         }
         let init = Mlp::random(&[2, 400, 400, 400, 2], 1);
-        for (precision, batch, lambda, ibp) in [
-            (Precision::F32, 256, 0.0, 0.0),
-            (Precision::F32, 256, 0.1, 0.0),
-            (Precision::F32, 256, 0.1, 0.005),
-            (Precision::F32, 1024, 0.0, 0.0),
-            (Precision::F32, 1024, 0.1, 0.0),
-            (Precision::F64, 256, 0.0, 0.0),
-            (Precision::F64, 256, 0.1, 0.0),
+        // Chunk = batch: one chunk whose products use every thread (the arithmetic before
+        // chunks); smaller chunks run side by side.
+        for (precision, batch, chunk, lambda, ibp) in [
+            (Precision::F32, 256, 256, 0.0, 0.0),
+            (Precision::F32, 256, 128, 0.0, 0.0),
+            (Precision::F32, 256, 256, 0.1, 0.0),
+            (Precision::F32, 256, 128, 0.1, 0.0),
+            (Precision::F32, 256, 256, 0.1, 0.005),
+            (Precision::F32, 256, 128, 0.1, 0.005),
+            (Precision::F32, 256, 64, 0.1, 0.005),
+            (Precision::F32, 256, 32, 0.1, 0.005),
+            (Precision::F32, 1024, 1024, 0.1, 0.0),
+            (Precision::F32, 1024, 128, 0.1, 0.0),
+            (Precision::F64, 256, 256, 0.1, 0.0),
+            (Precision::F64, 256, 128, 0.1, 0.0),
         ] {
             let s = TrainSettings {
                 epochs: 2,
                 batch_size: batch,
+                chunk_size: chunk,
                 jacobian_weight: lambda,
                 ibp_weight: ibp,
                 precision,
@@ -1863,7 +2057,7 @@ mod bench {
                 .map(|e| format!("{:.2}", e.seconds))
                 .collect();
             eprintln!(
-                "{precision:?} batch {batch} λ {lambda} λ_ibp {ibp}: epochs {} s, final f64 evaluation {:.2} s, loss {:.4}",
+                "{precision:?} batch {batch} chunk {chunk} λ {lambda} λ_ibp {ibp}: epochs {} s, final f64 evaluation {:.2} s, loss {:.4}",
                 ep.join(" / "),
                 total - rep.epochs.iter().map(|e| e.seconds).sum::<f64>(),
                 rep.epochs[1].loss
