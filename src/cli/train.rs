@@ -98,6 +98,10 @@ pub struct TrainArgs {
     /// Epochs over which ε ramps up linearly from the IBP start.
     #[arg(long, default_value_t = 0)]
     pub ibp_ramp: usize,
+    /// Penalise only the IBP width in excess of the network's own linear range over each box,
+    /// Σⱼ |∂N/∂xⱼ(x)| 2εⱼ: the plain width also penalises the slope that v needs.
+    #[arg(long)]
+    pub ibp_excess: bool,
     /// Every this many epochs, give the hidden neurons that no training sample activates fresh
     /// incoming weights and zero outgoing ones (the network's function is unchanged): dead
     /// ReLUs get no gradient, and without this the paper-size networks lose most of their
@@ -421,6 +425,7 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
         ibp_radius: args.ibp_radius.clone(),
         ibp_start: args.ibp_start,
         ibp_ramp: args.ibp_ramp,
+        ibp_excess: args.ibp_excess,
         revive_every: args.revive_every,
         checkpoint: Some(checkpoint.clone()),
         ..TrainSettings::default()
