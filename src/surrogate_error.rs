@@ -224,6 +224,17 @@ pub struct Measured {
     pub infeasible: usize,
     /// `max_ij |DN − Dv|_ij` over the samples (largest absolute entry, not spectral).
     pub slope: Percentiles,
+    /// The slope error over boxes [`Self::box_width`] wide: `max_ij` of the secant error
+    /// `|((N − v)(x + δeⱼ) − (N − v)(x − δeⱼ)) / 2δ|ᵢ`, `2δ` = the width, at the samples whose
+    /// secants stay where the filter is feasible. A ReLU network's slope is piecewise constant
+    /// on pieces far narrower than the boxes the reach engine bounds, and a bound over a box sees
+    /// their average, so this, not the pointwise [`Self::slope`], is what a tube's contraction
+    /// feels (DESIGN §2b).
+    #[serde(default)]
+    pub box_slope: Percentiles,
+    /// The width `2δ` of [`Self::box_slope`]'s boxes ([`ErrorSettings::looseness_width`]).
+    #[serde(default)]
+    pub box_width: f64,
     /// Neurons of each hidden layer active at one or more of the samples: the rest are dead
     /// on `C ∩ S` and add no linear regions there.
     #[serde(default)]
@@ -307,6 +318,8 @@ pub fn measure(
             .unwrap_or(0)
     };
     let (k, k2) = (argmax_of(&pe.value), argmax_of(&pe.value_l2));
+    let half_width = 0.5 * settings.looseness_width;
+    let box_slope = secant_slope_errors(&filter, net, &safe, half_width, progress);
     Ok(Measured {
         linf: pe.value[k],
         l2: pe.value_l2[k2],
@@ -317,8 +330,54 @@ pub fn measure(
         samples: summary.samples,
         infeasible: summary.infeasible,
         slope: Percentiles::of(pe.slope.as_deref().unwrap_or(&[])),
+        box_slope: Percentiles::of(&box_slope),
+        box_width: 2.0 * half_width,
         live_neurons: net.live_neurons(&data.inputs),
     })
+}
+
+/// The secant slope error of `net` against the filter over `±δ` per axis,
+/// `max_ij |((N − v)(x + δeⱼ) − (N − v)(x − δeⱼ)) / 2δ|ᵢ`, at each of `points` where the filter
+/// is feasible at the `2n` ends (the others are skipped).
+pub fn secant_slope_errors(
+    filter: &SafetyFilter,
+    net: &Mlp,
+    points: &[Vec<f64>],
+    delta: f64,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Vec<f64> {
+    let (data, _) = filter_dataset(filter, points, &Slopes::Secant(vec![delta]), progress);
+    let Some(secants) = data.jacobians.as_ref() else {
+        return Vec::new();
+    };
+    let (n, m) = (data.n_in, data.n_out);
+    // The 2n ends of each sample's secants, computed as the filter's secants compute them.
+    let mut ends = Vec::with_capacity(data.len() * 2 * n * n);
+    for x in data.inputs.chunks_exact(n) {
+        for j in 0..n {
+            for step in [delta, -delta] {
+                let mut y = x.to_vec();
+                y[j] = x[j] + step;
+                ends.extend_from_slice(&y);
+            }
+        }
+    }
+    let outputs = net.forward_many(&ends);
+    outputs
+        .chunks_exact(2 * n * m)
+        .zip(secants.chunks_exact(m * n))
+        .map(|(at_ends, dv)| {
+            let mut worst = 0.0_f64;
+            for j in 0..n {
+                let (plus, minus) = (&at_ends[2 * j * m..], &at_ends[(2 * j + 1) * m..]);
+                for i in 0..m {
+                    let dn = (plus[i] - minus[i]) / (2.0 * delta);
+                    worst = worst.max((dn - dv[i * n + j]).abs());
+                }
+            }
+            worst
+        })
+        .collect()
 }
 
 /// Median and max of a bound-width-to-sampled-range ratio.

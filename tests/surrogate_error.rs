@@ -18,7 +18,7 @@ use cbfreach::scenario::{Margin, Scenario};
 use cbfreach::surrogate_error::{
     cell_error_bound_mv, centred_grid, certify, error_map_path, measure, measurement_counts,
     proven_unsafe, resolve_margin, v_enclosure, Certified, ErrorMap, ErrorSettings, Measured,
-    VForms,
+    Percentiles, VForms,
 };
 
 /// Scenario 1 on `C = [0.5, 3.5] × [−1.5, 1.5]` (the obstacle and its surroundings).
@@ -473,6 +473,53 @@ fn live_neurons_are_those_active_at_some_measured_point() {
         .map(|l| l.iter().filter(|&&b| b).count())
         .collect();
     assert_eq!(f.measured.live_neurons, live);
+}
+
+/// The box-scale slope error, recomputed point by point from `N` and `v` at the secants' ends:
+/// fails if the secants' ends, their step, the samples kept or the reduction differ.
+#[test]
+fn box_slope_error_is_the_secant_error_of_n_minus_v() {
+    let f = fixture();
+    let settings = ErrorSettings::default();
+    let delta = settings.looseness_width / 2.0;
+    assert_eq!(f.measured.box_width, settings.looseness_width);
+    let filter = SafetyFilter::new(&f.s);
+    let counts = measurement_counts(&f.s, &settings);
+    let mut expected = Vec::new();
+    for x in centred_grid(&f.s.reach.region, &counts) {
+        if !f.s.is_safe(&x) || filter.eval(&x).is_err() {
+            continue;
+        }
+        let mut worst = 0.0_f64;
+        let mut feasible = true;
+        for j in 0..2 {
+            let (mut plus, mut minus) = (x.clone(), x.clone());
+            plus[j] += delta;
+            minus[j] -= delta;
+            let (Ok(vp), Ok(vm)) = (filter.eval(&plus), filter.eval(&minus)) else {
+                feasible = false;
+                break;
+            };
+            let (np, nm) = (f.net.forward(&plus), f.net.forward(&minus));
+            for i in 0..2 {
+                let secant = ((np[i] - vp[i]) - (nm[i] - vm[i])) / (2.0 * delta);
+                worst = worst.max(secant.abs());
+            }
+        }
+        if feasible {
+            expected.push(worst);
+        }
+    }
+    assert!(expected.len() > 1000, "{} samples", expected.len());
+    let want = Percentiles::of(&expected);
+    let got = f.measured.box_slope;
+    for (a, b) in [
+        (got.median, want.median),
+        (got.p95, want.p95),
+        (got.max, want.max),
+    ] {
+        assert!((a - b).abs() <= 1e-9 * b.max(1.0), "{got:?} vs {want:?}");
+    }
 }
 
 #[test]

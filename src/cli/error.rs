@@ -72,6 +72,9 @@ struct ErrorJson {
     grid_points: usize,
     samples: usize,
     slope: Percentiles,
+    /// The secant slope error over boxes `box_width` wide (what a bound over a box sees).
+    box_slope: Percentiles,
+    box_width: f64,
     /// Neurons of each hidden layer active somewhere on the measurement grid.
     live_neurons: Vec<usize>,
     looseness: Option<Looseness>,
@@ -142,6 +145,8 @@ pub fn run(args: &ErrorArgs) -> CliResult {
         grid_points: measured.grid_points,
         samples: measured.samples,
         slope: measured.slope,
+        box_slope: measured.box_slope,
+        box_width: measured.box_width,
         live_neurons: measured.live_neurons.clone(),
         looseness: loose,
         error_map: map_file.as_ref().map(|p| p.display().to_string()),
@@ -166,6 +171,14 @@ pub fn run(args: &ErrorArgs) -> CliResult {
     println!(
         "  slope error max_ij |DN − Dv|_ij: median {:.3}, 95th percentile {:.3}, max {:.3}",
         out.slope.median, out.slope.p95, out.slope.max
+    );
+    println!(
+        "  over boxes {} wide (secants over ±{}): median {:.3}, 95th percentile {:.3}, max {:.3}",
+        out.box_width,
+        out.box_width / 2.0,
+        out.box_slope.median,
+        out.box_slope.p95,
+        out.box_slope.max
     );
     let widths = net.widths();
     let hidden = &widths[1..widths.len() - 1];
