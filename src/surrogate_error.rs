@@ -351,14 +351,15 @@ pub fn secant_slope_errors(
         return Vec::new();
     };
     let (n, m) = (data.n_in, data.n_out);
-    // The 2n ends of each sample's secants, computed as the filter's secants compute them.
+    // The 2n ends of each sample's secants, `xⱼ ± δ` as the filter's secants compute them,
+    // written straight into one buffer for the batched forward pass.
     let mut ends = Vec::with_capacity(data.len() * 2 * n * n);
     for x in data.inputs.chunks_exact(n) {
         for j in 0..n {
-            for step in [delta, -delta] {
-                let mut y = x.to_vec();
-                y[j] = x[j] + step;
-                ends.extend_from_slice(&y);
+            for end in [x[j] + delta, x[j] - delta] {
+                ends.extend_from_slice(x);
+                let at = ends.len() - n + j;
+                ends[at] = end;
             }
         }
     }
