@@ -61,6 +61,16 @@ pub enum AnalysisError {
         /// Scenario input dimension.
         m: usize,
     },
+    /// A setting is out of its range.
+    #[error("{name} = {value}: expected {expected}")]
+    Setting {
+        /// The setting (as the command line names it).
+        name: &'static str,
+        /// Its value.
+        value: f64,
+        /// What it must be.
+        expected: &'static str,
+    },
     /// No grid point of `C ∩ S` where the filter is feasible.
     #[error("no grid point of C ∩ S where the filter is feasible: nothing to measure")]
     NoSamples,
@@ -301,6 +311,7 @@ pub fn measure(
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Measured, AnalysisError> {
     check_dims(s, net)?;
+    check_box_width(settings)?;
     let counts = measurement_counts(s, settings);
     let all = centred_grid(&s.reach.region, &counts);
     let grid_points = all.len();
@@ -384,6 +395,8 @@ pub fn secant_slope_errors(
 /// Median and max of a bound-width-to-sampled-range ratio.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Ratio {
+    /// Min over the boxes: below 1 only if a bound missed a sampled output.
+    pub min: f64,
     /// Median over the boxes.
     pub median: f64,
     /// Max over the boxes.
@@ -395,6 +408,8 @@ pub struct Ratio {
 pub struct Looseness {
     /// Boxes measured.
     pub boxes: usize,
+    /// Their width along every axis ([`ErrorSettings::looseness_width`]).
+    pub width: f64,
     /// IBP.
     pub ibp: Ratio,
     /// Backward CROWN (adaptive relaxation).
@@ -415,6 +430,20 @@ impl SplitMix {
     }
 }
 
+/// The boxes of [`looseness`] and of [`Measured::box_slope`] must have a positive width.
+fn check_box_width(settings: &ErrorSettings) -> Result<(), AnalysisError> {
+    let w = settings.looseness_width;
+    if w.is_finite() && w > 0.0 {
+        Ok(())
+    } else {
+        Err(AnalysisError::Setting {
+            name: "box width",
+            value: w,
+            expected: "a finite width > 0",
+        })
+    }
+}
+
 /// Bound looseness: boxes of width [`ErrorSettings::looseness_width`] centred on a grid over `C`
 /// (at most [`ErrorSettings::looseness_boxes`]; those with a safe centre), and for each the ratio
 /// `maxⱼ (N̄ⱼ − N̲ⱼ) / maxⱼ rangeⱼ`, where `rangeⱼ` is the spread of `Nⱼ` over the box's corners
@@ -425,6 +454,7 @@ pub fn looseness(
     settings: &ErrorSettings,
 ) -> Result<Looseness, AnalysisError> {
     check_dims(s, net)?;
+    check_box_width(settings)?;
     let c = &s.reach.region;
     let n = s.n();
     let w = settings.looseness_width;
@@ -483,12 +513,14 @@ pub fn looseness(
     let ratio = |v: &[f64]| {
         let p = Percentiles::of(v);
         Ratio {
+            min: v.iter().copied().fold(f64::INFINITY, f64::min),
             median: p.median,
             max: p.max,
         }
     };
     Ok(Looseness {
         boxes: ibp.len(),
+        width: w,
         ibp: ratio(&ibp),
         crown: ratio(&crown),
     })

@@ -76,8 +76,8 @@ fn simulate_writes_csv_that_ends_at_the_right_equilibria() {
 
 #[test]
 fn bad_input_gives_a_clear_error_and_exit_code_2() {
-    let dir = std::env::temp_dir().join(format!("cbfreach-cli-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
     let bad = dir.join("bad.toml");
     std::fs::write(&bad, common::SMALL.replace("-x - y", "-x - q")).unwrap();
     let (code, _, stderr) = cbfreach(&["check", bad.to_str().unwrap()]);
@@ -104,7 +104,6 @@ fn bad_input_gives_a_clear_error_and_exit_code_2() {
         stderr.contains("--every") && stderr.contains("whole number ≥ 1"),
         "{stderr}"
     );
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]
@@ -165,10 +164,10 @@ fn default_run_reproduces_the_papers_verdicts_and_they_are_true() {
     use cbfreach::filter::SafetyFilter;
     use cbfreach::simulate::{simulate_filtered, Integrator};
 
-    let dir = std::env::temp_dir().join(format!("cbfreach-default-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
     let out = Command::new(env!("CARGO_BIN_EXE_cbfreach"))
-        .current_dir(&dir)
+        .current_dir(dir)
         .output()
         .expect("runs");
     let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
@@ -187,7 +186,6 @@ fn default_run_reproduces_the_papers_verdicts_and_they_are_true() {
             "{png:?}"
         );
     }
-    let _ = std::fs::remove_dir_all(&dir);
 
     let s = common::integrator();
     let filter = SafetyFilter::new(&s);
@@ -216,7 +214,9 @@ fn paper_verifies_split_boxes_of_scenario_2_truly() {
     use cbfreach::filter::SafetyFilter;
     use cbfreach::simulate::{simulate_filtered, Integrator};
 
-    let dir = std::env::temp_dir().join(format!("cbfreach-paper-{}", std::process::id()));
+    let tmp = tempfile::tempdir().unwrap();
+    // A folder not there yet: `paper` makes it.
+    let dir = tmp.path().join("paper");
     let (code, stdout, stderr) = cbfreach(&["paper", "-o", dir.to_str().unwrap()]);
     assert_eq!(code, 0, "{stderr}");
     // Beside the paper's figures, each shipped network's error map.
@@ -224,7 +224,6 @@ fn paper_verifies_split_boxes_of_scenario_2_truly() {
         let map = dir.join(format!("{name}-error-map.png"));
         assert!(map.exists(), "{} missing: {stdout}", map.display());
     }
-    let _ = std::fs::remove_dir_all(&dir);
     assert!(stdout.contains("next to the paper's"), "{stdout}");
     let scenario_2 = &stdout[stdout.find("Scenario 2").expect("scenario 2 runs")..];
     let s = common::double_integrator();
@@ -283,8 +282,8 @@ fn train_adds_finer_samples_only_where_v_is_steep() {
     // within one spacing of each steep grid point of S (at most 9² − 3² new points each);
     // a threshold above every slope adds none. `--focus-box` weighs the grid's 6 × 5 points in
     // [−0.5, 0.5]² (x₁ = −0.5, −0.3, …, 0.5 and x₂ = −0.4, …, 0.4; none of the finer ones).
-    let dir = std::env::temp_dir().join(format!("cbfreach-dense-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
     let out = dir.join("net.safetensors");
     let added = |slope: &str| {
         let (code, stdout, stderr) = train_small(
@@ -319,13 +318,12 @@ fn train_adds_finer_samples_only_where_v_is_steep() {
         "{points} points around {seeds} seeds"
     );
     assert_eq!(added("1e9"), (0, 0));
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]
 fn train_takes_secant_slope_targets_and_records_their_step() {
-    let dir = std::env::temp_dir().join(format!("cbfreach-secant-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
     let out = dir.join("net.safetensors");
     let train = |step: &str| train_small("21,16", &out, &["--slope-step", step]);
     let (code, _, stderr) = train("0.02,0.01");
@@ -343,7 +341,6 @@ fn train_takes_secant_slope_targets_and_records_their_step() {
         assert_ne!(code, 0);
         assert!(stderr.contains(says), "{bad}: {stderr}");
     }
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 /// `cbfreach reach` on scenario 2 with forward bounds and `extra` arguments: its stdout.
@@ -418,8 +415,8 @@ fn reach_meets_the_parallelotope_with_its_x_box_unless_told_not_to() {
 
 #[test]
 fn plot_error_map_reads_the_map_beside_the_network_or_the_given_one() {
-    let dir = std::env::temp_dir().join(format!("cbfreach-plot-map-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
     let svg = dir.join("map.svg");
     let scenario = common::scenario_path("integrator.toml");
     let plot_map = |option: &str, file: &std::path::Path| {
@@ -445,7 +442,6 @@ fn plot_error_map_reads_the_map_beside_the_network_or_the_given_one() {
     let (code, _, stderr) = plot_map("--input", &dir.join("no-such.errormap.json"));
     assert_ne!(code, 0);
     assert!(stderr.contains("no-such.errormap.json"), "{stderr}");
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 /// `--m-c` takes a number or, as the scenario file's `m_c`, where in the network's error map
@@ -455,8 +451,8 @@ fn m_c_flag_takes_a_number_or_reads_the_error_map() {
     use cbfreach::surrogate_error::ErrorMap;
     let map = ErrorMap::load_for(&common::scenario_path("integrator.safetensors")).unwrap();
     let scenario = common::scenario_path("integrator.toml");
-    let dir = std::env::temp_dir().join(format!("cbfreach-m-c-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
     for (flag, want) in [
         ("certified", map.certified_linf.unwrap()),
         ("measured", map.measured_linf),
@@ -492,5 +488,66 @@ fn m_c_flag_takes_a_number_or_reads_the_error_map() {
             "{bad}: {stderr}"
         );
     }
-    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// `cbfreach error --json` gives the fields for a network given with `--network`, writes
+/// the error map beside it, measures the looseness on boxes `--box-width` wide, and refuses a
+/// width that is not positive by naming it.
+#[test]
+fn error_json_has_the_measured_and_certified_fields() {
+    use cbfreach::network::Mlp;
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let scenario = dir.join("integrator.toml");
+    let text = std::fs::read_to_string(common::scenario_path("integrator.toml")).unwrap();
+    assert!(text.contains("grid = [365, 274]"));
+    std::fs::write(
+        &scenario,
+        text.replace("grid = [365, 274]", "grid = [30, 24]"),
+    )
+    .unwrap();
+    let net = dir.join("small.safetensors");
+    Mlp::random(&[2, 16, 16, 2], 5)
+        .save_safetensors(&net, &Default::default())
+        .unwrap();
+    let run = |width: &str| {
+        cbfreach(&[
+            "error",
+            scenario.to_str().unwrap(),
+            "--network",
+            net.to_str().unwrap(),
+            "--budget",
+            "400",
+            "--box-width",
+            width,
+            "--json",
+        ])
+    };
+    let (code, stdout, stderr) = run("0.3");
+    assert_eq!(code, 0, "{stderr}");
+    let v: serde_json::Value = serde_json::from_str(&stdout).expect("JSON");
+    assert_eq!(
+        v["grid_points"].as_u64(),
+        Some(60 * 48),
+        "twice the training grid per axis"
+    );
+    assert_eq!(v["argmax"].as_array().map(Vec::len), Some(2));
+    let (linf, l2) = (v["linf"].as_f64().unwrap(), v["l2"].as_f64().unwrap());
+    assert!(linf > 0.0 && l2 >= linf, "{linf} {l2}");
+    // One CBF: a closed form, so a certified bound, finite away from L_g h = 0, ≥ the sampled one.
+    let certified = v["certified_linf"]
+        .as_f64()
+        .expect("a finite certified bound");
+    assert!(certified >= linf, "{certified} < {linf}");
+    assert!(v["cells"].as_u64().unwrap() > 0);
+    assert_eq!(v["looseness"]["width"].as_f64(), Some(0.3));
+    assert_eq!(v["box_width"].as_f64(), Some(0.3));
+    assert!(v["looseness"]["crown"]["min"].as_f64().unwrap() >= 1.0);
+    assert!(dir.join("small.errormap.json").exists());
+    let (code, _, stderr) = run("0");
+    assert_ne!(code, 0);
+    assert!(
+        stderr.contains("box width = 0: expected a finite width > 0"),
+        "{stderr}"
+    );
 }

@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use std::process::Command;
 
 use cbfreach::network::Mlp;
+use tempfile::TempDir;
 
 fn cbfreach(args: &[&str]) -> (i32, String, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_cbfreach"))
@@ -18,16 +19,15 @@ fn cbfreach(args: &[&str]) -> (i32, String, String) {
     )
 }
 
-/// A small random network saved in a fresh temporary directory.
-fn saved_network(tag: &str) -> (Mlp, PathBuf) {
-    let dir =
-        std::env::temp_dir().join(format!("cbfreach-cli-bounds-{tag}-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).expect("temp dir");
-    let path = dir.join("net.safetensors");
+/// A small random network saved in a fresh temporary directory, returned with it: the caller
+/// keeps the directory alive, and it is removed on drop (also when a test panics).
+fn saved_network() -> (Mlp, PathBuf, TempDir) {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = dir.path().join("net.safetensors");
     let net = Mlp::random(&[2, 16, 16, 2], 3);
     net.save_safetensors(&path, &BTreeMap::new())
         .expect("saves");
-    (net, path)
+    (net, path, dir)
 }
 
 fn floats(v: &serde_json::Value) -> Vec<f64> {
@@ -40,7 +40,7 @@ fn floats(v: &serde_json::Value) -> Vec<f64> {
 
 #[test]
 fn json_bounds_contain_sampled_outputs_for_every_method() {
-    let (net, path) = saved_network("json");
+    let (net, path, _dir) = saved_network();
     let (lo, hi) = ([-0.7, 0.2], [-0.2, 0.6]);
     for method in [
         "ibp",
@@ -109,7 +109,7 @@ fn json_bounds_contain_sampled_outputs_for_every_method() {
 
 #[test]
 fn table_and_named_errors() {
-    let (_, path) = saved_network("errors");
+    let (_, path, _dir) = saved_network();
     let p = path.to_str().unwrap();
     let (code, stdout, stderr) = cbfreach(&["bounds", p, "--lower", "-1,-1", "--upper", "1,1"]);
     assert_eq!(code, 0, "{stderr}");
@@ -138,5 +138,4 @@ fn table_and_named_errors() {
     ]);
     assert_ne!(code, 0);
     assert!(stderr.contains("--method"), "{stderr}");
-    let _ = std::fs::remove_dir_all(path.parent().unwrap());
 }

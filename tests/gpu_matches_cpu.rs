@@ -655,9 +655,8 @@ fn bench_box_steps_per_second() {
 fn cli_backend_gpu_and_auto() {
     let Some(_gpu) = gpu() else { return };
     let gpu = GpuContext::new().expect("the adapter found above");
-    let dir = std::env::temp_dir().join(format!("cbfreach-gpu-cli-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let net_path = dir.join("net.safetensors");
+    let dir = tempfile::tempdir().unwrap();
+    let net_path = dir.path().join("net.safetensors");
     small_network(&[2, 16, 16, 2], 8, 0.05)
         .save_safetensors(&net_path, &Default::default())
         .unwrap();
@@ -789,7 +788,6 @@ fn cli_backend_gpu_and_auto() {
     assert!(gemm_lines > 0, "{text}");
     assert_eq!(kernel_count("gemm"), gemm_lines, "{text}");
     assert_eq!(kernel_count("embed"), 1, "{text}");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// GPU (f64) against CPU for face-local bounds and local error margins: the same arithmetic up

@@ -41,8 +41,8 @@ fn trajectories_figure(out: &Path, size: (u32, u32)) -> Result<(), PlotError> {
 
 #[test]
 fn png_and_svg_have_the_requested_size() {
-    let dir = std::env::temp_dir().join(format!("cbfreach-plot-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
     let png = dir.join("fig1.png");
     trajectories_figure(&png, (640, 480)).unwrap();
     let bytes = std::fs::read(&png).unwrap();
@@ -63,12 +63,13 @@ fn png_and_svg_have_the_requested_size() {
         text.contains("x1") && text.contains("saddle"),
         "labels missing"
     );
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]
 fn unknown_extension_and_bad_size_are_errors() {
-    let dir = std::env::temp_dir();
+    // Nothing should be written, but if it were, it lands in a directory removed on drop.
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
     let e = trajectories_figure(&dir.join("fig.jpg"), (640, 480)).unwrap_err();
     assert!(matches!(e, PlotError::Format(_)), "{e}");
     assert!(e.to_string().contains(".png or .svg"));
@@ -91,8 +92,8 @@ fn error_map_colours_each_cell_by_its_certified_bound() {
 
     let s = common::integrator();
     let map = ErrorMap::load_for(&common::scenario_path("integrator.safetensors")).unwrap();
-    let dir = std::env::temp_dir().join(format!("cbfreach-errormap-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
     let svg = dir.join("map.svg");
     save(
         &Figure::ErrorMap {
@@ -144,5 +145,4 @@ fn error_map_colours_each_cell_by_its_certified_bound() {
         text.contains(&title) && text.contains("0.2 &lt; M ≤ 0.5"),
         "legend or title"
     );
-    std::fs::remove_dir_all(&dir).ok();
 }

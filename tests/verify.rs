@@ -37,7 +37,9 @@ fn bin() -> &'static str {
 fn network() -> &'static (PathBuf, f64) {
     static NET: OnceLock<(PathBuf, f64)> = OnceLock::new();
     NET.get_or_init(|| {
-        let out = std::env::temp_dir().join(format!(
+        // A `static` is never dropped, so a `TempDir` here would never be removed: the file
+        // (and its `.ckpt`) goes under cargo's scratch directory inside `target/` instead.
+        let out = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!(
             "cbfreach-verify-test-{}.safetensors",
             std::process::id()
         ));

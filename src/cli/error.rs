@@ -38,9 +38,13 @@ pub struct ErrorArgs {
     /// Measurement grid: this many times the training grid's points per axis.
     #[arg(long, default_value_t = 2)]
     pub refine: usize,
-    /// Looseness: at most this many 0.1-wide boxes across C ∩ S (0 skips the looseness).
+    /// Looseness: at most this many boxes across C ∩ S (0 skips the looseness).
     #[arg(long, default_value_t = 300)]
     pub looseness_boxes: usize,
+    /// Width of the boxes of the looseness and of the slope error over boxes. The engine's
+    /// sets grow wider than 0.1 along the way: a wider box shows how bounds hold up there.
+    #[arg(long, default_value_t = 0.1)]
+    pub box_width: f64,
     /// Cells narrower than this are not refined further.
     #[arg(long, default_value_t = 0.125 / 32.0)]
     pub min_cell: f64,
@@ -90,6 +94,7 @@ pub fn run(args: &ErrorArgs) -> CliResult {
         refine: args.refine.max(1),
         budget: args.budget,
         looseness_boxes: args.looseness_boxes,
+        looseness_width: args.box_width,
         local_ratio: args.local_ratio,
         floor: args.floor,
         max_cells: args.max_cells,
@@ -193,8 +198,8 @@ pub fn run(args: &ErrorArgs) -> CliResult {
     );
     if let Some(l) = &loose {
         println!(
-            "bound looseness (width / sampled range) on {} boxes 0.1 wide: IBP median {:.3}, max {:.3}; CROWN median {:.3}, max {:.3}",
-            l.boxes, l.ibp.median, l.ibp.max, l.crown.median, l.crown.max
+            "bound looseness (width / sampled range) on {} boxes {} wide: IBP median {:.3}, max {:.3}; CROWN median {:.3}, max {:.3}",
+            l.boxes, l.width, l.ibp.median, l.ibp.max, l.crown.median, l.crown.max
         );
     }
     match &certified {

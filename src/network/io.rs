@@ -417,12 +417,6 @@ fn parse(bytes: &[u8], path: &Path) -> Result<(Mlp, BTreeMap<String, String>), N
 mod tests {
     use super::*;
 
-    fn tmp(name: &str) -> PathBuf {
-        let dir = std::env::temp_dir().join(format!("cbfreach-net-io-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        dir.join(name)
-    }
-
     /// Writes a PyTorch-style file of the given f32 tensors.
     fn torch_style(tensors: &[(&str, Vec<usize>, Vec<f32>)], dtype: Dtype) -> Vec<u8> {
         let t: Vec<RawTensor> = tensors
@@ -458,7 +452,9 @@ mod tests {
         let mut extra = BTreeMap::new();
         extra.insert("max_error".to_string(), "0.19".to_string());
         extra.insert("format".to_string(), "overridden".to_string());
-        let p = tmp("rt.safetensors");
+        // Removed on drop, also when an assertion panics.
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("rt.safetensors");
         mlp.save_safetensors(&p, &extra).unwrap();
         let (back, meta) = Mlp::load_safetensors_with_metadata(&p).unwrap();
         assert_eq!(back, mlp);

@@ -1793,9 +1793,8 @@ mod tests {
                     .all(|l| l.weight.iter().all(|x| x.is_finite())))
         );
         // Checkpoints of other data or precision are refused.
-        let dir = std::env::temp_dir().join(format!("cbfreach-train-bad-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let ck = dir.join("ck.safetensors");
+        let dir = tempfile::tempdir().unwrap();
+        let ck = dir.path().join("ck.safetensors");
         let with_ck = TrainSettings {
             checkpoint: Some(ck.clone()),
             ..s.clone()
@@ -1815,7 +1814,7 @@ mod tests {
             Err(NetworkError::Checkpoint { .. })
         ));
         assert!(matches!(
-            resume(&dir.join("none"), &data, &s, |_| {}),
+            resume(&dir.path().join("none"), &data, &s, |_| {}),
             Err(NetworkError::Io { .. })
         ));
     }
@@ -1823,9 +1822,8 @@ mod tests {
     #[test]
     fn resume_matches_uninterrupted_run() {
         let data = smooth_data(9);
-        let dir = std::env::temp_dir().join(format!("cbfreach-train-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let ck = dir.join("ck.safetensors");
+        let dir = tempfile::tempdir().unwrap();
+        let ck = dir.path().join("ck.safetensors");
         let mut init = Mlp::random(&[2, 16, 16, 2], 4);
         // Dead neurons, revived after epochs 3, 6 and 9: across the interruption too.
         init.layers[1].bias[..3].fill(-100.0);
@@ -1849,7 +1847,7 @@ mod tests {
                 checkpoint_every: 5,
                 ..full.clone()
             };
-            let ck5 = dir.join("ck5.safetensors");
+            let ck5 = dir.path().join("ck5.safetensors");
             train(init.clone(), &data, &part, |s| {
                 if s.epoch == 6 {
                     std::fs::copy(&ck, &ck5).unwrap();
