@@ -17,8 +17,8 @@ use cbfreach::network::Mlp;
 use cbfreach::scenario::{Margin, Scenario};
 use cbfreach::surrogate_error::{
     cell_error_bound_mv, centred_grid, certify, error_map_path, looseness, measure,
-    measurement_counts, proven_unsafe, resolve_margin, v_enclosure, Certified, ErrorMap,
-    ErrorSettings, Measured, Percentiles, VForms,
+    measurement_counts, measurement_points, proven_unsafe, resolve_margin, v_enclosure, Certified,
+    ErrorMap, ErrorSettings, Measured, Percentiles, VForms, WITNESS_CELLS,
 };
 use tempfile::TempDir;
 
@@ -110,6 +110,23 @@ fn certified_bound_is_never_below_a_sampled_error() {
         "sampled error {worst} > certified {}",
         c.linf
     );
+    // The witness is an error the network attains where it says, no greater than the certified
+    // bound, and found in a cell of largest bound.
+    let w = &c.witness;
+    assert_eq!(w.len(), 2);
+    let v = SafetyFilter::new(&f.s).eval(w).unwrap();
+    let at = f.net.forward(w);
+    let e = (0..2).map(|o| (at[o] - v[o]).abs()).fold(0.0, f64::max);
+    assert_eq!(e, c.witness_linf);
+    assert!(c.witness_linf > 0.0 && c.witness_linf <= c.linf);
+    let mut bounds: Vec<f64> = c.cells.iter().map(|cell| cell.bound).collect();
+    bounds.sort_by(|a, b| b.total_cmp(a));
+    let top = bounds[WITNESS_CELLS - 1];
+    assert!(c
+        .cells
+        .iter()
+        .any(|cell| cell.bound >= top
+            && (0..2).all(|i| cell.lower[i] <= w[i] && w[i] <= cell.upper[i])));
     // Per cell too: the error at every sample is within the bound of each kept cell holding it,
     // and every safe sample lies in some kept cell (dropped cells miss S).
     for (x, e) in &errors {
@@ -452,11 +469,8 @@ fn error_map_local_bounds_are_sound_and_below_the_global_one() {
 #[test]
 fn live_neurons_are_those_active_at_some_measured_point() {
     let f = fixture();
-    let counts = measurement_counts(&f.s, &ErrorSettings::default());
-    let points: Vec<Vec<f64>> = centred_grid(&f.s.reach.region, &counts)
-        .into_iter()
-        .filter(|x| f.s.is_safe(x))
-        .collect();
+    let (points, _) = measurement_points(&f.s, &ErrorSettings::default());
+    let points: Vec<Vec<f64>> = points.into_iter().filter(|x| f.s.is_safe(x)).collect();
     assert_eq!(f.measured.infeasible, 0, "every safe point is measured");
     let mut fires = [[false; 16]; 2];
     for x in &points {
@@ -482,9 +496,8 @@ fn box_slope_error_is_the_secant_error_of_n_minus_v() {
     let delta = settings.looseness_width / 2.0;
     assert_eq!(f.measured.box_width, settings.looseness_width);
     let filter = SafetyFilter::new(&f.s);
-    let counts = measurement_counts(&f.s, &settings);
     let mut expected = Vec::new();
-    for x in centred_grid(&f.s.reach.region, &counts) {
+    for x in measurement_points(&f.s, &settings).0 {
         if !f.s.is_safe(&x) || filter.eval(&x).is_err() {
             continue;
         }
@@ -634,4 +647,61 @@ fn looseness_holds_at_any_box_width() {
             .to_string();
         assert!(e.contains("box width"), "{e}");
     }
+}
+
+/// The measured error is the max over the centred grid *and* the boundary of C (its four edges
+/// at the grid's spacing, and its corners), built here independently: fails if the boundary is
+/// left out (the centred grid stays half a spacing inside C, where errors can peak).
+#[test]
+fn measured_error_covers_the_boundary_of_c() {
+    let f = fixture();
+    let c = &f.s.reach.region;
+    let counts = measurement_counts(&f.s, &ErrorSettings::default());
+    let centred = |i: usize, j: usize| {
+        let h = (c.upper[i] - c.lower[i]) / counts[i] as f64;
+        c.lower[i] + (j as f64 + 0.5) * h
+    };
+    let mut points = centred_grid(c, &counts);
+    for i in 0..2 {
+        let other = 1 - i;
+        for side in [c.lower[i], c.upper[i]] {
+            for j in 0..counts[other] {
+                let mut x = vec![0.0; 2];
+                x[i] = side;
+                x[other] = centred(other, j);
+                points.push(x);
+            }
+        }
+    }
+    points.extend(c.corners());
+    assert_eq!(f.measured.boundary_points, 2 * (counts[0] + counts[1]) + 4);
+    let filter = SafetyFilter::new(&f.s);
+    let errors: Vec<f64> = points
+        .iter()
+        .filter(|x| f.s.is_safe(x))
+        .filter_map(|x| {
+            let v = filter.eval(x).ok()?;
+            let y = f.net.forward(x);
+            Some((0..2).map(|o| (y[o] - v[o]).abs()).fold(0.0, f64::max))
+        })
+        .collect();
+    assert_eq!(f.measured.samples, errors.len());
+    let max = errors.iter().copied().fold(0.0, f64::max);
+    assert!(
+        (f.measured.linf - max).abs() <= 1e-12 * max,
+        "{} vs {max}",
+        f.measured.linf
+    );
+    // The boundary's own max (the trainer's batched evaluation and `forward` may differ in
+    // the last bit).
+    let boundary_max = points[points.len() - f.measured.boundary_points..]
+        .iter()
+        .filter(|x| f.s.is_safe(x))
+        .filter_map(|x| {
+            let v = filter.eval(x).ok()?;
+            let y = f.net.forward(x);
+            Some((0..2).map(|o| (y[o] - v[o]).abs()).fold(0.0, f64::max))
+        })
+        .fold(0.0, f64::max);
+    assert!(f.measured.linf >= boundary_max * (1.0 - 1e-12));
 }

@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use cbfreach::bounds::BoundMethod;
 use cbfreach::surrogate_error::{
     certify, error_map_path, looseness, measure, ErrorMap, ErrorSettings, Looseness, Percentiles,
+    WITNESS_CELLS,
 };
 use serde::Serialize;
 
@@ -68,12 +69,17 @@ struct ErrorJson {
     cells: usize,
     uncertified_cells: usize,
     certified_linf_finite_cells: Option<f64>,
+    /// The largest error found by dense samples of the cells of largest bound, and where.
+    witness_linf: Option<f64>,
+    witness: Option<Vec<f64>>,
     dropped_cells: usize,
     /// Kept cells whose bound is within `max(local_ratio × sampled error, floor)`.
     satisfied_cells: usize,
     evaluated_cells: usize,
     budget_spent: bool,
     grid_points: usize,
+    /// Points on the boundary of `C` measured besides the grid.
+    boundary_points: usize,
     samples: usize,
     slope: Percentiles,
     /// The secant slope error over boxes `box_width` wide (what a bound over a box sees).
@@ -143,11 +149,14 @@ pub fn run(args: &ErrorArgs) -> CliResult {
         cells: certified.as_ref().map_or(0, |c| c.cells.len()),
         uncertified_cells: certified.as_ref().map_or(0, |c| c.uncertified),
         certified_linf_finite_cells: certified.as_ref().map(|c| c.finite_linf),
+        witness_linf: certified.as_ref().map(|c| c.witness_linf),
+        witness: certified.as_ref().map(|c| c.witness.clone()),
         dropped_cells: certified.as_ref().map_or(0, |c| c.dropped),
         satisfied_cells: certified.as_ref().map_or(0, |c| c.satisfied),
         evaluated_cells: certified.as_ref().map_or(0, |c| c.evaluated),
         budget_spent: certified.as_ref().is_some_and(|c| c.budget_spent),
         grid_points: measured.grid_points,
+        boundary_points: measured.boundary_points,
         samples: measured.samples,
         slope: measured.slope,
         box_slope: measured.box_slope,
@@ -162,8 +171,8 @@ pub fn run(args: &ErrorArgs) -> CliResult {
     }
     println!("{}: network {}", s.file, path.display());
     println!(
-        "measured on {} points of C ∩ S ({} grid points, {} infeasible skipped):",
-        measured.samples, measured.grid_points, measured.infeasible
+        "measured on {} points of C ∩ S ({} grid points and {} on C's boundary, {} infeasible skipped):",
+        measured.samples, measured.grid_points, measured.boundary_points, measured.infeasible
     );
     println!(
         "  max ℓ∞ error {:.4} at {}, max ℓ2 error {:.4} at {}, mean ℓ∞ {:.4}",
@@ -217,13 +226,29 @@ pub fn run(args: &ErrorArgs) -> CliResult {
         ),
         None => println!("certified M_C: none (the filter is a general QP without a closed form)"),
     }
+    if let Some(c) = certified.as_ref().filter(|c| !c.witness.is_empty()) {
+        println!(
+            "  the network attains {:.4} at {} (dense samples of the {} cells of largest bound){}",
+            c.witness_linf,
+            fmt_point(&c.witness),
+            WITNESS_CELLS,
+            if c.linf.is_finite() && c.witness_linf > 0.0 {
+                format!(
+                    ": the certified bound exceeds it by {:.1} %",
+                    100.0 * (c.linf / c.witness_linf - 1.0)
+                )
+            } else {
+                String::new()
+            }
+        );
+    }
     if let Some(c) = &certified {
         println!(
-            "  local: {} of {} cells within max({} × their sampled error, {})",
+            "  local: {} of {} cells within max({r} × their sampled error, {}), capped at {r} × the measured max",
             c.satisfied,
             c.cells.len(),
-            args.local_ratio,
-            args.floor
+            args.floor,
+            r = args.local_ratio,
         );
     }
     if let Some(c) = certified.as_ref().filter(|c| c.uncertified > 0) {
