@@ -540,7 +540,10 @@ fn error_json_has_the_measured_and_certified_fields() {
         .expect("a finite certified bound");
     assert!(certified >= linf, "{certified} < {linf}");
     let witness = v["witness_linf"].as_f64().unwrap();
-    assert!(witness > 0.0 && witness <= certified, "{witness} {certified}");
+    assert!(
+        witness > 0.0 && witness <= certified,
+        "{witness} {certified}"
+    );
     assert_eq!(v["witness"].as_array().map(Vec::len), Some(2));
     assert!(v["cells"].as_u64().unwrap() > 0);
     assert_eq!(v["looseness"]["width"].as_f64(), Some(0.3));
