@@ -676,17 +676,21 @@ fn measured_error_covers_the_boundary_of_c() {
     points.extend(c.corners());
     assert_eq!(f.measured.boundary_points, 2 * (counts[0] + counts[1]) + 4);
     let filter = SafetyFilter::new(&f.s);
-    let errors: Vec<f64> = points
-        .iter()
-        .filter(|x| f.s.is_safe(x))
-        .filter_map(|x| {
-            let v = filter.eval(x).ok()?;
-            let y = f.net.forward(x);
-            Some((0..2).map(|o| (y[o] - v[o]).abs()).fold(0.0, f64::max))
-        })
-        .collect();
-    assert_eq!(f.measured.samples, errors.len());
-    let max = errors.iter().copied().fold(0.0, f64::max);
+    // ‖N − v‖∞ at the safe points where the filter is feasible.
+    let errors = |points: &[Vec<f64>]| -> Vec<f64> {
+        points
+            .iter()
+            .filter(|x| f.s.is_safe(x))
+            .filter_map(|x| {
+                let v = filter.eval(x).ok()?;
+                let y = f.net.forward(x);
+                Some((0..2).map(|o| (y[o] - v[o]).abs()).fold(0.0, f64::max))
+            })
+            .collect()
+    };
+    let all = errors(&points);
+    assert_eq!(f.measured.samples, all.len());
+    let max = all.iter().copied().fold(0.0, f64::max);
     assert!(
         (f.measured.linf - max).abs() <= 1e-12 * max,
         "{} vs {max}",
@@ -694,14 +698,7 @@ fn measured_error_covers_the_boundary_of_c() {
     );
     // The boundary's own max (the trainer's batched evaluation and `forward` may differ in
     // the last bit).
-    let boundary_max = points[points.len() - f.measured.boundary_points..]
-        .iter()
-        .filter(|x| f.s.is_safe(x))
-        .filter_map(|x| {
-            let v = filter.eval(x).ok()?;
-            let y = f.net.forward(x);
-            Some((0..2).map(|o| (y[o] - v[o]).abs()).fold(0.0, f64::max))
-        })
-        .fold(0.0, f64::max);
+    let boundary = &points[points.len() - f.measured.boundary_points..];
+    let boundary_max = errors(boundary).into_iter().fold(0.0, f64::max);
     assert!(f.measured.linf >= boundary_max * (1.0 - 1e-12));
 }
