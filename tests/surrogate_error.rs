@@ -702,3 +702,36 @@ fn measured_error_covers_the_boundary_of_c() {
     let boundary_max = errors(boundary).into_iter().fold(0.0, f64::max);
     assert!(f.measured.linf >= boundary_max * (1.0 - 1e-12));
 }
+
+/// Every cell's target is capped at `local_ratio` times the global error it is given, whatever
+/// the error sampled on the cell itself: given half the measured max, every cell whose bound
+/// stays above the cap is refined until it cannot be (narrower than `min_cell`). Fails if a
+/// cell whose own samples err more is left at its looser local target.
+#[test]
+fn cells_are_refined_towards_the_global_goal() {
+    let f = fixture();
+    let settings = ErrorSettings {
+        budget: 20_000,
+        max_cells: 20_000,
+        min_cell: 1.0 / 16.0,
+        local_ratio: 1.1,
+        ..ErrorSettings::default()
+    };
+    let target = 0.5 * f.measured.linf;
+    let c = certify(&f.s, &f.net, target, &settings, &|_, _| {})
+        .unwrap()
+        .unwrap();
+    assert!(!c.budget_spent, "the budget suffices");
+    let goal = (settings.local_ratio * target).max(settings.floor);
+    let above: Vec<_> = c.cells.iter().filter(|cell| cell.bound > goal).collect();
+    assert!(
+        !above.is_empty(),
+        "half the measured max is out of reach somewhere"
+    );
+    for cell in above {
+        let width = (0..2)
+            .map(|i| cell.upper[i] - cell.lower[i])
+            .fold(0.0, f64::max);
+        assert!(width < settings.min_cell, "{cell:?} above {goal}");
+    }
+}
