@@ -307,10 +307,10 @@ pub fn centred_grid(region: &IntervalBox, counts: &[usize]) -> Vec<Vec<f64>> {
 
 /// The points [`measure`] evaluates, before leaving out the unsafe ones: the cell-centred grid
 /// over `C` of [`measurement_counts`] (offset from the training grid), then that grid projected
-/// onto each face of `C`, then `C`'s corners. The centred grid alone stays half a spacing
-/// inside `C`, and the error can peak on its boundary (scenario 1's network errs by 0.30 at
-/// (4.5, 0.93), 0.25 at most on the centred grid). Returns the points and how many of them are
-/// the grid's.
+/// onto each face of `C`, then `C`'s corners (in two or more dimensions). The centred grid
+/// alone stays half a spacing inside `C`, and the error can peak on its boundary (scenario 1's
+/// network errs by 0.30 at (4.5, 0.93), 0.25 at most on the centred grid). Returns the points
+/// and how many of them are the grid's.
 pub fn measurement_points(s: &Scenario, settings: &ErrorSettings) -> (Vec<Vec<f64>>, usize) {
     let c = &s.reach.region;
     let counts = measurement_counts(s, settings);
@@ -326,7 +326,10 @@ pub fn measurement_points(s: &Scenario, settings: &ErrorSettings) -> (Vec<Vec<f6
             }));
         }
     }
-    points.extend(c.corners());
+    if c.dim() > 1 {
+        // In one dimension the faces are the corners.
+        points.extend(c.corners());
+    }
     (points, grid)
 }
 

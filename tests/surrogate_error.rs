@@ -735,3 +735,34 @@ fn cells_are_refined_towards_the_global_goal() {
         assert!(width < settings.min_cell, "{cell:?} above {goal}");
     }
 }
+
+/// In one dimension C's faces are its two ends, measured once each besides the grid.
+#[test]
+fn measurement_points_of_an_interval_add_its_two_ends_once() {
+    let s = common::from_text(
+        r#"
+name = "line"
+[system]
+states = ["x"]
+inputs = ["u"]
+f = ["0"]
+g = [["1"]]
+kappa = ["-x"]
+[[cbf]]
+h = "x + 2"
+[training]
+grid = [10]
+[reach]
+region = { lower = [-1], upper = [1] }
+m_c = 0.1
+dt = 0.05
+horizon = 1.0
+goal = { lower = [-0.1], upper = [0.1] }
+"#,
+    )
+    .unwrap();
+    let (points, grid) = measurement_points(&s, &ErrorSettings::default());
+    assert_eq!(grid, 20, "twice the training grid");
+    assert_eq!(points[grid..], [vec![-1.0], vec![1.0]]);
+    assert!(points[..grid].iter().all(|x| x[0] > -1.0 && x[0] < 1.0));
+}
