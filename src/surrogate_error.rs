@@ -1383,17 +1383,22 @@ pub fn sampled_cell_error(
         let u: Vec<f64> = (0..n).map(|_| rng.next_f64()).collect();
         pts.push(cell.point_at(&u));
     }
-    let mut e = 0.0_f64;
-    for x in pts {
-        if !s.is_safe(&x) {
-            continue;
-        }
-        let Ok(v) = filter.eval(&x) else { continue };
-        for (vj, nj) in v.iter().zip(net.forward(&x)) {
-            e = e.max((vj - nj).abs());
-        }
+    pts.iter()
+        .filter_map(|x| error_at(s, filter, net, x))
+        .fold(0.0, f64::max)
+}
+
+/// `‖N(x) − v(x)‖∞` at a safe point `x` where the filter is feasible; `None` elsewhere.
+fn error_at(s: &Scenario, filter: &SafetyFilter, net: &Mlp, x: &[f64]) -> Option<f64> {
+    if !s.is_safe(x) {
+        return None;
     }
-    e
+    let v = filter.eval(x).ok()?;
+    Some(
+        v.iter()
+            .zip(net.forward(x))
+            .fold(0.0_f64, |e, (vj, nj)| e.max((vj - nj).abs())),
+    )
 }
 
 /// Whether the filter is infeasible at a safe corner or at the centre of the cell.
@@ -1452,17 +1457,30 @@ pub struct Certified {
     pub satisfied: usize,
 }
 
-/// A cell waiting for refinement, ordered by its priority (the weighted gap between its bound
-/// and its target).
+/// A cell waiting for refinement. Cells whose bound exceeds the global goal come first, the
+/// largest bound first; the others by their priority (the weighted gap between their bound and
+/// their target).
 struct Entry {
+    above_goal: bool,
     priority: f64,
     bound: f64,
     cell: IntervalBox,
 }
 
+impl Entry {
+    fn key(&self) -> (bool, f64) {
+        let by = if self.above_goal {
+            self.bound
+        } else {
+            self.priority
+        };
+        (self.above_goal, by)
+    }
+}
+
 impl PartialEq for Entry {
     fn eq(&self, other: &Self) -> bool {
-        self.priority.total_cmp(&other.priority) == Ordering::Equal
+        self.cmp(other) == Ordering::Equal
     }
 }
 
@@ -1476,7 +1494,18 @@ impl PartialOrd for Entry {
 
 impl Ord for Entry {
     fn cmp(&self, other: &Self) -> Ordering {
-        self.priority.total_cmp(&other.priority)
+        let ((a, x), (b, y)) = (self.key(), other.key());
+        // Ties (the +∞ bounds at singular points) by the cells' lower corners, so that the
+        // order, and with it the seeds of the cells' samples, does not rest on the heap's layout.
+        a.cmp(&b).then(x.total_cmp(&y)).then_with(|| {
+            self.cell
+                .lower
+                .iter()
+                .zip(&other.cell.lower)
+                .map(|(p, q)| p.total_cmp(q))
+                .find(|o| o.is_ne())
+                .unwrap_or(Ordering::Equal)
+        })
     }
 }
 
@@ -1589,6 +1618,7 @@ pub fn certify(
                         // that meets it, and tiny cells at singular sets gain nothing.
                         let size = cell.widths().iter().fold(0.0_f64, |a, &b| a.max(b));
                         heap.push(Entry {
+                            above_goal: bound > global_goal,
                             priority: gap * size * weight(&cell),
                             bound,
                             cell,
@@ -1620,9 +1650,8 @@ pub fn certify(
             .min(settings.budget.saturating_sub(evaluated) / 2)
             .clamp(1, batch);
         let mut children = Vec::new();
-        let mut hot = above_global_goal(&mut heap, global_goal);
         while children.len() < 2 * room {
-            let Some(Entry { bound, cell, .. }) = hot.pop().or_else(|| heap.pop()) else {
+            let Some(Entry { bound, cell, .. }) = heap.pop() else {
                 break;
             };
             if cell.widths().iter().fold(0.0_f64, |a, &b| a.max(b)) < min_cell {
@@ -1637,7 +1666,6 @@ pub fn certify(
             children.push(l);
             children.push(r);
         }
-        heap.extend(hot);
         if children.is_empty() {
             break;
         }
@@ -1706,32 +1734,9 @@ pub fn witness_error(
             };
             grid_points(&cell, &vec![per_axis; cell.dim()])
         })
-        .filter(|x| s.is_safe(x))
-        .filter_map(|x| {
-            let v = filter.eval(&x).ok()?;
-            let e = v
-                .iter()
-                .zip(net.forward(&x))
-                .fold(0.0_f64, |e, (vj, nj)| e.max((vj - nj).abs()));
-            Some((e, x))
-        })
+        .filter_map(|x| Some((error_at(s, filter, net, &x)?, x)))
         .max_by(|a, b| a.0.total_cmp(&b.0))
         .unwrap_or((0.0, Vec::new()))
-}
-
-/// Takes the cells whose bound exceeds `goal` out of `heap`, the largest bound last (to be
-/// popped first); none when `goal` is not a finite number.
-fn above_global_goal(heap: &mut BinaryHeap<Entry>, goal: f64) -> Vec<Entry> {
-    if !goal.is_finite() || !heap.iter().any(|e| e.bound > goal) {
-        return Vec::new();
-    }
-    let (mut hot, rest): (Vec<Entry>, Vec<Entry>) = std::mem::take(heap)
-        .into_vec()
-        .into_iter()
-        .partition(|e| e.bound > goal);
-    *heap = BinaryHeap::from(rest);
-    hot.sort_by(|a, b| a.bound.total_cmp(&b.bound));
-    hot
 }
 
 /// A kept cell's certified bound, its refinement target, and the cell.
