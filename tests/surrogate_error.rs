@@ -696,11 +696,11 @@ fn measured_error_covers_the_boundary_of_c() {
         "{} vs {max}",
         f.measured.linf
     );
-    // The boundary's own max (the trainer's batched evaluation and `forward` may differ in
-    // the last bit).
-    let boundary = &points[points.len() - f.measured.boundary_points..];
+    // On this fixture the max lies on C's boundary: the centred grid alone measures less.
+    let (interior, boundary) = points.split_at(points.len() - f.measured.boundary_points);
+    let interior_max = errors(interior).into_iter().fold(0.0, f64::max);
     let boundary_max = errors(boundary).into_iter().fold(0.0, f64::max);
-    assert!(f.measured.linf >= boundary_max * (1.0 - 1e-12));
+    assert!(interior_max < boundary_max, "{interior_max} {boundary_max}");
 }
 
 /// Every cell's target is capped at `local_ratio` times the global error it is given, whatever
