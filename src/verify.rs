@@ -248,6 +248,34 @@ pub struct BoxVerdict {
     pub feasible: Option<bool>,
 }
 
+impl BoxVerdict {
+    /// Verified, but the QP's feasibility along its sets is not proven.
+    pub fn lacks_feasibility_proof(&self) -> bool {
+        self.verdict.is_verified() && self.feasible == Some(false)
+    }
+
+    /// This half's verdict given the verdict of the box it was bisected from. A verified box's
+    /// verdict holds for every start in it, so a half whose own sets prove nothing (`unknown`,
+    /// `invalid`) keeps its parent's verdict and final set; only a feasibility proof must come
+    /// from the half's own sets. (`unsafe` is kept: it flags a bug, never a property.)
+    fn within(self, parent: &BoxVerdict) -> BoxVerdict {
+        if !parent.verdict.is_verified() || !self.verdict.is_refinable() {
+            return self;
+        }
+        BoxVerdict {
+            cell: self.cell,
+            depth: self.depth,
+            initial: self.initial,
+            note: Some(format!(
+                "the verdict of the box it was bisected from (its own sets: {})",
+                self.verdict.name()
+            )),
+            feasible: Some(false),
+            ..parent.clone()
+        }
+    }
+}
+
 /// What a run was: everything two shards must share to be merged.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RunInfo {
@@ -294,6 +322,9 @@ pub struct RunInfo {
     pub refine_depth: usize,
     /// Refinement budget (extra boxes, per shard).
     pub budget: usize,
+    /// Refinement also bisected verified leaves whose QP feasibility was not proven.
+    #[serde(default)]
+    pub refine_feasibility: bool,
 }
 
 /// Wall times and work of a run.
@@ -449,6 +480,10 @@ pub struct VerifySettings {
     pub refine_depth: usize,
     /// Most extra boxes refinement may run (per shard).
     pub budget: usize,
+    /// Refinement also bisects verified leaves whose QP feasibility is not proven (after the
+    /// unverified ones, within the same budget): their halves keep the verdict and may prove
+    /// feasibility on their own sets.
+    pub refine_feasibility: bool,
     /// Run only this slice of the cells.
     pub shard: Option<Shard>,
     /// Boxes per call of the engine (bounds memory; tubes are judged and dropped per chunk).
@@ -613,20 +648,28 @@ impl Verifier<'_> {
         let mut leaves = before.clone();
         let mut left = settings.budget;
         for depth in 1..=settings.refine_depth {
-            let mut children = Vec::new();
-            let mut parents = Vec::new();
-            for (i, b) in leaves.iter().enumerate() {
-                if b.depth + 1 == depth && b.verdict.is_refinable() && left >= 2 {
-                    let (l, r) = b.initial.bisect();
-                    children.push((b.cell, depth, l));
-                    children.push((b.cell, depth, r));
-                    parents.push(i);
-                    left -= 2;
-                }
-            }
-            if children.is_empty() {
+            let latest = |i: &usize| leaves[*i].depth + 1 == depth;
+            let undecided =
+                (0..leaves.len()).filter(|i| latest(i) && leaves[*i].verdict.is_refinable());
+            let unproven_feasible = (0..leaves.len()).filter(|i| {
+                settings.refine_feasibility && latest(i) && leaves[*i].lacks_feasibility_proof()
+            });
+            // The undecided leaves take the budget first; the halves replace their parents in
+            // place, so the parents go in leaf order.
+            let mut parents: Vec<usize> =
+                undecided.chain(unproven_feasible).take(left / 2).collect();
+            parents.sort_unstable();
+            if parents.is_empty() {
                 break;
             }
+            left -= 2 * parents.len();
+            let children: Vec<(usize, usize, IntervalBox)> = parents
+                .iter()
+                .flat_map(|&i| {
+                    let (l, r) = leaves[i].initial.bisect();
+                    [(leaves[i].cell, depth, l), (leaves[i].cell, depth, r)]
+                })
+                .collect();
             let judged = self.run_boxes(&children, settings.chunk, &mut timing, &|d, t| {
                 progress(Stage::Refine(depth), d, t)
             })?;
@@ -637,7 +680,7 @@ impl Verifier<'_> {
             for (i, b) in leaves.into_iter().enumerate() {
                 if p.peek() == Some(&&i) {
                     p.next();
-                    next.extend(halves.by_ref().take(2));
+                    next.extend(halves.by_ref().take(2).map(|h| h.within(&b)));
                 } else {
                     next.push(b);
                 }
@@ -669,6 +712,7 @@ impl Verifier<'_> {
                     .collect(),
                 refine_depth: settings.refine_depth,
                 budget: settings.budget,
+                refine_feasibility: settings.refine_feasibility,
             },
             shard: settings.shard,
             cells: [range.start, range.end],
@@ -1022,6 +1066,59 @@ mod tests {
                 assert_eq!(at, total);
             }
         }
+    }
+
+    fn leaf(verdict: Verdict, lower: [f64; 2], upper: [f64; 2]) -> BoxVerdict {
+        BoxVerdict {
+            cell: 3,
+            depth: 1,
+            initial: IntervalBox {
+                lower: lower.to_vec(),
+                upper: upper.to_vec(),
+            },
+            verdict,
+            final_set: None,
+            t_end: Some(10.0),
+            trap: None,
+            note: None,
+            feasible: None,
+        }
+    }
+
+    #[test]
+    fn a_half_of_a_verified_box_keeps_its_verdict() {
+        let mut parent = leaf(Verdict::Trapped, [0.0, 0.0], [1.0, 1.0]);
+        parent.depth = 0;
+        parent.trap = Some(0);
+        parent.feasible = Some(false);
+        parent.final_set = Some(IntervalBox {
+            lower: vec![2.9, -0.1],
+            upper: vec![3.1, 0.1],
+        });
+        // The half's own sets prove nothing: the parent's verdict, trap and final set hold
+        // for it, its own box and depth stay, and its QP feasibility is not proven.
+        for own in [Verdict::Unknown, Verdict::Invalid] {
+            let half = leaf(own, [0.0, 0.0], [0.5, 1.0]).within(&parent);
+            assert_eq!(half.verdict, Verdict::Trapped);
+            assert_eq!(half.trap, Some(0));
+            assert_eq!(half.final_set, parent.final_set);
+            assert_eq!(half.initial.upper, vec![0.5, 1.0]);
+            assert_eq!(half.depth, 1);
+            assert_eq!(half.feasible, Some(false));
+            assert!(half.note.unwrap().contains(own.name()));
+        }
+        // A half verified on its own (here with the QP proven feasible) keeps its own proof;
+        // `unsafe` (a bug) is never hidden.
+        let mut proven = leaf(Verdict::Trapped, [0.5, 0.0], [1.0, 1.0]);
+        proven.feasible = Some(true);
+        assert_eq!(proven.clone().within(&parent), proven);
+        let bug = leaf(Verdict::Unsafe, [0.5, 0.0], [1.0, 1.0]);
+        assert_eq!(bug.clone().within(&parent), bug);
+        // Halves of an unverified box are only their own.
+        let unknown = leaf(Verdict::Unknown, [0.0, 0.0], [0.5, 1.0]);
+        let mut parent = parent;
+        parent.verdict = Verdict::Unknown;
+        assert_eq!(unknown.clone().within(&parent), unknown);
     }
 
     #[test]

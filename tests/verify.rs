@@ -95,6 +95,7 @@ fn run(s: &Scenario, grid: [usize; 2], refine: usize, shard: Option<Shard>) -> V
         grid: grid.to_vec(),
         refine_depth: refine,
         budget: 400,
+        refine_feasibility: false,
         shard,
         chunk: 64,
     };

@@ -12,7 +12,9 @@ use cbfreach::reach::Tube;
 use cbfreach::reach::{CpuBackend, ExactField, ReachMethod, ReachProblem, ReachSettings};
 use cbfreach::scenario::{Margin, Scenario};
 use cbfreach::surrogate_error::ErrorMap;
-use cbfreach::verify::{judge, traps_from_equilibria, Trap, Verdict, Verifier, VerifySettings};
+use cbfreach::verify::{
+    judge, traps_from_equilibria, BoxVerdict, Trap, Verdict, Verifier, VerifySettings,
+};
 
 use super::equilibria::print_table;
 use super::plot::{
@@ -361,7 +363,7 @@ fn box_verdicts(
     traps: &[Trap],
     tubes: &[Tube],
 ) -> Result<Vec<(Verdict, String)>, Box<dyn std::error::Error>> {
-    let mut out: Vec<(Verdict, String)> = tubes
+    let whole: Vec<(Verdict, String, Option<bool>)> = tubes
         .iter()
         .map(|tube| {
             let (v, _, note) = judge(s, traps, tube);
@@ -374,11 +376,20 @@ fn box_verdicts(
                 None => String::new(),
             });
             let feasible = v.is_verified().then(|| problem.proves_feasible_along(tube));
-            (v, note + feasibility_clause(feasible))
+            (v, note, feasible)
         })
         .collect();
+    // Split what the whole box leaves open: its verdict, or the QP's feasibility along its
+    // sets (the pieces' sets are narrower and may stay clear of where the QP fails).
     let retry: Vec<usize> = (0..tubes.len())
-        .filter(|&k| !out[k].0.is_verified() && out[k].0 != Verdict::Unsafe)
+        .filter(|&k| match whole[k] {
+            (v, _, feasible) if v.is_verified() => feasible == Some(false),
+            (v, _, _) => v != Verdict::Unsafe,
+        })
+        .collect();
+    let mut out: Vec<(Verdict, String)> = whole
+        .into_iter()
+        .map(|(v, note, feasible)| (v, note + feasibility_clause(feasible)))
         .collect();
     let verifier = Verifier {
         scenario: s,
@@ -402,6 +413,7 @@ fn box_verdicts(
                 grid: vec![SPLIT; s.n()],
                 refine_depth: settings.refine,
                 budget: REFINE_BUDGET,
+                refine_feasibility: true,
                 shard: None,
                 chunk: 512,
             },
@@ -426,14 +438,24 @@ fn box_verdicts(
         let first = leaves.first().map(|b| b.verdict);
         match first {
             Some(v) if proven == leaves.len() && leaves.iter().all(|b| b.verdict == v) => {
-                let feasible = leaves.iter().all(|b| b.feasible == Some(true));
+                let area = |b: &&BoxVerdict| b.initial.widths().iter().product::<f64>();
+                let feasible: f64 = leaves
+                    .iter()
+                    .filter(|b| b.feasible == Some(true))
+                    .map(|b| area(&b))
+                    .sum::<f64>()
+                    / leaves.iter().map(|b| area(&b)).sum::<f64>();
+                let clause = match feasible {
+                    f if f >= 1.0 => feasibility_clause(Some(true)).to_string(),
+                    0.0 => feasibility_clause(Some(false)).to_string(),
+                    f => format!("; QP proven feasible on {:.1} % of the box", 100.0 * f),
+                };
                 out[k] = (
                     v,
                     format!(
-                        "as {} pieces {size} wide: every piece {}{}",
+                        "as {} pieces {size} wide: every piece {}{clause}",
                         leaves.len(),
                         v.name(),
-                        feasibility_clause(Some(feasible))
                     ),
                 );
             }

@@ -59,6 +59,10 @@ pub struct VerifyArgs {
     /// Most extra boxes refinement may run (per shard).
     #[arg(long, default_value_t = 8192)]
     pub budget: usize,
+    /// Refinement also bisects verified boxes whose QP feasibility is not proven (after the
+    /// unverified ones, within the budget); their halves keep the verdict.
+    #[arg(long)]
+    pub refine_feasibility: bool,
     /// Run only the K-th of N contiguous slices of the cells (1 ≤ K ≤ N); merge the JSON files
     /// with `cbfreach merge`.
     #[arg(long, value_name = "K/N")]
@@ -139,6 +143,7 @@ pub fn run(args: &VerifyArgs) -> CliResult {
         grid,
         refine_depth: args.refine,
         budget: args.budget,
+        refine_feasibility: args.refine_feasibility,
         shard,
         chunk: engine.preferred_batch(),
     };
