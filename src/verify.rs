@@ -1116,7 +1116,6 @@ mod tests {
         assert_eq!(bug.clone().within(&parent), bug);
         // Halves of an unverified box are only their own.
         let unknown = leaf(Verdict::Unknown, [0.0, 0.0], [0.5, 1.0]);
-        let mut parent = parent;
         parent.verdict = Verdict::Unknown;
         assert_eq!(unknown.clone().within(&parent), unknown);
     }
