@@ -660,8 +660,8 @@ fn sets_met_with_x_boxes_hold_and_turn(s: &Scenario, problem: &ReachProblem, loo
     let t = problem.transform.as_ref().unwrap();
     let mut checks = 0;
     for (tube, plain) in met.iter().zip(&alone) {
-        checks += filtered_trajectories_inside(&s, tube, 8);
-        let filter = SafetyFilter::new(&s);
+        checks += filtered_trajectories_inside(s, tube, 8);
+        let filter = SafetyFilter::new(s);
         for x0 in sample_box(&tube.initial, 8, 5) {
             let xs =
                 simulate_filtered(&filter, &x0, s.reach.dt, s.reach.steps(), Integrator::Euler).x;
