@@ -201,6 +201,17 @@ fn draw<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, figure: &Figure) -> R
     }
 }
 
+/// The caption's font size: 22 px, or less where a long title (a verdict map's with its
+/// shares) would run past the picture's edges.
+fn caption_size<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, title: &str) -> f64 {
+    const SIZE: f64 = 22.0;
+    let room = 0.96 * root.dim_in_pixel().0 as f64;
+    match root.estimate_text_size(title, &("sans-serif", SIZE).into_font().into()) {
+        Ok((w, _)) if w as f64 > room => (SIZE * room / w as f64).max(10.0),
+        _ => SIZE,
+    }
+}
+
 fn chart<'a, DB: DrawingBackend>(
     root: &'a DrawingArea<DB, Shift>,
     scenario: &Scenario,
@@ -215,7 +226,7 @@ fn chart<'a, DB: DrawingBackend>(
         ));
     }
     let mut chart = ChartBuilder::on(root)
-        .caption(title, ("sans-serif", 22))
+        .caption(title, ("sans-serif", caption_size(root, title)))
         .margin(12)
         .x_label_area_size(48)
         .y_label_area_size(58)

@@ -12,8 +12,10 @@
 //! the tube, recorded at every Euler step):
 //!
 //! - [`Verdict::Unsafe`] if at some recorded `t` some `hᵢ < 0` on all of `X(t)` (interval
-//!   evaluation): the filter keeps `S` forward invariant, so this reveals a bug and is reported
-//!   loudly;
+//!   evaluation) while the QP is proven feasible on every earlier set: the filter keeps `S`
+//!   forward invariant while it has a solution, so this reveals a bug and is reported loudly.
+//!   Where the QP may be infeasible on an earlier set, the trajectories may stop existing
+//!   there (conflicting CBFs), and the box is [`Verdict::Unknown`] with a note;
 //! - [`Verdict::Invalid`] if `X(t)` left `C` (the theorem's hypothesis and `M_C` fail there);
 //! - [`Verdict::Converges`] if `X(T) ⊆ G`, the scenario's goal box;
 //! - [`Verdict::Trapped`] if `X(T)` lies in the [`Trap`] box of an undesirable equilibrium that
@@ -63,8 +65,9 @@ pub enum Verdict {
     Unknown,
     /// The set left the region `C`: the result says nothing.
     Invalid,
-    /// The set lay entirely in the unsafe set at some time: a bug (filter, network error bound
-    /// or engine), never a property of a correct system.
+    /// The set lay entirely in the unsafe set at some time, after sets on which the QP is
+    /// proven feasible: a bug (filter, network error bound or engine), never a property of a
+    /// correct system.
     Unsafe,
     /// The box may contain unsafe points (some `hᵢ` may be negative on it); skipped.
     PartlyUnsafe,
@@ -578,22 +581,33 @@ fn as_intervals(b: &IntervalBox) -> Vec<Interval> {
 
 /// Judges one tube (see the module docs for the order of the checks).
 pub fn judge(
+    problem: &ReachProblem,
     scenario: &Scenario,
     traps: &[Trap],
     tube: &Tube,
 ) -> (Verdict, Option<usize>, Option<String>) {
-    for s in &tube.tube {
+    for (k, s) in tube.tube.iter().enumerate() {
         let x = as_intervals(&s.set);
         for cbf in &scenario.cbfs {
             if cbf.h.eval_interval(&x).upper < 0.0 {
-                return (
-                    Verdict::Unsafe,
-                    None,
-                    Some(format!(
-                        "t = {:.3}: {} < 0 on the whole set {:?}…{:?}",
-                        s.t, cbf.name, s.set.lower, s.set.upper
-                    )),
+                let outside = format!(
+                    "t = {:.3}: {} < 0 on the whole set {:?}…{:?}",
+                    s.t, cbf.name, s.set.lower, s.set.upper
                 );
+                // `S` is forward invariant only while the QP has a solution: where it may have
+                // none on an earlier set, every trajectory may have stopped there (the
+                // scenario's CBFs may conflict), and a set outside `S` proves nothing.
+                if !problem.proves_feasible_on(&tube.tube[..k]) {
+                    return (
+                        Verdict::Unknown,
+                        None,
+                        Some(format!(
+                            "{outside}, after sets on which the QP is not proven feasible: \
+                             the trajectories may have met an infeasible QP before"
+                        )),
+                    );
+                }
+                return (Verdict::Unsafe, None, Some(outside));
             }
         }
     }
@@ -774,7 +788,7 @@ impl Verifier<'_> {
                 .boxes
                 .par_iter()
                 .map(|tube| {
-                    let (verdict, trap, note) = judge(scenario, traps, tube);
+                    let (verdict, trap, note) = judge(problem, scenario, traps, tube);
                     let feasible = verdict
                         .is_verified()
                         .then(|| problem.proves_feasible_along(tube));

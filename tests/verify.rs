@@ -289,7 +289,10 @@ fn gpu_and_cpu_give_the_paper_boxes_the_same_verdicts() {
         let r = engine
             .reach(&problem, &s.reach.initial, &settings, &|_, _| {})
             .unwrap();
-        r.boxes.iter().map(|t| judge(&s, &traps, t).0).collect()
+        r.boxes
+            .iter()
+            .map(|t| judge(&problem, &s, &traps, t).0)
+            .collect()
     };
     let cpu = verdicts(&CpuBackend);
     let dev = verdicts(&gpu);
@@ -408,4 +411,51 @@ fn unverified_area_is_sorted_by_where_the_true_system_goes() {
     assert!(close(c.ends_elsewhere, area[3] / total), "{c:?}");
     assert_eq!(c.infeasible, 0.0);
     assert!(close(c.unverified, 1.0 - area[4] / total), "{c:?}");
+}
+
+/// A set outside `S` is a bug (`unsafe`) only after sets on which the QP is proven feasible:
+/// where it may be infeasible (scenario 2's strip along `x₂ = −2` right of the obstacle, where
+/// its two CBFs conflict), the trajectories may stop existing, and the box is `unknown`.
+#[test]
+fn a_set_outside_s_is_a_bug_only_where_the_qp_was_proven_feasible() {
+    use cbfreach::reach::{Tube, TubeSample};
+    use cbfreach::verify::judge;
+    use cbfreach::IntervalBox;
+
+    let s = common::double_integrator();
+    let net =
+        Mlp::load_safetensors(&common::scenario_path("double-integrator.safetensors")).unwrap();
+    let problem = ReachProblem::with_transform(&s, net, 0.0, None).unwrap();
+    let sample = |t: f64, lower: [f64; 2], upper: [f64; 2]| TubeSample {
+        t,
+        lower: lower.to_vec(),
+        upper: upper.to_vec(),
+        radius: 0.0,
+        z_lower: None,
+        z_upper: None,
+        set: IntervalBox::new(lower.to_vec(), upper.to_vec()).unwrap(),
+    };
+    let tube = |first: TubeSample| Tube {
+        initial: first.set.clone(),
+        tube: vec![first, sample(0.05, [4.0, -2.01], [4.01, -2.005])],
+        valid: true,
+        note: None,
+        exact_steps: 0,
+        enclosed_steps: 0,
+    };
+    // At (4, −1.99) the obstacle asks for u ≤ −0.25 and the velocity bound for u ≥ −0.01.
+    let conflict = tube(sample(0.0, [4.0, -1.995], [4.01, -1.99]));
+    let clear = tube(sample(0.0, [-3.01, -0.01], [-3.0, 0.0]));
+    assert!(!problem.proves_feasible_on(&conflict.tube[..1]));
+    assert!(problem.proves_feasible_on(&clear.tube[..1]));
+
+    let (verdict, _, note) = judge(&problem, &s, &[], &conflict);
+    assert_eq!(verdict, Verdict::Unknown);
+    let note = note.unwrap();
+    assert!(
+        note.contains("velocity < 0") && note.contains("not proven feasible"),
+        "{note}"
+    );
+    let (verdict, _, note) = judge(&problem, &s, &[], &clear);
+    assert_eq!(verdict, Verdict::Unsafe, "{note:?}");
 }

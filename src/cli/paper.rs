@@ -47,10 +47,11 @@ pub struct PaperArgs {
         default_value = "forward,forward-backward"
     )]
     pub timed: Vec<BoundMethod>,
-    /// Rounds of bisection of the pieces of an initial box that are not verified whole (as
-    /// `verify --refine`; at most 4,096 extra pieces per box). Scenario 2's box at
-    /// (−1, 1.5), whose true trajectories pass 0.12–0.25 from the jump of `v` at (3, 0),
-    /// needs 10 (951 pieces).
+    /// Rounds of bisection of the pieces of an initial box that are not verified whole, or
+    /// whose QP feasibility is not proven (as `verify --refine --refine-feasibility`; at most
+    /// 4,096 extra pieces per box). Scenario 2's box at (−1, 1.5), whose true trajectories
+    /// pass 0.12–0.25 from the jump of `v` at (3, 0), needs 8 (650 pieces, the narrowest
+    /// eight bisections of a 0.05-wide one).
     #[arg(long, default_value_t = 10)]
     pub refine: usize,
 }
@@ -366,7 +367,7 @@ fn box_verdicts(
     let whole: Vec<(Verdict, String, Option<bool>)> = tubes
         .iter()
         .map(|tube| {
-            let (v, _, note) = judge(s, traps, tube);
+            let (v, _, note) = judge(problem, s, traps, tube);
             let note = note.unwrap_or_else(|| match tube.last() {
                 Some(l) => format!(
                     "final set {} … {}",

@@ -385,7 +385,8 @@ pub fn fail_if_unsafe(r: &VerifyReport) -> CliResult {
         "!!! UNSAFE: {} box(es) that start safe have a reachable set lying",
         bad.len()
     );
-    eprintln!("!!! entirely in the unsafe set. A correct filter cannot do this: this is");
+    eprintln!("!!! entirely in the unsafe set after sets on which the QP is proven feasible.");
+    eprintln!("!!! A correct filter cannot do this: this is");
     eprintln!("!!! a bug in the filter, the network's error bound M_C, or the engine.");
     for b in bad.iter().take(10) {
         eprintln!(

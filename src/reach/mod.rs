@@ -444,8 +444,12 @@ impl ReachProblem {
     /// Whether the filter's QP is proven feasible on every recorded set of `tube`
     /// ([`pieces::FilterPieces::proves_feasible`]).
     pub fn proves_feasible_along(&self, tube: &Tube) -> bool {
-        tube.tube
-            .iter()
+        self.proves_feasible_on(&tube.tube)
+    }
+
+    /// Whether the filter's QP is proven feasible on each of these sets.
+    pub fn proves_feasible_on(&self, sets: &[TubeSample]) -> bool {
+        sets.iter()
             .all(|sample| self.pieces.proves_feasible(&sample.set))
     }
 
