@@ -439,17 +439,16 @@ fn box_verdicts(
         let first = leaves.first().map(|b| b.verdict);
         match first {
             Some(v) if proven == leaves.len() && leaves.iter().all(|b| b.verdict == v) => {
-                let area = |b: &&BoxVerdict| b.initial.widths().iter().product::<f64>();
-                let feasible: f64 = leaves
-                    .iter()
-                    .filter(|b| b.feasible == Some(true))
-                    .map(|b| area(&b))
-                    .sum::<f64>()
-                    / leaves.iter().map(|b| area(&b)).sum::<f64>();
-                let clause = match feasible {
-                    f if f >= 1.0 => feasibility_clause(Some(true)).to_string(),
-                    0.0 => feasibility_clause(Some(false)).to_string(),
-                    f => format!("; QP proven feasible on {:.1} % of the box", 100.0 * f),
+                let proven = |b: &&BoxVerdict| b.feasible == Some(true);
+                let clause = match leaves.iter().filter(proven).count() {
+                    n if n == leaves.len() => feasibility_clause(Some(true)).to_string(),
+                    0 => feasibility_clause(Some(false)).to_string(),
+                    _ => {
+                        let area = |b: &BoxVerdict| b.initial.volume();
+                        let share = leaves.iter().filter(proven).map(area).sum::<f64>()
+                            / leaves.iter().map(area).sum::<f64>();
+                        format!("; QP proven feasible on {:.1} % of the box", 100.0 * share)
+                    }
                 };
                 out[k] = (
                     v,
