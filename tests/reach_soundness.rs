@@ -593,22 +593,24 @@ fn filtered_trajectories_stay_in_sets_where_the_filter_is_one_smooth_piece() {
         }
         let ends_in_goal =
             |t: &Tube| t.valid && t.last().unwrap().filtered_set().is_subset_of(&s.reach.goal);
+        // Scenario 2: the box beside the goal and the sliding box end in the goal set.
         if initial[0] == near_goal {
-            assert!(ends_in_goal(&pieces[0]) && ends_in_goal(&pieces[1]));
-        }
-        if initial[0] == near_goal && loose {
-            assert!(ends_in_goal(&inactive[0]));
-            assert!(
-                !plain[0].valid,
-                "the network's margin alone already converges"
-            );
-            assert!(inactive[0].exact_steps > 0);
+            assert!(ends_in_goal(&pieces[0]), "{:?}", pieces[0].note);
             assert!(ends_in_goal(&pieces[1]), "{:?}", pieces[1].note);
-            assert!(
-                !inactive[1].valid,
-                "the network alone already verifies the sliding box"
-            );
-            assert!(pieces[1].exact_steps > inactive[1].exact_steps);
+            // With the loose network, only thanks to the filter's own field.
+            if loose {
+                assert!(ends_in_goal(&inactive[0]));
+                assert!(
+                    !plain[0].valid,
+                    "the network's margin alone already converges"
+                );
+                assert!(inactive[0].exact_steps > 0);
+                assert!(
+                    !inactive[1].valid,
+                    "the network alone already verifies the sliding box"
+                );
+                assert!(pieces[1].exact_steps > inactive[1].exact_steps);
+            }
         }
     }
 }

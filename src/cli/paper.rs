@@ -383,9 +383,9 @@ fn box_verdicts(
     // Split what the whole box leaves open: its verdict, or the QP's feasibility along its
     // sets (the pieces' sets are narrower and may stay clear of where the QP fails).
     let retry: Vec<usize> = (0..tubes.len())
-        .filter(|&k| match whole[k] {
-            (v, _, feasible) if v.is_verified() => feasible == Some(false),
-            (v, _, _) => v != Verdict::Unsafe,
+        .filter(|&k| {
+            let (v, _, feasible) = whole[k];
+            v.is_refinable() || (v.is_verified() && feasible == Some(false))
         })
         .collect();
     let mut out: Vec<(Verdict, String)> = whole
