@@ -1,5 +1,6 @@
 //! `verify`: verdicts of scenario 1 checked against dense simulation of the filtered system,
-//! shards and merge, JSON round trip, and clear errors for bad options.
+//! shards and merge, JSON round trip, clear errors for bad options, and scenario 2's judging
+//! and refinement where its QP may be infeasible (with the shipped network).
 //!
 //! The test trains a small network (2×64×64×2, a few seconds; the shipped paper-size networks
 //! are exercised elsewhere) and uses `TEST_M_C`, which is *not* a bound on that network's
@@ -458,4 +459,86 @@ fn a_set_outside_s_is_a_bug_only_where_the_qp_was_proven_feasible() {
     );
     let (verdict, _, note) = judge(&problem, &s, &[], &clear);
     assert_eq!(verdict, Verdict::Unsafe, "{note:?}");
+}
+
+/// `--refine-feasibility` bisects a verified box whose sets leave the QP's feasibility open
+/// (scenario 2's box at (5, 1) of the paper: its whole set passes too close to the strip along
+/// `x₂ = −2` where the two CBFs conflict) until the halves' narrower sets prove it. The halves
+/// keep the verdict, and every start in a half proven feasible must converge without meeting
+/// an infeasible QP.
+#[test]
+fn feasibility_refinement_splits_verified_boxes_until_their_qp_is_proven_feasible() {
+    use cbfreach::reach::{ExactField, ReachMethod, Transform};
+    use cbfreach::surrogate_error::ErrorMap;
+    use cbfreach::IntervalBox;
+
+    let s = common::double_integrator();
+    let path = common::scenario_path("double-integrator.safetensors");
+    let net = Mlp::load_safetensors(&path).unwrap();
+    let transform = Transform::for_scenario(&s, &s.reach.transform).unwrap();
+    let problem = ReachProblem::with_transform(&s, net, 0.0, transform)
+        .unwrap()
+        .with_error_map(ErrorMap::load_for(&path).unwrap())
+        .unwrap();
+    let verifier = Verifier {
+        scenario: &s,
+        problem: &problem,
+        backend: &CpuBackend,
+        reach: ReachSettings {
+            bounds: cbfreach::bounds::BoundMethod::ForwardBackward,
+            method: ReachMethod::Disturbance,
+            face_local: true,
+            exact: ExactField::ClosedForm,
+            intersect_x: true,
+            ..ReachSettings::default()
+        },
+        traps: Vec::new(),
+    };
+    let region = IntervalBox::new(vec![4.9, 0.9], vec![5.1, 1.1]).unwrap();
+    let run = |refine_feasibility: bool| {
+        let settings = VerifySettings {
+            region: region.clone(),
+            grid: vec![1, 1],
+            refine_depth: 6,
+            budget: 128,
+            refine_feasibility,
+            shard: None,
+            chunk: 64,
+        };
+        verifier.run(&settings, &|_, _, _| {}).unwrap()
+    };
+
+    // Whole: it converges, but its sets do not prove the QP feasible, and plain refinement
+    // leaves a verified box alone.
+    let plain = run(false);
+    assert_eq!(plain.before.len(), 1);
+    let whole = &plain.before[0];
+    assert_eq!(whole.verdict, Verdict::Converges, "{:?}", whole.note);
+    assert!(whole.lacks_feasibility_proof(), "{whole:?}");
+    assert_eq!(plain.after, plain.before);
+
+    let refined = run(true);
+    assert!(refined.run.refine_feasibility);
+    let leaves = &refined.after;
+    assert!(leaves.len() > 1, "not split: {leaves:?}");
+    // The halves tile the box and keep its verdict.
+    let area: f64 = leaves.iter().map(|b| b.initial.volume()).sum();
+    assert!((area - region.volume()).abs() < 1e-12, "{area}");
+    assert!(leaves.iter().all(|b| b.verdict == Verdict::Converges));
+    let proven: f64 = leaves
+        .iter()
+        .filter(|b| b.feasible == Some(true))
+        .map(|b| b.initial.volume())
+        .sum();
+    assert!(
+        (proven - region.volume()).abs() < 1e-12,
+        "QP proven feasible on {:.1} % of the box",
+        100.0 * proven / region.volume()
+    );
+    // Independent check: the ground-truth filter from 4 × 4 starts in every leaf; in a leaf
+    // proven feasible a stop at an infeasible QP would count as a disagreement.
+    let check = simulation_check(&s, &refined, 4);
+    assert_eq!(check.starts, 16 * leaves.len());
+    assert_eq!(check.stopped, 0);
+    assert!(check.disagreements.is_empty(), "{:?}", check.disagreements);
 }
