@@ -219,6 +219,21 @@ impl<'a> SafetyFilter<'a> {
         )
     }
 
+    /// The curvature `‖D²v(x)‖_F` (all second derivatives of all outputs) by central
+    /// differences of [`Self::jacobian`] with step `10⁻⁴·max(1, |xᵢ|)`. Where the active set
+    /// switches within a step, `v` has a kink and this is about the jump of `Dv` over twice
+    /// the step: large, as the curvature of a kink is.
+    pub fn curvature(&self, x: &[f64]) -> Result<f64, FilterError> {
+        let mn = self.scenario.m() * x.len();
+        let d2v = central_jacobian(
+            |y| self.jacobian(y),
+            x,
+            mn,
+            |_, xj| 1e-4 * xj.abs().max(1.0),
+        )?;
+        Ok(d2v.iter().map(|d| d * d).sum::<f64>().sqrt())
+    }
+
     /// The Jacobian `DF(x)` (n×n, row-major) of the filtered vector field.
     pub fn closed_loop_jacobian(&self, x: &[f64]) -> Result<Vec<f64>, FilterError> {
         central_jacobian(

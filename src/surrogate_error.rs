@@ -252,6 +252,74 @@ pub struct Measured {
     /// on `C ∩ S` and add no linear regions there.
     #[serde(default)]
     pub live_neurons: Vec<usize>,
+    /// The pointwise slope error against the filter's curvature.
+    #[serde(default)]
+    pub slope_by_curvature: SlopeByCurvature,
+}
+
+/// The pointwise slope error against the curvature `‖D²v‖_F` of the filter
+/// ([`SafetyFilter::curvature`]). A ReLU network is linear on each of its pieces, so where `v`
+/// bends its slope can only follow in steps: a piece `w` wide that fits a curve of curvature
+/// `κ` errs in slope by up to `κw/2`. A slope error that grows with the curvature is that
+/// limit rather than noise, and only finer pieces where `v` bends lower it.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct SlopeByCurvature {
+    /// Points whose curvature was measured: evenly spaced through the samples, at most
+    /// [`CURVATURE_POINTS`], and only where the filter is feasible at every difference's end.
+    pub points: usize,
+    /// The points by curvature: the flattest half, the next 40 %, the steepest tenth.
+    pub bands: Vec<CurvatureBand>,
+}
+
+/// The slope error of the points in one band of the filter's curvature.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct CurvatureBand {
+    /// Share of [`SlopeByCurvature::points`] in the band.
+    pub share: f64,
+    /// The band's smallest and largest curvature `‖D²v‖_F`.
+    pub curvature: [f64; 2],
+    /// The pointwise slope error `max_ij |DN − Dv|_ij` of its points.
+    pub slope: Percentiles,
+}
+
+/// At most this many samples get their curvature measured (`4n²` filter evaluations each).
+pub const CURVATURE_POINTS: usize = 100_000;
+
+/// [`SlopeByCurvature`] of the samples `inputs` (flat, `n` per point) with pointwise slope
+/// errors `slope`.
+pub fn slope_by_curvature(
+    filter: &SafetyFilter,
+    inputs: &[f64],
+    slope: &[f64],
+    n: usize,
+) -> SlopeByCurvature {
+    let stride = slope.len().div_ceil(CURVATURE_POINTS).max(1);
+    let mut pairs: Vec<(f64, f64)> = (0..slope.len())
+        .into_par_iter()
+        .step_by(stride)
+        .filter_map(|k| {
+            let kappa = filter.curvature(&inputs[k * n..(k + 1) * n]).ok()?;
+            kappa.is_finite().then_some((kappa, slope[k]))
+        })
+        .collect();
+    pairs.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let count = pairs.len();
+    let bands = [(0.0, 0.5), (0.5, 0.9), (0.9, 1.0)]
+        .into_iter()
+        .filter_map(|(from, to)| {
+            let band = &pairs[(from * count as f64) as usize..(to * count as f64) as usize];
+            let slopes: Vec<f64> = band.iter().map(|p| p.1).collect();
+            Some(CurvatureBand {
+                share: band.len() as f64 / count as f64,
+                curvature: [band.first()?.0, band.last()?.0],
+                slope: Percentiles::of(&slopes),
+            })
+        })
+        .collect();
+    SlopeByCurvature {
+        points: count,
+        bands,
+    }
 }
 
 fn check_dims(s: &Scenario, net: &Mlp) -> Result<(), AnalysisError> {
@@ -362,6 +430,7 @@ pub fn measure(
     let (k, k2) = (argmax_of(&pe.value), argmax_of(&pe.value_l2));
     let half_width = 0.5 * settings.looseness_width;
     let box_slope = secant_slope_errors(&filter, net, &safe, half_width, progress);
+    let slope = pe.slope.as_deref().unwrap_or(&[]);
     Ok(Measured {
         linf: pe.value[k],
         l2: pe.value_l2[k2],
@@ -372,10 +441,11 @@ pub fn measure(
         boundary_points,
         samples: summary.samples,
         infeasible: summary.infeasible,
-        slope: Percentiles::of(pe.slope.as_deref().unwrap_or(&[])),
+        slope: Percentiles::of(slope),
         box_slope: Percentiles::of(&box_slope),
         box_width: 2.0 * half_width,
         live_neurons: net.live_neurons(&data.inputs),
+        slope_by_curvature: slope_by_curvature(&filter, &data.inputs, slope, n),
     })
 }
 

@@ -767,3 +767,90 @@ goal = { lower = [-0.1], upper = [0.1] }
     assert_eq!(points[grid..], [vec![-1.0], vec![1.0]]);
     assert!(points[..grid].iter().all(|x| x[0] > -1.0 && x[0] < 1.0));
 }
+
+/// The filter's curvature against its closed form: on the line with `κ = 1`, `h = 4 − x²`,
+/// `α(s) = s`, the constraint `−2x + 4 − x² ≥ 0` binds for `x > √5 − 1`, where the filter
+/// adds `−x/2 − 1 + 2/x` to `κ`: curvature `4/x³`. Where it does not bind, `v` is constant.
+#[test]
+fn filter_curvature_matches_the_closed_form() {
+    let s = common::from_text(
+        r#"
+name = "line"
+[system]
+states = ["x"]
+inputs = ["u"]
+f = ["0"]
+g = [["1"]]
+kappa = ["1"]
+[[cbf]]
+h = "4 - x^2"
+[training]
+grid = [10]
+[reach]
+region = { lower = [-1], upper = [1.9] }
+m_c = 0.1
+dt = 0.05
+horizon = 1.0
+goal = { lower = [-0.1], upper = [0.1] }
+"#,
+    )
+    .unwrap();
+    let filter = SafetyFilter::new(&s);
+    for x in [1.3, 1.5, 1.8] {
+        let want = 4.0 / (x * x * x);
+        let got = filter.curvature(&[x]).unwrap();
+        assert!((got - want).abs() < 1e-4 * want, "at {x}: {got} vs {want}");
+    }
+    for x in [-0.5, 0.0, 1.0] {
+        assert_eq!(filter.curvature(&[x]).unwrap(), 0.0, "at {x}");
+    }
+}
+
+/// The slope error by curvature, recomputed point by point from `DN`, `Dv` and the filter's
+/// curvature at the measured points: fails if the slope errors and the points they belong to
+/// are paired wrongly, or the bands are cut elsewhere.
+#[test]
+fn slope_error_by_curvature_pairs_each_point_with_its_own_curvature() {
+    use cbfreach::surrogate_error::CURVATURE_POINTS;
+    let f = fixture();
+    let filter = SafetyFilter::new(&f.s);
+    let mut pairs = Vec::new();
+    let points = measurement_points(&f.s, &ErrorSettings::default()).0;
+    assert!(points.len() < CURVATURE_POINTS, "every point is measured");
+    for x in points.into_iter().filter(|x| f.s.is_safe(x)) {
+        let (Ok(_), Ok(dv)) = (filter.eval(&x), filter.jacobian(&x)) else {
+            continue;
+        };
+        let dn = f.net.jacobian(&x);
+        let slope = dn
+            .iter()
+            .zip(&dv)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        if let Ok(kappa) = filter.curvature(&x) {
+            pairs.push((kappa, slope));
+        }
+    }
+    pairs.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let got = &f.measured.slope_by_curvature;
+    assert_eq!(got.points, pairs.len());
+    assert_eq!(got.bands.len(), 3);
+    let count = pairs.len() as f64;
+    let mut from = 0;
+    for (band, to) in got.bands.iter().zip([0.5, 0.9, 1.0]) {
+        let to = (to * count) as usize;
+        let slopes: Vec<f64> = pairs[from..to].iter().map(|p| p.1).collect();
+        let want = Percentiles::of(&slopes);
+        assert!(
+            (band.slope.p95 - want.p95).abs() <= 1e-9 && (band.slope.max - want.max).abs() <= 1e-9,
+            "{band:?} vs {want:?}"
+        );
+        assert_eq!(band.curvature, [pairs[from].0, pairs[to - 1].0]);
+        from = to;
+    }
+    // Where the filter bends most, a piecewise-linear network's slopes err most.
+    assert!(
+        got.bands[2].slope.median > got.bands[0].slope.median,
+        "{got:?}"
+    );
+}

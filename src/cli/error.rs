@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use cbfreach::bounds::BoundMethod;
 use cbfreach::surrogate_error::{
     certify, error_map_path, looseness, measure, ErrorMap, ErrorSettings, Looseness, Percentiles,
-    WITNESS_CELLS,
+    SlopeByCurvature, WITNESS_CELLS,
 };
 use serde::Serialize;
 
@@ -85,6 +85,8 @@ struct ErrorJson {
     /// The secant slope error over boxes `box_width` wide (what a bound over a box sees).
     box_slope: Percentiles,
     box_width: f64,
+    /// The pointwise slope error in bands of the filter's curvature.
+    slope_by_curvature: SlopeByCurvature,
     /// Neurons of each hidden layer active somewhere on the measurement grid.
     live_neurons: Vec<usize>,
     looseness: Option<Looseness>,
@@ -161,6 +163,7 @@ pub fn run(args: &ErrorArgs) -> CliResult {
         slope: measured.slope,
         box_slope: measured.box_slope,
         box_width: measured.box_width,
+        slope_by_curvature: measured.slope_by_curvature.clone(),
         live_neurons: measured.live_neurons.clone(),
         looseness: loose,
         error_map: map_file.as_ref().map(|p| p.display().to_string()),
@@ -194,6 +197,9 @@ pub fn run(args: &ErrorArgs) -> CliResult {
         out.box_slope.p95,
         out.box_slope.max
     );
+    if let Some(line) = curvature_line(&out.slope_by_curvature) {
+        println!("{line}");
+    }
     let widths = net.widths();
     let hidden = &widths[1..widths.len() - 1];
     println!(
@@ -262,4 +268,21 @@ pub fn run(args: &ErrorArgs) -> CliResult {
         println!("error map written to {}", f.display());
     }
     Ok(())
+}
+
+/// The slope error by the filter's curvature, one line: each band's 95th percentile.
+fn curvature_line(c: &SlopeByCurvature) -> Option<String> {
+    let [flat, next, steep] = c.bands.as_slice() else {
+        return None;
+    };
+    Some(format!(
+        "  by the filter's curvature ‖D²v‖ ({} points), 95th percentile: flattest half \
+         (‖D²v‖ ≤ {:.2}) {:.3}, next 40 % (≤ {:.2}) {:.3}, steepest tenth {:.3}",
+        c.points,
+        flat.curvature[1],
+        flat.slope.p95,
+        next.curvature[1],
+        next.slope.p95,
+        steep.slope.p95,
+    ))
 }
