@@ -553,6 +553,19 @@ fn error_json_has_the_measured_and_certified_fields() {
     assert_eq!(v["looseness"]["width"].as_f64(), Some(0.3));
     assert_eq!(v["box_width"].as_f64(), Some(0.3));
     assert!(v["looseness"]["crown"]["min"].as_f64().unwrap() >= 1.0);
+    // The slope error by curvature: three bands in order of curvature, sharing the points.
+    let bands = v["slope_by_curvature"]["bands"].as_array().unwrap();
+    let shares: Vec<f64> = bands.iter().map(|b| b["share"].as_f64().unwrap()).collect();
+    assert_eq!(shares.len(), 3);
+    assert!(
+        (shares.iter().sum::<f64>() - 1.0).abs() < 1e-12,
+        "{shares:?}"
+    );
+    let edge = |b: usize, k: usize| bands[b]["curvature"][k].as_f64().unwrap();
+    assert!(
+        edge(0, 1) <= edge(1, 0) && edge(1, 1) <= edge(2, 0),
+        "{bands:?}"
+    );
     assert!(dir.join("small.errormap.json").exists());
     let (code, _, stderr) = run("0");
     assert_ne!(code, 0);
