@@ -737,10 +737,10 @@ fn cells_are_refined_towards_the_global_goal() {
     }
 }
 
-/// In one dimension C's faces are its two ends, measured once each besides the grid.
-#[test]
-fn measurement_points_of_an_interval_add_its_two_ends_once() {
-    let s = common::from_text(
+/// `ẋ = u` on the interval `C = [lower, upper]` with nominal input `kappa` and one CBF `h`
+/// (`α(s) = s`).
+fn line(kappa: &str, h: &str, [lower, upper]: [f64; 2]) -> Scenario {
+    common::from_text(&format!(
         r#"
 name = "line"
 [system]
@@ -748,20 +748,26 @@ states = ["x"]
 inputs = ["u"]
 f = ["0"]
 g = [["1"]]
-kappa = ["-x"]
+kappa = ["{kappa}"]
 [[cbf]]
-h = "x + 2"
+h = "{h}"
 [training]
 grid = [10]
 [reach]
-region = { lower = [-1], upper = [1] }
+region = {{ lower = [{lower}], upper = [{upper}] }}
 m_c = 0.1
 dt = 0.05
 horizon = 1.0
-goal = { lower = [-0.1], upper = [0.1] }
-"#,
-    )
-    .unwrap();
+goal = {{ lower = [-0.1], upper = [0.1] }}
+"#
+    ))
+    .unwrap()
+}
+
+/// In one dimension C's faces are its two ends, measured once each besides the grid.
+#[test]
+fn measurement_points_of_an_interval_add_its_two_ends_once() {
+    let s = line("-x", "x + 2", [-1.0, 1.0]);
     let (points, grid) = measurement_points(&s, &ErrorSettings::default());
     assert_eq!(grid, 20, "twice the training grid");
     assert_eq!(points[grid..], [vec![-1.0], vec![1.0]]);
@@ -773,28 +779,7 @@ goal = { lower = [-0.1], upper = [0.1] }
 /// adds `−x/2 − 1 + 2/x` to `κ`: curvature `4/x³`. Where it does not bind, `v` is constant.
 #[test]
 fn filter_curvature_matches_the_closed_form() {
-    let s = common::from_text(
-        r#"
-name = "line"
-[system]
-states = ["x"]
-inputs = ["u"]
-f = ["0"]
-g = [["1"]]
-kappa = ["1"]
-[[cbf]]
-h = "4 - x^2"
-[training]
-grid = [10]
-[reach]
-region = { lower = [-1], upper = [1.9] }
-m_c = 0.1
-dt = 0.05
-horizon = 1.0
-goal = { lower = [-0.1], upper = [0.1] }
-"#,
-    )
-    .unwrap();
+    let s = line("1", "4 - x^2", [-1.0, 1.9]);
     let filter = SafetyFilter::new(&s);
     for x in [1.3, 1.5, 1.8] {
         let want = 4.0 / (x * x * x);
