@@ -71,6 +71,14 @@ fn fixture() -> &'static Fixture {
     })
 }
 
+/// `max_i |aᵢ − bᵢ|`.
+fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(p, q)| (p - q).abs())
+        .fold(0.0, f64::max)
+}
+
 /// `‖N(x) − v(x)‖∞` at the feasible safe points of a dense grid over the region.
 fn dense_errors(f: &Fixture, counts: &[usize]) -> Vec<(Vec<f64>, f64)> {
     let filter = SafetyFilter::new(&f.s);
@@ -79,12 +87,7 @@ fn dense_errors(f: &Fixture, counts: &[usize]) -> Vec<(Vec<f64>, f64)> {
         .filter(|x| f.s.is_safe(x))
         .filter_map(|x| {
             let v = filter.eval(&x).ok()?;
-            let n = f.net.forward(&x);
-            let e = v
-                .iter()
-                .zip(&n)
-                .map(|(a, b)| (a - b).abs())
-                .fold(0.0, f64::max);
+            let e = max_abs_diff(&v, &f.net.forward(&x));
             Some((x, e))
         })
         .collect()
@@ -806,12 +809,7 @@ fn slope_error_by_curvature_pairs_each_point_with_its_own_curvature() {
         let (Ok(_), Ok(dv)) = (filter.eval(&x), filter.jacobian(&x)) else {
             continue;
         };
-        let dn = f.net.jacobian(&x);
-        let slope = dn
-            .iter()
-            .zip(&dv)
-            .map(|(a, b)| (a - b).abs())
-            .fold(0.0, f64::max);
+        let slope = max_abs_diff(&f.net.jacobian(&x), &dv);
         if let Ok(kappa) = filter.curvature(&x) {
             pairs.push((kappa, slope));
         }
