@@ -409,7 +409,7 @@ fn z_boxes_contain_the_image_of_x_boxes() {
 #[test]
 fn filtered_trajectories_stay_in_sets_intersected_with_the_safe_set() {
     let s = double_integrator();
-    let problem = shipped_problem(&s);
+    let problem = common::shipped_problem(&s);
     assert_eq!(problem.safe_set.x.len(), 1, "the velocity bound is affine");
     let settings = ReachSettings {
         bounds: BoundMethod::ForwardBackward,
@@ -446,23 +446,6 @@ fn filtered_trajectories_stay_in_sets_intersected_with_the_safe_set() {
 
     let checks = filtered_trajectories_inside(&s, &tube, 12);
     assert!(checks > 500, "{checks} checks");
-}
-
-/// The scenario compiled as the CLI does: its shipped network, the transform it asks for and
-/// the network's certified error map.
-fn shipped_problem(s: &Scenario) -> ReachProblem {
-    shipped_problem_with(s, &s.network.as_ref().unwrap().file)
-}
-
-/// The same with another network (and its error map).
-fn shipped_problem_with(s: &Scenario, network: &std::path::Path) -> ReachProblem {
-    use cbfreach::surrogate_error::ErrorMap;
-    let net = Mlp::load_safetensors(network).unwrap();
-    let transform = Transform::for_scenario(s, &s.reach.transform).unwrap();
-    ReachProblem::with_transform(s, net, 0.0, transform)
-        .unwrap()
-        .with_error_map(ErrorMap::load_for(network).unwrap())
-        .unwrap()
 }
 
 /// Scenario 2's network before certified training (README, Networks): its bounds are loose
@@ -532,16 +515,21 @@ fn filtered_trajectories_stay_in_sets_where_the_filter_is_one_smooth_piece() {
     ];
     let (s2, s1) = (double_integrator(), integrator());
     for (s, problem, loose, initial) in [
-        (&s2, shipped_problem(&s2), false, scenario_2_boxes.clone()),
         (
             &s2,
-            shipped_problem_with(&s2, &loose_network()),
+            common::shipped_problem(&s2),
+            false,
+            scenario_2_boxes.clone(),
+        ),
+        (
+            &s2,
+            common::shipped_problem_with(&s2, &loose_network()),
             true,
             scenario_2_boxes,
         ),
         (
             &s1,
-            shipped_problem(&s1),
+            common::shipped_problem(&s1),
             false,
             vec![
                 cbfreach::IntervalBox::new(vec![-2.1, 1.9], vec![-1.9, 2.1]).unwrap(),
@@ -628,9 +616,9 @@ fn filtered_trajectories_stay_in_sets_met_with_their_x_boxes() {
     let s = double_integrator();
     for loose in [false, true] {
         let problem = if loose {
-            shipped_problem_with(&s, &loose_network())
+            common::shipped_problem_with(&s, &loose_network())
         } else {
-            shipped_problem(&s)
+            common::shipped_problem(&s)
         };
         sets_met_with_x_boxes_hold_and_turn(&s, &problem, loose);
     }

@@ -468,18 +468,11 @@ fn a_set_outside_s_is_a_bug_only_where_the_qp_was_proven_feasible() {
 /// an infeasible QP.
 #[test]
 fn feasibility_refinement_splits_verified_boxes_until_their_qp_is_proven_feasible() {
-    use cbfreach::reach::{ExactField, ReachMethod, Transform};
-    use cbfreach::surrogate_error::ErrorMap;
+    use cbfreach::reach::{ExactField, ReachMethod};
     use cbfreach::IntervalBox;
 
     let s = common::double_integrator();
-    let path = common::scenario_path("double-integrator.safetensors");
-    let net = Mlp::load_safetensors(&path).unwrap();
-    let transform = Transform::for_scenario(&s, &s.reach.transform).unwrap();
-    let problem = ReachProblem::with_transform(&s, net, 0.0, transform)
-        .unwrap()
-        .with_error_map(ErrorMap::load_for(&path).unwrap())
-        .unwrap();
+    let problem = common::shipped_problem(&s);
     let verifier = Verifier {
         scenario: &s,
         problem: &problem,

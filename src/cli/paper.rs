@@ -439,13 +439,13 @@ fn box_verdicts(
         let first = leaves.first().map(|b| b.verdict);
         match first {
             Some(v) if proven == leaves.len() && leaves.iter().all(|b| b.verdict == v) => {
-                let proven = |b: &&BoxVerdict| b.feasible == Some(true);
-                let clause = match leaves.iter().filter(proven).count() {
+                let proven_feasible = |b: &&BoxVerdict| b.feasible == Some(true);
+                let clause = match leaves.iter().filter(proven_feasible).count() {
                     n if n == leaves.len() => feasibility_clause(Some(true)).to_string(),
                     0 => feasibility_clause(Some(false)).to_string(),
                     _ => {
                         let area = |b: &BoxVerdict| b.initial.volume();
-                        let share = leaves.iter().filter(proven).map(area).sum::<f64>()
+                        let share = leaves.iter().filter(proven_feasible).map(area).sum::<f64>()
                             / leaves.iter().map(area).sum::<f64>();
                         format!("; QP proven feasible on {:.1} % of the box", 100.0 * share)
                     }
