@@ -267,7 +267,7 @@ pub struct SlopeByCurvature {
     /// Points whose curvature was measured: evenly spaced through the samples, at most
     /// [`CURVATURE_POINTS`], and only where the filter is feasible at every difference's end.
     pub points: usize,
-    /// The points by curvature: the flattest half, the next 40 %, the steepest tenth.
+    /// The points by curvature, one band for each of [`CURVATURE_BANDS`].
     pub bands: Vec<CurvatureBand>,
 }
 
@@ -284,6 +284,14 @@ pub struct CurvatureBand {
 
 /// At most this many samples get their curvature measured (`4n²` filter evaluations each).
 pub const CURVATURE_POINTS: usize = 100_000;
+
+/// The bands of [`SlopeByCurvature`]: the share of the points, in order of curvature, from and
+/// to which each runs, and its name in reports.
+pub const CURVATURE_BANDS: [(f64, f64, &str); 3] = [
+    (0.0, 0.5, "flattest half"),
+    (0.5, 0.9, "next 40 %"),
+    (0.9, 1.0, "steepest tenth"),
+];
 
 /// [`SlopeByCurvature`] of the samples `inputs` (flat, `n` per point) with pointwise slope
 /// errors `slope`.
@@ -304,9 +312,9 @@ pub fn slope_by_curvature(
         .collect();
     pairs.sort_by(|a, b| a.0.total_cmp(&b.0));
     let count = pairs.len();
-    let bands = [(0.0, 0.5), (0.5, 0.9), (0.9, 1.0)]
+    let bands = CURVATURE_BANDS
         .into_iter()
-        .filter_map(|(from, to)| {
+        .filter_map(|(from, to, _)| {
             let band = &pairs[(from * count as f64) as usize..(to * count as f64) as usize];
             let slopes: Vec<f64> = band.iter().map(|p| p.1).collect();
             Some(CurvatureBand {

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use cbfreach::bounds::BoundMethod;
 use cbfreach::surrogate_error::{
     certify, error_map_path, looseness, measure, ErrorMap, ErrorSettings, Looseness, Percentiles,
-    SlopeByCurvature, WITNESS_CELLS,
+    SlopeByCurvature, CURVATURE_BANDS, WITNESS_CELLS,
 };
 use serde::Serialize;
 
@@ -275,9 +275,10 @@ fn curvature_line(c: &SlopeByCurvature) -> Option<String> {
     let [flat, next, steep] = c.bands.as_slice() else {
         return None;
     };
+    let [(_, _, flat_name), (_, _, next_name), (_, _, steep_name)] = CURVATURE_BANDS;
     Some(format!(
-        "  by the filter's curvature ‖D²v‖ ({} points), 95th percentile: flattest half \
-         (‖D²v‖ ≤ {:.2}) {:.3}, next 40 % (≤ {:.2}) {:.3}, steepest tenth {:.3}",
+        "  by the filter's curvature ‖D²v‖ ({} points), 95th percentile: {flat_name} \
+         (‖D²v‖ ≤ {:.2}) {:.3}, {next_name} (≤ {:.2}) {:.3}, {steep_name} {:.3}",
         c.points,
         flat.curvature[1],
         flat.slope.p95,
