@@ -14,7 +14,6 @@ BOXES.json: {"boxes": [[lower, upper], ...], "k": [k1, k2], "m": M, "dt": dt, "s
 """
 
 import argparse
-import json
 import tempfile
 import time
 from pathlib import Path
@@ -43,10 +42,10 @@ import jax.numpy as jnp  # noqa: E402
 from immutabledict import immutabledict  # noqa: E402
 from safetensors.numpy import load_file  # noqa: E402
 
-spec = json.loads(Path(args.boxes).read_text())
+from common import read_spec, write_result  # noqa: E402
+
+spec, dt, steps, every = read_spec(args.boxes)
 k1, k2 = spec["k"]
-dt, steps = spec["dt"], spec["steps"]
-every = spec.get("record_every", steps)
 dtype = jnp.float64 if args.x64 else jnp.float32
 
 
@@ -154,10 +153,9 @@ out = {
     "run_s": times,
     "sets": recorded,
 }
-Path(args.out).write_text(json.dumps(out))
-best = min(times)
-print(
-    f"immrax ({out['dtype']}{', plain forward' if args.plain_forward else ''}): {len(spec['boxes'])} boxes × {steps} "
-    f"steps in {best:.3f} s (best of {args.repeats}; first call with compilation "
-    f"{compile_s:.1f} s): {len(spec['boxes']) * steps / best:.0f} box-steps/s"
+write_result(
+    args.out,
+    out,
+    f"immrax ({out['dtype']}{', plain forward' if args.plain_forward else ''}; compiled and "
+    f"run first in {compile_s:.1f} s)",
 )

@@ -13,13 +13,13 @@ BOXES.json as for immrax_reach.py.
 """
 
 import argparse
-import json
 import time
-from pathlib import Path
 
 import torch
 from auto_LiRPA import BoundedModule, BoundedTensor, PerturbationLpNorm
 from safetensors.torch import load_file
+
+from common import read_spec, write_result
 
 parser = argparse.ArgumentParser()
 parser.add_argument("boxes")
@@ -31,10 +31,9 @@ parser.add_argument("--repeats", type=int, default=1)
 args = parser.parse_args()
 
 dtype = torch.float32 if args.f32 else torch.float64
-spec = json.loads(Path(args.boxes).read_text())
+spec, dt, steps, every = read_spec(args.boxes)
 k = torch.tensor([-spec["k"][0], -spec["k"][1]], dtype=dtype)
-m, dt, steps = spec["m"], spec["dt"], spec["steps"]
-every = spec.get("record_every", steps)
+m = spec["m"]
 
 
 def load_network(path):
@@ -117,9 +116,4 @@ out = {
     "threads": torch.get_num_threads(),
     "sets": sets,
 }
-Path(args.out).write_text(json.dumps(out))
-best = min(times)
-print(
-    f"auto_LiRPA CROWN ({out['dtype']}, {args.relu}): {len(spec['boxes'])} boxes × {steps} "
-    f"steps in {best:.3f} s: {len(spec['boxes']) * steps / best:.0f} box-steps/s"
-)
+write_result(args.out, out, f"auto_LiRPA CROWN ({out['dtype']}, {args.relu})")
