@@ -41,6 +41,8 @@ parser.add_argument(
     help="tools beside cbfreach: immrax, lirpa (auto_LiRPA), comma-separated",
 )
 args = parser.parse_args()
+if not Path(args.cbfreach).is_file():
+    sys.exit(f"no cbfreach binary at {args.cbfreach}: run `cargo build --release` or pass --cbfreach")
 work = Path(tempfile.mkdtemp(prefix="cbfreach-compare-"))
 scenario = tomllib.loads(Path(args.scenario).read_text())
 reach = scenario["reach"]
@@ -73,13 +75,20 @@ def scenario_with(boxes):
     return text.replace("[reach]", f"[reach]\ninitial = [\n{listed},\n]", 1), network
 
 
+def run(command):
+    """Runs a command; on failure, stops with what it printed."""
+    done = subprocess.run(command, capture_output=True, text=True)
+    if done.returncode != 0:
+        sys.exit(f"{' '.join(map(str, command))} failed:\n{done.stderr or done.stdout}")
+
+
 def run_cbfreach(path, bounds, face_local):
     out = work / f"cbfreach-{bounds}-{face_local}.json"
     command = [args.cbfreach, "reach", str(path), "--bounds", bounds, "--exact", "nowhere",
                "--no-safe-set", "--m-c", str(args.m), "--json", str(out)]
     if face_local:
         command.append("--face-local")
-    subprocess.run(command, check=True, capture_output=True)
+    run(command)
     result = json.loads(out.read_text())
     steps_run = sum(len(b["tube"]) - 1 for b in result["boxes"])
     return result, steps_run / result["timing"]["reach_s"], steps_run
@@ -87,8 +96,7 @@ def run_cbfreach(path, bounds, face_local):
 
 def run_tool(script, spec_path, network, options):
     out = work / f"{script}-{'-'.join(options) or 'default'}.json"
-    subprocess.run([sys.executable, str(here / script), str(spec_path), str(network), str(out),
-                    *options], check=True, capture_output=True)
+    run([sys.executable, str(here / script), str(spec_path), str(network), str(out), *options])
     return json.loads(out.read_text())
 
 
