@@ -19,3 +19,13 @@ def write_result(path, result, label):
         f"{label}: {result['boxes']} boxes × {result['steps']} steps in {best:.3f} s (best of "
         f"{len(result['run_s'])}): {result['boxes'] * result['steps'] / best:.0f} box-steps/s"
     )
+
+
+def layer_names(tensors):
+    """The indices of the linear layers in PyTorch's nn.Sequential names (`0.weight`, `2.weight`,
+    …) and the network's widths, input first."""
+    layers = sorted({int(name.split(".")[0]) for name in tensors})
+    widths = [tensors[f"{layers[0]}.weight"].shape[1]] + [
+        tensors[f"{i}.weight"].shape[0] for i in layers
+    ]
+    return layers, widths

@@ -42,7 +42,7 @@ import jax.numpy as jnp  # noqa: E402
 from immutabledict import immutabledict  # noqa: E402
 from safetensors.numpy import load_file  # noqa: E402
 
-from common import read_spec, write_result  # noqa: E402
+from common import layer_names, read_spec, write_result  # noqa: E402
 
 spec, dt, steps, every = read_spec(args.boxes)
 k1, k2 = spec["k"]
@@ -52,10 +52,7 @@ dtype = jnp.float64 if args.x64 else jnp.float32
 def load_network(path):
     """The safetensors MLP (PyTorch's nn.Sequential names) as an immrax NeuralNetwork."""
     tensors = load_file(path)
-    layers = sorted({int(k.split(".")[0]) for k in tensors})
-    widths = [tensors[f"{layers[0]}.weight"].shape[1]] + [
-        tensors[f"{i}.weight"].shape[0] for i in layers
-    ]
+    layers, widths = layer_names(tensors)
     arch = " ".join(
         [str(widths[0])] + [f"{w} relu" for w in widths[1:-1]] + [str(widths[-1])]
     )
@@ -135,7 +132,6 @@ for _ in range(args.repeats):
     times.append(time.perf_counter() - start)
 
 # diffrax saves t0 and every step (the rest of its buffer is inf).
-ys = jnp.asarray(ys)
 recorded = {}
 for k in list(range(0, steps + 1, every)) + [steps]:
     sets = ys[:, k, :]

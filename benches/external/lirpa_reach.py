@@ -19,7 +19,7 @@ import torch
 from auto_LiRPA import BoundedModule, BoundedTensor, PerturbationLpNorm
 from safetensors.torch import load_file
 
-from common import read_spec, write_result
+from common import layer_names, read_spec, write_result
 
 parser = argparse.ArgumentParser()
 parser.add_argument("boxes")
@@ -39,7 +39,7 @@ m = spec["m"]
 def load_network(path):
     """The safetensors MLP as the nn.Sequential whose state_dict it is."""
     tensors = load_file(path)
-    layers = sorted({int(name.split(".")[0]) for name in tensors})
+    layers, widths = layer_names(tensors)
     modules = []
     for i in layers:
         w = tensors[f"{i}.weight"]
@@ -48,9 +48,6 @@ def load_network(path):
         modules.append(torch.nn.Linear(w.shape[1], w.shape[0]))
     model = torch.nn.Sequential(*modules).to(dtype)
     model.load_state_dict({name: t.to(dtype) for name, t in tensors.items()})
-    widths = [tensors[f"{layers[0]}.weight"].shape[1]] + [
-        tensors[f"{i}.weight"].shape[0] for i in layers
-    ]
     return model.eval(), widths
 
 
