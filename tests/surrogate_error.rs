@@ -95,7 +95,10 @@ fn errors_on_grid(
     let (points, values): (Vec<Vec<f64>>, Vec<Vec<f64>>) = grid_points(region, counts)
         .into_iter()
         .filter(|x| s.is_safe(x))
-        .filter_map(|x| Some((x.clone(), filter.eval(&x).ok()?)))
+        .filter_map(|x| {
+            let v = filter.eval(&x).ok()?;
+            Some((x, v))
+        })
         .unzip();
     let outputs = net.forward_many(&points.concat());
     let m = net.output_dim();
