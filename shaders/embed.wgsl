@@ -12,7 +12,8 @@
 @group(0) @binding(1) var<storage, read_write> state: array<real>;
 // The network's bounds over each bound box, FACES per box (shaders/output.wgsl).
 @group(0) @binding(2) var<storage, read> nnb: array<real>;
-// Per box [poisoned, status, stop step], then the step counter.
+// Per box [poisoned, status, stop step, exact steps], then the step counter and the loop check
+// (1: the device cut a loop short; loops_ran_in_full).
 @group(0) @binding(3) var<storage, read_write> flags: array<atomic<u32>>;
 // Recorded states: slot-major, SW reals per box.
 @group(0) @binding(4) var<storage, read_write> snap: array<real>;
@@ -161,56 +162,115 @@ fn cell_meets(c: u32, xb: array<Iv, N0>) -> bool {
     return meets;
 }
 
-// The local error bound M over the x-box xb (ErrorMap::local_bound): the largest bound of the
-// cells meeting it, over every bucket the box meets (over-covered by MAP_DELTA); HUGE (+∞) for
-// an uncertified map, a box outside the map's region, or a cell with no certified bound.
-// src/gpu/margins.rs has the soundness argument.
-fn local_margin(xb: array<Iv, N0>) -> real {
-    if (!MAP_CERTIFIED) {
-        return HUGE;
-    }
-    var first: array<u32, N0>;
-    var last: array<u32, N0>;
-    for (var i = 0u; i < N0; i++) {
-        if (!(finite(xb[i].lo) && finite(xb[i].hi)) || xb[i].lo < MAP_LO[i] || xb[i].hi > MAP_HI[i]) {
-            return HUGE;
+// The next index of the product of ranges [first_i, last_i] (an odometer, the last axis
+// fastest); false after the last one.
+fn odometer_next(at: ptr<function, array<u32, N0>>, first: array<u32, N0>, last: array<u32, N0>) -> bool {
+    for (var i = N0; i > 0u; i--) {
+        if ((*at)[i - 1u] < last[i - 1u]) {
+            (*at)[i - 1u] += 1u;
+            return true;
         }
-        first[i] = map_bucket(i, xb[i].lo, -MAP_DELTA);
-        last[i] = map_bucket(i, xb[i].hi, MAP_DELTA);
+        (*at)[i - 1u] = first[i - 1u];
     }
+    return false;
+}
+
+// The exact local bound over buckets [first, last]: the largest bound of the listed cells that
+// meet xb; −1 once more than MAP_EXACT_WORK buckets and entries would be read.
+fn exact_margin(xb: array<Iv, N0>, first: array<u32, N0>, last: array<u32, N0>) -> real {
     var worst: real = 0.0;
+    var work = 0u;
     var at = first;
     loop {
         var k = 0u;
         for (var i = 0u; i < N0; i++) {
             k = k * MAP_COUNT[i] + at[i];
         }
-        for (var e = map_index[k]; e < map_index[k + 1u]; e++) {
+        let e0 = map_index[k];
+        let e1 = map_index[k + 1u];
+        work += 1u + (e1 - e0);
+        if (work > MAP_EXACT_WORK) {
+            return -1.0;
+        }
+        for (var e = e0; e < e1; e++) {
             let c = map_index[MAP_BUCKETS + 1u + e];
             if (cell_meets(c, xb)) {
                 worst = max(worst, map_cells[c * CELL_W + 2u * N0]);
             }
         }
-        // The next bucket of the range (an odometer, the last axis fastest).
-        var i = N0;
-        var more = false;
-        loop {
-            if (i == 0u) {
-                break;
-            }
-            i -= 1u;
-            if (at[i] < last[i]) {
-                at[i] += 1u;
-                more = true;
-                break;
-            }
-            at[i] = first[i];
-        }
-        if (!more) {
+        if (!odometer_next(&at, first, last)) {
             break;
         }
     }
     return worst;
+}
+
+// Blocks of `level` that buckets [first, last] meet, capped at MAP_BLOCK_BUDGET + 1.
+fn blocks_met(first: array<u32, N0>, last: array<u32, N0>, level: u32) -> u32 {
+    var blocks = 1u;
+    for (var i = 0u; i < N0; i++) {
+        blocks = min(blocks * ((last[i] >> level) - (first[i] >> level) + 1u), MAP_BLOCK_BUDGET + 1u);
+    }
+    return blocks;
+}
+
+// A bound never below the exact one over buckets [first, last]: the largest block maximum of
+// the finest level at which they meet at most MAP_BLOCK_BUDGET blocks (src/gpu/margins.rs).
+fn block_margin(first: array<u32, N0>, last: array<u32, N0>) -> real {
+    var level = 0u;
+    while (level < MAP_LEVELS && blocks_met(first, last, level) > MAP_BLOCK_BUDGET) {
+        level += 1u;
+    }
+    var counts: array<u32, N0>;
+    var lo: array<u32, N0>;
+    var hi: array<u32, N0>;
+    for (var i = 0u; i < N0; i++) {
+        counts[i] = ((MAP_COUNT[i] - 1u) >> level) + 1u;
+        lo[i] = first[i] >> level;
+        hi[i] = last[i] >> level;
+    }
+    var worst: real = 0.0;
+    var at = lo;
+    loop {
+        var k = 0u;
+        for (var i = 0u; i < N0; i++) {
+            k = k * counts[i] + at[i];
+        }
+        worst = max(worst, map_cells[MAP_BLOCKS_AT + MAP_LEVEL_AT[level] + k]);
+        if (!odometer_next(&at, lo, hi)) {
+            break;
+        }
+    }
+    return worst;
+}
+
+// The local error bound M over the x-box xb (ErrorMap::local_bound): the largest bound of the
+// cells meeting it, over every bucket the box meets (over-covered by MAP_DELTA), or past
+// MAP_EXACT_WORK the block maxima's bound above it; HUGE (+∞) for an uncertified map, a box
+// outside the map's region, or a cell with no certified bound. src/gpu/margins.rs has the
+// soundness argument and why the work is bounded.
+fn local_margin(xb: array<Iv, N0>) -> real {
+    if (!MAP_CERTIFIED) {
+        return HUGE;
+    }
+    var first: array<u32, N0>;
+    var last: array<u32, N0>;
+    var buckets = 1u;
+    for (var i = 0u; i < N0; i++) {
+        if (!(finite(xb[i].lo) && finite(xb[i].hi)) || xb[i].lo < MAP_LO[i] || xb[i].hi > MAP_HI[i]) {
+            return HUGE;
+        }
+        first[i] = map_bucket(i, xb[i].lo, -MAP_DELTA);
+        last[i] = map_bucket(i, xb[i].hi, MAP_DELTA);
+        buckets = min(buckets * (last[i] - first[i] + 1u), MAP_EXACT_WORK + 1u);
+    }
+    if (buckets <= MAP_EXACT_WORK) {
+        let m = exact_margin(xb, first, last);
+        if (m >= 0.0) {
+            return m;
+        }
+    }
+    return block_margin(first, last);
 }
 
 // The disturbance bound of box g (embedding coordinates z): the error map's local bound over its
@@ -363,6 +423,30 @@ fn embed(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let step = atomicLoad(&flags[FLAG_W * p.boxes]);
+    let status = embedding_step(g, step);
+    if (!loops_ran_in_full()) {
+        atomicStore(&flags[FLAG_W * p.boxes + 1u], 1u);
+    }
+    if (status != LIVE) {
+        stop(g, status, step);
+    }
+}
+
+// Whether this invocation's loops still run to their end: a loop of p.loop_check (2)
+// iterations, a count the compiler cannot unroll, runs once only after a driver has cut the
+// invocation's loops short (llvmpipe ends them all after 65,535 iterations in all, shared by
+// the lanes of a SIMD group: src/gpu/margins.rs). The host then fails the run.
+fn loops_ran_in_full() -> bool {
+    var ran = 0u;
+    for (var k = 0u; k < p.loop_check; k++) {
+        ran += 1u;
+    }
+    return ran == p.loop_check;
+}
+
+// One Euler step of box g (step `step`): writes its state (and snapshot); its status after
+// the step.
+fn embedding_step(g: u32, step: u32) -> u32 {
     var lo: array<real, N0>;
     var hi: array<real, N0>;
     var xb: array<Iv, N0>;
@@ -385,12 +469,10 @@ fn embed(@builtin(global_invocation_id) gid: vec3<u32>) {
         // The disturbance bound first, as src/reach/cpu.rs: M = ∞ ends the box.
         margin = margin_of(xb);
         if (margin >= HUGE) {
-            stop(g, NO_BOUND, step);
-            return;
+            return NO_BOUND;
         }
         if (atomicLoad(&flags[g * FLAG_W]) != 0u || !bounds_finite(g)) {
-            stop(g, NON_FINITE, step);
-            return;
+            return NON_FINITE;
         }
     }
 
@@ -444,8 +526,7 @@ fn embed(@builtin(global_invocation_id) gid: vec3<u32>) {
         let factor = up(DT_HI * phi_up(z.hi));
         radius = max(up(up(growth * radius) + up(ELL_MC * factor)), 0.0);
         if (!finite(radius)) {
-            stop(g, NON_FINITE, step);
-            return;
+            return NON_FINITE;
         }
     }
 
@@ -459,12 +540,10 @@ fn embed(@builtin(global_invocation_id) gid: vec3<u32>) {
         fin = fin && finite(lo[j]) && finite(hi[j]) && finite(dxl[j]) && finite(dxu[j]);
     }
     if (!fin) {
-        stop(g, NON_FINITE, step);
-        return;
+        return NON_FINITE;
     }
     if (inverted) {
-        stop(g, INVERTED, step);
-        return;
+        return INVERTED;
     }
     if (HS_Z > 0u) {
         var zb: array<Iv, N0>;
@@ -498,8 +577,7 @@ fn embed(@builtin(global_invocation_id) gid: vec3<u32>) {
         inside = inside && REGION_LO[i] <= xs[i].lo && xs[i].hi <= REGION_HI[i];
     }
     if (!inside) {
-        stop(g, LEFT_REGION, step);
-        return;
+        return LEFT_REGION;
     }
     let done = step + 1u;
     if (done % EVERY == 0u || done == STEPS) {
@@ -509,4 +587,5 @@ fn embed(@builtin(global_invocation_id) gid: vec3<u32>) {
             snap[at + j] = state[g * SW + j];
         }
     }
+    return LIVE;
 }

@@ -40,4 +40,6 @@ struct Params {
     k_b_off: u32,
     k_rows: u32,
     k_wm_off: u32,
+    // The embedding step: 2, the trip count of its loop-limit check (loops_ran_in_full).
+    loop_check: u32,
 }

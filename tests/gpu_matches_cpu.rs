@@ -1020,6 +1020,126 @@ fn shipped_error_map_face_local_matches_cpu() {
     }
 }
 
+/// The shipped network and error map (scenario 1) with two 1.0-wide cells of `verify --grid
+/// 8,6`, [1.5, 2.5] × [2, 3] and [1.5, 2.5] × [−3, −2], face-local forward-backward bounds and
+/// `--exact inactive`, 14 steps: the second set grows over ~17,000 buckets of the map by t = 0.44.
+fn grown_sets_problem() -> (ReachProblem, Vec<IntervalBox>, ReachSettings) {
+    let s = integrator();
+    let net = Mlp::load_safetensors(&common::scenario_path("integrator.safetensors")).unwrap();
+    let map = cbfreach::surrogate_error::ErrorMap::load(&common::scenario_path(
+        "integrator.errormap.json",
+    ))
+    .unwrap();
+    let m_c = map.certified_linf.unwrap();
+    let mut problem = ReachProblem::new(&s, net, m_c)
+        .unwrap()
+        .with_error_map(map)
+        .unwrap();
+    problem.steps = 14;
+    let init = boxes(&[[2.0, 2.5], [2.0, -2.5]], 0.5);
+    let st = ReachSettings {
+        exact: ExactField::Inactive,
+        ..with_faces(BoundMethod::ForwardBackward)
+    };
+    (problem, init, st)
+}
+
+/// Regression: the local margin of a set that has grown over thousands of buckets. The exact
+/// visit of every bucket used to run more than 65,535 loop iterations, after which llvmpipe
+/// silently ended every loop of the invocation, for every box of its SIMD group: a field
+/// component came out 0 and the second box's set froze in x₂, narrower than the CPU's sound
+/// set, and so did the first box's when run beside it. Now (block maxima past `EXACT_WORK`)
+/// each box's tube is the same alone and batched, every set contains the true filtered system's
+/// trajectories from 16 starts, and in f64 stays within 5 % of the scale of the CPU's (exact
+/// margins).
+#[test]
+fn grown_sets_local_margins_are_sound_and_batch_independent() {
+    use cbfreach::filter::SafetyFilter;
+    use cbfreach::simulate::simulate_filtered;
+
+    let Some(gpu32) = gpu() else { return };
+    let mut engines = vec![gpu32];
+    engines.extend(gpu_f64());
+    let (problem, init, st) = grown_sets_problem();
+    let cpu = CpuBackend
+        .reach(&problem, &init, &st, &|_, _| {})
+        .unwrap()
+        .boxes;
+    assert!(cpu.iter().all(|t| !t.valid), "both sets should leave C");
+    let scenario = integrator();
+    let filter = SafetyFilter::new(&scenario);
+    let truth: Vec<Vec<Vec<Vec<f64>>>> = init
+        .iter()
+        .map(|b| {
+            sample_box(b, 16, 3)
+                .iter()
+                .map(|x0| {
+                    simulate_filtered(&filter, x0, problem.dt, problem.steps, Integrator::Euler).x
+                })
+                .collect()
+        })
+        .collect();
+    for gpu in &engines {
+        let label = format!("{:?}", gpu.precision());
+        let batched = gpu.reach(&problem, &init, &st, &|_, _| {}).unwrap().boxes;
+        for (k, (c, b)) in cpu.iter().zip(&batched).enumerate() {
+            let alone = gpu
+                .reach(&problem, &init[k..k + 1], &st, &|_, _| {})
+                .unwrap()
+                .boxes;
+            assert_eq!(alone[0].tube.len(), b.tube.len(), "{label} box {k}");
+            for (x, y) in alone[0].tube.iter().zip(&b.tube) {
+                assert_eq!(
+                    x.set, y.set,
+                    "{label} box {k}, t = {}: alone vs batched",
+                    x.t
+                );
+            }
+            // f32's rounding bounds over 400-wide layers widen more than that (see
+            // shipped_error_map_face_local_matches_cpu): its closeness is not checked.
+            if gpu.precision() == Precision::F32 {
+                continue;
+            }
+            for (sc, sg) in c.tube.iter().zip(&b.tube) {
+                for i in 0..2 {
+                    let scale = sc.set.lower[i].abs().max(sc.set.upper[i].abs()).max(1.0);
+                    let gap = (sc.set.lower[i] - sg.set.lower[i])
+                        .abs()
+                        .max((sc.set.upper[i] - sg.set.upper[i]).abs());
+                    assert!(
+                        gap <= 0.05 * scale,
+                        "{label} box {k}, t = {}: gpu {:?} vs cpu {:?}",
+                        sc.t,
+                        sg.set,
+                        sc.set
+                    );
+                }
+            }
+        }
+        let checks = count_contained(&batched, &truth, problem.dt, &label);
+        assert!(checks > 300, "too few checks: {checks}");
+    }
+}
+
+/// The embedding kernel's loop check: with the exact local-margin visit unbounded (as before
+/// `EXACT_WORK`), llvmpipe cuts the grown set's loops short, and the run fails with an error
+/// that says so instead of returning wrong sets; a driver without such a limit runs it.
+#[test]
+fn a_driver_that_cuts_loops_short_fails_the_run() {
+    let Some(mut gpu) = gpu() else { return };
+    gpu.exact_work = Some(1 << 20);
+    let (problem, init, st) = grown_sets_problem();
+    let res = gpu.reach(&problem, &init[1..], &st, &|_, _| {});
+    if gpu.context().info.name.contains("llvmpipe") {
+        let e = res
+            .expect_err("llvmpipe should cut the unbounded visit short")
+            .to_string();
+        assert!(e.contains("cut the embedding kernel's loops short"), "{e}");
+    } else {
+        assert!(res.is_ok(), "{:?}", res.err());
+    }
+}
+
 /// Trajectories of the NN system with a disturbance within the smallest cell bound (so within
 /// every local margin) stay in the GPU's face-local, local-margin sets, in f32 and f64.
 #[test]

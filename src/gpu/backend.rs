@@ -30,7 +30,7 @@ use rayon::prelude::*;
 
 use super::buffers::{
     device_bytes, flatten_network, from_device_bytes, status, storage, storage_init, uniform,
-    Params,
+    Params, LOOP_CHECK,
 };
 use super::codegen::{
     faces_per_box, nnb_width, problem_wgsl, round_down, round_up, MethodFlags, AUX, FLAG_W,
@@ -60,6 +60,9 @@ pub struct GpuBackend {
     precision: Precision,
     /// Most boxes in one chunk (`None`: as many as the limits allow); for tests of the split.
     pub max_chunk: Option<usize>,
+    /// Most work of an exact local-margin query (`None`: `margins::EXACT_WORK`); for tests of
+    /// the embedding kernel's loop check.
+    pub exact_work: Option<usize>,
     /// After each chunk, time every kind of dispatch of a step on its own and print the
     /// breakdown to stderr (`bench --profile`; the chunk's results are read back first).
     pub profile: bool,
@@ -112,6 +115,7 @@ impl GpuBackend {
             ctx,
             precision: Precision::F32,
             max_chunk: None,
+            exact_work: None,
             profile: false,
             kernels: KernelCache::default(),
         }
@@ -437,7 +441,10 @@ impl Backend for GpuBackend {
             .into());
         }
         let shape = Shape::new(problem, settings);
-        let margins = MarginMap::for_problem(problem, settings, self.precision);
+        let mut margins = MarginMap::for_problem(problem, settings, self.precision);
+        if let Some(w) = self.exact_work {
+            margins.exact_work = w;
+        }
         let source = problem_wgsl(problem, settings, shape.flags, self.precision, &margins)?;
         let kernels = self.kernels.get(&self.ctx.device, self.precision, source)?;
         let chunk = self.chunk_size(problem, settings, initial.len());
@@ -749,6 +756,7 @@ impl<'a> StepPlan<'a> {
         self.push(&self.kernels.output, &p, &bufs, groups);
         let per_box = Params {
             boxes: self.boxes,
+            loop_check: LOOP_CHECK,
             ..Default::default()
         };
         let groups = [self.boxes.div_ceil(WORKGROUP), 1, 1];
@@ -839,7 +847,7 @@ impl GpuBackend {
             )));
         }
         let (net, _) = flatten_network(&problem.network);
-        let flags = (FLAG_W as u64 * b + 1) * 4;
+        let flags = (FLAG_W as u64 * b + 2) * 4;
         let sz = |name: &str| sizes.get(name).copied().unwrap_or(4);
         let (snap, state) = (sz("snap"), sz("state"));
         Ok(Buffers {
@@ -865,7 +873,7 @@ impl GpuBackend {
             map_cells: storage_init(
                 d,
                 "map_cells",
-                &padded(&device_bytes(&margins.cells, self.precision)),
+                &padded(&device_bytes(&margins.device_reals(), self.precision)),
             ),
             staging: d.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("staging"),
@@ -906,7 +914,7 @@ impl GpuBackend {
         q.write_buffer(
             &bufs.flags,
             0,
-            bytemuck::cast_slice(&vec![0u32; FLAG_W * boxes.len() + 1]),
+            bytemuck::cast_slice(&vec![0u32; FLAG_W * boxes.len() + 2]),
         );
 
         let plan = StepPlan {
@@ -942,7 +950,7 @@ impl GpuBackend {
         let bytes = prec.bytes();
         let snap_bytes = (slots * boxes.len() * sw) as u64 * bytes;
         let state_bytes = (boxes.len() * sw) as u64 * bytes;
-        let flag_bytes = ((FLAG_W * boxes.len() + 1) * 4) as u64;
+        let flag_bytes = ((FLAG_W * boxes.len() + 2) * 4) as u64;
         let mut enc = d.create_command_encoder(&Default::default());
         enc.copy_buffer_to_buffer(&bufs.snap, 0, &bufs.staging, 0, snap_bytes);
         enc.copy_buffer_to_buffer(&bufs.state, 0, &bufs.staging, snap_bytes, state_bytes);
@@ -978,6 +986,14 @@ impl GpuBackend {
             }
         };
         bufs.staging.unmap();
+        if result.flags[FLAG_W * boxes.len() + 1] != 0 {
+            return Err(GpuError::Device(format!(
+                "the device's driver ({}) cut the embedding kernel's loops short (llvmpipe ends \
+                 an invocation's loops after 65,535 iterations in all); its sets cannot be \
+                 trusted: run this problem on the CPU (--backend cpu)",
+                self.ctx.info.name
+            )));
+        }
         if self.profile {
             self.profile_step(&ops, boxes.len())?;
         }

@@ -73,7 +73,13 @@ pub struct Params {
     pub k_rows: u32,
     /// Offset of layer `k`'s `|W| max(u_prev, 0)` in `wm`.
     pub k_wm_off: u32,
+    /// The embedding step: [`LOOP_CHECK`], the trip count of its loop-limit check.
+    pub loop_check: u32,
 }
+
+/// Iterations of the embedding kernel's last loop (`loops_ran_in_full` in
+/// shaders/embed.wgsl): a driver that cut the invocation's loops short runs it once.
+pub const LOOP_CHECK: u32 = 2;
 
 /// Box status codes written by the embedding kernel.
 pub mod status {

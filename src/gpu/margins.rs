@@ -22,6 +22,19 @@
 //! the map's region (rounded outward) mirrors the CPU's; soundness does not rest on it, since
 //! the exact set lies in `C ⊆` the map's region whenever a margin is taken (initial boxes are
 //! checked, and every step's set is checked against `C`, rounded inward, before the next).
+//!
+//! # Bounded work
+//!
+//! A set that has grown over many buckets would make that exact visit long: thousands of
+//! iterations a step, and llvmpipe (lavapipe) silently ends every loop of an invocation after
+//! 65,535 iterations in all, cutting the loops of the other boxes of its SIMD group short too.
+//! So the exact visit runs only while it reads at most [`EXACT_WORK`] buckets and cell entries
+//! (the kernel gives up at the first entry beyond); past that, the kernel takes the maximum of
+//! precomputed block maxima instead: level `ℓ` holds, per block of `2^ℓ` buckets a side, the
+//! largest bound of the cells listed in its buckets, and the kernel reads the finest level at
+//! which the set meets at most [`BLOCK_BUDGET`] blocks. Every cell that meets the set is listed
+//! in a bucket the set meets, hence in a block read, so this maximum is never below the exact
+//! one: still sound, at most one block (about 1/16 of the set's extent a side) looser.
 
 use std::fmt::Write;
 
@@ -37,6 +50,10 @@ const MAX_BUCKETS: usize = 1 << 20;
 const HOST_DELTA: f64 = 1e-6;
 /// The kernel's safety margin in bucket units (`(MAX_PER_AXIS + 2)·3u` is below 1e-3 in f32).
 pub const KERNEL_DELTA: f64 = 1.0 / 16.0;
+/// Most buckets plus cell entries one exact query reads before it gives up for block maxima.
+pub const EXACT_WORK: usize = 2048;
+/// Most blocks one block-maximum query reads (at the finest level that allows it).
+pub const BLOCK_BUDGET: usize = 256;
 
 /// An error map laid out for the device.
 #[derive(Clone, Debug, PartialEq)]
@@ -58,6 +75,14 @@ pub struct MarginMap {
     pub index: Vec<u32>,
     /// Per cell `lo[n]` (rounded down), `hi[n]` (rounded up), bound (rounded up, `HUGE` for ∞).
     pub cells: Vec<f64>,
+    /// The block maxima of levels `0..=levels` (level 0: per bucket), each row-major over
+    /// [`MarginMap::level_counts`] blocks, starting at `level_at[ℓ]`.
+    pub blocks: Vec<f64>,
+    /// Where each level starts in `blocks`.
+    pub level_at: Vec<usize>,
+    /// Most buckets plus entries an exact query reads ([`EXACT_WORK`]; tests raise it to
+    /// show the loop check of the embedding kernel at work).
+    pub exact_work: usize,
 }
 
 /// The device's `HUGE` (shaders' "unbounded") as an f64.
@@ -135,17 +160,24 @@ impl MarginMap {
         }
         index.extend(lists.into_iter().flatten());
         let huge = huge(precision);
+        let bounds: Vec<f64> = map
+            .cells
+            .iter()
+            .map(|c| {
+                if c.bound.is_finite() {
+                    up(c.bound).min(huge)
+                } else {
+                    huge
+                }
+            })
+            .collect();
         let mut cells = Vec::with_capacity(map.cells.len() * (2 * n + 1));
-        for c in &map.cells {
+        for (c, &bound) in map.cells.iter().zip(&bounds) {
             cells.extend(c.lower.iter().map(|&v| down(v)));
             cells.extend(c.upper.iter().map(|&v| up(v)));
-            cells.push(if c.bound.is_finite() {
-                up(c.bound).min(huge)
-            } else {
-                huge
-            });
+            cells.push(bound);
         }
-        MarginMap {
+        let mut m = MarginMap {
             certified: map.certified_linf.is_some(),
             counts,
             origin,
@@ -154,7 +186,70 @@ impl MarginMap {
             region_hi: map.region.upper.iter().map(|&v| up(v)).collect(),
             index,
             cells,
+            blocks: Vec::new(),
+            level_at: Vec::new(),
+            exact_work: EXACT_WORK,
+        };
+        m.build_blocks(&bounds);
+        m
+    }
+
+    /// Levels of block maxima above the buckets: the last has one block.
+    pub fn levels(&self) -> usize {
+        let widest = self.counts.iter().copied().max().unwrap_or(1);
+        widest.next_power_of_two().trailing_zeros() as usize
+    }
+
+    /// Blocks per axis at `level` (`2^level` buckets a side, the last one perhaps fewer).
+    pub fn level_counts(&self, level: usize) -> Vec<usize> {
+        self.counts
+            .iter()
+            .map(|&c| c.div_ceil(1 << level))
+            .collect()
+    }
+
+    /// Fills `blocks`: level 0 from the cells listed per bucket (`bounds` per cell), each
+    /// higher level from the one below (a block's maximum over its up to `2^n` children).
+    fn build_blocks(&mut self, bounds: &[f64]) {
+        let n = self.counts.len();
+        let buckets: usize = self.counts.iter().product();
+        let ids = &self.index[buckets + 1..];
+        let mut level: Vec<f64> = (0..buckets)
+            .map(|k| {
+                let (a, b) = (self.index[k] as usize, self.index[k + 1] as usize);
+                ids[a..b]
+                    .iter()
+                    .map(|&c| bounds[c as usize])
+                    .fold(0.0, f64::max)
+            })
+            .collect();
+        self.level_at = vec![0];
+        self.blocks = level.clone();
+        for l in 1..=self.levels() {
+            let (below, here) = (self.level_counts(l - 1), self.level_counts(l));
+            let mut next = vec![0.0f64; here.iter().product()];
+            let full: Vec<(usize, usize)> = below.iter().map(|&c| (0, c - 1)).collect();
+            for_each_bucket(&below, &full, |k| {
+                // Row-major index k at the level below → its parent block.
+                let (mut rest, mut parent, mut stride) = (k, 0, 1);
+                for i in (0..n).rev() {
+                    parent += (rest % below[i]) / 2 * stride;
+                    rest /= below[i];
+                    stride *= here[i];
+                }
+                next[parent] = next[parent].max(level[k]);
+            });
+            self.level_at.push(self.blocks.len());
+            self.blocks.extend_from_slice(&next);
+            level = next;
         }
+    }
+
+    /// The reals the kernel reads (`map_cells`): the cells, then the block maxima.
+    pub fn device_reals(&self) -> Vec<f64> {
+        let mut v = self.cells.clone();
+        v.extend_from_slice(&self.blocks);
+        v
     }
 
     /// A map of no cells in `n` dimensions, for problems without local margins (the kernels
@@ -169,6 +264,9 @@ impl MarginMap {
             region_hi: vec![0.0; n],
             index: vec![0, 0],
             cells: Vec::new(),
+            blocks: vec![0.0],
+            level_at: vec![0],
+            exact_work: EXACT_WORK,
         }
     }
 
@@ -209,6 +307,22 @@ impl MarginMap {
             s,
             "const MAP_DELTA: real = {};",
             real_literal(KERNEL_DELTA, precision)
+        );
+        // The kernel's capped products `buckets · width` stay below 2³².
+        let exact_work = self.exact_work.min(u32::MAX as usize / MAX_PER_AXIS - 1);
+        let _ = writeln!(s, "const MAP_EXACT_WORK: u32 = {exact_work}u;");
+        let _ = writeln!(s, "const MAP_BLOCK_BUDGET: u32 = {BLOCK_BUDGET}u;");
+        let levels = self.levels();
+        let _ = writeln!(s, "const MAP_LEVELS: u32 = {levels}u;");
+        // Block maxima follow the cells in `map_cells`.
+        let _ = writeln!(s, "const MAP_BLOCKS_AT: u32 = {}u;", self.cells.len());
+        let level_at: Vec<String> = self.level_at.iter().map(|a| format!("{a}u")).collect();
+        let _ = writeln!(
+            s,
+            "var<private> MAP_LEVEL_AT: array<u32, {}> = array<u32, {}>({});",
+            levels + 1,
+            levels + 1,
+            level_at.join(", ")
         );
         let counts: Vec<String> = self.counts.iter().map(|c| format!("{c}u")).collect();
         let _ = writeln!(
@@ -268,6 +382,82 @@ mod tests {
             bucket_range(f64::NAN, 1.5, 0.0, 1.0, 10, HOST_DELTA),
             (0, 1)
         );
+    }
+
+    /// A map of `k × k` cells over [0, 1]² with bounds that vary over the cells, a few of
+    /// them +∞, plus one cell spanning several buckets.
+    fn checker_map(k: usize) -> ErrorMap {
+        let mut cells = Vec::new();
+        let h = 1.0 / k as f64;
+        for i in 0..k {
+            for j in 0..k {
+                let bound = if (i * 7 + j * 3) % 23 == 0 {
+                    "\"inf\"".to_string()
+                } else {
+                    format!("{}", ((i * 31 + j * 17) % 29) as f64 / 100.0)
+                };
+                cells.push(format!(
+                    "{{\"lower\": [{}, {}], \"upper\": [{}, {}], \"bound\": {bound}}}",
+                    i as f64 * h,
+                    j as f64 * h,
+                    (i + 1) as f64 * h,
+                    (j + 1) as f64 * h
+                ));
+            }
+        }
+        cells.push(r#"{"lower": [0.1, 0.2], "upper": [0.55, 0.3], "bound": 0.9}"#.into());
+        let json = format!(
+            "{{\"format\": \"cbfreach-errormap-1\", \"network\": \"t\", \"network_hash\": \"0\", \
+             \"region\": {{\"lower\": [0, 0], \"upper\": [1, 1]}}, \"norm\": \"inf\", \
+             \"measured_linf\": 0, \"measured_l2\": 0, \"certified_linf\": \"inf\", \
+             \"cells\": [{}]}}",
+            cells.join(", ")
+        );
+        serde_json::from_str(&json).unwrap()
+    }
+
+    /// Every block of every level holds the largest bound listed in its buckets (brute force
+    /// over the buckets), the last level is one block holding the largest bound of all, and
+    /// a +∞ bound stays `HUGE` up the levels.
+    #[test]
+    fn block_maxima_are_the_maxima_of_their_buckets() {
+        for (k, precision) in [(13, Precision::F64), (20, Precision::F32)] {
+            let map = checker_map(k);
+            let m = MarginMap::new(&map, precision);
+            let counts = m.counts.clone();
+            let buckets: usize = counts.iter().product();
+            let ids = &m.index[buckets + 1..];
+            let bucket_max = |b: usize| {
+                ids[m.index[b] as usize..m.index[b + 1] as usize]
+                    .iter()
+                    .map(|&c| m.cells[c as usize * 5 + 4])
+                    .fold(0.0, f64::max)
+            };
+            assert_eq!(m.level_at.len(), m.levels() + 1);
+            assert!(m.level_counts(m.levels()).iter().all(|&c| c == 1));
+            for level in 0..=m.levels() {
+                let here = m.level_counts(level);
+                for bx in 0..here[0] {
+                    for by in 0..here[1] {
+                        let mut want = 0.0f64;
+                        for x in 0..counts[0] {
+                            for y in 0..counts[1] {
+                                if x >> level == bx && y >> level == by {
+                                    want = want.max(bucket_max(x * counts[1] + y));
+                                }
+                            }
+                        }
+                        let got = m.blocks[m.level_at[level] + bx * here[1] + by];
+                        assert_eq!(got, want, "level {level} block ({bx}, {by})");
+                    }
+                }
+            }
+            let top = m.blocks[m.level_at[m.levels()]];
+            assert_eq!(top, huge(precision));
+            let reals = m.device_reals();
+            assert_eq!(reals.len(), m.cells.len() + m.blocks.len());
+            assert_eq!(reals[m.cells.len()..], m.blocks[..]);
+        }
     }
 
     #[test]
