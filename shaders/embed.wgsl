@@ -2,9 +2,11 @@
 // takes the disturbance bound M (global, or the error map's local bound over the box's x-box:
 // LOCAL_MARGIN), then from the network's bounds C̲x + d̲ ≤ N(x) ≤ C̄x + d̄ and N̲ ≤ N ≤ N̄ over the
 // box, or over each of its 2n faces (FACES = 2N0, face-local; output.wgsl), bounds the embedding
-// field on each face in interval arithmetic (generated ft_iv, jac_iv, g_iv), advances the
-// closeness radius (Minkowski), takes the Euler step, checks the set against C and writes the
-// recorded snapshot. `tick` then advances the step counter.
+// field on each face in interval arithmetic (generated ft_iv, jac_iv, g_iv), meets it with the
+// filter's own field where the filter is provably one smooth function on the set and with its
+// closed form's enclosures elsewhere (shaders/filter.wgsl), advances the closeness radius
+// (Minkowski), takes the Euler step, checks the set against C and writes the recorded
+// snapshot. `tick` then advances the step counter.
 
 // Params (boxes).
 @group(0) @binding(0) var<uniform> p: Params;
@@ -12,8 +14,8 @@
 @group(0) @binding(1) var<storage, read_write> state: array<real>;
 // The network's bounds over each bound box, FACES per box (shaders/output.wgsl).
 @group(0) @binding(2) var<storage, read> nnb: array<real>;
-// Per box [poisoned, status, stop step, exact steps], then the step counter and the loop check
-// (1: the device cut a loop short; loops_ran_in_full).
+// Per box [poisoned, status, stop step, exact steps, enclosed steps], then the step counter and
+// the loop check (1: the device cut a loop short; loops_ran_in_full).
 @group(0) @binding(3) var<storage, read_write> flags: array<atomic<u32>>;
 // Recorded states: slot-major, SW reals per box.
 @group(0) @binding(4) var<storage, read_write> snap: array<real>;
@@ -69,6 +71,22 @@ struct NetBounds {
     n_hi: array<real, M_OUT>,
 }
 
+// Constant bounds lo ≤ N ≤ hi (zero slopes). Every field is written: lavapipe left the fields of
+// a declared-only struct undefined, and the other invocations of a workgroup's registers leaked
+// into them (measured: a box's set depended on its neighbours in the batch).
+fn constant_bounds(lo: array<real, M_OUT>, hi: array<real, M_OUT>) -> NetBounds {
+    var b: NetBounds;
+    for (var q = 0u; q < M_OUT * N0; q++) {
+        b.a_lo[q] = 0.0;
+        b.a_hi[q] = 0.0;
+    }
+    b.d_lo = lo;
+    b.d_hi = hi;
+    b.n_lo = lo;
+    b.n_hi = hi;
+    return b;
+}
+
 fn load_bounds(k: u32) -> NetBounds {
     var b: NetBounds;
     let at = k * NB_W;
@@ -95,28 +113,39 @@ fn face_index(g: u32, i: u32, side: u32) -> u32 {
     return g * FACES + 2u * i + side;
 }
 
-// The network's bounds on face (i, side) of box g, or zero ones where v = 0 on the set.
-fn face_bounds(g: u32, i: u32, side: u32, inactive: bool) -> NetBounds {
-    if (inactive) {
-        var zero: NetBounds;
-        return zero;
+// The smooth piece `v` provably is on an x-box (within S) of the set (set_facts in
+// src/reach/cpu.rs): with ENCLOSE (the filter's closed form), VForms::piece's mean-value forms
+// (shaders/filter.wgsl); with EXACT_INACTIVE alone, PIECE_INACTIVE where every row's b(x) ≥ 0
+// by natural interval evaluation (row_b_iv, src/reach/pieces.rs slack_rows); else PIECE_NONE.
+fn piece_on(x: array<Iv, N0>) -> u32 {
+    if (ENCLOSE) {
+        return proven_piece(x);
     }
-    return load_bounds(face_index(g, i, side));
-}
-
-// Whether v = 0 on the whole set of embedding state z (EXACT_INACTIVE): every row's b(x) ≥ 0
-// on its x-box ∩ S by natural interval evaluation (row_b_iv, src/reach/pieces.rs slack_rows).
-fn filter_inactive(z: array<Iv, N0>) -> bool {
     if (!EXACT_INACTIVE) {
-        return false;
+        return PIECE_NONE;
     }
-    let x = clip_to_safe_set(x_box(z), HS_Z, HS_X);
     for (var k = 0u; k < ROWS; k++) {
         if (!(row_b_iv(k, x).lo >= 0.0)) {
-            return false;
+            return PIECE_NONE;
         }
     }
-    return true;
+    return PIECE_INACTIVE;
+}
+
+// f̃ᵢ and its Jacobian for the field being bounded: the scenario's (piece 0: the network's system,
+// or v = 0) or binding piece k's, f̃ + g·v with v the row's closed form (piece k + 1).
+fn field_ft(piece: u32, i: u32, x: array<Iv, N0>) -> Iv {
+    if (piece == 0u) {
+        return ft_iv(i, x);
+    }
+    return bft_iv((piece - 1u) * N0 + i, x);
+}
+
+fn field_jac(piece: u32, i: u32, j: u32, x: array<Iv, N0>) -> Iv {
+    if (piece == 0u) {
+        return jac_iv(i, j, x);
+    }
+    return bjac_iv(((piece - 1u) * N0 + i) * N0 + j, x);
 }
 
 // Whether every bound box of box g is finite.
@@ -329,7 +358,7 @@ fn interaction_row(nb: NetBounds, margin: real, i: u32, side: u32) -> Interactio
 // the face's centre point p, the interval Jacobian over the face (the mean-value form's
 // segments from p stay on it) times the offsets over the face, and the
 // network's affine forms (constant g) or [g](box)·[N̲ − M, N̄ + M] (state-dependent g).
-fn face_field(i: u32, side: u32, xb: array<Iv, N0>, cen: array<real, N0>, nb: NetBounds, margin: real) -> Iv {
+fn face_field(i: u32, side: u32, xb: array<Iv, N0>, cen: array<real, N0>, nb: NetBounds, margin: real, piece: u32) -> Iv {
     var pt = cen;
     if (side == 0u) {
         pt[i] = xb[i].lo;
@@ -344,9 +373,9 @@ fn face_field(i: u32, side: u32, xb: array<Iv, N0>, cen: array<real, N0>, nb: Ne
     face[i] = pb[i];
     var jac: array<Iv, N0>;
     for (var j = 0u; j < N0; j++) {
-        jac[j] = jac_iv(i, j, face);
+        jac[j] = field_jac(piece, i, j, face);
     }
-    var total = ft_iv(i, pb);
+    var total = field_ft(piece, i, pb);
     if (G_CONSTANT) {
         let ir = interaction_row(nb, margin, i, side);
         for (var j = 0u; j < N0; j++) {
@@ -413,6 +442,74 @@ fn clip_to_safe_set(b: array<Iv, N0>, first: u32, count: u32) -> array<Iv, N0> {
     return v;
 }
 
+// A lower / upper bound moved outward by a slack (none for a zero slack, as widen_by).
+fn widen_down(v: real, slack: real) -> real {
+    if (slack > 0.0) {
+        return down(v - slack);
+    }
+    return v;
+}
+
+fn widen_up(v: real, slack: real) -> real {
+    if (slack > 0.0) {
+        return up(v + slack);
+    }
+    return v;
+}
+
+// Bounds of the embedding field; `ok` false where there are none.
+struct Field {
+    lo: array<real, N0>,
+    hi: array<real, N0>,
+    ok: bool,
+}
+
+// The filtered system's field with v enclosed by the closed form on each face (enclosure_field
+// in src/reach/cpu.rs): each face's x-box within S gives an enclosure of v (shaders/filter.wgsl),
+// taken as constant bounds of the input, widened by the transform's slack; `ok` false where an
+// enclosure is unbounded (near a jump of v).
+fn enclosure_field(xb: array<Iv, N0>, cen: array<real, N0>) -> Field {
+    var out: Field;
+    out.ok = false;
+    var slack: real = 0.0;
+    for (var f = 0u; f < 2u * N0; f++) {
+        let i = f / 2u;
+        let side = f % 2u;
+        {
+            var face = xb;
+            if (side == 0u) {
+                face[i] = iv_point(xb[i].lo);
+            } else {
+                face[i] = iv_point(xb[i].hi);
+            }
+            let x = clip_to_safe_set(x_box(face), HS_Z, HS_X);
+            let v = enclose_v(x);
+            if (!v.ok) {
+                return out;
+            }
+            slack = max(slack, enclosed_slack(x, v.v));
+            var lo: array<real, M_OUT>;
+            var hi: array<real, M_OUT>;
+            for (var k = 0u; k < M_OUT; k++) {
+                lo[k] = v.v[k].lo;
+                hi[k] = v.v[k].hi;
+            }
+            let field = face_field(i, side, xb, cen, constant_bounds(lo, hi), 0.0, 0u);
+            if (side == 0u) {
+                out.lo[i] = field.lo;
+            } else {
+                out.hi[i] = field.hi;
+            }
+        }
+    }
+    for (var i = 0u; i < N0; i++) {
+        out.lo[i] = widen_down(out.lo[i], slack);
+        out.hi[i] = widen_up(out.hi[i], slack);
+    }
+    out.ok = true;
+    return out;
+}
+
 @compute @workgroup_size(64)
 fn embed(@builtin(global_invocation_id) gid: vec3<u32>) {
     let g = gid.x;
@@ -459,32 +556,71 @@ fn embedding_step(g: u32, step: u32) -> u32 {
     }
     var radius = state[g * SW + 2u * N0];
 
-    // Where the filter is proven inactive on the set, v = 0: the filtered system's own field,
-    // no network bounds and no margin (src/reach/cpu.rs, FilterPieces::proves_inactive).
-    let inactive = filter_inactive(xb);
-    var margin: real = 0.0;
-    if (inactive) {
-        atomicAdd(&flags[g * FLAG_W + 3u], 1u);
-    } else {
-        // The disturbance bound first, as src/reach/cpu.rs: M = ∞ ends the box.
-        margin = margin_of(xb);
-        if (margin >= HUGE) {
-            return NO_BOUND;
-        }
-        if (atomicLoad(&flags[g * FLAG_W]) != 0u || !bounds_finite(g)) {
-            return NON_FINITE;
-        }
-    }
-
-    // The embedding field, face by face (embedding_field_by_face in src/reach/embedding.rs).
+    // What bounds v on this step (src/reach/cpu.rs, horizon): the filter's own field where it is
+    // provably one smooth function on the set, else its closed form's enclosures on each face
+    // (ENCLOSE), and the network plus the error margin except where v = 0; their meet.
+    let known = clip_to_safe_set(x_box(xb), HS_Z, HS_X);
+    let piece = piece_on(known);
     var dxl: array<real, N0>;
     var dxu: array<real, N0>;
     for (var i = 0u; i < N0; i++) {
-        dxl[i] = face_field(i, 0u, xb, cen, face_bounds(g, i, 0u, inactive), margin).lo;
-        dxu[i] = face_field(i, 1u, xb, cen, face_bounds(g, i, 1u, inactive), margin).hi;
-        if (FIELD_SLACK > 0.0) {
-            dxl[i] = down(dxl[i] - FIELD_SLACK);
-            dxu[i] = up(dxu[i] + FIELD_SLACK);
+        dxl[i] = -HUGE;
+        dxu[i] = HUGE;
+    }
+    var have = false;
+    if (piece != PIECE_NONE) {
+        atomicAdd(&flags[g * FLAG_W + 3u], 1u);
+        var slack = FIELD_SLACK;
+        if (piece != PIECE_INACTIVE) {
+            slack = binding_slack(piece - 1u, known);
+        }
+        var none: array<real, M_OUT>;
+        for (var k = 0u; k < M_OUT; k++) {
+            none[k] = 0.0;
+        }
+        let zero = constant_bounds(none, none);
+        for (var f = 0u; f < 2u * N0; f++) {
+            let i = f / 2u;
+            let side = f % 2u;
+            let v = face_field(i, side, xb, cen, zero, 0.0, piece);
+            if (side == 0u) {
+                dxl[i] = widen_down(v.lo, slack);
+            } else {
+                dxu[i] = widen_up(v.hi, slack);
+            }
+        }
+        have = true;
+    } else if (ENCLOSE) {
+        let enclosed = enclosure_field(xb, cen);
+        if (enclosed.ok) {
+            atomicAdd(&flags[g * FLAG_W + 4u], 1u);
+            dxl = enclosed.lo;
+            dxu = enclosed.hi;
+            have = true;
+        }
+    }
+    var margin: real = 0.0;
+    if (piece != PIECE_INACTIVE) {
+        // The disturbance bound first, as src/reach/cpu.rs: M = ∞ leaves the network out, and
+        // ends the box where nothing else bounds v.
+        margin = margin_of(xb);
+        let poisoned = atomicLoad(&flags[g * FLAG_W]) != 0u || !bounds_finite(g);
+        if (margin < HUGE && !poisoned) {
+            // The embedding field, face by face (embedding_field_by_face in
+            // src/reach/embedding.rs).
+            for (var f = 0u; f < 2u * N0; f++) {
+                let i = f / 2u;
+                let side = f % 2u;
+                let v = face_field(i, side, xb, cen, load_bounds(face_index(g, i, side)), margin, 0u);
+                if (side == 0u) {
+                    dxl[i] = max(dxl[i], widen_down(v.lo, FIELD_SLACK));
+                } else {
+                    dxu[i] = min(dxu[i], widen_up(v.hi, FIELD_SLACK));
+                }
+            }
+            have = true;
+        } else if (!have) {
+            return select(NON_FINITE, NO_BOUND, margin >= HUGE);
         }
     }
 

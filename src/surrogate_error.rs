@@ -857,9 +857,11 @@ pub fn cell_error_bound(
 
 /// A smooth expression with its symbolic gradient, for mean-value (centred) enclosures.
 #[derive(Clone, Debug)]
-struct Smooth {
-    e: Expr,
-    grad: Vec<Expr>,
+pub struct Smooth {
+    /// The expression `e(x)`.
+    pub e: Expr,
+    /// `∂e/∂xᵢ`, one per state.
+    pub grad: Vec<Expr>,
 }
 
 /// `e(c)` and `∇e(X)` over a box, and the centred form `e(c) + ∇e(X)·(X − c)`.
@@ -963,6 +965,24 @@ pub struct VForms {
     /// Scalar input: `rₖ − rⱼ` at `k·rows + j` (`k ≠ j`), to prove one row dominant; empty
     /// beyond [`MAX_DOMINANCE_ROWS`] rows.
     r_diff: Vec<Option<Smooth>>,
+}
+
+/// The expressions behind [`VForms`], for an engine that evaluates them itself (the GPU's
+/// generated WGSL, `src/gpu/codegen.rs`); the fields are those of [`VForms`].
+#[derive(Clone, Copy, Debug)]
+pub struct VFormParts<'a> {
+    /// Which closed form.
+    pub method: FilterMethod,
+    /// `bₖ(x)` of every row (`hᵢ` not clamped).
+    pub b: &'a [Smooth],
+    /// One row: `Fⱼ = b·aⱼ/‖a‖²`.
+    pub f: &'a [Smooth],
+    /// One row: `pⱼ = aⱼ/‖a‖²`.
+    pub p: &'a [Smooth],
+    /// Scalar input: `rₖ = bₖ/aₖ`.
+    pub r: &'a [Smooth],
+    /// Scalar input: `rₖ − rⱼ` at `k·rows + j` (`None` on the diagonal; empty beyond eight rows).
+    pub r_diff: &'a [Option<Smooth>],
 }
 
 /// Rows up to which [`VForms`] keeps the pairwise differences `rₖ − rⱼ` (their count grows
@@ -1162,6 +1182,18 @@ impl VForms {
                 FilterMethod::ClosedFormSingle => self.f.iter().map(|f| f.e.clone()).collect(),
                 _ => vec![self.r[k].e.clone()],
             },
+        }
+    }
+
+    /// Its expressions, for engines that evaluate them elsewhere.
+    pub fn parts(&self) -> VFormParts<'_> {
+        VFormParts {
+            method: self.method,
+            b: &self.b,
+            f: &self.f,
+            p: &self.p,
+            r: &self.r,
+            r_diff: &self.r_diff,
         }
     }
 

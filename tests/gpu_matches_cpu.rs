@@ -682,6 +682,11 @@ fn cli_backend_gpu_and_auto() {
         ok && text.contains("GPU adapter:") && text.contains("backend gpu"),
         "{text}"
     );
+    // The filter's closed form runs there too (the default `--exact closed-form`), no notice.
+    assert!(
+        text.contains("the filter's closed form") && !text.contains("note:"),
+        "{text}"
+    );
     // f64 by default where the adapter has f64 shaders (its sets match the CPU's; f32's a-priori
     // rounding bounds cost verdicts), f32 on request.
     let default_type = if gpu.has_f64() { "f64)" } else { "f32)" };
@@ -1373,5 +1378,87 @@ fn cancelling_network() -> Mlp {
                 2,
             ),
         ],
+    }
+}
+
+/// The filter's closed form on the GPU (`ExactField::ClosedForm`, shaders/filter.wgsl): its own
+/// field where it is provably one smooth function on the set (inactive, or one row binding),
+/// the closed form's enclosures of `v` on each face elsewhere, each met with the network's
+/// bounds. On scenario 1 (one row, `v = b·a/‖a‖²`: a box near the goal, two where the
+/// obstacle's row binds, one that crosses the switch) and on scenario 2 in z coordinates (a
+/// scalar input, two rows and the dominance between them, and the transform's slack), the GPU
+/// in f64 takes the same piece or enclosure on every step as the CPU and agrees on the sets to
+/// `F64_TOL`; in f32 its sets contain the CPU's (up to `F32_FACTOR`). Both kinds of step occur,
+/// and the closed form makes the binding boxes' sets narrower than `v = 0` where inactive alone.
+#[test]
+fn closed_form_filter_matches_cpu() {
+    let Some(gpu32) = gpu() else { return };
+    let gpu64 = gpu_f64();
+    let s1 = integrator();
+    // A random network with an error bound that holds near the obstacle (|v| ≤ 6 there), so
+    // that its bounds are sound and the closed form does the work.
+    let mut p1 = ReachProblem::new(&s1, small_network(&[2, 16, 16, 2], 1, 0.05), 8.0).unwrap();
+    p1.steps = 40;
+    let init1 = boxes(&[[0.1, 0.1], [3.9, 0.0], [3.6, 0.5], [2.6, 1.4]], 0.03);
+    let s2 = double_integrator();
+    let t = Transform::for_scenario(&s2, &TransformChoice::Auto).unwrap();
+    let mut p2 =
+        ReachProblem::with_transform(&s2, small_network(&[2, 16, 16, 1], 6, 0.05), 8.0, t).unwrap();
+    p2.steps = 40;
+    let init2 = boxes(&[[0.1, -0.1], [1.0, 1.5], [1.5, 1.5], [-2.5, 0.5]], 0.03);
+    let closed = ReachSettings {
+        exact: ExactField::ClosedForm,
+        ..with_faces(BoundMethod::ForwardBackward)
+    };
+    let inactive = ReachSettings {
+        exact: ExactField::Inactive,
+        ..closed.clone()
+    };
+    for (problem, init, name) in [(&p1, &init1, "scenario 1"), (&p2, &init2, "scenario 2")] {
+        let (c, g) = run_both_with(&gpu32, problem, init, &closed);
+        let exact: usize = c.iter().map(|t| t.exact_steps).sum();
+        let enclosed: usize = c.iter().map(|t| t.enclosed_steps).sum();
+        assert!(
+            exact > problem.steps && enclosed > 0,
+            "{name}: {exact} exact, {enclosed} enclosed"
+        );
+        for (k, (a, b)) in c.iter().zip(&g).enumerate() {
+            assert_eq!(
+                a.valid, b.valid,
+                "{name} box {k}: {:?} vs {:?}",
+                a.note, b.note
+            );
+            for (sa, sb) in a.tube.iter().zip(&b.tube) {
+                for i in 0..2 {
+                    let scale = sa.set.lower[i].abs().max(sa.set.upper[i].abs()).max(1.0);
+                    assert!(
+                        sb.set.lower[i] <= sa.set.lower[i] + F32_FACTOR * scale
+                            && sa.set.upper[i] <= sb.set.upper[i] + F32_FACTOR * scale,
+                        "{name} f32 box {k} t = {}: gpu {:?} does not contain cpu {:?}",
+                        sa.t,
+                        sb.set,
+                        sa.set
+                    );
+                }
+            }
+        }
+        if let Some(gpu64) = &gpu64 {
+            let (c, g) = run_both_with(gpu64, problem, init, &closed);
+            for (k, (a, b)) in c.iter().zip(&g).enumerate() {
+                assert_eq!(
+                    (a.exact_steps, a.enclosed_steps),
+                    (b.exact_steps, b.enclosed_steps),
+                    "{name} box {k}: steps on a piece and enclosed"
+                );
+            }
+            compare_within(&c, &g, &format!("{name}: closed form, f64"), F64_TOL);
+            let (_, loose) = run_both_with(gpu64, problem, init, &inactive);
+            // At the last time both recorded, some set is narrower.
+            let tighter = g.iter().zip(&loose).any(|(a, b)| {
+                let j = a.tube.len().min(b.tube.len());
+                j > 1 && a.tube[j - 1].set.widths()[0] < 0.9 * b.tube[j - 1].set.widths()[0]
+            });
+            assert!(tighter, "{name}: the closed form tightened no set");
+        }
     }
 }

@@ -402,9 +402,7 @@ pub fn run(args: &ReachArgs) -> CliResult {
 pub const INTERSECT_X_CLAUSE: &str = ", sets met with their x-boxes";
 
 /// What is the CPU engine's alone becomes, with the GPU engine, what that engine does, with a
-/// notice (sound, looser): the filter's closed form beyond `v = 0` where it is proven inactive
-/// (`closed-form` becomes `inactive`; elsewhere the network is bounded), and sets met with
-/// their x-boxes (the parallelotope alone).
+/// notice (sound, looser): sets met with their x-boxes become the parallelotope alone.
 pub fn settle_for_engine(
     settings: &mut ReachSettings,
     backend: &dyn Backend,
@@ -412,13 +410,6 @@ pub fn settle_for_engine(
 ) {
     if backend.name() == "cpu" {
         return;
-    }
-    if settings.exact_field() == ExactField::ClosedForm {
-        settings.exact = ExactField::Inactive;
-        println!(
-            "note: the GPU engine takes v = 0 where the filter is proven inactive, but not yet the \
-             rest of its closed form (--exact closed-form is the CPU engine's): --exact inactive"
-        );
     }
     if problem.frames(settings).len() > 1 {
         settings.intersect_x = false;

@@ -1081,6 +1081,7 @@ fn fill_tube(
     let st = res.flags[FLAG_W * g + 1];
     let stop = res.flags[FLAG_W * g + 2] as usize + 1; // 1-based step at which it stopped
     tube.exact_steps = res.flags[FLAG_W * g + 3] as usize;
+    tube.enclosed_steps = res.flags[FLAG_W * g + 4] as usize;
     let read = |v: &[f64]| -> (Vec<f64>, Vec<f64>, f64) {
         (v[..n].to_vec(), v[n..2 * n].to_vec(), v[2 * n])
     };

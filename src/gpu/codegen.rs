@@ -14,10 +14,12 @@ use std::fmt::Write;
 use super::margins::MarginMap;
 use super::{GpuError, Precision};
 use crate::expressions::{Expr, Func, Node};
+use crate::filter::FilterMethod;
 use crate::intervals::Interval;
 use crate::reach::safe_set::{SafeHalfspace, Tightening};
 use crate::reach::{ExactField, ReachMethod, ReachProblem, ReachSettings, SafeSet};
 use crate::scenario::Norm;
+use crate::surrogate_error::{row_expressions, Smooth};
 
 /// The largest f32 the shaders treat as a number (`HUGE` in `common.wgsl`).
 const HUGE: f32 = 3.0e38;
@@ -133,69 +135,83 @@ fn iv_literal(lo: f64, hi: f64, precision: Precision) -> String {
     )
 }
 
-/// The WGSL interval inclusion of an expression over `x: array<Iv, N0>`.
+/// The WGSL interval inclusion of an expression over `x: array<Iv, N0>`, as one nested call.
 pub fn interval_expr(e: &Expr, precision: Precision) -> String {
-    let mut out = String::new();
-    emit(e.node(), precision, &mut out);
-    out
+    fn nested(node: &Node, precision: Precision) -> String {
+        node_code(node, precision, &mut |child| nested(child, precision))
+    }
+    nested(e.node(), precision)
 }
 
-fn emit(node: &Node, precision: Precision, out: &mut String) {
-    let emit = |node: &Node, out: &mut String| emit(node, precision, out);
-    let call = |name: &str, args: &[&Node], out: &mut String| {
-        out.push_str(name);
-        out.push('(');
-        for (i, a) in args.iter().enumerate() {
-            if i > 0 {
-                out.push_str(", ");
-            }
-            emit(a, out);
-        }
-        out.push(')');
+/// One node's WGSL call, its operands written by `operand`.
+fn node_code(
+    node: &Node,
+    precision: Precision,
+    operand: &mut dyn FnMut(&Node) -> String,
+) -> String {
+    let mut call = |name: &str, args: &[&Node]| {
+        let args: Vec<String> = args.iter().map(|a| operand(a)).collect();
+        format!("{name}({})", args.join(", "))
     };
     match node {
-        Node::Const(c) => out.push_str(&iv_literal(*c, *c, precision)),
-        Node::Var(i) => {
-            let _ = write!(out, "x[{i}]");
-        }
-        Node::Neg(u) => call("iv_neg", &[u], out),
-        Node::Add(u, v) => call("iv_add", &[u, v], out),
-        Node::Sub(u, v) => call("iv_sub", &[u, v], out),
-        Node::Mul(u, v) => call("iv_mul", &[u, v], out),
-        Node::Div(u, v) => call("iv_div", &[u, v], out),
-        Node::Pow(u, k) => {
-            out.push_str("iv_pow(");
-            emit(u, out);
-            let _ = write!(out, ", {k})");
-        }
+        Node::Const(c) => iv_literal(*c, *c, precision),
+        Node::Var(i) => format!("x[{i}]"),
+        Node::Neg(u) => call("iv_neg", &[u]),
+        Node::Add(u, v) => call("iv_add", &[u, v]),
+        Node::Sub(u, v) => call("iv_sub", &[u, v]),
+        Node::Mul(u, v) => call("iv_mul", &[u, v]),
+        Node::Div(u, v) => call("iv_div", &[u, v]),
+        Node::Pow(u, k) => format!("iv_pow({}, {k})", operand(u)),
         Node::Call(f, args) => {
             let a: Vec<&Node> = args.iter().collect();
             match f {
                 Func::Sin | Func::Cos => {
-                    out.push_str("iv_trig(");
-                    emit(a[0], out);
-                    out.push_str(if *f == Func::Cos {
-                        ", true)"
-                    } else {
-                        ", false)"
-                    });
+                    format!("iv_trig({}, {})", operand(a[0]), *f == Func::Cos)
                 }
-                Func::Sqrt => call("iv_sqrt", &a, out),
-                Func::Exp => call("iv_exp", &a, out),
-                Func::Ln => call("iv_ln", &a, out),
-                Func::Tanh => call("iv_tanh", &a, out),
-                Func::Abs => call("iv_abs", &a, out),
-                Func::Min => call("iv_min", &a, out),
-                Func::Max => call("iv_max", &a, out),
-                Func::Sign => call("iv_sign", &a, out),
-                Func::Step => call("iv_step", &a, out),
-                Func::Delta => call("iv_delta", &a, out),
+                Func::Sqrt => call("iv_sqrt", &a),
+                Func::Exp => call("iv_exp", &a),
+                Func::Ln => call("iv_ln", &a),
+                Func::Tanh => call("iv_tanh", &a),
+                Func::Abs => call("iv_abs", &a),
+                Func::Min => call("iv_min", &a),
+                Func::Max => call("iv_max", &a),
+                Func::Sign => call("iv_sign", &a),
+                Func::Step => call("iv_step", &a),
+                Func::Delta => call("iv_delta", &a),
             }
         }
     }
 }
 
-/// `fn name(i: u32, …, x: array<Iv, N0>) -> Iv`, a `switch` over the flattened index.
+/// An expression's interval inclusion as `let` statements (appended to `lets`) and the operand
+/// that holds it, every repeated subexpression computed once (`names` maps a call to its `let`).
+/// Symbolic derivatives repeat their factors many times over (the derivative of scenario 1's
+/// closed form `b·a/‖a‖²` is ~45 kB as nested calls), and the shader compiler inlines every
+/// function where it is called: nested, lavapipe's compiler ran out of memory. The same
+/// operations in the same order: the enclosure is the nested one's.
+fn shared_subexpressions(
+    node: &Node,
+    precision: Precision,
+    lets: &mut String,
+    names: &mut std::collections::HashMap<String, String>,
+) -> String {
+    let code = node_code(node, precision, &mut |child| {
+        shared_subexpressions(child, precision, lets, names)
+    });
+    if matches!(node, Node::Const(_) | Node::Var(_)) {
+        return code;
+    }
+    if let Some(name) = names.get(&code) {
+        return name.clone();
+    }
+    let name = format!("t{}", names.len());
+    let _ = writeln!(lets, "            let {name} = {code};");
+    names.insert(code, name.clone());
+    name
+}
+
+/// `fn name(i: u32, …, x: array<Iv, N0>) -> Iv`, a `switch` over the flattened index, each case
+/// with its shared subexpressions computed once.
 fn switch_fn(
     name: &str,
     index_args: &str,
@@ -206,10 +222,11 @@ fn switch_fn(
     let mut s =
         format!("fn {name}({index_args}, x: array<Iv, N0>) -> Iv {{\n    switch ({index}) {{\n");
     for (k, e) in exprs.iter().enumerate() {
-        let _ = writeln!(
+        let (mut lets, mut names) = (String::new(), Default::default());
+        let result = shared_subexpressions(e.node(), precision, &mut lets, &mut names);
+        let _ = write!(
             s,
-            "        case {k}u: {{ return {}; }}",
-            interval_expr(e, precision)
+            "        case {k}u: {{\n{lets}            return {result};\n        }}\n"
         );
     }
     s.push_str("        default: { return iv_entire(); }\n    }\n}\n");
@@ -482,12 +499,117 @@ pub fn problem_wgsl(
     s += &switch_fn("ft_iv", "i: u32", "i", &ft, precision);
     s += &switch_fn("jac_iv", "i: u32, j: u32", "i * N0 + j", &jac, precision);
     s += &switch_fn("g_iv", "i: u32, k: u32", "i * M_OUT + k", &g, precision);
+    s += &closed_form_wgsl(problem, settings, precision);
     Ok(s)
 }
 
+/// The filter's closed form for `shaders/filter.wgsl` (the CPU engine's
+/// [`ExactField::ClosedForm`]): the natural rows `aₖ`, the mean-value forms of [`VForms`]
+/// (expression and symbolic gradient each), each binding piece's field and its Jacobian in the
+/// embedding's coordinates and in x, `f̃` and `g` in x, and the transform's slack per unit of
+/// field. With `ENCLOSE` off the functions are emitted all the same (empty switches), so that
+/// the shader compiles; nothing calls them.
+fn closed_form_wgsl(
+    problem: &ReachProblem,
+    settings: &ReachSettings,
+    precision: Precision,
+) -> String {
+    let pieces = &problem.pieces;
+    let forms = pieces
+        .forms()
+        .filter(|_| settings.exact_field() == ExactField::ClosedForm);
+    let s_ = pieces.scenario();
+    let (n, m) = (s_.n(), s_.m());
+    let rows = pieces.slack_rows().len();
+    let mut s = String::new();
+    let _ = writeln!(s, "const ENCLOSE: bool = {};", forms.is_some());
+    let _ = writeln!(s, "const V_ROWS: u32 = {}u;", rows.max(1));
+    let empty: [Smooth; 0] = [];
+    let parts = forms.map(|f| f.parts());
+    let (method, b, f, p, r) = match &parts {
+        Some(v) => (v.method, v.b, v.f, v.p, v.r),
+        None => (
+            FilterMethod::Qp,
+            &empty[..],
+            &empty[..],
+            &empty[..],
+            &empty[..],
+        ),
+    };
+    // 1: one row (`v = b·a/‖a‖²`), 2: a scalar input (`v = bₖ/aₖ` of the binding row).
+    let kind = match method {
+        FilterMethod::ClosedFormSingle if !f.is_empty() && rows == 1 => 1,
+        FilterMethod::ClosedFormScalar if r.len() == rows && m == 1 => 2,
+        _ => 0,
+    };
+    let _ = writeln!(s, "const V_KIND: u32 = {kind}u;");
+    let smooth = |s: &mut String, name: &str, forms: &[&Smooth]| {
+        let e: Vec<&Expr> = forms.iter().map(|f| &f.e).collect();
+        let g: Vec<&Expr> = forms.iter().flat_map(|f| &f.grad).collect();
+        *s += &switch_fn(name, "k: u32", "k", &e, precision);
+        *s += &switch_fn(&format!("{name}_grad"), "kl: u32", "kl", &g, precision);
+    };
+    smooth(&mut s, "vb_iv", &b.iter().collect::<Vec<_>>());
+    smooth(&mut s, "vf_iv", &f.iter().collect::<Vec<_>>());
+    smooth(&mut s, "vp_iv", &p.iter().collect::<Vec<_>>());
+    smooth(&mut s, "vr_iv", &r.iter().collect::<Vec<_>>());
+    // The pairwise differences `rₖ − rⱼ` at `k·V_ROWS + j` (an empty slot: no form).
+    let r_diff = parts.map_or(&[][..], |v| v.r_diff);
+    let zero = Expr::constant(0.0);
+    let missing = Smooth {
+        e: zero.clone(),
+        grad: vec![zero.clone(); n],
+    };
+    let diffs: Vec<&Smooth> = (0..rows * rows)
+        .map(|kj| r_diff.get(kj).and_then(Option::as_ref).unwrap_or(&missing))
+        .collect();
+    smooth(&mut s, "vrd_iv", &diffs);
+    let has: Vec<String> = (0..(rows * rows).max(1))
+        .map(|kj| r_diff.get(kj).is_some_and(Option::is_some).to_string())
+        .collect();
+    let _ = writeln!(
+        s,
+        "var<private> VRD_HAS: array<bool, {}> = array<bool, {}>({});",
+        has.len(),
+        has.len(),
+        has.join(", ")
+    );
+    // The rows' natural `aₖⱼ` at `k·M_OUT + j` (their `bₖ` are `row_b_iv`).
+    let (a_rows, _) = row_expressions(s_, true);
+    let a: Vec<&Expr> = a_rows.iter().flatten().collect();
+    s += &switch_fn("row_a_iv", "kj: u32", "kj", &a, precision);
+    // Each binding piece's field: in the embedding's coordinates with its Jacobian, and in x.
+    let binding: Vec<_> = (0..if forms.is_some() { rows } else { 0 })
+        .map(|k| pieces.binding_field(k))
+        .collect();
+    let bft: Vec<&Expr> = binding.iter().flat_map(|b| &b.dynamics.f_tilde).collect();
+    let bjac: Vec<&Expr> = binding
+        .iter()
+        .flat_map(|b| b.dynamics.f_tilde_jacobian.iter().flatten())
+        .collect();
+    let bfx: Vec<&Expr> = binding.iter().flat_map(|b| b.field_x()).collect();
+    s += &switch_fn("bft_iv", "ki: u32", "ki", &bft, precision);
+    s += &switch_fn("bjac_iv", "kij: u32", "kij", &bjac, precision);
+    s += &switch_fn("bfx_iv", "ki: u32", "ki", &bfx, precision);
+    // `f̃` and `g` in x, for the transform's slack of an enclosed field.
+    let fx: Vec<&Expr> = s_.f_tilde.iter().collect();
+    let gx: Vec<&Expr> = s_.g.iter().flatten().collect();
+    s += &switch_fn("fx_iv", "i: u32", "i", &fx, precision);
+    s += &switch_fn("gx_iv", "ij: u32", "ij", &gx, precision);
+    // Transform::field_slack(f) ≤ ↑(TSLACK_UNIT · f): ρ‖T‖∞, rounded up.
+    let unit = pieces.transform().map_or(0.0, |t| t.field_slack(1.0));
+    let _ = writeln!(
+        s,
+        "const TSLACK_UNIT: real = {};",
+        real_literal(round_up(unit, precision), precision)
+    );
+    s
+}
+
 /// Per box in the flags buffer: the network's non-finite flag, the status, the step it stopped
-/// at, and the steps that took `v = 0`; one step counter follows the boxes.
-pub const FLAG_W: usize = 4;
+/// at, the steps on a proven piece of the filter (`v = 0`, or one row binding) and the steps
+/// with the closed form's enclosures; one step counter follows the boxes.
+pub const FLAG_W: usize = 5;
 
 /// Sections of the per-neuron vectors (IBP centre, form magnitude, IBP radius, IBP magnitude).
 pub const AUX: usize = 4;

@@ -19,6 +19,7 @@ const BACKWARD: &str = include_str!("../../shaders/backward.wgsl");
 const OUTPUT: &str = include_str!("../../shaders/output.wgsl");
 const EMBED: &str = include_str!("../../shaders/embed.wgsl");
 const FACES: &str = include_str!("../../shaders/faces.wgsl");
+const FILTER: &str = include_str!("../../shaders/filter.wgsl");
 
 /// Workgroup size of the one-dimensional kernels (`@workgroup_size(64)` in the shaders).
 pub const WORKGROUP: u32 = 64;
@@ -130,7 +131,7 @@ pub fn shader_source(precision: Precision, problem_wgsl: &str, module: &str) -> 
         "backward" => &[BOX, BACKWARD],
         "output" => &[BOX, OUTPUT],
         "faces" => &[BOX, FACES],
-        _ => &[BOX, EMBED],
+        _ => &[BOX, FILTER, EMBED],
     };
     for part in body {
         s.push_str(part);

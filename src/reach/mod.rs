@@ -59,9 +59,8 @@ pub struct ReachSettings {
     /// immrax's `local` mode).
     pub face_local: bool,
     /// Disturbance method: where the filtered system's own field (the filter's closed form)
-    /// replaces or tightens the network and its error margin ([`pieces`]). The GPU engine takes
-    /// `v = 0` where the filter is proven inactive and bounds the network elsewhere
-    /// ([`ExactField::ClosedForm`] acts there as [`ExactField::Inactive`]: sound, looser).
+    /// replaces or tightens the network and its error margin ([`pieces`]); both engines take
+    /// it (the GPU's in `shaders/filter.wgsl`).
     pub exact: ExactField,
     /// Disturbance method with a transform: also run the embedding in x coordinates and keep, at
     /// every step, the intersection of the x-box with the parallelotope, each tightened by the

@@ -60,6 +60,13 @@ pub struct BindingField {
     field_x: Vec<Expr>,
 }
 
+impl BindingField {
+    /// `f̃ + g·v` in x (for the transform's slack, [`FilterPieces::binding_slack`]).
+    pub fn field_x(&self) -> &[Expr] {
+        &self.field_x
+    }
+}
+
 impl FilterPieces {
     /// For the filter of `scenario`, the embedding running on `base` (its coordinates given
     /// by `transform`).
@@ -148,6 +155,21 @@ impl FilterPieces {
         self.forms
             .as_ref()
             .map(|forms| forms.enclose(&self.scenario, x_box).0)
+    }
+
+    /// The scenario whose filter this is.
+    pub fn scenario(&self) -> &Scenario {
+        &self.scenario
+    }
+
+    /// The closed form's expressions (`None` for a filter that needs the QP).
+    pub fn forms(&self) -> Option<&VForms> {
+        self.forms.as_ref()
+    }
+
+    /// The transform the embedding runs in, if any.
+    pub fn transform(&self) -> Option<&Transform> {
+        self.transform.as_ref()
     }
 
     /// Whether the filter has a closed form ([`FilterPieces::enclosure`] gives enclosures).
