@@ -1029,17 +1029,7 @@ fn shipped_error_map_face_local_matches_cpu() {
 /// 8,6`, [1.5, 2.5] × [2, 3] and [1.5, 2.5] × [−3, −2], face-local forward-backward bounds and
 /// `--exact inactive`, 14 steps: the second set grows over ~17,000 buckets of the map by t = 0.44.
 fn grown_sets_problem() -> (ReachProblem, Vec<IntervalBox>, ReachSettings) {
-    let s = integrator();
-    let net = Mlp::load_safetensors(&common::scenario_path("integrator.safetensors")).unwrap();
-    let map = cbfreach::surrogate_error::ErrorMap::load(&common::scenario_path(
-        "integrator.errormap.json",
-    ))
-    .unwrap();
-    let m_c = map.certified_linf.unwrap();
-    let mut problem = ReachProblem::new(&s, net, m_c)
-        .unwrap()
-        .with_error_map(map)
-        .unwrap();
+    let mut problem = common::shipped_problem(&integrator());
     problem.steps = 14;
     let init = boxes(&[[2.0, 2.5], [2.0, -2.5]], 0.5);
     let st = ReachSettings {
