@@ -1135,6 +1135,34 @@ fn a_driver_that_cuts_loops_short_fails_the_run() {
     }
 }
 
+/// A layer so wide that a bound kernel's thread would loop past llvmpipe's limit (60,000
+/// neurons: without the check its sets came out narrower than the CPU's) is refused on
+/// llvmpipe with an error that names the widths; a 20,000-wide one runs and agrees with the
+/// CPU. Elsewhere both run.
+#[test]
+fn networks_too_wide_for_llvmpipes_loop_limit_are_refused_there() {
+    let Some(gpu) = gpu_f64() else { return };
+    let s = integrator();
+    let init = boxes(&[[-2.0, 2.0]], 0.05);
+    let st = with_bounds(BoundMethod::ForwardBackward, ReachMethod::Disturbance);
+    let llvmpipe = gpu.context().info.name.contains("llvmpipe");
+    for width in [20_000, 60_000] {
+        let net = small_network(&[2, width, 2], 5, 0.01);
+        let mut problem = ReachProblem::new(&s, net, 0.1).unwrap();
+        problem.steps = 1;
+        let res = gpu.reach(&problem, &init, &st, &|_, _| {});
+        if llvmpipe && width > 20_000 {
+            let e = res
+                .expect_err("llvmpipe should refuse the network")
+                .to_string();
+            assert!(e.contains("[2, 60000, 2]") && e.contains("loop"), "{e}");
+        } else {
+            let cpu = CpuBackend.reach(&problem, &init, &st, &|_, _| {}).unwrap();
+            compare_within(&cpu.boxes, &res.unwrap().boxes, "a wide layer", F64_TOL);
+        }
+    }
+}
+
 /// Trajectories of the NN system with a disturbance within the smallest cell bound (so within
 /// every local margin) stay in the GPU's face-local, local-margin sets, in f32 and f64.
 #[test]

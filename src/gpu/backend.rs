@@ -52,6 +52,10 @@ const MAX_CHUNK_BYTES: u64 = 3 << 29;
 const STEPS_PER_SUBMIT: usize = 25;
 /// Storage buffers the widest kernel binds (relu, output).
 const STORAGE_BINDINGS: u32 = 8;
+/// llvmpipe silently ends every loop of a shader invocation once this many iterations have run
+/// in it (Mesa's `LP_MAX_TGSI_LOOP_ITERATIONS`); the embedding kernel checks for it itself
+/// (`loops_ran_in_full`), the bound kernels' loops are refused beyond it ([`bound_kernel_loops`]).
+const LLVMPIPE_LOOP_LIMIT: usize = 65_535;
 
 /// The wgpu engine.
 #[derive(Clone, Debug)]
@@ -191,6 +195,22 @@ impl From<GpuError> for ReachError {
     fn from(e: GpuError) -> ReachError {
         ReachError::Gpu(e.to_string())
     }
+}
+
+/// An upper estimate of the loop iterations one thread of the bound kernels runs for a network
+/// of `widths` (input first): `bwd_scale`'s loops over a layer's neurons and its input's, and
+/// the GEMM's loop over its inner width in tiles of 16 (with up to 24 inner iterations each
+/// where the driver does not unroll them); the other kernels loop over the input's coordinates
+/// and the outputs. Measured on lavapipe with [2, w, 2] networks: w = 45,000 (estimate 70,325)
+/// agrees with the CPU, w = 60,000 (93,750) gives sets narrower than the CPU's.
+fn bound_kernel_loops(widths: &[usize]) -> usize {
+    let backward = widths.windows(2).map(|w| w[0] + w[1]).max().unwrap_or(0);
+    let gemm = widths
+        .iter()
+        .map(|w| w.div_ceil(16) * 25)
+        .max()
+        .unwrap_or(0);
+    backward.max(gemm)
 }
 
 /// The passes a bound method runs on the device (`None`: not on the GPU).
@@ -431,6 +451,15 @@ impl Backend for GpuBackend {
             return Err(
                 GpuError::Problem(format!("network widths {widths:?} not supported")).into(),
             );
+        }
+        let loops = bound_kernel_loops(&widths);
+        if self.ctx.info.name.contains("llvmpipe") && loops > LLVMPIPE_LOOP_LIMIT {
+            return Err(GpuError::TooLarge(format!(
+                "network widths {widths:?}: a bound kernel would run ~{loops} loop iterations \
+                 per thread, and llvmpipe silently ends a shader's loops after \
+                 {LLVMPIPE_LOOP_LIMIT}; use the CPU engine (--backend cpu) or a real GPU"
+            ))
+            .into());
         }
         let stage_limit = self.ctx.limits.max_storage_buffers_per_shader_stage;
         if stage_limit < STORAGE_BINDINGS {
