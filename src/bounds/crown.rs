@@ -94,10 +94,16 @@ pub(crate) struct Workspace {
     z_hi: Vec<f64>,
 }
 
+/// Most entries a workspace matrix reserves before it is used (8 MB; 2·500² for scenario 2).
+const MAX_RESERVED: usize = 1 << 20;
+
 impl Workspace {
     pub(crate) fn new(net: &Mlp) -> Workspace {
         let n_layers = net.layers.len();
         let n_max = net.widths().into_iter().max().unwrap_or(0);
+        // Room for the paper-size networks' matrices up front; a pass that needs more grows
+        // them (reserving n_max² for a 65,000-wide layer would ask for 68 GB, most unused).
+        let square = |k: usize| (k * n_max * n_max).min(MAX_RESERVED);
         Workspace {
             s_lo: vec![Vec::new(); n_layers],
             s_up: vec![Vec::new(); n_layers],
@@ -107,10 +113,10 @@ impl Workspace {
             scale: vec![1.0; n_layers],
             mag: Vec::with_capacity(n_max),
             xmag: Vec::with_capacity(n_max),
-            lam: Vec::with_capacity(2 * n_max * n_max),
-            lam_next: Vec::with_capacity(2 * n_max * n_max),
-            lam_s: Vec::with_capacity(2 * n_max * n_max),
-            w_live: Vec::with_capacity(n_max * n_max),
+            lam: Vec::with_capacity(square(2)),
+            lam_next: Vec::with_capacity(square(2)),
+            lam_s: Vec::with_capacity(square(2)),
+            w_live: Vec::with_capacity(square(1)),
             lines: LiveLines::default(),
             beta_u: Vec::with_capacity(2 * n_max),
             beta_l: Vec::with_capacity(2 * n_max),
