@@ -34,7 +34,8 @@
 //! largest bound of the cells listed in its buckets, and the kernel reads the finest level at
 //! which the set meets at most [`BLOCK_BUDGET`] blocks. Every cell that meets the set is listed
 //! in a bucket the set meets, hence in a block read, so this maximum is never below the exact
-//! one: still sound, at most one block (about 1/16 of the set's extent a side) looser.
+//! one: still sound, looser by at most one block a side (`BLOCK_BUDGET^(1/n)` blocks span the
+//! set: in 2-D about 1/16 of its extent).
 
 use std::fmt::Write;
 
