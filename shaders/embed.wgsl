@@ -71,9 +71,7 @@ struct NetBounds {
     n_hi: array<real, M_OUT>,
 }
 
-// Constant bounds lo ≤ N ≤ hi (zero slopes). Every field is written: lavapipe left the fields of
-// a declared-only struct undefined, and the other invocations of a workgroup's registers leaked
-// into them (measured: a box's set depended on its neighbours in the batch).
+// Constant bounds lo ≤ N ≤ hi (zero slopes): the filter's own field (zero) or its enclosure of v.
 fn constant_bounds(lo: array<real, M_OUT>, hi: array<real, M_OUT>) -> NetBounds {
     var b: NetBounds;
     for (var q = 0u; q < M_OUT * N0; q++) {
@@ -475,31 +473,29 @@ fn enclosure_field(xb: array<Iv, N0>, cen: array<real, N0>) -> Field {
     for (var f = 0u; f < 2u * N0; f++) {
         let i = f / 2u;
         let side = f % 2u;
-        {
-            var face = xb;
-            if (side == 0u) {
-                face[i] = iv_point(xb[i].lo);
-            } else {
-                face[i] = iv_point(xb[i].hi);
-            }
-            let x = clip_to_safe_set(x_box(face), HS_Z, HS_X);
-            let v = enclose_v(x);
-            if (!v.ok) {
-                return out;
-            }
-            slack = max(slack, enclosed_slack(x, v.v));
-            var lo: array<real, M_OUT>;
-            var hi: array<real, M_OUT>;
-            for (var k = 0u; k < M_OUT; k++) {
-                lo[k] = v.v[k].lo;
-                hi[k] = v.v[k].hi;
-            }
-            let field = face_field(i, side, xb, cen, constant_bounds(lo, hi), 0.0, 0u);
-            if (side == 0u) {
-                out.lo[i] = field.lo;
-            } else {
-                out.hi[i] = field.hi;
-            }
+        var face = xb;
+        if (side == 0u) {
+            face[i] = iv_point(xb[i].lo);
+        } else {
+            face[i] = iv_point(xb[i].hi);
+        }
+        let x = clip_to_safe_set(x_box(face), HS_Z, HS_X);
+        let v = enclose_v(x);
+        if (!v.ok) {
+            return out;
+        }
+        slack = max(slack, enclosed_slack(x, v.v));
+        var lo: array<real, M_OUT>;
+        var hi: array<real, M_OUT>;
+        for (var k = 0u; k < M_OUT; k++) {
+            lo[k] = v.v[k].lo;
+            hi[k] = v.v[k].hi;
+        }
+        let field = face_field(i, side, xb, cen, constant_bounds(lo, hi), 0.0, 0u);
+        if (side == 0u) {
+            out.lo[i] = field.lo;
+        } else {
+            out.hi[i] = field.hi;
         }
     }
     for (var i = 0u; i < N0; i++) {

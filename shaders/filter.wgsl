@@ -51,13 +51,11 @@ fn centred_of(x: array<Iv, N0>) -> Centred {
 }
 
 // The mean-value form e(c) + ∇e(X)·(X − c) of a generated smooth expression, from e(c) and
-// ∇e(X), and whether the gradient was finite. One function per expression (below), each calling
-// its own generated code: the shader compiler inlines every call.
+// ∇e(X), and whether the gradient was finite.
 struct Form {
     enc: Iv,
     ok: bool,
 }
-
 fn form_of(value: Iv, grad: array<Iv, N0>, c: Centred) -> Form {
     var f: Form;
     f.enc = value;
@@ -69,9 +67,10 @@ fn form_of(value: Iv, grad: array<Iv, N0>, c: Centred) -> Form {
     return f;
 }
 
-// One function per kind of expression, not one over a switch of kinds: the driver inlines
-// every call, so a switch would put all five generated families at each call site (tried:
-// lavapipe's compile of the embedding kernel took 3× the time and 2.9× the memory).
+// One function per kind of expression (below), each calling its own generated code, not one
+// over a switch of kinds: the driver inlines every call, so a switch would put all five
+// generated families at each call site (tried: lavapipe compiled the embedding kernel in 3× the
+// time with 2.9× the memory).
 
 // bₖ (hᵢ not clamped).
 fn vb_form(k: u32, c: Centred) -> Form {

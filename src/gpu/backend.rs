@@ -33,7 +33,8 @@ use super::buffers::{
     Params, LOOP_CHECK,
 };
 use super::codegen::{
-    faces_per_box, nnb_width, problem_wgsl, round_down, round_up, MethodFlags, AUX, FLAG_W,
+    faces_per_box, flag_words, nnb_width, problem_wgsl, round_down, round_up, MethodFlags, AUX,
+    FLAG_W,
 };
 use super::kernels::{Kernel, Kernels, GEMM_TILE, WORKGROUP};
 use super::margins::MarginMap;
@@ -876,7 +877,7 @@ impl GpuBackend {
             )));
         }
         let (net, _) = flatten_network(&problem.network);
-        let flags = (FLAG_W as u64 * b + 2) * 4;
+        let flags = flag_words(chunk) as u64 * 4;
         let sz = |name: &str| sizes.get(name).copied().unwrap_or(4);
         let (snap, state) = (sz("snap"), sz("state"));
         Ok(Buffers {
@@ -943,7 +944,7 @@ impl GpuBackend {
         q.write_buffer(
             &bufs.flags,
             0,
-            bytemuck::cast_slice(&vec![0u32; FLAG_W * boxes.len() + 2]),
+            bytemuck::cast_slice(&vec![0u32; flag_words(boxes.len())]),
         );
 
         let plan = StepPlan {
@@ -979,7 +980,7 @@ impl GpuBackend {
         let bytes = prec.bytes();
         let snap_bytes = (slots * boxes.len() * sw) as u64 * bytes;
         let state_bytes = (boxes.len() * sw) as u64 * bytes;
-        let flag_bytes = ((FLAG_W * boxes.len() + 2) * 4) as u64;
+        let flag_bytes = (flag_words(boxes.len()) * 4) as u64;
         let mut enc = d.create_command_encoder(&Default::default());
         enc.copy_buffer_to_buffer(&bufs.snap, 0, &bufs.staging, 0, snap_bytes);
         enc.copy_buffer_to_buffer(&bufs.state, 0, &bufs.staging, snap_bytes, state_bytes);
@@ -1015,11 +1016,12 @@ impl GpuBackend {
             }
         };
         bufs.staging.unmap();
-        if result.flags[FLAG_W * boxes.len() + 1] != 0 {
+        // The loop check is the last word.
+        if result.flags.last().is_some_and(|&w| w != 0) {
             return Err(GpuError::Device(format!(
                 "the device's driver ({}) cut the embedding kernel's loops short (llvmpipe ends \
-                 an invocation's loops after 65,535 iterations in all); its sets cannot be \
-                 trusted: run this problem on the CPU (--backend cpu)",
+                 an invocation's loops after {LLVMPIPE_LOOP_LIMIT} iterations in all); its sets \
+                 cannot be trusted: run this problem on the CPU (--backend cpu)",
                 self.ctx.info.name
             )));
         }

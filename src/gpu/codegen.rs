@@ -608,8 +608,14 @@ fn closed_form_wgsl(
 
 /// Per box in the flags buffer: the network's non-finite flag, the status, the step it stopped
 /// at, the steps on a proven piece of the filter (`v = 0`, or one row binding) and the steps
-/// with the closed form's enclosures; one step counter follows the boxes.
+/// with the closed form's enclosures; the step counter and the loop check (`embed.wgsl`,
+/// `loops_ran_in_full`) follow the boxes.
 pub const FLAG_W: usize = 5;
+
+/// Words of the flags buffer for `boxes` boxes: theirs, the step counter, the loop check.
+pub fn flag_words(boxes: usize) -> usize {
+    FLAG_W * boxes + 2
+}
 
 /// Sections of the per-neuron vectors (IBP centre, form magnitude, IBP radius, IBP magnitude).
 pub const AUX: usize = 4;

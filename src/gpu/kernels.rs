@@ -167,9 +167,10 @@ impl Kernels {
             // SAFETY: without the loop guard an infinite loop would be undefined behaviour;
             // every loop in shaders/ and in the generated code ends: `for` loops step a counter
             // by 1 (the GEMM's by its tile depth, towards a width ≤ 2¹⁸ checked in
-            // `GpuBackend::reach`, so it cannot wrap) towards a bound they stop at, the one in
-            // real_f64.wgsl counts down from 12 to 0, and the error map's odometer (embed.wgsl,
-            // `local_margin`) advances a mixed-radix counter that stops at its last value.
+            // `GpuBackend::reach`, so it cannot wrap) towards a bound they stop at, the ones in
+            // real_f64.wgsl and `odometer_next` count down to 0, the error map's walks
+            // (embed.wgsl, `exact_margin`, `block_margin`) advance a mixed-radix counter that
+            // stops at its last value, and `block_margin`'s level search stops at MAP_LEVELS.
             unsafe { device.create_shader_module_trusted(desc, checks) }
         };
         let (gemm_m, relu_m, bwd_m, out_m, faces_m, embed_m) = (
