@@ -142,6 +142,11 @@ pub(crate) fn to_mlp<T: Scalar>(params: &[Params<T>]) -> Mlp {
 
 /// Buffers for one batch: `acts[k]` is the input of layer `k` (`acts[0]` the network input,
 /// filled by the caller), `out` the network output, `g`/`tmp` backward scratch.
+///
+/// The rows come in `r` groups of `b`, one row per sample in each: group 0 the samples
+/// themselves, then either the input tangents `e_j` ([`Workspace::load_inputs`], masked by
+/// group 0's ReLU pattern: forward-mode `DN`) or the stencil points `x ± h_j e_j`
+/// ([`Workspace::load_stencil`], primal rows with their own patterns: central differences).
 pub(crate) struct Workspace<T> {
     pub acts: Vec<Vec<T>>,
     pub out: Vec<T>,
@@ -149,8 +154,10 @@ pub(crate) struct Workspace<T> {
     tmp: Vec<T>,
     /// Samples in this batch.
     pub b: usize,
-    /// Row groups: 1 primal + tangent directions.
+    /// Row groups: 1 primal + tangent directions, or 1 + 2 per direction for a stencil.
     pub r: usize,
+    /// The stencil's steps `h_j` when the groups after the first are stencil points.
+    stencil: Option<Vec<f64>>,
 }
 
 impl<T: Scalar> Workspace<T> {
@@ -162,6 +169,7 @@ impl<T: Scalar> Workspace<T> {
             tmp: Vec::new(),
             b: 0,
             r: 1,
+            stencil: None,
         }
     }
 
@@ -176,6 +184,7 @@ impl<T: Scalar> Workspace<T> {
     ) {
         self.b = b;
         self.r = if tangents { 1 + n_in } else { 1 };
+        self.stencil = None;
         let a0 = &mut self.acts[0];
         a0.clear();
         a0.resize(self.r * b * n_in, T::ZERO);
@@ -191,9 +200,89 @@ impl<T: Scalar> Workspace<T> {
         }
     }
 
-    /// Forward pass; afterwards `out` holds `r·B × n_L` rows (primal, then tangents).
+    /// Sets the batch layout and fills `acts[0]` with a central-difference stencil: group 0
+    /// the samples `x(i)`, groups `1 + 2j` and `2 + 2j` the points `x(i) ± h_j e_j`
+    /// (`h`: one step, or one per input). Every row is primal, so the network's secants
+    /// `(N(x + h_j e_j) − N(x − h_j e_j))/2h_j` ([`Workspace::slope`]) depend on where its
+    /// ReLUs switch, which its pointwise Jacobian does not: a slope loss on them moves the
+    /// kinks too.
+    pub fn load_stencil<'a>(
+        &mut self,
+        n_in: usize,
+        b: usize,
+        h: &[f64],
+        x: impl Fn(usize) -> &'a [f64],
+    ) {
+        let step: Vec<f64> = (0..n_in).map(|j| h[j.min(h.len() - 1)]).collect();
+        self.b = b;
+        self.r = 1 + 2 * n_in;
+        let a0 = &mut self.acts[0];
+        a0.clear();
+        a0.resize(self.r * b * n_in, T::ZERO);
+        for g in 0..self.r {
+            // Group g's offset: none for g = 0, +h_j e_j for g = 1 + 2j, −h_j e_j for g = 2 + 2j.
+            let offset = (g > 0).then(|| ((g - 1) / 2, if g % 2 == 1 { 1.0 } else { -1.0 }));
+            for i in 0..b {
+                let row = &mut a0[(g * b + i) * n_in..(g * b + i + 1) * n_in];
+                for (k, (dst, &src)) in row.iter_mut().zip(x(i)).enumerate() {
+                    let shift = match offset {
+                        Some((j, sign)) if j == k => sign * step[j],
+                        _ => 0.0,
+                    };
+                    *dst = T::from_f64(src + shift);
+                }
+            }
+        }
+        self.stencil = Some(step);
+    }
+
+    /// Rows whose ReLU patterns are their own: the first group, or all with a stencil.
+    fn primal_rows(&self) -> usize {
+        if self.stencil.is_some() {
+            self.r * self.b
+        } else {
+            self.b
+        }
+    }
+
+    /// Whether the groups after the first hold slopes (tangents or a stencil).
+    pub fn has_slopes(&self) -> bool {
+        self.r > 1
+    }
+
+    /// Sample `i`'s slope `∂N_o/∂x_j` (of `m` outputs) after [`Workspace::forward`]: the
+    /// tangent, or the stencil's central difference.
+    pub fn slope(&self, i: usize, j: usize, o: usize, m: usize) -> f64 {
+        let b = self.b;
+        match &self.stencil {
+            None => self.out[((j + 1) * b + i) * m + o].to_f64(),
+            Some(h) => {
+                let plus = self.out[((1 + 2 * j) * b + i) * m + o].to_f64();
+                let minus = self.out[((2 + 2 * j) * b + i) * m + o].to_f64();
+                (plus - minus) / (2.0 * h[j])
+            }
+        }
+    }
+
+    /// Sets `∂L/∂` of sample `i`'s slope `∂N_o/∂x_j` to `d` in `g` (zeroed by the caller):
+    /// on the tangent row, or `±d/2h_j` on the stencil's two rows.
+    pub fn set_slope_gradient(&mut self, i: usize, j: usize, o: usize, m: usize, d: f64) {
+        let b = self.b;
+        match &self.stencil {
+            None => self.g[((j + 1) * b + i) * m + o] = T::from_f64(d),
+            Some(h) => {
+                let d = d / (2.0 * h[j]);
+                self.g[((1 + 2 * j) * b + i) * m + o] = T::from_f64(d);
+                self.g[((2 + 2 * j) * b + i) * m + o] = T::from_f64(-d);
+            }
+        }
+    }
+
+    /// Forward pass; afterwards `out` holds `r·B × n_L` rows (primal, then tangents or the
+    /// stencil).
     pub fn forward(&mut self, net: &[Params<T>]) {
         let rows = self.r * self.b;
+        let primal_rows = self.primal_rows();
         let nl = net.len();
         for (k, p) in net.iter().enumerate() {
             let (inp, rest) = self.acts.split_at_mut(k + 1);
@@ -215,7 +304,7 @@ impl<T: Scalar> Workspace<T> {
                 (p.n_out, 1),
                 Threads::Pool,
             );
-            let (primal, tangents) = output.split_at_mut(self.b * p.n_out);
+            let (primal, tangents) = output.split_at_mut(primal_rows * p.n_out);
             for row in primal.chunks_exact_mut(p.n_out) {
                 for (z, &bias) in row.iter_mut().zip(&p.b) {
                     *z += bias;
@@ -227,7 +316,9 @@ impl<T: Scalar> Workspace<T> {
                         *z = T::ZERO;
                     }
                 }
-                mask_tangents(primal, tangents);
+                if !tangents.is_empty() {
+                    mask_tangents(primal, tangents);
+                }
             }
         }
     }
@@ -236,6 +327,7 @@ impl<T: Scalar> Workspace<T> {
     /// (overwritten).
     pub fn backward(&mut self, net: &[Params<T>], grads: &mut [Params<T>]) {
         let rows = self.r * self.b;
+        let primal_rows = self.primal_rows();
         for k in (0..net.len()).rev() {
             let p = &net[k];
             let gr = &mut grads[k];
@@ -252,7 +344,7 @@ impl<T: Scalar> Workspace<T> {
                 Threads::Pool,
             );
             gr.b.iter_mut().for_each(|v| *v = T::ZERO);
-            for row in self.g[..self.b * p.n_out].chunks_exact(p.n_out) {
+            for row in self.g[..primal_rows * p.n_out].chunks_exact(p.n_out) {
                 for (d, &v) in gr.b.iter_mut().zip(row) {
                     *d += v;
                 }
@@ -270,9 +362,10 @@ impl<T: Scalar> Workspace<T> {
                     (p.n_in, 1),
                     Threads::Pool,
                 );
-                // D_{k}: the primal ReLU pattern of this layer's input, for every row group.
-                let mask_src = &input[..self.b * p.n_in];
-                for group in self.tmp.chunks_exact_mut(self.b * p.n_in) {
+                // D_{k}: the primal ReLU pattern of this layer's input, for every row group
+                // (a stencil's rows are all primal: each its own).
+                let mask_src = &input[..primal_rows * p.n_in];
+                for group in self.tmp.chunks_exact_mut(primal_rows * p.n_in) {
                     for (gv, &a) in group.iter_mut().zip(mask_src) {
                         if !is_active(a) {
                             *gv = T::ZERO;
@@ -566,17 +659,63 @@ mod tests {
         }
     }
 
+    /// A stencil's slopes are the central differences of `Mlp::forward`, its first group the
+    /// values, and they differ from the pointwise Jacobian where a ReLU switches in between.
+    #[test]
+    fn stencil_slopes_are_central_differences() {
+        let mlp = Mlp::random(&[2, 12, 9, 3], 4);
+        let xs: Vec<Vec<f64>> = (0..17)
+            .map(|i| vec![0.21 * i as f64 - 1.7, 0.9 - 0.13 * i as f64])
+            .collect();
+        let h = [0.3, 0.05];
+        let net = to_params::<f64>(&mlp);
+        let mut ws = Workspace::<f64>::new(net.len());
+        ws.load_stencil(2, xs.len(), &h, |i| &xs[i]);
+        ws.forward(&net);
+        let mut differs = 0;
+        for (i, x) in xs.iter().enumerate() {
+            let y = mlp.forward(x);
+            let jac = mlp.jacobian(x);
+            for o in 0..3 {
+                assert!((ws.out[i * 3 + o] - y[o]).abs() < 1e-12);
+                for (j, &hj) in h.iter().enumerate() {
+                    let (mut plus, mut minus) = (x.clone(), x.clone());
+                    plus[j] += hj;
+                    minus[j] -= hj;
+                    let fd = (mlp.forward(&plus)[o] - mlp.forward(&minus)[o]) / (2.0 * hj);
+                    let slope = ws.slope(i, j, o, 3);
+                    assert!((slope - fd).abs() < 1e-10, "sample {i}: {slope} vs {fd}");
+                    if (slope - jac[o * 2 + j]).abs() > 1e-6 {
+                        differs += 1;
+                    }
+                }
+            }
+        }
+        // Otherwise the test could not tell a stencil from tangents.
+        assert!(differs > 0);
+    }
+
     /// Backward gradients against central finite differences of
-    /// `L = Σ_rows Σ_o c_{row,o} out_{row,o}` (primal and tangent rows).
+    /// `L = Σ_rows Σ_o c_{row,o} out_{row,o}` (primal and tangent rows, or a stencil's rows:
+    /// there every row's own ReLU pattern masks it, so the biases get the slopes' gradient).
     #[test]
     fn backward_matches_finite_differences() {
+        backward_matches_finite_differences_with(None);
+        backward_matches_finite_differences_with(Some(&[0.07, 0.11]));
+    }
+
+    fn backward_matches_finite_differences_with(stencil: Option<&[f64]>) {
         let mlp = Mlp::random(&[2, 6, 5, 2], 9);
         let xs: Vec<Vec<f64>> = (0..4)
             .map(|i| vec![0.3 * i as f64 - 0.5, 0.2 - 0.1 * i as f64])
             .collect();
+        let load = |ws: &mut Workspace<f64>| match stencil {
+            Some(h) => ws.load_stencil(2, xs.len(), h, |i| &xs[i]),
+            None => ws.load_inputs(2, xs.len(), true, |i| &xs[i]),
+        };
         let loss = |net: &[Params<f64>]| {
             let mut ws = Workspace::<f64>::new(net.len());
-            ws.load_inputs(2, xs.len(), true, |i| &xs[i]);
+            load(&mut ws);
             ws.forward(net);
             ws.out
                 .iter()
@@ -586,7 +725,7 @@ mod tests {
         };
         let net = to_params::<f64>(&mlp);
         let mut ws = Workspace::<f64>::new(net.len());
-        ws.load_inputs(2, xs.len(), true, |i| &xs[i]);
+        load(&mut ws);
         ws.forward(&net);
         ws.g = (0..ws.out.len())
             .map(|k| 1.0 + (k as f64 * 0.7).sin())

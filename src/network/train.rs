@@ -338,6 +338,14 @@ pub struct TrainSettings {
     /// training sample activates fresh incoming weights and zero outgoing ones (see
     /// [`revive`](super::revive)): the function is unchanged, and the neurons can learn again.
     pub revive_every: usize,
+    /// Steps `h_j` (one, or one per input) of the network's own central differences
+    /// `(N(x + h_j e_j) − N(x − h_j e_j))/2h_j`, compared by the Sobolev term with the slope
+    /// targets instead of the pointwise Jacobian `DN(x)` (default none). The Jacobian is
+    /// constant on each linear region, so its loss cannot move where the ReLUs switch; the
+    /// differences can, and they see the region-to-region scatter of the values that makes
+    /// the pointwise slope error. Pair with secant targets over the same steps. Costs
+    /// `(1 + 2n)` rows per sample against `(1 + n)`.
+    pub secant_step: Option<Vec<f64>>,
 }
 
 impl Default for TrainSettings {
@@ -368,6 +376,7 @@ impl Default for TrainSettings {
             ibp_ramp: 0,
             ibp_excess: false,
             revive_every: 0,
+            secant_step: None,
         }
     }
 }
@@ -449,6 +458,13 @@ impl TrainSettings {
                 "ibp_radius = {:?} must be one or more finite values ≥ 0",
                 self.ibp_radius
             ));
+        }
+        if let Some(h) = &self.secant_step {
+            if h.is_empty() || h.iter().any(|h| !(h.is_finite() && *h > 0.0)) {
+                return bad(format!(
+                    "secant_step = {h:?} must be one or more finite steps > 0"
+                ));
+            }
         }
         Ok(())
     }
@@ -847,7 +863,7 @@ fn sample_errors<T: Scalar>(
     s: usize,
     settings: &TrainSettings,
 ) -> SampleErrors {
-    let (n, m, b) = (data.n_in, data.n_out, ws.b);
+    let (n, m) = (data.n_in, data.n_out);
     let mut e = SampleErrors {
         value: 0.0,
         value_sq: 0.0,
@@ -859,11 +875,11 @@ fn sample_errors<T: Scalar>(
         e.value = e.value.max(d.abs());
         e.value_sq += d * d;
     }
-    if ws.r > 1 {
+    if ws.has_slopes() {
         if let Some(dv) = slope_target(data, s, settings.jacobian_cap) {
             for j in 0..n {
                 for o in 0..m {
-                    let d = ws.out[((j + 1) * b + i) * m + o].to_f64() - dv[o * n + j];
+                    let d = ws.slope(i, j, o, m) - dv[o * n + j];
                     e.slope = e.slope.max(d.abs());
                     e.slope_sq += slope_cost(d, settings.jacobian_huber);
                 }
@@ -1154,9 +1170,11 @@ impl<T: Scalar> ChunkWorker<T> {
         let ws = &mut self.ws;
         let b = chunk.len();
         let excess = settings.ibp_excess.then_some(ibp_radius).flatten();
-        ws.load_inputs(n_in, b, lambda > 0.0 || excess.is_some(), |i| {
-            data.input(chunk[i])
-        });
+        let slopes = lambda > 0.0 || excess.is_some();
+        match (&settings.secant_step, slopes) {
+            (Some(h), true) => ws.load_stencil(n_in, b, h, |i| data.input(chunk[i])),
+            _ => ws.load_inputs(n_in, b, slopes, |i| data.input(chunk[i])),
+        }
         ws.forward(params);
         // ∂L/∂out, L = (1/batch_len) Σ w_s (‖e‖² + λ‖E‖²).
         ws.g.clear();
@@ -1169,12 +1187,11 @@ impl<T: Scalar> ChunkWorker<T> {
                 let d = ws.out[i * n_out + o].to_f64() - t;
                 ws.g[i * n_out + o] = T::from_f64(c * d);
             }
-            if ws.r > 1 {
+            if ws.has_slopes() {
                 let dv = slope_target(data, s, settings.jacobian_cap).filter(|_| lambda > 0.0);
                 for j in 0..n_in {
                     for o in 0..n_out {
-                        let row = ((j + 1) * b + i) * n_out + o;
-                        let slope = ws.out[row].to_f64();
+                        let slope = ws.slope(i, j, o, n_out);
                         let mut g = 0.0;
                         if let Some(dv) = dv {
                             let d = slope - dv[o * n_in + j];
@@ -1188,7 +1205,7 @@ impl<T: Scalar> ChunkWorker<T> {
                                 g -= settings.ibp_weight * 2.0 * radius[j] * slope.signum() / count;
                             }
                         }
-                        ws.g[row] = T::from_f64(g);
+                        ws.set_slope_gradient(i, j, o, n_out, g);
                     }
                 }
             }
@@ -1583,6 +1600,96 @@ mod tests {
     /// A batch's gradient summed from uneven chunks is the whole batch's gradient (value,
     /// Sobolev and IBP terms: each chunk's part is a mean over the whole batch), and each
     /// sample's visit is the same.
+    /// With `secant_step` the Sobolev term is `λ Σ ((N(x + h e_j) − N(x − h e_j))/2h − Dv)²`:
+    /// the worker's gradient equals the finite differences of that loss computed from
+    /// `Mlp::forward`, and the slope term moves the biases (where the ReLUs switch), which a
+    /// slope term on the pointwise Jacobian cannot.
+    #[test]
+    fn secant_term_gradient_is_its_loss_gradient() {
+        let data = smooth_data(5);
+        let net = to_params::<f64>(&Mlp::random(&[2, 7, 6, 2], 11));
+        let h = [0.1, 0.07];
+        let s = TrainSettings {
+            jacobian_weight: 0.3,
+            secant_step: Some(h.to_vec()),
+            ..Default::default()
+        };
+        let batch: Vec<usize> = (0..data.len()).collect();
+        let loss = |net: &[Params<f64>]| {
+            let mlp = to_mlp(net);
+            let mut sum = 0.0;
+            for &i in &batch {
+                let x = data.input(i);
+                let y = mlp.forward(x);
+                let value: f64 = y
+                    .iter()
+                    .zip(data.target(i))
+                    .map(|(a, t)| (a - t).powi(2))
+                    .sum();
+                let dv = slope_target(&data, i, None).unwrap();
+                let mut slope = 0.0;
+                for (j, &hj) in h.iter().enumerate() {
+                    let (mut plus, mut minus) = (x.to_vec(), x.to_vec());
+                    plus[j] += hj;
+                    minus[j] -= hj;
+                    let (yp, ym) = (mlp.forward(&plus), mlp.forward(&minus));
+                    for o in 0..2 {
+                        slope += ((yp[o] - ym[o]) / (2.0 * hj) - dv[o * 2 + j]).powi(2);
+                    }
+                }
+                sum += value + 0.3 * slope;
+            }
+            sum / batch.len() as f64
+        };
+        let mut worker = ChunkWorker::new(&net);
+        worker.gradient(&net, &data, &batch, batch.len(), &s, None);
+        let visited: f64 = worker.visits.iter().map(|v| v.loss).sum::<f64>() / batch.len() as f64;
+        assert!((visited - loss(&net)).abs() < 1e-12 * loss(&net));
+        let fd_step = 1e-6;
+        for k in 0..net.len() {
+            for idx in 0..net[k].w.len() + net[k].b.len() {
+                let nudge = |d: f64| {
+                    let mut p = net.clone();
+                    match idx.checked_sub(p[k].w.len()) {
+                        None => p[k].w[idx] += d,
+                        Some(bi) => p[k].b[bi] += d,
+                    }
+                    loss(&p)
+                };
+                let fd = (nudge(fd_step) - nudge(-fd_step)) / (2.0 * fd_step);
+                let g = match idx.checked_sub(net[k].w.len()) {
+                    None => worker.grads[k].w[idx],
+                    Some(bi) => worker.grads[k].b[bi],
+                };
+                assert!(
+                    (fd - g).abs() < 1e-5 * (1.0 + fd.abs()),
+                    "layer {k} parameter {idx}: finite differences {fd}, gradient {g}"
+                );
+            }
+        }
+        // The slope term's own share of the biases' gradient: none from the pointwise
+        // Jacobian, some from the differences.
+        let bias_share = |secant_step: Option<Vec<f64>>| {
+            let with = |jacobian_weight: f64| {
+                let s = TrainSettings {
+                    jacobian_weight,
+                    secant_step: secant_step.clone(),
+                    ..Default::default()
+                };
+                let mut worker = ChunkWorker::new(&net);
+                worker.gradient(&net, &data, &batch, batch.len(), &s, None);
+                worker.grads
+            };
+            let (on, off) = (with(0.3), with(0.0));
+            on.iter()
+                .zip(&off)
+                .flat_map(|(a, b)| a.b.iter().zip(&b.b).map(|(x, y)| (x - y).abs()))
+                .fold(0.0f64, f64::max)
+        };
+        assert_eq!(bias_share(None), 0.0);
+        assert!(bias_share(Some(h.to_vec())) > 1e-3);
+    }
+
     #[test]
     fn chunked_gradient_is_the_batch_gradient() {
         let data = smooth_data(6);
