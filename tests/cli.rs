@@ -435,13 +435,23 @@ fn plot_error_map_reads_the_map_beside_the_network_or_the_given_one() {
             svg.to_str().unwrap(),
         ])
     };
-    // The map beside the given network.
-    let accurate = common::scenario_path("integrator-accurate.safetensors");
-    let (code, stdout, stderr) = plot_map("--network", &accurate);
+    // The map beside the given network: copies of the shipped ones under another name (the
+    // map names the network it was made for, and the title shows that name).
+    let other = dir.join("other.safetensors");
+    std::fs::copy(common::scenario_path("integrator.safetensors"), &other).unwrap();
+    let map = std::fs::read_to_string(common::scenario_path("integrator.errormap.json")).unwrap();
+    let renamed = map.replacen(
+        r#""network":"integrator.safetensors""#,
+        r#""network":"other.safetensors""#,
+        1,
+    );
+    assert_ne!(renamed, map);
+    std::fs::write(dir.join("other.errormap.json"), renamed).unwrap();
+    let (code, stdout, stderr) = plot_map("--network", &other);
     assert_eq!(code, 0, "{stderr}");
     assert!(stdout.contains("written"), "{stdout}");
     let text = std::fs::read_to_string(&svg).unwrap();
-    assert!(text.contains("integrator-accurate.safetensors: certified local bound M"));
+    assert!(text.contains("other.safetensors: certified local bound M"));
     // A map file that is not there is named in the error.
     let (code, _, stderr) = plot_map("--input", &dir.join("no-such.errormap.json"));
     assert_ne!(code, 0);
