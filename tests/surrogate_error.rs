@@ -588,40 +588,39 @@ fn shipped_networks_have_the_paper_architectures_and_their_error_maps() {
     assert!(map.certified_linf.unwrap() <= 0.19);
 }
 
-/// The shipped error maps are files made offline; this checks them against their networks
-/// where it matters most. Grids far finer than `cbfreach error`'s (spacing 0.001–0.002) over
-/// scenario 1's peak right of the obstacle, whose maximum lies on C's edge between measurement
-/// points, and over the goal, where the local bounds are 0.002–0.03: every sampled error lies
-/// within the map's bound at its point. Fails on a map certified for another network or too
-/// low anywhere in these windows.
+/// The shipped error maps are files made offline; this checks scenario 1's against its
+/// network where it matters most. Grids far finer than `cbfreach error`'s (spacing
+/// 0.001–0.002) over the peak right of the obstacle, whose maximum lies on C's edge between
+/// measurement points, and over the goal, where the local bounds are 0.002–0.03: every sampled
+/// error lies within the map's bound at its point. Fails on a map certified for another
+/// network or too low anywhere in these windows.
 #[test]
 fn shipped_error_maps_bound_the_sampled_error_where_it_peaks_and_at_the_goal() {
     let window = |lo: [f64; 2], hi: [f64; 2]| IntervalBox::new(lo.to_vec(), hi.to_vec()).unwrap();
     let peak = window([4.35, 0.8], [4.5, 1.05]);
     let goal = window([-0.5, -0.5], [0.5, 0.5]);
     let s1 = common::integrator();
-    for file in ["integrator.safetensors"] {
-        let path = common::scenario_path(file);
-        let net = Mlp::load_safetensors(&path).unwrap();
-        let map = ErrorMap::load_for(&path).unwrap();
-        for (region, counts, least_peak) in [(&peak, [151, 126], 0.1), (&goal, [101, 101], 0.0)] {
-            let errors = errors_on_grid(&s1, &net, region, &counts);
-            assert!(errors.len() > 10_000, "{file}: {} points", errors.len());
-            let worst = errors.iter().map(|e| e.1).fold(0.0, f64::max);
-            // The peak window holds the network's largest errors (the test looks where a
-            // bound that is too low would show).
+    let file = "integrator.safetensors";
+    let path = common::scenario_path(file);
+    let net = Mlp::load_safetensors(&path).unwrap();
+    let map = ErrorMap::load_for(&path).unwrap();
+    for (region, counts, least_peak) in [(&peak, [151, 126], 0.1), (&goal, [101, 101], 0.0)] {
+        let errors = errors_on_grid(&s1, &net, region, &counts);
+        assert!(errors.len() > 10_000, "{file}: {} points", errors.len());
+        let worst = errors.iter().map(|e| e.1).fold(0.0, f64::max);
+        // The peak window holds the network's largest errors (the test looks where a
+        // bound that is too low would show).
+        assert!(
+            worst > least_peak,
+            "{file}: largest error {worst} in {region:?}"
+        );
+        for (x, e) in &errors {
+            let at = IntervalBox::new(x.clone(), x.clone()).unwrap();
+            let bound = map.local_bound(&at);
             assert!(
-                worst > least_peak,
-                "{file}: largest error {worst} in {region:?}"
+                *e <= bound,
+                "{file}: error {e} at {x:?} > its map's bound {bound}"
             );
-            for (x, e) in &errors {
-                let at = IntervalBox::new(x.clone(), x.clone()).unwrap();
-                let bound = map.local_bound(&at);
-                assert!(
-                    *e <= bound,
-                    "{file}: error {e} at {x:?} > its map's bound {bound}"
-                );
-            }
         }
     }
 }
