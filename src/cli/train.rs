@@ -73,7 +73,8 @@ pub struct TrainArgs {
     /// With `--slope-step`: the Sobolev term compares the network's own central differences
     /// over the same steps with the secant targets, instead of its pointwise Jacobian (which is
     /// constant on each linear region, so its loss cannot move where the ReLUs switch; the
-    /// differences can). Five rows per sample against three: an epoch costs ~1.5× as much.
+    /// differences can). Five rows per sample against three: scenario 1's epoch at batch 4096
+    /// takes 4.4 s against 3.5 s.
     #[arg(long, requires = "slope_step")]
     pub secant_network: bool,
     /// Huber threshold of the Jacobian term: slope residuals beyond it cost linearly, so the few

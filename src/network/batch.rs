@@ -220,16 +220,15 @@ impl<T: Scalar> Workspace<T> {
         a0.clear();
         a0.resize(self.r * b * n_in, T::ZERO);
         for g in 0..self.r {
-            // Group g's offset: none for g = 0, +h_j e_j for g = 1 + 2j, −h_j e_j for g = 2 + 2j.
-            let offset = (g > 0).then(|| ((g - 1) / 2, if g % 2 == 1 { 1.0 } else { -1.0 }));
             for i in 0..b {
-                let row = &mut a0[(g * b + i) * n_in..(g * b + i + 1) * n_in];
-                for (k, (dst, &src)) in row.iter_mut().zip(x(i)).enumerate() {
-                    let shift = match offset {
-                        Some((j, sign)) if j == k => sign * step[j],
-                        _ => 0.0,
-                    };
-                    *dst = T::from_f64(src + shift);
+                let (xi, row) = (x(i), &mut a0[(g * b + i) * n_in..(g * b + i + 1) * n_in]);
+                for (dst, &src) in row.iter_mut().zip(xi) {
+                    *dst = T::from_f64(src);
+                }
+                if g > 0 {
+                    // Group 1 + 2j holds x + h_j e_j, group 2 + 2j holds x − h_j e_j.
+                    let (j, sign) = ((g - 1) / 2, if g % 2 == 1 { 1.0 } else { -1.0 });
+                    row[j] = T::from_f64(xi[j] + sign * step[j]);
                 }
             }
         }
@@ -316,9 +315,7 @@ impl<T: Scalar> Workspace<T> {
                         *z = T::ZERO;
                     }
                 }
-                if !tangents.is_empty() {
-                    mask_tangents(primal, tangents);
-                }
+                mask_tangents(primal, tangents);
             }
         }
     }

@@ -812,6 +812,17 @@ fn check_inputs(init: &Mlp, data: &Dataset, settings: &TrainSettings) -> Result<
             ),
         });
     }
+    if let Some(h) = &settings.secant_step {
+        if h.len() != 1 && h.len() != data.n_in {
+            return Err(NetworkError::Settings {
+                message: format!(
+                    "secant_step has {} entries, expected 1 or n_in = {}",
+                    h.len(),
+                    data.n_in
+                ),
+            });
+        }
+    }
     if let Some(i) = init
         .layers
         .iter()
@@ -1606,9 +1617,6 @@ mod tests {
         assert!(rs.final_errors.max_error < 0.1, "{:?}", rs.final_errors);
     }
 
-    /// A batch's gradient summed from uneven chunks is the whole batch's gradient (value,
-    /// Sobolev and IBP terms: each chunk's part is a mean over the whole batch), and each
-    /// sample's visit is the same.
     /// With `secant_step` the Sobolev term is `λ Σ ((N(x + h e_j) − N(x − h e_j))/2h − Dv)²`:
     /// the worker's gradient equals the finite differences of that loss computed from
     /// `Mlp::forward`, and the slope term moves the biases (where the ReLUs switch), which a
@@ -1697,8 +1705,18 @@ mod tests {
         };
         assert_eq!(bias_share(None), 0.0);
         assert!(bias_share(Some(h.to_vec())) > 1e-3);
+        // One step, or one per input: three steps for two inputs are refused by name.
+        let three = TrainSettings {
+            secant_step: Some(vec![0.1; 3]),
+            ..s
+        };
+        let err = train(to_mlp(&net), &data, &three, |_| {}).unwrap_err();
+        assert!(err.to_string().contains("secant_step"), "{err}");
     }
 
+    /// A batch's gradient summed from uneven chunks is the whole batch's gradient (value,
+    /// Sobolev and IBP terms: each chunk's part is a mean over the whole batch), and each
+    /// sample's visit is the same.
     #[test]
     fn chunked_gradient_is_the_batch_gradient() {
         let data = smooth_data(6);
