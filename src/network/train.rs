@@ -18,7 +18,9 @@
 //! pointwise slope error) goes unseen. The `2n` shifted points are extra primal rows of the
 //! same GEMMs (`(1 + 2n)` rows a sample against `(1 + n)`; about 4.4 s against 3.5 s an epoch
 //! for the paper's scenario-1 network at batch 4096). Four stages of it took that network's
-//! slope error's 95th percentile from 0.313 to 0.222 and its max error from 0.231 to 0.140.
+//! slope error's 95th percentile from 0.313 to 0.222 and its max error from 0.231 to 0.140;
+//! leaving the steepest secant targets out ([`TrainSettings::jacobian_cap`]) then took it
+//! below 0.2 (README, Networks).
 //!
 //! **Certified training** (DESIGN.md §2b: equally accurate networks differ by orders of
 //! magnitude in how tightly they can be bounded). With [`TrainSettings::ibp_weight`] `λ_ibp > 0`
