@@ -21,7 +21,9 @@ fn files(dir: &Path, exts: &[&str]) -> Vec<PathBuf> {
     let mut out = Vec::new();
     let mut stack = vec![dir.to_path_buf()];
     while let Some(d) = stack.pop() {
-        let Ok(entries) = fs::read_dir(&d) else { continue };
+        let Ok(entries) = fs::read_dir(&d) else {
+            continue;
+        };
         for entry in entries.flatten() {
             let path = entry.path();
             if path.is_dir() {
@@ -56,7 +58,9 @@ fn headings(markdown: &str) -> Vec<String> {
 /// Whether a heading's text starts with the section `x`: `2` matches `2. The method` but not
 /// `2b. …` or `2.1 …`; `2.6` matches `2.6 The gap …`; `2b` matches `2b. What …`.
 fn heading_is(heading: &str, x: &str) -> bool {
-    let Some(rest) = heading.strip_prefix(x) else { return false };
+    let Some(rest) = heading.strip_prefix(x) else {
+        return false;
+    };
     let mut chars = rest.chars();
     match chars.next() {
         None | Some(' ') | Some(':') => true,
@@ -103,9 +107,10 @@ fn design_references(text: &str) -> Vec<String> {
             }
             // A Markdown link's closing parts may stand between the name and the section.
             rest = rest.trim_start_matches([')', ']', '`', ' ']);
-            let Some(mut list) = rest.strip_prefix('§') else { continue };
-            loop {
-                let Some((x, after)) = section_token(list) else { break };
+            let Some(mut list) = rest.strip_prefix('§') else {
+                continue;
+            };
+            while let Some((x, after)) = section_token(list) {
                 out.push(x);
                 // Continue on `, §Y`, `–§Y`, `–Y` and `-Y`.
                 let next = if let Some(r) = after.strip_prefix(", §") {
@@ -142,7 +147,10 @@ fn unresolved(design: &str, files: &[PathBuf]) -> (usize, Vec<String>) {
 fn readme_is_short_and_opens_with_the_two_commands() {
     let readme = read(&root().join("README.md"));
     let lines = readme.lines().count();
-    assert!(lines <= README_MAX_LINES, "README.md has {lines} lines, more than {README_MAX_LINES}");
+    assert!(
+        lines <= README_MAX_LINES,
+        "README.md has {lines} lines, more than {README_MAX_LINES}"
+    );
     // The first code block, within the first lines, holds the main job then the tests.
     let first: Vec<&str> = readme.lines().take(12).collect();
     let open = first
@@ -157,7 +165,10 @@ fn readme_is_short_and_opens_with_the_two_commands() {
         "README.md's first code block must start with `cargo run --release` and `cargo test --release`: {commands:?}"
     );
     for word in ["the network before", "commit "] {
-        assert!(!readme.contains(word), "README.md is a user's page: it mentions `{word}`");
+        assert!(
+            !readme.contains(word),
+            "README.md is a user's page: it mentions `{word}`"
+        );
     }
 }
 
@@ -170,13 +181,22 @@ fn design_references_resolve_to_headings() {
     sources.extend(files(&root.join("benches"), &["rs"]));
     sources.extend(files(&root.join("examples"), &["rs"]));
     sources.extend(
-        files(&root.join("tests"), &["rs"]).into_iter().filter(|p| !p.ends_with("tests/docs.rs")),
+        files(&root.join("tests"), &["rs"])
+            .into_iter()
+            .filter(|p| !p.ends_with("tests/docs.rs")),
     );
     sources.push(root.join("README.md"));
     sources.extend(files(&root.join("docs"), &["md"]));
     let (count, bad) = unresolved(&design, &sources);
-    assert!(count >= 10, "only {count} design references found: is the scan broken?");
-    assert!(bad.is_empty(), "design references without a heading in docs/design.md:\n{}", bad.join("\n"));
+    assert!(
+        count >= 10,
+        "only {count} design references found: is the scan broken?"
+    );
+    assert!(
+        bad.is_empty(),
+        "design references without a heading in docs/design.md:\n{}",
+        bad.join("\n")
+    );
 }
 
 #[test]
@@ -192,7 +212,10 @@ fn the_reference_check_fails_on_a_broken_reference() {
         assert!(heads.iter().any(|h| heading_is(h, x)), "§{x}");
     }
     for x in ["3", "2.1", "2c", "6"] {
-        assert!(!heads.iter().any(|h| heading_is(h, x)), "§{x} must not resolve");
+        assert!(
+            !heads.iter().any(|h| heading_is(h, x)),
+            "§{x} must not resolve"
+        );
     }
     // `§2` must not be satisfied by `2b.` or `2.6` alone.
     let only_sub = headings("## 2b. Tubes\n### 2.6 The gap\n");
@@ -230,7 +253,9 @@ fn relative_links(markdown: &str) -> Vec<String> {
             let target = after[..end].trim();
             let target = target.split_whitespace().next().unwrap_or("");
             rest = &after[end..];
-            let external = ["http://", "https://", "mailto:", "#"].iter().any(|p| target.starts_with(p));
+            let external = ["http://", "https://", "mailto:", "#"]
+                .iter()
+                .any(|p| target.starts_with(p));
             if external || target.is_empty() {
                 continue;
             }
@@ -246,7 +271,10 @@ fn relative_links_point_to_files() {
     let root = root();
     let mut documents = vec![root.join("README.md")];
     documents.extend(files(&root.join("docs"), &["md"]));
-    assert!(documents.len() >= 4, "README.md and docs/*.md: {documents:?}");
+    assert!(
+        documents.len() >= 4,
+        "README.md and docs/*.md: {documents:?}"
+    );
     let mut bad = Vec::new();
     let mut count = 0;
     for doc in &documents {
@@ -259,7 +287,11 @@ fn relative_links_point_to_files() {
         }
     }
     assert!(count > 0, "no relative links found");
-    assert!(bad.is_empty(), "links to files that do not exist:\n{}", bad.join("\n"));
+    assert!(
+        bad.is_empty(),
+        "links to files that do not exist:\n{}",
+        bad.join("\n")
+    );
     assert_eq!(
         relative_links("[a](x.md#s) [b](https://e.org) [c](#top) `[J](x)`\n```\n[d](no)\n```"),
         ["x.md"]
