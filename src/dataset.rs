@@ -1,3 +1,6 @@
+//! Building the trainer's [`Dataset`] from a scenario's filter on a grid of its region.
+//! May import: the filter, boxes and the trainer's `Dataset`; nothing of reachability.
+//!
 //! Training data for the surrogate `N ≈ v`: the filter evaluated on an equispaced grid.
 //!
 //! The grid covers the scenario's training region (default `C`), the unsafe set included

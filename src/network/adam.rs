@@ -1,3 +1,6 @@
+//! Adam's moments and step count over the trainer's layer parameters.
+//! May import: the batched passes' `Params` and `Scalar` only.
+//!
 //! Adam (Kingma & Ba 2015) over a list of layer parameters.
 //!
 //! `m ← β₁ m + (1−β₁) g`, `v ← β₂ v + (1−β₂) g²`,

@@ -1,3 +1,6 @@
+//! The trainer's batched passes (values, tangents, IBP boxes) and its `Params`/`Scalar`.
+//! May import: the network types, its safetensors I/O, `crate::matmul`.
+//!
 //! Batched forward and backward passes with forward-mode tangents, on the GEMMs of [`crate::matmul`].
 //!
 //! A batch of `B` samples with `n_t` tangent directions is one matrix of `r·B` rows,

@@ -1,3 +1,6 @@
+//! The ReLU network: [`Mlp`] and its layers, its value and Jacobian; I/O and the trainer below.
+//! May import: its own submodules and `crate::matmul`; nothing of filters or reachability.
+//!
 //! ReLU multilayer perceptrons `N(x) = W_L σ(… σ(W_1 x + b_1) …) + b_L`, `σ = ReLU`.
 //!
 //! Weights are stored row-major as `[out, in]`, exactly as PyTorch's `nn.Linear` keeps them, so

@@ -1,3 +1,6 @@
+//! Reviving dormant hidden ReLU neurons during training (ReDo).
+//! May import: Adam and the batched passes of the network module; rand.
+//!
 //! Recycling dormant ReLU neurons during training (ReDo: Sokar et al., "The Dormant Neuron
 //! Phenomenon in Deep Reinforcement Learning", ICML 2023).
 //!
