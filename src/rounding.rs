@@ -71,7 +71,7 @@ pub fn round_down(x: f64) -> f64 {
 /// every product with a subnormal costs a ~100-cycle microcode assist on x86 (the flat
 /// coordinate of a face box, the IBP radius of a dead neuron).
 #[inline]
-pub(crate) fn round_up_keep_zero(x: f64) -> f64 {
+pub fn round_up_keep_zero(x: f64) -> f64 {
     if x == 0.0 {
         0.0
     } else {
@@ -81,13 +81,13 @@ pub(crate) fn round_up_keep_zero(x: f64) -> f64 {
 
 /// An upper bound of the real `a + b`: the computed sum one step up.
 #[inline]
-pub(crate) fn add_up(a: f64, b: f64) -> f64 {
+pub fn add_up(a: f64, b: f64) -> f64 {
     round_up(a + b)
 }
 
 /// A lower bound of the real `a + b`: the computed sum one step down.
 #[inline]
-pub(crate) fn add_down(a: f64, b: f64) -> f64 {
+pub fn add_down(a: f64, b: f64) -> f64 {
     round_down(a + b)
 }
 
@@ -101,7 +101,7 @@ fn sum_error(a: f64, b: f64, s: f64) -> f64 {
 /// A lower bound of the exact `a + b`: the computed sum itself when TwoSum shows that it is not
 /// above the exact one (exact sums such as `x₂ − x₂,min = 0` stay exact), else one ulp below
 /// (also near overflow, where TwoSum's own steps could overflow).
-pub(crate) fn add_down_tight(a: f64, b: f64) -> f64 {
+pub fn add_down_tight(a: f64, b: f64) -> f64 {
     let s = a + b;
     if s.is_finite() && a.abs().max(b.abs()) < 1e300 && sum_error(a, b, s) >= 0.0 {
         s
@@ -111,7 +111,7 @@ pub(crate) fn add_down_tight(a: f64, b: f64) -> f64 {
 }
 
 /// An upper bound of the exact `a + b` (see [`add_down_tight`]).
-pub(crate) fn add_up_tight(a: f64, b: f64) -> f64 {
+pub fn add_up_tight(a: f64, b: f64) -> f64 {
     let s = a + b;
     if s.is_finite() && a.abs().max(b.abs()) < 1e300 && sum_error(a, b, s) <= 0.0 {
         s
@@ -138,7 +138,7 @@ pub fn div_up(a: f64, b: f64) -> f64 {
 }
 
 /// A lower bound for the exact value of a libm function whose computed value is `x`.
-pub(crate) fn widen_down(x: f64) -> f64 {
+pub fn widen_down(x: f64) -> f64 {
     if x.is_nan() || x == f64::NEG_INFINITY {
         return x;
     }
@@ -147,7 +147,7 @@ pub(crate) fn widen_down(x: f64) -> f64 {
 }
 
 /// An upper bound for the exact value of a libm function whose computed value is `x`.
-pub(crate) fn widen_up(x: f64) -> f64 {
+pub fn widen_up(x: f64) -> f64 {
     -widen_down(-x)
 }
 
@@ -168,12 +168,12 @@ fn pow_chain(x: f64, mut m: u32, round: impl Fn(f64) -> f64) -> f64 {
 }
 
 /// Lower bound of `a^m` for `a ≥ 0`.
-pub(crate) fn pow_down(a: f64, m: u32) -> f64 {
+pub fn pow_down(a: f64, m: u32) -> f64 {
     pow_chain(a, m, |v| round_down(v).max(0.0))
 }
 
 /// Upper bound of `a^m` for `a ≥ 0`.
-pub(crate) fn pow_up(a: f64, m: u32) -> f64 {
+pub fn pow_up(a: f64, m: u32) -> f64 {
     pow_chain(a, m, round_up)
 }
 
@@ -190,7 +190,7 @@ pub fn pow_int(x: f64, n: i32) -> f64 {
 
 /// `γ̂_N = (N + 3)·2⁻⁵²`, exact in f64 (module documentation).
 #[inline]
-pub(crate) fn gamma_hat(n_terms: usize) -> f64 {
+pub fn gamma_hat(n_terms: usize) -> f64 {
     (n_terms as f64 + 3.0) * f64::EPSILON
 }
 
@@ -204,7 +204,7 @@ pub(crate) fn gamma_hat(n_terms: usize) -> f64 {
 /// that is a normal number: arithmetic on subnormals takes a microcode assist of ~100 cycles on
 /// x86, and this one product was a quarter of the forward method's time.
 #[inline]
-pub(crate) fn err_bound(n_terms: usize, magnitude: f64, scale: f64) -> f64 {
+pub fn err_bound(n_terms: usize, magnitude: f64, scale: f64) -> f64 {
     // `N·2⁻¹⁰²²` is exact (N < 2⁵³); the product with `scale ≥ 1` is normal, and rounding it to
     // nearest loses at most a factor 1 − 2⁻⁵³ of a term 2⁵⁰ times larger than needed.
     let underflow = n_terms as f64 * f64::MIN_POSITIVE * scale;
@@ -213,7 +213,7 @@ pub(crate) fn err_bound(n_terms: usize, magnitude: f64, scale: f64) -> f64 {
 
 /// A rigorous upper bound of `max_{x∈[lo,hi]} w·x + b`; `mag[p] ≥ max(|lo[p]|, |hi[p]|)`.
 #[inline]
-pub(crate) fn affine_max(w: &[f64], b: f64, lo: &[f64], hi: &[f64], mag: &[f64]) -> f64 {
+pub fn affine_max(w: &[f64], b: f64, lo: &[f64], hi: &[f64], mag: &[f64]) -> f64 {
     let (mut s, mut m) = (b, b.abs());
     for p in 0..w.len() {
         let wp = w[p];
@@ -225,7 +225,7 @@ pub(crate) fn affine_max(w: &[f64], b: f64, lo: &[f64], hi: &[f64], mag: &[f64])
 
 /// A rigorous lower bound of `min_{x∈[lo,hi]} w·x + b`; `mag[p] ≥ max(|lo[p]|, |hi[p]|)`.
 #[inline]
-pub(crate) fn affine_min(w: &[f64], b: f64, lo: &[f64], hi: &[f64], mag: &[f64]) -> f64 {
+pub fn affine_min(w: &[f64], b: f64, lo: &[f64], hi: &[f64], mag: &[f64]) -> f64 {
     let (mut s, mut m) = (b, b.abs());
     for p in 0..w.len() {
         let wp = w[p];
@@ -236,7 +236,7 @@ pub(crate) fn affine_min(w: &[f64], b: f64, lo: &[f64], hi: &[f64], mag: &[f64])
 }
 
 /// `max(|lo|, |hi|)` per coordinate (exact), into `mag`.
-pub(crate) fn magnitudes(lo: &[f64], hi: &[f64], mag: &mut Vec<f64>) {
+pub fn magnitudes(lo: &[f64], hi: &[f64], mag: &mut Vec<f64>) {
     mag.clear();
     mag.extend(lo.iter().zip(hi).map(|(l, h)| l.abs().max(h.abs())));
 }

@@ -40,9 +40,8 @@
 //! each product chain; the scale covers underflowing coefficients times `z_j` and `a_j`).
 
 use super::live::{gather_columns, LiveLines};
-use super::network_bounds_batch_into;
 use super::{
-    gemm, relu_lines, AffineBounds, AffineBoundsBatch, BoundMethod, BoundsError, OutRow, Relaxation,
+    gemm, one_box, relu_lines, AffineBounds, BoundMethod, BoundsError, OutRow, Relaxation,
 };
 use crate::network::Mlp;
 use crate::rounding::{add_down, add_up, affine_max, affine_min, err_bound, magnitudes};
@@ -60,11 +59,7 @@ pub fn crown(
         Relaxation::Adaptive => BoundMethod::Crown,
         Relaxation::SameSlope => BoundMethod::CrownSameSlope,
     };
-    let mut out = AffineBoundsBatch::new();
-    network_bounds_batch_into(net, lower, upper, method, &mut out)?;
-    Ok(out
-        .get(0)
-        .unwrap_or_else(|| AffineBounds::unbounded(net.input_dim(), net.output_dim())))
+    one_box(net, lower, upper, method)
 }
 
 /// Buffers for one box at a time, reused across the boxes of one rayon task.

@@ -41,8 +41,8 @@
 use super::ibp::centre_radius;
 use super::live::gather_columns;
 use super::{
-    gemm, network_bounds_batch_into, relu_lines, AffineBounds, AffineBoundsBatch, BoundMethod,
-    BoundsError, OutRow, PreparedNetwork, Relaxation, Schedule,
+    gemm, one_box, relu_lines, AffineBounds, BoundMethod, BoundsError, OutRow, PreparedNetwork,
+    Relaxation, Schedule,
 };
 use crate::matmul::{matmul_strided, Threads::One};
 use crate::network::Mlp;
@@ -55,11 +55,7 @@ const MAX_GROUP: usize = 128;
 
 /// Forward linear bounds of `net` over `[lower, upper]` (adaptive ReLU relaxation).
 pub fn forward(net: &Mlp, lower: &[f64], upper: &[f64]) -> Result<AffineBounds, BoundsError> {
-    let mut out = AffineBoundsBatch::new();
-    network_bounds_batch_into(net, lower, upper, BoundMethod::Forward, &mut out)?;
-    Ok(out
-        .get(0)
-        .unwrap_or_else(|| AffineBounds::unbounded(net.input_dim(), net.output_dim())))
+    one_box(net, lower, upper, BoundMethod::Forward)
 }
 
 /// What [`forward_group`] does besides the plain forward pass.

@@ -40,8 +40,8 @@
 use super::forward::{forward_group, ForwardOptions, Workspace as FwdWorkspace};
 use super::live::LiveLines;
 use super::{
-    gemm, network_bounds_batch_into, relu_lines, AffineBounds, AffineBoundsBatch, BoundMethod,
-    BoundsError, OutRow, PreparedNetwork, Relaxation, Schedule,
+    gemm, one_box, relu_lines, AffineBounds, BoundMethod, BoundsError, OutRow, PreparedNetwork,
+    Relaxation, Schedule,
 };
 use crate::network::Mlp;
 use crate::rounding::{add_down, add_up, affine_max, affine_min, err_bound};
@@ -61,11 +61,7 @@ pub fn forward_backward(
         Relaxation::Adaptive => BoundMethod::ForwardBackward,
         Relaxation::SameSlope => BoundMethod::ForwardBackwardSameSlope,
     };
-    let mut out = AffineBoundsBatch::new();
-    network_bounds_batch_into(net, lower, upper, method, &mut out)?;
-    Ok(out
-        .get(0)
-        .unwrap_or_else(|| AffineBounds::unbounded(net.input_dim(), net.output_dim())))
+    one_box(net, lower, upper, method)
 }
 
 /// Buffers of one rayon task.
@@ -322,7 +318,7 @@ fn backward_group(
 mod tests {
     use super::*;
     use crate::bounds::test_support::*;
-    use crate::bounds::{crown, forward};
+    use crate::bounds::{crown, forward, AffineBoundsBatch};
 
     /// The backward pass takes `|W_j| mag_j` from the forward pass's IBP product: that must
     /// bound the product with `mag_j = max(pre_hi, 0)` itself from above (up to the products'

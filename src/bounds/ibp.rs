@@ -11,20 +11,13 @@
 //! exactly (`r` rounded up), and `c ∓ r` are rounded outward.
 
 use super::gemm;
-use super::{
-    network_bounds_batch_into, AffineBounds, AffineBoundsBatch, BoundMethod, BoundsError, OutRow,
-    PreparedNetwork, Schedule,
-};
+use super::{one_box, AffineBounds, BoundMethod, BoundsError, OutRow, PreparedNetwork, Schedule};
 use crate::network::Mlp;
 use crate::rounding::{add_down, add_up, err_bound, round_up_keep_zero};
 
 /// IBP bounds of `net` over `[lower, upper]` (affine forms with `C = 0`).
 pub fn ibp(net: &Mlp, lower: &[f64], upper: &[f64]) -> Result<AffineBounds, BoundsError> {
-    let mut out = AffineBoundsBatch::new();
-    network_bounds_batch_into(net, lower, upper, BoundMethod::Ibp, &mut out)?;
-    Ok(out
-        .get(0)
-        .unwrap_or_else(|| AffineBounds::unbounded(net.input_dim(), net.output_dim())))
+    one_box(net, lower, upper, BoundMethod::Ibp)
 }
 
 /// Buffers for one group of boxes.

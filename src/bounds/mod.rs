@@ -280,6 +280,21 @@ pub fn network_bounds_batch_into(
     PreparedNetwork::new(net)?.bounds_batch_into(lower, upper, method, out)
 }
 
+/// Bounds over one box, for the per-method entry points ([`ibp()`], [`crown()`], …): the
+/// trivially sound bounds when the box has no coordinates to bound.
+fn one_box(
+    net: &Mlp,
+    lower: &[f64],
+    upper: &[f64],
+    method: BoundMethod,
+) -> Result<AffineBounds, BoundsError> {
+    let mut out = AffineBoundsBatch::new();
+    network_bounds_batch_into(net, lower, upper, method, &mut out)?;
+    Ok(out
+        .get(0)
+        .unwrap_or_else(|| AffineBounds::unbounded(net.input_dim(), net.output_dim())))
+}
+
 /// A network checked once for bounding (shapes, widths, finite weights) with `|W_k|` of every
 /// layer computed once: what a loop that bounds many batches of boxes holds.
 ///
