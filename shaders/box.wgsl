@@ -31,7 +31,7 @@ fn box_info(g: u32) -> BoxInfo {
     return b;
 }
 
-// A rigorous upper bound of max over the box of w·x + d (affine_max in src/bounds/mod.rs):
+// A rigorous upper bound of max over the box of w·x + d (affine_max in src/rounding.rs):
 // the corner sum plus err_bound(N0 + 1) of its magnitude.
 fn affine_max(w: array<real, N0>, d: real, bx: BoxInfo) -> real {
     var s = d;

@@ -1,5 +1,6 @@
 //! Boxes (hyper-rectangles) `[x̲, x̄] = {x : x̲ ≤ x ≤ x̄}`: the sets that initial conditions,
-//! the region `C`, goal sets and reachable-set bounds are made of.
+//! the region `C`, goal sets and reachable-set bounds are made of, and [`BoxError`].
+//! Imports nothing of the crate.
 
 use serde::{Deserialize, Serialize};
 
@@ -12,30 +13,71 @@ pub struct IntervalBox {
     pub upper: Vec<f64>,
 }
 
+/// Why [`IntervalBox::new`] rejected its corners; the message names the coordinate.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum BoxError {
+    /// `lower` and `upper` have different lengths.
+    #[error("lower has {lower_len} entries but upper has {upper_len}")]
+    LengthMismatch {
+        /// Entries of `lower`.
+        lower_len: usize,
+        /// Entries of `upper`.
+        upper_len: usize,
+    },
+    /// Both corners are empty.
+    #[error("a box needs at least one coordinate")]
+    NoCoordinates,
+    /// A bound is NaN or infinite.
+    #[error("coordinate {coord}: bounds must be finite, found [{lower}, {upper}]")]
+    NonFinite {
+        /// The coordinate.
+        coord: usize,
+        /// Its lower bound.
+        lower: f64,
+        /// Its upper bound.
+        upper: f64,
+    },
+    /// `lower > upper` on a coordinate.
+    #[error(
+        "coordinate {coord}: inverted bounds, lower {lower} > upper {upper} (the box is empty)"
+    )]
+    Inverted {
+        /// The coordinate.
+        coord: usize,
+        /// Its lower bound.
+        lower: f64,
+        /// Its upper bound.
+        upper: f64,
+    },
+}
+
 impl IntervalBox {
     /// A box, checked: equal lengths, finite corners, `lower ≤ upper` on every axis.
     /// The error says which axis is wrong and how.
-    pub fn new(lower: Vec<f64>, upper: Vec<f64>) -> Result<IntervalBox, String> {
+    pub fn new(lower: Vec<f64>, upper: Vec<f64>) -> Result<IntervalBox, BoxError> {
         if lower.len() != upper.len() {
-            return Err(format!(
-                "lower has {} entries but upper has {}",
-                lower.len(),
-                upper.len()
-            ));
+            return Err(BoxError::LengthMismatch {
+                lower_len: lower.len(),
+                upper_len: upper.len(),
+            });
         }
         if lower.is_empty() {
-            return Err("a box needs at least one coordinate".into());
+            return Err(BoxError::NoCoordinates);
         }
-        for (i, (&l, &u)) in lower.iter().zip(&upper).enumerate() {
+        for (coord, (&l, &u)) in lower.iter().zip(&upper).enumerate() {
             if !l.is_finite() || !u.is_finite() {
-                return Err(format!(
-                    "coordinate {i}: bounds must be finite, found [{l}, {u}]"
-                ));
+                return Err(BoxError::NonFinite {
+                    coord,
+                    lower: l,
+                    upper: u,
+                });
             }
             if l > u {
-                return Err(format!(
-                    "coordinate {i}: inverted bounds, lower {l} > upper {u} (the box is empty)"
-                ));
+                return Err(BoxError::Inverted {
+                    coord,
+                    lower: l,
+                    upper: u,
+                });
             }
         }
         Ok(IntervalBox { lower, upper })
@@ -166,14 +208,23 @@ mod tests {
 
     #[test]
     fn rejects_inverted_empty_and_nan_boxes() {
-        assert!(IntervalBox::new(vec![1.0], vec![0.0])
-            .unwrap_err()
-            .contains("inverted"));
+        let err = IntervalBox::new(vec![1.0], vec![0.0]).unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "coordinate 0: inverted bounds, lower 1 > upper 0 (the box is empty)"
+        );
         assert!(IntervalBox::new(vec![], vec![]).is_err());
         assert!(IntervalBox::new(vec![f64::NAN], vec![1.0])
             .unwrap_err()
+            .to_string()
             .contains("finite"));
-        assert!(IntervalBox::new(vec![0.0, 0.0], vec![1.0]).is_err());
+        assert_eq!(
+            IntervalBox::new(vec![0.0, 0.0], vec![1.0]).unwrap_err(),
+            BoxError::LengthMismatch {
+                lower_len: 2,
+                upper_len: 1
+            }
+        );
     }
 
     #[test]

@@ -1,12 +1,14 @@
 //! Closed intervals of `f64` with outward rounding (DESIGN.md §3).
+//! Imports only [`crate::rounding`], whose primitives round every end outward.
 //!
 //! An [`Interval`] `X = [x̲, x̄]` stands for the set `{x ∈ ℝ : x̲ ≤ x ≤ x̄}`; infinite ends are
 //! allowed ([`Interval::ENTIRE`] is `ℝ`), and a slice `&[Interval]` is a box. Every operation `∘`
 //! returns an interval containing `{x ∘ y : x ∈ X, y ∈ Y}` (the inclusion property), floating-point
-//! error included:
+//! error included (the rounding model is [`crate::rounding`]'s):
 //!
 //! - `+ − × ÷ √` are correctly rounded (IEEE 754), so the exact end lies within one ulp of the
-//!   computed one: each end moves one step outward with [`round_down`] / [`round_up`].
+//!   computed one: each end moves one step outward with [`round_down`] / [`round_up`] (sums keep
+//!   an end that TwoSum shows exact).
 //! - `exp ln sin cos tanh` come from the platform libm, which is *not* correctly rounded (glibc
 //!   states ≤ 1–2 ulp); their ends move outward by a relative `2⁻⁵⁰` (≥ 4 ulp) plus the smallest
 //!   normal number, then one more step. `sin cos tanh` are then clamped to `[−1, 1]`.
@@ -14,8 +16,9 @@
 //!   "unbounded"; the real 0 times any real is 0).
 //! - Division by an interval that contains 0 gives [`Interval::ENTIRE`], as does an odd negative
 //!   power of one. Even powers are tight: `[−1, 2]² = [0, 4]`, `[−1, 2]⁻² = [1/4, +∞]`. Integer
-//!   powers multiply by repeated squaring, rounding every product outward; [`pow_int`] is the same
-//!   sequence rounded to nearest, so it always lies in [`Interval::powi`] of a point.
+//!   powers multiply by repeated squaring, rounding every product outward;
+//!   [`crate::rounding::pow_int`] is the same sequence rounded to nearest, so it always lies in
+//!   [`Interval::powi`] of a point.
 //! - `sin`/`cos`: monotone between extrema, so the range is the hull of the end values, with the
 //!   upper end 1 if `X` holds a maximiser (`π/2 + 2kπ` for sin, `2kπ` for cos) and the lower end −1
 //!   if it holds a minimiser; the test errs towards "holds". Width ≥ 2π gives `[−1, 1]`.
@@ -23,13 +26,13 @@
 //!   gives the *NaN interval* (both ends NaN, [`Interval::NAN`]), which callers detect with
 //!   [`Interval::is_nan`]. NaN ends propagate through every operation.
 
+use crate::rounding::{
+    add_down_tight, add_up_tight, pow_down, pow_up, round_down, round_up, widen_down, widen_up,
+};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::{FRAC_PI_2, PI, TAU};
 use std::fmt;
 use std::ops::{Add, Div, Mul, Neg, Sub};
-
-/// Relative widening of libm results: `2⁻⁵⁰`, at least 4 ulp of the result.
-const LIBM_REL: f64 = 4.0 * f64::EPSILON;
 
 /// A closed interval `[lower, upper]` (possibly unbounded, or NaN; see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -40,76 +43,6 @@ pub struct Interval {
     pub upper: f64,
 }
 
-/// The next `f64` below `x` (`f64::next_down`, spelled out for the crate's MSRV 1.85): a lower
-/// bound for the exact result of a correctly rounded operation whose computed result is `x`.
-pub fn round_down(x: f64) -> f64 {
-    -round_up(-x)
-}
-
-/// The next `f64` above `x` (`f64::next_up`, spelled out for the crate's MSRV 1.85): an upper
-/// bound for the exact result of a correctly rounded operation whose computed result is `x`.
-pub fn round_up(x: f64) -> f64 {
-    if x.is_nan() || x == f64::INFINITY {
-        return x;
-    }
-    if x == 0.0 {
-        return f64::from_bits(1); // the smallest subnormal
-    }
-    let bits = x.to_bits();
-    f64::from_bits(if x > 0.0 { bits + 1 } else { bits - 1 })
-}
-
-/// A lower bound for the exact value of a libm function whose computed value is `x`.
-fn widen_down(x: f64) -> f64 {
-    if x.is_nan() || x == f64::NEG_INFINITY {
-        return x;
-    }
-    let x = x.min(f64::MAX);
-    round_down(x - (x.abs() * LIBM_REL + f64::MIN_POSITIVE))
-}
-
-/// An upper bound for the exact value of a libm function whose computed value is `x`.
-fn widen_up(x: f64) -> f64 {
-    -widen_down(-x)
-}
-
-/// `x` to the power `m ≥ 1` by repeated squaring, with `round` applied after every product.
-fn pow_chain(x: f64, mut m: u32, round: impl Fn(f64) -> f64) -> f64 {
-    let mut base = x;
-    let mut acc: Option<f64> = None;
-    loop {
-        if m & 1 == 1 {
-            acc = Some(acc.map_or(base, |a| round(a * base)));
-        }
-        m >>= 1;
-        if m == 0 {
-            return acc.unwrap_or(1.0);
-        }
-        base = round(base * base);
-    }
-}
-
-/// Lower bound of `a^m` for `a ≥ 0`.
-fn pow_down(a: f64, m: u32) -> f64 {
-    pow_chain(a, m, |v| round_down(v).max(0.0))
-}
-
-/// Upper bound of `a^m` for `a ≥ 0`.
-fn pow_up(a: f64, m: u32) -> f64 {
-    pow_chain(a, m, round_up)
-}
-
-/// `x^n` for a point, by the same products as [`Interval::powi`] rounded to nearest, so that
-/// `Interval::point(x).powi(n)` always contains it. `x^0 = 1` for every `x`.
-pub fn pow_int(x: f64, n: i32) -> f64 {
-    let p = pow_chain(x, n.unsigned_abs(), |v| v);
-    if n >= 0 {
-        p
-    } else {
-        1.0 / p
-    }
-}
-
 /// `a·b` with `0·∞ = 0`.
 fn mul_ends(a: f64, b: f64) -> f64 {
     if a == 0.0 || b == 0.0 {
@@ -117,23 +50,6 @@ fn mul_ends(a: f64, b: f64) -> f64 {
     } else {
         a * b
     }
-}
-
-/// A lower bound for `a / b` (finite `a`, `b ≠ 0`): the rounded quotient itself when the
-/// division was exact (its residual `q·b − a`, exact under FMA away from underflow, is 0), else
-/// the next number below.
-pub fn div_down(a: f64, b: f64) -> f64 {
-    let q = a / b;
-    if q.is_finite() && q.abs() >= f64::MIN_POSITIVE && q.mul_add(b, -a) == 0.0 {
-        q
-    } else {
-        round_down(q)
-    }
-}
-
-/// An upper bound for `a / b`, as [`div_down`].
-pub fn div_up(a: f64, b: f64) -> f64 {
-    -div_down(-a, b)
 }
 
 /// The hull of four end candidates, rounded outward.
@@ -429,41 +345,12 @@ impl Neg for Interval {
     }
 }
 
-/// The rounding error `(a + b) − s` of the computed sum `s = a + b` (Knuth's TwoSum: exact
-/// under round-to-nearest when `s` is finite).
-fn sum_error(a: f64, b: f64, s: f64) -> f64 {
-    let bb = s - a;
-    (a - (s - bb)) + (b - bb)
-}
-
-/// A lower bound of the exact `a + b`: the computed sum itself when TwoSum shows that it is not
-/// above the exact one (exact sums such as `x₂ − x₂,min = 0` stay exact), else one ulp below
-/// (also near overflow, where TwoSum's own steps could overflow).
-fn sum_down(a: f64, b: f64) -> f64 {
-    let s = a + b;
-    if s.is_finite() && a.abs().max(b.abs()) < 1e300 && sum_error(a, b, s) >= 0.0 {
-        s
-    } else {
-        round_down(s)
-    }
-}
-
-/// An upper bound of the exact `a + b` (see [`sum_down`]).
-fn sum_up(a: f64, b: f64) -> f64 {
-    let s = a + b;
-    if s.is_finite() && a.abs().max(b.abs()) < 1e300 && sum_error(a, b, s) <= 0.0 {
-        s
-    } else {
-        round_up(s)
-    }
-}
-
 impl Add for Interval {
     type Output = Interval;
     fn add(self, rhs: Interval) -> Interval {
         Interval {
-            lower: sum_down(self.lower, rhs.lower),
-            upper: sum_up(self.upper, rhs.upper),
+            lower: add_down_tight(self.lower, rhs.lower),
+            upper: add_up_tight(self.upper, rhs.upper),
         }
     }
 }
@@ -472,8 +359,8 @@ impl Sub for Interval {
     type Output = Interval;
     fn sub(self, rhs: Interval) -> Interval {
         Interval {
-            lower: sum_down(self.lower, -rhs.upper),
-            upper: sum_up(self.upper, -rhs.lower),
+            lower: add_down_tight(self.lower, -rhs.upper),
+            upper: add_up_tight(self.upper, -rhs.lower),
         }
     }
 }
@@ -536,32 +423,7 @@ scalar_ops!(Add add, Sub sub, Mul mul, Div div);
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn quotients_are_bounded_and_exact_ones_kept() {
-        // Exact quotients stay themselves (what keeps `x₂ ≥ −2` at −2 in reach::safe_set).
-        assert_eq!((div_down(-2.0, 1.0), div_up(-2.0, 1.0)), (-2.0, -2.0));
-        assert_eq!((div_down(3.0, -4.0), div_up(3.0, -4.0)), (-0.75, -0.75));
-        // Inexact ones straddle the real quotient: by the exact FMA residual's sign,
-        // lo·b ≤ a ≤ hi·b for b > 0 (reversed for b < 0), and they differ by one step.
-        let mut rng = ChaCha8Rng::seed_from_u64(11);
-        for _ in 0..20_000 {
-            let a: f64 = rng.random_range(-1e3..1e3);
-            let b: f64 =
-                rng.random_range(0.1..10.0) * if rng.random::<bool>() { 1.0 } else { -1.0 };
-            let (lo, hi) = (div_down(a, b), div_up(a, b));
-            assert!(
-                lo <= hi && hi <= round_up(round_up(lo)),
-                "{a}/{b}: [{lo}, {hi}]"
-            );
-            let (rl, rh) = (lo.mul_add(b, -a), hi.mul_add(b, -a));
-            if b > 0.0 {
-                assert!(rl <= 0.0 && rh >= 0.0, "{a}/{b}: [{lo}, {hi}]");
-            } else {
-                assert!(rl >= 0.0 && rh <= 0.0, "{a}/{b}: [{lo}, {hi}]");
-            }
-        }
-    }
+    use crate::rounding::pow_int;
 
     /// Sums are outward rounded only when inexact: checked against exact integer arithmetic
     /// (every f64 of magnitude ≥ 2⁵³ is an integer, so i128 holds the exact sums).
@@ -785,19 +647,5 @@ mod tests {
             (1.0, 3.0, 0.0)
         );
         assert!(a.width() >= 4.0 && a.radius() >= 2.0 && a.radius() < 2.0 + 1e-12);
-    }
-
-    #[test]
-    fn rounding_steps_one_ulp() {
-        assert_eq!(round_up(1.0), 1.0 + f64::EPSILON);
-        assert_eq!(round_down(1.0), 1.0 - f64::EPSILON / 2.0);
-        assert_eq!(round_up(-0.0), f64::from_bits(1));
-        assert_eq!(round_down(0.0), -f64::from_bits(1));
-        assert_eq!(round_up(-f64::from_bits(1)), 0.0);
-        assert_eq!(round_up(f64::MAX), f64::INFINITY);
-        assert_eq!(round_up(f64::NEG_INFINITY), -f64::MAX);
-        assert_eq!(round_down(f64::INFINITY), f64::MAX);
-        assert_eq!(round_up(f64::INFINITY), f64::INFINITY);
-        assert!(round_down(f64::NAN).is_nan());
     }
 }

@@ -23,6 +23,7 @@ pub mod matmul;
 pub mod network;
 pub mod plot;
 pub mod reach;
+pub mod rounding;
 pub mod scenario;
 pub mod simulate;
 pub mod surrogate_error;

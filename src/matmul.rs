@@ -6,7 +6,7 @@
 //! (`400×400` times `400×18 … 400×768`) 1.3–1.7× faster in f64 and 1.3–1.8× faster in f32 than
 //! `matrixmultiply`, the crate used before.
 //!
-//! Soundness does not depend on the kernel: the rounding model of [`crate::bounds`] bounds the
+//! Soundness does not depend on the kernel: the rounding model of [`crate::rounding`] bounds the
 //! error of *any* order of summation, with or without fused multiply–adds.
 
 use gemm::Parallelism;

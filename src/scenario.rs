@@ -532,7 +532,8 @@ impl Compiler<'_> {
                 ),
             ));
         }
-        IntervalBox::new(lower.to_vec(), upper.to_vec()).map_err(|m| self.invalid(key, m))
+        IntervalBox::new(lower.to_vec(), upper.to_vec())
+            .map_err(|m| self.invalid(key, m.to_string()))
     }
 }
 
@@ -619,7 +620,7 @@ impl ScenarioFile {
                     ));
                 }
                 IntervalBox::new(b.lower.clone(), b.upper.clone())
-                    .map_err(|msg| c.invalid("input_bounds", msg))
+                    .map_err(|msg| c.invalid("input_bounds", msg.to_string()))
             })
             .transpose()?;
         let constraints = self

@@ -35,10 +35,11 @@ use crate::boxes::IntervalBox;
 use crate::dataset::{filter_dataset, grid_points, Slopes};
 use crate::expressions::Expr;
 use crate::filter::{FilterMethod, SafetyFilter};
-use crate::intervals::{round_up, Interval};
+use crate::intervals::Interval;
 use crate::network::train::pointwise_errors;
 use crate::network::Mlp;
 use crate::network::NetworkError;
+use crate::rounding::round_up;
 use crate::scenario::{Margin, Scenario};
 
 /// Why an error analysis (or an error map) failed.

@@ -40,12 +40,11 @@
 //! each product chain; the scale covers underflowing coefficients times `z_j` and `a_j`).
 
 use super::live::{gather_columns, LiveLines};
-use super::network_bounds_batch_into;
 use super::{
-    add_down, add_up, affine_max, affine_min, err_bound, gemm, magnitudes, relu_lines,
-    AffineBounds, AffineBoundsBatch, BoundMethod, BoundsError, OutRow, Relaxation,
+    gemm, one_box, relu_lines, AffineBounds, BoundMethod, BoundsError, OutRow, Relaxation,
 };
 use crate::network::Mlp;
+use crate::rounding::{add_down, add_up, affine_max, affine_min, err_bound, magnitudes};
 
 /// Backward CROWN bounds of `net` over `[lower, upper]` with the given ReLU relaxation.
 ///
@@ -60,11 +59,7 @@ pub fn crown(
         Relaxation::Adaptive => BoundMethod::Crown,
         Relaxation::SameSlope => BoundMethod::CrownSameSlope,
     };
-    let mut out = AffineBoundsBatch::new();
-    network_bounds_batch_into(net, lower, upper, method, &mut out)?;
-    Ok(out
-        .get(0)
-        .unwrap_or_else(|| AffineBounds::unbounded(net.input_dim(), net.output_dim())))
+    one_box(net, lower, upper, method)
 }
 
 /// Buffers for one box at a time, reused across the boxes of one rayon task.
@@ -302,16 +297,7 @@ mod tests {
 
     #[test]
     fn crown_is_sound_on_random_networks_and_boxes() {
-        for relaxation in [Relaxation::Adaptive, Relaxation::SameSlope] {
-            for_each_case(30, |case| {
-                let b = crown(&case.net, &case.lo, &case.hi, relaxation).unwrap();
-                check_bounds(&case.net, &case.lo, &case.hi, &b, &case.points)
-                    .unwrap_or_else(|e| panic!("{relaxation:?} {}: {e}", case.name));
-                if relaxation == Relaxation::SameSlope {
-                    assert_eq!(b.a_lower, b.a_upper, "same-slope must share C");
-                }
-            });
-        }
+        assert_sound_for_both_relaxations(30, crown);
     }
 
     #[test]

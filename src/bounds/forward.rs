@@ -41,23 +41,21 @@
 use super::ibp::centre_radius;
 use super::live::gather_columns;
 use super::{
-    add_down, add_up, affine_max, affine_min, err_bound, gemm, network_bounds_batch_into, next_up,
-    next_up_keep_zero, relu_lines, AffineBounds, AffineBoundsBatch, BoundMethod, BoundsError,
-    OutRow, PreparedNetwork, Relaxation, Schedule,
+    gemm, one_box, relu_lines, AffineBounds, BoundMethod, BoundsError, OutRow, PreparedNetwork,
+    Relaxation, Schedule,
 };
 use crate::matmul::{matmul_strided, Threads::One};
 use crate::network::Mlp;
+use crate::rounding::{
+    add_down, add_up, affine_max, affine_min, err_bound, round_up, round_up_keep_zero,
+};
 
 /// Largest number of boxes propagated together in one GEMM.
 const MAX_GROUP: usize = 128;
 
 /// Forward linear bounds of `net` over `[lower, upper]` (adaptive ReLU relaxation).
 pub fn forward(net: &Mlp, lower: &[f64], upper: &[f64]) -> Result<AffineBounds, BoundsError> {
-    let mut out = AffineBoundsBatch::new();
-    network_bounds_batch_into(net, lower, upper, BoundMethod::Forward, &mut out)?;
-    Ok(out
-        .get(0)
-        .unwrap_or_else(|| AffineBounds::unbounded(net.input_dim(), net.output_dim())))
+    one_box(net, lower, upper, BoundMethod::Forward)
 }
 
 /// What [`forward_group`] does besides the plain forward pass.
@@ -169,14 +167,14 @@ pub(crate) fn forward_group(
         for p in 0..n0 {
             let (l, h) = (lower[g * n0 + p], upper[g * n0 + p]);
             let c = 0.5 * l + 0.5 * h;
-            let r = next_up_keep_zero(h - c).max(next_up_keep_zero(c - l));
-            let m = next_up_keep_zero(c.abs() + r);
+            let r = round_up_keep_zero(h - c).max(round_up_keep_zero(c - l));
+            let m = round_up_keep_zero(c.abs() + r);
             ws.xc.push(c);
             ws.xr.push(r);
             ws.xmag.push(m);
             sum += m;
         }
-        ws.scale.push(next_up(sum));
+        ws.scale.push(round_up(sum));
     }
 
     // Layer 0 is exact: Ĉ = [W₀ | b₀] for every box, R̂ = 0.
@@ -497,8 +495,8 @@ fn write_output(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::bounds::crown;
     use crate::bounds::test_support::*;
-    use crate::bounds::{crown, network_bounds_batch};
 
     /// The magnitude products give the dense product of `|W|` with `[R̂ | V]`, whichever way
     /// they take (one product, or `R̂`'s few nonzero rows and `V` apart), and write every entry.
@@ -545,42 +543,8 @@ mod tests {
     #[test]
     fn batched_forward_equals_one_box_at_a_time() {
         // Group boundaries must not change any box's result (beyond GEMM summation order).
-        let net = Mlp::random(&[3, 32, 32, 2], 11);
-        let mut rng = case_rng(5);
-        let (mut lo, mut hi) = (Vec::new(), Vec::new());
-        for k in 0..300 {
-            let (l, h) = random_box(&mut rng, 3, BoxKind::ALL[k % BoxKind::ALL.len()]);
-            lo.extend(l);
-            hi.extend(h);
-        }
-        for method in [BoundMethod::Forward, BoundMethod::Crown, BoundMethod::Ibp] {
-            let batch = network_bounds_batch(&net, &lo, &hi, method).unwrap();
-            assert_eq!(batch.len(), 300);
-            for k in [0, 1, 127, 128, 299] {
-                let one = crate::bounds::network_bounds(
-                    &net,
-                    &lo[3 * k..3 * k + 3],
-                    &hi[3 * k..3 * k + 3],
-                    method,
-                )
-                .unwrap();
-                let from_batch = batch.get(k).unwrap();
-                let close = |a: &[f64], b: &[f64]| {
-                    a.iter()
-                        .zip(b)
-                        .all(|(x, y)| (x - y).abs() <= 1e-12 * (1.0 + x.abs()))
-                };
-                assert!(
-                    close(&one.lower, &from_batch.lower) && close(&one.upper, &from_batch.upper),
-                    "{method:?} box {k}"
-                );
-                assert!(
-                    close(&one.a_lower, &from_batch.a_lower)
-                        && close(&one.b_upper, &from_batch.b_upper),
-                    "{method:?} box {k}"
-                );
-            }
-        }
+        let methods = [BoundMethod::Forward, BoundMethod::Crown, BoundMethod::Ibp];
+        assert_batch_matches_single(&methods, 1e-12);
     }
 
     #[test]

@@ -40,11 +40,11 @@
 use super::forward::{forward_group, ForwardOptions, Workspace as FwdWorkspace};
 use super::live::LiveLines;
 use super::{
-    add_down, add_up, affine_max, affine_min, err_bound, gemm, network_bounds_batch_into,
-    relu_lines, AffineBounds, AffineBoundsBatch, BoundMethod, BoundsError, OutRow, PreparedNetwork,
+    gemm, one_box, relu_lines, AffineBounds, BoundMethod, BoundsError, OutRow, PreparedNetwork,
     Relaxation, Schedule,
 };
 use crate::network::Mlp;
+use crate::rounding::{add_down, add_up, affine_max, affine_min, err_bound};
 
 /// Largest number of boxes propagated together.
 const MAX_GROUP: usize = 128;
@@ -61,11 +61,7 @@ pub fn forward_backward(
         Relaxation::Adaptive => BoundMethod::ForwardBackward,
         Relaxation::SameSlope => BoundMethod::ForwardBackwardSameSlope,
     };
-    let mut out = AffineBoundsBatch::new();
-    network_bounds_batch_into(net, lower, upper, method, &mut out)?;
-    Ok(out
-        .get(0)
-        .unwrap_or_else(|| AffineBounds::unbounded(net.input_dim(), net.output_dim())))
+    one_box(net, lower, upper, method)
 }
 
 /// Buffers of one rayon task.
@@ -322,7 +318,7 @@ fn backward_group(
 mod tests {
     use super::*;
     use crate::bounds::test_support::*;
-    use crate::bounds::{crown, forward, network_bounds_batch};
+    use crate::bounds::{crown, forward, AffineBoundsBatch};
 
     /// The backward pass takes `|W_j| mag_j` from the forward pass's IBP product: that must
     /// bound the product with `mag_j = max(pre_hi, 0)` itself from above (up to the products'
@@ -369,52 +365,17 @@ mod tests {
 
     #[test]
     fn forward_backward_is_sound_on_random_networks_and_boxes() {
-        for relaxation in [Relaxation::Adaptive, Relaxation::SameSlope] {
-            for_each_case(40, |case| {
-                let b = forward_backward(&case.net, &case.lo, &case.hi, relaxation).unwrap();
-                check_bounds(&case.net, &case.lo, &case.hi, &b, &case.points)
-                    .unwrap_or_else(|e| panic!("{relaxation:?} {}: {e}", case.name));
-                if relaxation == Relaxation::SameSlope {
-                    assert_eq!(b.a_lower, b.a_upper, "same-slope must share C");
-                }
-            });
-        }
+        assert_sound_for_both_relaxations(40, forward_backward);
     }
 
     #[test]
     fn batched_forward_backward_equals_one_box_at_a_time() {
-        let net = Mlp::random(&[3, 32, 32, 2], 11);
-        let mut rng = case_rng(5);
-        let (mut lo, mut hi) = (Vec::new(), Vec::new());
-        for k in 0..300 {
-            let (l, h) = random_box(&mut rng, 3, BoxKind::ALL[k % BoxKind::ALL.len()]);
-            lo.extend(l);
-            hi.extend(h);
-        }
-        for method in [
+        // Dropping neurons dead in the whole group changes summation order only.
+        let methods = [
             BoundMethod::ForwardBackward,
             BoundMethod::ForwardBackwardSameSlope,
-        ] {
-            let batch = network_bounds_batch(&net, &lo, &hi, method).unwrap();
-            for k in [0, 1, 127, 128, 299] {
-                let one = crate::bounds::network_bounds(
-                    &net,
-                    &lo[3 * k..3 * k + 3],
-                    &hi[3 * k..3 * k + 3],
-                    method,
-                )
-                .unwrap();
-                let b = batch.get(k).unwrap();
-                // Dropping neurons dead in the whole group changes summation order only.
-                let close = |a: &[f64], b: &[f64]| {
-                    a.iter()
-                        .zip(b)
-                        .all(|(x, y)| (x - y).abs() <= 1e-9 * (1.0 + x.abs()))
-                };
-                assert!(close(&one.lower, &b.lower) && close(&one.upper, &b.upper));
-                assert!(close(&one.a_lower, &b.a_lower) && close(&one.b_upper, &b.b_upper));
-            }
-        }
+        ];
+        assert_batch_matches_single(&methods, 1e-9);
     }
 
     #[test]

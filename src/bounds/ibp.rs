@@ -10,20 +10,14 @@
 //! rounded up; the centre and radius of an interval are chosen so that `[l, u] ⊆ [c − r, c + r]`
 //! exactly (`r` rounded up), and `c ∓ r` are rounded outward.
 
-use super::{add_down, add_up, err_bound, gemm, next_up_keep_zero};
-use super::{
-    network_bounds_batch_into, AffineBounds, AffineBoundsBatch, BoundMethod, BoundsError, OutRow,
-    PreparedNetwork, Schedule,
-};
+use super::gemm;
+use super::{one_box, AffineBounds, BoundMethod, BoundsError, OutRow, PreparedNetwork, Schedule};
 use crate::network::Mlp;
+use crate::rounding::{add_down, add_up, err_bound, round_up_keep_zero};
 
 /// IBP bounds of `net` over `[lower, upper]` (affine forms with `C = 0`).
 pub fn ibp(net: &Mlp, lower: &[f64], upper: &[f64]) -> Result<AffineBounds, BoundsError> {
-    let mut out = AffineBoundsBatch::new();
-    network_bounds_batch_into(net, lower, upper, BoundMethod::Ibp, &mut out)?;
-    Ok(out
-        .get(0)
-        .unwrap_or_else(|| AffineBounds::unbounded(net.input_dim(), net.output_dim())))
+    one_box(net, lower, upper, BoundMethod::Ibp)
 }
 
 /// Buffers for one group of boxes.
@@ -131,7 +125,7 @@ fn ibp_group(
 #[inline]
 pub(crate) fn centre_radius(l: f64, h: f64) -> (f64, f64) {
     let c = 0.5 * l + 0.5 * h;
-    (c, next_up_keep_zero(h - c).max(next_up_keep_zero(c - l)))
+    (c, round_up_keep_zero(h - c).max(round_up_keep_zero(c - l)))
 }
 
 #[cfg(test)]

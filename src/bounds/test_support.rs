@@ -3,7 +3,9 @@
 //! arithmetic (≈ 106 bits), so that a sound bound is never failed by the check's own rounding.
 #![allow(clippy::needless_range_loop)] // index loops read as the formulas
 
-use super::AffineBounds;
+use super::{
+    network_bounds, network_bounds_batch, AffineBounds, BoundMethod, BoundsError, Relaxation,
+};
 use crate::network::Mlp;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -138,6 +140,59 @@ pub(crate) fn for_each_case(boxes_per_net: usize, mut f: impl FnMut(&Case)) {
     }
 }
 
+/// Checks `method` (a bound function with a relaxation) on `boxes_per_net` cases per network for
+/// both relaxations; same-slope must give one `C`.
+pub(crate) fn assert_sound_for_both_relaxations(
+    boxes_per_net: usize,
+    method: impl Fn(&Mlp, &[f64], &[f64], Relaxation) -> Result<AffineBounds, BoundsError>,
+) {
+    for relaxation in [Relaxation::Adaptive, Relaxation::SameSlope] {
+        for_each_case(boxes_per_net, |case| {
+            let b = method(&case.net, &case.lo, &case.hi, relaxation).unwrap();
+            check_bounds(&case.net, &case.lo, &case.hi, &b, &case.points)
+                .unwrap_or_else(|e| panic!("{relaxation:?} {}: {e}", case.name));
+            if relaxation == Relaxation::SameSlope {
+                assert_eq!(b.a_lower, b.a_upper, "same-slope must share C");
+            }
+        });
+    }
+}
+
+/// Bounds 300 boxes of a `[3, 32, 32, 2]` network as one batch and compares the boxes at group
+/// boundaries with one-box calls: grouping may change the summation order only (relative `tol`).
+pub(crate) fn assert_batch_matches_single(methods: &[BoundMethod], tol: f64) {
+    let net = Mlp::random(&[3, 32, 32, 2], 11);
+    let mut rng = case_rng(5);
+    let (mut lo, mut hi) = (Vec::new(), Vec::new());
+    for k in 0..300 {
+        let (l, h) = random_box(&mut rng, 3, BoxKind::ALL[k % BoxKind::ALL.len()]);
+        lo.extend(l);
+        hi.extend(h);
+    }
+    let close = |a: &[f64], b: &[f64]| {
+        a.iter()
+            .zip(b)
+            .all(|(x, y)| (x - y).abs() <= tol * (1.0 + x.abs()))
+    };
+    for &method in methods {
+        let batch = network_bounds_batch(&net, &lo, &hi, method).unwrap();
+        assert_eq!(batch.len(), 300);
+        for k in [0, 1, 127, 128, 299] {
+            let (l, h) = (&lo[3 * k..3 * k + 3], &hi[3 * k..3 * k + 3]);
+            let one = network_bounds(&net, l, h, method).unwrap();
+            let b = batch.get(k).unwrap();
+            assert!(
+                close(&one.lower, &b.lower) && close(&one.upper, &b.upper),
+                "{method:?} box {k}"
+            );
+            assert!(
+                close(&one.a_lower, &b.a_lower) && close(&one.b_upper, &b.b_upper),
+                "{method:?} box {k}"
+            );
+        }
+    }
+}
+
 /// A double-double number `hi + lo`.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Dd(pub(crate) f64, pub(crate) f64);
@@ -222,6 +277,32 @@ pub(crate) fn dd_affine(a: &[f64], b: f64, x: &[f64]) -> Dd {
         .fold(Dd::from(b), |s, (&ai, &xi)| s.add(Dd::from(xi).mul_f64(ai)))
 }
 
+/// Why [`check_bounds`] failed.
+#[derive(Debug, thiserror::Error)]
+pub(crate) enum CheckError {
+    /// The bounds' dimensions differ from the network's.
+    #[error("bounds have the wrong shape")]
+    WrongShape,
+    /// A sample point lies outside the box.
+    #[error("sample {x:?} outside the box")]
+    SampleOutside { x: Vec<f64> },
+    /// A bound fails at a sample point.
+    #[error(
+        "{what} bound violated at x = {x:?}, output {output}: N(x) = {value:e}, bounds \
+         [{lower:e}, {upper:e}], forms [{form_lower:e}, {form_upper:e}]"
+    )]
+    Violated {
+        what: &'static str,
+        x: Vec<f64>,
+        output: usize,
+        value: f64,
+        lower: f64,
+        upper: f64,
+        form_lower: f64,
+        form_upper: f64,
+    },
+}
+
 /// Checks `lower ≤ N(x) ≤ upper` and both affine forms at every point (all in double-double).
 pub(crate) fn check_bounds(
     net: &Mlp,
@@ -229,17 +310,17 @@ pub(crate) fn check_bounds(
     hi: &[f64],
     b: &AffineBounds,
     points: &[Vec<f64>],
-) -> Result<(), String> {
+) -> Result<(), CheckError> {
     let (n, m) = (net.input_dim(), net.output_dim());
     if b.n_in != n || b.n_out != m || b.a_lower.len() != n * m || b.lower.len() != m {
-        return Err("bounds have the wrong shape".into());
+        return Err(CheckError::WrongShape);
     }
     for x in points {
         if x.iter()
             .zip(lo.iter().zip(hi))
             .any(|(v, (l, h))| v < l || v > h)
         {
-            return Err(format!("sample {x:?} outside the box"));
+            return Err(CheckError::SampleOutside { x: x.clone() });
         }
         let y = dd_forward(net, x);
         for o in 0..m {
@@ -254,11 +335,16 @@ pub(crate) fn check_bounds(
             ];
             for (ok, what) in checks {
                 if !ok {
-                    return Err(format!(
-                        "{what} bound violated at x = {x:?}, output {o}: N(x) = {:e}, bounds \
-                         [{:e}, {:e}], forms [{:e}, {:e}]",
-                        yo.0, b.lower[o], b.upper[o], fl.0, fu.0
-                    ));
+                    return Err(CheckError::Violated {
+                        what,
+                        x: x.clone(),
+                        output: o,
+                        value: yo.0,
+                        lower: b.lower[o],
+                        upper: b.upper[o],
+                        form_lower: fl.0,
+                        form_upper: fu.0,
+                    });
                 }
             }
         }

@@ -31,7 +31,7 @@ fn exact_div(a: f64, b: f64) -> Option<f64> {
     (q.is_finite() && exact).then_some(q)
 }
 
-/// `a^n` if every product of [`crate::intervals::pow_int`]'s chain is exact.
+/// `a^n` if every product of [`crate::rounding::pow_int`]'s chain is exact.
 fn exact_pow(a: f64, n: i32) -> Option<f64> {
     let mut acc = 1.0;
     for _ in 0..n.unsigned_abs().min(64) {

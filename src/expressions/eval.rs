@@ -1,7 +1,8 @@
 //! Point and interval evaluation: one rule per node.
 
 use super::{Func, Node};
-use crate::intervals::{pow_int, Interval};
+use crate::intervals::Interval;
+use crate::rounding::pow_int;
 
 /// `f(u)` for a one-argument function (NaN for `min`/`max`, which take two).
 pub(super) fn apply1(f: Func, u: f64) -> f64 {

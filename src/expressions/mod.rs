@@ -80,7 +80,7 @@ pub enum Node {
     Mul(Box<Node>, Box<Node>),
     /// `u / v`.
     Div(Box<Node>, Box<Node>),
-    /// `u^n`, integer `n` ([`crate::intervals::pow_int`]; `u⁰ = 1`).
+    /// `u^n`, integer `n` ([`crate::rounding::pow_int`]; `u⁰ = 1`).
     Pow(Box<Node>, i32),
     /// `f(args…)` with `args.len() == f.arity()`.
     Call(Func, Vec<Node>),

@@ -12,7 +12,8 @@
 //! columns, and for `μ₂` the Gershgorin bound of the symmetric part
 //! `maxᵢ(āᵢᵢ + ½Σ_{j≠i} mag(aᵢⱼ + aⱼᵢ))`, which bounds `λ_max((A + Aᵀ)/2)`.
 
-use crate::intervals::{round_up, Interval};
+use crate::intervals::Interval;
+use crate::rounding::round_up;
 use crate::scenario::Norm;
 
 /// An upper bound on `μ(A)` over every `A` in the interval matrix `a` (n×n, row-major).

@@ -16,7 +16,8 @@
 //! constraint that is also an edge of `C`, the over-approximation pokes out of `C` and the
 //! result would be invalid, although the true set never leaves `S`.
 
-use crate::intervals::{div_down, div_up, Interval};
+use crate::intervals::Interval;
+use crate::rounding::{div_down, div_up};
 use crate::scenario::Scenario;
 
 use super::Transform;

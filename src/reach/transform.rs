@@ -16,8 +16,9 @@ use nalgebra::{DMatrix, DVector};
 use crate::boxes::IntervalBox;
 use crate::expressions::Expr;
 use crate::filter::SafetyFilter;
-use crate::intervals::{round_up, Interval};
+use crate::intervals::Interval;
 use crate::network::Mlp;
+use crate::rounding::round_up;
 use crate::scenario::{Scenario, TransformChoice};
 
 /// A change of coordinates `z = T x`, `x = S z`.
