@@ -20,8 +20,8 @@ use super::{Backend, ExactField, ReachError, ReachMethod, ReachProblem, ReachRes
 use super::{ReachSettings, ReachTiming, Tube, TubeSample};
 use crate::bounds::{AffineBoundsBatch, BoundsWorkspace, PreparedNetwork};
 use crate::boxes::IntervalBox;
+use crate::filter::FilterPiece;
 use crate::intervals::{round_up, Interval};
-use crate::surrogate_error::FilterPiece;
 
 /// The CPU engine.
 #[derive(Clone, Copy, Debug, Default)]
