@@ -15,6 +15,7 @@ pub mod boxes;
 pub mod dataset;
 pub mod equilibria;
 pub mod error;
+pub mod error_map;
 pub mod expressions;
 pub mod filter;
 pub mod gpu;

@@ -25,10 +25,10 @@ use plotters::prelude::*;
 
 use crate::boxes::IntervalBox;
 use crate::equilibria::{Equilibrium, Stability};
+use crate::error_map::ErrorMap;
 use crate::reach::Tube;
 use crate::scenario::Scenario;
 use crate::simulate::Trajectory;
-use crate::surrogate_error::ErrorMap;
 use crate::verify::{Verdict, VerifyReport};
 
 const FONT: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");

@@ -462,7 +462,7 @@ fn plot_error_map_reads_the_map_beside_the_network_or_the_given_one() {
 /// to read `M_C`; anything else is refused with the accepted forms.
 #[test]
 fn m_c_flag_takes_a_number_or_reads_the_error_map() {
-    use cbfreach::surrogate_error::ErrorMap;
+    use cbfreach::error_map::ErrorMap;
     let map = ErrorMap::load_for(&common::scenario_path("integrator.safetensors")).unwrap();
     let scenario = common::scenario_path("integrator.toml");
     let tmp = tempfile::tempdir().unwrap();

@@ -3,7 +3,7 @@
 mod common;
 
 use cbfreach::dataset::{filter_dataset, Slopes};
-use cbfreach::filter::{FilterError, FilterMethod, SafetyFilter};
+use cbfreach::filter::{FilterError, FilterMethod, FilterStatus, Infeasibility, SafetyFilter};
 use cbfreach::simulate::sample_box;
 use common::{double_integrator, from_text, integrator, SMALL};
 
@@ -158,7 +158,9 @@ fn infeasible_qp_is_reported_not_zeroed() {
         match f.eval(&x) {
             Err(FilterError::Infeasible { x: at, reason }) => {
                 assert_eq!(at, x.to_vec());
-                assert!(!reason.is_empty());
+                assert!(!reason.to_string().is_empty());
+                // The same answer as a status of the solve, not a failure.
+                assert_eq!(f.solve(&x), Ok(FilterStatus::Infeasible(reason)));
             }
             other => panic!("{:?}: expected Infeasible, got {other:?}", f.method()),
         }
@@ -169,6 +171,19 @@ fn infeasible_qp_is_reported_not_zeroed() {
         SafetyFilter::new(&s).eval(&[0.0, 0.0]),
         Err(FilterError::Infeasible { .. })
     ));
+    assert!(matches!(
+        SafetyFilter::new(&s).solve(&[0.0, 0.0]),
+        Ok(FilterStatus::Infeasible(Infeasibility::NoInputOnRow { b, .. })) if b < 0.0
+    ));
+    let text = SafetyFilter::new(&s)
+        .eval(&[0.0, 0.0])
+        .unwrap_err()
+        .to_string();
+    assert!(
+        text.starts_with("the filter's QP is infeasible at x = [0.0, 0.0]: `")
+            && text.ends_with("≥ 0 but the input cannot act on it (L_g h = 0)"),
+        "{text}"
+    );
 }
 
 #[test]

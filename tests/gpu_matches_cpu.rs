@@ -728,8 +728,8 @@ fn cli_backend_gpu_and_auto() {
     );
     // Local error margins and face-local bounds run on the GPU (the map beside the network).
     let mut map = small_error_map(&integrator().reach.region);
-    map.network_hash = cbfreach::surrogate_error::fnv1a_hex(&std::fs::read(&net_path).unwrap());
-    map.save(&cbfreach::surrogate_error::error_map_path(&net_path))
+    map.network_hash = cbfreach::error_map::fnv1a_hex(&std::fs::read(&net_path).unwrap());
+    map.save(&cbfreach::error_map::error_map_path(&net_path))
         .unwrap();
     let (ok, text) = run(&[
         "--backend",
@@ -880,7 +880,7 @@ fn face_local_matches_cpu() {
 /// A certified-looking error map over a region: 8 × 6 cells (of width 1 on scenario 1's region)
 /// with bounds between 0.01 and 0.03, and no certified bound (+∞) on cell (4, 2) (scenario 1:
 /// `[0.5, 1.5] × [-0.5, 0.5]`).
-fn small_error_map(region: &IntervalBox) -> cbfreach::surrogate_error::ErrorMap {
+fn small_error_map(region: &IntervalBox) -> cbfreach::error_map::ErrorMap {
     let mut cells = Vec::new();
     let w = [
         (region.upper[0] - region.lower[0]) / 8.0,
@@ -980,7 +980,7 @@ fn shipped_error_map_face_local_matches_cpu() {
     let Some(gpu32) = gpu() else { return };
     let s = integrator();
     let net = Mlp::load_safetensors(&common::scenario_path("integrator.safetensors")).unwrap();
-    let map = cbfreach::surrogate_error::ErrorMap::load(&common::scenario_path(
+    let map = cbfreach::error_map::ErrorMap::load(&common::scenario_path(
         "integrator.errormap.json",
     ))
     .unwrap();

@@ -11,14 +11,15 @@ use std::sync::OnceLock;
 use cbfreach::bounds::{BoundMethod, PreparedNetwork};
 use cbfreach::boxes::IntervalBox;
 use cbfreach::dataset::{filter_dataset, grid_points, Slopes};
-use cbfreach::filter::{FilterMethod, SafetyFilter};
+use cbfreach::error_map::{error_map_path, resolve_margin, CellBound, ErrorMap};
+use cbfreach::filter::{v_enclosure, FilterMethod, SafetyFilter, VForms};
 use cbfreach::network::train::{train, TrainSettings};
 use cbfreach::network::Mlp;
 use cbfreach::scenario::{Margin, Scenario};
 use cbfreach::surrogate_error::{
-    cell_error_bound_mv, centred_grid, certify, error_map_path, looseness, measure,
-    measurement_counts, measurement_points, proven_unsafe, resolve_margin, v_enclosure, CellBound,
-    Certified, ErrorMap, ErrorSettings, Measured, Percentiles, VForms, WITNESS_CELLS,
+    cell_error_bound_mv, centred_grid, certify, looseness, measure, measurement_counts,
+    measurement_points, proven_unsafe, Certified, ErrorSettings, Measured, Percentiles,
+    WITNESS_CELLS,
 };
 use tempfile::TempDir;
 

@@ -253,7 +253,7 @@ fn verified_boxes_agree_with_dense_simulation() {
 #[test]
 fn gpu_and_cpu_give_the_paper_boxes_the_same_verdicts() {
     use cbfreach::gpu::{GpuBackend, GpuContext, Precision};
-    use cbfreach::surrogate_error::ErrorMap;
+    use cbfreach::error_map::ErrorMap;
     use cbfreach::verify::judge;
     let require = std::env::var("CBFREACH_REQUIRE_GPU").is_ok_and(|v| v == "1");
     let gpu = GpuContext::new()

@@ -4,9 +4,10 @@
 use std::path::PathBuf;
 
 use cbfreach::bounds::BoundMethod;
+use cbfreach::error_map::{error_map_path, ErrorMap};
 use cbfreach::surrogate_error::{
-    certify, error_map_path, looseness, measure, ErrorMap, ErrorSettings, Looseness, Percentiles,
-    SlopeByCurvature, CURVATURE_BANDS, WITNESS_CELLS,
+    certify, looseness, measure, ErrorSettings, Looseness, Percentiles, SlopeByCurvature,
+    CURVATURE_BANDS, WITNESS_CELLS,
 };
 use serde::Serialize;
 

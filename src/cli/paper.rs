@@ -6,12 +6,12 @@ use std::time::Instant;
 
 use cbfreach::bounds::BoundMethod;
 use cbfreach::equilibria::{find_equilibria, Equilibrium, EquilibriumSearch};
+use cbfreach::error_map::ErrorMap;
 use cbfreach::filter::SafetyFilter;
 use cbfreach::plot::{self, Figure};
 use cbfreach::reach::Tube;
 use cbfreach::reach::{CpuBackend, ExactField, ReachMethod, ReachProblem, ReachSettings};
 use cbfreach::scenario::{Margin, Scenario};
-use cbfreach::surrogate_error::ErrorMap;
 use cbfreach::verify::{
     judge, traps_from_equilibria, BoxVerdict, Trap, Verdict, Verifier, VerifySettings,
 };

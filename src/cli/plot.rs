@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 use cbfreach::bounds::BoundMethod;
 use cbfreach::boxes::IntervalBox;
 use cbfreach::equilibria::{find_equilibria, EquilibriumSearch};
+use cbfreach::error_map::{error_map_path, ErrorMap};
 use cbfreach::filter::SafetyFilter;
 use cbfreach::plot::{self, Figure};
 use cbfreach::reach::{
@@ -12,7 +13,6 @@ use cbfreach::reach::{
 };
 use cbfreach::scenario::Scenario;
 use cbfreach::simulate::{sample_box, simulate_filtered, Integrator, Trajectory};
-use cbfreach::surrogate_error::{error_map_path, ErrorMap};
 use cbfreach::verify::VerifyReport;
 
 use super::reach::{compile, network_path, ProblemArgs};

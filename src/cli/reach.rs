@@ -190,7 +190,7 @@ pub fn compile(
     if !local {
         return Ok(problem);
     }
-    let map = cbfreach::surrogate_error::ErrorMap::load_for(&path).map_err(|e| {
+    let map = cbfreach::error_map::ErrorMap::load_for(&path).map_err(|e| {
         format!(
             "local error margins: {e} (run `cbfreach error {}` first)",
             s.file
@@ -254,7 +254,7 @@ pub fn resolve_margin(
     network: &std::path::Path,
 ) -> Result<f64, String> {
     let margin = flag.unwrap_or(s.reach.m_c);
-    cbfreach::surrogate_error::margin_value(margin, network).map_err(|e| {
+    cbfreach::error_map::margin_value(margin, network).map_err(|e| {
         let source = match flag {
             Some(_) => "--m-c".to_string(),
             None => format!("{}: reach.m_c", s.file),

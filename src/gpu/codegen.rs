@@ -14,12 +14,11 @@ use std::fmt::Write;
 use super::margins::MarginMap;
 use super::{GpuError, Precision};
 use crate::expressions::{Expr, Func, Node};
-use crate::filter::FilterMethod;
+use crate::filter::{row_expressions, FilterMethod, Smooth};
 use crate::intervals::Interval;
 use crate::reach::safe_set::{SafeHalfspace, Tightening};
 use crate::reach::{ExactField, ReachMethod, ReachProblem, ReachSettings, SafeSet};
 use crate::scenario::Norm;
-use crate::surrogate_error::{row_expressions, Smooth};
 
 /// The largest f32 the shaders treat as a number (`HUGE` in `common.wgsl`).
 const HUGE: f32 = 3.0e38;

@@ -1,7 +1,7 @@
 //! Local error margins on the device (`--local-margin`, DESIGN §2b): the error map's cells and a
 //! bucket index over its region, uploaded once, so that the embedding kernel
 //! (`local_margin` in `shaders/embed.wgsl`) takes per box and step the same maximum as
-//! [`crate::surrogate_error::ErrorMap::local_bound`] on the CPU: `M = max { M_c : c meets the
+//! [`crate::error_map::ErrorMap::local_bound`] on the CPU: `M = max { M_c : c meets the
 //! set's x-bounding box }` over the map's closed cells `c` (`+∞` where a cell met has no
 //! certified bound, and for a box outside the map's region).
 //!
@@ -41,8 +41,8 @@ use std::fmt::Write;
 
 use super::codegen::{real_literal, round_down, round_up};
 use super::Precision;
+use crate::error_map::ErrorMap;
 use crate::reach::{ReachMethod, ReachProblem, ReachSettings};
-use crate::surrogate_error::ErrorMap;
 
 /// Most buckets per axis, and in all.
 const MAX_PER_AXIS: usize = 1024;

@@ -20,9 +20,9 @@ use super::{Backend, ExactField, ReachError, ReachMethod, ReachProblem, ReachRes
 use super::{ReachSettings, ReachTiming, Tube, TubeSample};
 use crate::bounds::{AffineBoundsBatch, BoundsWorkspace, PreparedNetwork};
 use crate::boxes::IntervalBox;
+use crate::filter::FilterPiece;
 use crate::intervals::Interval;
 use crate::rounding::round_up;
-use crate::surrogate_error::FilterPiece;
 
 /// The CPU engine.
 #[derive(Clone, Copy, Debug, Default)]

@@ -184,7 +184,7 @@ pub struct ReachProblem {
     pub m_c: f64,
     /// Certified per-cell error bounds (`cbfreach error`): when present the disturbance method
     /// uses the bound over the cells that the current set meets (a local `M`) instead of `m_c`.
-    pub error_map: Option<crate::surrogate_error::ErrorMap>,
+    pub error_map: Option<crate::error_map::ErrorMap>,
     /// Coordinates `z = T x` the embedding runs in (`None`: x itself).
     pub transform: Option<Transform>,
     /// Extra input disturbance from rounding `W₁S` in the transformed network.
@@ -359,7 +359,7 @@ impl ReachProblem {
     /// method); the map must cover `C`.
     pub fn with_error_map(
         mut self,
-        map: crate::surrogate_error::ErrorMap,
+        map: crate::error_map::ErrorMap,
     ) -> Result<ReachProblem, ReachError> {
         if map.certified_linf.is_none() || !self.region.is_subset_of(&map.region) {
             return Err(ReachError::Settings(

@@ -27,9 +27,9 @@ use super::embedding::Dynamics;
 use super::transform::Transform;
 use crate::boxes::IntervalBox;
 use crate::expressions::Expr;
+use crate::filter::{row_expressions, FilterPiece, VForms};
 use crate::intervals::Interval;
 use crate::scenario::Scenario;
-use crate::surrogate_error::{row_expressions, FilterPiece, VForms};
 
 /// Bisections [`FilterPieces::proves_feasible`] tries below a box (at most `2⁶` leaves: sets
 /// that straddle a zero of some `aₖ`, as scenario 2's near (3.2, 0), need pieces that do not).
@@ -235,8 +235,8 @@ fn magnitude(v: Interval) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::filter::interval_rows;
     use crate::filter::SafetyFilter;
-    use crate::surrogate_error::interval_rows;
     use rand::{Rng, SeedableRng};
 
     fn around(c: [f64; 2], r: f64) -> IntervalBox {

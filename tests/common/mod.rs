@@ -3,10 +3,10 @@
 
 use std::path::{Path, PathBuf};
 
+use cbfreach::error_map::ErrorMap;
 use cbfreach::network::Mlp;
 use cbfreach::reach::{ReachProblem, Transform};
 use cbfreach::scenario::Scenario;
-use cbfreach::surrogate_error::ErrorMap;
 
 /// Path of a shipped scenario file.
 pub fn scenario_path(name: &str) -> PathBuf {

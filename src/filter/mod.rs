@@ -1,4 +1,7 @@
-//! The ground-truth safety filter `v(x)` (DESIGN §1).
+//! The ground-truth safety filter `v(x)` (DESIGN §1): its constraint rows, its exact solution
+//! (closed forms or clarabel, infeasibility as a [`FilterStatus`]) and enclosures of `v` over
+//! boxes ([`VForms`], [`v_enclosure`]). It may import the scenario, expressions, intervals and
+//! boxes (and clarabel, nalgebra); not the network, its bounds, the engines or the error analysis.
 //!
 //! ```text
 //! v(x) = argmin_θ ½‖θ‖²
@@ -11,14 +14,21 @@
 //! With one row the solution is the projection of 0 onto a half-space,
 //! `v = min(0, b)/‖a‖² · a`, which is the paper's `max(0, −(L_f̃h + α(h)))/‖L_g h‖² · L_g hᵀ`;
 //! with a scalar input it is 0 clamped to the interval the rows leave; otherwise clarabel
-//! solves the QP. An empty feasible set is reported as [`FilterError::Infeasible`].
+//! solves the QP. An empty feasible set is the status [`FilterStatus::Infeasible`] of
+//! [`SafetyFilter::solve`], and [`FilterError::Infeasible`] where a value of `v` is needed.
 
-use clarabel::algebra::CscMatrix;
-use clarabel::solver::{
-    DefaultSettingsBuilder, DefaultSolver, IPSolver, SolverStatus, SupportedConeT,
-};
+mod enclosures;
+mod rows;
+mod solve;
+
+use std::fmt;
 
 use crate::scenario::Scenario;
+
+pub use enclosures::{v_enclosure, FilterPiece, Smooth, SmoothV, VFormParts, VForms};
+pub use rows::{interval_rows, row_expressions};
+
+pub(crate) use enclosures::meet;
 
 /// Why `v(x)` could not be computed at a point.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -29,7 +39,7 @@ pub enum FilterError {
         /// The state.
         x: Vec<f64>,
         /// Which constraints conflict, as far as known.
-        reason: String,
+        reason: Infeasibility,
     },
     /// A CBF's gradient (or a constraint) is not defined at `x`.
     #[error("{what} is not differentiable (or not defined) at x = {x:?}")]
@@ -47,6 +57,82 @@ pub enum FilterError {
         /// The state.
         x: Vec<f64>,
     },
+}
+
+/// The outcome of solving the filter's QP at one point. As with clarabel's `SolverStatus`, an
+/// empty feasible set is an answer about the problem, not a failure of the solver.
+#[derive(Debug, Clone, PartialEq)]
+pub enum FilterStatus {
+    /// The minimiser `θ = v(x)`.
+    Solved(Vec<f64>),
+    /// No `θ` satisfies the constraints.
+    Infeasible(Infeasibility),
+}
+
+/// Which constraints leave no `θ`, as far as the method that found it knows.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Infeasibility {
+    /// The single row needs `b ≥ 0` but its `a = −L_g h` vanishes: no input acts on it.
+    NoInputOnRow {
+        /// The row's label.
+        row: String,
+        /// Its `b` (negative).
+        b: f64,
+    },
+    /// A row of a scalar-input filter needs `b ≥ 0` but its `a` vanishes.
+    NoInput {
+        /// The row's label.
+        row: String,
+        /// Its `b` (negative).
+        b: f64,
+    },
+    /// Two rows of a scalar-input filter bound `θ` past each other: `lower > upper`.
+    Conflict {
+        /// The row that needs `θ ≥ lower`.
+        lower_row: String,
+        /// Its bound.
+        lower: f64,
+        /// The row that needs `θ ≤ upper`.
+        upper_row: String,
+        /// Its bound.
+        upper: f64,
+    },
+    /// clarabel certifies that the rows (all of them, by label) have no common point.
+    Incompatible {
+        /// Every row's label.
+        rows: Vec<String>,
+    },
+}
+
+impl fmt::Display for Infeasibility {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Infeasibility::NoInputOnRow { row, b } => write!(
+                f,
+                "`{row}` needs {b:.3e} ≥ 0 but the input cannot act on it (L_g h = 0)"
+            ),
+            Infeasibility::NoInput { row, b } => {
+                write!(
+                    f,
+                    "`{row}` needs {b:.3e} ≥ 0 but the input cannot act on it"
+                )
+            }
+            Infeasibility::Conflict {
+                lower_row,
+                lower,
+                upper_row,
+                upper,
+            } => write!(
+                f,
+                "`{lower_row}` needs θ ≥ {lower:.6} but `{upper_row}` needs θ ≤ {upper:.6}"
+            ),
+            Infeasibility::Incompatible { rows } => write!(
+                f,
+                "clarabel certifies that {} are incompatible",
+                rows.join(", ")
+            ),
+        }
+    }
 }
 
 /// How `v(x)` is computed.
@@ -77,9 +163,6 @@ pub struct SafetyFilter<'a> {
     scenario: &'a Scenario,
     method: FilterMethod,
 }
-
-/// Rows whose `‖aₖ‖²` is below this are treated as `θ`-free (`0 ≤ bₖ`).
-const DEGENERATE_ROW: f64 = 1e-24;
 
 impl<'a> SafetyFilter<'a> {
     /// The filter with the cheapest exact method for the scenario's structure.
@@ -170,14 +253,26 @@ impl<'a> SafetyFilter<'a> {
         Ok(rows)
     }
 
-    /// `v(x)`.
-    pub fn eval(&self, x: &[f64]) -> Result<Vec<f64>, FilterError> {
+    /// The filter's QP at `x`: solved, or infeasible (and which rows conflict). An error only
+    /// when the rows cannot be evaluated or clarabel fails.
+    pub fn solve(&self, x: &[f64]) -> Result<FilterStatus, FilterError> {
         let rows = self.constraint_rows(x)?;
         let m = self.scenario.m();
-        match self.method {
-            FilterMethod::ClosedFormSingle => project_half_space(&rows, m, x),
-            FilterMethod::ClosedFormScalar => clamp_scalar(&rows, x),
-            FilterMethod::Qp => solve_qp(&rows, m, x),
+        Ok(match self.method {
+            FilterMethod::ClosedFormSingle => solve::project_half_space(&rows, m),
+            FilterMethod::ClosedFormScalar => solve::clamp_scalar(&rows),
+            FilterMethod::Qp => solve::solve_qp(&rows, m, x)?,
+        })
+    }
+
+    /// `v(x)`; an infeasible QP is [`FilterError::Infeasible`] here.
+    pub fn eval(&self, x: &[f64]) -> Result<Vec<f64>, FilterError> {
+        match self.solve(x)? {
+            FilterStatus::Solved(v) => Ok(v),
+            FilterStatus::Infeasible(reason) => Err(FilterError::Infeasible {
+                x: x.to_vec(),
+                reason,
+            }),
         }
     }
 
@@ -272,167 +367,4 @@ fn central_jacobian(
         }
     }
     Ok(jac)
-}
-
-/// One row `a·θ ≤ b`: `θ = 0` when `b ≥ 0`, else the projection `b a / ‖a‖²`.
-fn project_half_space(rows: &ConstraintRows, m: usize, x: &[f64]) -> Result<Vec<f64>, FilterError> {
-    let a = &rows.g[..m];
-    let b = rows.q[0];
-    if b >= 0.0 {
-        return Ok(vec![0.0; m]);
-    }
-    let norm2: f64 = a.iter().map(|v| v * v).sum();
-    if norm2 <= DEGENERATE_ROW {
-        return Err(FilterError::Infeasible {
-            x: x.to_vec(),
-            reason: format!(
-                "`{}` needs {b:.3e} ≥ 0 but the input cannot act on it (L_g h = 0)",
-                rows.labels[0]
-            ),
-        });
-    }
-    Ok(a.iter().map(|ai| b * ai / norm2).collect())
-}
-
-/// Scalar input: each row bounds `θ` from one side; `θ = clamp(0, lo, hi)`.
-fn clamp_scalar(rows: &ConstraintRows, x: &[f64]) -> Result<Vec<f64>, FilterError> {
-    let (mut lo, mut hi) = (f64::NEG_INFINITY, f64::INFINITY);
-    let (mut lo_label, mut hi_label) = ("", "");
-    for ((&a, &b), label) in rows.g.iter().zip(&rows.q).zip(&rows.labels) {
-        if a * a <= DEGENERATE_ROW {
-            if b < 0.0 {
-                return Err(FilterError::Infeasible {
-                    x: x.to_vec(),
-                    reason: format!("`{label}` needs {b:.3e} ≥ 0 but the input cannot act on it"),
-                });
-            }
-        } else if a > 0.0 {
-            if b / a < hi {
-                hi = b / a;
-                hi_label = label;
-            }
-        } else if b / a > lo {
-            lo = b / a;
-            lo_label = label;
-        }
-    }
-    if lo > hi {
-        return Err(FilterError::Infeasible {
-            x: x.to_vec(),
-            reason: format!("`{lo_label}` needs θ ≥ {lo:.6} but `{hi_label}` needs θ ≤ {hi:.6}"),
-        });
-    }
-    Ok(vec![0.0_f64.clamp(lo, hi)])
-}
-
-/// The exact minimiser, from the active sets that clarabel's answer makes plausible.
-///
-/// Candidates are the rows that are nearly tight at clarabel's `θ` or carry a multiplier; every
-/// subset `A` of at most m of them gives a candidate from [`kkt_point`], and the unique KKT
-/// point is the one with multipliers `μ ≥ 0` that satisfies every row. `None` if no subset qualifies (then
-/// clarabel's own answer, accurate to its tolerance, is used).
-fn polish(rows: &ConstraintRows, m: usize, x: &[f64], z: &[f64]) -> Option<Vec<f64>> {
-    let k = rows.q.len();
-    let slack = |k: usize| rows.q[k] - (0..m).map(|j| rows.g[k * m + j] * x[j]).sum::<f64>();
-    let candidates: Vec<usize> = (0..k)
-        .filter(|&r| z[r] > 1e-9 || slack(r) <= 1e-6 * rows.q[r].abs().max(1.0))
-        .collect();
-    if candidates.len() > 12 {
-        return None;
-    }
-    let mut best: Option<Vec<f64>> = None;
-    for mask in 0u32..(1 << candidates.len()) {
-        if mask.count_ones() as usize > m {
-            continue;
-        }
-        let active: Vec<usize> = (0..candidates.len())
-            .filter(|b| mask >> b & 1 == 1)
-            .map(|b| candidates[b])
-            .collect();
-        let Some(theta) = kkt_point(rows, m, &active) else {
-            continue;
-        };
-        let holds = (0..k).all(|r| {
-            let lhs: f64 = (0..m).map(|j| rows.g[r * m + j] * theta[j]).sum();
-            lhs <= rows.q[r] + 1e-10 * rows.q[r].abs().max(1.0)
-        });
-        let norm = |t: &[f64]| t.iter().map(|v| v * v).sum::<f64>();
-        if holds && best.as_ref().is_none_or(|b| norm(&theta) < norm(b)) {
-            best = Some(theta);
-        }
-    }
-    best
-}
-
-/// The KKT point for the active set `A`: stationarity `θ = −G_Aᵀ μ` and `G_A θ = q_A` give
-/// `μ = −(G_A G_Aᵀ)⁻¹ q_A`, which must be `≥ 0`; `None` otherwise.
-fn kkt_point(rows: &ConstraintRows, m: usize, active: &[usize]) -> Option<Vec<f64>> {
-    if active.is_empty() {
-        return Some(vec![0.0; m]);
-    }
-    let ga = nalgebra::DMatrix::from_fn(active.len(), m, |r, j| rows.g[active[r] * m + j]);
-    let qa = nalgebra::DVector::from_iterator(active.len(), active.iter().map(|&r| rows.q[r]));
-    let mu = -(&ga * ga.transpose()).lu().solve(&qa)?;
-    if !mu.iter().all(|l| *l >= 0.0) {
-        return None;
-    }
-    Some((-(ga.transpose() * mu)).iter().copied().collect())
-}
-
-/// The general QP `min ½‖θ‖² s.t. G θ ≤ q` by clarabel.
-fn solve_qp(rows: &ConstraintRows, m: usize, x: &[f64]) -> Result<Vec<f64>, FilterError> {
-    let k = rows.q.len();
-    if k == 0 {
-        return Ok(vec![0.0; m]);
-    }
-    let p = CscMatrix::identity(m);
-    // G in compressed-column form, every entry stored (the problems are tiny and dense).
-    let colptr = (0..=m).map(|j| j * k).collect();
-    let rowval = (0..m).flat_map(|_| 0..k).collect();
-    let nzval = (0..m)
-        .flat_map(|j| (0..k).map(move |i| rows.g[i * m + j]))
-        .collect();
-    let a = CscMatrix::new(k, m, colptr, rowval, nzval);
-    let cones = [SupportedConeT::NonnegativeConeT(k)];
-    let settings = DefaultSettingsBuilder::default()
-        .verbose(false)
-        .tol_gap_abs(1e-10)
-        .tol_gap_rel(1e-10)
-        .tol_feas(1e-10)
-        .build()
-        .map_err(|e| FilterError::Solver {
-            status: format!("settings: {e}"),
-            x: x.to_vec(),
-        })?;
-    let q = vec![0.0; m];
-    let mut solver = DefaultSolver::new(&p, &q, &a, &rows.q, &cones, settings).map_err(|e| {
-        FilterError::Solver {
-            status: format!("setup: {e}"),
-            x: x.to_vec(),
-        }
-    })?;
-    solver.solve();
-    let sol = &solver.solution;
-    match sol.status {
-        SolverStatus::Solved | SolverStatus::AlmostSolved | SolverStatus::InsufficientProgress
-            if sol.x.iter().all(|v| v.is_finite()) =>
-        {
-            // Interior-point answers are accurate to the tolerance; the active set they reveal
-            // gives the exact minimiser, which we keep when it passes the KKT conditions.
-            Ok(polish(rows, m, &sol.x, &sol.z).unwrap_or_else(|| sol.x.clone()))
-        }
-        SolverStatus::PrimalInfeasible | SolverStatus::AlmostPrimalInfeasible => {
-            Err(FilterError::Infeasible {
-                x: x.to_vec(),
-                reason: format!(
-                    "clarabel certifies that {} are incompatible",
-                    rows.labels.join(", ")
-                ),
-            })
-        }
-        status => Err(FilterError::Solver {
-            status: format!("{status:?}"),
-            x: x.to_vec(),
-        }),
-    }
 }

@@ -1,0 +1,494 @@
+//! The error map: certified per-cell bounds of `‖N − v‖∞` for one network, stored beside it
+//! (`<network stem>.errormap.json`, [`error_map_path`]), so that reachability can use a local
+//! bound over the cells that a box meets ([`ErrorMap::local_bound`]) instead of the global
+//! `M_C`; [`resolve_margin`] turns a scenario's `m_c = "certified"` / `"measured"` into a number.
+//! It may import boxes and the scenario; not the error analysis that writes the maps
+//! (`surrogate_error`), so that the engines read them without it.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::boxes::IntervalBox;
+use crate::scenario::{Margin, Scenario};
+
+/// Why an error map could not be read, written or used.
+#[derive(Debug, thiserror::Error)]
+pub enum ErrorMapError {
+    /// Reading or writing a file failed.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// An error map file is not valid.
+    #[error("{path}: not a valid error map: {message}")]
+    Format {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+    /// The error map was computed for another network (its file changed since).
+    #[error("{path} was computed for another version of {network} (run `cbfreach error` again)")]
+    StaleMap {
+        /// The error map.
+        path: PathBuf,
+        /// The network file.
+        network: PathBuf,
+    },
+    /// The map has no certified bound (the filter is a general QP).
+    #[error("{path} holds no certified bound (the scenario's filter has no closed form); use a number or \"measured\"")]
+    NotCertified {
+        /// The error map.
+        path: PathBuf,
+    },
+    /// A box that the map does not cover.
+    #[error("box {lower:?}..{upper:?} is not inside the mapped region {region_lower:?}..{region_upper:?}")]
+    OutsideMap {
+        /// The box's lower corner.
+        lower: Vec<f64>,
+        /// The box's upper corner.
+        upper: Vec<f64>,
+        /// The region's lower corner.
+        region_lower: Vec<f64>,
+        /// The region's upper corner.
+        region_upper: Vec<f64>,
+    },
+}
+
+/// One cell of an error map and its certified bound.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CellBound {
+    /// Lower corner.
+    pub lower: Vec<f64>,
+    /// Upper corner.
+    pub upper: Vec<f64>,
+    /// `sup ‖N(x) − v(x)‖∞` over `cell ∩ S` is at most this (+∞, written `"inf"`, when
+    /// nothing could be certified on the cell).
+    #[serde(with = "inf_as_string")]
+    pub bound: f64,
+}
+
+impl CellBound {
+    /// Whether the (closed) cell meets the (closed) box.
+    pub fn meets(&self, b: &IntervalBox) -> bool {
+        (0..self.lower.len()).all(|i| self.lower[i] <= b.upper[i] && b.lower[i] <= self.upper[i])
+    }
+}
+
+/// The certified per-cell error bounds of one network, stored beside it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ErrorMap {
+    /// Format tag, `cbfreach-errormap-1`.
+    pub format: String,
+    /// The network file's name (informational).
+    pub network: String,
+    /// FNV-1a 64 of the network file's bytes, hex: a map for another file is refused.
+    pub network_hash: String,
+    /// The mapped region `C`.
+    pub region: IntervalBox,
+    /// The norm of the bounds (`inf`).
+    pub norm: String,
+    /// Measured `max ‖N − v‖∞` over a grid of `C ∩ S`.
+    pub measured_linf: f64,
+    /// Measured `max ‖N − v‖₂`.
+    pub measured_l2: f64,
+    /// The certified global bound (max over the cells; `"inf"` when some cell could not be
+    /// certified), `None` for a QP filter.
+    #[serde(with = "opt_inf_as_string")]
+    pub certified_linf: Option<f64>,
+    /// Kept cells with their bounds; cells of `region` not listed were proven to miss `S`
+    /// (where the filtered system never goes), so they contribute nothing.
+    pub cells: Vec<CellBound>,
+    /// Buckets of cells for [`ErrorMap::local_bound`], built on first use (not serialised; a
+    /// map whose `cells` are changed afterwards must be rebuilt with [`ErrorMap::reindexed`]).
+    #[serde(skip)]
+    index: LazyIndex,
+}
+
+/// The lazily built [`CellIndex`]; a cache, so it takes no part in equality.
+#[derive(Clone, Debug, Default)]
+struct LazyIndex(std::sync::OnceLock<CellIndex>);
+
+impl PartialEq for LazyIndex {
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
+}
+
+/// A uniform grid of buckets over the mapped region, each listing the cells whose closed extent
+/// meets it (so two closed boxes that meet share a bucket: the bucket of a common point, since
+/// the bucket index `⌊(x − l)/h⌋`, clamped, is monotone in `x` in floating point too).
+#[derive(Clone, Debug, Default)]
+struct CellIndex {
+    counts: Vec<usize>,
+    lower: Vec<f64>,
+    step: Vec<f64>,
+    /// Bucket `k` (row-major, axis 0 slowest) lists `cells[start[k]..start[k + 1]]`.
+    start: Vec<u32>,
+    cells: Vec<u32>,
+}
+
+impl CellIndex {
+    fn build(region: &IntervalBox, cells: &[CellBound]) -> CellIndex {
+        let n = region.dim();
+        let per_axis =
+            ((cells.len().max(1) as f64).powf(1.0 / n as f64).ceil() as usize).clamp(1, 512);
+        let counts = vec![per_axis; n];
+        let step: Vec<f64> = (0..n)
+            .map(|i| ((region.upper[i] - region.lower[i]) / per_axis as f64).max(f64::MIN_POSITIVE))
+            .collect();
+        let mut idx = CellIndex {
+            counts,
+            lower: region.lower.clone(),
+            step,
+            start: Vec::new(),
+            cells: Vec::new(),
+        };
+        let total: usize = idx.counts.iter().product();
+        let mut lists: Vec<Vec<u32>> = vec![Vec::new(); total];
+        for (k, c) in cells.iter().enumerate() {
+            idx.for_each_bucket(&c.lower, &c.upper, |b| lists[b].push(k as u32));
+        }
+        idx.start.push(0);
+        for l in lists {
+            idx.cells.extend(l);
+            idx.start.push(idx.cells.len() as u32);
+        }
+        idx
+    }
+
+    fn bucket(&self, i: usize, x: f64) -> usize {
+        let t = ((x - self.lower[i]) / self.step[i]).floor();
+        if t.is_nan() || t < 0.0 {
+            0
+        } else {
+            (t as usize).min(self.counts[i] - 1)
+        }
+    }
+
+    fn for_each_bucket(&self, lower: &[f64], upper: &[f64], mut f: impl FnMut(usize)) {
+        let n = self.counts.len();
+        let lo: Vec<usize> = (0..n).map(|i| self.bucket(i, lower[i])).collect();
+        let hi: Vec<usize> = (0..n).map(|i| self.bucket(i, upper[i])).collect();
+        let mut at = lo.clone();
+        loop {
+            let k = (0..n).fold(0, |acc, i| acc * self.counts[i] + at[i]);
+            f(k);
+            let mut i = n;
+            loop {
+                if i == 0 {
+                    return;
+                }
+                i -= 1;
+                if at[i] < hi[i] {
+                    at[i] += 1;
+                    break;
+                }
+                at[i] = lo[i];
+            }
+        }
+    }
+}
+
+/// JSON has no ∞: a non-finite bound is written as the string `"inf"`.
+mod inf_as_string {
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    #[derive(Deserialize)]
+    #[serde(untagged)]
+    pub(super) enum NumOrText {
+        Num(f64),
+        Text(String),
+    }
+
+    /// A text other than `"inf"` where a bound belongs.
+    #[derive(Debug, thiserror::Error)]
+    #[error("`{0}` is not a bound (a number or \"inf\")")]
+    pub(super) struct NotABound(String);
+
+    pub(super) fn to_f64(v: NumOrText) -> Result<f64, NotABound> {
+        match v {
+            NumOrText::Num(x) => Ok(x),
+            NumOrText::Text(s) if s == "inf" => Ok(f64::INFINITY),
+            NumOrText::Text(s) => Err(NotABound(s)),
+        }
+    }
+
+    pub fn serialize<S: Serializer>(x: &f64, s: S) -> Result<S::Ok, S::Error> {
+        if x.is_finite() {
+            s.serialize_f64(*x)
+        } else {
+            s.serialize_str("inf")
+        }
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+        to_f64(NumOrText::deserialize(d)?).map_err(serde::de::Error::custom)
+    }
+}
+
+/// [`inf_as_string`] for an optional bound (`null` for `None`).
+mod opt_inf_as_string {
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    use super::inf_as_string::{to_f64, NumOrText};
+
+    pub fn serialize<S: Serializer>(x: &Option<f64>, s: S) -> Result<S::Ok, S::Error> {
+        match x {
+            None => s.serialize_none(),
+            Some(v) => super::inf_as_string::serialize(v, s),
+        }
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Option<f64>, D::Error> {
+        Option::<NumOrText>::deserialize(d)?
+            .map(to_f64)
+            .transpose()
+            .map_err(serde::de::Error::custom)
+    }
+}
+
+/// The format tag of [`ErrorMap`] files.
+pub const ERROR_MAP_FORMAT: &str = "cbfreach-errormap-1";
+
+/// Whether `[lo, hi]` is not an interval (inverted or NaN).
+fn inverted(lo: f64, hi: f64) -> bool {
+    lo.is_nan() || hi.is_nan() || lo > hi
+}
+
+/// `<network stem>.errormap.json` beside the network.
+pub fn error_map_path(network: &Path) -> PathBuf {
+    let stem = network
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "network".into());
+    network.with_file_name(format!("{stem}.errormap.json"))
+}
+
+/// FNV-1a 64 of a byte string, as 16 hex digits.
+pub fn fnv1a_hex(bytes: &[u8]) -> String {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for &b in bytes {
+        h ^= b as u64;
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    format!("{h:016x}")
+}
+
+fn hash_file(path: &Path) -> Result<String, ErrorMapError> {
+    let bytes = std::fs::read(path).map_err(|source| ErrorMapError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    Ok(fnv1a_hex(&bytes))
+}
+
+impl ErrorMap {
+    /// A map for the network file `network` from its measured errors (`max ‖N − v‖∞` and
+    /// `max ‖N − v‖₂` on a grid) and, when the filter has a closed form, the certified global
+    /// bound with the cells that give it. The error analysis builds one from its results with
+    /// `ErrorMap::new` (in `surrogate_error`).
+    pub fn from_bounds(
+        network: &Path,
+        region: &IntervalBox,
+        measured_linf: f64,
+        measured_l2: f64,
+        certified: Option<(f64, &[CellBound])>,
+    ) -> Result<ErrorMap, ErrorMapError> {
+        Ok(ErrorMap {
+            format: ERROR_MAP_FORMAT.into(),
+            network: network
+                .file_name()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_default(),
+            network_hash: hash_file(network)?,
+            region: region.clone(),
+            norm: "inf".into(),
+            measured_linf,
+            measured_l2,
+            certified_linf: certified.map(|c| c.0),
+            cells: certified.map(|c| c.1.to_vec()).unwrap_or_default(),
+            index: LazyIndex::default(),
+        })
+    }
+
+    /// Reads and checks a map file.
+    pub fn load(path: &Path) -> Result<ErrorMap, ErrorMapError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ErrorMapError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let bad = |message: String| ErrorMapError::Format {
+            path: path.to_path_buf(),
+            message,
+        };
+        let map: ErrorMap = serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?;
+        if map.format != ERROR_MAP_FORMAT {
+            return Err(bad(format!(
+                "format `{}`, expected `{ERROR_MAP_FORMAT}`",
+                map.format
+            )));
+        }
+        let n = map.region.dim();
+        if n == 0
+            || map.region.upper.len() != n
+            || (0..n).any(|i| inverted(map.region.lower[i], map.region.upper[i]))
+        {
+            return Err(bad("`region` is not a box".into()));
+        }
+        for (k, c) in map.cells.iter().enumerate() {
+            if c.lower.len() != n
+                || c.upper.len() != n
+                || (0..n).any(|i| inverted(c.lower[i], c.upper[i]))
+                || c.bound.is_nan()
+                || c.bound < 0.0
+            {
+                return Err(bad(format!("cell {k} is malformed")));
+            }
+        }
+        Ok(map)
+    }
+
+    /// Loads the map beside `network` and checks that it was made for that file.
+    pub fn load_for(network: &Path) -> Result<ErrorMap, ErrorMapError> {
+        let path = error_map_path(network);
+        let map = ErrorMap::load(&path)?;
+        if map.network_hash != hash_file(network)? {
+            return Err(ErrorMapError::StaleMap {
+                path,
+                network: network.to_path_buf(),
+            });
+        }
+        Ok(map)
+    }
+
+    /// Writes the map as JSON.
+    pub fn save(&self, path: &Path) -> Result<(), ErrorMapError> {
+        let text = serde_json::to_string(self).map_err(|e| ErrorMapError::Format {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })?;
+        std::fs::write(path, text).map_err(|source| ErrorMapError::Io {
+            path: path.to_path_buf(),
+            source,
+        })
+    }
+
+    /// The largest finite cell bound: `M_C` over `C ∩ S` minus the cells with no bound.
+    pub fn finite_max(&self) -> f64 {
+        self.cells
+            .iter()
+            .map(|c| c.bound)
+            .filter(|b| b.is_finite())
+            .fold(0.0, f64::max)
+    }
+
+    /// The certified bound of `‖N − v‖∞` over `b ∩ S`: the max over the cells that meet `b` (0
+    /// when `b` meets only cells proven unsafe). +∞ when `b` is not inside the mapped region (or
+    /// the map holds no certified cells); see [`ErrorMap::try_local_bound`] for an error instead.
+    pub fn local_bound(&self, b: &IntervalBox) -> f64 {
+        self.try_local_bound(b).unwrap_or(f64::INFINITY)
+    }
+
+    /// As [`ErrorMap::local_bound`], with an error for a box outside the region.
+    pub fn try_local_bound(&self, b: &IntervalBox) -> Result<f64, ErrorMapError> {
+        if self.certified_linf.is_none() {
+            return Ok(f64::INFINITY);
+        }
+        if b.dim() != self.region.dim() || !b.is_subset_of(&self.region) {
+            return Err(ErrorMapError::OutsideMap {
+                lower: b.lower.clone(),
+                upper: b.upper.clone(),
+                region_lower: self.region.lower.clone(),
+                region_upper: self.region.upper.clone(),
+            });
+        }
+        let index = self
+            .index
+            .0
+            .get_or_init(|| CellIndex::build(&self.region, &self.cells));
+        let mut worst = 0.0_f64;
+        index.for_each_bucket(&b.lower, &b.upper, |k| {
+            for &c in &index.cells[index.start[k] as usize..index.start[k + 1] as usize] {
+                let c = &self.cells[c as usize];
+                if c.meets(b) {
+                    worst = worst.max(c.bound);
+                }
+            }
+        });
+        Ok(worst)
+    }
+
+    /// The map with its bucket index dropped (to be rebuilt on the next query), for a map
+    /// whose `cells` were changed after a query.
+    pub fn reindexed(mut self) -> ErrorMap {
+        self.index = LazyIndex::default();
+        self
+    }
+}
+
+/// `M_C` for a scenario: its number, or `"certified"` / `"measured"` from the error map beside
+/// `network` (written by `cbfreach error`).
+pub fn resolve_margin(s: &Scenario, network: &Path) -> Result<f64, ErrorMapError> {
+    margin_value(s.reach.m_c, network)
+}
+
+/// The global `M_C` that `margin` stands for with `network`: a fixed value, or the error
+/// map's certified or measured maximum, or (for local bounds) the map's largest finite cell
+/// bound.
+pub fn margin_value(margin: Margin, network: &Path) -> Result<f64, ErrorMapError> {
+    match margin {
+        Margin::Value(v) => Ok(v),
+        Margin::Measured => Ok(ErrorMap::load_for(network)?.measured_linf),
+        Margin::Certified => {
+            let map = ErrorMap::load_for(network)?;
+            map.certified_linf.ok_or(ErrorMapError::NotCertified {
+                path: error_map_path(network),
+            })
+        }
+        // The global number beside local bounds: the largest finite cell bound, which bounds
+        // every local M a set can get without being stopped (cells with +∞ stop it).
+        Margin::Local => {
+            let map = ErrorMap::load_for(network)?;
+            if map.certified_linf.is_none() {
+                return Err(ErrorMapError::NotCertified {
+                    path: error_map_path(network),
+                });
+            }
+            Ok(map.finite_max())
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn infinite_bounds_round_trip_through_json() {
+        let c = CellBound {
+            lower: vec![0.0],
+            upper: vec![1.0],
+            bound: f64::INFINITY,
+        };
+        let text = serde_json::to_string(&c).unwrap();
+        assert!(text.contains("\"inf\""), "{text}");
+        let back: CellBound = serde_json::from_str(&text).unwrap();
+        assert_eq!(back.bound, f64::INFINITY);
+        assert!(
+            serde_json::from_str::<CellBound>(r#"{"lower":[0],"upper":[1],"bound":"x"}"#).is_err()
+        );
+    }
+
+    #[test]
+    fn map_path_sits_beside_the_network() {
+        assert_eq!(
+            error_map_path(Path::new("scenarios/integrator.safetensors")),
+            PathBuf::from("scenarios/integrator.errormap.json")
+        );
+    }
+}

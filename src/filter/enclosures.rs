@@ -1,0 +1,548 @@
+//! Enclosures of `v` over a box: the natural one of its closed form ([`v_enclosure`]) and the
+//! mean-value forms of [`VForms`] (DESIGN §2.1). It may import the filter's rows, the scenario,
+//! expressions, intervals and boxes.
+
+use super::rows::{interval_rows, row_expressions};
+use super::{FilterMethod, SafetyFilter};
+use crate::boxes::IntervalBox;
+use crate::expressions::Expr;
+use crate::intervals::Interval;
+use crate::scenario::Scenario;
+
+fn sum(it: impl Iterator<Item = Interval>) -> Interval {
+    it.fold(Interval::point(0.0), |a, b| a + b)
+}
+
+/// `max(0, −B)` for an interval `B`.
+fn neg_part(b: Interval) -> Interval {
+    Interval::new((-b.upper).max(0.0), (-b.lower).max(0.0))
+}
+
+/// An enclosure of the filter `v` over `box ∩ S`, by interval evaluation of its closed form:
+/// `Some(v)` with `v[j] ∋ vⱼ(x)` for every `x ∈ box ∩ S` where the filter is feasible, or `None`
+/// when the filter has no closed form ([`FilterMethod::Qp`]). Ends may be infinite (e.g. when
+/// `‖L_g h‖²` may vanish on the box): refine the box.
+///
+/// * One row `a·θ ≤ b`: `v = −max(0, −b)/‖a‖² · a`.
+/// * Scalar input: with `cₖ = max(0, −bₖ)`, `v = max(0, max_{aₖ<0} cₖ/|aₖ|) − max(0,
+///   max_{aₖ>0} cₖ/aₖ)` (which is `clamp(0, lo, hi)` wherever `lo ≤ hi`); a row whose `aₖ` may
+///   vanish with `cₖ > 0` makes the enclosure unbounded.
+pub fn v_enclosure(
+    s: &Scenario,
+    method: FilterMethod,
+    cell: &IntervalBox,
+) -> Option<Vec<Interval>> {
+    let m = s.m();
+    let (a, b) = interval_rows(s, cell);
+    let bad = || Some(vec![Interval::ENTIRE; m]);
+    if a.iter().chain(&b).any(|v| v.is_nan()) {
+        return bad();
+    }
+    match method {
+        FilterMethod::Qp => None,
+        FilterMethod::ClosedFormSingle => {
+            if b.len() != 1 || a.len() != m {
+                return bad();
+            }
+            let c = neg_part(b[0]);
+            if c.upper == 0.0 {
+                return Some(vec![Interval::point(0.0); m]);
+            }
+            let norm2 = sum(a.iter().map(|&aj| aj.sqr()));
+            if norm2.lower <= 0.0 {
+                return bad();
+            }
+            let scale = c / norm2;
+            Some(a.iter().map(|&aj| -(scale * aj)).collect())
+        }
+        FilterMethod::ClosedFormScalar => {
+            if m != 1 || a.len() != b.len() {
+                return bad();
+            }
+            // lo⁺ ∈ [lo_l, lo_u], hi⁻ ∈ [hi_l, hi_u]  (both ≥ 0)
+            let (mut lo_l, mut lo_u, mut hi_l, mut hi_u) = (0.0_f64, 0.0_f64, 0.0_f64, 0.0_f64);
+            for (&ak, &bk) in a.iter().zip(&b) {
+                let c = neg_part(bk);
+                if c.upper == 0.0 {
+                    continue;
+                }
+                if ak.lower > 0.0 {
+                    let q = c / ak;
+                    hi_l = hi_l.max(q.lower);
+                    hi_u = hi_u.max(q.upper);
+                } else if ak.upper < 0.0 {
+                    let q = c / (-ak);
+                    lo_l = lo_l.max(q.lower);
+                    lo_u = lo_u.max(q.upper);
+                } else {
+                    return bad();
+                }
+            }
+            Some(vec![Interval::new(lo_l, lo_u) - Interval::new(hi_l, hi_u)])
+        }
+    }
+}
+
+/// A smooth expression with its symbolic gradient, for mean-value (centred) enclosures.
+#[derive(Clone, Debug)]
+pub struct Smooth {
+    /// The expression `e(x)`.
+    pub e: Expr,
+    /// `∂e/∂xᵢ`, one per state.
+    pub grad: Vec<Expr>,
+}
+
+/// `e(c)` and `∇e(X)` over a box, and the centred form `e(c) + ∇e(X)·(X − c)`.
+struct CentredForm {
+    value: Interval,
+    grad: Vec<Interval>,
+    enclosure: Interval,
+}
+
+impl Smooth {
+    fn new(e: Expr, n: usize) -> Smooth {
+        let grad = (0..n).map(|i| e.derivative(i)).collect();
+        Smooth { e, grad }
+    }
+
+    /// The mean-value form over `xs` around `c` (a point of the box); valid wherever `e` is
+    /// differentiable (or Lipschitz, with the interval derivative enclosing its Clarke gradient)
+    /// on the box. Every evaluation is outward rounded.
+    fn centred(&self, xs: &[Interval], c: &[Interval], dx: &[Interval]) -> CentredForm {
+        let value = self.e.eval_interval(c);
+        let grad: Vec<Interval> = self.grad.iter().map(|g| g.eval_interval(xs)).collect();
+        let enclosure = value + sum(grad.iter().zip(dx).map(|(&g, &d)| g * d));
+        CentredForm {
+            value,
+            grad,
+            enclosure,
+        }
+    }
+}
+
+/// `a ∩ b`, or `a` when they are disjoint or `b` is NaN (both enclose the same values, so
+/// disjointness means no point to enclose; keeping `a` is sound either way).
+pub(crate) fn meet(a: Interval, b: Interval) -> Interval {
+    if b.is_nan() {
+        return a;
+    }
+    a.intersection(&b).unwrap_or(a)
+}
+
+/// `v` equals one smooth function on `cell ∩ S` (where feasible): `v(x) ∈ value + jac·(x − c)`
+/// for every such `x`, with `jac` (m × n, row-major) enclosing the derivatives over the cell.
+#[derive(Clone, Debug)]
+pub struct SmoothV {
+    /// The centre `c` of the cell.
+    pub centre: Vec<f64>,
+    /// An enclosure of `v(c)` (of the smooth function that equals `v` on the cell).
+    pub value: Vec<Interval>,
+    /// An enclosure of its Jacobian over the cell, `m × n` row-major.
+    pub jac: Vec<Interval>,
+}
+
+/// One smooth piece of a closed-form filter `v` (the filter's active set held fixed).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FilterPiece {
+    /// Every row slack: `v = 0`.
+    Inactive,
+    /// Row `k` binds, every other row is slack.
+    Binding(usize),
+}
+
+/// A cell as intervals `X`, its centre `c` as points, and `X − c`: what mean-value forms take.
+struct Centred {
+    xs: Vec<Interval>,
+    cs: Vec<Interval>,
+    dx: Vec<Interval>,
+}
+
+impl Centred {
+    fn of(cell: &IntervalBox) -> Centred {
+        let xs: Vec<Interval> = (0..cell.dim())
+            .map(|i| Interval::new(cell.lower[i], cell.upper[i]))
+            .collect();
+        let cs: Vec<Interval> = cell.center().into_iter().map(Interval::point).collect();
+        let dx = xs.iter().zip(&cs).map(|(&x, &c)| x - c).collect();
+        Centred { xs, cs, dx }
+    }
+}
+
+/// The rows of the filter over a cell ([`VForms::rows`]).
+struct Rows {
+    a_nat: Vec<Interval>,
+    b_nat: Vec<Interval>,
+    b_enc: Vec<Interval>,
+}
+
+/// The closed-form filter as expressions with symbolic gradients, built once per scenario for
+/// [`VForms::enclose`] (mean-value enclosures of `v`, DESIGN §2.1).
+#[derive(Clone, Debug)]
+pub struct VForms {
+    method: FilterMethod,
+    n: usize,
+    m: usize,
+    /// `bₖ(x)` of every row (with `hᵢ` itself, not clamped: equal to the clamped one on `S`).
+    b: Vec<Smooth>,
+    /// One row: `Fⱼ = b·aⱼ/‖a‖²` (equal to `vⱼ` where the row is active).
+    f: Vec<Smooth>,
+    /// One row: `pⱼ = aⱼ/‖a‖²`.
+    p: Vec<Smooth>,
+    /// Scalar input: `rₖ = bₖ/aₖ` per row.
+    r: Vec<Smooth>,
+    /// Scalar input: `rₖ − rⱼ` at `k·rows + j` (`k ≠ j`), to prove one row dominant; empty
+    /// beyond [`MAX_DOMINANCE_ROWS`] rows.
+    r_diff: Vec<Option<Smooth>>,
+}
+
+/// The expressions behind [`VForms`], for an engine that evaluates them itself (the GPU's
+/// generated WGSL, `src/gpu/codegen.rs`); the fields are those of [`VForms`].
+#[derive(Clone, Copy, Debug)]
+pub struct VFormParts<'a> {
+    /// Which closed form.
+    pub method: FilterMethod,
+    /// `bₖ(x)` of every row (`hᵢ` not clamped).
+    pub b: &'a [Smooth],
+    /// One row: `Fⱼ = b·aⱼ/‖a‖²`.
+    pub f: &'a [Smooth],
+    /// One row: `pⱼ = aⱼ/‖a‖²`.
+    pub p: &'a [Smooth],
+    /// Scalar input: `rₖ = bₖ/aₖ`.
+    pub r: &'a [Smooth],
+    /// Scalar input: `rₖ − rⱼ` at `k·rows + j` (`None` on the diagonal; empty beyond eight rows).
+    pub r_diff: &'a [Option<Smooth>],
+}
+
+/// Rows up to which [`VForms`] keeps the pairwise differences `rₖ − rⱼ` (their count grows
+/// with the square).
+const MAX_DOMINANCE_ROWS: usize = 8;
+
+impl VForms {
+    /// The forms of the scenario's closed-form filter; `None` for a general QP.
+    pub fn new(s: &Scenario) -> Option<VForms> {
+        let method = SafetyFilter::new(s).method();
+        if method == FilterMethod::Qp {
+            return None;
+        }
+        let (n, m) = (s.n(), s.m());
+        let (a_rows, b_rows) = row_expressions(s, false);
+        let sum_e = |it: &mut dyn Iterator<Item = Expr>| it.fold(Expr::constant(0.0), |a, b| a + b);
+        let b: Vec<Smooth> = b_rows.iter().map(|e| Smooth::new(e.clone(), n)).collect();
+        let (mut f, mut p, mut r) = (Vec::new(), Vec::new(), Vec::new());
+        match method {
+            FilterMethod::ClosedFormSingle if a_rows.len() == 1 => {
+                let a = &a_rows[0];
+                let norm2 = sum_e(&mut a.iter().map(|aj| aj.clone() * aj.clone()));
+                for aj in a {
+                    let pj = aj.clone() / norm2.clone();
+                    f.push(Smooth::new(b_rows[0].clone() * pj.clone(), n));
+                    p.push(Smooth::new(pj, n));
+                }
+            }
+            FilterMethod::ClosedFormScalar if m == 1 => {
+                for (a, bk) in a_rows.iter().zip(&b_rows) {
+                    r.push(Smooth::new(bk.clone() / a[0].clone(), n));
+                }
+            }
+            _ => {}
+        }
+        let rows = r.len();
+        let r_diff = if rows <= MAX_DOMINANCE_ROWS {
+            (0..rows * rows)
+                .map(|kj| {
+                    let (k, j) = (kj / rows, kj % rows);
+                    (k != j).then(|| Smooth::new(r[k].e.clone() - r[j].e.clone(), n))
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
+        Some(VForms {
+            method,
+            n,
+            m,
+            b,
+            f,
+            p,
+            r,
+            r_diff,
+        })
+    }
+
+    /// The rows over `cell ∩ S`: natural enclosures of `a` and `b`, and `b` met with its
+    /// mean-value form; `None` when some row is undefined (NaN) on the cell.
+    fn rows(
+        &self,
+        s: &Scenario,
+        xs: &[Interval],
+        cs: &[Interval],
+        dx: &[Interval],
+        cell: &IntervalBox,
+    ) -> Option<Rows> {
+        let (a_nat, b_nat) = interval_rows(s, cell);
+        if b_nat.len() != self.b.len() || a_nat.iter().chain(&b_nat).any(|v| v.is_nan()) {
+            return None;
+        }
+        let b_enc = self
+            .b
+            .iter()
+            .zip(&b_nat)
+            .map(|(bk, &nat)| meet(nat, bk.centred(xs, cs, dx).enclosure))
+            .collect();
+        Some(Rows {
+            a_nat,
+            b_nat,
+            b_enc,
+        })
+    }
+
+    /// Which smooth piece of the closed form `v` is on the whole of `cell ∩ S` (where the
+    /// filter is feasible), if one provably is: every row slack (`bₖ ≥ 0`: `v = 0`), or one row
+    /// binding throughout (`bₖ ≤ 0`, its `aₖ` bounded away from 0) while every other row that
+    /// may bind is, for a scalar input, on the other side of `θ = 0` or dominated by it
+    /// (`rₖ − rⱼ` of one sign on the cell).
+    pub fn piece(&self, s: &Scenario, cell: &IntervalBox) -> Option<FilterPiece> {
+        let Centred { xs, cs, dx } = Centred::of(cell);
+        let Rows {
+            a_nat,
+            b_nat,
+            b_enc,
+        } = self.rows(s, &xs, &cs, &dx, cell)?;
+        let may_bind: Vec<usize> = (0..b_enc.len()).filter(|&k| b_enc[k].lower < 0.0).collect();
+        if may_bind.is_empty() {
+            return Some(FilterPiece::Inactive);
+        }
+        match self.method {
+            FilterMethod::ClosedFormSingle if !self.f.is_empty() => {
+                let norm2 = sum(a_nat.iter().map(|&aj| aj.sqr()));
+                (b_enc[0].upper <= 0.0 && norm2.lower > 0.0).then_some(FilterPiece::Binding(0))
+            }
+            FilterMethod::ClosedFormScalar if self.r.len() == b_enc.len() => {
+                // `v = clamp(0, lo, hi)` with `lo` the largest `rₖ` of the rows with `aₖ < 0`
+                // and `hi` the smallest of those with `aₖ > 0`. A row that binds throughout
+                // (`bₖ ≤ 0`) fixes the sign of `v`, so only the rows on its own side compete:
+                // it is `v` where it dominates each of them that may bind.
+                let r_of = |k: usize| {
+                    meet(
+                        b_nat[k] / a_nat[k],
+                        self.r[k].centred(&xs, &cs, &dx).enclosure,
+                    )
+                };
+                let side = |k: usize| {
+                    let a = a_nat[k];
+                    (a.upper < 0.0)
+                        .then_some(false)
+                        .or((a.lower > 0.0).then_some(true))
+                };
+                let dominates = |k: usize, j: usize, upper: bool| {
+                    let Some(Some(form)) = self.r_diff.get(k * self.r.len() + j) else {
+                        return false;
+                    };
+                    let d = meet(r_of(k) - r_of(j), form.centred(&xs, &cs, &dx).enclosure);
+                    if upper {
+                        d.upper <= 0.0
+                    } else {
+                        d.lower >= 0.0
+                    }
+                };
+                may_bind
+                    .iter()
+                    .copied()
+                    .find(|&k| {
+                        let Some(upper) = side(k) else {
+                            return false;
+                        };
+                        b_enc[k].upper <= 0.0
+                            && may_bind.iter().all(|&j| {
+                                j == k
+                                    || match side(j) {
+                                        Some(u) if u != upper => true,
+                                        Some(_) => dominates(k, j, upper),
+                                        None => false,
+                                    }
+                            })
+                    })
+                    .map(FilterPiece::Binding)
+            }
+            _ => None,
+        }
+    }
+
+    /// Whether the filter's QP is feasible at every point of `cell ∩ S`. One row: `bₖ ≥ 0` or
+    /// `aₖ ≠ 0`. Scalar input: each row's set of `θ` is a half-line (or all of ℝ), and in one
+    /// dimension sets that meet pairwise have a common point (Helly), so it suffices that every
+    /// row alone is feasible and that no two rows point in opposite directions past each
+    /// other: `aⱼaₖ ≥ 0`, or `(bⱼaₖ − bₖaⱼ)·aₖ ≥ 0` (that is `bⱼ/aⱼ ≤ bₖ/aₖ` when `aⱼ < 0 < aₖ`),
+    /// or both rows slack at `θ = 0`.
+    pub fn proves_feasible(&self, s: &Scenario, cell: &IntervalBox) -> bool {
+        let Centred { xs, cs, dx } = Centred::of(cell);
+        let Some(Rows { a_nat, b_enc, .. }) = self.rows(s, &xs, &cs, &dx, cell) else {
+            return false;
+        };
+        let slack = |k: usize| b_enc[k].lower >= 0.0;
+        match self.method {
+            FilterMethod::ClosedFormSingle => {
+                slack(0) || sum(a_nat.iter().map(|&aj| aj.sqr())).lower > 0.0
+            }
+            FilterMethod::ClosedFormScalar => {
+                let rows = b_enc.len();
+                let alone = (0..rows).all(|k| slack(k) || !a_nat[k].contains(0.0));
+                alone
+                    && (0..rows).all(|j| {
+                        (j + 1..rows).all(|k| {
+                            let (aj, ak) = (a_nat[j], a_nat[k]);
+                            (slack(j) && slack(k))
+                                || (aj * ak).lower >= 0.0
+                                || ((b_enc[j] * ak - b_enc[k] * aj) * ak).lower >= 0.0
+                        })
+                    })
+            }
+            FilterMethod::Qp => (0..b_enc.len()).all(slack),
+        }
+    }
+
+    /// `v` on a piece, as expressions in x (`m` of them): `0` where every row is slack;
+    /// `bₖ aⱼ/‖a‖²` (one row) or `bₖ/aₖ` (scalar input) where row `k` binds.
+    pub fn piece_input(&self, piece: FilterPiece) -> Vec<Expr> {
+        match piece {
+            FilterPiece::Inactive => vec![Expr::constant(0.0); self.m],
+            FilterPiece::Binding(k) => match self.method {
+                FilterMethod::ClosedFormSingle => self.f.iter().map(|f| f.e.clone()).collect(),
+                _ => vec![self.r[k].e.clone()],
+            },
+        }
+    }
+
+    /// Its expressions, for engines that evaluate them elsewhere.
+    pub fn parts(&self) -> VFormParts<'_> {
+        VFormParts {
+            method: self.method,
+            b: &self.b,
+            f: &self.f,
+            p: &self.p,
+            r: &self.r,
+            r_diff: &self.r_diff,
+        }
+    }
+
+    /// Which closed form.
+    pub fn method(&self) -> FilterMethod {
+        self.method
+    }
+
+    /// The input dimension `m` (outputs of `v`).
+    pub fn m(&self) -> usize {
+        self.m
+    }
+
+    /// Number of constraint rows (the pieces are [`FilterPiece::Inactive`] and one
+    /// [`FilterPiece::Binding`] per row).
+    pub fn rows_len(&self) -> usize {
+        self.b.len()
+    }
+
+    /// An enclosure of `v` over `cell ∩ S` (where feasible), the natural one of
+    /// [`v_enclosure`] intersected with mean-value forms where those apply, and, when `v` is one
+    /// smooth function on the cell (the filter provably inactive: `v ≡ 0`; or one row provably
+    /// active on the whole cell), its centred form for a joint bound of `N − v`.
+    pub fn enclose(&self, s: &Scenario, cell: &IntervalBox) -> (Vec<Interval>, Option<SmoothV>) {
+        let (n, m) = (self.n, self.m);
+        let natural =
+            v_enclosure(s, self.method, cell).unwrap_or_else(|| vec![Interval::ENTIRE; m]);
+        let centre = cell.center();
+        let Centred { xs, cs, dx } = Centred::of(cell);
+        let zero_v = || SmoothV {
+            centre: centre.clone(),
+            value: vec![Interval::point(0.0); m],
+            jac: vec![Interval::point(0.0); m * n],
+        };
+        let Some(Rows {
+            a_nat,
+            b_nat,
+            b_enc,
+        }) = self.rows(s, &xs, &cs, &dx, cell)
+        else {
+            return (natural, None);
+        };
+        let smooth_of = |forms: Vec<CentredForm>| SmoothV {
+            centre: centre.clone(),
+            value: forms.iter().map(|f| f.value).collect(),
+            jac: forms.iter().flat_map(|f| f.grad.iter().copied()).collect(),
+        };
+        match self.method {
+            FilterMethod::ClosedFormSingle if !self.f.is_empty() => {
+                let b = b_enc[0];
+                if b.lower >= 0.0 {
+                    return (vec![Interval::point(0.0); m], Some(zero_v()));
+                }
+                let norm2 = sum(a_nat.iter().map(|&aj| aj.sqr()));
+                // (NaN counts as "maybe zero".)
+                if norm2.lower.is_nan() || norm2.lower <= 0.0 {
+                    return (natural, None);
+                }
+                let forms: Vec<CentredForm> =
+                    self.f.iter().map(|f| f.centred(&xs, &cs, &dx)).collect();
+                if forms.iter().any(|f| f.grad.iter().any(|g| g.is_nan())) {
+                    return (natural, None);
+                }
+                if b.upper <= 0.0 {
+                    let enc = (0..m)
+                        .map(|j| meet(natural[j], forms[j].enclosure))
+                        .collect();
+                    return (enc, Some(smooth_of(forms)));
+                }
+                // Active on part of the cell: vⱼ = min(0, b)·pⱼ = min(0, Fⱼ) where pⱼ ≥ 0,
+                // max(0, Fⱼ) where pⱼ ≤ 0.
+                let zero = Interval::point(0.0);
+                let enc = (0..m)
+                    .map(|j| {
+                        let pj = meet(a_nat[j] / norm2, self.p[j].centred(&xs, &cs, &dx).enclosure);
+                        let fj = forms[j].enclosure;
+                        let e = if pj.lower >= 0.0 {
+                            fj.min(zero)
+                        } else if pj.upper <= 0.0 {
+                            fj.max(zero)
+                        } else {
+                            b.min(zero) * pj
+                        };
+                        meet(natural[j], e)
+                    })
+                    .collect();
+                (enc, None)
+            }
+            FilterMethod::ClosedFormScalar if self.r.len() == b_enc.len() => {
+                let zero = Interval::point(0.0);
+                let (mut lo, mut hi) = (zero, zero);
+                let mut active: Vec<usize> = Vec::new();
+                for k in 0..b_enc.len() {
+                    if b_enc[k].lower >= 0.0 {
+                        continue; // the row never binds on the cell
+                    }
+                    let ak = a_nat[k];
+                    if ak.lower <= 0.0 && ak.upper >= 0.0 {
+                        return (natural, None);
+                    }
+                    active.push(k);
+                    let rk = meet(b_nat[k] / ak, self.r[k].centred(&xs, &cs, &dx).enclosure);
+                    if ak.upper < 0.0 {
+                        lo = lo.max(rk);
+                    } else {
+                        hi = hi.min(rk);
+                    }
+                }
+                if active.is_empty() {
+                    return (vec![zero], Some(zero_v()));
+                }
+                let enc = vec![meet(natural[0], lo + hi)];
+                if active.len() == 1 && b_enc[active[0]].upper <= 0.0 {
+                    let form = self.r[active[0]].centred(&xs, &cs, &dx);
+                    if !form.grad.iter().any(|g| g.is_nan()) {
+                        return (enc, Some(smooth_of(vec![form])));
+                    }
+                }
+                (enc, None)
+            }
+            _ => (natural, None),
+        }
+    }
+}

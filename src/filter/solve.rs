@@ -1,0 +1,177 @@
+//! Solving the filter's QP at one point: the closed forms (one row, a scalar input) and
+//! clarabel with an exact polish. It may import the filter's own types (and clarabel, nalgebra).
+
+use clarabel::algebra::CscMatrix;
+use clarabel::solver::{
+    DefaultSettingsBuilder, DefaultSolver, IPSolver, SolverStatus, SupportedConeT,
+};
+
+use super::{ConstraintRows, FilterError, FilterStatus, Infeasibility};
+
+/// Rows whose `‖aₖ‖²` is below this are treated as `θ`-free (`0 ≤ bₖ`).
+const DEGENERATE_ROW: f64 = 1e-24;
+
+/// One row `a·θ ≤ b`: `θ = 0` when `b ≥ 0`, else the projection `b a / ‖a‖²`.
+pub(super) fn project_half_space(rows: &ConstraintRows, m: usize) -> FilterStatus {
+    let a = &rows.g[..m];
+    let b = rows.q[0];
+    if b >= 0.0 {
+        return FilterStatus::Solved(vec![0.0; m]);
+    }
+    let norm2: f64 = a.iter().map(|v| v * v).sum();
+    if norm2 <= DEGENERATE_ROW {
+        return FilterStatus::Infeasible(Infeasibility::NoInputOnRow {
+            row: rows.labels[0].clone(),
+            b,
+        });
+    }
+    FilterStatus::Solved(a.iter().map(|ai| b * ai / norm2).collect())
+}
+
+/// Scalar input: each row bounds `θ` from one side; `θ = clamp(0, lo, hi)`.
+pub(super) fn clamp_scalar(rows: &ConstraintRows) -> FilterStatus {
+    let (mut lo, mut hi) = (f64::NEG_INFINITY, f64::INFINITY);
+    let (mut lo_label, mut hi_label) = ("", "");
+    for ((&a, &b), label) in rows.g.iter().zip(&rows.q).zip(&rows.labels) {
+        if a * a <= DEGENERATE_ROW {
+            if b < 0.0 {
+                return FilterStatus::Infeasible(Infeasibility::NoInput {
+                    row: label.clone(),
+                    b,
+                });
+            }
+        } else if a > 0.0 {
+            if b / a < hi {
+                hi = b / a;
+                hi_label = label;
+            }
+        } else if b / a > lo {
+            lo = b / a;
+            lo_label = label;
+        }
+    }
+    if lo > hi {
+        return FilterStatus::Infeasible(Infeasibility::Conflict {
+            lower_row: lo_label.to_string(),
+            lower: lo,
+            upper_row: hi_label.to_string(),
+            upper: hi,
+        });
+    }
+    FilterStatus::Solved(vec![0.0_f64.clamp(lo, hi)])
+}
+
+/// The exact minimiser, from the active sets that clarabel's answer makes plausible.
+///
+/// Candidates are the rows that are nearly tight at clarabel's `θ` or carry a multiplier; every
+/// subset `A` of at most m of them gives a candidate from [`kkt_point`], and the unique KKT
+/// point is the one with multipliers `μ ≥ 0` that satisfies every row. `None` if no subset qualifies (then
+/// clarabel's own answer, accurate to its tolerance, is used).
+fn polish(rows: &ConstraintRows, m: usize, x: &[f64], z: &[f64]) -> Option<Vec<f64>> {
+    let k = rows.q.len();
+    let slack = |k: usize| rows.q[k] - (0..m).map(|j| rows.g[k * m + j] * x[j]).sum::<f64>();
+    let candidates: Vec<usize> = (0..k)
+        .filter(|&r| z[r] > 1e-9 || slack(r) <= 1e-6 * rows.q[r].abs().max(1.0))
+        .collect();
+    if candidates.len() > 12 {
+        return None;
+    }
+    let mut best: Option<Vec<f64>> = None;
+    for mask in 0u32..(1 << candidates.len()) {
+        if mask.count_ones() as usize > m {
+            continue;
+        }
+        let active: Vec<usize> = (0..candidates.len())
+            .filter(|b| mask >> b & 1 == 1)
+            .map(|b| candidates[b])
+            .collect();
+        let Some(theta) = kkt_point(rows, m, &active) else {
+            continue;
+        };
+        let holds = (0..k).all(|r| {
+            let lhs: f64 = (0..m).map(|j| rows.g[r * m + j] * theta[j]).sum();
+            lhs <= rows.q[r] + 1e-10 * rows.q[r].abs().max(1.0)
+        });
+        let norm = |t: &[f64]| t.iter().map(|v| v * v).sum::<f64>();
+        if holds && best.as_ref().is_none_or(|b| norm(&theta) < norm(b)) {
+            best = Some(theta);
+        }
+    }
+    best
+}
+
+/// The KKT point for the active set `A`: stationarity `θ = −G_Aᵀ μ` and `G_A θ = q_A` give
+/// `μ = −(G_A G_Aᵀ)⁻¹ q_A`, which must be `≥ 0`; `None` otherwise.
+fn kkt_point(rows: &ConstraintRows, m: usize, active: &[usize]) -> Option<Vec<f64>> {
+    if active.is_empty() {
+        return Some(vec![0.0; m]);
+    }
+    let ga = nalgebra::DMatrix::from_fn(active.len(), m, |r, j| rows.g[active[r] * m + j]);
+    let qa = nalgebra::DVector::from_iterator(active.len(), active.iter().map(|&r| rows.q[r]));
+    let mu = -(&ga * ga.transpose()).lu().solve(&qa)?;
+    if !mu.iter().all(|l| *l >= 0.0) {
+        return None;
+    }
+    Some((-(ga.transpose() * mu)).iter().copied().collect())
+}
+
+/// The general QP `min ½‖θ‖² s.t. G θ ≤ q` by clarabel; an error when clarabel stops
+/// without an answer (`x` only names the state in it).
+pub(super) fn solve_qp(
+    rows: &ConstraintRows,
+    m: usize,
+    x: &[f64],
+) -> Result<FilterStatus, FilterError> {
+    let k = rows.q.len();
+    if k == 0 {
+        return Ok(FilterStatus::Solved(vec![0.0; m]));
+    }
+    let p = CscMatrix::identity(m);
+    // G in compressed-column form, every entry stored (the problems are tiny and dense).
+    let colptr = (0..=m).map(|j| j * k).collect();
+    let rowval = (0..m).flat_map(|_| 0..k).collect();
+    let nzval = (0..m)
+        .flat_map(|j| (0..k).map(move |i| rows.g[i * m + j]))
+        .collect();
+    let a = CscMatrix::new(k, m, colptr, rowval, nzval);
+    let cones = [SupportedConeT::NonnegativeConeT(k)];
+    let settings = DefaultSettingsBuilder::default()
+        .verbose(false)
+        .tol_gap_abs(1e-10)
+        .tol_gap_rel(1e-10)
+        .tol_feas(1e-10)
+        .build()
+        .map_err(|e| FilterError::Solver {
+            status: format!("settings: {e}"),
+            x: x.to_vec(),
+        })?;
+    let q = vec![0.0; m];
+    let mut solver = DefaultSolver::new(&p, &q, &a, &rows.q, &cones, settings).map_err(|e| {
+        FilterError::Solver {
+            status: format!("setup: {e}"),
+            x: x.to_vec(),
+        }
+    })?;
+    solver.solve();
+    let sol = &solver.solution;
+    match sol.status {
+        SolverStatus::Solved | SolverStatus::AlmostSolved | SolverStatus::InsufficientProgress
+            if sol.x.iter().all(|v| v.is_finite()) =>
+        {
+            // Interior-point answers are accurate to the tolerance; the active set they reveal
+            // gives the exact minimiser, which we keep when it passes the KKT conditions.
+            Ok(FilterStatus::Solved(
+                polish(rows, m, &sol.x, &sol.z).unwrap_or_else(|| sol.x.clone()),
+            ))
+        }
+        SolverStatus::PrimalInfeasible | SolverStatus::AlmostPrimalInfeasible => {
+            Ok(FilterStatus::Infeasible(Infeasibility::Incompatible {
+                rows: rows.labels.clone(),
+            }))
+        }
+        status => Err(FilterError::Solver {
+            status: format!("{status:?}"),
+            x: x.to_vec(),
+        }),
+    }
+}
