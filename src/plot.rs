@@ -486,7 +486,7 @@ fn draw_trajectories<DB: DrawingBackend>(
 /// The colour and label of a tube by its outcome.
 fn tube_class(scenario: &Scenario, tube: &Tube) -> (RGBColor, &'static str) {
     match tube.last() {
-        _ if !tube.valid => (ORANGE, "invalid (left C, or M = ∞)"),
+        _ if !tube.valid() => (ORANGE, "invalid (left C, or M = ∞)"),
         Some(s) if s.set.is_subset_of(&scenario.reach.goal) => (BLUE, "reaches the goal"),
         _ => (VERMILION, "does not reach the goal"),
     }

@@ -43,6 +43,7 @@ use crate::bounds::{BoundMethod, Relaxation};
 use crate::boxes::IntervalBox;
 use crate::reach::{
     Backend, ReachError, ReachProblem, ReachResult, ReachSettings, ReachTiming, SafeSet, Tube,
+    TubeEnd,
 };
 
 /// The largest buffer one chunk binds, whatever the device allows (bytes).
@@ -433,12 +434,8 @@ impl Backend for GpuBackend {
             .iter()
             .zip(&z_boxes)
             .map(|(b, z)| Tube {
-                initial: b.clone(),
                 tube: vec![problem.tube_sample(&z.lower, &z.upper, 0.0, 0.0, safe)],
-                valid: true,
-                note: None,
-                exact_steps: 0,
-                enclosed_steps: 0,
+                ..Tube::new(b.clone())
             })
             .collect();
         if initial.is_empty() || steps == 0 {
@@ -1129,34 +1126,18 @@ fn fill_tube(
             .push(problem.tube_sample(&lo, &hi, r, s as f64 * problem.dt, safe));
     }
     let t = stop as f64 * problem.dt;
-    match st {
-        status::NO_BOUND => {
-            // The step's start, as the CPU engine reports it.
-            tube.valid = false;
-            tube.note = Some(format!(
-                "t = {:.3}: the set meets cells of the error map with no certified bound (M = ∞)",
-                t - problem.dt
-            ));
-        }
+    tube.end = match st {
+        // The step's start, as the CPU engine reports it.
+        status::NO_BOUND => TubeEnd::NoCertifiedBound { t: t - problem.dt },
         status::LEFT_REGION => {
             let (lo, hi, r) = read(&res.state[g * sw..(g + 1) * sw]);
-            tube.valid = false;
-            tube.note = Some(format!("t = {t:.3}: the set left the region C"));
             tube.tube.push(problem.tube_sample(&lo, &hi, r, t, safe));
+            TubeEnd::LeftRegion { t }
         }
-        status::INVERTED | status::NON_FINITE => {
-            tube.valid = false;
-            tube.note = Some(format!(
-                "t = {t:.3}: the embedding state became {} (Euler step too large for this system?)",
-                if st == status::INVERTED {
-                    "inverted"
-                } else {
-                    "non-finite"
-                }
-            ));
-        }
-        _ => {}
-    }
+        status::INVERTED => TubeEnd::Inverted { t },
+        status::NON_FINITE => TubeEnd::NonFinite { t },
+        _ => TubeEnd::Horizon,
+    };
 }
 
 /// `bytes` padded with zeros to a non-empty multiple of 8 (a buffer may not be empty).
