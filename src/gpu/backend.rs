@@ -193,12 +193,6 @@ impl GpuBackend {
     }
 }
 
-impl From<GpuError> for ReachError {
-    fn from(e: GpuError) -> ReachError {
-        ReachError::Gpu(e.to_string())
-    }
-}
-
 /// An upper estimate of the loop iterations one thread of the bound kernels runs for a network
 /// of `widths` (input first): `bwd_scale`'s loops over a layer's neurons and its input's, and
 /// the GEMM's loop over its inner width in tiles of 16 (with up to 24 inner iterations each

@@ -168,9 +168,9 @@ pub enum ReachError {
     /// The network bounds failed.
     #[error(transparent)]
     Bounds(#[from] crate::bounds::BoundsError),
-    /// The GPU engine failed (`gpu::GpuError`, as text).
-    #[error("{0}")]
-    Gpu(String),
+    /// The GPU engine failed.
+    #[error(transparent)]
+    Gpu(#[from] crate::gpu::GpuError),
 }
 
 /// The compiled reach problem: plain data that every backend reads.
