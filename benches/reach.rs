@@ -50,7 +50,7 @@ fn reach_12_boxes(bencher: Bencher, method: BoundMethod) {
             let result = CpuBackend
                 .reach(&problem, &initial, &settings, &|_, _| {})
                 .expect("reach runs");
-            let valid = result.boxes.iter().filter(|t| t.valid).count();
+            let valid = result.boxes.iter().filter(|t| t.valid()).count();
             eprintln!(
                 "{method}: {valid}/{} tubes valid to the end",
                 result.boxes.len()

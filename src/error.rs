@@ -6,6 +6,9 @@ pub enum Error {
     /// A scenario file could not be read or is invalid.
     #[error(transparent)]
     Scenario(#[from] crate::scenario::ScenarioError),
+    /// An expression could not be parsed or differentiated.
+    #[error(transparent)]
+    Expr(#[from] crate::expressions::ExprError),
     /// A network file could not be read or is invalid.
     #[error(transparent)]
     Network(#[from] crate::network::NetworkError),
@@ -18,9 +21,18 @@ pub enum Error {
     /// A reach run could not start.
     #[error(transparent)]
     Reach(#[from] crate::reach::ReachError),
+    /// A change of coordinates for the embedding could not be built.
+    #[error(transparent)]
+    Transform(#[from] crate::reach::transform::TransformError),
+    /// The GPU engine could not start or run.
+    #[error(transparent)]
+    Gpu(#[from] crate::gpu::GpuError),
     /// A verification run or a merge failed.
     #[error(transparent)]
     Verify(#[from] crate::verify::VerifyError),
+    /// Measuring or certifying a network's error failed.
+    #[error(transparent)]
+    Analysis(#[from] crate::surrogate_error::AnalysisError),
     /// A picture could not be drawn.
     #[error(transparent)]
     Plot(#[from] crate::plot::PlotError),

@@ -44,13 +44,35 @@ pub enum PlotError {
     #[error("{0}")]
     Input(String),
     /// Drawing or writing the file failed.
-    #[error("{path}: {message}")]
+    #[error("{path}: {source}")]
     Draw {
         /// The output file.
         path: String,
         /// What went wrong.
-        message: String,
+        source: DrawError,
     },
+}
+
+/// Why a figure could not be drawn on its canvas.
+#[derive(Debug, thiserror::Error)]
+pub enum DrawError {
+    /// Pictures are of planar systems.
+    #[error("pictures need a system with 2 states; {file} has {n}")]
+    NotPlanar {
+        /// The scenario file.
+        file: String,
+        /// Its number of states.
+        n: usize,
+    },
+    /// plotters or its backend failed (its error type depends on the backend).
+    #[error("{0}")]
+    Plotters(#[source] Box<dyn std::error::Error + Send + Sync>),
+}
+
+impl<E: std::error::Error + Send + Sync + 'static> From<DrawingAreaErrorKind<E>> for DrawError {
+    fn from(e: DrawingAreaErrorKind<E>) -> DrawError {
+        DrawError::Plotters(Box::new(e))
+    }
 }
 
 /// What to draw.
@@ -129,9 +151,9 @@ pub fn save(figure: &Figure, path: &Path, size: (u32, u32)) -> Result<(), PlotEr
         )));
     }
     let name = path.display().to_string();
-    let draw_err = |e: String| PlotError::Draw {
+    let draw_err = |source: DrawError| PlotError::Draw {
         path: name.clone(),
-        message: e,
+        source,
     };
     let ext = path
         .extension()
@@ -141,12 +163,12 @@ pub fn save(figure: &Figure, path: &Path, size: (u32, u32)) -> Result<(), PlotEr
         Some("png") => {
             let root = BitMapBackend::new(path, size).into_drawing_area();
             draw(&root, figure).map_err(draw_err)?;
-            root.present().map_err(|e| draw_err(e.to_string()))
+            root.present().map_err(|e| draw_err(e.into()))
         }
         Some("svg") => {
             let root = SVGBackend::new(path, size).into_drawing_area();
             draw(&root, figure).map_err(draw_err)?;
-            root.present().map_err(|e| draw_err(e.to_string()))
+            root.present().map_err(|e| draw_err(e.into()))
         }
         _ => Err(PlotError::Format(name)),
     }
@@ -176,8 +198,11 @@ fn verdict_colour(v: Verdict) -> RGBColor {
 
 type Chart<'a, DB> = ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
 
-fn draw<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, figure: &Figure) -> Result<(), String> {
-    root.fill(&WHITE).map_err(|e| e.to_string())?;
+fn draw<DB: DrawingBackend<ErrorType: 'static>>(
+    root: &DrawingArea<DB, Shift>,
+    figure: &Figure,
+) -> Result<(), DrawError> {
+    root.fill(&WHITE).map_err(DrawError::from)?;
     match figure {
         Figure::Trajectories {
             scenario,
@@ -212,18 +237,17 @@ fn caption_size<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, title: &str) 
     }
 }
 
-fn chart<'a, DB: DrawingBackend>(
+fn chart<'a, DB: DrawingBackend<ErrorType: 'static>>(
     root: &'a DrawingArea<DB, Shift>,
     scenario: &Scenario,
     region: &IntervalBox,
     title: &str,
-) -> Result<Chart<'a, DB>, String> {
+) -> Result<Chart<'a, DB>, DrawError> {
     if scenario.n() != 2 || region.dim() != 2 {
-        return Err(format!(
-            "pictures need a system with 2 states; {} has {}",
-            scenario.file,
-            scenario.n()
-        ));
+        return Err(DrawError::NotPlanar {
+            file: scenario.file.clone(),
+            n: scenario.n(),
+        });
     }
     let mut chart = ChartBuilder::on(root)
         .caption(title, ("sans-serif", caption_size(root, title)))
@@ -234,7 +258,7 @@ fn chart<'a, DB: DrawingBackend>(
             region.lower[0]..region.upper[0],
             region.lower[1]..region.upper[1],
         )
-        .map_err(|e| e.to_string())?;
+        .map_err(DrawError::from)?;
     chart
         .configure_mesh()
         .x_desc(scenario.states[0].as_str())
@@ -244,16 +268,16 @@ fn chart<'a, DB: DrawingBackend>(
         .light_line_style(RGBColor(245, 245, 245))
         .bold_line_style(RGBColor(225, 225, 225))
         .draw()
-        .map_err(|e| e.to_string())?;
+        .map_err(DrawError::from)?;
     Ok(chart)
 }
 
 /// Shades the cells of a fine grid over `region` where some `hᵢ < 0` at the centre.
-fn shade_unsafe<'a, DB: DrawingBackend + 'a>(
+fn shade_unsafe<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
     chart: &mut Chart<'a, DB>,
     scenario: &Scenario,
     region: &IntervalBox,
-) -> Result<(), String> {
+) -> Result<(), DrawError> {
     let (nx, ny) = (240usize, 180usize);
     let cells = region.partition(&[nx, ny]);
     let bad: Vec<&IntervalBox> = cells
@@ -273,13 +297,15 @@ fn shade_unsafe<'a, DB: DrawingBackend + 'a>(
                 OBSTACLE.filled(),
             )
         }))
-        .map_err(|e| e.to_string())?
+        .map_err(DrawError::from)?
         .label("unsafe set (some h < 0)")
         .legend(|(x, y)| Rectangle::new([(x, y - 6), (x + 14, y + 6)], OBSTACLE.filled()));
     Ok(())
 }
 
-fn legend<'a, DB: DrawingBackend + 'a>(chart: &mut Chart<'a, DB>) -> Result<(), String> {
+fn legend<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
+    chart: &mut Chart<'a, DB>,
+) -> Result<(), DrawError> {
     chart
         .configure_series_labels()
         .position(SeriesLabelPosition::UpperLeft)
@@ -287,7 +313,7 @@ fn legend<'a, DB: DrawingBackend + 'a>(chart: &mut Chart<'a, DB>) -> Result<(), 
         .border_style(DARK)
         .label_font(("sans-serif", 14))
         .draw()
-        .map_err(|e| e.to_string())
+        .map_err(DrawError::from)
 }
 
 fn clamp_box(b: &IntervalBox, r: &IntervalBox) -> [(f64, f64); 2] {
@@ -298,13 +324,13 @@ fn clamp_box(b: &IntervalBox, r: &IntervalBox) -> [(f64, f64); 2] {
     ]
 }
 
-fn box_series<'a, DB: DrawingBackend + 'a>(
+fn box_series<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
     chart: &mut Chart<'a, DB>,
     boxes: &[IntervalBox],
     region: &IntervalBox,
     style: ShapeStyle,
     label: Option<&str>,
-) -> Result<(), String> {
+) -> Result<(), DrawError> {
     if boxes.is_empty() {
         return Ok(());
     }
@@ -314,7 +340,7 @@ fn box_series<'a, DB: DrawingBackend + 'a>(
                 .iter()
                 .map(|b| Rectangle::new(clamp_box(b, region), style)),
         )
-        .map_err(|e| e.to_string())?;
+        .map_err(DrawError::from)?;
     if let Some(l) = label {
         series
             .label(l)
@@ -344,10 +370,10 @@ fn ending(scenario: &Scenario, equilibria: &[Equilibrium], end: &[f64]) -> usize
     }
 }
 
-fn draw_equilibria<'a, DB: DrawingBackend + 'a>(
+fn draw_equilibria<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
     chart: &mut Chart<'a, DB>,
     equilibria: &[Equilibrium],
-) -> Result<(), String> {
+) -> Result<(), DrawError> {
     type Kind = (&'static str, fn(&Equilibrium) -> bool, RGBColor, u8);
     let kinds: [Kind; 4] = [
         (
@@ -394,7 +420,7 @@ fn draw_equilibria<'a, DB: DrawingBackend + 'a>(
                     EmptyElement::at(p) + TriangleMarker::new((0, 0), 8, colour.filled())
                 })),
         }
-        .map_err(|e| e.to_string())?;
+        .map_err(DrawError::from)?;
         let style: ShapeStyle = if shape == 1 {
             colour.stroke_width(3)
         } else {
@@ -411,13 +437,13 @@ fn draw_equilibria<'a, DB: DrawingBackend + 'a>(
     Ok(())
 }
 
-fn draw_lines<'a, DB: DrawingBackend + 'a>(
+fn draw_lines<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
     chart: &mut Chart<'a, DB>,
     lines: &[&Trajectory],
     style: ShapeStyle,
     label: Option<&str>,
     starts: bool,
-) -> Result<(), String> {
+) -> Result<(), DrawError> {
     let mut first = true;
     for t in lines {
         let s = chart
@@ -425,7 +451,7 @@ fn draw_lines<'a, DB: DrawingBackend + 'a>(
                 t.x.iter().filter(|x| x.len() == 2).map(|x| (x[0], x[1])),
                 style,
             ))
-            .map_err(|e| e.to_string())?;
+            .map_err(DrawError::from)?;
         if first {
             if let Some(l) = label {
                 s.label(l).legend(move |(x, y)| {
@@ -441,18 +467,18 @@ fn draw_lines<'a, DB: DrawingBackend + 'a>(
                     3,
                     style.color.filled(),
                 )))
-                .map_err(|e| e.to_string())?;
+                .map_err(DrawError::from)?;
         }
     }
     Ok(())
 }
 
-fn draw_trajectories<DB: DrawingBackend>(
+fn draw_trajectories<DB: DrawingBackend<ErrorType: 'static>>(
     root: &DrawingArea<DB, Shift>,
     scenario: &Scenario,
     trajectories: &[Trajectory],
     equilibria: &[Equilibrium],
-) -> Result<(), String> {
+) -> Result<(), DrawError> {
     let region = &scenario.reach.region;
     let title = format!(
         "Filtered system `{}`: trajectories and equilibria",
@@ -486,7 +512,7 @@ fn draw_trajectories<DB: DrawingBackend>(
 /// The colour and label of a tube by its outcome.
 fn tube_class(scenario: &Scenario, tube: &Tube) -> (RGBColor, &'static str) {
     match tube.last() {
-        _ if !tube.valid => (ORANGE, "invalid (left C, or M = ∞)"),
+        _ if !tube.valid() => (ORANGE, "invalid (left C, or M = ∞)"),
         Some(s) if s.set.is_subset_of(&scenario.reach.goal) => (BLUE, "reaches the goal"),
         _ => (VERMILION, "does not reach the goal"),
     }
@@ -502,10 +528,10 @@ fn pick_samples(tube: &Tube, every: usize) -> impl Iterator<Item = &crate::reach
         .map(|(_, s)| s)
 }
 
-fn draw_goal<'a, DB: DrawingBackend + 'a>(
+fn draw_goal<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
     chart: &mut Chart<'a, DB>,
     scenario: &Scenario,
-) -> Result<(), String> {
+) -> Result<(), DrawError> {
     box_series(
         chart,
         std::slice::from_ref(&scenario.reach.goal),
@@ -515,13 +541,13 @@ fn draw_goal<'a, DB: DrawingBackend + 'a>(
     )
 }
 
-fn draw_tubes<DB: DrawingBackend>(
+fn draw_tubes<DB: DrawingBackend<ErrorType: 'static>>(
     root: &DrawingArea<DB, Shift>,
     scenario: &Scenario,
     tubes: &[Tube],
     every: usize,
     title: &str,
-) -> Result<(), String> {
+) -> Result<(), DrawError> {
     let region = &scenario.reach.region;
     let mut chart = chart(root, scenario, region, title)?;
     shade_unsafe(&mut chart, scenario, region)?;
@@ -554,13 +580,13 @@ fn draw_tubes<DB: DrawingBackend>(
     Ok(())
 }
 
-fn draw_minkowski<DB: DrawingBackend>(
+fn draw_minkowski<DB: DrawingBackend<ErrorType: 'static>>(
     root: &DrawingArea<DB, Shift>,
     scenario: &Scenario,
     tubes: &[Tube],
     trajectories: &[Trajectory],
     every: usize,
-) -> Result<(), String> {
+) -> Result<(), DrawError> {
     let region = &scenario.reach.region;
     let title = format!(
         "`{}`: NN-system boxes and closeness-inflated sets (Minkowski, paper Thm. 2)",
@@ -606,11 +632,11 @@ fn draw_minkowski<DB: DrawingBackend>(
     Ok(())
 }
 
-fn draw_verdicts<DB: DrawingBackend>(
+fn draw_verdicts<DB: DrawingBackend<ErrorType: 'static>>(
     root: &DrawingArea<DB, Shift>,
     scenario: &Scenario,
     report: &VerifyReport,
-) -> Result<(), String> {
+) -> Result<(), DrawError> {
     let region = &report.run.region;
     let (before, after) = (report.shares_before(), report.shares_after());
     let refined = report.after.len() != report.before.len();
@@ -718,7 +744,7 @@ fn draw_verdicts<DB: DrawingBackend>(
         .border_style(DARK)
         .label_font(("sans-serif", 14))
         .draw()
-        .map_err(|e| e.to_string())
+        .map_err(DrawError::from)
 }
 
 /// Upper ends of the error map's colour classes (the last class is everything finite above).
@@ -759,11 +785,11 @@ fn error_class_label(class: usize) -> String {
     }
 }
 
-fn draw_error_map<DB: DrawingBackend>(
+fn draw_error_map<DB: DrawingBackend<ErrorType: 'static>>(
     root: &DrawingArea<DB, Shift>,
     scenario: &Scenario,
     map: &ErrorMap,
-) -> Result<(), String> {
+) -> Result<(), DrawError> {
     let region = &map.region;
     let certified = match map.certified_linf {
         Some(m) if m.is_finite() => format!("{m:.3}"),

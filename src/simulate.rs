@@ -6,7 +6,7 @@
 use std::io::Write;
 
 use rand::{Rng, SeedableRng};
-use serde::Serialize;
+use serde::{Serialize, Serializer};
 
 use crate::boxes::IntervalBox;
 use crate::filter::{FilterError, SafetyFilter};
@@ -30,8 +30,55 @@ pub struct Trajectory {
     pub t: Vec<f64>,
     /// States at those times.
     pub x: Vec<Vec<f64>>,
-    /// Why the trajectory stopped before the horizon (e.g. an infeasible filter), if it did.
-    pub stopped: Option<String>,
+    /// Why the trajectory stopped before the horizon (e.g. an infeasible filter), if it did;
+    /// serialized as its text.
+    #[serde(serialize_with = "as_text")]
+    pub stopped: Option<Stop>,
+}
+
+/// Why a trajectory stopped before the horizon: its field could not be evaluated at the state
+/// reached at `t` (the last one recorded).
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("at t = {t}: {cause}")]
+pub struct Stop {
+    /// The time of the state where the field failed.
+    pub t: f64,
+    /// Why the field failed there.
+    #[source]
+    pub cause: FieldFailure,
+}
+
+/// Why a closed loop's field could not be evaluated at a state.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum FieldFailure {
+    /// The filter gave no `v(x)`: its QP is infeasible (a status of the problem, not a fault),
+    /// a CBF is not differentiable there, or the solver failed.
+    #[error(transparent)]
+    Filter(#[from] FilterError),
+    /// Another field's failure, as its text.
+    #[error("{0}")]
+    Other(String),
+}
+
+impl FieldFailure {
+    /// Whether the filter's QP has no solution there.
+    pub fn is_infeasible(&self) -> bool {
+        matches!(self, FieldFailure::Filter(FilterError::Infeasible { .. }))
+    }
+}
+
+impl From<String> for FieldFailure {
+    fn from(message: String) -> FieldFailure {
+        FieldFailure::Other(message)
+    }
+}
+
+/// An optional [`Stop`] as its text (or null), as the JSON has always held it.
+fn as_text<S: Serializer>(stop: &Option<Stop>, serializer: S) -> Result<S::Ok, S::Error> {
+    match stop {
+        Some(stop) => serializer.collect_str(stop),
+        None => serializer.serialize_none(),
+    }
 }
 
 impl Trajectory {
@@ -43,7 +90,7 @@ impl Trajectory {
 
 /// Integrates `ẋ = field(x)` from `x0` over `steps` steps of `dt`; stops early (and says why)
 /// when the field cannot be evaluated.
-pub fn integrate<E: std::fmt::Display>(
+pub fn integrate<E: Into<FieldFailure>>(
     field: impl Fn(&[f64]) -> Result<Vec<f64>, E>,
     x0: &[f64],
     dt: f64,
@@ -61,7 +108,10 @@ pub fn integrate<E: std::fmt::Display>(
         match step(&field, &x, dt, integrator) {
             Ok(next) => x = next,
             Err(e) => {
-                traj.stopped = Some(format!("at t = {}: {e}", k as f64 * dt));
+                traj.stopped = Some(Stop {
+                    t: k as f64 * dt,
+                    cause: e.into(),
+                });
                 break;
             }
         }

@@ -614,8 +614,8 @@ pub fn judge(
             }
         }
     }
-    if !tube.valid {
-        return (Verdict::Invalid, None, tube.note.clone());
+    if !tube.valid() {
+        return (Verdict::Invalid, None, tube.note());
     }
     let Some(last) = tube.last() else {
         return (Verdict::Unknown, None, Some("empty tube".into()));

@@ -138,9 +138,11 @@ fn compare_within(cpu: &[Tube], gpu: &[Tube], what: &str, tol: f64) -> f64 {
     let mut worst = 0.0f64;
     for (k, (a, b)) in cpu.iter().zip(gpu).enumerate() {
         assert_eq!(
-            a.valid, b.valid,
+            a.valid(),
+            b.valid(),
             "{what} box {k}: validity {:?} vs {:?}",
-            a.note, b.note
+            a.note(),
+            b.note()
         );
         assert_eq!(a.tube.len(), b.tube.len(), "{what} box {k}: samples");
         for (sa, sb) in a.tube.iter().zip(&b.tube) {
@@ -270,9 +272,9 @@ fn scenario_2_small_network_matches_cpu_with_and_without_transform() {
                 assert!(at_edge(&c[3]) && at_edge(&g[3]), "transform {with}");
             } else {
                 assert!(
-                    !c[3].valid && !g[3].valid,
+                    !c[3].valid() && !g[3].valid(),
                     "transform {with}: {:?}",
-                    c[3].note
+                    c[3].note()
                 );
             }
         }
@@ -295,7 +297,7 @@ fn paper_size_network_end_to_end() {
         // the CPU's (up to REL_TOL) and measure the excess.
         let mut excess = 0.0f64;
         for (k, (a, b)) in c.iter().zip(&g).enumerate() {
-            assert_eq!(a.valid, b.valid);
+            assert_eq!(a.valid(), b.valid());
             for (sa, sb) in a.tube.iter().zip(&b.tube) {
                 for i in 0..2 {
                     let scale = sa.set.lower[i].abs().max(sa.set.upper[i].abs()).max(1.0);
@@ -943,12 +945,12 @@ fn local_margins_match_cpu() {
         let what = format!("{} face-local {}", st.bounds, st.face_local);
         let (c, g) = run_both_with(&gpu32, &problem, &init, &st);
         assert!(
-            !c[0].valid && c[1..].iter().all(|t| t.valid),
+            !c[0].valid() && c[1..].iter().all(|t| t.valid()),
             "{:?}",
-            c[0].note
+            c[0].note()
         );
-        assert!(c[0].note.as_ref().unwrap().contains("M = ∞"));
-        assert_eq!(c[0].note, g[0].note);
+        assert!(c[0].note().as_ref().unwrap().contains("M = ∞"));
+        assert_eq!(c[0].note(), g[0].note());
         worst.0 = worst.0.max(compare_within(
             &c,
             &g,
@@ -957,7 +959,7 @@ fn local_margins_match_cpu() {
         ));
         if let Some(gpu64) = &gpu64 {
             let (c, g) = run_both_with(gpu64, &problem, &init, &st);
-            assert_eq!(c[0].note, g[0].note);
+            assert_eq!(c[0].note(), g[0].note());
             worst.1 = worst.1.max(compare_within(
                 &c,
                 &g,
@@ -997,7 +999,7 @@ fn shipped_error_map_face_local_matches_cpu() {
     // F32_FACTOR (paper_size_network_end_to_end): check containment and measure the excess.
     let mut w32 = 0.0f64;
     for (a, b) in c.iter().zip(&g) {
-        assert_eq!(a.valid, b.valid, "{:?} vs {:?}", a.note, b.note);
+        assert_eq!(a.valid(), b.valid(), "{:?} vs {:?}", a.note(), b.note());
         assert_eq!(a.tube.len(), b.tube.len());
         for (sa, sb) in a.tube.iter().zip(&b.tube) {
             for i in 0..2 {
@@ -1060,7 +1062,7 @@ fn grown_sets_local_margins_are_sound_and_batch_independent() {
         .reach(&problem, &init, &st, &|_, _| {})
         .unwrap()
         .boxes;
-    assert!(cpu.iter().all(|t| !t.valid), "both sets should leave C");
+    assert!(cpu.iter().all(|t| !t.valid()), "both sets should leave C");
     let scenario = integrator();
     let filter = SafetyFilter::new(&scenario);
     let truth: Vec<Vec<Vec<Vec<f64>>>> = init
@@ -1187,7 +1189,7 @@ fn face_local_local_margin_sets_contain_trajectories() {
         ] {
             let tubes = gpu.reach(&problem, &init, &st, &|_, _| {}).unwrap().boxes;
             for tube in &tubes {
-                assert!(tube.valid, "{:?}", tube.note);
+                assert!(tube.valid(), "{:?}", tube.note());
             }
             let label = format!("{} {:?}", st.bounds, gpu.precision());
             let checks = count_contained(&tubes, &trajectories, problem.dt, &label);
@@ -1252,9 +1254,9 @@ fn safe_set_keeps_local_margins_finite_at_the_edge_of_c() {
     );
     for t in &c {
         assert!(
-            !t.note.as_deref().unwrap_or_default().contains("M = ∞"),
+            !t.note().as_deref().unwrap_or_default().contains("M = ∞"),
             "{:?}",
-            t.note
+            t.note()
         );
     }
     compare_within(&c, &g, "f32 safe set, local margins", F32_FACTOR);
@@ -1345,7 +1347,7 @@ fn point_boxes_contain_the_nn_trajectory_despite_rounding() {
                     gpu.precision()
                 );
                 for t in &tubes {
-                    assert!(t.valid, "{label}: {:?}", t.note);
+                    assert!(t.valid(), "{label}: {:?}", t.note());
                 }
                 let checks = count_contained(&tubes, &trajectories, problem.dt, &label);
                 assert!(checks >= 3 * 12 * 40, "{label}: {checks} checks");
@@ -1442,9 +1444,11 @@ fn closed_form_filter_matches_cpu() {
         );
         for (k, (a, b)) in c.iter().zip(&g).enumerate() {
             assert_eq!(
-                a.valid, b.valid,
+                a.valid(),
+                b.valid(),
                 "{name} box {k}: {:?} vs {:?}",
-                a.note, b.note
+                a.note(),
+                b.note()
             );
             for (sa, sb) in a.tube.iter().zip(&b.tube) {
                 for i in 0..2 {

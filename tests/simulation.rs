@@ -53,7 +53,7 @@ fn check_invariance(s: &cbfreach::scenario::Scenario, starts: usize, max_stopped
         for x0 in &safe {
             let t = simulate_filtered(&f, x0, dt, steps, Integrator::Euler);
             if let Some(why) = &t.stopped {
-                assert!(why.contains("infeasible"), "{why}");
+                assert!(why.cause.is_infeasible(), "{why}");
                 stopped += 1;
             }
             for x in &t.x {

@@ -440,12 +440,8 @@ fn a_set_outside_s_is_a_bug_only_where_the_qp_was_proven_feasible() {
         set: IntervalBox::new(lower.to_vec(), upper.to_vec()).unwrap(),
     };
     let tube = |first: TubeSample| Tube {
-        initial: first.set.clone(),
-        tube: vec![first, sample(0.05, [4.0, -2.01], [4.01, -2.005])],
-        valid: true,
-        note: None,
-        exact_steps: 0,
-        enclosed_steps: 0,
+        tube: vec![first.clone(), sample(0.05, [4.0, -2.01], [4.01, -2.005])],
+        ..Tube::new(first.set)
     };
     // At (4, −1.99) the obstacle asks for u ≤ −0.25 and the velocity bound for u ≥ −0.01.
     let conflict = tube(sample(0.0, [4.0, -1.995], [4.01, -1.99]));

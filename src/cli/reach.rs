@@ -334,10 +334,9 @@ pub fn run(args: &ReachArgs) -> CliResult {
                 fmt_point(&set.lower),
                 fmt_point(&set.upper),
                 where_,
-                match (tube.valid, &tube.note) {
-                    (true, _) => String::new(),
-                    (false, Some(note)) => format!("  INVALID ({note})"),
-                    (false, None) => "  INVALID".to_string(),
+                match tube.note() {
+                    None => String::new(),
+                    Some(note) => format!("  INVALID ({note})"),
                 }
             );
         }
@@ -365,7 +364,7 @@ pub fn run(args: &ReachArgs) -> CliResult {
             }
         );
     }
-    let invalid = result.boxes.iter().filter(|t| !t.valid).count();
+    let invalid = result.boxes.iter().filter(|t| !t.valid()).count();
     if invalid > 0 {
         println!(
             "  {invalid} of {} sets stopped (INVALID): {}`cbfreach verify` splits boxes until they \

@@ -154,11 +154,13 @@ pub fn run(args: &SimulateArgs) -> CliResult {
         }
         None => std::io::stdout().write_all(&buffer)?,
     }
-    for t in trajectories.iter().filter(|t| t.stopped.is_some()) {
+    for (t, stop) in trajectories
+        .iter()
+        .filter_map(|t| t.stopped.as_ref().map(|s| (t, s)))
+    {
         eprintln!(
-            "warning: trajectory from {} stopped {}",
-            fmt_point(&t.x0),
-            t.stopped.as_deref().unwrap_or_default()
+            "warning: trajectory from {} stopped {stop}",
+            fmt_point(&t.x0)
         );
     }
     Ok(())

@@ -17,7 +17,7 @@ use super::embedding::{
 };
 use super::safe_set::{clip_to_safe_set, SafeSet};
 use super::{Backend, ExactField, ReachError, ReachMethod, ReachProblem, ReachResult};
-use super::{ReachSettings, ReachTiming, Tube, TubeSample};
+use super::{ReachSettings, ReachTiming, Tube, TubeEnd, TubeSample};
 use crate::bounds::{AffineBoundsBatch, BoundsWorkspace, PreparedNetwork};
 use crate::boxes::IntervalBox;
 use crate::filter::FilterPiece;
@@ -199,14 +199,7 @@ impl ChunkRun<'_> {
             sets,
             known: initial.clone(),
             radius: 0.0,
-            tube: Tube {
-                initial: initial.clone(),
-                tube: Vec::new(),
-                valid: true,
-                note: None,
-                exact_steps: 0,
-                enclosed_steps: 0,
-            },
+            tube: Tube::new(initial.clone()),
             done: false,
         };
         self.settle(&mut state, &vec![true; self.frames.len()]);
@@ -516,12 +509,7 @@ impl ChunkRun<'_> {
                 if !buf.stepped.iter().any(|&s| s) {
                     // The error map has no finite bound where the set is (e.g. where `v`
                     // jumps), in every frame: nothing sound can be said from here on.
-                    state.tube.valid = false;
-                    state.tube.note = Some(format!(
-                        "t = {:.3}: the set meets cells of the error map with no certified \
-                         bound (M = ∞)",
-                        t - problem.dt
-                    ));
+                    state.tube.end = TubeEnd::NoCertifiedBound { t: t - problem.dt };
                     state.done = true;
                     continue;
                 }
@@ -543,11 +531,11 @@ impl ChunkRun<'_> {
             .flat_map(|(set, _)| set.lower.iter().chain(&set.upper))
             .all(|v| v.is_finite());
         if inverted || !finite {
-            state.tube.valid = false;
-            state.tube.note = Some(format!(
-                "t = {t:.3}: the embedding state became {} (Euler step too large for this system?)",
-                if finite { "inverted" } else { "non-finite" }
-            ));
+            state.tube.end = if finite {
+                TubeEnd::Inverted { t }
+            } else {
+                TubeEnd::NonFinite { t }
+            };
             state.done = true;
             return;
         }
@@ -564,8 +552,7 @@ impl ChunkRun<'_> {
         let sample = self.sample(state, t);
         let problem = self.frames[0].problem;
         if !sample.set.is_subset_of(&problem.region) {
-            state.tube.valid = false;
-            state.tube.note = Some(format!("t = {t:.3}: the set left the region C"));
+            state.tube.end = TubeEnd::LeftRegion { t };
             state.tube.tube.push(sample);
             state.done = true;
         } else if record {

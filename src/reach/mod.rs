@@ -21,6 +21,7 @@ pub mod embedding;
 pub mod pieces;
 pub mod safe_set;
 pub mod transform;
+pub mod tube;
 
 use serde::{Deserialize, Serialize};
 
@@ -32,6 +33,7 @@ use crate::scenario::{Norm, Scenario};
 use embedding::Dynamics;
 pub use safe_set::SafeSet;
 pub use transform::Transform;
+pub use tube::{Tube, TubeEnd, TubeSample};
 
 pub use cpu::CpuBackend;
 
@@ -166,9 +168,9 @@ pub enum ReachError {
     /// The network bounds failed.
     #[error(transparent)]
     Bounds(#[from] crate::bounds::BoundsError),
-    /// The GPU engine failed (`gpu::GpuError`, as text).
-    #[error("{0}")]
-    Gpu(String),
+    /// The GPU engine failed.
+    #[error(transparent)]
+    Gpu(#[from] crate::gpu::GpuError),
 }
 
 /// The compiled reach problem: plain data that every backend reads.
@@ -515,71 +517,6 @@ impl ReachProblem {
             }
         }
         Ok(())
-    }
-}
-
-/// One recorded time of a tube.
-#[derive(Clone, Debug, Serialize)]
-pub struct TubeSample {
-    /// Time `t`.
-    pub t: f64,
-    /// Lower corner of the box (x coordinates; with a transform, of the parallelotope's
-    /// bounding box).
-    pub lower: Vec<f64>,
-    /// Upper corner.
-    pub upper: Vec<f64>,
-    /// Closeness radius `r_t` to add (Minkowski method; in z's ℓ∞ norm with a transform);
-    /// 0 for the disturbance method.
-    pub radius: f64,
-    /// The z-box, with a transform.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub z_lower: Option<Vec<f64>>,
-    /// The z-box, with a transform.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub z_upper: Option<Vec<f64>>,
-    /// A box in x that contains the filtered system's set: `[lower, upper]` for the
-    /// disturbance method (both within the safe set's half-spaces), the bounding box of the
-    /// Minkowski sum otherwise.
-    pub set: IntervalBox,
-}
-
-impl TubeSample {
-    /// The box in x that bounds the filtered system's states at `t`.
-    pub fn filtered_set(&self) -> &IntervalBox {
-        &self.set
-    }
-}
-
-/// The sets of one initial box over time.
-#[derive(Clone, Debug, Serialize)]
-pub struct Tube {
-    /// The initial box.
-    pub initial: IntervalBox,
-    /// Recorded times (every K-th step and the last).
-    pub tube: Vec<TubeSample>,
-    /// False when the set left `C` (the result says nothing from then on).
-    pub valid: bool,
-    /// Why the tube stopped early, if it did.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub note: Option<String>,
-    /// Steps that integrated the filtered system's own field, the filter proven one smooth
-    /// function on the set ([`ReachSettings::exact`]).
-    pub exact_steps: usize,
-    /// Steps whose field also took the closed form's enclosures of `v` on the set's faces
-    /// ([`ExactField::ClosedForm`], where no piece was proven).
-    pub enclosed_steps: usize,
-}
-
-impl Tube {
-    /// The last recorded sample.
-    pub fn last(&self) -> Option<&TubeSample> {
-        self.tube.last()
-    }
-
-    /// Euler steps of size `dt` this tube ran: a box stops where its set leaves `C`, so rates
-    /// count these, not boxes × steps.
-    pub fn steps_run(&self, dt: f64) -> usize {
-        self.last().map_or(0, |l| (l.t / dt).round() as usize)
     }
 }
 

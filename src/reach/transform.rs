@@ -15,11 +15,62 @@ use nalgebra::{DMatrix, DVector};
 
 use crate::boxes::IntervalBox;
 use crate::expressions::Expr;
-use crate::filter::SafetyFilter;
+use crate::filter::{FilterError, SafetyFilter};
 use crate::intervals::Interval;
 use crate::network::Mlp;
 use crate::rounding::round_up;
 use crate::scenario::{Scenario, TransformChoice};
+
+/// Why a transform could not be built.
+#[derive(Debug, thiserror::Error)]
+pub enum TransformError {
+    /// `T` does not hold n×n finite numbers.
+    #[error("expected {n}×{n} finite numbers")]
+    Shape {
+        /// The state dimension.
+        n: usize,
+    },
+    /// `T` has no inverse.
+    #[error("the matrix is singular")]
+    Singular,
+    /// The computed inverse is too far from `T`'s for the coordinates to be sound.
+    #[error("the matrix is too ill-conditioned (‖I − TS‖ = {r_norm:.2e})")]
+    IllConditioned {
+        /// `‖I − TS‖∞`, bounded above.
+        r_norm: f64,
+    },
+    /// A 0×0 system.
+    #[error("empty matrix")]
+    Empty,
+    /// `AᵀP + PA = −I` has no unique solution.
+    #[error("A has eigenvalues λᵢ + λⱼ = 0: no Lyapunov function")]
+    NoLyapunovFunction,
+    /// `A` is not Hurwitz.
+    #[error("the closed loop is not stable at the goal (P is not positive definite)")]
+    NotStable,
+    /// The closed loop's Jacobian at the goal could not be evaluated.
+    #[error(transparent)]
+    ClosedLoop(#[from] FilterError),
+    /// A scenario's `reach.transform` could not be built.
+    #[error("{file}: reach.transform{}: {source}", choice_text(.choice))]
+    InScenario {
+        /// The scenario file.
+        file: String,
+        /// The choice: `matrix` (given as numbers), `lyapunov` or `auto`.
+        choice: &'static str,
+        /// Why.
+        #[source]
+        source: Box<TransformError>,
+    },
+}
+
+/// ` = "auto"` after `reach.transform` for a named choice; nothing for a matrix.
+fn choice_text(choice: &str) -> String {
+    match choice {
+        "matrix" => String::new(),
+        named => format!(" = \"{named}\""),
+    }
+}
 
 /// A change of coordinates `z = T x`, `x = S z`.
 #[derive(Clone, Debug, PartialEq)]
@@ -48,13 +99,13 @@ fn mat_vec(m: &[f64], v: &[Interval], n: usize) -> Vec<Interval> {
 impl Transform {
     /// The transform with the given `T` (n×n, row-major); an error if `T` is not safely
     /// invertible.
-    pub fn from_matrix(t: Vec<f64>, n: usize) -> Result<Transform, String> {
+    pub fn from_matrix(t: Vec<f64>, n: usize) -> Result<Transform, TransformError> {
         if t.len() != n * n || t.iter().any(|v| !v.is_finite()) {
-            return Err(format!("expected {n}×{n} finite numbers"));
+            return Err(TransformError::Shape { n });
         }
         let inv = DMatrix::from_row_slice(n, n, &t)
             .try_inverse()
-            .ok_or("the matrix is singular")?;
+            .ok_or(TransformError::Singular)?;
         let s: Vec<f64> = (0..n * n).map(|k| inv[(k / n, k % n)]).collect();
         // R = I − T S in interval arithmetic; ρ = ‖R‖/(1 − ‖R‖).
         let r_norm = (0..n)
@@ -69,9 +120,7 @@ impl Transform {
             })
             .fold(0.0, f64::max);
         if r_norm >= 0.5 {
-            return Err(format!(
-                "the matrix is too ill-conditioned (‖I − TS‖ = {r_norm:.2e})"
-            ));
+            return Err(TransformError::IllConditioned { r_norm });
         }
         let rho = (ip(r_norm) / (ip(1.0) - ip(r_norm))).upper;
         Ok(Transform { n, t, s, rho })
@@ -93,7 +142,7 @@ impl Transform {
     /// Coordinates in which `A` (the closed loop's linearisation at the goal) contracts in ℓ∞
     /// as far as a real Schur form allows: `A = Q U Qᵀ`, `T = D⁻¹Qᵀ` with `D = diag(δ⁰, δ¹, …)`
     /// shrinking `U`'s off-diagonal part until `μ∞(TAT⁻¹)` is within half of the slowest rate.
-    pub fn contracting(a: &[f64], n: usize) -> Result<Transform, String> {
+    pub fn contracting(a: &[f64], n: usize) -> Result<Transform, TransformError> {
         let am = DMatrix::from_row_slice(n, n, a);
         let (q, u) = am.clone().schur().unpack();
         let slowest = (0..n).map(|i| u[(i, i)]).fold(f64::NEG_INFINITY, f64::max);
@@ -133,7 +182,7 @@ impl Transform {
             }
             delta *= 0.5;
         }
-        let t = best.ok_or("empty matrix")?;
+        let t = best.ok_or(TransformError::Empty)?;
         Transform::from_matrix((0..n * n).map(|k| t[(k / n, k % n)]).collect(), n)
     }
 
@@ -141,7 +190,7 @@ impl Transform {
     /// linearisation at the goal): `P` solves `AᵀP + PA = −I`, `T = P^{1/2}`, so that
     /// `‖z‖₂ = ‖x‖_P` and `μ₂(TAT⁻¹) = −1/(2λ_max(P)) < 0`. With `norm = "2"` the Minkowski
     /// method's radius is then the paper's radius in `‖·‖_P`. Refused unless `A` is Hurwitz.
-    pub fn lyapunov(a: &[f64], n: usize) -> Result<Transform, String> {
+    pub fn lyapunov(a: &[f64], n: usize) -> Result<Transform, TransformError> {
         let am = DMatrix::from_row_slice(n, n, a);
         // vec(AᵀP + PA) = (I ⊗ Aᵀ + Aᵀ ⊗ I) vec(P), column-major vec.
         let at = am.transpose();
@@ -154,14 +203,12 @@ impl Transform {
         let vec_p = k
             .lu()
             .solve(&rhs)
-            .ok_or("A has eigenvalues λᵢ + λⱼ = 0: no Lyapunov function")?;
+            .ok_or(TransformError::NoLyapunovFunction)?;
         let p = DMatrix::from_column_slice(n, n, vec_p.as_slice());
         let p = (&p + p.transpose()) * 0.5;
         let eig = p.clone().symmetric_eigen();
         if eig.eigenvalues.iter().any(|l| l.is_nan() || *l <= 0.0) {
-            return Err(
-                "the closed loop is not stable at the goal (P is not positive definite)".into(),
-            );
+            return Err(TransformError::NotStable);
         }
         let sqrt = &eig.eigenvectors
             * DMatrix::from_diagonal(&eig.eigenvalues.map(f64::sqrt))
@@ -175,34 +222,33 @@ impl Transform {
     pub fn for_scenario(
         scenario: &Scenario,
         choice: &TransformChoice,
-    ) -> Result<Option<Transform>, String> {
+    ) -> Result<Option<Transform>, TransformError> {
         let n = scenario.n();
-        match choice {
-            TransformChoice::Identity => Ok(None),
-            TransformChoice::Matrix(t) => Transform::from_matrix(t.clone(), n)
-                .map(Some)
-                .map_err(|e| format!("{}: reach.transform: {e}", scenario.file)),
-            TransformChoice::Lyapunov => {
-                let goal = scenario.reach.goal.center();
-                let a = SafetyFilter::new(scenario)
-                    .closed_loop_jacobian(&goal)
-                    .map_err(|e| {
-                        format!("{}: reach.transform = \"lyapunov\": {e}", scenario.file)
-                    })?;
-                Transform::lyapunov(&a, n)
-                    .map(Some)
-                    .map_err(|e| format!("{}: reach.transform = \"lyapunov\": {e}", scenario.file))
-            }
-            TransformChoice::Auto => {
-                let goal = scenario.reach.goal.center();
-                let a = SafetyFilter::new(scenario)
-                    .closed_loop_jacobian(&goal)
-                    .map_err(|e| format!("{}: reach.transform = \"auto\": {e}", scenario.file))?;
-                Transform::contracting(&a, n)
-                    .map(Some)
-                    .map_err(|e| format!("{}: reach.transform = \"auto\": {e}", scenario.file))
-            }
-        }
+        let closed_loop = || {
+            let goal = scenario.reach.goal.center();
+            SafetyFilter::new(scenario).closed_loop_jacobian(&goal)
+        };
+        let (name, built) = match choice {
+            TransformChoice::Identity => return Ok(None),
+            TransformChoice::Matrix(t) => ("matrix", Transform::from_matrix(t.clone(), n)),
+            TransformChoice::Lyapunov => (
+                "lyapunov",
+                closed_loop()
+                    .map_err(TransformError::from)
+                    .and_then(|a| Transform::lyapunov(&a, n)),
+            ),
+            TransformChoice::Auto => (
+                "auto",
+                closed_loop()
+                    .map_err(TransformError::from)
+                    .and_then(|a| Transform::contracting(&a, n)),
+            ),
+        };
+        built.map(Some).map_err(|e| TransformError::InScenario {
+            file: scenario.file.clone(),
+            choice: name,
+            source: Box::new(e),
+        })
     }
 
     /// A sound z-box of `S⁻¹·X`.

@@ -1,0 +1,188 @@
+//! One chunk of boxes on the device: its initial states uploaded, every step submitted, the
+//! snapshots, states and flags read back (and, asked to, each kernel timed). Imports wgpu and
+//! the engine's layout and plan.
+
+use std::time::Instant;
+
+use super::super::buffers::{device_bytes, flatten_network, from_device_bytes};
+use super::super::codegen::{flag_words, round_down, round_up};
+use super::super::kernels::Kernels;
+use super::super::GpuError;
+use super::layout::{Buffers, Shape};
+use super::plan::{encode_steps, Op, StepPlan};
+use super::{GpuBackend, LLVMPIPE_LOOP_LIMIT};
+use crate::boxes::IntervalBox;
+use crate::reach::ReachProblem;
+
+/// Steps recorded into one command buffer at most (progress is reported between them).
+const STEPS_PER_SUBMIT: usize = 25;
+
+/// What one chunk's readback holds.
+pub(super) struct ChunkResult {
+    pub(super) snap: Vec<f64>,
+    pub(super) state: Vec<f64>,
+    pub(super) flags: Vec<u32>,
+}
+
+impl GpuBackend {
+    /// Runs every step for one chunk of boxes and reads its results back.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn run_chunk(
+        &self,
+        problem: &ReachProblem,
+        shape: &Shape,
+        kernels: &Kernels,
+        bufs: &Buffers,
+        boxes: &[IntervalBox],
+        slots: usize,
+        progress: &dyn Fn(usize),
+    ) -> Result<ChunkResult, GpuError> {
+        let (d, q) = (&self.ctx.device, &self.ctx.queue);
+        let prec = self.precision;
+        let n = problem.dynamics.n;
+        let sw = 2 * n + 1;
+        // Initial states, rounded outward to the device's numbers.
+        let mut init = Vec::with_capacity(boxes.len() * sw);
+        for b in boxes {
+            init.extend(b.lower.iter().map(|&v| round_down(v, prec)));
+            init.extend(b.upper.iter().map(|&v| round_up(v, prec)));
+            init.push(0.0);
+        }
+        if init.iter().any(|v| v.abs() > 1e30) {
+            return Err(GpuError::Problem("an initial box exceeds 1e30".into()));
+        }
+        q.write_buffer(&bufs.state, 0, &device_bytes(&init, prec));
+        q.write_buffer(
+            &bufs.flags,
+            0,
+            bytemuck::cast_slice(&vec![0u32; flag_words(boxes.len())]),
+        );
+
+        let plan = StepPlan {
+            device: d,
+            kernels,
+            bufs,
+            shape,
+            offsets: flatten_network(&problem.network).1,
+            nb: (shape.faces * boxes.len()) as u32,
+            boxes: boxes.len() as u32,
+            ops: Vec::new(),
+        };
+        let ops = plan.build();
+        let limit = self.ctx.limits.max_compute_workgroups_per_dimension;
+        if let Some(op) = ops.iter().find(|op| op.groups.iter().any(|&g| g > limit)) {
+            return Err(GpuError::TooLarge(format!(
+                "a dispatch of {:?} workgroups exceeds the device's {limit}",
+                op.groups
+            )));
+        }
+
+        let steps = problem.steps;
+        let mut done = 0;
+        while done < steps {
+            let batch = STEPS_PER_SUBMIT.min(steps - done);
+            q.submit([encode_steps(d, ops.iter(), batch)]);
+            self.ctx.wait()?;
+            done += batch;
+            progress(done);
+        }
+
+        // One readback: snapshots, final states, flags.
+        let bytes = prec.bytes();
+        let snap_bytes = (slots * boxes.len() * sw) as u64 * bytes;
+        let state_bytes = (boxes.len() * sw) as u64 * bytes;
+        let flag_bytes = (flag_words(boxes.len()) * 4) as u64;
+        let mut enc = d.create_command_encoder(&Default::default());
+        enc.copy_buffer_to_buffer(&bufs.snap, 0, &bufs.staging, 0, snap_bytes);
+        enc.copy_buffer_to_buffer(&bufs.state, 0, &bufs.staging, snap_bytes, state_bytes);
+        enc.copy_buffer_to_buffer(
+            &bufs.flags,
+            0,
+            &bufs.staging,
+            snap_bytes + state_bytes,
+            flag_bytes,
+        );
+        q.submit([enc.finish()]);
+        let total = snap_bytes + state_bytes + flag_bytes;
+        let slice = bufs.staging.slice(0..total);
+        let (tx, rx) = std::sync::mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        self.ctx.wait()?;
+        rx.recv()
+            .map_err(|e| GpuError::Device(e.to_string()))?
+            .map_err(|e| GpuError::Device(e.to_string()))?;
+        let result = {
+            let view = slice
+                .get_mapped_range()
+                .map_err(|e| GpuError::Device(e.to_string()))?;
+            let bytes: &[u8] = &view;
+            let (a, rest) = bytes.split_at(snap_bytes as usize);
+            let (b, c) = rest.split_at(state_bytes as usize);
+            ChunkResult {
+                snap: from_device_bytes(a, prec),
+                state: from_device_bytes(b, prec),
+                flags: bytemuck::pod_collect_to_vec(c),
+            }
+        };
+        bufs.staging.unmap();
+        // The loop check is the last word.
+        if result.flags.last().is_some_and(|&w| w != 0) {
+            return Err(GpuError::Device(format!(
+                "the device's driver ({}) cut the embedding kernel's loops short (llvmpipe ends \
+                 an invocation's loops after {LLVMPIPE_LOOP_LIMIT} iterations in all); its sets \
+                 cannot be trusted: run this problem on the CPU (--backend cpu)",
+                self.ctx.info.name
+            )));
+        }
+        if self.profile {
+            self.profile_step(&ops, boxes.len())?;
+        }
+        Ok(result)
+    }
+
+    /// Times one step's dispatches by kernel (each kind repeated on its own, then the whole
+    /// step) and prints ms per step, share and GFLOP/s of the GEMMs to stderr. The repeats
+    /// overwrite the chunk's buffers, so this runs after its readback.
+    fn profile_step(&self, ops: &[Op], boxes: usize) -> Result<(), GpuError> {
+        const REPEATS: usize = 10;
+        let time = |ops: &[&Op]| -> Result<f64, GpuError> {
+            let commands = encode_steps(&self.ctx.device, ops.iter().copied(), REPEATS);
+            self.ctx.wait()?;
+            let start = Instant::now();
+            self.ctx.queue.submit([commands]);
+            self.ctx.wait()?;
+            Ok(start.elapsed().as_secs_f64() * 1e3 / REPEATS as f64)
+        };
+        let all: Vec<&Op> = ops.iter().collect();
+        let step_ms = time(&all)?;
+        eprintln!(
+            "profile ({boxes} boxes, {} dispatches a step): {step_ms:.3} ms a step",
+            ops.len()
+        );
+        let mut names: Vec<&str> = ops.iter().map(|o| o.kernel.name).collect();
+        names.sort_unstable();
+        names.dedup();
+        for name in names {
+            let group: Vec<&Op> = ops.iter().filter(|o| o.kernel.name == name).collect();
+            let ms = time(&group)?;
+            eprintln!(
+                "  {name:<12} {:>3}×  {ms:>9.3} ms  {:>5.1}%",
+                group.len(),
+                100.0 * ms / step_ms
+            );
+        }
+        for op in ops {
+            if let Some([rows, inner, cols]) = op.gemm {
+                let ms = time(&[op])?;
+                let flops = 2.0 * rows as f64 * inner as f64 * cols as f64;
+                eprintln!(
+                    "    gemm {rows} × {inner} · {inner} × {cols}: {ms:.3} ms, {:.0} GFLOP/s",
+                    flops / ms / 1e6
+                );
+            }
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,206 @@
+//! What a reach run gives per initial box: its [`Tube`] of recorded sets and how it ended
+//! ([`TubeEnd`]), built alike by every engine. Imports only boxes and serde.
+
+use serde::ser::{Serialize, SerializeStruct, Serializer};
+
+use crate::boxes::IntervalBox;
+
+/// One recorded time of a tube.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct TubeSample {
+    /// Time `t`.
+    pub t: f64,
+    /// Lower corner of the box (x coordinates; with a transform, of the parallelotope's
+    /// bounding box).
+    pub lower: Vec<f64>,
+    /// Upper corner.
+    pub upper: Vec<f64>,
+    /// Closeness radius `r_t` to add (Minkowski method; in z's ℓ∞ norm with a transform);
+    /// 0 for the disturbance method.
+    pub radius: f64,
+    /// The z-box, with a transform.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub z_lower: Option<Vec<f64>>,
+    /// The z-box, with a transform.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub z_upper: Option<Vec<f64>>,
+    /// A box in x that contains the filtered system's set: `[lower, upper]` for the
+    /// disturbance method (both within the safe set's half-spaces), the bounding box of the
+    /// Minkowski sum otherwise.
+    pub set: IntervalBox,
+}
+
+impl TubeSample {
+    /// The box in x that bounds the filtered system's states at `t`.
+    pub fn filtered_set(&self) -> &IntervalBox {
+        &self.set
+    }
+}
+
+/// How a tube ended: at the horizon, or early at time `t`, after which it says nothing.
+/// Serialized (inside [`Tube`]) as `valid` and, for an early end, its [`Display`] as `note`.
+///
+/// [`Display`]: std::fmt::Display
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub enum TubeEnd {
+    /// Every step ran and every set stayed in `C`.
+    #[default]
+    Horizon,
+    /// The set left the region `C` at `t` (the tube's last sample is that set): the theorem
+    /// and `M_C` only hold inside `C`.
+    LeftRegion {
+        /// The time of the step whose set left `C`.
+        t: f64,
+    },
+    /// The step from `t` found no finite error bound where the set is (cells of the error map
+    /// without a certified bound, e.g. where `v` jumps), in every frame.
+    NoCertifiedBound {
+        /// The start of the step that could not be taken.
+        t: f64,
+    },
+    /// The embedding state's lower corner passed its upper one at `t`.
+    Inverted {
+        /// The time of the step.
+        t: f64,
+    },
+    /// The embedding state overflowed (or became NaN) at `t`.
+    NonFinite {
+        /// The time of the step.
+        t: f64,
+    },
+}
+
+impl TubeEnd {
+    /// Whether the tube ran to the horizon inside `C` (its sets bound the filtered system
+    /// throughout).
+    pub fn valid(&self) -> bool {
+        *self == TubeEnd::Horizon
+    }
+
+    /// When the tube ended early (`None` at the horizon).
+    pub fn t(&self) -> Option<f64> {
+        match *self {
+            TubeEnd::Horizon => None,
+            TubeEnd::LeftRegion { t }
+            | TubeEnd::NoCertifiedBound { t }
+            | TubeEnd::Inverted { t }
+            | TubeEnd::NonFinite { t } => Some(t),
+        }
+    }
+}
+
+impl std::fmt::Display for TubeEnd {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let became = |f: &mut std::fmt::Formatter<'_>, t: f64, what: &str| {
+            write!(
+                f,
+                "t = {t:.3}: the embedding state became {what} (Euler step too large for this \
+                 system?)"
+            )
+        };
+        match *self {
+            TubeEnd::Horizon => f.write_str("ran to the horizon"),
+            TubeEnd::LeftRegion { t } => write!(f, "t = {t:.3}: the set left the region C"),
+            TubeEnd::NoCertifiedBound { t } => write!(
+                f,
+                "t = {t:.3}: the set meets cells of the error map with no certified bound (M = ∞)"
+            ),
+            TubeEnd::Inverted { t } => became(f, t, "inverted"),
+            TubeEnd::NonFinite { t } => became(f, t, "non-finite"),
+        }
+    }
+}
+
+/// As the fields `valid` and, for an early end, `note` (the ending's text) of the tube.
+impl Serialize for TubeEnd {
+    fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        let valid = self.valid();
+        let mut s = serializer.serialize_struct("TubeEnd", if valid { 1 } else { 2 })?;
+        s.serialize_field("valid", &valid)?;
+        if !valid {
+            s.serialize_field("note", &self.to_string())?;
+        }
+        s.end()
+    }
+}
+
+/// The sets of one initial box over time.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Tube {
+    /// The initial box.
+    pub initial: IntervalBox,
+    /// Recorded times (every K-th step and the last).
+    pub tube: Vec<TubeSample>,
+    /// How the tube ended: the result says nothing after an early end.
+    #[serde(flatten)]
+    pub end: TubeEnd,
+    /// Steps that integrated the filtered system's own field, the filter proven one smooth
+    /// function on the set ([`super::ReachSettings::exact`]).
+    pub exact_steps: usize,
+    /// Steps whose field also took the closed form's enclosures of `v` on the set's faces
+    /// ([`super::ExactField::ClosedForm`], where no piece was proven).
+    pub enclosed_steps: usize,
+}
+
+impl Tube {
+    /// A tube that starts at `initial` with no samples yet.
+    pub fn new(initial: IntervalBox) -> Tube {
+        Tube {
+            initial,
+            tube: Vec::new(),
+            end: TubeEnd::Horizon,
+            exact_steps: 0,
+            enclosed_steps: 0,
+        }
+    }
+
+    /// False when the tube ended early (e.g. its set left `C`): the result says nothing from
+    /// then on.
+    pub fn valid(&self) -> bool {
+        self.end.valid()
+    }
+
+    /// Why the tube ended early, as text (`None` when it ran to the horizon).
+    pub fn note(&self) -> Option<String> {
+        (!self.valid()).then(|| self.end.to_string())
+    }
+
+    /// The last recorded sample.
+    pub fn last(&self) -> Option<&TubeSample> {
+        self.tube.last()
+    }
+
+    /// Euler steps of size `dt` this tube ran: a box stops where its set leaves `C`, so rates
+    /// count these, not boxes × steps.
+    pub fn steps_run(&self, dt: f64) -> usize {
+        self.last().map_or(0, |l| (l.t / dt).round() as usize)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The JSON of a tube is as before the ending became a type: `valid`, then `note` only for
+    /// an early end, between the samples and the step counts.
+    #[test]
+    fn a_tube_serializes_its_end_as_valid_and_note() {
+        let b = IntervalBox::new(vec![0.0], vec![1.0]).unwrap();
+        let mut tube = Tube::new(b);
+        let json = serde_json::to_string(&tube).unwrap();
+        assert_eq!(
+            json,
+            r#"{"initial":{"lower":[0.0],"upper":[1.0]},"tube":[],"valid":true,"exact_steps":0,"enclosed_steps":0}"#
+        );
+        tube.end = TubeEnd::LeftRegion { t: 0.25 };
+        let json = serde_json::to_string(&tube).unwrap();
+        assert!(
+            json.ends_with(
+                r#""tube":[],"valid":false,"note":"t = 0.250: the set left the region C","exact_steps":0,"enclosed_steps":0}"#
+            ),
+            "{json}"
+        );
+        assert_eq!(tube.note().unwrap(), "t = 0.250: the set left the region C");
+        assert!(!tube.valid() && tube.end.t() == Some(0.25));
+    }
+}
