@@ -8,6 +8,26 @@
 //! trees; the ground-truth [`filter::SafetyFilter`] `v(x)` is evaluated by closed forms or
 //! clarabel; a ReLU [`network::Mlp`] `N(x) ≈ v(x)` is bounded over boxes by [`bounds`]; the
 //! embedding system turns those bounds into tubes; verdicts and pictures read the tubes.
+//!
+//! The front door: load a [`Scenario`], compile it into a [`ReachProblem`] (its network, `M_C`
+//! and coordinates, as [`ProblemOptions`] say), and run a [`Verifier`] on an engine
+//! ([`CpuBackend`], or [`GpuBackend`]) over a grid of initial boxes ([`VerifySettings`]); or
+//! run the engine's [`Backend::reach`] for [`Tube`]s under [`ReachSettings`]. Every setting's
+//! `Default` is what the command line does.
+//!
+//! ```
+//! use cbfreach::{CpuBackend, ProblemOptions, ReachProblem, Scenario, Verifier, VerifySettings};
+//!
+//! let file = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/integrator.toml");
+//! let scenario = Scenario::load(&file)?;
+//! let problem = ReachProblem::from_scenario(&scenario, &ProblemOptions::default())?;
+//! let verifier = Verifier::new(&scenario, &problem, &CpuBackend);
+//! let settings = VerifySettings { grid: vec![4, 3], ..VerifySettings::default() };
+//! let report = verifier.run(&settings, &|_stage, _done, _all| {})?;
+//! let shares = report.shares_after();
+//! assert!(shares.verified_share > 0.5, "{:.3}", shares.verified_share);
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
 #![warn(missing_docs)]
 
 pub mod bounds;
@@ -22,6 +42,7 @@ pub mod intervals;
 pub mod matmul;
 pub mod network;
 pub mod plot;
+pub mod problem;
 pub mod reach;
 pub mod scenario;
 pub mod simulate;
@@ -30,5 +51,10 @@ pub mod verify;
 
 pub use boxes::IntervalBox;
 pub use error::Error;
+pub use gpu::GpuBackend;
 pub use intervals::Interval;
 pub use network::Mlp;
+pub use problem::{ProblemError, ProblemOptions};
+pub use reach::{Backend, CpuBackend, ReachProblem, ReachSettings, Tube};
+pub use scenario::Scenario;
+pub use verify::{Verdict, Verifier, VerifyReport, VerifySettings};

@@ -17,6 +17,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::boxes::IntervalBox;
 use crate::expressions::{self, Expr};
+use crate::reach::ReachSettings;
+use crate::verify::VerifySettings;
 
 /// The built-in default scenario (the paper's scenario 1), so that `cbfreach` runs anywhere.
 pub const DEFAULT_SCENARIO: &str = include_str!("../scenarios/integrator.toml");
@@ -102,6 +104,30 @@ pub struct ScenarioFile {
     /// The training grid.
     #[serde(default)]
     pub training: Option<TrainingSection>,
+    /// Settings of runs of this scenario (`[settings.reach]`, `[settings.verify]`); command-line
+    /// options override them.
+    #[serde(default, skip_serializing_if = "SettingsSection::is_default")]
+    pub settings: SettingsSection,
+}
+
+/// `[settings]`: how runs of this scenario go unless told otherwise. `[settings.reach]` takes
+/// the fields of [`ReachSettings`] (e.g. `bounds = "crown"`, `face_local = true`),
+/// `[settings.verify]` those of [`VerifySettings`] (e.g. `grid = [32, 32]`,
+/// `refine_depth = 4`); a field left out keeps its default, an unknown one is an error.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SettingsSection {
+    /// Reach settings. Default: `ReachSettings::default()`.
+    pub reach: ReachSettings,
+    /// Verification settings. Default: `VerifySettings::default()`.
+    pub verify: VerifySettings,
+}
+
+impl SettingsSection {
+    /// Whether every setting is its default (the table can be left out).
+    pub fn is_default(&self) -> bool {
+        *self == SettingsSection::default()
+    }
 }
 
 /// `[system]`.
@@ -310,6 +336,54 @@ pub enum Margin {
     Local,
 }
 
+/// A text that names no [`Margin`] or [`TransformChoice`]: what was found and what is
+/// expected.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("expected {expected}, found {found:?}")]
+pub struct ChoiceError {
+    /// The text given.
+    pub found: String,
+    /// What would have been accepted.
+    pub expected: &'static str,
+}
+
+impl std::str::FromStr for Margin {
+    type Err = ChoiceError;
+
+    /// A number ≥ 0, or `certified`, `measured`, `local` (from the error map).
+    fn from_str(text: &str) -> Result<Margin, ChoiceError> {
+        match text {
+            "certified" => Ok(Margin::Certified),
+            "measured" => Ok(Margin::Measured),
+            "local" => Ok(Margin::Local),
+            _ => match text.parse::<f64>() {
+                Ok(v) if v.is_finite() && v >= 0.0 => Ok(Margin::Value(v)),
+                _ => Err(ChoiceError {
+                    found: text.to_string(),
+                    expected: "a number ≥ 0, certified, measured or local",
+                }),
+            },
+        }
+    }
+}
+
+impl std::str::FromStr for TransformChoice {
+    type Err = ChoiceError;
+
+    /// `none`, `auto` or `lyapunov` (a matrix comes from the scenario file only).
+    fn from_str(text: &str) -> Result<TransformChoice, ChoiceError> {
+        match text {
+            "none" => Ok(TransformChoice::Identity),
+            "auto" => Ok(TransformChoice::Auto),
+            "lyapunov" => Ok(TransformChoice::Lyapunov),
+            _ => Err(ChoiceError {
+                found: text.to_string(),
+                expected: "none, auto or lyapunov",
+            }),
+        }
+    }
+}
+
 /// Reachability settings, checked.
 #[derive(Clone, Debug)]
 pub struct ReachConfig {
@@ -393,6 +467,8 @@ pub struct Scenario {
     pub network: Option<NetworkConfig>,
     /// The training grid.
     pub training: TrainingConfig,
+    /// The settings of runs (`[settings]`; defaults where the file has none).
+    pub settings: SettingsSection,
 }
 
 impl Scenario {
@@ -688,6 +764,9 @@ impl ScenarioFile {
             },
         };
 
+        if let Err(e) = self.settings.reach.validate() {
+            return Err(c.invalid(format!("settings.reach.{}", e.field()), e.to_string()));
+        }
         Ok(Scenario {
             name: self.name.clone(),
             description: self.description.trim().to_string(),
@@ -706,6 +785,7 @@ impl ScenarioFile {
             reach,
             network,
             training,
+            settings: self.settings.clone(),
         })
     }
 }
