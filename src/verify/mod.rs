@@ -37,6 +37,11 @@
 //! fastest), so a job array can split a large region; [`merge`] checks that the shards come from
 //! the same run and tile the grid exactly, and joins them. The refinement budget applies per
 //! shard.
+//!
+//! Submodules by concern: `run` (the verifier and [`judge`]), `report` (what a run reports),
+//! `settings`, `shard` (shards and [`merge`]), `traps`, `pieces` ([`verify_by_pieces`]) and
+//! `check` (checks against the ground-truth filter). May import `reach`, `scenario`,
+//! `equilibria`, `filter` and `simulate`.
 
 mod check;
 mod pieces;

@@ -184,7 +184,8 @@ pub struct Verifier<'a> {
 }
 
 impl<'a> Verifier<'a> {
-    /// A verifier with `ReachSettings::default()` and the scenario's traps ([`traps_for`]).
+    /// A verifier with the scenario's reach settings (`[settings.reach]`, else
+    /// `ReachSettings::default()`) and traps ([`super::traps_for`]).
     pub fn new(
         scenario: &'a Scenario,
         problem: &'a ReachProblem,
@@ -194,7 +195,7 @@ impl<'a> Verifier<'a> {
             scenario,
             problem,
             backend,
-            reach: ReachSettings::default(),
+            reach: scenario.settings.reach.clone(),
             traps: super::traps_for(scenario),
         }
     }
