@@ -5,7 +5,7 @@ mod cli;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
 /// Sound, batched interval reachability for systems with CBF safety filters.
 ///
@@ -60,9 +60,11 @@ enum Command {
 }
 
 fn main() -> ExitCode {
-    let args = Cli::parse();
+    let matches = Cli::command().get_matches();
+    let args = Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());
+    cli::set_matches(matches);
     let result = match args.command {
-        None => cli::report::run_default(),
+        None => cli::paper::run_default(),
         Some(Command::Check { scenario }) => cli::check::run(&scenario),
         Some(Command::Simulate(a)) => cli::simulate::run(&a),
         Some(Command::Reach(a)) => cli::reach::run(&a),

@@ -347,14 +347,25 @@ fn train_takes_secant_slope_targets_and_records_their_step() {
     }
 }
 
-/// `cbfreach reach` on scenario 2 with forward bounds and `extra` arguments: its stdout.
-fn reach_scenario_2(extra: &[&str]) -> String {
+/// `cbfreach reach` on scenario 2 with forward bounds and `extra` arguments: its stdout and
+/// its `--json`.
+fn reach_scenario_2(extra: &[&str]) -> (String, serde_json::Value) {
     let path = common::scenario_path("double-integrator.toml");
-    let mut args = vec!["reach", path.to_str().unwrap(), "--bounds", "forward"];
+    let dir = tempfile::tempdir().unwrap();
+    let json = dir.path().join("tubes.json");
+    let mut args = vec![
+        "reach",
+        path.to_str().unwrap(),
+        "--bounds",
+        "forward",
+        "--json",
+        json.to_str().unwrap(),
+    ];
     args.extend_from_slice(extra);
     let (code, stdout, stderr) = cbfreach(&args);
     assert_eq!(code, 0, "{stderr}");
-    stdout
+    let v = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).expect("JSON");
+    (stdout, v)
 }
 
 #[test]
@@ -364,18 +375,26 @@ fn reach_takes_the_filters_own_field_where_it_is_one_smooth_piece_unless_told_no
     // `--network-everywhere` and `--exact nowhere` bound the network at each.
     let path = common::scenario_path("double-integrator.toml");
     let exact_steps = |extra: &[&str]| {
-        numbers_on_line(&reach_scenario_2(extra), "the filtered system's own field")
-            .map(|numbers| (numbers[0], numbers[1]))
+        let (_, v) = reach_scenario_2(extra);
+        let dt = v["dt"].as_f64().unwrap();
+        let boxes = v["boxes"].as_array().unwrap();
+        let sum = |f: &dyn Fn(&serde_json::Value) -> u64| boxes.iter().map(f).sum::<u64>();
+        let exact = sum(&|b| b["exact_steps"].as_u64().unwrap());
+        let run = sum(&|b| {
+            let last = b["tube"].as_array().unwrap().last().unwrap();
+            (last["t"].as_f64().unwrap() / dt).round() as u64
+        });
+        (exact, run)
     };
-    let (pieces, run) = exact_steps(&[]).expect("the default takes the filter's field somewhere");
+    let (pieces, run) = exact_steps(&[]);
     assert!(pieces >= 3 * 200 && pieces <= run, "{pieces} of {run}");
-    let (inactive, run) = exact_steps(&["--exact", "inactive"]).unwrap();
+    let (inactive, run) = exact_steps(&["--exact", "inactive"]);
     assert!(
         inactive >= 3 * 200 && inactive <= run,
         "{inactive} of {run}"
     );
-    assert_eq!(exact_steps(&["--network-everywhere"]), None);
-    assert_eq!(exact_steps(&["--exact", "nowhere"]), None);
+    assert_eq!(exact_steps(&["--network-everywhere"]).0, 0);
+    assert_eq!(exact_steps(&["--exact", "nowhere"]).0, 0);
     let (code, _, stderr) = cbfreach(&[
         "reach",
         path.to_str().unwrap(),
@@ -393,21 +412,15 @@ fn reach_meets_the_parallelotope_with_its_x_box_unless_told_not_to() {
     // and a box in x, and says so; the box at (−1, 1.5), whose set turns over the obstacle,
     // then stays valid longer than as a parallelotope alone (`--parallelotope-only`).
     let run = |extra: &[&str]| {
-        let stdout = reach_scenario_2(extra);
-        let line = stdout
-            .lines()
-            .find(|l| l.trim_start().starts_with("(-1.1000, 1.4000)"))
-            .unwrap_or_else(|| panic!("{stdout}"))
-            .to_string();
-        let t: f64 = line
-            .split("t = ")
-            .nth(1)
+        let (stdout, v) = reach_scenario_2(extra);
+        let tube = v["boxes"]
+            .as_array()
             .unwrap()
-            .split(':')
-            .next()
-            .unwrap()
-            .trim()
-            .parse()
+            .iter()
+            .find(|b| b["initial"]["lower"] == serde_json::json!([-1.1, 1.4]))
+            .unwrap_or_else(|| panic!("no box at (-1.1, 1.4): {stdout}"));
+        let t = tube["tube"].as_array().unwrap().last().unwrap()["t"]
+            .as_f64()
             .unwrap();
         (stdout.contains("sets met with their x-boxes"), t)
     };
@@ -415,6 +428,57 @@ fn reach_meets_the_parallelotope_with_its_x_box_unless_told_not_to() {
     let (alone, t_alone) = run(&["--parallelotope-only"]);
     assert!(met && !alone);
     assert!(t_met > t_alone, "{t_met} vs {t_alone}");
+}
+
+/// A scenario's `[settings]` table sets the runs' settings, options on the command line
+/// override it, and an unknown key is an error that names it.
+#[test]
+fn scenario_settings_table_sets_defaults_that_options_override() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = std::fs::read_to_string(common::scenario_path("integrator.toml")).unwrap();
+    let net = common::scenario_path("integrator.safetensors");
+    let text = text.replace(
+        "file = \"integrator.safetensors\"",
+        &format!("file = {:?}", net.to_str().unwrap()),
+    );
+    let write = |name: &str, table: &str| {
+        let path = dir.path().join(name);
+        std::fs::write(&path, format!("{text}\n{table}")).unwrap();
+        path
+    };
+    let with = write(
+        "with.toml",
+        "[settings.reach]\nbounds = \"forward\"\nface_local = true\n\
+         [settings.verify]\ngrid = [2, 2]\n",
+    );
+    let verify = |scenario: &std::path::Path, extra: &[&str]| {
+        let json = dir.path().join("v.json");
+        let mut args = vec![
+            "verify",
+            scenario.to_str().unwrap(),
+            "--json",
+            json.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        let (code, stdout, stderr) = cbfreach(&args);
+        assert_eq!(code, 0, "{stdout}{stderr}");
+        let v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+        v["run"].clone()
+    };
+    let run = verify(&with, &[]);
+    assert_eq!(run["bounds"], "forward");
+    assert_eq!(run["face_local"], true);
+    assert_eq!(run["grid"], serde_json::json!([2, 2]));
+    let run = verify(&with, &["--bounds", "forward-backward", "--grid", "1,2"]);
+    assert_eq!(run["bounds"], "forward-backward");
+    assert_eq!(run["face_local"], true);
+    assert_eq!(run["grid"], serde_json::json!([1, 2]));
+
+    let bad = write("bad.toml", "[settings.reach]\nbound = \"forward\"\n");
+    let (code, _, stderr) = cbfreach(&["check", bad.to_str().unwrap()]);
+    assert_eq!(code, 2);
+    assert!(stderr.contains("bound"), "{stderr}");
 }
 
 #[test]

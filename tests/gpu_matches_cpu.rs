@@ -52,7 +52,7 @@ fn gpu() -> Option<GpuBackend> {
     match GpuContext::new() {
         Ok(ctx) => {
             eprintln!("GPU adapter: {}", ctx.describe());
-            Some(GpuBackend::new(Arc::new(ctx)))
+            Some(GpuBackend::with_precision(Arc::new(ctx), Precision::F32).unwrap())
         }
         Err(e) => {
             if require_gpu() {

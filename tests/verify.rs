@@ -15,11 +15,11 @@ use std::sync::OnceLock;
 
 use cbfreach::filter::SafetyFilter;
 use cbfreach::network::Mlp;
-use cbfreach::reach::{Backend, CpuBackend, ReachProblem, ReachSettings};
+use cbfreach::reach::{Backend, CpuBackend, ExactField, ReachProblem, ReachSettings};
 use cbfreach::scenario::Scenario;
 use cbfreach::simulate::{simulate_filtered, Integrator};
 use cbfreach::verify::{
-    merge, simulation_check, traps_from_equilibria, Shard, Verdict, Verifier, VerifyReport,
+    judge, merge, simulation_check, traps_for, Reason, Shard, Verdict, Verifier, VerifyReport,
     VerifySettings,
 };
 
@@ -74,31 +74,22 @@ fn run(s: &Scenario, grid: [usize; 2], refine: usize, shard: Option<Shard>) -> V
     let (path, m_c) = network();
     let net = Mlp::load_safetensors(path).unwrap();
     let problem = ReachProblem::with_transform(s, net, *m_c, None).unwrap();
-    let found = cbfreach::equilibria::find_equilibria(
-        &SafetyFilter::new(s),
-        &s.reach.region,
-        &Default::default(),
-    );
-    let half: Vec<f64> = s.reach.goal.widths().iter().map(|w| 0.5 * w).collect();
     let verifier = Verifier {
-        scenario: s,
-        problem: &problem,
-        backend: &CpuBackend,
         reach: ReachSettings {
-            bounds: cbfreach::bounds::BoundMethod::ForwardBackward,
             face_local: true,
+            exact: ExactField::Nowhere,
+            intersect_x: false,
             ..ReachSettings::default()
         },
-        traps: traps_from_equilibria(&found, &half),
+        ..Verifier::new(s, &problem, &CpuBackend)
     };
     let settings = VerifySettings {
-        region: s.reach.region.clone(),
         grid: grid.to_vec(),
         refine_depth: refine,
         budget: 400,
-        refine_feasibility: false,
         shard,
-        chunk: 64,
+        chunk: Some(64),
+        ..VerifySettings::default()
     };
     verifier.run(&settings, &|_, _, _| {}).unwrap()
 }
@@ -254,7 +245,6 @@ fn verified_boxes_agree_with_dense_simulation() {
 fn gpu_and_cpu_give_the_paper_boxes_the_same_verdicts() {
     use cbfreach::gpu::{GpuBackend, GpuContext, Precision};
     use cbfreach::error_map::ErrorMap;
-    use cbfreach::verify::judge;
     let require = std::env::var("CBFREACH_REQUIRE_GPU").is_ok_and(|v| v == "1");
     let gpu = GpuContext::new()
         .map_err(|e| e.to_string())
@@ -276,23 +266,18 @@ fn gpu_and_cpu_give_the_paper_boxes_the_same_verdicts() {
         .with_error_map(ErrorMap::load_for(&path).unwrap())
         .unwrap();
     let settings = ReachSettings {
-        bounds: cbfreach::bounds::BoundMethod::ForwardBackward,
+        exact: ExactField::Nowhere,
+        intersect_x: false,
         ..ReachSettings::default()
     };
-    let found = cbfreach::equilibria::find_equilibria(
-        &SafetyFilter::new(&s),
-        &s.reach.region,
-        &Default::default(),
-    );
-    let half: Vec<f64> = s.reach.goal.widths().iter().map(|w| 0.5 * w).collect();
-    let traps = traps_from_equilibria(&found, &half);
+    let traps = traps_for(&s);
     let verdicts = |engine: &dyn Backend| -> Vec<Verdict> {
         let r = engine
             .reach(&problem, &s.reach.initial, &settings, &|_, _| {})
             .unwrap();
         r.boxes
             .iter()
-            .map(|t| judge(&problem, &s, &traps, t).0)
+            .map(|t| judge(&problem, &s, &traps, t).verdict)
             .collect()
     };
     let cpu = verdicts(&CpuBackend);
@@ -423,7 +408,6 @@ fn unverified_area_is_sorted_by_where_the_true_system_goes() {
 #[test]
 fn a_set_outside_s_is_a_bug_only_where_the_qp_was_proven_feasible() {
     use cbfreach::reach::{Tube, TubeSample};
-    use cbfreach::verify::judge;
     use cbfreach::IntervalBox;
 
     let s = common::double_integrator();
@@ -449,15 +433,20 @@ fn a_set_outside_s_is_a_bug_only_where_the_qp_was_proven_feasible() {
     assert!(!problem.proves_feasible_on(&conflict.tube[..1]));
     assert!(problem.proves_feasible_on(&clear.tube[..1]));
 
-    let (verdict, _, note) = judge(&problem, &s, &[], &conflict);
-    assert_eq!(verdict, Verdict::Unknown);
-    let note = note.unwrap();
+    let j = judge(&problem, &s, &[], &conflict);
+    assert_eq!(j.verdict, Verdict::Unknown);
+    assert!(matches!(
+        j.reason,
+        Some(Reason::LeftSafeSetAfterUnprovenQp { .. })
+    ));
+    let note = j.reason.unwrap().to_string();
     assert!(
         note.contains("velocity < 0") && note.contains("not proven feasible"),
         "{note}"
     );
-    let (verdict, _, note) = judge(&problem, &s, &[], &clear);
-    assert_eq!(verdict, Verdict::Unsafe, "{note:?}");
+    let j = judge(&problem, &s, &[], &clear);
+    assert_eq!(j.verdict, Verdict::Unsafe, "{:?}", j.reason);
+    assert!(matches!(j.reason, Some(Reason::LeftSafeSet { .. })));
 }
 
 /// `--refine-feasibility` bisects a verified box whose sets leave the QP's feasibility open
@@ -467,7 +456,6 @@ fn a_set_outside_s_is_a_bug_only_where_the_qp_was_proven_feasible() {
 /// an infeasible QP.
 #[test]
 fn feasibility_refinement_splits_verified_boxes_until_their_qp_is_proven_feasible() {
-    use cbfreach::reach::{ExactField, ReachMethod};
     use cbfreach::IntervalBox;
 
     let s = common::double_integrator();
@@ -477,11 +465,7 @@ fn feasibility_refinement_splits_verified_boxes_until_their_qp_is_proven_feasibl
         problem: &problem,
         backend: &CpuBackend,
         reach: ReachSettings {
-            bounds: cbfreach::bounds::BoundMethod::ForwardBackward,
-            method: ReachMethod::Disturbance,
             face_local: true,
-            exact: ExactField::ClosedForm,
-            intersect_x: true,
             ..ReachSettings::default()
         },
         traps: Vec::new(),
@@ -489,13 +473,13 @@ fn feasibility_refinement_splits_verified_boxes_until_their_qp_is_proven_feasibl
     let region = IntervalBox::new(vec![4.9, 0.9], vec![5.1, 1.1]).unwrap();
     let run = |refine_feasibility: bool| {
         let settings = VerifySettings {
-            region: region.clone(),
+            region: Some(region.clone()),
             grid: vec![1, 1],
             refine_depth: 6,
             budget: 128,
             refine_feasibility,
             shard: None,
-            chunk: 64,
+            chunk: Some(64),
         };
         verifier.run(&settings, &|_, _, _| {}).unwrap()
     };

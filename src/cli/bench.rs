@@ -9,10 +9,10 @@ use cbfreach::bounds::{model_multiply_adds, BoundMethod};
 use cbfreach::boxes::IntervalBox;
 use cbfreach::matmul::{matmul, Threads};
 use cbfreach::network::Mlp;
-use cbfreach::reach::{Backend, CpuBackend, ReachProblem, ReachSettings};
+use cbfreach::reach::{Backend, CpuBackend, ExactField, ReachProblem, ReachSettings};
 use cbfreach::scenario::Scenario;
 
-use super::reach::GpuArgs;
+use super::args::GpuArgs;
 use super::{load_scenario, CliResult};
 
 /// Arguments of `cbfreach bench`.
@@ -140,7 +140,7 @@ pub fn run(args: &BenchArgs) -> CliResult {
             "cpu" => engines.push(("cpu".into(), Box::new(CpuBackend), Some(cpu_peak))),
             "gpu" => match cbfreach::gpu::GpuContext::with_adapter(args.gpu.adapter.as_deref()) {
                 Ok(ctx) => {
-                    let precision = args.gpu.precision_for(&ctx);
+                    let precision = args.gpu.options().precision_for(&ctx);
                     let name: String = ctx.info.name.chars().take(20).collect();
                     let label = format!("gpu ({name}, {})", precision.name());
                     let mut backend =
@@ -161,6 +161,8 @@ pub fn run(args: &BenchArgs) -> CliResult {
         for &method in &args.bounds {
             let settings = ReachSettings {
                 bounds: method,
+                exact: ExactField::Nowhere,
+                intersect_x: false,
                 ..ReachSettings::default()
             };
             if label.starts_with("gpu") && !cbfreach::gpu::GpuBackend::supports(&settings) {

@@ -11,8 +11,8 @@ use cbfreach::surrogate_error::{
 };
 use serde::Serialize;
 
-use super::reach::{load_network, network_path};
 use super::{fmt_point, load_scenario, progress_bar, CliResult};
+use cbfreach::problem::{load_network, network_path};
 
 /// Arguments of `cbfreach error`.
 #[derive(clap::Args)]
@@ -97,8 +97,8 @@ struct ErrorJson {
 /// Runs the command.
 pub fn run(args: &ErrorArgs) -> CliResult {
     let s = load_scenario(&args.scenario)?;
-    let path = network_path(&s, args.network.as_ref())?;
-    let net = load_network(&s, Some(&path))?;
+    let path = network_path(&s, args.network.as_deref())?;
+    let net = load_network(&s, Some(path.as_path()))?;
     let settings = ErrorSettings {
         refine: args.refine.max(1),
         budget: args.budget,

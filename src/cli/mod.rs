@@ -1,5 +1,6 @@
 //! One file per subcommand; each turns arguments into library calls and prints the result.
 
+pub mod args;
 pub mod bench;
 pub mod bounds;
 pub mod check;
@@ -14,8 +15,36 @@ pub mod train;
 pub mod verify;
 
 use std::path::Path;
+use std::sync::OnceLock;
 
 use cbfreach::scenario::Scenario;
+
+/// The parsed command line, for [`given`].
+static MATCHES: OnceLock<clap::ArgMatches> = OnceLock::new();
+
+/// Keeps the parsed command line, so that options can tell a value given from a default.
+pub fn set_matches(matches: clap::ArgMatches) {
+    let _ = MATCHES.set(matches);
+}
+
+/// Whether the running subcommand's option `id` (its field name) was given on the command
+/// line, rather than taken from its default: given options override a scenario's
+/// `[settings]`.
+pub fn given(id: &str) -> bool {
+    let Some((_, sub)) = MATCHES.get().and_then(|m| m.subcommand()) else {
+        return false;
+    };
+    matches!(
+        sub.try_get_raw(id)
+            .ok()
+            .flatten()
+            .and_then(|_| sub.value_source(id)),
+        Some(clap::parser::ValueSource::CommandLine)
+    )
+}
+
+/// For summaries: the sets are the meet of a box in x and the parallelotope.
+pub const INTERSECT_X_CLAUSE: &str = ", sets met with their x-boxes";
 
 /// What a subcommand returns: any library or I/O error, printed by `main`.
 pub type CliResult = Result<(), Box<dyn std::error::Error>>;

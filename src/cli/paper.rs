@@ -6,21 +6,19 @@ use std::time::Instant;
 
 use cbfreach::bounds::BoundMethod;
 use cbfreach::equilibria::{find_equilibria, Equilibrium, EquilibriumSearch};
-use cbfreach::error_map::ErrorMap;
 use cbfreach::filter::SafetyFilter;
 use cbfreach::plot::{self, Figure};
-use cbfreach::reach::Tube;
-use cbfreach::reach::{CpuBackend, ExactField, ReachMethod, ReachProblem, ReachSettings};
+use cbfreach::problem::network_path;
+use cbfreach::reach::{ReachMethod, ReachSettings, Tube};
 use cbfreach::scenario::{Margin, Scenario};
-use cbfreach::verify::{
-    judge, traps_from_equilibria, BoxVerdict, Trap, Verdict, Verifier, VerifySettings,
-};
+use cbfreach::error_map::ErrorMap;
+use cbfreach::verify::{traps_for_equilibria, verify_by_pieces, PiecesVerdict, Verdict};
 
+use super::args::{compile, ProblemArgs};
 use super::equilibria::print_table;
 use super::plot::{
     box_trajectories, figure_points, reach_initial, trajectories, tubes_title, tubes_title_local,
 };
-use super::reach::{compile, network_path, ProblemArgs};
 use super::{fmt_point, CliResult};
 
 /// Arguments of `cbfreach paper`.
@@ -37,7 +35,7 @@ pub struct PaperArgs {
     pub network_2: Option<PathBuf>,
     /// How the network is bounded for the sound verdicts (on each face of a box: immrax's
     /// `local` mode).
-    #[arg(long, value_enum, default_value_t = BoundMethod::ForwardBackward)]
+    #[arg(long, value_enum, default_value_t = ReachSettings::default().bounds)]
     pub bounds: BoundMethod,
     /// Bound methods whose run times are set next to the paper's (comma-separated).
     #[arg(
@@ -155,7 +153,7 @@ pub fn run_default() -> CliResult {
     println!("  {}\n", s.description.replace('\n', "\n  "));
     let timed = [BoundMethod::Forward, BoundMethod::ForwardBackward];
     let verdicts = VerdictSettings {
-        bounds: BoundMethod::ForwardBackward,
+        bounds: ReachSettings::default().bounds,
         refine: 0,
     };
     let times = run_scenario(&s, None, &out, verdicts, &timed, SCENARIO_1)?;
@@ -205,7 +203,7 @@ fn run_scenario(
     )?;
     println!("Figure 1 (trajectories, equilibria): {}", path.display());
 
-    let net_path = network_path(s, network)?;
+    let net_path = network_path(s, network.map(PathBuf::as_path))?;
     if !net_path.exists() {
         println!(
             "No network at {} — skipping the tubes, verdicts and times of this scenario \
@@ -264,13 +262,33 @@ fn run_scenario(
         size,
     )?;
     println!("Figure 2 (tubes, disturbance method): {}", path.display());
-    let half: Vec<f64> = s.reach.goal.widths().iter().map(|w| 0.5 * w).collect();
-    let traps = traps_from_equilibria(&found, &half);
+    let traps = traps_for_equilibria(s, &found);
     println!(
         "Sound verdicts of the {} initial boxes (disturbance method, {bounds} bounds on faces, {margin}):",
         s.reach.initial.len(),
     );
-    let verdicts = box_verdicts(s, &problem, verdict_settings, &traps, &dist.boxes)?;
+    let pieces = ReachSettings {
+        bounds,
+        face_local: true,
+        ..ReachSettings::default()
+    };
+    let bar = std::sync::Mutex::new(None::<indicatif::ProgressBar>);
+    let verdicts = verify_by_pieces(
+        s,
+        &problem,
+        &pieces,
+        &traps,
+        &dist.boxes,
+        verdict_settings.refine,
+        &|done, all| {
+            let Ok(mut bar) = bar.lock() else { return };
+            bar.get_or_insert_with(|| super::progress_bar(all as u64, "initial boxes split"))
+                .set_position(done as u64);
+        },
+    )?;
+    if let Ok(Some(bar)) = bar.into_inner() {
+        bar.finish_and_clear();
+    }
     print_verdicts(&dist.boxes, &verdicts);
 
     // The paper's construction (Theorem 2) with the scenario's M_C, timed per bound method.
@@ -348,143 +366,11 @@ struct VerdictSettings {
     refine: usize,
 }
 
-/// Pieces per axis of an initial box that is not verified whole.
-const SPLIT: usize = 4;
-
-/// Extra pieces refinement may run per initial box.
-const REFINE_BUDGET: usize = 4096;
-
-/// The verdict of each initial box, with a note: from its own tube, or, where that proves
-/// nothing, from its `SPLITⁿ` pieces and `refine` rounds of bisection of the pieces not
-/// verified (the refinement of `verify`), whose leaves must all share one verified verdict.
-fn box_verdicts(
-    s: &Scenario,
-    problem: &ReachProblem,
-    settings: VerdictSettings,
-    traps: &[Trap],
-    tubes: &[Tube],
-) -> Result<Vec<(Verdict, String)>, Box<dyn std::error::Error>> {
-    let whole: Vec<(Verdict, String, Option<bool>)> = tubes
-        .iter()
-        .map(|tube| {
-            let (v, _, note) = judge(problem, s, traps, tube);
-            let note = note.unwrap_or_else(|| match tube.last() {
-                Some(l) => format!(
-                    "final set {} … {}",
-                    fmt_point(&l.set.lower),
-                    fmt_point(&l.set.upper)
-                ),
-                None => String::new(),
-            });
-            let feasible = v.is_verified().then(|| problem.proves_feasible_along(tube));
-            (v, note, feasible)
-        })
-        .collect();
-    // Split what the whole box leaves open: its verdict, or the QP's feasibility along its
-    // sets (the pieces' sets are narrower and may stay clear of where the QP fails).
-    let retry: Vec<usize> = (0..tubes.len())
-        .filter(|&k| {
-            let (v, _, feasible) = whole[k];
-            v.is_refinable() || (v.is_verified() && feasible == Some(false))
-        })
-        .collect();
-    let mut out: Vec<(Verdict, String)> = whole
-        .into_iter()
-        .map(|(v, note, feasible)| (v, note + feasibility_clause(feasible)))
-        .collect();
-    let verifier = Verifier {
-        scenario: s,
-        problem,
-        backend: &CpuBackend,
-        reach: ReachSettings {
-            bounds: settings.bounds,
-            method: ReachMethod::Disturbance,
-            every: 1,
-            face_local: true,
-            exact: ExactField::ClosedForm,
-            intersect_x: true,
-        },
-        traps: traps.to_vec(),
-    };
-    let bar = super::progress_bar(retry.len() as u64, "initial boxes split");
-    for &k in &retry {
-        let report = verifier.run(
-            &VerifySettings {
-                region: tubes[k].initial.clone(),
-                grid: vec![SPLIT; s.n()],
-                refine_depth: settings.refine,
-                budget: REFINE_BUDGET,
-                refine_feasibility: true,
-                shard: None,
-                chunk: 512,
-            },
-            &|_, _, _| {},
-        )?;
-        bar.inc(1);
-        let leaves = &report.after;
-        let proven = leaves.iter().filter(|b| b.verdict.is_verified()).count();
-        // A piece's size is its widest side (bisection halves one side at a time).
-        let (narrow, wide) = leaves
-            .iter()
-            .map(|b| b.initial.widths().into_iter().fold(0.0_f64, f64::max))
-            .fold((f64::INFINITY, 0.0_f64), |(lo, hi), w| {
-                (lo.min(w), hi.max(w))
-            });
-        let (narrow, wide) = (format!("{narrow:.3}"), format!("{wide:.3}"));
-        let size = if narrow == wide {
-            wide
-        } else {
-            format!("{narrow}–{wide}")
-        };
-        let first = leaves.first().map(|b| b.verdict);
-        match first {
-            Some(v) if proven == leaves.len() && leaves.iter().all(|b| b.verdict == v) => {
-                let proven_feasible = |b: &&BoxVerdict| b.feasible == Some(true);
-                let clause = match leaves.iter().filter(proven_feasible).count() {
-                    n if n == leaves.len() => feasibility_clause(Some(true)).to_string(),
-                    0 => feasibility_clause(Some(false)).to_string(),
-                    _ => {
-                        let area = |b: &BoxVerdict| b.initial.volume();
-                        let share = leaves.iter().filter(proven_feasible).map(area).sum::<f64>()
-                            / leaves.iter().map(area).sum::<f64>();
-                        format!("; QP proven feasible on {:.1} % of the box", 100.0 * share)
-                    }
-                };
-                out[k] = (
-                    v,
-                    format!(
-                        "as {} pieces {size} wide: every piece {}{clause}",
-                        leaves.len(),
-                        v.name(),
-                    ),
-                );
-            }
-            _ => {
-                out[k].1 = format!(
-                    "{} ({proven} of {} pieces {size} wide verified)",
-                    out[k].1,
-                    leaves.len()
-                );
-            }
-        }
-    }
-    bar.finish_and_clear();
-    Ok(out)
-}
-
-/// Whether the filter's QP was proven feasible on every set of a verified box.
-fn feasibility_clause(feasible: Option<bool>) -> &'static str {
-    match feasible {
-        Some(true) => "; QP proven feasible",
-        Some(false) => "; QP feasibility not proven",
-        None => "",
-    }
-}
-
 /// One line per initial box: its verdict and note, then the tally.
-fn print_verdicts(tubes: &[Tube], verdicts: &[(Verdict, String)]) {
+fn print_verdicts(tubes: &[Tube], verdicts: &[PiecesVerdict]) {
     let mut counts = std::collections::BTreeMap::<Verdict, usize>::new();
-    for (tube, (v, note)) in tubes.iter().zip(verdicts) {
+    for (tube, p) in tubes.iter().zip(verdicts) {
+        let (v, note) = (&p.verdict, p);
         *counts.entry(*v).or_default() += 1;
         println!(
             "  {} … {}  {:<10} {}",

@@ -8,14 +8,13 @@ use cbfreach::equilibria::{find_equilibria, EquilibriumSearch};
 use cbfreach::error_map::{error_map_path, ErrorMap};
 use cbfreach::filter::SafetyFilter;
 use cbfreach::plot::{self, Figure};
-use cbfreach::reach::{
-    Backend, CpuBackend, ExactField, ReachMethod, ReachProblem, ReachResult, ReachSettings,
-};
+use cbfreach::problem::network_path;
+use cbfreach::reach::{Backend, CpuBackend, ReachMethod, ReachProblem, ReachResult, ReachSettings};
 use cbfreach::scenario::Scenario;
 use cbfreach::simulate::{sample_box, simulate_filtered, Integrator, Trajectory};
 use cbfreach::verify::VerifyReport;
 
-use super::reach::{compile, network_path, ProblemArgs};
+use super::args::{compile, ProblemArgs};
 use super::{load_scenario, progress_bar, CliResult};
 
 /// Which picture.
@@ -57,7 +56,7 @@ pub struct PlotArgs {
     #[arg(long, default_value_t = 10, value_parser = |s: &str| super::whole_at_least(s, 1))]
     pub every: usize,
     /// How the network is bounded over each box (tubes, minkowski).
-    #[arg(long, value_enum, default_value_t = BoundMethod::ForwardBackward)]
+    #[arg(long, value_enum, default_value_t = ReachSettings::default().bounds)]
     pub bounds: BoundMethod,
     /// The network, `M_C` and coordinates.
     #[command(flatten)]
@@ -123,8 +122,7 @@ pub fn reach_initial(
         method,
         every,
         face_local,
-        exact: ExactField::ClosedForm,
-        intersect_x: true,
+        ..ReachSettings::default()
     };
     let bar = progress_bar(problem.steps as u64, "Euler steps");
     let r = engine.reach(problem, &s.reach.initial, &settings, &|d, _| {
@@ -212,7 +210,7 @@ pub fn run(args: &PlotArgs) -> CliResult {
         FigureKind::ErrorMap => {
             let file = match &args.input {
                 Some(f) => f.clone(),
-                None => error_map_path(&network_path(&s, args.problem.network.as_ref())?),
+                None => error_map_path(&network_path(&s, args.problem.network.as_deref())?),
             };
             let map = ErrorMap::load(&file)?;
             plot::save(

@@ -3,15 +3,11 @@
 use std::path::PathBuf;
 
 use cbfreach::bounds::BoundMethod;
-use cbfreach::network::Mlp;
-use cbfreach::reach::{
-    Backend, CpuBackend, ExactField, ReachMethod, ReachProblem, ReachResult, ReachSettings,
-    Transform,
-};
-use cbfreach::scenario::{Margin, Scenario, TransformChoice};
+use cbfreach::reach::{EngineChoice, ExactField, ReachMethod, ReachResult, ReachSettings};
 use serde::Serialize;
 
-use super::{fmt_point, load_scenario, progress_bar, CliResult};
+use super::args::{engine, settings_flag_error, GpuArgs, ProblemArgs, ReachFlags};
+use super::{fmt_point, given, load_scenario, progress_bar, CliResult, INTERSECT_X_CLAUSE};
 
 /// Arguments of `cbfreach reach`.
 #[derive(clap::Args)]
@@ -21,27 +17,17 @@ pub struct ReachArgs {
     /// Engine: `cpu`, `gpu` (wgpu; forward, forward-backward and crown bounds), or `auto` (the
     /// GPU when an adapter exists and runs these settings, else the CPU with a notice).
     #[arg(long, default_value = "cpu")]
-    pub backend: String,
+    pub backend: EngineChoice,
     /// GPU adapter and precision.
     #[command(flatten)]
     pub gpu: GpuArgs,
-    /// How the network is bounded over each box.
-    #[arg(long, value_enum, default_value_t = BoundMethod::ForwardBackward)]
-    pub bounds: BoundMethod,
-    /// How the network's error enters the sets.
-    #[arg(long, value_enum, default_value_t = ReachMethod::Disturbance)]
-    pub method: ReachMethod,
-    /// Bound the network on each face of a box separately (tighter, 2n× the bound cost).
-    #[arg(long)]
-    pub face_local: bool,
-    /// Where the CPU engine integrates the filtered system's own field instead of the network.
+    /// Bounds, method and sets (default: the scenario's `[settings.reach]`, else
+    /// `ReachSettings::default()`).
     #[command(flatten)]
-    pub exact: ExactArgs,
-    /// The shape of the sets.
-    #[command(flatten)]
-    pub sets: SetArgs,
+    pub reach: ReachFlags,
     /// Record every K-th step (the last is always recorded).
-    #[arg(long, default_value_t = 1, value_parser = |s: &str| super::whole_at_least(s, 1))]
+    #[arg(long, default_value_t = ReachSettings::default().every,
+          value_parser = |s: &str| super::whole_at_least(s, 1))]
     pub every: usize,
     /// The network, `M_C` and coordinates.
     #[command(flatten)]
@@ -66,227 +52,20 @@ struct ReachJson<'a> {
     result: &'a ReachResult,
 }
 
-/// How the GPU engine runs (`reach`, `verify`, `bench`).
-#[derive(clap::Args, Clone, Debug, Default)]
-pub struct GpuArgs {
-    /// GPU adapter whose name contains this (case-insensitive); default: a real GPU before a
-    /// software one.
-    #[arg(long)]
-    pub adapter: Option<String>,
-    /// GPU engine in f64 (shaders with wgpu's SHADER_F64; an error where the adapter lacks
-    /// it). The default wherever the adapter has f64 shaders. The CPU engine computes in f64
-    /// always.
-    #[arg(long = "f64", conflicts_with = "f32")]
-    pub f64: bool,
-    /// GPU engine in f32: faster (1.75× for forward-backward on an H100), but every sum's
-    /// rounding is bounded a priori, which for 400-wide layers widens the network's bounds by
-    /// ~10⁻⁴ of their magnitude at every step: sets are measurably wider than in f64, and some
-    /// boxes that verify in f64 do not.
-    #[arg(long = "f32")]
-    pub f32: bool,
-}
-
-impl GpuArgs {
-    /// The GPU number type for a device: as asked, else f64 where the device has f64 shaders.
-    pub fn precision_for(&self, ctx: &cbfreach::gpu::GpuContext) -> cbfreach::gpu::Precision {
-        use cbfreach::gpu::Precision;
-        if self.f32 || (!self.f64 && !ctx.has_f64()) {
-            Precision::F32
-        } else {
-            Precision::F64
-        }
-    }
-}
-
-/// Where the disturbance method takes the filter exactly (`reach`, `verify`).
-#[derive(clap::Args, Clone, Debug, Default)]
-pub struct ExactArgs {
-    /// Where the CPU engine uses the filter itself besides the network plus its error margin:
-    /// `closed-form` (closed-form filters: the filtered system's own field where the filter is
-    /// provably one smooth function on the set, its enclosures of `v` elsewhere), `inactive`
-    /// (only `v = 0` where the filter is proven inactive; any filter), `nowhere`.
-    #[arg(long, value_enum, default_value_t = ExactField::ClosedForm)]
-    pub exact: ExactField,
-    /// Bound the network on every set (the same as `--exact nowhere`).
-    #[arg(long, conflicts_with = "exact")]
-    pub network_everywhere: bool,
-}
-
-/// The shape of the sets (`reach`, `verify`).
-#[derive(clap::Args, Clone, Debug, Default)]
-pub struct SetArgs {
-    /// With a transform, keep the parallelotope alone. By default the CPU engine also runs the
-    /// embedding in x and keeps, at every step, the meet of the x-box and the parallelotope,
-    /// each tightening the other (about twice the work per step; a box in x follows sets that
-    /// turn, the parallelotope sets that contract).
-    #[arg(long)]
-    pub parallelotope_only: bool,
-}
-
-impl ExactArgs {
-    /// The setting asked for.
-    pub fn field(&self) -> ExactField {
-        if self.network_everywhere {
-            ExactField::Nowhere
-        } else {
-            self.exact
-        }
-    }
-}
-
-/// What `reach`, `verify` and `plot` need to compile a problem.
-#[derive(clap::Args, Clone, Debug, Default)]
-pub struct ProblemArgs {
-    /// Override the scenario's M_C: a number ≥ 0, or `certified`, `measured` or `local` (from
-    /// the error map beside the network, as in the scenario file).
-    #[arg(long = "m-c", value_parser = parse_margin)]
-    pub m_c: Option<Margin>,
-    /// Use this network instead of the scenario's.
-    #[arg(long)]
-    pub network: Option<PathBuf>,
-    /// Coordinates of the embedding: `none`, `auto`, `lyapunov`, or the scenario's choice when absent.
-    #[arg(long)]
-    pub transform: Option<String>,
-    /// Disturbance method: use the certified local error bounds of the error map beside the
-    /// network (written by `cbfreach error`) instead of one global M_C (the default when the
-    /// scenario says `m_c = "local"`).
-    #[arg(long)]
-    pub local_margin: bool,
-    /// Disturbance method: do not intersect the sets with the safe set's affine half-spaces
-    /// (`S` is forward invariant under the filter, so intersecting is sound; this switch is for
-    /// comparisons).
-    #[arg(long)]
-    pub no_safe_set: bool,
-}
-
-/// `--transform` or the scenario's choice.
-pub fn transform_choice(s: &Scenario, flag: Option<&str>) -> Result<TransformChoice, String> {
-    match flag {
-        None => Ok(s.reach.transform.clone()),
-        Some("none") => Ok(TransformChoice::Identity),
-        Some("auto") => Ok(TransformChoice::Auto),
-        Some("lyapunov") => Ok(TransformChoice::Lyapunov),
-        Some(other) => Err(format!(
-            "--transform {other}: expected none, auto or lyapunov"
-        )),
-    }
-}
-
-/// Compiles the reach problem of a scenario with its (or the given) network.
-pub fn compile(
-    s: &Scenario,
-    args: &ProblemArgs,
-) -> Result<ReachProblem, Box<dyn std::error::Error>> {
-    let net = load_network(s, args.network.as_ref())?;
-    let path = network_path(s, args.network.as_ref())?;
-    let m_c = resolve_margin(s, args.m_c, &path)?;
-    let transform = Transform::for_scenario(s, &transform_choice(s, args.transform.as_deref())?)?;
-    let mut problem = ReachProblem::with_transform(s, net, m_c, transform)?;
-    if args.no_safe_set {
-        problem = problem.without_safe_set();
-    }
-    // Local bounds on request, or by the scenario's `m_c = "local"` unless --m-c overrides it.
-    let local = args.local_margin || args.m_c.unwrap_or(s.reach.m_c) == Margin::Local;
-    if !local {
-        return Ok(problem);
-    }
-    let map = cbfreach::error_map::ErrorMap::load_for(&path).map_err(|e| {
-        format!(
-            "local error margins: {e} (run `cbfreach error {}` first)",
-            s.file
-        )
-    })?;
-    Ok(problem.with_error_map(map)?)
-}
-
-/// Loads the network named by `--network` or by the scenario.
-pub fn load_network(
-    s: &Scenario,
-    path: Option<&PathBuf>,
-) -> Result<Mlp, Box<dyn std::error::Error>> {
-    let path = network_path(s, path)?;
-    if !path.exists() {
-        return Err(format!(
-            "{}: network file {} does not exist (train one with `cbfreach train {}`)",
-            s.file,
-            path.display(),
-            s.file
-        )
-        .into());
-    }
-    Ok(Mlp::load_safetensors(&path)?)
-}
-
-/// The network file named by `--network` or by the scenario.
-pub fn network_path(
-    s: &Scenario,
-    path: Option<&PathBuf>,
-) -> Result<PathBuf, Box<dyn std::error::Error>> {
-    match (path, &s.network) {
-        (Some(p), _) => Ok(p.clone()),
-        (None, Some(net)) => Ok(net.file.clone()),
-        (None, None) => {
-            Err(format!("{}: no [network] section and no --network given", s.file).into())
-        }
-    }
-}
-
-/// `--m-c`: a number ≥ 0, or where in the error map to take `M_C` from.
-fn parse_margin(text: &str) -> Result<Margin, String> {
-    match text {
-        "certified" => Ok(Margin::Certified),
-        "measured" => Ok(Margin::Measured),
-        "local" => Ok(Margin::Local),
-        _ => match text.parse::<f64>() {
-            Ok(v) if v.is_finite() && v >= 0.0 => Ok(Margin::Value(v)),
-            _ => Err(format!(
-                "expected a number ≥ 0, certified, measured or local, found {text:?}"
-            )),
-        },
-    }
-}
-
-/// `M_C` from the flag or the scenario; `"certified"` / `"measured"` / `"local"` come from the
-/// error map beside `network` (written by `cbfreach error`).
-pub fn resolve_margin(
-    s: &Scenario,
-    flag: Option<Margin>,
-    network: &std::path::Path,
-) -> Result<f64, String> {
-    let margin = flag.unwrap_or(s.reach.m_c);
-    cbfreach::error_map::margin_value(margin, network).map_err(|e| {
-        let source = match flag {
-            Some(_) => "--m-c".to_string(),
-            None => format!("{}: reach.m_c", s.file),
-        };
-        format!(
-            "{source} = {margin:?}: {e} (run `cbfreach error {}` first, or give --m-c)",
-            s.file
-        )
-    })
-}
-
 /// Runs the command.
 pub fn run(args: &ReachArgs) -> CliResult {
     let s = load_scenario(&args.scenario)?;
-    if !matches!(args.backend.as_str(), "cpu" | "gpu" | "auto") {
-        return Err(format!("--backend {}: expected cpu, gpu or auto", args.backend).into());
-    }
-    let problem = compile(&s, &args.problem)?;
+    let problem = super::args::compile(&s, &args.problem)?;
     let m_c = problem.m_c;
     if let Some(t) = &problem.transform {
         println!("embedding in z = T x, T = {:?} (ρ = {:.1e})", t.t, t.rho);
     }
-    let mut settings = ReachSettings {
-        bounds: args.bounds,
-        method: args.method,
-        every: args.every,
-        face_local: args.face_local,
-        exact: args.exact.field(),
-        intersect_x: !args.sets.parallelotope_only,
-    };
-    let backend = choose_backend(&args.backend, &args.gpu, &settings)?;
-    settle_for_engine(&mut settings, backend.as_ref(), &problem);
+    let mut settings = args.reach.settings(&s.settings.reach);
+    if given("every") {
+        settings.every = args.every;
+    }
+    settings.validate().map_err(|e| settings_flag_error(&e))?;
+    let backend = engine(args.backend, &args.gpu, &mut settings, &problem)?;
     let bar = progress_bar(problem.steps as u64, "Euler steps");
     let result = backend.reach(&problem, &s.reach.initial, &settings, &|done, _| {
         bar.set_position(done as u64)
@@ -294,7 +73,7 @@ pub fn run(args: &ReachArgs) -> CliResult {
     bar.finish_and_clear();
 
     let margin = match &problem.error_map {
-        Some(map) if args.method == ReachMethod::Disturbance => format!(
+        Some(map) if settings.method == ReachMethod::Disturbance => format!(
             "M = local bounds of the error map (certified global {})",
             map.certified_linf
                 .map_or("none".into(), |v| format!("{v:.4}"))
@@ -306,15 +85,19 @@ pub fn run(args: &ReachArgs) -> CliResult {
         } else {
             ""
         };
-    let within = super::safe_set_clause(&problem.safe_set_for(args.method).names());
+    let within = super::safe_set_clause(&problem.safe_set_for(settings.method).names());
     println!(
         "{}: {} boxes × {} steps, {} bounds{}, {:?} method, {margin}{within}, backend {}",
         s.file,
         result.boxes.len(),
         problem.steps,
-        args.bounds,
-        if args.face_local { " (face-local)" } else { "" },
-        args.method,
+        settings.bounds,
+        if settings.face_local {
+            " (face-local)"
+        } else {
+            ""
+        },
+        settings.method,
         backend.name()
     );
     for tube in &result.boxes {
@@ -370,7 +153,7 @@ pub fn run(args: &ReachArgs) -> CliResult {
             "  {invalid} of {} sets stopped (INVALID): {}`cbfreach verify` splits boxes until they \
              verify",
             result.boxes.len(),
-            if args.face_local {
+            if settings.face_local {
                 ""
             } else {
                 "bounds on each face of a box (--face-local, 2n× the bound cost) are tighter, and "
@@ -381,8 +164,8 @@ pub fn run(args: &ReachArgs) -> CliResult {
         let json = ReachJson {
             scenario: &s.file,
             backend: backend.name(),
-            bounds: args.bounds,
-            method: args.method,
+            bounds: settings.bounds,
+            method: settings.method,
             dt: problem.dt,
             m_c,
             result: &result,
@@ -392,88 +175,7 @@ pub fn run(args: &ReachArgs) -> CliResult {
         println!("  tubes written to {}", path.display());
     }
     if let Some(path) = &args.plot {
-        super::plot::plot_tubes(&s, &result, args.every, m_c, path)?;
+        super::plot::plot_tubes(&s, &result, settings.every, m_c, path)?;
     }
     Ok(())
-}
-
-/// For summaries: the sets are the meet of a box in x and the parallelotope.
-pub const INTERSECT_X_CLAUSE: &str = ", sets met with their x-boxes";
-
-/// What is the CPU engine's alone becomes, with the GPU engine, what that engine does, with a
-/// notice (sound, looser): sets met with their x-boxes become the parallelotope alone.
-pub fn settle_for_engine(
-    settings: &mut ReachSettings,
-    backend: &dyn Backend,
-    problem: &ReachProblem,
-) {
-    if backend.name() == "cpu" {
-        return;
-    }
-    if problem.frames(settings).len() > 1 {
-        settings.intersect_x = false;
-        println!(
-            "note: the GPU engine keeps the parallelotope alone (sets met with their x-boxes are \
-             the CPU engine's): --parallelotope-only"
-        );
-    }
-}
-
-/// The engine named by `--backend` (`cpu`, `gpu`, or `auto`: a GPU when an adapter exists and
-/// supports the bound method, else the CPU with a one-line notice), on `--adapter`, in f64
-/// where the adapter has f64 shaders (else, or with `--f32`, f32); `--f64` on an adapter
-/// without f64 shaders is an error, also with `auto`.
-///
-/// `auto` takes the GPU where it runs the bound method (local error margins and face-local
-/// bounds included) and is a real GPU (a software adapter is many times slower than the CPU
-/// engine).
-pub fn choose_backend(
-    which: &str,
-    gpu: &GpuArgs,
-    settings: &ReachSettings,
-) -> Result<Box<dyn Backend + Sync>, Box<dyn std::error::Error>> {
-    if !matches!(which, "cpu" | "gpu" | "auto") {
-        return Err(format!("--backend {which}: expected cpu, gpu or auto").into());
-    }
-    if which == "cpu" {
-        if gpu.f64 || gpu.f32 {
-            let flag = if gpu.f64 { "--f64" } else { "--f32" };
-            return Err(format!(
-                "{flag} selects the GPU engine's number type; the CPU engine computes in f64 \
-                 always (drop {flag}, or use --backend gpu/auto)"
-            )
-            .into());
-        }
-        return Ok(Box::new(CpuBackend));
-    }
-    let supported = cbfreach::gpu::GpuBackend::supports(settings);
-    if which == "auto" && !supported {
-        println!(
-            "notice: --backend auto: the GPU engine has no {} bounds yet; using the CPU",
-            settings.bounds
-        );
-        return Ok(Box::new(CpuBackend));
-    }
-    match cbfreach::gpu::GpuContext::with_adapter(gpu.adapter.as_deref()) {
-        Ok(ctx) if which == "auto" && ctx.is_software() && gpu.adapter.is_none() => {
-            println!(
-                "notice: --backend auto: the only GPU adapter is a software one ({}); using the \
-                 CPU (name it with --adapter to use it anyway)",
-                ctx.describe()
-            );
-            Ok(Box::new(CpuBackend))
-        }
-        Ok(ctx) => {
-            println!("GPU adapter: {}", ctx.describe());
-            let precision = gpu.precision_for(&ctx);
-            let engine =
-                cbfreach::gpu::GpuBackend::with_precision(std::sync::Arc::new(ctx), precision)?;
-            Ok(Box::new(engine))
-        }
-        Err(e) if which == "auto" => {
-            println!("notice: --backend auto: {e}; using the CPU");
-            Ok(Box::new(CpuBackend))
-        }
-        Err(e) => Err(e.into()),
-    }
 }

@@ -1,18 +1,12 @@
-//! `cbfreach` with no arguments runs the paper's scenario 1 ([`super::paper::run_default`]);
-//! this file keeps the endpoint summary it prints: where the filtered trajectories from the
-//! centres of the scenario's initial boxes end.
+//! The endpoint summary that `cbfreach` with no arguments and `cbfreach paper` print: where
+//! the filtered trajectories from the centres of a scenario's initial boxes end.
 
 use cbfreach::equilibria::{Equilibrium, Stability};
 use cbfreach::filter::SafetyFilter;
 use cbfreach::scenario::Scenario;
 use cbfreach::simulate::{simulate_filtered, Integrator};
 
-use super::{fmt_point, CliResult};
-
-/// Runs the default job.
-pub fn run_default() -> CliResult {
-    super::paper::run_default()
-}
+use super::fmt_point;
 
 /// One line per initial box: its centre, where its filtered trajectory ends, and which stable
 /// equilibrium (if any) that is.

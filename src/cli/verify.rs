@@ -3,22 +3,20 @@
 
 use std::path::{Path, PathBuf};
 
-use cbfreach::bounds::BoundMethod;
-use cbfreach::equilibria::{find_equilibria, EquilibriumSearch};
-use cbfreach::filter::SafetyFilter;
 use cbfreach::plot::{self, Figure};
-use cbfreach::reach::{Backend, ReachMethod, ReachProblem, ReachSettings};
+use cbfreach::reach::{Backend, EngineChoice, ReachProblem, ReachSettings};
 use cbfreach::scenario::Scenario;
 use cbfreach::verify::{
-    explain_unverified, merge, simulation_check, traps_from_equilibria, Shard, SimulationCheck,
-    Stage, UnverifiedCauses, Verdict, Verifier, VerifyReport, VerifySettings,
+    explain_unverified, merge, simulation_check, traps_for, Shard, SimulationCheck, Stage,
+    UnverifiedCauses, Verdict, Verifier, VerifyError, VerifyReport, VerifySettings,
 };
 
-use super::reach::{choose_backend, compile, GpuArgs, ProblemArgs, INTERSECT_X_CLAUSE};
+use super::args::{engine, settings_flag_error, GpuArgs, ProblemArgs, ReachFlags};
 use super::simulate::parse_box;
-use super::{fmt_point, load_scenario, progress_bar, CliResult};
+use super::{fmt_point, given, load_scenario, progress_bar, CliResult, INTERSECT_X_CLAUSE};
 
-/// Arguments of `cbfreach verify`.
+/// Arguments of `cbfreach verify`. Defaults: the scenario's `[settings.verify]` and
+/// `[settings.reach]`, else `VerifySettings::default()` and `ReachSettings::default()`.
 #[derive(clap::Args)]
 pub struct VerifyArgs {
     /// The scenario file (TOML).
@@ -27,37 +25,25 @@ pub struct VerifyArgs {
     #[arg(long, value_name = "LOWER:UPPER", allow_hyphen_values = true)]
     pub region: Option<String>,
     /// Cells per axis, e.g. 64,64.
-    #[arg(long, default_value = "64,64")]
-    pub grid: String,
+    #[arg(long, default_value_t = Grid(VerifySettings::default().grid))]
+    pub grid: Grid,
     /// Engine: `cpu`, `gpu`, or `auto` (a GPU when one exists and supports the bounds).
     #[arg(long, default_value = "cpu")]
-    pub backend: String,
+    pub backend: EngineChoice,
     /// GPU adapter and precision.
     #[command(flatten)]
     pub gpu: GpuArgs,
-    /// How the network is bounded over each box.
-    #[arg(long, value_enum, default_value_t = BoundMethod::ForwardBackward)]
-    pub bounds: BoundMethod,
-    /// How the network's error enters the sets.
-    #[arg(long, value_enum, default_value_t = ReachMethod::Disturbance)]
-    pub method: ReachMethod,
-    /// Bound the network on each face of a box separately (tighter, 2n× the bound cost).
-    #[arg(long)]
-    pub face_local: bool,
-    /// Where the CPU engine integrates the filtered system's own field instead of the network.
+    /// Bounds, method and sets.
     #[command(flatten)]
-    pub exact: super::reach::ExactArgs,
-    /// The shape of the sets.
-    #[command(flatten)]
-    pub sets: super::reach::SetArgs,
+    pub reach: ReachFlags,
     /// The network, `M_C` and coordinates.
     #[command(flatten)]
     pub problem: ProblemArgs,
     /// Bisection rounds of `unknown` and `invalid` boxes.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = VerifySettings::default().refine_depth)]
     pub refine: usize,
     /// Most extra boxes refinement may run (per shard).
-    #[arg(long, default_value_t = 8192)]
+    #[arg(long, default_value_t = VerifySettings::default().budget)]
     pub budget: usize,
     /// Refinement also bisects verified boxes whose QP feasibility is not proven (after the
     /// unverified ones, within the budget); their halves keep the verdict.
@@ -79,6 +65,32 @@ pub struct VerifyArgs {
     pub check: usize,
 }
 
+/// `--grid`: cell counts per axis, `N,M,…`.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Grid(pub Vec<usize>);
+
+impl std::fmt::Display for Grid {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let parts: Vec<String> = self.0.iter().map(usize::to_string).collect();
+        f.write_str(&parts.join(","))
+    }
+}
+
+impl std::str::FromStr for Grid {
+    type Err = String;
+
+    fn from_str(text: &str) -> Result<Grid, String> {
+        text.split(',')
+            .map(|s| {
+                s.trim()
+                    .parse::<usize>()
+                    .map_err(|_| format!("`{s}` is not a whole number (expected e.g. 64,64)"))
+            })
+            .collect::<Result<_, _>>()
+            .map(Grid)
+    }
+}
+
 /// Arguments of `cbfreach merge`.
 #[derive(clap::Args)]
 pub struct MergeArgs {
@@ -96,58 +108,35 @@ pub struct MergeArgs {
     pub scenario: Option<PathBuf>,
 }
 
-/// Parses `N,M,…` cell counts.
-pub fn parse_grid(text: &str, n: usize) -> Result<Vec<usize>, String> {
-    let counts: Vec<usize> = text
-        .split(',')
-        .map(|s| {
-            s.trim()
-                .parse::<usize>()
-                .map_err(|_| format!("--grid: `{s}` is not a whole number (expected e.g. 64,64)"))
-        })
-        .collect::<Result<_, _>>()?;
-    if counts.len() != n {
-        return Err(format!(
-            "--grid: expected {n} counts (one per state), found {}",
-            counts.len()
-        ));
-    }
-    if counts.contains(&0) {
-        return Err("--grid: every count must be at least 1".into());
-    }
-    Ok(counts)
-}
-
 /// Runs `verify`.
 pub fn run(args: &VerifyArgs) -> CliResult {
     let s = load_scenario(&args.scenario)?;
-    let region = match &args.region {
-        Some(t) => parse_box("--region", t, s.n())?,
-        None => s.reach.region.clone(),
-    };
-    let shard = args.shard.as_deref().map(str::parse::<Shard>).transpose()?;
-    let grid = parse_grid(&args.grid, s.n())?;
-    let problem = compile(&s, &args.problem)?;
-    let mut reach = ReachSettings {
-        bounds: args.bounds,
-        method: args.method,
-        every: 1,
-        face_local: args.face_local,
-        exact: args.exact.field(),
-        intersect_x: !args.sets.parallelotope_only,
-    };
-    let engine = choose_backend(&args.backend, &args.gpu, &reach)?;
-    super::reach::settle_for_engine(&mut reach, engine.as_ref(), &problem);
-    let settings = VerifySettings {
-        region,
-        grid,
-        refine_depth: args.refine,
-        budget: args.budget,
-        refine_feasibility: args.refine_feasibility,
-        shard,
-        chunk: engine.preferred_batch(),
-    };
-    settings.validate(&s)?;
+    let mut settings = s.settings.verify.clone();
+    if let Some(t) = &args.region {
+        settings.region = Some(parse_box("--region", t, s.n())?);
+    }
+    settings.shard = args
+        .shard
+        .as_deref()
+        .map(str::parse::<Shard>)
+        .transpose()
+        .map_err(|e| flag_error(&e))?;
+    if given("grid") {
+        settings.grid = args.grid.0.clone();
+    }
+    if given("refine") {
+        settings.refine_depth = args.refine;
+    }
+    if given("budget") {
+        settings.budget = args.budget;
+    }
+    settings.refine_feasibility |= args.refine_feasibility;
+    settings.validate(&s).map_err(|e| flag_error(&e))?;
+    let problem = super::args::compile(&s, &args.problem)?;
+    let mut reach = args.reach.settings(&s.settings.reach);
+    reach.every = 1;
+    reach.validate().map_err(|e| settings_flag_error(&e))?;
+    let engine = engine(args.backend, &args.gpu, &mut reach, &problem)?;
     let report = run_verify(&s, &problem, engine.as_ref(), reach, &settings)?;
     print_summary(&report);
     print_causes(&explain_unverified(&s, &report));
@@ -156,6 +145,16 @@ pub fn run(args: &VerifyArgs) -> CliResult {
         print_check(&simulation_check(&s, &report, args.check))?;
     }
     fail_if_unsafe(&report)
+}
+
+/// A verification error with the option that sets the field (`--grid: …`).
+fn flag_error(e: &VerifyError) -> String {
+    match e {
+        VerifyError::Settings { field, message } => {
+            format!("--{}: {message}", field.replace('_', "-"))
+        }
+        e => e.to_string(),
+    }
 }
 
 /// Prints where the true system goes from the boxes that were not verified.
@@ -220,18 +219,12 @@ pub fn run_verify(
     reach: ReachSettings,
     settings: &VerifySettings,
 ) -> Result<VerifyReport, Box<dyn std::error::Error>> {
-    let found = find_equilibria(
-        &SafetyFilter::new(s),
-        &s.reach.region,
-        &EquilibriumSearch::default(),
-    );
-    let half: Vec<f64> = s.reach.goal.widths().iter().map(|w| 0.5 * w).collect();
     let verifier = Verifier {
         scenario: s,
         problem,
         backend: engine,
         reach,
-        traps: traps_from_equilibria(&found, &half),
+        traps: traps_for(s),
     };
     let bar = std::sync::Mutex::new(None::<(Stage, indicatif::ProgressBar)>);
     let progress = |stage: Stage, done: usize, total: usize| {

@@ -116,11 +116,17 @@ impl KernelCache {
 }
 
 impl GpuBackend {
-    /// An f32 engine on a device.
+    /// An engine on a device, in f64 where the device has f64 shaders (as the CLI picks),
+    /// else f32.
     pub fn new(ctx: Arc<GpuContext>) -> GpuBackend {
+        let precision = if ctx.has_f64() {
+            Precision::F64
+        } else {
+            Precision::F32
+        };
         GpuBackend {
             ctx,
-            precision: Precision::F32,
+            precision,
             max_chunk: None,
             exact_work: None,
             profile: false,
@@ -222,6 +228,16 @@ impl Backend for GpuBackend {
             Precision::F32 => format!("gpu ({}, f32)", self.ctx.info.name),
             Precision::F64 => format!("gpu ({}, f64)", self.ctx.info.name),
         }
+    }
+
+    fn supports(&self, settings: &ReachSettings) -> Result<(), crate::reach::Unsupported> {
+        if !GpuBackend::supports(settings) {
+            return Err(crate::reach::Unsupported::Bounds(settings.bounds));
+        }
+        if settings.intersect_x {
+            return Err(crate::reach::Unsupported::IntersectX);
+        }
+        Ok(())
     }
 
     fn reach(

@@ -654,6 +654,8 @@ mod tests {
         let net = Mlp::random(&[2, 8, 1], 3);
         let problem = ReachProblem::with_transform(&s, net, 0.1, t).unwrap();
         let settings = ReachSettings {
+            bounds: crate::bounds::BoundMethod::Crown,
+            exact: crate::reach::ExactField::Nowhere,
             intersect_x: true,
             ..ReachSettings::default()
         };

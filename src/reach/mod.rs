@@ -18,12 +18,14 @@
 pub mod closeness;
 pub mod cpu;
 pub mod embedding;
+pub mod engine;
 pub mod pieces;
 pub mod safe_set;
+pub mod settings;
 pub mod transform;
 pub mod tube;
 
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 
 use crate::bounds::BoundMethod;
 use crate::boxes::IntervalBox;
@@ -36,108 +38,8 @@ pub use transform::Transform;
 pub use tube::{Tube, TubeEnd, TubeSample};
 
 pub use cpu::CpuBackend;
-
-/// How NN-system boxes become sets of the filtered system.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, clap::ValueEnum)]
-#[serde(rename_all = "kebab-case")]
-pub enum ReachMethod {
-    /// The network's error as a bounded input disturbance (sound by construction).
-    #[default]
-    Disturbance,
-    /// The paper's closeness radius and Minkowski sum (Theorem 2).
-    Minkowski,
-}
-
-/// Settings of one reach run.
-#[derive(Clone, Debug)]
-pub struct ReachSettings {
-    /// How the network is bounded over each box.
-    pub bounds: BoundMethod,
-    /// Disturbance or Minkowski.
-    pub method: ReachMethod,
-    /// Record every K-th step (and always the last).
-    pub every: usize,
-    /// Bound the network on each face of the box separately (tighter, 2n× the bound cost;
-    /// immrax's `local` mode).
-    pub face_local: bool,
-    /// Disturbance method: where the filtered system's own field (the filter's closed form)
-    /// replaces or tightens the network and its error margin ([`pieces`]); both engines take
-    /// it (the GPU's in `shaders/filter.wgsl`).
-    pub exact: ExactField,
-    /// Disturbance method with a transform: also run the embedding in x coordinates and keep, at
-    /// every step, the intersection of the x-box with the parallelotope, each tightened by the
-    /// other (CPU engine). A box in x follows the flow where it turns the set (sliding along a
-    /// constraint) and the parallelotope where it contracts (near the goal).
-    pub intersect_x: bool,
-}
-
-/// Where the disturbance method uses the filter itself besides (or instead of) the network plus
-/// its error margin ([`pieces`]).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
-#[serde(rename_all = "kebab-case")]
-pub enum ExactField {
-    /// Nowhere: the network and its margin on every step.
-    #[default]
-    Nowhere,
-    /// `v = 0` where the filter is proven inactive on the set (any filter, QP included).
-    Inactive,
-    /// Closed-form filters: the filtered system's own field where the filter is provably one
-    /// smooth function on the set (inactive, or one constraint binding throughout), met with
-    /// the network's bounds where a constraint binds; elsewhere the network's bounds met with
-    /// the closed form's enclosures of `v` on each face.
-    ClosedForm,
-}
-
-impl ExactField {
-    /// A clause for summaries (empty for [`ExactField::Nowhere`]).
-    pub fn clause(self) -> &'static str {
-        match self {
-            ExactField::Nowhere => "",
-            ExactField::Inactive => " (v = 0 where the filter is proven inactive)",
-            ExactField::ClosedForm => {
-                " (the filter's closed form: its own field where its active set is proven fixed \
-                 on the set, its enclosures elsewhere)"
-            }
-        }
-    }
-}
-
-impl ReachSettings {
-    /// What the run takes exactly: as asked for with the disturbance method, nothing with the
-    /// Minkowski method (whose embedding bounds the NN system).
-    pub fn exact_field(&self) -> ExactField {
-        match self.method {
-            ReachMethod::Disturbance => self.exact,
-            ReachMethod::Minkowski => ExactField::Nowhere,
-        }
-    }
-
-    /// Checks combinations: the Minkowski method's closeness rate needs one slope matrix `C`
-    /// for the whole box, which face-local bounds do not give.
-    pub fn validate(&self) -> Result<(), ReachError> {
-        if self.face_local && self.method == ReachMethod::Minkowski {
-            return Err(ReachError::Settings(
-                "--face-local works with the disturbance method only (the Minkowski method's \
-                 closeness rate needs one C for the whole box)"
-                    .into(),
-            ));
-        }
-        Ok(())
-    }
-}
-
-impl Default for ReachSettings {
-    fn default() -> Self {
-        ReachSettings {
-            bounds: BoundMethod::Crown,
-            method: ReachMethod::Disturbance,
-            every: 1,
-            face_local: false,
-            exact: ExactField::Nowhere,
-            intersect_x: false,
-        }
-    }
-}
+pub use engine::{choose_engine, settle_for_engine, EngineChoice, GpuOptions};
+pub use settings::{ExactField, ReachMethod, ReachSettings, SettingsError, Unsupported};
 
 /// Why a reach run could not start.
 #[derive(Debug, thiserror::Error)]
@@ -557,5 +459,11 @@ pub trait Backend {
     /// a few hundred fill the CPU's threads; a GPU wants thousands.
     fn preferred_batch(&self) -> usize {
         512
+    }
+
+    /// Whether this engine runs `settings` as they are; the CPU engine runs every setting.
+    /// ([`settle_for_engine`] turns what only the CPU engine does into what this one does.)
+    fn supports(&self, _settings: &ReachSettings) -> Result<(), Unsupported> {
+        Ok(())
     }
 }

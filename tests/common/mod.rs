@@ -3,9 +3,8 @@
 
 use std::path::{Path, PathBuf};
 
-use cbfreach::error_map::ErrorMap;
-use cbfreach::network::Mlp;
-use cbfreach::reach::{ReachProblem, Transform};
+use cbfreach::problem::ProblemOptions;
+use cbfreach::reach::ReachProblem;
 use cbfreach::scenario::Scenario;
 
 /// Path of a shipped scenario file.
@@ -25,20 +24,20 @@ pub fn double_integrator() -> Scenario {
     Scenario::load(&scenario_path("double-integrator.toml")).expect("scenario 2 loads")
 }
 
-/// The scenario compiled as the CLI does: its shipped network, the transform it asks for and
-/// the network's certified error map.
+/// The scenario compiled as the CLI does ([`ReachProblem::from_scenario`]): its shipped
+/// network, the transform it asks for and, by its `m_c = "local"`, the network's certified
+/// error map.
 pub fn shipped_problem(s: &Scenario) -> ReachProblem {
-    shipped_problem_with(s, &s.network.as_ref().unwrap().file)
+    ReachProblem::from_scenario(s, &ProblemOptions::default()).unwrap()
 }
 
 /// The same with another network (and its error map).
 pub fn shipped_problem_with(s: &Scenario, network: &Path) -> ReachProblem {
-    let net = Mlp::load_safetensors(network).unwrap();
-    let transform = Transform::for_scenario(s, &s.reach.transform).unwrap();
-    ReachProblem::with_transform(s, net, 0.0, transform)
-        .unwrap()
-        .with_error_map(ErrorMap::load_for(network).unwrap())
-        .unwrap()
+    let options = ProblemOptions {
+        network: Some(network.to_path_buf()),
+        ..ProblemOptions::default()
+    };
+    ReachProblem::from_scenario(s, &options).unwrap()
 }
 
 /// Compiles scenario text given inline (errors carry the name `test.toml`).

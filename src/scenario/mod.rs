@@ -8,7 +8,9 @@
 //!
 //! Loading is two steps, so that every error can name its file and key: [`ScenarioFile`] is the
 //! file as serde reads it, and [`Scenario::from_toml`] checks it and turns it into expression
-//! trees and plain arrays (DESIGN §4's *compiled problem*).
+//! trees and plain arrays (DESIGN §4's *compiled problem*). An optional `[settings]` table
+//! ([`SettingsSection`]) sets how runs of the scenario go: `[settings.reach]` the fields of
+//! [`ReachSettings`], `[settings.verify]` those of [`VerifySettings`].
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -18,8 +20,12 @@ use serde::{Deserialize, Serialize};
 use crate::boxes::IntervalBox;
 use crate::expressions::{self, Expr};
 
+mod file;
+
+pub use file::*;
+
 /// The built-in default scenario (the paper's scenario 1), so that `cbfreach` runs anywhere.
-pub const DEFAULT_SCENARIO: &str = include_str!("../scenarios/integrator.toml");
+pub const DEFAULT_SCENARIO: &str = include_str!("../../scenarios/integrator.toml");
 
 /// The file name under which the built-in default scenario is reported.
 pub const DEFAULT_SCENARIO_NAME: &str = "scenarios/integrator.toml";
@@ -68,145 +74,8 @@ pub enum ScenarioError {
 }
 
 // ---------------------------------------------------------------------------------------------
-// The file as serde reads it.
+// The compiled problem.
 // ---------------------------------------------------------------------------------------------
-
-/// A scenario file as written (TOML). See `scenarios/*.toml` for annotated examples.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ScenarioFile {
-    /// A short name for reports.
-    pub name: String,
-    /// One or two sentences about the problem.
-    #[serde(default)]
-    pub description: String,
-    /// Named constants usable in every expression.
-    #[serde(default)]
-    pub parameters: BTreeMap<String, f64>,
-    /// The control-affine system and the nominal controller.
-    pub system: SystemSection,
-    /// The CBFs `hᵢ`; the safe set is `S = ∩ᵢ {hᵢ ≥ 0}`.
-    #[serde(default, rename = "cbf")]
-    pub cbfs: Vec<CbfSection>,
-    /// Bounds on the applied input `u = κ(x) + θ`.
-    #[serde(default)]
-    pub input_bounds: Option<BoxSection>,
-    /// Further constraints linear in `θ`: `a(x)·θ ≤ b(x)`.
-    #[serde(default, rename = "constraint")]
-    pub constraints: Vec<ConstraintSection>,
-    /// Reachability settings.
-    pub reach: ReachSection,
-    /// The surrogate network.
-    #[serde(default)]
-    pub network: Option<NetworkSection>,
-    /// The training grid.
-    #[serde(default)]
-    pub training: Option<TrainingSection>,
-}
-
-/// `[system]`.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SystemSection {
-    /// State names `x₁…xₙ`.
-    pub states: Vec<String>,
-    /// Input names `u₁…u_m`.
-    pub inputs: Vec<String>,
-    /// Drift `f(x)`, n expressions.
-    pub f: Vec<String>,
-    /// Input matrix `g(x)`, n rows of m expressions.
-    pub g: Vec<Vec<String>>,
-    /// Nominal controller `κ(x)`, m expressions.
-    pub kappa: Vec<String>,
-}
-
-/// One `[[cbf]]`.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct CbfSection {
-    /// A name for reports.
-    #[serde(default)]
-    pub name: Option<String>,
-    /// `h(x)`.
-    pub h: String,
-    /// Gain `a` of the class-K function `α(s) = a·s` (default 1).
-    #[serde(default = "one")]
-    pub alpha: f64,
-}
-
-fn one() -> f64 {
-    1.0
-}
-
-/// A box `[lower, upper]` as written.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct BoxSection {
-    /// Lower corner.
-    pub lower: Vec<f64>,
-    /// Upper corner.
-    pub upper: Vec<f64>,
-}
-
-/// One `[[constraint]]`: `a(x)·θ ≤ b(x)`.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ConstraintSection {
-    /// `a(x)`, m expressions.
-    pub a: Vec<String>,
-    /// `b(x)`.
-    pub b: String,
-}
-
-/// `M_C` as written: a number, or where to take it from.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(untagged)]
-pub enum MarginSpec {
-    /// A fixed bound on `‖N(x) − v(x)‖` over `C`.
-    Value(f64),
-    /// `"certified"`, `"measured"` or `"local"`: taken from the network's error map.
-    Source(String),
-}
-
-/// `[reach]`.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ReachSection {
-    /// The compact region `C` on which `M_C` holds and inside which the theorem needs the sets.
-    pub region: BoxSection,
-    /// Norm for the closeness radius: `inf`, `1` or `2`.
-    #[serde(default = "default_norm")]
-    pub norm: String,
-    /// `M_C`.
-    pub m_c: MarginSpec,
-    /// Euler step.
-    pub dt: f64,
-    /// Time horizon `T`.
-    pub horizon: f64,
-    /// Goal set used for verdicts (a box around the origin).
-    pub goal: BoxSection,
-    /// Explicit initial boxes.
-    #[serde(default)]
-    pub initial: Vec<BoxSection>,
-    /// A box partitioned into `counts[i]` cells along axis i.
-    #[serde(default)]
-    pub partition: Option<PartitionSection>,
-    /// Coordinates of the embedding: `"none"` (default), `"auto"` (from the closed loop's
-    /// linearisation at the goal), `"lyapunov"` (`T = P^{1/2}`, for `‖·‖_P`) or a matrix `T`
-    /// (`z = T x`, rows).
-    #[serde(default)]
-    pub transform: Option<TransformSpec>,
-}
-
-/// `reach.transform` as written.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(untagged)]
-pub enum TransformSpec {
-    /// `"none"`, `"auto"` or `"lyapunov"`.
-    Name(String),
-    /// `T`, as rows.
-    Matrix(Vec<Vec<f64>>),
-}
 
 /// The embedding's coordinates, checked.
 #[derive(Clone, Debug, PartialEq)]
@@ -220,47 +89,6 @@ pub enum TransformChoice {
     /// `z = T x` with this `T` (n×n, row-major).
     Matrix(Vec<f64>),
 }
-
-fn default_norm() -> String {
-    "inf".into()
-}
-
-/// `[reach.partition]`.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct PartitionSection {
-    /// Lower corner of the partitioned box.
-    pub lower: Vec<f64>,
-    /// Upper corner.
-    pub upper: Vec<f64>,
-    /// Cells per axis.
-    pub counts: Vec<usize>,
-}
-
-/// `[network]`.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct NetworkSection {
-    /// safetensors file, relative to the scenario file.
-    pub file: String,
-    /// Layer widths, input first, e.g. `[2, 400, 400, 400, 2]`.
-    pub architecture: Vec<usize>,
-}
-
-/// `[training]`.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct TrainingSection {
-    /// Region of the training grid (default: `C`).
-    #[serde(default)]
-    pub region: Option<BoxSection>,
-    /// Grid points per axis.
-    pub grid: Vec<usize>,
-}
-
-// ---------------------------------------------------------------------------------------------
-// The compiled problem.
-// ---------------------------------------------------------------------------------------------
 
 /// A CBF `h` with its gradient `∇h` and class-K gain `a` in `α(s) = a·s`.
 #[derive(Clone, Debug)]
@@ -308,6 +136,54 @@ pub enum Margin {
     /// per box and step; `cbfreach error` writes the map). Sound, and much smaller than the
     /// global bound near the goal and the traps (DESIGN §2b).
     Local,
+}
+
+/// A text that names no [`Margin`] or [`TransformChoice`]: what was found and what is
+/// expected.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("expected {expected}, found {found:?}")]
+pub struct ChoiceError {
+    /// The text given.
+    pub found: String,
+    /// What would have been accepted.
+    pub expected: &'static str,
+}
+
+impl std::str::FromStr for Margin {
+    type Err = ChoiceError;
+
+    /// A number ≥ 0, or `certified`, `measured`, `local` (from the error map).
+    fn from_str(text: &str) -> Result<Margin, ChoiceError> {
+        match text {
+            "certified" => Ok(Margin::Certified),
+            "measured" => Ok(Margin::Measured),
+            "local" => Ok(Margin::Local),
+            _ => match text.parse::<f64>() {
+                Ok(v) if v.is_finite() && v >= 0.0 => Ok(Margin::Value(v)),
+                _ => Err(ChoiceError {
+                    found: text.to_string(),
+                    expected: "a number ≥ 0, certified, measured or local",
+                }),
+            },
+        }
+    }
+}
+
+impl std::str::FromStr for TransformChoice {
+    type Err = ChoiceError;
+
+    /// `none`, `auto` or `lyapunov` (a matrix comes from the scenario file only).
+    fn from_str(text: &str) -> Result<TransformChoice, ChoiceError> {
+        match text {
+            "none" => Ok(TransformChoice::Identity),
+            "auto" => Ok(TransformChoice::Auto),
+            "lyapunov" => Ok(TransformChoice::Lyapunov),
+            _ => Err(ChoiceError {
+                found: text.to_string(),
+                expected: "none, auto or lyapunov",
+            }),
+        }
+    }
 }
 
 /// Reachability settings, checked.
@@ -393,6 +269,8 @@ pub struct Scenario {
     pub network: Option<NetworkConfig>,
     /// The training grid.
     pub training: TrainingConfig,
+    /// The settings of runs (`[settings]`; defaults where the file has none).
+    pub settings: SettingsSection,
 }
 
 impl Scenario {
@@ -689,6 +567,9 @@ impl ScenarioFile {
             },
         };
 
+        if let Err(e) = self.settings.reach.validate() {
+            return Err(c.invalid(format!("settings.reach.{}", e.field()), e.to_string()));
+        }
         Ok(Scenario {
             name: self.name.clone(),
             description: self.description.trim().to_string(),
@@ -707,6 +588,7 @@ impl ScenarioFile {
             reach,
             network,
             training,
+            settings: self.settings.clone(),
         })
     }
 }

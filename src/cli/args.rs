@@ -1,0 +1,223 @@
+//! Options shared by several subcommands (`reach`, `verify`, `plot`, `paper`, `bench`): clap
+//! structs that convert into the library's option types and hold no logic. Their defaults
+//! come from `ReachSettings::default()`; a scenario's `[settings]` table replaces those, and
+//! an option given on the command line replaces both.
+
+use std::path::PathBuf;
+
+use cbfreach::bounds::BoundMethod;
+use cbfreach::gpu::Precision;
+use cbfreach::problem::{ProblemError, ProblemOptions};
+use cbfreach::reach::engine::EngineError;
+use cbfreach::reach::{
+    choose_engine, settle_for_engine, Backend, EngineChoice, ExactField, GpuOptions, ReachMethod,
+    ReachProblem, ReachSettings,
+};
+use cbfreach::scenario::{Margin, TransformChoice};
+
+use super::given;
+
+/// How the GPU engine runs (`reach`, `verify`, `bench`).
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct GpuArgs {
+    /// GPU adapter whose name contains this (case-insensitive); default: a real GPU before a
+    /// software one.
+    #[arg(long)]
+    pub adapter: Option<String>,
+    /// GPU engine in f64 (shaders with wgpu's SHADER_F64; an error where the adapter lacks
+    /// it). The default wherever the adapter has f64 shaders. The CPU engine computes in f64
+    /// always.
+    #[arg(long = "f64", conflicts_with = "f32")]
+    pub f64: bool,
+    /// GPU engine in f32: faster (1.75× for forward-backward on an H100), but every sum's
+    /// rounding is bounded a priori, which for 400-wide layers widens the network's bounds by
+    /// ~10⁻⁴ of their magnitude at every step: sets are measurably wider than in f64, and some
+    /// boxes that verify in f64 do not.
+    #[arg(long = "f32")]
+    pub f32: bool,
+}
+
+impl GpuArgs {
+    /// The library's options.
+    pub fn options(&self) -> GpuOptions {
+        GpuOptions {
+            adapter: self.adapter.clone(),
+            precision: match (self.f64, self.f32) {
+                (true, _) => Some(Precision::F64),
+                (_, true) => Some(Precision::F32),
+                _ => None,
+            },
+        }
+    }
+}
+
+/// Where the disturbance method takes the filter exactly (`reach`, `verify`).
+#[derive(clap::Args, Clone, Debug)]
+pub struct ExactArgs {
+    /// Where the CPU engine uses the filter itself besides the network plus its error margin:
+    /// `closed-form` (closed-form filters: the filtered system's own field where the filter is
+    /// provably one smooth function on the set, its enclosures of `v` elsewhere), `inactive`
+    /// (only `v = 0` where the filter is proven inactive; any filter), `nowhere`.
+    #[arg(long, value_enum, default_value_t = ReachSettings::default().exact)]
+    pub exact: ExactField,
+    /// Bound the network on every set (the same as `--exact nowhere`).
+    #[arg(long, conflicts_with = "exact")]
+    pub network_everywhere: bool,
+}
+
+/// The shape of the sets (`reach`, `verify`).
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct SetArgs {
+    /// With a transform, keep the parallelotope alone. By default the CPU engine also runs the
+    /// embedding in x and keeps, at every step, the meet of the x-box and the parallelotope,
+    /// each tightening the other (about twice the work per step; a box in x follows sets that
+    /// turn, the parallelotope sets that contract).
+    #[arg(long)]
+    pub parallelotope_only: bool,
+}
+
+/// The reach settings of `reach` and `verify`.
+#[derive(clap::Args, Clone, Debug)]
+pub struct ReachFlags {
+    /// How the network is bounded over each box.
+    #[arg(long, value_enum, default_value_t = ReachSettings::default().bounds)]
+    pub bounds: BoundMethod,
+    /// How the network's error enters the sets.
+    #[arg(long, value_enum, default_value_t = ReachSettings::default().method)]
+    pub method: ReachMethod,
+    /// Bound the network on each face of a box separately (tighter, 2n× the bound cost).
+    #[arg(long)]
+    pub face_local: bool,
+    /// Where the CPU engine integrates the filtered system's own field instead of the network.
+    #[command(flatten)]
+    pub exact: ExactArgs,
+    /// The shape of the sets.
+    #[command(flatten)]
+    pub sets: SetArgs,
+}
+
+impl ReachFlags {
+    /// `base` (the scenario's settings) with the options given on the command line.
+    pub fn settings(&self, base: &ReachSettings) -> ReachSettings {
+        let mut s = base.clone();
+        if given("bounds") {
+            s.bounds = self.bounds;
+        }
+        if given("method") {
+            s.method = self.method;
+        }
+        s.face_local |= self.face_local;
+        if self.exact.network_everywhere {
+            s.exact = ExactField::Nowhere;
+        } else if given("exact") {
+            s.exact = self.exact.exact;
+        }
+        if self.sets.parallelotope_only {
+            s.intersect_x = false;
+        }
+        s
+    }
+}
+
+/// What `reach`, `verify` and `plot` need to compile a problem.
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct ProblemArgs {
+    /// Override the scenario's M_C: a number ≥ 0, or `certified`, `measured` or `local` (from
+    /// the error map beside the network, as in the scenario file).
+    #[arg(long = "m-c")]
+    pub m_c: Option<Margin>,
+    /// Use this network instead of the scenario's.
+    #[arg(long)]
+    pub network: Option<PathBuf>,
+    /// Coordinates of the embedding: `none`, `auto`, `lyapunov`, or the scenario's choice when absent.
+    #[arg(long)]
+    pub transform: Option<TransformChoice>,
+    /// Disturbance method: use the certified local error bounds of the error map beside the
+    /// network (written by `cbfreach error`) instead of one global M_C (the default when the
+    /// scenario says `m_c = "local"`).
+    #[arg(long)]
+    pub local_margin: bool,
+    /// Disturbance method: do not intersect the sets with the safe set's affine half-spaces
+    /// (`S` is forward invariant under the filter, so intersecting is sound; this switch is for
+    /// comparisons).
+    #[arg(long)]
+    pub no_safe_set: bool,
+}
+
+impl ProblemArgs {
+    /// The library's options.
+    pub fn options(&self) -> ProblemOptions {
+        ProblemOptions {
+            network: self.network.clone(),
+            m_c: self.m_c,
+            transform: self.transform.clone(),
+            local_margin: self.local_margin,
+            no_safe_set: self.no_safe_set,
+        }
+    }
+}
+
+/// Compiles the problem, naming the command-line option where the options' `M_C` failed.
+pub fn compile(
+    s: &cbfreach::Scenario,
+    args: &ProblemArgs,
+) -> Result<ReachProblem, Box<dyn std::error::Error>> {
+    ReachProblem::from_scenario(s, &args.options()).map_err(|e| match e {
+        ProblemError::Margin {
+            margin,
+            source,
+            file,
+            field,
+        } => {
+            let field = if field == "m_c" {
+                "--m-c".into()
+            } else {
+                field
+            };
+            format!(
+                "{field} = {margin:?}: {source} (run `cbfreach error {file}` first, or give --m-c)"
+            )
+            .into()
+        }
+        ProblemError::NoNetwork { file } => {
+            format!("{file}: no [network] section and no --network given").into()
+        }
+        e => e.into(),
+    })
+}
+
+/// The engine asked for, its notices printed; then `settings` made ones it runs, with a note.
+pub fn engine(
+    which: EngineChoice,
+    gpu: &GpuArgs,
+    settings: &mut ReachSettings,
+    problem: &ReachProblem,
+) -> Result<Box<dyn Backend + Sync>, Box<dyn std::error::Error>> {
+    let chosen = choose_engine(which, &gpu.options(), settings).map_err(
+        |e| -> Box<dyn std::error::Error> {
+            match e {
+                EngineError::PrecisionOnCpu(_) => {
+                    let flag = if gpu.f64 { "--f64" } else { "--f32" };
+                    format!(
+                        "{flag} selects the GPU engine's number type; the CPU engine computes \
+                         in f64 always (drop {flag}, or use --backend gpu/auto)"
+                    )
+                    .into()
+                }
+                e => e.into(),
+            }
+        },
+    )?;
+    for notice in &chosen.notices {
+        println!("{notice}");
+    }
+    if let Some(note) = settle_for_engine(settings, chosen.backend.as_ref(), problem) {
+        println!("{note}");
+    }
+    Ok(chosen.backend)
+}
+
+/// A settings error with the option that sets the field.
+pub fn settings_flag_error(e: &cbfreach::reach::SettingsError) -> String {
+    format!("--{}: {e}", e.field().replace('_', "-"))
+}

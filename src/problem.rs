@@ -1,0 +1,157 @@
+//! From a scenario to a compiled [`ReachProblem`]: which network, which `M_C` (a number or the
+//! error map beside the network), which coordinates. May import `scenario`, `network`,
+//! `reach` and `surrogate_error`; the CLI's `--network`, `--m-c`, `--transform`, … fill
+//! [`ProblemOptions`].
+
+use std::path::{Path, PathBuf};
+
+use crate::network::{Mlp, NetworkError};
+use crate::reach::{ReachError, ReachProblem, Transform};
+use crate::scenario::{Margin, Scenario, TransformChoice};
+use crate::error_map::{margin_value, ErrorMap, ErrorMapError};
+
+/// What a caller may change of the scenario's problem; `ProblemOptions::default()` is the
+/// scenario as written.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ProblemOptions {
+    /// This network instead of the scenario's `[network] file` (default: the scenario's).
+    pub network: Option<PathBuf>,
+    /// This `M_C` instead of the scenario's `reach.m_c` (default: the scenario's).
+    pub m_c: Option<Margin>,
+    /// These coordinates instead of the scenario's `reach.transform` (default: the
+    /// scenario's).
+    pub transform: Option<TransformChoice>,
+    /// Use the certified local bounds of the error map beside the network instead of one
+    /// global `M_C` (default: false; the scenario's `m_c = "local"`, unless `m_c` overrides
+    /// it, turns it on too).
+    pub local_margin: bool,
+    /// Do not meet the sets with the safe set's affine half-spaces (default: false; for
+    /// comparisons).
+    pub no_safe_set: bool,
+}
+
+/// Why a scenario could not be compiled into a problem.
+#[derive(Debug, thiserror::Error)]
+pub enum ProblemError {
+    /// Neither the scenario nor the options name a network.
+    #[error("{file}: no [network] section and no network given")]
+    NoNetwork {
+        /// The scenario file.
+        file: String,
+    },
+    /// The network file does not exist.
+    #[error(
+        "{file}: network file {} does not exist (train one with `cbfreach train {file}`)",
+        path.display()
+    )]
+    MissingNetwork {
+        /// The scenario file.
+        file: String,
+        /// The network file.
+        path: PathBuf,
+    },
+    /// The network file could not be read.
+    #[error(transparent)]
+    Network(#[from] NetworkError),
+    /// `M_C` names the error map, which is missing or holds no certified bound.
+    #[error("{field} = {margin:?}: {source} (run `cbfreach error {file}` first)")]
+    Margin {
+        /// The scenario file.
+        file: String,
+        /// Where the margin came from: `<file>: reach.m_c`, or `m_c` of the options.
+        field: String,
+        /// The margin asked for.
+        margin: Margin,
+        /// Why the error map could not give it.
+        source: Box<ErrorMapError>,
+    },
+    /// Local margins were asked for but the error map cannot give them.
+    #[error("local error margins: {source} (run `cbfreach error {file}` first)")]
+    LocalMargins {
+        /// The scenario file.
+        file: String,
+        /// Why the error map could not be read.
+        source: Box<ErrorMapError>,
+    },
+    /// The transform could not be built.
+    #[error("{0}")]
+    Transform(String),
+    /// The problem does not fit together (network shape, `M_C`, error map over `C`).
+    #[error(transparent)]
+    Reach(#[from] ReachError),
+}
+
+impl ReachProblem {
+    /// Compiles a scenario into a problem: its network (or `options.network`), `M_C` from the
+    /// scenario (or `options.m_c`; `certified`, `measured` and `local` read the error map
+    /// beside the network), its coordinates (or `options.transform`), and the error map's
+    /// local bounds where asked.
+    pub fn from_scenario(
+        s: &Scenario,
+        options: &ProblemOptions,
+    ) -> Result<ReachProblem, ProblemError> {
+        let net = load_network(s, options.network.as_deref())?;
+        let path = network_path(s, options.network.as_deref())?;
+        let m_c = resolve_margin(s, options.m_c, &path)?;
+        let choice = options.transform.as_ref().unwrap_or(&s.reach.transform);
+        let transform = Transform::for_scenario(s, choice)
+            .map_err(|e| ProblemError::Transform(e.to_string()))?;
+        let mut problem = ReachProblem::with_transform(s, net, m_c, transform)?;
+        if options.no_safe_set {
+            problem = problem.without_safe_set();
+        }
+        // Local bounds on request, or by the scenario's `m_c = "local"` unless the options
+        // override it.
+        let local = options.local_margin || options.m_c.unwrap_or(s.reach.m_c) == Margin::Local;
+        if !local {
+            return Ok(problem);
+        }
+        let map = ErrorMap::load_for(&path).map_err(|source| ProblemError::LocalMargins {
+            file: s.file.clone(),
+            source: Box::new(source),
+        })?;
+        Ok(problem.with_error_map(map)?)
+    }
+}
+
+/// The network file: `over` when given, else the scenario's `[network] file`.
+pub fn network_path(s: &Scenario, over: Option<&Path>) -> Result<PathBuf, ProblemError> {
+    match (over, &s.network) {
+        (Some(p), _) => Ok(p.to_path_buf()),
+        (None, Some(net)) => Ok(net.file.clone()),
+        (None, None) => Err(ProblemError::NoNetwork {
+            file: s.file.clone(),
+        }),
+    }
+}
+
+/// Loads the network named by `over` or by the scenario.
+pub fn load_network(s: &Scenario, over: Option<&Path>) -> Result<Mlp, ProblemError> {
+    let path = network_path(s, over)?;
+    if !path.exists() {
+        return Err(ProblemError::MissingNetwork {
+            file: s.file.clone(),
+            path,
+        });
+    }
+    Ok(Mlp::load_safetensors(&path)?)
+}
+
+/// `M_C` from `over` or the scenario; `certified` / `measured` / `local` come from the error
+/// map beside `network` (written by `cbfreach error`).
+pub fn resolve_margin(
+    s: &Scenario,
+    over: Option<Margin>,
+    network: &Path,
+) -> Result<f64, ProblemError> {
+    let margin = over.unwrap_or(s.reach.m_c);
+    margin_value(margin, network).map_err(|source| ProblemError::Margin {
+        file: s.file.clone(),
+        field: match over {
+            Some(_) => "m_c".to_string(),
+            None => format!("{}: reach.m_c", s.file),
+        },
+        margin,
+        source: Box::new(source),
+    })
+}

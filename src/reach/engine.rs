@@ -1,0 +1,150 @@
+//! Which engine runs a problem: the CPU, a GPU, or the GPU where it can ([`EngineChoice`]),
+//! and the settings an engine cannot run made ones it can ([`settle_for_engine`]). May import
+//! `reach` and `gpu`; what a caller should be told comes back as notices, not printed.
+
+use std::str::FromStr;
+use std::sync::Arc;
+
+use super::{Backend, CpuBackend, ReachProblem, ReachSettings, Unsupported};
+use crate::gpu::{GpuBackend, GpuContext, GpuError, Precision};
+
+/// Which engine: `cpu`, `gpu`, or `auto` (the GPU when a real adapter exists and runs the
+/// settings, else the CPU).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum EngineChoice {
+    /// The CPU engine (f64 always).
+    #[default]
+    Cpu,
+    /// The wgpu engine.
+    Gpu,
+    /// The GPU where it runs the settings and is not a software adapter, else the CPU.
+    Auto,
+}
+
+impl FromStr for EngineChoice {
+    type Err = crate::scenario::ChoiceError;
+
+    fn from_str(text: &str) -> Result<EngineChoice, Self::Err> {
+        match text {
+            "cpu" => Ok(EngineChoice::Cpu),
+            "gpu" => Ok(EngineChoice::Gpu),
+            "auto" => Ok(EngineChoice::Auto),
+            _ => Err(crate::scenario::ChoiceError {
+                found: text.to_string(),
+                expected: "cpu, gpu or auto",
+            }),
+        }
+    }
+}
+
+/// The GPU engine's adapter and number type.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct GpuOptions {
+    /// An adapter whose name contains this (case-insensitive); default: a real GPU before a
+    /// software one.
+    pub adapter: Option<String>,
+    /// The number type; default: f64 where the adapter has f64 shaders, else f32.
+    pub precision: Option<Precision>,
+}
+
+impl GpuOptions {
+    /// The number type on a device: as asked, else f64 where the device has f64 shaders.
+    pub fn precision_for(&self, ctx: &GpuContext) -> Precision {
+        match self.precision {
+            Some(p) => p,
+            None if ctx.has_f64() => Precision::F64,
+            None => Precision::F32,
+        }
+    }
+}
+
+/// Why no engine could be made.
+#[derive(Debug, thiserror::Error)]
+pub enum EngineError {
+    /// A GPU number type was asked of the CPU engine.
+    #[error(
+        "precision {} selects the GPU engine's number type; the CPU engine computes in f64 \
+         always",
+        .0.name()
+    )]
+    PrecisionOnCpu(Precision),
+    /// The GPU could not be opened.
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
+}
+
+/// An engine and what the caller should be told about how it was chosen.
+pub struct Engine {
+    /// The engine.
+    pub backend: Box<dyn Backend + Sync>,
+    /// One line each: the adapter, or why `auto` fell back to the CPU.
+    pub notices: Vec<String>,
+}
+
+/// The engine for `choice` on `gpu`'s adapter: `auto` takes the GPU where it runs `settings`'
+/// bounds and is a real GPU (a software adapter is many times slower than the CPU engine),
+/// else the CPU with a notice; a precision asked of an adapter without f64 shaders is an
+/// error, also with `auto`.
+pub fn choose_engine(
+    choice: EngineChoice,
+    gpu: &GpuOptions,
+    settings: &ReachSettings,
+) -> Result<Engine, EngineError> {
+    let cpu = |notices: Vec<String>| Engine {
+        backend: Box::new(CpuBackend),
+        notices,
+    };
+    if choice == EngineChoice::Cpu {
+        if let Some(p) = gpu.precision {
+            return Err(EngineError::PrecisionOnCpu(p));
+        }
+        return Ok(cpu(vec![]));
+    }
+    let auto = choice == EngineChoice::Auto;
+    if auto && !GpuBackend::supports(settings) {
+        return Ok(cpu(vec![format!(
+            "notice: --backend auto: the GPU engine has no {} bounds yet; using the CPU",
+            settings.bounds
+        )]));
+    }
+    match GpuContext::with_adapter(gpu.adapter.as_deref()) {
+        Ok(ctx) if auto && ctx.is_software() && gpu.adapter.is_none() => Ok(cpu(vec![format!(
+            "notice: --backend auto: the only GPU adapter is a software one ({}); using the \
+             CPU (name it with --adapter to use it anyway)",
+            ctx.describe()
+        )])),
+        Ok(ctx) => {
+            let notice = format!("GPU adapter: {}", ctx.describe());
+            let precision = gpu.precision_for(&ctx);
+            let engine = GpuBackend::with_precision(Arc::new(ctx), precision)?;
+            Ok(Engine {
+                backend: Box::new(engine),
+                notices: vec![notice],
+            })
+        }
+        Err(e) if auto => Ok(cpu(vec![format!(
+            "notice: --backend auto: {e}; using the CPU"
+        )])),
+        Err(e) => Err(e.into()),
+    }
+}
+
+/// Makes `settings` ones `backend` runs where they differ only in what is the CPU engine's
+/// alone (sound, looser): sets met with their x-boxes become the parallelotope alone. Returns
+/// a notice when that changes the sets of `problem`.
+pub fn settle_for_engine(
+    settings: &mut ReachSettings,
+    backend: &dyn Backend,
+    problem: &ReachProblem,
+) -> Option<String> {
+    if backend.supports(settings) != Err(Unsupported::IntersectX) {
+        return None;
+    }
+    let changes = problem.frames(settings).len() > 1;
+    settings.intersect_x = false;
+    changes.then(|| {
+        "note: the GPU engine keeps the parallelotope alone (sets met with their x-boxes are \
+         the CPU engine's): --parallelotope-only"
+            .to_string()
+    })
+}

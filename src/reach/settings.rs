@@ -1,0 +1,154 @@
+//! How a reach run goes: [`ReachSettings`] (the one source of the CLI's defaults, and of a
+//! scenario's `[settings.reach]` table) and what an engine cannot run ([`Unsupported`]). May
+//! import `bounds` only.
+
+use serde::{Deserialize, Serialize};
+
+use crate::bounds::BoundMethod;
+
+/// How NN-system boxes become sets of the filtered system.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum ReachMethod {
+    /// The network's error as a bounded input disturbance (sound by construction).
+    #[default]
+    Disturbance,
+    /// The paper's closeness radius and Minkowski sum (Theorem 2).
+    Minkowski,
+}
+
+/// Settings of one reach run. `ReachSettings::default()` is what `cbfreach reach` and
+/// `verify` run with no options; a scenario's `[settings.reach]` table sets any of the fields
+/// by name (kebab-case values, e.g. `bounds = "crown"`), and command-line options override
+/// both.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ReachSettings {
+    /// How the network is bounded over each box. Default: `forward-backward`.
+    pub bounds: BoundMethod,
+    /// Disturbance or Minkowski. Default: `disturbance`.
+    pub method: ReachMethod,
+    /// Record every K-th step (and always the last); at least 1. Default: 1.
+    pub every: usize,
+    /// Bound the network on each face of the box separately (tighter, 2n× the bound cost;
+    /// immrax's `local` mode). Default: false.
+    pub face_local: bool,
+    /// Disturbance method: where the filtered system's own field (the filter's closed form)
+    /// replaces or tightens the network and its error margin ([`super::pieces`]); both
+    /// engines take it (the GPU's in `shaders/filter.wgsl`). Default: `closed-form`.
+    pub exact: ExactField,
+    /// Disturbance method with a transform: also run the embedding in x coordinates and keep, at
+    /// every step, the intersection of the x-box with the parallelotope, each tightened by the
+    /// other (CPU engine). A box in x follows the flow where it turns the set (sliding along a
+    /// constraint) and the parallelotope where it contracts (near the goal). Default: true.
+    pub intersect_x: bool,
+}
+
+/// Where the disturbance method uses the filter itself besides (or instead of) the network plus
+/// its error margin ([`super::pieces`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum ExactField {
+    /// Nowhere: the network and its margin on every step.
+    #[default]
+    Nowhere,
+    /// `v = 0` where the filter is proven inactive on the set (any filter, QP included).
+    Inactive,
+    /// Closed-form filters: the filtered system's own field where the filter is provably one
+    /// smooth function on the set (inactive, or one constraint binding throughout), met with
+    /// the network's bounds where a constraint binds; elsewhere the network's bounds met with
+    /// the closed form's enclosures of `v` on each face.
+    ClosedForm,
+}
+
+impl ExactField {
+    /// A clause for summaries (empty for [`ExactField::Nowhere`]).
+    pub fn clause(self) -> &'static str {
+        match self {
+            ExactField::Nowhere => "",
+            ExactField::Inactive => " (v = 0 where the filter is proven inactive)",
+            ExactField::ClosedForm => {
+                " (the filter's closed form: its own field where its active set is proven fixed \
+                 on the set, its enclosures elsewhere)"
+            }
+        }
+    }
+}
+
+/// Settings that do not fit together; each names the field.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum SettingsError {
+    /// `face_local` with the Minkowski method.
+    #[error(
+        "face_local works with method = disturbance only (the Minkowski method's closeness rate \
+         needs one C for the whole box)"
+    )]
+    FaceLocalNeedsDisturbance,
+    /// `every = 0`.
+    #[error("every must be at least 1")]
+    EveryZero,
+}
+
+impl SettingsError {
+    /// The field at fault.
+    pub fn field(&self) -> &'static str {
+        match self {
+            SettingsError::FaceLocalNeedsDisturbance => "face_local",
+            SettingsError::EveryZero => "every",
+        }
+    }
+}
+
+impl From<SettingsError> for super::ReachError {
+    fn from(e: SettingsError) -> Self {
+        super::ReachError::Settings(e.to_string())
+    }
+}
+
+/// What an engine cannot run ([`super::Backend::supports`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum Unsupported {
+    /// The engine has no such network bounds.
+    #[error("the engine has no {0} bounds")]
+    Bounds(BoundMethod),
+    /// The engine keeps the parallelotope alone: sets met with their x-boxes are the CPU
+    /// engine's.
+    #[error("the engine keeps the parallelotope alone (intersect_x is the CPU engine's)")]
+    IntersectX,
+}
+
+impl ReachSettings {
+    /// What the run takes exactly: as asked for with the disturbance method, nothing with the
+    /// Minkowski method (whose embedding bounds the NN system).
+    pub fn exact_field(&self) -> ExactField {
+        match self.method {
+            ReachMethod::Disturbance => self.exact,
+            ReachMethod::Minkowski => ExactField::Nowhere,
+        }
+    }
+
+    /// Checks combinations: the Minkowski method's closeness rate needs one slope matrix `C`
+    /// for the whole box, which face-local bounds do not give; `every` is at least 1.
+    pub fn validate(&self) -> Result<(), SettingsError> {
+        if self.face_local && self.method == ReachMethod::Minkowski {
+            return Err(SettingsError::FaceLocalNeedsDisturbance);
+        }
+        if self.every == 0 {
+            return Err(SettingsError::EveryZero);
+        }
+        Ok(())
+    }
+}
+
+impl Default for ReachSettings {
+    fn default() -> Self {
+        ReachSettings {
+            bounds: BoundMethod::ForwardBackward,
+            method: ReachMethod::Disturbance,
+            every: 1,
+            face_local: false,
+            exact: ExactField::ClosedForm,
+            intersect_x: true,
+        }
+    }
+}

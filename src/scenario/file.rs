@@ -1,0 +1,208 @@
+//! A scenario file as written: the TOML tables as serde reads them, before any check
+//! ([`super::Scenario::from_toml`] checks them). May import `reach` and `verify` (their
+//! settings, for `[settings]`).
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+
+use crate::reach::ReachSettings;
+use crate::verify::VerifySettings;
+
+/// A scenario file as written (TOML). See `scenarios/*.toml` for annotated examples.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScenarioFile {
+    /// A short name for reports.
+    pub name: String,
+    /// One or two sentences about the problem.
+    #[serde(default)]
+    pub description: String,
+    /// Named constants usable in every expression.
+    #[serde(default)]
+    pub parameters: BTreeMap<String, f64>,
+    /// The control-affine system and the nominal controller.
+    pub system: SystemSection,
+    /// The CBFs `hᵢ`; the safe set is `S = ∩ᵢ {hᵢ ≥ 0}`.
+    #[serde(default, rename = "cbf")]
+    pub cbfs: Vec<CbfSection>,
+    /// Bounds on the applied input `u = κ(x) + θ`.
+    #[serde(default)]
+    pub input_bounds: Option<BoxSection>,
+    /// Further constraints linear in `θ`: `a(x)·θ ≤ b(x)`.
+    #[serde(default, rename = "constraint")]
+    pub constraints: Vec<ConstraintSection>,
+    /// Reachability settings.
+    pub reach: ReachSection,
+    /// The surrogate network.
+    #[serde(default)]
+    pub network: Option<NetworkSection>,
+    /// The training grid.
+    #[serde(default)]
+    pub training: Option<TrainingSection>,
+    /// Settings of runs of this scenario (`[settings.reach]`, `[settings.verify]`); command-line
+    /// options override them.
+    #[serde(default, skip_serializing_if = "SettingsSection::is_default")]
+    pub settings: SettingsSection,
+}
+
+/// `[settings]`: how runs of this scenario go unless told otherwise. `[settings.reach]` takes
+/// the fields of [`ReachSettings`] (e.g. `bounds = "crown"`, `face_local = true`),
+/// `[settings.verify]` those of [`VerifySettings`] (e.g. `grid = [32, 32]`,
+/// `refine_depth = 4`); a field left out keeps its default, an unknown one is an error.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SettingsSection {
+    /// Reach settings. Default: `ReachSettings::default()`.
+    pub reach: ReachSettings,
+    /// Verification settings. Default: `VerifySettings::default()`.
+    pub verify: VerifySettings,
+}
+
+impl SettingsSection {
+    /// Whether every setting is its default (the table can be left out).
+    pub fn is_default(&self) -> bool {
+        *self == SettingsSection::default()
+    }
+}
+
+/// `[system]`.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SystemSection {
+    /// State names `x₁…xₙ`.
+    pub states: Vec<String>,
+    /// Input names `u₁…u_m`.
+    pub inputs: Vec<String>,
+    /// Drift `f(x)`, n expressions.
+    pub f: Vec<String>,
+    /// Input matrix `g(x)`, n rows of m expressions.
+    pub g: Vec<Vec<String>>,
+    /// Nominal controller `κ(x)`, m expressions.
+    pub kappa: Vec<String>,
+}
+
+/// One `[[cbf]]`.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CbfSection {
+    /// A name for reports.
+    #[serde(default)]
+    pub name: Option<String>,
+    /// `h(x)`.
+    pub h: String,
+    /// Gain `a` of the class-K function `α(s) = a·s` (default 1).
+    #[serde(default = "one")]
+    pub alpha: f64,
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+/// A box `[lower, upper]` as written.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BoxSection {
+    /// Lower corner.
+    pub lower: Vec<f64>,
+    /// Upper corner.
+    pub upper: Vec<f64>,
+}
+
+/// One `[[constraint]]`: `a(x)·θ ≤ b(x)`.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ConstraintSection {
+    /// `a(x)`, m expressions.
+    pub a: Vec<String>,
+    /// `b(x)`.
+    pub b: String,
+}
+
+/// `M_C` as written: a number, or where to take it from.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum MarginSpec {
+    /// A fixed bound on `‖N(x) − v(x)‖` over `C`.
+    Value(f64),
+    /// `"certified"`, `"measured"` or `"local"`: taken from the network's error map.
+    Source(String),
+}
+
+/// `[reach]`.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReachSection {
+    /// The compact region `C` on which `M_C` holds and inside which the theorem needs the sets.
+    pub region: BoxSection,
+    /// Norm for the closeness radius: `inf`, `1` or `2`.
+    #[serde(default = "default_norm")]
+    pub norm: String,
+    /// `M_C`.
+    pub m_c: MarginSpec,
+    /// Euler step.
+    pub dt: f64,
+    /// Time horizon `T`.
+    pub horizon: f64,
+    /// Goal set used for verdicts (a box around the origin).
+    pub goal: BoxSection,
+    /// Explicit initial boxes.
+    #[serde(default)]
+    pub initial: Vec<BoxSection>,
+    /// A box partitioned into `counts[i]` cells along axis i.
+    #[serde(default)]
+    pub partition: Option<PartitionSection>,
+    /// Coordinates of the embedding: `"none"` (default), `"auto"` (from the closed loop's
+    /// linearisation at the goal), `"lyapunov"` (`T = P^{1/2}`, for `‖·‖_P`) or a matrix `T`
+    /// (`z = T x`, rows).
+    #[serde(default)]
+    pub transform: Option<TransformSpec>,
+}
+
+/// `reach.transform` as written.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum TransformSpec {
+    /// `"none"`, `"auto"` or `"lyapunov"`.
+    Name(String),
+    /// `T`, as rows.
+    Matrix(Vec<Vec<f64>>),
+}
+
+fn default_norm() -> String {
+    "inf".into()
+}
+
+/// `[reach.partition]`.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PartitionSection {
+    /// Lower corner of the partitioned box.
+    pub lower: Vec<f64>,
+    /// Upper corner.
+    pub upper: Vec<f64>,
+    /// Cells per axis.
+    pub counts: Vec<usize>,
+}
+
+/// `[network]`.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NetworkSection {
+    /// safetensors file, relative to the scenario file.
+    pub file: String,
+    /// Layer widths, input first, e.g. `[2, 400, 400, 400, 2]`.
+    pub architecture: Vec<usize>,
+}
+
+/// `[training]`.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainingSection {
+    /// Region of the training grid (default: `C`).
+    #[serde(default)]
+    pub region: Option<BoxSection>,
+    /// Grid points per axis.
+    pub grid: Vec<usize>,
+}

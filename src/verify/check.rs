@@ -1,0 +1,159 @@
+//! Checks of a report against the ground-truth filter: simulated starts in verified boxes
+//! ([`simulation_check`]) and where unverified boxes' centres go ([`explain_unverified`]).
+//! May import `filter`, `simulate`, `scenario` and `verify`'s report types.
+
+use rayon::prelude::*;
+
+use super::{BoxVerdict, Shares, Verdict, VerifyReport};
+use crate::scenario::Scenario;
+
+/// What simulating starts in the verified boxes with the ground-truth filter found
+/// ([`simulation_check`]).
+#[derive(Clone, Debug, Default)]
+pub struct SimulationCheck {
+    /// Verified leaves simulated.
+    pub boxes: usize,
+    /// Starts simulated.
+    pub starts: usize,
+    /// Starts whose trajectory stopped early (an infeasible QP) in boxes whose feasibility was
+    /// not proven: the filtered system is not defined there, so they neither confirm nor refute
+    /// the verdict (in boxes proven feasible they count as disagreements).
+    pub stopped: usize,
+    /// Starts that end elsewhere than their box's verdict says, or stop at an infeasible QP in
+    /// a box proven feasible: `(start, verdict, end)`.
+    pub disagreements: Vec<(Vec<f64>, Verdict, Vec<f64>)>,
+}
+
+/// An independent check of the verdicts: simulates a `per_axis`ⁿ grid of starts (corners
+/// included) in every `converges` or `trapped` leaf of `report` with the ground-truth filter
+/// (Euler at the scenario's `dt` over its horizon, as the engine integrates) and checks that
+/// each trajectory ends in the goal set or in its trap box. The sets bound the filtered system,
+/// so a disagreement means a bug, an unsound `M`, or Euler's error across a basin boundary.
+pub fn simulation_check(s: &Scenario, report: &VerifyReport, per_axis: usize) -> SimulationCheck {
+    use crate::filter::SafetyFilter;
+    use crate::simulate::{simulate_filtered, Integrator};
+    let filter = SafetyFilter::new(s);
+    let steps = s.reach.steps();
+    let k = per_axis.max(1);
+    let fraction = |i: usize| {
+        if k == 1 {
+            0.5
+        } else {
+            i as f64 / (k - 1) as f64
+        }
+    };
+    let leaves: Vec<&BoxVerdict> = report
+        .after
+        .iter()
+        .filter(|b| b.verdict.is_verified())
+        .collect();
+    let per_box: Vec<SimulationCheck> = leaves
+        .par_iter()
+        .map(|b| {
+            let mut out = SimulationCheck {
+                boxes: 1,
+                ..SimulationCheck::default()
+            };
+            let target = match (b.verdict, b.trap) {
+                (Verdict::Trapped, Some(t)) => &report.traps[t].region,
+                _ => &s.reach.goal,
+            };
+            for code in 0..k.pow(s.n() as u32) {
+                let at: Vec<f64> = (0..s.n())
+                    .map(|d| fraction(code / k.pow(d as u32) % k))
+                    .collect();
+                let x0 = b.initial.point_at(&at);
+                let tr = simulate_filtered(&filter, &x0, s.reach.dt, steps, Integrator::Euler);
+                out.starts += 1;
+                if tr.stopped.is_some() && b.feasible == Some(true) {
+                    // The QP was proven feasible on every set, and the sets hold the Euler
+                    // trajectory at every step.
+                    out.disagreements.push((x0, b.verdict, tr.last().to_vec()));
+                } else if tr.stopped.is_some() {
+                    out.stopped += 1;
+                } else if !target.contains(tr.last()) {
+                    out.disagreements.push((x0, b.verdict, tr.last().to_vec()));
+                }
+            }
+            out
+        })
+        .collect();
+    per_box
+        .into_iter()
+        .fold(SimulationCheck::default(), |mut all, one| {
+            all.boxes += one.boxes;
+            all.starts += one.starts;
+            all.stopped += one.stopped;
+            all.disagreements.extend(one.disagreements);
+            all
+        })
+}
+
+/// Where the ground-truth filtered system goes from the centre of each leaf that was not
+/// verified (`unknown` or `invalid`), as shares of the leaves' safe area
+/// ([`explain_unverified`]). A diagnostic, not a proof: it separates what no sound set can
+/// show (the system itself leaves `C`, or the horizon ends elsewhere) from what the network's
+/// error and the over-approximation left open.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct UnverifiedCauses {
+    /// Not verified (the sum of the four below).
+    pub unverified: f64,
+    /// The centre's trajectory leaves `C`, where `M_C` no longer holds.
+    pub leaves_region: f64,
+    /// The centre's trajectory stops at an infeasible QP.
+    pub infeasible: f64,
+    /// The centre's trajectory ends at `T` in neither the goal nor a trap box.
+    pub ends_elsewhere: f64,
+    /// The centre's trajectory ends in the goal or a trap box: the sets were too loose.
+    pub too_loose: f64,
+}
+
+/// Simulates the centre of every `unknown` or `invalid` leaf of `report` with the ground-truth
+/// filter (Euler at the scenario's `dt` over its horizon, as the engine integrates) and sorts
+/// the leaves' area into [`UnverifiedCauses`].
+pub fn explain_unverified(s: &Scenario, report: &VerifyReport) -> UnverifiedCauses {
+    use crate::filter::SafetyFilter;
+    use crate::simulate::{simulate_filtered, Integrator};
+    let filter = SafetyFilter::new(s);
+    let safe_area = Shares::of(&report.after).safe_area;
+    if safe_area <= 0.0 {
+        return UnverifiedCauses::default();
+    }
+    let ends_in_target =
+        |x: &[f64]| s.reach.goal.contains(x) || report.traps.iter().any(|t| t.region.contains(x));
+    report
+        .after
+        .par_iter()
+        .filter(|b| b.verdict.is_refinable())
+        .map(|b| {
+            let share = b.initial.volume() / safe_area;
+            let tr = simulate_filtered(
+                &filter,
+                &b.initial.center(),
+                s.reach.dt,
+                s.reach.steps(),
+                Integrator::Euler,
+            );
+            let mut c = UnverifiedCauses {
+                unverified: share,
+                ..UnverifiedCauses::default()
+            };
+            if tr.x.iter().any(|x| !s.reach.region.contains(x)) {
+                c.leaves_region = share;
+            } else if tr.stopped.is_some() {
+                c.infeasible = share;
+            } else if ends_in_target(tr.last()) {
+                c.too_loose = share;
+            } else {
+                c.ends_elsewhere = share;
+            }
+            c
+        })
+        .reduce(UnverifiedCauses::default, |a, b| UnverifiedCauses {
+            unverified: a.unverified + b.unverified,
+            leaves_region: a.leaves_region + b.leaves_region,
+            infeasible: a.infeasible + b.infeasible,
+            ends_elsewhere: a.ends_elsewhere + b.ends_elsewhere,
+            too_loose: a.too_loose + b.too_loose,
+        })
+}

@@ -1,0 +1,269 @@
+//! The verdict of whole initial boxes: from a box's own tube, or, where that proves nothing,
+//! from its pieces, split and refined as `verify` refines ([`verify_by_pieces`], `cbfreach
+//! paper`). May import `reach` and `verify`'s verifier.
+
+use super::{judge, BoxVerdict, Reason, Trap, Verdict, Verifier, VerifyError, VerifySettings};
+use crate::boxes::IntervalBox;
+use crate::reach::{CpuBackend, ReachProblem, ReachSettings, Tube};
+use crate::scenario::Scenario;
+
+/// Pieces per axis of an initial box that is not verified whole.
+pub const SPLIT: usize = 4;
+
+/// Extra pieces refinement may run per initial box.
+pub const REFINE_BUDGET: usize = 4096;
+
+/// How an initial box got its verdict ([`verify_by_pieces`]); `Display` gives the note that
+/// `cbfreach paper` prints.
+#[derive(Clone, Debug, PartialEq)]
+pub enum PieceOutcome {
+    /// From the box's own tube.
+    Whole {
+        /// Why, where the verdict says more than itself.
+        reason: Option<Reason>,
+        /// The tube's last set (said where there is no reason).
+        final_set: Option<IntervalBox>,
+        /// For a verified box: whether the QP is proven feasible along its tube.
+        feasible: Option<bool>,
+    },
+    /// Every piece has the same verified verdict.
+    Pieces {
+        /// Pieces (leaves of the refinement).
+        pieces: usize,
+        /// The narrowest and widest piece (by its widest side).
+        width: (f64, f64),
+        /// Pieces whose QP is proven feasible along their tubes.
+        feasible_pieces: usize,
+        /// Their share of the box's volume.
+        feasible_share: f64,
+    },
+    /// The pieces did not all verify: the whole box's outcome stands.
+    Undecided {
+        /// The whole box's outcome ([`PieceOutcome::Whole`]).
+        whole: Box<PieceOutcome>,
+        /// Pieces verified.
+        proven: usize,
+        /// Pieces in all.
+        pieces: usize,
+        /// The narrowest and widest piece.
+        width: (f64, f64),
+    },
+}
+
+/// The verdict of one initial box and how it was reached.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PiecesVerdict {
+    /// The verdict.
+    pub verdict: Verdict,
+    /// How.
+    pub outcome: PieceOutcome,
+}
+
+/// Formats a vector compactly: `(1.000, -2.500)`; values that print as zero print unsigned.
+fn fmt_point(x: &[f64]) -> String {
+    let parts: Vec<String> = x
+        .iter()
+        .map(|&v| format!("{:.4}", if v.abs() < 5e-5 { 0.0 } else { v }))
+        .collect();
+    format!("({})", parts.join(", "))
+}
+
+/// Whether the filter's QP was proven feasible on every set of a verified box.
+fn feasibility_clause(feasible: Option<bool>) -> &'static str {
+    match feasible {
+        Some(true) => "; QP proven feasible",
+        Some(false) => "; QP feasibility not proven",
+        None => "",
+    }
+}
+
+/// `0.031` or `0.016–0.031`.
+fn size((narrow, wide): (f64, f64)) -> String {
+    let (narrow, wide) = (format!("{narrow:.3}"), format!("{wide:.3}"));
+    if narrow == wide {
+        wide
+    } else {
+        format!("{narrow}–{wide}")
+    }
+}
+
+impl std::fmt::Display for PieceOutcome {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            PieceOutcome::Whole {
+                reason,
+                final_set,
+                feasible,
+            } => {
+                match (reason, final_set) {
+                    (Some(r), _) => write!(f, "{r}")?,
+                    (None, Some(set)) => write!(
+                        f,
+                        "final set {} … {}",
+                        fmt_point(&set.lower),
+                        fmt_point(&set.upper)
+                    )?,
+                    (None, None) => {}
+                }
+                f.write_str(feasibility_clause(*feasible))
+            }
+            PieceOutcome::Pieces { .. } => Ok(()),
+            PieceOutcome::Undecided {
+                whole,
+                proven,
+                pieces,
+                width,
+            } => write!(
+                f,
+                "{whole} ({proven} of {pieces} pieces {} wide verified)",
+                size(*width)
+            ),
+        }
+    }
+}
+
+impl std::fmt::Display for PiecesVerdict {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match &self.outcome {
+            PieceOutcome::Pieces {
+                pieces,
+                width,
+                feasible_pieces,
+                feasible_share,
+            } => {
+                write!(
+                    f,
+                    "as {pieces} pieces {} wide: every piece {}",
+                    size(*width),
+                    self.verdict.name()
+                )?;
+                match *feasible_pieces {
+                    n if n == *pieces => f.write_str(feasibility_clause(Some(true))),
+                    0 => f.write_str(feasibility_clause(Some(false))),
+                    _ => write!(
+                        f,
+                        "; QP proven feasible on {:.1} % of the box",
+                        100.0 * feasible_share
+                    ),
+                }
+            }
+            other => write!(f, "{other}"),
+        }
+    }
+}
+
+/// The verdict of each initial box of `tubes` (their tubes under `reach`): from its own tube,
+/// or, where that proves nothing (or does not prove the QP feasible), from its `SPLITⁿ`
+/// pieces and `refine` rounds of bisection of the pieces not verified (the refinement of
+/// `verify`, on the CPU engine), whose leaves must all share one verified verdict.
+/// `progress` is told (boxes split, boxes to split).
+pub fn verify_by_pieces(
+    scenario: &Scenario,
+    problem: &ReachProblem,
+    reach: &ReachSettings,
+    traps: &[Trap],
+    tubes: &[Tube],
+    refine: usize,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<Vec<PiecesVerdict>, VerifyError> {
+    let mut out: Vec<PiecesVerdict> = tubes
+        .iter()
+        .map(|tube| {
+            let j = judge(problem, scenario, traps, tube);
+            let feasible = j
+                .verdict
+                .is_verified()
+                .then(|| problem.proves_feasible_along(tube));
+            PiecesVerdict {
+                verdict: j.verdict,
+                outcome: PieceOutcome::Whole {
+                    final_set: tube.last().map(|l| l.set.clone()),
+                    reason: j.reason,
+                    feasible,
+                },
+            }
+        })
+        .collect();
+    // Split what the whole box leaves open: its verdict, or the QP's feasibility along its
+    // sets (the pieces' sets are narrower and may stay clear of where the QP fails).
+    let retry: Vec<usize> = (0..tubes.len())
+        .filter(|&k| {
+            let v = out[k].verdict;
+            let unproven = matches!(
+                out[k].outcome,
+                PieceOutcome::Whole {
+                    feasible: Some(false),
+                    ..
+                }
+            );
+            v.is_refinable() || (v.is_verified() && unproven)
+        })
+        .collect();
+    let verifier = Verifier {
+        scenario,
+        problem,
+        backend: &CpuBackend,
+        reach: reach.clone(),
+        traps: traps.to_vec(),
+    };
+    progress(0, retry.len());
+    for (done, &k) in retry.iter().enumerate() {
+        let report = verifier.run(
+            &VerifySettings {
+                region: Some(tubes[k].initial.clone()),
+                grid: vec![SPLIT; scenario.n()],
+                refine_depth: refine,
+                budget: REFINE_BUDGET,
+                refine_feasibility: true,
+                shard: None,
+                chunk: Some(512),
+            },
+            &|_, _, _| {},
+        )?;
+        progress(done + 1, retry.len());
+        let leaves = &report.after;
+        let proven = leaves.iter().filter(|b| b.verdict.is_verified()).count();
+        // A piece's size is its widest side (bisection halves one side at a time).
+        let width = leaves
+            .iter()
+            .map(|b| b.initial.widths().into_iter().fold(0.0_f64, f64::max))
+            .fold((f64::INFINITY, 0.0_f64), |(lo, hi), w| {
+                (lo.min(w), hi.max(w))
+            });
+        match leaves.first().map(|b| b.verdict) {
+            Some(v) if proven == leaves.len() && leaves.iter().all(|b| b.verdict == v) => {
+                let proven_feasible = |b: &&BoxVerdict| b.feasible == Some(true);
+                let area = |b: &BoxVerdict| b.initial.volume();
+                let feasible_pieces = leaves.iter().filter(proven_feasible).count();
+                let feasible_share = leaves.iter().filter(proven_feasible).map(area).sum::<f64>()
+                    / leaves.iter().map(area).sum::<f64>();
+                out[k] = PiecesVerdict {
+                    verdict: v,
+                    outcome: PieceOutcome::Pieces {
+                        pieces: leaves.len(),
+                        width,
+                        feasible_pieces,
+                        feasible_share,
+                    },
+                };
+            }
+            _ => {
+                let whole = std::mem::replace(
+                    &mut out[k].outcome,
+                    PieceOutcome::Whole {
+                        reason: None,
+                        final_set: None,
+                        feasible: None,
+                    },
+                );
+                out[k].outcome = PieceOutcome::Undecided {
+                    whole: Box::new(whole),
+                    proven,
+                    pieces: leaves.len(),
+                    width,
+                };
+            }
+        }
+    }
+    Ok(out)
+}

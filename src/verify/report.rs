@@ -1,0 +1,320 @@
+//! What a verification run reports: a verdict per box ([`BoxVerdict`]), the run's settings
+//! ([`RunInfo`]), shares per verdict ([`Shares`]) and the JSON file ([`VerifyReport`]). May
+//! import `verify`'s verdicts and shards.
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+
+use super::{Shard, Trap, Verdict, VerifyError, FORMAT};
+use crate::boxes::IntervalBox;
+use crate::reach::ExactField;
+
+/// The verdict of one box.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct BoxVerdict {
+    /// Index of the grid cell it comes from (axis 0 fastest).
+    pub cell: usize,
+    /// Bisections from that cell (0 for the cell itself).
+    pub depth: usize,
+    /// The initial box.
+    pub initial: IntervalBox,
+    /// The verdict.
+    pub verdict: Verdict,
+    /// The filtered-system set at the last recorded time (absent for skipped boxes).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub final_set: Option<IntervalBox>,
+    /// The last recorded time.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub t_end: Option<f64>,
+    /// Index into the report's traps, for `trapped`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub trap: Option<usize>,
+    /// Why (`unsafe`: when and which CBF; `invalid`: when it left `C`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub note: Option<String>,
+    /// For verified boxes: whether the filter's QP is proven feasible on every set of the tube
+    /// ([`crate::reach::pieces::FilterPieces::proves_feasible`]). Where it is not, some
+    /// trajectories may meet an infeasible QP and stop existing; the verdict speaks of those
+    /// that exist.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub feasible: Option<bool>,
+}
+
+impl BoxVerdict {
+    /// Verified, but the QP's feasibility along its sets is not proven.
+    pub fn lacks_feasibility_proof(&self) -> bool {
+        self.verdict.is_verified() && self.feasible == Some(false)
+    }
+
+    /// This half's verdict given the verdict of the box it was bisected from. A verified box's
+    /// verdict holds for every start in it, so a half whose own sets prove nothing (`unknown`,
+    /// `invalid`) keeps its parent's verdict and final set; only a feasibility proof must come
+    /// from the half's own sets. (`unsafe` is kept: it flags a bug, never a property.)
+    pub(super) fn within(self, parent: &BoxVerdict) -> BoxVerdict {
+        if !parent.verdict.is_verified() || !self.verdict.is_refinable() {
+            return self;
+        }
+        BoxVerdict {
+            cell: self.cell,
+            depth: self.depth,
+            initial: self.initial,
+            note: Some(format!(
+                "the verdict of the box it was bisected from (its own sets: {})",
+                self.verdict.name()
+            )),
+            feasible: Some(false),
+            ..parent.clone()
+        }
+    }
+}
+
+/// What a run was: everything two shards must share to be merged.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RunInfo {
+    /// Scenario name.
+    pub scenario: String,
+    /// Scenario file.
+    pub scenario_file: String,
+    /// The partitioned region.
+    pub region: IntervalBox,
+    /// Cells per axis.
+    pub grid: Vec<usize>,
+    /// The goal box.
+    pub goal: IntervalBox,
+    /// Reach method (`disturbance`, `minkowski`).
+    pub method: String,
+    /// Bound method.
+    pub bounds: String,
+    /// `M_C`.
+    pub m_c: f64,
+    /// The disturbance came from the local bounds of a certified error map, not from `m_c`.
+    #[serde(default)]
+    pub local_margin: bool,
+    /// Face-local network bounds.
+    #[serde(default)]
+    pub face_local: bool,
+    /// Where the filtered system's own field replaced the network (`ReachSettings::exact`).
+    #[serde(default)]
+    pub exact: ExactField,
+    /// Whether the sets were the meet of a box in x and the parallelotope
+    /// (`ReachSettings::intersect_x`).
+    #[serde(default)]
+    pub intersect_x: bool,
+    /// Euler step.
+    pub dt: f64,
+    /// Euler steps.
+    pub steps: usize,
+    /// Whether the embedding ran in transformed coordinates.
+    pub transformed: bool,
+    /// The CBFs whose half-spaces bounded the sets (`reach::safe_set`; empty with
+    /// `--no-safe-set` or none affine).
+    #[serde(default)]
+    pub safe_set: Vec<String>,
+    /// Refinement depth.
+    pub refine_depth: usize,
+    /// Refinement budget (extra boxes, per shard).
+    pub budget: usize,
+    /// Refinement also bisected verified leaves whose QP feasibility was not proven.
+    #[serde(default)]
+    pub refine_feasibility: bool,
+}
+
+/// Wall times and work of a run.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct VerifyTiming {
+    /// Seconds in the reach engine.
+    pub reach_s: f64,
+    /// Seconds in all.
+    pub total_s: f64,
+    /// Boxes run through the engine (cells and refined halves).
+    pub boxes_run: usize,
+    /// Euler box-steps.
+    pub box_steps: usize,
+}
+
+/// Area per verdict of a set of boxes.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Shares {
+    /// Area of the boxes with each verdict.
+    pub area: BTreeMap<Verdict, f64>,
+    /// Number of boxes with each verdict.
+    pub count: BTreeMap<Verdict, usize>,
+    /// Area of every box.
+    pub total_area: f64,
+    /// Area of the boxes that start safe.
+    pub safe_area: f64,
+    /// `area(converges ∪ trapped) / safe_area` (0 when nothing starts safe).
+    pub verified_share: f64,
+    /// The same for the verified boxes whose filter is proven feasible on every set.
+    pub verified_feasible_share: f64,
+}
+
+impl Shares {
+    /// Tallies the boxes.
+    pub fn of(boxes: &[BoxVerdict]) -> Shares {
+        let mut s = Shares::default();
+        for b in boxes {
+            let a = b.initial.volume();
+            *s.area.entry(b.verdict).or_insert(0.0) += a;
+            *s.count.entry(b.verdict).or_insert(0) += 1;
+            s.total_area += a;
+            if b.verdict.starts_safe() {
+                s.safe_area += a;
+            }
+        }
+        let verified: f64 = s
+            .area
+            .iter()
+            .filter(|(v, _)| v.is_verified())
+            .map(|(_, a)| a)
+            .fold(0.0, |x, y| x + y);
+        let feasible: f64 = boxes
+            .iter()
+            .filter(|b| b.verdict.is_verified() && b.feasible == Some(true))
+            .map(|b| b.initial.volume())
+            .fold(0.0, |x, y| x + y);
+        if s.safe_area > 0.0 {
+            s.verified_share = verified / s.safe_area;
+            s.verified_feasible_share = feasible / s.safe_area;
+        }
+        s
+    }
+
+    /// Area with verdict `v` as a share of the safe area (of the total area for skipped
+    /// verdicts).
+    pub fn share(&self, v: Verdict) -> f64 {
+        let a = self.area.get(&v).copied().unwrap_or(0.0);
+        let whole = if v.starts_safe() {
+            self.safe_area
+        } else {
+            self.total_area
+        };
+        if whole > 0.0 {
+            a / whole
+        } else {
+            0.0
+        }
+    }
+}
+
+/// The verdicts of a run (or of a shard), as written to JSON.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct VerifyReport {
+    /// [`FORMAT`].
+    pub format: String,
+    /// What was run.
+    pub run: RunInfo,
+    /// The shard, if this is one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shard: Option<Shard>,
+    /// The grid cells covered: `[start, end)`.
+    pub cells: [usize; 2],
+    /// Trap boxes of stable undesirable equilibria.
+    pub traps: Vec<Trap>,
+    /// Verdicts of the grid cells, before refinement.
+    pub before: Vec<BoxVerdict>,
+    /// Verdicts of the leaves after refinement (equal to `before` without refinement).
+    pub after: Vec<BoxVerdict>,
+    /// Times.
+    pub timing: VerifyTiming,
+}
+
+impl VerifyReport {
+    /// Shares before refinement.
+    pub fn shares_before(&self) -> Shares {
+        Shares::of(&self.before)
+    }
+
+    /// Shares after refinement.
+    pub fn shares_after(&self) -> Shares {
+        Shares::of(&self.after)
+    }
+
+    /// Boxes whose sets met the unsafe set (should be none).
+    pub fn unsafe_boxes(&self) -> Vec<&BoxVerdict> {
+        self.after
+            .iter()
+            .chain(&self.before)
+            .filter(|b| b.verdict == Verdict::Unsafe)
+            .collect()
+    }
+
+    /// The report as JSON.
+    pub fn to_json(&self) -> String {
+        // Plain data with string keys: serialisation cannot fail.
+        serde_json::to_string(self).unwrap_or_default()
+    }
+
+    /// Reads a report; `file` names it in errors.
+    pub fn from_json(text: &str, file: &str) -> Result<VerifyReport, VerifyError> {
+        let r: VerifyReport = serde_json::from_str(text).map_err(|e| VerifyError::Format {
+            file: file.to_string(),
+            message: format!("not a verdict file of cbfreach verify: {e}"),
+        })?;
+        if r.format != FORMAT {
+            return Err(VerifyError::Format {
+                file: file.to_string(),
+                message: format!("format `{}`, expected `{FORMAT}`", r.format),
+            });
+        }
+        Ok(r)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn leaf(verdict: Verdict, lower: [f64; 2], upper: [f64; 2]) -> BoxVerdict {
+        BoxVerdict {
+            cell: 3,
+            depth: 1,
+            initial: IntervalBox {
+                lower: lower.to_vec(),
+                upper: upper.to_vec(),
+            },
+            verdict,
+            final_set: None,
+            t_end: Some(10.0),
+            trap: None,
+            note: None,
+            feasible: None,
+        }
+    }
+
+    #[test]
+    fn a_half_of_a_verified_box_keeps_its_verdict() {
+        let mut parent = leaf(Verdict::Trapped, [0.0, 0.0], [1.0, 1.0]);
+        parent.depth = 0;
+        parent.trap = Some(0);
+        parent.feasible = Some(false);
+        parent.final_set = Some(IntervalBox {
+            lower: vec![2.9, -0.1],
+            upper: vec![3.1, 0.1],
+        });
+        // The half's own sets prove nothing: the parent's verdict, trap and final set hold
+        // for it, its own box and depth stay, and its QP feasibility is not proven.
+        for own in [Verdict::Unknown, Verdict::Invalid] {
+            let half = leaf(own, [0.0, 0.0], [0.5, 1.0]).within(&parent);
+            assert_eq!(half.verdict, Verdict::Trapped);
+            assert_eq!(half.trap, Some(0));
+            assert_eq!(half.final_set, parent.final_set);
+            assert_eq!(half.initial.upper, vec![0.5, 1.0]);
+            assert_eq!(half.depth, 1);
+            assert_eq!(half.feasible, Some(false));
+            assert!(half.note.unwrap().contains(own.name()));
+        }
+        // A half verified on its own (here with the QP proven feasible) keeps its own proof;
+        // `unsafe` (a bug) is never hidden.
+        let mut proven = leaf(Verdict::Trapped, [0.5, 0.0], [1.0, 1.0]);
+        proven.feasible = Some(true);
+        assert_eq!(proven.clone().within(&parent), proven);
+        let bug = leaf(Verdict::Unsafe, [0.5, 0.0], [1.0, 1.0]);
+        assert_eq!(bug.clone().within(&parent), bug);
+        // Halves of an unverified box are only their own.
+        let unknown = leaf(Verdict::Unknown, [0.0, 0.0], [0.5, 1.0]);
+        parent.verdict = Verdict::Unknown;
+        assert_eq!(unknown.clone().within(&parent), unknown);
+    }
+}

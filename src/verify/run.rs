@@ -1,0 +1,387 @@
+//! The verifier: a verdict per cell of a grid from its tube ([`judge`]), and refinement by
+//! bisection. May import `reach`, `scenario` and `verify`'s report types.
+
+use std::time::Instant;
+
+use rayon::prelude::*;
+use serde::Serialize;
+
+use super::{
+    BoxVerdict, RunInfo, Trap, Verdict, VerifyError, VerifyReport, VerifySettings, VerifyTiming,
+    FORMAT,
+};
+use crate::boxes::IntervalBox;
+use crate::intervals::Interval;
+use crate::reach::{Backend, ReachProblem, ReachSettings, Tube};
+use crate::scenario::Scenario;
+
+/// Which phase a progress report is about.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Stage {
+    /// The grid cells.
+    Cells,
+    /// Refinement round `d` (1-based).
+    Refine(usize),
+}
+
+/// `Some(UnsafeStart)`, `Some(PartlyUnsafe)` or `None` (the box starts safe), by interval
+/// evaluation of every CBF over the box.
+pub fn start_verdict(scenario: &Scenario, b: &IntervalBox) -> Option<Verdict> {
+    let x = as_intervals(b);
+    let hs: Vec<Interval> = scenario
+        .cbfs
+        .iter()
+        .map(|c| c.h.eval_interval(&x))
+        .collect();
+    // NaN bounds (an expression undefined somewhere on the box) count as "maybe unsafe".
+    if hs.iter().any(|h| h.upper < 0.0) {
+        Some(Verdict::UnsafeStart)
+    } else if !hs.iter().all(|h| h.lower >= 0.0) {
+        Some(Verdict::PartlyUnsafe)
+    } else {
+        None
+    }
+}
+
+fn as_intervals(b: &IntervalBox) -> Vec<Interval> {
+    b.lower
+        .iter()
+        .zip(&b.upper)
+        .map(|(&l, &u)| Interval::new(l, u))
+        .collect()
+}
+
+/// Why a tube got its verdict, where there is more to say than the verdict; `Display` gives
+/// the note of the verdict JSON.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Reason {
+    /// `unsafe`: CBF `cbf` is negative on the whole set at `t`, after sets on which the QP is
+    /// proven feasible.
+    LeftSafeSet {
+        /// The time.
+        t: f64,
+        /// The CBF's name.
+        cbf: String,
+        /// The set.
+        set: IntervalBox,
+    },
+    /// `unknown`: the same, but after sets on which the QP is not proven feasible: the
+    /// trajectories may have met an infeasible QP before.
+    LeftSafeSetAfterUnprovenQp {
+        /// The time.
+        t: f64,
+        /// The CBF's name.
+        cbf: String,
+        /// The set.
+        set: IntervalBox,
+    },
+    /// `invalid`: the tube stopped early; why, as the engine says.
+    Stopped(String),
+    /// `unknown`: the engine recorded no set.
+    EmptyTube,
+}
+
+impl std::fmt::Display for Reason {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let outside = |f: &mut std::fmt::Formatter<'_>, t: &f64, cbf: &str, set: &IntervalBox| {
+            write!(
+                f,
+                "t = {t:.3}: {cbf} < 0 on the whole set {:?}…{:?}",
+                set.lower, set.upper
+            )
+        };
+        match self {
+            Reason::LeftSafeSet { t, cbf, set } => outside(f, t, cbf, set),
+            Reason::LeftSafeSetAfterUnprovenQp { t, cbf, set } => {
+                outside(f, t, cbf, set)?;
+                f.write_str(
+                    ", after sets on which the QP is not proven feasible: the trajectories may \
+                     have met an infeasible QP before",
+                )
+            }
+            Reason::Stopped(note) => f.write_str(note),
+            Reason::EmptyTube => f.write_str("empty tube"),
+        }
+    }
+}
+
+/// A tube's verdict, with the trap it ends in (`trapped`) and why (where there is more to say).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Judgement {
+    /// The verdict.
+    pub verdict: Verdict,
+    /// Index into the traps, for `trapped`.
+    pub trap: Option<usize>,
+    /// Why, for `unsafe`, `invalid` and some `unknown`.
+    pub reason: Option<Reason>,
+}
+
+impl Judgement {
+    fn of(verdict: Verdict, trap: Option<usize>, reason: Option<Reason>) -> Judgement {
+        Judgement {
+            verdict,
+            trap,
+            reason,
+        }
+    }
+}
+
+/// Judges one tube (see the module docs for the order of the checks).
+pub fn judge(
+    problem: &ReachProblem,
+    scenario: &Scenario,
+    traps: &[Trap],
+    tube: &Tube,
+) -> Judgement {
+    for (k, s) in tube.tube.iter().enumerate() {
+        let x = as_intervals(&s.set);
+        for cbf in &scenario.cbfs {
+            if cbf.h.eval_interval(&x).upper < 0.0 {
+                let (t, cbf, set) = (s.t, cbf.name.clone(), s.set.clone());
+                // `S` is forward invariant only while the QP has a solution: where it may have
+                // none on an earlier set, every trajectory may have stopped there (the
+                // scenario's CBFs may conflict), and a set outside `S` proves nothing.
+                if !problem.proves_feasible_on(&tube.tube[..k]) {
+                    let why = Reason::LeftSafeSetAfterUnprovenQp { t, cbf, set };
+                    return Judgement::of(Verdict::Unknown, None, Some(why));
+                }
+                let why = Reason::LeftSafeSet { t, cbf, set };
+                return Judgement::of(Verdict::Unsafe, None, Some(why));
+            }
+        }
+    }
+    if !tube.valid() {
+        return Judgement::of(
+            Verdict::Invalid,
+            None,
+            tube.note().map(Reason::Stopped),
+        );
+    }
+    let Some(last) = tube.last() else {
+        return Judgement::of(Verdict::Unknown, None, Some(Reason::EmptyTube));
+    };
+    if last.set.is_subset_of(&scenario.reach.goal) {
+        return Judgement::of(Verdict::Converges, None, None);
+    }
+    if let Some(k) = traps.iter().position(|t| last.set.is_subset_of(&t.region)) {
+        return Judgement::of(Verdict::Trapped, Some(k), None);
+    }
+    Judgement::of(Verdict::Unknown, None, None)
+}
+
+/// Runs the grid cells of one verification (or shard) and refines.
+pub struct Verifier<'a> {
+    /// The scenario (CBFs, goal).
+    pub scenario: &'a Scenario,
+    /// The compiled reach problem.
+    pub problem: &'a ReachProblem,
+    /// The engine.
+    pub backend: &'a dyn Backend,
+    /// Reach settings (`every` is forced to 1: the unsafe check looks at every step).
+    pub reach: ReachSettings,
+    /// Trap boxes.
+    pub traps: Vec<Trap>,
+}
+
+impl<'a> Verifier<'a> {
+    /// A verifier with the scenario's reach settings (`[settings.reach]`, else
+    /// `ReachSettings::default()`) and traps ([`super::traps_for`]).
+    pub fn new(
+        scenario: &'a Scenario,
+        problem: &'a ReachProblem,
+        backend: &'a dyn Backend,
+    ) -> Verifier<'a> {
+        Verifier {
+            scenario,
+            problem,
+            backend,
+            reach: scenario.settings.reach.clone(),
+            traps: super::traps_for(scenario),
+        }
+    }
+
+    /// Verifies the cells of `settings.region` (of the shard, if any); `progress` gets the
+    /// stage, boxes done and boxes in the stage.
+    pub fn run(
+        &self,
+        settings: &VerifySettings,
+        progress: &(dyn Fn(Stage, usize, usize) + Sync),
+    ) -> Result<VerifyReport, VerifyError> {
+        settings.validate(self.scenario)?;
+        let clock = Instant::now();
+        let region = settings.region_in(self.scenario);
+        let chunk = settings
+            .chunk
+            .unwrap_or_else(|| self.backend.preferred_batch());
+        let all = region.partition(&settings.grid);
+        let range = settings.shard.map_or(0..all.len(), |s| s.range(all.len()));
+        let mut timing = VerifyTiming::default();
+        let cells: Vec<(usize, usize, IntervalBox)> =
+            range.clone().map(|k| (k, 0, all[k].clone())).collect();
+        let before = self.run_boxes(&cells, chunk, &mut timing, &|d, t| {
+            progress(Stage::Cells, d, t)
+        })?;
+
+        let mut leaves = before.clone();
+        let mut left = settings.budget;
+        for depth in 1..=settings.refine_depth {
+            let latest = |i: &usize| leaves[*i].depth + 1 == depth;
+            let undecided =
+                (0..leaves.len()).filter(|i| latest(i) && leaves[*i].verdict.is_refinable());
+            let unproven_feasible = (0..leaves.len()).filter(|i| {
+                settings.refine_feasibility && latest(i) && leaves[*i].lacks_feasibility_proof()
+            });
+            // The undecided leaves take the budget first; the halves replace their parents in
+            // place, so the parents go in leaf order.
+            let mut parents: Vec<usize> =
+                undecided.chain(unproven_feasible).take(left / 2).collect();
+            parents.sort_unstable();
+            if parents.is_empty() {
+                break;
+            }
+            left -= 2 * parents.len();
+            let children: Vec<(usize, usize, IntervalBox)> = parents
+                .iter()
+                .flat_map(|&i| {
+                    let (l, r) = leaves[i].initial.bisect();
+                    [(leaves[i].cell, depth, l), (leaves[i].cell, depth, r)]
+                })
+                .collect();
+            let judged = self.run_boxes(&children, chunk, &mut timing, &|d, t| {
+                progress(Stage::Refine(depth), d, t)
+            })?;
+            // Replace each parent by its two halves, in place.
+            let mut next = Vec::with_capacity(leaves.len() + parents.len());
+            let mut halves = judged.into_iter();
+            let mut p = parents.iter().peekable();
+            for (i, b) in leaves.into_iter().enumerate() {
+                if p.peek() == Some(&&i) {
+                    p.next();
+                    next.extend(halves.by_ref().take(2).map(|h| h.within(&b)));
+                } else {
+                    next.push(b);
+                }
+            }
+            leaves = next;
+        }
+        timing.total_s = clock.elapsed().as_secs_f64();
+        Ok(VerifyReport {
+            format: FORMAT.into(),
+            run: RunInfo {
+                scenario: self.scenario.name.clone(),
+                scenario_file: self.scenario.file.clone(),
+                region,
+                grid: settings.grid.clone(),
+                goal: self.scenario.reach.goal.clone(),
+                method: serde_name(&self.reach.method),
+                bounds: self.reach.bounds.name().to_string(),
+                m_c: self.problem.m_c,
+                local_margin: self.problem.error_map.is_some(),
+                face_local: self.reach.face_local,
+                exact: self.reach.exact_field(),
+                intersect_x: self.problem.frames(&self.reach).len() > 1,
+                dt: self.problem.dt,
+                steps: self.problem.steps,
+                transformed: self.problem.transform.is_some(),
+                safe_set: (self.problem.safe_set_for(self.reach.method).names())
+                    .into_iter()
+                    .map(String::from)
+                    .collect(),
+                refine_depth: settings.refine_depth,
+                budget: settings.budget,
+                refine_feasibility: settings.refine_feasibility,
+            },
+            shard: settings.shard,
+            cells: [range.start, range.end],
+            traps: self.traps.clone(),
+            before,
+            after: leaves,
+            timing,
+        })
+    }
+
+    /// Start check, then the engine in chunks, then [`judge`]; keeps the input order.
+    fn run_boxes(
+        &self,
+        boxes: &[(usize, usize, IntervalBox)],
+        chunk: usize,
+        timing: &mut VerifyTiming,
+        progress: &(dyn Fn(usize, usize) + Sync),
+    ) -> Result<Vec<BoxVerdict>, VerifyError> {
+        let mut out: Vec<BoxVerdict> = boxes
+            .iter()
+            .map(|(cell, depth, b)| BoxVerdict {
+                cell: *cell,
+                depth: *depth,
+                initial: b.clone(),
+                verdict: start_verdict(self.scenario, b).unwrap_or(Verdict::Unknown),
+                final_set: None,
+                t_end: None,
+                trap: None,
+                note: None,
+                feasible: None,
+            })
+            .collect();
+        let to_run: Vec<usize> = (0..out.len())
+            .filter(|&i| out[i].verdict.starts_safe())
+            .collect();
+        let total = to_run.len();
+        let settings = ReachSettings {
+            every: 1,
+            ..self.reach.clone()
+        };
+        let chunk = chunk.max(1);
+        progress(0, total);
+        for (c, idx) in to_run.chunks(chunk).enumerate() {
+            let initial: Vec<IntervalBox> = idx.iter().map(|&i| out[i].initial.clone()).collect();
+            let done = c * chunk;
+            let clock = Instant::now();
+            let result = self
+                .backend
+                .reach(self.problem, &initial, &settings, &|s, all| {
+                    progress(done + idx.len() * s / all.max(1), total)
+                })?;
+            timing.reach_s += clock.elapsed().as_secs_f64();
+            timing.boxes_run += idx.len();
+            // Judging (and the feasibility proof along each verified tube, an interval
+            // evaluation of the QP's rows at every step) is per tube: in parallel, or it takes
+            // longer than a GPU's reach.
+            let (scenario, traps, problem) = (self.scenario, &self.traps, self.problem);
+            let judged: Vec<_> = result
+                .boxes
+                .par_iter()
+                .map(|tube| {
+                    let j = judge(problem, scenario, traps, tube);
+                    let feasible = j
+                        .verdict
+                        .is_verified()
+                        .then(|| problem.proves_feasible_along(tube));
+                    let note = j.reason.map(|r| r.to_string());
+                    (j.verdict, j.trap, note, feasible)
+                })
+                .collect();
+            for ((&i, tube), (verdict, trap, note, feasible)) in
+                idx.iter().zip(&result.boxes).zip(judged)
+            {
+                let last = tube.last();
+                timing.box_steps += tube.steps_run(self.problem.dt);
+                let b = &mut out[i];
+                b.verdict = verdict;
+                b.trap = trap;
+                b.note = note;
+                b.final_set = last.map(|s| s.set.clone());
+                b.t_end = last.map(|s| s.t);
+                b.feasible = feasible;
+            }
+            progress((done + idx.len()).min(total), total);
+        }
+        Ok(out)
+    }
+}
+
+fn serde_name<T: Serialize>(v: &T) -> String {
+    match serde_json::to_value(v) {
+        Ok(serde_json::Value::String(s)) => s,
+        _ => String::new(),
+    }
+}

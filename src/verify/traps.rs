@@ -1,0 +1,51 @@
+//! Trap boxes: around the stable undesirable equilibria of the filtered system, sets that end
+//! inside are `trapped`. May import `equilibria`, `filter` and `scenario`.
+
+use serde::{Deserialize, Serialize};
+
+use crate::boxes::IntervalBox;
+use crate::equilibria::{find_equilibria, Equilibrium, EquilibriumSearch, Stability};
+use crate::filter::SafetyFilter;
+use crate::scenario::Scenario;
+
+/// A box around a stable undesirable equilibrium: sets that end inside are `trapped`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Trap {
+    /// The equilibrium `x*`.
+    pub x: Vec<f64>,
+    /// The trap box `x* ± half-widths`.
+    pub region: IntervalBox,
+}
+
+/// Trap boxes `x* ± half_widths` around every equilibrium that is stable and undesirable.
+pub fn traps_from_equilibria(found: &[Equilibrium], half_widths: &[f64]) -> Vec<Trap> {
+    found
+        .iter()
+        .filter(|e| e.kind == Stability::Stable && e.undesirable)
+        .map(|e| Trap {
+            x: e.x.clone(),
+            region: IntervalBox {
+                lower: e.x.iter().zip(half_widths).map(|(c, h)| c - h).collect(),
+                upper: e.x.iter().zip(half_widths).map(|(c, h)| c + h).collect(),
+            },
+        })
+        .collect()
+}
+
+/// The traps of a scenario as `cbfreach verify` takes them: the stable undesirable equilibria
+/// of the filtered system in `C` (found with the default search), each with a box of the goal
+/// box's half-widths.
+pub fn traps_for(s: &Scenario) -> Vec<Trap> {
+    let found = find_equilibria(
+        &SafetyFilter::new(s),
+        &s.reach.region,
+        &EquilibriumSearch::default(),
+    );
+    traps_for_equilibria(s, &found)
+}
+
+/// [`traps_for`] with the equilibria already found.
+pub fn traps_for_equilibria(s: &Scenario, found: &[Equilibrium]) -> Vec<Trap> {
+    let half: Vec<f64> = s.reach.goal.widths().iter().map(|w| 0.5 * w).collect();
+    traps_from_equilibria(found, &half)
+}
