@@ -1,5 +1,5 @@
 //! Box bounds per second for every bound method on the paper-size architectures
-//! (DESIGN.md §5; issue 5 item 7).
+//! (docs/design.md §5; issue 5 item 7).
 //!
 //! `cargo bench --bench bounds` (`CBFREACH_BENCH_QUICK=1` for small batches). Throughput is in
 //! boxes (divan's "item/s"); the FLOP model per box is printed first, so GFLOP/s is
@@ -94,7 +94,7 @@ fn bounds(bencher: Bencher, case: Case) {
 }
 
 fn main() {
-    eprintln!("FLOP model (DESIGN.md §5), mult-adds per box; GFLOP/s = 2 × this × boxes/s / 1e9:");
+    eprintln!("FLOP model (docs/design.md §5), mult-adds per box; GFLOP/s = 2 × this × boxes/s / 1e9:");
     for widths in ARCHS {
         for method in BoundMethod::ALL {
             eprintln!(

@@ -1,7 +1,7 @@
 // Shared by every cbfreach kernel: outward rounding and interval arithmetic in `real` (f32, or
 // f64 with --f64: the precision prelude real_f32.wgsl / real_f64.wgsl comes first).
 //
-// Error model (DESIGN §3, written out in src/gpu/mod.rs): WGSL/Vulkan round `+ − ×` either
+// Error model (docs/design.md §3, written out in src/gpu/mod.rs): WGSL/Vulkan round `+ − ×` either
 // to nearest or towards zero, so a computed result is within one ulp of the exact one; `up(x)` /
 // `down(x)` (the prelude's) step outward, so `up(fl(a ∘ b)) ≥ a ∘ b` and
 // `down(fl(a ∘ b)) ≤ a ∘ b` for every single operation. Subnormals may be flushed to zero, so

@@ -1,7 +1,7 @@
 // Y (rows × cols) = op(W) (rows × inner) · X (inner × cols), op = W, |W|, Wᵀ or |W|ᵀ; X read as
 // x[k·ldx + x_off + c] (through max(·, 0) with relu_x), Y written at y[r·ldy + y_off + c].
 // 64 × 64 output tiles, 16 × 16 threads with 4 × 4 outputs each; W and X tiles of depth 16 are
-// staged in workgroup memory, so every weight is read once per tile of 64 columns (DESIGN §4).
+// staged in workgroup memory, so every weight is read once per tile of 64 columns (docs/design.md §4).
 // Forward layers are `W·Ĉ`, `|W|·R̂`, `|W|·V`; backward substitutions are `Λ ← Wᵀ·(Λ∘s)` with
 // Λ stored transposed (neuron-major), so one GEMM serves every box: the shared weights are the
 // left factor, each box only scales its own columns (shaders/backward.wgsl). Rounding: the

@@ -5,7 +5,7 @@
 //!
 //! The grid covers the scenario's training region (default `C`), the unsafe set included
 //! wherever the QP is feasible: boxes at equilibria on the obstacle boundary straddle it, and
-//! their bounds see the network there (DESIGN §2b). Points where the QP is infeasible are
+//! their bounds see the network there (docs/design.md §2b). Points where the QP is infeasible are
 //! skipped and counted. Each sample carries `Dv(x)` for the Sobolev term of the trainer.
 
 use rayon::prelude::*;

@@ -33,6 +33,21 @@ pub enum Error {
     /// Measuring or certifying a network's error failed.
     #[error(transparent)]
     Analysis(#[from] crate::surrogate_error::AnalysisError),
+    /// A box was malformed (dimensions, order, NaN).
+    #[error(transparent)]
+    Box(#[from] crate::boxes::BoxError),
+    /// Settings were invalid (the field is named).
+    #[error(transparent)]
+    Settings(#[from] crate::reach::settings::SettingsError),
+    /// A scenario could not be compiled into a reach problem.
+    #[error(transparent)]
+    Problem(#[from] crate::problem::ProblemError),
+    /// An engine could not be chosen or does not support the settings.
+    #[error(transparent)]
+    Engine(#[from] crate::reach::engine::EngineError),
+    /// An error map could not be read, written or used.
+    #[error(transparent)]
+    ErrorMap(#[from] crate::error_map::ErrorMapError),
     /// A picture could not be drawn.
     #[error(transparent)]
     Plot(#[from] crate::plot::PlotError),

@@ -1,4 +1,4 @@
-//! Closed intervals of `f64` with outward rounding (DESIGN.md §3).
+//! Closed intervals of `f64` with outward rounding (docs/design.md §3).
 //! Imports only [`crate::rounding`], whose primitives round every end outward.
 //!
 //! An [`Interval`] `X = [x̲, x̄]` stands for the set `{x ∈ ℝ : x̲ ≤ x ≤ x̄}`; infinite ends are

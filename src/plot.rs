@@ -9,7 +9,7 @@
 //!   closeness radius `r_t`, with filtered trajectories from points of the initial boxes;
 //! - [`Figure::Verdicts`]: every box of a [`VerifyReport`] coloured by its verdict;
 //! - [`Figure::ErrorMap`]: every cell of a network's [`ErrorMap`] coloured by its certified
-//!   bound on `‖N − v‖∞`, the local `M` the reach engine uses (DESIGN.md §2b: where it is
+//!   bound on `‖N − v‖∞`, the local `M` the reach engine uses (docs/design.md §2b: where it is
 //!   large, tubes grow).
 //!
 //! The unsafe set is shaded cell by cell: a cell of a fine grid over the plot is grey when some

@@ -1,7 +1,7 @@
 //! Outward-rounding primitives on `f64` (one-ulp steps, sums, quotients, powers, libm values,
 //! dot-product error bounds) and the rounding model they implement. Imports nothing of the crate.
 //!
-//! # Rounding model (DESIGN.md §3)
+//! # Rounding model (docs/design.md §3)
 //!
 //! [`crate::intervals`], [`crate::bounds`] and the CPU engine round with these primitives; the
 //! rounding of host numbers to device numbers (f32, flushed subnormals) is the GPU module's.

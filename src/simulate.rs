@@ -1,7 +1,7 @@
 //! Point simulation of a closed loop `ẋ = F(x)` with explicit Euler or classical RK4.
 //!
 //! Used for the filtered system `F = f̃ + g v` (ground truth), the NN system `f̃ + g N`, and as
-//! the judge of every set the reachability engine computes (DESIGN §3).
+//! the judge of every set the reachability engine computes (docs/design.md §3).
 
 use std::io::Write;
 

@@ -1,4 +1,4 @@
-//! Soundness of the CPU reach engine by sampling (DESIGN §3): NN-system trajectories stay in
+//! Soundness of the CPU reach engine by sampling (docs/design.md §3): NN-system trajectories stay in
 //! the embedding boxes, and filtered-system trajectories stay in the disturbance sets when
 //! `M_C` is a certified bound on `‖N − v‖∞` over `C`.
 
@@ -359,7 +359,7 @@ fn transformed_embedding_contains_nn_trajectories_in_z() {
 
 #[test]
 fn transform_lets_scenario_2_boxes_shrink() {
-    // DESIGN §2b: in x coordinates the box embedding of the double integrator cannot shrink.
+    // docs/design.md §2b: in x coordinates the box embedding of the double integrator cannot shrink.
     let net = small_network(&[2, 16, 16, 1], 6, 0.01);
     let width = |tubes: &[Tube]| -> f64 {
         tubes

@@ -1,5 +1,5 @@
 //! Forward linear bound propagation (auto_LiRPA's `Forward` mode; immrax's `crown`), batched as
-//! matrix products (DESIGN.md §4–5).
+//! matrix products (docs/design.md §4–5).
 //!
 //! Every neuron carries affine forms in the input `x` over the box, kept in centre–radius form:
 //! an affine centre `Ĉ(x)` and an affine radius `R̂(x)` with the invariant

@@ -1,4 +1,4 @@
-//! Sound affine and interval bounds on a ReLU network over a box (DESIGN.md §2.2, §3, §4, §5).
+//! Sound affine and interval bounds on a ReLU network over a box (docs/design.md §2.2, §3, §4, §5).
 //! May import [`crate::rounding`], [`crate::matmul`] and [`crate::network`].
 //!
 //! For a network `N : ℝⁿ → ℝᵐ` and a box `[x̲, x̄]` every method returns an [`AffineBounds`]:
@@ -19,7 +19,7 @@
 //! | [`BoundMethod::ForwardBackward`] | [`forward_backward()`] | forward (∩ IBP) intermediate bounds, one backward CROWN pass from the output (auto_LiRPA's `Forward+Backward`), GEMM-batched |
 //! | [`BoundMethod::ForwardBackwardSameSlope`] | [`forward_backward()`] | the same, same-slope relaxation in the backward pass: one `C` |
 //!
-//! # Floating-point error model (DESIGN.md §3)
+//! # Floating-point error model (docs/design.md §3)
 //!
 //! Everything is computed in f64 with round-to-nearest, and every computed bound is then widened
 //! by an a-priori bound on its rounding error ([`crate::rounding`]: outward steps, the error bound
@@ -216,7 +216,7 @@ pub enum BoundsError {
     },
 }
 
-/// Multiply–adds per box of a bound method on a network with widths `n_0..n_L`, by DESIGN §5's
+/// Multiply–adds per box of a bound method on a network with widths `n_0..n_L`, by docs/design.md §5's
 /// model (forward: centre and radius forms, `2(n_in+1)+1` products per weight with the rounding
 /// magnitudes; CROWN: `Σ_k n_k Σ_{j<k} n_j n_{j−1}` per backward pass, two passes for the
 /// adaptive relaxation). Benchmarks turn it into GFLOP/s as `2 × this × boxes/s`.
@@ -540,7 +540,7 @@ mod tests {
         assert_eq!(err, Ok(0));
     }
 
-    /// Throughput on the paper's 2×400×400×400×2 network, with the FLOP model of DESIGN.md §5
+    /// Throughput on the paper's 2×400×400×400×2 network, with the FLOP model of docs/design.md §5
     /// ([`model_multiply_adds`]).
     /// `cargo test --release --lib bounds::tests::bench_paper_network -- --ignored --nocapture`
     #[test]

@@ -1,5 +1,5 @@
 //! `cbfreach bench`: box-steps per second of the reach engines, side by side in one process,
-//! with the GFLOP/s they reach by DESIGN §5's model and the fraction of a peak rate.
+//! with the GFLOP/s they reach by docs/design.md §5's model and the fraction of a peak rate.
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -197,6 +197,6 @@ pub fn run(args: &BenchArgs) -> CliResult {
             }
         }
     }
-    println!("  (GFLOP/s by DESIGN §5's model of the network bounds only; GPU times include upload, shader compilation and readback)");
+    println!("  (GFLOP/s by docs/design.md §5's model of the network bounds only; GPU times include upload, shader compilation and readback)");
     Ok(())
 }

@@ -333,7 +333,7 @@ fn run_scenario(
         let escapes = count_escapes(&mink.boxes, &lines, s.reach.initial.len(), 8);
         if escapes > 0 {
             println!(
-                "  note: {escapes} sampled filtered states lie outside the Minkowski sets (DESIGN §2.6: \
+                "  note: {escapes} sampled filtered states lie outside the Minkowski sets (docs/design.md §2.6: \
                  the paper's method is not sound in general)"
             );
         }

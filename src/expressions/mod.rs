@@ -17,7 +17,7 @@
 //!
 //! - [`Expr::eval`]: the `f64` value `e(x)`.
 //! - [`Expr::eval_interval`]: the natural inclusion function `E(X) ⊇ {e(x) : x ∈ X}` with
-//!   [`Interval`] arithmetic, outward rounded (DESIGN.md §3). Constants denote their `f64` values
+//!   [`Interval`] arithmetic, outward rounded (docs/design.md §3). Constants denote their `f64` values
 //!   (a literal is its nearest `f64`, `pi` is `f64::consts::PI`); the enclosure is sound for that
 //!   meaning. Points where `e` is NaN (outside a domain) are not covered.
 //! - [`Expr::derivative`]: the symbolic `∂e/∂xⱼ`, simplified while it is built (constant folding,

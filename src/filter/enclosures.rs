@@ -1,5 +1,5 @@
 //! Enclosures of `v` over a box: the natural one of its closed form ([`v_enclosure`]) and the
-//! mean-value forms of [`VForms`] (DESIGN §2.1). It may import the filter's rows, the scenario,
+//! mean-value forms of [`VForms`] (docs/design.md §2.1). It may import the filter's rows, the scenario,
 //! expressions, intervals and boxes.
 
 use super::rows::{interval_rows, row_expressions};
@@ -176,7 +176,7 @@ struct Rows {
 }
 
 /// The closed-form filter as expressions with symbolic gradients, built once per scenario for
-/// [`VForms::enclose`] (mean-value enclosures of `v`, DESIGN §2.1).
+/// [`VForms::enclose`] (mean-value enclosures of `v`, docs/design.md §2.1).
 #[derive(Clone, Debug)]
 pub struct VForms {
     method: FilterMethod,

@@ -1,4 +1,4 @@
-//! The ground-truth safety filter `v(x)` (DESIGN §1): its constraint rows, its exact solution
+//! The ground-truth safety filter `v(x)` (docs/design.md §1): its constraint rows, its exact solution
 //! (closed forms or clarabel, infeasibility as a [`FilterStatus`]) and enclosures of `v` over
 //! boxes ([`VForms`], [`v_enclosure`]). It may import the scenario, expressions, intervals and
 //! boxes (and clarabel, nalgebra); not the network, its bounds, the engines or the error analysis.

@@ -1,4 +1,4 @@
-//! [`GpuBackend`]: the reach engine on the device (DESIGN §4).
+//! [`GpuBackend`]: the reach engine on the device (docs/design.md §4).
 //!
 //! Every box of a chunk stays on the device for the whole horizon. One step is a fixed list of
 //! dispatches (`StepPlan`), recorded into a few command buffers (a progress report between

@@ -1,4 +1,4 @@
-//! Scenario expressions and problem constants emitted as WGSL (DESIGN §4): "one more visitor"
+//! Scenario expressions and problem constants emitted as WGSL (docs/design.md §4): "one more visitor"
 //! over [`Node`], next to [`Expr::eval`] and [`Expr::eval_interval`].
 //!
 //! Every expression becomes a sound f32 interval inclusion function built from the helpers of

@@ -1,4 +1,4 @@
-//! Local error margins on the device (`--local-margin`, DESIGN §2b): the error map's cells and a
+//! Local error margins on the device (`--local-margin`, docs/design.md §2b): the error map's cells and a
 //! bucket index over its region, uploaded once, so that the embedding kernel
 //! (`local_margin` in `shaders/embed.wgsl`) takes per box and step the same maximum as
 //! [`crate::error_map::ErrorMap::local_bound`] on the CPU: `M = max { M_c : c meets the

@@ -1,5 +1,5 @@
 //! The GPU engine (wgpu, WGSL compute shaders): whole batches of boxes bounded and integrated
-//! on the device, sound in f32 (issue 3; DESIGN §3–§5).
+//! on the device, sound in f32 (issue 3; docs/design.md §3–§5).
 //!
 //! - [`context`]: adapter selection (a real GPU before a software one, `--adapter NAME`), the
 //!   device with the adapter's limits.
@@ -12,7 +12,7 @@
 //!   forward-backward (forward ∩ IBP intermediate bounds, one backward CROWN pass from the
 //!   output) and backward CROWN, each in f32 or (`--f64`, [`Precision::F64`]) f64.
 //!
-//! # Error model (DESIGN §3)
+//! # Error model (docs/design.md §3)
 //!
 //! The device computes in f32 (or f64) with no rounding-mode control; Vulkan allows
 //! round-to-nearest or towards zero, so a computed `+ − ×` is within one ulp (`u = 2⁻²³`

@@ -7,7 +7,7 @@
 //! that a `state_dict` of an `nn.Sequential` loads unchanged.
 //!
 //! - [`io`]: safetensors load/save (`Mlp::load_safetensors`, `Mlp::save_safetensors`).
-//! - [`train`](mod@train): a small Adam trainer with an optional Jacobian (Sobolev) term (DESIGN.md §2b, §6).
+//! - [`train`](mod@train): a small Adam trainer with an optional Jacobian (Sobolev) term (docs/design.md §2b, §6).
 //! - [`Mlp::jacobian`]: `DN(x) = W_L D_{L−1} W_{L−1} ⋯ D_1 W_1`, `D_k = diag(z_k > 0)`.
 
 mod adam;

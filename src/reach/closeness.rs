@@ -1,4 +1,4 @@
-//! The paper's closeness radius (Theorem 2) and the log norms it needs (DESIGN §2.4).
+//! The paper's closeness radius (Theorem 2) and the log norms it needs (docs/design.md §2.4).
 //!
 //! With `c_k ≥ sup_{x∈C} μ(Df̃(x) + g(x) C_k)` held over `[t_k, t_k + dt)` and
 //! `ℓ = sup_{x∈C} ‖g(x)‖` (induced from the input norm to the state norm),

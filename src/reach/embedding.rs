@@ -1,4 +1,4 @@
-//! The closed-loop, interaction-aware embedding system (DESIGN §2.3) and its Euler step.
+//! The closed-loop, interaction-aware embedding system (docs/design.md §2.3) and its Euler step.
 //!
 //! For the NN system `ẋ = f̃(x) + g(x)(N(x) + w)`, `w ∈ [−M, M]` (the disturbance method;
 //! `M = 0` gives the NN system itself), one trajectory of
@@ -13,7 +13,7 @@
 //! - `f̃ᵢ(x) ∈ f̃ᵢ(p) + Σ_{j≠i} [Jᵢⱼ](xⱼ − pⱼ)`, `[J]` the interval Jacobian of `f̃` over the
 //!   face (mean-value form: the segments from `p` stay on the face; exact for affine `f̃`);
 //! - for constant `g = B`, `N(x) ≥ C̲x + d̲` gives `Σₖ Bᵢₖ Nₖ(x) ≥ m̲ᵢ·x + δ̲ᵢ` with
-//!   `m̲ = B⁺C̲ + B⁻C̄`, `δ̲ = B⁺d̲ + B⁻d̄` — the interaction-aware `M = A + BC` of DESIGN §2.3;
+//!   `m̲ = B⁺C̲ + B⁻C̄`, `δ̲ = B⁺d̲ + B⁻d̄` — the interaction-aware `M = A + BC` of docs/design.md §2.3;
 //! - for state-dependent `g`, `Σₖ [gᵢₖ](box)·[N̲ₖ, N̄ₖ]` in interval arithmetic.
 //!
 //! Everything is evaluated in interval arithmetic with outward rounding, so the derivative

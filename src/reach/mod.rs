@@ -1,4 +1,4 @@
-//! Reachable sets of the filtered system from many initial boxes (paper §3, DESIGN §2).
+//! Reachable sets of the filtered system from many initial boxes (paper §3, docs/design.md §2).
 //!
 //! A [`ReachProblem`] is the compiled problem (scenario dynamics, network, region `C`, `M_C`,
 //! `dt`, horizon); a [`Backend`] runs one Euler trajectory of the embedding system per box and
@@ -8,7 +8,7 @@
 //!   `v(x) ∈ N(x) + [−M_C, M_C]`, so the filtered system is the NN system with a bounded input
 //!   disturbance and the embedding with `d̲ − M_C, d̄ + M_C` bounds it directly;
 //! - [`ReachMethod::Minkowski`] (the paper's Theorem 2, labelled as such): the NN-system box
-//!   plus the closeness radius `r_t` of [`closeness`]. DESIGN §2.6 explains the gap in its proof.
+//!   plus the closeness radius `r_t` of [`closeness`]. docs/design.md §2.6 explains the gap in its proof.
 //!
 //! The disturbance method's sets are intersected with the safe set's affine half-spaces at
 //! every step ([`safe_set`]: the filter keeps the system in `S`). Every box's result is marked
@@ -124,7 +124,7 @@ impl ReachProblem {
     }
 
     /// Compiles a scenario with its network and `M_C`, the embedding running in `z = T x`
-    /// when a transform is given (DESIGN §2b).
+    /// when a transform is given (docs/design.md §2b).
     pub fn with_transform(
         scenario: &Scenario,
         network: Mlp,

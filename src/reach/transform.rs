@@ -1,4 +1,4 @@
-//! Coordinates `z = T x` for the embedding (DESIGN §2b, the wrapping effect).
+//! Coordinates `z = T x` for the embedding (docs/design.md §2b, the wrapping effect).
 //!
 //! In scenario 2's x coordinates boxes cannot shrink; in coordinates where the closed loop's
 //! linear part contracts in ℓ∞ they can. Sets are then parallelotopes `S·[z̲, z̄]` in x.

@@ -8,7 +8,7 @@
 //!
 //! Loading is two steps, so that every error can name its file and key: [`ScenarioFile`] is the
 //! file as serde reads it, and [`Scenario::from_toml`] checks it and turns it into expression
-//! trees and plain arrays (DESIGN §4's *compiled problem*). An optional `[settings]` table
+//! trees and plain arrays (docs/design.md §4's *compiled problem*). An optional `[settings]` table
 //! ([`SettingsSection`]) sets how runs of the scenario go: `[settings.reach]` the fields of
 //! [`ReachSettings`], `[settings.verify]` those of [`VerifySettings`].
 
@@ -134,7 +134,7 @@ pub enum Margin {
     Measured,
     /// The certified bound of the error map's cells that the current set meets (a local `M`,
     /// per box and step; `cbfreach error` writes the map). Sound, and much smaller than the
-    /// global bound near the goal and the traps (DESIGN §2b).
+    /// global bound near the goal and the traps (docs/design.md §2b).
     Local,
 }
 

@@ -68,7 +68,7 @@ pub struct Measured {
     /// secants stay where the filter is feasible. A ReLU network's slope is piecewise constant
     /// on pieces far narrower than the boxes the reach engine bounds, and a bound over a box sees
     /// their average, so this, not the pointwise [`Self::slope`], is what a tube's contraction
-    /// feels (DESIGN §2b).
+    /// feels (docs/design.md §2b).
     #[serde(default)]
     pub box_slope: Percentiles,
     /// The width `2δ` of [`Self::box_slope`]'s boxes ([`ErrorSettings::looseness_width`]).

@@ -1,4 +1,4 @@
-//! How far the surrogate network `N` is from the filter `v` (DESIGN §2.1, §2b; issue 6): the
+//! How far the surrogate network `N` is from the filter `v` (docs/design.md §2.1, §2b; issue 6): the
 //! analysis behind `cbfreach error`, in three parts, [`measure()`], [`looseness()`] and
 //! [`certify()`]. It may import the filter (and its enclosures), the network and its bounds, the
 //! dataset and the error map it writes; the engines (`reach`, `gpu`) do not import it.

@@ -4,7 +4,7 @@
 //! Training a ReLU [`Mlp`](crate::network::Mlp) `N ≈ v` with Adam and an optional Jacobian
 //! (Sobolev) term.
 //!
-//! Loss per batch `B` (DESIGN.md §2b: slope errors matter as much as value errors):
+//! Loss per batch `B` (docs/design.md §2b: slope errors matter as much as value errors):
 //!
 //! ```text
 //! L = (1/|B|) Σ_{s∈B} w_s ( ‖N(x_s) − v_s‖² + λ ‖DN(x_s) − Dv_s‖_F² )
@@ -26,7 +26,7 @@
 //! leaving the steepest secant targets out ([`TrainSettings::jacobian_cap`]) then took it
 //! below 0.2 (README, Networks).
 //!
-//! **Certified training** (DESIGN.md §2b: equally accurate networks differ by orders of
+//! **Certified training** (docs/design.md §2b: equally accurate networks differ by orders of
 //! magnitude in how tightly they can be bounded). With [`TrainSettings::ibp_weight`] `λ_ibp > 0`
 //! each batch adds
 //!

@@ -95,7 +95,7 @@ pub struct TrainSettings {
     pub adam_eps: f64,
     /// `λ_ibp` of the certified-training term `λ_ibp · mean_{s,o} 2 r_o(x_s, ε)`: the mean
     /// interval-bound-propagation (IBP) width of the outputs over the boxes `[x_s − ε, x_s + ε]`
-    /// around the batch's inputs (Gowal et al. 2018; DESIGN.md §2b). Default 0 (off).
+    /// around the batch's inputs (Gowal et al. 2018; docs/design.md §2b). Default 0 (off).
     pub ibp_weight: f64,
     /// Half-width `ε` of the IBP boxes: one entry for every input, or one per input
     /// (default `[0.05]`).
