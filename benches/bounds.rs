@@ -94,7 +94,9 @@ fn bounds(bencher: Bencher, case: Case) {
 }
 
 fn main() {
-    eprintln!("FLOP model (docs/design.md §5), mult-adds per box; GFLOP/s = 2 × this × boxes/s / 1e9:");
+    eprintln!(
+        "FLOP model (docs/design.md §5), mult-adds per box; GFLOP/s = 2 × this × boxes/s / 1e9:"
+    );
     for widths in ARCHS {
         for method in BoundMethod::ALL {
             eprintln!(

@@ -33,7 +33,7 @@
 //! let shares = report.shares_after();
 //! // 62.5 %: the boxes that start near the obstacle are left open at this size.
 //! assert!(shares.verified_share > 0.5, "{:.3}", shares.verified_share);
-//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! # Ok::<(), cbfreach::Error>(())
 //! ```
 #![warn(missing_docs)]
 
@@ -64,6 +64,6 @@ pub use gpu::GpuBackend;
 pub use intervals::Interval;
 pub use network::Mlp;
 pub use problem::{ProblemError, ProblemOptions};
-pub use reach::{Backend, CpuBackend, ReachProblem, ReachSettings, Tube};
+pub use reach::{Backend, CpuBackend, ReachProblem, ReachSettings, Tube, TubeEnd};
 pub use scenario::Scenario;
 pub use verify::{Verdict, Verifier, VerifyReport, VerifySettings};

@@ -5,10 +5,10 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::error_map::{margin_value, ErrorMap, ErrorMapError};
 use crate::network::{Mlp, NetworkError};
 use crate::reach::{ReachError, ReachProblem, Transform};
 use crate::scenario::{Margin, Scenario, TransformChoice};
-use crate::error_map::{margin_value, ErrorMap, ErrorMapError};
 
 /// What a caller may change of the scenario's problem; `ProblemOptions::default()` is the
 /// scenario as written.

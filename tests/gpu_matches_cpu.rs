@@ -982,10 +982,9 @@ fn shipped_error_map_face_local_matches_cpu() {
     let Some(gpu32) = gpu() else { return };
     let s = integrator();
     let net = Mlp::load_safetensors(&common::scenario_path("integrator.safetensors")).unwrap();
-    let map = cbfreach::error_map::ErrorMap::load(&common::scenario_path(
-        "integrator.errormap.json",
-    ))
-    .unwrap();
+    let map =
+        cbfreach::error_map::ErrorMap::load(&common::scenario_path("integrator.errormap.json"))
+            .unwrap();
     let m_c = map.certified_linf.unwrap();
     let mut problem = ReachProblem::new(&s, net, m_c)
         .unwrap()

@@ -79,8 +79,8 @@ fn unknown_extension_and_bad_size_are_errors() {
 
 #[test]
 fn error_map_colours_each_cell_by_its_certified_bound() {
-    use cbfreach::plot::{error_class, ERROR_CLASSES};
     use cbfreach::error_map::ErrorMap;
+    use cbfreach::plot::{error_class, ERROR_CLASSES};
     // Class edges are inclusive above, and +∞ (not certified) has a class of its own.
     assert_eq!(ERROR_CLASSES, [0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5]);
     assert_eq!(error_class(0.0), 0);

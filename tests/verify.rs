@@ -243,8 +243,8 @@ fn verified_boxes_agree_with_dense_simulation() {
 /// With `CBFREACH_REQUIRE_GPU=1` a missing adapter (or one without f64) fails the test.
 #[test]
 fn gpu_and_cpu_give_the_paper_boxes_the_same_verdicts() {
-    use cbfreach::gpu::{GpuBackend, GpuContext, Precision};
     use cbfreach::error_map::ErrorMap;
+    use cbfreach::gpu::{GpuBackend, GpuContext, Precision};
     let require = std::env::var("CBFREACH_REQUIRE_GPU").is_ok_and(|v| v == "1");
     let gpu = GpuContext::new()
         .map_err(|e| e.to_string())

@@ -6,12 +6,12 @@ use std::time::Instant;
 
 use cbfreach::bounds::BoundMethod;
 use cbfreach::equilibria::{find_equilibria, Equilibrium, EquilibriumSearch};
+use cbfreach::error_map::ErrorMap;
 use cbfreach::filter::SafetyFilter;
 use cbfreach::plot::{self, Figure};
 use cbfreach::problem::network_path;
 use cbfreach::reach::{ReachMethod, ReachSettings, Tube};
 use cbfreach::scenario::{Margin, Scenario};
-use cbfreach::error_map::ErrorMap;
 use cbfreach::verify::{traps_for_equilibria, verify_by_pieces, PiecesVerdict, Verdict};
 
 use super::args::{compile, ProblemArgs};

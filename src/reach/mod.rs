@@ -64,9 +64,12 @@ pub enum ReachError {
         /// What is wrong.
         message: String,
     },
-    /// Bad settings.
+    /// Bad problem data (`M_C`, the transform's size, the error map's cover).
     #[error("{0}")]
     Settings(String),
+    /// Settings that do not fit together (the field is named).
+    #[error(transparent)]
+    InvalidSettings(#[from] SettingsError),
     /// The network bounds failed.
     #[error(transparent)]
     Bounds(#[from] crate::bounds::BoundsError),

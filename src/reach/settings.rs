@@ -99,12 +99,6 @@ impl SettingsError {
     }
 }
 
-impl From<SettingsError> for super::ReachError {
-    fn from(e: SettingsError) -> Self {
-        super::ReachError::Settings(e.to_string())
-    }
-}
-
 /// What an engine cannot run ([`super::Backend::supports`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
 pub enum Unsupported {

@@ -14,8 +14,8 @@ use crate::dataset::grid_points;
 use crate::error_map::CellBound;
 use crate::filter::{meet, v_enclosure, FilterMethod, SafetyFilter, SmoothV, VForms};
 use crate::intervals::Interval;
-use crate::rounding::round_up;
 use crate::network::Mlp;
+use crate::rounding::round_up;
 use crate::scenario::Scenario;
 
 fn sum(it: impl Iterator<Item = Interval>) -> Interval {

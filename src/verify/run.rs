@@ -12,7 +12,7 @@ use super::{
 };
 use crate::boxes::IntervalBox;
 use crate::intervals::Interval;
-use crate::reach::{Backend, ReachProblem, ReachSettings, Tube};
+use crate::reach::{Backend, ReachProblem, ReachSettings, Tube, TubeEnd};
 use crate::scenario::Scenario;
 
 /// Which phase a progress report is about.
@@ -76,7 +76,7 @@ pub enum Reason {
         set: IntervalBox,
     },
     /// `invalid`: the tube stopped early; why, as the engine says.
-    Stopped(String),
+    Stopped(TubeEnd),
     /// `unknown`: the engine recorded no set.
     EmptyTube,
 }
@@ -99,7 +99,7 @@ impl std::fmt::Display for Reason {
                      have met an infeasible QP before",
                 )
             }
-            Reason::Stopped(note) => f.write_str(note),
+            Reason::Stopped(end) => write!(f, "{end}"),
             Reason::EmptyTube => f.write_str("empty tube"),
         }
     }
@@ -151,11 +151,7 @@ pub fn judge(
         }
     }
     if !tube.valid() {
-        return Judgement::of(
-            Verdict::Invalid,
-            None,
-            tube.note().map(Reason::Stopped),
-        );
+        return Judgement::of(Verdict::Invalid, None, Some(Reason::Stopped(tube.end)));
     }
     let Some(last) = tube.last() else {
         return Judgement::of(Verdict::Unknown, None, Some(Reason::EmptyTube));
