@@ -196,6 +196,15 @@ pub struct ReachSection {
     /// (`z = T x`, rows).
     #[serde(default)]
     pub transform: Option<TransformSpec>,
+    /// What the sets bound: `"continuous"` (default), `"sampled"` or `"euler"`.
+    #[serde(default)]
+    pub time: Option<String>,
+    /// `T_s` of `time = "sampled"`, a multiple of `dt` (default `dt`).
+    #[serde(default)]
+    pub control_period: Option<f64>,
+    /// Validated steps per `dt` in continuous time (default 1).
+    #[serde(default)]
+    pub substeps: Option<usize>,
 }
 
 /// `reach.transform` as written.
@@ -329,6 +338,10 @@ pub struct ReachConfig {
     pub initial: Vec<IntervalBox>,
     /// Coordinates of the embedding.
     pub transform: TransformChoice,
+    /// What the sets bound.
+    pub time: crate::reach::TimeModel,
+    /// Validated steps per `dt` in continuous time.
+    pub substeps: usize,
 }
 
 impl ReachConfig {
@@ -823,7 +836,19 @@ fn compile_reach(c: &Compiler, r: &ReachSection, n: usize) -> Result<ReachConfig
             TransformChoice::Matrix(flat)
         }
     };
+    let time = crate::reach::TimeModel::parse(
+        r.time.as_deref().unwrap_or("continuous"),
+        r.control_period,
+        dt,
+    )
+    .map_err(|e| c.invalid("reach.time", e))?;
+    let substeps = r.substeps.unwrap_or(1);
+    if substeps == 0 {
+        return Err(c.invalid("reach.substeps", "expected a whole number ≥ 1"));
+    }
     Ok(ReachConfig {
+        time,
+        substeps,
         transform,
         region,
         norm,

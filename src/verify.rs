@@ -318,6 +318,10 @@ pub struct RunInfo {
     pub dt: f64,
     /// Euler steps.
     pub steps: usize,
+    /// What the sets bound (`reach::TimeModel`): `continuous`, `sampled (T_s = …)`, `euler`
+    /// (files from before the setting existed: empty, and their sets bound the Euler map).
+    #[serde(default)]
+    pub time: String,
     /// Whether the embedding ran in transformed coordinates.
     pub transformed: bool,
     /// The CBFs whose half-spaces bounded the sets (`reach::safe_set`; empty with
@@ -722,6 +726,7 @@ impl Verifier<'_> {
                 intersect_x: self.problem.frames(&self.reach).len() > 1,
                 dt: self.problem.dt,
                 steps: self.problem.steps,
+                time: self.problem.time.to_string(),
                 transformed: self.problem.transform.is_some(),
                 safe_set: (self.problem.safe_set_for(self.reach.method).names())
                     .into_iter()

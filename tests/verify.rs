@@ -438,6 +438,7 @@ fn a_set_outside_s_is_a_bug_only_where_the_qp_was_proven_feasible() {
         z_lower: None,
         z_upper: None,
         set: IntervalBox::new(lower.to_vec(), upper.to_vec()).unwrap(),
+        flowpipe: None,
     };
     let tube = |first: TubeSample| Tube {
         initial: first.set.clone(),

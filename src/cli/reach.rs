@@ -61,6 +61,8 @@ struct ReachJson<'a> {
     bounds: BoundMethod,
     method: ReachMethod,
     dt: f64,
+    time: cbfreach::reach::TimeModel,
+    substeps: usize,
     m_c: f64,
     #[serde(flatten)]
     result: &'a ReachResult,
@@ -157,6 +159,18 @@ pub struct ProblemArgs {
     /// comparisons).
     #[arg(long)]
     pub no_safe_set: bool,
+    /// What the sets bound: `continuous` (the filtered ODE, validated steps), `sampled` (a
+    /// digital controller held over --control-period), `euler` (the paper's Euler map);
+    /// default: the scenario's `[reach] time`, else continuous.
+    #[arg(long, value_parser = ["continuous", "sampled", "euler"])]
+    pub time: Option<String>,
+    /// The control period T_s of `--time sampled`, a multiple of dt (default: the scenario's,
+    /// else dt).
+    #[arg(long)]
+    pub control_period: Option<f64>,
+    /// Cut each continuous-time step in K validated steps (default: the scenario's, else 1).
+    #[arg(long, value_parser = |s: &str| super::whole_at_least(s, 1))]
+    pub substeps: Option<usize>,
 }
 
 /// `--transform` or the scenario's choice.
@@ -182,6 +196,20 @@ pub fn compile(
     let m_c = resolve_margin(s, args.m_c, &path)?;
     let transform = Transform::for_scenario(s, &transform_choice(s, args.transform.as_deref())?)?;
     let mut problem = ReachProblem::with_transform(s, net, m_c, transform)?;
+    if args.time.is_some() || args.control_period.is_some() || args.substeps.is_some() {
+        let old = match s.reach.time {
+            cbfreach::reach::TimeModel::Sampled { control_period } => Some(control_period),
+            _ => None,
+        };
+        let name = args.time.as_deref().unwrap_or(s.reach.time.name());
+        let time = cbfreach::reach::TimeModel::parse(
+            name,
+            args.control_period.or(old),
+            s.reach.dt,
+        )
+        .map_err(|e| format!("--time {name}: {e}"))?;
+        problem = problem.with_time(time, args.substeps.unwrap_or(s.reach.substeps));
+    }
     if args.no_safe_set {
         problem = problem.without_safe_set();
     }
@@ -285,7 +313,11 @@ pub fn run(args: &ReachArgs) -> CliResult {
         exact: args.exact.field(),
         intersect_x: !args.sets.parallelotope_only,
     };
-    let backend = choose_backend(&args.backend, &args.gpu, &settings)?;
+    let backend = choose_backend(
+        engine_for_time(&args.backend, &problem),
+        &args.gpu,
+        &settings,
+    )?;
     settle_for_engine(&mut settings, backend.as_ref(), &problem);
     let bar = progress_bar(problem.steps as u64, "Euler steps");
     let result = backend.reach(&problem, &s.reach.initial, &settings, &|done, _| {
@@ -308,10 +340,11 @@ pub fn run(args: &ReachArgs) -> CliResult {
         };
     let within = super::safe_set_clause(&problem.safe_set_for(args.method).names());
     println!(
-        "{}: {} boxes × {} steps, {} bounds{}, {:?} method, {margin}{within}, backend {}",
+        "{}: {} boxes × {} steps, time {}, {} bounds{}, {:?} method, {margin}{within}, backend {}",
         s.file,
         result.boxes.len(),
         problem.steps,
+        time_clause(&problem),
         args.bounds,
         if args.face_local { " (face-local)" } else { "" },
         args.method,
@@ -385,6 +418,8 @@ pub fn run(args: &ReachArgs) -> CliResult {
             bounds: args.bounds,
             method: args.method,
             dt: problem.dt,
+            time: problem.time,
+            substeps: problem.steps_per_dt(),
             m_c,
             result: &result,
         };
@@ -396,6 +431,28 @@ pub fn run(args: &ReachArgs) -> CliResult {
         super::plot::plot_tubes(&s, &result, args.every, m_c, path)?;
     }
     Ok(())
+}
+
+/// For summaries: the time model, with its substeps.
+pub fn time_clause(problem: &ReachProblem) -> String {
+    match problem.steps_per_dt() {
+        1 => problem.time.to_string(),
+        k => format!("{} ({k} validated steps per dt)", problem.time),
+    }
+}
+
+/// `--backend auto` takes the CPU where the time model is not the Euler map (the GPU engine
+/// runs that alone), with a notice; `cpu` and `gpu` stay as asked (the GPU engine refuses).
+pub fn engine_for_time<'a>(which: &'a str, problem: &ReachProblem) -> &'a str {
+    if which == "auto" && problem.time != cbfreach::reach::TimeModel::Euler {
+        println!(
+            "notice: --backend auto: the GPU engine runs time = \"euler\" only; using the CPU \
+             for time = \"{}\"",
+            problem.time.name()
+        );
+        return "cpu";
+    }
+    which
 }
 
 /// For summaries: the sets are the meet of a box in x and the parallelotope.

@@ -136,7 +136,11 @@ pub fn run(args: &VerifyArgs) -> CliResult {
         exact: args.exact.field(),
         intersect_x: !args.sets.parallelotope_only,
     };
-    let engine = choose_backend(&args.backend, &args.gpu, &reach)?;
+    let engine = choose_backend(
+        super::reach::engine_for_time(&args.backend, &problem),
+        &args.gpu,
+        &reach,
+    )?;
     super::reach::settle_for_engine(&mut reach, engine.as_ref(), &problem);
     let settings = VerifySettings {
         region,
@@ -266,7 +270,7 @@ pub fn print_summary(r: &VerifyReport) {
     let refined = r.run.refine_depth > 0;
     let within = super::safe_set_clause(&r.run.safe_set);
     println!(
-        "{} ({}): region {:?}…{:?}, grid {:?}{}, {} bounds{}, {} method, {}{within}",
+        "{} ({}): region {:?}…{:?}, grid {:?}{}, time {}, {} bounds{}, {} method, {}{within}",
         r.run.scenario,
         r.run.scenario_file,
         r.run.region.lower,
@@ -276,6 +280,7 @@ pub fn print_summary(r: &VerifyReport) {
             ", shard {s} (cells {}..{})",
             r.cells[0], r.cells[1]
         )),
+        if r.run.time.is_empty() { "euler" } else { &r.run.time },
         r.run.bounds,
         if r.run.face_local {
             " (face-local)"

@@ -16,6 +16,8 @@ use super::embedding::{
     embedding_field, embedding_field_by_face, embedding_step, widen_by, NetworkBoundsRef,
 };
 use super::safe_set::{clip_to_safe_set, SafeSet};
+use super::validated::{self, Enclosure, Flowpipe};
+use super::TimeModel;
 use super::{Backend, ExactField, ReachError, ReachMethod, ReachProblem, ReachResult};
 use super::{ReachSettings, ReachTiming, Tube, TubeSample};
 use crate::bounds::{AffineBoundsBatch, BoundsWorkspace, PreparedNetwork};
@@ -44,6 +46,14 @@ struct Live {
     radius: f64,
     tube: Tube,
     done: bool,
+    /// Continuous time: this step's flowpipe in each frame (empty for the Euler map).
+    pipes: Vec<Option<Flowpipe>>,
+    /// Continuous time: the x-box of this step's flowpipes, met.
+    pipe_known: Option<IntervalBox>,
+    /// Continuous time: the hull of the flowpipes' x-boxes since the last sample.
+    swept: Option<IntervalBox>,
+    /// Continuous time: last step's field bounds per frame, to start the next enclosure from.
+    guess: Vec<Option<(Vec<f64>, Vec<f64>)>>,
 }
 
 impl Backend for CpuBackend {
@@ -60,6 +70,13 @@ impl Backend for CpuBackend {
     ) -> Result<ReachResult, ReachError> {
         problem.check_initial(initial)?;
         settings.validate()?;
+        problem.check_time()?;
+        if let TimeModel::Sampled { control_period } = problem.time {
+            return Err(ReachError::Settings(format!(
+                "time = \"sampled\" (control_period = {control_period}) is not implemented in \
+                 the CPU engine yet: use time = \"continuous\" or \"euler\""
+            )));
+        }
         let start = Instant::now();
         let frames = problem
             .frames(settings)
@@ -86,6 +103,9 @@ impl Backend for CpuBackend {
             encloses: settings.exact_field() == ExactField::ClosedForm
                 && problem.pieces.has_closed_form(),
             report: &report,
+            time: problem.time,
+            substeps: problem.steps_per_dt(),
+            h: problem.dt / problem.steps_per_dt() as f64,
         };
         let mut live: Vec<Live> = initial.iter().map(|b| run.start(b)).collect();
         let chunk = chunk_len(live.len(), threads);
@@ -130,6 +150,9 @@ struct FrameBuffers {
     flat_hi: Vec<f64>,
     /// Per live box this step: how `v` is bounded ([`ChunkRun::step_input`]).
     inputs: Vec<StepInput>,
+    /// Continuous time: the network's bounds over one candidate enclosure.
+    pipe_bounds: BoundsWorkspace,
+    pipe_batch: AffineBoundsBatch,
 }
 
 /// Buffers of one thread, reused across its chunks and steps.
@@ -162,6 +185,12 @@ struct ChunkRun<'a> {
     encloses: bool,
     /// Told how many box-steps were accounted for (run, or skipped by finished boxes).
     report: &'a (dyn Fn(usize) + Sync),
+    /// What the sets bound.
+    time: TimeModel,
+    /// Engine steps per `dt` (validated substeps in continuous time, else 1).
+    substeps: usize,
+    /// The engine's step, `dt / substeps`.
+    h: f64,
 }
 
 /// What the frames of one box-step share ([`ChunkRun::set_facts`]).
@@ -207,6 +236,10 @@ impl ChunkRun<'_> {
                 enclosed_steps: 0,
             },
             done: false,
+            pipes: Vec::new(),
+            pipe_known: None,
+            swept: None,
+            guess: vec![None; self.frames.len()],
         };
         self.settle(&mut state, &vec![true; self.frames.len()]);
         let sample = self.sample(&state, 0.0);
@@ -390,7 +423,23 @@ impl ChunkRun<'_> {
         let (n, m) = (problem.dynamics.n, problem.dynamics.m);
         let set = &state.sets[frame];
         let mut minkowski_s = 0.0;
-        let (mut dl, mut du) = if self.settings.face_local {
+        let pipe = state.pipes.get(frame).and_then(Option::as_ref);
+        let (mut dl, mut du) = if let Some(pipe) = pipe.filter(|_| self.settings.face_local) {
+            let face =
+                |i: usize, up: bool| bounds_of(batch, slot * 2 * n + 2 * i + usize::from(up), n, m);
+            validated::slab_field(&problem.dynamics, set, pipe, self.h, face, margin)
+        } else if let Some(pipe) = pipe {
+            let nn = bounds_of(batch, slot, n, m);
+            let field = validated::slab_field(&problem.dynamics, set, pipe, self.h, |_, _| nn, margin);
+            if self.settings.method == ReachMethod::Minkowski {
+                let clock = Instant::now();
+                let c = closeness_rate(problem, nn);
+                state.radius =
+                    closeness_step(state.radius, c, problem.input_gain, problem.m_c, self.h);
+                minkowski_s += clock.elapsed().as_secs_f64();
+            }
+            field
+        } else if self.settings.face_local {
             // (Minkowski is refused with face-local bounds: its rate needs one C.)
             let face =
                 |i: usize, up: bool| bounds_of(batch, slot * 2 * n + 2 * i + usize::from(up), n, m);
@@ -423,27 +472,49 @@ impl ChunkRun<'_> {
         buf.zeros.resize(m * n.max(1), 0.0);
         buf.frames
             .resize_with(self.frames.len(), FrameBuffers::default);
-        for step in 0..problem.steps {
+        let k = self.substeps;
+        for step in 0..problem.steps * k {
             if states.iter().all(|s| s.done) {
-                (self.report)((problem.steps - step) * states.len());
+                (self.report)((problem.steps - step / k) * states.len());
                 break;
+            }
+            if self.time == TimeModel::Continuous {
+                let t0 = (step / k) as f64 * problem.dt + (step % k) as f64 * self.h;
+                for state in states.iter_mut().filter(|s| !s.done) {
+                    self.enclose(state, buf, t0)?;
+                }
             }
             buf.facts.clear();
             let live = states.iter().filter(|s| !s.done);
-            buf.facts
-                .extend(live.map(|state| self.set_facts(&state.known)));
+            buf.facts.extend(
+                live.map(|state| self.set_facts(state.pipe_known.as_ref().unwrap_or(&state.known))),
+            );
             for (f, (frame, fb)) in self.frames.iter().zip(&mut buf.frames).enumerate() {
                 fb.flat_lo.clear();
                 fb.flat_hi.clear();
                 fb.inputs.clear();
                 let live = states.iter().filter(|s| !s.done);
                 for (state, &facts) in live.zip(&buf.facts) {
-                    let input = self.step_input(frame.problem, &state.known, facts);
+                    let known = state.pipe_known.as_ref().unwrap_or(&state.known);
+                    let input = self.step_input(frame.problem, known, facts);
                     fb.inputs.push(input);
                     if input.margin.is_none() {
                         continue;
                     }
                     let set = &state.sets[f];
+                    if let Some(Some(pipe)) = state.pipes.get(f) {
+                        // Continuous time: slabs for faces, the flowpipe for the whole set.
+                        if settings.face_local {
+                            for (lo, hi) in validated::slabs(set, pipe, self.h) {
+                                fb.flat_lo.extend(lo);
+                                fb.flat_hi.extend(hi);
+                            }
+                        } else {
+                            fb.flat_lo.extend(&pipe.set.lower);
+                            fb.flat_hi.extend(&pipe.set.upper);
+                        }
+                        continue;
+                    }
                     let (lo, hi) = (&set.lower, &set.upper);
                     if settings.face_local {
                         // 2n faces per box, in the order (0, lower), (0, upper), (1, lower), …
@@ -468,8 +539,14 @@ impl ChunkRun<'_> {
                     )?;
                 }
             }
-            let t = (step + 1) as f64 * problem.dt;
-            let record = (step + 1) % self.every == 0 || step + 1 == problem.steps;
+            let last_sub = (step + 1) % k == 0;
+            let outer = step / k;
+            let t = match last_sub {
+                true => (outer + 1) as f64 * problem.dt,
+                false => outer as f64 * problem.dt + ((step % k) + 1) as f64 * self.h,
+            };
+            let record =
+                last_sub && ((outer + 1) % self.every == 0 || outer + 1 == problem.steps);
             buf.slots.clear();
             buf.slots.resize(self.frames.len(), 0);
             let live = states.iter_mut().filter(|s| !s.done);
@@ -479,13 +556,24 @@ impl ChunkRun<'_> {
                     let p = frame.problem;
                     let input = buf.frames[f].inputs[k];
                     let set = &state.sets[f];
-                    let exact = input
-                        .piece
-                        .map(|piece| Self::piece_field(p, set, piece, &buf.zeros));
-                    let enclosed = if input.piece.is_none() && self.encloses {
-                        self.enclosure_field(frame, set, &state.known, &mut buf.faces, &buf.zeros)
-                    } else {
-                        None
+                    let pipe = state.pipes.get(f).and_then(Option::as_ref);
+                    let exact = input.piece.map(|piece| match pipe {
+                        Some(pipe) => self.piece_slab_field(p, set, pipe, piece, &buf.zeros),
+                        None => Self::piece_field(p, set, piece, &buf.zeros),
+                    });
+                    let enclosed = match (pipe, input.piece.is_none() && self.encloses) {
+                        (_, false) => None,
+                        (Some(pipe), true) => {
+                            let known = state.pipe_known.as_ref().unwrap_or(&state.known);
+                            self.enclosure_slab_field(frame, set, pipe, known, &buf.zeros)
+                        }
+                        (None, true) => self.enclosure_field(
+                            frame,
+                            set,
+                            &state.known,
+                            &mut buf.faces,
+                            &buf.zeros,
+                        ),
                     };
                     if f == 0 {
                         state.tube.exact_steps += usize::from(exact.is_some());
@@ -508,7 +596,10 @@ impl ChunkRun<'_> {
                         .reduce(meet_fields);
                     if let Some((dl, du)) = &field {
                         let set = &mut state.sets[f];
-                        embedding_step(&mut set.lower, &mut set.upper, dl, du, problem.dt);
+                        embedding_step(&mut set.lower, &mut set.upper, dl, du, self.h);
+                        if let Some(Some(pipe)) = state.pipes.get(f) {
+                            validated::meet_with_pipe(&mut set.lower, &mut set.upper, pipe);
+                        }
                     }
                     buf.stepped.push(field.is_some());
                 }
@@ -519,14 +610,16 @@ impl ChunkRun<'_> {
                     state.tube.note = Some(format!(
                         "t = {:.3}: the set meets cells of the error map with no certified \
                          bound (M = ∞)",
-                        t - problem.dt
+                        t - self.h
                     ));
                     state.done = true;
                     continue;
                 }
                 self.advance(state, t, record, &buf.stepped);
             }
-            (self.report)(states.len());
+            if last_sub {
+                (self.report)(states.len());
+            }
         }
         Ok(minkowski_s)
     }
@@ -560,8 +653,31 @@ impl ChunkRun<'_> {
             clip_to_safe_set(&mut set.lower, &mut set.upper, &f.safe.z);
         }
         self.settle(state, stepped);
-        let sample = self.sample(state, t);
+        let mut sample = self.sample(state, t);
         let problem = self.frames[0].problem;
+        if let Some(pipe) = &state.pipe_known {
+            // Continuous time: the flowpipe since the last sample, which must lie in `C` too.
+            let swept = match state.swept.take() {
+                Some(s) => hull(&s, pipe),
+                None => pipe.clone(),
+            };
+            let left = !swept.is_subset_of(&problem.region);
+            if record || left {
+                sample.flowpipe = Some(swept);
+            } else {
+                state.swept = Some(swept);
+            }
+            if left {
+                state.tube.valid = false;
+                state.tube.note = Some(format!(
+                    "t = {:.3}: the flowpipe of the step left the region C",
+                    t - self.h
+                ));
+                state.tube.tube.push(sample);
+                state.done = true;
+                return;
+            }
+        }
         if !sample.set.is_subset_of(&problem.region) {
             state.tube.valid = false;
             state.tube.note = Some(format!("t = {t:.3}: the set left the region C"));
@@ -570,6 +686,192 @@ impl ChunkRun<'_> {
         } else if record {
             state.tube.tube.push(sample);
         }
+    }
+}
+
+/// Continuous time ([`TimeModel::Continuous`], [`validated`]): the a-priori enclosure of each
+/// step and the field on slabs of it.
+impl ChunkRun<'_> {
+    /// Encloses the next step of every frame's set (Picard–Lindelöf); the step's facts and
+    /// bounds then come from the flowpipe. Ends the tube where no enclosure closes.
+    fn enclose(&self, state: &mut Live, buf: &mut ChunkBuffers, t0: f64) -> Result<(), ReachError> {
+        let ChunkBuffers { frames, zeros, .. } = buf;
+        state.pipes.clear();
+        for (f, frame) in self.frames.iter().enumerate() {
+            let guess = state.guess[f].as_ref().map(|(l, u)| (&l[..], &u[..]));
+            let fb = &mut frames[f];
+            let found = validated::enclose_step(&state.sets[f], self.h, guess, |a| {
+                self.field_on_box(frame, a, fb, zeros)
+            })?;
+            let why = match found {
+                Enclosure::Closed(pipe) => {
+                    state.guess[f] = Some((pipe.f_lower.clone(), pipe.f_upper.clone()));
+                    state.pipes.push(Some(pipe));
+                    continue;
+                }
+                Enclosure::NoField => "the step's enclosure meets cells of the error map with \
+                                       no certified bound (M = ∞)"
+                    .to_string(),
+                Enclosure::Open => format!(
+                    "no a-priori enclosure of the step (Picard–Lindelöf did not close with \
+                     h = {}; more substeps may close it)",
+                    self.h
+                ),
+            };
+            state.tube.valid = false;
+            state.tube.note = Some(format!("t = {t0:.3}: {why}"));
+            state.done = true;
+            return Ok(());
+        }
+        let known = self
+            .frames
+            .iter()
+            .zip(&state.pipes)
+            .filter_map(|(f, p)| {
+                let p = p.as_ref()?;
+                Some(f.problem.x_box_in_safe_set(&p.set.lower, &p.set.upper, f.safe))
+            })
+            .reduce(|a, b| a.intersection(&b).unwrap_or(a));
+        if self.frames.len() > 1 {
+            if let Some(known) = &known {
+                for (f, pipe) in self.frames.iter().zip(state.pipes.iter_mut().flatten()) {
+                    let around = f.problem.frame_box(known);
+                    if let Some(met) = pipe.set.intersection(&around) {
+                        pipe.set = met;
+                    }
+                }
+            }
+        }
+        state.pipe_known = known;
+        Ok(())
+    }
+
+    /// Bounds of the filtered field (the method's system) over the whole box `a` of one frame:
+    /// the meet of the filter's proven piece, its enclosures, and the network's bounds over `a`
+    /// plus the error margin there; `None` where none is sound.
+    fn field_on_box(
+        &self,
+        frame: &Frame,
+        a: &IntervalBox,
+        fb: &mut FrameBuffers,
+        zeros: &[f64],
+    ) -> Result<Option<(Vec<f64>, Vec<f64>)>, ReachError> {
+        let p = frame.problem;
+        let (n, m) = (p.dynamics.n, p.dynamics.m);
+        let x_box = p.x_box_in_safe_set(&a.lower, &a.upper, frame.safe);
+        let input = self.step_input(p, &x_box, self.set_facts(&x_box));
+        let exact = input.piece.map(|(piece, slack)| {
+            let dynamics = match piece {
+                FilterPiece::Inactive => &p.dynamics,
+                FilterPiece::Binding(k) => &p.pieces.binding_field(k).dynamics,
+            };
+            let zero = zero_bounds(zeros, n, m);
+            let (mut dl, mut du) =
+                validated::field_over(dynamics, &a.lower, &a.upper, zero, zero.b_lower);
+            widen_by(&mut dl, &mut du, slack);
+            (dl, du)
+        });
+        let enclosed = match input.piece.is_none() && self.encloses {
+            true => p.pieces.enclosure(&x_box).filter(|v| {
+                v.iter()
+                    .all(|e| e.lower.is_finite() && e.upper.is_finite())
+            }),
+            false => None,
+        }
+        .map(|v| {
+            let (lo, hi): (Vec<f64>, Vec<f64>) = v.iter().map(|e| (e.lower, e.upper)).unzip();
+            let consts = constant_bounds(zeros, &lo, &hi, n);
+            let (mut dl, mut du) =
+                validated::field_over(&p.dynamics, &a.lower, &a.upper, consts, &zeros[..m]);
+            widen_by(&mut dl, &mut du, p.pieces.field_slack(&x_box, &v));
+            (dl, du)
+        });
+        let network = match input.margin {
+            Some(bound) => {
+                frame.network.bounds_serial_into(
+                    &a.lower,
+                    &a.upper,
+                    self.settings.bounds,
+                    &mut fb.pipe_bounds,
+                    &mut fb.pipe_batch,
+                )?;
+                let nn = bounds_of(&fb.pipe_batch, 0, n, m);
+                let margin = vec![bound; m];
+                let (mut dl, mut du) =
+                    validated::field_over(&p.dynamics, &a.lower, &a.upper, nn, &margin);
+                widen_by(&mut dl, &mut du, p.field_slack);
+                Some((dl, du))
+            }
+            None => None,
+        };
+        Ok([exact, enclosed, network]
+            .into_iter()
+            .flatten()
+            .reduce(meet_fields))
+    }
+
+    /// [`ChunkRun::piece_field`] on the slabs of a flowpipe.
+    fn piece_slab_field(
+        &self,
+        problem: &ReachProblem,
+        set: &IntervalBox,
+        pipe: &Flowpipe,
+        (piece, slack): (FilterPiece, f64),
+        zeros: &[f64],
+    ) -> (Vec<f64>, Vec<f64>) {
+        let (n, m) = (problem.dynamics.n, problem.dynamics.m);
+        let dynamics = match piece {
+            FilterPiece::Inactive => &problem.dynamics,
+            FilterPiece::Binding(k) => &problem.pieces.binding_field(k).dynamics,
+        };
+        let zero = zero_bounds(zeros, n, m);
+        let (mut dl, mut du) =
+            validated::slab_field(dynamics, set, pipe, self.h, |_, _| zero, zero.b_lower);
+        widen_by(&mut dl, &mut du, slack);
+        (dl, du)
+    }
+
+    /// [`ChunkRun::enclosure_field`] on the slabs of a flowpipe: `v` enclosed by its closed form
+    /// on each slab's x-box (met with `known`, the flowpipes' x-box).
+    fn enclosure_slab_field(
+        &self,
+        frame: &Frame,
+        set: &IntervalBox,
+        pipe: &Flowpipe,
+        known: &IntervalBox,
+        zeros: &[f64],
+    ) -> Option<(Vec<f64>, Vec<f64>)> {
+        let problem = frame.problem;
+        let (n, m) = (problem.dynamics.n, problem.dynamics.m);
+        let mut slack = 0.0_f64;
+        let mut ends = Vec::with_capacity(2 * n);
+        for (lo, hi) in validated::slabs(set, pipe, self.h) {
+            let x_box = problem.x_box_in_safe_set(&lo, &hi, frame.safe);
+            let x_box = x_box.intersection(known).unwrap_or(x_box);
+            let v = problem.pieces.enclosure(&x_box)?;
+            if !v.iter().all(|e| e.lower.is_finite() && e.upper.is_finite()) {
+                return None;
+            }
+            slack = slack.max(problem.pieces.field_slack(&x_box, &v));
+            let (l, u): (Vec<f64>, Vec<f64>) = v.iter().map(|e| (e.lower, e.upper)).unzip();
+            ends.push((l, u));
+        }
+        let face = |i: usize, up: bool| {
+            let (l, u) = &ends[2 * i + usize::from(up)];
+            constant_bounds(zeros, l, u, n)
+        };
+        let (mut dl, mut du) =
+            validated::slab_field(&problem.dynamics, set, pipe, self.h, face, &zeros[..m]);
+        widen_by(&mut dl, &mut du, slack);
+        Some((dl, du))
+    }
+}
+
+/// The smallest box holding both.
+fn hull(a: &IntervalBox, b: &IntervalBox) -> IntervalBox {
+    IntervalBox {
+        lower: a.lower.iter().zip(&b.lower).map(|(x, y)| x.min(*y)).collect(),
+        upper: a.upper.iter().zip(&b.upper).map(|(x, y)| x.max(*y)).collect(),
     }
 }
 
@@ -686,6 +988,9 @@ mod tests {
             every: 1,
             encloses: false,
             report: &report,
+            time: problem.time,
+            substeps: 1,
+            h: problem.dt,
         };
         let initial = IntervalBox::new(vec![0.9, 1.4], vec![1.1, 1.6]).unwrap();
         let mut state = run.start(&initial);

@@ -20,7 +20,9 @@ pub mod cpu;
 pub mod embedding;
 pub mod pieces;
 pub mod safe_set;
+pub mod time;
 pub mod transform;
+pub mod validated;
 
 use serde::{Deserialize, Serialize};
 
@@ -31,6 +33,7 @@ use crate::network::Mlp;
 use crate::scenario::{Norm, Scenario};
 use embedding::Dynamics;
 pub use safe_set::SafeSet;
+pub use time::TimeModel;
 pub use transform::Transform;
 
 pub use cpu::CpuBackend;
@@ -211,6 +214,10 @@ pub struct ReachProblem {
     pub pieces: pieces::FilterPieces,
     /// With a transform: the same problem in x coordinates, for [`ReachSettings::intersect_x`].
     pub in_x: Option<Box<ReachProblem>>,
+    /// What the sets bound (the scenario's `[reach] time`; `continuous` by default).
+    pub time: TimeModel,
+    /// Validated steps per `dt` ([`TimeModel::Continuous`]).
+    pub substeps: usize,
 }
 
 impl ReachProblem {
@@ -352,6 +359,8 @@ impl ReachProblem {
             safe_set,
             pieces,
             in_x,
+            time: scenario.reach.time,
+            substeps: scenario.reach.substeps,
         })
     }
 
@@ -492,6 +501,7 @@ impl ReachProblem {
             z_lower: transformed.then(|| lower.to_vec()),
             z_upper: transformed.then(|| upper.to_vec()),
             set,
+            flowpipe: None,
         }
     }
 
@@ -541,6 +551,10 @@ pub struct TubeSample {
     /// disturbance method (both within the safe set's half-spaces), the bounding box of the
     /// Minkowski sum otherwise.
     pub set: IntervalBox,
+    /// In continuous time: an x-box that holds every true state since the previous sample
+    /// (the steps' flowpipes), for checks that speak of all times.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub flowpipe: Option<IntervalBox>,
 }
 
 impl TubeSample {
