@@ -202,12 +202,8 @@ pub fn compile(
             _ => None,
         };
         let name = args.time.as_deref().unwrap_or(s.reach.time.name());
-        let time = cbfreach::reach::TimeModel::parse(
-            name,
-            args.control_period.or(old),
-            s.reach.dt,
-        )
-        .map_err(|e| format!("--time {name}: {e}"))?;
+        let time = cbfreach::reach::TimeModel::parse(name, args.control_period.or(old), s.reach.dt)
+            .map_err(|e| format!("--time {name}: {e}"))?;
         problem = problem.with_time(time, args.substeps.unwrap_or(s.reach.substeps));
     }
     if args.no_safe_set {

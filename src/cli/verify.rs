@@ -280,7 +280,11 @@ pub fn print_summary(r: &VerifyReport) {
             ", shard {s} (cells {}..{})",
             r.cells[0], r.cells[1]
         )),
-        if r.run.time.is_empty() { "euler" } else { &r.run.time },
+        if r.run.time.is_empty() {
+            "euler"
+        } else {
+            &r.run.time
+        },
         r.run.bounds,
         if r.run.face_local {
             " (face-local)"

@@ -430,7 +430,8 @@ impl ChunkRun<'_> {
             validated::slab_field(&problem.dynamics, set, pipe, self.h, face, margin)
         } else if let Some(pipe) = pipe {
             let nn = bounds_of(batch, slot, n, m);
-            let field = validated::slab_field(&problem.dynamics, set, pipe, self.h, |_, _| nn, margin);
+            let field =
+                validated::slab_field(&problem.dynamics, set, pipe, self.h, |_, _| nn, margin);
             if self.settings.method == ReachMethod::Minkowski {
                 let clock = Instant::now();
                 let c = closeness_rate(problem, nn);
@@ -545,8 +546,7 @@ impl ChunkRun<'_> {
                 true => (outer + 1) as f64 * problem.dt,
                 false => outer as f64 * problem.dt + ((step % k) + 1) as f64 * self.h,
             };
-            let record =
-                last_sub && ((outer + 1) % self.every == 0 || outer + 1 == problem.steps);
+            let record = last_sub && ((outer + 1) % self.every == 0 || outer + 1 == problem.steps);
             buf.slots.clear();
             buf.slots.resize(self.frames.len(), 0);
             let live = states.iter_mut().filter(|s| !s.done);
@@ -729,7 +729,10 @@ impl ChunkRun<'_> {
             .zip(&state.pipes)
             .filter_map(|(f, p)| {
                 let p = p.as_ref()?;
-                Some(f.problem.x_box_in_safe_set(&p.set.lower, &p.set.upper, f.safe))
+                Some(
+                    f.problem
+                        .x_box_in_safe_set(&p.set.lower, &p.set.upper, f.safe),
+                )
             })
             .reduce(|a, b| a.intersection(&b).unwrap_or(a));
         if self.frames.len() > 1 {
@@ -772,10 +775,10 @@ impl ChunkRun<'_> {
             (dl, du)
         });
         let enclosed = match input.piece.is_none() && self.encloses {
-            true => p.pieces.enclosure(&x_box).filter(|v| {
-                v.iter()
-                    .all(|e| e.lower.is_finite() && e.upper.is_finite())
-            }),
+            true => p
+                .pieces
+                .enclosure(&x_box)
+                .filter(|v| v.iter().all(|e| e.lower.is_finite() && e.upper.is_finite())),
             false => None,
         }
         .map(|v| {
@@ -870,8 +873,18 @@ impl ChunkRun<'_> {
 /// The smallest box holding both.
 fn hull(a: &IntervalBox, b: &IntervalBox) -> IntervalBox {
     IntervalBox {
-        lower: a.lower.iter().zip(&b.lower).map(|(x, y)| x.min(*y)).collect(),
-        upper: a.upper.iter().zip(&b.upper).map(|(x, y)| x.max(*y)).collect(),
+        lower: a
+            .lower
+            .iter()
+            .zip(&b.lower)
+            .map(|(x, y)| x.min(*y))
+            .collect(),
+        upper: a
+            .upper
+            .iter()
+            .zip(&b.upper)
+            .map(|(x, y)| x.max(*y))
+            .collect(),
     }
 }
 

@@ -114,17 +114,26 @@ mod tests {
 
     #[test]
     fn names_parse_and_periods_are_multiples_of_dt() {
-        assert_eq!(TimeModel::parse("continuous", None, 0.1), Ok(TimeModel::Continuous));
+        assert_eq!(
+            TimeModel::parse("continuous", None, 0.1),
+            Ok(TimeModel::Continuous)
+        );
         assert_eq!(TimeModel::parse("euler", None, 0.1), Ok(TimeModel::Euler));
         assert_eq!(
             TimeModel::parse("sampled", None, 0.05),
-            Ok(TimeModel::Sampled { control_period: 0.05 })
+            Ok(TimeModel::Sampled {
+                control_period: 0.05
+            })
         );
         assert_eq!(
             TimeModel::parse("sampled", Some(0.15), 0.05),
-            Ok(TimeModel::Sampled { control_period: 0.15 })
+            Ok(TimeModel::Sampled {
+                control_period: 0.15
+            })
         );
         assert!(TimeModel::parse("sampled", Some(0.12), 0.05).is_err());
-        assert!(TimeModel::parse("rk4", None, 0.05).unwrap_err().contains("rk4"));
+        assert!(TimeModel::parse("rk4", None, 0.05)
+            .unwrap_err()
+            .contains("rk4"));
     }
 }

@@ -134,11 +134,7 @@ pub fn slab(
     i: usize,
     on_upper: bool,
 ) -> (Vec<f64>, Vec<f64>) {
-    let end = if on_upper {
-        set.upper[i]
-    } else {
-        set.lower[i]
-    };
+    let end = if on_upper { set.upper[i] } else { set.lower[i] };
     let lo = (point(end) + point(h) * point(pipe.f_lower[i].min(0.0))).lower;
     let hi = (point(end) + point(h) * point(pipe.f_upper[i].max(0.0))).upper;
     let (mut lower, mut upper) = (pipe.set.lower.clone(), pipe.set.upper.clone());
@@ -269,7 +265,12 @@ mod tests {
         let parse = |s: &str| crate::expressions::parse(s, &names, &Default::default()).unwrap();
         let lin = |r: [f64; 2]| parse(&format!("{}*x1 + {}*x2", r[0], r[1]));
         let zero = parse("0");
-        Dynamics::new(2, 1, vec![lin(a[0]), lin(a[1])], vec![vec![zero.clone()], vec![zero]])
+        Dynamics::new(
+            2,
+            1,
+            vec![lin(a[0]), lin(a[1])],
+            vec![vec![zero.clone()], vec![zero]],
+        )
     }
 
     fn no_network<'a>(z: &'a [f64]) -> NetworkBoundsRef<'a> {
@@ -292,7 +293,13 @@ mod tests {
         let set = IntervalBox::new(vec![1.0, 1.0], vec![2.0, 2.0]).unwrap();
         let h = 0.1;
         let field = |a: &IntervalBox| -> Result<_, ()> {
-            Ok(Some(field_over(&d, &a.lower, &a.upper, no_network(&z), &[0.0])))
+            Ok(Some(field_over(
+                &d,
+                &a.lower,
+                &a.upper,
+                no_network(&z),
+                &[0.0],
+            )))
         };
         let Enclosure::Closed(pipe) = enclose_step(&set, h, None, field).unwrap() else {
             panic!("no enclosure")
@@ -321,7 +328,13 @@ mod tests {
         let set = IntervalBox::new(vec![0.9, -0.1], vec![1.1, 0.1]).unwrap();
         let h = 0.2;
         let field = |a: &IntervalBox| -> Result<_, ()> {
-            Ok(Some(field_over(&d, &a.lower, &a.upper, no_network(&z), &[0.0])))
+            Ok(Some(field_over(
+                &d,
+                &a.lower,
+                &a.upper,
+                no_network(&z),
+                &[0.0],
+            )))
         };
         let Enclosure::Closed(pipe) = enclose_step(&set, h, None, field).unwrap() else {
             panic!("no enclosure")
@@ -333,7 +346,10 @@ mod tests {
         for c in set.corners() {
             for k in 0..=20 {
                 let t = h * k as f64 / 20.0;
-                let x = [c[0] * t.cos() + c[1] * t.sin(), -c[0] * t.sin() + c[1] * t.cos()];
+                let x = [
+                    c[0] * t.cos() + c[1] * t.sin(),
+                    -c[0] * t.sin() + c[1] * t.cos(),
+                ];
                 assert!(pipe.set.contains(&x), "{x:?} not in {:?}", pipe.set);
                 if k == 20 {
                     assert!(lo[0] <= x[0] && x[0] <= hi[0] && lo[1] <= x[1] && x[1] <= hi[1]);
