@@ -35,14 +35,19 @@ fn outside(b: &IntervalBox, x: &[f64]) -> f64 {
 /// Simulates 48 starts per box (corners first) with RK4 at `dt/10` and compares with the tubes
 /// (every step recorded). `tol` absorbs RK4's own error.
 fn escapes(s: &Scenario, tubes: &[Tube], dt: f64, tol: f64) -> Escapes {
+    escapes_with(s, tubes, dt, tol, Integrator::Rk4)
+}
+
+/// As [`escapes`] with another integrator: `Zoh` holds the control over each step `dt`
+/// (its plant integrated by RK4 at `dt/10`), the trajectories `time = "sampled"` bounds.
+fn escapes_with(s: &Scenario, tubes: &[Tube], dt: f64, tol: f64, how: Integrator) -> Escapes {
     let filter = SafetyFilter::new(s);
-    let sub = 10;
+    let sub = if how == Integrator::Zoh { 1 } else { 10 };
     let mut e = Escapes::default();
     for tube in tubes {
         let steps = tube.tube.len() - 1;
         for x0 in sample_box(&tube.initial, 48, 11) {
-            let fine =
-                simulate_filtered(&filter, &x0, dt / sub as f64, steps * sub, Integrator::Rk4);
+            let fine = simulate_filtered(&filter, &x0, dt / sub as f64, steps * sub, how);
             for (k, sample) in tube.tube.iter().enumerate() {
                 let j = (sample.t / dt).round() as usize * sub;
                 let Some(x) = fine.x.get(j) else { break };
@@ -84,9 +89,10 @@ fn paper_run(s: &Scenario, steps: usize, time: TimeModel, substeps: usize) -> Ve
     run(&problem, &s.reach.initial, ExactField::ClosedForm)
 }
 
-/// Continuous time with the defaults holds every continuous-time trajectory; the Euler map's
-/// sets do not (the issue measured 7,111 of 23,520 states outside on scenario 1).
-fn paper_scenario(s: &Scenario, steps: usize, min_checks: usize) {
+/// Continuous time with the defaults holds every continuous-time trajectory over `steps`; the
+/// Euler map's sets over `euler_steps` do not (the issue measured 7,111 of 23,520 states outside
+/// on scenario 1, 4,485 of 14,496 on scenario 2).
+fn paper_scenario(s: &Scenario, steps: usize, euler_steps: usize, min_checks: usize) {
     assert_eq!(s.reach.time, TimeModel::Continuous, "the default");
     let dt = s.reach.dt;
     let tubes = paper_run(s, steps, TimeModel::Continuous, s.reach.substeps);
@@ -97,7 +103,7 @@ fn paper_scenario(s: &Scenario, steps: usize, min_checks: usize) {
     assert_eq!((e.at_snapshots, e.between), (0, 0), "{}: {e:?}", s.name);
     assert!(e.checks >= min_checks, "{}: too few checks: {e:?}", s.name);
 
-    let euler = paper_run(s, steps, TimeModel::Euler, 1);
+    let euler = paper_run(s, euler_steps, TimeModel::Euler, 1);
     let e = escapes(s, &euler, dt, 1e-6);
     assert!(
         e.at_snapshots > 0,
@@ -108,12 +114,12 @@ fn paper_scenario(s: &Scenario, steps: usize, min_checks: usize) {
 
 #[test]
 fn continuous_sets_hold_scenario_1() {
-    paper_scenario(&common::integrator(), 25, 12 * 48 * 5);
+    paper_scenario(&common::integrator(), 25, 25, 12 * 48 * 5);
 }
 
 #[test]
 fn continuous_sets_hold_scenario_2() {
-    paper_scenario(&common::double_integrator(), 20, 9 * 48 * 5);
+    paper_scenario(&common::double_integrator(), 20, 200, 9 * 48 * 5);
 }
 
 /// Substeps shrink the first-order loss of the validated step: sets stay contained and get
@@ -202,6 +208,39 @@ fn continuous_sets_hold_a_nonlinear_plant_with_state_dependent_g() {
     );
     let e = escapes(&s, &euler, s.reach.dt, 1e-6);
     assert!(e.at_snapshots > 0, "Euler sets held every state: {e:?}");
+}
+
+/// Sampled-data at `T_s = dt`: on scenario 1 (`ẋ = u`, no remainder) the sets are the Euler
+/// map's; on scenario 2 they hold zero-order-hold trajectories (the control held over each
+/// step, the plant integrated finely), which the Euler map's sets miss.
+#[test]
+fn sampled_sets_hold_zero_order_hold_trajectories() {
+    let s1 = common::integrator();
+    let sampled = TimeModel::Sampled {
+        control_period: s1.reach.dt,
+    };
+    let a = paper_run(&s1, 25, sampled, 1);
+    let b = paper_run(&s1, 25, TimeModel::Euler, 1);
+    for (a, b) in a.iter().zip(&b) {
+        assert_eq!(a.tube.len(), b.tube.len());
+        for (x, y) in a.tube.iter().zip(&b.tube) {
+            assert_eq!((&x.lower, &x.upper), (&y.lower, &y.upper));
+        }
+    }
+
+    let s2 = common::double_integrator();
+    let dt = s2.reach.dt;
+    let sampled = TimeModel::Sampled { control_period: dt };
+    let tubes = paper_run(&s2, 200, sampled, 1);
+    let e = escapes_with(&s2, &tubes, dt, 1e-9, Integrator::Zoh);
+    assert_eq!((e.at_snapshots, e.between), (0, 0), "{e:?}");
+    assert!(e.checks >= 9 * 48 * 20, "too few checks: {e:?}");
+    let euler = paper_run(&s2, 200, TimeModel::Euler, 1);
+    let e = escapes_with(&s2, &euler, dt, 1e-9, Integrator::Zoh);
+    assert!(
+        e.at_snapshots > 0,
+        "Euler sets held every held-input state: {e:?}"
+    );
 }
 
 /// The engines and settings refuse what they do not run, naming the setting.

@@ -16,6 +16,7 @@ use super::embedding::{
     embedding_field, embedding_field_by_face, embedding_step, widen_by, NetworkBoundsRef,
 };
 use super::safe_set::{clip_to_safe_set, SafeSet};
+use super::sampled::Plant;
 use super::validated::{self, Enclosure, Flowpipe};
 use super::TimeModel;
 use super::{Backend, ExactField, ReachError, ReachMethod, ReachProblem, ReachResult};
@@ -71,12 +72,21 @@ impl Backend for CpuBackend {
         problem.check_initial(initial)?;
         settings.validate()?;
         problem.check_time()?;
-        if let TimeModel::Sampled { control_period } = problem.time {
-            return Err(ReachError::Settings(format!(
-                "time = \"sampled\" (control_period = {control_period}) is not implemented in \
-                 the CPU engine yet: use time = \"continuous\" or \"euler\""
-            )));
-        }
+        let sampled = match problem.time {
+            TimeModel::Sampled { control_period }
+                if (control_period - problem.dt).abs() > 1e-9 * problem.dt =>
+            {
+                return Err(ReachError::Settings(format!(
+                    "time = \"sampled\" with control_period = {control_period}: the CPU engine \
+                     holds the control over one step, control_period = dt = {} (set dt to the \
+                     period)",
+                    problem.dt
+                )));
+            }
+            TimeModel::Sampled { .. } => true,
+            _ => false,
+        };
+        let x_problem = problem.in_x.as_deref().unwrap_or(problem);
         let start = Instant::now();
         let frames = problem
             .frames(settings)
@@ -85,10 +95,22 @@ impl Backend for CpuBackend {
                 Ok(Frame {
                     problem: p,
                     network: PreparedNetwork::new(&p.network)?,
-                    safe: p.safe_set_for(settings.method),
+                    // A digital filter does not keep the state in `S` between samples: sampled
+                    // sets are not clipped to it.
+                    safe: match sampled {
+                        true => &super::safe_set::NO_SAFE_SET,
+                        false => p.safe_set_for(settings.method),
+                    },
                 })
             })
             .collect::<Result<Vec<Frame>, ReachError>>()?;
+        let plant = match sampled {
+            true => Some((
+                Plant::of(problem.pieces.scenario()),
+                PreparedNetwork::new(&x_problem.network)?,
+            )),
+            false => None,
+        };
         let threads = rayon::current_num_threads().max(1);
         let accounted = AtomicUsize::new(0);
         let (n_boxes, steps) = (initial.len(), problem.steps);
@@ -106,6 +128,8 @@ impl Backend for CpuBackend {
             time: problem.time,
             substeps: problem.steps_per_dt(),
             h: problem.dt / problem.steps_per_dt() as f64,
+            plant,
+            x_problem,
         };
         let mut live: Vec<Live> = initial.iter().map(|b| run.start(b)).collect();
         let chunk = chunk_len(live.len(), threads);
@@ -191,6 +215,10 @@ struct ChunkRun<'a> {
     substeps: usize,
     /// The engine's step, `dt / substeps`.
     h: f64,
+    /// Sampled-data: the plant's parts and the network in x, for the intersample remainder.
+    plant: Option<(Plant, PreparedNetwork<'a>)>,
+    /// The problem in x coordinates (the first frame's without a transform).
+    x_problem: &'a ReachProblem,
 }
 
 /// What the frames of one box-step share ([`ChunkRun::set_facts`]).
@@ -552,6 +580,21 @@ impl ChunkRun<'_> {
             let live = states.iter_mut().filter(|s| !s.done);
             for (k, state) in live.enumerate() {
                 buf.stepped.clear();
+                let remainder = match &self.plant {
+                    Some(plant) => match self.remainder(plant, &state.known, buf.facts[k])? {
+                        Some(r) => Some(r),
+                        None => {
+                            state.tube.valid = false;
+                            state.tube.note = Some(format!(
+                                "t = {:.3}: no enclosure of the motion between samples",
+                                t - self.h
+                            ));
+                            state.done = true;
+                            continue;
+                        }
+                    },
+                    None => None,
+                };
                 for (f, frame) in self.frames.iter().enumerate() {
                     let p = frame.problem;
                     let input = buf.frames[f].inputs[k];
@@ -561,6 +604,18 @@ impl ChunkRun<'_> {
                         Some(pipe) => self.piece_slab_field(p, set, pipe, piece, &buf.zeros),
                         None => Self::piece_field(p, set, piece, &buf.zeros),
                     });
+                    // Continuous time, a proven piece: second-order rates too, met below.
+                    let taylor = match (pipe, input.piece) {
+                        (Some(pipe), Some(piece)) => {
+                            let euler = Self::piece_field(p, set, piece, &buf.zeros);
+                            let dynamics = match piece.0 {
+                                FilterPiece::Inactive => &p.dynamics,
+                                FilterPiece::Binding(k) => &p.pieces.binding_field(k).dynamics,
+                            };
+                            validated::taylor_rates(dynamics, set, pipe, self.h, euler)
+                        }
+                        _ => None,
+                    };
                     let enclosed = match (pipe, input.piece.is_none() && self.encloses) {
                         (_, false) => None,
                         (Some(pipe), true) => {
@@ -590,7 +645,7 @@ impl ChunkRun<'_> {
                         minkowski_s += s;
                         field
                     });
-                    let field = [exact, enclosed, network]
+                    let field = [exact, taylor, enclosed, network]
                         .into_iter()
                         .flatten()
                         .reduce(meet_fields);
@@ -599,6 +654,10 @@ impl ChunkRun<'_> {
                         embedding_step(&mut set.lower, &mut set.upper, dl, du, self.h);
                         if let Some(Some(pipe)) = state.pipes.get(f) {
                             validated::meet_with_pipe(&mut set.lower, &mut set.upper, pipe);
+                        }
+                        if let Some(r) = &remainder {
+                            let (lo, hi) = in_frame(p, r);
+                            embedding_step(&mut set.lower, &mut set.upper, &lo, &hi, 1.0);
                         }
                     }
                     buf.stepped.push(field.is_some());
@@ -615,7 +674,14 @@ impl ChunkRun<'_> {
                     state.done = true;
                     continue;
                 }
+                if let Some(r) = remainder {
+                    // The flowpipe of the period, for the checks against `C` and the samples.
+                    state.pipe_known = Some(r.pipe);
+                }
                 self.advance(state, t, record, &buf.stepped);
+                if self.plant.is_some() {
+                    state.pipe_known = None;
+                }
             }
             if last_sub {
                 (self.report)(states.len());
@@ -870,6 +936,87 @@ impl ChunkRun<'_> {
     }
 }
 
+/// Sampled-data ([`TimeModel::Sampled`], [`super::sampled`]): the intersample remainder.
+impl ChunkRun<'_> {
+    /// The remainder of one period from the x-box `known` of the set, with the held input
+    /// `κ(X) + v`, `v` enclosed by the network's bounds on `X` plus the error margin (or 0 where
+    /// the filter is proven inactive), met with the closed form's enclosure where there is one.
+    fn remainder(
+        &self,
+        (plant, x_net): &(Plant, PreparedNetwork),
+        known: &IntervalBox,
+        facts: SetFacts,
+    ) -> Result<Option<super::sampled::Remainder>, ReachError> {
+        let n = known.dim();
+        if plant.is_still() {
+            let zero = vec![0.0; n];
+            return Ok(Some(super::sampled::Remainder {
+                lower: zero.clone(),
+                upper: zero,
+                pipe: known.clone(),
+            }));
+        }
+        let xp = self.x_problem;
+        let m = xp.dynamics.m;
+        let mut v = match facts.piece {
+            Some(FilterPiece::Inactive) => vec![Interval::point(0.0); m],
+            _ => match facts.m.filter(|m| m.is_finite()) {
+                Some(margin) => {
+                    let b = x_net.bounds(&known.lower, &known.upper, self.settings.bounds)?;
+                    (0..m)
+                        .map(|k| {
+                            let lo = Interval::point(b.lower[k]) - Interval::point(margin);
+                            let hi = Interval::point(b.upper[k]) + Interval::point(margin);
+                            Interval::new(lo.lower, hi.upper)
+                        })
+                        .collect()
+                }
+                None => vec![Interval::new(f64::NEG_INFINITY, f64::INFINITY); m],
+            },
+        };
+        if let Some(e) = xp.pieces.enclosure(known) {
+            for (vk, ek) in v.iter_mut().zip(e) {
+                if let Some(met) = vk.intersection(&ek) {
+                    *vk = met;
+                }
+            }
+        }
+        if !v.iter().all(|e| e.lower.is_finite() && e.upper.is_finite()) {
+            return Ok(None);
+        }
+        let u = plant.held_input(known, &v);
+        Ok(plant.remainder(known, &u, self.h))
+    }
+}
+
+/// The remainder's bounds in a frame's coordinates: `T·R` widened by the transform's `ρ`.
+fn in_frame(problem: &ReachProblem, r: &super::sampled::Remainder) -> (Vec<f64>, Vec<f64>) {
+    let Some(t) = &problem.transform else {
+        return (r.lower.clone(), r.upper.clone());
+    };
+    let n = t.n;
+    let rx: Vec<Interval> = (0..n)
+        .map(|j| Interval::new(r.lower[j], r.upper[j]))
+        .collect();
+    let rz: Vec<Interval> = (0..n)
+        .map(|i| {
+            (0..n).fold(Interval::point(0.0), |acc, j| {
+                acc + Interval::point(t.t[i * n + j]) * rx[j]
+            })
+        })
+        .collect();
+    let size = rz.iter().map(|e| e.mag()).fold(0.0, f64::max);
+    let slack = round_up(t.rho * size);
+    (
+        rz.iter()
+            .map(|e| (Interval::point(e.lower) - Interval::point(slack)).lower)
+            .collect(),
+        rz.iter()
+            .map(|e| (Interval::point(e.upper) + Interval::point(slack)).upper)
+            .collect(),
+    )
+}
+
 /// The smallest box holding both.
 fn hull(a: &IntervalBox, b: &IntervalBox) -> IntervalBox {
     IntervalBox {
@@ -1004,6 +1151,8 @@ mod tests {
             time: problem.time,
             substeps: 1,
             h: problem.dt,
+            plant: None,
+            x_problem: &problem,
         };
         let initial = IntervalBox::new(vec![0.9, 1.4], vec![1.1, 1.6]).unwrap();
         let mut state = run.start(&initial);

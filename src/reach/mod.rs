@@ -20,6 +20,7 @@ pub mod cpu;
 pub mod embedding;
 pub mod pieces;
 pub mod safe_set;
+pub mod sampled;
 pub mod time;
 pub mod transform;
 pub mod validated;
