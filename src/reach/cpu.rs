@@ -655,7 +655,10 @@ impl ChunkRun<'_> {
                         if let Some(Some(pipe)) = state.pipes.get(f) {
                             validated::meet_with_pipe(&mut set.lower, &mut set.upper, pipe);
                         }
-                        if let Some(r) = &remainder {
+                        let moves = |r: &&super::sampled::Remainder| {
+                            r.lower.iter().chain(&r.upper).any(|&v| v != 0.0)
+                        };
+                        if let Some(r) = remainder.as_ref().filter(moves) {
                             let (lo, hi) = in_frame(p, r);
                             embedding_step(&mut set.lower, &mut set.upper, &lo, &hi, 1.0);
                         }
