@@ -827,7 +827,7 @@ impl ChunkRun<'_> {
         a: &IntervalBox,
         fb: &mut FrameBuffers,
         zeros: &[f64],
-    ) -> Result<Option<(Vec<f64>, Vec<f64>)>, ReachError> {
+    ) -> Result<Option<Rates>, ReachError> {
         let p = frame.problem;
         let (n, m) = (p.dynamics.n, p.dynamics.m);
         let x_box = p.x_box_in_safe_set(&a.lower, &a.upper, frame.safe);
@@ -1019,6 +1019,9 @@ fn in_frame(problem: &ReachProblem, r: &super::sampled::Remainder) -> (Vec<f64>,
             .collect(),
     )
 }
+
+/// Lower and upper rates of one step, `(dx̲/dt, dx̄/dt)`.
+type Rates = (Vec<f64>, Vec<f64>);
 
 /// The smallest box holding both.
 fn hull(a: &IntervalBox, b: &IntervalBox) -> IntervalBox {

@@ -277,7 +277,8 @@ pub fn taylor_rates(
     let mut hi = Vec::with_capacity(n);
     for i in 0..n {
         let diag = dynamics.f_tilde_jacobian[i][i].eval_interval(&x);
-        if !((point(1.0) + point(h) * diag).lower >= 0.0) {
+        let monotone = (point(1.0) + point(h) * diag).lower;
+        if monotone.is_nan() || monotone < 0.0 {
             return None;
         }
         let r = (0..n).fold(point(0.0), |acc, j| {
