@@ -21,7 +21,7 @@ use super::validated::{self, Enclosure, Flowpipe};
 use super::TimeModel;
 use super::{Backend, ExactField, ReachError, ReachMethod, ReachProblem, ReachResult};
 use super::{ReachSettings, ReachTiming, Tube, TubeSample};
-use crate::bounds::{AffineBoundsBatch, BoundsWorkspace, PreparedNetwork};
+use crate::bounds::{AffineBounds, AffineBoundsBatch, BoundsWorkspace, PreparedNetwork};
 use crate::boxes::IntervalBox;
 use crate::intervals::{round_up, Interval};
 use crate::surrogate_error::FilterPiece;
@@ -55,6 +55,9 @@ struct Live {
     swept: Option<IntervalBox>,
     /// Continuous time: last step's field bounds per frame, to start the next enclosure from.
     guess: Vec<Option<(Vec<f64>, Vec<f64>)>>,
+    /// Continuous time: per frame, the network's bounds over the enclosure the step's flowpipe
+    /// was proven on (where the network was bounded there).
+    pipe_nn: Vec<Option<AffineBounds>>,
 }
 
 impl Backend for CpuBackend {
@@ -177,6 +180,8 @@ struct FrameBuffers {
     /// Continuous time: the network's bounds over one candidate enclosure.
     pipe_bounds: BoundsWorkspace,
     pipe_batch: AffineBoundsBatch,
+    /// The network's bounds of the last candidate enclosure, where it was bounded there.
+    pipe_nn: Option<AffineBounds>,
 }
 
 /// Buffers of one thread, reused across its chunks and steps.
@@ -268,6 +273,7 @@ impl ChunkRun<'_> {
             pipe_known: None,
             swept: None,
             guess: vec![None; self.frames.len()],
+            pipe_nn: vec![None; self.frames.len()],
         };
         self.settle(&mut state, &vec![true; self.frames.len()]);
         let sample = self.sample(&state, 0.0);
@@ -643,7 +649,37 @@ impl ChunkRun<'_> {
                         let batch = &buf.frames[f].batch;
                         let (field, s) = self.network_field(p, state, f, batch, slot, &buf.margin);
                         minkowski_s += s;
-                        field
+                        // Continuous time: second-order rates from the bounds over the flowpipe.
+                        let taylor = match (state.pipes.get(f), state.pipe_nn.get(f)) {
+                            (Some(Some(pipe)), Some(Some(nn))) => {
+                                let nn = NetworkBoundsRef {
+                                    a_lower: &nn.a_lower,
+                                    b_lower: &nn.b_lower,
+                                    a_upper: &nn.a_upper,
+                                    b_upper: &nn.b_upper,
+                                    lower: &nn.lower,
+                                    upper: &nn.upper,
+                                };
+                                let set = &state.sets[f];
+                                validated::taylor_network_rates(
+                                    &p.dynamics,
+                                    set,
+                                    pipe,
+                                    self.h,
+                                    nn,
+                                    &buf.margin,
+                                )
+                                .map(|(mut dl, mut du)| {
+                                    widen_by(&mut dl, &mut du, p.field_slack);
+                                    (dl, du)
+                                })
+                            }
+                            _ => None,
+                        };
+                        match taylor {
+                            Some(t) => meet_fields(field, t),
+                            None => field,
+                        }
                     });
                     let field = [exact, taylor, enclosed, network]
                         .into_iter()
@@ -775,6 +811,7 @@ impl ChunkRun<'_> {
             let why = match found {
                 Enclosure::Closed(pipe) => {
                     state.guess[f] = Some((pipe.f_lower.clone(), pipe.f_upper.clone()));
+                    state.pipe_nn[f] = fb.pipe_nn.take();
                     state.pipes.push(Some(pipe));
                     continue;
                 }
@@ -832,6 +869,7 @@ impl ChunkRun<'_> {
         let (n, m) = (p.dynamics.n, p.dynamics.m);
         let x_box = p.x_box_in_safe_set(&a.lower, &a.upper, frame.safe);
         let input = self.step_input(p, &x_box, self.set_facts(&x_box));
+        fb.pipe_nn = None;
         let exact = input.piece.map(|(piece, slack)| {
             let dynamics = match piece {
                 FilterPiece::Inactive => &p.dynamics,
@@ -868,6 +906,16 @@ impl ChunkRun<'_> {
                     &mut fb.pipe_batch,
                 )?;
                 let nn = bounds_of(&fb.pipe_batch, 0, n, m);
+                fb.pipe_nn = Some(AffineBounds {
+                    a_lower: nn.a_lower.to_vec(),
+                    b_lower: nn.b_lower.to_vec(),
+                    a_upper: nn.a_upper.to_vec(),
+                    b_upper: nn.b_upper.to_vec(),
+                    lower: nn.lower.to_vec(),
+                    upper: nn.upper.to_vec(),
+                    n_in: n,
+                    n_out: m,
+                });
                 let margin = vec![bound; m];
                 let (mut dl, mut du) =
                     validated::field_over(&p.dynamics, &a.lower, &a.upper, nn, &margin);

@@ -293,6 +293,64 @@ pub fn taylor_rates(
     Some((lo, hi))
 }
 
+/// Second-order rates for the network's field `f̃ + B(N + w)` (constant `g = B`), from affine
+/// bounds `C̲x + d̲ ≤ N(x) ≤ C̄x + d̄` valid on the flowpipe `B` (`nn`). Every trajectory stays in
+/// `B`, so `xᵢ(h) ≤ x₀ᵢ + ∫₀ʰ φ̄ᵢ(x(s)) ds` with the smooth `φ̄ᵢ(x) = f̃ᵢ(x) + m̄ᵢ·x + δ̄ᵢ` (the
+/// interaction-aware row: `m̄ᵢ = B⁺C̄ + B⁻C̲`, `δ̄ᵢ` with `d̄, d̲` widened by `M`), and
+/// `∫₀ʰ φ̄ᵢ(x(s)) ds ∈ h·φ̄ᵢ(x₀) + h²/2·(Df̃ᵢ(B) + m̄ᵢ)·F(B)`. The Euler part is maximal on the
+/// face `xᵢ = x̄ᵢ` where `1 + h(∂ᵢf̃ᵢ + m̄ᵢᵢ) ≥ 0` on the set (checked; `None` otherwise), and the
+/// embedding's face bound (with `nn` over `B`) bounds it there. Mirrored for the lower end.
+pub fn taylor_network_rates(
+    dynamics: &Dynamics,
+    set: &IntervalBox,
+    pipe: &Flowpipe,
+    h: f64,
+    nn: NetworkBoundsRef,
+    margin: &[f64],
+) -> Option<(Vec<f64>, Vec<f64>)> {
+    let b = dynamics.g_constant.as_ref()?;
+    let n = dynamics.n;
+    let (dl, du) = super::embedding::embedding_field(dynamics, &set.lower, &set.upper, nn, margin);
+    let x: Vec<Interval> = (0..n)
+        .map(|j| Interval::new(set.lower[j], set.upper[j]))
+        .collect();
+    let bb: Vec<Interval> = (0..n)
+        .map(|j| Interval::new(pipe.set.lower[j], pipe.set.upper[j]))
+        .collect();
+    let f: Vec<Interval> = (0..n)
+        .map(|j| Interval::new(pipe.f_lower[j], pipe.f_upper[j]))
+        .collect();
+    let half_h = point(h) * point(0.5);
+    let (mut lo, mut hi) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    for i in 0..n {
+        let jac_x = dynamics.f_tilde_jacobian[i][i].eval_interval(&x);
+        let jac_b: Vec<Interval> = dynamics.f_tilde_jacobian[i]
+            .iter()
+            .map(|e| e.eval_interval(&bb))
+            .collect();
+        let mut ends = [0.0; 2];
+        for (side, on_upper) in [false, true].into_iter().enumerate() {
+            let (row, _) = interaction_row(b, dynamics, nn, margin, i, on_upper);
+            let monotone = (point(1.0) + point(h) * (jac_x + row[i])).lower;
+            if monotone.is_nan() || monotone < 0.0 {
+                return None;
+            }
+            let r = (0..n).fold(point(0.0), |acc, j| acc + (jac_b[j] + row[j]) * f[j]);
+            if !(r.lower.is_finite() && r.upper.is_finite()) {
+                return None;
+            }
+            ends[side] = if on_upper {
+                (point(du[i]) + half_h * point(r.upper)).upper
+            } else {
+                (point(dl[i]) + half_h * point(r.lower)).lower
+            };
+        }
+        lo.push(ends[0]);
+        hi.push(ends[1]);
+    }
+    Some((lo, hi))
+}
+
 /// After the step: the new set lies in the flowpipe too.
 pub fn meet_with_pipe(lower: &mut [f64], upper: &mut [f64], pipe: &Flowpipe) {
     for i in 0..lower.len() {
