@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use crate::error_map::{margin_value, ErrorMap, ErrorMapError};
 use crate::network::{Mlp, NetworkError};
-use crate::reach::{ReachError, ReachProblem, Transform};
+use crate::reach::{ReachError, ReachProblem, TimeModel, Transform};
 use crate::scenario::{Margin, Scenario, TransformChoice};
 
 /// What a caller may change of the scenario's problem; `ProblemOptions::default()` is the
@@ -28,6 +28,15 @@ pub struct ProblemOptions {
     /// Do not meet the sets with the safe set's affine half-spaces (default: false; for
     /// comparisons).
     pub no_safe_set: bool,
+    /// This time model instead of the scenario's `reach.time`: `continuous`, `sampled` or
+    /// `euler` (default: the scenario's).
+    pub time: Option<String>,
+    /// This `T_s` instead of the scenario's `reach.control_period` (`sampled`; default: the
+    /// scenario's, else `dt`).
+    pub control_period: Option<f64>,
+    /// This many validated steps per `dt` instead of the scenario's `reach.substeps`
+    /// (`continuous`; default: the scenario's).
+    pub substeps: Option<usize>,
 }
 
 /// Why a scenario could not be compiled into a problem.
@@ -76,6 +85,9 @@ pub enum ProblemError {
     /// The transform could not be built.
     #[error("{0}")]
     Transform(String),
+    /// The time model of the options is not one (its name, or `T_s` not a multiple of `dt`).
+    #[error("{0}")]
+    Time(String),
     /// The problem does not fit together (network shape, `M_C`, error map over `C`).
     #[error(transparent)]
     Reach(#[from] ReachError),
@@ -97,6 +109,17 @@ impl ReachProblem {
         let transform = Transform::for_scenario(s, choice)
             .map_err(|e| ProblemError::Transform(e.to_string()))?;
         let mut problem = ReachProblem::with_transform(s, net, m_c, transform)?;
+        if options.time.is_some() || options.control_period.is_some() || options.substeps.is_some()
+        {
+            let old = match s.reach.time {
+                TimeModel::Sampled { control_period } => Some(control_period),
+                _ => None,
+            };
+            let name = options.time.as_deref().unwrap_or(s.reach.time.name());
+            let time = TimeModel::parse(name, options.control_period.or(old), s.reach.dt)
+                .map_err(ProblemError::Time)?;
+            problem = problem.with_time(time, options.substeps.unwrap_or(s.reach.substeps));
+        }
         if options.no_safe_set {
             problem = problem.without_safe_set();
         }

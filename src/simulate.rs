@@ -19,7 +19,15 @@ pub enum Integrator {
     Euler,
     /// Classical fourth-order Runge–Kutta.
     Rk4,
+    /// Zero-order hold: the control `u_k = κ(x_k) + v(x_k)` computed once per step and held
+    /// while the plant `ẋ = f(x) + g(x)u_k` is integrated by RK4 at a tenth of the step (a
+    /// digital controller; what `time = "sampled"` bounds). A closed-loop field with no input
+    /// to hold (the NN system) is integrated by RK4 at that fine step.
+    Zoh,
 }
+
+/// RK4 steps per step of [`Integrator::Zoh`].
+pub const ZOH_SUBSTEPS: usize = 10;
 
 /// One simulated trajectory.
 #[derive(Clone, Debug, Serialize)]
@@ -133,16 +141,53 @@ pub fn step<E>(
     };
     match integrator {
         Integrator::Euler => Ok(axpy(x, dt, &field(x)?)),
-        Integrator::Rk4 => {
-            let k1 = field(x)?;
-            let k2 = field(&axpy(x, 0.5 * dt, &k1))?;
-            let k3 = field(&axpy(x, 0.5 * dt, &k2))?;
-            let k4 = field(&axpy(x, dt, &k3))?;
-            Ok((0..x.len())
-                .map(|i| x[i] + dt / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]))
-                .collect())
+        Integrator::Rk4 => rk4(&field, x, dt),
+        Integrator::Zoh => {
+            let mut y = x.to_vec();
+            for _ in 0..ZOH_SUBSTEPS {
+                y = rk4(&field, &y, dt / ZOH_SUBSTEPS as f64)?;
+            }
+            Ok(y)
         }
     }
+}
+
+/// One classical RK4 step.
+fn rk4<E>(
+    field: &impl Fn(&[f64]) -> Result<Vec<f64>, E>,
+    x: &[f64],
+    dt: f64,
+) -> Result<Vec<f64>, E> {
+    let axpy = |a: &[f64], s: f64, b: &[f64]| -> Vec<f64> {
+        a.iter().zip(b).map(|(ai, bi)| ai + s * bi).collect()
+    };
+    let k1 = field(x)?;
+    let k2 = field(&axpy(x, 0.5 * dt, &k1))?;
+    let k3 = field(&axpy(x, 0.5 * dt, &k2))?;
+    let k4 = field(&axpy(x, dt, &k3))?;
+    Ok((0..x.len())
+        .map(|i| x[i] + dt / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]))
+        .collect())
+}
+
+/// One zero-order-hold step of the filtered system: `u = κ(x) + v(x)` held over `dt` while
+/// `ẋ = f(x) + g(x)u` is integrated by RK4 at `dt / ZOH_SUBSTEPS`.
+fn zoh_step(filter: &SafetyFilter, x: &[f64], dt: f64) -> Result<Vec<f64>, FilterError> {
+    let s = filter.scenario();
+    let (n, m) = (s.n(), s.m());
+    let v = filter.eval(x)?;
+    let u: Vec<f64> = s.kappa_at(x).iter().zip(&v).map(|(k, v)| k + v).collect();
+    let plant = |y: &[f64]| -> Result<Vec<f64>, FilterError> {
+        let g = s.g_at(y);
+        Ok((0..n)
+            .map(|i| s.f[i].eval(y) + (0..m).map(|k| g[i * m + k] * u[k]).sum::<f64>())
+            .collect())
+    };
+    let mut y = x.to_vec();
+    for _ in 0..ZOH_SUBSTEPS {
+        y = rk4(&plant, &y, dt / ZOH_SUBSTEPS as f64)?;
+    }
+    Ok(y)
 }
 
 /// Simulates the filtered system `ẋ = f̃(x) + g(x) v(x)`.
@@ -153,6 +198,31 @@ pub fn simulate_filtered(
     steps: usize,
     integrator: Integrator,
 ) -> Trajectory {
+    if integrator == Integrator::Zoh {
+        // The held input is not a function of the current state: step it here.
+        let mut traj = Trajectory {
+            x0: x0.to_vec(),
+            t: vec![0.0],
+            x: vec![x0.to_vec()],
+            stopped: None,
+        };
+        let mut x = x0.to_vec();
+        for k in 0..steps {
+            match zoh_step(filter, &x, dt) {
+                Ok(next) => x = next,
+                Err(e) => {
+                    traj.stopped = Some(Stop {
+                        t: k as f64 * dt,
+                        cause: e.into(),
+                    });
+                    break;
+                }
+            }
+            traj.t.push((k + 1) as f64 * dt);
+            traj.x.push(x.clone());
+        }
+        return traj;
+    }
     integrate(
         |x: &[f64]| -> Result<Vec<f64>, FilterError> { filter.closed_loop(x) },
         x0,

@@ -13,6 +13,8 @@
 
 mod common;
 
+use cbfreach::reach::TimeModel;
+
 use std::sync::Arc;
 
 use cbfreach::bounds::BoundMethod;
@@ -212,7 +214,9 @@ fn scenario_1_small_network_matches_cpu() {
     let Some(gpu) = gpu() else { return };
     let s = integrator();
     let net = small_network(&[2, 16, 16, 2], 1, 0.05);
-    let mut problem = ReachProblem::new(&s, net, 0.05).unwrap();
+    let mut problem = ReachProblem::new(&s, net, 0.05)
+        .unwrap()
+        .with_time(TimeModel::Euler, 1);
     problem.steps = 60;
     let init = boxes(&[[-2.0, 2.0], [1.0, -2.0], [-3.0, 0.0], [3.5, 2.0]], 0.1);
     for method in [ReachMethod::Disturbance, ReachMethod::Minkowski] {
@@ -233,7 +237,9 @@ fn pipelines_are_reused_only_for_the_same_problem() {
     let mut runs = Vec::new();
     for m_c in [0.05, 0.2, 0.05] {
         let net = small_network(&[2, 16, 16, 2], 1, 0.05);
-        let mut problem = ReachProblem::new(&s, net, m_c).unwrap();
+        let mut problem = ReachProblem::new(&s, net, m_c)
+            .unwrap()
+            .with_time(TimeModel::Euler, 1);
         problem.steps = 30;
         let (c, g) = run_both(&gpu, &problem, &init, ReachMethod::Disturbance);
         compare(&c, &g, &format!("M_C = {m_c}"));
@@ -262,7 +268,9 @@ fn scenario_2_small_network_matches_cpu_with_and_without_transform() {
         Transform::for_scenario(&s, &TransformChoice::Auto).unwrap(),
     ] {
         let with = transform.is_some();
-        let mut problem = ReachProblem::with_transform(&s, net.clone(), 0.02, transform).unwrap();
+        let mut problem = ReachProblem::with_transform(&s, net.clone(), 0.02, transform)
+            .unwrap()
+            .with_time(TimeModel::Euler, 1);
         problem.steps = 60;
         for method in [ReachMethod::Disturbance, ReachMethod::Minkowski] {
             let (c, g) = run_both(&gpu, &problem, &init, method);
@@ -286,7 +294,9 @@ fn paper_size_network_end_to_end() {
     let Some(gpu) = gpu() else { return };
     let s = integrator();
     let net = small_network(&[2, 400, 400, 400, 2], 3, 0.05);
-    let mut problem = ReachProblem::new(&s, net, 0.1).unwrap();
+    let mut problem = ReachProblem::new(&s, net, 0.1)
+        .unwrap()
+        .with_time(TimeModel::Euler, 1);
     problem.steps = 5;
     let init = boxes(&[[-2.0, 2.0], [1.0, -2.0], [3.0, 1.5]], 0.02);
     for bounds in [BoundMethod::Forward, BoundMethod::ForwardBackward] {
@@ -336,7 +346,9 @@ fn gpu_sets_contain_nn_trajectories() {
         (integrator(), small_network(&[2, 16, 16, 2], 4, 0.2)),
         (double_integrator(), small_network(&[2, 16, 16, 1], 5, 0.2)),
     ] {
-        let mut problem = ReachProblem::new(&s, net.clone(), 0.0).unwrap();
+        let mut problem = ReachProblem::new(&s, net.clone(), 0.0)
+            .unwrap()
+            .with_time(TimeModel::Euler, 1);
         problem.steps = 60;
         let init = boxes(&[[-2.0, 1.0], [1.0, -1.0], [-3.0, 0.0]], 0.1);
         let trajectories = nn_trajectories(&s, &net, &init, problem.dt, problem.steps, 0.0);
@@ -407,7 +419,9 @@ fn batch_of_65536_boxes_runs_and_splits() {
     let Some(mut gpu) = gpu() else { return };
     let s = integrator();
     let net = small_network(&[2, 32, 32, 2], 6, 0.05);
-    let mut problem = ReachProblem::new(&s, net, 0.05).unwrap();
+    let mut problem = ReachProblem::new(&s, net, 0.05)
+        .unwrap()
+        .with_time(TimeModel::Euler, 1);
     problem.steps = 3;
     let n = 65_536;
     let centres: Vec<[f64; 2]> = (0..n)
@@ -441,13 +455,16 @@ fn batch_of_65536_boxes_runs_and_splits() {
 /// scenario 1 in x, scenario 2 in the automatic coordinates `z = T x`.
 fn paper_problems(steps: usize) -> [(ReachProblem, Vec<IntervalBox>); 2] {
     let s1 = integrator();
-    let mut p1 = ReachProblem::new(&s1, small_network(&[2, 16, 16, 2], 1, 0.05), 0.05).unwrap();
+    let mut p1 = ReachProblem::new(&s1, small_network(&[2, 16, 16, 2], 1, 0.05), 0.05)
+        .unwrap()
+        .with_time(TimeModel::Euler, 1);
     p1.steps = steps;
     let s2 = double_integrator();
     let t = Transform::for_scenario(&s2, &TransformChoice::Auto).unwrap();
     let mut p2 =
         ReachProblem::with_transform(&s2, small_network(&[2, 16, 16, 1], 2, 0.05), 0.02, t)
-            .unwrap();
+            .unwrap()
+            .with_time(TimeModel::Euler, 1);
     p2.steps = steps;
     [
         (p1, boxes(&[[-2.0, 2.0], [1.0, -2.0], [3.5, 2.0]], 0.1)),
@@ -483,7 +500,9 @@ fn backward_methods_match_cpu_in_f64() {
 fn backward_methods_close_to_cpu_in_f32() {
     let Some(gpu) = gpu() else { return };
     let s = integrator();
-    let mut problem = ReachProblem::new(&s, small_network(&[2, 16, 16, 2], 1, 0.05), 0.05).unwrap();
+    let mut problem = ReachProblem::new(&s, small_network(&[2, 16, 16, 2], 1, 0.05), 0.05)
+        .unwrap()
+        .with_time(TimeModel::Euler, 1);
     problem.steps = 40;
     let init = boxes(&[[-2.0, 2.0], [1.0, -2.0], [3.5, 2.0]], 0.1);
     let mut worst = Vec::new();
@@ -505,7 +524,9 @@ fn paper_network_forward_backward_f64_matches_cpu() {
     let path = common::scenario_path("integrator.safetensors");
     let net = Mlp::load_safetensors(&path).unwrap();
     assert_eq!(net.widths(), vec![2, 400, 400, 400, 2]);
-    let mut problem = ReachProblem::new(&s, net, 0.19).unwrap();
+    let mut problem = ReachProblem::new(&s, net, 0.19)
+        .unwrap()
+        .with_time(TimeModel::Euler, 1);
     problem.steps = 4;
     let init = boxes(&[[-2.0, 2.0], [1.0, -2.0], [3.0, 1.5]], 0.05);
     for bounds in [
@@ -534,7 +555,9 @@ fn transcendental_dynamics_match_cpu() {
     );
     assert_ne!(text, common::SMALL);
     let s = common::from_text(&text).unwrap();
-    let mut problem = ReachProblem::new(&s, small_network(&[2, 8, 8, 1], 9, 0.1), 0.02).unwrap();
+    let mut problem = ReachProblem::new(&s, small_network(&[2, 8, 8, 1], 9, 0.1), 0.02)
+        .unwrap()
+        .with_time(TimeModel::Euler, 1);
     problem.steps = 15;
     let init = boxes(&[[-0.3, 0.2], [0.4, -0.1]], 0.05);
     for bounds in [BoundMethod::Forward, BoundMethod::ForwardBackward] {
@@ -580,7 +603,9 @@ fn transcendental_dynamics_match_cpu() {
 fn backward_methods_split_into_chunks() {
     let Some(mut gpu) = gpu_f64() else { return };
     let s = integrator();
-    let mut problem = ReachProblem::new(&s, small_network(&[2, 24, 24, 2], 6, 0.05), 0.05).unwrap();
+    let mut problem = ReachProblem::new(&s, small_network(&[2, 24, 24, 2], 6, 0.05), 0.05)
+        .unwrap()
+        .with_time(TimeModel::Euler, 1);
     problem.steps = 3;
     let centres: Vec<[f64; 2]> = (0..300)
         .map(|k| {
@@ -619,7 +644,9 @@ fn bench_box_steps_per_second() {
     let Some(gpu) = gpu() else { return };
     let s = integrator();
     let net = small_network(&[2, 400, 400, 400, 2], 7, 0.05);
-    let mut problem = ReachProblem::new(&s, net, 0.1).unwrap();
+    let mut problem = ReachProblem::new(&s, net, 0.1)
+        .unwrap()
+        .with_time(TimeModel::Euler, 1);
     let widths = problem.network.widths();
     let pairs: f64 = widths.windows(2).map(|w| (w[0] * w[1]) as f64).sum();
     let flop = 2.0 * (2.0 * 3.0 + 1.0) * pairs;
@@ -817,7 +844,9 @@ fn face_local_matches_cpu() {
     let gpu64 = gpu_f64();
     let [(p1, init1), (p2, init2)] = paper_problems(30);
     let s3 = common::from_text(&common::SMALL.replace(r#"["1"]"#, r#"["1 + 0.2*x"]"#)).unwrap();
-    let mut p3 = ReachProblem::new(&s3, small_network(&[2, 8, 8, 1], 9, 0.1), 0.02).unwrap();
+    let mut p3 = ReachProblem::new(&s3, small_network(&[2, 8, 8, 1], 9, 0.1), 0.02)
+        .unwrap()
+        .with_time(TimeModel::Euler, 1);
     p3.steps = 15;
     let init3 = boxes(&[[-0.3, 0.2], [0.4, -0.1]], 0.05);
     let mut worst = (0.0f64, 0.0f64);
@@ -929,7 +958,9 @@ fn local_margins_match_cpu() {
     let gpu64 = gpu_f64();
     let s = integrator();
     let net = small_network(&[2, 16, 16, 2], 1, 0.05);
-    let mut problem = ReachProblem::new(&s, net, 0.5).unwrap();
+    let mut problem = ReachProblem::new(&s, net, 0.5)
+        .unwrap()
+        .with_time(TimeModel::Euler, 1);
     let map = small_error_map(&problem.region);
     problem = problem.with_error_map(map).unwrap();
     problem.steps = 40;
@@ -988,6 +1019,7 @@ fn shipped_error_map_face_local_matches_cpu() {
     let m_c = map.certified_linf.unwrap();
     let mut problem = ReachProblem::new(&s, net, m_c)
         .unwrap()
+        .with_time(TimeModel::Euler, 1)
         .with_error_map(map)
         .unwrap();
     problem.steps = 3;
@@ -1030,7 +1062,7 @@ fn shipped_error_map_face_local_matches_cpu() {
 /// 8,6`, [1.5, 2.5] × [2, 3] and [1.5, 2.5] × [−3, −2], face-local forward-backward bounds and
 /// `--exact inactive`, 14 steps: the second set grows over ~17,000 buckets of the map by t = 0.44.
 fn grown_sets_problem() -> (ReachProblem, Vec<IntervalBox>, ReachSettings) {
-    let mut problem = common::shipped_problem(&integrator());
+    let mut problem = common::shipped_problem(&integrator()).with_time(TimeModel::Euler, 1);
     problem.steps = 14;
     let init = boxes(&[[2.0, 2.5], [2.0, -2.5]], 0.5);
     let st = ReachSettings {
@@ -1149,7 +1181,9 @@ fn networks_too_wide_for_llvmpipes_loop_limit_are_refused_there() {
     let llvmpipe = gpu.context().info.name.contains("llvmpipe");
     for width in [20_000, 60_000] {
         let net = small_network(&[2, width, 2], 5, 0.01);
-        let mut problem = ReachProblem::new(&s, net, 0.1).unwrap();
+        let mut problem = ReachProblem::new(&s, net, 0.1)
+            .unwrap()
+            .with_time(TimeModel::Euler, 1);
         problem.steps = 1;
         let res = gpu.reach(&problem, &init, &st, &|_, _| {});
         if llvmpipe && width > 20_000 {
@@ -1173,7 +1207,9 @@ fn face_local_local_margin_sets_contain_trajectories() {
     engines.extend(gpu_f64());
     let s = integrator();
     let net = small_network(&[2, 16, 16, 2], 4, 0.2);
-    let problem = ReachProblem::new(&s, net.clone(), 0.5).unwrap();
+    let problem = ReachProblem::new(&s, net.clone(), 0.5)
+        .unwrap()
+        .with_time(TimeModel::Euler, 1);
     let map = small_error_map(&problem.region);
     let mut problem = problem.with_error_map(map).unwrap();
     problem.steps = 40;
@@ -1239,7 +1275,9 @@ fn safe_set_keeps_local_margins_finite_at_the_edge_of_c() {
     let s = double_integrator();
     let net = small_network(&[2, 16, 16, 1], 2, 0.05);
     let t = Transform::for_scenario(&s, &TransformChoice::Auto).unwrap();
-    let mut problem = ReachProblem::with_transform(&s, net, 0.5, t).unwrap();
+    let mut problem = ReachProblem::with_transform(&s, net, 0.5, t)
+        .unwrap()
+        .with_time(TimeModel::Euler, 1);
     let map = small_error_map(&problem.region);
     problem = problem.with_error_map(map).unwrap();
     problem.steps = 30;
@@ -1277,7 +1315,9 @@ fn v_zero_where_the_filter_is_inactive_matches_cpu() {
     let s = double_integrator();
     let net = small_network(&[2, 16, 16, 1], 6, 0.05);
     let t = Transform::for_scenario(&s, &TransformChoice::Auto).unwrap();
-    let mut problem = ReachProblem::with_transform(&s, net, 0.02, t).unwrap();
+    let mut problem = ReachProblem::with_transform(&s, net, 0.02, t)
+        .unwrap()
+        .with_time(TimeModel::Euler, 1);
     problem.steps = 40;
     let init = boxes(&[[0.1, -0.1], [1.0, 1.5], [-2.5, 0.5]], 0.05);
     let settings = ReachSettings {
@@ -1334,7 +1374,9 @@ fn point_boxes_contain_the_nn_trajectory_despite_rounding() {
         ("random", small_network(&[2, 64, 64, 2], 4, 0.2)),
         ("cancelling", cancelling_network()),
     ] {
-        let mut problem = ReachProblem::new(&s, net.clone(), 0.0).unwrap();
+        let mut problem = ReachProblem::new(&s, net.clone(), 0.0)
+            .unwrap()
+            .with_time(TimeModel::Euler, 1);
         problem.steps = 40;
         let trajectories = nn_trajectories(&s, &net, &init, problem.dt, problem.steps, 0.0);
         for gpu in &engines {
@@ -1416,13 +1458,16 @@ fn closed_form_filter_matches_cpu() {
     let s1 = integrator();
     // A random network with an error bound that holds near the obstacle (|v| ≤ 6 there), so
     // that its bounds are sound and the closed form does the work.
-    let mut p1 = ReachProblem::new(&s1, small_network(&[2, 16, 16, 2], 1, 0.05), 8.0).unwrap();
+    let mut p1 = ReachProblem::new(&s1, small_network(&[2, 16, 16, 2], 1, 0.05), 8.0)
+        .unwrap()
+        .with_time(TimeModel::Euler, 1);
     p1.steps = 40;
     let init1 = boxes(&[[0.1, 0.1], [3.9, 0.0], [3.6, 0.5], [2.6, 1.4]], 0.03);
     let s2 = double_integrator();
     let t = Transform::for_scenario(&s2, &TransformChoice::Auto).unwrap();
-    let mut p2 =
-        ReachProblem::with_transform(&s2, small_network(&[2, 16, 16, 1], 6, 0.05), 8.0, t).unwrap();
+    let mut p2 = ReachProblem::with_transform(&s2, small_network(&[2, 16, 16, 1], 6, 0.05), 8.0, t)
+        .unwrap()
+        .with_time(TimeModel::Euler, 1);
     p2.steps = 40;
     let init2 = boxes(&[[0.1, -0.1], [1.0, 1.5], [1.5, 1.5], [-2.5, 0.5]], 0.03);
     let closed = ReachSettings {

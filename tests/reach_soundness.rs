@@ -4,6 +4,8 @@
 
 mod common;
 
+use cbfreach::reach::TimeModel;
+
 use cbfreach::bounds::{network_bounds, BoundMethod};
 use cbfreach::filter::SafetyFilter;
 use cbfreach::network::Mlp;
@@ -46,7 +48,9 @@ fn run(
     centres: &[[f64; 2]],
     half_width: f64,
 ) -> Vec<Tube> {
-    let problem = ReachProblem::new(s, net.clone(), m_c).unwrap();
+    let problem = ReachProblem::new(s, net.clone(), m_c)
+        .unwrap()
+        .with_time(TimeModel::Euler, 1);
     let boxes: Vec<_> = centres
         .iter()
         .map(|c| {
@@ -298,7 +302,9 @@ fn run_double_integrator(net: &Mlp, transform: bool, m_c: f64) -> (Vec<Tube>, Op
     } else {
         None
     };
-    let problem = ReachProblem::with_transform(&s, net.clone(), m_c, t.clone()).unwrap();
+    let problem = ReachProblem::with_transform(&s, net.clone(), m_c, t.clone())
+        .unwrap()
+        .with_time(TimeModel::Euler, 1);
     let settings = ReachSettings {
         bounds: BoundMethod::Crown,
         method: ReachMethod::Disturbance,
@@ -409,7 +415,7 @@ fn z_boxes_contain_the_image_of_x_boxes() {
 #[test]
 fn filtered_trajectories_stay_in_sets_intersected_with_the_safe_set() {
     let s = double_integrator();
-    let problem = common::shipped_problem(&s);
+    let problem = common::shipped_problem(&s).with_time(TimeModel::Euler, 1);
     assert_eq!(problem.safe_set.x.len(), 1, "the velocity bound is affine");
     let settings = ReachSettings {
         bounds: BoundMethod::ForwardBackward,
@@ -521,19 +527,19 @@ fn filtered_trajectories_stay_in_sets_where_the_filter_is_one_smooth_piece() {
     for (s, problem, loose, initial) in [
         (
             &s2,
-            common::shipped_problem(&s2),
+            common::shipped_problem(&s2).with_time(TimeModel::Euler, 1),
             false,
             scenario_2_boxes.clone(),
         ),
         (
             &s2,
-            common::shipped_problem_with(&s2, &loose_network()),
+            common::shipped_problem_with(&s2, &loose_network()).with_time(TimeModel::Euler, 1),
             true,
             scenario_2_boxes,
         ),
         (
             &s1,
-            common::shipped_problem(&s1),
+            common::shipped_problem(&s1).with_time(TimeModel::Euler, 1),
             false,
             vec![
                 cbfreach::IntervalBox::new(vec![-2.1, 1.9], vec![-1.9, 2.1]).unwrap(),
@@ -620,9 +626,9 @@ fn filtered_trajectories_stay_in_sets_met_with_their_x_boxes() {
     let s = double_integrator();
     for loose in [false, true] {
         let problem = if loose {
-            common::shipped_problem_with(&s, &loose_network())
+            common::shipped_problem_with(&s, &loose_network()).with_time(TimeModel::Euler, 1)
         } else {
-            common::shipped_problem(&s)
+            common::shipped_problem(&s).with_time(TimeModel::Euler, 1)
         };
         sets_met_with_x_boxes_hold_and_turn(&s, &problem, loose);
     }
@@ -726,7 +732,9 @@ fn tubes_do_not_depend_on_the_thread_count() {
     // A push to the right: boxes on the right of C leave it early, the others stay.
     let mut net = small_network(&[2, 16, 16, 2], 3, 0.5);
     net.layers[2].bias[0] += 5.0;
-    let mut problem = ReachProblem::new(&s, net, 0.05).unwrap();
+    let mut problem = ReachProblem::new(&s, net, 0.05)
+        .unwrap()
+        .with_time(TimeModel::Euler, 1);
     problem.steps = problem.steps.min(60);
     let boxes: Vec<_> = (0..23)
         .map(|k| {

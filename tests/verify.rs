@@ -9,6 +9,8 @@
 
 mod common;
 
+use cbfreach::reach::TimeModel;
+
 use std::path::PathBuf;
 use std::process::Command;
 use std::sync::OnceLock;
@@ -73,7 +75,9 @@ fn network() -> &'static (PathBuf, f64) {
 fn run(s: &Scenario, grid: [usize; 2], refine: usize, shard: Option<Shard>) -> VerifyReport {
     let (path, m_c) = network();
     let net = Mlp::load_safetensors(path).unwrap();
-    let problem = ReachProblem::with_transform(s, net, *m_c, None).unwrap();
+    let problem = ReachProblem::with_transform(s, net, *m_c, None)
+        .unwrap()
+        .with_time(TimeModel::Euler, 1);
     let verifier = Verifier {
         reach: ReachSettings {
             face_local: true,
@@ -263,6 +267,7 @@ fn gpu_and_cpu_give_the_paper_boxes_the_same_verdicts() {
     let net = Mlp::load_safetensors(&path).unwrap();
     let problem = ReachProblem::with_transform(&s, net, 0.54, None)
         .unwrap()
+        .with_time(TimeModel::Euler, 1)
         .with_error_map(ErrorMap::load_for(&path).unwrap())
         .unwrap();
     let settings = ReachSettings {
@@ -413,7 +418,9 @@ fn a_set_outside_s_is_a_bug_only_where_the_qp_was_proven_feasible() {
     let s = common::double_integrator();
     let net =
         Mlp::load_safetensors(&common::scenario_path("double-integrator.safetensors")).unwrap();
-    let problem = ReachProblem::with_transform(&s, net, 0.0, None).unwrap();
+    let problem = ReachProblem::with_transform(&s, net, 0.0, None)
+        .unwrap()
+        .with_time(TimeModel::Euler, 1);
     let sample = |t: f64, lower: [f64; 2], upper: [f64; 2]| TubeSample {
         t,
         lower: lower.to_vec(),
@@ -422,6 +429,7 @@ fn a_set_outside_s_is_a_bug_only_where_the_qp_was_proven_feasible() {
         z_lower: None,
         z_upper: None,
         set: IntervalBox::new(lower.to_vec(), upper.to_vec()).unwrap(),
+        flowpipe: None,
     };
     let tube = |first: TubeSample| Tube {
         tube: vec![first.clone(), sample(0.05, [4.0, -2.01], [4.01, -2.005])],
@@ -459,7 +467,7 @@ fn feasibility_refinement_splits_verified_boxes_until_their_qp_is_proven_feasibl
     use cbfreach::IntervalBox;
 
     let s = common::double_integrator();
-    let problem = common::shipped_problem(&s);
+    let problem = common::shipped_problem(&s).with_time(TimeModel::Euler, 1);
     let verifier = Verifier {
         scenario: &s,
         problem: &problem,

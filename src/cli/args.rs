@@ -142,6 +142,18 @@ pub struct ProblemArgs {
     /// comparisons).
     #[arg(long)]
     pub no_safe_set: bool,
+    /// What the sets bound: `continuous` (the filtered ODE, validated steps), `sampled` (a
+    /// digital controller held over --control-period), `euler` (the paper's Euler map);
+    /// default: the scenario's `[reach] time`, else euler.
+    #[arg(long, value_parser = ["continuous", "sampled", "euler"])]
+    pub time: Option<String>,
+    /// The control period T_s of `--time sampled`, a multiple of dt (default: the scenario's,
+    /// else dt).
+    #[arg(long)]
+    pub control_period: Option<f64>,
+    /// Cut each continuous-time step in K validated steps (default: the scenario's, else 1).
+    #[arg(long, value_parser = |s: &str| super::whole_at_least(s, 1))]
+    pub substeps: Option<usize>,
 }
 
 impl ProblemArgs {
@@ -153,6 +165,9 @@ impl ProblemArgs {
             transform: self.transform.clone(),
             local_margin: self.local_margin,
             no_safe_set: self.no_safe_set,
+            time: self.time.clone(),
+            control_period: self.control_period,
+            substeps: self.substeps,
         }
     }
 }
@@ -179,6 +194,11 @@ pub fn compile(
             )
             .into()
         }
+        ProblemError::Time(e) => format!(
+            "--time {}: {e}",
+            args.time.as_deref().unwrap_or(s.reach.time.name())
+        )
+        .into(),
         ProblemError::NoNetwork { file } => {
             format!("{file}: no [network] section and no --network given").into()
         }
@@ -193,7 +213,7 @@ pub fn engine(
     settings: &mut ReachSettings,
     problem: &ReachProblem,
 ) -> Result<Box<dyn Backend + Sync>, Box<dyn std::error::Error>> {
-    let chosen = choose_engine(which, &gpu.options(), settings).map_err(
+    let chosen = choose_engine(which, &gpu.options(), settings, problem.time).map_err(
         |e| -> Box<dyn std::error::Error> {
             match e {
                 EngineError::PrecisionOnCpu(_) => {

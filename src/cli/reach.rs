@@ -47,6 +47,8 @@ struct ReachJson<'a> {
     bounds: BoundMethod,
     method: ReachMethod,
     dt: f64,
+    time: cbfreach::reach::TimeModel,
+    substeps: usize,
     m_c: f64,
     #[serde(flatten)]
     result: &'a ReachResult,
@@ -87,10 +89,11 @@ pub fn run(args: &ReachArgs) -> CliResult {
         };
     let within = super::safe_set_clause(&problem.safe_set_for(settings.method).names());
     println!(
-        "{}: {} boxes × {} steps, {} bounds{}, {:?} method, {margin}{within}, backend {}",
+        "{}: {} boxes × {} steps, time {}, {} bounds{}, {:?} method, {margin}{within}, backend {}",
         s.file,
         result.boxes.len(),
         problem.steps,
+        time_clause(&problem),
         settings.bounds,
         if settings.face_local {
             " (face-local)"
@@ -167,6 +170,8 @@ pub fn run(args: &ReachArgs) -> CliResult {
             bounds: settings.bounds,
             method: settings.method,
             dt: problem.dt,
+            time: problem.time,
+            substeps: problem.steps_per_dt(),
             m_c,
             result: &result,
         };
@@ -178,4 +183,12 @@ pub fn run(args: &ReachArgs) -> CliResult {
         super::plot::plot_tubes(&s, &result, settings.every, m_c, path)?;
     }
     Ok(())
+}
+
+/// For summaries: the time model, with its substeps.
+pub fn time_clause(problem: &cbfreach::reach::ReachProblem) -> String {
+    match problem.steps_per_dt() {
+        1 => problem.time.to_string(),
+        k => format!("{} ({k} validated steps per dt)", problem.time),
+    }
 }

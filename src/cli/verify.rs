@@ -259,7 +259,7 @@ pub fn print_summary(r: &VerifyReport) {
     let refined = r.run.refine_depth > 0;
     let within = super::safe_set_clause(&r.run.safe_set);
     println!(
-        "{} ({}): region {:?}…{:?}, grid {:?}{}, {} bounds{}, {} method, {}{within}",
+        "{} ({}): region {:?}…{:?}, grid {:?}{}, time {}, {} bounds{}, {} method, {}{within}",
         r.run.scenario,
         r.run.scenario_file,
         r.run.region.lower,
@@ -269,6 +269,11 @@ pub fn print_summary(r: &VerifyReport) {
             ", shard {s} (cells {}..{})",
             r.cells[0], r.cells[1]
         )),
+        if r.run.time.is_empty() {
+            "euler"
+        } else {
+            &r.run.time
+        },
         r.run.bounds,
         if r.run.face_local {
             " (face-local)"

@@ -249,6 +249,14 @@ impl Backend for GpuBackend {
     ) -> Result<ReachResult, ReachError> {
         problem.check_initial(initial)?;
         settings.validate()?;
+        if problem.time != crate::reach::TimeModel::Euler {
+            return Err(GpuError::Unsupported(format!(
+                "time = \"{}\" (the GPU engine runs time = \"euler\" alone: set it, or use \
+                 the CPU engine)",
+                problem.time.name()
+            ))
+            .into());
+        }
         if !GpuBackend::supports(settings) {
             return Err(GpuError::Unsupported(format!(
                 "{} bounds (the GPU engine has forward, forward-backward and crown bounds; use \

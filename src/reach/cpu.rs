@@ -16,13 +16,20 @@ use super::embedding::{
     embedding_field, embedding_field_by_face, embedding_step, widen_by, NetworkBoundsRef,
 };
 use super::safe_set::{clip_to_safe_set, SafeSet};
+use super::sampled::Plant;
+use super::validated::{self, Enclosure, Flowpipe};
+use super::TimeModel;
 use super::{Backend, ExactField, ReachError, ReachMethod, ReachProblem, ReachResult};
 use super::{ReachSettings, ReachTiming, Tube, TubeEnd, TubeSample};
-use crate::bounds::{AffineBoundsBatch, BoundsWorkspace, PreparedNetwork};
+use crate::bounds::{AffineBounds, AffineBoundsBatch, BoundsWorkspace, PreparedNetwork};
 use crate::boxes::IntervalBox;
 use crate::filter::FilterPiece;
 use crate::intervals::Interval;
 use crate::rounding::round_up;
+
+#[path = "cpu_time.rs"]
+mod cpu_time;
+use cpu_time::in_frame;
 
 /// The CPU engine.
 #[derive(Clone, Copy, Debug, Default)]
@@ -45,6 +52,17 @@ struct Live {
     radius: f64,
     tube: Tube,
     done: bool,
+    /// Continuous time: this step's flowpipe in each frame (empty for the Euler map).
+    pipes: Vec<Option<Flowpipe>>,
+    /// Continuous time: the x-box of this step's flowpipes, met.
+    pipe_known: Option<IntervalBox>,
+    /// Continuous time: the hull of the flowpipes' x-boxes since the last sample.
+    swept: Option<IntervalBox>,
+    /// Continuous time: last step's field bounds per frame, to start the next enclosure from.
+    guess: Vec<Option<(Vec<f64>, Vec<f64>)>>,
+    /// Continuous time: per frame, the network's bounds over the enclosure the step's flowpipe
+    /// was proven on (where the network was bounded there).
+    pipe_nn: Vec<Option<AffineBounds>>,
 }
 
 impl Backend for CpuBackend {
@@ -61,6 +79,22 @@ impl Backend for CpuBackend {
     ) -> Result<ReachResult, ReachError> {
         problem.check_initial(initial)?;
         settings.validate()?;
+        problem.check_time()?;
+        let sampled = match problem.time {
+            TimeModel::Sampled { control_period }
+                if (control_period - problem.dt).abs() > 1e-9 * problem.dt =>
+            {
+                return Err(ReachError::Settings(format!(
+                    "time = \"sampled\" with control_period = {control_period}: the CPU engine \
+                     holds the control over one step, control_period = dt = {} (set dt to the \
+                     period)",
+                    problem.dt
+                )));
+            }
+            TimeModel::Sampled { .. } => true,
+            _ => false,
+        };
+        let x_problem = problem.in_x.as_deref().unwrap_or(problem);
         let start = Instant::now();
         let frames = problem
             .frames(settings)
@@ -69,10 +103,22 @@ impl Backend for CpuBackend {
                 Ok(Frame {
                     problem: p,
                     network: PreparedNetwork::new(&p.network)?,
-                    safe: p.safe_set_for(settings.method),
+                    // A digital filter does not keep the state in `S` between samples: sampled
+                    // sets are not clipped to it.
+                    safe: match sampled {
+                        true => &super::safe_set::NO_SAFE_SET,
+                        false => p.safe_set_for(settings.method),
+                    },
                 })
             })
             .collect::<Result<Vec<Frame>, ReachError>>()?;
+        let plant = match sampled {
+            true => Some((
+                Plant::of(problem.pieces.scenario()),
+                PreparedNetwork::new(&x_problem.network)?,
+            )),
+            false => None,
+        };
         let threads = rayon::current_num_threads().max(1);
         let accounted = AtomicUsize::new(0);
         let (n_boxes, steps) = (initial.len(), problem.steps);
@@ -87,6 +133,11 @@ impl Backend for CpuBackend {
             encloses: settings.exact_field() == ExactField::ClosedForm
                 && problem.pieces.has_closed_form(),
             report: &report,
+            time: problem.time,
+            substeps: problem.steps_per_dt(),
+            h: problem.dt / problem.steps_per_dt() as f64,
+            plant,
+            x_problem,
         };
         let mut live: Vec<Live> = initial.iter().map(|b| run.start(b)).collect();
         let chunk = chunk_len(live.len(), threads);
@@ -131,6 +182,11 @@ struct FrameBuffers {
     flat_hi: Vec<f64>,
     /// Per live box this step: how `v` is bounded ([`ChunkRun::step_input`]).
     inputs: Vec<StepInput>,
+    /// Continuous time: the network's bounds over one candidate enclosure.
+    pipe_bounds: BoundsWorkspace,
+    pipe_batch: AffineBoundsBatch,
+    /// The network's bounds of the last candidate enclosure, where it was bounded there.
+    pipe_nn: Option<AffineBounds>,
 }
 
 /// Buffers of one thread, reused across its chunks and steps.
@@ -163,6 +219,16 @@ struct ChunkRun<'a> {
     encloses: bool,
     /// Told how many box-steps were accounted for (run, or skipped by finished boxes).
     report: &'a (dyn Fn(usize) + Sync),
+    /// What the sets bound.
+    time: TimeModel,
+    /// Engine steps per `dt` (validated substeps in continuous time, else 1).
+    substeps: usize,
+    /// The engine's step, `dt / substeps`.
+    h: f64,
+    /// Sampled-data: the plant's parts and the network in x, for the intersample remainder.
+    plant: Option<(Plant, PreparedNetwork<'a>)>,
+    /// The problem in x coordinates (the first frame's without a transform).
+    x_problem: &'a ReachProblem,
 }
 
 /// What the frames of one box-step share ([`ChunkRun::set_facts`]).
@@ -201,6 +267,11 @@ impl ChunkRun<'_> {
             radius: 0.0,
             tube: Tube::new(initial.clone()),
             done: false,
+            pipes: Vec::new(),
+            pipe_known: None,
+            swept: None,
+            guess: vec![None; self.frames.len()],
+            pipe_nn: vec![None; self.frames.len()],
         };
         self.settle(&mut state, &vec![true; self.frames.len()]);
         let sample = self.sample(&state, 0.0);
@@ -384,7 +455,24 @@ impl ChunkRun<'_> {
         let (n, m) = (problem.dynamics.n, problem.dynamics.m);
         let set = &state.sets[frame];
         let mut minkowski_s = 0.0;
-        let (mut dl, mut du) = if self.settings.face_local {
+        let pipe = state.pipes.get(frame).and_then(Option::as_ref);
+        let (mut dl, mut du) = if let Some(pipe) = pipe.filter(|_| self.settings.face_local) {
+            let face =
+                |i: usize, up: bool| bounds_of(batch, slot * 2 * n + 2 * i + usize::from(up), n, m);
+            validated::slab_field(&problem.dynamics, set, pipe, self.h, face, margin)
+        } else if let Some(pipe) = pipe {
+            let nn = bounds_of(batch, slot, n, m);
+            let field =
+                validated::slab_field(&problem.dynamics, set, pipe, self.h, |_, _| nn, margin);
+            if self.settings.method == ReachMethod::Minkowski {
+                let clock = Instant::now();
+                let c = closeness_rate(problem, nn);
+                state.radius =
+                    closeness_step(state.radius, c, problem.input_gain, problem.m_c, self.h);
+                minkowski_s += clock.elapsed().as_secs_f64();
+            }
+            field
+        } else if self.settings.face_local {
             // (Minkowski is refused with face-local bounds: its rate needs one C.)
             let face =
                 |i: usize, up: bool| bounds_of(batch, slot * 2 * n + 2 * i + usize::from(up), n, m);
@@ -417,27 +505,40 @@ impl ChunkRun<'_> {
         buf.zeros.resize(m * n.max(1), 0.0);
         buf.frames
             .resize_with(self.frames.len(), FrameBuffers::default);
-        for step in 0..problem.steps {
+        let k = self.substeps;
+        for step in 0..problem.steps * k {
             if states.iter().all(|s| s.done) {
-                (self.report)((problem.steps - step) * states.len());
+                (self.report)((problem.steps - step / k) * states.len());
                 break;
+            }
+            if self.time == TimeModel::Continuous {
+                let t0 = (step / k) as f64 * problem.dt + (step % k) as f64 * self.h;
+                for state in states.iter_mut().filter(|s| !s.done) {
+                    self.enclose(state, buf, t0)?;
+                }
             }
             buf.facts.clear();
             let live = states.iter().filter(|s| !s.done);
-            buf.facts
-                .extend(live.map(|state| self.set_facts(&state.known)));
+            buf.facts.extend(
+                live.map(|state| self.set_facts(state.pipe_known.as_ref().unwrap_or(&state.known))),
+            );
             for (f, (frame, fb)) in self.frames.iter().zip(&mut buf.frames).enumerate() {
                 fb.flat_lo.clear();
                 fb.flat_hi.clear();
                 fb.inputs.clear();
                 let live = states.iter().filter(|s| !s.done);
                 for (state, &facts) in live.zip(&buf.facts) {
-                    let input = self.step_input(frame.problem, &state.known, facts);
+                    let known = state.pipe_known.as_ref().unwrap_or(&state.known);
+                    let input = self.step_input(frame.problem, known, facts);
                     fb.inputs.push(input);
                     if input.margin.is_none() {
                         continue;
                     }
                     let set = &state.sets[f];
+                    if let Some(Some(pipe)) = state.pipes.get(f) {
+                        self.push_pipe_boxes(fb, set, pipe);
+                        continue;
+                    }
                     let (lo, hi) = (&set.lower, &set.upper);
                     if settings.face_local {
                         // 2n faces per box, in the order (0, lower), (0, upper), (1, lower), …
@@ -462,24 +563,50 @@ impl ChunkRun<'_> {
                     )?;
                 }
             }
-            let t = (step + 1) as f64 * problem.dt;
-            let record = (step + 1) % self.every == 0 || step + 1 == problem.steps;
+            let last_sub = (step + 1) % k == 0;
+            let outer = step / k;
+            let t = match last_sub {
+                true => (outer + 1) as f64 * problem.dt,
+                false => outer as f64 * problem.dt + ((step % k) + 1) as f64 * self.h,
+            };
+            let record = last_sub && ((outer + 1) % self.every == 0 || outer + 1 == problem.steps);
             buf.slots.clear();
             buf.slots.resize(self.frames.len(), 0);
             let live = states.iter_mut().filter(|s| !s.done);
             for (k, state) in live.enumerate() {
                 buf.stepped.clear();
+                let Some(remainder) = self.sampled_remainder(state, buf.facts[k], t)? else {
+                    continue;
+                };
                 for (f, frame) in self.frames.iter().enumerate() {
                     let p = frame.problem;
                     let input = buf.frames[f].inputs[k];
                     let set = &state.sets[f];
-                    let exact = input
-                        .piece
-                        .map(|piece| Self::piece_field(p, set, piece, &buf.zeros));
-                    let enclosed = if input.piece.is_none() && self.encloses {
-                        self.enclosure_field(frame, set, &state.known, &mut buf.faces, &buf.zeros)
-                    } else {
-                        None
+                    let pipe = state.pipes.get(f).and_then(Option::as_ref);
+                    let exact = input.piece.map(|piece| match pipe {
+                        Some(pipe) => self.piece_slab_field(p, set, pipe, piece, &buf.zeros),
+                        None => Self::piece_field(p, set, piece, &buf.zeros),
+                    });
+                    // Continuous time, a proven piece: second-order rates too, met below.
+                    let taylor = match (pipe, input.piece) {
+                        (Some(pipe), Some(piece)) => {
+                            self.piece_taylor(p, set, pipe, piece, &buf.zeros)
+                        }
+                        _ => None,
+                    };
+                    let enclosed = match (pipe, input.piece.is_none() && self.encloses) {
+                        (_, false) => None,
+                        (Some(pipe), true) => {
+                            let known = state.pipe_known.as_ref().unwrap_or(&state.known);
+                            self.enclosure_slab_field(frame, set, pipe, known, &buf.zeros)
+                        }
+                        (None, true) => self.enclosure_field(
+                            frame,
+                            set,
+                            &state.known,
+                            &mut buf.faces,
+                            &buf.zeros,
+                        ),
                     };
                     if f == 0 {
                         state.tube.exact_steps += usize::from(exact.is_some());
@@ -494,28 +621,51 @@ impl ChunkRun<'_> {
                         let batch = &buf.frames[f].batch;
                         let (field, s) = self.network_field(p, state, f, batch, slot, &buf.margin);
                         minkowski_s += s;
-                        field
+                        // Continuous time: second-order rates from the bounds over the flowpipe.
+                        match self.network_taylor(p, state, f, &buf.margin) {
+                            Some(t) => meet_fields(field, t),
+                            None => field,
+                        }
                     });
-                    let field = [exact, enclosed, network]
+                    let field = [exact, taylor, enclosed, network]
                         .into_iter()
                         .flatten()
                         .reduce(meet_fields);
                     if let Some((dl, du)) = &field {
                         let set = &mut state.sets[f];
-                        embedding_step(&mut set.lower, &mut set.upper, dl, du, problem.dt);
+                        embedding_step(&mut set.lower, &mut set.upper, dl, du, self.h);
+                        if let Some(Some(pipe)) = state.pipes.get(f) {
+                            validated::meet_with_pipe(&mut set.lower, &mut set.upper, pipe);
+                        }
+                        let moves = |r: &&super::sampled::Remainder| {
+                            r.lower.iter().chain(&r.upper).any(|&v| v != 0.0)
+                        };
+                        if let Some(r) = remainder.as_ref().filter(moves) {
+                            let (lo, hi) = in_frame(p, r);
+                            embedding_step(&mut set.lower, &mut set.upper, &lo, &hi, 1.0);
+                        }
                     }
                     buf.stepped.push(field.is_some());
                 }
                 if !buf.stepped.iter().any(|&s| s) {
                     // The error map has no finite bound where the set is (e.g. where `v`
                     // jumps), in every frame: nothing sound can be said from here on.
-                    state.tube.end = TubeEnd::NoCertifiedBound { t: t - problem.dt };
+                    state.tube.end = TubeEnd::NoCertifiedBound { t: t - self.h };
                     state.done = true;
                     continue;
                 }
+                if let Some(r) = remainder {
+                    // The flowpipe of the period, for the checks against `C` and the samples.
+                    state.pipe_known = Some(r.pipe);
+                }
                 self.advance(state, t, record, &buf.stepped);
+                if self.plant.is_some() {
+                    state.pipe_known = None;
+                }
             }
-            (self.report)(states.len());
+            if last_sub {
+                (self.report)(states.len());
+            }
         }
         Ok(minkowski_s)
     }
@@ -549,8 +699,11 @@ impl ChunkRun<'_> {
             clip_to_safe_set(&mut set.lower, &mut set.upper, &f.safe.z);
         }
         self.settle(state, stepped);
-        let sample = self.sample(state, t);
+        let mut sample = self.sample(state, t);
         let problem = self.frames[0].problem;
+        if self.sweep(state, &mut sample, problem, t, record) {
+            return;
+        }
         if !sample.set.is_subset_of(&problem.region) {
             state.tube.end = TubeEnd::LeftRegion { t };
             state.tube.tube.push(sample);
@@ -637,78 +790,5 @@ fn closeness_rate(problem: &ReachProblem, nn: NetworkBoundsRef) -> f64 {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::network::Mlp;
-    use crate::reach::Transform;
-    use crate::scenario::Scenario;
-
-    /// With two frames, settling meets them: a frame that stepped keeps its set met with the
-    /// other's box in its coordinates, a frame that could not step is replaced by it, and
-    /// `known` is the meet of the x-boxes of the frames that stepped.
-    #[test]
-    fn settling_meets_the_frames_and_reseeds_one_that_could_not_step() {
-        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios");
-        let s = Scenario::load(&dir.join("double-integrator.toml")).unwrap();
-        let t = Transform::for_scenario(&s, &s.reach.transform).unwrap();
-        let net = Mlp::random(&[2, 8, 1], 3);
-        let problem = ReachProblem::with_transform(&s, net, 0.1, t).unwrap();
-        let settings = ReachSettings {
-            bounds: crate::bounds::BoundMethod::Crown,
-            exact: crate::reach::ExactField::Nowhere,
-            intersect_x: true,
-            ..ReachSettings::default()
-        };
-        let report = |_: usize| {};
-        let frames: Vec<Frame> = problem
-            .frames(&settings)
-            .into_iter()
-            .map(|p| Frame {
-                problem: p,
-                network: PreparedNetwork::new(&p.network).unwrap(),
-                safe: p.safe_set_for(settings.method),
-            })
-            .collect();
-        assert_eq!(frames.len(), 2);
-        let run = ChunkRun {
-            frames,
-            settings: &settings,
-            every: 1,
-            encloses: false,
-            report: &report,
-        };
-        let initial = IntervalBox::new(vec![0.9, 1.4], vec![1.1, 1.6]).unwrap();
-        let mut state = run.start(&initial);
-        // The parallelotope's x-box holds the initial box; their meet is the box itself.
-        assert_eq!(state.known, initial);
-        assert_eq!(state.sets[1], initial);
-        let z = state.sets[0].clone();
-        let z_hull = problem.x_box_in_safe_set(&z.lower, &z.upper, &problem.safe_set);
-        assert!(initial.is_subset_of(&z_hull) && initial != z_hull);
-
-        // The x frame could not step: whatever its set was, it becomes the parallelotope's x-box.
-        state.sets[1] = IntervalBox::new(vec![-100.0; 2], vec![100.0; 2]).unwrap();
-        run.settle(&mut state, &[true, false]);
-        assert_eq!(state.known, z_hull);
-        assert_eq!(state.sets[1], z_hull);
-        assert_eq!(state.sets[0], z);
-
-        // Both stepped, the x-box narrower: it is `known`, and the z-box shrinks around it
-        // while keeping the image of every one of its corners.
-        let narrow = IntervalBox::new(vec![0.95, 1.45], vec![1.0, 1.5]).unwrap();
-        state.sets[1] = narrow.clone();
-        run.settle(&mut state, &[true, true]);
-        assert_eq!(state.known, narrow);
-        let met = &state.sets[0];
-        assert!(met.is_subset_of(&z) && met.volume() < 0.5 * z.volume());
-        let tm = &problem.transform.as_ref().unwrap().t;
-        for x in narrow.corners() {
-            let zx = [tm[0] * x[0] + tm[1] * x[1], tm[2] * x[0] + tm[3] * x[1]];
-            for (i, v) in zx.into_iter().enumerate() {
-                assert!(met.lower[i] - 1e-12 <= v && v <= met.upper[i] + 1e-12);
-            }
-        }
-        let sample = run.sample(&state, 0.0);
-        assert_eq!(sample.set, narrow);
-    }
-}
+#[path = "cpu_tests.rs"]
+mod tests;

@@ -174,7 +174,7 @@ pub fn embedding_field_by_face<'a>(
 /// Row i of the interaction-aware matrix and its offset for constant `g = B`: for the lower
 /// side `m̲ᵢ = Σₖ B⁺ᵢₖ C̲ₖ + B⁻ᵢₖ C̄ₖ`, `δ̲ᵢ = Σₖ B⁺ᵢₖ d̲ₖ + B⁻ᵢₖ d̄ₖ` (so `Σₖ Bᵢₖ Nₖ(x) ≥ m̲ᵢ·x + δ̲ᵢ`),
 /// and symmetrically for the upper side; `d̲, d̄` widened by the disturbance.
-fn interaction_row(
+pub(super) fn interaction_row(
     b: &[f64],
     dynamics: &Dynamics,
     nn: NetworkBoundsRef,
@@ -207,7 +207,7 @@ fn interaction_row(
 }
 
 /// `[N̲ₖ − Mₖ, N̄ₖ + Mₖ]` per input.
-fn input_enclosure(nn: NetworkBoundsRef, margin: &[f64]) -> Vec<Interval> {
+pub(super) fn input_enclosure(nn: NetworkBoundsRef, margin: &[f64]) -> Vec<Interval> {
     margin
         .iter()
         .enumerate()

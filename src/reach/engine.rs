@@ -5,7 +5,7 @@
 use std::str::FromStr;
 use std::sync::Arc;
 
-use super::{Backend, CpuBackend, ReachProblem, ReachSettings, Unsupported};
+use super::{Backend, CpuBackend, ReachProblem, ReachSettings, TimeModel, Unsupported};
 use crate::gpu::{GpuBackend, GpuContext, GpuError, Precision};
 
 /// Which engine: `cpu`, `gpu`, or `auto` (the GPU when a real adapter exists and runs the
@@ -82,13 +82,15 @@ pub struct Engine {
 }
 
 /// The engine for `choice` on `gpu`'s adapter: `auto` takes the GPU where it runs `settings`'
-/// bounds and is a real GPU (a software adapter is many times slower than the CPU engine),
-/// else the CPU with a notice; a precision asked of an adapter without f64 shaders is an
-/// error, also with `auto`.
+/// bounds and the `time` model (the Euler map alone) and is a real GPU (a software adapter is
+/// many times slower than the CPU engine), else the CPU with a notice; a precision asked of an
+/// adapter without f64 shaders is an error, also with `auto`. `gpu` with another time model
+/// is refused by the GPU engine's `reach`.
 pub fn choose_engine(
     choice: EngineChoice,
     gpu: &GpuOptions,
     settings: &ReachSettings,
+    time: TimeModel,
 ) -> Result<Engine, EngineError> {
     let cpu = |notices: Vec<String>| Engine {
         backend: Box::new(CpuBackend),
@@ -101,6 +103,13 @@ pub fn choose_engine(
         return Ok(cpu(vec![]));
     }
     let auto = choice == EngineChoice::Auto;
+    if auto && time != TimeModel::Euler {
+        return Ok(cpu(vec![format!(
+            "notice: --backend auto: the GPU engine runs time = \"euler\" only; using the CPU \
+             for time = \"{}\"",
+            time.name()
+        )]));
+    }
     if auto && !GpuBackend::supports(settings) {
         return Ok(cpu(vec![format!(
             "notice: --backend auto: the GPU engine has no {} bounds yet; using the CPU",

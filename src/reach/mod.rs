@@ -21,9 +21,12 @@ pub mod embedding;
 pub mod engine;
 pub mod pieces;
 pub mod safe_set;
+pub mod sampled;
 pub mod settings;
+pub mod time;
 pub mod transform;
 pub mod tube;
+pub mod validated;
 
 use serde::Serialize;
 
@@ -34,6 +37,7 @@ use crate::network::Mlp;
 use crate::scenario::{Norm, Scenario};
 use embedding::Dynamics;
 pub use safe_set::SafeSet;
+pub use time::TimeModel;
 pub use transform::Transform;
 pub use tube::{Tube, TubeEnd, TubeSample};
 
@@ -118,6 +122,10 @@ pub struct ReachProblem {
     pub pieces: pieces::FilterPieces,
     /// With a transform: the same problem in x coordinates, for [`ReachSettings::intersect_x`].
     pub in_x: Option<Box<ReachProblem>>,
+    /// What the sets bound (the scenario's `[reach] time`; `euler` by default).
+    pub time: TimeModel,
+    /// Validated steps per `dt` ([`TimeModel::Continuous`]).
+    pub substeps: usize,
 }
 
 impl ReachProblem {
@@ -259,6 +267,8 @@ impl ReachProblem {
             safe_set,
             pieces,
             in_x,
+            time: scenario.reach.time,
+            substeps: scenario.reach.substeps,
         })
     }
 
@@ -399,6 +409,7 @@ impl ReachProblem {
             z_lower: transformed.then(|| lower.to_vec()),
             z_upper: transformed.then(|| upper.to_vec()),
             set,
+            flowpipe: None,
         }
     }
 

@@ -28,6 +28,10 @@ pub struct TubeSample {
     /// disturbance method (both within the safe set's half-spaces), the bounding box of the
     /// Minkowski sum otherwise.
     pub set: IntervalBox,
+    /// In continuous time: an x-box that holds every true state since the previous sample
+    /// (the steps' flowpipes), for checks that speak of all times.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub flowpipe: Option<IntervalBox>,
 }
 
 impl TubeSample {
@@ -58,6 +62,24 @@ pub enum TubeEnd {
         /// The start of the step that could not be taken.
         t: f64,
     },
+    /// Continuous time: the flowpipe of the step ending at `t` left the region `C`.
+    FlowpipeLeftRegion {
+        /// The start of the step whose flowpipe left `C`.
+        t: f64,
+    },
+    /// Continuous time: no a-priori enclosure of the step from `t` (Picard–Lindelöf did not
+    /// close with step `h`).
+    NoEnclosure {
+        /// The start of the step.
+        t: f64,
+        /// The validated step's size.
+        h: f64,
+    },
+    /// Sampled-data: no enclosure of the motion between samples from `t`.
+    NoIntersampleEnclosure {
+        /// The start of the period.
+        t: f64,
+    },
     /// The embedding state's lower corner passed its upper one at `t`.
     Inverted {
         /// The time of the step.
@@ -83,6 +105,9 @@ impl TubeEnd {
             TubeEnd::Horizon => None,
             TubeEnd::LeftRegion { t }
             | TubeEnd::NoCertifiedBound { t }
+            | TubeEnd::FlowpipeLeftRegion { t }
+            | TubeEnd::NoEnclosure { t, .. }
+            | TubeEnd::NoIntersampleEnclosure { t }
             | TubeEnd::Inverted { t }
             | TubeEnd::NonFinite { t } => Some(t),
         }
@@ -105,6 +130,17 @@ impl std::fmt::Display for TubeEnd {
                 f,
                 "t = {t:.3}: the set meets cells of the error map with no certified bound (M = ∞)"
             ),
+            TubeEnd::FlowpipeLeftRegion { t } => {
+                write!(f, "t = {t:.3}: the flowpipe of the step left the region C")
+            }
+            TubeEnd::NoEnclosure { t, h } => write!(
+                f,
+                "t = {t:.3}: no a-priori enclosure of the step (Picard–Lindelöf did not close \
+                 with h = {h}; more substeps may close it)"
+            ),
+            TubeEnd::NoIntersampleEnclosure { t } => {
+                write!(f, "t = {t:.3}: no enclosure of the motion between samples")
+            }
             TubeEnd::Inverted { t } => became(f, t, "inverted"),
             TubeEnd::NonFinite { t } => became(f, t, "non-finite"),
         }

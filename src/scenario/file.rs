@@ -158,6 +158,15 @@ pub struct ReachSection {
     /// (`z = T x`, rows).
     #[serde(default)]
     pub transform: Option<TransformSpec>,
+    /// What the sets bound: `"euler"` (default for now), `"continuous"` or `"sampled"`.
+    #[serde(default)]
+    pub time: Option<String>,
+    /// `T_s` of `time = "sampled"`, a multiple of `dt` (default `dt`).
+    #[serde(default)]
+    pub control_period: Option<f64>,
+    /// Validated steps per `dt` in continuous time (default 1).
+    #[serde(default)]
+    pub substeps: Option<usize>,
 }
 
 /// `reach.transform` as written.

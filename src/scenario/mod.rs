@@ -205,6 +205,10 @@ pub struct ReachConfig {
     pub initial: Vec<IntervalBox>,
     /// Coordinates of the embedding.
     pub transform: TransformChoice,
+    /// What the sets bound.
+    pub time: crate::reach::TimeModel,
+    /// Validated steps per `dt` in continuous time.
+    pub substeps: usize,
 }
 
 impl ReachConfig {
@@ -706,7 +710,16 @@ fn compile_reach(c: &Compiler, r: &ReachSection, n: usize) -> Result<ReachConfig
             TransformChoice::Matrix(flat)
         }
     };
+    let time =
+        crate::reach::TimeModel::parse(r.time.as_deref().unwrap_or("euler"), r.control_period, dt)
+            .map_err(|e| c.invalid("reach.time", e))?;
+    let substeps = r.substeps.unwrap_or(1);
+    if substeps == 0 {
+        return Err(c.invalid("reach.substeps", "expected a whole number ≥ 1"));
+    }
     Ok(ReachConfig {
+        time,
+        substeps,
         transform,
         region,
         norm,

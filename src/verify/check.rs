@@ -26,7 +26,8 @@ pub struct SimulationCheck {
 
 /// An independent check of the verdicts: simulates a `per_axis`ⁿ grid of starts (corners
 /// included) in every `converges` or `trapped` leaf of `report` with the ground-truth filter
-/// (Euler at the scenario's `dt` over its horizon, as the engine integrates) and checks that
+/// (the system the sets bound over the scenario's horizon: RK4 at `dt/10` in continuous time,
+/// the control held over `dt` when sampled, Euler at `dt` for the Euler map) and checks that
 /// each trajectory ends in the goal set or in its trap box. The sets bound the filtered system,
 /// so a disagreement means a bug, an unsound `M`, or Euler's error across a basin boundary.
 pub fn simulation_check(s: &Scenario, report: &VerifyReport, per_axis: usize) -> SimulationCheck {
@@ -63,7 +64,21 @@ pub fn simulation_check(s: &Scenario, report: &VerifyReport, per_axis: usize) ->
                     .map(|d| fraction(code / k.pow(d as u32) % k))
                     .collect();
                 let x0 = b.initial.point_at(&at);
-                let tr = simulate_filtered(&filter, &x0, s.reach.dt, steps, Integrator::Euler);
+                // The system the sets bound (`RunInfo::time`): the ODE by RK4 at dt/10, the
+                // held control, or the Euler map.
+                let tr = match report.run.time.split(' ').next() {
+                    Some("continuous") => simulate_filtered(
+                        &filter,
+                        &x0,
+                        s.reach.dt / 10.0,
+                        10 * steps,
+                        Integrator::Rk4,
+                    ),
+                    Some("sampled") => {
+                        simulate_filtered(&filter, &x0, s.reach.dt, steps, Integrator::Zoh)
+                    }
+                    _ => simulate_filtered(&filter, &x0, s.reach.dt, steps, Integrator::Euler),
+                };
                 out.starts += 1;
                 if tr.stopped.is_some() && b.feasible == Some(true) {
                     // The QP was proven feasible on every set, and the sets hold the Euler

@@ -105,6 +105,10 @@ pub struct RunInfo {
     pub dt: f64,
     /// Euler steps.
     pub steps: usize,
+    /// What the sets bound (`reach::TimeModel`): `continuous`, `sampled (T_s = …)`, `euler`
+    /// (files from before the setting existed: empty, and their sets bound the Euler map).
+    #[serde(default)]
+    pub time: String,
     /// Whether the embedding ran in transformed coordinates.
     pub transformed: bool,
     /// The CBFs whose half-spaces bounded the sets (`reach::safe_set`; empty with

@@ -278,6 +278,7 @@ impl<'a> Verifier<'a> {
                 intersect_x: self.problem.frames(&self.reach).len() > 1,
                 dt: self.problem.dt,
                 steps: self.problem.steps,
+                time: self.problem.time.to_string(),
                 transformed: self.problem.transform.is_some(),
                 safe_set: (self.problem.safe_set_for(self.reach.method).names())
                     .into_iter()

@@ -1,0 +1,80 @@
+//! Unit tests of the CPU engine (`reach::cpu`).
+
+use super::*;
+use crate::network::Mlp;
+use crate::reach::Transform;
+use crate::scenario::Scenario;
+
+/// With two frames, settling meets them: a frame that stepped keeps its set met with the
+/// other's box in its coordinates, a frame that could not step is replaced by it, and
+/// `known` is the meet of the x-boxes of the frames that stepped.
+#[test]
+fn settling_meets_the_frames_and_reseeds_one_that_could_not_step() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios");
+    let s = Scenario::load(&dir.join("double-integrator.toml")).unwrap();
+    let t = Transform::for_scenario(&s, &s.reach.transform).unwrap();
+    let net = Mlp::random(&[2, 8, 1], 3);
+    let problem = ReachProblem::with_transform(&s, net, 0.1, t).unwrap();
+    let settings = ReachSettings {
+        bounds: crate::bounds::BoundMethod::Crown,
+        exact: crate::reach::ExactField::Nowhere,
+        intersect_x: true,
+        ..ReachSettings::default()
+    };
+    let report = |_: usize| {};
+    let frames: Vec<Frame> = problem
+        .frames(&settings)
+        .into_iter()
+        .map(|p| Frame {
+            problem: p,
+            network: PreparedNetwork::new(&p.network).unwrap(),
+            safe: p.safe_set_for(settings.method),
+        })
+        .collect();
+    assert_eq!(frames.len(), 2);
+    let run = ChunkRun {
+        frames,
+        settings: &settings,
+        every: 1,
+        encloses: false,
+        report: &report,
+        time: problem.time,
+        substeps: 1,
+        h: problem.dt,
+        plant: None,
+        x_problem: &problem,
+    };
+    let initial = IntervalBox::new(vec![0.9, 1.4], vec![1.1, 1.6]).unwrap();
+    let mut state = run.start(&initial);
+    // The parallelotope's x-box holds the initial box; their meet is the box itself.
+    assert_eq!(state.known, initial);
+    assert_eq!(state.sets[1], initial);
+    let z = state.sets[0].clone();
+    let z_hull = problem.x_box_in_safe_set(&z.lower, &z.upper, &problem.safe_set);
+    assert!(initial.is_subset_of(&z_hull) && initial != z_hull);
+
+    // The x frame could not step: whatever its set was, it becomes the parallelotope's x-box.
+    state.sets[1] = IntervalBox::new(vec![-100.0; 2], vec![100.0; 2]).unwrap();
+    run.settle(&mut state, &[true, false]);
+    assert_eq!(state.known, z_hull);
+    assert_eq!(state.sets[1], z_hull);
+    assert_eq!(state.sets[0], z);
+
+    // Both stepped, the x-box narrower: it is `known`, and the z-box shrinks around it
+    // while keeping the image of every one of its corners.
+    let narrow = IntervalBox::new(vec![0.95, 1.45], vec![1.0, 1.5]).unwrap();
+    state.sets[1] = narrow.clone();
+    run.settle(&mut state, &[true, true]);
+    assert_eq!(state.known, narrow);
+    let met = &state.sets[0];
+    assert!(met.is_subset_of(&z) && met.volume() < 0.5 * z.volume());
+    let tm = &problem.transform.as_ref().unwrap().t;
+    for x in narrow.corners() {
+        let zx = [tm[0] * x[0] + tm[1] * x[1], tm[2] * x[0] + tm[3] * x[1]];
+        for (i, v) in zx.into_iter().enumerate() {
+            assert!(met.lower[i] - 1e-12 <= v && v <= met.upper[i] + 1e-12);
+        }
+    }
+    let sample = run.sample(&state, 0.0);
+    assert_eq!(sample.set, narrow);
+}

@@ -1,0 +1,427 @@
+//! The CPU engine's steps for the time models besides the Euler map (issue 36): the
+//! continuous-time enclosure of each step and its fields on slabs ([`validated`]), and the
+//! sampled-data intersample remainder ([`crate::reach::sampled`]). A child of `reach::cpu`
+//! (it works on that engine's chunk state); imports what `cpu` imports.
+
+use super::*;
+
+/// Continuous time ([`TimeModel::Continuous`], [`validated`]): the a-priori enclosure of each
+/// step and the field on slabs of it.
+impl ChunkRun<'_> {
+    /// Encloses the next step of every frame's set (Picard–Lindelöf); the step's facts and
+    /// bounds then come from the flowpipe. Ends the tube where no enclosure closes.
+    pub(super) fn enclose(
+        &self,
+        state: &mut Live,
+        buf: &mut ChunkBuffers,
+        t0: f64,
+    ) -> Result<(), ReachError> {
+        let ChunkBuffers { frames, zeros, .. } = buf;
+        state.pipes.clear();
+        for (f, frame) in self.frames.iter().enumerate() {
+            let guess = state.guess[f].as_ref().map(|(l, u)| (&l[..], &u[..]));
+            let fb = &mut frames[f];
+            let found = validated::enclose_step(&state.sets[f], self.h, guess, |a| {
+                self.field_on_box(frame, a, fb, zeros)
+            })?;
+            state.tube.end = match found {
+                Enclosure::Closed(pipe) => {
+                    state.guess[f] = Some((pipe.f_lower.clone(), pipe.f_upper.clone()));
+                    state.pipe_nn[f] = fb.pipe_nn.take();
+                    state.pipes.push(Some(pipe));
+                    continue;
+                }
+                // The step's enclosure meets cells of the error map with no certified bound.
+                Enclosure::NoField => TubeEnd::NoCertifiedBound { t: t0 },
+                Enclosure::Open => TubeEnd::NoEnclosure { t: t0, h: self.h },
+            };
+            state.done = true;
+            return Ok(());
+        }
+        let known = self
+            .frames
+            .iter()
+            .zip(&state.pipes)
+            .filter_map(|(f, p)| {
+                let p = p.as_ref()?;
+                Some(
+                    f.problem
+                        .x_box_in_safe_set(&p.set.lower, &p.set.upper, f.safe),
+                )
+            })
+            .reduce(|a, b| a.intersection(&b).unwrap_or(a));
+        if self.frames.len() > 1 {
+            if let Some(known) = &known {
+                for (f, pipe) in self.frames.iter().zip(state.pipes.iter_mut().flatten()) {
+                    let around = f.problem.frame_box(known);
+                    if let Some(met) = pipe.set.intersection(&around) {
+                        pipe.set = met;
+                    }
+                }
+            }
+        }
+        state.pipe_known = known;
+        Ok(())
+    }
+
+    /// Bounds of the filtered field (the method's system) over the whole box `a` of one frame:
+    /// the meet of the filter's proven piece, its enclosures, and the network's bounds over `a`
+    /// plus the error margin there; `None` where none is sound.
+    pub(super) fn field_on_box(
+        &self,
+        frame: &Frame,
+        a: &IntervalBox,
+        fb: &mut FrameBuffers,
+        zeros: &[f64],
+    ) -> Result<Option<Rates>, ReachError> {
+        let p = frame.problem;
+        let (n, m) = (p.dynamics.n, p.dynamics.m);
+        let x_box = p.x_box_in_safe_set(&a.lower, &a.upper, frame.safe);
+        let input = self.step_input(p, &x_box, self.set_facts(&x_box));
+        fb.pipe_nn = None;
+        let exact = input.piece.map(|(piece, slack)| {
+            let dynamics = match piece {
+                FilterPiece::Inactive => &p.dynamics,
+                FilterPiece::Binding(k) => &p.pieces.binding_field(k).dynamics,
+            };
+            let zero = zero_bounds(zeros, n, m);
+            let (mut dl, mut du) =
+                validated::field_over(dynamics, &a.lower, &a.upper, zero, zero.b_lower);
+            widen_by(&mut dl, &mut du, slack);
+            (dl, du)
+        });
+        let enclosed = match input.piece.is_none() && self.encloses {
+            true => p
+                .pieces
+                .enclosure(&x_box)
+                .filter(|v| v.iter().all(|e| e.lower.is_finite() && e.upper.is_finite())),
+            false => None,
+        }
+        .map(|v| {
+            let (lo, hi): (Vec<f64>, Vec<f64>) = v.iter().map(|e| (e.lower, e.upper)).unzip();
+            let consts = constant_bounds(zeros, &lo, &hi, n);
+            let (mut dl, mut du) =
+                validated::field_over(&p.dynamics, &a.lower, &a.upper, consts, &zeros[..m]);
+            widen_by(&mut dl, &mut du, p.pieces.field_slack(&x_box, &v));
+            (dl, du)
+        });
+        let network = match input.margin {
+            Some(bound) => {
+                frame.network.bounds_serial_into(
+                    &a.lower,
+                    &a.upper,
+                    self.settings.bounds,
+                    &mut fb.pipe_bounds,
+                    &mut fb.pipe_batch,
+                )?;
+                let nn = bounds_of(&fb.pipe_batch, 0, n, m);
+                fb.pipe_nn = Some(AffineBounds {
+                    a_lower: nn.a_lower.to_vec(),
+                    b_lower: nn.b_lower.to_vec(),
+                    a_upper: nn.a_upper.to_vec(),
+                    b_upper: nn.b_upper.to_vec(),
+                    lower: nn.lower.to_vec(),
+                    upper: nn.upper.to_vec(),
+                    n_in: n,
+                    n_out: m,
+                });
+                let margin = vec![bound; m];
+                let (mut dl, mut du) =
+                    validated::field_over(&p.dynamics, &a.lower, &a.upper, nn, &margin);
+                widen_by(&mut dl, &mut du, p.field_slack);
+                Some((dl, du))
+            }
+            None => None,
+        };
+        Ok([exact, enclosed, network]
+            .into_iter()
+            .flatten()
+            .reduce(meet_fields))
+    }
+
+    /// [`ChunkRun::piece_field`] on the slabs of a flowpipe.
+    pub(super) fn piece_slab_field(
+        &self,
+        problem: &ReachProblem,
+        set: &IntervalBox,
+        pipe: &Flowpipe,
+        (piece, slack): (FilterPiece, f64),
+        zeros: &[f64],
+    ) -> (Vec<f64>, Vec<f64>) {
+        let (n, m) = (problem.dynamics.n, problem.dynamics.m);
+        let dynamics = match piece {
+            FilterPiece::Inactive => &problem.dynamics,
+            FilterPiece::Binding(k) => &problem.pieces.binding_field(k).dynamics,
+        };
+        let zero = zero_bounds(zeros, n, m);
+        let (mut dl, mut du) =
+            validated::slab_field(dynamics, set, pipe, self.h, |_, _| zero, zero.b_lower);
+        widen_by(&mut dl, &mut du, slack);
+        (dl, du)
+    }
+
+    /// [`ChunkRun::enclosure_field`] on the slabs of a flowpipe: `v` enclosed by its closed form
+    /// on each slab's x-box (met with `known`, the flowpipes' x-box).
+    pub(super) fn enclosure_slab_field(
+        &self,
+        frame: &Frame,
+        set: &IntervalBox,
+        pipe: &Flowpipe,
+        known: &IntervalBox,
+        zeros: &[f64],
+    ) -> Option<(Vec<f64>, Vec<f64>)> {
+        let problem = frame.problem;
+        let (n, m) = (problem.dynamics.n, problem.dynamics.m);
+        let mut slack = 0.0_f64;
+        let mut ends = Vec::with_capacity(2 * n);
+        for (lo, hi) in validated::slabs(set, pipe, self.h) {
+            let x_box = problem.x_box_in_safe_set(&lo, &hi, frame.safe);
+            let x_box = x_box.intersection(known).unwrap_or(x_box);
+            let v = problem.pieces.enclosure(&x_box)?;
+            if !v.iter().all(|e| e.lower.is_finite() && e.upper.is_finite()) {
+                return None;
+            }
+            slack = slack.max(problem.pieces.field_slack(&x_box, &v));
+            let (l, u): (Vec<f64>, Vec<f64>) = v.iter().map(|e| (e.lower, e.upper)).unzip();
+            ends.push((l, u));
+        }
+        let face = |i: usize, up: bool| {
+            let (l, u) = &ends[2 * i + usize::from(up)];
+            constant_bounds(zeros, l, u, n)
+        };
+        let (mut dl, mut du) =
+            validated::slab_field(&problem.dynamics, set, pipe, self.h, face, &zeros[..m]);
+        widen_by(&mut dl, &mut du, slack);
+        Some((dl, du))
+    }
+}
+
+/// Continuous time: the boxes to bound the network on, second-order rates (met with the
+/// first-order ones by the caller) and the flowpipe since the last sample.
+impl ChunkRun<'_> {
+    /// Queues the boxes of one set's network bounds: slabs for faces, the flowpipe for the
+    /// whole set.
+    pub(super) fn push_pipe_boxes(
+        &self,
+        fb: &mut FrameBuffers,
+        set: &IntervalBox,
+        pipe: &Flowpipe,
+    ) {
+        if self.settings.face_local {
+            for (lo, hi) in validated::slabs(set, pipe, self.h) {
+                fb.flat_lo.extend(lo);
+                fb.flat_hi.extend(hi);
+            }
+        } else {
+            fb.flat_lo.extend(&pipe.set.lower);
+            fb.flat_hi.extend(&pipe.set.upper);
+        }
+    }
+
+    /// The flowpipe since the last sample, which must lie in `C` too: kept for the next
+    /// recorded sample, or put in `sample` when it is recorded or leaves `C`. Returns true
+    /// (the tube ended, `sample` pushed) where it leaves `C`.
+    pub(super) fn sweep(
+        &self,
+        state: &mut Live,
+        sample: &mut TubeSample,
+        problem: &ReachProblem,
+        t: f64,
+        record: bool,
+    ) -> bool {
+        let Some(pipe) = &state.pipe_known else {
+            return false;
+        };
+        let swept = match state.swept.take() {
+            Some(s) => hull(&s, pipe),
+            None => pipe.clone(),
+        };
+        let left = !swept.is_subset_of(&problem.region);
+        if record || left {
+            sample.flowpipe = Some(swept);
+        } else {
+            state.swept = Some(swept);
+        }
+        if left {
+            state.tube.end = TubeEnd::FlowpipeLeftRegion { t: t - self.h };
+            state.tube.tube.push(sample.clone());
+            state.done = true;
+        }
+        left
+    }
+
+    /// Where the filter is proven one smooth piece on the set: the Taylor rates of that
+    /// piece's field over the flowpipe ([`validated::taylor_rates`]).
+    pub(super) fn piece_taylor(
+        &self,
+        p: &ReachProblem,
+        set: &IntervalBox,
+        pipe: &Flowpipe,
+        piece: (FilterPiece, f64),
+        zeros: &[f64],
+    ) -> Option<Rates> {
+        let euler = Self::piece_field(p, set, piece, zeros);
+        let dynamics = match piece.0 {
+            FilterPiece::Inactive => &p.dynamics,
+            FilterPiece::Binding(k) => &p.pieces.binding_field(k).dynamics,
+        };
+        validated::taylor_rates(dynamics, set, pipe, self.h, euler)
+    }
+
+    /// Network steps: the Taylor rates from the network's bounds over the flowpipe of frame
+    /// `f` (where the network was bounded there), widened by the transform's field slack.
+    pub(super) fn network_taylor(
+        &self,
+        p: &ReachProblem,
+        state: &Live,
+        f: usize,
+        margin: &[f64],
+    ) -> Option<Rates> {
+        match (state.pipes.get(f), state.pipe_nn.get(f)) {
+            (Some(Some(pipe)), Some(Some(nn))) => {
+                let nn = NetworkBoundsRef {
+                    a_lower: &nn.a_lower,
+                    b_lower: &nn.b_lower,
+                    a_upper: &nn.a_upper,
+                    b_upper: &nn.b_upper,
+                    lower: &nn.lower,
+                    upper: &nn.upper,
+                };
+                let set = &state.sets[f];
+                validated::taylor_network_rates(&p.dynamics, set, pipe, self.h, nn, margin).map(
+                    |(mut dl, mut du)| {
+                        widen_by(&mut dl, &mut du, p.field_slack);
+                        (dl, du)
+                    },
+                )
+            }
+            _ => None,
+        }
+    }
+}
+
+/// Sampled-data ([`TimeModel::Sampled`], [`crate::reach::sampled`]): the intersample remainder.
+impl ChunkRun<'_> {
+    /// The step's remainder where the run is sampled (`Some(None)` otherwise); `None`, the
+    /// tube ended, where the motion between samples has no enclosure.
+    pub(super) fn sampled_remainder(
+        &self,
+        state: &mut Live,
+        facts: SetFacts,
+        t: f64,
+    ) -> Result<Option<Option<crate::reach::sampled::Remainder>>, ReachError> {
+        let Some(plant) = &self.plant else {
+            return Ok(Some(None));
+        };
+        match self.remainder(plant, &state.known, facts)? {
+            Some(r) => Ok(Some(Some(r))),
+            None => {
+                state.tube.end = TubeEnd::NoIntersampleEnclosure { t: t - self.h };
+                state.done = true;
+                Ok(None)
+            }
+        }
+    }
+
+    /// The remainder of one period from the x-box `known` of the set, with the held input
+    /// `κ(X) + v`, `v` enclosed by the network's bounds on `X` plus the error margin (or 0 where
+    /// the filter is proven inactive), met with the closed form's enclosure where there is one.
+    pub(super) fn remainder(
+        &self,
+        (plant, x_net): &(Plant, PreparedNetwork),
+        known: &IntervalBox,
+        facts: SetFacts,
+    ) -> Result<Option<crate::reach::sampled::Remainder>, ReachError> {
+        let n = known.dim();
+        if plant.is_still() {
+            let zero = vec![0.0; n];
+            return Ok(Some(crate::reach::sampled::Remainder {
+                lower: zero.clone(),
+                upper: zero,
+                pipe: known.clone(),
+            }));
+        }
+        let xp = self.x_problem;
+        let m = xp.dynamics.m;
+        let mut v = match facts.piece {
+            Some(FilterPiece::Inactive) => vec![Interval::point(0.0); m],
+            _ => match facts.m.filter(|m| m.is_finite()) {
+                Some(margin) => {
+                    let b = x_net.bounds(&known.lower, &known.upper, self.settings.bounds)?;
+                    (0..m)
+                        .map(|k| {
+                            let lo = Interval::point(b.lower[k]) - Interval::point(margin);
+                            let hi = Interval::point(b.upper[k]) + Interval::point(margin);
+                            Interval::new(lo.lower, hi.upper)
+                        })
+                        .collect()
+                }
+                None => vec![Interval::new(f64::NEG_INFINITY, f64::INFINITY); m],
+            },
+        };
+        if let Some(e) = xp.pieces.enclosure(known) {
+            for (vk, ek) in v.iter_mut().zip(e) {
+                if let Some(met) = vk.intersection(&ek) {
+                    *vk = met;
+                }
+            }
+        }
+        if !v.iter().all(|e| e.lower.is_finite() && e.upper.is_finite()) {
+            return Ok(None);
+        }
+        let u = plant.held_input(known, &v);
+        Ok(plant.remainder(known, &u, self.h))
+    }
+}
+
+/// The remainder's bounds in a frame's coordinates: `T·R` widened by the transform's `ρ`.
+pub(super) fn in_frame(
+    problem: &ReachProblem,
+    r: &crate::reach::sampled::Remainder,
+) -> (Vec<f64>, Vec<f64>) {
+    let Some(t) = &problem.transform else {
+        return (r.lower.clone(), r.upper.clone());
+    };
+    let n = t.n;
+    let rx: Vec<Interval> = (0..n)
+        .map(|j| Interval::new(r.lower[j], r.upper[j]))
+        .collect();
+    let rz: Vec<Interval> = (0..n)
+        .map(|i| {
+            (0..n).fold(Interval::point(0.0), |acc, j| {
+                acc + Interval::point(t.t[i * n + j]) * rx[j]
+            })
+        })
+        .collect();
+    let size = rz.iter().map(|e| e.mag()).fold(0.0, f64::max);
+    let slack = round_up(t.rho * size);
+    (
+        rz.iter()
+            .map(|e| (Interval::point(e.lower) - Interval::point(slack)).lower)
+            .collect(),
+        rz.iter()
+            .map(|e| (Interval::point(e.upper) + Interval::point(slack)).upper)
+            .collect(),
+    )
+}
+
+/// Lower and upper rates of one step, `(dx̲/dt, dx̄/dt)`.
+type Rates = (Vec<f64>, Vec<f64>);
+
+/// The smallest box holding both.
+pub(super) fn hull(a: &IntervalBox, b: &IntervalBox) -> IntervalBox {
+    IntervalBox {
+        lower: a
+            .lower
+            .iter()
+            .zip(&b.lower)
+            .map(|(x, y)| x.min(*y))
+            .collect(),
+        upper: a
+            .upper
+            .iter()
+            .zip(&b.upper)
+            .map(|(x, y)| x.max(*y))
+            .collect(),
+    }
+}

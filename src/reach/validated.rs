@@ -1,0 +1,464 @@
+//! The validated step of the embedding system in continuous time (issue 36, DESIGN §3 Time):
+//! an a-priori enclosure of the step by Picard–Lindelöf, then the comparison principle on slabs.
+//! Imports the embedding's field terms ([`super::embedding`]), intervals and boxes only.
+//!
+//! Why it is sound (for one coordinate frame; z = Tx is the same in z):
+//!
+//! 1. *Enclosure.* Let `F(A) = [F̲, F̄]` bound the filtered field on `A ∩ S` and
+//!    `B = X + [0, h]·F(A)` (per coordinate `[x̲ᵢ + h·min(0, F̲ᵢ), x̄ᵢ + h·max(0, F̄ᵢ)]`). If `B`
+//!    lies in the interior of `A`, every trajectory from `X` stays in `B` over `[t, t + h]`: let
+//!    `t₁` be the last time up to which it stayed in `A`; up to `t₁` its derivative lies in
+//!    `F(A)` (it stays in `S`, where the filter keeps it), so `x(t₁) ∈ B ⊂ int A`, and by
+//!    continuity it stays in `A` a while longer — so `t₁ = t + h`, and `x([t, t + h]) ⊆ B`.
+//! 2. *Slabs.* Take `sᵢ ≥ sup{Fᵢ(x) : x ∈ B, xᵢ ∈ Iᵢ}` with the slab
+//!    `Iᵢ = [x̄ᵢ + h·min(0, F̲ᵢ), x̄ᵢ + h·max(0, F̄ᵢ)]`, and `u(τ) = x̄ᵢ + τ(sᵢ + ε)`. A trajectory
+//!    that first reaches `u` at `τ* ∈ [0, h]` does so at a state `x(τ*) ∈ B` whose `i`-th
+//!    coordinate is at most `x̄ᵢ + τ*·F̄ᵢ` (it started below `x̄ᵢ` and moved at rate ≤ `F̄ᵢ`) and
+//!    at least `x̄ᵢ + h·min(0, sᵢ) ≥ x̄ᵢ + h·min(0, F̲ᵢ)` (`sᵢ ≥ F̲ᵢ`: the slab meets `B` at
+//!    `xᵢ = x̄ᵢ`): `x(τ*)` lies in the slab, so `ẋᵢ(τ*) ≤ sᵢ < u'`, and it cannot cross. With
+//!    `ε → 0`, `xᵢ ≤ x̄ᵢ + τ·sᵢ` on the whole step; mirrored for `x̲ᵢ`. The embedding's face
+//!    bounds (mean-value form, interaction-aware network forms, face-local network bounds, the
+//!    filter's pieces and enclosures) apply unchanged with the slab `{x ∈ B, xᵢ ∈ Iᵢ}` in
+//!    place of the face `{x ∈ X, xᵢ = x̄ᵢ}`, and every bound over a whole set with `B` in
+//!    place of `X`. Slabs have width `O(h)`, so the loss per step is `O(h²)`.
+
+use super::embedding::{input_enclosure, interaction_row, Dynamics, NetworkBoundsRef};
+use crate::boxes::IntervalBox;
+use crate::intervals::Interval;
+use crate::rounding::{round_down, round_up};
+
+/// Tries of the a-priori enclosure before a step gives up.
+const TRIES: usize = 8;
+
+/// The enclosure of one step in one frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Flowpipe {
+    /// `B ⊇ x([t, t + h])` for every trajectory from the set.
+    pub set: IntervalBox,
+    /// `F̲(A)`: lower bounds of the field over the enclosure the closure was proven on.
+    pub f_lower: Vec<f64>,
+    /// `F̄(A)`.
+    pub f_upper: Vec<f64>,
+}
+
+/// What [`enclose_step`] found.
+#[derive(Clone, Debug)]
+pub enum Enclosure {
+    /// A flowpipe.
+    Closed(Flowpipe),
+    /// No sound field on a candidate (e.g. the error map has no finite bound there).
+    NoField,
+    /// Picard–Lindelöf did not close in [`TRIES`] tries.
+    Open,
+}
+
+fn point(x: f64) -> Interval {
+    Interval::point(x)
+}
+
+/// `X + [0, h]·[F̲, F̄]`, rounded outward.
+fn sweep(set: &IntervalBox, h: f64, f_lower: &[f64], f_upper: &[f64]) -> IntervalBox {
+    let lower = (0..set.dim())
+        .map(|i| (point(set.lower[i]) + point(h) * point(f_lower[i].min(0.0))).lower)
+        .collect();
+    let upper = (0..set.dim())
+        .map(|i| (point(set.upper[i]) + point(h) * point(f_upper[i].max(0.0))).upper)
+        .collect();
+    IntervalBox { lower, upper }
+}
+
+/// `b` grown by 10 % of its width and a little more on every side.
+fn inflate(b: &IntervalBox) -> IntervalBox {
+    let grow = |l: f64, u: f64| 0.1 * (u - l) + 1e-9 * (1.0 + l.abs().max(u.abs()));
+    IntervalBox {
+        lower: (0..b.dim())
+            .map(|i| round_down(b.lower[i] - grow(b.lower[i], b.upper[i])))
+            .collect(),
+        upper: (0..b.dim())
+            .map(|i| round_up(b.upper[i] + grow(b.lower[i], b.upper[i])))
+            .collect(),
+    }
+}
+
+/// Whether `b` lies in the interior of `a`.
+fn strictly_inside(b: &IntervalBox, a: &IntervalBox) -> bool {
+    (0..a.dim()).all(|i| a.lower[i] < b.lower[i] && b.upper[i] < a.upper[i])
+}
+
+/// The a-priori enclosure of a step of length `h` from `set` (Picard–Lindelöf, item 1 of the
+/// module's argument): candidates `A` from `guess` (last step's field bounds, else the field on
+/// the set itself), inflated and retried; `field(A)` must bound the filtered field on `A` (met
+/// with `S`).
+pub fn enclose_step<E>(
+    set: &IntervalBox,
+    h: f64,
+    guess: Option<(&[f64], &[f64])>,
+    mut field: impl FnMut(&IntervalBox) -> Result<Option<(Vec<f64>, Vec<f64>)>, E>,
+) -> Result<Enclosure, E> {
+    let mut a = match guess {
+        Some((lo, hi)) => inflate(&sweep(set, h, lo, hi)),
+        None => match field(set)? {
+            Some((lo, hi)) => inflate(&sweep(set, h, &lo, &hi)),
+            None => return Ok(Enclosure::NoField),
+        },
+    };
+    for _ in 0..TRIES {
+        let Some((lo, hi)) = field(&a)? else {
+            return Ok(Enclosure::NoField);
+        };
+        let b = sweep(set, h, &lo, &hi);
+        if strictly_inside(&b, &a) {
+            return Ok(Enclosure::Closed(Flowpipe {
+                set: b,
+                f_lower: lo,
+                f_upper: hi,
+            }));
+        }
+        let grown = IntervalBox {
+            lower: (0..a.dim()).map(|i| a.lower[i].min(b.lower[i])).collect(),
+            upper: (0..a.dim()).map(|i| a.upper[i].max(b.upper[i])).collect(),
+        };
+        a = inflate(&grown);
+        if a.lower.iter().chain(&a.upper).any(|v| !v.is_finite()) {
+            break;
+        }
+    }
+    Ok(Enclosure::Open)
+}
+
+/// The slab of coordinate `i` at the set's upper (`on_upper`) or lower end: the flowpipe with
+/// `xᵢ` in `[e + h·min(0, F̲ᵢ), e + h·max(0, F̄ᵢ)]`, `e` that end, met with the flowpipe.
+pub fn slab(
+    set: &IntervalBox,
+    pipe: &Flowpipe,
+    h: f64,
+    i: usize,
+    on_upper: bool,
+) -> (Vec<f64>, Vec<f64>) {
+    let end = if on_upper { set.upper[i] } else { set.lower[i] };
+    let lo = (point(end) + point(h) * point(pipe.f_lower[i].min(0.0))).lower;
+    let hi = (point(end) + point(h) * point(pipe.f_upper[i].max(0.0))).upper;
+    let (mut lower, mut upper) = (pipe.set.lower.clone(), pipe.set.upper.clone());
+    lower[i] = lo.max(pipe.set.lower[i]);
+    upper[i] = hi.min(pipe.set.upper[i]);
+    if lower[i] > upper[i] {
+        // Only rounding can get here (the slab holds `e ∈ B`): keep the end itself.
+        (lower[i], upper[i]) = (end, end);
+    }
+    (lower, upper)
+}
+
+/// Every slab, in the order of the faces: (0, lower), (0, upper), (1, lower), …
+pub fn slabs<'a>(
+    set: &'a IntervalBox,
+    pipe: &'a Flowpipe,
+    h: f64,
+) -> impl Iterator<Item = (Vec<f64>, Vec<f64>)> + 'a {
+    (0..set.dim()).flat_map(move |i| [false, true].map(|up| slab(set, pipe, h, i, up)))
+}
+
+/// A bound of `Fᵢ` over the region `[lower, upper]` for `F = f̃ + g(N + w)`, `w ∈ [−M, M]`:
+/// the lower end for `on_upper = false`, the upper end otherwise (the embedding's face bound,
+/// with the region's `i`-th coordinate an interval too).
+pub fn bound_on(
+    dynamics: &Dynamics,
+    lower: &[f64],
+    upper: &[f64],
+    i: usize,
+    on_upper: bool,
+    nn: NetworkBoundsRef,
+    margin: &[f64],
+) -> Interval {
+    let n = dynamics.n;
+    let x: Vec<Interval> = (0..n).map(|j| Interval::new(lower[j], upper[j])).collect();
+    let p: Vec<f64> = (0..n)
+        .map(|j| lower[j] + 0.5 * (upper[j] - lower[j]))
+        .collect();
+    let p_box: Vec<Interval> = p.iter().map(|&v| point(v)).collect();
+    let jac: Vec<Interval> = dynamics.f_tilde_jacobian[i]
+        .iter()
+        .map(|e| e.eval_interval(&x))
+        .collect();
+    let offset = |j: usize| x[j] - point(p[j]);
+    let mut total = dynamics.f_tilde[i].eval_interval(&p_box);
+    match &dynamics.g_constant {
+        Some(b) => {
+            let (row, delta) = interaction_row(b, dynamics, nn, margin, i, on_upper);
+            for j in 0..n {
+                total = total + row[j] * point(p[j]);
+            }
+            total = total + delta;
+            for j in 0..n {
+                total = total + (jac[j] + row[j]) * offset(j);
+            }
+        }
+        None => {
+            for (j, &jj) in jac.iter().enumerate() {
+                total = total + jj * offset(j);
+            }
+            for (k, u) in input_enclosure(nn, margin).into_iter().enumerate() {
+                total = total + dynamics.g[i][k].eval_interval(&x) * u;
+            }
+        }
+    }
+    total
+}
+
+/// Bounds `[F̲, F̄]` of the field over the whole box `[lower, upper]` (for [`enclose_step`]).
+pub fn field_over(
+    dynamics: &Dynamics,
+    lower: &[f64],
+    upper: &[f64],
+    nn: NetworkBoundsRef,
+    margin: &[f64],
+) -> (Vec<f64>, Vec<f64>) {
+    let n = dynamics.n;
+    let lo = (0..n)
+        .map(|i| bound_on(dynamics, lower, upper, i, false, nn, margin).lower)
+        .collect();
+    let hi = (0..n)
+        .map(|i| bound_on(dynamics, lower, upper, i, true, nn, margin).upper)
+        .collect();
+    (lo, hi)
+}
+
+/// The slab step's rates `(s̲, s̄)`: `s̲ᵢ` bounds `Fᵢ` from below on the lower slab of `i`, `s̄ᵢ`
+/// from above on its upper slab; `nn(i, on_upper)` bounds the network there (over the slab
+/// itself, or over the whole flowpipe). `x ← x + h·s` is then the validated step.
+pub fn slab_field<'a>(
+    dynamics: &Dynamics,
+    set: &IntervalBox,
+    pipe: &Flowpipe,
+    h: f64,
+    nn: impl Fn(usize, bool) -> NetworkBoundsRef<'a>,
+    margin: &[f64],
+) -> (Vec<f64>, Vec<f64>) {
+    let n = dynamics.n;
+    let side = |i: usize, up: bool| {
+        let (lo, hi) = slab(set, pipe, h, i, up);
+        bound_on(dynamics, &lo, &hi, i, up, nn(i, up), margin)
+    };
+    let mut dl: Vec<f64> = (0..n).map(|i| side(i, false).lower).collect();
+    let mut du: Vec<f64> = (0..n).map(|i| side(i, true).upper).collect();
+    // `s̄ᵢ ≥ F̲ᵢ` and `s̲ᵢ ≤ F̄ᵢ` hold for exact bounds (the slabs meet the flowpipe); kept so for
+    // any rounding, as the argument needs.
+    for i in 0..n {
+        du[i] = du[i].max(pipe.f_lower[i]);
+        dl[i] = dl[i].min(pipe.f_upper[i]);
+    }
+    (dl, du)
+}
+
+/// Second-order rates where the field is one smooth function `Φ` on the flowpipe (a proven
+/// piece of the filter): `x(h) = x₀ + hΦ(x₀) + ∫₀ʰ (h − s) DΦ(x(s)) ẋ(s) ds`, so
+/// `x(h) ∈ x₀ + hΦ(x₀) + h²/2 · DΦ(B)·F(B)`. `euler` bounds the Euler part on the set's faces
+/// (the embedding's face bounds), which bound `x₀ + hΦ(x₀)` over the set where `xᵢ + hΦᵢ(x)`
+/// grows with `xᵢ`, i.e. `1 + h·∂ᵢΦᵢ ≥ 0` on the set: checked, `None` where it fails. The
+/// rates `(euler + h/2·[DΦ(B)F(B)])` then bound the step's end like the slab rates (their meet
+/// is sound), with a loss of `O(h²)·width` per step instead of the slabs' `O(h²)·|F|`.
+pub fn taylor_rates(
+    dynamics: &Dynamics,
+    set: &IntervalBox,
+    pipe: &Flowpipe,
+    h: f64,
+    (dl, du): (Vec<f64>, Vec<f64>),
+) -> Option<(Vec<f64>, Vec<f64>)> {
+    let n = dynamics.n;
+    let x: Vec<Interval> = (0..n)
+        .map(|j| Interval::new(set.lower[j], set.upper[j]))
+        .collect();
+    let b: Vec<Interval> = (0..n)
+        .map(|j| Interval::new(pipe.set.lower[j], pipe.set.upper[j]))
+        .collect();
+    let f: Vec<Interval> = (0..n)
+        .map(|j| Interval::new(pipe.f_lower[j], pipe.f_upper[j]))
+        .collect();
+    let half_h = point(h) * point(0.5);
+    let mut lo = Vec::with_capacity(n);
+    let mut hi = Vec::with_capacity(n);
+    for i in 0..n {
+        let diag = dynamics.f_tilde_jacobian[i][i].eval_interval(&x);
+        let monotone = (point(1.0) + point(h) * diag).lower;
+        if monotone.is_nan() || monotone < 0.0 {
+            return None;
+        }
+        let r = (0..n).fold(point(0.0), |acc, j| {
+            acc + dynamics.f_tilde_jacobian[i][j].eval_interval(&b) * f[j]
+        });
+        if !(r.lower.is_finite() && r.upper.is_finite()) {
+            return None;
+        }
+        lo.push((point(dl[i]) + half_h * point(r.lower)).lower);
+        hi.push((point(du[i]) + half_h * point(r.upper)).upper);
+    }
+    Some((lo, hi))
+}
+
+/// Second-order rates for the network's field `f̃ + B(N + w)` (constant `g = B`), from affine
+/// bounds `C̲x + d̲ ≤ N(x) ≤ C̄x + d̄` valid on the flowpipe `B` (`nn`). Every trajectory stays in
+/// `B`, so `xᵢ(h) ≤ x₀ᵢ + ∫₀ʰ φ̄ᵢ(x(s)) ds` with the smooth `φ̄ᵢ(x) = f̃ᵢ(x) + m̄ᵢ·x + δ̄ᵢ` (the
+/// interaction-aware row: `m̄ᵢ = B⁺C̄ + B⁻C̲`, `δ̄ᵢ` with `d̄, d̲` widened by `M`), and
+/// `∫₀ʰ φ̄ᵢ(x(s)) ds ∈ h·φ̄ᵢ(x₀) + h²/2·(Df̃ᵢ(B) + m̄ᵢ)·F(B)`. The Euler part is maximal on the
+/// face `xᵢ = x̄ᵢ` where `1 + h(∂ᵢf̃ᵢ + m̄ᵢᵢ) ≥ 0` on the set (checked; `None` otherwise), and the
+/// embedding's face bound (with `nn` over `B`) bounds it there. Mirrored for the lower end.
+pub fn taylor_network_rates(
+    dynamics: &Dynamics,
+    set: &IntervalBox,
+    pipe: &Flowpipe,
+    h: f64,
+    nn: NetworkBoundsRef,
+    margin: &[f64],
+) -> Option<(Vec<f64>, Vec<f64>)> {
+    let b = dynamics.g_constant.as_ref()?;
+    let n = dynamics.n;
+    let (dl, du) = super::embedding::embedding_field(dynamics, &set.lower, &set.upper, nn, margin);
+    let x: Vec<Interval> = (0..n)
+        .map(|j| Interval::new(set.lower[j], set.upper[j]))
+        .collect();
+    let bb: Vec<Interval> = (0..n)
+        .map(|j| Interval::new(pipe.set.lower[j], pipe.set.upper[j]))
+        .collect();
+    let f: Vec<Interval> = (0..n)
+        .map(|j| Interval::new(pipe.f_lower[j], pipe.f_upper[j]))
+        .collect();
+    let half_h = point(h) * point(0.5);
+    let (mut lo, mut hi) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    for i in 0..n {
+        let jac_x = dynamics.f_tilde_jacobian[i][i].eval_interval(&x);
+        let jac_b: Vec<Interval> = dynamics.f_tilde_jacobian[i]
+            .iter()
+            .map(|e| e.eval_interval(&bb))
+            .collect();
+        let mut ends = [0.0; 2];
+        for (side, on_upper) in [false, true].into_iter().enumerate() {
+            let (row, _) = interaction_row(b, dynamics, nn, margin, i, on_upper);
+            let monotone = (point(1.0) + point(h) * (jac_x + row[i])).lower;
+            if monotone.is_nan() || monotone < 0.0 {
+                return None;
+            }
+            let r = (0..n).fold(point(0.0), |acc, j| acc + (jac_b[j] + row[j]) * f[j]);
+            if !(r.lower.is_finite() && r.upper.is_finite()) {
+                return None;
+            }
+            ends[side] = if on_upper {
+                (point(du[i]) + half_h * point(r.upper)).upper
+            } else {
+                (point(dl[i]) + half_h * point(r.lower)).lower
+            };
+        }
+        lo.push(ends[0]);
+        hi.push(ends[1]);
+    }
+    Some((lo, hi))
+}
+
+/// After the step: the new set lies in the flowpipe too.
+pub fn meet_with_pipe(lower: &mut [f64], upper: &mut [f64], pipe: &Flowpipe) {
+    for i in 0..lower.len() {
+        lower[i] = lower[i].max(pipe.set.lower[i]);
+        upper[i] = upper[i].min(pipe.set.upper[i]);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn linear(a: [[f64; 2]; 2]) -> Dynamics {
+        let names = ["x1".to_string(), "x2".to_string()];
+        let parse = |s: &str| crate::expressions::parse(s, &names, &Default::default()).unwrap();
+        let lin = |r: [f64; 2]| parse(&format!("{}*x1 + {}*x2", r[0], r[1]));
+        let zero = parse("0");
+        Dynamics::new(
+            2,
+            1,
+            vec![lin(a[0]), lin(a[1])],
+            vec![vec![zero.clone()], vec![zero]],
+        )
+    }
+
+    fn no_network<'a>(z: &'a [f64]) -> NetworkBoundsRef<'a> {
+        NetworkBoundsRef {
+            a_lower: &z[..2],
+            b_lower: &z[..1],
+            a_upper: &z[..2],
+            b_upper: &z[..1],
+            lower: &z[..1],
+            upper: &z[..1],
+        }
+    }
+
+    /// `ẋ = −x` from `[1, 2]²` over h = 0.1: the flowpipe holds `x([0, h])` and the slab step
+    /// holds the exact set `e^{−h}[1, 2]`, within O(h²) of it.
+    #[test]
+    fn contraction_is_enclosed_and_kept_within_second_order() {
+        let d = linear([[-1.0, 0.0], [0.0, -1.0]]);
+        let z = [0.0; 4];
+        let set = IntervalBox::new(vec![1.0, 1.0], vec![2.0, 2.0]).unwrap();
+        let h = 0.1;
+        let field = |a: &IntervalBox| -> Result<_, ()> {
+            Ok(Some(field_over(
+                &d,
+                &a.lower,
+                &a.upper,
+                no_network(&z),
+                &[0.0],
+            )))
+        };
+        let Enclosure::Closed(pipe) = enclose_step(&set, h, None, field).unwrap() else {
+            panic!("no enclosure")
+        };
+        let e = (-h).exp();
+        for i in 0..2 {
+            assert!(pipe.set.lower[i] <= e && pipe.set.upper[i] >= 2.0);
+        }
+        let (dl, du) = slab_field(&d, &set, &pipe, h, |_, _| no_network(&z), &[0.0]);
+        for i in 0..2 {
+            let lo = set.lower[i] + h * dl[i];
+            let hi = set.upper[i] + h * du[i];
+            assert!(lo <= e && hi >= 2.0 * e, "{lo} {hi}");
+            assert!(e - lo < 0.02 && hi - 2.0 * e < 0.02, "{lo} {hi}");
+            // The face (Euler) bound would be 2(1 − h) < 2e^{−h}: not an enclosure.
+            assert!(2.0 * (1.0 - h) < 2.0 * e);
+        }
+    }
+
+    /// A rotation `ẋ₁ = x₂, ẋ₂ = −x₁`: the Euler map's box grows, and the validated step's box
+    /// holds the exact rotation of every corner.
+    #[test]
+    fn rotation_holds_the_rotated_corners() {
+        let d = linear([[0.0, 1.0], [-1.0, 0.0]]);
+        let z = [0.0; 4];
+        let set = IntervalBox::new(vec![0.9, -0.1], vec![1.1, 0.1]).unwrap();
+        let h = 0.2;
+        let field = |a: &IntervalBox| -> Result<_, ()> {
+            Ok(Some(field_over(
+                &d,
+                &a.lower,
+                &a.upper,
+                no_network(&z),
+                &[0.0],
+            )))
+        };
+        let Enclosure::Closed(pipe) = enclose_step(&set, h, None, field).unwrap() else {
+            panic!("no enclosure")
+        };
+        let (mut lo, mut hi) = (set.lower.clone(), set.upper.clone());
+        let (dl, du) = slab_field(&d, &set, &pipe, h, |_, _| no_network(&z), &[0.0]);
+        super::super::embedding::embedding_step(&mut lo, &mut hi, &dl, &du, h);
+        meet_with_pipe(&mut lo, &mut hi, &pipe);
+        for c in set.corners() {
+            for k in 0..=20 {
+                let t = h * k as f64 / 20.0;
+                let x = [
+                    c[0] * t.cos() + c[1] * t.sin(),
+                    -c[0] * t.sin() + c[1] * t.cos(),
+                ];
+                assert!(pipe.set.contains(&x), "{x:?} not in {:?}", pipe.set);
+                if k == 20 {
+                    assert!(lo[0] <= x[0] && x[0] <= hi[0] && lo[1] <= x[1] && x[1] <= hi[1]);
+                }
+            }
+        }
+    }
+}

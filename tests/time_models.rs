@@ -1,0 +1,272 @@
+//! The time models (issue 36): with `time = "continuous"` (asked for explicitly: the default
+//! is `euler` for now), trajectories of the continuous-time filtered system (ground-truth filter, RK4 at a tenth of the step, 48 starts
+//! per box, the corners included) lie in the sets at every snapshot and in the flowpipe between
+//! snapshots; the Euler map's sets (`time = "euler"`) miss some of them, so each test can fail.
+
+mod common;
+
+use cbfreach::filter::SafetyFilter;
+use cbfreach::network::Mlp;
+use cbfreach::reach::{
+    Backend, CpuBackend, ExactField, ReachProblem, ReachSettings, TimeModel, Tube,
+};
+use cbfreach::scenario::Scenario;
+use cbfreach::simulate::{sample_box, simulate_filtered, Integrator};
+use cbfreach::IntervalBox;
+
+/// Points of continuous-time trajectories (fine-step RK4) outside their sets, and checks made.
+#[derive(Debug, Default)]
+struct Escapes {
+    /// States at snapshot times outside the snapshot's set.
+    at_snapshots: usize,
+    /// Fine states between snapshots outside the flowpipe.
+    between: usize,
+    /// Largest distance outside a snapshot's set.
+    worst: f64,
+    checks: usize,
+}
+
+fn outside(b: &IntervalBox, x: &[f64]) -> f64 {
+    (0..b.dim())
+        .map(|i| (b.lower[i] - x[i]).max(x[i] - b.upper[i]).max(0.0))
+        .fold(0.0, f64::max)
+}
+
+/// Simulates 48 starts per box (corners first) with RK4 at `dt/10` and compares with the tubes
+/// (every step recorded). `tol` absorbs RK4's own error.
+fn escapes(s: &Scenario, tubes: &[Tube], dt: f64, tol: f64) -> Escapes {
+    escapes_with(s, tubes, dt, tol, Integrator::Rk4)
+}
+
+/// As [`escapes`] with another integrator: `Zoh` holds the control over each step `dt`
+/// (its plant integrated by RK4 at `dt/10`), the trajectories `time = "sampled"` bounds.
+fn escapes_with(s: &Scenario, tubes: &[Tube], dt: f64, tol: f64, how: Integrator) -> Escapes {
+    let filter = SafetyFilter::new(s);
+    let sub = if how == Integrator::Zoh { 1 } else { 10 };
+    let mut e = Escapes::default();
+    for tube in tubes {
+        let steps = tube.tube.len() - 1;
+        for x0 in sample_box(&tube.initial, 48, 11) {
+            let fine = simulate_filtered(&filter, &x0, dt / sub as f64, steps * sub, how);
+            for (k, sample) in tube.tube.iter().enumerate() {
+                let j = (sample.t / dt).round() as usize * sub;
+                let Some(x) = fine.x.get(j) else { break };
+                e.checks += 1;
+                let d = outside(&sample.set, x);
+                if d > tol {
+                    e.at_snapshots += 1;
+                    e.worst = e.worst.max(d);
+                }
+                if let (Some(pipe), true) = (&sample.flowpipe, k > 0) {
+                    let j0 = (tube.tube[k - 1].t / dt).round() as usize * sub;
+                    for x in fine.x.iter().take(j + 1).skip(j0) {
+                        if outside(pipe, x) > tol {
+                            e.between += 1;
+                        }
+                    }
+                }
+            }
+        }
+    }
+    e
+}
+
+fn run(problem: &ReachProblem, boxes: &[IntervalBox], exact: ExactField) -> Vec<Tube> {
+    let settings = ReachSettings {
+        exact,
+        ..ReachSettings::default()
+    };
+    CpuBackend
+        .reach(problem, boxes, &settings, &|_, _| {})
+        .unwrap()
+        .boxes
+}
+
+/// A shipped scenario over its paper boxes for `steps` steps, under `time`.
+fn paper_run(s: &Scenario, steps: usize, time: TimeModel, substeps: usize) -> Vec<Tube> {
+    let mut problem = common::shipped_problem(s).with_time(time, substeps);
+    problem.steps = steps;
+    run(&problem, &s.reach.initial, ExactField::ClosedForm)
+}
+
+/// Continuous time (asked for) holds every continuous-time trajectory over `steps`; the
+/// Euler map's sets over `euler_steps` do not (the issue measured 7,111 of 23,520 states outside
+/// on scenario 1, 4,485 of 14,496 on scenario 2).
+fn paper_scenario(s: &Scenario, steps: usize, euler_steps: usize, min_checks: usize) {
+    assert_eq!(s.reach.time, TimeModel::Euler, "the default for now");
+    let dt = s.reach.dt;
+    let tubes = paper_run(s, steps, TimeModel::Continuous, s.reach.substeps);
+    assert!(tubes
+        .iter()
+        .all(|t| t.tube.iter().skip(1).all(|x| x.flowpipe.is_some())));
+    let e = escapes(s, &tubes, dt, 1e-6);
+    assert_eq!((e.at_snapshots, e.between), (0, 0), "{}: {e:?}", s.name);
+    assert!(e.checks >= min_checks, "{}: too few checks: {e:?}", s.name);
+
+    let euler = paper_run(s, euler_steps, TimeModel::Euler, 1);
+    let e = escapes(s, &euler, dt, 1e-6);
+    assert!(
+        e.at_snapshots > 0,
+        "{}: Euler sets held every state: {e:?}",
+        s.name
+    );
+}
+
+#[test]
+fn continuous_sets_hold_scenario_1() {
+    paper_scenario(&common::integrator(), 25, 25, 12 * 48 * 5);
+}
+
+#[test]
+fn continuous_sets_hold_scenario_2() {
+    paper_scenario(&common::double_integrator(), 20, 200, 9 * 48 * 5);
+}
+
+/// Substeps shrink the first-order loss of the validated step: sets stay contained and get
+/// narrower.
+#[test]
+fn substeps_narrow_the_sets_and_keep_them_sound() {
+    let s = common::integrator();
+    let boxes = &s.reach.initial[4..6];
+    let width = |tubes: &[Tube]| -> f64 {
+        tubes
+            .iter()
+            .map(|t| t.tube.last().unwrap().set.widths().iter().sum::<f64>())
+            .sum()
+    };
+    let mut one = common::shipped_problem(&s).with_time(TimeModel::Continuous, 1);
+    one.steps = 10;
+    let four = one.clone().with_time(TimeModel::Continuous, 4);
+    let (a, b) = (
+        run(&one, boxes, ExactField::ClosedForm),
+        run(&four, boxes, ExactField::ClosedForm),
+    );
+    assert!(a.iter().chain(&b).all(|t| t.valid()));
+    assert!(width(&b) < width(&a), "{} vs {}", width(&b), width(&a));
+    let e = escapes(&s, &b, s.reach.dt, 1e-6);
+    assert_eq!((e.at_snapshots, e.between), (0, 0), "{e:?}");
+}
+
+/// A nonlinear plant with state-dependent `g` and one CBF (closed-form filter, scalar input):
+/// `ẋ₁ = x₂, ẋ₂ = −sin x₁ − x₂ + (1 + 0.2x₁²)u`, `κ = −0.3x₁`, `h = x₂ + 1.2`. On `C` the
+/// filter's correction is at most ~0.15; a small random network with `M_C = 0.3` (checked on a
+/// grid below) stands in for the trained one, and where the filter is proven inactive the
+/// engine integrates the exact field.
+const NONLINEAR: &str = r#"
+name = "pendulum-like"
+[system]
+states = ["x1", "x2"]
+inputs = ["u"]
+f = ["x2", "-sin(x1) - x2"]
+g = [["0"], ["1 + 0.2*x1^2"]]
+kappa = ["-0.3*x1"]
+[[cbf]]
+h = "x2 + 1.2"
+[reach]
+region = { lower = [-1.2, -1.2], upper = [1.2, 1.2] }
+m_c = 0.3
+dt = 0.1
+horizon = 2.0
+goal = { lower = [-0.1, -0.1], upper = [0.1, 0.1] }
+initial = [
+  { lower = [0.5, 0.0], upper = [0.6, 0.1] },
+  { lower = [-0.6, 0.3], upper = [-0.5, 0.4] },
+  { lower = [0.0, -0.7], upper = [0.1, -0.6] },
+]
+"#;
+
+#[test]
+fn continuous_sets_hold_a_nonlinear_plant_with_state_dependent_g() {
+    let s = common::from_text(NONLINEAR).unwrap();
+    let mut net = Mlp::random(&[2, 16, 1], 5);
+    if let Some(last) = net.layers.last_mut() {
+        last.weight.iter_mut().for_each(|w| *w *= 0.02);
+        last.bias.iter_mut().for_each(|b| *b *= 0.02);
+    }
+    // The margin must hold on C for the sets to be sound: check it densely.
+    let filter = SafetyFilter::new(&s);
+    let mut worst = 0.0_f64;
+    for a in 0..=60 {
+        for b in 0..=60 {
+            let x = [-1.2 + 2.4 * a as f64 / 60.0, -1.2 + 2.4 * b as f64 / 60.0];
+            let v = filter.eval(&x).unwrap()[0];
+            worst = worst.max((net.forward(&x)[0] - v).abs());
+        }
+    }
+    assert!(worst < 0.25, "the stand-in network is {worst} from v");
+    let problem = ReachProblem::new(&s, net, 0.3).unwrap();
+    assert_eq!(problem.time, TimeModel::Euler, "the default for now");
+    let problem = problem.with_time(TimeModel::Continuous, 1);
+    let tubes = run(&problem, &s.reach.initial, ExactField::ClosedForm);
+    let e = escapes(&s, &tubes, s.reach.dt, 1e-6);
+    assert_eq!((e.at_snapshots, e.between), (0, 0), "{e:?}");
+    assert!(e.checks >= 3 * 48 * 15, "too few checks: {e:?}");
+
+    let euler = run(
+        &problem.with_time(TimeModel::Euler, 1),
+        &s.reach.initial,
+        ExactField::ClosedForm,
+    );
+    let e = escapes(&s, &euler, s.reach.dt, 1e-6);
+    assert!(e.at_snapshots > 0, "Euler sets held every state: {e:?}");
+}
+
+/// Sampled-data at `T_s = dt`: on scenario 1 (`ẋ = u`, no remainder) the sets are the Euler
+/// map's; on scenario 2 they hold zero-order-hold trajectories (the control held over each
+/// step, the plant integrated finely), which the Euler map's sets miss.
+#[test]
+fn sampled_sets_hold_zero_order_hold_trajectories() {
+    let s1 = common::integrator();
+    let sampled = TimeModel::Sampled {
+        control_period: s1.reach.dt,
+    };
+    let a = paper_run(&s1, 25, sampled, 1);
+    let b = paper_run(&s1, 25, TimeModel::Euler, 1);
+    for (a, b) in a.iter().zip(&b) {
+        assert_eq!(a.tube.len(), b.tube.len());
+        for (x, y) in a.tube.iter().zip(&b.tube) {
+            assert_eq!((&x.lower, &x.upper), (&y.lower, &y.upper));
+        }
+    }
+
+    let s2 = common::double_integrator();
+    let dt = s2.reach.dt;
+    let sampled = TimeModel::Sampled { control_period: dt };
+    let tubes = paper_run(&s2, 200, sampled, 1);
+    let e = escapes_with(&s2, &tubes, dt, 1e-9, Integrator::Zoh);
+    assert_eq!((e.at_snapshots, e.between), (0, 0), "{e:?}");
+    assert!(e.checks >= 9 * 48 * 20, "too few checks: {e:?}");
+    let euler = paper_run(&s2, 200, TimeModel::Euler, 1);
+    let e = escapes_with(&s2, &euler, dt, 1e-9, Integrator::Zoh);
+    assert!(
+        e.at_snapshots > 0,
+        "Euler sets held every held-input state: {e:?}"
+    );
+}
+
+/// The engines and settings refuse what they do not run, naming the setting.
+#[test]
+fn refusals_name_the_setting() {
+    let s = common::integrator();
+    let p = common::shipped_problem(&s);
+    let boxes = &s.reach.initial[..1];
+    let err = CpuBackend
+        .reach(
+            &p.clone().with_time(TimeModel::Euler, 3),
+            boxes,
+            &ReachSettings::default(),
+            &|_, _| {},
+        )
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("substeps") && err.contains("continuous"),
+        "{err}"
+    );
+    assert!(
+        common::from_text(&common::SMALL.replace("m_c = 0.1", "m_c = 0.1\ntime = \"rk4\""))
+            .unwrap_err()
+            .to_string()
+            .contains("reach.time")
+    );
+}
