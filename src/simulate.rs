@@ -105,6 +105,17 @@ pub fn integrate<E: Into<FieldFailure>>(
     steps: usize,
     integrator: Integrator,
 ) -> Trajectory {
+    iterate(|x| step(&field, x, dt, integrator), x0, dt, steps)
+}
+
+/// The trajectory of the map `x ← next(x)` from `x0` over `steps` steps of `dt`; stops early
+/// (and says why) where `next` fails.
+fn iterate<E: Into<FieldFailure>>(
+    mut next: impl FnMut(&[f64]) -> Result<Vec<f64>, E>,
+    x0: &[f64],
+    dt: f64,
+    steps: usize,
+) -> Trajectory {
     let mut traj = Trajectory {
         x0: x0.to_vec(),
         t: vec![0.0],
@@ -113,8 +124,8 @@ pub fn integrate<E: Into<FieldFailure>>(
     };
     let mut x = x0.to_vec();
     for k in 0..steps {
-        match step(&field, &x, dt, integrator) {
-            Ok(next) => x = next,
+        match next(&x) {
+            Ok(y) => x = y,
             Err(e) => {
                 traj.stopped = Some(Stop {
                     t: k as f64 * dt,
@@ -199,29 +210,8 @@ pub fn simulate_filtered(
     integrator: Integrator,
 ) -> Trajectory {
     if integrator == Integrator::Zoh {
-        // The held input is not a function of the current state: step it here.
-        let mut traj = Trajectory {
-            x0: x0.to_vec(),
-            t: vec![0.0],
-            x: vec![x0.to_vec()],
-            stopped: None,
-        };
-        let mut x = x0.to_vec();
-        for k in 0..steps {
-            match zoh_step(filter, &x, dt) {
-                Ok(next) => x = next,
-                Err(e) => {
-                    traj.stopped = Some(Stop {
-                        t: k as f64 * dt,
-                        cause: e.into(),
-                    });
-                    break;
-                }
-            }
-            traj.t.push((k + 1) as f64 * dt);
-            traj.x.push(x.clone());
-        }
-        return traj;
+        // The held input is not a function of the current state: step the sampled map.
+        return iterate(|x| zoh_step(filter, x, dt), x0, dt, steps);
     }
     integrate(
         |x: &[f64]| -> Result<Vec<f64>, FilterError> { filter.closed_loop(x) },

@@ -270,3 +270,46 @@ fn refusals_name_the_setting() {
             .contains("reach.time")
     );
 }
+
+/// Validity against `C` speaks of all times: every flowpipe recorded on a valid stretch of a
+/// tube lies in `C`, and a box at C's left corner, from which the true system leaves `C`
+/// (the filter drives it outward there), is not reported valid.
+#[test]
+fn flowpipes_lie_in_c_and_a_box_that_leaves_c_is_not_valid() {
+    let s = common::integrator();
+    let problem = common::shipped_problem(&s).with_time(TimeModel::Continuous, 1);
+    let corner = IntervalBox::new(vec![-3.5, -3.0], vec![-3.4, -2.9]).unwrap();
+    let mut boxes = s.reach.initial.clone();
+    boxes.push(corner.clone());
+    let tubes = run(&problem, &boxes, ExactField::ClosedForm);
+    let mut pipes = 0;
+    for tube in &tubes {
+        for sample in &tube.tube {
+            if let Some(pipe) = &sample.flowpipe {
+                assert!(pipe.is_subset_of(&s.reach.region), "{:?}", tube.initial);
+                pipes += 1;
+            }
+        }
+    }
+    assert!(pipes > 12 * 10, "only {pipes} flowpipes recorded");
+    let trajectory = simulate_filtered(
+        &SafetyFilter::new(&s),
+        &corner.lower,
+        s.reach.dt / 10.0,
+        10 * s.reach.steps(),
+        Integrator::Rk4,
+    );
+    assert!(
+        trajectory
+            .x
+            .iter()
+            .any(|x| !IntervalBox::new(x.clone(), x.clone())
+                .unwrap()
+                .is_subset_of(&s.reach.region)),
+        "the true system stays in C from the corner: pick another box"
+    );
+    assert!(
+        !tubes.last().unwrap().valid(),
+        "a box whose trajectories leave C is valid"
+    );
+}

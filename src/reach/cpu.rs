@@ -382,10 +382,7 @@ impl ChunkRun<'_> {
         zeros: &[f64],
     ) -> (Vec<f64>, Vec<f64>) {
         let (n, m) = (problem.dynamics.n, problem.dynamics.m);
-        let dynamics = match piece {
-            FilterPiece::Inactive => &problem.dynamics,
-            FilterPiece::Binding(k) => &problem.pieces.binding_field(k).dynamics,
-        };
+        let dynamics = piece_dynamics(problem, piece);
         let zero = zero_bounds(zeros, n, m);
         let (mut dl, mut du) =
             embedding_field(dynamics, &set.lower, &set.upper, zero, zero.b_lower);
@@ -731,6 +728,14 @@ fn pinned(x: &[f64], i: usize, v: f64) -> impl Iterator<Item = f64> + '_ {
     x.iter()
         .enumerate()
         .map(move |(j, &x_j)| if j == i { v } else { x_j })
+}
+
+/// The filtered system's dynamics on a proven piece of the filter.
+fn piece_dynamics(problem: &ReachProblem, piece: FilterPiece) -> &super::embedding::Dynamics {
+    match piece {
+        FilterPiece::Inactive => &problem.dynamics,
+        FilterPiece::Binding(k) => &problem.pieces.binding_field(k).dynamics,
+    }
 }
 
 /// The network's stand-in where `v = 0` exactly: zero forms and bounds (`zeros` holds at least

@@ -80,10 +80,7 @@ impl ChunkRun<'_> {
         let input = self.step_input(p, &x_box, self.set_facts(&x_box));
         fb.pipe_nn = None;
         let exact = input.piece.map(|(piece, slack)| {
-            let dynamics = match piece {
-                FilterPiece::Inactive => &p.dynamics,
-                FilterPiece::Binding(k) => &p.pieces.binding_field(k).dynamics,
-            };
+            let dynamics = piece_dynamics(p, piece);
             let zero = zero_bounds(zeros, n, m);
             let (mut dl, mut du) =
                 validated::field_over(dynamics, &a.lower, &a.upper, zero, zero.b_lower);
@@ -149,10 +146,7 @@ impl ChunkRun<'_> {
         zeros: &[f64],
     ) -> (Vec<f64>, Vec<f64>) {
         let (n, m) = (problem.dynamics.n, problem.dynamics.m);
-        let dynamics = match piece {
-            FilterPiece::Inactive => &problem.dynamics,
-            FilterPiece::Binding(k) => &problem.pieces.binding_field(k).dynamics,
-        };
+        let dynamics = piece_dynamics(problem, piece);
         let zero = zero_bounds(zeros, n, m);
         let (mut dl, mut du) =
             validated::slab_field(dynamics, set, pipe, self.h, |_, _| zero, zero.b_lower);
@@ -261,10 +255,7 @@ impl ChunkRun<'_> {
         zeros: &[f64],
     ) -> Option<Rates> {
         let euler = Self::piece_field(p, set, piece, zeros);
-        let dynamics = match piece.0 {
-            FilterPiece::Inactive => &p.dynamics,
-            FilterPiece::Binding(k) => &p.pieces.binding_field(k).dynamics,
-        };
+        let dynamics = piece_dynamics(p, piece.0);
         validated::taylor_rates(dynamics, set, pipe, self.h, euler)
     }
 

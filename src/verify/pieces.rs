@@ -2,7 +2,10 @@
 //! from its pieces, split and refined as `verify` refines ([`verify_by_pieces`], `cbfreach
 //! paper`). May import `reach` and `verify`'s verifier.
 
-use super::{judge, BoxVerdict, Reason, Trap, Verdict, Verifier, VerifyError, VerifySettings};
+use super::{
+    judge_with_feasibility, BoxVerdict, Reason, Trap, Verdict, Verifier, VerifyError,
+    VerifySettings,
+};
 use crate::boxes::IntervalBox;
 use crate::reach::{CpuBackend, ReachProblem, ReachSettings, Tube};
 use crate::scenario::Scenario;
@@ -169,11 +172,7 @@ pub fn verify_by_pieces(
     let mut out: Vec<PiecesVerdict> = tubes
         .iter()
         .map(|tube| {
-            let j = judge(problem, scenario, traps, tube);
-            let feasible = j
-                .verdict
-                .is_verified()
-                .then(|| problem.proves_feasible_along(tube));
+            let (j, feasible) = judge_with_feasibility(problem, scenario, traps, tube);
             PiecesVerdict {
                 verdict: j.verdict,
                 outcome: PieceOutcome::Whole {

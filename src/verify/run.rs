@@ -126,6 +126,22 @@ impl Judgement {
     }
 }
 
+/// [`judge`], and for a verified tube whether the filter's QP is proven feasible on every one
+/// of its sets (`None` for a tube not verified).
+pub fn judge_with_feasibility(
+    problem: &ReachProblem,
+    scenario: &Scenario,
+    traps: &[Trap],
+    tube: &Tube,
+) -> (Judgement, Option<bool>) {
+    let j = judge(problem, scenario, traps, tube);
+    let feasible = j
+        .verdict
+        .is_verified()
+        .then(|| problem.proves_feasible_along(tube));
+    (j, feasible)
+}
+
 /// Judges one tube (see the module docs for the order of the checks).
 pub fn judge(
     problem: &ReachProblem,
@@ -348,11 +364,7 @@ impl<'a> Verifier<'a> {
                 .boxes
                 .par_iter()
                 .map(|tube| {
-                    let j = judge(problem, scenario, traps, tube);
-                    let feasible = j
-                        .verdict
-                        .is_verified()
-                        .then(|| problem.proves_feasible_along(tube));
+                    let (j, feasible) = judge_with_feasibility(problem, scenario, traps, tube);
                     let note = j.reason.map(|r| r.to_string());
                     (j.verdict, j.trap, note, feasible)
                 })
