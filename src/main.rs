@@ -59,7 +59,21 @@ enum Command {
     },
 }
 
+/// Without a desktop session (no `XDG_RUNTIME_DIR`), Mesa's Vulkan device-selection layer
+/// asks libwayland for a display to pick the default GPU, and libwayland prints
+/// `error: XDG_RUNTIME_DIR is invalid or not set` once per driver. There is no display to ask,
+/// so the layer is turned off through its own switch (`NODEVICE_SELECT`); it only orders
+/// adapters, and cbfreach picks its adapter itself. Called first, before any thread exists.
+fn quiet_vulkan_device_select() {
+    let session = std::env::var_os("XDG_RUNTIME_DIR")
+        .is_some_and(|d| !d.is_empty() && std::path::Path::new(&d).is_dir());
+    if !session && std::env::var_os("NODEVICE_SELECT").is_none() {
+        std::env::set_var("NODEVICE_SELECT", "1");
+    }
+}
+
 fn main() -> ExitCode {
+    quiet_vulkan_device_select();
     let matches = Cli::command().get_matches();
     let args = Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());
     cli::set_matches(matches);

@@ -129,7 +129,8 @@ pub struct ProblemArgs {
     /// Use this network instead of the scenario's.
     #[arg(long)]
     pub network: Option<PathBuf>,
-    /// Coordinates of the embedding: `none`, `auto`, `lyapunov`, or the scenario's choice when absent.
+    /// Coordinates of the embedding: `default` (x where the closed loop at the goal contracts
+    /// in ℓ∞, else `auto`), `none`, `auto`, `lyapunov`; the scenario's choice when absent.
     #[arg(long)]
     pub transform: Option<TransformChoice>,
     /// Disturbance method: use the certified local error bounds of the error map beside the
@@ -177,6 +178,12 @@ pub fn compile(
     s: &cbfreach::Scenario,
     args: &ProblemArgs,
 ) -> Result<ReachProblem, Box<dyn std::error::Error>> {
+    let choice = args.transform.as_ref().unwrap_or(&s.reach.transform);
+    if *choice == cbfreach::scenario::TransformChoice::Chosen {
+        // The coordinates were left to cbfreach: say which and why.
+        let (_, why) = cbfreach::reach::Transform::chosen(s);
+        println!("coordinates (reach.transform not set): {why}");
+    }
     ReachProblem::from_scenario(s, &args.options()).map_err(|e| match e {
         ProblemError::Margin {
             margin,

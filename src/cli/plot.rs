@@ -172,7 +172,7 @@ pub fn run(args: &PlotArgs) -> CliResult {
                         scenario: &s,
                         tubes: &r.boxes,
                         every: 1,
-                        title: tubes_title(&s, problem.m_c, args.every.max(1)),
+                        title: titled_tubes(&s, &problem, method, args.every.max(1)),
                     },
                     out,
                     size,
@@ -243,12 +243,29 @@ pub fn tubes_title_local(s: &Scenario, every: usize) -> String {
     )
 }
 
+/// The title of a tubes figure naming the margin the sets were widened by: the error map's
+/// local bounds where the problem holds a map and the method uses it (the disturbance
+/// method), else the global `M_C`.
+pub fn titled_tubes(
+    s: &Scenario,
+    problem: &ReachProblem,
+    method: ReachMethod,
+    every: usize,
+) -> String {
+    if problem.error_map.is_some() && method == ReachMethod::Disturbance {
+        tubes_title_local(s, every)
+    } else {
+        tubes_title(s, problem.m_c, every)
+    }
+}
+
 /// Draws the tubes of a `reach` run (about 25 boxes per tube) and says where.
 pub fn plot_tubes(
     s: &Scenario,
     r: &ReachResult,
     recorded_every: usize,
-    m_c: f64,
+    problem: &ReachProblem,
+    method: ReachMethod,
     out: &Path,
 ) -> CliResult {
     let samples = r.boxes.iter().map(|t| t.tube.len()).max().unwrap_or(1);
@@ -258,7 +275,7 @@ pub fn plot_tubes(
             scenario: s,
             tubes: &r.boxes,
             every,
-            title: tubes_title(s, m_c, every * recorded_every.max(1)),
+            title: titled_tubes(s, problem, method, every * recorded_every.max(1)),
         },
         out,
         plot::default_size(&s.reach.region, 1000),

@@ -180,7 +180,7 @@ pub fn run(args: &ReachArgs) -> CliResult {
         println!("  tubes written to {}", path.display());
     }
     if let Some(path) = &args.plot {
-        super::plot::plot_tubes(&s, &result, settings.every, m_c, path)?;
+        super::plot::plot_tubes(&s, &result, settings.every, &problem, settings.method, path)?;
     }
     Ok(())
 }

@@ -154,14 +154,33 @@ pub fn run(args: &SimulateArgs) -> CliResult {
         }
         None => std::io::stdout().write_all(&buffer)?,
     }
-    for (t, stop) in trajectories
-        .iter()
-        .filter_map(|t| t.stopped.as_ref().map(|s| (t, s)))
-    {
-        eprintln!(
-            "warning: trajectory from {} stopped {stop}",
-            fmt_point(&t.x0)
-        );
-    }
+    print_stops(&trajectories);
     Ok(())
+}
+
+/// One line for the trajectories that stopped early: how many, how many at an infeasible QP,
+/// and the first one's start and reason.
+pub fn print_stops(trajectories: &[Trajectory]) {
+    let stopped: Vec<&Trajectory> = trajectories
+        .iter()
+        .filter(|t| t.stopped.is_some())
+        .collect();
+    let Some(first) = stopped.first() else {
+        return;
+    };
+    let infeasible = stopped
+        .iter()
+        .filter(|t| t.stopped.as_ref().is_some_and(|s| s.cause.is_infeasible()))
+        .count();
+    let reason = first
+        .stopped
+        .as_ref()
+        .map_or(String::new(), ToString::to_string);
+    eprintln!(
+        "warning: {} of {} trajectories stopped early, {infeasible} of them at an infeasible QP \
+         (the first, from {}, {reason})",
+        stopped.len(),
+        trajectories.len(),
+        fmt_point(&first.x0)
+    );
 }

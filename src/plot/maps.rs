@@ -3,40 +3,41 @@
 
 use super::*;
 
+/// A verdict map's title: the share verified with the QP proven feasible on every set first,
+/// the share that also counts boxes covering only the trajectories that exist beside it.
+pub fn verdicts_title(report: &VerifyReport) -> String {
+    let h = report.headline();
+    let refined = report.after.len() != report.before.len();
+    let grid: Vec<String> = report.run.grid.iter().map(usize::to_string).collect();
+    let mut title = format!(
+        "`{}` {}: verified {:.1}% of the safe area, QP proven feasible",
+        report.run.scenario,
+        grid.join("×"),
+        100.0 * h.verified
+    );
+    if h.verified_existing_trajectories > h.verified {
+        title += &format!(
+            " ({:.1}% for existing trajectories only)",
+            100.0 * h.verified_existing_trajectories
+        );
+    }
+    if refined {
+        title += &format!(
+            "; {:.1}% before refinement",
+            100.0 * h.verified_before_refinement
+        );
+    }
+    title
+}
+
 pub(super) fn draw_verdicts<DB: DrawingBackend<ErrorType: 'static>>(
     root: &DrawingArea<DB, Shift>,
     scenario: &Scenario,
     report: &VerifyReport,
 ) -> Result<(), DrawError> {
     let region = &report.run.region;
-    let (before, after) = (report.shares_before(), report.shares_after());
-    let refined = report.after.len() != report.before.len();
-    let title = if refined {
-        format!(
-            "`{}` {}×{}: verified {:.1}% of the safe area ({:.1}% before refinement)",
-            report.run.scenario,
-            report.run.grid.first().copied().unwrap_or(0),
-            report.run.grid.get(1).copied().unwrap_or(0),
-            100.0 * after.verified_share,
-            100.0 * before.verified_share
-        )
-    } else {
-        format!(
-            "`{}` {}×{}: verified {:.1}% of the safe area",
-            report.run.scenario,
-            report.run.grid.first().copied().unwrap_or(0),
-            report.run.grid.get(1).copied().unwrap_or(0),
-            100.0 * after.verified_share
-        )
-    };
-    let title = if after.verified_feasible_share < after.verified_share {
-        format!(
-            "{title}; {:.1}% with the QP proven feasible",
-            100.0 * after.verified_feasible_share
-        )
-    } else {
-        title
-    };
+    let after = report.shares_after();
+    let title = verdicts_title(report);
     let mut chart = chart(root, scenario, region, &title)?;
     for v in Verdict::ALL {
         // Verified boxes whose QP was not proven feasible on every set are drawn pale: their

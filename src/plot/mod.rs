@@ -34,7 +34,7 @@ use crate::verify::{Verdict, VerifyReport};
 mod maps;
 
 use maps::{draw_error_map, draw_verdicts};
-pub use maps::{error_class, ERROR_CLASSES};
+pub use maps::{error_class, verdicts_title, ERROR_CLASSES};
 
 const FONT: &[u8] = include_bytes!("../../assets/DejaVuSans.ttf");
 static REGISTER: Once = Once::new();

@@ -38,7 +38,7 @@ use crate::scenario::{Norm, Scenario};
 use embedding::Dynamics;
 pub use safe_set::SafeSet;
 pub use time::TimeModel;
-pub use transform::Transform;
+pub use transform::{log_norm_inf, CoordinatesReason, Transform};
 pub use tube::{Tube, TubeEnd, TubeSample};
 
 pub use cpu::CpuBackend;

@@ -72,6 +72,75 @@ fn choice_text(choice: &str) -> String {
     }
 }
 
+/// `μ∞(A) = maxᵢ (aᵢᵢ + Σ_{j≠i} |aᵢⱼ|)`, the ℓ∞ logarithmic norm of an n×n row-major matrix:
+/// negative when `ẋ = Ax` contracts boxes.
+pub fn log_norm_inf(a: &[f64], n: usize) -> f64 {
+    (0..n)
+        .map(|i| {
+            a[i * n + i]
+                + (0..n)
+                    .filter(|&j| j != i)
+                    .map(|j| a[i * n + j].abs())
+                    .sum::<f64>()
+        })
+        .fold(f64::NEG_INFINITY, f64::max)
+}
+
+/// Why [`Transform::chosen`] picked the coordinates it did (printed by the command line).
+#[derive(Clone, Debug, PartialEq)]
+pub enum CoordinatesReason {
+    /// The closed loop at the goal contracts in ℓ∞ in x: x itself.
+    ContractsInX {
+        /// `μ∞(A)` in x (< 0).
+        mu_x: f64,
+    },
+    /// It does not: the `auto` coordinates, in which it does.
+    NotContractingInX {
+        /// `μ∞(A)` in x (≥ 0).
+        mu_x: f64,
+        /// `μ∞(TAS)` in z.
+        mu_z: f64,
+    },
+    /// It does not, and no `auto` coordinates could be built: x itself.
+    AutoUnavailable {
+        /// `μ∞(A)` in x.
+        mu_x: f64,
+        /// Why `auto` failed.
+        why: String,
+    },
+    /// The closed loop could not be linearised at the goal (e.g. the QP is infeasible there):
+    /// x itself.
+    NoLinearisation {
+        /// Why.
+        why: String,
+    },
+}
+
+impl std::fmt::Display for CoordinatesReason {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            CoordinatesReason::ContractsInX { mu_x } => write!(
+                f,
+                "x itself: the closed loop at the goal contracts in ℓ∞ in x (μ∞(A) = {mu_x:.3} < 0)"
+            ),
+            CoordinatesReason::NotContractingInX { mu_x, mu_z } => write!(
+                f,
+                "z = T x (\"auto\"): the closed loop at the goal is not contracting in ℓ∞ in x \
+                 (μ∞(A) = {mu_x:.3} ≥ 0), so boxes in x cannot shrink; in z, μ∞ = {mu_z:.3}"
+            ),
+            CoordinatesReason::AutoUnavailable { mu_x, why } => write!(
+                f,
+                "x itself, though the closed loop at the goal is not contracting in ℓ∞ in x \
+                 (μ∞(A) = {mu_x:.3} ≥ 0): no contracting coordinates ({why})"
+            ),
+            CoordinatesReason::NoLinearisation { why } => write!(
+                f,
+                "x itself: the closed loop could not be linearised at the goal ({why})"
+            ),
+        }
+    }
+}
+
 /// A change of coordinates `z = T x`, `x = S z`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Transform {
@@ -230,6 +299,7 @@ impl Transform {
         };
         let (name, built) = match choice {
             TransformChoice::Identity => return Ok(None),
+            TransformChoice::Chosen => return Ok(Transform::chosen(scenario).0),
             TransformChoice::Matrix(t) => ("matrix", Transform::from_matrix(t.clone(), n)),
             TransformChoice::Lyapunov => (
                 "lyapunov",
@@ -249,6 +319,61 @@ impl Transform {
             choice: name,
             source: Box::new(e),
         })
+    }
+
+    /// The coordinates cbfreach picks when the scenario leaves them open, and why: x itself
+    /// where the closed loop's linearisation `A` at the goal's centre contracts in ℓ∞
+    /// (`μ∞(A) < 0`: boxes in x can shrink), else [`Transform::contracting`]'s coordinates,
+    /// where boxes can shrink (docs/design.md §2b). Either is sound; this is about tightness.
+    pub fn chosen(scenario: &Scenario) -> (Option<Transform>, CoordinatesReason) {
+        let n = scenario.n();
+        let goal = scenario.reach.goal.center();
+        let a = match SafetyFilter::new(scenario).closed_loop_jacobian(&goal) {
+            Ok(a) => a,
+            Err(e) => {
+                return (
+                    None,
+                    CoordinatesReason::NoLinearisation { why: e.to_string() },
+                )
+            }
+        };
+        let mu_x = log_norm_inf(&a, n);
+        if mu_x < 0.0 {
+            return (None, CoordinatesReason::ContractsInX { mu_x });
+        }
+        match Transform::contracting(&a, n) {
+            Ok(t) => {
+                let mu_z = log_norm_inf(&t.conjugate(&a), n);
+                (Some(t), CoordinatesReason::NotContractingInX { mu_x, mu_z })
+            }
+            Err(e) => (
+                None,
+                CoordinatesReason::AutoUnavailable {
+                    mu_x,
+                    why: e.to_string(),
+                },
+            ),
+        }
+    }
+
+    /// `T A S`: a matrix in x's coordinates written in z's.
+    fn conjugate(&self, a: &[f64]) -> Vec<f64> {
+        let n = self.n;
+        let at = |m: &[f64], i: usize, j: usize| m[i * n + j];
+        let as_: Vec<f64> = (0..n * n)
+            .map(|k| {
+                (0..n)
+                    .map(|l| at(a, k / n, l) * at(&self.s, l, k % n))
+                    .sum()
+            })
+            .collect();
+        (0..n * n)
+            .map(|k| {
+                (0..n)
+                    .map(|l| at(&self.t, k / n, l) * at(&as_, l, k % n))
+                    .sum()
+            })
+            .collect()
     }
 
     /// A sound z-box of `S⁻¹·X`.

@@ -18,9 +18,10 @@ pub struct ScenarioFile {
     /// One or two sentences about the problem.
     #[serde(default)]
     pub description: String,
-    /// Named constants usable in every expression.
+    /// Named constants usable in every expression: numbers, or expressions in the other
+    /// parameters (`g = 9.81`, `u_min = "-0.25*g"`).
     #[serde(default)]
-    pub parameters: BTreeMap<String, f64>,
+    pub parameters: BTreeMap<String, Number>,
     /// The control-affine system and the nominal controller.
     pub system: SystemSection,
     /// The CBFs `hᵢ`; the safe set is `S = ∩ᵢ {hᵢ ≥ 0}`.
@@ -80,6 +81,11 @@ pub struct SystemSection {
     pub g: Vec<Vec<String>>,
     /// Nominal controller `κ(x)`, m expressions.
     pub kappa: Vec<String>,
+    /// Angles and other states defined modulo a period: `{ theta = ["-pi", "pi"] }` says that
+    /// `theta` and `theta + 2π` are one state (default: none). Sets are kept within one
+    /// period (docs/design.md §2.3).
+    #[serde(default)]
+    pub periodic: BTreeMap<String, Vec<Number>>,
 }
 
 /// One `[[cbf]]`.
@@ -100,14 +106,31 @@ fn one() -> f64 {
     1.0
 }
 
-/// A box `[lower, upper]` as written.
+/// A number as written: a TOML number, or an expression in the parameters and `pi`
+/// (`"-0.25*9.81"`, `"-pi"`, `"u_max/2"`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum Number {
+    /// A plain number.
+    Value(f64),
+    /// An expression, evaluated once when the scenario is compiled.
+    Expr(String),
+}
+
+impl From<f64> for Number {
+    fn from(v: f64) -> Number {
+        Number::Value(v)
+    }
+}
+
+/// A box `[lower, upper]` as written (numbers or expressions in the parameters).
 #[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct BoxSection {
     /// Lower corner.
-    pub lower: Vec<f64>,
+    pub lower: Vec<Number>,
     /// Upper corner.
-    pub upper: Vec<f64>,
+    pub upper: Vec<Number>,
 }
 
 /// One `[[constraint]]`: `a(x)·θ ≤ b(x)`.
@@ -153,8 +176,9 @@ pub struct ReachSection {
     /// A box partitioned into `counts[i]` cells along axis i.
     #[serde(default)]
     pub partition: Option<PartitionSection>,
-    /// Coordinates of the embedding: `"none"` (default), `"auto"` (from the closed loop's
-    /// linearisation at the goal), `"lyapunov"` (`T = P^{1/2}`, for `‖·‖_P`) or a matrix `T`
+    /// Coordinates of the embedding: `"default"` (when left out: x itself where the closed
+    /// loop at the goal contracts in ℓ∞ in x, else `"auto"`; runs print which and why),
+    /// `"none"` (x itself), `"auto"` (from the closed loop's linearisation at the goal), `"lyapunov"` (`T = P^{1/2}`, for `‖·‖_P`) or a matrix `T`
     /// (`z = T x`, rows).
     #[serde(default)]
     pub transform: Option<TransformSpec>,

@@ -80,6 +80,10 @@ pub enum ScenarioError {
 /// The embedding's coordinates, checked.
 #[derive(Clone, Debug, PartialEq)]
 pub enum TransformChoice {
+    /// Chosen for the user (the default when the file names none): x itself where the closed
+    /// loop at the goal contracts in ℓ∞ in x, else [`TransformChoice::Auto`]
+    /// ([`crate::reach::Transform::chosen`] says which and why).
+    Chosen,
     /// x itself.
     Identity,
     /// Chosen from the closed loop's linearisation at the goal's centre.
@@ -172,15 +176,16 @@ impl std::str::FromStr for Margin {
 impl std::str::FromStr for TransformChoice {
     type Err = ChoiceError;
 
-    /// `none`, `auto` or `lyapunov` (a matrix comes from the scenario file only).
+    /// `default`, `none`, `auto` or `lyapunov` (a matrix comes from the scenario file only).
     fn from_str(text: &str) -> Result<TransformChoice, ChoiceError> {
         match text {
+            "default" => Ok(TransformChoice::Chosen),
             "none" => Ok(TransformChoice::Identity),
             "auto" => Ok(TransformChoice::Auto),
             "lyapunov" => Ok(TransformChoice::Lyapunov),
             _ => Err(ChoiceError {
                 found: text.to_string(),
-                expected: "none, auto or lyapunov",
+                expected: "default, none, auto or lyapunov",
             }),
         }
     }
@@ -275,6 +280,26 @@ pub struct Scenario {
     pub training: TrainingConfig,
     /// The settings of runs (`[settings]`; defaults where the file has none).
     pub settings: SettingsSection,
+    /// States defined modulo a period (`[system] periodic`), by state index.
+    pub periodic: Vec<Periodic>,
+}
+
+/// A state defined modulo a period: `x_state` and `x_state + (upper − lower)` are one state.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Periodic {
+    /// Index of the state.
+    pub state: usize,
+    /// Start of the period.
+    pub lower: f64,
+    /// End of the period.
+    pub upper: f64,
+}
+
+impl Periodic {
+    /// The period's length.
+    pub fn period(&self) -> f64 {
+        self.upper - self.lower
+    }
 }
 
 impl Scenario {
@@ -394,7 +419,39 @@ impl Compiler<'_> {
     }
 
     fn boxed(&self, key: &str, b: &BoxSection, n: usize) -> Result<IntervalBox, ScenarioError> {
-        self.box_from(key, &b.lower, &b.upper, n)
+        let lower = self.numbers(&format!("{key}.lower"), &b.lower)?;
+        let upper = self.numbers(&format!("{key}.upper"), &b.upper)?;
+        self.box_from(key, &lower, &upper, n)
+    }
+
+    /// A number as written: a plain finite number, or an expression in the parameters alone.
+    fn number(&self, key: &str, v: &Number) -> Result<f64, ScenarioError> {
+        match v {
+            Number::Value(v) => self.finite(key, *v),
+            Number::Expr(text) => {
+                let e = expressions::parse(text, &[], self.parameters).map_err(|source| {
+                    ScenarioError::Expression {
+                        file: self.file.to_string(),
+                        key: key.to_string(),
+                        text: text.clone(),
+                        source,
+                    }
+                })?;
+                let v = e.eval(&[]);
+                if v.is_finite() {
+                    Ok(v)
+                } else {
+                    Err(self.invalid(key, format!("`{text}` is {v}, expected a finite number")))
+                }
+            }
+        }
+    }
+
+    fn numbers(&self, key: &str, vs: &[Number]) -> Result<Vec<f64>, ScenarioError> {
+        vs.iter()
+            .enumerate()
+            .map(|(i, v)| self.number(&format!("{key}[{i}]"), v))
+            .collect()
     }
 
     fn box_from(
@@ -423,22 +480,14 @@ impl ScenarioFile {
     /// Checks the file and builds the compiled problem.
     pub fn compile(&self, file: &str, base: &Path) -> Result<Scenario, ScenarioError> {
         let sys = &self.system;
+        let parameters = resolve_parameters(file, &self.parameters, &sys.states)?;
         let c = Compiler {
             file,
             states: sys.states.clone(),
-            parameters: &self.parameters,
+            parameters: &parameters,
         };
         check_names(&c, "system.states", &sys.states)?;
         check_names(&c, "system.inputs", &sys.inputs)?;
-        for (k, v) in &self.parameters {
-            c.finite(&format!("parameters.{k}"), *v)?;
-            if sys.states.contains(k) {
-                return Err(c.invalid(
-                    format!("parameters.{k}"),
-                    "a parameter cannot share its name with a state",
-                ));
-            }
-        }
         let (n, m) = (sys.states.len(), sys.inputs.len());
 
         let f = c.exprs("system.f", &sys.f, n)?;
@@ -501,7 +550,9 @@ impl ScenarioFile {
                         format!("expected lower and upper of length {m} (one per input)"),
                     ));
                 }
-                IntervalBox::new(b.lower.clone(), b.upper.clone())
+                let lower = c.numbers("input_bounds.lower", &b.lower)?;
+                let upper = c.numbers("input_bounds.upper", &b.upper)?;
+                IntervalBox::new(lower, upper)
                     .map_err(|msg| c.invalid("input_bounds", msg.to_string()))
             })
             .transpose()?;
@@ -518,6 +569,7 @@ impl ScenarioFile {
             .collect::<Result<Vec<_>, ScenarioError>>()?;
 
         let reach = compile_reach(&c, &self.reach, n)?;
+        let periodic = compile_periodic(&c, &sys.periodic, &reach)?;
         let network = self
             .network
             .as_ref()
@@ -580,7 +632,7 @@ impl ScenarioFile {
             file: file.to_string(),
             states: sys.states.clone(),
             inputs: sys.inputs.clone(),
-            parameters: self.parameters.clone(),
+            parameters,
             f,
             g,
             kappa,
@@ -593,8 +645,140 @@ impl ScenarioFile {
             network,
             training,
             settings: self.settings.clone(),
+            periodic,
         })
     }
+}
+
+/// The parameters' values: numbers as they are, expressions in the other parameters evaluated
+/// in the order their names become known (a parameter may use any other, in any order, but
+/// not itself, directly or through others).
+fn resolve_parameters(
+    file: &str,
+    written: &BTreeMap<String, Number>,
+    states: &[String],
+) -> Result<BTreeMap<String, f64>, ScenarioError> {
+    let invalid = |key: &str, message: String| ScenarioError::Invalid {
+        file: file.to_string(),
+        key: format!("parameters.{key}"),
+        message,
+    };
+    let mut known = BTreeMap::new();
+    for (k, v) in written {
+        if states.contains(k) {
+            return Err(invalid(
+                k,
+                "a parameter cannot share its name with a state".into(),
+            ));
+        }
+        if let Number::Value(v) = v {
+            if !v.is_finite() {
+                return Err(invalid(k, format!("expected a finite number, found {v}")));
+            }
+            known.insert(k.clone(), *v);
+        }
+    }
+    let mut pending: Vec<(&String, &String)> = written
+        .iter()
+        .filter_map(|(k, v)| match v {
+            Number::Expr(text) => Some((k, text)),
+            Number::Value(_) => None,
+        })
+        .collect();
+    while !pending.is_empty() {
+        let before = pending.len();
+        let mut failed = None;
+        pending.retain(|(k, text)| match expressions::parse(text, &[], &known) {
+            Ok(e) => {
+                known.insert((*k).clone(), e.eval(&[]));
+                false
+            }
+            Err(source) => {
+                failed.get_or_insert((k.to_string(), text.to_string(), source));
+                true
+            }
+        });
+        // No progress: the first failure is an unknown name, a cycle or a syntax error.
+        if let (true, Some((key, text, source))) = (pending.len() == before, failed) {
+            return Err(ScenarioError::Expression {
+                file: file.to_string(),
+                key: format!("parameters.{key}"),
+                text,
+                source,
+            });
+        }
+    }
+    for (k, v) in &known {
+        if !v.is_finite() {
+            return Err(invalid(
+                k,
+                format!("evaluates to {v}, expected a finite number"),
+            ));
+        }
+    }
+    Ok(known)
+}
+
+/// `[system] periodic`: each name a state, each period `[lower, upper]` with `lower < upper`.
+/// The embedding does not wrap sets around a period, so `C` and the initial boxes must lie
+/// within one period along each periodic state: a set that crosses the period's end then
+/// leaves `C` and is reported, never silently wrapped.
+fn compile_periodic(
+    c: &Compiler,
+    written: &BTreeMap<String, Vec<Number>>,
+    reach: &ReachConfig,
+) -> Result<Vec<Periodic>, ScenarioError> {
+    let mut out = Vec::new();
+    for (name, bounds) in written {
+        let key = format!("system.periodic.{name}");
+        let Some(state) = c.states.iter().position(|s| s == name) else {
+            return Err(c.invalid(
+                key,
+                format!("`{name}` is not a state (states: {})", c.states.join(", ")),
+            ));
+        };
+        let v = c.numbers(&key, bounds)?;
+        let [lower, upper] = v[..] else {
+            return Err(c.invalid(
+                key,
+                "expected a period [lower, upper], e.g. [\"-pi\", \"pi\"]",
+            ));
+        };
+        if lower >= upper {
+            return Err(c.invalid(
+                key,
+                format!("expected lower < upper, found [{lower}, {upper}]"),
+            ));
+        }
+        let p = Periodic {
+            state,
+            lower,
+            upper,
+        };
+        let named = std::iter::once(("reach.region".to_string(), &reach.region)).chain(
+            reach
+                .initial
+                .iter()
+                .enumerate()
+                .map(|(k, b)| (format!("reach.initial[{k}]"), b)),
+        );
+        for (where_, b) in named {
+            let (lo, hi) = (b.lower[state], b.upper[state]);
+            if lo < lower - 1e-12 * p.period() || hi > upper + 1e-12 * p.period() {
+                return Err(c.invalid(
+                    where_,
+                    format!(
+                        "`{name}` spans [{lo}, {hi}], outside its period [{lower}, {upper}]: sets \
+                         are not wrapped around a period, so C and the initial boxes must lie \
+                         within one (a set that reaches the period's end leaves C and is \
+                         reported)"
+                    ),
+                ));
+            }
+        }
+        out.push(p);
+    }
+    Ok(out)
 }
 
 fn check_names(c: &Compiler, key: &str, names: &[String]) -> Result<(), ScenarioError> {
@@ -684,7 +868,8 @@ fn compile_reach(c: &Compiler, r: &ReachSection, n: usize) -> Result<ReachConfig
         initial.extend(whole.partition(&p.counts));
     }
     let transform = match &r.transform {
-        None => TransformChoice::Identity,
+        None => TransformChoice::Chosen,
+        Some(TransformSpec::Name(s)) if s == "default" => TransformChoice::Chosen,
         Some(TransformSpec::Name(s)) if s == "none" => TransformChoice::Identity,
         Some(TransformSpec::Name(s)) if s == "auto" => TransformChoice::Auto,
         Some(TransformSpec::Name(s)) if s == "lyapunov" => TransformChoice::Lyapunov,
@@ -692,7 +877,7 @@ fn compile_reach(c: &Compiler, r: &ReachSection, n: usize) -> Result<ReachConfig
             return Err(c.invalid(
                 "reach.transform",
                 format!(
-                    "expected \"none\", \"auto\", \"lyapunov\" or an {n}×{n} matrix, found \"{s}\""
+                    "expected \"default\", \"none\", \"auto\", \"lyapunov\" or an {n}×{n} matrix, found \"{s}\""
                 ),
             ))
         }

@@ -148,10 +148,31 @@ pub struct Shares {
     pub total_area: f64,
     /// Area of the boxes that start safe.
     pub safe_area: f64,
-    /// `area(converges ∪ trapped) / safe_area` (0 when nothing starts safe).
+    /// `area(converges ∪ trapped) / safe_area` (0 when nothing starts safe), boxes whose QP
+    /// feasibility is not proven counted too: their verdicts cover only the trajectories that
+    /// exist (do not meet an infeasible QP). Reported beside the headline, labelled.
     pub verified_share: f64,
-    /// The same for the verified boxes whose filter is proven feasible on every set.
+    /// The same for the verified boxes whose filter is proven feasible on every set: the
+    /// headline figure ([`Headline::verified`]).
     pub verified_feasible_share: f64,
+}
+
+/// The verified shares a report leads with, in the order they are printed: first the share
+/// with the filter's QP proven feasible on every set, beside it the share that also counts
+/// boxes whose verdict covers only the trajectories that exist. Written first in the JSON
+/// (`headline`).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Headline {
+    /// Share of the safe area verified with the QP proven feasible on every set (after
+    /// refinement).
+    pub verified: f64,
+    /// Share verified counting boxes whose QP feasibility is not proven: their verdicts speak
+    /// only of the trajectories that do not meet an infeasible QP.
+    pub verified_existing_trajectories: f64,
+    /// [`Headline::verified`] before refinement.
+    pub verified_before_refinement: f64,
+    /// [`Headline::verified_existing_trajectories`] before refinement.
+    pub verified_existing_trajectories_before_refinement: f64,
 }
 
 impl Shares {
@@ -235,6 +256,17 @@ impl VerifyReport {
         Shares::of(&self.after)
     }
 
+    /// The shares a report leads with (after refinement, and before).
+    pub fn headline(&self) -> Headline {
+        let (b, a) = (self.shares_before(), self.shares_after());
+        Headline {
+            verified: a.verified_feasible_share,
+            verified_existing_trajectories: a.verified_share,
+            verified_before_refinement: b.verified_feasible_share,
+            verified_existing_trajectories_before_refinement: b.verified_share,
+        }
+    }
+
     /// Boxes whose sets met the unsafe set (should be none).
     pub fn unsafe_boxes(&self) -> Vec<&BoxVerdict> {
         self.after
@@ -244,10 +276,21 @@ impl VerifyReport {
             .collect()
     }
 
-    /// The report as JSON.
+    /// The report as JSON, its [`Headline`] first (read back, the headline is recomputed
+    /// from the boxes).
     pub fn to_json(&self) -> String {
+        #[derive(Serialize)]
+        struct Written<'a> {
+            headline: Headline,
+            #[serde(flatten)]
+            report: &'a VerifyReport,
+        }
+        let written = Written {
+            headline: self.headline(),
+            report: self,
+        };
         // Plain data with string keys: serialisation cannot fail.
-        serde_json::to_string(self).unwrap_or_default()
+        serde_json::to_string(&written).unwrap_or_default()
     }
 
     /// Reads a report; `file` names it in errors.
