@@ -7,7 +7,7 @@ use cbfreach::boxes::IntervalBox;
 use cbfreach::equilibria::{find_equilibria, EquilibriumSearch};
 use cbfreach::error_map::{error_map_path, ErrorMap};
 use cbfreach::filter::SafetyFilter;
-use cbfreach::plot::{self, Figure};
+use cbfreach::plot::{self, Figure, View};
 use cbfreach::problem::network_path;
 use cbfreach::reach::{Backend, CpuBackend, ReachMethod, ReachProblem, ReachResult, ReachSettings};
 use cbfreach::scenario::Scenario;
@@ -58,6 +58,14 @@ pub struct PlotArgs {
     /// How the network is bounded over each box (tubes, minkowski).
     #[arg(long, value_enum, default_value_t = ReachSettings::default().bounds)]
     pub bounds: BoundMethod,
+    /// The two states drawn, e.g. `--axes p,v` (default: the first two). Other states are
+    /// projected unless sliced.
+    #[arg(long, value_name = "A,B")]
+    pub axes: Option<String>,
+    /// Draw only the sets that meet the hyperplane NAME = VALUE (repeatable), e.g.
+    /// `--slice a=0`: a 2-D slice once every state is drawn or sliced.
+    #[arg(long, value_name = "NAME=VALUE", allow_hyphen_values = true)]
+    pub slice: Vec<String>,
     /// The network, `M_C` and coordinates.
     #[command(flatten)]
     pub problem: ProblemArgs,
@@ -135,9 +143,10 @@ pub fn reach_initial(
 /// Runs `plot`.
 pub fn run(args: &PlotArgs) -> CliResult {
     let s = load_scenario(&args.scenario)?;
+    let view = View::parse(&s, args.axes.as_deref(), &args.slice)?;
     let size = match &args.size {
         Some(t) => parse_size(t)?,
-        None => plot::default_size(&s.reach.region, 1000),
+        None => plot::default_size(&view.plane(&s.reach.region), 1000),
     };
     let out: &Path = &args.out;
     match args.figure {
@@ -148,12 +157,13 @@ pub fn run(args: &PlotArgs) -> CliResult {
                 &EquilibriumSearch::default(),
             );
             let t = trajectories(&s, &figure_points(&s));
-            plot::save(
+            plot::save_view(
                 &Figure::Trajectories {
                     scenario: &s,
                     trajectories: &t,
                     equilibria: &found,
                 },
+                &view,
                 out,
                 size,
             )?;
@@ -167,25 +177,27 @@ pub fn run(args: &PlotArgs) -> CliResult {
             };
             let r = reach_initial(&s, &problem, args.bounds, method, args.every.max(1), false)?;
             if method == ReachMethod::Disturbance {
-                plot::save(
+                plot::save_view(
                     &Figure::Tubes {
                         scenario: &s,
                         tubes: &r.boxes,
                         every: 1,
                         title: titled_tubes(&s, &problem, method, args.every.max(1)),
                     },
+                    &view,
                     out,
                     size,
                 )?;
             } else {
                 let t = box_trajectories(&s, &s.reach.initial, 8);
-                plot::save(
+                plot::save_view(
                     &Figure::Minkowski {
                         scenario: &s,
                         tubes: &r.boxes,
                         trajectories: &t,
                         every: 1,
                     },
+                    &view,
                     out,
                     size,
                 )?;
@@ -198,11 +210,12 @@ pub fn run(args: &PlotArgs) -> CliResult {
             let name = input.display().to_string();
             let text = std::fs::read_to_string(input).map_err(|e| format!("{name}: {e}"))?;
             let report = VerifyReport::from_json(&text, &name)?;
-            plot::save(
+            plot::save_view(
                 &Figure::Verdicts {
                     scenario: &s,
                     report: &report,
                 },
+                &view,
                 out,
                 size,
             )?;
@@ -213,11 +226,12 @@ pub fn run(args: &PlotArgs) -> CliResult {
                 None => error_map_path(&network_path(&s, args.problem.network.as_deref())?),
             };
             let map = ErrorMap::load(&file)?;
-            plot::save(
+            plot::save_view(
                 &Figure::ErrorMap {
                     scenario: &s,
                     map: &map,
                 },
+                &view,
                 out,
                 size,
             )?;

@@ -1,5 +1,10 @@
 //! Verdict maps and error maps: boxes of a partition coloured by their verdict, cells of an
-//! error map by their certified bound. Imports the plot module's chart helpers only.
+//! error map by their certified bound. Where the view projects (a state neither drawn nor
+//! sliced), the boxes are gathered on a grid over the drawn states: a verdict map shows in each
+//! grid cell the share of each verdict in the volume above it (as stripes), an error map the
+//! largest bound above it. Imports the plot module's chart helpers only.
+
+use std::collections::BTreeMap;
 
 use super::*;
 
@@ -30,15 +35,101 @@ pub fn verdicts_title(report: &VerifyReport) -> String {
     title
 }
 
+/// A grid over the view's two drawn states of `region`, `counts` cells a side, and where n-D
+/// boxes fall on it.
+struct PlaneGrid {
+    plane: IntervalBox,
+    counts: [usize; 2],
+}
+
+impl PlaneGrid {
+    fn new(view: &View, region: &IntervalBox, counts: [usize; 2]) -> PlaneGrid {
+        PlaneGrid {
+            plane: view.plane(region),
+            counts: [counts[0].max(1), counts[1].max(1)],
+        }
+    }
+
+    /// The grid cells an n-D box's projection overlaps, with the share of the box's volume
+    /// above each (by the overlap's share of the projection's area).
+    fn overlaps(&self, view: &View, b: &IntervalBox) -> Vec<(usize, f64)> {
+        let p = view.plane(b);
+        let span = |axis: usize| {
+            let (lo, w) = (self.plane.lower[axis], self.plane.widths()[axis]);
+            let k = self.counts[axis];
+            let cell = |v: f64| (((v - lo) / w * k as f64).floor().max(0.0) as usize).min(k - 1);
+            let (pl, pu) = (p.lower[axis], p.upper[axis]);
+            let (a, z) = (cell(pl), cell(pu));
+            (a..=z)
+                .map(move |i| {
+                    let (c0, c1) = (
+                        lo + w * i as f64 / k as f64,
+                        lo + w * (i + 1) as f64 / k as f64,
+                    );
+                    let width = pu - pl;
+                    let share = if width > 0.0 {
+                        (pu.min(c1) - pl.max(c0)).max(0.0) / width
+                    } else {
+                        1.0 / (z - a + 1) as f64
+                    };
+                    (i, share)
+                })
+                .collect::<Vec<_>>()
+        };
+        let (xs, ys) = (span(0), span(1));
+        let mut out = Vec::with_capacity(xs.len() * ys.len());
+        for &(j, sy) in &ys {
+            for &(i, sx) in &xs {
+                out.push((j * self.counts[0] + i, sx * sy));
+            }
+        }
+        out
+    }
+
+    /// The rectangle of grid cell `k`.
+    fn rect(&self, k: usize) -> [(f64, f64); 2] {
+        let (i, j) = (k % self.counts[0], k / self.counts[0]);
+        let at = |axis: usize, t: usize| {
+            self.plane.lower[axis] + self.plane.widths()[axis] * t as f64 / self.counts[axis] as f64
+        };
+        [(at(0, i), at(1, j)), (at(0, i + 1), at(1, j + 1))]
+    }
+}
+
+/// A verdict map's colour classes: each verdict, verified ones split by whether the QP is
+/// proven feasible on every set (pale where not: their verdict speaks only of the
+/// trajectories that do not meet an infeasible QP).
+fn verdict_class(b: &crate::verify::BoxVerdict) -> (Verdict, bool) {
+    (b.verdict, b.feasible == Some(false))
+}
+
 pub(super) fn draw_verdicts<DB: DrawingBackend<ErrorType: 'static>>(
     root: &DrawingArea<DB, Shift>,
+    view: &View,
     scenario: &Scenario,
     report: &VerifyReport,
 ) -> Result<(), DrawError> {
     let region = &report.run.region;
     let after = report.shares_after();
     let title = verdicts_title(report);
-    let mut chart = chart(root, scenario, region, &title)?;
+    let mut chart = chart(root, view, scenario, region, &title)?;
+    // In a projection: the volume of each class above each cell of a grid over the plane.
+    let projected = (!view.is_whole(scenario.n())).then(|| {
+        let grid = PlaneGrid::new(
+            view,
+            region,
+            [report.run.grid[view.x], report.run.grid[view.y]],
+        );
+        let mut volume: Vec<BTreeMap<(Verdict, bool), f64>> =
+            vec![BTreeMap::new(); grid.counts[0] * grid.counts[1]];
+        for b in report.after.iter().filter(|b| view.keeps(&b.initial)) {
+            let v = b.initial.volume();
+            for (k, share) in grid.overlaps(view, &b.initial) {
+                *volume[k].entry(verdict_class(b)).or_insert(0.0) += v * share;
+            }
+        }
+        (grid, volume)
+    });
     for v in Verdict::ALL {
         // Verified boxes whose QP was not proven feasible on every set are drawn pale: their
         // verdict speaks only of the trajectories that do not meet an infeasible QP.
@@ -53,7 +144,7 @@ pub(super) fn draw_verdicts<DB: DrawingBackend<ErrorType: 'static>>(
                 .filter(|b| b.verdict == v && (b.feasible == Some(false)) == pale)
                 .map(|b| b.initial.clone())
                 .collect();
-            if boxes.is_empty() {
+            if boxes.is_empty() || !boxes.iter().any(|b| view.keeps(b)) {
                 continue;
             }
             let share = |bs: &[IntervalBox]| {
@@ -80,14 +171,46 @@ pub(super) fn draw_verdicts<DB: DrawingBackend<ErrorType: 'static>>(
                     format!("{} ({:.1}%)", v.name(), 100.0 * after.share(v)),
                 )
             };
-            box_series(&mut chart, &boxes, region, colour.filled(), Some(&label))?;
+            let Some((grid, volume)) = &projected else {
+                box_series(
+                    &mut chart,
+                    view,
+                    &boxes,
+                    region,
+                    colour.filled(),
+                    Some(&label),
+                )?;
+                continue;
+            };
+            // Each grid cell split left to right into stripes, one per class, as wide as the
+            // class's share of the volume above the cell.
+            let stripes = volume.iter().enumerate().filter_map(|(k, classes)| {
+                let total: f64 = classes.values().sum();
+                let mine = *classes.get(&(v, pale))?;
+                let before: f64 = classes.range(..(v, pale)).map(|(_, a)| a).sum();
+                let [(x0, y0), (x1, y1)] = grid.rect(k);
+                let at = |a: f64| x0 + (x1 - x0) * a / total;
+                Some(Rectangle::new(
+                    [(at(before), y0), (at(before + mine), y1)],
+                    colour.filled(),
+                ))
+            });
+            chart
+                .draw_series(stripes)
+                .map_err(DrawError::from)?
+                .label(label)
+                .legend(move |(x, y)| {
+                    Rectangle::new([(x, y - 6), (x + 14, y + 6)], colour.filled())
+                });
         }
     }
-    // Thin cell borders so the refinement is visible (left out when cells are tiny).
-    if report.after.len() <= 3000 {
+    // Thin cell borders so the refinement is visible (left out when cells are tiny or
+    // stacked in a projection).
+    if report.after.len() <= 3000 && projected.is_none() {
         let all: Vec<IntervalBox> = report.after.iter().map(|b| b.initial.clone()).collect();
         box_series(
             &mut chart,
+            view,
             &all,
             region,
             WHITE.mix(0.6).stroke_width(1),
@@ -97,6 +220,7 @@ pub(super) fn draw_verdicts<DB: DrawingBackend<ErrorType: 'static>>(
     let traps: Vec<IntervalBox> = report.traps.iter().map(|t| t.region.clone()).collect();
     box_series(
         &mut chart,
+        view,
         &traps,
         region,
         VERMILION.stroke_width(2),
@@ -104,6 +228,7 @@ pub(super) fn draw_verdicts<DB: DrawingBackend<ErrorType: 'static>>(
     )?;
     box_series(
         &mut chart,
+        view,
         std::slice::from_ref(&report.run.goal),
         region,
         BLUE.stroke_width(2),
@@ -159,6 +284,7 @@ fn error_class_label(class: usize) -> String {
 
 pub(super) fn draw_error_map<DB: DrawingBackend<ErrorType: 'static>>(
     root: &DrawingArea<DB, Shift>,
+    view: &View,
     scenario: &Scenario,
     map: &ErrorMap,
 ) -> Result<(), DrawError> {
@@ -172,15 +298,54 @@ pub(super) fn draw_error_map<DB: DrawingBackend<ErrorType: 'static>>(
         "{}: certified local bound M on ‖N − v‖∞ (max {certified}; measured {:.3})",
         map.network, map.measured_linf
     );
-    let mut chart = chart(root, scenario, region, &title)?;
-    // The cells as boxes, sorted into their classes in one pass.
+    let title = if view.is_whole(scenario.n()) {
+        title
+    } else {
+        format!("{title}, largest above each point")
+    };
+    let mut chart = chart(root, view, scenario, region, &title)?;
+    // The cells as boxes, sorted into their classes in one pass; in a projection, the cells
+    // of a 96 × 96 grid over the plane, each with the largest bound of the cells above it.
     let uncertified_class = ERROR_CLASSES.len() + 1;
     let mut classes: Vec<Vec<IntervalBox>> = vec![Vec::new(); uncertified_class + 1];
-    for c in &map.cells {
-        classes[error_class(c.bound)].push(IntervalBox {
-            lower: c.lower.clone(),
-            upper: c.upper.clone(),
-        });
+    let cells = map.cells.iter().map(|c| {
+        (
+            IntervalBox {
+                lower: c.lower.clone(),
+                upper: c.upper.clone(),
+            },
+            c.bound,
+        )
+    });
+    if view.is_whole(scenario.n()) {
+        for (b, bound) in cells {
+            classes[error_class(bound)].push(b);
+        }
+    } else {
+        let grid = PlaneGrid::new(view, region, [96, 96]);
+        let mut largest = vec![None::<f64>; 96 * 96];
+        for (b, bound) in cells.filter(|(b, _)| view.keeps(b)) {
+            for (k, share) in grid.overlaps(view, &b) {
+                if share > 0.0 {
+                    let m = largest[k].get_or_insert(bound);
+                    // +∞ (uncertified) wins; NaN never comes from a loaded map.
+                    *m = m.max(bound);
+                }
+            }
+        }
+        for (k, bound) in largest.iter().enumerate() {
+            if let Some(bound) = bound {
+                let [(x0, y0), (x1, y1)] = grid.rect(k);
+                // A box in the state space whose view is the grid cell.
+                let mut lower = region.center();
+                let mut upper = lower.clone();
+                (lower[view.x], lower[view.y], upper[view.x], upper[view.y]) = (x0, y0, x1, y1);
+                for &(j, v) in &view.slice {
+                    (lower[j], upper[j]) = (v, v);
+                }
+                classes[error_class(*bound)].push(IntervalBox { lower, upper });
+            }
+        }
     }
     let total: f64 = classes.iter().flatten().map(IntervalBox::volume).sum();
     for (class, boxes) in classes.iter().enumerate().filter(|(_, b)| !b.is_empty()) {
@@ -193,13 +358,21 @@ pub(super) fn draw_error_map<DB: DrawingBackend<ErrorType: 'static>>(
             format!("{share:.1}%")
         };
         let label = format!("{} ({share} of the mapped area)", error_class_label(class));
-        box_series(&mut chart, boxes, region, colour.filled(), Some(&label))?;
+        box_series(
+            &mut chart,
+            view,
+            boxes,
+            region,
+            colour.filled(),
+            Some(&label),
+        )?;
     }
-    shade_unsafe(&mut chart, scenario, region)?;
+    shade_unsafe(&mut chart, view, scenario, region)?;
     // Uncertified cells are few and tiny (where `L_g h = 0` on S's boundary): ring them, over
     // the shading of the unsafe set they straddle.
     box_series(
         &mut chart,
+        view,
         &classes[uncertified_class],
         region,
         VERMILION.stroke_width(3),
@@ -207,6 +380,7 @@ pub(super) fn draw_error_map<DB: DrawingBackend<ErrorType: 'static>>(
     )?;
     box_series(
         &mut chart,
+        view,
         std::slice::from_ref(&scenario.reach.goal),
         region,
         BLUE.stroke_width(2),

@@ -32,9 +32,11 @@ use crate::simulate::Trajectory;
 use crate::verify::{Verdict, VerifyReport};
 
 mod maps;
+mod view;
 
 use maps::{draw_error_map, draw_verdicts};
 pub use maps::{error_class, verdicts_title, ERROR_CLASSES};
+pub use view::View;
 
 const FONT: &[u8] = include_bytes!("../../assets/DejaVuSans.ttf");
 static REGISTER: Once = Once::new();
@@ -61,8 +63,8 @@ pub enum PlotError {
 /// Why a figure could not be drawn on its canvas.
 #[derive(Debug, thiserror::Error)]
 pub enum DrawError {
-    /// Pictures are of planar systems.
-    #[error("pictures need a system with 2 states; {file} has {n}")]
+    /// The view's states are not the scenario's (a view made for another system).
+    #[error("the picture's view does not fit {file} ({n} states)")]
     NotPlanar {
         /// The scenario file.
         file: String,
@@ -142,8 +144,19 @@ pub fn default_size(region: &IntervalBox, width: u32) -> (u32, u32) {
     (width, h)
 }
 
-/// Draws `figure` into `path` (`.png` or `.svg`) at `size` pixels.
+/// Draws `figure` into `path` (`.png` or `.svg`) at `size` pixels: the first two states, the
+/// others projected.
 pub fn save(figure: &Figure, path: &Path, size: (u32, u32)) -> Result<(), PlotError> {
+    save_view(figure, &View::default(), path, size)
+}
+
+/// Draws `figure` as `view` sees it into `path` (`.png` or `.svg`) at `size` pixels.
+pub fn save_view(
+    figure: &Figure,
+    view: &View,
+    path: &Path,
+    size: (u32, u32),
+) -> Result<(), PlotError> {
     REGISTER.call_once(|| {
         // The embedded font is valid; if registration failed, text would be missing but the
         // drawing itself still errors clearly below.
@@ -167,12 +180,12 @@ pub fn save(figure: &Figure, path: &Path, size: (u32, u32)) -> Result<(), PlotEr
     match ext.as_deref() {
         Some("png") => {
             let root = BitMapBackend::new(path, size).into_drawing_area();
-            draw(&root, figure).map_err(draw_err)?;
+            draw(&root, figure, view).map_err(draw_err)?;
             root.present().map_err(|e| draw_err(e.into()))
         }
         Some("svg") => {
             let root = SVGBackend::new(path, size).into_drawing_area();
-            draw(&root, figure).map_err(draw_err)?;
+            draw(&root, figure, view).map_err(draw_err)?;
             root.present().map_err(|e| draw_err(e.into()))
         }
         _ => Err(PlotError::Format(name)),
@@ -206,6 +219,7 @@ type Chart<'a, DB> = ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoor
 fn draw<DB: DrawingBackend<ErrorType: 'static>>(
     root: &DrawingArea<DB, Shift>,
     figure: &Figure,
+    view: &View,
 ) -> Result<(), DrawError> {
     root.fill(&WHITE).map_err(DrawError::from)?;
     match figure {
@@ -213,21 +227,21 @@ fn draw<DB: DrawingBackend<ErrorType: 'static>>(
             scenario,
             trajectories,
             equilibria,
-        } => draw_trajectories(root, scenario, trajectories, equilibria),
+        } => draw_trajectories(root, view, scenario, trajectories, equilibria),
         Figure::Tubes {
             scenario,
             tubes,
             every,
             title,
-        } => draw_tubes(root, scenario, tubes, *every, title),
+        } => draw_tubes(root, view, scenario, tubes, *every, title),
         Figure::Minkowski {
             scenario,
             tubes,
             trajectories,
             every,
-        } => draw_minkowski(root, scenario, tubes, trajectories, *every),
-        Figure::Verdicts { scenario, report } => draw_verdicts(root, scenario, report),
-        Figure::ErrorMap { scenario, map } => draw_error_map(root, scenario, map),
+        } => draw_minkowski(root, view, scenario, tubes, trajectories, *every),
+        Figure::Verdicts { scenario, report } => draw_verdicts(root, view, scenario, report),
+        Figure::ErrorMap { scenario, map } => draw_error_map(root, view, scenario, map),
     }
 }
 
@@ -244,16 +258,22 @@ fn caption_size<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, title: &str) 
 
 fn chart<'a, DB: DrawingBackend<ErrorType: 'static>>(
     root: &'a DrawingArea<DB, Shift>,
+    view: &View,
     scenario: &Scenario,
     region: &IntervalBox,
     title: &str,
 ) -> Result<Chart<'a, DB>, DrawError> {
-    if scenario.n() != 2 || region.dim() != 2 {
+    let n = scenario.n();
+    let fits = |k: usize| k < n && k < region.dim();
+    if !fits(view.x) || !fits(view.y) || view.slice.iter().any(|&(k, _)| !fits(k)) {
         return Err(DrawError::NotPlanar {
             file: scenario.file.clone(),
-            n: scenario.n(),
+            n,
         });
     }
+    let title = format!("{title}{}", view.describe(scenario));
+    let title = title.as_str();
+    let region = &view.plane(region);
     let mut chart = ChartBuilder::on(root)
         .caption(title, ("sans-serif", caption_size(root, title)))
         .margin(12)
@@ -266,8 +286,8 @@ fn chart<'a, DB: DrawingBackend<ErrorType: 'static>>(
         .map_err(DrawError::from)?;
     chart
         .configure_mesh()
-        .x_desc(scenario.states[0].as_str())
-        .y_desc(scenario.states[1].as_str())
+        .x_desc(scenario.states[view.x].as_str())
+        .y_desc(scenario.states[view.y].as_str())
         .axis_desc_style(("sans-serif", 18))
         .label_style(("sans-serif", 14))
         .light_line_style(RGBColor(245, 245, 245))
@@ -277,18 +297,25 @@ fn chart<'a, DB: DrawingBackend<ErrorType: 'static>>(
     Ok(chart)
 }
 
-/// Shades the cells of a fine grid over `region` where some `hᵢ < 0` at the centre.
+/// Shades the cells of a fine grid over `region` where some `hᵢ < 0` at the centre; in a
+/// projection (some state neither drawn nor sliced) there is no one point to ask, and nothing
+/// is shaded.
 fn shade_unsafe<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
     chart: &mut Chart<'a, DB>,
+    view: &View,
     scenario: &Scenario,
     region: &IntervalBox,
 ) -> Result<(), DrawError> {
+    if !view.is_whole(scenario.n()) {
+        return Ok(());
+    }
     let (nx, ny) = (240usize, 180usize);
-    let cells = region.partition(&[nx, ny]);
+    let cells = view.plane(region).partition(&[nx, ny]);
     let bad: Vec<&IntervalBox> = cells
         .iter()
         .filter(|c| {
-            let x = c.center();
+            let m = c.center();
+            let x = view.lift(region, m[0], m[1]);
             scenario.cbfs.iter().any(|h| h.h.eval(&x) < 0.0)
         })
         .collect();
@@ -321,29 +348,33 @@ fn legend<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
         .map_err(DrawError::from)
 }
 
-fn clamp_box(b: &IntervalBox, r: &IntervalBox) -> [(f64, f64); 2] {
+/// A box's rectangle in the picture, clipped to the region.
+fn clamp_box(view: &View, b: &IntervalBox, r: &IntervalBox) -> [(f64, f64); 2] {
+    let (x, y) = (view.x, view.y);
     let c = |v: f64, i: usize| v.clamp(r.lower[i], r.upper[i]);
     [
-        (c(b.lower[0], 0), c(b.lower[1], 1)),
-        (c(b.upper[0], 0), c(b.upper[1], 1)),
+        (c(b.lower[x], x), c(b.lower[y], y)),
+        (c(b.upper[x], x), c(b.upper[y], y)),
     ]
 }
 
+/// Boxes of the state space (n-D) as rectangles: those the view's slices meet, projected.
 fn box_series<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
     chart: &mut Chart<'a, DB>,
+    view: &View,
     boxes: &[IntervalBox],
     region: &IntervalBox,
     style: ShapeStyle,
     label: Option<&str>,
 ) -> Result<(), DrawError> {
-    if boxes.is_empty() {
+    let kept: Vec<&IntervalBox> = boxes.iter().filter(|b| view.keeps(b)).collect();
+    if kept.is_empty() {
         return Ok(());
     }
     let series = chart
         .draw_series(
-            boxes
-                .iter()
-                .map(|b| Rectangle::new(clamp_box(b, region), style)),
+            kept.iter()
+                .map(|b| Rectangle::new(clamp_box(view, b, region), style)),
         )
         .map_err(DrawError::from)?;
     if let Some(l) = label {
@@ -377,6 +408,7 @@ fn ending(scenario: &Scenario, equilibria: &[Equilibrium], end: &[f64]) -> usize
 
 fn draw_equilibria<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
     chart: &mut Chart<'a, DB>,
+    view: &View,
     equilibria: &[Equilibrium],
 ) -> Result<(), DrawError> {
     type Kind = (&'static str, fn(&Equilibrium) -> bool, RGBColor, u8);
@@ -404,8 +436,8 @@ fn draw_equilibria<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
     for (label, pick, colour, shape) in kinds {
         let pts: Vec<(f64, f64)> = equilibria
             .iter()
-            .filter(|e| pick(e) && e.x.len() == 2)
-            .map(|e| (e.x[0], e.x[1]))
+            .filter(|e| pick(e) && view.keeps_point(&e.x, 1e-6))
+            .map(|e| view.point(&e.x))
             .collect();
         if pts.is_empty() {
             continue;
@@ -444,6 +476,7 @@ fn draw_equilibria<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
 
 fn draw_lines<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
     chart: &mut Chart<'a, DB>,
+    view: &View,
     lines: &[&Trajectory],
     style: ShapeStyle,
     label: Option<&str>,
@@ -452,10 +485,7 @@ fn draw_lines<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
     let mut first = true;
     for t in lines {
         let s = chart
-            .draw_series(LineSeries::new(
-                t.x.iter().filter(|x| x.len() == 2).map(|x| (x[0], x[1])),
-                style,
-            ))
+            .draw_series(LineSeries::new(t.x.iter().map(|x| view.point(x)), style))
             .map_err(DrawError::from)?;
         if first {
             if let Some(l) = label {
@@ -465,10 +495,10 @@ fn draw_lines<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
             }
             first = false;
         }
-        if starts && t.x0.len() == 2 {
+        if starts {
             chart
                 .draw_series(std::iter::once(Circle::new(
-                    (t.x0[0], t.x0[1]),
+                    view.point(&t.x0),
                     3,
                     style.color.filled(),
                 )))
@@ -480,6 +510,7 @@ fn draw_lines<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
 
 fn draw_trajectories<DB: DrawingBackend<ErrorType: 'static>>(
     root: &DrawingArea<DB, Shift>,
+    view: &View,
     scenario: &Scenario,
     trajectories: &[Trajectory],
     equilibria: &[Equilibrium],
@@ -489,8 +520,8 @@ fn draw_trajectories<DB: DrawingBackend<ErrorType: 'static>>(
         "Filtered system `{}`: trajectories and equilibria",
         scenario.name
     );
-    let mut chart = chart(root, scenario, region, &title)?;
-    shade_unsafe(&mut chart, scenario, region)?;
+    let mut chart = chart(root, view, scenario, region, &title)?;
+    shade_unsafe(&mut chart, view, scenario, region)?;
     let labels = [
         ("ends at the goal", BLUE),
         ("ends at an undesirable equilibrium", VERMILION),
@@ -503,13 +534,14 @@ fn draw_trajectories<DB: DrawingBackend<ErrorType: 'static>>(
             .collect();
         draw_lines(
             &mut chart,
+            view,
             &lines,
             colour.stroke_width(2),
             Some(label),
             true,
         )?;
     }
-    draw_equilibria(&mut chart, equilibria)?;
+    draw_equilibria(&mut chart, view, equilibria)?;
     legend(&mut chart)?;
     Ok(())
 }
@@ -535,10 +567,12 @@ fn pick_samples(tube: &Tube, every: usize) -> impl Iterator<Item = &crate::reach
 
 fn draw_goal<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
     chart: &mut Chart<'a, DB>,
+    view: &View,
     scenario: &Scenario,
 ) -> Result<(), DrawError> {
     box_series(
         chart,
+        view,
         std::slice::from_ref(&scenario.reach.goal),
         &scenario.reach.region,
         GREEN.stroke_width(2),
@@ -548,14 +582,15 @@ fn draw_goal<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
 
 fn draw_tubes<DB: DrawingBackend<ErrorType: 'static>>(
     root: &DrawingArea<DB, Shift>,
+    view: &View,
     scenario: &Scenario,
     tubes: &[Tube],
     every: usize,
     title: &str,
 ) -> Result<(), DrawError> {
     let region = &scenario.reach.region;
-    let mut chart = chart(root, scenario, region, title)?;
-    shade_unsafe(&mut chart, scenario, region)?;
+    let mut chart = chart(root, view, scenario, region, title)?;
+    shade_unsafe(&mut chart, view, scenario, region)?;
     let mut seen: Vec<&str> = Vec::new();
     for tube in tubes {
         let (colour, label) = tube_class(scenario, tube);
@@ -566,6 +601,7 @@ fn draw_tubes<DB: DrawingBackend<ErrorType: 'static>>(
         }
         box_series(
             &mut chart,
+            view,
             &boxes,
             region,
             colour.mix(0.8).stroke_width(1),
@@ -575,18 +611,20 @@ fn draw_tubes<DB: DrawingBackend<ErrorType: 'static>>(
     let initial: Vec<IntervalBox> = tubes.iter().map(|t| t.initial.clone()).collect();
     box_series(
         &mut chart,
+        view,
         &initial,
         region,
         BLACK.stroke_width(2),
         Some("initial boxes"),
     )?;
-    draw_goal(&mut chart, scenario)?;
+    draw_goal(&mut chart, view, scenario)?;
     legend(&mut chart)?;
     Ok(())
 }
 
 fn draw_minkowski<DB: DrawingBackend<ErrorType: 'static>>(
     root: &DrawingArea<DB, Shift>,
+    view: &View,
     scenario: &Scenario,
     tubes: &[Tube],
     trajectories: &[Trajectory],
@@ -597,8 +635,8 @@ fn draw_minkowski<DB: DrawingBackend<ErrorType: 'static>>(
         "`{}`: NN-system boxes and closeness-inflated sets (Minkowski, paper Thm. 2)",
         scenario.name
     );
-    let mut chart = chart(root, scenario, region, &title)?;
-    shade_unsafe(&mut chart, scenario, region)?;
+    let mut chart = chart(root, view, scenario, region, &title)?;
+    shade_unsafe(&mut chart, view, scenario, region)?;
     let mut inflated = Vec::new();
     let mut nn = Vec::new();
     for tube in tubes {
@@ -612,6 +650,7 @@ fn draw_minkowski<DB: DrawingBackend<ErrorType: 'static>>(
     }
     box_series(
         &mut chart,
+        view,
         &inflated,
         region,
         VERMILION.mix(0.7).stroke_width(1),
@@ -619,6 +658,7 @@ fn draw_minkowski<DB: DrawingBackend<ErrorType: 'static>>(
     )?;
     box_series(
         &mut chart,
+        view,
         &nn,
         region,
         BLUE.stroke_width(1),
@@ -627,12 +667,13 @@ fn draw_minkowski<DB: DrawingBackend<ErrorType: 'static>>(
     let lines: Vec<&Trajectory> = trajectories.iter().collect();
     draw_lines(
         &mut chart,
+        view,
         &lines,
         BLACK.mix(0.6).stroke_width(1),
         Some("filtered trajectories"),
         false,
     )?;
-    draw_goal(&mut chart, scenario)?;
+    draw_goal(&mut chart, view, scenario)?;
     legend(&mut chart)?;
     Ok(())
 }
