@@ -388,3 +388,33 @@ pub(super) fn draw_error_map<DB: DrawingBackend<ErrorType: 'static>>(
     )?;
     legend(&mut chart)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A box's volume is spread over the grid cells its projection overlaps, by the overlap's
+    /// share of its area, and nothing is lost: the shares add up to one.
+    #[test]
+    fn a_projected_box_spreads_its_volume_over_the_cells_it_overlaps() {
+        let view = View {
+            x: 0,
+            y: 2,
+            slice: vec![],
+        };
+        let region = IntervalBox::new(vec![0.0; 3], vec![4.0, 9.0, 2.0]).unwrap();
+        let grid = PlaneGrid::new(&view, &region, [4, 2]);
+        // x over [0.5, 1.5] (cells 0 and 1, half each), z over [0.5, 1.0] (row 0 alone).
+        let b = IntervalBox::new(vec![0.5, 3.0, 0.5], vec![1.5, 7.0, 1.0]).unwrap();
+        let mut cells = grid.overlaps(&view, &b);
+        cells.sort_by_key(|c| c.0);
+        assert_eq!(cells, vec![(0, 0.5), (1, 0.5)]);
+        assert_eq!(grid.rect(5), [(1.0, 1.0), (2.0, 2.0)]);
+        // Across rows and columns; the total share is one.
+        let b = IntervalBox::new(vec![0.0, 0.0, 0.0], vec![4.0, 1.0, 2.0]).unwrap();
+        let cells = grid.overlaps(&view, &b);
+        assert_eq!(cells.len(), 8);
+        let total: f64 = cells.iter().map(|c| c.1).sum();
+        assert!((total - 1.0).abs() < 1e-12, "{total}");
+    }
+}

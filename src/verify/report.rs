@@ -364,4 +364,57 @@ mod tests {
         parent.verdict = Verdict::Unknown;
         assert_eq!(unknown.clone().within(&parent), unknown);
     }
+
+    /// The headline is the share proven feasible; the share of verdicts covering only the
+    /// trajectories that exist comes beside it, and the JSON leads with both.
+    #[test]
+    fn the_headline_leads_with_the_share_proven_feasible() {
+        let mut proven = leaf(Verdict::Converges, [0.0, 0.0], [1.0, 1.0]);
+        proven.feasible = Some(true);
+        let mut unproven = leaf(Verdict::Converges, [1.0, 0.0], [4.0, 1.0]);
+        unproven.feasible = Some(false);
+        let boxes = vec![proven, unproven];
+        let report = VerifyReport {
+            format: FORMAT.to_string(),
+            run: RunInfo {
+                scenario: "s".into(),
+                scenario_file: "s.toml".into(),
+                region: IntervalBox::new(vec![0.0, 0.0], vec![4.0, 1.0]).unwrap(),
+                grid: vec![2, 1],
+                goal: IntervalBox::new(vec![0.0, 0.0], vec![0.1, 0.1]).unwrap(),
+                method: "disturbance".into(),
+                bounds: "forward-backward".into(),
+                m_c: 0.1,
+                local_margin: false,
+                face_local: false,
+                exact: ExactField::default(),
+                intersect_x: false,
+                dt: 0.1,
+                steps: 1,
+                time: String::new(),
+                transformed: false,
+                safe_set: vec![],
+                refine_depth: 0,
+                budget: 0,
+                refine_feasibility: false,
+            },
+            shard: None,
+            cells: [0, 2],
+            traps: vec![],
+            before: boxes.clone(),
+            after: boxes,
+            timing: VerifyTiming::default(),
+        };
+        let h = report.headline();
+        assert_eq!(h.verified, 0.25);
+        assert_eq!(h.verified_existing_trajectories, 1.0);
+        let json = report.to_json();
+        assert!(
+            json.starts_with(
+                r#"{"headline":{"verified":0.25,"verified_existing_trajectories":1.0,"#
+            ),
+            "{json}"
+        );
+        assert_eq!(VerifyReport::from_json(&json, "j").unwrap(), report);
+    }
 }

@@ -1,0 +1,329 @@
+//! A user's own system without hand-tuning (issue 38): settings chosen and said, honest
+//! headlines, pictures of systems with more than two states, and the smaller items
+//! (expressions for numbers, no driver noise, titles naming the margin used, simulate's count).
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use cbfreach::reach::{CoordinatesReason, Transform};
+use cbfreach::scenario::Scenario;
+
+fn cbfreach(args: &[&str]) -> (i32, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_cbfreach"))
+        .args(args)
+        .output()
+        .expect("runs");
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn chain3() -> String {
+    root()
+        .join("tests/fixtures/chain3.toml")
+        .display()
+        .to_string()
+}
+
+/// A scenario from TOML text, its relative paths against `scenarios/`.
+fn scenario(text: &str) -> Result<Scenario, String> {
+    Scenario::from_toml(text, "test.toml", &root().join("scenarios")).map_err(|e| e.to_string())
+}
+
+const SMALL: &str = r#"
+name = "small"
+[parameters]
+g = 9.81
+PARAMS
+[system]
+states = ["x", "theta"]
+inputs = ["u"]
+f = ["sin(theta)", "0"]
+g = [["0"], ["1"]]
+kappa = ["-x - theta"]
+PERIODIC
+[input_bounds]
+lower = [LOWER]
+upper = [10.0]
+[reach]
+region = { lower = [-1.0, REGION_LO], upper = [1.0, 3.0] }
+m_c = 0.1
+dt = 0.1
+horizon = 1.0
+goal = { lower = [-0.1, -0.1], upper = [0.1, 0.1] }
+"#;
+
+fn small(params: &str, periodic: &str, lower: &str, region_lo: &str) -> Result<Scenario, String> {
+    scenario(
+        &SMALL
+            .replace("PARAMS", params)
+            .replace("PERIODIC", periodic)
+            .replace("LOWER", lower)
+            .replace("REGION_LO", region_lo),
+    )
+}
+
+/// Item 5: parameters and bounds may be expressions (before, `"-0.25*9.81"` was refused as
+/// "invalid type: string"); bad ones name their key.
+#[test]
+fn parameters_and_bounds_take_expressions() {
+    let s = small(r#"u_min = "-0.25*g""#, "", r#""-0.25*9.81""#, "-3.0").unwrap();
+    assert_eq!(s.input_bounds.as_ref().unwrap().lower, vec![-0.25 * 9.81]);
+    assert_eq!(s.parameters["u_min"], -0.25 * 9.81);
+    // One parameter may use another, whatever their order; boxes may use parameters and pi.
+    let s = small(
+        r#"a = "b/2"
+b = "2*g""#,
+        "",
+        r#""-a""#,
+        r#""-pi""#,
+    )
+    .unwrap();
+    assert_eq!(s.parameters["a"], 9.81);
+    assert_eq!(s.input_bounds.as_ref().unwrap().lower, vec![-9.81]);
+    assert_eq!(s.reach.region.lower[1], -std::f64::consts::PI);
+    let chain = Scenario::load(Path::new(&chain3())).unwrap();
+    assert_eq!(chain.parameters["a_min"], -0.2 * 9.81);
+    for (params, lower, needle) in [
+        ("", r#""-0.25*gg""#, "input_bounds.lower[0]"),
+        (
+            r#"a = "b"
+b = "a""#,
+            "0.0",
+            "parameters.",
+        ),
+        (r#"a = "1/0""#, "0.0", "parameters.a"),
+        ("", r#""x""#, "input_bounds.lower[0]"),
+    ] {
+        let e = small(params, "", lower, "-3.0").unwrap_err();
+        assert!(e.contains(needle), "{e}");
+    }
+}
+
+/// Item 2: periodic states are read, and sets wider than a period are refused by name.
+#[test]
+fn periodic_states_keep_sets_within_a_period() {
+    let periodic = r#"periodic = { theta = ["-pi", "pi"] }"#;
+    let s = small("", periodic, "-10.0", r#""-pi""#).unwrap();
+    assert_eq!(s.periodic.len(), 1);
+    assert_eq!(s.periodic[0].state, 1);
+    assert!((s.periodic[0].period() - 2.0 * std::f64::consts::PI).abs() < 1e-15);
+    let e = small("", periodic, "-10.0", "-4.0").unwrap_err();
+    assert!(
+        e.contains("reach.region") && e.contains("outside its period"),
+        "{e}"
+    );
+    let e = small("", r#"periodic = { phi = [0.0, 1.0] }"#, "-10.0", "-3.0").unwrap_err();
+    assert!(
+        e.contains("system.periodic.phi") && e.contains("not a state"),
+        "{e}"
+    );
+    let e = small("", r#"periodic = { theta = [1.0] }"#, "-10.0", "-3.0").unwrap_err();
+    assert!(e.contains("expected a period"), "{e}");
+}
+
+/// Item 2: coordinates left open are x where the closed loop at the goal contracts in ℓ∞ (the
+/// paper's scenario 1: unchanged), the contracting ones where it does not (the chain of
+/// integrators), and the run says which and why.
+#[test]
+fn coordinates_left_open_are_chosen_and_said() {
+    let paper = Scenario::builtin().unwrap();
+    let (t, why) = Transform::chosen(&paper);
+    assert!(t.is_none());
+    assert!(matches!(why, CoordinatesReason::ContractsInX { mu_x } if mu_x < 0.0));
+    let chain = Scenario::load(Path::new(&chain3())).unwrap();
+    let (t, why) = Transform::chosen(&chain);
+    assert!(t.is_some());
+    match why {
+        CoordinatesReason::NotContractingInX { mu_x, mu_z } => {
+            assert_eq!(mu_x, 1.0);
+            assert!(mu_z < 0.0, "{mu_z}");
+        }
+        other => panic!("{other:?}"),
+    }
+    let (code, out, err) = cbfreach(&["reach", &chain3()]);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        out.lines().next().unwrap().contains(
+            "coordinates (reach.transform not set): z = T x (\"auto\"): the closed loop at the \
+             goal is not contracting in ℓ∞ in x"
+        ),
+        "{out}"
+    );
+    // Said only when chosen.
+    let (_, out, _) = cbfreach(&["reach", &chain3(), "--transform", "none"]);
+    assert!(
+        !out.contains("coordinates (reach.transform not set)"),
+        "{out}"
+    );
+}
+
+/// Items 3 and 4: a 3-state system verifies, its headline leads with the share proven
+/// feasible (in the summary and the JSON), and its verdict map, tubes and trajectories draw as
+/// projections and slices with the state names on the axes.
+#[test]
+fn three_states_verify_and_draw_as_projections_and_slices() {
+    let tmp = tempfile::tempdir().unwrap();
+    let json = tmp.path().join("v.json");
+    let (code, out, err) = cbfreach(&[
+        "verify",
+        &chain3(),
+        "--grid",
+        "3,3,2",
+        "--refine",
+        "0",
+        "--json",
+        json.to_str().unwrap(),
+        "--plot",
+        tmp.path().join("v.svg").to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let headline = out
+        .lines()
+        .find(|l| l.contains("verified"))
+        .expect("a verified line");
+    assert!(
+        headline.contains("the filter proven feasible on every set"),
+        "the first verified share is the proven one: {out}"
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let h = &report["headline"];
+    let (proven, existing) = (
+        h["verified"].as_f64().unwrap(),
+        h["verified_existing_trajectories"].as_f64().unwrap(),
+    );
+    assert!(proven <= existing && existing > 0.0, "{h}");
+    let input = json.to_str().unwrap();
+    for (figure, extra, caption) in [
+        ("verdicts", vec!["--input", input], "[projected along a]"),
+        (
+            "verdicts",
+            vec!["--input", input, "--axes", "v,a", "--slice", "p=0.5"],
+            "[p = 0.5]",
+        ),
+        ("tubes", vec!["--axes", "p,a"], "[projected along v]"),
+        ("trajectories", vec!["--slice", "a=0"], "[a = 0]"),
+    ] {
+        let svg = tmp.path().join(format!("{figure}.svg"));
+        let (chain, path) = (chain3(), svg.to_str().unwrap().to_string());
+        let mut args = vec!["plot", &chain, "--figure", figure, "-o", &path];
+        args.extend(extra.iter().copied());
+        let (code, _, err) = cbfreach(&args);
+        assert_eq!(code, 0, "{figure} {extra:?}: {err}");
+        let text = std::fs::read_to_string(&svg).unwrap();
+        assert!(text.contains(caption), "{figure} {extra:?}: no `{caption}`");
+    }
+    let (code, _, err) = cbfreach(&[
+        "plot",
+        &chain3(),
+        "--figure",
+        "tubes",
+        "-o",
+        tmp.path().join("x.svg").to_str().unwrap(),
+        "--slice",
+        "q=0",
+    ]);
+    assert_ne!(code, 0);
+    assert!(err.contains("`q` is not a state"), "{err}");
+}
+
+/// Item 5: the GPU path prints no driver noise without a desktop session (before: libwayland's
+/// `error: XDG_RUNTIME_DIR is invalid or not set`, once per Vulkan driver).
+#[test]
+fn the_gpu_path_prints_no_driver_noise() {
+    let out = Command::new(env!("CARGO_BIN_EXE_cbfreach"))
+        .args([
+            "bench",
+            "--backend",
+            "gpu",
+            "--boxes",
+            "1",
+            "--steps",
+            "1",
+            "--bounds",
+            "forward",
+        ])
+        .env_remove("XDG_RUNTIME_DIR")
+        .env_remove("NODEVICE_SELECT")
+        .output()
+        .expect("runs");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!err.contains("XDG_RUNTIME_DIR"), "{err}");
+}
+
+/// Item 5: a tubes picture drawn with the error map's local bounds says so, not the global
+/// `M_C` (before: `M_C = 8.80…` in the title of scenario 2's local-margin tubes).
+#[test]
+fn tube_titles_name_the_margin_used() {
+    let tmp = tempfile::tempdir().unwrap();
+    let text = std::fs::read_to_string(root().join("scenarios/double-integrator.toml")).unwrap();
+    let net = root().join("scenarios/double-integrator.safetensors");
+    let start = text.find("initial = [").unwrap();
+    let text = text[..start]
+        .replace("horizon = 10.0", "horizon = 0.25")
+        .replace(
+            "file = \"double-integrator.safetensors\"",
+            &format!("file = {:?}", net.display().to_string()),
+        )
+        + "initial = [{ lower = [-3.1, 0.9], upper = [-2.9, 1.1] }]\n";
+    let file = tmp.path().join("short.toml");
+    std::fs::write(&file, text).unwrap();
+    for command in ["plot", "reach"] {
+        let svg = tmp.path().join(format!("{command}.svg"));
+        let (code, _, err) = match command {
+            "plot" => cbfreach(&[
+                "plot",
+                file.to_str().unwrap(),
+                "--figure",
+                "tubes",
+                "-o",
+                svg.to_str().unwrap(),
+            ]),
+            _ => cbfreach(&[
+                "reach",
+                file.to_str().unwrap(),
+                "--plot",
+                svg.to_str().unwrap(),
+            ]),
+        };
+        assert_eq!(code, 0, "{err}");
+        let title = std::fs::read_to_string(&svg).unwrap();
+        assert!(title.contains("certified local M"), "{command}");
+        assert!(!title.contains("M_C ="), "{command}");
+    }
+}
+
+/// Item 5: simulate counts the trajectories that stopped, in one line (before: one stderr
+/// line per trajectory and no count). Scenario 2's QP is infeasible in the strip
+/// (3.05–4.95) × [−2, −1.75].
+#[test]
+fn simulate_counts_infeasible_trajectories() {
+    let (code, out, err) = cbfreach(&[
+        "simulate",
+        root()
+            .join("scenarios/double-integrator.toml")
+            .to_str()
+            .unwrap(),
+        "--samples",
+        "12",
+        "--box",
+        "3.2,-1.95:4.8,-1.8",
+        "--horizon",
+        "0.2",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert!(!out.is_empty());
+    let lines: Vec<&str> = err.lines().filter(|l| !l.trim().is_empty()).collect();
+    assert_eq!(lines.len(), 1, "{err}");
+    assert!(
+        lines[0].contains("12 of 12 trajectories stopped early, 12 of them at an infeasible QP"),
+        "{err}"
+    );
+}
