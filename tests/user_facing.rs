@@ -327,3 +327,70 @@ fn simulate_counts_infeasible_trajectories() {
         "{err}"
     );
 }
+
+/// Item 2: an inverted set says which term of the step inverted it. A step too large for how
+/// fast the closed loop contracts (scenario 1's `κ₂ = −5x₂` with dt = 0.5) inverts the box
+/// whatever bounds the field has; a network whose error exceeds the `M` it is given (a constant
+/// 10 with M = 0, where v ≈ 0) disagrees with the filter's own bounds of the field.
+#[test]
+fn an_inverted_set_names_the_step_or_the_margin() {
+    use cbfreach::network::{Layer, Mlp};
+    use cbfreach::reach::{Backend, CpuBackend, Inversion, ReachProblem, ReachSettings, TubeEnd};
+    let paper = Scenario::builtin().unwrap();
+    let run = |s: &Scenario, net: Mlp, m: f64| {
+        let problem = ReachProblem::new(s, net, m).unwrap();
+        let r = CpuBackend
+            .reach(
+                &problem,
+                &s.reach.initial[..1],
+                &ReachSettings::default(),
+                &|_, _| {},
+            )
+            .unwrap();
+        r.boxes[0].end
+    };
+    let shipped = Mlp::load_safetensors(&paper.network.as_ref().unwrap().file).unwrap();
+    let mut coarse = paper.clone();
+    coarse.reach.dt = 0.5;
+    coarse.reach.horizon = 2.0;
+    let end = run(&coarse, shipped, 0.2);
+    assert!(
+        matches!(
+            end,
+            TubeEnd::Inverted {
+                cause: Inversion::StepTooLarge,
+                ..
+            }
+        ),
+        "{end:?}"
+    );
+    assert!(end.to_string().contains("smaller dt"), "{end}");
+    let ten = Mlp {
+        layers: vec![
+            Layer {
+                weight: vec![0.0; 2],
+                bias: vec![0.0],
+                n_in: 2,
+                n_out: 1,
+            },
+            Layer {
+                weight: vec![0.0; 2],
+                bias: vec![10.0, 10.0],
+                n_in: 1,
+                n_out: 2,
+            },
+        ],
+    };
+    let end = run(&paper, ten, 0.0);
+    assert!(
+        matches!(
+            end,
+            TubeEnd::Inverted {
+                cause: Inversion::BoundsDisagree,
+                ..
+            }
+        ),
+        "{end:?}"
+    );
+    assert!(end.to_string().contains("M is below"), "{end}");
+}

@@ -384,7 +384,10 @@ fn fill_tube(
             tube.tube.push(problem.tube_sample(&lo, &hi, r, t, safe));
             TubeEnd::LeftRegion { t }
         }
-        status::INVERTED => TubeEnd::Inverted { t },
+        status::INVERTED => TubeEnd::Inverted {
+            t,
+            cause: crate::reach::Inversion::Unattributed,
+        },
         status::NON_FINITE => TubeEnd::NonFinite { t },
         _ => TubeEnd::Horizon,
     };

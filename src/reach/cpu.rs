@@ -63,6 +63,8 @@ struct Live {
     /// Continuous time: per frame, the network's bounds over the enclosure the step's flowpipe
     /// was proven on (where the network was bounded there).
     pipe_nn: Vec<Option<AffineBounds>>,
+    /// Why this step inverted a set, if it did (found where the field's bounds are met).
+    inversion: Option<super::tube::Inversion>,
 }
 
 impl Backend for CpuBackend {
@@ -272,6 +274,7 @@ impl ChunkRun<'_> {
             swept: None,
             guess: vec![None; self.frames.len()],
             pipe_nn: vec![None; self.frames.len()],
+            inversion: None,
         };
         self.settle(&mut state, &vec![true; self.frames.len()]);
         let sample = self.sample(&state, 0.0);
@@ -624,10 +627,25 @@ impl ChunkRun<'_> {
                             None => field,
                         }
                     });
-                    let field = [exact, taylor, enclosed, network]
+                    let sources: Vec<_> = [exact, taylor, enclosed, network]
                         .into_iter()
                         .flatten()
-                        .reduce(meet_fields);
+                        .collect();
+                    let field = sources.iter().cloned().reduce(meet_fields);
+                    if let Some((dl, du)) = &field {
+                        let set = &state.sets[f];
+                        if inverts(set, dl, du, self.h) {
+                            state.inversion = Some(
+                                if sources.len() > 1
+                                    && sources.iter().all(|(l, u)| !inverts(set, l, u, self.h))
+                                {
+                                    super::tube::Inversion::BoundsDisagree
+                                } else {
+                                    super::tube::Inversion::StepTooLarge
+                                },
+                            );
+                        }
+                    }
                     if let Some((dl, du)) = &field {
                         let set = &mut state.sets[f];
                         embedding_step(&mut set.lower, &mut set.upper, dl, du, self.h);
@@ -679,7 +697,12 @@ impl ChunkRun<'_> {
             .all(|v| v.is_finite());
         if inverted || !finite {
             state.tube.end = if finite {
-                TubeEnd::Inverted { t }
+                TubeEnd::Inverted {
+                    t,
+                    cause: state
+                        .inversion
+                        .unwrap_or(super::tube::Inversion::Unattributed),
+                }
             } else {
                 TubeEnd::NonFinite { t }
             };
@@ -709,6 +732,11 @@ impl ChunkRun<'_> {
             state.tube.tube.push(sample);
         }
     }
+}
+
+/// Whether the Euler step of `[dl, du]` over `h` turns `set` inside out.
+fn inverts(set: &IntervalBox, dl: &[f64], du: &[f64], h: f64) -> bool {
+    (0..dl.len()).any(|i| set.upper[i] + h * du[i] < set.lower[i] + h * dl[i])
 }
 
 /// The meet of two sound bounds `[dl, du]` of the same embedding field.

@@ -39,7 +39,7 @@ use embedding::Dynamics;
 pub use safe_set::SafeSet;
 pub use time::TimeModel;
 pub use transform::{log_norm_inf, CoordinatesReason, Transform};
-pub use tube::{Tube, TubeEnd, TubeSample};
+pub use tube::{Inversion, Tube, TubeEnd, TubeSample};
 
 pub use cpu::CpuBackend;
 pub use engine::{choose_engine, settle_for_engine, EngineChoice, GpuOptions};

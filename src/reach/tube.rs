@@ -41,6 +41,21 @@ impl TubeSample {
     }
 }
 
+/// Why a step turned the embedding state inside out: the step itself, or bounds of the field
+/// that disagree (engines that cannot tell say [`Inversion::Unattributed`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Inversion {
+    /// One bound of the field alone inverts the box: the field contracts faster than `1/dt`
+    /// across the box, so the step is too large for this system.
+    StepTooLarge,
+    /// Each bound of the field alone keeps the box, but their meet inverts it: two sound
+    /// bounds of the same field cannot disagree, so one of them is not a bound — the network's,
+    /// widened by an `M` smaller than its actual error there.
+    BoundsDisagree,
+    /// Not recorded by this engine.
+    Unattributed,
+}
+
 /// How a tube ended: at the horizon, or early at time `t`, after which it says nothing.
 /// Serialized (inside [`Tube`]) as `valid` and, for an early end, its [`Display`] as `note`.
 ///
@@ -84,6 +99,8 @@ pub enum TubeEnd {
     Inverted {
         /// The time of the step.
         t: f64,
+        /// Which term of the step turned the box inside out.
+        cause: Inversion,
     },
     /// The embedding state overflowed (or became NaN) at `t`.
     NonFinite {
@@ -108,7 +125,7 @@ impl TubeEnd {
             | TubeEnd::FlowpipeLeftRegion { t }
             | TubeEnd::NoEnclosure { t, .. }
             | TubeEnd::NoIntersampleEnclosure { t }
-            | TubeEnd::Inverted { t }
+            | TubeEnd::Inverted { t, .. }
             | TubeEnd::NonFinite { t } => Some(t),
         }
     }
@@ -141,7 +158,24 @@ impl std::fmt::Display for TubeEnd {
             TubeEnd::NoIntersampleEnclosure { t } => {
                 write!(f, "t = {t:.3}: no enclosure of the motion between samples")
             }
-            TubeEnd::Inverted { t } => became(f, t, "inverted"),
+            TubeEnd::Inverted {
+                t,
+                cause: Inversion::StepTooLarge,
+            } => write!(
+                f,
+                "t = {t:.3}: the embedding state became inverted: the field contracts faster \
+                 than 1/dt across the box (a smaller dt, or more substeps)"
+            ),
+            TubeEnd::Inverted {
+                t,
+                cause: Inversion::BoundsDisagree,
+            } => write!(
+                f,
+                "t = {t:.3}: the embedding state became inverted: the network's bounds widened \
+                 by M and the filter's own bounds of the field disagree, so M is below the \
+                 network's actual error there (a certified M: m_c = \"certified\" or \"local\")"
+            ),
+            TubeEnd::Inverted { t, .. } => became(f, t, "inverted"),
             TubeEnd::NonFinite { t } => became(f, t, "non-finite"),
         }
     }
