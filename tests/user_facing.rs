@@ -175,7 +175,8 @@ fn three_states_verify_and_draw_as_projections_and_slices() {
         "verify",
         &chain3(),
         "--grid",
-        "3,3,2",
+        "3,3,3",
+        "--region=-0.3,-0.3,-0.3:0.3,0.3,0.3",
         "--refine",
         "0",
         "--json",
@@ -314,7 +315,7 @@ fn simulate_counts_infeasible_trajectories() {
         "--samples",
         "12",
         "--box",
-        "3.2,-1.95:4.8,-1.8",
+        "3.5,-1.95:4.5,-1.9",
         "--horizon",
         "0.2",
     ]);
@@ -328,32 +329,68 @@ fn simulate_counts_infeasible_trajectories() {
     );
 }
 
-/// Item 2: an inverted set says which term of the step inverted it. A step too large for how
-/// fast the closed loop contracts (scenario 1's `κ₂ = −5x₂` with dt = 0.5) inverts the box
+/// Item 2: an inverted set says which term of the step inverted it. In `ẋ = u`, `κ = −5x`, a
+/// step too large for how fast the loop contracts (dt = 0.5: `x ← −1.5x`) inverts the box
 /// whatever bounds the field has; a network whose error exceeds the `M` it is given (a constant
-/// 10 with M = 0, where v ≈ 0) disagrees with the filter's own bounds of the field.
+/// 10 with M = 0, where v ≤ 0.4) disagrees with the filter's own bounds.
 #[test]
 fn an_inverted_set_names_the_step_or_the_margin() {
     use cbfreach::network::{Layer, Mlp};
     use cbfreach::reach::{Backend, CpuBackend, Inversion, ReachProblem, ReachSettings, TubeEnd};
-    let paper = Scenario::builtin().unwrap();
-    let run = |s: &Scenario, net: Mlp, m: f64| {
-        let problem = ReachProblem::new(s, net, m).unwrap();
+    let fast = |dt: f64, h: &str, x0: f64| {
+        scenario(&format!(
+            r#"
+name = "fast"
+[system]
+states = ["x", "y"]
+inputs = ["u", "w"]
+f = ["0", "0"]
+g = [["1", "0"], ["0", "1"]]
+kappa = ["-5*x", "-5*y"]
+[[cbf]]
+h = "{h}"
+[reach]
+region = {{ lower = [-3.0, -3.0], upper = [3.0, 3.0] }}
+m_c = 0.0
+dt = {dt}
+horizon = 2.0
+goal = {{ lower = [-0.1, -0.1], upper = [0.1, 0.1] }}
+initial = [{{ lower = [{lo}, 0.9], upper = [{hi}, 1.1] }}]
+"#,
+            lo = x0 - 0.1,
+            hi = x0 + 0.1
+        ))
+        .unwrap()
+    };
+    let constant = |c: f64| Mlp {
+        layers: vec![
+            Layer {
+                weight: vec![0.0; 2],
+                bias: vec![0.0],
+                n_in: 2,
+                n_out: 1,
+            },
+            Layer {
+                weight: vec![0.0; 2],
+                bias: vec![c, c],
+                n_in: 1,
+                n_out: 2,
+            },
+        ],
+    };
+    let run = |s: &Scenario, net: Mlp| {
+        let problem = ReachProblem::new(s, net, 0.0).unwrap();
         let r = CpuBackend
             .reach(
                 &problem,
-                &s.reach.initial[..1],
+                &s.reach.initial,
                 &ReachSettings::default(),
                 &|_, _| {},
             )
             .unwrap();
         r.boxes[0].end
     };
-    let shipped = Mlp::load_safetensors(&paper.network.as_ref().unwrap().file).unwrap();
-    let mut coarse = paper.clone();
-    coarse.reach.dt = 0.5;
-    coarse.reach.horizon = 2.0;
-    let end = run(&coarse, shipped, 0.2);
+    let end = run(&fast(0.5, "100 - x^2 - y^2", 1.0), constant(0.0));
     assert!(
         matches!(
             end,
@@ -365,23 +402,9 @@ fn an_inverted_set_names_the_step_or_the_margin() {
         "{end:?}"
     );
     assert!(end.to_string().contains("smaller dt"), "{end}");
-    let ten = Mlp {
-        layers: vec![
-            Layer {
-                weight: vec![0.0; 2],
-                bias: vec![0.0],
-                n_in: 2,
-                n_out: 1,
-            },
-            Layer {
-                weight: vec![0.0; 2],
-                bias: vec![10.0, 10.0],
-                n_in: 1,
-                n_out: 2,
-            },
-        ],
-    };
-    let end = run(&paper, ten, 0.0);
+    // x ≥ −2 with α = 1 acts where x > 1/2: the box across x = 1/2 has no proven piece, so the
+    // filter's enclosures of v ∈ [0, 0.4] meet the network's 10.
+    let end = run(&fast(0.04, "x + 2", 0.5), constant(10.0));
     assert!(
         matches!(
             end,
