@@ -82,8 +82,8 @@ pub struct SystemSection {
     /// Nominal controller `κ(x)`, m expressions.
     pub kappa: Vec<String>,
     /// Angles and other states defined modulo a period: `{ theta = ["-pi", "pi"] }` says that
-    /// `theta` and `theta + 2π` are one state (default: none). Sets are kept within one
-    /// period (docs/design.md §2.3).
+    /// `theta` and `theta + 2π` are one state (default: none). Sets are not wrapped: C and
+    /// the initial boxes must lie within one period (docs/design.md §2.12).
     #[serde(default)]
     pub periodic: BTreeMap<String, Vec<Number>>,
 }
