@@ -52,13 +52,7 @@ fn tick() {
     atomicAdd(&flags[FLAG_W * p.boxes], 1u);
 }
 
-// The error map's cells for local margins (LOCAL_MARGIN; src/gpu/margins.rs): bucket starts
-// (MAP_BUCKETS + 1) then cell ids; per cell lo[N0], hi[N0] (rounded outward) and its bound.
-@group(0) @binding(5) var<storage, read> map_index: array<u32>;
-@group(0) @binding(6) var<storage, read> map_cells: array<real>;
-
 const NO_BOUND: u32 = 4u;
-const CELL_W: u32 = 2u * N0 + 1u;
 
 // The network's bounds over one bound box (a box, or one of its faces with FACES > 1):
 // C̲x + d̲ ≤ N(x) ≤ C̄x + d̄ and N̲ ≤ N ≤ N̄ (shaders/output.wgsl).
@@ -170,134 +164,6 @@ fn x_box(z: array<Iv, N0>) -> array<Iv, N0> {
         x[i] = xi;
     }
     return x;
-}
-
-// The bucket of x along axis i, moved by d bucket units (clamped; src/gpu/margins.rs).
-fn map_bucket(i: u32, x: real, d: real) -> u32 {
-    let t = floor((x - MAP_ORIGIN[i]) * MAP_INV_STEP[i] + d);
-    return u32(clamp(t, 0.0, real(MAP_COUNT[i] - 1u)));
-}
-
-// Whether map cell c (closed, rounded outward) meets the box xb.
-fn cell_meets(c: u32, xb: array<Iv, N0>) -> bool {
-    var meets = true;
-    for (var i = 0u; i < N0; i++) {
-        let lo = map_cells[c * CELL_W + i];
-        let hi = map_cells[c * CELL_W + N0 + i];
-        meets = meets && lo <= xb[i].hi && xb[i].lo <= hi;
-    }
-    return meets;
-}
-
-// The next index of the product of ranges [first_i, last_i] (an odometer, the last axis
-// fastest); false after the last one.
-fn odometer_next(at: ptr<function, array<u32, N0>>, first: array<u32, N0>, last: array<u32, N0>) -> bool {
-    for (var i = N0; i > 0u; i--) {
-        if ((*at)[i - 1u] < last[i - 1u]) {
-            (*at)[i - 1u] += 1u;
-            return true;
-        }
-        (*at)[i - 1u] = first[i - 1u];
-    }
-    return false;
-}
-
-// The exact local bound over buckets [first, last]: the largest bound of the listed cells that
-// meet xb; −1 once more than MAP_EXACT_WORK buckets and entries would be read.
-fn exact_margin(xb: array<Iv, N0>, first: array<u32, N0>, last: array<u32, N0>) -> real {
-    var worst: real = 0.0;
-    var work = 0u;
-    var at = first;
-    loop {
-        var k = 0u;
-        for (var i = 0u; i < N0; i++) {
-            k = k * MAP_COUNT[i] + at[i];
-        }
-        let e0 = map_index[k];
-        let e1 = map_index[k + 1u];
-        work += 1u + (e1 - e0);
-        if (work > MAP_EXACT_WORK) {
-            return -1.0;
-        }
-        for (var e = e0; e < e1; e++) {
-            let c = map_index[MAP_BUCKETS + 1u + e];
-            if (cell_meets(c, xb)) {
-                worst = max(worst, map_cells[c * CELL_W + 2u * N0]);
-            }
-        }
-        if (!odometer_next(&at, first, last)) {
-            break;
-        }
-    }
-    return worst;
-}
-
-// Blocks of `level` that buckets [first, last] meet, capped at MAP_BLOCK_BUDGET + 1.
-fn blocks_met(first: array<u32, N0>, last: array<u32, N0>, level: u32) -> u32 {
-    var blocks = 1u;
-    for (var i = 0u; i < N0; i++) {
-        blocks = min(blocks * ((last[i] >> level) - (first[i] >> level) + 1u), MAP_BLOCK_BUDGET + 1u);
-    }
-    return blocks;
-}
-
-// A bound never below the exact one over buckets [first, last]: the largest block maximum of
-// the finest level at which they meet at most MAP_BLOCK_BUDGET blocks (src/gpu/margins.rs).
-fn block_margin(first: array<u32, N0>, last: array<u32, N0>) -> real {
-    var level = 0u;
-    while (level < MAP_LEVELS && blocks_met(first, last, level) > MAP_BLOCK_BUDGET) {
-        level += 1u;
-    }
-    var counts: array<u32, N0>;
-    var lo: array<u32, N0>;
-    var hi: array<u32, N0>;
-    for (var i = 0u; i < N0; i++) {
-        counts[i] = ((MAP_COUNT[i] - 1u) >> level) + 1u;
-        lo[i] = first[i] >> level;
-        hi[i] = last[i] >> level;
-    }
-    var worst: real = 0.0;
-    var at = lo;
-    loop {
-        var k = 0u;
-        for (var i = 0u; i < N0; i++) {
-            k = k * counts[i] + at[i];
-        }
-        worst = max(worst, map_cells[MAP_BLOCKS_AT + MAP_LEVEL_AT[level] + k]);
-        if (!odometer_next(&at, lo, hi)) {
-            break;
-        }
-    }
-    return worst;
-}
-
-// The local error bound M over the x-box xb (ErrorMap::local_bound): the largest bound of the
-// cells meeting it, over every bucket the box meets (over-covered by MAP_DELTA), or past
-// MAP_EXACT_WORK the block maxima's bound above it; HUGE (+∞) for an uncertified map, a box
-// outside the map's region, or a cell with no certified bound. src/gpu/margins.rs has the
-// soundness argument and why the work is bounded.
-fn local_margin(xb: array<Iv, N0>) -> real {
-    if (!MAP_CERTIFIED) {
-        return HUGE;
-    }
-    var first: array<u32, N0>;
-    var last: array<u32, N0>;
-    var buckets = 1u;
-    for (var i = 0u; i < N0; i++) {
-        if (!(finite(xb[i].lo) && finite(xb[i].hi)) || xb[i].lo < MAP_LO[i] || xb[i].hi > MAP_HI[i]) {
-            return HUGE;
-        }
-        first[i] = map_bucket(i, xb[i].lo, -MAP_DELTA);
-        last[i] = map_bucket(i, xb[i].hi, MAP_DELTA);
-        buckets = min(buckets * (last[i] - first[i] + 1u), MAP_EXACT_WORK + 1u);
-    }
-    if (buckets <= MAP_EXACT_WORK) {
-        let m = exact_margin(xb, first, last);
-        if (m >= 0.0) {
-            return m;
-        }
-    }
-    return block_margin(first, last);
 }
 
 // The disturbance bound of box g (embedding coordinates z): the error map's local bound over its

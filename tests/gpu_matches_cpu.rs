@@ -1076,10 +1076,10 @@ fn grown_sets_problem() -> (ReachProblem, Vec<IntervalBox>, ReachSettings) {
 /// visit of every bucket used to run more than 65,535 loop iterations, after which llvmpipe
 /// silently ended every loop of the invocation, for every box of its SIMD group: a field
 /// component came out 0 and the second box's set froze in x₂, narrower than the CPU's sound
-/// set, and so did the first box's when run beside it. Now (block maxima past `EXACT_WORK`)
+/// set, and so did the first box's when run beside it. Then block maxima past a work bound
+/// kept it sound but looser than the CPU. Now (the range-maximum structure of `gpu::margins`)
 /// each box's tube is the same alone and batched, every set contains the true filtered system's
-/// trajectories from 16 starts, and in f64 stays within 5 % of the scale of the CPU's (exact
-/// margins).
+/// trajectories from 16 starts, and in f64 equals the CPU's to `F64_TOL` (exact margins).
 #[test]
 fn grown_sets_local_margins_are_sound_and_batch_independent() {
     use cbfreach::filter::SafetyFilter;
@@ -1135,7 +1135,7 @@ fn grown_sets_local_margins_are_sound_and_batch_independent() {
                         .abs()
                         .max((sc.set.upper[i] - sg.set.upper[i]).abs());
                     assert!(
-                        gap <= 0.05 * scale,
+                        gap <= F64_TOL * scale,
                         "{label} box {k}, t = {}: gpu {:?} vs cpu {:?}",
                         sc.t,
                         sg.set,
@@ -1149,13 +1149,14 @@ fn grown_sets_local_margins_are_sound_and_batch_independent() {
     }
 }
 
-/// The embedding kernel's loop check: with the exact local-margin visit unbounded (as before
-/// `EXACT_WORK`), llvmpipe cuts the grown set's loops short, and the run fails with an error
-/// that says so instead of returning wrong sets; a driver without such a limit runs it.
+/// The embedding kernel's loop check: with a million extra loop iterations per local-margin
+/// query (`pad_loops`, as an unbounded visit of the map's cells once ran), llvmpipe cuts the
+/// loops short, and the run fails with an error that says so instead of returning wrong sets;
+/// a driver without such a limit runs it.
 #[test]
 fn a_driver_that_cuts_loops_short_fails_the_run() {
     let Some(mut gpu) = gpu() else { return };
-    gpu.exact_work = Some(1 << 20);
+    gpu.pad_loops = 1 << 20;
     let (problem, init, st) = grown_sets_problem();
     let res = gpu.reach(&problem, &init[1..], &st, &|_, _| {});
     if gpu.context().info.name.contains("llvmpipe") {

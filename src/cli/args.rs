@@ -10,7 +10,7 @@ use cbfreach::gpu::Precision;
 use cbfreach::problem::{ProblemError, ProblemOptions};
 use cbfreach::reach::engine::EngineError;
 use cbfreach::reach::{
-    choose_engine, settle_for_engine, Backend, EngineChoice, ExactField, GpuOptions, ReachMethod,
+    choose_engine, Backend, EngineChoice, ExactField, GpuOptions, ReachMethod,
     ReachProblem, ReachSettings,
 };
 use cbfreach::scenario::{Margin, TransformChoice};
@@ -213,14 +213,14 @@ pub fn compile(
     })
 }
 
-/// The engine asked for, its notices printed; then `settings` made ones it runs, with a note.
+/// The engine asked for, its notices printed (an engine refuses settings it does not run).
 pub fn engine(
     which: EngineChoice,
     gpu: &GpuArgs,
     settings: &mut ReachSettings,
     problem: &ReachProblem,
 ) -> Result<Box<dyn Backend + Sync>, Box<dyn std::error::Error>> {
-    let chosen = choose_engine(which, &gpu.options(), settings, problem.time).map_err(
+    let chosen = choose_engine(which, &gpu.options(), settings, problem).map_err(
         |e| -> Box<dyn std::error::Error> {
             match e {
                 EngineError::PrecisionOnCpu(_) => {
@@ -237,9 +237,6 @@ pub fn engine(
     )?;
     for notice in &chosen.notices {
         println!("{notice}");
-    }
-    if let Some(note) = settle_for_engine(settings, chosen.backend.as_ref(), problem) {
-        println!("{note}");
     }
     Ok(chosen.backend)
 }

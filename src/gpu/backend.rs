@@ -45,8 +45,8 @@ use super::margins::MarginMap;
 use super::{GpuContext, GpuError, Precision};
 use crate::boxes::IntervalBox;
 use crate::reach::{
-    Backend, ReachError, ReachProblem, ReachResult, ReachSettings, ReachTiming, SafeSet, Tube,
-    TubeEnd,
+    Backend, ReachError, ReachProblem, ReachResult, ReachSettings, ReachTiming, SafeSet, TimeModel,
+    Tube, TubeEnd, Unsupported,
 };
 
 /// The largest buffer one chunk binds, whatever the device allows (bytes).
@@ -67,9 +67,9 @@ pub struct GpuBackend {
     precision: Precision,
     /// Most boxes in one chunk (`None`: as many as the limits allow); for tests of the split.
     pub max_chunk: Option<usize>,
-    /// Most work of an exact local-margin query (`None`: `margins::EXACT_WORK`); for tests of
-    /// the embedding kernel's loop check.
-    pub exact_work: Option<usize>,
+    /// Extra loop iterations per local-margin query (0 unless set); for tests of the embedding
+    /// kernel's loop check.
+    pub pad_loops: u32,
     /// After each chunk, time every kind of dispatch of a step on its own and print the
     /// breakdown to stderr (`bench --profile`; the chunk's results are read back first).
     pub profile: bool,
@@ -128,7 +128,7 @@ impl GpuBackend {
             ctx,
             precision,
             max_chunk: None,
-            exact_work: None,
+            pad_loops: 0,
             profile: false,
             kernels: KernelCache::default(),
         }
@@ -164,6 +164,22 @@ impl GpuBackend {
     /// with an error map) run on every setting.
     pub fn supports(settings: &ReachSettings) -> bool {
         method_flags(settings.bounds, 2).is_some()
+    }
+
+    /// Whether this engine runs `problem` under `settings` as they are, or the setting it
+    /// refuses: bounds without a device kernel (IBP alone), sets met with their x-boxes (a
+    /// transform with `intersect_x`), a time model other than the Euler map.
+    pub fn runs(problem: &ReachProblem, settings: &ReachSettings) -> Result<(), Unsupported> {
+        if !GpuBackend::supports(settings) {
+            return Err(Unsupported::Bounds(settings.bounds));
+        }
+        if problem.frames(settings).len() > 1 {
+            return Err(Unsupported::IntersectX);
+        }
+        if problem.time != TimeModel::Euler {
+            return Err(Unsupported::Time(problem.time.name()));
+        }
+        Ok(())
     }
 
     /// Boxes per chunk for a problem: every buffer of one chunk must fit one binding, all of
@@ -230,14 +246,12 @@ impl Backend for GpuBackend {
         }
     }
 
-    fn supports(&self, settings: &ReachSettings) -> Result<(), crate::reach::Unsupported> {
-        if !GpuBackend::supports(settings) {
-            return Err(crate::reach::Unsupported::Bounds(settings.bounds));
-        }
-        if settings.intersect_x {
-            return Err(crate::reach::Unsupported::IntersectX);
-        }
-        Ok(())
+    fn supports(
+        &self,
+        problem: &ReachProblem,
+        settings: &ReachSettings,
+    ) -> Result<(), Unsupported> {
+        GpuBackend::runs(problem, settings)
     }
 
     fn reach(
@@ -249,21 +263,8 @@ impl Backend for GpuBackend {
     ) -> Result<ReachResult, ReachError> {
         problem.check_initial(initial)?;
         settings.validate()?;
-        if problem.time != crate::reach::TimeModel::Euler {
-            return Err(GpuError::Unsupported(format!(
-                "time = \"{}\" (the GPU engine runs time = \"euler\" alone: set it, or use \
-                 the CPU engine)",
-                problem.time.name()
-            ))
-            .into());
-        }
-        if !GpuBackend::supports(settings) {
-            return Err(GpuError::Unsupported(format!(
-                "{} bounds (the GPU engine has forward, forward-backward and crown bounds; use \
-                 one of them or the CPU)",
-                settings.bounds
-            ))
-            .into());
+        if let Err(u) = GpuBackend::runs(problem, settings) {
+            return Err(GpuError::Unsupported(crate::reach::refusal(u)).into());
         }
         let start = Instant::now();
         let every = settings.every.max(1);
@@ -313,9 +314,7 @@ impl Backend for GpuBackend {
         }
         let shape = Shape::new(problem, settings);
         let mut margins = MarginMap::for_problem(problem, settings, self.precision);
-        if let Some(w) = self.exact_work {
-            margins.exact_work = w;
-        }
+        margins.pad_loops = self.pad_loops;
         let source = problem_wgsl(problem, settings, shape.flags, self.precision, &margins)?;
         let kernels = self.kernels.get(&self.ctx.device, self.precision, source)?;
         let chunk = self.chunk_size(problem, settings, initial.len());

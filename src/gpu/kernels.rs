@@ -20,6 +20,7 @@ const OUTPUT: &str = include_str!("../../shaders/output.wgsl");
 const EMBED: &str = include_str!("../../shaders/embed.wgsl");
 const FACES: &str = include_str!("../../shaders/faces.wgsl");
 const FILTER: &str = include_str!("../../shaders/filter.wgsl");
+const MARGINS: &str = include_str!("../../shaders/margins.wgsl");
 
 /// Workgroup size of the one-dimensional kernels (`@workgroup_size(64)` in the shaders).
 pub const WORKGROUP: u32 = 64;
@@ -131,7 +132,7 @@ pub fn shader_source(precision: Precision, problem_wgsl: &str, module: &str) -> 
         "backward" => &[BOX, BACKWARD],
         "output" => &[BOX, OUTPUT],
         "faces" => &[BOX, FACES],
-        _ => &[BOX, FILTER, EMBED],
+        _ => &[BOX, FILTER, MARGINS, EMBED],
     };
     for part in body {
         s.push_str(part);
@@ -168,9 +169,9 @@ impl Kernels {
             // every loop in shaders/ and in the generated code ends: `for` loops step a counter
             // by 1 (the GEMM's by its tile depth, towards a width ≤ 2¹⁸ checked in
             // `GpuBackend::reach`, so it cannot wrap) towards a bound they stop at, the ones in
-            // real_f64.wgsl and `odometer_next` count down to 0, the error map's walks
-            // (embed.wgsl, `exact_margin`, `block_margin`) advance a mixed-radix counter that
-            // stops at its last value, and `block_margin`'s level search stops at MAP_LEVELS.
+            // real_f64.wgsl count down to 0, and the error map's walk (margins.wgsl) runs
+            // binary searches that narrow a range and pops a stack of blocks that only
+            // descends the structure's levels.
             unsafe { device.create_shader_module_trusted(desc, checks) }
         };
         let (gemm_m, relu_m, bwd_m, out_m, faces_m, embed_m) = (

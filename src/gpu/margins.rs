@@ -1,41 +1,38 @@
-//! Local error margins on the device (`--local-margin`, docs/design.md §2b): the error map's cells and a
-//! bucket index over its region, uploaded once, so that the embedding kernel
-//! (`local_margin` in `shaders/embed.wgsl`) takes per box and step the same maximum as
-//! [`crate::error_map::ErrorMap::local_bound`] on the CPU: `M = max { M_c : c meets the
-//! set's x-bounding box }` over the map's closed cells `c` (`+∞` where a cell met has no
-//! certified bound, and for a box outside the map's region).
+//! Local error margins on the device (docs/design.md §2.7): the largest certified bound of the
+//! error map's cells that a set's x-box meets, exactly [`crate::error_map::ErrorMap::local_bound`]
+//! for any set size, read from a range-maximum structure in O(log) entries per cell shape
+//! (`local_margin` in `shaders/margins.wgsl` walks it; [`MarginMap::bound`] is the same walk on
+//! the host).
 //!
-//! # Soundness
+//! # The structure
 //!
-//! The buckets are defined by the device numbers `L` (origin) and `ι` (inverse step) per axis:
-//! bucket `b` is `{x : b ≤ (x − L)·ι ≤ b + 1}` (closed), the first and last extended to `∓∞`, so
-//! every point lies in a bucket. A cell is listed in every bucket its closed extent meets
-//! ([`bucket_range`] in f64 with a safety margin `δ` that only widens the range). The kernel
-//! visits every bucket the box's x-box meets (the same range in device arithmetic: the computed
-//! `(x − L)·ι` errs by at most `3u·|t|` plus an underflow term, far below its margin
-//! `KERNEL_DELTA` while `|t| ≤ count + 1`; beyond that the clamp gives the edge bucket, the only
-//! one met), and tests each listed cell against the box with the cell rounded outward to device
-//! numbers. So a cell that meets the exact set meets the computed x-box, shares a visited bucket
-//! with it (the bucket of a common point) and passes the outward test: the device's maximum is
-//! at least the CPU's. Bounds are rounded up; `+∞` (and anything past the device's `HUGE`)
-//! becomes `HUGE`, which the kernel reads as "no certified bound". The test of the x-box against
-//! the map's region (rounded outward) mirrors the CPU's; soundness does not rest on it, since
-//! the exact set lies in `C ⊆` the map's region whenever a margin is taken (initial boxes are
-//! checked, and every step's set is checked against `C`, rounded inward, before the next).
+//! A closed cell `[l, h]` meets a closed box `[a, b]` iff `lᵢ ≤ bᵢ` and `hᵢ ≥ aᵢ` on every
+//! axis. The cells are grouped by shape (their widths: the levels of the map's bisection tree,
+//! 13 in the shipped maps). Within one shape, sorting by `l₀` sorts `h₀` too, so the cells that
+//! meet the box along axis 0 are one range of ranks `[i₀, i₁)`, found by two binary searches;
+//! along axis 1 likewise within any subset sorted by `l₁`. Over the ranks sits a merge-sort
+//! tree: at level `h` each block of `2^h` ranks holds its cells sorted by `l₁`, with a sparse
+//! table of their bounds (the maximum over any run of positions from two entries) and, per
+//! position, how many of the cells before it come from the block's left half (fractional
+//! cascading: the axis-1 range found once at the root maps to every block on the way down in
+//! O(1)). The rank range splits into at most `2·log K` whole blocks; each gives its maximum
+//! over the axis-1 range from two table entries. A query reads `O(log K)` entries per shape,
+//! whatever the set's size; the structure holds `O(K log² K)` numbers (~3 M for the shipped
+//! maps).
 //!
-//! # Bounded work
+//! # Soundness and exactness
 //!
-//! A set that has grown over many buckets would make that exact visit long: thousands of
-//! iterations a step, and llvmpipe (lavapipe) silently ends every loop of an invocation after
-//! 65,535 iterations in all, cutting the loops of the other boxes of its SIMD group short too.
-//! So the exact visit runs only while it reads at most [`EXACT_WORK`] buckets and cell entries
-//! (the kernel gives up at the first entry beyond); past that, the kernel takes the maximum of
-//! precomputed block maxima instead: level `ℓ` holds, per block of `2^ℓ` buckets a side, the
-//! largest bound of the cells listed in its buckets, and the kernel reads the finest level at
-//! which the set meets at most [`BLOCK_BUDGET`] blocks. Every cell that meets the set is listed
-//! in a bucket the set meets, hence in a block read, so this maximum is never below the exact
-//! one: still sound, looser by at most one block a side (`BLOCK_BUDGET^(1/n)` blocks span the
-//! set: in 2-D about 1/16 of its extent).
+//! On the device, cells are rounded outward and bounds up (`+∞` and anything past `HUGE`
+//! become `HUGE`, read as "no certified bound"); rounding is monotone, so the sorted orders
+//! survive it (the build checks them, and puts a cell that would break one in a shape of its
+//! own). The walk only compares numbers, so it finds exactly the (rounded) cells that meet the
+//! computed x-box: in f64 the CPU's cells and bound, in f32 a superset of them with bounds
+//! rounded up. A box outside the map's region (rounded outward) or with a non-finite end gets
+//! `HUGE`, as the CPU's `+∞`. Axes past the second are not looked at (a superset of the cells
+//! met, still sound); a one-dimensional map gets a second axis on which everything meets.
+//!
+//! This module reads the map only through its region, its cells' corners and bounds, and
+//! whether it is certified.
 
 use std::fmt::Write;
 
@@ -44,46 +41,27 @@ use super::Precision;
 use crate::error_map::ErrorMap;
 use crate::reach::{ReachMethod, ReachProblem, ReachSettings};
 
-/// Most buckets per axis, and in all.
-const MAX_PER_AXIS: usize = 1024;
-const MAX_BUCKETS: usize = 1 << 20;
-/// The host's safety margin in bucket units (its f64 error is ~1e-12 at these sizes).
-const HOST_DELTA: f64 = 1e-6;
-/// The kernel's safety margin in bucket units (`(MAX_PER_AXIS + 2)·3u` is below 1e-3 in f32).
-pub const KERNEL_DELTA: f64 = 1.0 / 16.0;
-/// Most buckets plus cell entries one exact query reads before it gives up for block maxima.
-pub const EXACT_WORK: usize = 2048;
-/// Most blocks one block-maximum query reads (at the finest level that allows it).
-pub const BLOCK_BUDGET: usize = 256;
+/// Header words per shape in [`MarginMap::index`]: reals offset, words offset, cells, levels.
+const HEADER: usize = 4;
 
-/// An error map laid out for the device.
+/// An error map laid out for the device as a range-maximum structure (module documentation).
 #[derive(Clone, Debug, PartialEq)]
 pub struct MarginMap {
     /// Whether the map has certified bounds at all (else every margin is `+∞`).
     pub certified: bool,
-    /// Buckets per axis.
-    pub counts: Vec<usize>,
-    /// Bucket origin `L` per axis (a device number).
-    pub origin: Vec<f64>,
-    /// Inverse bucket step `ι` per axis (a device number).
-    pub inv_step: Vec<f64>,
-    /// The map's region rounded outward to device numbers.
-    pub region_lo: Vec<f64>,
+    /// The map's region rounded outward to device numbers (two axes).
+    pub region_lo: [f64; 2],
     /// Its upper corner, rounded up.
-    pub region_hi: Vec<f64>,
-    /// `start[0..=B]` then the cell ids: bucket `k` lists `ids[start[k]..start[k + 1]]`, at
-    /// offset `B + 1` of this array.
+    pub region_hi: [f64; 2],
+    /// Shapes (groups of cells of equal widths).
+    pub shapes: usize,
+    /// Per shape `[reals offset, words offset, K, H]`, then the cascade counts.
     pub index: Vec<u32>,
-    /// Per cell `lo[n]` (rounded down), `hi[n]` (rounded up), bound (rounded up, `HUGE` for ∞).
-    pub cells: Vec<f64>,
-    /// The block maxima of levels `0..=levels` (level 0: per bucket), each row-major over
-    /// [`MarginMap::level_counts`] blocks, starting at `level_at[ℓ]`.
-    pub blocks: Vec<f64>,
-    /// Where each level starts in `blocks`.
-    pub level_at: Vec<usize>,
-    /// Most buckets plus entries an exact query reads ([`EXACT_WORK`]; tests raise it to
-    /// show the loop check of the embedding kernel at work).
-    pub exact_work: usize,
+    /// Per shape: `l₀[K]`, `h₀[K]`, per level `l₁[K]`, `h₁[K]`, then the sparse tables.
+    pub reals: Vec<f64>,
+    /// Extra loop iterations per query (0; tests raise it to show the embedding kernel's loop
+    /// check at work).
+    pub pad_loops: u32,
 }
 
 /// The device's `HUGE` (shaders' "unbounded") as an f64.
@@ -91,183 +69,207 @@ fn huge(precision: Precision) -> f64 {
     round_up(f64::INFINITY, precision)
 }
 
-/// Buckets per axis for `cells` cells in `n` dimensions: about one cell per bucket.
-fn bucket_counts(cells: usize, n: usize) -> Vec<usize> {
-    let per_axis = ((cells.max(1) as f64).powf(1.0 / n as f64).ceil() as usize).max(1);
-    let cap = (MAX_BUCKETS as f64).powf(1.0 / n as f64).floor() as usize;
-    vec![per_axis.clamp(1, MAX_PER_AXIS.min(cap.max(1))); n]
+/// One cell on the device: corners on two axes (rounded outward) and its bound (rounded up).
+#[derive(Clone, Copy, Debug)]
+struct Cell {
+    lo: [f64; 2],
+    hi: [f64; 2],
+    bound: f64,
 }
 
-/// The buckets `[lo, hi]` (clamped to `0..count`) whose closed extent may meet `[a, b]` along
-/// one axis, for `t(x) = (x − origin)·inv_step`, widened by `delta` bucket units.
-pub fn bucket_range(
-    a: f64,
-    b: f64,
-    origin: f64,
-    inv_step: f64,
-    count: usize,
-    delta: f64,
-) -> (usize, usize) {
-    let last = (count - 1) as f64;
-    let index = |x: f64, d: f64| {
-        let t = ((x - origin) * inv_step + d).floor();
-        if t.is_nan() {
-            if d < 0.0 {
-                0.0
-            } else {
-                last
-            }
+/// `⌈log₂ k⌉` (0 for k ≤ 1).
+fn levels_for(k: usize) -> usize {
+    k.max(1).next_power_of_two().trailing_zeros() as usize
+}
+
+/// The first position in `0..len` at which `pred` holds, `pred` false then true.
+fn partition_point(len: usize, pred: impl Fn(usize) -> bool) -> usize {
+    let (mut lo, mut hi) = (0, len);
+    while lo < hi {
+        let mid = lo + (hi - lo) / 2;
+        if pred(mid) {
+            hi = mid;
         } else {
-            t.clamp(0.0, last)
+            lo = mid + 1;
         }
-    };
-    (index(a, -delta) as usize, index(b, delta) as usize)
+    }
+    lo
+}
+
+/// Whether `cells` in the order `ids` have both corners non-decreasing along `axis`.
+fn monotone(cells: &[Cell], ids: &[usize], axis: usize) -> bool {
+    ids.windows(2).all(|w| {
+        let (a, b) = (&cells[w[0]], &cells[w[1]]);
+        a.lo[axis] <= b.lo[axis] && a.hi[axis] <= b.hi[axis]
+    })
 }
 
 impl MarginMap {
     /// The device image of `map` in `precision`.
     pub fn new(map: &ErrorMap, precision: Precision) -> MarginMap {
-        let n = map.region.dim();
         let (down, up) = (
             |x: f64| round_down(x, precision),
             |x: f64| round_up(x, precision),
         );
-        let counts = bucket_counts(map.cells.len(), n);
-        let origin: Vec<f64> = map.region.lower.iter().map(|&l| down(l)).collect();
-        let inv_step: Vec<f64> = (0..n)
-            .map(|i| {
-                let width = (map.region.upper[i] - origin[i]).max(f64::MIN_POSITIVE);
-                // Any positive device number defines valid buckets; this one spans the region.
-                down(counts[i] as f64 / width).max(round_up(f64::MIN_POSITIVE, precision))
-            })
-            .collect();
-        let total: usize = counts.iter().product();
-        let mut lists: Vec<Vec<u32>> = vec![Vec::new(); total];
-        for (k, c) in map.cells.iter().enumerate() {
-            let ranges: Vec<(usize, usize)> = (0..n)
-                .map(|i| {
-                    let (a, b) = (c.lower[i], c.upper[i]);
-                    bucket_range(a, b, origin[i], inv_step[i], counts[i], HOST_DELTA)
-                })
-                .collect();
-            for_each_bucket(&counts, &ranges, |b| lists[b].push(k as u32));
-        }
-        let mut index = Vec::with_capacity(total + 1 + map.cells.len());
-        let mut at = 0u32;
-        index.push(0);
-        for l in &lists {
-            at += l.len() as u32;
-            index.push(at);
-        }
-        index.extend(lists.into_iter().flatten());
         let huge = huge(precision);
-        let bounds: Vec<f64> = map
+        let n = map.region.dim();
+        let axis = |v: &[f64], i: usize| if i < n { v[i] } else { 0.0 };
+        let region_lo = [
+            down(axis(&map.region.lower, 0)),
+            down(axis(&map.region.lower, 1)),
+        ];
+        let region_hi = [
+            up(axis(&map.region.upper, 0)),
+            up(axis(&map.region.upper, 1)),
+        ];
+        // Shapes by the cells' widths on the first two axes.
+        let mut keys: Vec<([u64; 2], usize)> = Vec::with_capacity(map.cells.len());
+        let cells: Vec<Cell> = map
             .cells
             .iter()
-            .map(|c| {
-                if c.bound.is_finite() {
-                    up(c.bound).min(huge)
-                } else {
-                    huge
+            .enumerate()
+            .map(|(k, c)| {
+                let w = |i| (axis(&c.upper, i) - axis(&c.lower, i)).to_bits();
+                keys.push(([w(0), w(1)], k));
+                Cell {
+                    lo: [down(axis(&c.lower, 0)), down(axis(&c.lower, 1))],
+                    hi: [up(axis(&c.upper, 0)), up(axis(&c.upper, 1))],
+                    bound: match c.bound.is_finite() {
+                        true => up(c.bound).min(huge),
+                        false => huge,
+                    },
                 }
             })
             .collect();
-        let mut cells = Vec::with_capacity(map.cells.len() * (2 * n + 1));
-        for (c, &bound) in map.cells.iter().zip(&bounds) {
-            cells.extend(c.lower.iter().map(|&v| down(v)));
-            cells.extend(c.upper.iter().map(|&v| up(v)));
-            cells.push(bound);
+        keys.sort_unstable();
+        let mut groups: Vec<Vec<usize>> = Vec::new();
+        for (i, (key, k)) in keys.iter().enumerate() {
+            match i > 0 && keys[i - 1].0 == *key {
+                true => groups.last_mut().expect("a group").push(*k),
+                false => groups.push(vec![*k]),
+            }
         }
         let mut m = MarginMap {
             certified: map.certified_linf.is_some(),
-            counts,
-            origin,
-            inv_step,
-            region_lo: map.region.lower.iter().map(|&v| down(v)).collect(),
-            region_hi: map.region.upper.iter().map(|&v| up(v)).collect(),
-            index,
-            cells,
-            blocks: Vec::new(),
-            level_at: Vec::new(),
-            exact_work: EXACT_WORK,
+            region_lo,
+            region_hi,
+            shapes: 0,
+            index: Vec::new(),
+            reals: Vec::new(),
+            pad_loops: 0,
         };
-        m.build_blocks(&bounds);
+        let mut shapes: Vec<Vec<usize>> = Vec::new();
+        for mut ids in groups {
+            ids.sort_by(|&a, &b| {
+                let (a, b) = (&cells[a], &cells[b]);
+                (a.lo[0], a.hi[0], a.lo[1])
+                    .partial_cmp(&(b.lo[0], b.hi[0], b.lo[1]))
+                    .expect("finite")
+            });
+            let mut by_y = ids.clone();
+            by_y.sort_by(|&a, &b| {
+                let (a, b) = (&cells[a], &cells[b]);
+                (a.lo[1], a.hi[1])
+                    .partial_cmp(&(b.lo[1], b.hi[1]))
+                    .expect("finite")
+            });
+            if monotone(&cells, &ids, 0) && monotone(&cells, &by_y, 1) {
+                shapes.push(ids);
+            } else {
+                // Rounding broke an order (never seen): each cell a shape of its own.
+                shapes.extend(ids.into_iter().map(|k| vec![k]));
+            }
+        }
+        m.index.resize(HEADER * shapes.len(), 0);
+        for (s, ids) in shapes.iter().enumerate() {
+            m.push_shape(s, &cells, ids);
+        }
+        m.shapes = shapes.len();
         m
     }
 
-    /// Levels of block maxima above the buckets: the last has one block.
-    pub fn levels(&self) -> usize {
-        let widest = self.counts.iter().copied().max().unwrap_or(1);
-        widest.next_power_of_two().trailing_zeros() as usize
-    }
-
-    /// Blocks per axis at `level` (`2^level` buckets a side, the last one perhaps fewer).
-    pub fn level_counts(&self, level: usize) -> Vec<usize> {
-        self.counts
-            .iter()
-            .map(|&c| c.div_ceil(1 << level))
-            .collect()
-    }
-
-    /// Fills `blocks`: level 0 from the cells listed per bucket (`bounds` per cell), each
-    /// higher level from the one below (a block's maximum over its up to `2^n` children).
-    fn build_blocks(&mut self, bounds: &[f64]) {
-        let n = self.counts.len();
-        let buckets: usize = self.counts.iter().product();
-        let ids = &self.index[buckets + 1..];
-        let mut level: Vec<f64> = (0..buckets)
-            .map(|k| {
-                let (a, b) = (self.index[k] as usize, self.index[k + 1] as usize);
-                ids[a..b]
-                    .iter()
-                    .map(|&c| bounds[c as usize])
-                    .fold(0.0, f64::max)
-            })
-            .collect();
-        self.level_at = vec![0];
-        self.blocks = level.clone();
-        for l in 1..=self.levels() {
-            let (below, here) = (self.level_counts(l - 1), self.level_counts(l));
-            let mut next = vec![0.0f64; here.iter().product()];
-            let full: Vec<(usize, usize)> = below.iter().map(|&c| (0, c - 1)).collect();
-            for_each_bucket(&below, &full, |k| {
-                // Row-major index k at the level below → its parent block.
-                let (mut rest, mut parent, mut stride) = (k, 0, 1);
-                for i in (0..n).rev() {
-                    parent += (rest % below[i]) / 2 * stride;
-                    rest /= below[i];
-                    stride *= here[i];
+    /// Appends one shape's arrays (`ids` sorted by `l₀`) and writes its header.
+    fn push_shape(&mut self, s: usize, cells: &[Cell], ids: &[usize]) {
+        let k = ids.len();
+        let levels = levels_for(k);
+        let header = [self.reals.len(), self.index.len(), k, levels];
+        for (i, v) in header.into_iter().enumerate() {
+            self.index[HEADER * s + i] = u32::try_from(v).expect("error map too large");
+        }
+        self.reals.extend(ids.iter().map(|&c| cells[c].lo[0]));
+        self.reals.extend(ids.iter().map(|&c| cells[c].hi[0]));
+        // Level h: per block of 2^h ranks, its cells by (l₁, h₁, rank); merged from level h − 1.
+        let key = |r: usize| {
+            let c = &cells[ids[r]];
+            (c.lo[1], c.hi[1], r)
+        };
+        let mut order: Vec<usize> = (0..k).collect();
+        let mut lists = Vec::with_capacity(levels + 1);
+        for h in 0..=levels {
+            if h > 0 {
+                let half = 1 << (h - 1);
+                let mut next = Vec::with_capacity(k);
+                let mut left = Vec::with_capacity(k);
+                for start in (0..k).step_by(1 << h) {
+                    let mid = (start + half).min(k);
+                    let end = (start + 2 * half).min(k);
+                    let (mut a, mut b) = (start, mid);
+                    let mut from_left = 0u32;
+                    while a < mid || b < end {
+                        left.push(from_left);
+                        let take_left = b == end
+                            || (a < mid
+                                && key(order[a]).partial_cmp(&key(order[b]))
+                                    == Some(std::cmp::Ordering::Less));
+                        if take_left {
+                            next.push(order[a]);
+                            a += 1;
+                            from_left += 1;
+                        } else {
+                            next.push(order[b]);
+                            b += 1;
+                        }
+                    }
                 }
-                next[parent] = next[parent].max(level[k]);
-            });
-            self.level_at.push(self.blocks.len());
-            self.blocks.extend_from_slice(&next);
-            level = next;
+                self.index.extend(left);
+                order = next;
+            }
+            lists.push(order.clone());
+        }
+        for list in &lists {
+            self.reals.extend(list.iter().map(|&r| cells[ids[r]].lo[1]));
+            self.reals.extend(list.iter().map(|&r| cells[ids[r]].hi[1]));
+        }
+        // Sparse tables: level h, run 2^j (j ≤ h): the largest bound of positions
+        // [p, p + 2^j) within p's block.
+        for (h, list) in lists.iter().enumerate() {
+            let mut run: Vec<f64> = list.iter().map(|&r| cells[ids[r]].bound).collect();
+            self.reals.extend_from_slice(&run);
+            for j in 1..=h {
+                let step = 1 << (j - 1);
+                let prev = run.clone();
+                for p in 0..k {
+                    let block_end = ((p >> h) + 1) << h;
+                    if p + step < block_end.min(k) {
+                        run[p] = prev[p].max(prev[p + step]);
+                    }
+                }
+                self.reals.extend_from_slice(&run);
+            }
         }
     }
 
-    /// The reals the kernel reads (`map_cells`): the cells, then the block maxima.
-    pub fn device_reals(&self) -> Vec<f64> {
-        let mut v = self.cells.clone();
-        v.extend_from_slice(&self.blocks);
-        v
-    }
-
-    /// A map of no cells in `n` dimensions, for problems without local margins (the kernels
-    /// still declare its constants and buffers).
-    pub fn placeholder(n: usize) -> MarginMap {
+    /// A map of no cells, for problems without local margins (the kernels still declare its
+    /// constants and buffers).
+    pub fn placeholder() -> MarginMap {
         MarginMap {
             certified: false,
-            counts: vec![1; n],
-            origin: vec![0.0; n],
-            inv_step: vec![1.0; n],
-            region_lo: vec![0.0; n],
-            region_hi: vec![0.0; n],
-            index: vec![0, 0],
-            cells: Vec::new(),
-            blocks: vec![0.0],
-            level_at: vec![0],
-            exact_work: EXACT_WORK,
+            region_lo: [0.0; 2],
+            region_hi: [0.0; 2],
+            shapes: 0,
+            index: Vec::new(),
+            reals: Vec::new(),
+            pad_loops: 0,
         }
     }
 
@@ -284,129 +286,142 @@ impl MarginMap {
                     MarginMap::new(map, precision)
                 } else {
                     // No bound anywhere, as ErrorMap::local_bound for a box of another dimension.
-                    MarginMap::placeholder(problem.dynamics.n)
+                    MarginMap::placeholder()
                 }
             }
-            _ => MarginMap::placeholder(problem.dynamics.n),
+            _ => MarginMap::placeholder(),
         }
     }
 
-    /// The WGSL constants of the map's geometry (`MAP_*`, read by `local_margin`).
-    pub fn wgsl(&self, precision: Precision) -> String {
-        let reals = |v: &[f64]| {
-            v.iter()
-                .map(|&x| real_literal(x, precision))
-                .collect::<Vec<_>>()
-                .join(", ")
+    /// The local bound over the box `[lo, hi]` (its first two axes), as the kernel computes it:
+    /// `f64::INFINITY` where the kernel gives `HUGE`.
+    pub fn bound(&self, lo: &[f64], hi: &[f64], precision: Precision) -> f64 {
+        let huge = huge(precision);
+        let axis = |v: &[f64], i: usize| v.get(i).copied().unwrap_or(0.0);
+        let (a, b) = ([axis(lo, 0), axis(lo, 1)], [axis(hi, 0), axis(hi, 1)]);
+        let inside = (0..2).all(|i| {
+            a[i].is_finite()
+                && b[i].is_finite()
+                && a[i] >= self.region_lo[i]
+                && b[i] <= self.region_hi[i]
+        });
+        if !self.certified || !inside {
+            return f64::INFINITY;
+        }
+        let mut worst = 0.0_f64;
+        for s in 0..self.shapes {
+            worst = worst.max(self.shape_bound(s, a, b));
+        }
+        match worst >= huge {
+            true => f64::INFINITY,
+            false => worst,
+        }
+    }
+
+    /// The largest bound of shape `s`'s cells that meet `[a, b]` (0 if none): the walk of
+    /// `shape_margin` in `shaders/margins.wgsl`.
+    fn shape_bound(&self, s: usize, a: [f64; 2], b: [f64; 2]) -> f64 {
+        let h = &self.index[HEADER * s..HEADER * (s + 1)];
+        let (base_r, base_u, k, levels) =
+            (h[0] as usize, h[1] as usize, h[2] as usize, h[3] as usize);
+        let r = &self.reals;
+        let i0 = partition_point(k, |p| r[base_r + k + p] >= a[0]);
+        let i1 = partition_point(k, |p| r[base_r + p] > b[0]);
+        let y = |level: usize, upper: usize| base_r + 2 * k + (2 * level + upper) * k;
+        let top = levels;
+        let j0 = partition_point(k, |p| r[y(top, 1) + p] >= a[1]);
+        let j1 = partition_point(k, |p| r[y(top, 0) + p] > b[1]);
+        let table = |level: usize, j: usize| {
+            base_r + 2 * k * (levels + 2) + k * (level * (level + 1) / 2 + j)
         };
-        let n = self.counts.len();
+        let mut worst = 0.0_f64;
+        let mut stack = vec![(top, 0usize, j0, j1)];
+        while let Some((level, start, pa, pc)) = stack.pop() {
+            let end = (start + (1 << level)).min(k);
+            if end <= i0 || start >= i1 || pa >= pc {
+                continue;
+            }
+            if i0 <= start && end <= i1 {
+                let run = pc - pa;
+                let j = (usize::BITS - 1 - run.leading_zeros()) as usize;
+                let t = table(level, j);
+                worst = worst
+                    .max(r[t + start + pa])
+                    .max(r[t + start + pc - (1 << j)]);
+                continue;
+            }
+            let half = 1 << (level - 1);
+            let left_len = half.min(k - start);
+            let left = |pos: usize| match start + pos == end {
+                true => left_len,
+                false => self.index[base_u + (level - 1) * k + start + pos] as usize,
+            };
+            let (la, lc) = (left(pa), left(pc));
+            if start + half < k {
+                stack.push((level - 1, start + half, pa - la, pc - lc));
+            }
+            stack.push((level - 1, start, la, lc));
+        }
+        worst
+    }
+
+    /// The WGSL constants of the map (`MAP_*`, read by `shaders/margins.wgsl`).
+    pub fn wgsl(&self, precision: Precision) -> String {
         let mut s = String::new();
         let _ = writeln!(s, "const MAP_CERTIFIED: bool = {};", self.certified);
-        let buckets: usize = self.counts.iter().product();
-        let _ = writeln!(s, "const MAP_BUCKETS: u32 = {buckets}u;");
-        let _ = writeln!(
-            s,
-            "const MAP_DELTA: real = {};",
-            real_literal(KERNEL_DELTA, precision)
-        );
-        // The kernel's capped products `buckets · width` stay below 2³².
-        let exact_work = self.exact_work.min(u32::MAX as usize / MAX_PER_AXIS - 1);
-        let _ = writeln!(s, "const MAP_EXACT_WORK: u32 = {exact_work}u;");
-        let _ = writeln!(s, "const MAP_BLOCK_BUDGET: u32 = {BLOCK_BUDGET}u;");
-        let levels = self.levels();
-        let _ = writeln!(s, "const MAP_LEVELS: u32 = {levels}u;");
-        // Block maxima follow the cells in `map_cells`.
-        let _ = writeln!(s, "const MAP_BLOCKS_AT: u32 = {}u;", self.cells.len());
-        let level_at: Vec<String> = self.level_at.iter().map(|a| format!("{a}u")).collect();
-        let _ = writeln!(
-            s,
-            "var<private> MAP_LEVEL_AT: array<u32, {}> = array<u32, {}>({});",
-            levels + 1,
-            levels + 1,
-            level_at.join(", ")
-        );
-        let counts: Vec<String> = self.counts.iter().map(|c| format!("{c}u")).collect();
-        let _ = writeln!(
-            s,
-            "var<private> MAP_COUNT: array<u32, {n}> = array<u32, {n}>({});",
-            counts.join(", ")
-        );
-        for (name, v) in [
-            ("MAP_ORIGIN", &self.origin),
-            ("MAP_INV_STEP", &self.inv_step),
-            ("MAP_LO", &self.region_lo),
-            ("MAP_HI", &self.region_hi),
-        ] {
+        let _ = writeln!(s, "const MAP_SHAPES: u32 = {}u;", self.shapes);
+        let _ = writeln!(s, "const MAP_PAD_LOOPS: u32 = {}u;", self.pad_loops);
+        let _ = writeln!(s, "const MAP_REALS: u32 = {}u;", self.reals.len().max(1));
+        for (name, v) in [("MAP_LO", &self.region_lo), ("MAP_HI", &self.region_hi)] {
             let _ = writeln!(
                 s,
-                "var<private> {name}: array<real, {n}> = array<real, {n}>({});",
-                reals(v)
+                "const {name}: array<real, 2> = array<real, 2>({}, {});",
+                real_literal(v[0], precision),
+                real_literal(v[1], precision)
             );
         }
         s
     }
 }
 
-/// Calls `f` with the row-major index (axis 0 slowest) of every bucket in the product of
-/// `ranges`.
-fn for_each_bucket(counts: &[usize], ranges: &[(usize, usize)], mut f: impl FnMut(usize)) {
-    let n = counts.len();
-    let mut at: Vec<usize> = ranges.iter().map(|r| r.0).collect();
-    loop {
-        f((0..n).fold(0, |acc, i| acc * counts[i] + at[i]));
-        let mut i = n;
-        loop {
-            if i == 0 {
-                return;
-            }
-            i -= 1;
-            if at[i] < ranges[i].1 {
-                at[i] += 1;
-                break;
-            }
-            at[i] = ranges[i].0;
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::boxes::IntervalBox;
 
-    #[test]
-    fn bucket_ranges_cover_touching_boxes() {
-        // Buckets of width 1 from 0: [1, 2] meets buckets 0, 1 and 2 (closed).
-        assert_eq!(bucket_range(1.0, 2.0, 0.0, 1.0, 10, HOST_DELTA), (0, 2));
-        assert_eq!(bucket_range(1.5, 1.6, 0.0, 1.0, 10, HOST_DELTA), (1, 1));
-        assert_eq!(bucket_range(-5.0, 50.0, 0.0, 1.0, 10, HOST_DELTA), (0, 9));
-        assert_eq!(
-            bucket_range(f64::NAN, 1.5, 0.0, 1.0, 10, HOST_DELTA),
-            (0, 1)
-        );
-    }
-
-    /// A map of `k × k` cells over [0, 1]² with bounds that vary over the cells, a few of
-    /// them +∞, plus one cell spanning several buckets.
-    fn checker_map(k: usize) -> ErrorMap {
+    /// A map over [0, 1]² bisected like `cbfreach error`'s (x then y, deeper towards a ring),
+    /// with bounds that vary over the cells, one +∞, and gaps (cells proven to miss S).
+    fn tree_map() -> ErrorMap {
         let mut cells = Vec::new();
-        let h = 1.0 / k as f64;
-        for i in 0..k {
-            for j in 0..k {
-                let bound = if (i * 7 + j * 3) % 23 == 0 {
-                    "\"inf\"".to_string()
-                } else {
-                    format!("{}", ((i * 31 + j * 17) % 29) as f64 / 100.0)
-                };
-                cells.push(format!(
-                    "{{\"lower\": [{}, {}], \"upper\": [{}, {}], \"bound\": {bound}}}",
-                    i as f64 * h,
-                    j as f64 * h,
-                    (i + 1) as f64 * h,
-                    (j + 1) as f64 * h
-                ));
+        let mut stack = vec![([0.0, 0.0], [1.0, 1.0], 0usize)];
+        let mut k = 0usize;
+        while let Some((lo, hi, depth)) = stack.pop() {
+            let c = [(lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0];
+            let ring = ((c[0] - 0.4f64).powi(2) + (c[1] - 0.55f64).powi(2)).sqrt();
+            let size = hi[0] - lo[0];
+            if depth < 12 && (depth < 3 || (ring - 0.3).abs() < 1.5 * size) {
+                let axis = depth % 2;
+                let mid = (lo[axis] + hi[axis]) / 2.0;
+                let (mut h1, mut l2) = (hi, lo);
+                h1[axis] = mid;
+                l2[axis] = mid;
+                stack.push((lo, h1, depth + 1));
+                stack.push((l2, hi, depth + 1));
+                continue;
             }
+            k += 1;
+            if k % 17 == 5 {
+                continue; // a gap
+            }
+            let bound = match k {
+                40 => "\"inf\"".to_string(),
+                _ => format!("{}", ((k * 37) % 101) as f64 / 1000.0),
+            };
+            cells.push(format!(
+                "{{\"lower\": [{}, {}], \"upper\": [{}, {}], \"bound\": {bound}}}",
+                lo[0], lo[1], hi[0], hi[1]
+            ));
         }
-        cells.push(r#"{"lower": [0.1, 0.2], "upper": [0.55, 0.3], "bound": 0.9}"#.into());
         let json = format!(
             "{{\"format\": \"cbfreach-errormap-1\", \"network\": \"t\", \"network_hash\": \"0\", \
              \"region\": {{\"lower\": [0, 0], \"upper\": [1, 1]}}, \"norm\": \"inf\", \
@@ -417,54 +432,62 @@ mod tests {
         serde_json::from_str(&json).unwrap()
     }
 
-    /// Every block of every level holds the largest bound listed in its buckets (brute force
-    /// over the buckets), the last level is one block holding the largest bound of all, and
-    /// a +∞ bound stays `HUGE` up the levels.
+    /// The structure's bound is the CPU's `local_bound` (f64: exactly; f32: at least it, and
+    /// within the outward rounding), for boxes of every size from a point to the region,
+    /// touching cell edges exactly, and outside the region.
     #[test]
-    fn block_maxima_are_the_maxima_of_their_buckets() {
-        for (k, precision) in [(13, Precision::F64), (20, Precision::F32)] {
-            let map = checker_map(k);
-            let m = MarginMap::new(&map, precision);
-            let counts = m.counts.clone();
-            let buckets: usize = counts.iter().product();
-            let ids = &m.index[buckets + 1..];
-            let bucket_max = |b: usize| {
-                ids[m.index[b] as usize..m.index[b + 1] as usize]
-                    .iter()
-                    .map(|&c| m.cells[c as usize * 5 + 4])
-                    .fold(0.0, f64::max)
-            };
-            assert_eq!(m.level_at.len(), m.levels() + 1);
-            assert!(m.level_counts(m.levels()).iter().all(|&c| c == 1));
-            for level in 0..=m.levels() {
-                let here = m.level_counts(level);
-                for bx in 0..here[0] {
-                    for by in 0..here[1] {
-                        let mut want = 0.0f64;
-                        for x in 0..counts[0] {
-                            for y in 0..counts[1] {
-                                if x >> level == bx && y >> level == by {
-                                    want = want.max(bucket_max(x * counts[1] + y));
-                                }
-                            }
-                        }
-                        let got = m.blocks[m.level_at[level] + bx * here[1] + by];
-                        assert_eq!(got, want, "level {level} block ({bx}, {by})");
-                    }
-                }
+    fn bound_is_the_cpus_local_bound() {
+        let map = tree_map();
+        assert!(map.cells.len() > 300, "{} cells", map.cells.len());
+        let m64 = MarginMap::new(&map, Precision::F64);
+        let m32 = MarginMap::new(&map, Precision::F32);
+        assert!(m64.shapes >= 8, "{} shapes", m64.shapes);
+        assert!(m64.shapes < 12, "{} shapes", m64.shapes);
+        let mut seed = 7u64;
+        let mut rnd = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut checked = 0;
+        for t in 0..4000 {
+            let w = [rnd().powi(3), rnd().powi(3)];
+            let mut lo = [rnd() * 1.1 - 0.05, rnd() * 1.1 - 0.05];
+            if t % 5 == 0 {
+                // On a cell edge.
+                lo = [
+                    (lo[0] * 64.0).round() / 64.0,
+                    (lo[1] * 512.0).round() / 512.0,
+                ];
             }
-            let top = m.blocks[m.level_at[m.levels()]];
-            assert_eq!(top, huge(precision));
-            let reals = m.device_reals();
-            assert_eq!(reals.len(), m.cells.len() + m.blocks.len());
-            assert_eq!(reals[m.cells.len()..], m.blocks[..]);
+            let hi = [lo[0] + w[0], lo[1] + if t % 7 == 0 { 0.0 } else { w[1] }];
+            let want = map.local_bound(&IntervalBox::new(lo.to_vec(), hi.to_vec()).unwrap());
+            let got = m64.bound(&lo, &hi, Precision::F64);
+            assert_eq!(got, want, "box {lo:?}..{hi:?}");
+            let got32 = m32.bound(&lo, &hi, Precision::F32);
+            assert!(got32 >= want, "f32 box {lo:?}..{hi:?}: {got32} < {want}");
+            checked += usize::from(want.is_finite() && want > 0.0);
         }
+        assert!(
+            checked > 1000,
+            "{checked} boxes with a finite positive bound"
+        );
     }
 
     #[test]
-    fn counts_respect_the_caps() {
-        assert_eq!(bucket_counts(40_000, 2), vec![200, 200]);
-        assert_eq!(bucket_counts(0, 3), vec![1, 1, 1]);
-        assert!(bucket_counts(1 << 30, 2).iter().product::<usize>() <= MAX_BUCKETS);
+    fn uncertified_and_empty_maps() {
+        let mut map = tree_map();
+        map.certified_linf = None;
+        let m = MarginMap::new(&map, Precision::F64);
+        assert_eq!(
+            m.bound(&[0.1, 0.1], &[0.2, 0.2], Precision::F64),
+            f64::INFINITY
+        );
+        let mut map = tree_map();
+        map.cells.clear();
+        let m = MarginMap::new(&map.reindexed(), Precision::F64);
+        assert_eq!(m.shapes, 0);
+        assert_eq!(m.bound(&[0.1, 0.1], &[0.2, 0.2], Precision::F64), 0.0);
     }
 }

@@ -6,8 +6,8 @@
 //! - [`kernels`]: one struct per pipeline (`shaders/*.wgsl`, included at compile time).
 //! - [`buffers`]: `#[repr(C)]` images of what the kernels read; the device layout.
 //! - [`codegen`]: scenario expressions as WGSL interval inclusion functions.
-//! - [`margins`]: the error map's cells and a bucket index on the device, for local error
-//!   margins (`--local-margin`).
+//! - [`margins`]: the error map as a range-maximum structure on the device, for local error
+//!   margins (`--local-margin`): the CPU's exact `M` for any set size in O(log) reads.
 //! - [`GpuBackend`]: [`crate::reach::Backend`] on the device: forward linear bounds,
 //!   forward-backward (forward ∩ IBP intermediate bounds, one backward CROWN pass from the
 //!   output) and backward CROWN, each in f32 or (`--f64`, [`Precision::F64`]) f64.
@@ -53,9 +53,9 @@
 //! - **Overflow, NaN**: WGSL does not promise IEEE infinities, so every bound is compared with
 //!   `1e30`; a box past it is reported as non-finite, as the CPU reports an overflow.
 //!
-//! - **Local error margins**: the map's cells rounded outward, their bounds rounded up, a
-//!   bucket range that can only over-cover (`margins`): `M` on the device is at least the
-//!   CPU's `ErrorMap::local_bound` of the computed x-box.
+//! - **Local error margins**: the map's cells rounded outward, their bounds rounded up, found
+//!   by comparisons alone (`margins`): `M` on the device is the CPU's
+//!   `ErrorMap::local_bound` of the computed x-box in f64, at least it in f32.
 //!
 //! The Euler step itself is the paper's, not a validated integrator (README, Limitations).
 

@@ -1,11 +1,11 @@
 //! Which engine runs a problem: the CPU, a GPU, or the GPU where it can ([`EngineChoice`]),
-//! and the settings an engine cannot run made ones it can ([`settle_for_engine`]). May import
-//! `reach` and `gpu`; what a caller should be told comes back as notices, not printed.
+//! and what to tell a user whose settings an engine refuses ([`refusal`]). May import `reach` and
+//! `gpu`; what a caller should be told comes back as notices, not printed.
 
 use std::str::FromStr;
 use std::sync::Arc;
 
-use super::{Backend, CpuBackend, ReachProblem, ReachSettings, TimeModel, Unsupported};
+use super::{Backend, CpuBackend, ReachProblem, ReachSettings, Unsupported};
 use crate::gpu::{GpuBackend, GpuContext, GpuError, Precision};
 
 /// Which engine: `cpu`, `gpu`, or `auto` (the GPU when a real adapter exists and runs the
@@ -81,16 +81,35 @@ pub struct Engine {
     pub notices: Vec<String>,
 }
 
-/// The engine for `choice` on `gpu`'s adapter: `auto` takes the GPU where it runs `settings`'
-/// bounds and the `time` model (the Euler map alone) and is a real GPU (a software adapter is
-/// many times slower than the CPU engine), else the CPU with a notice; a precision asked of an
-/// adapter without f64 shaders is an error, also with `auto`. `gpu` with another time model
-/// is refused by the GPU engine's `reach`.
+/// What to tell a user whose settings an engine refuses: the setting, and how to change it.
+pub fn refusal(unsupported: Unsupported) -> String {
+    match unsupported {
+        Unsupported::Bounds(b) => format!(
+            "{b} bounds (bounds = \"{b}\"): the GPU engine has forward, forward-backward and \
+             crown bounds; use one of them (--bounds) or the CPU engine (--backend cpu)"
+        ),
+        Unsupported::IntersectX => "intersect_x (sets met with their x-boxes, the default with a \
+             transform): the GPU engine keeps the parallelotope alone; set intersect_x = false \
+             (--parallelotope-only) or use the CPU engine (--backend cpu)"
+            .to_string(),
+        Unsupported::Time(t) => format!(
+            "time = \"{t}\": the GPU engine runs time = \"euler\" alone; set it (--time euler) \
+             or use the CPU engine (--backend cpu)"
+        ),
+    }
+}
+
+/// The engine for `choice` on `gpu`'s adapter. `auto` never changes what is computed, only
+/// where: it takes the GPU where that engine runs `problem` under `settings` as they are
+/// ([`GpuBackend::runs`]) and the adapter is a real GPU (a software adapter is many times
+/// slower than the CPU engine), else the CPU with a notice naming why. `gpu` with settings the
+/// GPU engine does not run is refused by its `reach`, naming the setting ([`refusal`]). A
+/// precision asked of an adapter without f64 shaders is an error, also with `auto`.
 pub fn choose_engine(
     choice: EngineChoice,
     gpu: &GpuOptions,
     settings: &ReachSettings,
-    time: TimeModel,
+    problem: &ReachProblem,
 ) -> Result<Engine, EngineError> {
     let cpu = |notices: Vec<String>| Engine {
         backend: Box::new(CpuBackend),
@@ -103,17 +122,10 @@ pub fn choose_engine(
         return Ok(cpu(vec![]));
     }
     let auto = choice == EngineChoice::Auto;
-    if auto && time != TimeModel::Euler {
+    if let (true, Err(u)) = (auto, GpuBackend::runs(problem, settings)) {
         return Ok(cpu(vec![format!(
-            "notice: --backend auto: the GPU engine runs time = \"euler\" only; using the CPU \
-             for time = \"{}\"",
-            time.name()
-        )]));
-    }
-    if auto && !GpuBackend::supports(settings) {
-        return Ok(cpu(vec![format!(
-            "notice: --backend auto: the GPU engine has no {} bounds yet; using the CPU",
-            settings.bounds
+            "notice: --backend auto: not on the GPU engine: {}; using the CPU",
+            refusal(u)
         )]));
     }
     match GpuContext::with_adapter(gpu.adapter.as_deref()) {
@@ -136,24 +148,4 @@ pub fn choose_engine(
         )])),
         Err(e) => Err(e.into()),
     }
-}
-
-/// Makes `settings` ones `backend` runs where they differ only in what is the CPU engine's
-/// alone (sound, looser): sets met with their x-boxes become the parallelotope alone. Returns
-/// a notice when that changes the sets of `problem`.
-pub fn settle_for_engine(
-    settings: &mut ReachSettings,
-    backend: &dyn Backend,
-    problem: &ReachProblem,
-) -> Option<String> {
-    if backend.supports(settings) != Err(Unsupported::IntersectX) {
-        return None;
-    }
-    let changes = problem.frames(settings).len() > 1;
-    settings.intersect_x = false;
-    changes.then(|| {
-        "note: the GPU engine keeps the parallelotope alone (sets met with their x-boxes are \
-         the CPU engine's): --parallelotope-only"
-            .to_string()
-    })
 }

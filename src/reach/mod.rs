@@ -42,7 +42,7 @@ pub use transform::{log_norm_inf, CoordinatesReason, Transform};
 pub use tube::{Inversion, Tube, TubeEnd, TubeSample};
 
 pub use cpu::CpuBackend;
-pub use engine::{choose_engine, settle_for_engine, EngineChoice, GpuOptions};
+pub use engine::{choose_engine, refusal, EngineChoice, GpuOptions};
 pub use settings::{ExactField, ReachMethod, ReachSettings, SettingsError, Unsupported};
 
 /// Why a reach run could not start.
@@ -475,9 +475,9 @@ pub trait Backend {
         512
     }
 
-    /// Whether this engine runs `settings` as they are; the CPU engine runs every setting.
-    /// ([`settle_for_engine`] turns what only the CPU engine does into what this one does.)
-    fn supports(&self, _settings: &ReachSettings) -> Result<(), Unsupported> {
+    /// Whether this engine runs `problem` under `settings` as they are, or which setting it
+    /// refuses; the CPU engine runs every setting.
+    fn supports(&self, _problem: &ReachProblem, _settings: &ReachSettings) -> Result<(), Unsupported> {
         Ok(())
     }
 }

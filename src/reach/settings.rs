@@ -109,6 +109,9 @@ pub enum Unsupported {
     /// engine's.
     #[error("the engine keeps the parallelotope alone (intersect_x is the CPU engine's)")]
     IntersectX,
+    /// The engine runs another time model only (the model's name).
+    #[error("the engine runs time = \"euler\" alone, not time = \"{0}\"")]
+    Time(&'static str),
 }
 
 impl ReachSettings {

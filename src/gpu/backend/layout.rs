@@ -226,7 +226,7 @@ impl GpuBackend {
             map_cells: storage_init(
                 d,
                 "map_cells",
-                &padded(&device_bytes(&margins.device_reals(), self.precision)),
+                &padded(&device_bytes(&margins.reals, self.precision)),
             ),
             staging: d.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("staging"),

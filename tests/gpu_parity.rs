@@ -1,0 +1,194 @@
+//! The GPU engine (f64) against the CPU engine at the settings users run (issue 40): the same
+//! verdict for every box of `verify` on small grids of both paper scenarios and for the paper's
+//! initial boxes, with sets equal to 1e-10; settings the GPU engine does not run are refused,
+//! naming the setting, and `--backend auto` then runs the CPU. On whatever Vulkan adapter exists
+//! (lavapipe in CI); without one the tests skip, unless `CBFREACH_REQUIRE_GPU=1`.
+
+mod common;
+
+use std::sync::Arc;
+
+use cbfreach::gpu::{GpuBackend, GpuContext, Precision};
+use cbfreach::problem::ProblemOptions;
+use cbfreach::reach::{
+    choose_engine, Backend, CpuBackend, EngineChoice, GpuOptions, ReachMethod, ReachProblem,
+    ReachSettings, Tube, Unsupported,
+};
+use cbfreach::scenario::{Margin, Scenario};
+use cbfreach::verify::{judge, traps_for, BoxVerdict, Verifier, VerifySettings};
+
+/// Sets of the two engines agree to this, relative to `max(1, |x|)`.
+const SET_TOL: f64 = 1e-10;
+
+fn gpu_f64() -> Option<GpuBackend> {
+    let required = std::env::var("CBFREACH_REQUIRE_GPU").as_deref() == Ok("1");
+    let engine = GpuContext::new()
+        .map_err(|e| e.to_string())
+        .and_then(|ctx| {
+            GpuBackend::with_precision(Arc::new(ctx), Precision::F64).map_err(|e| e.to_string())
+        });
+    match engine {
+        Ok(g) => Some(g),
+        Err(e) if required => panic!("CBFREACH_REQUIRE_GPU=1 but {e}"),
+        Err(e) => {
+            eprintln!("skipping GPU test: {e}");
+            None
+        }
+    }
+}
+
+fn close(a: f64, b: f64) -> bool {
+    (a - b).abs() <= SET_TOL * a.abs().max(1.0)
+}
+
+/// `verify` of `grid` cells with `reach` settings on one engine.
+fn verify_on(
+    s: &Scenario,
+    problem: &ReachProblem,
+    backend: &dyn Backend,
+    reach: &ReachSettings,
+    grid: [usize; 2],
+) -> Vec<BoxVerdict> {
+    let verifier = Verifier {
+        reach: reach.clone(),
+        ..Verifier::new(s, problem, backend)
+    };
+    let settings = VerifySettings {
+        grid: grid.to_vec(),
+        ..VerifySettings::default()
+    };
+    verifier.run(&settings, &|_, _, _| {}).unwrap().before
+}
+
+/// Both engines' verdicts of every cell are equal, and so are their final sets (to `SET_TOL`);
+/// returns the verified count.
+fn same_verdicts(cpu: &[BoxVerdict], gpu: &[BoxVerdict], what: &str) -> usize {
+    assert_eq!(cpu.len(), gpu.len(), "{what}");
+    for (c, g) in cpu.iter().zip(gpu) {
+        assert_eq!(c.initial, g.initial, "{what}");
+        assert_eq!(
+            (c.verdict, c.feasible),
+            (g.verdict, g.feasible),
+            "{what} cell {:?}: cpu {:?} gpu {:?}",
+            c.initial,
+            c.note,
+            g.note
+        );
+        assert_eq!(c.t_end, g.t_end, "{what} cell {:?}", c.initial);
+        if let (Some(a), Some(b)) = (&c.final_set, &g.final_set) {
+            let pairs = a
+                .lower
+                .iter()
+                .zip(&b.lower)
+                .chain(a.upper.iter().zip(&b.upper));
+            for (x, y) in pairs {
+                assert!(close(*x, *y), "{what} cell {:?}: {a:?} vs {b:?}", c.initial);
+            }
+        } else {
+            assert_eq!(c.final_set.is_some(), g.final_set.is_some(), "{what}");
+        }
+    }
+    let verified = cpu.iter().filter(|b| b.verdict.is_verified()).count();
+    eprintln!(
+        "{what}: {} cells, {verified} verified on both engines",
+        cpu.len()
+    );
+    verified
+}
+
+/// Scenario 1, `verify --grid 8,6 --face-local` with the scenario's settings otherwise (the
+/// shipped network and its error map, forward-backward bounds, the filter's closed form).
+#[test]
+fn verify_integrator_8x6_same_verdicts() {
+    let Some(gpu) = gpu_f64() else { return };
+    let s = common::integrator();
+    let problem = common::shipped_problem(&s);
+    let reach = ReachSettings {
+        face_local: true,
+        ..s.settings.reach.clone()
+    };
+    let cpu = verify_on(&s, &problem, &CpuBackend, &reach, [8, 6]);
+    let dev = verify_on(&s, &problem, &gpu, &reach, [8, 6]);
+    assert!(same_verdicts(&cpu, &dev, "scenario 1, 8 × 6") > 0);
+}
+
+/// Scenario 2, `verify --grid 10,4 --face-local`: its default meets the parallelotope with its
+/// x-box, which the GPU engine refuses, naming the setting (and `auto` takes the CPU); as a
+/// parallelotope alone both engines give the same verdicts.
+#[test]
+fn verify_double_integrator_10x4_same_verdicts() {
+    let Some(gpu) = gpu_f64() else { return };
+    let s = common::double_integrator();
+    let problem = common::shipped_problem(&s);
+    let reach = ReachSettings {
+        face_local: true,
+        ..s.settings.reach.clone()
+    };
+    assert!(reach.intersect_x && problem.transform.is_some());
+    assert_eq!(gpu.supports(&problem, &reach), Err(Unsupported::IntersectX));
+    let e = gpu
+        .reach(&problem, &s.reach.initial, &reach, &|_, _| {})
+        .expect_err("the GPU engine refuses the meet with x-boxes")
+        .to_string();
+    assert!(
+        e.contains("intersect_x") && e.contains("--parallelotope-only"),
+        "{e}"
+    );
+    let auto = choose_engine(EngineChoice::Auto, &GpuOptions::default(), &reach, &problem).unwrap();
+    assert_eq!(auto.backend.name(), "cpu", "{:?}", auto.notices);
+
+    let alone = ReachSettings {
+        intersect_x: false,
+        ..reach
+    };
+    let cpu = verify_on(&s, &problem, &CpuBackend, &alone, [10, 4]);
+    let dev = verify_on(&s, &problem, &gpu, &alone, [10, 4]);
+    same_verdicts(&cpu, &dev, "scenario 2, 10 × 4, parallelotope alone");
+}
+
+/// The paper's construction (`cbfreach paper`: Theorem 2's Minkowski method with the paper's
+/// `M_C`, the Euler map, forward-backward bounds) from its 12 and 9 initial boxes: equal sets
+/// and radii at every step, and the same verdict per box.
+#[test]
+fn paper_boxes_same_verdicts() {
+    let Some(gpu) = gpu_f64() else { return };
+    for (s, m_c) in [
+        (common::integrator(), 0.19),
+        (common::double_integrator(), 0.26),
+    ] {
+        let options = ProblemOptions {
+            m_c: Some(Margin::Value(m_c)),
+            time: Some("euler".into()),
+            ..ProblemOptions::default()
+        };
+        let problem = ReachProblem::from_scenario(&s, &options).unwrap();
+        let settings = ReachSettings {
+            method: ReachMethod::Minkowski,
+            ..ReachSettings::default()
+        };
+        let run = |b: &dyn Backend| -> Vec<Tube> {
+            b.reach(&problem, &s.reach.initial, &settings, &|_, _| {})
+                .unwrap()
+                .boxes
+        };
+        let (cpu, dev) = (run(&CpuBackend), run(&gpu));
+        assert_eq!(cpu.len(), s.reach.initial.len());
+        let traps = traps_for(&s);
+        for (k, (c, g)) in cpu.iter().zip(&dev).enumerate() {
+            assert_eq!(c.end, g.end, "{} box {k}", s.name);
+            assert_eq!(c.tube.len(), g.tube.len(), "{} box {k}", s.name);
+            for (a, b) in c.tube.iter().zip(&g.tube) {
+                let pairs = a.set.lower.iter().zip(&b.set.lower);
+                let pairs = pairs.chain(a.set.upper.iter().zip(&b.set.upper));
+                for (x, y) in pairs.chain([(&a.radius, &b.radius)]) {
+                    assert!(close(*x, *y), "{} box {k} t = {}: {x} vs {y}", s.name, a.t);
+                }
+            }
+            let (jc, jg) = (
+                judge(&problem, &s, &traps, c),
+                judge(&problem, &s, &traps, g),
+            );
+            assert_eq!(jc.verdict, jg.verdict, "{} box {k}", s.name);
+        }
+    }
+}
