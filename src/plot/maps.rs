@@ -80,7 +80,10 @@ impl PlaneGrid {
         let mut out = Vec::with_capacity(xs.len() * ys.len());
         for &(j, sy) in &ys {
             for &(i, sx) in &xs {
-                out.push((j * self.counts[0] + i, sx * sy));
+                // A box that ends on a grid line touches the next cell with no area.
+                if sx * sy > 0.0 {
+                    out.push((j * self.counts[0] + i, sx * sy));
+                }
             }
         }
         out
