@@ -21,9 +21,19 @@ impl ChunkRun<'_> {
         for (f, frame) in self.frames.iter().enumerate() {
             let guess = state.guess[f].as_ref().map(|(l, u)| (&l[..], &u[..]));
             let fb = &mut frames[f];
-            let found = validated::enclose_step(&state.sets[f], self.h, guess, |a| {
-                self.field_on_box(frame, a, fb, zeros)
-            })?;
+            // `C` bounds the enclosure in x frames (M and the verdicts hold there only).
+            let region = frame
+                .problem
+                .transform
+                .is_none()
+                .then_some(&frame.problem.region);
+            let found =
+                validated::enclose_step(&state.sets[f], self.h, guess, region, |a, parts| {
+                    match parts {
+                        false => self.field_on_box(frame, a, fb, zeros),
+                        true => self.field_on_parts(frame, a, fb, zeros),
+                    }
+                })?;
             state.tube.end = match found {
                 Enclosure::Closed(pipe) => {
                     state.guess[f] = Some((pipe.f_lower.clone(), pipe.f_upper.clone()));
@@ -134,6 +144,50 @@ impl ChunkRun<'_> {
             .into_iter()
             .flatten()
             .reduce(meet_fields))
+    }
+
+    /// [`ChunkRun::field_on_box`] as the hull over [`validated::parts`] of `a`, parts proven
+    /// outside `S` dropped (no trajectory visits them): each part has its own piece and error
+    /// margin. Keeps the network's bounds over the whole box found by the last
+    /// [`ChunkRun::field_on_box`].
+    pub(super) fn field_on_parts(
+        &self,
+        frame: &Frame,
+        a: &IntervalBox,
+        fb: &mut FrameBuffers,
+        zeros: &[f64],
+    ) -> Result<Option<Rates>, ReachError> {
+        let p = frame.problem;
+        let n = p.dynamics.n;
+        // Parts per axis: at most `PARTS` boxes in all.
+        let k = (2..=3)
+            .rev()
+            .find(|k: &usize| k.pow(n as u32) <= PARTS)
+            .unwrap_or(1);
+        if k == 1 {
+            return Ok(None);
+        }
+        let whole_nn = fb.pipe_nn.take();
+        let mut hull: Option<Rates> = None;
+        for part in validated::parts(a, k) {
+            let x_box = p.x_box_in_safe_set(&part.lower, &part.upper, frame.safe);
+            if crate::surrogate_error::proven_unsafe(p.pieces.scenario(), &x_box) {
+                continue;
+            }
+            let Some((lo, hi)) = self.field_on_box(frame, &part, fb, zeros)? else {
+                fb.pipe_nn = whole_nn;
+                return Ok(None);
+            };
+            hull = Some(match hull {
+                None => (lo, hi),
+                Some((l, u)) => (
+                    l.iter().zip(&lo).map(|(x, y)| x.min(*y)).collect(),
+                    u.iter().zip(&hi).map(|(x, y)| x.max(*y)).collect(),
+                ),
+            });
+        }
+        fb.pipe_nn = whole_nn;
+        Ok(hull)
     }
 
     /// [`ChunkRun::piece_field`] on the slabs of a flowpipe.
@@ -395,6 +449,10 @@ pub(super) fn in_frame(
             .collect(),
     )
 }
+
+/// Most parts a candidate enclosure is cut into ([`ChunkRun::field_on_parts`]): 3 × 3 in the
+/// plane, 2 × 2 × 2 in space, none beyond.
+const PARTS: usize = 9;
 
 /// Lower and upper rates of one step, `(dx̲/dt, dx̄/dt)`.
 type Rates = (Vec<f64>, Vec<f64>);

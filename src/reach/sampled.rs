@@ -93,12 +93,16 @@ impl Plant {
     /// The remainder over a period of length `h` from the x-box `x` with the input held in
     /// `u`; `None` where the intersample motion has no enclosure (or an unbounded one).
     pub fn remainder(&self, x: &IntervalBox, u: &[Interval], h: f64) -> Option<Remainder> {
-        let field = |a: &IntervalBox| -> Result<_, std::convert::Infallible> {
+        let field = |a: &IntervalBox, parts: bool| -> Result<_, std::convert::Infallible> {
+            if parts {
+                // The plant's field is one expression: no tighter over parts.
+                return Ok(None);
+            }
             let v = self.velocity(&intervals(a), u);
             let finite = v.iter().all(|e| e.lower.is_finite() && e.upper.is_finite());
             Ok(finite.then(|| v.iter().map(|e| (e.lower, e.upper)).unzip()))
         };
-        let Ok(Enclosure::Closed(pipe)) = enclose_step(x, h, None, field) else {
+        let Ok(Enclosure::Closed(pipe)) = enclose_step(x, h, None, None, field) else {
             return None;
         };
         let a = intervals(&pipe.set);

@@ -10,6 +10,11 @@
 //!    `t₁` be the last time up to which it stayed in `A`; up to `t₁` its derivative lies in
 //!    `F(A)` (it stays in `S`, where the filter keeps it), so `x(t₁) ∈ B ⊂ int A`, and by
 //!    continuity it stays in `A` a while longer — so `t₁ = t + h`, and `x([t, t + h]) ⊆ B`.
+//!    *1b. Within `C`.* With `F(A ∩ C)` in place of `F(A)` the same holds where, in every
+//!    coordinate, `B` lies strictly inside `A` or `A`'s side is `C`'s and the field points
+//!    strictly into `C` on it: at `t₁` the state is then inside `A ∩ C` or on such a side, moving
+//!    inward, and stays in `A ∩ C` a while longer. Bounds over `A ∩ S` may be taken as the hull
+//!    of bounds over parts of `A`, dropping parts proven outside `S`.
 //! 2. *Slabs.* Take `sᵢ ≥ sup{Fᵢ(x) : x ∈ B, xᵢ ∈ Iᵢ}` with the slab
 //!    `Iᵢ = [x̄ᵢ + h·min(0, F̲ᵢ), x̄ᵢ + h·max(0, F̄ᵢ)]`, and `u(τ) = x̄ᵢ + τ(sᵢ + ε)`. A trajectory
 //!    that first reaches `u` at `τ* ∈ [0, h]` does so at a state `x(τ*) ∈ B` whose `i`-th
@@ -56,13 +61,20 @@ fn point(x: f64) -> Interval {
     Interval::point(x)
 }
 
-/// `X + [0, h]·[F̲, F̄]`, rounded outward.
+/// `X + [0, h]·[F̲, F̄]`, rounded outward (a side that does not move stays exactly where it
+/// is: `C`'s side in [`closes`]).
 fn sweep(set: &IntervalBox, h: f64, f_lower: &[f64], f_upper: &[f64]) -> IntervalBox {
     let lower = (0..set.dim())
-        .map(|i| (point(set.lower[i]) + point(h) * point(f_lower[i].min(0.0))).lower)
+        .map(|i| match f_lower[i] >= 0.0 {
+            true => set.lower[i],
+            false => (point(set.lower[i]) + point(h) * point(f_lower[i])).lower,
+        })
         .collect();
     let upper = (0..set.dim())
-        .map(|i| (point(set.upper[i]) + point(h) * point(f_upper[i].max(0.0))).upper)
+        .map(|i| match f_upper[i] <= 0.0 {
+            true => set.upper[i],
+            false => (point(set.upper[i]) + point(h) * point(f_upper[i])).upper,
+        })
         .collect();
     IntervalBox { lower, upper }
 }
@@ -80,34 +92,55 @@ fn inflate(b: &IntervalBox) -> IntervalBox {
     }
 }
 
-/// Whether `b` lies in the interior of `a`.
-fn strictly_inside(b: &IntervalBox, a: &IntervalBox) -> bool {
-    (0..a.dim()).all(|i| a.lower[i] < b.lower[i] && b.upper[i] < a.upper[i])
-}
-
 /// The a-priori enclosure of a step of length `h` from `set` (Picard–Lindelöf, item 1 of the
 /// module's argument): candidates `A` from `guess` (last step's field bounds, else the field on
-/// the set itself), inflated and retried; `field(A)` must bound the filtered field on `A` (met
-/// with `S`).
+/// the set itself), inflated and retried; `field(A, parts)` must bound the filtered field on
+/// `A ∩ S` — over `A` whole (`parts = false`), or as the hull of bounds over parts of `A`
+/// (`true`, tried where the whole's bounds do not close: a candidate that reaches into an
+/// obstacle or across the filter's pieces has loose bounds as a whole). With `region` (`C`, in
+/// the frame's coordinates) candidates are clipped to it (item 1b).
 pub fn enclose_step<E>(
     set: &IntervalBox,
     h: f64,
     guess: Option<(&[f64], &[f64])>,
-    mut field: impl FnMut(&IntervalBox) -> Result<Option<(Vec<f64>, Vec<f64>)>, E>,
+    region: Option<&IntervalBox>,
+    mut field: impl FnMut(&IntervalBox, bool) -> Result<Option<(Vec<f64>, Vec<f64>)>, E>,
 ) -> Result<Enclosure, E> {
-    let mut a = match guess {
+    let clip = |b: IntervalBox| match region {
+        Some(r) => b.intersection(r),
+        None => Some(b),
+    };
+    let first = match guess {
         Some((lo, hi)) => inflate(&sweep(set, h, lo, hi)),
-        None => match field(set)? {
+        None => match field(set, false)? {
             Some((lo, hi)) => inflate(&sweep(set, h, &lo, &hi)),
-            None => return Ok(Enclosure::NoField),
+            None => match field(set, true)? {
+                Some((lo, hi)) => inflate(&sweep(set, h, &lo, &hi)),
+                None => return Ok(Enclosure::NoField),
+            },
         },
     };
+    let Some(mut a) = clip(first) else {
+        return Ok(Enclosure::Open);
+    };
     for _ in 0..TRIES {
-        let Some((lo, hi)) = field(&a)? else {
+        let whole = field(&a, false)?;
+        let closes_with = |f: &(Vec<f64>, Vec<f64>)| {
+            let b = sweep(set, h, &f.0, &f.1);
+            closes(&b, &a, f, region)
+        };
+        let found = match whole {
+            Some(w) if closes_with(&w) => Some(w),
+            whole => match (whole, field(&a, true)?) {
+                (Some(w), Some(p)) => Some(meet(w, p)),
+                (w, p) => w.or(p),
+            },
+        };
+        let Some((lo, hi)) = found else {
             return Ok(Enclosure::NoField);
         };
         let b = sweep(set, h, &lo, &hi);
-        if strictly_inside(&b, &a) {
+        if closes(&b, &a, &(lo.clone(), hi.clone()), region) {
             return Ok(Enclosure::Closed(Flowpipe {
                 set: b,
                 f_lower: lo,
@@ -118,12 +151,73 @@ pub fn enclose_step<E>(
             lower: (0..a.dim()).map(|i| a.lower[i].min(b.lower[i])).collect(),
             upper: (0..a.dim()).map(|i| a.upper[i].max(b.upper[i])).collect(),
         };
-        a = inflate(&grown);
-        if a.lower.iter().chain(&a.upper).any(|v| !v.is_finite()) {
-            break;
+        match clip(inflate(&grown)) {
+            Some(next) if next.lower.iter().chain(&next.upper).all(|v| v.is_finite()) => a = next,
+            _ => break,
         }
     }
     Ok(Enclosure::Open)
+}
+
+/// Whether `b = X + [0, h]·F(A ∩ C)` proves the enclosure (items 1 and 1b): in every coordinate
+/// `b` lies strictly inside `a`, or meets `a`'s side where that side is `C`'s and the field
+/// points strictly inward there (a trajectory on that face moves into `C`, so it cannot leave
+/// `A ∩ C` through it).
+fn closes(
+    b: &IntervalBox,
+    a: &IntervalBox,
+    (lo, hi): &(Vec<f64>, Vec<f64>),
+    region: Option<&IntervalBox>,
+) -> bool {
+    (0..a.dim()).all(|i| {
+        let at_c = |side: f64, c: Option<f64>| c == Some(side);
+        let lower = a.lower[i] < b.lower[i]
+            || (at_c(a.lower[i], region.map(|r| r.lower[i]))
+                && lo[i] > 0.0
+                && a.lower[i] <= b.lower[i]);
+        let upper = b.upper[i] < a.upper[i]
+            || (at_c(a.upper[i], region.map(|r| r.upper[i]))
+                && hi[i] < 0.0
+                && b.upper[i] <= a.upper[i]);
+        lower && upper
+    })
+}
+
+/// The meet of two sound bounds of the same field.
+fn meet(
+    (mut lo, mut hi): (Vec<f64>, Vec<f64>),
+    (lo2, hi2): (Vec<f64>, Vec<f64>),
+) -> (Vec<f64>, Vec<f64>) {
+    for i in 0..lo.len() {
+        lo[i] = lo[i].max(lo2[i]);
+        hi[i] = hi[i].min(hi2[i]);
+    }
+    (lo, hi)
+}
+
+/// `a` cut into `k` equal parts along every axis (`kⁿ` boxes; the cuts rounded, the parts
+/// cover `a`).
+pub fn parts(a: &IntervalBox, k: usize) -> Vec<IntervalBox> {
+    let n = a.dim();
+    let k = k.max(1);
+    let cut = |i: usize, j: usize| match j {
+        0 => a.lower[i],
+        j if j == k => a.upper[i],
+        j => a.lower[i] + (a.upper[i] - a.lower[i]) * (j as f64 / k as f64),
+    };
+    let total = k.pow(n as u32);
+    (0..total)
+        .map(|mut idx| {
+            let (mut lower, mut upper) = (Vec::with_capacity(n), Vec::with_capacity(n));
+            for i in 0..n {
+                let j = idx % k;
+                idx /= k;
+                lower.push(cut(i, j));
+                upper.push(cut(i, j + 1));
+            }
+            IntervalBox { lower, upper }
+        })
+        .collect()
 }
 
 /// The slab of coordinate `i` at the set's upper (`on_upper`) or lower end: the flowpipe with
@@ -396,7 +490,7 @@ mod tests {
         let z = [0.0; 4];
         let set = IntervalBox::new(vec![1.0, 1.0], vec![2.0, 2.0]).unwrap();
         let h = 0.1;
-        let field = |a: &IntervalBox| -> Result<_, ()> {
+        let field = |a: &IntervalBox, _: bool| -> Result<_, ()> {
             Ok(Some(field_over(
                 &d,
                 &a.lower,
@@ -405,7 +499,7 @@ mod tests {
                 &[0.0],
             )))
         };
-        let Enclosure::Closed(pipe) = enclose_step(&set, h, None, field).unwrap() else {
+        let Enclosure::Closed(pipe) = enclose_step(&set, h, None, None, field).unwrap() else {
             panic!("no enclosure")
         };
         let e = (-h).exp();
@@ -431,7 +525,7 @@ mod tests {
         let z = [0.0; 4];
         let set = IntervalBox::new(vec![0.9, -0.1], vec![1.1, 0.1]).unwrap();
         let h = 0.2;
-        let field = |a: &IntervalBox| -> Result<_, ()> {
+        let field = |a: &IntervalBox, _: bool| -> Result<_, ()> {
             Ok(Some(field_over(
                 &d,
                 &a.lower,
@@ -440,7 +534,7 @@ mod tests {
                 &[0.0],
             )))
         };
-        let Enclosure::Closed(pipe) = enclose_step(&set, h, None, field).unwrap() else {
+        let Enclosure::Closed(pipe) = enclose_step(&set, h, None, None, field).unwrap() else {
             panic!("no enclosure")
         };
         let (mut lo, mut hi) = (set.lower.clone(), set.upper.clone());
@@ -458,6 +552,46 @@ mod tests {
                 if k == 20 {
                     assert!(lo[0] <= x[0] && x[0] <= hi[0] && lo[1] <= x[1] && x[1] <= hi[1]);
                 }
+            }
+        }
+    }
+
+    /// Parts cover the box, and `C` clips the enclosure soundly: `ẋ = −x` from a set on `C`'s
+    /// upper side moves into `C` and closes within it; `ẋ = x` from the same set would leave `C`
+    /// and does not close.
+    #[test]
+    fn parts_cover_and_c_clips_only_inward_motion() {
+        let a = IntervalBox::new(vec![0.0, -1.0], vec![1.0, 2.0]).unwrap();
+        let ps = parts(&a, 3);
+        assert_eq!(ps.len(), 9);
+        let area: f64 = ps
+            .iter()
+            .map(|p| (p.upper[0] - p.lower[0]) * (p.upper[1] - p.lower[1]))
+            .sum();
+        assert!((area - 3.0).abs() < 1e-12);
+        assert!(ps.iter().all(|p| p.is_subset_of(&a)));
+        let z = [0.0; 4];
+        let c = IntervalBox::new(vec![-3.0, -3.0], vec![2.0, 2.0]).unwrap();
+        let set = IntervalBox::new(vec![1.0, 1.0], vec![2.0, 2.0]).unwrap();
+        for (sign, closes) in [(-1.0, true), (1.0, false)] {
+            let d = linear([[sign, 0.0], [0.0, sign]]);
+            let field = |a: &IntervalBox, _: bool| -> Result<_, ()> {
+                Ok(Some(field_over(
+                    &d,
+                    &a.lower,
+                    &a.upper,
+                    no_network(&z),
+                    &[0.0],
+                )))
+            };
+            let found = enclose_step(&set, 0.1, None, Some(&c), field).unwrap();
+            match found {
+                Enclosure::Closed(pipe) => {
+                    assert!(closes, "ẋ = x leaves C: no enclosure within it");
+                    assert!(pipe.set.is_subset_of(&c));
+                    assert!(pipe.set.lower[0] <= (-0.1_f64).exp());
+                }
+                _ => assert!(!closes, "ẋ = −x from C's side stays in C"),
             }
         }
     }
