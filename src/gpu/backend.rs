@@ -257,6 +257,19 @@ impl Backend for GpuBackend {
             ))
             .into());
         }
+        let general_qp = problem
+            .pieces
+            .forms()
+            .is_some_and(|f| f.method() == crate::filter::FilterMethod::Qp);
+        if general_qp && settings.exact_field() == crate::reach::ExactField::ClosedForm {
+            return Err(GpuError::Unsupported(
+                "exact = \"closed-form\" for a general QP filter (the GPU engine evaluates the \
+                 one-row and scalar closed forms alone: set exact = \"inactive\", or use the CPU \
+                 engine)"
+                    .into(),
+            )
+            .into());
+        }
         if !GpuBackend::supports(settings) {
             return Err(GpuError::Unsupported(format!(
                 "{} bounds (the GPU engine has forward, forward-backward and crown bounds; use \

@@ -54,10 +54,11 @@ pub enum ExactField {
     Nowhere,
     /// `v = 0` where the filter is proven inactive on the set (any filter, QP included).
     Inactive,
-    /// Closed-form filters: the filtered system's own field where the filter is provably one
-    /// smooth function on the set (inactive, or one constraint binding throughout), met with
-    /// the network's bounds where a constraint binds; elsewhere the network's bounds met with
-    /// the closed form's enclosures of `v` on each face.
+    /// The filtered system's own field where the filter is provably one smooth function on
+    /// the set (inactive, or one piece throughout: a closed form's binding row, a QP's active
+    /// set), met with the network's bounds where a constraint binds; elsewhere the network's
+    /// bounds met with the pieces' enclosures of `v` on each face (any QP filter on the CPU;
+    /// the GPU engine only for the closed forms).
     ClosedForm,
 }
 
