@@ -69,7 +69,7 @@ impl ExactField {
             ExactField::Nowhere => "",
             ExactField::Inactive => " (v = 0 where the filter is proven inactive)",
             ExactField::ClosedForm => {
-                " (the filter's closed form: its own field where its active set is proven fixed \
+                " (the filter's pieces: its own field where its active set is proven fixed \
                  on the set, its enclosures elsewhere)"
             }
         }
