@@ -348,3 +348,43 @@ fn feasibility_proofs_of_general_qps_hold() {
         );
     }
 }
+
+/// The certified bound of `‖N − v‖∞` on cells of the two-sphere scenario (a general QP) is
+/// never below the error of its shipped network sampled on the cell, and is finite on most.
+#[test]
+fn certified_cell_bounds_of_a_general_qp_hold() {
+    use cbfreach::bounds::{BoundMethod, PreparedNetwork};
+    use cbfreach::network::Mlp;
+    use cbfreach::surrogate_error::{cell_error_bound_mv, sampled_cell_error};
+    let s = spheres();
+    let net = Mlp::load_safetensors(&scenario_path("spheres3d.safetensors")).unwrap();
+    let prepared = PreparedNetwork::new(&net).unwrap();
+    let forms = VForms::new(&s).unwrap();
+    let filter = SafetyFilter::new(&s);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(31);
+    let mut finite = 0;
+    for k in 0..60 {
+        let c: Vec<f64> = (0..3).map(|_| rng.random_range(-2.3..2.3)).collect();
+        let w = [0.05, 0.15, 0.4][k % 3];
+        let cell = IntervalBox {
+            lower: c.iter().map(|x| x - w).collect(),
+            upper: c.iter().map(|x| x + w).collect(),
+        };
+        let bound = cell_error_bound_mv(
+            &forms,
+            &s,
+            &prepared,
+            &cell,
+            BoundMethod::ForwardBackward,
+            0.0,
+        )
+        .unwrap();
+        let sampled = sampled_cell_error(&s, &filter, &net, &cell, 200, k as u64);
+        assert!(
+            bound >= sampled,
+            "cell {cell:?}: bound {bound} < sampled {sampled}"
+        );
+        finite += usize::from(bound.is_finite());
+    }
+    assert!(finite >= 50, "{finite} of 60 cells bounded");
+}

@@ -448,12 +448,30 @@ impl QpForms {
         }
         let a: Vec<Vec<Interval>> = a_flat.chunks(m.max(1)).map(<[Interval]>::to_vec).collect();
         let Centred { xs, cs, dx } = Centred::of(cell);
-        let b: Vec<Interval> = self
+        let mut b: Vec<Interval> = self
             .b
             .iter()
             .zip(&b_nat)
             .map(|(bk, &nat)| meet(nat, bk.centred(&xs, &cs, &dx).enclosure))
             .collect();
+        // A row's own piece can bound its `bₖ` better than `bₖ`'s forms (as the closed form's
+        // `F = b·a/‖a‖²` does): where `‖aₖ‖² > 0`, `bₖ = θⱼ‖aₖ‖²/aₖⱼ` for every input `j` with
+        // `aₖⱼ ≠ 0`, `θ` the piece's formula (`bₖaₖ/‖aₖ‖²`, or `bₖ/aₖ`).
+        for piece in &self.pieces {
+            let [k] = piece.set[..] else {
+                continue;
+            };
+            let d = norm2(&a[k]);
+            if d.is_nan() || d.lower <= 0.0 {
+                continue;
+            }
+            for (t, &akj) in piece.theta.iter().zip(&a[k]) {
+                if akj.lower > 0.0 || akj.upper < 0.0 {
+                    let th = t.centred(&xs, &cs, &dx).enclosure;
+                    b[k] = meet(b[k], th * d / akj);
+                }
+            }
+        }
         let centred = |f: &Smooth, nat: Interval| meet(nat, f.centred(&xs, &cs, &dx).enclosure);
         let mut union: Option<Vec<Interval>> = None;
         let mut only: Vec<Option<usize>> = Vec::new();
@@ -511,6 +529,26 @@ impl QpForms {
             return entire;
         };
         contract(&mut v, &a, &b);
+        if m == 1 {
+            // A scalar input: row `k` says `θ ≥ rₖ` (`aₖ < 0`) or `θ ≤ rₖ` (`aₖ > 0`) with
+            // `rₖ = bₖ/aₖ`, whose mean-value form (piece `{k}`'s) is tighter than `bₖ/aₖ`.
+            for piece in &self.pieces {
+                let [k] = piece.set[..] else {
+                    continue;
+                };
+                let ak = a[k][0];
+                if !(ak.lower > 0.0 || ak.upper < 0.0) {
+                    continue;
+                }
+                let r = meet(b[k] / ak, piece.theta[0].centred(&xs, &cs, &dx).enclosure);
+                let side = if ak.lower > 0.0 {
+                    Interval::new(f64::NEG_INFINITY, r.upper)
+                } else {
+                    Interval::new(r.lower, f64::INFINITY)
+                };
+                v[0] = meet(v[0], side);
+            }
+        }
         let piece = match (only.as_slice(), smooth) {
             ([one], Some(sv)) => Some((*one, sv)),
             _ => None,
