@@ -2,8 +2,10 @@
 //!
 //! A CBF filter can create equilibria where the nominal loop has none: points on `∂S` where
 //! `f̃(x*) ≠ 0` is cancelled by the filter (*undesirable* equilibria, Chen et al. 2024). We find
-//! them by damped Newton iterations from a grid of starts over `C` and from the same starts
-//! projected onto each CBF's zero level set, de-duplicate, and classify each by the eigenvalues
+//! them by damped Newton iterations from a coarse set of starts over `C` (a grid in the plane, a
+//! Halton set of the same size in 3 or more states, so that the cost does not grow with the
+//! power of the dimension) and from the same starts projected onto each CBF's zero level set,
+//! de-duplicate, and classify each by the eigenvalues
 //! of `DF(x*)` (central differences: `F` is smooth on each side of an active-set switch, and an
 //! equilibrium on `∂S` lies strictly inside the active side).
 
@@ -55,7 +57,8 @@ pub struct Equilibrium {
 /// Search settings.
 #[derive(Clone, Debug)]
 pub struct EquilibriumSearch {
-    /// Starting points per axis of the grid over `C`.
+    /// Starting points per axis of the grid over `C` in the plane; in `n ≥ 3` states the
+    /// same number of starts in all (`starts_per_axis²`, a Halton set over `C`).
     pub starts_per_axis: usize,
     /// Accept `x` when `‖F(x)‖∞` is below this.
     pub residual_tolerance: f64,
@@ -84,11 +87,21 @@ pub fn find_equilibria(
 ) -> Vec<Equilibrium> {
     let n = region.dim();
     let per_axis = search.starts_per_axis.max(2);
-    let cells = region.partition(&vec![per_axis; n]);
-    let mut starts: Vec<Vec<f64>> = cells.iter().map(IntervalBox::center).collect();
+    let coarse: Vec<Vec<f64>> = if n <= 2 {
+        region
+            .partition(&vec![per_axis; n])
+            .iter()
+            .map(IntervalBox::center)
+            .collect()
+    } else {
+        (1..=per_axis * per_axis)
+            .map(|k| region.point_at(&halton(k, n)))
+            .collect()
+    };
+    let mut starts = coarse.clone();
     for cbf in &filter.scenario().cbfs {
-        starts.extend(cells.iter().filter_map(|c| {
-            let p = project_to_zero_level(&c.center(), |x| {
+        starts.extend(coarse.iter().filter_map(|c| {
+            let p = project_to_zero_level(c, |x| {
                 let grad = cbf.gradient.iter().map(|e| e.eval(x)).collect();
                 (cbf.h.eval(x), grad)
             })?;
@@ -121,6 +134,23 @@ pub fn find_equilibria(
     unique
         .into_iter()
         .filter_map(|x| classify(filter, x, search))
+        .collect()
+}
+
+/// The `k`-th point of the Halton sequence in `[0, 1]ⁿ` (bases the first `n` primes).
+fn halton(k: usize, n: usize) -> Vec<f64> {
+    const PRIMES: [usize; 12] = [2, 3, 5, 7, 11, 13, 17, 19, 23, 29, 31, 37];
+    (0..n)
+        .map(|i| {
+            let base = PRIMES[i % PRIMES.len()];
+            let (mut f, mut r, mut j) = (1.0, 0.0, k);
+            while j > 0 {
+                f /= base as f64;
+                r += f * (j % base) as f64;
+                j /= base;
+            }
+            r
+        })
         .collect()
 }
 

@@ -40,7 +40,7 @@ pub enum ErrorMapError {
         network: PathBuf,
     },
     /// The map has no certified bound (the filter is a general QP).
-    #[error("{path} holds no certified bound (the scenario's filter has no closed form); use a number or \"measured\"")]
+    #[error("{path} holds no certified bound (the scenario's filter has too many active sets to certify); use a number or \"measured\"")]
     NotCertified {
         /// The error map.
         path: PathBuf,

@@ -231,7 +231,9 @@ pub fn run(args: &ErrorArgs) -> CliResult {
                 ""
             }
         ),
-        None => println!("certified M_C: none (the filter is a general QP without a closed form)"),
+        None => println!(
+            "certified M_C: none (the filter's QP has more active sets than are enumerated)"
+        ),
     }
     if let Some(c) = certified.as_ref().filter(|c| !c.witness.is_empty()) {
         println!(

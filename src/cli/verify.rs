@@ -219,12 +219,20 @@ pub fn run_verify(
     reach: ReachSettings,
     settings: &VerifySettings,
 ) -> Result<VerifyReport, Box<dyn std::error::Error>> {
+    // The equilibria search runs once per run, here (its traps are shared by every box).
+    let clock = std::time::Instant::now();
+    let traps = traps_for(s);
+    eprintln!(
+        "equilibria: {} trap(s) from the search over C in {:.2} s",
+        traps.len(),
+        clock.elapsed().as_secs_f64()
+    );
     let verifier = Verifier {
         scenario: s,
         problem,
         backend: engine,
         reach,
-        traps: traps_for(s),
+        traps,
     };
     let bar = std::sync::Mutex::new(None::<(Stage, indicatif::ProgressBar)>);
     let progress = |stage: Stage, done: usize, total: usize| {

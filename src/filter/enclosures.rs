@@ -2,6 +2,7 @@
 //! mean-value forms of [`VForms`] (docs/design.md §2.1). It may import the filter's rows, the scenario,
 //! expressions, intervals and boxes.
 
+use super::active_sets::{natural_qp_enclosure, QpForms};
 use super::rows::{interval_rows, row_expressions};
 use super::{FilterMethod, SafetyFilter};
 use crate::boxes::IntervalBox;
@@ -19,14 +20,16 @@ fn neg_part(b: Interval) -> Interval {
 }
 
 /// An enclosure of the filter `v` over `box ∩ S`, by interval evaluation of its closed form:
-/// `Some(v)` with `v[j] ∋ vⱼ(x)` for every `x ∈ box ∩ S` where the filter is feasible, or `None`
-/// when the filter has no closed form ([`FilterMethod::Qp`]). Ends may be infinite (e.g. when
-/// `‖L_g h‖²` may vanish on the box): refine the box.
+/// `Some(v)` with `v[j] ∋ vⱼ(x)` for every `x ∈ box ∩ S` where the filter is feasible (always
+/// `Some`; the `Option` is kept for callers). Ends may be infinite (e.g. when `‖L_g h‖²` may
+/// vanish on the box): refine the box.
 ///
 /// * One row `a·θ ≤ b`: `v = −max(0, −b)/‖a‖² · a`.
 /// * Scalar input: with `cₖ = max(0, −bₖ)`, `v = max(0, max_{aₖ<0} cₖ/|aₖ|) − max(0,
 ///   max_{aₖ>0} cₖ/aₖ)` (which is `clamp(0, lo, hi)` wherever `lo ≤ hi`); a row whose `aₖ` may
 ///   vanish with `cₖ > 0` makes the enclosure unbounded.
+/// * A general QP: the union of its possible active-set pieces, by interval evaluation
+///   ([`natural_qp_enclosure`], docs/design.md §2.2).
 pub fn v_enclosure(
     s: &Scenario,
     method: FilterMethod,
@@ -39,7 +42,7 @@ pub fn v_enclosure(
         return bad();
     }
     match method {
-        FilterMethod::Qp => None,
+        FilterMethod::Qp => Some(natural_qp_enclosure(&a, &b, m)),
         FilterMethod::ClosedFormSingle => {
             if b.len() != 1 || a.len() != m {
                 return bad();
@@ -93,14 +96,14 @@ pub struct Smooth {
 }
 
 /// `e(c)` and `∇e(X)` over a box, and the centred form `e(c) + ∇e(X)·(X − c)`.
-struct CentredForm {
-    value: Interval,
-    grad: Vec<Interval>,
-    enclosure: Interval,
+pub(super) struct CentredForm {
+    pub(super) value: Interval,
+    pub(super) grad: Vec<Interval>,
+    pub(super) enclosure: Interval,
 }
 
 impl Smooth {
-    fn new(e: Expr, n: usize) -> Smooth {
+    pub(super) fn new(e: Expr, n: usize) -> Smooth {
         let grad = (0..n).map(|i| e.derivative(i)).collect();
         Smooth { e, grad }
     }
@@ -108,7 +111,7 @@ impl Smooth {
     /// The mean-value form over `xs` around `c` (a point of the box); valid wherever `e` is
     /// differentiable (or Lipschitz, with the interval derivative enclosing its Clarke gradient)
     /// on the box. Every evaluation is outward rounded.
-    fn centred(&self, xs: &[Interval], c: &[Interval], dx: &[Interval]) -> CentredForm {
+    pub(super) fn centred(&self, xs: &[Interval], c: &[Interval], dx: &[Interval]) -> CentredForm {
         let value = self.e.eval_interval(c);
         let grad: Vec<Interval> = self.grad.iter().map(|g| g.eval_interval(xs)).collect();
         let enclosure = value + sum(grad.iter().zip(dx).map(|(&g, &d)| g * d));
@@ -141,24 +144,25 @@ pub struct SmoothV {
     pub jac: Vec<Interval>,
 }
 
-/// One smooth piece of a closed-form filter `v` (the filter's active set held fixed).
+/// One smooth piece of the filter `v` (the filter's active set held fixed).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum FilterPiece {
     /// Every row slack: `v = 0`.
     Inactive,
-    /// Row `k` binds, every other row is slack.
+    /// Piece `k` binds: for a closed form row `k` (every other row slack), for a general QP the
+    /// `k`-th nonempty active set of [`QpForms::sets`].
     Binding(usize),
 }
 
 /// A cell as intervals `X`, its centre `c` as points, and `X − c`: what mean-value forms take.
-struct Centred {
-    xs: Vec<Interval>,
-    cs: Vec<Interval>,
-    dx: Vec<Interval>,
+pub(super) struct Centred {
+    pub(super) xs: Vec<Interval>,
+    pub(super) cs: Vec<Interval>,
+    pub(super) dx: Vec<Interval>,
 }
 
 impl Centred {
-    fn of(cell: &IntervalBox) -> Centred {
+    pub(super) fn of(cell: &IntervalBox) -> Centred {
         let xs: Vec<Interval> = (0..cell.dim())
             .map(|i| Interval::new(cell.lower[i], cell.upper[i]))
             .collect();
@@ -193,6 +197,8 @@ pub struct VForms {
     /// Scalar input: `rₖ − rⱼ` at `k·rows + j` (`k ≠ j`), to prove one row dominant; empty
     /// beyond [`MAX_DOMINANCE_ROWS`] rows.
     r_diff: Vec<Option<Smooth>>,
+    /// A general QP: its active-set pieces (`None` for the closed forms).
+    qp: Option<QpForms>,
 }
 
 /// The expressions behind [`VForms`], for an engine that evaluates them itself (the GPU's
@@ -218,13 +224,29 @@ pub struct VFormParts<'a> {
 const MAX_DOMINANCE_ROWS: usize = 8;
 
 impl VForms {
-    /// The forms of the scenario's closed-form filter; `None` for a general QP.
+    /// The forms of the scenario's filter: its closed form, or for a general QP its active-set
+    /// pieces ([`QpForms`]); `None` for a QP with more active sets than are enumerated
+    /// ([`super::active_sets::MAX_SETS`]).
     pub fn new(s: &Scenario) -> Option<VForms> {
         let method = SafetyFilter::new(s).method();
-        if method == FilterMethod::Qp {
-            return None;
-        }
         let (n, m) = (s.n(), s.m());
+        if method == FilterMethod::Qp {
+            let qp = QpForms::new(s);
+            if !qp.is_complete() {
+                return None;
+            }
+            return Some(VForms {
+                method,
+                n,
+                m,
+                b: qp.b().to_vec(),
+                f: Vec::new(),
+                p: Vec::new(),
+                r: Vec::new(),
+                r_diff: Vec::new(),
+                qp: Some(qp),
+            });
+        }
         let (a_rows, b_rows) = row_expressions(s, false);
         let sum_e = |it: &mut dyn Iterator<Item = Expr>| it.fold(Expr::constant(0.0), |a, b| a + b);
         let b: Vec<Smooth> = b_rows.iter().map(|e| Smooth::new(e.clone(), n)).collect();
@@ -266,7 +288,13 @@ impl VForms {
             p,
             r,
             r_diff,
+            qp: None,
         })
+    }
+
+    /// The general QP's pieces (`None` for a closed form).
+    pub fn qp(&self) -> Option<&QpForms> {
+        self.qp.as_ref()
     }
 
     /// The rows over `cell ∩ S`: natural enclosures of `a` and `b`, and `b` met with its
@@ -302,6 +330,12 @@ impl VForms {
     /// may bind is, for a scalar input, on the other side of `θ = 0` or dominated by it
     /// (`rₖ − rⱼ` of one sign on the cell).
     pub fn piece(&self, s: &Scenario, cell: &IntervalBox) -> Option<FilterPiece> {
+        if let Some(qp) = &self.qp {
+            return qp.enclose(s, cell).piece.map(|(k, _)| match k {
+                None => FilterPiece::Inactive,
+                Some(k) => FilterPiece::Binding(k),
+            });
+        }
         let Centred { xs, cs, dx } = Centred::of(cell);
         let Rows {
             a_nat,
@@ -373,7 +407,9 @@ impl VForms {
     /// dimension sets that meet pairwise have a common point (Helly), so it suffices that every
     /// row alone is feasible and that no two rows point in opposite directions past each
     /// other: `aⱼaₖ ≥ 0`, or `(bⱼaₖ − bₖaⱼ)·aₖ ≥ 0` (that is `bⱼ/aⱼ ≤ bₖ/aₖ` when `aⱼ < 0 < aₖ`),
-    /// or both rows slack at `θ = 0`.
+    /// or both rows slack at `θ = 0`. General QP: every row slack at `θ = 0`, or one `θ*`
+    /// (found at the centre) that satisfies every row over the whole cell in interval
+    /// arithmetic.
     pub fn proves_feasible(&self, s: &Scenario, cell: &IntervalBox) -> bool {
         let Centred { xs, cs, dx } = Centred::of(cell);
         let Some(Rows { a_nat, b_enc, .. }) = self.rows(s, &xs, &cs, &dx, cell) else {
@@ -397,7 +433,10 @@ impl VForms {
                         })
                     })
             }
-            FilterMethod::Qp => (0..b_enc.len()).all(slack),
+            FilterMethod::Qp => {
+                (0..b_enc.len()).all(slack)
+                    || super::feasibility::proves_feasible(s, cell, &a_nat, &b_enc)
+            }
         }
     }
 
@@ -407,6 +446,10 @@ impl VForms {
         match piece {
             FilterPiece::Inactive => vec![Expr::constant(0.0); self.m],
             FilterPiece::Binding(k) => match self.method {
+                FilterMethod::Qp => self
+                    .qp
+                    .as_ref()
+                    .map_or_else(Vec::new, |qp| qp.piece_input(k)),
                 FilterMethod::ClosedFormSingle => self.f.iter().map(|f| f.e.clone()).collect(),
                 _ => vec![self.r[k].e.clone()],
             },
@@ -435,10 +478,10 @@ impl VForms {
         self.m
     }
 
-    /// Number of constraint rows (the pieces are [`FilterPiece::Inactive`] and one
-    /// [`FilterPiece::Binding`] per row).
+    /// Number of binding pieces (the pieces are [`FilterPiece::Inactive`] and one
+    /// [`FilterPiece::Binding`] per row of a closed form, per nonempty active set of a QP).
     pub fn rows_len(&self) -> usize {
-        self.b.len()
+        self.qp.as_ref().map_or(self.b.len(), QpForms::len)
     }
 
     /// An enclosure of `v` over `cell ∩ S` (where feasible), the natural one of
@@ -449,6 +492,15 @@ impl VForms {
         let (n, m) = (self.n, self.m);
         let natural =
             v_enclosure(s, self.method, cell).unwrap_or_else(|| vec![Interval::ENTIRE; m]);
+        if let Some(qp) = &self.qp {
+            let cell_v = qp.enclose(s, cell);
+            let v = natural
+                .iter()
+                .zip(&cell_v.v)
+                .map(|(&a, &b)| meet(b, a))
+                .collect();
+            return (v, cell_v.piece.map(|(_, sv)| sv));
+        }
         let centre = cell.center();
         let Centred { xs, cs, dx } = Centred::of(cell);
         let zero_v = || SmoothV {

@@ -17,7 +17,9 @@
 //! solves the QP. An empty feasible set is the status [`FilterStatus::Infeasible`] of
 //! [`SafetyFilter::solve`], and [`FilterError::Infeasible`] where a value of `v` is needed.
 
+mod active_sets;
 mod enclosures;
+mod feasibility;
 mod rows;
 mod solve;
 
@@ -25,6 +27,7 @@ use std::fmt;
 
 use crate::scenario::Scenario;
 
+pub use active_sets::{natural_qp_enclosure, QpCell, QpForms, MAX_ACTIVE, MAX_SETS};
 pub use enclosures::{v_enclosure, FilterPiece, Smooth, SmoothV, VFormParts, VForms};
 pub use rows::{interval_rows, row_expressions};
 
@@ -261,8 +264,18 @@ impl<'a> SafetyFilter<'a> {
         Ok(match self.method {
             FilterMethod::ClosedFormSingle => solve::project_half_space(&rows, m),
             FilterMethod::ClosedFormScalar => solve::clamp_scalar(&rows),
-            FilterMethod::Qp => solve::solve_qp(&rows, m, x)?,
+            FilterMethod::Qp => match solve::solve_by_active_sets(&rows, m) {
+                Some(theta) => FilterStatus::Solved(theta),
+                None => solve::solve_qp(&rows, m, x)?,
+            },
         })
+    }
+
+    /// The QP at `x` by clarabel alone (polished), whatever the method: an independent check
+    /// of the closed forms, the active-set enumeration and the enclosures.
+    pub fn solve_with_clarabel(&self, x: &[f64]) -> Result<FilterStatus, FilterError> {
+        let rows = self.constraint_rows(x)?;
+        solve::solve_qp(&rows, self.scenario.m(), x)
     }
 
     /// `v(x)`; an infeasible QP is [`FilterError::Infeasible`] here.

@@ -179,6 +179,13 @@ impl GpuBackend {
         if problem.time != TimeModel::Euler {
             return Err(Unsupported::Time(problem.time.name()));
         }
+        let general_qp = problem
+            .pieces
+            .forms()
+            .is_some_and(|f| f.method() == crate::filter::FilterMethod::Qp);
+        if general_qp && settings.exact_field() == crate::reach::ExactField::ClosedForm {
+            return Err(Unsupported::ExactGeneralQp);
+        }
         Ok(())
     }
 

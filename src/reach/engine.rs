@@ -96,6 +96,10 @@ pub fn refusal(unsupported: Unsupported) -> String {
             "time = \"{t}\": the GPU engine runs time = \"euler\" alone; set it (--time euler) \
              or use the CPU engine (--backend cpu)"
         ),
+        Unsupported::ExactGeneralQp => "exact = \"closed-form\" for a general QP filter: the GPU \
+             engine evaluates the one-row and scalar closed forms alone; set exact = \"inactive\" \
+             (--exact inactive) or use the CPU engine (--backend cpu)"
+            .to_string(),
     }
 }
 

@@ -11,10 +11,10 @@
 //! closed loop's contraction can absorb (scenario 2's tubes diverge from the goal box with a
 //! constant `M` of 0.03 and converge with 0.02).
 //!
-//! For the closed-form filters (one constraint row, or a scalar input) the same holds on the
-//! other side: where one row provably binds on the whole set and every other row is slack,
-//! `v` is that row's closed form (`bₖaⱼ/‖a‖²`, or `bₖ/aₖ`), a smooth function of `x`
-//! ([`VForms::piece`]), and the filtered system's field `f̃ + g·v` is an expression whose
+//! The same holds on the other side: where one piece provably is `v` on the whole set (for the
+//! closed forms one row binds and every other is slack, `v = bₖaⱼ/‖a‖²` or `bₖ/aₖ`; for a
+//! general QP one active set is the only possible one, `v = P/D`, docs/design.md §2.1a), `v` is
+//! a smooth function of `x` ([`VForms::piece`]), and the filtered system's field `f̃ + g·v` is an expression whose
 //! mean-value form the embedding evaluates like `f̃`'s — again with no network error. Where the
 //! active set changes inside the set, the closed form still gives an enclosure of `v` on each
 //! face ([`FilterPieces::enclosure`]), which the engine meets with the network's bounds.
@@ -39,9 +39,10 @@ const FEASIBILITY_SPLITS: usize = 6;
 #[derive(Clone, Debug)]
 pub struct FilterPieces {
     scenario: Scenario,
-    /// The closed form (`None` for a filter that needs the QP: only inactivity is proven).
+    /// The closed form or the QP's pieces (`None` for a QP with too many active sets: only
+    /// inactivity is proven).
     forms: Option<VForms>,
-    /// Per row `k`: the filtered system's field where row `k` alone binds, in the embedding's
+    /// Per binding piece `k` (row `k` of a closed form, active set `k` of a QP): the filtered system's field where row `k` alone binds, in the embedding's
     /// coordinates, and the same field in x (for the transform's slack).
     binding: Vec<BindingField>,
     /// `bₖ(x)` of every row of the QP `aₖ·θ ≤ bₖ`, each `hᵢ` as `max(hᵢ, 0)` (on `S`, `hᵢ ≥ 0`):
@@ -119,8 +120,8 @@ impl FilterPieces {
             .all(|b| b.eval_interval(&xs).lower >= 0.0)
     }
 
-    /// Whether the filter's QP is feasible at every point of `x_box ∩ S` (for a QP without a
-    /// closed form: only where `θ = 0` satisfies every row). Feasibility is pointwise, so where
+    /// Whether the filter's QP is feasible at every point of `x_box ∩ S` (for a general QP: one
+    /// `θ*` satisfies every row over the box, [`VForms::proves_feasible`]). Feasibility is pointwise, so where
     /// the box as a whole is not proven its halves are tried, [`FEASIBILITY_SPLITS`] deep: the
     /// interval rows of a smaller box lose less to dependency.
     pub fn proves_feasible(&self, x_box: &IntervalBox) -> bool {

@@ -54,10 +54,11 @@ pub enum ExactField {
     Nowhere,
     /// `v = 0` where the filter is proven inactive on the set (any filter, QP included).
     Inactive,
-    /// Closed-form filters: the filtered system's own field where the filter is provably one
-    /// smooth function on the set (inactive, or one constraint binding throughout), met with
-    /// the network's bounds where a constraint binds; elsewhere the network's bounds met with
-    /// the closed form's enclosures of `v` on each face.
+    /// The filtered system's own field where the filter is provably one smooth function on
+    /// the set (inactive, or one piece throughout: a closed form's binding row, a QP's active
+    /// set), met with the network's bounds where a constraint binds; elsewhere the network's
+    /// bounds met with the pieces' enclosures of `v` on each face (any QP filter on the CPU;
+    /// the GPU engine only for the closed forms).
     ClosedForm,
 }
 
@@ -68,7 +69,7 @@ impl ExactField {
             ExactField::Nowhere => "",
             ExactField::Inactive => " (v = 0 where the filter is proven inactive)",
             ExactField::ClosedForm => {
-                " (the filter's closed form: its own field where its active set is proven fixed \
+                " (the filter's pieces: its own field where its active set is proven fixed \
                  on the set, its enclosures elsewhere)"
             }
         }
@@ -112,6 +113,10 @@ pub enum Unsupported {
     /// The engine runs another time model only (the model's name).
     #[error("the engine runs time = \"euler\" alone, not time = \"{0}\"")]
     Time(&'static str),
+    /// The engine evaluates the one-row and scalar closed forms alone, not the active-set
+    /// pieces of a general QP filter.
+    #[error("the engine has no exact field for a general QP filter")]
+    ExactGeneralQp,
 }
 
 impl ReachSettings {

@@ -49,7 +49,7 @@ fn error_from(n_lo: &[f64], n_hi: &[f64], v: &[Interval]) -> f64 {
 
 /// A certified bound of `‖N(x) − v(x)‖∞` over `box ∩ S` (where `v` is feasible):
 /// IBP first, then backward CROWN (intersected with IBP) when the IBP bound exceeds `good_enough`.
-/// `None` without a closed-form filter; +∞ when an enclosure is unbounded.
+/// `None` where [`v_enclosure`] gives none; +∞ when an enclosure is unbounded.
 pub fn cell_error_bound(
     s: &Scenario,
     net: &Mlp,
@@ -373,7 +373,8 @@ impl Ord for Entry {
 
 /// A certified `M_C` over `C ∩ S` with local bounds (see the [analysis docs](super)).
 ///
-/// `C` is cut into cells of [`ErrorSettings::initial_cell`]; every cell gets a certified bound
+/// `C` is cut into cells of [`ErrorSettings::initial_cell`] (coarser where that would leave no
+/// room to refine, [`initial_counts`]); every cell gets a certified bound
 /// ([`cell_error_bound_mv`]) and a cheap sampled error `e` (corners, centre and
 /// [`ErrorSettings::cell_samples`] random points). A cell is refined (bisected) while its bound
 /// exceeds its target `max(local_ratio · e, floor)` ([`ErrorSettings::local_ratio`],
@@ -385,8 +386,9 @@ impl Ord for Entry {
 /// `local_ratio · target` (`target`: the measured global error), and cells whose bound exceeds
 /// that are refined before all others: the global certified `M_C` is the max over the cells,
 /// and the area-weighted order alone can spend the budget before it reaches a small cell that
-/// holds that max. `None` when the filter
-/// is a general QP. `progress` is told the
+/// holds that max. `None` when the filter is a QP with more active sets than
+/// [`crate::filter::MAX_SETS`] (any filter with fewer is certified through its active-set
+/// pieces, [`VForms`]). `progress` is told the
 /// evaluations so far and the largest bound still waiting for refinement.
 pub fn certify(
     s: &Scenario,
@@ -402,11 +404,7 @@ pub fn certify(
     let filter = SafetyFilter::new(s);
     let prepared = PreparedNetwork::new(net)?;
     let c = &s.reach.region;
-    let counts: Vec<usize> = c
-        .widths()
-        .iter()
-        .map(|&w| ((w / settings.initial_cell.max(1e-6)).ceil() as usize).max(1))
-        .collect();
+    let counts = initial_counts(c, settings.initial_cell, settings.max_cells);
     let ratio = settings.local_ratio.max(1.0);
     let floor = settings.floor.max(0.0);
     let min_cell = settings.min_cell.max(1e-9);
@@ -561,6 +559,33 @@ pub fn certify(
         budget_spent,
         satisfied,
     }))
+}
+
+/// Cells per axis of the first partition of `C`: cells of `initial_cell`, coarsened (the
+/// finest axis first) until they number at most a quarter of `max_cells`, so that the tree has
+/// room to refine where the bound is far from the sampled error. In 3–6 states a fixed width
+/// would fill the map before any refinement (a 5 × 5 × 5 region at 0.125 is 64,000 cells).
+pub fn initial_counts(c: &IntervalBox, initial_cell: f64, max_cells: usize) -> Vec<usize> {
+    let mut counts: Vec<usize> = c
+        .widths()
+        .iter()
+        .map(|&w| ((w / initial_cell.max(1e-6)).ceil() as usize).max(1))
+        .collect();
+    let cap = (max_cells / 4).max(1);
+    while counts
+        .iter()
+        .try_fold(1usize, |p, &k| p.checked_mul(k))
+        .is_none_or(|p| p > cap)
+    {
+        let Some(i) = (0..counts.len()).max_by_key(|&i| counts[i]) else {
+            break;
+        };
+        if counts[i] == 1 {
+            break;
+        }
+        counts[i] = counts[i].div_ceil(2);
+    }
+    counts
 }
 
 /// How many cells of largest bound [`witness_error`] samples, and about how many points each.

@@ -1,0 +1,390 @@
+//! The general QP's enclosures of `v` (active-set pieces, `filter/active_sets.rs`) against
+//! clarabel's solutions on random boxes of every shipped scenario and of filters built to be
+//! hard (input bounds, dependent rows); the paper's closed forms through the general path.
+
+mod common;
+
+use cbfreach::boxes::IntervalBox;
+use cbfreach::filter::{
+    interval_rows, natural_qp_enclosure, FilterMethod, FilterStatus, QpForms, SafetyFilter, VForms,
+};
+use cbfreach::intervals::Interval;
+use cbfreach::scenario::Scenario;
+use common::{double_integrator, from_text, integrator, scenario_path};
+use rand::{Rng, SeedableRng};
+
+/// clarabel's answers are polished to the exact KKT point but may keep its tolerance.
+const SOLVER_TOL: f64 = 1e-7;
+
+fn spheres() -> Scenario {
+    Scenario::load(&scenario_path("spheres3d.toml")).expect("spheres3d loads")
+}
+
+/// Two obstacles on a two-input integrator with input bounds: active sets mix CBF rows and
+/// bounds, and near the bounds the QP is infeasible.
+fn two_obstacles_with_bounds() -> Scenario {
+    from_text(
+        r#"
+name = "two"
+[system]
+states = ["x1", "x2"]
+inputs = ["u1", "u2"]
+f = ["0", "0"]
+g = [["1", "0"], ["0", "1"]]
+kappa = ["-x1", "-x2"]
+[[cbf]]
+h = "(x1 - 2)^2 + x2^2 - 1"
+[[cbf]]
+h = "(x1 + 1)^2 + (x2 - 2)^2 - 0.5"
+[input_bounds]
+lower = [-3, -3]
+upper = [3, 3]
+[reach]
+region = { lower = [-3, -3], upper = [4, 4] }
+m_c = 0
+dt = 0.05
+horizon = 1
+goal = { lower = [-0.1, -0.1], upper = [0.1, 0.1] }
+"#,
+    )
+    .unwrap()
+}
+
+/// The same sphere twice: the pair's rows are dependent everywhere (`det G ≡ 0`).
+fn duplicate_rows() -> Scenario {
+    from_text(
+        r#"
+name = "dup"
+[system]
+states = ["x1", "x2", "x3"]
+inputs = ["u1", "u2", "u3"]
+f = ["0", "0", "0"]
+g = [["1", "0", "0"], ["0", "1", "0"], ["0", "0", "1"]]
+kappa = ["-x1", "-x2", "-x3"]
+[[cbf]]
+h = "(x1 - 1)^2 + x2^2 + x3^2 - 0.25"
+[[cbf]]
+h = "(x1 - 1)^2 + x2^2 + x3^2 - 0.25"
+alpha = 2.0
+[reach]
+region = { lower = [-2, -2, -2], upper = [2, 2, 2] }
+m_c = 0
+dt = 0.05
+horizon = 1
+goal = { lower = [-0.1, -0.1, -0.1], upper = [0.1, 0.1, 0.1] }
+"#,
+    )
+    .unwrap()
+}
+
+fn random_box(rng: &mut impl Rng, region: &IntervalBox) -> IntervalBox {
+    let n = region.dim();
+    let scale = [0.005, 0.05, 0.3][rng.random_range(0..3)];
+    let (mut lower, mut upper) = (Vec::new(), Vec::new());
+    for i in 0..n {
+        let w = scale * (region.upper[i] - region.lower[i]) * rng.random_range(0.2..1.0);
+        let l = rng.random_range(region.lower[i]..region.upper[i] - w);
+        lower.push(l);
+        upper.push(l + w);
+    }
+    IntervalBox { lower, upper }
+}
+
+fn inside(theta: &[f64], enc: &[Interval]) -> bool {
+    theta.iter().zip(enc).all(|(&t, e)| {
+        let tol = SOLVER_TOL * t.abs().max(1.0);
+        e.lower - tol <= t && t <= e.upper + tol
+    })
+}
+
+/// What [`solutions_inside`] saw: boxes with a bounded enclosure, boxes with a proven piece,
+/// and points checked.
+struct Seen {
+    bounded: usize,
+    pieces: usize,
+    points: usize,
+}
+
+/// On `boxes` random boxes, clarabel's solution at 12 random points of `box ∩ S` (where
+/// feasible) lies in the general QP's enclosure, in the natural one and in the filter's own
+/// ([`VForms::enclose`]); where one piece is proven, `v` equals that piece's expression.
+fn solutions_inside(s: &Scenario, boxes: usize, seed: u64) -> Seen {
+    let qp = QpForms::new(s);
+    let forms = VForms::new(s).expect("forms");
+    let solver = SafetyFilter::with_method(s, FilterMethod::Qp);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let mut seen = Seen {
+        bounded: 0,
+        pieces: 0,
+        points: 0,
+    };
+    for _ in 0..boxes {
+        let b = random_box(&mut rng, &s.reach.region);
+        let cell = qp.enclose(s, &b);
+        let (a_nat, b_nat) = interval_rows(s, &b);
+        let natural = natural_qp_enclosure(&a_nat, &b_nat, s.m());
+        let (own, _) = forms.enclose(s, &b);
+        seen.bounded += usize::from(
+            cell.v
+                .iter()
+                .all(|v| v.lower.is_finite() && v.upper.is_finite()),
+        );
+        seen.pieces += usize::from(cell.piece.is_some());
+        for _ in 0..12 {
+            let u: Vec<f64> = (0..s.n()).map(|_| rng.random_range(0.0..=1.0)).collect();
+            let x = b.point_at(&u);
+            if !s.is_safe(&x) {
+                continue;
+            }
+            let Ok(FilterStatus::Solved(theta)) = solver.solve_with_clarabel(&x) else {
+                continue;
+            };
+            // The active-set enumeration that `eval` uses agrees with clarabel.
+            let fast = solver.eval(&x).expect("clarabel solved it");
+            for (f, t) in fast.iter().zip(&theta) {
+                assert!(
+                    (f - t).abs() <= 1e-7 * t.abs().max(1.0),
+                    "{}: {fast:?} vs {theta:?}",
+                    s.name
+                );
+            }
+            seen.points += 1;
+            assert!(
+                inside(&theta, &cell.v),
+                "{}: v({x:?}) = {theta:?} outside {:?} on {b:?}",
+                s.name,
+                cell.v
+            );
+            assert!(
+                inside(&theta, &natural),
+                "{}: v({x:?}) = {theta:?} outside natural {natural:?}",
+                s.name
+            );
+            assert!(
+                inside(&theta, &own),
+                "{}: v({x:?}) = {theta:?} outside {own:?}",
+                s.name
+            );
+            if let Some((piece, sv)) = &cell.piece {
+                let at: Vec<f64> = match piece {
+                    None => vec![0.0; s.m()],
+                    Some(k) => qp.piece_input(*k).iter().map(|e| e.eval(&x)).collect(),
+                };
+                let scale = theta.iter().fold(1.0_f64, |a, t| a.max(t.abs()));
+                for (p, t) in at.iter().zip(&theta) {
+                    assert!(
+                        (p - t).abs() <= 1e-6 * scale,
+                        "{}: piece {piece:?} gives {at:?}, v = {theta:?} at {x:?}",
+                        s.name
+                    );
+                }
+                // The mean-value form around the centre holds at x.
+                for j in 0..s.m() {
+                    let n = s.n();
+                    let lin = (0..n).fold(sv.value[j], |acc, i| {
+                        acc + sv.jac[j * n + i] * Interval::point(x[i] - sv.centre[i])
+                    });
+                    assert!(
+                        inside(&theta[j..=j], &[lin]),
+                        "{}: mean-value form {lin:?} misses {}",
+                        s.name,
+                        theta[j]
+                    );
+                }
+            }
+        }
+    }
+    seen
+}
+
+#[test]
+fn every_solution_lies_in_every_enclosure_on_the_shipped_scenarios() {
+    for (s, seed) in [(integrator(), 1), (double_integrator(), 2), (spheres(), 3)] {
+        let seen = solutions_inside(&s, 150, seed);
+        // The enclosures must be informative on most boxes, and some pieces proven, or this
+        // test could not fail.
+        assert!(seen.points > 600, "{}: {} points", s.name, seen.points);
+        assert!(
+            seen.bounded > 75,
+            "{}: {} bounded of 150",
+            s.name,
+            seen.bounded
+        );
+        assert!(
+            seen.pieces > 30,
+            "{}: {} pieces of 150",
+            s.name,
+            seen.pieces
+        );
+    }
+}
+
+#[test]
+fn every_solution_lies_in_every_enclosure_with_bounds_and_dependent_rows() {
+    let seen = solutions_inside(&two_obstacles_with_bounds(), 200, 4);
+    assert!(
+        seen.points > 800 && seen.bounded > 100,
+        "{} {}",
+        seen.points,
+        seen.bounded
+    );
+    let seen = solutions_inside(&duplicate_rows(), 120, 5);
+    assert!(
+        seen.points > 500 && seen.bounded > 60,
+        "{} {}",
+        seen.points,
+        seen.bounded
+    );
+}
+
+/// Where `L_g h = 0` inside `S` with the row binding nearby (scenario 2's (1, 0) and (3, 0)),
+/// `v` jumps: the enclosure over a box around it must be unbounded (or at least as wide as the
+/// jump), never a tight interval around one side.
+#[test]
+fn jumps_where_lgh_vanishes_give_wide_enclosures() {
+    let s = double_integrator();
+    let qp = QpForms::new(&s);
+    let solver = SafetyFilter::new(&s);
+    for c in [[1.0, 0.0], [3.0, 0.0]] {
+        let b = IntervalBox {
+            lower: vec![c[0] - 0.01, c[1] - 0.01],
+            upper: vec![c[0] + 0.01, c[1] + 0.01],
+        };
+        let v = qp.enclose(&s, &b).v[0];
+        let samples: Vec<f64> = (0..=20)
+            .flat_map(|i| (0..=20).map(move |j| [i as f64 / 20.0, j as f64 / 20.0]))
+            .map(|u| b.point_at(&u))
+            .filter(|x| s.is_safe(x))
+            .filter_map(|x| solver.eval(&x).ok())
+            .map(|t| t[0])
+            .collect();
+        let (lo, hi) = samples
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &t| {
+                (l.min(t), h.max(t))
+            });
+        assert!(hi - lo > 1.0, "the box at {c:?} holds no jump ({lo}, {hi})");
+        assert!(
+            v.lower <= lo && v.upper >= hi,
+            "{v:?} misses [{lo}, {hi}] at {c:?}"
+        );
+    }
+}
+
+/// The paper's filters through the general path: every enclosure within the closed form's
+/// (to rounding), on the same random boxes.
+#[test]
+fn general_path_is_as_tight_as_the_closed_forms() {
+    for (s, seed) in [(integrator(), 11), (double_integrator(), 12)] {
+        let qp = QpForms::new(&s);
+        let closed = VForms::new(&s).unwrap();
+        assert_ne!(closed.method(), FilterMethod::Qp);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let (mut tighter, mut pieces_closed, mut pieces_general) = (0, 0, 0);
+        for _ in 0..300 {
+            let b = random_box(&mut rng, &s.reach.region);
+            let general = qp.enclose(&s, &b);
+            let (own, smooth) = closed.enclose(&s, &b);
+            for (g, c) in general.v.iter().zip(&own) {
+                let tol = 1e-9 * (1.0 + c.lower.abs().max(c.upper.abs()));
+                let within = (g.lower >= c.lower - tol || c.lower == f64::NEG_INFINITY)
+                    && (g.upper <= c.upper + tol || c.upper == f64::INFINITY);
+                assert!(
+                    within,
+                    "{}: general {g:?} wider than closed form {c:?} on {b:?}",
+                    s.name
+                );
+                tighter += usize::from(g.width() < c.width() - tol);
+            }
+            pieces_closed += usize::from(closed.piece(&s, &b).is_some() && smooth.is_some());
+            pieces_general += usize::from(general.piece.is_some());
+        }
+        assert!(
+            pieces_general >= pieces_closed,
+            "{}: {pieces_general} < {pieces_closed}",
+            s.name
+        );
+        eprintln!(
+            "{}: tighter on {tighter} outputs, pieces {pieces_general} vs {pieces_closed}",
+            s.name
+        );
+    }
+}
+
+/// A general QP's feasibility proof (one `θ*` feasible over the whole box) holds at sampled
+/// points, and proves most boxes of the two-sphere scenario, whose QP is feasible everywhere
+/// in `S`; with input bounds that the filter can exceed, boxes where clarabel finds the QP
+/// infeasible are never proven.
+#[test]
+fn feasibility_proofs_of_general_qps_hold() {
+    for (s, seed, least) in [(spheres(), 21, 200), (two_obstacles_with_bounds(), 22, 60)] {
+        let forms = VForms::new(&s).unwrap();
+        let solver = SafetyFilter::with_method(&s, FilterMethod::Qp);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let mut proven = 0;
+        for _ in 0..300 {
+            let b = random_box(&mut rng, &s.reach.region);
+            if !forms.proves_feasible(&s, &b) {
+                continue;
+            }
+            proven += 1;
+            for _ in 0..10 {
+                let u: Vec<f64> = (0..s.n()).map(|_| rng.random_range(0.0..=1.0)).collect();
+                let x = b.point_at(&u);
+                if s.is_safe(&x) {
+                    let status = solver.solve_with_clarabel(&x);
+                    assert!(
+                        matches!(status, Ok(FilterStatus::Solved(_))),
+                        "{}: proven feasible on {b:?}, not at {x:?}: {status:?}",
+                        s.name
+                    );
+                }
+            }
+        }
+        assert!(
+            proven >= least,
+            "{}: {proven} of 300 boxes proven feasible",
+            s.name
+        );
+    }
+}
+
+/// The certified bound of `‖N − v‖∞` on cells of the two-sphere scenario (a general QP) is
+/// never below the error of its shipped network sampled on the cell, and is finite on most.
+#[test]
+fn certified_cell_bounds_of_a_general_qp_hold() {
+    use cbfreach::bounds::{BoundMethod, PreparedNetwork};
+    use cbfreach::network::Mlp;
+    use cbfreach::surrogate_error::{cell_error_bound_mv, sampled_cell_error};
+    let s = spheres();
+    let net = Mlp::load_safetensors(&scenario_path("spheres3d.safetensors")).unwrap();
+    let prepared = PreparedNetwork::new(&net).unwrap();
+    let forms = VForms::new(&s).unwrap();
+    let filter = SafetyFilter::new(&s);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(31);
+    let mut finite = 0;
+    for k in 0..60 {
+        let c: Vec<f64> = (0..3).map(|_| rng.random_range(-2.3..2.3)).collect();
+        let w = [0.05, 0.15, 0.4][k % 3];
+        let cell = IntervalBox {
+            lower: c.iter().map(|x| x - w).collect(),
+            upper: c.iter().map(|x| x + w).collect(),
+        };
+        let bound = cell_error_bound_mv(
+            &forms,
+            &s,
+            &prepared,
+            &cell,
+            BoundMethod::ForwardBackward,
+            0.0,
+        )
+        .unwrap();
+        let sampled = sampled_cell_error(&s, &filter, &net, &cell, 200, k as u64);
+        assert!(
+            bound >= sampled,
+            "cell {cell:?}: bound {bound} < sampled {sampled}"
+        );
+        finite += usize::from(bound.is_finite());
+    }
+    assert!(finite >= 50, "{finite} of 60 cells bounded");
+}
