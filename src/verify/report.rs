@@ -122,6 +122,14 @@ pub struct RunInfo {
     /// Refinement also bisected verified leaves whose QP feasibility was not proven.
     #[serde(default)]
     pub refine_feasibility: bool,
+    /// Hash of the network file (`provenance::network_hash`), so that `merge` refuses shards
+    /// run with different networks; empty when not recorded.
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub network_hash: String,
+    /// Hash of the filter (`provenance::filter_hash`): shards of an edited scenario do not
+    /// merge; empty when not recorded.
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub filter_hash: String,
 }
 
 /// Wall times and work of a run.
