@@ -139,7 +139,7 @@ pub fn run(args: &SimulateArgs) -> CliResult {
         check_writable(path).map_err(|e| format!("{}: {e}", path.display()))?;
     }
     let steps_f = (horizon / dt - 1e-9).ceil();
-    if !(steps_f <= limits::MAX_STEPS) {
+    if steps_f.is_nan() || steps_f > limits::MAX_STEPS {
         return Err(format!(
             "--horizon {horizon} / --dt {dt} is {steps_f:.3e} steps, more than {:.0e}",
             limits::MAX_STEPS

@@ -46,7 +46,7 @@ pub fn traps_for(s: &Scenario) -> Vec<Trap> {
 }
 
 /// Most starting points of the dense equilibrium search (its grid grows as `kⁿ`).
-pub const MAX_EQUILIBRIUM_STARTS: usize = 1_000_000;
+pub const MAX_EQUILIBRIUM_STARTS: usize = 100_000;
 
 /// The default search for `n` states, with fewer starts per axis where `30ⁿ` would pass
 /// [`MAX_EQUILIBRIUM_STARTS`]; `None` when even 2 per axis would.
