@@ -448,4 +448,9 @@ fn an_interrupted_verification_resumes_to_the_same_report() {
     };
     assert_eq!(strip(&resumed), strip(&whole));
     assert!(whole.after.len() > whole.before.len(), "refinement ran");
+    // The UNSAFE banner counts a box once, though it is in `before` and `after` alike.
+    let mut r = whole.clone();
+    r.before[0].verdict = cbfreach::Verdict::Unsafe;
+    r.after = r.before.clone();
+    assert_eq!(r.unsafe_boxes().len(), 1);
 }

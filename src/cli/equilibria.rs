@@ -13,7 +13,7 @@ pub fn run(path: &Path, json: bool) -> CliResult {
     let s = load_scenario(path)?;
     let search = equilibrium_search_for(s.n()).ok_or_else(|| {
         format!(
-            "{}: {} states: the dense search would start from more than {MAX_EQUILIBRIUM_STARTS}              points even at 2 per axis",
+            "{}: {} states: the dense search would start from more than {MAX_EQUILIBRIUM_STARTS} points even at 2 per axis",
             s.file,
             s.n()
         )

@@ -322,7 +322,7 @@ fn save_unless_looser(
         let looser = file.with_extension("looser.json");
         map.save(&looser)?;
         let why = format!(
-            "not replacing {} (certified {:.4}, largest finite cell {:.4}) with a looser map              (certified {:.4}, {:.4}); the new map is in {} (--force replaces)",
+            "not replacing {} (certified {:.4}, largest finite cell {:.4}) with a looser map (certified {:.4}, {:.4}); the new map is in {} (--force replaces)",
             file.display(),
             key(&old).0,
             key(&old).1,

@@ -152,7 +152,7 @@ pub fn run(args: &SimulateArgs) -> CliResult {
     let bytes = (count as f64) * (steps as f64 + 1.0) * (s.n() as f64 + 1.0) * 8.0;
     if bytes > MAX_TRAJECTORY_BYTES {
         return Err(format!(
-            "{count} trajectories of {steps} steps need about {:.1} GB, more than {:.0} GB              (fewer --samples or a shorter --horizon)",
+            "{count} trajectories of {steps} steps need about {:.1} GB, more than {:.0} GB (fewer --samples or a shorter --horizon)",
             bytes / 1e9,
             MAX_TRAJECTORY_BYTES / 1e9
         )

@@ -784,7 +784,7 @@ fn compile_reach(c: &Compiler, r: &ReachSection, n: usize) -> Result<ReachConfig
         return Err(c.invalid(
             "reach.horizon",
             format!(
-                "horizon {horizon} / dt {dt} × {substeps} substep(s) is {steps:.3e} steps, more                  than {:.0e} (a longer dt or a shorter horizon)",
+                "horizon {horizon} / dt {dt} × {substeps} substep(s) is {steps:.3e} steps, more than {:.0e} (a longer dt or a shorter horizon)",
                 limits::MAX_STEPS
             ),
         ));

@@ -243,13 +243,19 @@ impl VerifyReport {
         Shares::of(&self.after)
     }
 
-    /// Boxes whose sets met the unsafe set (should be none).
+    /// Boxes whose sets met the unsafe set (should be none), each once: an unsafe box is not
+    /// refined, so it is a leaf of `after` too (the same box is not counted twice).
     pub fn unsafe_boxes(&self) -> Vec<&BoxVerdict> {
-        self.after
+        let after: Vec<&BoxVerdict> = self
+            .after
             .iter()
-            .chain(&self.before)
             .filter(|b| b.verdict == Verdict::Unsafe)
-            .collect()
+            .collect();
+        let before_only = self
+            .before
+            .iter()
+            .filter(|b| b.verdict == Verdict::Unsafe && !after.contains(b));
+        after.iter().copied().chain(before_only).collect()
     }
 
     /// The report as JSON.
