@@ -162,29 +162,34 @@ impl IntervalBox {
             .collect()
     }
 
-    /// The box cut into `counts[i]` equal cells along axis i, axis 0 fastest.
+    /// The box cut into `counts[i]` equal cells along axis i, axis 0 fastest. The caller
+    /// bounds the number of cells (`Π counts[i]`; checked against overflow here).
     pub fn partition(&self, counts: &[usize]) -> Vec<IntervalBox> {
+        let total = counts
+            .iter()
+            .try_fold(1usize, |a, &k| a.checked_mul(k))
+            .expect("partition: the number of cells overflows (callers check their limits)");
+        (0..total).map(|k| self.partition_cell(counts, k)).collect()
+    }
+
+    /// Cell `k` (axis 0 fastest) of [`IntervalBox::partition`], without making the others.
+    pub fn partition_cell(&self, counts: &[usize], mut k: usize) -> IntervalBox {
         let n = self.dim();
-        let total: usize = counts.iter().product();
-        (0..total)
-            .map(|mut k| {
-                let mut lower = vec![0.0; n];
-                let mut upper = vec![0.0; n];
-                for i in 0..n {
-                    let j = k % counts[i];
-                    k /= counts[i];
-                    let w = (self.upper[i] - self.lower[i]) / counts[i] as f64;
-                    lower[i] = self.lower[i] + j as f64 * w;
-                    // The last cell ends exactly at the box's edge, so the cells cover it.
-                    upper[i] = if j + 1 == counts[i] {
-                        self.upper[i]
-                    } else {
-                        self.lower[i] + (j + 1) as f64 * w
-                    };
-                }
-                IntervalBox { lower, upper }
-            })
-            .collect()
+        let mut lower = vec![0.0; n];
+        let mut upper = vec![0.0; n];
+        for i in 0..n {
+            let j = k % counts[i];
+            k /= counts[i];
+            let w = (self.upper[i] - self.lower[i]) / counts[i] as f64;
+            lower[i] = self.lower[i] + j as f64 * w;
+            // The last cell ends exactly at the box's edge, so the cells cover it.
+            upper[i] = if j + 1 == counts[i] {
+                self.upper[i]
+            } else {
+                self.lower[i] + (j + 1) as f64 * w
+            };
+        }
+        IntervalBox { lower, upper }
     }
 
     /// The two halves of the box cut across its widest axis.

@@ -10,6 +10,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::boxes::IntervalBox;
+use crate::provenance::{Fnv, Provenance};
 use crate::scenario::{Margin, Scenario};
 
 /// Why an error map could not be read, written or used.
@@ -38,6 +39,40 @@ pub enum ErrorMapError {
         path: PathBuf,
         /// The network file.
         network: PathBuf,
+    },
+    /// The map records no provenance (it predates it): what it certifies against is unknown.
+    #[error("{path} records no provenance (the network, filter, region and norm it was certified for); run `cbfreach error` again (or `cbfreach error --restamp` for a map known to be made for this scenario)")]
+    Unstamped {
+        /// The error map.
+        path: PathBuf,
+    },
+    /// The map was certified against something else: what changed since.
+    #[error("{path} was certified for another {what} (run `cbfreach error` again)")]
+    Changed {
+        /// The error map.
+        path: PathBuf,
+        /// What changed, in words.
+        what: String,
+    },
+    /// The map's cells are not the ones it was written with (edited or cut short).
+    #[error("{path}: its cells are not the ones it was written with ({count} now); run `cbfreach error` again")]
+    CellsChanged {
+        /// The error map.
+        path: PathBuf,
+        /// Cells found.
+        count: usize,
+    },
+    /// The map's cells leave part of the region out (where nothing is certified).
+    #[error("{path}: its cells do not cover the region: {count} piece(s) uncovered, e.g. {lower:?}..{upper:?}")]
+    Uncovered {
+        /// The error map.
+        path: PathBuf,
+        /// Uncovered pieces found (up to a limit).
+        count: usize,
+        /// The first piece's lower corner.
+        lower: Vec<f64>,
+        /// Its upper corner.
+        upper: Vec<f64>,
     },
     /// The map has no certified bound (the filter is a general QP).
     #[error("{path} holds no certified bound (the scenario's filter has too many active sets to certify); use a number or \"measured\"")]
@@ -100,9 +135,16 @@ pub struct ErrorMap {
     /// certified), `None` for a QP filter.
     #[serde(with = "opt_inf_as_string")]
     pub certified_linf: Option<f64>,
-    /// Kept cells with their bounds; cells of `region` not listed were proven to miss `S`
-    /// (where the filtered system never goes), so they contribute nothing.
+    /// Cells with their bounds; they tile `region` ([`ErrorMap::load_certified`] checks it).
+    /// Cells proven to miss `S` (where the filtered system never goes) have bound 0.
     pub cells: Vec<CellBound>,
+    /// What the map certifies against ([`ErrorMap::stamp`]); `None` in maps that predate it,
+    /// which [`ErrorMap::load_certified`] refuses.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub provenance: Option<Provenance>,
+    /// [`ErrorMap::cells_digest`] when stamped: a map whose cells were edited is refused.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cells_hash: Option<String>,
     /// Buckets of cells for [`ErrorMap::local_bound`], built on first use (not serialised; a
     /// map whose `cells` are changed afterwards must be rebuilt with [`ErrorMap::reindexed`]).
     #[serde(skip)]
@@ -269,15 +311,7 @@ pub fn error_map_path(network: &Path) -> PathBuf {
     network.with_file_name(format!("{stem}.errormap.json"))
 }
 
-/// FNV-1a 64 of a byte string, as 16 hex digits.
-pub fn fnv1a_hex(bytes: &[u8]) -> String {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for &b in bytes {
-        h ^= b as u64;
-        h = h.wrapping_mul(0x0000_0100_0000_01b3);
-    }
-    format!("{h:016x}")
-}
+pub use crate::provenance::fnv1a_hex;
 
 fn hash_file(path: &Path) -> Result<String, ErrorMapError> {
     let bytes = std::fs::read(path).map_err(|source| ErrorMapError::Io {
@@ -312,6 +346,8 @@ impl ErrorMap {
             measured_l2,
             certified_linf: certified.map(|c| c.0),
             cells: certified.map(|c| c.1.to_vec()).unwrap_or_default(),
+            provenance: None,
+            cells_hash: None,
             index: LazyIndex::default(),
         })
     }
@@ -366,13 +402,92 @@ impl ErrorMap {
         Ok(map)
     }
 
-    /// Writes the map as JSON.
+    /// Loads the map beside `network` for use with scenario `s`: refused unless it was
+    /// certified for this network file, this filter, region and norm (naming what changed),
+    /// its cells are the ones it was written with, and they cover the region.
+    pub fn load_certified(network: &Path, s: &Scenario) -> Result<ErrorMap, ErrorMapError> {
+        let path = error_map_path(network);
+        let map = ErrorMap::load(&path)?;
+        let io = |source| ErrorMapError::Io {
+            path: network.to_path_buf(),
+            source,
+        };
+        let Some(was) = &map.provenance else {
+            return Err(ErrorMapError::Unstamped { path });
+        };
+        let changes = was.changes(&Provenance::of(s, network, &map.norm).map_err(io)?);
+        if !changes.is_empty() {
+            return Err(ErrorMapError::Changed {
+                path,
+                what: changes.join(" and "),
+            });
+        }
+        if map.cells_hash.as_deref() != Some(map.cells_digest().as_str()) {
+            return Err(ErrorMapError::CellsChanged {
+                count: map.cells.len(),
+                path,
+            });
+        }
+        if map.certified_linf.is_some() {
+            let boxes: Vec<IntervalBox> = map
+                .cells
+                .iter()
+                .map(|c| IntervalBox {
+                    lower: c.lower.clone(),
+                    upper: c.upper.clone(),
+                })
+                .collect();
+            let gaps = crate::provenance::uncovered(&map.region, &boxes, 100);
+            if let Some(g) = gaps.first() {
+                return Err(ErrorMapError::Uncovered {
+                    path,
+                    count: gaps.len(),
+                    lower: g.lower.clone(),
+                    upper: g.upper.clone(),
+                });
+            }
+        }
+        Ok(map)
+    }
+
+    /// The hash of the cells and the global numbers, which [`ErrorMap::stamp`] records.
+    pub fn cells_digest(&self) -> String {
+        let mut h = Fnv::default();
+        h.bytes(b"cells-1")
+            .f64(self.measured_linf)
+            .f64(self.measured_l2)
+            .f64(self.certified_linf.unwrap_or(f64::NAN))
+            .usize(self.cells.len());
+        for c in &self.cells {
+            for (&l, &u) in c.lower.iter().zip(&c.upper) {
+                h.f64(l).f64(u);
+            }
+            h.f64(c.bound);
+        }
+        h.hex()
+    }
+
+    /// Records what the map certifies against: scenario `s`'s filter, region and norm, and the
+    /// network file `network`; and the hash of its cells. Call it when the map is final.
+    pub fn stamp(&mut self, s: &Scenario, network: &Path) -> Result<(), ErrorMapError> {
+        let provenance =
+            Provenance::of(s, network, &self.norm).map_err(|source| ErrorMapError::Io {
+                path: network.to_path_buf(),
+                source,
+            })?;
+        self.network_hash = provenance.network.clone();
+        self.provenance = Some(provenance);
+        self.cells_hash = Some(self.cells_digest());
+        Ok(())
+    }
+
+    /// Writes the map as JSON, atomically (a failed write leaves the old file).
     pub fn save(&self, path: &Path) -> Result<(), ErrorMapError> {
         let text = serde_json::to_string(self).map_err(|e| ErrorMapError::Format {
             path: path.to_path_buf(),
             message: e.to_string(),
         })?;
-        std::fs::write(path, text).map_err(|source| ErrorMapError::Io {
+        crate::output::write_atomic(path, text.as_bytes()).map_err(|source| ErrorMapError::Io {
             path: path.to_path_buf(),
             source,
         })
@@ -388,7 +503,7 @@ impl ErrorMap {
     }
 
     /// The certified bound of `‖N − v‖∞` over `b ∩ S`: the max over the cells that meet `b` (0
-    /// when `b` meets only cells proven unsafe). +∞ when `b` is not inside the mapped region (or
+    /// when `b` meets only cells proven unsafe, +∞ when it meets none). +∞ when `b` is not inside the mapped region (or
     /// the map holds no certified cells); see [`ErrorMap::try_local_bound`] for an error instead.
     pub fn local_bound(&self, b: &IntervalBox) -> f64 {
         self.try_local_bound(b).unwrap_or(f64::INFINITY)
@@ -411,7 +526,8 @@ impl ErrorMap {
             .index
             .0
             .get_or_init(|| CellIndex::build(&self.region, &self.cells));
-        let mut worst = 0.0_f64;
+        // A box that meets no cell is where nothing was certified: +∞, never 0.
+        let mut worst = f64::NEG_INFINITY;
         index.for_each_bucket(&b.lower, &b.upper, |k| {
             for &c in &index.cells[index.start[k] as usize..index.start[k + 1] as usize] {
                 let c = &self.cells[c as usize];
@@ -420,7 +536,11 @@ impl ErrorMap {
                 }
             }
         });
-        Ok(worst)
+        Ok(if worst == f64::NEG_INFINITY {
+            f64::INFINITY
+        } else {
+            worst
+        })
     }
 
     /// The map with its bucket index dropped (to be rebuilt on the next query), for a map
@@ -434,18 +554,18 @@ impl ErrorMap {
 /// `M_C` for a scenario: its number, or `"certified"` / `"measured"` from the error map beside
 /// `network` (written by `cbfreach error`).
 pub fn resolve_margin(s: &Scenario, network: &Path) -> Result<f64, ErrorMapError> {
-    margin_value(s.reach.m_c, network)
+    margin_value(s.reach.m_c, s, network)
 }
 
 /// The global `M_C` that `margin` stands for with `network`: a fixed value, or the error
 /// map's certified or measured maximum, or (for local bounds) the map's largest finite cell
-/// bound.
-pub fn margin_value(margin: Margin, network: &Path) -> Result<f64, ErrorMapError> {
+/// bound. The map must have been certified for `s` ([`ErrorMap::load_certified`]).
+pub fn margin_value(margin: Margin, s: &Scenario, network: &Path) -> Result<f64, ErrorMapError> {
     match margin {
         Margin::Value(v) => Ok(v),
-        Margin::Measured => Ok(ErrorMap::load_for(network)?.measured_linf),
+        Margin::Measured => Ok(ErrorMap::load_certified(network, s)?.measured_linf),
         Margin::Certified => {
-            let map = ErrorMap::load_for(network)?;
+            let map = ErrorMap::load_certified(network, s)?;
             map.certified_linf.ok_or(ErrorMapError::NotCertified {
                 path: error_map_path(network),
             })
@@ -453,7 +573,7 @@ pub fn margin_value(margin: Margin, network: &Path) -> Result<f64, ErrorMapError
         // The global number beside local bounds: the largest finite cell bound, which bounds
         // every local M a set can get without being stopped (cells with +∞ stop it).
         Margin::Local => {
-            let map = ErrorMap::load_for(network)?;
+            let map = ErrorMap::load_certified(network, s)?;
             if map.certified_linf.is_none() {
                 return Err(ErrorMapError::NotCertified {
                     path: error_map_path(network),

@@ -93,9 +93,11 @@ fn main() -> ExitCode {
         Some(Command::Error(a)) => cli::error::run(&a),
         Some(Command::Equilibria { scenario, json }) => cli::equilibria::run(&scenario, json),
     };
-    match result {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
+    // Standard output may have failed (closed or full) after the work was done.
+    let printed = cli::finish_stdout().map_err(Into::into);
+    match (result, printed) {
+        (Ok(()), Ok(())) => ExitCode::SUCCESS,
+        (Err(e), _) | (Ok(()), Err(e)) => {
             eprintln!("error: {e}");
             ExitCode::from(2)
         }

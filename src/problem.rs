@@ -59,6 +59,18 @@ pub enum ProblemError {
         /// The network file.
         path: PathBuf,
     },
+    /// The network file's layers are not the scenario's `architecture`.
+    #[error("{file}: network.architecture is {scenario} but {} is {network}", path.display())]
+    Architecture {
+        /// The scenario file.
+        file: String,
+        /// The network file.
+        path: PathBuf,
+        /// The scenario's widths.
+        scenario: String,
+        /// The file's widths.
+        network: String,
+    },
     /// The network file could not be read.
     #[error(transparent)]
     Network(#[from] NetworkError),
@@ -129,10 +141,11 @@ impl ReachProblem {
         if !local {
             return Ok(problem);
         }
-        let map = ErrorMap::load_for(&path).map_err(|source| ProblemError::LocalMargins {
-            file: s.file.clone(),
-            source: Box::new(source),
-        })?;
+        let map =
+            ErrorMap::load_certified(&path, s).map_err(|source| ProblemError::LocalMargins {
+                file: s.file.clone(),
+                source: Box::new(source),
+            })?;
         Ok(problem.with_error_map(map)?)
     }
 }
@@ -157,7 +170,24 @@ pub fn load_network(s: &Scenario, over: Option<&Path>) -> Result<Mlp, ProblemErr
             path,
         });
     }
-    Ok(Mlp::load_safetensors(&path)?)
+    let net = Mlp::load_safetensors(&path)?;
+    // The scenario's `architecture` describes its own file; another network (`over`) is
+    // checked against the states and inputs when the problem is built.
+    if let (None, Some(cfg)) = (over, &s.network) {
+        if net.widths() != cfg.architecture {
+            return Err(ProblemError::Architecture {
+                file: s.file.clone(),
+                path,
+                scenario: join_widths(&cfg.architecture),
+                network: join_widths(&net.widths()),
+            });
+        }
+    }
+    Ok(net)
+}
+
+fn join_widths(w: &[usize]) -> String {
+    w.iter().map(usize::to_string).collect::<Vec<_>>().join("×")
 }
 
 /// `M_C` from `over` or the scenario; `certified` / `measured` / `local` come from the error
@@ -168,7 +198,7 @@ pub fn resolve_margin(
     network: &Path,
 ) -> Result<f64, ProblemError> {
     let margin = over.unwrap_or(s.reach.m_c);
-    margin_value(margin, network).map_err(|source| ProblemError::Margin {
+    margin_value(margin, s, network).map_err(|source| ProblemError::Margin {
         file: s.file.clone(),
         field: match over {
             Some(_) => "m_c".to_string(),

@@ -757,7 +757,8 @@ fn cli_backend_gpu_and_auto() {
     );
     // Local error margins and face-local bounds run on the GPU (the map beside the network).
     let mut map = small_error_map(&integrator().reach.region);
-    map.network_hash = cbfreach::error_map::fnv1a_hex(&std::fs::read(&net_path).unwrap());
+    // Stamped for the scenario the command runs (provenance, issue 39).
+    map.stamp(&integrator(), &net_path).unwrap();
     map.save(&cbfreach::error_map::error_map_path(&net_path))
         .unwrap();
     let (ok, text) = run(&[

@@ -11,6 +11,10 @@ use super::{fmt_point, load_scenario, CliResult};
 /// Runs the command.
 pub fn run(path: &Path) -> CliResult {
     let s = load_scenario(path)?;
+    // A network file that is there must be the one the scenario describes.
+    if s.network.as_ref().is_some_and(|n| n.file.exists()) {
+        cbfreach::problem::load_network(&s, None)?;
+    }
     let show = |e: &Expr| e.display(&s.states).to_string();
     println!("{}: scenario `{}` is valid", s.file, s.name);
     if !s.description.is_empty() {

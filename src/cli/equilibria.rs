@@ -4,17 +4,28 @@ use std::path::Path;
 
 use cbfreach::equilibria::{find_equilibria, Equilibrium, EquilibriumSearch};
 use cbfreach::filter::SafetyFilter;
+use cbfreach::verify::{equilibrium_search_for, MAX_EQUILIBRIUM_STARTS};
 
 use super::{fmt_point, load_scenario, CliResult};
 
 /// Runs the command.
 pub fn run(path: &Path, json: bool) -> CliResult {
     let s = load_scenario(path)?;
-    let found = find_equilibria(
-        &SafetyFilter::new(&s),
-        &s.reach.region,
-        &EquilibriumSearch::default(),
-    );
+    let search = equilibrium_search_for(s.n()).ok_or_else(|| {
+        format!(
+            "{}: {} states: the dense search would start from more than {MAX_EQUILIBRIUM_STARTS} points even at 2 per axis",
+            s.file,
+            s.n()
+        )
+    })?;
+    if search.starts_per_axis < EquilibriumSearch::default().starts_per_axis {
+        eprintln!(
+            "note: {} states: {} starts per axis (at most {MAX_EQUILIBRIUM_STARTS} starts)",
+            s.n(),
+            search.starts_per_axis
+        );
+    }
+    let found = find_equilibria(&SafetyFilter::new(&s), &s.reach.region, &search);
     if json {
         println!("{}", serde_json::to_string_pretty(&found)?);
     } else {

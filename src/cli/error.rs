@@ -1,10 +1,12 @@
 //! `cbfreach error <scenario>`: measured and certified `M_C`, slope error and bound looseness
 //! of the surrogate network, and the error map beside the network.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use cbfreach::bounds::BoundMethod;
 use cbfreach::error_map::{error_map_path, ErrorMap};
+use cbfreach::output::check_writable;
+use cbfreach::provenance::restamp;
 use cbfreach::surrogate_error::{
     certify, looseness, measure, ErrorSettings, Looseness, Percentiles, SlopeByCurvature,
     CURVATURE_BANDS, WITNESS_CELLS,
@@ -56,6 +58,15 @@ pub struct ErrorArgs {
     /// Do not write the error map beside the network.
     #[arg(long)]
     pub no_map: bool,
+    /// Replace the error map beside the network even by a looser one (without it, a looser
+    /// map is written beside it as `<stem>.errormap.looser.json`).
+    #[arg(long)]
+    pub force: bool,
+    /// Compute nothing: stamp the existing map (which predates provenance) with this
+    /// scenario's filter, region and norm, for a map known to be certified for them; the
+    /// cells it lacks get bound 0 where some h < 0 is proven on them, else +∞.
+    #[arg(long)]
+    pub restamp: bool,
 }
 
 #[derive(Serialize)]
@@ -99,6 +110,22 @@ pub fn run(args: &ErrorArgs) -> CliResult {
     let s = load_scenario(&args.scenario)?;
     let path = network_path(&s, args.network.as_deref())?;
     let net = load_network(&s, Some(path.as_path()))?;
+    let map_path = error_map_path(&path);
+    if args.restamp {
+        let mut map = ErrorMap::load(&map_path)?;
+        let added = restamp(&mut map, &s, &path)?;
+        map.save(&map_path)?;
+        println!(
+            "{}: stamped for {} and {} ({added} cells added where the map had none)",
+            map_path.display(),
+            s.file,
+            path.display()
+        );
+        return Ok(());
+    }
+    if !args.no_map {
+        check_writable(&map_path).map_err(|e| format!("{}: {e}", map_path.display()))?;
+    }
     let settings = ErrorSettings {
         refine: args.refine.max(1),
         budget: args.budget,
@@ -129,12 +156,14 @@ pub fn run(args: &ErrorArgs) -> CliResult {
     })?;
     bar.finish_and_clear();
 
+    let mut refused = None;
     let map_file = if args.no_map {
         None
     } else {
-        let map = ErrorMap::new(&path, &s.reach.region, &measured, certified.as_ref())?;
-        let file = error_map_path(&path);
-        map.save(&file)?;
+        let mut map = ErrorMap::new(&path, &s.reach.region, &measured, certified.as_ref())?;
+        map.stamp(&s, &path)?;
+        let (file, why) = save_unless_looser(&map, &map_path, &s, &path, args.force)?;
+        refused = why;
         Some(file)
     };
 
@@ -149,7 +178,7 @@ pub fn run(args: &ErrorArgs) -> CliResult {
             Some(v) if v.is_finite() => serde_json::json!(v),
             Some(_) => serde_json::json!("inf"),
         },
-        cells: certified.as_ref().map_or(0, |c| c.cells.len()),
+        cells: certified.as_ref().map_or(0, |c| c.cells.len() - c.dropped),
         uncertified_cells: certified.as_ref().map_or(0, |c| c.uncertified),
         certified_linf_finite_cells: certified.as_ref().map(|c| c.finite_linf),
         witness_linf: certified.as_ref().map(|c| c.witness_linf),
@@ -169,9 +198,10 @@ pub fn run(args: &ErrorArgs) -> CliResult {
         looseness: loose,
         error_map: map_file.as_ref().map(|p| p.display().to_string()),
     };
+    let outcome = || refused.clone().map_or(Ok(()), |why| Err(why.into()));
     if args.json {
         println!("{}", serde_json::to_string_pretty(&out)?);
-        return Ok(());
+        return outcome();
     }
     println!("{}: network {}", s.file, path.display());
     println!(
@@ -222,7 +252,7 @@ pub fn run(args: &ErrorArgs) -> CliResult {
         Some(c) => println!(
             "certified M_C over C ∩ S: {:.4} ({} cells kept, {} proven unsafe, {} evaluated{})",
             c.linf,
-            c.cells.len(),
+            c.cells.len() - c.dropped,
             c.dropped,
             c.evaluated,
             if c.budget_spent {
@@ -270,7 +300,42 @@ pub fn run(args: &ErrorArgs) -> CliResult {
     if let Some(f) = map_file {
         println!("error map written to {}", f.display());
     }
-    Ok(())
+    outcome()
+}
+
+/// Saves `map` at `file` unless a map there, made for the same network and filter, is tighter
+/// (a smaller certified bound, then a smaller largest finite cell bound) and `force` is not
+/// given: then the new map goes beside it (`….looser.json`), so that neither is lost. Returns
+/// where the map was written, and why not at `file` (for an error after the report).
+fn save_unless_looser(
+    map: &ErrorMap,
+    file: &Path,
+    s: &cbfreach::Scenario,
+    network: &Path,
+    force: bool,
+) -> Result<(PathBuf, Option<String>), Box<dyn std::error::Error>> {
+    let key = |m: &ErrorMap| (m.certified_linf.unwrap_or(f64::INFINITY), m.finite_max());
+    let old = ErrorMap::load_certified(network, s).ok().or_else(|| {
+        ErrorMap::load_for(network)
+            .ok()
+            .filter(|m| m.provenance.is_none())
+    });
+    if let Some(old) = old.filter(|old| !force && key(map) > key(old)) {
+        let looser = file.with_extension("looser.json");
+        map.save(&looser)?;
+        let why = format!(
+            "not replacing {} (certified {:.4}, largest finite cell {:.4}) with a looser map (certified {:.4}, {:.4}); the new map is in {} (--force replaces)",
+            file.display(),
+            key(&old).0,
+            key(&old).1,
+            key(map).0,
+            key(map).1,
+            looser.display()
+        );
+        return Ok((looser, Some(why)));
+    }
+    map.save(file)?;
+    Ok((file.to_path_buf(), None))
 }
 
 /// The slope error by the filter's curvature, one line: each band's 95th percentile.

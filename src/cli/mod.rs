@@ -1,5 +1,23 @@
 //! One file per subcommand; each turns arguments into library calls and prints the result.
 
+// `println!` and `print!` in every subcommand: standard output through [`out`], which does not
+// panic when it is closed (`| head`) or full; `main` reports the failure after the command
+// (whose result files are written by then) with a non-zero exit.
+macro_rules! println {
+    () => {
+        $crate::cli::out(format_args!("\n"))
+    };
+    ($($arg:tt)*) => {
+        $crate::cli::out(format_args!("{}\n", format_args!($($arg)*)))
+    };
+}
+#[allow(unused_macros)]
+macro_rules! print {
+    ($($arg:tt)*) => {
+        $crate::cli::out(format_args!($($arg)*))
+    };
+}
+
 pub mod args;
 pub mod bench;
 pub mod bounds;
@@ -10,6 +28,7 @@ pub mod paper;
 pub mod plot;
 pub mod reach;
 pub mod report;
+pub mod resume;
 pub mod simulate;
 pub mod train;
 pub mod verify;
@@ -18,6 +37,35 @@ use std::path::Path;
 use std::sync::OnceLock;
 
 use cbfreach::scenario::Scenario;
+
+/// The first error writing standard output, if any; later writes are skipped.
+static STDOUT_FAILED: OnceLock<std::io::Error> = OnceLock::new();
+
+/// Writes to standard output; on an error (a closed pipe, a full disk) records it and skips
+/// every later write instead of panicking as `std::println!` does.
+pub fn out(args: std::fmt::Arguments) {
+    use std::io::Write;
+    if STDOUT_FAILED.get().is_some() {
+        return;
+    }
+    if let Err(e) = std::io::stdout().lock().write_fmt(args) {
+        let _ = STDOUT_FAILED.set(e);
+    }
+}
+
+/// Flushes standard output: the error of [`out`] or of the flush, if any.
+pub fn finish_stdout() -> Result<(), String> {
+    use std::io::Write;
+    if let Err(e) = std::io::stdout().lock().flush() {
+        let _ = STDOUT_FAILED.set(e);
+    }
+    match STDOUT_FAILED.get() {
+        Some(e) => Err(format!(
+            "writing standard output: {e} (the output is incomplete; result files were written)"
+        )),
+        None => Ok(()),
+    }
+}
 
 /// The parsed command line, for [`given`].
 static MATCHES: OnceLock<clap::ArgMatches> = OnceLock::new();
@@ -52,6 +100,15 @@ pub type CliResult = Result<(), Box<dyn std::error::Error>>;
 /// Loads a scenario file.
 pub fn load_scenario(path: &Path) -> Result<Scenario, Box<dyn std::error::Error>> {
     Ok(Scenario::load(path)?)
+}
+
+/// Checks, before any work, that each output file given can be written (its folder exists and
+/// takes a new file), so that a long run is not lost at the end.
+pub fn check_outputs(paths: &[Option<&Path>]) -> CliResult {
+    for p in paths.iter().flatten() {
+        cbfreach::output::check_writable(p).map_err(|e| format!("{}: {e}", p.display()))?;
+    }
+    Ok(())
 }
 
 /// A progress bar on standard error (hidden when it is not a terminal).

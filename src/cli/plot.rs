@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 
 use cbfreach::bounds::BoundMethod;
 use cbfreach::boxes::IntervalBox;
-use cbfreach::equilibria::{find_equilibria, EquilibriumSearch};
+use cbfreach::equilibria::find_equilibria;
 use cbfreach::error_map::{error_map_path, ErrorMap};
 use cbfreach::filter::SafetyFilter;
 use cbfreach::plot::{self, Figure, View};
@@ -151,11 +151,10 @@ pub fn run(args: &PlotArgs) -> CliResult {
     let out: &Path = &args.out;
     match args.figure {
         FigureKind::Trajectories => {
-            let found = find_equilibria(
-                &SafetyFilter::new(&s),
-                &s.reach.region,
-                &EquilibriumSearch::default(),
-            );
+            // Past the dense search's size: no equilibria drawn.
+            let found = cbfreach::verify::equilibrium_search_for(s.n())
+                .map(|q| find_equilibria(&SafetyFilter::new(&s), &s.reach.region, &q))
+                .unwrap_or_default();
             let t = trajectories(&s, &figure_points(&s));
             plot::save_view(
                 &Figure::Trajectories {

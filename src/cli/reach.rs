@@ -57,6 +57,7 @@ struct ReachJson<'a> {
 /// Runs the command.
 pub fn run(args: &ReachArgs) -> CliResult {
     let s = load_scenario(&args.scenario)?;
+    super::check_outputs(&[args.json.as_deref(), args.plot.as_deref()])?;
     let problem = super::args::compile(&s, &args.problem)?;
     let m_c = problem.m_c;
     if let Some(t) = &problem.transform {
@@ -175,7 +176,7 @@ pub fn run(args: &ReachArgs) -> CliResult {
             m_c,
             result: &result,
         };
-        std::fs::write(path, serde_json::to_string(&json)?)
+        cbfreach::output::write_atomic(path, serde_json::to_string(&json)?.as_bytes())
             .map_err(|e| format!("{}: {e}", path.display()))?;
         println!("  tubes written to {}", path.display());
     }

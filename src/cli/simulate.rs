@@ -5,6 +5,8 @@ use std::path::PathBuf;
 
 use cbfreach::boxes::IntervalBox;
 use cbfreach::filter::SafetyFilter;
+use cbfreach::output::{check_writable, write_atomic};
+use cbfreach::scenario::limits;
 use cbfreach::scenario::Scenario;
 use cbfreach::simulate::{sample_box, simulate_filtered, write_csv, Integrator, Trajectory};
 
@@ -69,6 +71,9 @@ fn starts(args: &SimulateArgs, s: &Scenario) -> Result<Vec<Vec<f64>>, String> {
     let mut points = Vec::new();
     for text in &args.from {
         let x = parse_point("--from", text)?;
+        if x.iter().any(|v| !v.is_finite()) {
+            return Err(format!("--from {text}: coordinates must be finite"));
+        }
         if x.len() != s.n() {
             return Err(format!(
                 "--from {text}: expected {} numbers ({}), found {}",
@@ -117,6 +122,9 @@ pub fn safe_samples(
     Ok(points)
 }
 
+/// Most memory the trajectories of one `simulate` may take.
+const MAX_TRAJECTORY_BYTES: f64 = 8e9;
+
 /// Runs the command.
 pub fn run(args: &SimulateArgs) -> CliResult {
     let s = load_scenario(&args.scenario)?;
@@ -127,7 +135,29 @@ pub fn run(args: &SimulateArgs) -> CliResult {
             format!("--dt and --horizon must be positive, found {dt} and {horizon}").into(),
         );
     }
-    let steps = (horizon / dt - 1e-9).ceil() as usize;
+    if let Some(path) = &args.out {
+        check_writable(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    }
+    let steps_f = (horizon / dt - 1e-9).ceil();
+    if steps_f.is_nan() || steps_f > limits::MAX_STEPS {
+        return Err(format!(
+            "--horizon {horizon} / --dt {dt} is {steps_f:.3e} steps, more than {:.0e}",
+            limits::MAX_STEPS
+        )
+        .into());
+    }
+    let steps = steps_f as usize;
+    // Each trajectory keeps every state: refuse before allocating what does not fit.
+    let count = args.samples.unwrap_or(0).saturating_add(args.from.len());
+    let bytes = (count as f64) * (steps as f64 + 1.0) * (s.n() as f64 + 1.0) * 8.0;
+    if bytes > MAX_TRAJECTORY_BYTES {
+        return Err(format!(
+            "{count} trajectories of {steps} steps need about {:.1} GB, more than {:.0} GB (fewer --samples or a shorter --horizon)",
+            bytes / 1e9,
+            MAX_TRAJECTORY_BYTES / 1e9
+        )
+        .into());
+    }
     let filter = SafetyFilter::new(&s);
     let trajectories: Vec<Trajectory> = starts(args, &s)?
         .iter()
@@ -141,7 +171,7 @@ pub fn run(args: &SimulateArgs) -> CliResult {
     }
     match &args.out {
         Some(path) => {
-            std::fs::write(path, &buffer).map_err(|e| format!("{}: {e}", path.display()))?;
+            write_atomic(path, &buffer).map_err(|e| format!("{}: {e}", path.display()))?;
             println!(
                 "{} trajectories of {} steps (dt = {dt}) written to {}",
                 trajectories.len(),

@@ -223,7 +223,8 @@ pub fn run_dataset(args: &DatasetArgs) -> CliResult {
             text.push_str(&row.join(","));
             text.push('\n');
         }
-        std::fs::write(path, text).map_err(|e| format!("{}: {e}", path.display()))?;
+        cbfreach::output::write_atomic(path, text.as_bytes())
+            .map_err(|e| format!("{}: {e}", path.display()))?;
         println!("samples written to {}", path.display());
     }
     Ok(())

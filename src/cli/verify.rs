@@ -13,7 +13,9 @@ use cbfreach::verify::{
 
 use super::args::{engine, settings_flag_error, GpuArgs, ProblemArgs, ReachFlags};
 use super::simulate::parse_box;
-use super::{fmt_point, given, load_scenario, progress_bar, CliResult, INTERSECT_X_CLAUSE};
+use super::{fmt_point, given, load_scenario, progress_bar, resume, CliResult, INTERSECT_X_CLAUSE};
+use cbfreach::problem::network_path;
+use cbfreach::verify::checkpoint::{Journal, NoJournal};
 
 /// Arguments of `cbfreach verify`. Defaults: the scenario's `[settings.verify]` and
 /// `[settings.reach]`, else `VerifySettings::default()` and `ReachSettings::default()`.
@@ -59,6 +61,14 @@ pub struct VerifyArgs {
     /// Draw the verdict map here (.png or .svg).
     #[arg(long)]
     pub plot: Option<PathBuf>,
+    /// Record finished boxes here as the run goes (default: `<--json>.checkpoint` when --json
+    /// is given); removed when the run ends. An interrupt (Ctrl-C) lets the current chunk finish.
+    #[arg(long)]
+    pub checkpoint: Option<PathBuf>,
+    /// Continue the interrupted run whose checkpoint is there (the same command otherwise);
+    /// the report is the one an uninterrupted run writes.
+    #[arg(long)]
+    pub resume: bool,
     /// Check the verdicts against the ground-truth filter: simulate a K × K (× …) grid of
     /// starts in every verified box and report any that ends elsewhere (0: no check).
     #[arg(long, value_name = "K", default_value_t = 0)]
@@ -132,15 +142,65 @@ pub fn run(args: &VerifyArgs) -> CliResult {
     }
     settings.refine_feasibility |= args.refine_feasibility;
     settings.validate(&s).map_err(|e| flag_error(&e))?;
+    let checkpoint = resume::checkpoint_path(args.checkpoint.as_deref(), args.json.as_deref());
+    if args.resume && checkpoint.is_none() {
+        return Err(
+            "--resume: give --checkpoint FILE (or the --json of the interrupted run)".into(),
+        );
+    }
+    if !args.resume {
+        super::check_outputs(&[checkpoint.as_deref()])?;
+    }
+    super::check_outputs(&[args.json.as_deref(), args.plot.as_deref()])?;
     let problem = super::args::compile(&s, &args.problem)?;
     let mut reach = args.reach.settings(&s.settings.reach);
     reach.every = 1;
     reach.validate().map_err(|e| settings_flag_error(&e))?;
     let engine = engine(args.backend, &args.gpu, &mut reach, &problem)?;
-    let report = run_verify(&s, &problem, engine.as_ref(), reach, &settings)?;
+    let network = network_path(&s, args.problem.network.as_deref())?;
+    // With a checkpoint, chunks small enough that an interrupt ends soon and keeps most work
+    // (the engine's preferred batch is 512 boxes on the CPU, minutes on a loaded machine).
+    if checkpoint.is_some() && settings.chunk.is_none() {
+        settings.chunk = Some(
+            engine
+                .preferred_batch()
+                .min(16 * rayon::current_num_threads()),
+        );
+    }
+    let identity = resume::identity(&s, &problem, &network, &settings, &reach)
+        .map_err(|e| format!("{}: {e}", network.display()))?;
+    let journal = match &checkpoint {
+        Some(p) => Some(resume::open(p, args.resume, identity.clone())?),
+        None => None,
+    };
+    let mut report = match run_verify(
+        &s,
+        &problem,
+        engine.as_ref(),
+        reach,
+        &settings,
+        journal
+            .as_ref()
+            .map_or(&NoJournal as &dyn Journal, |j| j as &dyn Journal),
+    ) {
+        Err(e) if matches!(e.downcast_ref(), Some(VerifyError::Interrupted)) => {
+            let path = checkpoint.unwrap_or_default();
+            return Err(format!(
+                "interrupted; the finished boxes are in {} (run the same command with --resume to continue)",
+                path.display()
+            )
+            .into());
+        }
+        r => r?,
+    };
+    report.run.network_hash = identity["network"].clone();
+    report.run.filter_hash = identity["filter"].clone();
     print_summary(&report);
     print_causes(&explain_unverified(&s, &report));
     write_outputs(&s, &report, args.json.as_deref(), args.plot.as_deref())?;
+    if let Some(j) = journal {
+        j.finish()?;
+    }
     if args.check > 0 {
         print_check(&simulation_check(&s, &report, args.check))?;
     }
@@ -218,6 +278,7 @@ pub fn run_verify(
     engine: &dyn Backend,
     reach: ReachSettings,
     settings: &VerifySettings,
+    journal: &dyn Journal,
 ) -> Result<VerifyReport, Box<dyn std::error::Error>> {
     // The equilibria search runs once per run, here (its traps are shared by every box).
     let clock = std::time::Instant::now();
@@ -252,7 +313,7 @@ pub fn run_verify(
             b.set_position(done as u64);
         }
     };
-    let report = verifier.run(settings, &progress)?;
+    let report = verifier.run_journaled(settings, &progress, journal)?;
     if let Ok(mut slot) = bar.lock() {
         if let Some((_, b)) = slot.take() {
             b.finish_and_clear();
@@ -377,7 +438,8 @@ pub fn write_outputs(
     plot_to: Option<&Path>,
 ) -> CliResult {
     if let Some(path) = json {
-        std::fs::write(path, r.to_json()).map_err(|e| format!("{}: {e}", path.display()))?;
+        cbfreach::output::write_atomic(path, r.to_json().as_bytes())
+            .map_err(|e| format!("{}: {e}", path.display()))?;
         println!("  verdicts written to {}", path.display());
     }
     if let Some(path) = plot_to {
@@ -443,7 +505,8 @@ pub fn run_merge(args: &MergeArgs) -> CliResult {
         print_causes(&explain_unverified(s, &merged));
     }
     if let Some(path) = &args.json {
-        std::fs::write(path, merged.to_json()).map_err(|e| format!("{}: {e}", path.display()))?;
+        cbfreach::output::write_atomic(path, merged.to_json().as_bytes())
+            .map_err(|e| format!("{}: {e}", path.display()))?;
         println!("  merged verdicts written to {}", path.display());
     }
     if let (Some(s), Some(path)) = (&s, &args.plot) {

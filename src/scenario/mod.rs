@@ -21,6 +21,7 @@ use crate::boxes::IntervalBox;
 use crate::expressions::{self, Expr};
 
 mod file;
+pub mod limits;
 mod values;
 
 pub use file::*;
@@ -470,6 +471,10 @@ impl ScenarioFile {
                 c.expr(format!("system.f[{i}] + g·kappa"), &text)
             })
             .collect::<Result<Vec<_>, _>>()?;
+        for (i, e) in f_tilde.iter().enumerate() {
+            limits::check_derivative_size(e, None)
+                .map_err(|m| c.invalid(format!("system.f[{i}] + g·kappa"), m))?;
+        }
         let f_tilde_jacobian = expressions::jacobian(&f_tilde, n);
 
         let cbfs = self
@@ -479,6 +484,9 @@ impl ScenarioFile {
             .map(|(i, cb)| {
                 let key = format!("cbf[{i}]");
                 let h = c.expr(format!("{key}.h"), &cb.h)?;
+                // Before differentiating: the filter's rows differentiate ∇h·f̃ again.
+                limits::check_derivative_size(&h, Some(&f_tilde))
+                    .map_err(|m| c.invalid(format!("{key}.h"), m))?;
                 let alpha = c.finite(&format!("{key}.alpha"), cb.alpha)?;
                 if alpha <= 0.0 {
                     return Err(c.invalid(
@@ -516,10 +524,15 @@ impl ScenarioFile {
             .iter()
             .enumerate()
             .map(|(i, k)| {
-                Ok(LinearConstraint {
+                let row = LinearConstraint {
                     a: c.exprs(&format!("constraint[{i}].a"), &k.a, m)?,
                     b: c.expr(format!("constraint[{i}].b"), &k.b)?,
-                })
+                };
+                for e in row.a.iter().chain([&row.b]) {
+                    limits::check_derivative_size(e, None)
+                        .map_err(|msg| c.invalid(format!("constraint[{i}]"), msg))?;
+                }
+                Ok(row)
             })
             .collect::<Result<Vec<_>, ScenarioError>>()?;
 
@@ -581,6 +594,30 @@ impl ScenarioFile {
         if let Err(e) = self.settings.reach.validate() {
             return Err(c.invalid(format!("settings.reach.{}", e.field()), e.to_string()));
         }
+        // NaN or ∞ somewhere in C: found by interval evaluation, confirmed at a point.
+        let mut exprs: Vec<(String, &Expr)> = Vec::new();
+        for (i, cb) in cbfs.iter().enumerate() {
+            exprs.push((format!("cbf[{i}].h"), &cb.h));
+        }
+        for (i, e) in f.iter().enumerate() {
+            exprs.push((format!("system.f[{i}]"), e));
+        }
+        for (i, row) in g.iter().enumerate() {
+            for (j, e) in row.iter().enumerate() {
+                exprs.push((format!("system.g[{i}][{j}]"), e));
+            }
+        }
+        for (j, e) in kappa.iter().enumerate() {
+            exprs.push((format!("system.kappa[{j}]"), e));
+        }
+        if let Some((key, x, v)) = limits::find_non_finite(&reach.region, &exprs) {
+            return Err(c.invalid(
+                key,
+                format!(
+                    "is {v} at x = {x:?} in the region C (every expression must be finite on C)"
+                ),
+            ));
+        }
         Ok(Scenario {
             name: self.name.clone(),
             description: self.description.trim().to_string(),
@@ -621,6 +658,13 @@ fn check_names(c: &Compiler, key: &str, names: &[String]) -> Result<(), Scenario
             return Err(c.invalid(
                 format!("{key}[{i}]"),
                 format!("`{name}` is not a name (letters, digits, _; not starting with a digit)"),
+            ));
+        }
+        // A name that is a function or a constant would shadow it in every expression.
+        if name == "pi" || expressions::Func::from_name(name).is_some() {
+            return Err(c.invalid(
+                format!("{key}[{i}]"),
+                format!("`{name}` is the name of a function or constant of the expressions"),
             ));
         }
         if names[..i].contains(name) {
@@ -689,6 +733,18 @@ fn compile_reach(c: &Compiler, r: &ReachSection, n: usize) -> Result<ReachConfig
                 format!("expected {n} positive cell counts, one per state"),
             ));
         }
+        let cells = p.counts.iter().try_fold(1usize, |a, &k| a.checked_mul(k));
+        if cells.is_none_or(|k| k > limits::MAX_INITIAL_BOXES) {
+            return Err(c.invalid(
+                "reach.partition.counts",
+                format!(
+                    "{:?} makes {} initial boxes, more than {}",
+                    p.counts,
+                    cells.map_or("more than 2^64".into(), |k| k.to_string()),
+                    limits::MAX_INITIAL_BOXES
+                ),
+            ));
+        }
         initial.extend(whole.partition(&p.counts));
     }
     let transform = match &r.transform {
@@ -725,6 +781,16 @@ fn compile_reach(c: &Compiler, r: &ReachSection, n: usize) -> Result<ReachConfig
     let substeps = r.substeps.unwrap_or(1);
     if substeps == 0 {
         return Err(c.invalid("reach.substeps", "expected a whole number ≥ 1"));
+    }
+    let steps = (horizon / dt).ceil() * substeps as f64;
+    if steps.is_nan() || steps > limits::MAX_STEPS {
+        return Err(c.invalid(
+            "reach.horizon",
+            format!(
+                "horizon {horizon} / dt {dt} × {substeps} substep(s) is {steps:.3e} steps, more than {:.0e} (a longer dt or a shorter horizon)",
+                limits::MAX_STEPS
+            ),
+        ));
     }
     Ok(ReachConfig {
         time,

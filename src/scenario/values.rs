@@ -71,6 +71,12 @@ pub(super) fn resolve_parameters(
     };
     let mut known = BTreeMap::new();
     for (k, v) in written {
+        if k == "pi" || expressions::Func::from_name(k).is_some() {
+            return Err(invalid(
+                k,
+                "the name of a function or constant of the expressions".into(),
+            ));
+        }
         if states.contains(k) {
             return Err(invalid(
                 k,

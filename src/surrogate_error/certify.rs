@@ -301,7 +301,7 @@ pub struct Certified {
     pub witness_linf: f64,
     /// Where `witness_linf` is attained (empty when no sample was feasible).
     pub witness: Vec<f64>,
-    /// The kept cells (they and the dropped ones tile `C`).
+    /// The cells, tiling `C`; those proven unsafe (dropped) have bound 0.
     pub cells: Vec<CellBound>,
     /// Cells dropped as proven unsafe.
     pub dropped: usize,
@@ -422,19 +422,19 @@ pub fn certify(
     let global_goal = ratio * target;
     let mut heap: BinaryHeap<Entry> = BinaryHeap::new();
     let mut done: Vec<CellBound> = Vec::new();
-    let mut dropped = 0;
+    let dropped = std::cell::Cell::new(0_usize);
     let mut evaluated = 0;
     let mut satisfied = 0;
-    // Each cell: dropped (None) or (bound, its target).
+    // Each cell: dropped (Err) or (bound, its target).
     let eval = |cells: Vec<IntervalBox>,
                 salt: usize|
-     -> Result<Vec<Option<CellOutcome>>, AnalysisError> {
+     -> Result<Vec<Result<CellOutcome, IntervalBox>>, AnalysisError> {
         cells
             .into_par_iter()
             .enumerate()
             .map(|(k, cell)| {
                 if proven_unsafe(s, &cell) {
-                    return Ok(None);
+                    return Ok(Err(cell));
                 }
                 let seed = settings.seed ^ ((salt + k) as u64).wrapping_mul(0x2545_F491_4F6C_DD1D);
                 let e = sampled_cell_error(s, &filter, net, &cell, settings.cell_samples, seed);
@@ -450,17 +450,26 @@ pub fn certify(
                 } else {
                     tgt
                 };
-                Ok(Some((b, tgt, cell)))
+                Ok(Ok((b, tgt, cell)))
             })
             .collect()
     };
-    let mut absorb = |res: Vec<Option<(f64, f64, IntervalBox)>>,
+    let mut absorb = |res: Vec<Result<CellOutcome, IntervalBox>>,
                       heap: &mut BinaryHeap<Entry>,
                       done: &mut Vec<CellBound>| {
         for r in res {
             match r {
-                None => dropped += 1,
-                Some((bound, tgt, cell)) => {
+                // Dropped cells stay in the map with bound 0, so that its cells tile C and a
+                // cell missing from a file is seen (ErrorMap::load_certified).
+                Err(cell) => {
+                    dropped.set(dropped.get() + 1);
+                    done.push(CellBound {
+                        lower: cell.lower,
+                        upper: cell.upper,
+                        bound: 0.0,
+                    });
+                }
+                Ok((bound, tgt, cell)) => {
                     if bound <= tgt {
                         satisfied += 1;
                         done.push(CellBound {
@@ -500,13 +509,15 @@ pub fn certify(
         if heap.is_empty() {
             break;
         }
-        if evaluated >= settings.budget || heap.len() + done.len() >= settings.max_cells {
+        // Dropped cells do not count against `max_cells` (they are not refined).
+        let kept = heap.len() + done.len() - dropped.get();
+        if evaluated >= settings.budget || kept >= settings.max_cells {
             budget_spent = true;
             break;
         }
         let room = settings
             .max_cells
-            .saturating_sub(heap.len() + done.len())
+            .saturating_sub(kept)
             .min(settings.budget.saturating_sub(evaluated) / 2)
             .clamp(1, batch);
         let mut children = Vec::new();
@@ -554,7 +565,7 @@ pub fn certify(
         uncertified,
         finite_linf,
         cells: done,
-        dropped,
+        dropped: dropped.get(),
         evaluated,
         budget_spent,
         satisfied,

@@ -44,6 +44,7 @@
 //! `equilibria`, `filter` and `simulate`.
 
 mod check;
+pub mod checkpoint;
 mod pieces;
 mod report;
 mod run;
@@ -57,7 +58,10 @@ pub use report::{BoxVerdict, Headline, RunInfo, Shares, VerifyReport, VerifyTimi
 pub use run::{judge, judge_with_feasibility, start_verdict, Judgement, Reason, Stage, Verifier};
 pub use settings::VerifySettings;
 pub use shard::{merge, Shard};
-pub use traps::{traps_for, traps_for_equilibria, traps_from_equilibria, Trap};
+pub use traps::{
+    equilibrium_search_for, traps_for, traps_for_equilibria, traps_from_equilibria, Trap,
+    MAX_EQUILIBRIUM_STARTS,
+};
 
 use serde::{Deserialize, Serialize};
 
@@ -160,4 +164,7 @@ pub enum VerifyError {
     /// Shard files do not fit together.
     #[error("cannot merge: {0}")]
     Merge(String),
+    /// The run was asked to stop (an interrupt); its checkpoint holds the finished boxes.
+    #[error("interrupted")]
+    Interrupted,
 }

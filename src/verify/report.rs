@@ -122,6 +122,14 @@ pub struct RunInfo {
     /// Refinement also bisected verified leaves whose QP feasibility was not proven.
     #[serde(default)]
     pub refine_feasibility: bool,
+    /// Hash of the network file (`provenance::network_hash`), so that `merge` refuses shards
+    /// run with different networks; empty when not recorded.
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub network_hash: String,
+    /// Hash of the filter (`provenance::filter_hash`): shards of an edited scenario do not
+    /// merge; empty when not recorded.
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub filter_hash: String,
 }
 
 /// Wall times and work of a run.
@@ -267,13 +275,19 @@ impl VerifyReport {
         }
     }
 
-    /// Boxes whose sets met the unsafe set (should be none).
+    /// Boxes whose sets met the unsafe set (should be none), each once: an unsafe box is not
+    /// refined, so it is a leaf of `after` too (the same box is not counted twice).
     pub fn unsafe_boxes(&self) -> Vec<&BoxVerdict> {
-        self.after
+        let after: Vec<&BoxVerdict> = self
+            .after
             .iter()
-            .chain(&self.before)
             .filter(|b| b.verdict == Verdict::Unsafe)
-            .collect()
+            .collect();
+        let before_only = self
+            .before
+            .iter()
+            .filter(|b| b.verdict == Verdict::Unsafe && !after.contains(b));
+        after.iter().copied().chain(before_only).collect()
     }
 
     /// The report as JSON, its [`Headline`] first (read back, the headline is recomputed
@@ -394,6 +408,8 @@ mod tests {
                 time: String::new(),
                 transformed: false,
                 safe_set: vec![],
+                network_hash: String::new(),
+                filter_hash: String::new(),
                 refine_depth: 0,
                 budget: 0,
                 refine_feasibility: false,

@@ -6,6 +6,7 @@ use std::time::Instant;
 use rayon::prelude::*;
 use serde::Serialize;
 
+use super::checkpoint::{Journal, NoJournal};
 use super::{
     BoxVerdict, RunInfo, Trap, Verdict, VerifyError, VerifyReport, VerifySettings, VerifyTiming,
     FORMAT,
@@ -219,18 +220,33 @@ impl<'a> Verifier<'a> {
         settings: &VerifySettings,
         progress: &(dyn Fn(Stage, usize, usize) + Sync),
     ) -> Result<VerifyReport, VerifyError> {
+        self.run_journaled(settings, progress, &NoJournal)
+    }
+
+    /// [`Verifier::run`] with a checkpoint: boxes it recorded are not run again, every
+    /// finished chunk is recorded, and the run stops with [`VerifyError::Interrupted`] after
+    /// a chunk when it asks.
+    pub fn run_journaled(
+        &self,
+        settings: &VerifySettings,
+        progress: &(dyn Fn(Stage, usize, usize) + Sync),
+        journal: &dyn Journal,
+    ) -> Result<VerifyReport, VerifyError> {
         settings.validate(self.scenario)?;
         let clock = Instant::now();
         let region = settings.region_in(self.scenario);
         let chunk = settings
             .chunk
             .unwrap_or_else(|| self.backend.preferred_batch());
-        let all = region.partition(&settings.grid);
-        let range = settings.shard.map_or(0..all.len(), |s| s.range(all.len()));
+        // Only this shard's cells are made: a shard's memory follows its slice.
+        let total: usize = settings.grid.iter().product();
+        let range = settings.shard.map_or(0..total, |s| s.range(total));
         let mut timing = VerifyTiming::default();
-        let cells: Vec<(usize, usize, IntervalBox)> =
-            range.clone().map(|k| (k, 0, all[k].clone())).collect();
-        let before = self.run_boxes(&cells, chunk, &mut timing, &|d, t| {
+        let cells: Vec<(usize, usize, IntervalBox)> = range
+            .clone()
+            .map(|k| (k, 0, region.partition_cell(&settings.grid, k)))
+            .collect();
+        let before = self.run_boxes(&cells, chunk, &mut timing, journal, &|d, t| {
             progress(Stage::Cells, d, t)
         })?;
 
@@ -259,7 +275,7 @@ impl<'a> Verifier<'a> {
                     [(leaves[i].cell, depth, l), (leaves[i].cell, depth, r)]
                 })
                 .collect();
-            let judged = self.run_boxes(&children, chunk, &mut timing, &|d, t| {
+            let judged = self.run_boxes(&children, chunk, &mut timing, journal, &|d, t| {
                 progress(Stage::Refine(depth), d, t)
             })?;
             // Replace each parent by its two halves, in place.
@@ -303,6 +319,9 @@ impl<'a> Verifier<'a> {
                 refine_depth: settings.refine_depth,
                 budget: settings.budget,
                 refine_feasibility: settings.refine_feasibility,
+                // The caller that knows the files records them (the CLI).
+                network_hash: String::new(),
+                filter_hash: crate::provenance::filter_hash(self.scenario),
             },
             shard: settings.shard,
             cells: [range.start, range.end],
@@ -319,6 +338,7 @@ impl<'a> Verifier<'a> {
         boxes: &[(usize, usize, IntervalBox)],
         chunk: usize,
         timing: &mut VerifyTiming,
+        journal: &dyn Journal,
         progress: &(dyn Fn(usize, usize) + Sync),
     ) -> Result<Vec<BoxVerdict>, VerifyError> {
         let mut out: Vec<BoxVerdict> = boxes
@@ -335,19 +355,36 @@ impl<'a> Verifier<'a> {
                 feasible: None,
             })
             .collect();
-        let to_run: Vec<usize> = (0..out.len())
+        let mut to_run: Vec<usize> = (0..out.len())
             .filter(|&i| out[i].verdict.starts_safe())
             .collect();
         let total = to_run.len();
+        // Boxes a checkpoint holds are not run again (their verdicts are bit-identical).
+        to_run.retain(|&i| {
+            let b = &mut out[i];
+            match journal.lookup(b.cell, b.depth, &b.initial) {
+                Some((v, steps)) => {
+                    *b = v;
+                    timing.boxes_run += 1;
+                    timing.box_steps += steps;
+                    false
+                }
+                None => true,
+            }
+        });
+        let cached = total - to_run.len();
         let settings = ReachSettings {
             every: 1,
             ..self.reach.clone()
         };
         let chunk = chunk.max(1);
-        progress(0, total);
+        progress(cached, total);
         for (c, idx) in to_run.chunks(chunk).enumerate() {
+            if journal.stop_requested() {
+                return Err(VerifyError::Interrupted);
+            }
             let initial: Vec<IntervalBox> = idx.iter().map(|&i| out[i].initial.clone()).collect();
-            let done = c * chunk;
+            let done = cached + c * chunk;
             let clock = Instant::now();
             let result = self
                 .backend
@@ -369,11 +406,13 @@ impl<'a> Verifier<'a> {
                     (j.verdict, j.trap, note, feasible)
                 })
                 .collect();
+            let mut finished = Vec::with_capacity(idx.len());
             for ((&i, tube), (verdict, trap, note, feasible)) in
                 idx.iter().zip(&result.boxes).zip(judged)
             {
                 let last = tube.last();
-                timing.box_steps += tube.steps_run(self.problem.dt);
+                let steps = tube.steps_run(self.problem.dt);
+                timing.box_steps += steps;
                 let b = &mut out[i];
                 b.verdict = verdict;
                 b.trap = trap;
@@ -381,7 +420,9 @@ impl<'a> Verifier<'a> {
                 b.final_set = last.map(|s| s.set.clone());
                 b.t_end = last.map(|s| s.t);
                 b.feasible = feasible;
+                finished.push((b.clone(), steps));
             }
+            journal.record(&finished)?;
             progress((done + idx.len()).min(total), total);
         }
         Ok(out)

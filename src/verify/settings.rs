@@ -50,6 +50,9 @@ impl Default for VerifySettings {
     }
 }
 
+/// Most grid cells one verification run (or shard) may hold in memory.
+pub const MAX_CELLS_PER_RUN: usize = 50_000_000;
+
 impl VerifySettings {
     /// The region partitioned for `scenario`: `region`, else `C`.
     pub fn region_in(&self, scenario: &Scenario) -> IntervalBox {
@@ -94,27 +97,33 @@ impl VerifySettings {
                 ),
             ));
         }
+        // The cap is per run: a shard runs only its slice of the grid.
         let total = self.grid.iter().try_fold(1usize, |a, &k| a.checked_mul(k));
-        match total {
-            Some(t) if t <= 50_000_000 => {}
-            _ => {
-                return Err(bad(
-                    "grid",
-                    format!(
-                        "{:?} has too many cells (at most 50,000,000; use shards)",
-                        self.grid
-                    ),
-                ))
-            }
-        }
+        let Some(total) = total else {
+            return Err(bad(
+                "grid",
+                format!("{:?}: the number of cells overflows", self.grid),
+            ));
+        };
         if let Some(s) = self.shard {
-            let total = total.unwrap_or(0);
             if s.count > total {
                 return Err(bad(
                     "shard",
                     format!("{s}: more shards than the {total} cells of the grid"),
                 ));
             }
+        }
+        let here = self.shard.map_or(total, |s| s.range(total).len());
+        if here > MAX_CELLS_PER_RUN {
+            return Err(bad(
+                "grid",
+                format!(
+                    "{:?} gives {here} cells to this run, more than {MAX_CELLS_PER_RUN} \
+                     (use --shard K/N with N ≥ {})",
+                    self.grid,
+                    total.div_ceil(MAX_CELLS_PER_RUN)
+                ),
+            ));
         }
         Ok(())
     }

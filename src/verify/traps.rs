@@ -36,12 +36,35 @@ pub fn traps_from_equilibria(found: &[Equilibrium], half_widths: &[f64]) -> Vec<
 /// of the filtered system in `C` (found with the default search), each with a box of the goal
 /// box's half-widths.
 pub fn traps_for(s: &Scenario) -> Vec<Trap> {
-    let found = find_equilibria(
-        &SafetyFilter::new(s),
-        &s.reach.region,
-        &EquilibriumSearch::default(),
-    );
+    // Past the size of a dense search there are no traps: fewer `trapped` verdicts, never a
+    // wrong one.
+    let Some(search) = equilibrium_search_for(s.n()) else {
+        return Vec::new();
+    };
+    let found = find_equilibria(&SafetyFilter::new(s), &s.reach.region, &search);
     traps_for_equilibria(s, &found)
+}
+
+/// Most starting points of the dense equilibrium search (its grid grows as `kⁿ`).
+pub const MAX_EQUILIBRIUM_STARTS: usize = 100_000;
+
+/// The default search for `n` states, with fewer starts per axis where `30ⁿ` would pass
+/// [`MAX_EQUILIBRIUM_STARTS`]; `None` when even 2 per axis would.
+pub fn equilibrium_search_for(n: usize) -> Option<EquilibriumSearch> {
+    let mut search = EquilibriumSearch::default();
+    let fits = |k: usize| {
+        u32::try_from(n)
+            .ok()
+            .and_then(|n| k.checked_pow(n))
+            .is_some_and(|t| t <= MAX_EQUILIBRIUM_STARTS)
+    };
+    while !fits(search.starts_per_axis) {
+        if search.starts_per_axis <= 2 {
+            return None;
+        }
+        search.starts_per_axis -= 1;
+    }
+    Some(search)
 }
 
 /// [`traps_for`] with the equilibria already found.
