@@ -180,9 +180,13 @@ impl Normalisation {
         let first = &mut net.layers[0];
         let n = first.n_in;
         for (row, b) in first.weight.chunks_exact_mut(n).zip(&mut first.bias) {
-            for j in 0..n {
-                row[j] /= self.input_scale[j];
-                *b -= row[j] * self.input_centre[j];
+            for ((w, s), c) in row
+                .iter_mut()
+                .zip(&self.input_scale)
+                .zip(&self.input_centre)
+            {
+                *w /= s;
+                *b -= *w * c;
             }
         }
         let last = net
@@ -215,9 +219,13 @@ impl Normalisation {
         let first = &mut out.layers[0];
         let n = first.n_in;
         for (row, b) in first.weight.chunks_exact_mut(n).zip(&mut first.bias) {
-            for j in 0..n {
-                *b += row[j] * self.input_centre[j];
-                row[j] *= self.input_scale[j];
+            for ((w, s), c) in row
+                .iter_mut()
+                .zip(&self.input_scale)
+                .zip(&self.input_centre)
+            {
+                *b += *w * c;
+                *w *= s;
             }
         }
         Ok(out)

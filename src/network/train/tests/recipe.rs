@@ -26,7 +26,7 @@ fn normalised_data_are_unit_scaled_and_the_folded_network_is_the_normalised_mode
     let norm = Normalisation::from_data(&data);
     let unit = norm.dataset(&data, None).expect("fits");
     assert!(unit.inputs.iter().all(|x| (-1.0..=1.0).contains(x)));
-    assert!(unit.inputs.iter().any(|x| *x == -1.0) && unit.inputs.iter().any(|x| *x == 1.0));
+    assert!(unit.inputs.contains(&-1.0) && unit.inputs.contains(&1.0));
     let spread = unit.targets.iter().fold(0.0f64, |a, v| a.max(v.abs()));
     assert!(
         (0.5..5.0).contains(&spread),
@@ -129,9 +129,9 @@ fn train_until_stops_when_told() {
 
 #[test]
 fn the_recipe_stops_at_its_target_and_says_when_it_is_not_reached() {
-    let data = badly_scaled(15);
-    let validation = badly_scaled(8);
-    let recipe = Recipe::for_data(data.len(), &[1000.0 / 14.0, 0.02 / 14.0], 0.5);
+    let data = badly_scaled(40);
+    let validation = badly_scaled(17);
+    let recipe = Recipe::for_data(data.len(), &[1000.0 / 39.0, 0.02 / 39.0], 0.5);
     let planned = recipe.stages[0].settings.epochs;
     let input = RecipeData {
         pointwise: &data,
@@ -163,7 +163,7 @@ fn the_recipe_stops_at_its_target_and_says_when_it_is_not_reached() {
         linf: Some(1e-6),
         slope_p95: None,
     };
-    let small = Recipe::for_data(data.len(), &[1000.0 / 14.0, 0.02 / 14.0], 0.05);
+    let small = Recipe::for_data(data.len(), &[1000.0 / 39.0, 0.02 / 39.0], 0.02);
     let (_, report) =
         train_to_target(None, &[2, 8, 2], 1, &input, &small, &target, |_| {}).expect("trains");
     assert!(!report.reached);
