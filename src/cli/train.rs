@@ -328,6 +328,9 @@ fn weigh_box(data: &mut Dataset, focus: &IntervalBox, weight: f64) -> usize {
 
 /// Runs `cbfreach train`.
 pub fn run_train(args: &TrainArgs) -> CliResult {
+    if !(args.budget.is_finite() && args.budget > 0.0) {
+        return Err(format!("--budget {}: expected a finite factor > 0", args.budget).into());
+    }
     let s = load_scenario(&args.scenario)?;
     let architecture = match (&args.architecture, &s.network) {
         (Some(a), _) => a.clone(),
@@ -600,9 +603,6 @@ fn run_recipe(
     data: Dataset,
     validation: Dataset,
 ) -> CliResult {
-    if !(args.budget.is_finite() && args.budget > 0.0) {
-        return Err(format!("--budget {}: expected a finite factor > 0", args.budget).into());
-    }
     let r = &s.training.region;
     let spacing: Vec<f64> = (0..s.n())
         .map(|i| (r.upper[i] - r.lower[i]) / (grid[i] - 1) as f64)
