@@ -347,6 +347,50 @@ fn train_takes_secant_slope_targets_and_records_their_step() {
     }
 }
 
+#[test]
+fn train_without_epochs_runs_the_staged_schedule_and_saves_a_folded_network() {
+    // No tuning flags: range test, stages, the scenario's target judged and said; the file is
+    // a plain MLP in the scenario's units with the normalisation and the run as metadata.
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("net.safetensors");
+    let path = common::scenario_path("integrator.toml");
+    let (code, stdout, stderr) = cbfreach(&[
+        "train",
+        path.to_str().unwrap(),
+        "--architecture",
+        "2,8,2",
+        "--grid",
+        "21,16",
+        "--budget",
+        "0.01",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{stderr}");
+    for part in [
+        "schedule: fit",
+        "certify 3",
+        "max ℓ∞ ≤ 0.188, slope p95 ≤ 0.218",
+        "range test",
+    ] {
+        assert!(stdout.contains(part), "no `{part}` in {stdout}");
+    }
+    assert!(
+        stdout.contains("target reached") || stdout.contains("target NOT reached"),
+        "{stdout}"
+    );
+    let (net, metadata) = cbfreach::network::Mlp::load_safetensors_with_metadata(&out).unwrap();
+    assert_eq!(net.architecture(), "2x8x2");
+    let norm = cbfreach::network::train::Normalisation::from_metadata(&metadata)
+        .unwrap()
+        .expect("normalisation recorded");
+    assert_eq!(norm.input_centre, vec![0.5, 0.0]); // C = [−3.5, 4.5] × [−3, 3]
+    assert!(metadata.contains_key("recipe_report"));
+    let (code, _, stderr) = cbfreach(&["train", path.to_str().unwrap(), "--budget", "0"]);
+    assert_ne!(code, 0);
+    assert!(stderr.contains("--budget 0"), "{stderr}");
+}
+
 /// `cbfreach reach` on scenario 2 with forward bounds and `extra` arguments: its stdout and
 /// its `--json`.
 fn reach_scenario_2(extra: &[&str]) -> (String, serde_json::Value) {

@@ -6,7 +6,9 @@ use std::path::PathBuf;
 use cbfreach::boxes::IntervalBox;
 use cbfreach::dataset::{filter_dataset, grid_points, refinement_points, DatasetSummary, Slopes};
 use cbfreach::filter::SafetyFilter;
-use cbfreach::network::train::{self, Dataset, TrainSettings};
+use cbfreach::network::train::{
+    self, Dataset, Normalisation, Recipe, RecipeData, RecipeProgress, Target, TrainSettings,
+};
 use cbfreach::network::Mlp;
 use cbfreach::scenario::Scenario;
 
@@ -36,9 +38,18 @@ pub struct TrainArgs {
     /// Layer widths, e.g. 2,64,64,2 (default: the scenario's architecture).
     #[arg(long, value_delimiter = ',')]
     pub architecture: Option<Vec<usize>>,
-    /// Passes over the data.
-    #[arg(long, default_value_t = 200)]
-    pub epochs: usize,
+    /// Run one stage of this many passes over the data, with the tuning flags below, instead
+    /// of the default staged schedule (fit, secant, certify; docs/networks.md) that stops at
+    /// the scenario's `[training] target`. The flags below apply only with it.
+    #[arg(long)]
+    pub epochs: Option<usize>,
+    /// Multiplies every stage's epochs of the default schedule (e.g. 0.25 for a quick run).
+    #[arg(long, default_value_t = 1.0)]
+    pub budget: f64,
+    /// With `--epochs`: train on the data as it is, not normalised (the runs of
+    /// docs/networks.md were made so).
+    #[arg(long)]
+    pub no_normalise: bool,
     /// Samples per Adam step. Large batches make an epoch much cheaper (scenario 1 on two
     /// cores: 3.5–4 s at 4096 with `--chunk-size 512`, 10–13 s at 256); fine-tunes at 4096 did
     /// as well as at 256 (README).
@@ -318,6 +329,9 @@ fn weigh_box(data: &mut Dataset, focus: &IntervalBox, weight: f64) -> usize {
 
 /// Runs `cbfreach train`.
 pub fn run_train(args: &TrainArgs) -> CliResult {
+    if !(args.budget.is_finite() && args.budget > 0.0) {
+        return Err(format!("--budget {}: expected a finite factor > 0", args.budget).into());
+    }
     let s = load_scenario(&args.scenario)?;
     let architecture = match (&args.architecture, &s.network) {
         (Some(a), _) => a.clone(),
@@ -417,9 +431,21 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
         "validation data",
     );
 
+    let Some(epochs) = args.epochs else {
+        return run_recipe(
+            args,
+            &s,
+            &architecture,
+            &out,
+            &grid,
+            &points,
+            data,
+            validation,
+        );
+    };
     let checkpoint = out.with_extension("ckpt");
     let settings = TrainSettings {
-        epochs: args.epochs,
+        epochs,
         batch_size: args.batch_size,
         chunk_size: args.chunk_size,
         learning_rate: args.lr,
@@ -444,7 +470,17 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
         checkpoint: Some(checkpoint.clone()),
         ..TrainSettings::default()
     };
-    let bar = progress_bar(args.epochs as u64, "epochs");
+    // Trained on normalised data, folded back into the saved network.
+    let norm = if args.no_normalise {
+        Normalisation::identity(s.n(), s.m())
+    } else {
+        Normalisation::from_data(&data)
+    };
+    let physical = data;
+    let data = norm.dataset(&physical, settings.jacobian_cap)?;
+    let settings = norm.settings(&settings);
+    let scale = norm.output_scale;
+    let bar = progress_bar(epochs as u64, "epochs");
     // A run takes minutes to hours: where the bar is hidden (stderr to a log file, a batch
     // job), a line per epoch takes its place.
     let logged = !std::io::stderr().is_terminal();
@@ -459,12 +495,13 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
         };
         bar.set_message(format!(
             "loss {:.3e}, max error {:.4}{ibp}",
-            e.loss, e.max_error
+            e.loss,
+            e.max_error * scale
         ));
         if logged {
             eprintln!(
                 "epoch {}/{}: loss {:.4e}, max error {:.4}, mean error {:.4}{ibp}, lr {:.2e}, {:.1} s{revived}",
-                e.epoch, e.epochs, e.loss, e.max_error, e.mean_error, e.lr, e.seconds
+                e.epoch, e.epochs, e.loss, e.max_error * scale, e.mean_error * scale, e.lr, e.seconds
             );
         }
     };
@@ -473,7 +510,7 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
     } else {
         let init = match &args.init {
             Some(path) => {
-                let net = Mlp::load_safetensors(path)?;
+                let net = norm.unfold(&Mlp::load_safetensors(path)?)?;
                 if net.architecture() != Mlp::random(&architecture, 0).architecture() {
                     return Err(format!(
                         "--init {}: architecture {} differs from {architecture:?}",
@@ -489,8 +526,12 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
         train::train(init, &data, &settings, progress)?
     };
     bar.finish_and_clear();
+    let net = norm.fold(&net)?;
+    let net = if args.f32 { rounded_to_f32(&net) } else { net };
     let val = train::evaluate(&net, &validation)?;
+    let training_errors = train::evaluate(&net, &physical)?;
     let mut metadata = report.metadata();
+    metadata.extend(norm.metadata());
     metadata.insert("scenario".into(), s.name.clone());
     if let Some(slope) = args.dense_slope {
         // Not a trainer setting: the data it saw (reproducing the run needs both).
@@ -519,7 +560,7 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
         net.architecture(),
         report.seconds,
         report.epochs.len(),
-        report.final_errors.max_error
+        training_errors.max_error
     );
     if let Some(w) = report.epochs.last().and_then(|e| e.ibp_width) {
         println!(
@@ -537,4 +578,187 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
     );
     println!("network written to {}", out.display());
     Ok(())
+}
+
+/// The network with every weight rounded to the nearest f32 (saved as F32; its errors are
+/// measured after the rounding).
+fn rounded_to_f32(net: &Mlp) -> Mlp {
+    let mut out = net.clone();
+    for l in &mut out.layers {
+        for w in l.weight.iter_mut().chain(&mut l.bias) {
+            *w = *w as f32 as f64;
+        }
+    }
+    out
+}
+
+/// `cbfreach train` without `--epochs`: the default staged schedule to the scenario's target.
+#[allow(clippy::too_many_arguments)]
+fn run_recipe(
+    args: &TrainArgs,
+    s: &Scenario,
+    architecture: &[usize],
+    out: &std::path::Path,
+    grid: &[usize],
+    points: &[Vec<f64>],
+    data: Dataset,
+    validation: Dataset,
+) -> CliResult {
+    let r = &s.training.region;
+    let spacing: Vec<f64> = (0..s.n())
+        .map(|i| (r.upper[i] - r.lower[i]) / (grid[i] - 1) as f64)
+        .collect();
+    let recipe = Recipe::for_data(data.len(), &spacing, args.budget);
+    let (mut secant, _) = build(
+        s,
+        points,
+        &Slopes::Secant(recipe.secant_step.clone()),
+        "secant slopes",
+    );
+    if args.unsafe_band >= 0.0 {
+        restrict_to_band(s, &mut secant, args.unsafe_band);
+    }
+    let target = s.training.target.map_or(Target::default(), |t| Target {
+        linf: t.linf,
+        slope_p95: t.slope_p95,
+    });
+    let init = args
+        .init
+        .as_deref()
+        .map(Mlp::load_safetensors)
+        .transpose()?;
+    if let Some(net) = &init {
+        if net.widths() != architecture {
+            return Err(format!(
+                "--init: architecture {} differs from {architecture:?}",
+                net.architecture()
+            )
+            .into());
+        }
+    }
+    let total: usize = recipe.stages.iter().map(|st| st.settings.epochs).sum();
+    println!(
+        "schedule: {} (batch {}), target {}",
+        recipe
+            .stages
+            .iter()
+            .map(|st| format!("{} {}", st.name, st.settings.epochs))
+            .collect::<Vec<_>>()
+            .join(", "),
+        recipe.stages[0].settings.batch_size,
+        describe_target(&target)
+    );
+    let bar = progress_bar(total as u64, "fit");
+    let logged = !std::io::stderr().is_terminal();
+    let offsets: Vec<usize> = recipe
+        .stages
+        .iter()
+        .scan(0, |acc, st| {
+            let start = *acc;
+            *acc += st.settings.epochs;
+            Some(start)
+        })
+        .collect();
+    let mut last_logged = None;
+    let progress = |p: &RecipeProgress| {
+        bar.set_position((offsets[p.stage_index] + p.epoch) as u64);
+        let measured = p.measured.map_or(String::new(), |m| {
+            format!(
+                " | max error {:.4} | slope p95 {:.3} | IBP {:.2}×",
+                m.linf, m.slope_p95, m.ibp_looseness
+            )
+        });
+        bar.set_message(format!(
+            "{} ({}/{}) training max {:.4}{measured}",
+            p.stage,
+            p.stage_index + 1,
+            p.stages,
+            p.max_error
+        ));
+        if logged && p.measured != last_logged {
+            last_logged = p.measured;
+            eprintln!(
+                "{} epoch {}/{}: training max {:.4}{measured}",
+                p.stage, p.epoch, p.epochs, p.max_error
+            );
+        }
+    };
+    let data = RecipeData {
+        pointwise: &data,
+        secant: Some(&secant),
+        validation: &validation,
+    };
+    let (net, report) = train::train_to_target(
+        init.as_ref(),
+        architecture,
+        args.seed,
+        &data,
+        &recipe,
+        &target,
+        progress,
+    )?;
+    bar.finish_and_clear();
+    let net = if args.f32 { rounded_to_f32(&net) } else { net };
+    let measured = train::measure(&net, &validation, &recipe.ibp_radius)?;
+    let norm = &report.normalisation;
+    println!(
+        "normalised: inputs centre {:?} scale {:?}; outputs centre {:?} scale {:.4e}; learning rate {:.0e} (range test)",
+        norm.input_centre, norm.input_scale, norm.output_centre, norm.output_scale, report.learning_rate
+    );
+    for st in &report.stages {
+        println!(
+            "  {}: {} epochs, {:.1} s: max ℓ∞ {:.4}, mean {:.4}, slope p95 {:.3}, IBP looseness {:.2}×{}",
+            st.name,
+            st.epochs,
+            st.seconds,
+            st.measured.linf,
+            st.measured.mean,
+            st.measured.slope_p95,
+            st.measured.ibp_looseness,
+            if st.kept { "" } else { " (not kept: target broken)" }
+        );
+    }
+    let mut metadata = norm.metadata();
+    metadata.insert("scenario".into(), s.name.clone());
+    if let Ok(json) = serde_json::to_string(&report) {
+        metadata.insert("recipe_report".into(), json);
+    }
+    metadata.insert("validation_max_linf".into(), measured.linf.to_string());
+    metadata.insert(
+        "validation_slope_p95".into(),
+        measured.slope_p95.to_string(),
+    );
+    if args.f32 {
+        net.save_safetensors_f32(out, &metadata)?;
+    } else {
+        net.save_safetensors(out, &metadata)?;
+    }
+    println!(
+        "{} {} in {:.1} s on {} unseen points of C ∩ S: max ℓ∞ {:.4}, mean {:.4}, slope p95 {:.3}, IBP looseness {:.2}×",
+        if target.met(&measured) { "target reached:" } else { "target NOT reached:" },
+        net.architecture(),
+        report.seconds,
+        validation.len(),
+        measured.linf,
+        measured.mean,
+        measured.slope_p95,
+        measured.ibp_looseness
+    );
+    println!("network written to {}", out.display());
+    Ok(())
+}
+
+fn describe_target(t: &Target) -> String {
+    let mut parts = Vec::new();
+    if let Some(v) = t.linf {
+        parts.push(format!("max ℓ∞ ≤ {v}"));
+    }
+    if let Some(v) = t.slope_p95 {
+        parts.push(format!("slope p95 ≤ {v}"));
+    }
+    if parts.is_empty() {
+        "none ([training] target: the whole schedule)".into()
+    } else {
+        parts.join(", ")
+    }
 }

@@ -238,4 +238,17 @@ pub struct TrainingSection {
     pub region: Option<BoxSection>,
     /// Grid points per axis.
     pub grid: Vec<usize>,
+    /// The accuracy `cbfreach train` trains to (default none: the whole schedule).
+    #[serde(default)]
+    pub target: Option<TargetSection>,
+}
+
+/// `[training] target = { linf = …, slope_p95 = … }`.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TargetSection {
+    /// Max ℓ∞ error of the network on unseen points, in the inputs' units.
+    pub linf: Option<f64>,
+    /// 95th percentile of the slope error on unseen points.
+    pub slope_p95: Option<f64>,
 }

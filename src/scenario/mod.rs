@@ -243,6 +243,17 @@ pub struct TrainingConfig {
     pub region: IntervalBox,
     /// Points per axis.
     pub grid: Vec<usize>,
+    /// `[training] target`: max ℓ∞ error and slope-error p95 to train to (each optional).
+    pub target: Option<TrainingTarget>,
+}
+
+/// The accuracy `cbfreach train` stops at, each bound finite and > 0 where given.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct TrainingTarget {
+    /// Max ℓ∞ error on unseen points.
+    pub linf: Option<f64>,
+    /// 95th percentile of the slope error on unseen points.
+    pub slope_p95: Option<f64>,
 }
 
 /// A checked scenario: expression trees, derivatives and plain arrays.
@@ -580,14 +591,39 @@ impl ScenarioFile {
                         format!("expected {n} point counts, each at least 2"),
                     ));
                 }
+                let target = match &t.target {
+                    None => None,
+                    Some(target) => {
+                        for (key, value) in [("linf", target.linf), ("slope_p95", target.slope_p95)]
+                        {
+                            if let Some(v) = value.filter(|v| !(v.is_finite() && *v > 0.0)) {
+                                return Err(c.invalid(
+                                    format!("training.target.{key}"),
+                                    format!("{v} must be a finite number > 0"),
+                                ));
+                            }
+                        }
+                        if target.linf.is_none() && target.slope_p95.is_none() {
+                            return Err(
+                                c.invalid("training.target", "give linf, slope_p95 or both")
+                            );
+                        }
+                        Some(TrainingTarget {
+                            linf: target.linf,
+                            slope_p95: target.slope_p95,
+                        })
+                    }
+                };
                 TrainingConfig {
                     region,
                     grid: t.grid.clone(),
+                    target,
                 }
             }
             None => TrainingConfig {
                 region: reach.region.clone(),
                 grid: vec![100; n],
+                target: None,
             },
         };
 

@@ -15,7 +15,8 @@ pub struct Dataset {
     /// `N × m` row-major.
     pub targets: Vec<f64>,
     /// `N × m × n`: for each sample the Jacobian `Dv`, `m × n` row-major
-    /// (`[s*m*n + i*n + j] = ∂v_i/∂x_j`). Needed when `jacobian_weight > 0`.
+    /// (`[s*m*n + i*n + j] = ∂v_i/∂x_j`). Needed when `jacobian_weight > 0`. A sample with a
+    /// NaN entry has no slope target (the Sobolev term and the slope errors skip it).
     pub jacobians: Option<Vec<f64>>,
     /// Per-sample loss weights `w_s ≥ 0`. Samples of weight 0 are skipped by training and
     /// excluded from the reported errors (e.g. points where the filter is infeasible).
@@ -131,15 +132,18 @@ impl Dataset {
                 return bad("every sample has weight 0".into());
             }
         }
-        let check = |name: &str, v: &[f64], per: usize| {
-            v.iter().position(|x| !x.is_finite()).map_or(Ok(()), |i| {
-                bad(format!("{name} of sample {} is not finite", i / per))
-            })
+        let check = |name: &str, v: &[f64], per: usize, nan_ok: bool| {
+            v.iter()
+                .position(|x| !(x.is_finite() || nan_ok && x.is_nan()))
+                .map_or(Ok(()), |i| {
+                    bad(format!("{name} of sample {} is not finite", i / per))
+                })
         };
-        check("input", &self.inputs, self.n_in)?;
-        check("target", &self.targets, self.n_out)?;
+        check("input", &self.inputs, self.n_in, false)?;
+        check("target", &self.targets, self.n_out, false)?;
         if let Some(j) = &self.jacobians {
-            check("jacobian", j, self.n_in * self.n_out)?;
+            // NaN: no slope target for that sample (the Sobolev term skips it).
+            check("jacobian", j, self.n_in * self.n_out, true)?;
         }
         Ok(())
     }

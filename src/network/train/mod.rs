@@ -89,11 +89,16 @@
 //!
 //! **Layout.** `dataset` (the [`Dataset`]), `settings` ([`TrainSettings`]), `loss` (the terms
 //! above, per sample and per chunk of a batch), `checkpoint` (a run's state on disk), `run`
-//! (the loop: [`train`], [`resume`]), `report` (what a run reports; [`evaluate`]).
+//! (the loop: [`train`], [`resume`], [`train_until`]), `report` (what a run reports;
+//! [`evaluate`]), `normalise` (the data's affine maps, folded into the saved network:
+//! [`Normalisation`]), `recipe` (the default staged schedule to an accuracy target:
+//! [`train_to_target`]).
 
 mod checkpoint;
 mod dataset;
 mod loss;
+mod normalise;
+mod recipe;
 mod report;
 mod run;
 mod settings;
@@ -105,5 +110,10 @@ mod tests;
 
 pub use dataset::Dataset;
 pub use report::{evaluate, pointwise_errors, EpochStats, ErrorStats, PointErrors, TrainReport};
-pub use run::{resume, train};
+pub use normalise::{Normalisation, METADATA_KEY as NORMALISATION_KEY};
+pub use recipe::{
+    ibp_looseness, measure, train_to_target, Measured, Recipe, RecipeData, RecipeProgress,
+    RecipeReport, Stage, StageKind, StageReport, Target,
+};
+pub use run::{resume, train, train_until, Flow};
 pub use settings::{LrSchedule, Precision, TrainSettings};

@@ -17,6 +17,15 @@ use super::settings::{Precision, TrainSettings};
 use crate::network::batch::{to_mlp, Scalar};
 use crate::network::{revive, Mlp, NetworkError};
 
+/// What the callback of [`train_until`] tells the loop after an epoch.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Flow {
+    /// Run the next epoch.
+    Continue,
+    /// End the run here (early stopping): the network as it is is returned.
+    Stop,
+}
+
 /// Trains `init` on `data`; calls `progress` after every epoch.
 ///
 /// Returns the trained network (f64) and a report whose [`TrainReport::final_errors`] are
@@ -25,7 +34,21 @@ pub fn train(
     init: Mlp,
     data: &Dataset,
     settings: &TrainSettings,
-    progress: impl FnMut(&EpochStats),
+    mut progress: impl FnMut(&EpochStats),
+) -> Result<(Mlp, TrainReport), NetworkError> {
+    train_until(init, data, settings, |e, _| {
+        progress(e);
+        Flow::Continue
+    })
+}
+
+/// As [`train`], with a callback after every epoch that sees the network (built on demand by
+/// the closure it is given) and may end the run: early stopping at an accuracy target.
+pub fn train_until(
+    init: Mlp,
+    data: &Dataset,
+    settings: &TrainSettings,
+    progress: impl FnMut(&EpochStats, &dyn Fn() -> Mlp) -> Flow,
 ) -> Result<(Mlp, TrainReport), NetworkError> {
     check_inputs(&init, data, settings)?;
     match settings.precision {
@@ -47,8 +70,12 @@ pub fn resume(
     checkpoint: &Path,
     data: &Dataset,
     settings: &TrainSettings,
-    progress: impl FnMut(&EpochStats),
+    mut progress: impl FnMut(&EpochStats),
 ) -> Result<(Mlp, TrainReport), NetworkError> {
+    let progress = |e: &EpochStats, _: &dyn Fn() -> Mlp| {
+        progress(e);
+        Flow::Continue
+    };
     settings.validate()?;
     data.validate()?;
     let bytes = std::fs::read(checkpoint).map_err(|source| NetworkError::Io {
@@ -152,7 +179,7 @@ fn run<T: Scalar>(
     mut st: State<T>,
     data: &Dataset,
     settings: &TrainSettings,
-    mut progress: impl FnMut(&EpochStats),
+    mut progress: impl FnMut(&EpochStats, &dyn Fn() -> Mlp) -> Flow,
     resumed_from: Option<usize>,
 ) -> Result<(Mlp, TrainReport), NetworkError> {
     let t_start = Instant::now();
@@ -261,13 +288,17 @@ fn run<T: Scalar>(
             });
         }
         st.history.push(stats.clone());
-        progress(&stats);
+        let params = &st.params;
+        let flow = progress(&stats, &|| to_mlp(params));
         if let Some(path) = &settings.checkpoint {
             let periodic = settings.checkpoint_every > 0
                 && st.epoch.checked_rem(settings.checkpoint_every) == Some(0);
-            if periodic || st.epoch == settings.epochs {
+            if periodic || st.epoch == settings.epochs || flow == Flow::Stop {
                 st.save(settings, path)?;
             }
+        }
+        if flow == Flow::Stop {
+            break;
         }
     }
     let mlp = to_mlp(&st.params);

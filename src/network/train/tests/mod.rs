@@ -9,6 +9,7 @@ use crate::network::batch::{to_mlp, to_params, IbpWorkspace, Params};
 use crate::network::{Mlp, NetworkError};
 
 mod gradients;
+mod recipe;
 mod slopes;
 
 /// `v(x) = (sin x₁, x₁ x₂)` on an `k × k` grid over `[−1, 1]²`, with `Dv`.

@@ -1,0 +1,171 @@
+//! Normalisation (fold, unfold, the saved file), early stopping and the staged recipe.
+
+use super::*;
+
+/// `smooth_data` in badly scaled units: inputs `x ↦ (500 x + 2000, 0.01 x)`, targets `× 1000
+/// + 50`, slopes accordingly.
+fn badly_scaled(k: usize) -> Dataset {
+    let mut d = smooth_data(k);
+    for x in d.inputs.chunks_exact_mut(2) {
+        x[0] = 500.0 * x[0] + 2000.0;
+        x[1] *= 0.01;
+    }
+    for v in &mut d.targets {
+        *v = 1000.0 * *v + 50.0;
+    }
+    for dv in d.jacobians.as_mut().expect("slopes").chunks_exact_mut(2) {
+        dv[0] *= 1000.0 / 500.0;
+        dv[1] *= 1000.0 / 0.01;
+    }
+    d
+}
+
+#[test]
+fn normalised_data_are_unit_scaled_and_the_folded_network_is_the_normalised_model() {
+    let data = badly_scaled(9);
+    let norm = Normalisation::from_data(&data);
+    let unit = norm.dataset(&data, None).expect("fits");
+    assert!(unit.inputs.iter().all(|x| (-1.0..=1.0).contains(x)));
+    assert!(unit.inputs.contains(&-1.0) && unit.inputs.contains(&1.0));
+    let spread = unit.targets.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+    assert!(
+        (0.5..5.0).contains(&spread),
+        "normalised targets up to {spread}"
+    );
+
+    let normalised = Mlp::random(&[2, 8, 8, 2], 3);
+    let folded = norm.fold(&normalised).expect("fits");
+    for x in data.inputs.chunks_exact(2).step_by(7) {
+        let xn: Vec<f64> = (0..2)
+            .map(|j| (x[j] - norm.input_centre[j]) / norm.input_scale[j])
+            .collect();
+        let expected: Vec<f64> = normalised
+            .forward(&xn)
+            .iter()
+            .zip(&norm.output_centre)
+            .map(|(y, c)| c + norm.output_scale * y)
+            .collect();
+        for (a, b) in folded.forward(x).iter().zip(&expected) {
+            assert!(
+                (a - b).abs() <= 1e-9 * (1.0 + b.abs()),
+                "{a} against {b} at {x:?}"
+            );
+        }
+    }
+    // Value errors scale by the one output scale; slopes are the same after the change of units.
+    let phys = evaluate(&folded, &data).expect("fits");
+    let unit_errors = evaluate(&normalised, &unit).expect("fits");
+    let ratio = phys.max_error / (norm.output_scale * unit_errors.max_error);
+    assert!((ratio - 1.0).abs() < 1e-9, "ratio {ratio}");
+    // unfold inverts fold.
+    let back = norm.unfold(&folded).expect("fits");
+    for (l, m) in back.layers.iter().zip(&normalised.layers) {
+        for (a, b) in l
+            .weight
+            .iter()
+            .chain(&l.bias)
+            .zip(m.weight.iter().chain(&m.bias))
+        {
+            assert!((a - b).abs() < 1e-9, "{a} against {b}");
+        }
+    }
+    // The exported file is a plain MLP giving the same outputs, with the maps as metadata.
+    let bytes = folded
+        .to_safetensors_bytes(&norm.metadata())
+        .expect("serialises");
+    let path = std::env::temp_dir().join(format!("normalised-{}.safetensors", std::process::id()));
+    std::fs::write(&path, bytes).expect("writes");
+    let (loaded, metadata) = Mlp::load_safetensors_with_metadata(&path).expect("loads");
+    std::fs::remove_file(&path).ok();
+    assert_eq!(loaded, folded);
+    assert_eq!(
+        Normalisation::from_metadata(&metadata).expect("parses"),
+        Some(norm)
+    );
+}
+
+#[test]
+fn a_slope_cap_in_the_data_units_marks_samples_without_slope_targets() {
+    let data = badly_scaled(5);
+    let norm = Normalisation::from_data(&data);
+    let unit = norm.dataset(&data, Some(50.0)).expect("fits");
+    unit.validate().expect("NaN slopes are allowed");
+    let k = data.n_in * data.n_out;
+    let jac = data.jacobians.as_ref().expect("slopes");
+    let ujac = unit.jacobians.as_ref().expect("slopes");
+    let (mut capped, mut kept) = (0, 0);
+    for s in 0..data.len() {
+        let steep = jac[s * k..(s + 1) * k].iter().any(|d| d.abs() > 50.0);
+        let nan = ujac[s * k..(s + 1) * k].iter().all(|d| d.is_nan());
+        assert_eq!(steep, nan, "sample {s}");
+        capped += usize::from(nan);
+        kept += usize::from(!nan);
+        assert_eq!(slope_target(&unit, s, None).is_some(), !steep);
+    }
+    assert!(capped > 0 && kept > 0, "{capped} capped, {kept} kept");
+}
+
+#[test]
+fn train_until_stops_when_told() {
+    let data = smooth_data(9);
+    let mut seen = 0;
+    let (_, report) = train_until(
+        Mlp::random(&[2, 8, 2], 1),
+        &data,
+        &quick(50, 0.0),
+        |e, net| {
+            seen += 1;
+            assert_eq!(net().input_dim(), 2);
+            if e.epoch == 3 {
+                Flow::Stop
+            } else {
+                Flow::Continue
+            }
+        },
+    )
+    .expect("trains");
+    assert_eq!((report.epochs.len(), seen), (3, 3));
+}
+
+#[test]
+fn the_recipe_stops_at_its_target_and_says_when_it_is_not_reached() {
+    let data = badly_scaled(40);
+    let validation = badly_scaled(17);
+    let recipe = Recipe::for_data(data.len(), &[1000.0 / 39.0, 0.02 / 39.0], 0.5);
+    let planned = recipe.stages[0].settings.epochs;
+    let input = RecipeData {
+        pointwise: &data,
+        secant: None,
+        validation: &validation,
+    };
+    // Within 5 % of the targets' range (2000): the fit stage gets there and stops early.
+    let target = Target {
+        linf: Some(100.0),
+        slope_p95: None,
+    };
+    let (net, report) = train_to_target(None, &[2, 16, 16, 2], 1, &input, &recipe, &target, |_| {})
+        .expect("trains");
+    assert!(report.reached, "{report:?}");
+    assert_eq!(report.stages[0].name, "fit");
+    assert!(
+        report.stages[0].epochs < planned,
+        "{} of {planned} epochs",
+        report.stages[0].epochs
+    );
+    assert!(report
+        .stages
+        .iter()
+        .all(|s| s.name == "fit" || s.name.starts_with("certify")));
+    let m = measure(&net, &validation, &recipe.ibp_radius).expect("measures");
+    assert!(m.linf <= 100.0 && (m.linf - report.measured.linf).abs() < 1e-9 * m.linf);
+    // A target no network of this size meets: every stage runs in full, and it is said.
+    let target = Target {
+        linf: Some(1e-6),
+        slope_p95: None,
+    };
+    let small = Recipe::for_data(data.len(), &[1000.0 / 39.0, 0.02 / 39.0], 0.02);
+    let (_, report) =
+        train_to_target(None, &[2, 8, 2], 1, &input, &small, &target, |_| {}).expect("trains");
+    assert!(!report.reached);
+    assert_eq!(report.stages[0].epochs, small.stages[0].settings.epochs);
+}
