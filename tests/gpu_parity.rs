@@ -21,8 +21,9 @@ use cbfreach::verify::{judge, traps_for, BoxVerdict, Verifier, VerifySettings};
 const SET_TOL: f64 = 1e-10;
 
 /// The Minkowski method's radius (and the sets grown by it) agree to this: the f64 shaders
-/// take `exp` in f32 and widen by its accuracy (docs/design.md §3).
-const RADIUS_TOL: f64 = 1e-6;
+/// take `exp` in f32 and widen by its accuracy (docs/design.md §3), so the GPU's radius grows
+/// by up to ~2e-7 relative a step more than the CPU's (2.3e-6 measured at t = 0.72, 18 steps).
+const RADIUS_TOL: f64 = 1e-4;
 
 fn gpu_f64() -> Option<GpuBackend> {
     let required = std::env::var("CBFREACH_REQUIRE_GPU").as_deref() == Ok("1");
@@ -152,7 +153,8 @@ fn verify_double_integrator_10x4_same_verdicts() {
 
 /// The paper's construction (`cbfreach paper`: Theorem 2's Minkowski method with the paper's
 /// `M_C`, the Euler map, forward-backward bounds) from its 12 and 9 initial boxes: equal NN-system
-/// boxes at every step, radii within `RADIUS_TOL`, and the same verdict per box.
+/// boxes at every step, radii at least the CPU's and within `RADIUS_TOL`, and the same verdict
+/// per box.
 #[test]
 fn paper_boxes_same_verdicts() {
     let Some(gpu) = gpu_f64() else { return };
@@ -193,6 +195,12 @@ fn paper_boxes_same_verdicts() {
                 }
                 let sets = a.set.lower.iter().zip(&b.set.lower);
                 let sets = sets.chain(a.set.upper.iter().zip(&b.set.upper));
+                assert!(
+                    b.radius >= a.radius,
+                    "{} box {k} t = {}: radius",
+                    s.name,
+                    a.t
+                );
                 for (x, y) in sets.chain([(&a.radius, &b.radius)]) {
                     let rel = (x - y).abs() / x.abs().max(1.0);
                     assert!(
