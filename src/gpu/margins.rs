@@ -17,7 +17,7 @@
 //! cascading: the axis-1 range found once at the root maps to every block on the way down in
 //! O(1)). The rank range splits into at most `2·log K` whole blocks; each gives its maximum
 //! over the axis-1 range from two table entries. A query reads `O(log K)` entries per shape,
-//! whatever the set's size; the structure holds `O(K log² K)` numbers (~3 M for the shipped
+//! whatever the set's size; the structure holds `O(K log² K)` numbers (5.1–5.5 M for the shipped
 //! maps).
 //!
 //! # Soundness and exactness
