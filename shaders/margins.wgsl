@@ -23,7 +23,9 @@ fn map_first(at: u32, k: u32, q: real, ge: bool) -> u32 {
     return lo;
 }
 
-// The largest bound of shape s's cells that meet the box [a, b] (first two axes), 0 if none.
+// The largest bound of shape s's cells that meet the box [a, b] (first two axes), -1 if none
+// (bounds are ≥ 0, so a box that meets no cell of any shape is told apart from one that meets
+// only cells of bound 0).
 fn shape_margin(s: u32, a: array<real, 2>, b: array<real, 2>) -> real {
     let base_r = map_index[4u * s];
     let base_u = map_index[4u * s + 1u];
@@ -32,13 +34,13 @@ fn shape_margin(s: u32, a: array<real, 2>, b: array<real, 2>) -> real {
     let i0 = map_first(base_r + k, k, a[0], true);
     let i1 = map_first(base_r, k, b[0], false);
     if (i0 >= i1) {
-        return 0.0;
+        return -1.0;
     }
     let top_y = base_r + 2u * k + 2u * levels * k;
     let j0 = map_first(top_y + k, k, a[1], true);
     let j1 = map_first(top_y, k, b[1], false);
     let tables = base_r + 2u * k * (levels + 2u);
-    var worst: real = 0.0;
+    var worst: real = -1.0;
     // Blocks still to visit: (level, start, first, end) of the axis-1 range in the block.
     var stack: array<vec4<u32>, 40>;
     var top = 1u;
@@ -101,9 +103,13 @@ fn local_margin(xb: array<Iv, N0>) -> real {
             return HUGE;
         }
     }
-    var worst: real = 0.0;
+    var worst: real = -1.0;
     for (var s = 0u; s < MAP_SHAPES; s++) {
         worst = max(worst, shape_margin(s, a, b));
+    }
+    // A box that meets no cell is where nothing was certified: +∞, never 0.
+    if (worst < 0.0) {
+        worst = HUGE;
     }
     // Tests only (MAP_PAD_LOOPS > 0): a long loop, to show the loop check at work.
     var pad: real = 0.0;

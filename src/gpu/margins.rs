@@ -308,17 +308,19 @@ impl MarginMap {
         if !self.certified || !inside {
             return f64::INFINITY;
         }
-        let mut worst = 0.0_f64;
+        // Bounds are ≥ 0: -1 marks a box that meets no cell, where nothing was certified
+        // (+∞, never 0, as `ErrorMap::local_bound`).
+        let mut worst = -1.0_f64;
         for s in 0..self.shapes {
             worst = worst.max(self.shape_bound(s, a, b));
         }
-        match worst >= huge {
+        match worst >= huge || worst < 0.0 {
             true => f64::INFINITY,
             false => worst,
         }
     }
 
-    /// The largest bound of shape `s`'s cells that meet `[a, b]` (0 if none): the walk of
+    /// The largest bound of shape `s`'s cells that meet `[a, b]` (-1 if none): the walk of
     /// `shape_margin` in `shaders/margins.wgsl`.
     fn shape_bound(&self, s: usize, a: [f64; 2], b: [f64; 2]) -> f64 {
         let h = &self.index[HEADER * s..HEADER * (s + 1)];
@@ -334,7 +336,7 @@ impl MarginMap {
         let table = |level: usize, j: usize| {
             base_r + 2 * k * (levels + 2) + k * (level * (level + 1) / 2 + j)
         };
-        let mut worst = 0.0_f64;
+        let mut worst = -1.0_f64;
         let mut stack = vec![(top, 0usize, j0, j1)];
         while let Some((level, start, pa, pc)) = stack.pop() {
             let end = (start + (1 << level)).min(k);
@@ -488,6 +490,10 @@ mod tests {
         map.cells.clear();
         let m = MarginMap::new(&map.reindexed(), Precision::F64);
         assert_eq!(m.shapes, 0);
-        assert_eq!(m.bound(&[0.1, 0.1], &[0.2, 0.2], Precision::F64), 0.0);
+        // No cell certifies anything: +∞, as the CPU's local bound.
+        assert_eq!(
+            m.bound(&[0.1, 0.1], &[0.2, 0.2], Precision::F64),
+            f64::INFINITY
+        );
     }
 }
