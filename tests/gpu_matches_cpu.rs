@@ -711,9 +711,9 @@ fn cli_backend_gpu_and_auto() {
         ok && text.contains("GPU adapter:") && text.contains("backend gpu"),
         "{text}"
     );
-    // The filter's closed form runs there too (the default `--exact closed-form`), no notice.
+    // The filter's own pieces run there too (the default `--exact closed-form`), no notice.
     assert!(
-        text.contains("the filter's closed form") && !text.contains("note:"),
+        text.contains("the filter's pieces") && !text.contains("note:"),
         "{text}"
     );
     // f64 by default where the adapter has f64 shaders (its sets match the CPU's; f32's a-priori

@@ -10,8 +10,8 @@ use cbfreach::gpu::Precision;
 use cbfreach::problem::{ProblemError, ProblemOptions};
 use cbfreach::reach::engine::EngineError;
 use cbfreach::reach::{
-    choose_engine, Backend, EngineChoice, ExactField, GpuOptions, ReachMethod,
-    ReachProblem, ReachSettings,
+    choose_engine, Backend, EngineChoice, ExactField, GpuOptions, ReachMethod, ReachProblem,
+    ReachSettings,
 };
 use cbfreach::scenario::{Margin, TransformChoice};
 

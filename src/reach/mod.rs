@@ -477,7 +477,11 @@ pub trait Backend {
 
     /// Whether this engine runs `problem` under `settings` as they are, or which setting it
     /// refuses; the CPU engine runs every setting.
-    fn supports(&self, _problem: &ReachProblem, _settings: &ReachSettings) -> Result<(), Unsupported> {
+    fn supports(
+        &self,
+        _problem: &ReachProblem,
+        _settings: &ReachSettings,
+    ) -> Result<(), Unsupported> {
         Ok(())
     }
 }

@@ -109,11 +109,11 @@ mod bench;
 mod tests;
 
 pub use dataset::Dataset;
-pub use report::{evaluate, pointwise_errors, EpochStats, ErrorStats, PointErrors, TrainReport};
 pub use normalise::{Normalisation, METADATA_KEY as NORMALISATION_KEY};
 pub use recipe::{
     ibp_looseness, measure, train_to_target, Measured, Recipe, RecipeData, RecipeProgress,
     RecipeReport, Stage, StageKind, StageReport, Target,
 };
+pub use report::{evaluate, pointwise_errors, EpochStats, ErrorStats, PointErrors, TrainReport};
 pub use run::{resume, train, train_until, Flow};
 pub use settings::{LrSchedule, Precision, TrainSettings};
