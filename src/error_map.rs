@@ -47,7 +47,7 @@ pub enum ErrorMapError {
         path: PathBuf,
     },
     /// The map was certified against something else: what changed since.
-    #[error("{path} was certified for another {what} (run `cbfreach error` again)")]
+    #[error("{path} was certified for another version of {what} (run `cbfreach error` again)")]
     Changed {
         /// The error map.
         path: PathBuf,

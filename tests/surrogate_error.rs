@@ -431,8 +431,10 @@ fn unsafe_cells_are_dropped_and_safe_ones_kept() {
 #[test]
 fn error_map_local_bounds_are_sound_and_below_the_global_one() {
     let f = fixture();
-    let (_dir, net_path, map) = saved_network_and_map(f);
+    let (_dir, net_path, mut map) = saved_network_and_map(f);
     let map_path = error_map_path(&net_path);
+    // Stamped with what it certifies, as `cbfreach error` does: the margins below load it.
+    map.stamp(&f.s, &net_path).unwrap();
     map.save(&map_path).unwrap();
     let map = ErrorMap::load_for(&net_path).unwrap();
     let global = map.certified_linf.unwrap();
