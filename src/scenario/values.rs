@@ -3,7 +3,8 @@
 
 use std::collections::BTreeMap;
 
-use super::{Compiler, Number, ReachConfig, ScenarioError};
+use super::compile::Compiler;
+use super::{Number, ReachConfig, ScenarioError};
 use crate::expressions;
 
 /// A state defined modulo a period: `x_state` and `x_state + (upper − lower)` are one state.
