@@ -108,6 +108,14 @@ pub struct CellBound {
 }
 
 impl CellBound {
+    /// The cell as a box.
+    pub fn cell(&self) -> IntervalBox {
+        IntervalBox {
+            lower: self.lower.clone(),
+            upper: self.upper.clone(),
+        }
+    }
+
     /// Whether the (closed) cell meets the (closed) box.
     pub fn meets(&self, b: &IntervalBox) -> bool {
         (0..self.lower.len()).all(|i| self.lower[i] <= b.upper[i] && b.lower[i] <= self.upper[i])
@@ -429,14 +437,7 @@ impl ErrorMap {
             });
         }
         if map.certified_linf.is_some() {
-            let boxes: Vec<IntervalBox> = map
-                .cells
-                .iter()
-                .map(|c| IntervalBox {
-                    lower: c.lower.clone(),
-                    upper: c.upper.clone(),
-                })
-                .collect();
+            let boxes: Vec<IntervalBox> = map.cells.iter().map(CellBound::cell).collect();
             let gaps = crate::provenance::uncovered(&map.region, &boxes, 100);
             if let Some(g) = gaps.first() {
                 return Err(ErrorMapError::Uncovered {

@@ -279,14 +279,7 @@ pub fn restamp(map: &mut ErrorMap, s: &Scenario, network: &Path) -> Result<usize
             what: "the region C".into(),
         });
     }
-    let boxes: Vec<IntervalBox> = map
-        .cells
-        .iter()
-        .map(|c| IntervalBox {
-            lower: c.lower.clone(),
-            upper: c.upper.clone(),
-        })
-        .collect();
+    let boxes: Vec<IntervalBox> = map.cells.iter().map(|c| c.cell()).collect();
     let gaps = if map.certified_linf.is_some() {
         uncovered(&map.region, &boxes, usize::MAX)
     } else {

@@ -1,20 +1,9 @@
 //! The `cbfreach` binary: the commands of the foundation issue, end to end.
 
 mod common;
+use common::cbfreach;
 
 use std::process::Command;
-
-fn cbfreach(args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_cbfreach"))
-        .args(args)
-        .output()
-        .expect("runs");
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
 
 /// The whole numbers on the first line of `stdout` that contains `needle`, in order.
 fn numbers_on_line(stdout: &str, needle: &str) -> Option<Vec<usize>> {

@@ -1,23 +1,13 @@
 //! `cbfreach bounds`: JSON that contains sampled network outputs, a table, and named errors.
 
+mod common;
+use common::cbfreach;
+
 use std::collections::BTreeMap;
 use std::path::PathBuf;
-use std::process::Command;
 
 use cbfreach::network::Mlp;
 use tempfile::TempDir;
-
-fn cbfreach(args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_cbfreach"))
-        .args(args)
-        .output()
-        .expect("runs");
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
 
 /// A small random network saved in a fresh temporary directory, returned with it: the caller
 /// keeps the directory alive, and it is removed on drop (also when a test panics).

@@ -5,7 +5,7 @@ mod common;
 use cbfreach::dataset::{filter_dataset, Slopes};
 use cbfreach::filter::{FilterError, FilterMethod, FilterStatus, Infeasibility, SafetyFilter};
 use cbfreach::simulate::sample_box;
-use common::{double_integrator, from_text, integrator, SMALL};
+use common::{double_integrator, from_text, integrator, two_obstacles, SMALL};
 
 /// Named tolerance: the issue asks for agreement to 1e-7.
 const CLOSED_FORM_VS_QP: f64 = 1e-7;
@@ -93,28 +93,7 @@ fn scalar_closed_form_with_input_bounds_matches_clarabel() {
 #[test]
 fn general_qp_with_two_inputs_and_two_cbfs_satisfies_kkt() {
     // Two obstacles and input bounds on a 2-input integrator: only clarabel applies.
-    let text = r#"
-name = "two"
-[system]
-states = ["x1", "x2"]
-inputs = ["u1", "u2"]
-f = ["0", "0"]
-g = [["1", "0"], ["0", "1"]]
-kappa = ["-x1", "-x2"]
-[[cbf]]
-h = "(x1 - 2)^2 + x2^2 - 1"
-[[cbf]]
-h = "(x1 + 1)^2 + (x2 - 2)^2 - 0.5"
-[input_bounds]
-lower = [-4, -4]
-upper = [4, 4]
-[reach]
-region = { lower = [-3, -3], upper = [4, 4] }
-m_c = 0
-dt = 0.05
-horizon = 1
-goal = { lower = [-0.1, -0.1], upper = [0.1, 0.1] }
-"#;
+    let text = &two_obstacles(4.0);
     let s = from_text(text).unwrap();
     let f = SafetyFilter::new(&s);
     assert_eq!(f.method(), FilterMethod::Qp);

@@ -10,7 +10,7 @@ use cbfreach::filter::{
 };
 use cbfreach::intervals::Interval;
 use cbfreach::scenario::Scenario;
-use common::{double_integrator, from_text, integrator, scenario_path};
+use common::{double_integrator, from_text, integrator, scenario_path, two_obstacles};
 use rand::{Rng, SeedableRng};
 
 /// clarabel's answers are polished to the exact KKT point but may keep its tolerance.
@@ -23,31 +23,7 @@ fn spheres() -> Scenario {
 /// Two obstacles on a two-input integrator with input bounds: active sets mix CBF rows and
 /// bounds, and near the bounds the QP is infeasible.
 fn two_obstacles_with_bounds() -> Scenario {
-    from_text(
-        r#"
-name = "two"
-[system]
-states = ["x1", "x2"]
-inputs = ["u1", "u2"]
-f = ["0", "0"]
-g = [["1", "0"], ["0", "1"]]
-kappa = ["-x1", "-x2"]
-[[cbf]]
-h = "(x1 - 2)^2 + x2^2 - 1"
-[[cbf]]
-h = "(x1 + 1)^2 + (x2 - 2)^2 - 0.5"
-[input_bounds]
-lower = [-3, -3]
-upper = [3, 3]
-[reach]
-region = { lower = [-3, -3], upper = [4, 4] }
-m_c = 0
-dt = 0.05
-horizon = 1
-goal = { lower = [-0.1, -0.1], upper = [0.1, 0.1] }
-"#,
-    )
-    .unwrap()
+    from_text(&two_obstacles(3.0)).unwrap()
 }
 
 /// The same sphere twice: the pair's rows are dependent everywhere (`det G ≡ 0`).

@@ -3,6 +3,7 @@
 //! each failed on the code before the issue.
 
 mod common;
+use common::cbfreach;
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -16,18 +17,6 @@ use cbfreach::verify::{merge, BoxVerdict, Verifier, VerifyError, VerifySettings}
 use cbfreach::{IntervalBox, Mlp, Scenario};
 
 /// Runs the binary: (exit code, stdout, stderr); -1 for a signal.
-fn cbfreach(args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_cbfreach"))
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into(),
-        String::from_utf8_lossy(&out.stderr).into(),
-    )
-}
-
 /// A small scenario with a 2×8×1 network in a fresh folder: (folder, scenario file).
 fn small(dir: &Path, edit: &[(&str, &str)]) -> PathBuf {
     let net = dir.join("net.safetensors");

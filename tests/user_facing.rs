@@ -2,23 +2,14 @@
 //! headlines, pictures of systems with more than two states, and the smaller items
 //! (expressions for numbers, no driver noise, titles naming the margin used, simulate's count).
 
+mod common;
+use common::cbfreach;
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use cbfreach::reach::{CoordinatesReason, Transform};
 use cbfreach::scenario::Scenario;
-
-fn cbfreach(args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_cbfreach"))
-        .args(args)
-        .output()
-        .expect("runs");
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))

@@ -311,15 +311,7 @@ pub(super) fn draw_error_map<DB: DrawingBackend<ErrorType: 'static>>(
     // of a 96 × 96 grid over the plane, each with the largest bound of the cells above it.
     let uncertified_class = ERROR_CLASSES.len() + 1;
     let mut classes: Vec<Vec<IntervalBox>> = vec![Vec::new(); uncertified_class + 1];
-    let cells = map.cells.iter().map(|c| {
-        (
-            IntervalBox {
-                lower: c.lower.clone(),
-                upper: c.upper.clone(),
-            },
-            c.bound,
-        )
-    });
+    let cells = map.cells.iter().map(|c| (c.cell(), c.bound));
     if view.is_whole(scenario.n()) {
         for (b, bound) in cells {
             classes[error_class(bound)].push(b);

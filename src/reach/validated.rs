@@ -482,6 +482,25 @@ mod tests {
         }
     }
 
+    /// Lower and upper rates.
+    type Bounds = (Vec<f64>, Vec<f64>);
+
+    /// The field of `d` over a box, with no network term (the test systems' exact field).
+    fn exact_field<'a>(
+        d: &'a Dynamics,
+        z: &'a [f64],
+    ) -> impl Fn(&IntervalBox, bool) -> Result<Option<Bounds>, ()> + 'a {
+        move |a, _| {
+            Ok(Some(field_over(
+                d,
+                &a.lower,
+                &a.upper,
+                no_network(z),
+                &[0.0],
+            )))
+        }
+    }
+
     /// `ẋ = −x` from `[1, 2]²` over h = 0.1: the flowpipe holds `x([0, h])` and the slab step
     /// holds the exact set `e^{−h}[1, 2]`, within O(h²) of it.
     #[test]
@@ -490,15 +509,7 @@ mod tests {
         let z = [0.0; 4];
         let set = IntervalBox::new(vec![1.0, 1.0], vec![2.0, 2.0]).unwrap();
         let h = 0.1;
-        let field = |a: &IntervalBox, _: bool| -> Result<_, ()> {
-            Ok(Some(field_over(
-                &d,
-                &a.lower,
-                &a.upper,
-                no_network(&z),
-                &[0.0],
-            )))
-        };
+        let field = exact_field(&d, &z);
         let Enclosure::Closed(pipe) = enclose_step(&set, h, None, None, field).unwrap() else {
             panic!("no enclosure")
         };
@@ -525,15 +536,7 @@ mod tests {
         let z = [0.0; 4];
         let set = IntervalBox::new(vec![0.9, -0.1], vec![1.1, 0.1]).unwrap();
         let h = 0.2;
-        let field = |a: &IntervalBox, _: bool| -> Result<_, ()> {
-            Ok(Some(field_over(
-                &d,
-                &a.lower,
-                &a.upper,
-                no_network(&z),
-                &[0.0],
-            )))
-        };
+        let field = exact_field(&d, &z);
         let Enclosure::Closed(pipe) = enclose_step(&set, h, None, None, field).unwrap() else {
             panic!("no enclosure")
         };
@@ -575,15 +578,7 @@ mod tests {
         let set = IntervalBox::new(vec![1.0, 1.0], vec![2.0, 2.0]).unwrap();
         for (sign, closes) in [(-1.0, true), (1.0, false)] {
             let d = linear([[sign, 0.0], [0.0, sign]]);
-            let field = |a: &IntervalBox, _: bool| -> Result<_, ()> {
-                Ok(Some(field_over(
-                    &d,
-                    &a.lower,
-                    &a.upper,
-                    no_network(&z),
-                    &[0.0],
-                )))
-            };
+            let field = exact_field(&d, &z);
             let found = enclose_step(&set, 0.1, None, Some(&c), field).unwrap();
             match found {
                 Enclosure::Closed(pipe) => {

@@ -626,10 +626,7 @@ pub fn witness_error(
     worst
         .par_iter()
         .flat_map_iter(|c| {
-            let cell = IntervalBox {
-                lower: c.lower.clone(),
-                upper: c.upper.clone(),
-            };
+            let cell = c.cell();
             grid_points(&cell, &vec![per_axis; cell.dim()])
         })
         .filter_map(|x| Some((error_at(s, filter, net, &x)?, x)))

@@ -63,3 +63,45 @@ dt = 0.05
 horizon = 1.0
 goal = { lower = [-0.1, -0.1], upper = [0.1, 0.1] }
 "#;
+
+/// Two circular obstacles on a two-input integrator with input bounds `|uᵢ| ≤ b`: a general QP
+/// (active sets mix CBF rows and bounds; near the bounds it is infeasible).
+pub fn two_obstacles(b: f64) -> String {
+    format!(
+        r#"
+name = "two"
+[system]
+states = ["x1", "x2"]
+inputs = ["u1", "u2"]
+f = ["0", "0"]
+g = [["1", "0"], ["0", "1"]]
+kappa = ["-x1", "-x2"]
+[[cbf]]
+h = "(x1 - 2)^2 + x2^2 - 1"
+[[cbf]]
+h = "(x1 + 1)^2 + (x2 - 2)^2 - 0.5"
+[input_bounds]
+lower = [-{b}, -{b}]
+upper = [{b}, {b}]
+[reach]
+region = {{ lower = [-3, -3], upper = [4, 4] }}
+m_c = 0
+dt = 0.05
+horizon = 1
+goal = {{ lower = [-0.1, -0.1], upper = [0.1, 0.1] }}
+"#
+    )
+}
+
+/// Runs the `cbfreach` binary: its exit code, stdout and stderr.
+pub fn cbfreach(args: &[&str]) -> (i32, String, String) {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_cbfreach"))
+        .args(args)
+        .output()
+        .expect("runs");
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
