@@ -7,13 +7,34 @@
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-/// The temporary file beside `path` that [`write_atomic`] writes first.
+/// The temporary file beside `path` that [`write_atomic`] writes first. It keeps `path`'s
+/// extension last, for writers that choose the format by it (plotters).
 fn temporary(path: &Path) -> PathBuf {
     let name = path
         .file_name()
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_else(|| "output".into());
-    path.with_file_name(format!(".{name}.{}.tmp", std::process::id()))
+    let ext = path
+        .extension()
+        .map(|e| format!(".{}", e.to_string_lossy()))
+        .unwrap_or_default();
+    path.with_file_name(format!(".{name}.{}.tmp{ext}", std::process::id()))
+}
+
+/// Runs `write`, which writes a whole file at the path it is given, on a temporary file beside
+/// `path`, then renames it over `path`: for writers that take a path, not a stream (plotters'
+/// backends). On any error the temporary file is removed and `path` is as it was.
+pub fn write_atomic_path<E>(
+    path: &Path,
+    write: impl FnOnce(&Path) -> Result<(), E>,
+    io_err: impl FnOnce(std::io::Error) -> E,
+) -> Result<(), E> {
+    let tmp = temporary(path);
+    let result = write(&tmp).and_then(|()| std::fs::rename(&tmp, path).map_err(io_err));
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result
 }
 
 /// Writes `bytes` to `path` atomically: to a temporary file in the same folder, synced, then
@@ -75,5 +96,31 @@ mod tests {
         assert!(check_writable(&p).is_ok());
         assert!(check_writable(dir.path()).is_err());
         assert!(check_writable(&dir.path().join("no/such/folder/x.json")).is_err());
+    }
+
+    #[test]
+    fn a_failed_path_writer_keeps_the_old_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("map.png");
+        std::fs::write(&p, b"old picture").unwrap();
+        let failed: Result<(), String> = write_atomic_path(
+            &p,
+            |tmp| {
+                assert_eq!(tmp.extension().unwrap(), "png");
+                std::fs::write(tmp, b"half").unwrap();
+                Err("drawing failed".into())
+            },
+            |e| e.to_string(),
+        );
+        assert!(failed.is_err());
+        assert_eq!(std::fs::read(&p).unwrap(), b"old picture");
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+        let done: Result<(), String> = write_atomic_path(
+            &p,
+            |tmp| std::fs::write(tmp, b"new").map_err(|e| e.to_string()),
+            |e| e.to_string(),
+        );
+        assert!(done.is_ok());
+        assert_eq!(std::fs::read(&p).unwrap(), b"new");
     }
 }

@@ -443,3 +443,48 @@ fn an_interrupted_verification_resumes_to_the_same_report() {
     r.after = r.before.clone();
     assert_eq!(r.unsafe_boxes().len(), 1);
 }
+
+#[test]
+fn error_keeps_a_tighter_map_unless_forced() {
+    // The shipped-map loss: a quick `error` run must not replace a tighter certified map.
+    let dir = tempfile::tempdir().unwrap();
+    let (file, net) = stamped_map(dir.path());
+    let map_file = error_map_path(&net);
+    let tight = std::fs::read(&map_file).unwrap();
+    let args = |force: bool| {
+        let mut a = vec![
+            "error",
+            file.to_str().unwrap(),
+            "--budget",
+            "200",
+            "--looseness-boxes",
+            "0",
+        ];
+        if force {
+            a.push("--force");
+        }
+        a.into_iter().map(String::from).collect::<Vec<_>>()
+    };
+    let run = |force: bool| {
+        let a = args(force);
+        cbfreach(&a.iter().map(String::as_str).collect::<Vec<_>>())
+    };
+    // The random network is far from the filter: its certified bound is far above 0.05.
+    let (code, stdout, stderr) = run(false);
+    no_panic(code, &stderr);
+    assert!(
+        format!("{stdout}{stderr}").contains("not replacing"),
+        "{stdout}\n{stderr}"
+    );
+    assert_eq!(std::fs::read(&map_file).unwrap(), tight);
+    let looser = map_file.with_extension("looser.json");
+    let kept = ErrorMap::load(&looser).unwrap();
+    assert!(kept.certified_linf.unwrap_or(f64::INFINITY) > 0.05);
+    // --force replaces it, with the looser map.
+    let (code, _, stderr) = run(true);
+    no_panic(code, &stderr);
+    assert_eq!(code, 0, "{stderr}");
+    let now = ErrorMap::load(&map_file).unwrap();
+    assert_ne!(std::fs::read(&map_file).unwrap(), tight);
+    assert!(now.certified_linf.unwrap_or(f64::INFINITY) > 0.05);
+}

@@ -74,6 +74,9 @@ pub enum DrawError {
     /// plotters or its backend failed (its error type depends on the backend).
     #[error("{0}")]
     Plotters(#[source] Box<dyn std::error::Error + Send + Sync>),
+    /// The finished picture could not be moved into place.
+    #[error("{0}")]
+    Io(#[from] std::io::Error),
 }
 
 impl<E: std::error::Error + Send + Sync + 'static> From<DrawingAreaErrorKind<E>> for DrawError {
@@ -177,17 +180,30 @@ pub fn save_view(
         .extension()
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase);
+    // Drawn beside `path` and renamed over it: a failed drawing leaves the old picture.
+    let io_err = |source: std::io::Error| PlotError::Draw {
+        path: name.clone(),
+        source: source.into(),
+    };
     match ext.as_deref() {
-        Some("png") => {
-            let root = BitMapBackend::new(path, size).into_drawing_area();
-            draw(&root, figure, view).map_err(draw_err)?;
-            root.present().map_err(|e| draw_err(e.into()))
-        }
-        Some("svg") => {
-            let root = SVGBackend::new(path, size).into_drawing_area();
-            draw(&root, figure, view).map_err(draw_err)?;
-            root.present().map_err(|e| draw_err(e.into()))
-        }
+        Some("png") => crate::output::write_atomic_path(
+            path,
+            |tmp| {
+                let root = BitMapBackend::new(tmp, size).into_drawing_area();
+                draw(&root, figure, view).map_err(draw_err)?;
+                root.present().map_err(|e| draw_err(e.into()))
+            },
+            io_err,
+        ),
+        Some("svg") => crate::output::write_atomic_path(
+            path,
+            |tmp| {
+                let root = SVGBackend::new(tmp, size).into_drawing_area();
+                draw(&root, figure, view).map_err(draw_err)?;
+                root.present().map_err(|e| draw_err(e.into()))
+            },
+            io_err,
+        ),
         _ => Err(PlotError::Format(name)),
     }
 }
