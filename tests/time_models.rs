@@ -1,5 +1,4 @@
-//! The time models (issue 36): with `time = "continuous"` (asked for explicitly: the default
-//! is `euler` for now), trajectories of the continuous-time filtered system (ground-truth filter, RK4 at a tenth of the step, 48 starts
+//! The time models (issue 36): with `time = "continuous"` (the default), trajectories of the continuous-time filtered system (ground-truth filter, RK4 at a tenth of the step, 48 starts
 //! per box, the corners included) lie in the sets at every snapshot and in the flowpipe between
 //! snapshots; the Euler map's sets (`time = "euler"`) miss some of them, so each test can fail.
 
@@ -93,7 +92,7 @@ fn paper_run(s: &Scenario, steps: usize, time: TimeModel, substeps: usize) -> Ve
 /// Euler map's sets over `euler_steps` do not (the issue measured 7,111 of 23,520 states outside
 /// on scenario 1, 4,485 of 14,496 on scenario 2).
 fn paper_scenario(s: &Scenario, steps: usize, euler_steps: usize, min_checks: usize) {
-    assert_eq!(s.reach.time, TimeModel::Euler, "the default for now");
+    assert_eq!(s.reach.time, TimeModel::Continuous, "the default");
     let dt = s.reach.dt;
     let tubes = paper_run(s, steps, TimeModel::Continuous, s.reach.substeps);
     assert!(tubes
@@ -195,7 +194,7 @@ fn continuous_sets_hold_a_nonlinear_plant_with_state_dependent_g() {
     }
     assert!(worst < 0.25, "the stand-in network is {worst} from v");
     let problem = ReachProblem::new(&s, net, 0.3).unwrap();
-    assert_eq!(problem.time, TimeModel::Euler, "the default for now");
+    assert_eq!(problem.time, TimeModel::Continuous, "the default");
     let problem = problem.with_time(TimeModel::Continuous, 1);
     let tubes = run(&problem, &s.reach.initial, ExactField::ClosedForm);
     let e = escapes(&s, &tubes, s.reach.dt, 1e-6);
