@@ -320,7 +320,8 @@ pub fn not_proven_safe(scenario: &Scenario, b: &IntervalBox) -> Option<(String, 
     scenario.cbfs.iter().find_map(|c| {
         let h = c.h.eval_interval(&x);
         // NaN bounds (undefined somewhere on the box) count as not proven.
-        (!(h.lower >= 0.0)).then(|| (c.name.clone(), h.upper < 0.0))
+        let proven = h.lower >= 0.0;
+        (!proven).then(|| (c.name.clone(), h.upper < 0.0))
     })
 }
 
