@@ -21,7 +21,9 @@
 //!
 //! let file = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/integrator.toml");
 //! let scenario = Scenario::load(&file)?;
-//! let problem = ReachProblem::from_scenario(&scenario, &ProblemOptions::default())?;
+//! // The paper's Euler map (`time` left out: the continuous-time flow, the default).
+//! let options = ProblemOptions { time: Some("euler".into()), ..ProblemOptions::default() };
+//! let problem = ReachProblem::from_scenario(&scenario, &options)?;
 //! let verifier = Verifier::new(&scenario, &problem, &CpuBackend);
 //! // A 4 × 3 grid over [−2, 2] × [−1.5, 1.5], the scenario's own settings otherwise.
 //! let settings = VerifySettings {

@@ -129,7 +129,7 @@ impl ReachProblem {
             };
             let name = options.time.as_deref().unwrap_or(s.reach.time.name());
             let time = TimeModel::parse(name, options.control_period.or(old), s.reach.dt)
-                .map_err(ProblemError::Time)?;
+                .map_err(|e| ProblemError::Time(e.to_string()))?;
             problem = problem.with_time(time, options.substeps.unwrap_or(s.reach.substeps));
         }
         if options.no_safe_set {

@@ -389,6 +389,8 @@ fn reach_scenario_2(extra: &[&str]) -> (String, serde_json::Value) {
     let mut args = vec![
         "reach",
         path.to_str().unwrap(),
+        "--time",
+        "euler",
         "--bounds",
         "forward",
         "--json",
@@ -489,6 +491,8 @@ fn scenario_settings_table_sets_defaults_that_options_override() {
         let mut args = vec![
             "verify",
             scenario.to_str().unwrap(),
+            "--time",
+            "euler",
             "--json",
             json.to_str().unwrap(),
         ];
@@ -574,6 +578,8 @@ fn m_c_flag_takes_a_number_or_reads_the_error_map() {
         let (code, stdout, stderr) = cbfreach(&[
             "verify",
             scenario.to_str().unwrap(),
+            "--time",
+            "euler",
             "--grid",
             "2,2",
             "--m-c",

@@ -696,7 +696,7 @@ fn cli_backend_gpu_and_auto() {
             .arg(&scenario)
             .arg("--network")
             .arg(&net_path)
-            .args(["--m-c", "0.05", "--every", "25"])
+            .args(["--m-c", "0.05", "--every", "25", "--time", "euler"])
             .args(extra)
             .output()
             .unwrap();

@@ -109,7 +109,7 @@ fn same_verdicts(cpu: &[BoxVerdict], gpu: &[BoxVerdict], what: &str) -> usize {
 fn verify_integrator_8x6_same_verdicts() {
     let Some(gpu) = gpu_f64() else { return };
     let s = common::integrator();
-    let problem = common::shipped_problem(&s);
+    let problem = common::shipped_problem(&s).with_time(cbfreach::reach::TimeModel::Euler, 1);
     let reach = ReachSettings {
         face_local: true,
         ..s.settings.reach.clone()
@@ -127,7 +127,7 @@ fn verify_integrator_8x6_same_verdicts() {
 fn verify_double_integrator_10x4_same_verdicts() {
     let Some(gpu) = gpu_f64() else { return };
     let s = common::double_integrator();
-    let problem = common::shipped_problem(&s);
+    let problem = common::shipped_problem(&s).with_time(cbfreach::reach::TimeModel::Euler, 1);
     let reach = ReachSettings {
         face_local: true,
         ..s.settings.reach.clone()

@@ -82,7 +82,15 @@ fn a_full_or_closed_standard_output_ends_with_a_message_after_the_files() {
     // A closed pipe (`| head -c 0`), with a result file that must still be written.
     let json = dir.path().join("v.json");
     let mut child = Command::new(env!("CARGO_BIN_EXE_cbfreach"))
-        .args(["verify", s.to_str().unwrap(), "--grid", "4,4", "--json"])
+        .args([
+            "verify",
+            s.to_str().unwrap(),
+            "--time",
+            "euler",
+            "--grid",
+            "4,4",
+            "--json",
+        ])
         .arg(&json)
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
@@ -289,6 +297,8 @@ fn merge_refuses_shards_of_different_networks() {
         let (code, _, err) = cbfreach(&[
             "verify",
             s.to_str().unwrap(),
+            "--time",
+            "euler",
             "--grid",
             "2,2",
             "--shard",
@@ -373,7 +383,7 @@ impl Journal for StopAfter<'_> {
 #[test]
 fn an_interrupted_verification_resumes_to_the_same_report() {
     let s = common::integrator();
-    let problem = common::shipped_problem(&s);
+    let problem = common::shipped_problem(&s).with_time(cbfreach::reach::TimeModel::Euler, 1);
     let verifier = Verifier {
         scenario: &s,
         problem: &problem,

@@ -138,7 +138,7 @@ fn coordinates_left_open_are_chosen_and_said() {
         }
         other => panic!("{other:?}"),
     }
-    let (code, out, err) = cbfreach(&["reach", &chain3()]);
+    let (code, out, err) = cbfreach(&["reach", &chain3(), "--time", "euler"]);
     assert_eq!(code, 0, "{err}");
     assert!(
         out.lines().next().unwrap().contains(
@@ -148,7 +148,7 @@ fn coordinates_left_open_are_chosen_and_said() {
         "{out}"
     );
     // Said only when chosen.
-    let (_, out, _) = cbfreach(&["reach", &chain3(), "--transform", "none"]);
+    let (_, out, _) = cbfreach(&["reach", &chain3(), "--time", "euler", "--transform", "none"]);
     assert!(
         !out.contains("coordinates (reach.transform not set)"),
         "{out}"
@@ -165,6 +165,8 @@ fn three_states_verify_and_draw_as_projections_and_slices() {
     let (code, out, err) = cbfreach(&[
         "verify",
         &chain3(),
+        "--time",
+        "euler",
         "--grid",
         "3,3,3",
         "--region=-0.3,-0.3,-0.3:0.3,0.3,0.3",
@@ -281,6 +283,8 @@ fn tube_titles_name_the_margin_used() {
             _ => cbfreach(&[
                 "reach",
                 file.to_str().unwrap(),
+                "--time",
+                "euler",
                 "--plot",
                 svg.to_str().unwrap(),
             ]),
@@ -370,7 +374,10 @@ initial = [{{ lower = [{lo}, 0.9], upper = [{hi}, 1.1] }}]
         ],
     };
     let run = |s: &Scenario, net: Mlp| {
-        let problem = ReachProblem::new(s, net, 0.0).unwrap();
+        // The Euler map's step, whose inversion is under test.
+        let problem = ReachProblem::new(s, net, 0.0)
+            .unwrap()
+            .with_time(cbfreach::reach::TimeModel::Euler, 1);
         let r = CpuBackend
             .reach(
                 &problem,

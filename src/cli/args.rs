@@ -145,11 +145,11 @@ pub struct ProblemArgs {
     pub no_safe_set: bool,
     /// What the sets bound: `continuous` (the filtered ODE, validated steps), `sampled` (a
     /// digital controller held over --control-period), `euler` (the paper's Euler map);
-    /// default: the scenario's `[reach] time`, else euler.
+    /// default: the scenario's `[reach] time`, else continuous.
     #[arg(long, value_parser = ["continuous", "sampled", "euler"])]
     pub time: Option<String>,
-    /// The control period T_s of `--time sampled`, a multiple of dt (default: the scenario's,
-    /// else dt).
+    /// The control period T_s of `--time sampled`, K·dt with K a whole number ≥ 1 (default:
+    /// the scenario's, else dt).
     #[arg(long)]
     pub control_period: Option<f64>,
     /// Cut each continuous-time step in K validated steps (default: the scenario's, else 1).

@@ -115,7 +115,9 @@ pub fn run(args: &BenchArgs) -> CliResult {
         (None, None) => return Err("the scenario has no [network]: give --network".into()),
     };
     let widths = net.widths();
-    let mut problem = ReachProblem::new(&s, net, 0.0)?;
+    // The Euler map: the one time model both engines run, so that their rates compare.
+    let mut problem =
+        ReachProblem::new(&s, net, 0.0)?.with_time(cbfreach::reach::TimeModel::Euler, 1);
     problem.steps = args.steps.max(1);
     let cpu_peak = args.peak.unwrap_or_else(measured_cpu_peak);
     println!(

@@ -52,6 +52,10 @@ pub struct PaperArgs {
     /// eight bisections of a 0.05-wide one).
     #[arg(long, default_value_t = 10)]
     pub refine: usize,
+    /// What the sound verdicts' sets bound: the paper's Euler map by default (its
+    /// experiments step it), or `continuous` (the ODE, validated steps) or `sampled`.
+    #[arg(long, default_value = "euler", value_parser = ["continuous", "sampled", "euler"])]
+    pub time: String,
 }
 
 /// What the paper reports for one experiment: its times and its sampled `M_C`.
@@ -122,6 +126,7 @@ pub fn run(args: &PaperArgs) -> CliResult {
         let verdicts = VerdictSettings {
             bounds: args.bounds,
             refine: args.refine,
+            time: args.time.clone(),
         };
         if let Some(t) = run_scenario(&s, net.as_ref(), &args.out, verdicts, &args.timed, paper)? {
             times.push(t);
@@ -155,6 +160,7 @@ pub fn run_default() -> CliResult {
     let verdicts = VerdictSettings {
         bounds: ReachSettings::default().bounds,
         refine: 0,
+        time: "euler".into(),
     };
     let times = run_scenario(&s, None, &out, verdicts, &timed, SCENARIO_1)?;
     if let Some(t) = times {
@@ -231,9 +237,17 @@ fn run_scenario(
             network: network.cloned(),
             local_margin: local,
             m_c: (!local).then_some(Margin::Value(paper.m_c)),
+            time: Some(verdict_settings.time.clone()),
             ..ProblemArgs::default()
         },
     )?;
+    println!("Time model: {} — {}", problem.time, problem.time.clause());
+    if problem.time == cbfreach::reach::TimeModel::Euler {
+        println!(
+            "  (the paper's experiments step the Euler map; `paper --time continuous` or \
+             `reach`/`verify`, continuous by default, bound the ODE)"
+        );
+    }
     let margin = if local {
         "certified local M of the error map".to_string()
     } else {
@@ -367,12 +381,14 @@ fn steps_run(tubes: &[Tube], dt: f64) -> usize {
 }
 
 /// How the sound verdicts of the initial boxes are reached.
-#[derive(Clone, Copy)]
+#[derive(Clone)]
 struct VerdictSettings {
     /// Network bounds (on each face of a box).
     bounds: BoundMethod,
     /// Bisection rounds of the pieces not verified.
     refine: usize,
+    /// The time model (`euler` by default: the paper's).
+    time: String,
 }
 
 /// One line per initial box: its verdict and note, then the tally.

@@ -126,6 +126,9 @@ pub fn run(args: &ReachArgs) -> CliResult {
                     Some(note) => format!("  INVALID ({note})"),
                 }
             );
+            if let Some(found) = &tube.unsafe_between_samples {
+                println!("    UNSAFE BETWEEN SAMPLES: {found}");
+            }
         }
     }
     // Boxes stop where their sets leave C: the rate counts the steps run.
@@ -149,6 +152,18 @@ pub fn run(args: &ReachArgs) -> CliResult {
             } else {
                 String::new()
             }
+        );
+    }
+    let unsafe_between = result
+        .boxes
+        .iter()
+        .filter(|t| t.unsafe_between_samples.is_some())
+        .count();
+    if unsafe_between > 0 {
+        println!(
+            "  {unsafe_between} of {} boxes may leave S between samples (unsafe-between-samples): \
+             the held input is not a continuous filter",
+            result.boxes.len()
         );
     }
     let invalid = result.boxes.iter().filter(|t| !t.valid()).count();

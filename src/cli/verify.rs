@@ -363,11 +363,11 @@ pub fn print_summary(r: &VerifyReport) {
     );
     if refined {
         println!(
-            "  {:<14} {:>7} {:>8}   {:>7} {:>8}",
+            "  {:<22} {:>7} {:>8}   {:>7} {:>8}",
             "verdict", "boxes", "share", "leaves", "share"
         );
     } else {
-        println!("  {:<14} {:>7} {:>8}", "verdict", "boxes", "share");
+        println!("  {:<22} {:>7} {:>8}", "verdict", "boxes", "share");
     }
     for v in Verdict::ALL {
         let (nb, na) = (
@@ -377,7 +377,7 @@ pub fn print_summary(r: &VerifyReport) {
         if nb == 0 && na == 0 {
             continue;
         }
-        let mut line = format!("  {:<14} {:>7} {:>7.1}%", v.name(), nb, 100.0 * b.share(v));
+        let mut line = format!("  {:<22} {:>7} {:>7.1}%", v.name(), nb, 100.0 * b.share(v));
         if refined {
             line += &format!("   {:>7} {:>7.1}%", na, 100.0 * a.share(v));
         }

@@ -224,6 +224,7 @@ fn verdict_colour(v: Verdict) -> RGBColor {
         Verdict::Trapped => VERMILION,
         Verdict::Unknown => RGBColor(235, 235, 235),
         Verdict::Invalid => ORANGE,
+        Verdict::UnsafeBetweenSamples => PURPLE,
         Verdict::Unsafe => RGBColor(255, 0, 255),
         Verdict::PartlyUnsafe => RGBColor(175, 175, 175),
         Verdict::UnsafeStart => RGBColor(110, 110, 110),

@@ -28,6 +28,9 @@ use crate::rounding::round_up;
 mod cpu_time;
 use cpu_time::in_frame;
 
+#[path = "cpu_sampled.rs"]
+mod cpu_sampled;
+
 #[path = "cpu_field.rs"]
 mod cpu_field;
 use cpu_field::{
@@ -68,6 +71,8 @@ struct Live {
     pipe_nn: Vec<Option<AffineBounds>>,
     /// Why this step inverted a set, if it did (found where the field's bounds are met).
     inversion: Option<super::tube::Inversion>,
+    /// Sampled-data: what the set holds over the current control period.
+    held: Option<cpu_sampled::Held>,
 }
 
 impl Backend for CpuBackend {
@@ -85,20 +90,15 @@ impl Backend for CpuBackend {
         problem.check_initial(initial)?;
         settings.validate()?;
         problem.check_time()?;
-        let sampled = match problem.time {
-            TimeModel::Sampled { control_period }
-                if (control_period - problem.dt).abs() > 1e-9 * problem.dt =>
-            {
-                return Err(ReachError::Settings(format!(
-                    "time = \"sampled\" with control_period = {control_period}: the CPU engine \
-                     holds the control over one step, control_period = dt = {} (set dt to the \
-                     period)",
-                    problem.dt
-                )));
-            }
-            TimeModel::Sampled { .. } => true,
-            _ => false,
-        };
+        let period = problem.period_steps()?;
+        let sampled = matches!(problem.time, TimeModel::Sampled { .. });
+        if sampled && settings.method == ReachMethod::Minkowski {
+            return Err(ReachError::Settings(
+                "time = \"sampled\" works with method = disturbance only (the Minkowski \
+                 method's closeness radius speaks of the continuous filter)"
+                    .into(),
+            ));
+        }
         let x_problem = problem.in_x.as_deref().unwrap_or(problem);
         let start = Instant::now();
         let frames = problem
@@ -143,6 +143,7 @@ impl Backend for CpuBackend {
             h: problem.dt / problem.steps_per_dt() as f64,
             plant,
             x_problem,
+            period,
         };
         let mut live: Vec<Live> = initial.iter().map(|b| run.start(b)).collect();
         let chunk = chunk_len(live.len(), threads);
@@ -234,6 +235,8 @@ struct ChunkRun<'a> {
     plant: Option<(Plant, PreparedNetwork<'a>)>,
     /// The problem in x coordinates (the first frame's without a transform).
     x_problem: &'a ReachProblem,
+    /// Sampled-data: steps per control period (1 otherwise).
+    period: usize,
 }
 
 /// What the frames of one box-step share ([`ChunkRun::set_facts`]).
@@ -278,6 +281,7 @@ impl ChunkRun<'_> {
             guess: vec![None; self.frames.len()],
             pipe_nn: vec![None; self.frames.len()],
             inversion: None,
+            held: None,
         };
         self.settle(&mut state, &vec![true; self.frames.len()]);
         let sample = self.sample(&state, 0.0);
@@ -398,6 +402,18 @@ impl ChunkRun<'_> {
                 (self.report)((problem.steps - step / k) * states.len());
                 break;
             }
+            // Sampled-data within a control period: the sets follow the images held at its
+            // sample, with no new bounds.
+            let held_j = step % self.period;
+            if self.plant.is_some() && held_j != 0 {
+                let t = (step + 1) as f64 * problem.dt;
+                let record = (step + 1) % self.every == 0 || step + 1 == problem.steps;
+                for state in states.iter_mut().filter(|s| !s.done) {
+                    self.sampled_step(state, held_j + 1, t, record);
+                }
+                (self.report)(states.len());
+                continue;
+            }
             if self.time == TimeModel::Continuous {
                 let t0 = (step / k) as f64 * problem.dt + (step % k) as f64 * self.h;
                 for state in states.iter_mut().filter(|s| !s.done) {
@@ -427,7 +443,8 @@ impl ChunkRun<'_> {
                         continue;
                     }
                     let (lo, hi) = (&set.lower, &set.upper);
-                    if settings.face_local {
+                    // Sampled-data images the held input off the faces too: whole-set bounds.
+                    if settings.face_local && self.plant.is_none() {
                         // 2n faces per box, in the order (0, lower), (0, upper), (1, lower), …
                         for i in 0..n {
                             for v in [lo[i], hi[i]] {
@@ -462,9 +479,13 @@ impl ChunkRun<'_> {
             let live = states.iter_mut().filter(|s| !s.done);
             for (k, state) in live.enumerate() {
                 buf.stepped.clear();
-                let Some(remainder) = self.sampled_remainder(state, buf.facts[k], t)? else {
+                if self.plant.is_some() {
+                    self.hold(state, buf, k, t - self.h)?;
+                    if !state.done {
+                        self.sampled_step(state, 1, t, record);
+                    }
                     continue;
-                };
+                }
                 for (f, frame) in self.frames.iter().enumerate() {
                     let p = frame.problem;
                     let input = buf.frames[f].inputs[k];
@@ -539,13 +560,6 @@ impl ChunkRun<'_> {
                         if let Some(Some(pipe)) = state.pipes.get(f) {
                             validated::meet_with_pipe(&mut set.lower, &mut set.upper, pipe);
                         }
-                        let moves = |r: &&super::sampled::Remainder| {
-                            r.lower.iter().chain(&r.upper).any(|&v| v != 0.0)
-                        };
-                        if let Some(r) = remainder.as_ref().filter(moves) {
-                            let (lo, hi) = in_frame(p, r);
-                            embedding_step(&mut set.lower, &mut set.upper, &lo, &hi, 1.0);
-                        }
                     }
                     buf.stepped.push(field.is_some());
                 }
@@ -556,14 +570,7 @@ impl ChunkRun<'_> {
                     state.done = true;
                     continue;
                 }
-                if let Some(r) = remainder {
-                    // The flowpipe of the period, for the checks against `C` and the samples.
-                    state.pipe_known = Some(r.pipe);
-                }
                 self.advance(state, t, record, &buf.stepped);
-                if self.plant.is_some() {
-                    state.pipe_known = None;
-                }
             }
             if last_sub {
                 (self.report)(states.len());

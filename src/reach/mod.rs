@@ -39,7 +39,7 @@ use embedding::Dynamics;
 pub use safe_set::SafeSet;
 pub use time::TimeModel;
 pub use transform::{log_norm_inf, CoordinatesReason, Transform};
-pub use tube::{Inversion, Tube, TubeEnd, TubeSample};
+pub use tube::{Inversion, Tube, TubeEnd, TubeSample, UnsafeBetweenSamples};
 
 pub use cpu::CpuBackend;
 pub use engine::{choose_engine, refusal, EngineChoice, GpuOptions};
@@ -122,7 +122,7 @@ pub struct ReachProblem {
     pub pieces: pieces::FilterPieces,
     /// With a transform: the same problem in x coordinates, for [`ReachSettings::intersect_x`].
     pub in_x: Option<Box<ReachProblem>>,
-    /// What the sets bound (the scenario's `[reach] time`; `euler` by default).
+    /// What the sets bound (the scenario's `[reach] time`; `continuous` by default).
     pub time: TimeModel,
     /// Validated steps per `dt` ([`TimeModel::Continuous`]).
     pub substeps: usize,

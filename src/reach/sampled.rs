@@ -9,7 +9,16 @@
 //! intersample motion (Picard–Lindelöf with the held input's enclosure `U`, [`super::validated`]),
 //! `x(s) − x_k ∈ s·Ẋ` with `Ẋ = f(A) + g(A)U`, so by the mean-value theorem the remainder lies
 //! in `τ²/2 · (Df(A)·Ẋ + Σₖ (Dgₖ(A)·Ẋ)·Uₖ)`. For `ẋ = u` it is exactly 0.
+//!
+//! With `T_s = K·dt` the input is held over `K` integration steps: the set at `t_k + j·dt` is
+//! the Euler part's image at `τ = j·dt` ([`euler_image`]: every `x_k + τF(x_k)` over the set
+//! at `t_k`, the network's affine bounds over that set keeping `u_k`'s correlation with `x_k`)
+//! plus the remainder at `τ` ([`Intersample::at`]), one a-priori enclosure for the period.
+//! The image is bounded over the whole set, not face by face: `x_k + τF(x_k)` need not grow
+//! with `x_{k,i}` (it does not where `1 + τ∂ᵢFᵢ < 0`, as `τ` grows), and bounds of the network
+//! on a face say nothing of the held input off that face.
 
+use super::embedding::{input_enclosure, interaction_row, Dynamics, NetworkBoundsRef};
 use super::validated::{enclose_step, Enclosure};
 use crate::boxes::IntervalBox;
 use crate::expressions::Expr;
@@ -39,6 +48,119 @@ pub struct Remainder {
     pub upper: Vec<f64>,
     /// `A ⊇ x([t_k, t_k + T_s])`, x coordinates.
     pub pipe: IntervalBox,
+}
+
+/// The motion over one control period, step by step: the held input's enclosure `U`, the hull
+/// `H` of the a-priori enclosures of the steps so far, and the remainder's rate over it, so
+/// that `R(τ) ∈ τ²/2·ρ` for every `τ` up to the last enclosed step's end (`x(s) − x_k ∈ s·Ẋ`
+/// with `Ẋ = f(H) + g(H)U`, the mean value's segments within `H`). Enclosing step by step
+/// from each step's set, not the whole period at once, keeps Picard–Lindelöf closing for long
+/// periods (it needs `T_s·L < 1` at once).
+#[derive(Clone, Debug)]
+pub struct Intersample {
+    /// `U`.
+    u: Vec<Interval>,
+    /// `H`, x coordinates (`None` before the first step, and for a still plant).
+    hull: Option<IntervalBox>,
+    /// `ρ = Df(H)·Ẋ + Σₖ (Dgₖ(H)·Ẋ)·Uₖ` per coordinate (exactly 0 in rows where `Df`, `Dg`
+    /// vanish).
+    pub rho: Vec<Interval>,
+}
+
+impl Intersample {
+    /// Before the period's first step, with the held input in `u`.
+    pub fn start(n: usize, u: Vec<Interval>) -> Intersample {
+        Intersample {
+            u,
+            hull: None,
+            rho: vec![Interval::point(0.0); n],
+        }
+    }
+
+    /// Encloses the motion over the next step of length `h` from the x-box `from` (the set at
+    /// the step's start) and updates `ρ`. Returns the step's a-priori enclosure (`Some(None)`
+    /// for a still plant, whose motion needs none), `None` where it has no enclosure (or an
+    /// unbounded one).
+    pub fn step(
+        &mut self,
+        plant: &Plant,
+        from: &IntervalBox,
+        h: f64,
+    ) -> Option<Option<IntervalBox>> {
+        if plant.is_still() {
+            return Some(None);
+        }
+        let u = &self.u;
+        let field = |a: &IntervalBox, parts: bool| -> Result<_, std::convert::Infallible> {
+            if parts {
+                // The plant's field is one expression: no tighter over parts.
+                return Ok(None);
+            }
+            let v = plant.velocity(&intervals(a), u);
+            let finite = v.iter().all(|e| e.lower.is_finite() && e.upper.is_finite());
+            Ok(finite.then(|| v.iter().map(|e| (e.lower, e.upper)).unzip()))
+        };
+        let Ok(Enclosure::Closed(pipe)) = enclose_step(from, h, None, None, field) else {
+            return None;
+        };
+        let hull = match &self.hull {
+            Some(b) => hull(b, &pipe.set),
+            None => pipe.set.clone(),
+        };
+        let a = intervals(&hull);
+        // `Ẋ` over the whole hull (a later step's velocities bound earlier motion too).
+        let xdot = plant.velocity(&a, u);
+        let mut rho = Vec::with_capacity(plant.n);
+        for i in 0..plant.n {
+            // `Df = 0` and `Dg = 0` in row i (`ẋ = u`): exactly 0, no rounding dust.
+            let zero = |e: &Expr| e.as_constant() == Some(0.0);
+            if plant.df[i].iter().all(zero) && plant.dg[i].iter().flatten().all(zero) {
+                rho.push(Interval::point(0.0));
+                continue;
+            }
+            let mut r = (0..plant.n).fold(Interval::point(0.0), |acc, j| {
+                acc + plant.df[i][j].eval_interval(&a) * xdot[j]
+            });
+            for (k, uk) in u.iter().enumerate() {
+                let dgk = (0..plant.n).fold(Interval::point(0.0), |acc, j| {
+                    acc + plant.dg[i][k][j].eval_interval(&a) * xdot[j]
+                });
+                r = r + dgk * *uk;
+            }
+            if !(r.lower.is_finite() && r.upper.is_finite()) {
+                return None;
+            }
+            rho.push(r);
+        }
+        self.hull = Some(hull);
+        self.rho = rho;
+        Some(Some(pipe.set))
+    }
+
+    /// The remainder's bounds at `τ`: `τ²/2·ρ`.
+    pub fn at(&self, tau: f64) -> (Vec<f64>, Vec<f64>) {
+        self.between(tau, tau)
+    }
+
+    /// Bounds of the remainder at every `τ ∈ [a, b]`: `[a²/2, b²/2]·ρ` (`τ²/2 ≥ 0` grows with
+    /// `τ`).
+    pub fn between(&self, a: f64, b: f64) -> (Vec<f64>, Vec<f64>) {
+        let half = Interval::point(0.5);
+        let q = Interval::new(
+            (Interval::point(a) * Interval::point(a) * half).lower,
+            (Interval::point(b) * Interval::point(b) * half).upper,
+        );
+        self.rho
+            .iter()
+            .map(|r| match (r.lower, r.upper) == (0.0, 0.0) {
+                true => (0.0, 0.0),
+                false => {
+                    let e = q * *r;
+                    (e.lower, e.upper)
+                }
+            })
+            .unzip()
+    }
 }
 
 impl Plant {
@@ -91,55 +213,133 @@ impl Plant {
     }
 
     /// The remainder over a period of length `h` from the x-box `x` with the input held in
-    /// `u`; `None` where the intersample motion has no enclosure (or an unbounded one).
+    /// `u` (one step); `None` where the intersample motion has no enclosure (or an unbounded
+    /// one).
     pub fn remainder(&self, x: &IntervalBox, u: &[Interval], h: f64) -> Option<Remainder> {
-        let field = |a: &IntervalBox, parts: bool| -> Result<_, std::convert::Infallible> {
-            if parts {
-                // The plant's field is one expression: no tighter over parts.
-                return Ok(None);
-            }
-            let v = self.velocity(&intervals(a), u);
-            let finite = v.iter().all(|e| e.lower.is_finite() && e.upper.is_finite());
-            Ok(finite.then(|| v.iter().map(|e| (e.lower, e.upper)).unzip()))
-        };
-        let Ok(Enclosure::Closed(pipe)) = enclose_step(x, h, None, None, field) else {
-            return None;
-        };
-        let a = intervals(&pipe.set);
-        let xdot: Vec<Interval> = (0..self.n)
-            .map(|j| Interval::new(pipe.f_lower[j], pipe.f_upper[j]))
-            .collect();
-        let half_h2 = Interval::point(h) * Interval::point(h) * Interval::point(0.5);
-        let (mut lower, mut upper) = (Vec::new(), Vec::new());
-        for i in 0..self.n {
-            let mut rho = (0..self.n).fold(Interval::point(0.0), |acc, j| {
-                acc + self.df[i][j].eval_interval(&a) * xdot[j]
-            });
-            for (k, uk) in u.iter().enumerate() {
-                let dgk = (0..self.n).fold(Interval::point(0.0), |acc, j| {
-                    acc + self.dg[i][k][j].eval_interval(&a) * xdot[j]
-                });
-                rho = rho + dgk * *uk;
-            }
-            // `Df = 0` and `Dg = 0` in row i (`ẋ = u`): exactly 0, no rounding dust.
-            let zero = |e: &Expr| e.as_constant() == Some(0.0);
-            let still = self.df[i].iter().all(zero) && self.dg[i].iter().flatten().all(zero);
-            let r = if still {
-                Interval::point(0.0)
-            } else {
-                half_h2 * rho
-            };
-            if !(r.lower.is_finite() && r.upper.is_finite()) {
-                return None;
-            }
-            lower.push(r.lower);
-            upper.push(r.upper);
+        let mut m = Intersample::start(self.n, u.to_vec());
+        let pipe = m.step(self, x, h)?.unwrap_or_else(|| x.clone());
+        let (lower, upper) = m.at(h);
+        Some(Remainder { lower, upper, pipe })
+    }
+}
+
+/// Bounds of the Euler part's image `{x + τF(x) : x ∈ X}` over the set `X = [lower, upper]`,
+/// `F` the field of `dynamics` with the network's bounds `nn` over the whole set plus the
+/// disturbance `margin`, widened by `τ·slack` (the transform's slack). Per coordinate `i` the
+/// function `xᵢ + τ(f̃ᵢ(x) + m̲ᵢ·x + δ̲ᵢ)` (constant `g`; the interaction-aware row) is bounded
+/// below by its mean-value form `φ(p) + Σⱼ aᵢⱼ(X)(Xⱼ − pⱼ)`, `aᵢⱼ = δᵢⱼ + τ(∂ⱼf̃ᵢ(X) + m̲ᵢⱼ)`,
+/// about the corner where each `aᵢⱼ` has one sign (its low end where `aᵢⱼ ≥ 0`) and the
+/// centre elsewhere: exact for affine fields, and sound whatever the sign of `1 + τ∂ᵢFᵢ`.
+/// State-dependent `g` takes `g(X)·[N̲ − M, N̄ + M]` (no slopes). Mirrored for the upper end.
+pub fn euler_image(
+    dynamics: &Dynamics,
+    set: &IntervalBox,
+    tau: f64,
+    nn: NetworkBoundsRef,
+    margin: &[f64],
+    slack: f64,
+) -> (Vec<f64>, Vec<f64>) {
+    let n = dynamics.n;
+    let x = intervals(set);
+    let t = Interval::point(tau);
+    let jac: Vec<Vec<Interval>> = dynamics
+        .f_tilde_jacobian
+        .iter()
+        .map(|row| row.iter().map(|e| e.eval_interval(&x)).collect())
+        .collect();
+    // State-dependent g: `τ·Σₖ gᵢₖ(X)·Uₖ`, the same for both ends.
+    let held: Option<Vec<Interval>> = match dynamics.g_constant {
+        Some(_) => None,
+        None => {
+            let u = input_enclosure(nn, margin);
+            Some(
+                (0..n)
+                    .map(|i| {
+                        let s = (0..dynamics.m).fold(Interval::point(0.0), |acc, k| {
+                            acc + dynamics.g[i][k].eval_interval(&x) * u[k]
+                        });
+                        t * s
+                    })
+                    .collect(),
+            )
         }
-        Some(Remainder {
-            lower,
-            upper,
-            pipe: pipe.set,
-        })
+    };
+    let slack = (t * Interval::point(slack)).upper;
+    let mut lower = Vec::with_capacity(n);
+    let mut upper = Vec::with_capacity(n);
+    for i in 0..n {
+        for on_upper in [false, true] {
+            let (row, delta) = match &dynamics.g_constant {
+                Some(b) => interaction_row(b, dynamics, nn, margin, i, on_upper),
+                None => (vec![Interval::point(0.0); n], Interval::point(0.0)),
+            };
+            let a: Vec<Interval> = (0..n)
+                .map(|j| Interval::point(f64::from(u8::from(i == j))) + t * (jac[i][j] + row[j]))
+                .collect();
+            // The expansion point: the end of Xⱼ where the term is smallest (largest for the
+            // upper end) when aᵢⱼ has one sign, the centre otherwise.
+            let p: Vec<f64> = (0..n)
+                .map(|j| {
+                    let (lo, hi) = (set.lower[j], set.upper[j]);
+                    let (small, large) = if on_upper { (hi, lo) } else { (lo, hi) };
+                    if a[j].lower >= 0.0 {
+                        small
+                    } else if a[j].upper <= 0.0 {
+                        large
+                    } else {
+                        lo + 0.5 * (hi - lo)
+                    }
+                })
+                .collect();
+            let pp: Vec<Interval> = p.iter().map(|&v| Interval::point(v)).collect();
+            let mut phi = dynamics.f_tilde[i].eval_interval(&pp) + delta;
+            for j in 0..n {
+                phi = phi + row[j] * pp[j];
+            }
+            let mut total = pp[i] + t * phi;
+            for j in 0..n {
+                total = total + a[j] * (x[j] - pp[j]);
+            }
+            if let Some(h) = &held {
+                total = total + h[i];
+            }
+            if on_upper {
+                upper.push((total + Interval::point(slack)).upper);
+            } else {
+                lower.push((total - Interval::point(slack)).lower);
+            }
+        }
+    }
+    (lower, upper)
+}
+
+/// The first CBF that the x-box `b` is not proven to satisfy (`hᵢ ≥ 0` on all of it, interval
+/// evaluation), and whether `b` lies entirely outside `S` by it (`hᵢ < 0` on all of `b`).
+pub fn not_proven_safe(scenario: &Scenario, b: &IntervalBox) -> Option<(String, bool)> {
+    let x = intervals(b);
+    scenario.cbfs.iter().find_map(|c| {
+        let h = c.h.eval_interval(&x);
+        // NaN bounds (undefined somewhere on the box) count as not proven.
+        let proven = h.lower >= 0.0;
+        (!proven).then(|| (c.name.clone(), h.upper < 0.0))
+    })
+}
+
+/// The smallest box holding both.
+pub fn hull(a: &IntervalBox, b: &IntervalBox) -> IntervalBox {
+    IntervalBox {
+        lower: a
+            .lower
+            .iter()
+            .zip(&b.lower)
+            .map(|(x, y)| x.min(*y))
+            .collect(),
+        upper: a
+            .upper
+            .iter()
+            .zip(&b.upper)
+            .map(|(x, y)| x.max(*y))
+            .collect(),
     }
 }
 

@@ -1,5 +1,5 @@
-//! The time model a reach run's sets bound (issue 36): the continuous-time filtered system, a
-//! sampled-data controller held over each control period, or the paper's Euler map.
+//! The time model a reach run's sets bound (issue 36): the continuous-time filtered system (the
+//! default), a sampled-data controller held over each control period, or the paper's Euler map.
 //! Plain data; imports nothing from the engines.
 
 use serde::Serialize;
@@ -11,16 +11,19 @@ pub enum TimeModel {
     /// `ẋ = f̃(x) + g(x)v(x)` with the filter acting continuously: every step is validated (an
     /// a-priori enclosure of the step, the comparison principle on slabs,
     /// [`super::validated`]), and the sets hold at every time, the flowpipe between grid times.
+    /// The default.
+    #[default]
     Continuous,
     /// A digital controller: `u_k = κ(x_k) + v(x_k)` computed at `t_k = k·T_s` and held while
-    /// the plant `ẋ = f(x) + g(x)u_k` evolves (zero-order hold).
+    /// the plant `ẋ = f(x) + g(x)u_k` evolves (zero-order hold), sets at every `dt`. Nothing
+    /// keeps the state in `S` between samples: sets that may leave it are a finding
+    /// ([`super::UnsafeBetweenSamples`]).
     Sampled {
-        /// `T_s`, a multiple of the integration step `dt`.
+        /// `T_s = K·dt`, `K` a whole number ≥ 1.
         control_period: f64,
     },
-    /// The discrete map `x ← x + dt·F(x)` of the paper's experiments: the default for now
-    /// (continuous time verifies markedly less on the paper's scenarios so far).
-    #[default]
+    /// The discrete map `x ← x + dt·F(x)` of the paper's experiments (`paper` runs it), kept
+    /// to reproduce them: its sets do not bound the ODE.
     Euler,
 }
 
@@ -34,25 +37,18 @@ impl TimeModel {
         }
     }
 
-    /// Reads `time = name` with `control_period` (needed for `sampled`, which defaults it to
-    /// `dt` when absent).
-    pub fn parse(name: &str, control_period: Option<f64>, dt: f64) -> Result<TimeModel, String> {
+    /// Reads `time = name` with `control_period` (`sampled` only; `K·dt` with `K` a whole
+    /// number ≥ 1, `dt` when absent).
+    pub fn parse(name: &str, control_period: Option<f64>, dt: f64) -> Result<TimeModel, TimeError> {
         match name {
             "continuous" => Ok(TimeModel::Continuous),
             "euler" => Ok(TimeModel::Euler),
             "sampled" => {
                 let ts = control_period.unwrap_or(dt);
-                let k = (ts / dt).round();
-                if !(ts.is_finite() && ts > 0.0 && k >= 1.0 && (ts - k * dt).abs() <= 1e-9 * ts) {
-                    return Err(format!(
-                        "control_period = {ts}: expected a positive multiple of dt = {dt}"
-                    ));
-                }
+                periods(ts, dt).ok_or(TimeError::Period { ts, dt })?;
                 Ok(TimeModel::Sampled { control_period: ts })
             }
-            other => Err(format!(
-                "time = \"{other}\": expected \"continuous\", \"sampled\" or \"euler\""
-            )),
+            other => Err(TimeError::Name(other.to_string())),
         }
     }
 
@@ -70,7 +66,61 @@ impl TimeModel {
     }
 }
 
+/// `K` with `ts = K·dt`, `K` a whole number ≥ 1 (to a relative 1e-9), else `None`.
+fn periods(ts: f64, dt: f64) -> Option<usize> {
+    let k = (ts / dt).round();
+    (ts.is_finite() && ts > 0.0 && k >= 1.0 && (ts - k * dt).abs() <= 1e-9 * ts)
+        .then_some(k as usize)
+}
+
+/// A time model that cannot be read; [`TimeError::field`] names the setting at fault.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum TimeError {
+    /// An unknown `time`.
+    #[error("time = \"{0}\": expected \"continuous\", \"sampled\" or \"euler\"")]
+    Name(String),
+    /// `control_period` is not `K·dt` with `K` a whole number ≥ 1.
+    #[error(
+        "control_period = {ts}: expected K·dt with K a whole number ≥ 1 (dt = {dt}): the input \
+         is held over K integration steps"
+    )]
+    Period {
+        /// The period asked for.
+        ts: f64,
+        /// The integration step.
+        dt: f64,
+    },
+}
+
+impl TimeError {
+    /// The field at fault, as in a scenario's `[reach]` table.
+    pub fn field(&self) -> &'static str {
+        match self {
+            TimeError::Name(_) => "reach.time",
+            TimeError::Period { .. } => "reach.control_period",
+        }
+    }
+}
+
 impl super::ReachProblem {
+    /// Integration steps per control period: `T_s / dt` for `sampled`, 1 otherwise.
+    pub fn period_steps(&self) -> Result<usize, super::ReachError> {
+        match self.time {
+            TimeModel::Sampled { control_period } => {
+                periods(control_period, self.dt).ok_or_else(|| {
+                    super::ReachError::Settings(
+                        TimeError::Period {
+                            ts: control_period,
+                            dt: self.dt,
+                        }
+                        .to_string(),
+                    )
+                })
+            }
+            _ => Ok(1),
+        }
+    }
+
     /// The problem with another time model and validated steps per `dt`, in every frame.
     pub fn with_time(mut self, time: TimeModel, substeps: usize) -> super::ReachProblem {
         self.time = time;
@@ -132,9 +182,16 @@ mod tests {
                 control_period: 0.15
             })
         );
-        assert!(TimeModel::parse("sampled", Some(0.12), 0.05).is_err());
-        assert!(TimeModel::parse("rk4", None, 0.05)
-            .unwrap_err()
-            .contains("rk4"));
+        let e = TimeModel::parse("sampled", Some(0.12), 0.05).unwrap_err();
+        assert_eq!(e.field(), "reach.control_period");
+        assert!(e.to_string().contains("control_period = 0.12"), "{e}");
+        for bad in [0.0, -0.1, 0.025, f64::NAN] {
+            assert!(
+                TimeModel::parse("sampled", Some(bad), 0.05).is_err(),
+                "{bad}"
+            );
+        }
+        let e = TimeModel::parse("rk4", None, 0.05).unwrap_err();
+        assert!(e.to_string().contains("rk4") && e.field() == "reach.time");
     }
 }

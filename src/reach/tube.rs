@@ -194,6 +194,40 @@ impl Serialize for TubeEnd {
     }
 }
 
+/// Sampled-data: the first step whose set, or whose enclosure of the motion since the step
+/// before, is not proven inside `S` (`hᵢ ≥ 0` on all of it). A digitally implemented filter
+/// does not keep `S` invariant between samples, so this is a finding about the system (the
+/// held input may carry the state out of `S`), not a bug; the tube goes on, its sets still
+/// bound the sampled system.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct UnsafeBetweenSamples {
+    /// The end of the step.
+    pub t: f64,
+    /// The CBF not proven nonnegative.
+    pub cbf: String,
+    /// Whether the set at `t` lies entirely outside `S` (`hᵢ < 0` on all of it): every
+    /// trajectory from the box is unsafe then.
+    pub entirely: bool,
+}
+
+impl std::fmt::Display for UnsafeBetweenSamples {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self.entirely {
+            true => write!(
+                f,
+                "t = {:.3}: {} < 0 on the whole set: the held input carried every state out of S",
+                self.t, self.cbf
+            ),
+            false => write!(
+                f,
+                "t = {:.3}: {} ≥ 0 not proven on the set or the motion since the last step: the \
+                 held input may carry states out of S between samples",
+                self.t, self.cbf
+            ),
+        }
+    }
+}
+
 /// The sets of one initial box over time.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct Tube {
@@ -210,6 +244,9 @@ pub struct Tube {
     /// Steps whose field also took the closed form's enclosures of `v` on the set's faces
     /// ([`super::ExactField::ClosedForm`], where no piece was proven).
     pub enclosed_steps: usize,
+    /// Sampled-data: where the sets first may leave `S` (absent otherwise).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub unsafe_between_samples: Option<UnsafeBetweenSamples>,
 }
 
 impl Tube {
@@ -221,6 +258,7 @@ impl Tube {
             end: TubeEnd::Horizon,
             exact_steps: 0,
             enclosed_steps: 0,
+            unsafe_between_samples: None,
         }
     }
 

@@ -464,9 +464,12 @@ fn compile_reach(c: &Compiler, r: &ReachSection, n: usize) -> Result<ReachConfig
             TransformChoice::Matrix(flat)
         }
     };
-    let time =
-        crate::reach::TimeModel::parse(r.time.as_deref().unwrap_or("euler"), r.control_period, dt)
-            .map_err(|e| c.invalid("reach.time", e))?;
+    let time = crate::reach::TimeModel::parse(
+        r.time.as_deref().unwrap_or("continuous"),
+        r.control_period,
+        dt,
+    )
+    .map_err(|e| c.invalid(e.field(), e.to_string()))?;
     let substeps = r.substeps.unwrap_or(1);
     if substeps == 0 {
         return Err(c.invalid("reach.substeps", "expected a whole number ≥ 1"));

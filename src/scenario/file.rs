@@ -182,10 +182,10 @@ pub struct ReachSection {
     /// (`z = T x`, rows).
     #[serde(default)]
     pub transform: Option<TransformSpec>,
-    /// What the sets bound: `"euler"` (default for now), `"continuous"` or `"sampled"`.
+    /// What the sets bound: `"continuous"` (default), `"sampled"` or `"euler"`.
     #[serde(default)]
     pub time: Option<String>,
-    /// `T_s` of `time = "sampled"`, a multiple of `dt` (default `dt`).
+    /// `T_s` of `time = "sampled"`, `K·dt` with `K` a whole number ≥ 1 (default `dt`).
     #[serde(default)]
     pub control_period: Option<f64>,
     /// Validated steps per `dt` in continuous time (default 1).

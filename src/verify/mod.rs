@@ -16,6 +16,9 @@
 //!   forward invariant while it has a solution, so this reveals a bug and is reported loudly.
 //!   Where the QP may be infeasible on an earlier set, the trajectories may stop existing
 //!   there (conflicting CBFs), and the box is [`Verdict::Unknown`] with a note;
+//! - [`Verdict::UnsafeBetweenSamples`] (sampled-data only, checked first) if a set, or the
+//!   enclosure of the motion between two steps, is not proven inside `S`: a digital filter does
+//!   not keep `S` invariant, so this is a finding about the system, with its time;
 //! - [`Verdict::Invalid`] if `X(t)` left `C` (the theorem's hypothesis and `M_C` fail there);
 //! - [`Verdict::Converges`] if `X(T) ⊆ G`, the scenario's goal box;
 //! - [`Verdict::Trapped`] if `X(T)` lies in the [`Trap`] box of an undesirable equilibrium that
@@ -82,6 +85,10 @@ pub enum Verdict {
     Unknown,
     /// The set left the region `C`: the result says nothing.
     Invalid,
+    /// Sampled-data: a set, or the enclosure of the motion between two steps, is not proven
+    /// inside `S` — the held input may carry states out of `S` between samples (a finding, not
+    /// a bug; [`crate::reach::UnsafeBetweenSamples`]).
+    UnsafeBetweenSamples,
     /// The set lay entirely in the unsafe set at some time, after sets on which the QP is
     /// proven feasible: a bug (filter, network error bound or engine), never a property of a
     /// correct system.
@@ -94,11 +101,12 @@ pub enum Verdict {
 
 impl Verdict {
     /// Every verdict, in report order.
-    pub const ALL: [Verdict; 7] = [
+    pub const ALL: [Verdict; 8] = [
         Verdict::Converges,
         Verdict::Trapped,
         Verdict::Unknown,
         Verdict::Invalid,
+        Verdict::UnsafeBetweenSamples,
         Verdict::Unsafe,
         Verdict::PartlyUnsafe,
         Verdict::UnsafeStart,
@@ -111,6 +119,7 @@ impl Verdict {
             Verdict::Trapped => "trapped",
             Verdict::Unknown => "unknown",
             Verdict::Invalid => "invalid",
+            Verdict::UnsafeBetweenSamples => "unsafe-between-samples",
             Verdict::Unsafe => "unsafe",
             Verdict::PartlyUnsafe => "partly-unsafe",
             Verdict::UnsafeStart => "unsafe-start",
@@ -127,9 +136,12 @@ impl Verdict {
         !matches!(self, Verdict::PartlyUnsafe | Verdict::UnsafeStart)
     }
 
-    /// Refinement may decide it.
+    /// Refinement may decide it (smaller boxes may also prove that the sets stay in `S`).
     pub fn is_refinable(self) -> bool {
-        matches!(self, Verdict::Unknown | Verdict::Invalid)
+        matches!(
+            self,
+            Verdict::Unknown | Verdict::Invalid | Verdict::UnsafeBetweenSamples
+        )
     }
 }
 

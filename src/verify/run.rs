@@ -13,7 +13,7 @@ use super::{
 };
 use crate::boxes::IntervalBox;
 use crate::intervals::Interval;
-use crate::reach::{Backend, ReachProblem, ReachSettings, Tube, TubeEnd};
+use crate::reach::{Backend, ReachProblem, ReachSettings, TimeModel, Tube, TubeEnd};
 use crate::scenario::Scenario;
 
 /// Which phase a progress report is about.
@@ -80,6 +80,8 @@ pub enum Reason {
     Stopped(TubeEnd),
     /// `unknown`: the engine recorded no set.
     EmptyTube,
+    /// `unsafe-between-samples`: where the sampled-data sets first may leave `S`.
+    BetweenSamples(crate::reach::UnsafeBetweenSamples),
 }
 
 impl std::fmt::Display for Reason {
@@ -102,6 +104,7 @@ impl std::fmt::Display for Reason {
             }
             Reason::Stopped(end) => write!(f, "{end}"),
             Reason::EmptyTube => f.write_str("empty tube"),
+            Reason::BetweenSamples(found) => write!(f, "{found}"),
         }
     }
 }
@@ -150,6 +153,11 @@ pub fn judge(
     traps: &[Trap],
     tube: &Tube,
 ) -> Judgement {
+    // Sampled-data: sets outside `S` are what a digital filter may do, not a bug.
+    if let (TimeModel::Sampled { .. }, Some(found)) = (problem.time, &tube.unsafe_between_samples) {
+        let why = Reason::BetweenSamples(found.clone());
+        return Judgement::of(Verdict::UnsafeBetweenSamples, None, Some(why));
+    }
     for (k, s) in tube.tube.iter().enumerate() {
         let x = as_intervals(&s.set);
         for cbf in &scenario.cbfs {

@@ -1,0 +1,235 @@
+//! The CPU engine's sampled-data step (issue 36, [`crate::reach::sampled`]): at each sample
+//! `t_k` the held input's Euler part is imaged over the set for every step of the control
+//! period, and each step's set is that image plus the remainder. A child of `reach::cpu` (it
+//! works on that engine's chunk state); imports what `cpu` imports.
+
+use super::*;
+use crate::reach::sampled::{euler_image, hull, not_proven_safe, Intersample, Remainder};
+
+/// What a set holds over one control period.
+pub(super) struct Held {
+    /// Per frame, the Euler part's images at `τ = 0, dt, …, K·dt` (the first: the set at the
+    /// sample); `None` where the frame has no sound field.
+    images: Vec<Option<Vec<IntervalBox>>>,
+    /// The motion between samples.
+    inter: Intersample,
+}
+
+impl ChunkRun<'_> {
+    /// At a sample: encloses the period's motion from the set and images its Euler part over
+    /// every step of the period, per frame, from the meet of the sound bounds of the field over
+    /// the whole set (the filter's proven piece, its enclosure of `v`, the network's bounds
+    /// `slot` of the frames' batches plus the margin). Ends the tube where the motion has no
+    /// enclosure, or no frame has a field.
+    pub(super) fn hold(
+        &self,
+        state: &mut Live,
+        buf: &mut ChunkBuffers,
+        live: usize,
+        t: f64,
+    ) -> Result<(), ReachError> {
+        // This box's rows in each frame's batch (boxes without a margin have none), taken
+        // before anything can end the tube so that the next box finds its own.
+        let slots: Vec<Option<usize>> = (0..self.frames.len())
+            .map(|f| {
+                buf.frames[f].inputs[live].margin.map(|_| {
+                    buf.slots[f] += 1;
+                    buf.slots[f] - 1
+                })
+            })
+            .collect();
+        let buf = &*buf;
+        let facts = buf.facts[live];
+        let plant = self.plant.as_ref().expect("sampled runs have a plant");
+        let Some(u) = self.held_input(plant, &state.known, facts)? else {
+            state.tube.end = TubeEnd::NoIntersampleEnclosure { t };
+            state.done = true;
+            return Ok(());
+        };
+        let (n, m) = (state.known.dim(), self.x_problem.dynamics.m);
+        let inter = Intersample::start(n, u);
+        let zeros = &buf.zeros;
+        let mut images = Vec::with_capacity(self.frames.len());
+        for (f, frame) in self.frames.iter().enumerate() {
+            let p = frame.problem;
+            let input = buf.frames[f].inputs[live];
+            let set = &state.sets[f];
+            let x_box = p.x_box_in_safe_set(&set.lower, &set.upper, frame.safe);
+            let enclosure = match input.piece.is_none() && self.encloses {
+                true => p
+                    .pieces
+                    .enclosure(&x_box)
+                    .filter(|v| v.iter().all(|e| e.lower.is_finite() && e.upper.is_finite())),
+                false => None,
+            }
+            .map(|v| {
+                let slack = p.pieces.field_slack(&x_box, &v);
+                let (lo, hi): (Vec<f64>, Vec<f64>) = v.iter().map(|e| (e.lower, e.upper)).unzip();
+                (lo, hi, slack)
+            });
+            let network = input
+                .margin
+                .zip(slots[f])
+                .map(|(bound, slot)| (slot, vec![bound; m]));
+            let image = |tau: f64| -> Option<IntervalBox> {
+                let exact = input.piece.map(|(piece, slack)| {
+                    let zero = zero_bounds(zeros, n, m);
+                    let dynamics = piece_dynamics(p, piece);
+                    euler_image(dynamics, set, tau, zero, zero.b_lower, slack)
+                });
+                let enclosed = enclosure.as_ref().map(|(lo, hi, slack)| {
+                    let consts = constant_bounds(zeros, lo, hi, n);
+                    euler_image(&p.dynamics, set, tau, consts, &zeros[..m], *slack)
+                });
+                let net = network.as_ref().map(|(slot, margin)| {
+                    let nn = bounds_of(&buf.frames[f].batch, *slot, n, m);
+                    euler_image(&p.dynamics, set, tau, nn, margin, p.field_slack)
+                });
+                let (lower, upper) = [exact, enclosed, net]
+                    .into_iter()
+                    .flatten()
+                    .reduce(meet_fields)?;
+                Some(IntervalBox { lower, upper })
+            };
+            if f == 0 {
+                state.tube.exact_steps += usize::from(input.piece.is_some());
+                state.tube.enclosed_steps += usize::from(enclosure.is_some());
+            }
+            let held: Option<Vec<IntervalBox>> = std::iter::once(Some(set.clone()))
+                .chain((1..=self.period).map(|j| image(j as f64 * self.h)))
+                .collect();
+            images.push(held);
+        }
+        if images.iter().all(Option::is_none) {
+            state.tube.end = TubeEnd::NoCertifiedBound { t };
+            state.done = true;
+            return Ok(());
+        }
+        state.held = Some(Held { images, inter });
+        Ok(())
+    }
+
+    /// Step `j` (1-based) of the period held in `state`, ending at `t`: encloses the step's
+    /// motion from the set (ending the tube where it has no enclosure), then each frame's set
+    /// becomes its image at `τ = j·dt` plus the remainder there; the motion over `[τ − dt, τ]`
+    /// is enclosed by the hull of the images at both ends plus the remainder over the interval
+    /// (per trajectory the Euler part moves on a segment), met across frames and with the
+    /// step's a-priori enclosure. A set or enclosure not proven inside `S` is the tube's finding
+    /// ([`crate::reach::UnsafeBetweenSamples`]), not an end: the sets stay sound.
+    pub(super) fn sampled_step(&self, state: &mut Live, j: usize, t: f64, record: bool) {
+        let Some(held) = state.held.as_mut() else {
+            return;
+        };
+        let (plant, _) = self.plant.as_ref().expect("sampled runs have a plant");
+        let Some(apriori) = held.inter.step(plant, &state.known, self.h) else {
+            state.tube.end = TubeEnd::NoIntersampleEnclosure { t: t - self.h };
+            state.done = true;
+            return;
+        };
+        let held = state.held.as_ref().expect("held above");
+        let (a, b) = ((j - 1) as f64 * self.h, j as f64 * self.h);
+        let mut stepped = Vec::with_capacity(self.frames.len());
+        let mut pipe: Option<IntervalBox> = apriori;
+        for (f, frame) in self.frames.iter().enumerate() {
+            let Some(images) = &held.images[f] else {
+                stepped.push(false);
+                continue;
+            };
+            let p = frame.problem;
+            let in_p = |(lower, upper): (Vec<f64>, Vec<f64>)| {
+                let pipe = state.known.clone();
+                in_frame(p, &Remainder { lower, upper, pipe })
+            };
+            let (rl, ru) = in_p(held.inter.at(b));
+            let (bl, bu) = in_p(held.inter.between(a, b));
+            let set = &mut state.sets[f];
+            set.clone_from(&images[j]);
+            embedding_step(&mut set.lower, &mut set.upper, &rl, &ru, 1.0);
+            let mut swept = hull(&images[j - 1], &images[j]);
+            embedding_step(&mut swept.lower, &mut swept.upper, &bl, &bu, 1.0);
+            let x = p.x_box_in_safe_set(&swept.lower, &swept.upper, frame.safe);
+            pipe = Some(match pipe {
+                Some(q) => q.intersection(&x).unwrap_or(x),
+                None => x,
+            });
+            stepped.push(true);
+        }
+        if images_disagree(state) {
+            // The meet of sound images cannot be empty: `advance` reports it.
+            state.inversion = Some(crate::reach::Inversion::BoundsDisagree);
+        }
+        state.pipe_known = pipe;
+        let swept = state.pipe_known.clone();
+        let last = j == self.period;
+        self.advance(state, t, record, &stepped);
+        state.pipe_known = None;
+        if last {
+            state.held = None;
+        }
+        if state.tube.unsafe_between_samples.is_some() {
+            return;
+        }
+        let scenario = self.x_problem.pieces.scenario();
+        let at_t = not_proven_safe(scenario, &state.known);
+        let between = swept.as_ref().and_then(|s| not_proven_safe(scenario, s));
+        if let Some((cbf, _)) = at_t.clone().or(between) {
+            state.tube.unsafe_between_samples = Some(crate::reach::UnsafeBetweenSamples {
+                t,
+                cbf,
+                entirely: at_t.is_some_and(|(_, e)| e),
+            });
+        }
+    }
+
+    /// The held input's enclosure `κ(X) + v` over the x-box `known` of the set, `v` enclosed by
+    /// the network's bounds on `X` plus the error margin (or 0 where the filter is proven
+    /// inactive), met with the closed form's enclosure where there is one; `None` where it is
+    /// unbounded. A still plant needs none.
+    fn held_input(
+        &self,
+        (plant, x_net): &(Plant, PreparedNetwork),
+        known: &IntervalBox,
+        facts: SetFacts,
+    ) -> Result<Option<Vec<Interval>>, ReachError> {
+        if plant.is_still() {
+            return Ok(Some(Vec::new()));
+        }
+        let xp = self.x_problem;
+        let m = xp.dynamics.m;
+        let mut v = match facts.piece {
+            Some(FilterPiece::Inactive) => vec![Interval::point(0.0); m],
+            _ => match facts.m.filter(|m| m.is_finite()) {
+                Some(margin) => {
+                    let b = x_net.bounds(&known.lower, &known.upper, self.settings.bounds)?;
+                    (0..m)
+                        .map(|k| {
+                            let lo = Interval::point(b.lower[k]) - Interval::point(margin);
+                            let hi = Interval::point(b.upper[k]) + Interval::point(margin);
+                            Interval::new(lo.lower, hi.upper)
+                        })
+                        .collect()
+                }
+                None => vec![Interval::new(f64::NEG_INFINITY, f64::INFINITY); m],
+            },
+        };
+        if let Some(e) = xp.pieces.enclosure(known) {
+            for (vk, ek) in v.iter_mut().zip(e) {
+                if let Some(met) = vk.intersection(&ek) {
+                    *vk = met;
+                }
+            }
+        }
+        if !v.iter().all(|e| e.lower.is_finite() && e.upper.is_finite()) {
+            return Ok(None);
+        }
+        Ok(Some(plant.held_input(known, &v)))
+    }
+}
+
+/// Whether some frame's set came out empty (the meet of sound images cannot be).
+fn images_disagree(state: &Live) -> bool {
+    state
+        .sets
+        .iter()
+        .any(|s| s.lower.iter().zip(&s.upper).any(|(l, u)| l > u))
+}
