@@ -69,6 +69,11 @@ struct Live {
     /// Continuous time: per frame, the network's bounds over the enclosure the step's flowpipe
     /// was proven on (where the network was bounded there).
     pipe_nn: Vec<Option<AffineBounds>>,
+    /// Continuous time: per frame, the whole enclosure's flowpipe where `pipes` holds a moving
+    /// box instead ([`validated::moving`]), to fall back to where the box is not proven.
+    whole: Vec<Option<Flowpipe>>,
+    /// Continuous time: per frame, last step's rates on the slabs, to guess the moving box from.
+    rates: Vec<Option<(Vec<f64>, Vec<f64>)>>,
     /// Why this step inverted a set, if it did (found where the field's bounds are met).
     inversion: Option<super::tube::Inversion>,
     /// Sampled-data: what the set holds over the current control period.
@@ -280,6 +285,8 @@ impl ChunkRun<'_> {
             swept: None,
             guess: vec![None; self.frames.len()],
             pipe_nn: vec![None; self.frames.len()],
+            whole: vec![None; self.frames.len()],
+            rates: vec![None; self.frames.len()],
             inversion: None,
             held: None,
         };
@@ -495,13 +502,6 @@ impl ChunkRun<'_> {
                         Some(pipe) => self.piece_slab_field(p, set, pipe, piece, &buf.zeros),
                         None => Self::piece_field(p, set, piece, &buf.zeros),
                     });
-                    // Continuous time, a proven piece: second-order rates too, met below.
-                    let taylor = match (pipe, input.piece) {
-                        (Some(pipe), Some(piece)) => {
-                            self.piece_taylor(p, set, pipe, piece, &buf.zeros)
-                        }
-                        _ => None,
-                    };
                     let enclosed = match (pipe, input.piece.is_none() && self.encloses) {
                         (_, false) => None,
                         (Some(pipe), true) => {
@@ -520,21 +520,29 @@ impl ChunkRun<'_> {
                         state.tube.exact_steps += usize::from(exact.is_some());
                         state.tube.enclosed_steps += usize::from(enclosed.is_some());
                     }
-                    let network = input.margin.map(|bound| {
+                    buf.margin.clear();
+                    buf.margin.resize(m, input.margin.unwrap_or(0.0));
+                    let network = input.margin.map(|_| {
                         // This box's rows in the batch (boxes without a margin have none).
                         let slot = buf.slots[f];
                         buf.slots[f] += 1;
-                        buf.margin.clear();
-                        buf.margin.resize(m, bound);
                         let batch = &buf.frames[f].batch;
                         let (field, s) = self.network_field(p, state, f, batch, slot, &buf.margin);
                         minkowski_s += s;
-                        // Continuous time: second-order rates from the bounds over the flowpipe.
-                        match self.network_taylor(p, state, f, &buf.margin) {
-                            Some(t) => meet_fields(field, t),
-                            None => field,
-                        }
+                        field
                     });
+                    // Continuous time: the moving box checked (else the whole enclosure's
+                    // slabs), and second-order rates.
+                    let mut fields = [exact, enclosed, network];
+                    let taylor = self.check_step(
+                        frame,
+                        state,
+                        f,
+                        input,
+                        &mut fields,
+                        (&mut buf.frames[f], &buf.zeros, &buf.margin),
+                    )?;
+                    let [exact, enclosed, network] = fields;
                     let sources: Vec<_> = [exact, taylor, enclosed, network]
                         .into_iter()
                         .flatten()

@@ -38,7 +38,18 @@ impl ChunkRun<'_> {
                 Enclosure::Closed(pipe) => {
                     state.guess[f] = Some((pipe.f_lower.clone(), pipe.f_upper.clone()));
                     state.pipe_nn[f] = fb.pipe_nn.take();
-                    state.pipes.push(Some(pipe));
+                    // A moving box from last step's rates, where the disturbance method
+                    // runs (the Minkowski radius advances once per step, with no fallback).
+                    let moving = match (self.settings.method, &state.rates[f]) {
+                        (ReachMethod::Disturbance, Some((l, u))) => {
+                            validated::moving(&state.sets[f], &pipe, self.h, (l, u))
+                        }
+                        _ => None,
+                    };
+                    state
+                        .pipes
+                        .push(Some(moving.clone().unwrap_or_else(|| pipe.clone())));
+                    state.whole[f] = moving.map(|_| pipe);
                     continue;
                 }
                 // The step's enclosure meets cells of the error map with no certified bound.
@@ -48,12 +59,13 @@ impl ChunkRun<'_> {
             state.done = true;
             return Ok(());
         }
+        // Facts hold on the whole enclosures (a moving box lies in its frame's).
         let known = self
             .frames
             .iter()
-            .zip(&state.pipes)
-            .filter_map(|(f, p)| {
-                let p = p.as_ref()?;
+            .zip(state.pipes.iter().zip(&state.whole))
+            .filter_map(|(f, (p, whole))| {
+                let p = whole.as_ref().or(p.as_ref())?;
                 Some(
                     f.problem
                         .x_box_in_safe_set(&p.set.lower, &p.set.upper, f.safe),
@@ -62,7 +74,10 @@ impl ChunkRun<'_> {
             .reduce(|a, b| a.intersection(&b).unwrap_or(a));
         if self.frames.len() > 1 {
             if let Some(known) = &known {
-                for (f, pipe) in self.frames.iter().zip(state.pipes.iter_mut().flatten()) {
+                let pipes = state.pipes.iter_mut().chain(state.whole.iter_mut());
+                let frames = self.frames.iter().chain(&self.frames);
+                for (f, pipe) in frames.zip(pipes) {
+                    let Some(pipe) = pipe else { continue };
                     let around = f.problem.frame_box(known);
                     if let Some(met) = pipe.set.intersection(&around) {
                         pipe.set = met;
@@ -72,6 +87,95 @@ impl ChunkRun<'_> {
         }
         state.pipe_known = known;
         Ok(())
+    }
+
+    /// Continuous time, after the rates on the slabs (`fields`: the filter's piece, its
+    /// enclosures, the network): where the slabs are a moving box's, checks them
+    /// ([`validated::verified`]) and, where they fail, falls back to the whole enclosure's slabs
+    /// (the network bounded there for this box alone). Keeps the rates for the next step's
+    /// guess; returns the second-order rates (met by the caller). Nothing for the Euler map.
+    pub(super) fn check_step(
+        &self,
+        frame: &Frame,
+        state: &mut Live,
+        f: usize,
+        input: StepInput,
+        fields: &mut [Option<Rates>; 3],
+        (fb, zeros, margin): (&mut FrameBuffers, &[f64], &[f64]),
+    ) -> Result<Option<Rates>, ReachError> {
+        let Some(Some(pipe)) = state.pipes.get(f) else {
+            return Ok(None);
+        };
+        let met = fields.iter().flatten().cloned().reduce(meet_fields);
+        let proven = met
+            .as_ref()
+            .is_some_and(|(l, u)| validated::verified(pipe, (l, u)));
+        let margin = margin.to_vec();
+        if !proven {
+            if let Some(whole) = state.whole[f].take() {
+                state.pipes[f] = Some(whole);
+                *fields = self.whole_fields(frame, state, f, input, fb, zeros, &margin)?;
+            }
+        }
+        state.rates[f] = fields.iter().flatten().cloned().reduce(meet_fields);
+        let (p, set) = (frame.problem, &state.sets[f]);
+        let Some(Some(pipe)) = state.pipes.get(f) else {
+            return Ok(None);
+        };
+        let piece = input
+            .piece
+            .and_then(|piece| self.piece_taylor(p, set, pipe, piece, zeros));
+        let network = input
+            .margin
+            .and_then(|_| self.network_taylor(p, state, f, &margin));
+        Ok([piece, network].into_iter().flatten().reduce(meet_fields))
+    }
+
+    /// The rates on the whole enclosure's slabs (`state.pipes[f]`), the network bounded on them
+    /// for this box alone: [`ChunkRun::check_step`]'s fallback.
+    #[allow(clippy::too_many_arguments)]
+    fn whole_fields(
+        &self,
+        frame: &Frame,
+        state: &mut Live,
+        f: usize,
+        input: StepInput,
+        fb: &mut FrameBuffers,
+        zeros: &[f64],
+        margin: &[f64],
+    ) -> Result<[Option<Rates>; 3], ReachError> {
+        let p = frame.problem;
+        let Some(Some(pipe)) = state.pipes.get(f) else {
+            return Ok([None, None, None]);
+        };
+        let set = &state.sets[f];
+        let exact = input
+            .piece
+            .map(|piece| self.piece_slab_field(p, set, pipe, piece, zeros));
+        let enclosed = match input.piece.is_none() && self.encloses {
+            true => {
+                let known = state.pipe_known.as_ref().unwrap_or(&state.known);
+                self.enclosure_slab_field(frame, set, pipe, known, zeros)
+            }
+            false => None,
+        };
+        let network = match input.margin {
+            Some(_) => {
+                let mut boxes = FrameBuffers::default();
+                self.push_pipe_boxes(&mut boxes, set, pipe);
+                frame.network.bounds_serial_into(
+                    &boxes.flat_lo,
+                    &boxes.flat_hi,
+                    self.settings.bounds,
+                    &mut fb.pipe_bounds,
+                    &mut fb.pipe_batch,
+                )?;
+                let (field, _) = self.network_field(p, state, f, &fb.pipe_batch, 0, margin);
+                Some(field)
+            }
+            None => None,
+        };
+        Ok([exact, enclosed, network])
     }
 
     /// Bounds of the filtered field (the method's system) over the whole box `a` of one frame:

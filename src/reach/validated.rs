@@ -44,6 +44,23 @@ pub struct Flowpipe {
     pub f_lower: Vec<f64>,
     /// `F̄(A)`.
     pub f_upper: Vec<f64>,
+    /// Where the step checks a moving box ([`moving`]): its face rates and slab depths; then
+    /// `set` is the moving box's hull, and the slabs are the moving faces' ([`slab`]).
+    pub faces: Option<MovingFaces>,
+}
+
+/// The moving box `X(τ) = [x̲ + τ·s̲, x̄ + τ·s̄]`, `τ ∈ [0, h]`, of a step (item 3 of the module's
+/// argument), with the depths of its slabs: `F̲ ≤ s̲ ≤ ρ̲` and `ρ̄ ≤ s̄ ≤ F̄` per coordinate.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MovingFaces {
+    /// `s̲`: the lower faces' rates.
+    pub lower: Vec<f64>,
+    /// `s̄`: the upper faces' rates.
+    pub upper: Vec<f64>,
+    /// `ρ̲`: the lower slabs reach up to `x̲ᵢ + h·max(0, ρ̲ᵢ)`.
+    pub depth_lower: Vec<f64>,
+    /// `ρ̄`: the upper slabs reach down to `x̄ᵢ + h·min(0, ρ̄ᵢ)`.
+    pub depth_upper: Vec<f64>,
 }
 
 /// What [`enclose_step`] found.
@@ -145,6 +162,7 @@ pub fn enclose_step<E>(
                 set: b,
                 f_lower: lo,
                 f_upper: hi,
+                faces: None,
             }));
         }
         let grown = IntervalBox {
@@ -221,7 +239,9 @@ pub fn parts(a: &IntervalBox, k: usize) -> Vec<IntervalBox> {
 }
 
 /// The slab of coordinate `i` at the set's upper (`on_upper`) or lower end: the flowpipe with
-/// `xᵢ` in `[e + h·min(0, F̲ᵢ), e + h·max(0, F̄ᵢ)]`, `e` that end, met with the flowpipe.
+/// `xᵢ` in `[e + h·min(0, F̲ᵢ), e + h·max(0, F̄ᵢ)]`, `e` that end, met with the flowpipe; for a
+/// moving box ([`Flowpipe::faces`]) `xᵢ` in `[e + h·min(0, ρ̄ᵢ), e + h·max(0, s̄ᵢ)]` at the
+/// upper end (`[e + h·min(0, s̲ᵢ), e + h·max(0, ρ̲ᵢ)]` at the lower), met with its hull.
 pub fn slab(
     set: &IntervalBox,
     pipe: &Flowpipe,
@@ -230,8 +250,13 @@ pub fn slab(
     on_upper: bool,
 ) -> (Vec<f64>, Vec<f64>) {
     let end = if on_upper { set.upper[i] } else { set.lower[i] };
-    let lo = (point(end) + point(h) * point(pipe.f_lower[i].min(0.0))).lower;
-    let hi = (point(end) + point(h) * point(pipe.f_upper[i].max(0.0))).upper;
+    let (down, up) = match (&pipe.faces, on_upper) {
+        (None, _) => (pipe.f_lower[i], pipe.f_upper[i]),
+        (Some(m), true) => (m.depth_upper[i], m.upper[i]),
+        (Some(m), false) => (m.lower[i], m.depth_lower[i]),
+    };
+    let lo = (point(end) + point(h) * point(down.min(0.0))).lower;
+    let hi = (point(end) + point(h) * point(up.max(0.0))).upper;
     let (mut lower, mut upper) = (pipe.set.lower.clone(), pipe.set.upper.clone());
     lower[i] = lo.max(pipe.set.lower[i]);
     upper[i] = hi.min(pipe.set.upper[i]);
@@ -240,6 +265,89 @@ pub fn slab(
         (lower[i], upper[i]) = (end, end);
     }
     (lower, upper)
+}
+
+/// The lowest upper rate (`on_upper`) or highest lower rate the slab of coordinate `i` was
+/// built for: `F̲ᵢ` (`F̄ᵢ`) for the whole enclosure's slabs, `ρ̄ᵢ` (`ρ̲ᵢ`) for a moving box's.
+/// A rate past it reaches a state outside the slab, so rates are clamped to it.
+fn depth(pipe: &Flowpipe, i: usize, on_upper: bool) -> f64 {
+    match (&pipe.faces, on_upper) {
+        (None, true) => pipe.f_lower[i],
+        (None, false) => pipe.f_upper[i],
+        (Some(m), true) => m.depth_upper[i],
+        (Some(m), false) => m.depth_lower[i],
+    }
+}
+
+/// The moving box of a step from `set` (item 3 of the module's argument), its face rates
+/// guessed from `rates`, last step's rates `(r̲, r̄)`: `s̄ = r̄ + δ`, `ρ̄ = r̄ − δ` with `δ` a tenth
+/// of `F(A)`'s width, all within `pipe`'s `F(A)` (so the moving box's hull and slabs lie in
+/// the enclosure `B` and every fact proven on `B` holds on them). `None` where the guess
+/// turns the box inside out or is not finite. The step must then pass [`verified`].
+pub fn moving(
+    set: &IntervalBox,
+    pipe: &Flowpipe,
+    h: f64,
+    (r_lower, r_upper): (&[f64], &[f64]),
+) -> Option<Flowpipe> {
+    let n = set.dim();
+    let mut m = MovingFaces {
+        lower: Vec::with_capacity(n),
+        upper: Vec::with_capacity(n),
+        depth_lower: Vec::with_capacity(n),
+        depth_upper: Vec::with_capacity(n),
+    };
+    for i in 0..n {
+        let (fl, fu) = (pipe.f_lower[i], pipe.f_upper[i]);
+        let delta = 0.1 * (fu - fl);
+        let s_lower = (r_lower[i] - delta).max(fl);
+        let s_upper = (r_upper[i] + delta).min(fu);
+        m.depth_lower
+            .push((r_lower[i] + delta).min(fu).max(s_lower));
+        m.depth_upper
+            .push((r_upper[i] - delta).max(fl).min(s_upper));
+        m.lower.push(s_lower);
+        m.upper.push(s_upper);
+    }
+    let values = m.lower.iter().chain(&m.upper);
+    if !values
+        .chain(&m.depth_lower)
+        .chain(&m.depth_upper)
+        .all(|v| v.is_finite())
+    {
+        return None;
+    }
+    let ends = |i: usize| {
+        let lo = point(set.lower[i]) + point(h) * point(m.lower[i]);
+        let hi = point(set.upper[i]) + point(h) * point(m.upper[i]);
+        (lo, hi)
+    };
+    // `X(τ)` must not turn inside out on the step (it is linear in τ: its end decides).
+    if (0..n).any(|i| ends(i).0.upper > ends(i).1.lower) {
+        return None;
+    }
+    let hull = sweep(set, h, &m.lower, &m.upper);
+    Some(Flowpipe {
+        set: hull,
+        f_lower: pipe.f_lower.clone(),
+        f_upper: pipe.f_upper.clone(),
+        faces: Some(m),
+    })
+}
+
+/// Whether the rates `(dl, du)` found on a moving box's slabs prove it (item 3): every face
+/// moves faster than the field on its slab (`s̄ᵢ > du_i`, `s̲ᵢ < dl_i`), or at least as fast as
+/// the field anywhere in `A` (`s̄ᵢ ≥ F̄ᵢ`: no trajectory can cross it). True for the whole
+/// enclosure's slabs (Picard–Lindelöf proved them).
+pub fn verified(pipe: &Flowpipe, (dl, du): (&[f64], &[f64])) -> bool {
+    let Some(m) = &pipe.faces else {
+        return true;
+    };
+    (0..dl.len()).all(|i| {
+        let upper = du[i] < m.upper[i] || m.upper[i] >= pipe.f_upper[i];
+        let lower = dl[i] > m.lower[i] || m.lower[i] <= pipe.f_lower[i];
+        upper && lower
+    })
 }
 
 /// Every slab, in the order of the faces: (0, lower), (0, upper), (1, lower), …
@@ -335,10 +443,10 @@ pub fn slab_field<'a>(
     let mut dl: Vec<f64> = (0..n).map(|i| side(i, false).lower).collect();
     let mut du: Vec<f64> = (0..n).map(|i| side(i, true).upper).collect();
     // `s̄ᵢ ≥ F̲ᵢ` and `s̲ᵢ ≤ F̄ᵢ` hold for exact bounds (the slabs meet the flowpipe); kept so for
-    // any rounding, as the argument needs.
+    // any rounding, as the argument needs (for a moving box: `≥ ρ̄ᵢ`, `≤ ρ̲ᵢ`, item 3).
     for i in 0..n {
-        du[i] = du[i].max(pipe.f_lower[i]);
-        dl[i] = dl[i].min(pipe.f_upper[i]);
+        du[i] = du[i].max(depth(pipe, i, true));
+        dl[i] = dl[i].min(depth(pipe, i, false));
     }
     (dl, du)
 }
@@ -557,6 +665,131 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The moving box (item 3) on a damped rotation over 40 steps, each guessed from the last
+    /// step's rates: every checked box holds the exact solution from the set's corners and edge
+    /// points at every τ of its step, every set holds them at the step's end; most steps pass
+    /// the check and end tighter than the whole enclosure's slabs. A too-thin moving box (slabs
+    /// cut to the set itself, as the Euler map's faces) loses exact states: the checks bite.
+    #[test]
+    fn moving_box_holds_the_flow_and_a_thin_one_does_not() {
+        let d = linear([[-0.5, 1.0], [-1.0, -0.5]]);
+        let z = [0.0; 4];
+        let flow = |x: [f64; 2], t: f64| {
+            let (c, s, e) = (t.cos(), t.sin(), (-0.5 * t).exp());
+            [e * (c * x[0] + s * x[1]), e * (-s * x[0] + c * x[1])]
+        };
+        let inside = |lo: &[f64], hi: &[f64], x: [f64; 2]| {
+            (0..2).all(|i| lo[i] - 1e-12 <= x[i] && x[i] <= hi[i] + 1e-12)
+        };
+        let h = 0.1;
+        let mut set = IntervalBox::new(vec![0.9, -0.1], vec![1.1, 0.1]).unwrap();
+        let mut whole = set.clone();
+        let mut points: Vec<[f64; 2]> = (0..=8)
+            .flat_map(|k| {
+                let a = 0.9 + 0.025 * k as f64;
+                let b = -0.1 + 0.025 * k as f64;
+                [[a, -0.1], [a, 0.1], [0.9, b], [1.1, b]]
+            })
+            .collect();
+        let (mut rates, mut passed, mut thin_escapes) = (None::<Bounds>, 0, 0);
+        let none = |_: usize, _: bool| no_network(&z);
+        for _ in 0..40 {
+            let Enclosure::Closed(pipe) =
+                enclose_step(&set, h, None, None, exact_field(&d, &z)).unwrap()
+            else {
+                panic!("no enclosure")
+            };
+            let mut used = (pipe.clone(), None);
+            if let Some(mv) = rates
+                .as_ref()
+                .and_then(|(l, u)| moving(&set, &pipe, h, (l, u)))
+            {
+                let r = slab_field(&d, &set, &mv, h, none, &[0.0]);
+                // The same faces with slabs cut to the set: an unsound step.
+                let thin = Flowpipe {
+                    set: set.clone(),
+                    ..mv.clone()
+                };
+                let (tl, tu) = slab_field(&d, &set, &thin, h, none, &[0.0]);
+                let (tlo, thi): (Vec<f64>, Vec<f64>) = (0..2)
+                    .map(|i| (set.lower[i] + h * tl[i], set.upper[i] + h * tu[i]))
+                    .unzip();
+                thin_escapes += points
+                    .iter()
+                    .filter(|&&x| !inside(&tlo, &thi, flow(x, h)))
+                    .count();
+                if verified(&mv, (&r.0, &r.1)) {
+                    passed += 1;
+                    used = (mv, Some(r));
+                }
+            }
+            let (pipe, r) = used;
+            let (dl, du) = r.unwrap_or_else(|| slab_field(&d, &set, &pipe, h, none, &[0.0]));
+            for &x in &points {
+                for k in 0..=10 {
+                    let tau = h * k as f64 / 10.0;
+                    let y = flow(x, tau);
+                    assert!(pipe.set.contains(&y), "{y:?} not in {:?}", pipe.set);
+                    if let Some(m) = &pipe.faces {
+                        let lo: Vec<f64> =
+                            (0..2).map(|i| set.lower[i] + tau * m.lower[i]).collect();
+                        let hi: Vec<f64> =
+                            (0..2).map(|i| set.upper[i] + tau * m.upper[i]).collect();
+                        assert!(
+                            inside(&lo, &hi, y),
+                            "{y:?} left the moving box at τ = {tau}"
+                        );
+                    }
+                }
+            }
+            let (mut lo, mut hi) = (set.lower.clone(), set.upper.clone());
+            super::super::embedding::embedding_step(&mut lo, &mut hi, &dl, &du, h);
+            meet_with_pipe(&mut lo, &mut hi, &pipe);
+            for x in points.iter_mut() {
+                *x = flow(*x, h);
+                assert!(inside(&lo, &hi, *x), "{x:?} not in [{lo:?}, {hi:?}]");
+            }
+            set = IntervalBox {
+                lower: lo,
+                upper: hi,
+            };
+            rates = Some((dl, du));
+            // The whole enclosure's slabs alone, for comparison.
+            let Enclosure::Closed(wp) =
+                enclose_step(&whole, h, None, None, exact_field(&d, &z)).unwrap()
+            else {
+                panic!("no enclosure")
+            };
+            let (wl, wu) = slab_field(&d, &whole, &wp, h, none, &[0.0]);
+            let (mut lo, mut hi) = (whole.lower.clone(), whole.upper.clone());
+            super::super::embedding::embedding_step(&mut lo, &mut hi, &wl, &wu, h);
+            meet_with_pipe(&mut lo, &mut hi, &wp);
+            whole = IntervalBox {
+                lower: lo,
+                upper: hi,
+            };
+        }
+        assert!(passed >= 35, "{passed} of 39 moving boxes proven");
+        assert!(thin_escapes > 0, "the thin slabs should lose exact states");
+        let width = |b: &IntervalBox| (b.upper[0] - b.lower[0]) + (b.upper[1] - b.lower[1]);
+        assert!(width(&set) < width(&whole), "{set:?} vs {whole:?}");
+        // A guess slower than the flow at its face fails the check: `ẋ = −x` from `[1, 2]²`
+        // moves the upper faces at −2 at first, not −2.5.
+        let d = linear([[-1.0, 0.0], [0.0, -1.0]]);
+        let set = IntervalBox::new(vec![1.0, 1.0], vec![2.0, 2.0]).unwrap();
+        let Enclosure::Closed(pipe) =
+            enclose_step(&set, h, None, None, exact_field(&d, &z)).unwrap()
+        else {
+            panic!()
+        };
+        let mv = moving(&set, &pipe, h, (&[-1.0, -1.0], &[-2.6, -2.6])).unwrap();
+        let r = slab_field(&d, &set, &mv, h, none, &[0.0]);
+        assert!(!verified(&mv, (&r.0, &r.1)), "{:?} {r:?}", mv.faces);
+        let mv = moving(&set, &pipe, h, (&[-1.0, -1.0], &[-2.0, -2.0])).unwrap();
+        let r = slab_field(&d, &set, &mv, h, none, &[0.0]);
+        assert!(verified(&mv, (&r.0, &r.1)), "{:?} {r:?}", mv.faces);
     }
 
     /// Parts cover the box, and `C` clips the enclosure soundly: `ẋ = −x` from a set on `C`'s
