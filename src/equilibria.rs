@@ -69,8 +69,8 @@ pub struct Continuum {
     pub upper: Vec<f64>,
     /// Equilibria found on it.
     pub samples: usize,
-    /// Samples where `f̃(x*) ≠ 0` (created by the filter).
-    pub undesirable: usize,
+    /// `f̃(x*) ≠ 0` on it: created by the filter (a continuum holds equilibria of one kind).
+    pub undesirable: bool,
     /// One sample (the first in position order).
     pub example: Vec<f64>,
 }
@@ -169,9 +169,10 @@ pub fn find_equilibria(
 }
 
 /// Groups `found` ([`find_equilibria`] over `region` with `search`): non-hyperbolic
-/// equilibria closer than three start spacings to one another (in units of `region`'s widths;
-/// single linkage) form a [`Continuum`] when there are at least [`CONTINUUM_SAMPLES`] of them;
-/// every other equilibrium is a point. Two continua closer than that are reported as one.
+/// equilibria, all desirable or all undesirable, closer than two start spacings to one another
+/// (in units of `region`'s widths; single linkage) form a [`Continuum`] when there are at least
+/// [`CONTINUUM_SAMPLES`] of them; every other equilibrium is a point. Two continua of one kind
+/// closer than that are reported as one.
 pub fn group_equilibria(
     found: Vec<Equilibrium>,
     region: &IntervalBox,
@@ -185,7 +186,7 @@ pub fn group_equilibria(
     } else {
         (per_axis * per_axis).powf(-1.0 / n as f64)
     };
-    let link = 3.0 * spacing;
+    let link = 2.0 * spacing;
     let widths: Vec<f64> = region.widths().iter().map(|w| w.max(1e-300)).collect();
     let near = |a: &[f64], b: &[f64]| (0..n).all(|i| (a[i] - b[i]).abs() <= link * widths[i]);
     let flat: Vec<usize> = (0..found.len())
@@ -206,7 +207,10 @@ pub fn group_equilibria(
             let a = members[next];
             next += 1;
             for &b in &flat {
-                if group[b] == usize::MAX && near(&found[a].x, &found[b].x) {
+                if group[b] == usize::MAX
+                    && found[b].undesirable == found[a].undesirable
+                    && near(&found[a].x, &found[b].x)
+                {
                     group[b] = id;
                     members.push(b);
                 }
@@ -233,7 +237,7 @@ pub fn group_equilibria(
                 lower,
                 upper,
                 samples: members.len(),
-                undesirable: members.iter().filter(|&&k| found[k].undesirable).count(),
+                undesirable: found[first].undesirable,
                 example: found[first].x.clone(),
             }),
         ));

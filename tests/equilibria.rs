@@ -112,7 +112,7 @@ initial = [ { lower = [-3.1, 0.1, -0.1], upper = [-2.9, 0.3, 0.1] } ]
     assert!((1..=4).contains(&continua.len()), "{sets:#?}");
     let c = continua
         .iter()
-        .find(|c| c.undesirable == 0)
+        .find(|c| !c.undesirable)
         .expect("the goal's circle");
     assert!(c.samples >= 20 && total >= c.samples, "{c:?} of {total}");
     assert!(c.upper[2] - c.lower[2] > 5.0, "headings {c:?}");

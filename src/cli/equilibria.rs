@@ -55,11 +55,15 @@ pub fn run(path: &Path, json: bool) -> CliResult {
     for e in &sets {
         if let EquilibriumSet::Continuum(c) = e {
             println!(
-                "  continuum of equilibria over {} .. {}: {} found on it ({} undesirable), e.g. {}",
+                "  continuum of {} equilibria over {} .. {}: {} found on it, e.g. {}",
+                if c.undesirable {
+                    "undesirable"
+                } else {
+                    "desired"
+                },
                 fmt_point(&c.lower),
                 fmt_point(&c.upper),
                 c.samples,
-                c.undesirable,
                 fmt_point(&c.example)
             );
         }

@@ -431,11 +431,14 @@ pub fn certify(
     };
     let global_goal = ratio * target;
     let mut heap: BinaryHeap<Entry> = BinaryHeap::new();
-    // Finished cells, and whether each met its target.
-    let mut done: Vec<(CellBound, bool)> = Vec::new();
+    // Finished cells, whether each met its target, and whether it is settled (meets an
+    // infeasible point: the second stage leaves it).
+    let mut done: Vec<(CellBound, bool, bool)> = Vec::new();
     let dropped = std::cell::Cell::new(0_usize);
     let mut evaluated = 0;
     // Each cell: dropped (Err) or (bound, its target).
+    let width = |cell: &IntervalBox| cell.widths().iter().fold(0.0_f64, |a, &b| a.max(b));
+    let settle_width = width(c) / SETTLE_SPLITS;
     let eval = |cells: Vec<IntervalBox>,
                 salt: usize|
      -> Result<Vec<Result<CellOutcome, IntervalBox>>, AnalysisError> {
@@ -454,9 +457,11 @@ pub fn certify(
                 let b =
                     cell_error_bound_mv(&forms, s, &prepared, &cell, settings.cell_bounds, tgt)?;
                 // Where the QP is infeasible on part of the cell, the enclosure of `v` stays
-                // wide however small the cell: keep the cell's bound as it is (target = bound).
-                let tgt = if meets_infeasibility(s, &filter, &cell) {
-                    tgt.max(b)
+                // wide however small the cell: once the cell is small (a 64th of C's widest
+                // side), keep its bound as it is (target +∞: settled, not refined further).
+                let tgt = if width(&cell) <= settle_width && meets_infeasibility(s, &filter, &cell)
+                {
+                    f64::INFINITY
                 } else {
                     tgt
                 };
@@ -464,13 +469,12 @@ pub fn certify(
             })
             .collect()
     };
-    let width = |cell: &IntervalBox| cell.widths().iter().fold(0.0_f64, |a, &b| a.max(b));
     // `detail`: the second stage, where cells that met their target are bisected further,
     // the largest `bound × width` first.
     let absorb = |res: Vec<Result<CellOutcome, IntervalBox>>,
                   detail: bool,
                   heap: &mut BinaryHeap<Entry>,
-                  done: &mut Vec<(CellBound, bool)>| {
+                  done: &mut Vec<(CellBound, bool, bool)>| {
         for r in res {
             match r {
                 // Dropped cells stay in the map with bound 0, so that its cells tile C and a
@@ -482,11 +486,12 @@ pub fn certify(
                         upper: cell.upper,
                         bound: 0.0,
                     };
-                    done.push((c, true));
+                    done.push((c, true, true));
                 }
                 Ok((bound, tgt, cell)) => {
                     let size = width(&cell);
-                    let finer = detail && bound.is_finite() && bound > floor;
+                    let settled = tgt == f64::INFINITY;
+                    let finer = detail && !settled && bound.is_finite() && bound > floor;
                     let met = bound <= tgt;
                     if met && !finer {
                         let c = CellBound {
@@ -494,7 +499,7 @@ pub fn certify(
                             upper: cell.upper,
                             bound,
                         };
-                        done.push((c, true));
+                        done.push((c, true, settled));
                     } else {
                         let gap = if bound.is_finite() {
                             (bound - tgt).max(bound * f64::from(u8::from(detail)))
@@ -533,9 +538,9 @@ pub fn certify(
             detail = true;
             let (wait, keep): (Vec<_>, Vec<_>) = std::mem::take(&mut done)
                 .into_iter()
-                .partition(|(c, _)| c.bound.is_finite() && c.bound > floor);
+                .partition(|(c, _, settled)| !settled && c.bound.is_finite() && c.bound > floor);
             done = keep;
-            for (cb, met) in wait {
+            for (cb, met, _) in wait {
                 let cell = cb.cell();
                 let size = width(&cell);
                 heap.push(Entry {
@@ -582,7 +587,7 @@ pub fn certify(
                     upper: cell.upper,
                     bound,
                 };
-                done.push((c, met));
+                done.push((c, met, false));
                 continue;
             }
             let (l, r) = cell.bisect();
@@ -603,10 +608,10 @@ pub fn certify(
             upper: e.cell.upper,
             bound: e.bound,
         };
-        (c, e.met)
+        (c, e.met, false)
     }));
-    let satisfied = done.iter().filter(|(_, met)| *met).count() - dropped.get();
-    let done: Vec<CellBound> = done.into_iter().map(|(c, _)| c).collect();
+    let satisfied = done.iter().filter(|(_, met, _)| *met).count() - dropped.get();
+    let done: Vec<CellBound> = done.into_iter().map(|(c, ..)| c).collect();
     let linf = done.iter().map(|c| c.bound).fold(0.0, f64::max);
     let uncertified = done.iter().filter(|c| !c.bound.is_finite()).count();
     let finite_linf = done
@@ -664,7 +669,11 @@ pub fn witness_error(
         .unwrap_or((0.0, Vec::new()))
 }
 
-/// A kept cell's certified bound, its refinement target, and the cell.
+/// A cell meeting a point where the QP is infeasible is refined until its widest side is at
+/// most `1/SETTLE_SPLITS` of `C`'s, then kept as it is.
+const SETTLE_SPLITS: f64 = 64.0;
+
+/// A kept cell's certified bound, its refinement target (+∞: settled), and the cell.
 type CellOutcome = (f64, f64, IntervalBox);
 
 #[cfg(test)]
