@@ -8,6 +8,11 @@
 //! de-duplicate, and classify each by the eigenvalues
 //! of `DF(x*)` (central differences: `F` is smooth on each side of an active-set switch, and an
 //! equilibrium on `∂S` lies strictly inside the active side).
+//!
+//! Where equilibria form a curve or surface (the unicycle's look-ahead controller rests
+//! wherever its look-ahead point is at the goal, whatever the heading), every start lands
+//! somewhere on it; [`group_equilibria`] reports such a set once, as a [`Continuum`] with its
+//! extent and sample count, instead of as hundreds of points.
 
 use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
@@ -42,7 +47,7 @@ impl std::fmt::Display for Stability {
 }
 
 /// One equilibrium `x*` of the filtered system.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Equilibrium {
     /// `x*`.
     pub x: Vec<f64>,
@@ -52,6 +57,32 @@ pub struct Equilibrium {
     pub eigenvalues: Vec<[f64; 2]>,
     /// `f̃(x*) ≠ 0`: an equilibrium created by the filter.
     pub undesirable: bool,
+}
+
+/// A connected set of non-hyperbolic equilibria found from many starts: a curve or surface
+/// of equilibria (a zero eigenvalue along it), sampled where the search's starts landed.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Continuum {
+    /// Lower corner of the samples' hull.
+    pub lower: Vec<f64>,
+    /// Upper corner of the samples' hull.
+    pub upper: Vec<f64>,
+    /// Equilibria found on it.
+    pub samples: usize,
+    /// `f̃(x*) ≠ 0` on it: created by the filter (a continuum holds equilibria of one kind).
+    pub undesirable: bool,
+    /// One sample (the first in position order).
+    pub example: Vec<f64>,
+}
+
+/// What the search found, grouped: isolated equilibria and continua of equilibria.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[serde(tag = "type", rename_all = "kebab-case")]
+pub enum EquilibriumSet {
+    /// An isolated equilibrium.
+    Point(Equilibrium),
+    /// A curve or surface of equilibria.
+    Continuum(Continuum),
 }
 
 /// Search settings.
@@ -136,6 +167,93 @@ pub fn find_equilibria(
         .filter_map(|x| classify(filter, x, search))
         .collect()
 }
+
+/// Groups `found` ([`find_equilibria`] over `region` with `search`): non-hyperbolic
+/// equilibria, all desirable or all undesirable, closer than two start spacings to one another
+/// (in units of `region`'s widths; single linkage) form a [`Continuum`] when there are at least
+/// [`CONTINUUM_SAMPLES`] of them; every other equilibrium is a point. Two continua of one kind
+/// closer than that are reported as one.
+pub fn group_equilibria(
+    found: Vec<Equilibrium>,
+    region: &IntervalBox,
+    search: &EquilibriumSearch,
+) -> Vec<EquilibriumSet> {
+    let n = region.dim();
+    let per_axis = search.starts_per_axis.max(2) as f64;
+    // The starts' spacing: 1/k per axis on the k × k grid, (k²)^(−1/n) for the Halton set.
+    let spacing = if n <= 2 {
+        1.0 / per_axis
+    } else {
+        (per_axis * per_axis).powf(-1.0 / n as f64)
+    };
+    let link = 2.0 * spacing;
+    let widths: Vec<f64> = region.widths().iter().map(|w| w.max(1e-300)).collect();
+    let near = |a: &[f64], b: &[f64]| (0..n).all(|i| (a[i] - b[i]).abs() <= link * widths[i]);
+    let flat: Vec<usize> = (0..found.len())
+        .filter(|&k| found[k].kind == Stability::NonHyperbolic)
+        .collect();
+    // Single linkage by a flood fill over the non-hyperbolic ones.
+    let mut group = vec![usize::MAX; found.len()];
+    let mut groups: Vec<Vec<usize>> = Vec::new();
+    for &k in &flat {
+        if group[k] != usize::MAX {
+            continue;
+        }
+        let id = groups.len();
+        group[k] = id;
+        let mut members = vec![k];
+        let mut next = 0;
+        while next < members.len() {
+            let a = members[next];
+            next += 1;
+            for &b in &flat {
+                if group[b] == usize::MAX
+                    && found[b].undesirable == found[a].undesirable
+                    && near(&found[a].x, &found[b].x)
+                {
+                    group[b] = id;
+                    members.push(b);
+                }
+            }
+        }
+        groups.push(members);
+    }
+    let mut out = Vec::new();
+    let mut grouped = vec![false; found.len()];
+    for members in groups.iter().filter(|m| m.len() >= CONTINUUM_SAMPLES) {
+        let mut lower = vec![f64::INFINITY; n];
+        let mut upper = vec![f64::NEG_INFINITY; n];
+        for &k in members {
+            grouped[k] = true;
+            for i in 0..n {
+                lower[i] = lower[i].min(found[k].x[i]);
+                upper[i] = upper[i].max(found[k].x[i]);
+            }
+        }
+        let first = members.iter().copied().min().unwrap_or(0);
+        out.push((
+            first,
+            EquilibriumSet::Continuum(Continuum {
+                lower,
+                upper,
+                samples: members.len(),
+                undesirable: found[first].undesirable,
+                example: found[first].x.clone(),
+            }),
+        ));
+    }
+    for (k, e) in found.into_iter().enumerate() {
+        if !grouped[k] {
+            out.push((k, EquilibriumSet::Point(e)));
+        }
+    }
+    // In the order of `found` (by position), each continuum at its first sample.
+    out.sort_by_key(|(k, _)| *k);
+    out.into_iter().map(|(_, e)| e).collect()
+}
+
+/// Fewest non-hyperbolic equilibria that [`group_equilibria`] reports as a continuum.
+pub const CONTINUUM_SAMPLES: usize = 3;
 
 /// The `k`-th point of the Halton sequence in `[0, 1]ⁿ` (bases the first `n` primes).
 fn halton(k: usize, n: usize) -> Vec<f64> {

@@ -153,7 +153,7 @@ pub struct ErrorMap {
     /// [`ErrorMap::cells_digest`] when stamped: a map whose cells were edited is refused.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub cells_hash: Option<String>,
-    /// Buckets of cells for [`ErrorMap::local_bound`], built on first use (not serialised; a
+    /// A tree over the cells for [`ErrorMap::local_bound`], built on first use (not serialised; a
     /// map whose `cells` are changed afterwards must be rebuilt with [`ErrorMap::reindexed`]).
     #[serde(skip)]
     index: LazyIndex,
@@ -169,78 +169,108 @@ impl PartialEq for LazyIndex {
     }
 }
 
-/// A uniform grid of buckets over the mapped region, each listing the cells whose closed extent
-/// meets it (so two closed boxes that meet share a bucket: the bucket of a common point, since
-/// the bucket index `⌊(x − l)/h⌋`, clamped, is monotone in `x` in floating point too).
+/// A bounding-volume tree over the cells for [`ErrorMap::local_bound`]: each node holds the
+/// hull of its cells and their largest bound, so that a query descends only into nodes that
+/// meet the box and could raise the maximum found so far. It takes `O(K)` memory in any
+/// dimension (a uniform bucket grid over a tree of cells of many sizes does not: a large cell
+/// lands in many buckets, a small one on a bucket corner in up to `2ⁿ`), and a query visits
+/// `O(log K)` nodes plus those along the box's boundary.
 #[derive(Clone, Debug, Default)]
 struct CellIndex {
-    counts: Vec<usize>,
-    lower: Vec<f64>,
-    step: Vec<f64>,
-    /// Bucket `k` (row-major, axis 0 slowest) lists `cells[start[k]..start[k + 1]]`.
-    start: Vec<u32>,
-    cells: Vec<u32>,
+    n: usize,
+    /// Per node: its hull, `lower` then `upper` (`2n` numbers).
+    hull: Vec<f64>,
+    /// Per node: the largest bound of its cells.
+    max: Vec<f64>,
+    /// Per node: `[first, end)` in `order` for a leaf (`kids == 0`), else its children's
+    /// indices.
+    span: Vec<[u32; 2]>,
+    kids: Vec<bool>,
+    /// Cells, permuted so that every node's cells are one run.
+    order: Vec<u32>,
 }
 
+/// Cells per leaf of [`CellIndex`].
+const LEAF_CELLS: usize = 8;
+
 impl CellIndex {
-    fn build(region: &IntervalBox, cells: &[CellBound]) -> CellIndex {
-        let n = region.dim();
-        let per_axis =
-            ((cells.len().max(1) as f64).powf(1.0 / n as f64).ceil() as usize).clamp(1, 512);
-        let counts = vec![per_axis; n];
-        let step: Vec<f64> = (0..n)
-            .map(|i| ((region.upper[i] - region.lower[i]) / per_axis as f64).max(f64::MIN_POSITIVE))
-            .collect();
+    fn build(n: usize, cells: &[CellBound]) -> CellIndex {
         let mut idx = CellIndex {
-            counts,
-            lower: region.lower.clone(),
-            step,
-            start: Vec::new(),
-            cells: Vec::new(),
+            n,
+            order: (0..cells.len() as u32).collect(),
+            ..CellIndex::default()
         };
-        let total: usize = idx.counts.iter().product();
-        let mut lists: Vec<Vec<u32>> = vec![Vec::new(); total];
-        for (k, c) in cells.iter().enumerate() {
-            idx.for_each_bucket(&c.lower, &c.upper, |b| lists[b].push(k as u32));
-        }
-        idx.start.push(0);
-        for l in lists {
-            idx.cells.extend(l);
-            idx.start.push(idx.cells.len() as u32);
+        if !cells.is_empty() {
+            idx.node(cells, 0, cells.len());
         }
         idx
     }
 
-    fn bucket(&self, i: usize, x: f64) -> usize {
-        let t = ((x - self.lower[i]) / self.step[i]).floor();
-        if t.is_nan() || t < 0.0 {
-            0
-        } else {
-            (t as usize).min(self.counts[i] - 1)
+    /// Builds the node over `order[first..end]` and returns its index.
+    fn node(&mut self, cells: &[CellBound], first: usize, end: usize) -> u32 {
+        let n = self.n;
+        let mut lo = vec![f64::INFINITY; n];
+        let mut hi = vec![f64::NEG_INFINITY; n];
+        let mut max = f64::NEG_INFINITY;
+        for &k in &self.order[first..end] {
+            let c = &cells[k as usize];
+            for i in 0..n {
+                lo[i] = lo[i].min(c.lower[i]);
+                hi[i] = hi[i].max(c.upper[i]);
+            }
+            max = max.max(c.bound);
         }
+        let id = self.max.len();
+        self.hull.extend(lo.iter().chain(&hi));
+        self.max.push(max);
+        self.span.push([first as u32, end as u32]);
+        self.kids.push(false);
+        if end - first > LEAF_CELLS {
+            // Split at the median centre along the hull's widest axis.
+            let axis = (0..n)
+                .max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b])))
+                .unwrap_or(0);
+            let mid = first + (end - first) / 2;
+            let centre = |k: &u32| cells[*k as usize].lower[axis] + cells[*k as usize].upper[axis];
+            self.order[first..end]
+                .select_nth_unstable_by(mid - first, |a, b| centre(a).total_cmp(&centre(b)));
+            let left = self.node(cells, first, mid);
+            let right = self.node(cells, mid, end);
+            self.span[id] = [left, right];
+            self.kids[id] = true;
+        }
+        id as u32
     }
 
-    fn for_each_bucket(&self, lower: &[f64], upper: &[f64], mut f: impl FnMut(usize)) {
-        let n = self.counts.len();
-        let lo: Vec<usize> = (0..n).map(|i| self.bucket(i, lower[i])).collect();
-        let hi: Vec<usize> = (0..n).map(|i| self.bucket(i, upper[i])).collect();
-        let mut at = lo.clone();
-        loop {
-            let k = (0..n).fold(0, |acc, i| acc * self.counts[i] + at[i]);
-            f(k);
-            let mut i = n;
-            loop {
-                if i == 0 {
-                    return;
+    /// The largest bound of the cells that meet `[lower, upper]` (−∞ when none does).
+    fn max_meeting(&self, cells: &[CellBound], lower: &[f64], upper: &[f64]) -> f64 {
+        let n = self.n;
+        let mut worst = f64::NEG_INFINITY;
+        if self.max.is_empty() {
+            return worst;
+        }
+        let mut stack = vec![0u32];
+        while let Some(id) = stack.pop() {
+            let id = id as usize;
+            let hull = &self.hull[2 * n * id..2 * n * (id + 1)];
+            if self.max[id] <= worst || (0..n).any(|i| hull[i] > upper[i] || lower[i] > hull[n + i])
+            {
+                continue;
+            }
+            let [a, b] = self.span[id];
+            if self.kids[id] {
+                stack.push(a);
+                stack.push(b);
+            } else {
+                for &k in &self.order[a as usize..b as usize] {
+                    let c = &cells[k as usize];
+                    if (0..n).all(|i| c.lower[i] <= upper[i] && lower[i] <= c.upper[i]) {
+                        worst = worst.max(c.bound);
+                    }
                 }
-                i -= 1;
-                if at[i] < hi[i] {
-                    at[i] += 1;
-                    break;
-                }
-                at[i] = lo[i];
             }
         }
+        worst
     }
 }
 
@@ -526,17 +556,9 @@ impl ErrorMap {
         let index = self
             .index
             .0
-            .get_or_init(|| CellIndex::build(&self.region, &self.cells));
+            .get_or_init(|| CellIndex::build(self.region.dim(), &self.cells));
         // A box that meets no cell is where nothing was certified: +∞, never 0.
-        let mut worst = f64::NEG_INFINITY;
-        index.for_each_bucket(&b.lower, &b.upper, |k| {
-            for &c in &index.cells[index.start[k] as usize..index.start[k + 1] as usize] {
-                let c = &self.cells[c as usize];
-                if c.meets(b) {
-                    worst = worst.max(c.bound);
-                }
-            }
-        });
+        let worst = index.max_meeting(&self.cells, &b.lower, &b.upper);
         Ok(if worst == f64::NEG_INFINITY {
             f64::INFINITY
         } else {
@@ -544,7 +566,7 @@ impl ErrorMap {
         })
     }
 
-    /// The map with its bucket index dropped (to be rebuilt on the next query), for a map
+    /// The map with its cell index dropped (to be rebuilt on the next query), for a map
     /// whose `cells` were changed after a query.
     pub fn reindexed(mut self) -> ErrorMap {
         self.index = LazyIndex::default();
@@ -611,5 +633,80 @@ mod tests {
             error_map_path(Path::new("scenarios/integrator.safetensors")),
             PathBuf::from("scenarios/integrator.errormap.json")
         );
+    }
+
+    /// A bisection tree of cells in 4 states (cells of many sizes, corners shared), queried by
+    /// boxes, points and boxes on cell faces: the indexed bound equals a scan of every cell.
+    #[test]
+    fn tree_index_equals_a_linear_scan_in_four_states() {
+        let mut seed = 11_u64;
+        let mut rnd = move || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let region = IntervalBox::new(vec![0.0, -1.0, 0.0, 5.0], vec![4.0, 1.0, 0.5, 9.0]).unwrap();
+        let mut cells = vec![region.clone()];
+        while cells.len() < 3000 {
+            let k = (rnd() * cells.len() as f64) as usize % cells.len();
+            let (l, r) = cells.swap_remove(k).bisect();
+            cells.push(l);
+            cells.push(r);
+        }
+        let cells: Vec<CellBound> = cells
+            .into_iter()
+            .map(|c| CellBound {
+                bound: if rnd() < 0.01 { f64::INFINITY } else { rnd() },
+                lower: c.lower,
+                upper: c.upper,
+            })
+            .collect();
+        let mut map = ErrorMap {
+            format: ERROR_MAP_FORMAT.into(),
+            network: String::new(),
+            network_hash: String::new(),
+            region: region.clone(),
+            norm: "inf".into(),
+            measured_linf: 0.0,
+            measured_l2: 0.0,
+            certified_linf: Some(f64::INFINITY),
+            cells,
+            provenance: None,
+            cells_hash: None,
+            index: LazyIndex::default(),
+        };
+        let mut queries = 0;
+        for k in 0..3000 {
+            let b = if k % 4 == 0 {
+                // A face or corner of a cell, as a point or a thin box.
+                let c = &map.cells[k % map.cells.len()];
+                let p: Vec<f64> = (0..4)
+                    .map(|i| if rnd() < 0.5 { c.lower[i] } else { c.upper[i] })
+                    .collect();
+                IntervalBox::new(p.clone(), p).unwrap()
+            } else {
+                let w = 0.3 * rnd();
+                let lo: Vec<f64> = (0..4)
+                    .map(|i| region.lower[i] + (region.upper[i] - region.lower[i]) * rnd())
+                    .collect();
+                let hi = (0..4).map(|i| (lo[i] + w).min(region.upper[i])).collect();
+                IntervalBox::new(lo, hi).unwrap()
+            };
+            let scan = map
+                .cells
+                .iter()
+                .filter(|c| c.meets(&b))
+                .map(|c| c.bound)
+                .fold(f64::NEG_INFINITY, f64::max);
+            assert_eq!(map.local_bound(&b), scan, "{b:?}");
+            queries += 1;
+        }
+        assert!(queries > 2000);
+        // A map whose cells leave a hole: a box inside the hole meets none, +∞.
+        let hole = map.cells.swap_remove(0);
+        map = map.reindexed();
+        let inside = IntervalBox::new(hole.cell().center(), hole.cell().center()).unwrap();
+        assert_eq!(map.local_bound(&inside), f64::INFINITY);
     }
 }

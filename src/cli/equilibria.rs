@@ -2,7 +2,9 @@
 
 use std::path::Path;
 
-use cbfreach::equilibria::{find_equilibria, Equilibrium, EquilibriumSearch};
+use cbfreach::equilibria::{
+    find_equilibria, group_equilibria, Equilibrium, EquilibriumSearch, EquilibriumSet,
+};
 use cbfreach::filter::SafetyFilter;
 use cbfreach::verify::{equilibrium_search_for, MAX_EQUILIBRIUM_STARTS};
 
@@ -25,12 +27,46 @@ pub fn run(path: &Path, json: bool) -> CliResult {
             search.starts_per_axis
         );
     }
+    let clock = std::time::Instant::now();
     let found = find_equilibria(&SafetyFilter::new(&s), &s.reach.region, &search);
+    let seconds = clock.elapsed().as_secs_f64();
+    let sets = group_equilibria(found, &s.reach.region, &search);
     if json {
-        println!("{}", serde_json::to_string_pretty(&found)?);
-    } else {
-        println!("{} equilibria of the filtered system in C:", found.len());
-        print_table(&found);
+        println!("{}", serde_json::to_string_pretty(&sets)?);
+        return Ok(());
+    }
+    let points: Vec<Equilibrium> = sets
+        .iter()
+        .filter_map(|e| match e {
+            EquilibriumSet::Point(p) => Some(p.clone()),
+            EquilibriumSet::Continuum(_) => None,
+        })
+        .collect();
+    let continua = sets.len() - points.len();
+    println!(
+        "{} isolated equilibria{} of the filtered system in C (search: {seconds:.2} s):",
+        points.len(),
+        match continua {
+            0 => String::new(),
+            k => format!(" and {k} continua"),
+        }
+    );
+    print_table(&points);
+    for e in &sets {
+        if let EquilibriumSet::Continuum(c) = e {
+            println!(
+                "  continuum of {} equilibria over {} .. {}: {} found on it, e.g. {}",
+                if c.undesirable {
+                    "undesirable"
+                } else {
+                    "desired"
+                },
+                fmt_point(&c.lower),
+                fmt_point(&c.upper),
+                c.samples,
+                fmt_point(&c.example)
+            );
+        }
     }
     Ok(())
 }

@@ -39,6 +39,10 @@ pub struct ErrorArgs {
     /// At most this many cells in the error map (about 80 bytes of JSON each).
     #[arg(long, default_value_t = 24_000)]
     pub max_cells: usize,
+    /// When every cell meets its target, bisect further (largest bound × width first) up to
+    /// this many cells, so that a set's local bound comes from cells near its size.
+    #[arg(long, default_value_t = 4_000)]
+    pub detail_cells: usize,
     /// Measurement grid: this many times the training grid's points per axis.
     #[arg(long, default_value_t = 2)]
     pub refine: usize,
@@ -50,7 +54,7 @@ pub struct ErrorArgs {
     #[arg(long, default_value_t = 0.1)]
     pub box_width: f64,
     /// Cells narrower than this are not refined further.
-    #[arg(long, default_value_t = 0.125 / 32.0)]
+    #[arg(long, default_value_t = 1.0 / 256.0)]
     pub min_cell: f64,
     /// How the network is bounded on a cell where IBP is not tight enough.
     #[arg(long, value_enum, default_value_t = BoundMethod::ForwardBackward)]
@@ -134,6 +138,7 @@ pub fn run(args: &ErrorArgs) -> CliResult {
         local_ratio: args.local_ratio,
         floor: args.floor,
         max_cells: args.max_cells,
+        detail_cells: args.detail_cells,
         cell_bounds: args.cell_bounds,
         min_cell: args.min_cell,
         ..ErrorSettings::default()

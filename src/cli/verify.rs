@@ -283,10 +283,10 @@ pub fn run_verify(
     // The equilibria search runs once per run, here (its traps are shared by every box).
     let clock = std::time::Instant::now();
     let traps = traps_for(s);
+    let equilibria_s = clock.elapsed().as_secs_f64();
     eprintln!(
-        "equilibria: {} trap(s) from the search over C in {:.2} s",
+        "equilibria: {} trap(s) from the search over C in {equilibria_s:.2} s",
         traps.len(),
-        clock.elapsed().as_secs_f64()
     );
     let verifier = Verifier {
         scenario: s,
@@ -313,7 +313,9 @@ pub fn run_verify(
             b.set_position(done as u64);
         }
     };
-    let report = verifier.run_journaled(settings, &progress, journal)?;
+    let mut report = verifier.run_journaled(settings, &progress, journal)?;
+    report.timing.equilibria_s = equilibria_s;
+    report.timing.total_s += equilibria_s;
     if let Ok(mut slot) = bar.lock() {
         if let Some((_, b)) = slot.take() {
             b.finish_and_clear();

@@ -326,6 +326,11 @@ struct Entry {
     above_goal: bool,
     priority: f64,
     bound: f64,
+    /// The cell's largest width: at equal keys (the +∞ bounds of coarse cells) the larger cell
+    /// first, so that the tree grows breadth-first there rather than into one corner.
+    size: f64,
+    /// Whether the bound met the cell's target (the second stage refines such cells too).
+    met: bool,
     cell: IntervalBox,
 }
 
@@ -359,37 +364,43 @@ impl Ord for Entry {
         let ((a, x), (b, y)) = (self.key(), other.key());
         // Ties (the +∞ bounds at singular points) by the cells' lower corners, so that the
         // order, and with it the seeds of the cells' samples, does not rest on the heap's layout.
-        a.cmp(&b).then(x.total_cmp(&y)).then_with(|| {
-            self.cell
-                .lower
-                .iter()
-                .zip(&other.cell.lower)
-                .map(|(p, q)| p.total_cmp(q))
-                .find(|o| o.is_ne())
-                .unwrap_or(Ordering::Equal)
-        })
+        a.cmp(&b)
+            .then(x.total_cmp(&y))
+            .then(self.size.total_cmp(&other.size))
+            .then_with(|| {
+                self.cell
+                    .lower
+                    .iter()
+                    .zip(&other.cell.lower)
+                    .map(|(p, q)| p.total_cmp(q))
+                    .find(|o| o.is_ne())
+                    .unwrap_or(Ordering::Equal)
+            })
     }
 }
 
 /// A certified `M_C` over `C ∩ S` with local bounds (see the [analysis docs](super)).
 ///
-/// `C` is cut into cells of [`ErrorSettings::initial_cell`] (coarser where that would leave no
-/// room to refine, [`initial_counts`]); every cell gets a certified bound
-/// ([`cell_error_bound_mv`]) and a cheap sampled error `e` (corners, centre and
-/// [`ErrorSettings::cell_samples`] random points). A cell is refined (bisected) while its bound
-/// exceeds its target `max(local_ratio · e, floor)` ([`ErrorSettings::local_ratio`],
-/// [`ErrorSettings::floor`]), the largest gaps `bound − target` times cell width first (weighted
-/// by [`ErrorSettings::goal_weight`] on cells that meet the scenario's goal set), down to
-/// [`ErrorSettings::min_cell`], in parallel
+/// The cells are the leaves of a bisection tree grown from `C` itself (no starting width, so
+/// that the map fits the region and the network in any dimension). Every cell gets a certified
+/// bound ([`cell_error_bound_mv`]) and a cheap sampled error `e` (corners, centre and
+/// [`ErrorSettings::cell_samples`] random points). A cell is bisected (across its widest
+/// axis) while its bound exceeds its target `max(local_ratio · e, floor)`
+/// ([`ErrorSettings::local_ratio`], [`ErrorSettings::floor`]), the largest gaps
+/// `bound − target` times cell width first (weighted by [`ErrorSettings::goal_weight`] on cells
+/// that meet the scenario's goal set), down to [`ErrorSettings::min_cell`], in parallel
 /// batches, until every cell meets its target, [`ErrorSettings::budget`] cell evaluations are
 /// spent, or the map holds [`ErrorSettings::max_cells`] cells. A cell's target is at most
 /// `local_ratio · target` (`target`: the measured global error), and cells whose bound exceeds
-/// that are refined before all others: the global certified `M_C` is the max over the cells,
-/// and the area-weighted order alone can spend the budget before it reaches a small cell that
-/// holds that max. `None` when the filter is a QP with more active sets than
-/// [`crate::filter::MAX_SETS`] (any filter with fewer is certified through its active-set
-/// pieces, [`VForms`]). `progress` is told the
-/// evaluations so far and the largest bound still waiting for refinement.
+/// that are refined before all others (the largest bound first, the larger cell at equal
+/// bounds): the global certified `M_C` is the max over the cells, and the area-weighted order
+/// alone can spend the budget before it reaches a small cell that holds that max. When every
+/// cell meets its target with budget left, the cells of largest `bound × width` are bisected
+/// further until the map holds [`ErrorSettings::detail_cells`] cells: a box's local bound is
+/// the max over the cells it meets, so large cells make it less local. `None` when the filter
+/// is a QP with more active sets than [`crate::filter::MAX_SETS`] (any filter with fewer is
+/// certified through its active-set pieces, [`VForms`]). `progress` is told the evaluations so
+/// far and the largest bound still waiting for refinement.
 pub fn certify(
     s: &Scenario,
     net: &Mlp,
@@ -404,7 +415,6 @@ pub fn certify(
     let filter = SafetyFilter::new(s);
     let prepared = PreparedNetwork::new(net)?;
     let c = &s.reach.region;
-    let counts = initial_counts(c, settings.initial_cell, settings.max_cells);
     let ratio = settings.local_ratio.max(1.0);
     let floor = settings.floor.max(0.0);
     let min_cell = settings.min_cell.max(1e-9);
@@ -421,11 +431,14 @@ pub fn certify(
     };
     let global_goal = ratio * target;
     let mut heap: BinaryHeap<Entry> = BinaryHeap::new();
-    let mut done: Vec<CellBound> = Vec::new();
+    // Finished cells, whether each met its target, and whether it is settled (meets an
+    // infeasible point: the second stage leaves it).
+    let mut done: Vec<(CellBound, bool, bool)> = Vec::new();
     let dropped = std::cell::Cell::new(0_usize);
     let mut evaluated = 0;
-    let mut satisfied = 0;
     // Each cell: dropped (Err) or (bound, its target).
+    let width = |cell: &IntervalBox| cell.widths().iter().fold(0.0_f64, |a, &b| a.max(b));
+    let settle_width = width(c) / SETTLE_SPLITS;
     let eval = |cells: Vec<IntervalBox>,
                 salt: usize|
      -> Result<Vec<Result<CellOutcome, IntervalBox>>, AnalysisError> {
@@ -444,9 +457,11 @@ pub fn certify(
                 let b =
                     cell_error_bound_mv(&forms, s, &prepared, &cell, settings.cell_bounds, tgt)?;
                 // Where the QP is infeasible on part of the cell, the enclosure of `v` stays
-                // wide however small the cell: keep the cell's bound as it is (target = bound).
-                let tgt = if meets_infeasibility(s, &filter, &cell) {
-                    tgt.max(b)
+                // wide however small the cell: once the cell is small (a 64th of C's widest
+                // side), keep its bound as it is (target +∞: settled, not refined further).
+                let tgt = if width(&cell) <= settle_width && meets_infeasibility(s, &filter, &cell)
+                {
+                    f64::INFINITY
                 } else {
                     tgt
                 };
@@ -454,42 +469,51 @@ pub fn certify(
             })
             .collect()
     };
-    let mut absorb = |res: Vec<Result<CellOutcome, IntervalBox>>,
-                      heap: &mut BinaryHeap<Entry>,
-                      done: &mut Vec<CellBound>| {
+    // `detail`: the second stage, where cells that met their target are bisected further,
+    // the largest `bound × width` first.
+    let absorb = |res: Vec<Result<CellOutcome, IntervalBox>>,
+                  detail: bool,
+                  heap: &mut BinaryHeap<Entry>,
+                  done: &mut Vec<(CellBound, bool, bool)>| {
         for r in res {
             match r {
                 // Dropped cells stay in the map with bound 0, so that its cells tile C and a
                 // cell missing from a file is seen (ErrorMap::load_certified).
                 Err(cell) => {
                     dropped.set(dropped.get() + 1);
-                    done.push(CellBound {
+                    let c = CellBound {
                         lower: cell.lower,
                         upper: cell.upper,
                         bound: 0.0,
-                    });
+                    };
+                    done.push((c, true, true));
                 }
                 Ok((bound, tgt, cell)) => {
-                    if bound <= tgt {
-                        satisfied += 1;
-                        done.push(CellBound {
+                    let size = width(&cell);
+                    let settled = tgt == f64::INFINITY;
+                    let finer = detail && !settled && bound.is_finite() && bound > floor;
+                    let met = bound <= tgt;
+                    if met && !finer {
+                        let c = CellBound {
                             lower: cell.lower,
                             upper: cell.upper,
                             bound,
-                        });
+                        };
+                        done.push((c, true, settled));
                     } else {
                         let gap = if bound.is_finite() {
-                            bound - tgt
+                            (bound - tgt).max(bound * f64::from(u8::from(detail)))
                         } else {
                             f64::MAX
                         };
                         // Larger cells first at equal gaps: a cell's bound reaches every box
                         // that meets it, and tiny cells at singular sets gain nothing.
-                        let size = cell.widths().iter().fold(0.0_f64, |a, &b| a.max(b));
                         heap.push(Entry {
                             above_goal: bound > global_goal,
                             priority: gap * size * weight(&cell),
                             bound,
+                            size,
+                            met,
                             cell,
                         });
                     }
@@ -497,40 +521,73 @@ pub fn certify(
             }
         }
     };
-    let initial = c.partition(&counts);
-    evaluated += initial.len();
-    let res = eval(initial, 0)?;
-    absorb(res, &mut heap, &mut done);
+    evaluated += 1;
+    let res = eval(vec![c.clone()], 0)?;
+    absorb(res, false, &mut heap, &mut done);
     let batch = 16 * rayon::current_num_threads().max(1);
     let mut budget_spent = false;
+    let mut detail = false;
     loop {
         let worst = heap.iter().map(|e| e.bound).fold(0.0, f64::max);
         progress(evaluated, worst);
+        // Dropped cells do not count against `max_cells` (they are not refined).
+        let kept = heap.len() + done.len() - dropped.get();
+        if heap.is_empty() && !detail && kept < settings.detail_cells {
+            // Every cell met its target: on to the second stage, with every finite cell
+            // above the floor waiting again.
+            detail = true;
+            let (wait, keep): (Vec<_>, Vec<_>) = std::mem::take(&mut done)
+                .into_iter()
+                .partition(|(c, _, settled)| !settled && c.bound.is_finite() && c.bound > floor);
+            done = keep;
+            for (cb, met, _) in wait {
+                let cell = cb.cell();
+                let size = width(&cell);
+                heap.push(Entry {
+                    above_goal: false,
+                    priority: cb.bound * size * weight(&cell),
+                    bound: cb.bound,
+                    size,
+                    met,
+                    cell,
+                });
+            }
+        }
         if heap.is_empty() {
             break;
         }
-        // Dropped cells do not count against `max_cells` (they are not refined).
-        let kept = heap.len() + done.len() - dropped.get();
-        if evaluated >= settings.budget || kept >= settings.max_cells {
+        // A bisection costs two evaluations.
+        if evaluated + 2 > settings.budget || kept >= settings.max_cells {
             budget_spent = true;
             break;
         }
-        let room = settings
-            .max_cells
+        if detail && kept >= settings.detail_cells {
+            break;
+        }
+        let cap = if detail {
+            settings.detail_cells.min(settings.max_cells)
+        } else {
+            settings.max_cells
+        };
+        let room = cap
             .saturating_sub(kept)
             .min(settings.budget.saturating_sub(evaluated) / 2)
             .clamp(1, batch);
         let mut children = Vec::new();
         while children.len() < 2 * room {
-            let Some(Entry { bound, cell, .. }) = heap.pop() else {
+            let Some(Entry {
+                bound, met, cell, ..
+            }) = heap.pop()
+            else {
                 break;
             };
-            if cell.widths().iter().fold(0.0_f64, |a, &b| a.max(b)) < min_cell {
-                done.push(CellBound {
+            if width(&cell) < min_cell {
+                let c = CellBound {
                     lower: cell.lower,
                     upper: cell.upper,
                     bound,
-                });
+                };
+                done.push((c, met, false));
                 continue;
             }
             let (l, r) = cell.bisect();
@@ -538,18 +595,23 @@ pub fn certify(
             children.push(r);
         }
         if children.is_empty() {
-            break;
+            continue;
         }
         let salt = evaluated;
         evaluated += children.len();
         let res = eval(children, salt)?;
-        absorb(res, &mut heap, &mut done);
+        absorb(res, detail, &mut heap, &mut done);
     }
-    done.extend(heap.into_iter().map(|e| CellBound {
-        lower: e.cell.lower,
-        upper: e.cell.upper,
-        bound: e.bound,
+    done.extend(heap.into_iter().map(|e| {
+        let c = CellBound {
+            lower: e.cell.lower,
+            upper: e.cell.upper,
+            bound: e.bound,
+        };
+        (c, e.met, false)
     }));
+    let satisfied = done.iter().filter(|(_, met, _)| *met).count() - dropped.get();
+    let done: Vec<CellBound> = done.into_iter().map(|(c, ..)| c).collect();
     let linf = done.iter().map(|c| c.bound).fold(0.0, f64::max);
     let uncertified = done.iter().filter(|c| !c.bound.is_finite()).count();
     let finite_linf = done
@@ -570,33 +632,6 @@ pub fn certify(
         budget_spent,
         satisfied,
     }))
-}
-
-/// Cells per axis of the first partition of `C`: cells of `initial_cell`, coarsened (the
-/// finest axis first) until they number at most a quarter of `max_cells`, so that the tree has
-/// room to refine where the bound is far from the sampled error. In 3–6 states a fixed width
-/// would fill the map before any refinement (a 5 × 5 × 5 region at 0.125 is 64,000 cells).
-pub fn initial_counts(c: &IntervalBox, initial_cell: f64, max_cells: usize) -> Vec<usize> {
-    let mut counts: Vec<usize> = c
-        .widths()
-        .iter()
-        .map(|&w| ((w / initial_cell.max(1e-6)).ceil() as usize).max(1))
-        .collect();
-    let cap = (max_cells / 4).max(1);
-    while counts
-        .iter()
-        .try_fold(1usize, |p, &k| p.checked_mul(k))
-        .is_none_or(|p| p > cap)
-    {
-        let Some(i) = (0..counts.len()).max_by_key(|&i| counts[i]) else {
-            break;
-        };
-        if counts[i] == 1 {
-            break;
-        }
-        counts[i] = counts[i].div_ceil(2);
-    }
-    counts
 }
 
 /// How many cells of largest bound [`witness_error`] samples, and about how many points each.
@@ -634,5 +669,72 @@ pub fn witness_error(
         .unwrap_or((0.0, Vec::new()))
 }
 
-/// A kept cell's certified bound, its refinement target, and the cell.
+/// A cell meeting a point where the QP is infeasible is refined until its widest side is at
+/// most `1/SETTLE_SPLITS` of `C`'s, then kept as it is.
+const SETTLE_SPLITS: f64 = 64.0;
+
+/// A kept cell's certified bound, its refinement target (+∞: settled), and the cell.
 type CellOutcome = (f64, f64, IntervalBox);
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 20 × 80 region: the map grows from `C` (never a grid of fixed-width cells filling
+    /// the budget), its cells tile `C`, come in several sizes, and bound the error sampled
+    /// inside each.
+    #[test]
+    fn the_tree_grows_from_c_and_its_cells_bound_the_sampled_error() {
+        let text = r#"
+name = "wide"
+[system]
+states = ["x", "y"]
+inputs = ["u1", "u2"]
+f = ["0", "0"]
+g = [["1", "0"], ["0", "1"]]
+kappa = ["-x", "-y"]
+[[cbf]]
+name = "disc"
+h = "(x - 5)^2 + (y - 20)^2 - 9"
+[reach]
+region = { lower = [-10.0, -40.0], upper = [10.0, 40.0] }
+m_c = 0.1
+dt = 0.1
+horizon = 1.0
+goal = { lower = [-1.0, -1.0], upper = [1.0, 1.0] }
+initial = [ { lower = [-1.0, -1.0], upper = [1.0, 1.0] } ]
+"#;
+        let s = Scenario::from_toml(text, "wide.toml", std::path::Path::new(".")).unwrap();
+        // Small weights: the network errs by about |κ| = |x|, smooth, so that coarse cells
+        // can meet their targets and the tree stays uneven.
+        let mut net = Mlp::random(&[2, 8, 2], 3);
+        for l in &mut net.layers {
+            l.weight.iter_mut().for_each(|w| *w *= 0.1);
+        }
+        let settings = ErrorSettings {
+            budget: 600,
+            detail_cells: 150,
+            ..ErrorSettings::default()
+        };
+        let c = certify(&s, &net, 10.0, &settings, &|_, _| {})
+            .unwrap()
+            .unwrap();
+        assert!(c.evaluated <= settings.budget, "{}", c.evaluated);
+        assert!(c.cells.len() > 8 && c.cells.len() <= settings.budget);
+        let boxes: Vec<IntervalBox> = c.cells.iter().map(CellBound::cell).collect();
+        assert!(crate::provenance::uncovered(&s.reach.region, &boxes, 1).is_empty());
+        let widths: Vec<f64> = boxes
+            .iter()
+            .map(|b| b.widths()[0] * b.widths()[1])
+            .collect();
+        let (lo, hi) = widths
+            .iter()
+            .fold((f64::MAX, 0.0_f64), |(a, b), &w| (a.min(w), b.max(w)));
+        assert!(hi >= 4.0 * lo, "cells of one size: {lo} .. {hi}");
+        let filter = SafetyFilter::new(&s);
+        for (k, cell) in c.cells.iter().enumerate() {
+            let e = sampled_cell_error(&s, &filter, &net, &cell.cell(), 16, k as u64);
+            assert!(e <= cell.bound, "{cell:?}: sampled {e}");
+        }
+    }
+}

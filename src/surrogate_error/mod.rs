@@ -100,8 +100,6 @@ pub struct ErrorSettings {
     /// Stop refining when the certified bound is within this fraction of the measured one
     /// (default 0.1).
     pub tolerance: f64,
-    /// Width of the initial cells of the certification (default 0.125).
-    pub initial_cell: f64,
     /// Width of the looseness boxes (default 0.1).
     pub looseness_width: f64,
     /// At most this many looseness boxes, spread over `C` (default 300).
@@ -118,9 +116,13 @@ pub struct ErrorSettings {
     pub cell_samples: usize,
     /// At most this many kept cells in the map (default 24,000: about 2 MB of JSON).
     pub max_cells: usize,
+    /// When every cell meets its target within the budget, cells are bisected further (the
+    /// largest `bound × width` first) until the map holds this many (default 4,000), so that
+    /// a set's local bound comes from cells near its own size (0: no second stage).
+    pub detail_cells: usize,
     /// Priority factor of cells that meet the scenario's goal set (default 4).
     pub goal_weight: f64,
-    /// Cells narrower than this are not bisected further (default `initial_cell / 32`): where
+    /// Cells narrower than this are not bisected further (default 1/256, absolute): where
     /// `v` jumps or the QP is infeasible along a curve (scenario 2 on `x₂ = −2` near
     /// `x₁ ≈ 4`), the bound stays large however fine the cells, and refining there would
     /// spend the whole budget.
@@ -137,7 +139,6 @@ impl Default for ErrorSettings {
             grid: None,
             budget: 20_000,
             tolerance: 0.1,
-            initial_cell: 0.125,
             looseness_width: 0.1,
             looseness_boxes: 300,
             looseness_samples: 16,
@@ -146,9 +147,10 @@ impl Default for ErrorSettings {
             floor: 0.01,
             cell_samples: 4,
             max_cells: 24_000,
+            detail_cells: 4_000,
             goal_weight: 4.0,
             cell_bounds: BoundMethod::ForwardBackward,
-            min_cell: 0.125 / 32.0,
+            min_cell: 1.0 / 256.0,
         }
     }
 }

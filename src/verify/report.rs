@@ -137,8 +137,11 @@ pub struct RunInfo {
 pub struct VerifyTiming {
     /// Seconds in the reach engine.
     pub reach_s: f64,
-    /// Seconds in all.
+    /// Seconds in all (the equilibria search included).
     pub total_s: f64,
+    /// Seconds of the equilibria search (once per run, before the boxes).
+    #[serde(default)]
+    pub equilibria_s: f64,
     /// Boxes run through the engine (cells and refined halves).
     pub boxes_run: usize,
     /// Euler box-steps.

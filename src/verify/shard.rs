@@ -146,6 +146,7 @@ pub fn merge(parts: Vec<(String, VerifyReport)>) -> Result<VerifyReport, VerifyE
         merged.after.extend(r.after);
         merged.timing.reach_s += r.timing.reach_s;
         merged.timing.total_s += r.timing.total_s;
+        merged.timing.equilibria_s += r.timing.equilibria_s;
         merged.timing.boxes_run += r.timing.boxes_run;
         merged.timing.box_steps += r.timing.box_steps;
     }
