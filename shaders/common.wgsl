@@ -159,26 +159,7 @@ fn iv_sqrt(a: Iv) -> Iv {
     return Iv(from32(lo), hi);
 }
 
-// exp: 3 + 2|x| ulp accurate (WGSL); widened by 4 + 2|x| ulp.
-fn exp_down(x: real) -> real {
-    if (x < -80.0) {
-        return 0.0;
-    }
-    let xf = to32_down(x);
-    return from32(max(down_rel32(exp(xf), 4.0 + 2.0 * abs(xf)), 0.0));
-}
-
-fn exp_up(x: real) -> real {
-    if (x > 80.0) {
-        return HUGE;
-    }
-    if (x < -80.0) {
-        return 1.0e-30;
-    }
-    let xf = to32_up(x);
-    return from32(up_rel32(exp(xf), 4.0 + 2.0 * abs(xf)));
-}
-
+// exp_down, exp_up: the precision prelude's (f32: the built-in, widened; f64: a polynomial).
 fn iv_exp(a: Iv) -> Iv {
     return Iv(exp_down(a.lo), exp_up(a.hi));
 }

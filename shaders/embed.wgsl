@@ -47,6 +47,28 @@ fn phi_up(z: real) -> real {
     return up3(up(1.0 - exp_down(z)) / (-z));
 }
 
+// One step of the radius recursion r ← e^{c dt} r + ℓM (e^{c dt} − 1)/c, rounded up. In f64 as
+// the CPU computes it (closeness_step, src/reach/closeness.rs: the factor from the enclosure
+// of e^{c dt}, r + ℓM dt at c = 0), so that the two radii agree to rounding, the GPU's never
+// below (its e^x enclosure is wider than the CPU's libm one, its steps one ulp or more). In f32
+// the factor's cancellation (e^{c dt} − 1, ~1e-7 absolute) would cost ~1e-5 relative a step:
+// φ's Taylor bound instead.
+fn closeness_step(r: real, c: real) -> real {
+    if (EPS > 1.0e-10) {
+        let z = iv_mul(iv_point(c), Iv(DT_LO, DT_HI));
+        let growth = exp_up(z.hi);
+        let factor = up(DT_HI * phi_up(z.hi));
+        return max(up(up(growth * r) + up(ELL_MC * factor)), 0.0);
+    }
+    if (c == 0.0) {
+        return max(up(r + up(ELL_MC * DT_HI)), 0.0);
+    }
+    let growth = iv_exp(iv_mul(iv_point(c), Iv(DT_LO, DT_HI)));
+    let factor = iv_div(iv_sub(growth, iv_point(1.0)), iv_point(c));
+    let next = iv_add(iv_mul(growth, iv_point(r)), iv_mul(iv_point(ELL_MC), factor));
+    return max(up(next.hi), 0.0);
+}
+
 @compute @workgroup_size(1)
 fn tick() {
     atomicAdd(&flags[FLAG_W * p.boxes], 1u);
@@ -519,10 +541,7 @@ fn embedding_step(g: u32, step: u32) -> u32 {
             }
             rate = max(rate, up(am[i * N0 + i].hi + off));
         }
-        let z = iv_mul(iv_point(rate), Iv(DT_LO, DT_HI));
-        let growth = exp_up(z.hi);
-        let factor = up(DT_HI * phi_up(z.hi));
-        radius = max(up(up(growth * radius) + up(ELL_MC * factor)), 0.0);
+        radius = closeness_step(radius, rate);
         if (!finite(radius)) {
             return NON_FINITE;
         }

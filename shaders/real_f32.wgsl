@@ -40,3 +40,23 @@ fn trig(m: real, is_cos: bool) -> real {
     }
     return sin(m);
 }
+
+// exp: 3 + 2|x| ulp accurate (WGSL); widened by 4 + 2|x| ulp.
+fn exp_down(x: real) -> real {
+    if (x < -80.0) {
+        return 0.0;
+    }
+    let xf = to32_down(x);
+    return from32(max(down_rel32(exp(xf), 4.0 + 2.0 * abs(xf)), 0.0));
+}
+
+fn exp_up(x: real) -> real {
+    if (x > 80.0) {
+        return HUGE;
+    }
+    if (x < -80.0) {
+        return 1.0e-30;
+    }
+    let xf = to32_up(x);
+    return from32(up_rel32(exp(xf), 4.0 + 2.0 * abs(xf)));
+}

@@ -64,3 +64,91 @@ fn trig(m: real, is_cos: bool) -> real {
     }
     return m * s;
 }
+
+// exp in f64 arithmetic (src/gpu/exp64.rs mirrors it operation for operation, and a test
+// compares the two on the device). For |x| ≤ 80: x = k ln 2 + r with k = round(x/ln 2) taken in
+// f32 (any integer is sound; near keeps |r| ≤ ln 2/2 + 2e-5 < EXP_R_MAX), r enclosed in
+// [r̲, r̄] from ln 2 ∈ [EXP_LN2_LO, EXP_LN2_HI] with outward steps; e^r by the Taylor polynomial
+// of degree 13 in nested form, e^r = 1 + r(1 + r/2(1 + r/3(…))), with the reciprocals 1/j as
+// correctly rounded literals. On |r| ≤ 0.35 the truncation is ≤ 0.35¹⁴/14!·e^0.35 < 1e-17 and
+// the rounding ≤ Σ_j 4u·(0.35)^j·e^0.35/(1 − 0.35) < 3e-15 (each level's three roundings, or two
+// with a fused multiply–add, damped by |r|/j ≤ 0.35 on the way out); EXP_POLY_ERR = 1e-14
+// covers both. e^r is increasing, so p(r̲) − ERR ≤ e^x·2^-k ≤ p(r̄) + ERR, and 2^k scales both
+// exactly (a power of two, built by squaring; 2^-116·0.7 is normal).
+const EXP_LN2_LO: real = 0.6931471805599453lf;
+const EXP_LN2_HI: real = 0.6931471805599454lf;
+const EXP_R_MAX: real = 0.35lf;
+const EXP_POLY_ERR: real = 1.0e-14lf;
+var<private> EXP_R: array<f64, 13> = array<f64, 13>(1.0lf, 0.5lf, 0.3333333333333333lf, 0.25lf, 0.2lf, 0.16666666666666666lf, 0.14285714285714285lf, 0.125lf, 0.1111111111111111lf, 0.1lf, 0.09090909090909091lf, 0.08333333333333333lf, 0.07692307692307693lf);
+
+// Σ_{j ≤ 13} r^j/j!, nested.
+fn exp_poly(r: real) -> real {
+    var s: real = 1.0;
+    for (var j = 12i; j >= 0i; j--) {
+        s = 1.0 + r * EXP_R[j] * s;
+    }
+    return s;
+}
+
+// 2^k for |k| < 256, exactly.
+fn exp_pow2(k: i32) -> real {
+    var b: real = 2.0;
+    if (k < 0i) {
+        b = 0.5;
+    }
+    var m = abs(k);
+    var s: real = 1.0;
+    for (var i = 0u; i < 8u; i++) {
+        if ((m & 1i) == 1i) {
+            s = s * b;
+        }
+        b = b * b;
+        m = m >> 1u;
+    }
+    return s;
+}
+
+// [e̲, ē] ∋ e^x for |x| ≤ 80 (callers check the range); [0, HUGE] where the reduced argument
+// falls outside EXP_R_MAX (it cannot, for a finite x in range).
+fn exp_enclosure(x: real) -> vec2<f64> {
+    let kf = round(f32(x) * 1.442695);
+    let k = f64(kf);
+    var kl_lo: real;
+    var kl_hi: real;
+    if (k >= 0.0) {
+        kl_lo = down(k * EXP_LN2_LO);
+        kl_hi = up(k * EXP_LN2_HI);
+    } else {
+        kl_lo = down(k * EXP_LN2_HI);
+        kl_hi = up(k * EXP_LN2_LO);
+    }
+    let r_lo = down(x - kl_hi);
+    let r_hi = up(x - kl_lo);
+    if (!(r_lo >= -EXP_R_MAX && r_hi <= EXP_R_MAX)) {
+        return vec2<f64>(0.0, HUGE);
+    }
+    let p_lo = down(exp_poly(r_lo) - EXP_POLY_ERR);
+    let p_hi = up(exp_poly(r_hi) + EXP_POLY_ERR);
+    let s = exp_pow2(i32(kf));
+    return vec2<f64>(max(p_lo * s, 0.0), p_hi * s);
+}
+
+fn exp_down(x: real) -> real {
+    if (x < -80.0) {
+        return 0.0;
+    }
+    if (x > 80.0) {
+        return exp_enclosure(80.0).x;
+    }
+    return exp_enclosure(x).x;
+}
+
+fn exp_up(x: real) -> real {
+    if (x > 80.0) {
+        return HUGE;
+    }
+    if (x < -80.0) {
+        return exp_enclosure(-80.0).y;
+    }
+    return exp_enclosure(x).y;
+}

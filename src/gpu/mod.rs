@@ -6,6 +6,7 @@
 //! - [`kernels`]: one struct per pipeline (`shaders/*.wgsl`, included at compile time).
 //! - [`buffers`]: `#[repr(C)]` images of what the kernels read; the device layout.
 //! - [`codegen`]: scenario expressions as WGSL interval inclusion functions.
+//! - [`exp64`]: the f64 shaders' `exp` enclosure mirrored in Rust, and run on the device.
 //! - [`margins`]: the error map as a range-maximum structure on the device, for local error
 //!   margins (`--local-margin`): the CPU's exact `M` for any set size in O(log) reads.
 //! - [`GpuBackend`]: [`crate::reach::Backend`] on the device: forward linear bounds,
@@ -46,10 +47,12 @@
 //! - **f64**: Vulkan itself promises f64 operations only single precision; the f64 engine
 //!   assumes IEEE-754 `+ − ×` (correctly rounded: lavapipe's LLVM code, NVIDIA, AMD) and
 //!   widens by one ulp (`u = 2⁻⁵²`) as above, divisions by three steps. SPIR-V has `exp`,
-//!   `log` for 32-bit floats only, so the f64 shaders evaluate `exp`, `ln`, `sqrt` in f32 at an
-//!   argument on the safe side and widen by the f32 accuracy (relative ~1e-6); `sin`, `cos` are
-//!   f64 polynomials with a rigorous remainder (`real_f64.wgsl`), over the exact range of the
-//!   interval (endpoints and extrema), as on the CPU.
+//!   `log` for 32-bit floats only, so the f64 shaders evaluate `ln`, `sqrt` in f32 at an
+//!   argument on the safe side and widen by the f32 accuracy (relative ~1e-6); `exp` is an f64
+//!   range reduction and polynomial with a rigorous remainder ([`exp64`] mirrors it, a test
+//!   compares the two on the device), and `sin`, `cos` f64 polynomials with a rigorous
+//!   remainder (`real_f64.wgsl`), over the exact range of the interval (endpoints and
+//!   extrema), as on the CPU.
 //! - **Overflow, NaN**: WGSL does not promise IEEE infinities, so every bound is compared with
 //!   `1e30`; a box past it is reported as non-finite, as the CPU reports an overflow.
 //!
@@ -63,6 +66,7 @@ pub mod backend;
 pub mod buffers;
 pub mod codegen;
 pub mod context;
+pub mod exp64;
 pub mod kernels;
 pub mod margins;
 
