@@ -14,6 +14,7 @@ use serde::Serialize;
 use crate::boxes::IntervalBox;
 use crate::filter::SafetyFilter;
 use crate::network::train::Dataset;
+use crate::scenario::Scenario;
 
 /// What building a data set found.
 #[derive(Clone, Debug, Default, Serialize)]
@@ -195,6 +196,65 @@ pub fn refinement_points<'a>(
                 .collect()
         })
         .collect()
+}
+
+/// A validation grid the training never saw: the training grid shifted by half a spacing,
+/// restricted to the safe set, where the filter acts (`C ∩ S`).
+pub fn validation_points(s: &Scenario, grid: &[usize]) -> Vec<Vec<f64>> {
+    let r = &s.training.region;
+    let half: Vec<f64> = (0..s.n())
+        .map(|i| 0.5 * (r.upper[i] - r.lower[i]) / (grid[i] - 1) as f64)
+        .collect();
+    let inner = IntervalBox {
+        lower: (0..s.n()).map(|i| r.lower[i] + half[i]).collect(),
+        upper: (0..s.n()).map(|i| r.upper[i] - half[i]).collect(),
+    };
+    let counts: Vec<usize> = grid.iter().map(|k| k - 1).collect();
+    grid_points(&inner, &counts)
+        .into_iter()
+        .filter(|x| s.is_safe(x) && s.reach.region.contains(x))
+        .collect()
+}
+
+/// Gives weight 0 to the unsafe samples with no safe point at distance `band` or `band/2`
+/// along an axis; returns how many.
+pub fn restrict_to_band(s: &Scenario, data: &mut Dataset, band: f64) -> usize {
+    let n = s.n();
+    let len = data.len();
+    let weights = data.weights.get_or_insert_with(|| vec![1.0; len]);
+    let mut excluded = 0;
+    for (k, w) in weights.iter_mut().enumerate() {
+        let x = &data.inputs[k * n..(k + 1) * n];
+        if s.is_safe(x) {
+            continue;
+        }
+        let near = (0..n).any(|i| {
+            [band, -band, 0.5 * band, -0.5 * band].iter().any(|&d| {
+                let mut y = x.to_vec();
+                y[i] += d;
+                s.is_safe(&y)
+            })
+        });
+        if !near {
+            *w = 0.0;
+            excluded += 1;
+        }
+    }
+    excluded
+}
+
+/// Multiplies the weights of the samples in `focus` by `weight`; returns how many.
+pub fn weigh_box(data: &mut Dataset, focus: &IntervalBox, weight: f64) -> usize {
+    let (n, len) = (data.n_in, data.len());
+    let weights = data.weights.get_or_insert_with(|| vec![1.0; len]);
+    let mut count = 0;
+    for (k, w) in weights.iter_mut().enumerate() {
+        if focus.contains(&data.inputs[k * n..(k + 1) * n]) {
+            *w *= weight;
+            count += 1;
+        }
+    }
+    count
 }
 
 #[cfg(test)]

@@ -415,3 +415,51 @@ initial = [{{ lower = [{lo}, 0.9], upper = [{hi}, 1.1] }}]
     );
     assert!(end.to_string().contains("M is below"), "{end}");
 }
+
+#[test]
+fn train_says_when_the_grid_cannot_resolve_the_target() {
+    // The unicycle's filter steepens to ~76 per unit next to the obstacle: on a 9×7×9 grid
+    // the grid's own interpolant misses v by far more than the target 0.1 between the points,
+    // and train says so before and after training (a tiny network, a sliver of the schedule).
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("net.safetensors");
+    let path = root().join("scenarios/unicycle.toml");
+    let (code, stdout, stderr) = cbfreach(&[
+        "train",
+        path.to_str().unwrap(),
+        "--architecture",
+        "3,8,2",
+        "--grid",
+        "9,7,9",
+        "--budget",
+        "0.01",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{stderr}");
+    let line = stdout
+        .lines()
+        .find(|l| l.starts_with("grid resolution:"))
+        .unwrap_or_else(|| panic!("no grid resolution line in {stdout}"));
+    let miss: f64 = line
+        .split("misses v by up to ")
+        .nth(1)
+        .and_then(|r| r.split_whitespace().next())
+        .and_then(|x| x.parse().ok())
+        .unwrap_or_else(|| panic!("no figure in `{line}`"));
+    assert!(miss > 0.5, "{line}");
+    assert!(line.contains("above the target 0.1"), "{line}");
+    assert!(
+        stdout.contains("a finer [training] grid comes first"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("target NOT reached"), "{stdout}");
+    assert!(
+        stdout.contains("the grid itself resolves v only to"),
+        "{stdout}"
+    );
+    let (_, metadata) = cbfreach::network::Mlp::load_safetensors_with_metadata(&out).unwrap();
+    let res: cbfreach::network::train::Resolution =
+        serde_json::from_str(&metadata["grid_resolution"]).expect("recorded");
+    assert!((res.max - miss).abs() < 1e-4 * (1.0 + miss), "{res:?}");
+}

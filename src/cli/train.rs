@@ -3,8 +3,10 @@
 use std::io::IsTerminal;
 use std::path::PathBuf;
 
-use cbfreach::boxes::IntervalBox;
-use cbfreach::dataset::{filter_dataset, grid_points, refinement_points, DatasetSummary, Slopes};
+use cbfreach::dataset::{
+    filter_dataset, grid_points, refinement_points, restrict_to_band, validation_points, weigh_box,
+    DatasetSummary, Slopes,
+};
 use cbfreach::filter::SafetyFilter;
 use cbfreach::network::train::{
     self, Dataset, Normalisation, Recipe, RecipeData, RecipeProgress, Target, TrainSettings,
@@ -241,51 +243,6 @@ pub fn run_dataset(args: &DatasetArgs) -> CliResult {
     Ok(())
 }
 
-/// A validation grid the training never saw: the training grid shifted by half a spacing,
-/// restricted to the safe set, where the filter acts (`C ∩ S`).
-pub fn validation_points(s: &Scenario, grid: &[usize]) -> Vec<Vec<f64>> {
-    let r = &s.training.region;
-    let half: Vec<f64> = (0..s.n())
-        .map(|i| 0.5 * (r.upper[i] - r.lower[i]) / (grid[i] - 1) as f64)
-        .collect();
-    let inner = IntervalBox {
-        lower: (0..s.n()).map(|i| r.lower[i] + half[i]).collect(),
-        upper: (0..s.n()).map(|i| r.upper[i] - half[i]).collect(),
-    };
-    let counts: Vec<usize> = grid.iter().map(|k| k - 1).collect();
-    grid_points(&inner, &counts)
-        .into_iter()
-        .filter(|x| s.is_safe(x) && s.reach.region.contains(x))
-        .collect()
-}
-
-/// Gives weight 0 to the unsafe samples with no safe point at distance `band` or `band/2`
-/// along an axis; returns how many.
-fn restrict_to_band(s: &Scenario, data: &mut Dataset, band: f64) -> usize {
-    let n = s.n();
-    let len = data.len();
-    let weights = data.weights.get_or_insert_with(|| vec![1.0; len]);
-    let mut excluded = 0;
-    for (k, w) in weights.iter_mut().enumerate() {
-        let x = &data.inputs[k * n..(k + 1) * n];
-        if s.is_safe(x) {
-            continue;
-        }
-        let near = (0..n).any(|i| {
-            [band, -band, 0.5 * band, -0.5 * band].iter().any(|&d| {
-                let mut y = x.to_vec();
-                y[i] += d;
-                s.is_safe(&y)
-            })
-        });
-        if !near {
-            *w = 0.0;
-            excluded += 1;
-        }
-    }
-    excluded
-}
-
 /// The inputs of the samples in `S` whose steepest target slope `max |∂vᵢ/∂xⱼ|` exceeds
 /// `slope` but not `cap` (inside an obstacle `v` steepens without bound, and `M_C` is not
 /// measured there; slopes above `--jacobian-cap` mark jumps of `v`, where no continuous
@@ -311,20 +268,6 @@ fn steep_samples<'a>(
         .map(|k| &data.inputs[k * data.n_in..(k + 1) * data.n_in])
         .filter(|x| s.is_safe(x))
         .collect()
-}
-
-/// Multiplies the weights of the samples in `focus` by `weight`; returns how many.
-fn weigh_box(data: &mut Dataset, focus: &IntervalBox, weight: f64) -> usize {
-    let (n, len) = (data.n_in, data.len());
-    let weights = data.weights.get_or_insert_with(|| vec![1.0; len]);
-    let mut count = 0;
-    for (k, w) in weights.iter_mut().enumerate() {
-        if focus.contains(&data.inputs[k * n..(k + 1) * n]) {
-            *w *= weight;
-            count += 1;
-        }
-    }
-    count
 }
 
 /// Runs `cbfreach train`.
@@ -646,8 +589,17 @@ fn run_recipe(
             .collect::<Vec<_>>()
             .join(", "),
         recipe.stages[0].settings.batch_size,
-        describe_target(&target)
+        target
     );
+    let resolution = train::grid_resolution(
+        &r.lower,
+        &r.upper,
+        grid,
+        &data,
+        &validation,
+        target.linf.unwrap_or(f64::INFINITY),
+    );
+    print_resolution(&resolution, target.linf);
     let bar = progress_bar(total as u64, "fit");
     let logged = !std::io::stderr().is_terminal();
     let offsets: Vec<usize> = recipe
@@ -723,6 +675,9 @@ fn run_recipe(
     if let Ok(json) = serde_json::to_string(&report) {
         metadata.insert("recipe_report".into(), json);
     }
+    if let Ok(json) = serde_json::to_string(&resolution) {
+        metadata.insert("grid_resolution".into(), json);
+    }
     metadata.insert("validation_max_linf".into(), measured.linf.to_string());
     metadata.insert(
         "validation_slope_p95".into(),
@@ -744,21 +699,33 @@ fn run_recipe(
         measured.slope_p95,
         measured.ibp_looseness
     );
+    if !target.met(&measured) && target.linf.is_some_and(|t| resolution.max > t) {
+        println!(
+            "  the grid itself resolves v only to {:.4} (above): refine [training] grid before training longer",
+            resolution.max
+        );
+    }
     println!("network written to {}", out.display());
     Ok(())
 }
 
-fn describe_target(t: &Target) -> String {
-    let mut parts = Vec::new();
-    if let Some(v) = t.linf {
-        parts.push(format!("max ℓ∞ ≤ {v}"));
+/// One line on how finely the training grid resolves `v` (its own multilinear interpolant at
+/// the validation points), and a warning where that is coarser than the target.
+fn print_resolution(r: &train::Resolution, linf: Option<f64>) {
+    if r.points == 0 {
+        return;
     }
-    if let Some(v) = t.slope_p95 {
-        parts.push(format!("slope p95 ≤ {v}"));
-    }
-    if parts.is_empty() {
-        "none ([training] target: the whole schedule)".into()
-    } else {
-        parts.join(", ")
+    let at: Vec<String> = r.at.iter().map(|x| format!("{x:.4}")).collect();
+    println!(
+        "grid resolution: the training grid's own multilinear interpolant misses v by up to {:.4} at ({}) on {} validation points{}",
+        r.max,
+        at.join(", "),
+        r.points,
+        linf.map_or(String::new(), |t| format!(" ({} above the target {t})", r.above))
+    );
+    if linf.is_some_and(|t| r.max > t) {
+        println!(
+            "  warning: v changes between the grid's points by more than the target: no network fitted to these samples is known to be that close between them; a finer [training] grid comes first"
+        );
     }
 }

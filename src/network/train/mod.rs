@@ -92,7 +92,8 @@
 //! (the loop: [`train`], [`resume`], [`train_until`]), `report` (what a run reports;
 //! [`evaluate`]), `normalise` (the data's affine maps, folded into the saved network:
 //! [`Normalisation`]), `recipe` (the default staged schedule to an accuracy target:
-//! [`train_to_target`]).
+//! [`train_to_target`]), `resolution` (how finely the training grid resolves `v`:
+//! [`grid_resolution`]).
 
 mod checkpoint;
 mod dataset;
@@ -100,6 +101,7 @@ mod loss;
 mod normalise;
 mod recipe;
 mod report;
+mod resolution;
 mod run;
 mod settings;
 
@@ -115,5 +117,6 @@ pub use recipe::{
     RecipeReport, Stage, StageKind, StageReport, Target,
 };
 pub use report::{evaluate, pointwise_errors, EpochStats, ErrorStats, PointErrors, TrainReport};
+pub use resolution::{grid_resolution, Resolution};
 pub use run::{resume, train, train_until, Flow};
 pub use settings::{LrSchedule, Precision, TrainSettings};
