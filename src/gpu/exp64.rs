@@ -14,8 +14,9 @@ use super::kernels::{F32_BITS, REAL_F64};
 use super::{GpuContext, GpuError};
 
 /// `ln 2` lies in `[LN2_LO, LN2_HI]` (`LN2_LO` is `f64::consts::LN_2`, which is below it).
-pub const LN2_LO: f64 = 0.693_147_180_559_945_3;
-/// The next f64 above [`LN2_LO`].
+pub const LN2_LO: f64 = std::f64::consts::LN_2;
+/// The next f64 above [`LN2_LO`] (the shader's literal).
+#[allow(clippy::approx_constant)]
 pub const LN2_HI: f64 = 0.693_147_180_559_945_4;
 /// The reduced argument's bound, on which [`POLY_ERR`] holds.
 pub const R_MAX: f64 = 0.35;
@@ -65,6 +66,7 @@ fn pow2(k: i32) -> f64 {
 }
 
 /// `[e̲, ē] ∋ eˣ` for `|x| ≤ RANGE`, as the shader computes it.
+#[allow(clippy::approx_constant)] // the shader's f32 literal for 1/ln 2, as written there
 pub fn exp_enclosure(x: f64) -> (f64, f64) {
     // Any integer k is sound; round(x / ln 2) keeps |r| ≤ ln 2 / 2 + 2e-5.
     let kf = ((x as f32) * 1.442_695_f32).round_ties_even();
