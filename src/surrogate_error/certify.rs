@@ -397,7 +397,10 @@ impl Ord for Entry {
 /// alone can spend the budget before it reaches a small cell that holds that max. When every
 /// cell meets its target with budget left, the cells of largest `bound × width` are bisected
 /// further until the map holds [`ErrorSettings::detail_cells`] cells: a box's local bound is
-/// the max over the cells it meets, so large cells make it less local. `None` when the filter
+/// the max over the cells it meets, so large cells make it less local. A cell meeting a point
+/// where the QP is infeasible is refined like any other until it is a 64th of `C`'s widest
+/// side, then kept as it is (there the enclosure of `v` stays wide however small the cell), and
+/// the second stage leaves it. `None` when the filter
 /// is a QP with more active sets than [`crate::filter::MAX_SETS`] (any filter with fewer is
 /// certified through its active-set pieces, [`VForms`]). `progress` is told the evaluations so
 /// far and the largest bound still waiting for refinement.
