@@ -144,7 +144,7 @@ goal = { lower = [-0.1, -0.1, -0.1, -0.1, -0.1, -0.1], upper = [0.1, 0.1, 0.1, 0
     let (code, out, err) = cbfreach(&["equilibria", path.to_str().unwrap()]);
     no_panic(code, &err);
     assert_eq!(code, 0, "{err}");
-    assert!(out.contains("1 equilibria"), "{out}");
+    assert!(out.contains("1 isolated equilibria"), "{out}");
 }
 
 // --- hangs ------------------------------------------------------------------------------------
