@@ -140,6 +140,19 @@ impl IntervalBox {
         (0..self.dim()).all(|i| other.lower[i] <= self.lower[i] && self.upper[i] <= other.upper[i])
     }
 
+    /// The smallest box holding both.
+    pub fn hull(&self, other: &IntervalBox) -> IntervalBox {
+        let (lower, upper) = (0..self.dim())
+            .map(|i| {
+                (
+                    self.lower[i].min(other.lower[i]),
+                    self.upper[i].max(other.upper[i]),
+                )
+            })
+            .unzip();
+        IntervalBox { lower, upper }
+    }
+
     /// `self ∩ other`, or `None` when they are disjoint.
     pub fn intersection(&self, other: &IntervalBox) -> Option<IntervalBox> {
         let lower: Vec<f64> = (0..self.dim())
@@ -210,6 +223,14 @@ impl IntervalBox {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn hull_holds_both_and_nothing_wider() {
+        let a = IntervalBox::new(vec![0.0, -2.0], vec![1.0, 0.5]).unwrap();
+        let b = IntervalBox::new(vec![-1.0, -1.0], vec![0.5, 3.0]).unwrap();
+        let h = a.hull(&b);
+        assert_eq!((h.lower, h.upper), (vec![-1.0, -2.0], vec![1.0, 3.0]));
+    }
 
     #[test]
     fn rejects_inverted_empty_and_nan_boxes() {

@@ -4,7 +4,7 @@
 //! works on that engine's chunk state); imports what `cpu` imports.
 
 use super::*;
-use crate::reach::sampled::{euler_image, hull, not_proven_safe, Intersample, Remainder};
+use crate::reach::sampled::{euler_image, not_proven_safe, Intersample, Remainder};
 
 /// What a set holds over one control period.
 pub(super) struct Held {
@@ -56,10 +56,7 @@ impl ChunkRun<'_> {
             let set = &state.sets[f];
             let x_box = p.x_box_in_safe_set(&set.lower, &set.upper, frame.safe);
             let enclosure = match input.piece.is_none() && self.encloses {
-                true => p
-                    .pieces
-                    .enclosure(&x_box)
-                    .filter(|v| v.iter().all(|e| e.lower.is_finite() && e.upper.is_finite())),
+                true => p.pieces.finite_enclosure(&x_box),
                 false => None,
             }
             .map(|v| {
@@ -145,7 +142,7 @@ impl ChunkRun<'_> {
             let set = &mut state.sets[f];
             set.clone_from(&images[j]);
             embedding_step(&mut set.lower, &mut set.upper, &rl, &ru, 1.0);
-            let mut swept = hull(&images[j - 1], &images[j]);
+            let mut swept = images[j - 1].hull(&images[j]);
             embedding_step(&mut swept.lower, &mut swept.upper, &bl, &bu, 1.0);
             let x = p.x_box_in_safe_set(&swept.lower, &swept.upper, frame.safe);
             pipe = Some(match pipe {

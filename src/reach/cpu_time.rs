@@ -202,10 +202,7 @@ impl ChunkRun<'_> {
             (dl, du)
         });
         let enclosed = match input.piece.is_none() && self.encloses {
-            true => p
-                .pieces
-                .enclosure(&x_box)
-                .filter(|v| v.iter().all(|e| e.lower.is_finite() && e.upper.is_finite())),
+            true => p.pieces.finite_enclosure(&x_box),
             false => None,
         }
         .map(|v| {
@@ -385,7 +382,7 @@ impl ChunkRun<'_> {
             return false;
         };
         let swept = match state.swept.take() {
-            Some(s) => hull(&s, pipe),
+            Some(s) => s.hull(pipe),
             None => pipe.clone(),
         };
         let left = !swept.is_subset_of(&problem.region);
@@ -486,21 +483,3 @@ const PARTS: usize = 9;
 
 /// Lower and upper rates of one step, `(dx̲/dt, dx̄/dt)`.
 type Rates = (Vec<f64>, Vec<f64>);
-
-/// The smallest box holding both.
-pub(super) fn hull(a: &IntervalBox, b: &IntervalBox) -> IntervalBox {
-    IntervalBox {
-        lower: a
-            .lower
-            .iter()
-            .zip(&b.lower)
-            .map(|(x, y)| x.min(*y))
-            .collect(),
-        upper: a
-            .upper
-            .iter()
-            .zip(&b.upper)
-            .map(|(x, y)| x.max(*y))
-            .collect(),
-    }
-}

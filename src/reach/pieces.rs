@@ -158,6 +158,13 @@ impl FilterPieces {
             .map(|forms| forms.enclose(&self.scenario, x_box).0)
     }
 
+    /// [`FilterPieces::enclosure`] where every end is finite (an infinite end bounds nothing a
+    /// step can use).
+    pub fn finite_enclosure(&self, x_box: &IntervalBox) -> Option<Vec<Interval>> {
+        self.enclosure(x_box)
+            .filter(|v| v.iter().all(|e| e.lower.is_finite() && e.upper.is_finite()))
+    }
+
     /// The scenario whose filter this is.
     pub fn scenario(&self) -> &Scenario {
         &self.scenario

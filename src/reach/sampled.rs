@@ -104,7 +104,7 @@ impl Intersample {
             return None;
         };
         let hull = match &self.hull {
-            Some(b) => hull(b, &pipe.set),
+            Some(b) => b.hull(&pipe.set),
             None => pipe.set.clone(),
         };
         let a = intervals(&hull);
@@ -323,24 +323,6 @@ pub fn not_proven_safe(scenario: &Scenario, b: &IntervalBox) -> Option<(String, 
         let proven = h.lower >= 0.0;
         (!proven).then(|| (c.name.clone(), h.upper < 0.0))
     })
-}
-
-/// The smallest box holding both.
-pub fn hull(a: &IntervalBox, b: &IntervalBox) -> IntervalBox {
-    IntervalBox {
-        lower: a
-            .lower
-            .iter()
-            .zip(&b.lower)
-            .map(|(x, y)| x.min(*y))
-            .collect(),
-        upper: a
-            .upper
-            .iter()
-            .zip(&b.upper)
-            .map(|(x, y)| x.max(*y))
-            .collect(),
-    }
 }
 
 fn intervals(b: &IntervalBox) -> Vec<Interval> {

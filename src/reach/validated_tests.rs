@@ -1,0 +1,244 @@
+//! Tests of the validated continuous step ([`super`]).
+
+use super::*;
+
+fn linear(a: [[f64; 2]; 2]) -> Dynamics {
+    let names = ["x1".to_string(), "x2".to_string()];
+    let parse = |s: &str| crate::expressions::parse(s, &names, &Default::default()).unwrap();
+    let lin = |r: [f64; 2]| parse(&format!("{}*x1 + {}*x2", r[0], r[1]));
+    let zero = parse("0");
+    Dynamics::new(
+        2,
+        1,
+        vec![lin(a[0]), lin(a[1])],
+        vec![vec![zero.clone()], vec![zero]],
+    )
+}
+
+fn no_network<'a>(z: &'a [f64]) -> NetworkBoundsRef<'a> {
+    NetworkBoundsRef {
+        a_lower: &z[..2],
+        b_lower: &z[..1],
+        a_upper: &z[..2],
+        b_upper: &z[..1],
+        lower: &z[..1],
+        upper: &z[..1],
+    }
+}
+
+/// Lower and upper rates.
+type Bounds = (Vec<f64>, Vec<f64>);
+
+/// The field of `d` over a box, with no network term (the test systems' exact field).
+fn exact_field<'a>(
+    d: &'a Dynamics,
+    z: &'a [f64],
+) -> impl Fn(&IntervalBox, bool) -> Result<Option<Bounds>, ()> + 'a {
+    move |a, _| {
+        Ok(Some(field_over(
+            d,
+            &a.lower,
+            &a.upper,
+            no_network(z),
+            &[0.0],
+        )))
+    }
+}
+
+/// `ẋ = −x` from `[1, 2]²` over h = 0.1: the flowpipe holds `x([0, h])` and the slab step
+/// holds the exact set `e^{−h}[1, 2]`, within O(h²) of it.
+#[test]
+fn contraction_is_enclosed_and_kept_within_second_order() {
+    let d = linear([[-1.0, 0.0], [0.0, -1.0]]);
+    let z = [0.0; 4];
+    let set = IntervalBox::new(vec![1.0, 1.0], vec![2.0, 2.0]).unwrap();
+    let h = 0.1;
+    let field = exact_field(&d, &z);
+    let Enclosure::Closed(pipe) = enclose_step(&set, h, None, None, field).unwrap() else {
+        panic!("no enclosure")
+    };
+    let e = (-h).exp();
+    for i in 0..2 {
+        assert!(pipe.set.lower[i] <= e && pipe.set.upper[i] >= 2.0);
+    }
+    let (dl, du) = slab_field(&d, &set, &pipe, h, |_, _| no_network(&z), &[0.0]);
+    for i in 0..2 {
+        let lo = set.lower[i] + h * dl[i];
+        let hi = set.upper[i] + h * du[i];
+        assert!(lo <= e && hi >= 2.0 * e, "{lo} {hi}");
+        assert!(e - lo < 0.02 && hi - 2.0 * e < 0.02, "{lo} {hi}");
+        // The face (Euler) bound would be 2(1 − h) < 2e^{−h}: not an enclosure.
+        assert!(2.0 * (1.0 - h) < 2.0 * e);
+    }
+}
+
+/// A rotation `ẋ₁ = x₂, ẋ₂ = −x₁`: the Euler map's box grows, and the validated step's box
+/// holds the exact rotation of every corner.
+#[test]
+fn rotation_holds_the_rotated_corners() {
+    let d = linear([[0.0, 1.0], [-1.0, 0.0]]);
+    let z = [0.0; 4];
+    let set = IntervalBox::new(vec![0.9, -0.1], vec![1.1, 0.1]).unwrap();
+    let h = 0.2;
+    let field = exact_field(&d, &z);
+    let Enclosure::Closed(pipe) = enclose_step(&set, h, None, None, field).unwrap() else {
+        panic!("no enclosure")
+    };
+    let (mut lo, mut hi) = (set.lower.clone(), set.upper.clone());
+    let (dl, du) = slab_field(&d, &set, &pipe, h, |_, _| no_network(&z), &[0.0]);
+    super::super::embedding::embedding_step(&mut lo, &mut hi, &dl, &du, h);
+    meet_with_pipe(&mut lo, &mut hi, &pipe);
+    for c in set.corners() {
+        for k in 0..=20 {
+            let t = h * k as f64 / 20.0;
+            let x = [
+                c[0] * t.cos() + c[1] * t.sin(),
+                -c[0] * t.sin() + c[1] * t.cos(),
+            ];
+            assert!(pipe.set.contains(&x), "{x:?} not in {:?}", pipe.set);
+            if k == 20 {
+                assert!(lo[0] <= x[0] && x[0] <= hi[0] && lo[1] <= x[1] && x[1] <= hi[1]);
+            }
+        }
+    }
+}
+
+/// The moving box (item 3) on a damped rotation over 40 steps, each guessed from the last
+/// step's rates: every checked box holds the exact solution from the set's corners and edge
+/// points at every τ of its step, every set holds them at the step's end; most steps pass
+/// the check and end tighter than the whole enclosure's slabs. A guess slower than the flow
+/// at a face fails the check.
+#[test]
+fn moving_box_holds_the_flow() {
+    let d = linear([[-0.5, 1.0], [-1.0, -0.5]]);
+    let z = [0.0; 4];
+    let flow = |x: [f64; 2], t: f64| {
+        let (c, s, e) = (t.cos(), t.sin(), (-0.5 * t).exp());
+        [e * (c * x[0] + s * x[1]), e * (-s * x[0] + c * x[1])]
+    };
+    let inside = |lo: &[f64], hi: &[f64], x: [f64; 2]| {
+        (0..2).all(|i| lo[i] - 1e-12 <= x[i] && x[i] <= hi[i] + 1e-12)
+    };
+    let h = 0.1;
+    let mut set = IntervalBox::new(vec![0.9, -0.1], vec![1.1, 0.1]).unwrap();
+    let mut whole = set.clone();
+    let mut points: Vec<[f64; 2]> = (0..=8)
+        .flat_map(|k| {
+            let a = 0.9 + 0.025 * k as f64;
+            let b = -0.1 + 0.025 * k as f64;
+            [[a, -0.1], [a, 0.1], [0.9, b], [1.1, b]]
+        })
+        .collect();
+    let (mut rates, mut passed) = (None::<Bounds>, 0);
+    let none = |_: usize, _: bool| no_network(&z);
+    for _ in 0..40 {
+        let Enclosure::Closed(pipe) =
+            enclose_step(&set, h, None, None, exact_field(&d, &z)).unwrap()
+        else {
+            panic!("no enclosure")
+        };
+        let mut used = (pipe.clone(), None);
+        if let Some(mv) = rates
+            .as_ref()
+            .and_then(|(l, u)| moving(&set, &pipe, h, (l, u)))
+        {
+            let r = slab_field(&d, &set, &mv, h, none, &[0.0]);
+            if verified(&mv, (&r.0, &r.1)) {
+                passed += 1;
+                used = (mv, Some(r));
+            }
+        }
+        let (pipe, r) = used;
+        let (dl, du) = r.unwrap_or_else(|| slab_field(&d, &set, &pipe, h, none, &[0.0]));
+        for &x in &points {
+            for k in 0..=10 {
+                let tau = h * k as f64 / 10.0;
+                let y = flow(x, tau);
+                assert!(pipe.set.contains(&y), "{y:?} not in {:?}", pipe.set);
+                if let Some(m) = &pipe.faces {
+                    let lo: Vec<f64> = (0..2).map(|i| set.lower[i] + tau * m.lower[i]).collect();
+                    let hi: Vec<f64> = (0..2).map(|i| set.upper[i] + tau * m.upper[i]).collect();
+                    assert!(
+                        inside(&lo, &hi, y),
+                        "{y:?} left the moving box at τ = {tau}"
+                    );
+                }
+            }
+        }
+        let (mut lo, mut hi) = (set.lower.clone(), set.upper.clone());
+        super::super::embedding::embedding_step(&mut lo, &mut hi, &dl, &du, h);
+        meet_with_pipe(&mut lo, &mut hi, &pipe);
+        for x in points.iter_mut() {
+            *x = flow(*x, h);
+            assert!(inside(&lo, &hi, *x), "{x:?} not in [{lo:?}, {hi:?}]");
+        }
+        set = IntervalBox {
+            lower: lo,
+            upper: hi,
+        };
+        rates = Some((dl, du));
+        // The whole enclosure's slabs alone, for comparison.
+        let Enclosure::Closed(wp) =
+            enclose_step(&whole, h, None, None, exact_field(&d, &z)).unwrap()
+        else {
+            panic!("no enclosure")
+        };
+        let (wl, wu) = slab_field(&d, &whole, &wp, h, none, &[0.0]);
+        let (mut lo, mut hi) = (whole.lower.clone(), whole.upper.clone());
+        super::super::embedding::embedding_step(&mut lo, &mut hi, &wl, &wu, h);
+        meet_with_pipe(&mut lo, &mut hi, &wp);
+        whole = IntervalBox {
+            lower: lo,
+            upper: hi,
+        };
+    }
+    assert!(passed >= 30, "{passed} of 39 moving boxes proven");
+    let width = |b: &IntervalBox| (b.upper[0] - b.lower[0]) + (b.upper[1] - b.lower[1]);
+    assert!(width(&set) < width(&whole), "{set:?} vs {whole:?}");
+    // A guess slower than the flow at its face fails the check: `ẋ = −x` from `[1, 2]²`
+    // moves the upper faces at −2 at first, not −2.5.
+    let d = linear([[-1.0, 0.0], [0.0, -1.0]]);
+    let set = IntervalBox::new(vec![1.0, 1.0], vec![2.0, 2.0]).unwrap();
+    let Enclosure::Closed(pipe) = enclose_step(&set, h, None, None, exact_field(&d, &z)).unwrap()
+    else {
+        panic!()
+    };
+    let mv = moving(&set, &pipe, h, (&[-1.0, -1.0], &[-2.6, -2.6])).unwrap();
+    let r = slab_field(&d, &set, &mv, h, none, &[0.0]);
+    assert!(!verified(&mv, (&r.0, &r.1)), "{:?} {r:?}", mv.faces);
+    let mv = moving(&set, &pipe, h, (&[-1.0, -1.0], &[-1.7, -1.7])).unwrap();
+    let r = slab_field(&d, &set, &mv, h, none, &[0.0]);
+    assert!(verified(&mv, (&r.0, &r.1)), "{:?} {r:?}", mv.faces);
+}
+
+/// Parts cover the box, and `C` clips the enclosure soundly: `ẋ = −x` from a set on `C`'s
+/// upper side moves into `C` and closes within it; `ẋ = x` from the same set would leave `C`
+/// and does not close.
+#[test]
+fn parts_cover_and_c_clips_only_inward_motion() {
+    let a = IntervalBox::new(vec![0.0, -1.0], vec![1.0, 2.0]).unwrap();
+    let ps = parts(&a, 3);
+    assert_eq!(ps.len(), 9);
+    let area: f64 = ps
+        .iter()
+        .map(|p| (p.upper[0] - p.lower[0]) * (p.upper[1] - p.lower[1]))
+        .sum();
+    assert!((area - 3.0).abs() < 1e-12);
+    assert!(ps.iter().all(|p| p.is_subset_of(&a)));
+    let z = [0.0; 4];
+    let c = IntervalBox::new(vec![-3.0, -3.0], vec![2.0, 2.0]).unwrap();
+    let set = IntervalBox::new(vec![1.0, 1.0], vec![2.0, 2.0]).unwrap();
+    for (sign, closes) in [(-1.0, true), (1.0, false)] {
+        let d = linear([[sign, 0.0], [0.0, sign]]);
+        let field = exact_field(&d, &z);
+        let found = enclose_step(&set, 0.1, None, Some(&c), field).unwrap();
+        match found {
+            Enclosure::Closed(pipe) => {
+                assert!(closes, "ẋ = x leaves C: no enclosure within it");
+                assert!(pipe.set.is_subset_of(&c));
+                assert!(pipe.set.lower[0] <= (-0.1_f64).exp());
+            }
+            _ => assert!(!closes, "ẋ = −x from C's side stays in C"),
+        }
+    }
+}
