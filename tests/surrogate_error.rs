@@ -615,8 +615,12 @@ fn shipped_networks_have_the_paper_architectures_and_their_error_maps() {
 /// The README's figures for the shipped networks, measured as `cbfreach error` measures them
 /// (the same grid, 4× the training grid's points, and the same slope error,
 /// `max_ij |DN − Dv|_ij` at each point): the slope error's 95th percentile is below the
-/// issue's 0.2 target, and the max errors are the ones the error maps record.
+/// issue's 0.2 target, and the max errors are the ones the error maps record. Minutes of
+/// network evaluations on 2 cores for files that change only when a network is retrained:
+/// run it then, `cargo test --release --test surrogate_error -- --ignored`. (That the maps
+/// belong to their networks and bound their errors is checked in the suite, below.)
 #[test]
+#[ignore = "minutes: run after retraining a shipped network (--ignored)"]
 fn shipped_networks_meet_the_slope_target() {
     for (s, file) in [
         (common::integrator(), "integrator.safetensors"),
