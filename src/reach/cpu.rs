@@ -500,7 +500,7 @@ impl ChunkRun<'_> {
                     let pipe = state.pipes.get(f).and_then(Option::as_ref);
                     let exact = input.piece.map(|piece| match pipe {
                         Some(pipe) => self.piece_slab_field(p, set, pipe, piece, &buf.zeros),
-                        None => Self::piece_field(p, set, piece, &buf.zeros),
+                        None => Self::piece_field(p, set, piece, &buf.zeros, self.h),
                     });
                     let enclosed = match (pipe, input.piece.is_none() && self.encloses) {
                         (_, false) => None,

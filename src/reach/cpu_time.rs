@@ -409,7 +409,7 @@ impl ChunkRun<'_> {
         piece: (FilterPiece, f64),
         zeros: &[f64],
     ) -> Option<Rates> {
-        let euler = Self::piece_field(p, set, piece, zeros);
+        let euler = Self::piece_field(p, set, piece, zeros, self.h);
         let dynamics = piece_dynamics(p, piece.0);
         validated::taylor_rates(dynamics, set, pipe, self.h, euler)
     }
