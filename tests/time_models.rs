@@ -571,7 +571,10 @@ fn euler_sets_hold_the_euler_map_where_it_turns_a_coordinate_around() {
                 }
             }
         }
-        assert_eq!(e.at_snapshots, 0, "{exact:?}, face-local {face_local}: {e:?}");
+        assert_eq!(
+            e.at_snapshots, 0,
+            "{exact:?}, face-local {face_local}: {e:?}"
+        );
         assert!(e.checks >= 2 * 48 * 10, "too few checks: {e:?}");
     }
 }

@@ -81,7 +81,15 @@ impl ChunkRun<'_> {
         };
         let (mut dl, mut du) =
             embedding_field_by_face(&problem.dynamics, lower, upper, face, &zeros[..m]);
-        euler_turn(&problem.dynamics, lower, upper, self.h, None, &mut dl, &mut du);
+        euler_turn(
+            &problem.dynamics,
+            lower,
+            upper,
+            self.h,
+            None,
+            &mut dl,
+            &mut du,
+        );
         widen_by(&mut dl, &mut du, slack);
         Some((dl, du))
     }
@@ -113,14 +121,18 @@ impl ChunkRun<'_> {
             (None, true) => {
                 let (mut dl, mut du) =
                     embedding_field_by_face(dynamics, &set.lower, &set.upper, face, margin);
-                euler_turn(dynamics, &set.lower, &set.upper, self.h, None, &mut dl, &mut du);
+                euler_turn(
+                    dynamics, &set.lower, &set.upper, self.h, None, &mut dl, &mut du,
+                );
                 (dl, du)
             }
             (None, false) => {
                 let (mut dl, mut du) =
                     embedding_field(dynamics, &set.lower, &set.upper, nn, margin);
                 let whole = Some((nn, margin));
-                euler_turn(dynamics, &set.lower, &set.upper, self.h, whole, &mut dl, &mut du);
+                euler_turn(
+                    dynamics, &set.lower, &set.upper, self.h, whole, &mut dl, &mut du,
+                );
                 (dl, du)
             }
         };
