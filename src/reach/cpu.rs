@@ -216,6 +216,8 @@ struct ChunkBuffers {
     slots: Vec<usize>,
     /// Per frame, whether the box's set stepped this step.
     stepped: Vec<bool>,
+    /// Continuous time: per frame, the first Picard candidates and their network bounds.
+    candidates: Vec<cpu_time::Candidates>,
 }
 
 /// What every chunk's run shares.
@@ -423,9 +425,7 @@ impl ChunkRun<'_> {
             }
             if self.time == TimeModel::Continuous {
                 let t0 = (step / k) as f64 * problem.dt + (step % k) as f64 * self.h;
-                for state in states.iter_mut().filter(|s| !s.done) {
-                    self.enclose(state, buf, t0)?;
-                }
+                self.enclose_all(states, buf, t0)?;
             }
             buf.facts.clear();
             let live = states.iter().filter(|s| !s.done);
@@ -500,7 +500,7 @@ impl ChunkRun<'_> {
                     let pipe = state.pipes.get(f).and_then(Option::as_ref);
                     let exact = input.piece.map(|piece| match pipe {
                         Some(pipe) => self.piece_slab_field(p, set, pipe, piece, &buf.zeros),
-                        None => Self::piece_field(p, set, piece, &buf.zeros),
+                        None => Self::piece_field(p, set, piece, &buf.zeros, self.h),
                     });
                     let enclosed = match (pipe, input.piece.is_none() && self.encloses) {
                         (_, false) => None,

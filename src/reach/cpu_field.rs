@@ -7,7 +7,7 @@ use std::time::Instant;
 
 use super::super::closeness::{closeness_step, log_norm};
 use super::super::embedding::{
-    embedding_field, embedding_field_by_face, widen_by, NetworkBoundsRef,
+    embedding_field, embedding_field_by_face, euler_turn, widen_by, NetworkBoundsRef,
 };
 use super::super::validated;
 use super::super::{ReachMethod, ReachProblem};
@@ -18,18 +18,22 @@ use crate::filter::FilterPiece;
 use crate::intervals::Interval;
 
 impl ChunkRun<'_> {
-    /// The filtered system's own field on a piece over a set, widened by the transform's slack.
+    /// The filtered system's own field on a piece over a set, widened by the transform's slack,
+    /// as rates of the Euler map over `h` ([`euler_turn`]).
     pub(super) fn piece_field(
         problem: &ReachProblem,
         set: &IntervalBox,
         (piece, slack): (FilterPiece, f64),
         zeros: &[f64],
+        h: f64,
     ) -> (Vec<f64>, Vec<f64>) {
         let (n, m) = (problem.dynamics.n, problem.dynamics.m);
         let dynamics = piece_dynamics(problem, piece);
         let zero = zero_bounds(zeros, n, m);
         let (mut dl, mut du) =
             embedding_field(dynamics, &set.lower, &set.upper, zero, zero.b_lower);
+        let whole = Some((zero, zero.b_lower));
+        euler_turn(dynamics, &set.lower, &set.upper, h, whole, &mut dl, &mut du);
         widen_by(&mut dl, &mut du, slack);
         (dl, du)
     }
@@ -77,6 +81,15 @@ impl ChunkRun<'_> {
         };
         let (mut dl, mut du) =
             embedding_field_by_face(&problem.dynamics, lower, upper, face, &zeros[..m]);
+        euler_turn(
+            &problem.dynamics,
+            lower,
+            upper,
+            self.h,
+            None,
+            &mut dl,
+            &mut du,
+        );
         widen_by(&mut dl, &mut du, slack);
         Some((dl, du))
     }
@@ -105,8 +118,23 @@ impl ChunkRun<'_> {
             (Some(pipe), false) => {
                 validated::slab_field(dynamics, set, pipe, self.h, |_, _| nn, margin)
             }
-            (None, true) => embedding_field_by_face(dynamics, &set.lower, &set.upper, face, margin),
-            (None, false) => embedding_field(dynamics, &set.lower, &set.upper, nn, margin),
+            (None, true) => {
+                let (mut dl, mut du) =
+                    embedding_field_by_face(dynamics, &set.lower, &set.upper, face, margin);
+                euler_turn(
+                    dynamics, &set.lower, &set.upper, self.h, None, &mut dl, &mut du,
+                );
+                (dl, du)
+            }
+            (None, false) => {
+                let (mut dl, mut du) =
+                    embedding_field(dynamics, &set.lower, &set.upper, nn, margin);
+                let whole = Some((nn, margin));
+                euler_turn(
+                    dynamics, &set.lower, &set.upper, self.h, whole, &mut dl, &mut du,
+                );
+                (dl, du)
+            }
         };
         // The Minkowski method's radius (refused with face-local bounds: its rate needs one C).
         let mut minkowski_s = 0.0;

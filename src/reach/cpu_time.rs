@@ -5,22 +5,97 @@
 
 use super::*;
 
+/// One frame's first Picard candidates of a chunk's live boxes, and the network's bounds over
+/// them, found in one batch ([`ChunkRun::enclose_all`]): one box at a time, these bounds were
+/// most of the continuous step's cost (matrix–vector products where the faces' batch has
+/// GEMMs).
+#[derive(Default)]
+pub(super) struct Candidates {
+    bounds: BoundsWorkspace,
+    batch: AffineBoundsBatch,
+    /// Per live box: its candidate and its row in `batch` (where the network is bounded there).
+    slots: Vec<Option<(IntervalBox, usize)>>,
+}
+
 /// Continuous time ([`TimeModel::Continuous`], [`validated`]): the a-priori enclosure of each
 /// step and the field on slabs of it.
 impl ChunkRun<'_> {
+    /// [`ChunkRun::enclose`] for every live box of a chunk, the network bounded over their
+    /// first candidates (from last step's guess) in one batch per frame.
+    pub(super) fn enclose_all(
+        &self,
+        states: &mut [Live],
+        buf: &mut ChunkBuffers,
+        t0: f64,
+    ) -> Result<(), ReachError> {
+        buf.candidates
+            .resize_with(self.frames.len(), Candidates::default);
+        for (f, frame) in self.frames.iter().enumerate() {
+            let (fb, cands) = (&mut buf.frames[f], &mut buf.candidates[f]);
+            let p = frame.problem;
+            fb.flat_lo.clear();
+            fb.flat_hi.clear();
+            cands.slots.clear();
+            let region = p.transform.is_none().then_some(&p.region);
+            let mut rows = 0;
+            for state in states.iter().filter(|s| !s.done) {
+                let slot = state.guess[f].as_ref().and_then(|(l, u)| {
+                    let a = validated::first_candidate(&state.sets[f], self.h, (l, u), region)?;
+                    let x_box = p.x_box_in_safe_set(&a.lower, &a.upper, frame.safe);
+                    // The network is bounded only where the step takes it (as field_on_box).
+                    self.step_input(p, &x_box, self.set_facts(&x_box)).margin?;
+                    fb.flat_lo.extend(&a.lower);
+                    fb.flat_hi.extend(&a.upper);
+                    rows += 1;
+                    Some((a, rows - 1))
+                });
+                cands.slots.push(slot);
+            }
+            if rows > 0 {
+                frame.network.bounds_serial_into(
+                    &fb.flat_lo,
+                    &fb.flat_hi,
+                    self.settings.bounds,
+                    &mut cands.bounds,
+                    &mut cands.batch,
+                )?;
+            }
+        }
+        let live = states.iter_mut().filter(|s| !s.done);
+        for (k, state) in live.enumerate() {
+            self.enclose(state, buf, t0, k)?;
+        }
+        Ok(())
+    }
+
     /// Encloses the next step of every frame's set (Picard–Lindelöf); the step's facts and
-    /// bounds then come from the flowpipe. Ends the tube where no enclosure closes.
+    /// bounds then come from the flowpipe. Ends the tube where no enclosure closes. `k`: the
+    /// box's place among the chunk's live boxes (its row in `buf.candidates`).
     pub(super) fn enclose(
         &self,
         state: &mut Live,
         buf: &mut ChunkBuffers,
         t0: f64,
+        k: usize,
     ) -> Result<(), ReachError> {
-        let ChunkBuffers { frames, zeros, .. } = buf;
+        let ChunkBuffers {
+            frames,
+            zeros,
+            candidates,
+            ..
+        } = buf;
+        let (n, m) = (
+            self.frames[0].problem.dynamics.n,
+            self.frames[0].problem.dynamics.m,
+        );
         state.pipes.clear();
         for (f, frame) in self.frames.iter().enumerate() {
             let guess = state.guess[f].as_ref().map(|(l, u)| (&l[..], &u[..]));
             let fb = &mut frames[f];
+            // The batch's bounds over the first candidate, used once, for that box only.
+            let mut pre = candidates
+                .get(f)
+                .and_then(|c| c.slots.get(k).cloned().flatten().map(|s| (c, s)));
             // `C` bounds the enclosure in x frames (M and the verdicts hold there only).
             let region = frame
                 .problem
@@ -30,7 +105,13 @@ impl ChunkRun<'_> {
             let found =
                 validated::enclose_step(&state.sets[f], self.h, guess, region, |a, parts| {
                     match parts {
-                        false => self.field_on_box(frame, a, fb, zeros),
+                        false => {
+                            let nn = pre
+                                .take()
+                                .filter(|(_, (cand, _))| cand == a)
+                                .map(|(c, (_, row))| bounds_of(&c.batch, row, n, m));
+                            self.field_on_box(frame, a, fb, zeros, nn)
+                        }
                         true => self.field_on_parts(frame, a, fb, zeros),
                     }
                 })?;
@@ -187,6 +268,7 @@ impl ChunkRun<'_> {
         a: &IntervalBox,
         fb: &mut FrameBuffers,
         zeros: &[f64],
+        batched: Option<NetworkBoundsRef>,
     ) -> Result<Option<Rates>, ReachError> {
         let p = frame.problem;
         let (n, m) = (p.dynamics.n, p.dynamics.m);
@@ -215,14 +297,19 @@ impl ChunkRun<'_> {
         });
         let network = match input.margin {
             Some(bound) => {
-                frame.network.bounds_serial_into(
-                    &a.lower,
-                    &a.upper,
-                    self.settings.bounds,
-                    &mut fb.pipe_bounds,
-                    &mut fb.pipe_batch,
-                )?;
-                let nn = bounds_of(&fb.pipe_batch, 0, n, m);
+                let nn = match batched {
+                    Some(nn) => nn,
+                    None => {
+                        frame.network.bounds_serial_into(
+                            &a.lower,
+                            &a.upper,
+                            self.settings.bounds,
+                            &mut fb.pipe_bounds,
+                            &mut fb.pipe_batch,
+                        )?;
+                        bounds_of(&fb.pipe_batch, 0, n, m)
+                    }
+                };
                 fb.pipe_nn = Some(AffineBounds {
                     a_lower: nn.a_lower.to_vec(),
                     b_lower: nn.b_lower.to_vec(),
@@ -269,13 +356,43 @@ impl ChunkRun<'_> {
             return Ok(None);
         }
         let whole_nn = fb.pipe_nn.take();
+        let parts: Vec<IntervalBox> = validated::parts(a, k)
+            .into_iter()
+            .filter(|part| {
+                let x_box = p.x_box_in_safe_set(&part.lower, &part.upper, frame.safe);
+                !crate::surrogate_error::proven_unsafe(p.pieces.scenario(), &x_box)
+            })
+            .collect();
+        // The network over every part that takes it, in one batch (one at a time, the parts'
+        // bounds were matrix–vector products).
+        let (mut lo, mut hi, mut taken) = (Vec::new(), Vec::new(), 0);
+        let rows: Vec<Option<usize>> = parts
+            .iter()
+            .map(|part| {
+                let x_box = p.x_box_in_safe_set(&part.lower, &part.upper, frame.safe);
+                self.step_input(p, &x_box, self.set_facts(&x_box))
+                    .margin
+                    .map(|_| {
+                        lo.extend(&part.lower);
+                        hi.extend(&part.upper);
+                        taken += 1;
+                        taken - 1
+                    })
+            })
+            .collect();
+        let mut batch = std::mem::take(&mut fb.pipe_batch);
+        if taken > 0 {
+            let bounds = self.settings.bounds;
+            frame
+                .network
+                .bounds_serial_into(&lo, &hi, bounds, &mut fb.pipe_bounds, &mut batch)?;
+        }
+        let m = p.dynamics.m;
         let mut hull: Option<Rates> = None;
-        for part in validated::parts(a, k) {
-            let x_box = p.x_box_in_safe_set(&part.lower, &part.upper, frame.safe);
-            if crate::surrogate_error::proven_unsafe(p.pieces.scenario(), &x_box) {
-                continue;
-            }
-            let Some((lo, hi)) = self.field_on_box(frame, &part, fb, zeros)? else {
+        for (part, row) in parts.iter().zip(rows) {
+            let nn = row.map(|r| bounds_of(&batch, r, n, m));
+            let Some((lo, hi)) = self.field_on_box(frame, part, fb, zeros, nn)? else {
+                fb.pipe_batch = batch;
                 fb.pipe_nn = whole_nn;
                 return Ok(None);
             };
@@ -287,6 +404,7 @@ impl ChunkRun<'_> {
                 ),
             });
         }
+        fb.pipe_batch = batch;
         fb.pipe_nn = whole_nn;
         Ok(hull)
     }
@@ -409,7 +527,7 @@ impl ChunkRun<'_> {
         piece: (FilterPiece, f64),
         zeros: &[f64],
     ) -> Option<Rates> {
-        let euler = Self::piece_field(p, set, piece, zeros);
+        let euler = Self::piece_field(p, set, piece, zeros, self.h);
         let dynamics = piece_dynamics(p, piece.0);
         validated::taylor_rates(dynamics, set, pipe, self.h, euler)
     }

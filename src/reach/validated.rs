@@ -96,6 +96,22 @@ fn sweep(set: &IntervalBox, h: f64, f_lower: &[f64], f_upper: &[f64]) -> Interva
     IntervalBox { lower, upper }
 }
 
+/// The first candidate [`enclose_step`] tries from a guess of the field `(lo, hi)`: the sweep
+/// of `set` over `h`, inflated, within `region` (`None` where it misses `region`). The engine
+/// bounds the network over every box's first candidate in one batch.
+pub fn first_candidate(
+    set: &IntervalBox,
+    h: f64,
+    (lo, hi): (&[f64], &[f64]),
+    region: Option<&IntervalBox>,
+) -> Option<IntervalBox> {
+    let a = inflate(&sweep(set, h, lo, hi));
+    match region {
+        Some(r) => a.intersection(r),
+        None => Some(a),
+    }
+}
+
 /// `b` grown by 10 % of its width and a little more on every side.
 fn inflate(b: &IntervalBox) -> IntervalBox {
     let grow = |l: f64, u: f64| 0.1 * (u - l) + 1e-9 * (1.0 + l.abs().max(u.abs()));
@@ -128,7 +144,12 @@ pub fn enclose_step<E>(
         None => Some(b),
     };
     let first = match guess {
-        Some((lo, hi)) => inflate(&sweep(set, h, lo, hi)),
+        Some(guess) => {
+            let Some(a) = first_candidate(set, h, guess, region) else {
+                return Ok(Enclosure::Open);
+            };
+            a
+        }
         None => match field(set, false)? {
             Some((lo, hi)) => inflate(&sweep(set, h, &lo, &hi)),
             None => match field(set, true)? {
