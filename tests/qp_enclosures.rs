@@ -247,6 +247,47 @@ fn jumps_where_lgh_vanishes_give_wide_enclosures() {
     }
 }
 
+/// Over wide boxes far from both spheres every row is slack at `θ = 0`, so `v ≡ 0` there and
+/// the general path must say so (the continuous-time step bounds the field over such boxes);
+/// before, the pairs' multiplier signs, unresolved by interval evaluation, left `(−∞, 0]`.
+#[test]
+fn wide_boxes_with_every_row_slack_prove_the_filter_inactive() {
+    let s = spheres();
+    let qp = QpForms::new(&s);
+    let forms = VForms::new(&s).unwrap();
+    for (lo, hi) in [(-1.0, -0.5), (-2.5, -1.875), (-1.3, -0.3)] {
+        let b = IntervalBox {
+            lower: vec![lo; 3],
+            upper: vec![hi; 3],
+        };
+        let cell = qp.enclose(&s, &b);
+        assert!(
+            cell.v.iter().all(|v| v.lower == 0.0 && v.upper == 0.0),
+            "{b:?}: {:?}",
+            cell.v
+        );
+        assert!(matches!(cell.piece, Some((None, _))), "{b:?}: no piece");
+        assert_eq!(
+            forms.piece(&s, &b),
+            Some(cbfreach::filter::FilterPiece::Inactive)
+        );
+        // The natural rows prove it on the first box alone (by hand: b ≥ 7.4 there).
+        let (a_nat, b_nat) = interval_rows(&s, &b);
+        if b_nat.iter().all(|bk| bk.lower >= 0.0) {
+            let natural = natural_qp_enclosure(&a_nat, &b_nat, s.m());
+            assert!(natural.iter().all(|v| v.lower == 0.0 && v.upper == 0.0));
+        } else {
+            assert!(lo != -1.0, "the natural rows should prove {b:?}");
+        }
+    }
+    // Not where a sphere's row binds: behind sphere A (seen from the origin) `v₁ > 0`.
+    let behind = IntervalBox {
+        lower: vec![2.0, 0.0, -0.2],
+        upper: vec![2.3, 0.4, 0.2],
+    };
+    assert!(qp.enclose(&s, &behind).v[0].lower > 0.0);
+}
+
 /// The paper's filters through the general path: every enclosure within the closed form's
 /// (to rounding), on the same random boxes.
 #[test]
