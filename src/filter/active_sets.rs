@@ -279,6 +279,10 @@ pub fn natural_qp_enclosure(a: &[Interval], b: &[Interval], m: usize) -> Vec<Int
     if a.len() != rows * m || a.iter().chain(b).any(|v| v.is_nan()) {
         return entire;
     }
+    // `θ = 0` feasible throughout: it is the least-norm point ([`QpForms::enclose`]).
+    if b.iter().all(|bk| bk.lower >= 0.0) {
+        return vec![Interval::point(0.0); m];
+    }
     let a: Vec<Vec<Interval>> = a.chunks(m.max(1)).map(<[Interval]>::to_vec).collect();
     let Some(sets) = active_sets(rows, m.min(MAX_ACTIVE)) else {
         return entire;
@@ -472,6 +476,20 @@ impl QpForms {
                 }
             }
         }
+        let zero_piece = || super::SmoothV {
+            centre: cell.center(),
+            value: vec![Interval::point(0.0); m],
+            jac: vec![Interval::point(0.0); m * self.n],
+        };
+        // Every row slack at `θ = 0` on the whole box: `0` is feasible, so it is the least-norm
+        // point, whatever the active-set tests below could decide (over wide boxes the
+        // multipliers' signs of the pairs of rows are not resolved by interval evaluation).
+        if b.iter().all(|bk| bk.lower >= 0.0) {
+            return QpCell {
+                v: vec![Interval::point(0.0); m],
+                piece: Some((None, zero_piece())),
+            };
+        }
         let centred = |f: &Smooth, nat: Interval| meet(nat, f.centred(&xs, &cs, &dx).enclosure);
         let mut union: Option<Vec<Interval>> = None;
         let mut only: Vec<Option<usize>> = Vec::new();
@@ -479,11 +497,7 @@ impl QpForms {
         if inactive_possible(&a, &b) {
             union = Some(vec![Interval::point(0.0); m]);
             only.push(None);
-            smooth = Some(super::SmoothV {
-                centre: cell.center(),
-                value: vec![Interval::point(0.0); m],
-                jac: vec![Interval::point(0.0); m * self.n],
-            });
+            smooth = Some(zero_piece());
         }
         for (k, piece) in self.pieces.iter().enumerate() {
             let mut alg = piece_algebra(&a, &b, &piece.set);
