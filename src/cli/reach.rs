@@ -144,9 +144,16 @@ pub fn run(args: &ReachArgs) -> CliResult {
     if settings.exact_field() != ExactField::Nowhere {
         let exact: usize = result.boxes.iter().map(|t| t.exact_steps).sum();
         let enclosed: usize = result.boxes.iter().map(|t| t.enclosed_steps).sum();
+        // Both counts are per engine step: `substeps` of them make one box-step of `dt`.
+        let k = problem.steps_per_dt();
+        let of = if k > 1 {
+            format!("{} engine steps ({k} per box-step)", run * k)
+        } else {
+            format!("{run} box-steps")
+        };
         println!(
             "  the filtered system's own field (the filter proven one smooth function on the set) \
-             on {exact} of the {run} box-steps{}",
+             on {exact} of the {of}{}",
             if enclosed > 0 {
                 format!(", the closed form's enclosures of v on {enclosed}")
             } else {

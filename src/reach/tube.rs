@@ -238,10 +238,10 @@ pub struct Tube {
     /// How the tube ended: the result says nothing after an early end.
     #[serde(flatten)]
     pub end: TubeEnd,
-    /// Steps that integrated the filtered system's own field, the filter proven one smooth
-    /// function on the set ([`super::ReachSettings::exact`]).
+    /// Engine steps (`substeps` per `dt`) that integrated the filtered system's own field, the
+    /// filter proven one smooth function on the set ([`super::ReachSettings::exact`]).
     pub exact_steps: usize,
-    /// Steps whose field also took the closed form's enclosures of `v` on the set's faces
+    /// Engine steps whose field also took the closed form's enclosures of `v` on the set's faces
     /// ([`super::ExactField::ClosedForm`], where no piece was proven).
     pub enclosed_steps: usize,
     /// Sampled-data: where the sets first may leave `S` (absent otherwise).
