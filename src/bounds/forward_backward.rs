@@ -334,6 +334,21 @@ mod tests {
     use crate::bounds::test_support::*;
     use crate::bounds::{crown, forward, AffineBoundsBatch};
 
+    /// The forward form wins only by more than the tie tolerance; ties and NaN go backward.
+    #[test]
+    fn ties_go_to_the_backward_form() {
+        let b = 1.6351681024851934e-4;
+        assert!(!tighter_than(b + 2.6e-13, b), "a rounding-level tie");
+        assert!(tighter_than(b + 2e-9, b));
+        assert!(!tighter_than(b - 1e-3, b));
+        assert!(
+            !tighter_than(-(-b + 1.5e-13), -(-b)),
+            "upper bounds, negated"
+        );
+        assert!(tighter_than(-(-5.0 - 1e-7), -(-5.0)) && !tighter_than(-(-5.0 - 5e-9), -(-5.0)));
+        assert!(!tighter_than(f64::NAN, b) && !tighter_than(b, f64::NAN));
+    }
+
     /// The backward pass takes `|W_j| mag_j` from the forward pass's IBP product: that must
     /// bound the product with `mag_j = max(pre_hi, 0)` itself from above (up to the products'
     /// own rounding), layer by layer.
