@@ -153,6 +153,36 @@ fn verify_double_integrator_10x4_same_verdicts() {
     same_verdicts(&cpu, &dev, "scenario 2, 10 × 4, parallelotope alone");
 }
 
+/// The time models the GPU engine does not run (it runs the Euler map alone) are refused before
+/// any work, naming the setting and the way out, and `auto` runs them on the CPU.
+#[test]
+fn other_time_models_are_refused_naming_them() {
+    let Some(gpu) = gpu_f64() else { return };
+    let s = common::integrator();
+    let reach = ReachSettings::default();
+    for time in ["continuous", "sampled"] {
+        let options = ProblemOptions {
+            time: Some(time.into()),
+            ..ProblemOptions::default()
+        };
+        let problem = ReachProblem::from_scenario(&s, &options).unwrap();
+        assert_eq!(
+            gpu.supports(&problem, &reach),
+            Err(Unsupported::Time(problem.time.name()))
+        );
+        let e = gpu
+            .reach(&problem, &s.reach.initial, &reach, &|_, _| {})
+            .expect_err("the GPU engine refuses the time model")
+            .to_string();
+        assert!(
+            e.contains(&format!("time = \"{time}\"")) && e.contains("--time euler"),
+            "{e}"
+        );
+        let auto = choose_engine(EngineChoice::Auto, &GpuOptions::default(), &reach, &problem);
+        assert_eq!(auto.unwrap().backend.name(), "cpu");
+    }
+}
+
 /// The paper's construction (`cbfreach paper`: Theorem 2's Minkowski method with the paper's
 /// `M_C`, the Euler map, forward-backward bounds) from its 12 and 9 initial boxes, over the
 /// first 5 s of scenario 1 (past t = 4.92, where the engines' forms once parted) and 2.5 s of
