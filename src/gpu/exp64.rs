@@ -111,7 +111,7 @@ pub fn exp_up(x: f64) -> f64 {
 pub fn phi_up(z: f64) -> f64 {
     let up3 = |x: f64| up(up(up(x)));
     let down3 = |x: f64| down(down(down(x)));
-    if !(z.abs() <= 0.5) {
+    if z.is_nan() || z.abs() > 0.5 {
         return match z > 0.0 {
             true => up3(up(exp_up(z) - 1.0) / z),
             false => up3(up(1.0 - exp_down(z)) / (-z)),

@@ -83,7 +83,7 @@ pub const PHI_TAIL: f64 = 1.2e-11;
 /// elsewhere `(eᶻ − 1)/z` from the enclosure of `eᶻ`, where `|eᶻ − 1| ≥ 0.39`.
 pub fn phi_upper(z: f64) -> f64 {
     let zi = Interval::point(z);
-    if !(z.abs() <= PHI_SERIES) {
+    if z.is_nan() || z.abs() > PHI_SERIES {
         return ((zi.exp() - Interval::point(1.0)) / zi).upper;
     }
     // c_k = 1/(k+1)!, enclosed.
