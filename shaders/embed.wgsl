@@ -30,43 +30,13 @@ fn stop(g: u32, status: u32, step: u32) {
     atomicStore(&flags[g * FLAG_W + 2u], step);
 }
 
-// φ(z) = (eᶻ − 1)/z ≤ phi_up(z): Taylor with a remainder bound for |z| ≤ 1/2, else from exp.
-fn phi_up(z: real) -> real {
-    if (abs(z) <= 0.5) {
-        let z2 = up(z * z);
-        let s = up(up(1.0 + 0.5 * z) + up3(z2 / 6.0));
-        if (z <= 0.0) {
-            return s;
-        }
-        let den = down(24.0 * down(1.0 - up3(z / 5.0)));
-        return up(s + up3(up(z2 * z) / den));
-    }
-    if (z > 0.0) {
-        return up3(up(exp_up(z) - 1.0) / z);
-    }
-    return up3(up(1.0 - exp_down(z)) / (-z));
-}
-
-// One step of the radius recursion r ← e^{c dt} r + ℓM (e^{c dt} − 1)/c, rounded up. In f64 as
-// the CPU computes it (closeness_step, src/reach/closeness.rs: the factor from the enclosure
-// of e^{c dt}, r + ℓM dt at c = 0), so that the two radii agree to rounding, the GPU's never
-// below (its e^x enclosure is wider than the CPU's libm one, its steps one ulp or more). In f32
-// the factor's cancellation (e^{c dt} − 1, ~1e-7 absolute) would cost ~1e-5 relative a step:
-// φ's Taylor bound instead.
+// One step of the radius recursion r ← e^z r + ℓM dt φ(z), z = c dt, φ(z) = (eᶻ − 1)/z
+// (shaders/phi.wgsl), rounded up: closeness_step in src/reach/closeness.rs, term for term (each
+// non-negative, so upper bounds of each bound the sum). φ is increasing: z's upper end.
 fn closeness_step(r: real, c: real) -> real {
-    if (EPS > 1.0e-10) {
-        let z = iv_mul(iv_point(c), Iv(DT_LO, DT_HI));
-        let growth = exp_up(z.hi);
-        let factor = up(DT_HI * phi_up(z.hi));
-        return max(up(up(growth * r) + up(ELL_MC * factor)), 0.0);
-    }
-    if (c == 0.0) {
-        return max(up(r + up(ELL_MC * DT_HI)), 0.0);
-    }
-    let growth = iv_exp(iv_mul(iv_point(c), Iv(DT_LO, DT_HI)));
-    let factor = iv_div(iv_sub(growth, iv_point(1.0)), iv_point(c));
-    let next = iv_add(iv_mul(growth, iv_point(r)), iv_mul(iv_point(ELL_MC), factor));
-    return max(up(next.hi), 0.0);
+    let z = iv_mul(iv_point(c), Iv(DT_LO, DT_HI)).hi;
+    let forcing = up(ELL_MC * DT_HI);
+    return max(up(up(exp_up(z) * r) + up(forcing * phi_up(z))), 0.0);
 }
 
 @compute @workgroup_size(1)

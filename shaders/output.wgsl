@@ -124,11 +124,13 @@ fn output(@builtin(global_invocation_id) gid: vec3<u32>) {
             }
             if (BACKWARD) {
                 let bw = backward_row(i, g, bx);
-                if (SAME_SLOPE || !(form_hi < bw.n_hi)) {
+                // Ties within FORM_TIE go to the backward form, as on the CPU
+                // (tighter_than in src/bounds/forward_backward.rs).
+                if (SAME_SLOPE || !(-form_hi > -bw.n_hi + FORM_TIE * (1.0 + abs(bw.n_hi)))) {
                     row.a_hi = bw.a_hi;
                     row.d_hi = bw.d_hi;
                 }
-                if (SAME_SLOPE || !(form_lo > bw.n_lo)) {
+                if (SAME_SLOPE || !(form_lo > bw.n_lo + FORM_TIE * (1.0 + abs(bw.n_lo)))) {
                     row.a_lo = bw.a_lo;
                     row.d_lo = bw.d_lo;
                 }

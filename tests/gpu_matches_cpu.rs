@@ -1563,3 +1563,36 @@ fn f64_exp_matches_its_rust_mirror() {
     }
     eprintln!("exp: {bitwise} of {} inputs bit for bit", xs.len());
 }
+
+/// The f64 shaders' `phi_up` (φ(z) = (eᶻ − 1)/z, the closeness radius's factor) against its Rust
+/// mirror (equal to 1e-15; bit for bit where the device fuses nothing) and the CPU's
+/// `phi_upper` (1e-14 on the series, |z| ≤ 1/2; 3e-13 past it, the width of `exp`'s
+/// enclosures), above φ, over z ∈ [−90, 90] and through 0 on both sides down to 1e-15.
+#[test]
+fn f64_phi_matches_its_rust_mirror_and_the_cpu() {
+    use cbfreach::gpu::exp64;
+    use cbfreach::reach::closeness::phi_upper;
+    let Some(g) = gpu_f64() else { return };
+    let mut zs: Vec<f64> = (0..=20_000)
+        .map(|i| -90.0 + 180.0 * i as f64 / 20_000.0 + 1e-11 * (i % 13) as f64)
+        .collect();
+    zs.extend((0..300).flat_map(|e| [1e-15 * 1.13_f64.powi(e), -1e-15 * 1.13_f64.powi(e)]));
+    zs.extend([0.0, 0.5, -0.5, 0.5_f64.next_up(), (-0.5_f64).next_down()]);
+    let dev = exp64::phi_on_device(g.context(), &zs).unwrap();
+    let mut bitwise = 0;
+    for (&z, &d) in zs.iter().zip(&dev) {
+        let (mirror, cpu) = (exp64::phi_up(z), phi_upper(z));
+        bitwise += usize::from(d == mirror);
+        assert!(
+            (d - mirror).abs() <= 1e-15 * mirror,
+            "{z}: device {d}, Rust {mirror}"
+        );
+        if z.abs() <= exp64::RANGE {
+            let exact = if z == 0.0 { 1.0 } else { z.exp_m1() / z };
+            assert!(d >= exact * (1.0 - 1e-15), "{z}: {d} < {exact}");
+            let tol = if z.abs() <= 0.5 { 1e-14 } else { 3e-13 };
+            assert!((d - cpu).abs() <= tol * cpu, "{z}: device {d}, CPU {cpu}");
+        }
+    }
+    eprintln!("phi: {bitwise} of {} inputs bit for bit", zs.len());
+}

@@ -296,12 +296,12 @@ fn backward_group(
             let span = i * n0..(i + 1) * n0;
             let fwd_form_hi = affine_max(&row.a_upper[span.clone()], row.b_upper[i], lo, hi, xmag);
             let fwd_form_lo = affine_min(&row.a_lower[span], row.b_lower[i], lo, hi, xmag);
-            let keep_fwd_hi = stacked && fwd_form_hi < hi_b;
+            let keep_fwd_hi = stacked && tighter_than(-fwd_form_hi, -hi_b);
             if !keep_fwd_hi {
                 row.a_upper[i * n0..(i + 1) * n0].copy_from_slice(au);
                 row.b_upper[i] = bu;
             }
-            let keep_fwd_lo = stacked && fwd_form_lo > lo_b;
+            let keep_fwd_lo = stacked && tighter_than(fwd_form_lo, lo_b);
             if !keep_fwd_lo {
                 row.a_lower[i * n0..(i + 1) * n0].copy_from_slice(al);
                 row.b_lower[i] = bl;
@@ -314,11 +314,40 @@ fn backward_group(
     }
 }
 
+/// Adaptive: a side keeps the forward form only where it concretises tighter than the backward
+/// one by more than `FORM_TIE·(1 + |backward bound|)`. The two often tie in exact arithmetic
+/// (both tight at one corner of the box); their rounding terms then decide by ~1e-13, which the
+/// GPU engine's order of operations decides otherwise, while the two forms' slopes (the
+/// Minkowski rate's `C`) differ by far more (issue 40). Ties go to the backward form on both
+/// engines (`shaders/output.wgsl` takes this constant from codegen).
+pub const FORM_TIE: f64 = 1e-9;
+
+/// Whether a lower bound `forward` beats `backward` by more than the tie tolerance (upper
+/// bounds: pass both negated). False with a NaN.
+fn tighter_than(forward: f64, backward: f64) -> bool {
+    forward > backward + FORM_TIE * (1.0 + backward.abs())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::bounds::test_support::*;
     use crate::bounds::{crown, forward, AffineBoundsBatch};
+
+    /// The forward form wins only by more than the tie tolerance; ties and NaN go backward.
+    #[test]
+    fn ties_go_to_the_backward_form() {
+        let b = 1.6351681024851934e-4;
+        assert!(!tighter_than(b + 2.6e-13, b), "a rounding-level tie");
+        assert!(tighter_than(b + 2e-9, b));
+        assert!(!tighter_than(b - 1e-3, b));
+        assert!(
+            !tighter_than(-(-b + 1.5e-13), -(-b)),
+            "upper bounds, negated"
+        );
+        assert!(tighter_than(-(-5.0 - 1e-7), -(-5.0)) && !tighter_than(-(-5.0 - 5e-9), -(-5.0)));
+        assert!(!tighter_than(f64::NAN, b) && !tighter_than(b, f64::NAN));
+    }
 
     /// The backward pass takes `|W_j| mag_j` from the forward pass's IBP product: that must
     /// bound the product with `mag_j = max(pre_hi, 0)` itself from above (up to the products'

@@ -54,7 +54,7 @@ pub use affine::{AffineBounds, AffineBoundsBatch};
 pub use batch::BoundsWorkspace;
 pub use crown::crown;
 pub use forward::forward;
-pub use forward_backward::forward_backward;
+pub use forward_backward::{forward_backward, FORM_TIE};
 pub use ibp::ibp;
 
 pub(crate) use affine::OutRow;

@@ -374,6 +374,11 @@ pub fn problem_wgsl(
     ] {
         let _ = writeln!(s, "const {name}: bool = {v};");
     }
+    let _ = writeln!(
+        s,
+        "const FORM_TIE: real = {};",
+        lit(crate::bounds::FORM_TIE)
+    );
     let _ = writeln!(s, "const ABS_UNIT: real = {};", lit(abs_unit));
     let _ = writeln!(s, "const STEPS: u32 = {}u;", problem.steps);
     let _ = writeln!(s, "const EVERY: u32 = {every}u;");

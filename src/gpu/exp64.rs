@@ -9,8 +9,11 @@
 //! truncation and rounding (`POLY_ERR`, derivation in the shader), and scale by `2^k` exactly:
 //! an enclosure 2e-14 (near 0) to 2e-13 (at |x| = 80)
 //! relative wide, never narrower than the CPU's (4 ulp each side).
+//!
+//! The same for `φ(z) = (eᶻ − 1)/z` (`phi_up` in `shaders/phi.wgsl`, the closeness radius's
+//! factor), whose series near 0 avoids the cancellation of `eᶻ − 1`.
 
-use super::kernels::{F32_BITS, REAL_F64};
+use super::kernels::{F32_BITS, PHI, REAL_F64};
 use super::{GpuContext, GpuError};
 
 /// `ln 2` lies in `[LN2_LO, LN2_HI]` (`LN2_LO` is `f64::consts::LN_2`, which is below it).
@@ -103,7 +106,37 @@ pub fn exp_up(x: f64) -> f64 {
     }
 }
 
-/// The kernel: `[exp_down(xᵢ), exp_up(xᵢ)]` for each input.
+/// `(eᶻ − 1)/z ≤ phi_up(z)`, as `shaders/phi.wgsl` computes it in f64 (the CPU's is
+/// `reach::closeness::phi_upper`).
+pub fn phi_up(z: f64) -> f64 {
+    let up3 = |x: f64| up(up(up(x)));
+    let down3 = |x: f64| down(down(down(x)));
+    if z.is_nan() || z.abs() > 0.5 {
+        return match z > 0.0 {
+            true => up3(up(exp_up(z) - 1.0) / z),
+            false => up3(up(1.0 - exp_down(z)) / (-z)),
+        };
+    }
+    let (mut cl, mut ch) = ([1.0; 13], [1.0; 13]);
+    for k in 1..13 {
+        cl[k] = down3(cl[k - 1] / (k + 1) as f64);
+        ch[k] = up3(ch[k - 1] / (k + 1) as f64);
+    }
+    let (mut lo, mut hi) = (cl[12], ch[12]);
+    for k in (0..12).rev() {
+        let (pl, ph) = match z >= 0.0 {
+            true => (down(z * lo), up(z * hi)),
+            false => (down(z * hi), up(z * lo)),
+        };
+        lo = down(pl + cl[k]);
+        hi = up(ph + ch[k]);
+    }
+    let t = z.abs();
+    let p = (0..12).fold(t, |p, _| up(p * t));
+    up(hi + up(p * crate::reach::closeness::PHI_TAIL))
+}
+
+/// The kernels: `[exp_down(xᵢ), exp_up(xᵢ)]`, or `phi_up(xᵢ)`, for each input.
 const KERNEL: &str = "
 @group(0) @binding(0) var<storage, read> xs: array<f64>;
 @group(0) @binding(1) var<storage, read_write> ys: array<f64>;
@@ -117,10 +150,30 @@ fn exp_test(@builtin(global_invocation_id) id: vec3<u32>) {
     ys[2u * i] = exp_down(xs[i]);
     ys[2u * i + 1u] = exp_up(xs[i]);
 }
+
+@compute @workgroup_size(64)
+fn phi_test(@builtin(global_invocation_id) id: vec3<u32>) {
+    let i = id.x;
+    if (i >= arrayLength(&xs)) {
+        return;
+    }
+    ys[i] = phi_up(xs[i]);
+}
 ";
 
 /// The shader's `exp_down` and `exp_up` of every input, run on the device (f64).
 pub fn on_device(ctx: &GpuContext, xs: &[f64]) -> Result<Vec<(f64, f64)>, GpuError> {
+    let ys = run(ctx, xs, "exp_test", 2)?;
+    Ok(ys.chunks(2).map(|p| (p[0], p[1])).collect())
+}
+
+/// The shader's `phi_up` of every input, run on the device (f64).
+pub fn phi_on_device(ctx: &GpuContext, xs: &[f64]) -> Result<Vec<f64>, GpuError> {
+    run(ctx, xs, "phi_test", 1)
+}
+
+/// Runs the test kernel `entry`, `per` outputs an input.
+fn run(ctx: &GpuContext, xs: &[f64], entry: &str, per: usize) -> Result<Vec<f64>, GpuError> {
     use wgpu::util::DeviceExt;
     if !ctx.has_f64() {
         return Err(GpuError::NoF64(ctx.info.name.clone()));
@@ -129,20 +182,22 @@ pub fn on_device(ctx: &GpuContext, xs: &[f64]) -> Result<Vec<(f64, f64)>, GpuErr
         return Ok(Vec::new());
     }
     let device = &ctx.device;
-    // The prelude's helpers use `down` (common.wgsl); it alone is stated here.
-    let source = format!(
-        "{REAL_F64}\n{F32_BITS}\nfn down(x: real) -> real {{\n    return -up(-x);\n}}\n{KERNEL}"
-    );
+    // The prelude's helpers use `down`, `up3` and `down3` (common.wgsl); they alone are
+    // stated here.
+    let helpers = "fn down(x: real) -> real {\n    return -up(-x);\n}\n\
+                   fn up3(x: real) -> real {\n    return up(up(up(x)));\n}\n\
+                   fn down3(x: real) -> real {\n    return down(down(down(x)));\n}\n";
+    let source = format!("{REAL_F64}\n{F32_BITS}\n{helpers}{PHI}\n{KERNEL}");
     let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
     let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
         label: Some("exp_test"),
         source: wgpu::ShaderSource::Wgsl(source.into()),
     });
     let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-        label: Some("exp_test"),
+        label: Some(entry),
         layout: None,
         module: &module,
-        entry_point: Some("exp_test"),
+        entry_point: Some(entry),
         compilation_options: Default::default(),
         cache: None,
     });
@@ -154,7 +209,7 @@ pub fn on_device(ctx: &GpuContext, xs: &[f64]) -> Result<Vec<(f64, f64)>, GpuErr
         contents: bytemuck::cast_slice(xs),
         usage: wgpu::BufferUsages::STORAGE,
     });
-    let size = (2 * xs.len() * 8) as u64;
+    let size = (per * xs.len() * 8) as u64;
     let output = device.create_buffer(&wgpu::BufferDescriptor {
         label: Some("exp_test ys"),
         size,
@@ -202,8 +257,7 @@ pub fn on_device(ctx: &GpuContext, xs: &[f64]) -> Result<Vec<(f64, f64)>, GpuErr
     let view = slice
         .get_mapped_range()
         .map_err(|e| GpuError::Device(e.to_string()))?;
-    let ys: Vec<f64> = bytemuck::pod_collect_to_vec(&view);
-    Ok(ys.chunks(2).map(|p| (p[0], p[1])).collect())
+    Ok(bytemuck::pod_collect_to_vec(&view))
 }
 
 #[cfg(test)]
@@ -218,6 +272,25 @@ mod tests {
         let digits = "0.693147180559945309417232121458";
         assert!(format!("{LN2_LO:.30}").as_str() < digits);
         assert!(format!("{LN2_HI:.30}").as_str() > digits);
+    }
+
+    /// The mirror of the shader's `phi_up` lies above `φ` (the CPU's own bound, which is a few
+    /// ulp above it) and within 1e-14 of the CPU's on the series (|z| ≤ 1/2, through 0), within
+    /// 3e-13 past it (the f64 shaders' `exp` enclosure's width).
+    #[test]
+    fn phi_up_is_tight_and_near_the_cpus() {
+        use crate::reach::closeness::phi_upper;
+        let mut zs: Vec<f64> = (-6000..=6000).map(|i| i as f64 * 0.01).collect();
+        zs.extend((0..300).flat_map(|e| [1e-15 * 1.13_f64.powi(e), -1e-15 * 1.13_f64.powi(e)]));
+        zs.extend([0.0, 0.5, -0.5, 0.5_f64.next_up(), (-0.5_f64).next_down()]);
+        for z in zs {
+            let (gpu, cpu) = (phi_up(z), phi_upper(z));
+            let exact = if z == 0.0 { 1.0 } else { z.exp_m1() / z };
+            assert!(gpu >= exact * (1.0 - 1e-15), "{z}: {gpu} < {exact}");
+            // Past the series, as wide as the exp enclosures allow (2.5e-13 at |z| = 80).
+            let tol = if z.abs() <= 0.5 { 1e-14 } else { 3e-13 };
+            assert!((gpu - cpu).abs() <= tol * cpu, "{z}: {gpu} vs {cpu}");
+        }
     }
 
     /// Over [−80, 80] the enclosure holds libm's `exp` one ulp outward (libm is within 1 ulp),

@@ -21,6 +21,7 @@ const EMBED: &str = include_str!("../../shaders/embed.wgsl");
 const FACES: &str = include_str!("../../shaders/faces.wgsl");
 const FILTER: &str = include_str!("../../shaders/filter.wgsl");
 const MARGINS: &str = include_str!("../../shaders/margins.wgsl");
+pub(crate) const PHI: &str = include_str!("../../shaders/phi.wgsl");
 
 /// Workgroup size of the one-dimensional kernels (`@workgroup_size(64)` in the shaders).
 pub const WORKGROUP: u32 = 64;
@@ -132,7 +133,7 @@ pub fn shader_source(precision: Precision, problem_wgsl: &str, module: &str) -> 
         "backward" => &[BOX, BACKWARD],
         "output" => &[BOX, OUTPUT],
         "faces" => &[BOX, FACES],
-        _ => &[BOX, FILTER, MARGINS, EMBED],
+        _ => &[BOX, FILTER, MARGINS, PHI, EMBED],
     };
     for part in body {
         s.push_str(part);
