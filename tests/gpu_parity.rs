@@ -183,6 +183,61 @@ fn other_time_models_are_refused_naming_them() {
     }
 }
 
+/// A system whose Euler step turns a state around on `C` (`1 + dt·∂₁f̃₁ = 1 − 30·0.05 < 0`):
+/// the CPU engine widens the faces there (tests/time_models.rs), the GPU's kernels do not, so
+/// the GPU engine refuses it before any work, naming the state and the way out, and `auto` runs
+/// the CPU; the paper's scenarios (`1 + dt·∂ᵢf̃ᵢ ≥ 0.96`) are not refused for it.
+#[test]
+fn euler_steps_that_turn_a_state_around_are_refused() {
+    let Some(gpu) = gpu_f64() else { return };
+    let text = r#"
+name = "contracting"
+[system]
+states = ["x1", "x2"]
+inputs = ["u"]
+f = ["-30*x1 + x2", "-x2"]
+g = [["1"], ["0"]]
+kappa = ["0"]
+[[cbf]]
+h = "x1 + 100"
+[reach]
+region = { lower = [-2, -2], upper = [2, 2] }
+m_c = 0.001
+dt = 0.05
+horizon = 0.5
+time = "euler"
+goal = { lower = [-0.1, -0.1], upper = [0.1, 0.1] }
+initial = [{ lower = [0.5, 0.0], upper = [0.52, 1.0] }]
+"#;
+    let s = common::from_text(text).unwrap();
+    let net = cbfreach::network::Mlp::random(&[2, 4, 1], 3);
+    let problem = ReachProblem::new(&s, net, 0.001).unwrap();
+    let reach = ReachSettings::default();
+    assert_eq!(
+        gpu.supports(&problem, &reach),
+        Err(Unsupported::EulerTurn { state: 0 })
+    );
+    let e = gpu
+        .reach(&problem, &s.reach.initial, &reach, &|_, _| {})
+        .expect_err("the GPU engine refuses the step")
+        .to_string();
+    assert!(e.contains("state 0") && e.contains("--backend cpu"), "{e}");
+    let auto = choose_engine(EngineChoice::Auto, &GpuOptions::default(), &reach, &problem);
+    assert_eq!(auto.unwrap().backend.name(), "cpu");
+    for s in [common::integrator(), common::double_integrator()] {
+        let options = ProblemOptions {
+            time: Some("euler".into()),
+            ..ProblemOptions::default()
+        };
+        let problem = ReachProblem::from_scenario(&s, &options).unwrap();
+        let settings = ReachSettings {
+            intersect_x: false,
+            ..ReachSettings::default()
+        };
+        assert_eq!(gpu.supports(&problem, &settings), Ok(()), "{}", s.name);
+    }
+}
+
 /// The paper's construction (`cbfreach paper`: Theorem 2's Minkowski method with the paper's
 /// `M_C`, the Euler map, forward-backward bounds) from its 12 and 9 initial boxes, over the
 /// first 5 s of scenario 1 (past t = 4.92, where the engines' forms once parted) and 2.5 s of
