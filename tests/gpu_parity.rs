@@ -190,28 +190,11 @@ fn other_time_models_are_refused_naming_them() {
 #[test]
 fn euler_steps_that_turn_a_state_around_are_refused() {
     let Some(gpu) = gpu_f64() else { return };
-    let text = r#"
-name = "contracting"
-[system]
-states = ["x1", "x2"]
-inputs = ["u"]
-f = ["-30*x1 + x2", "-x2"]
-g = [["1"], ["0"]]
-kappa = ["0"]
-[[cbf]]
-h = "x1 + 100"
-[reach]
-region = { lower = [-2, -2], upper = [2, 2] }
-m_c = 0.001
-dt = 0.05
-horizon = 0.5
-time = "euler"
-goal = { lower = [-0.1, -0.1], upper = [0.1, 0.1] }
-initial = [{ lower = [0.5, 0.0], upper = [0.52, 1.0] }]
-"#;
-    let s = common::from_text(text).unwrap();
+    let s = common::from_text(common::CONTRACTING).unwrap();
     let net = cbfreach::network::Mlp::random(&[2, 4, 1], 3);
-    let problem = ReachProblem::new(&s, net, 0.001).unwrap();
+    let problem = ReachProblem::new(&s, net, 0.001)
+        .unwrap()
+        .with_time(cbfreach::reach::TimeModel::Euler, 1);
     let reach = ReachSettings::default();
     assert_eq!(
         gpu.supports(&problem, &reach),

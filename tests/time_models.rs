@@ -497,40 +497,15 @@ fn flowpipes_lie_in_c_and_a_box_that_leaves_c_is_not_valid() {
     );
 }
 
-/// `ẋ₁ = −30x₁ + x₂`, `ẋ₂ = −x₂` at `dt = 0.05`: `1 + dt·∂₁F₁ = −0.5`, so the Euler map
-/// `x₁ ← −0.5x₁ + 0.05x₂` turns `x₁` around and its largest value over a set lies on the lower
-/// face `x₁ = x̲₁`, not the upper one. The CBF `x₁ + 100` never binds on the region (`v = 0`);
-/// a zero network stands in for it.
-const CONTRACTING: &str = r#"
-name = "contracting"
-[system]
-states = ["x1", "x2"]
-inputs = ["u"]
-f = ["-30*x1 + x2", "-x2"]
-g = [["1"], ["0"]]
-kappa = ["0"]
-[[cbf]]
-h = "x1 + 100"
-[reach]
-region = { lower = [-2, -2], upper = [2, 2] }
-m_c = 0.001
-dt = 0.05
-horizon = 0.5
-goal = { lower = [-0.1, -0.1], upper = [0.1, 0.1] }
-initial = [
-  { lower = [0.5, 0.0], upper = [0.52, 1.0] },
-  { lower = [-0.3, -1.0], upper = [-0.25, 0.5] },
-]
-"#;
-
 /// The Euler map's sets hold the Euler map's own trajectories (the map iterated exactly from 48
 /// starts per box, the corners included) where `1 + dt·∂ᵢFᵢ < 0`, with every source of the
 /// field: the filter's exact field (proven inactive), the network's bounds over the set, and
-/// its face-local bounds. A step that moves each face by the field's bound on that face alone
+/// its face-local bounds (`common::CONTRACTING`: `1 + dt·∂₁F₁ = −0.5`, and `v = 0`, a zero
+/// network standing in for it). A step that moves each face by the field's bound on that face alone
 /// misses them by up to `0.01` after one step.
 #[test]
 fn euler_sets_hold_the_euler_map_where_it_turns_a_coordinate_around() {
-    let s = common::from_text(CONTRACTING).unwrap();
+    let s = common::from_text(common::CONTRACTING).unwrap();
     let mut net = Mlp::random(&[2, 4, 1], 3);
     for layer in &mut net.layers {
         layer.weight.iter_mut().for_each(|w| *w = 0.0);

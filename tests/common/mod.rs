@@ -45,6 +45,31 @@ pub fn from_text(text: &str) -> Result<Scenario, cbfreach::scenario::ScenarioErr
     Scenario::from_toml(text, "test.toml", Path::new("."))
 }
 
+/// `ẋ₁ = −30x₁ + x₂`, `ẋ₂ = −x₂` at `dt = 0.05`: `1 + dt·∂₁F₁ = −0.5`, so the Euler map
+/// `x₁ ← −0.5x₁ + 0.05x₂` turns `x₁` around and its largest value over a set lies on the lower
+/// face `x₁ = x̲₁`, not the upper one. The CBF `x₁ + 100` never binds on the region (`v = 0`).
+pub const CONTRACTING: &str = r#"
+name = "contracting"
+[system]
+states = ["x1", "x2"]
+inputs = ["u"]
+f = ["-30*x1 + x2", "-x2"]
+g = [["1"], ["0"]]
+kappa = ["0"]
+[[cbf]]
+h = "x1 + 100"
+[reach]
+region = { lower = [-2, -2], upper = [2, 2] }
+m_c = 0.001
+dt = 0.05
+horizon = 0.5
+goal = { lower = [-0.1, -0.1], upper = [0.1, 0.1] }
+initial = [
+  { lower = [0.5, 0.0], upper = [0.52, 1.0] },
+  { lower = [-0.3, -1.0], upper = [-0.25, 0.5] },
+]
+"#;
+
 /// A small valid scenario as text, to be broken by the error tests.
 pub const SMALL: &str = r#"
 name = "small"
