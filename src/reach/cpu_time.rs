@@ -356,21 +356,22 @@ impl ChunkRun<'_> {
             return Ok(None);
         }
         let whole_nn = fb.pipe_nn.take();
-        let parts: Vec<IntervalBox> = validated::parts(a, k)
+        // Each part with its x-box (within S), the parts proven unsafe dropped.
+        let parts: Vec<(IntervalBox, IntervalBox)> = validated::parts(a, k)
             .into_iter()
-            .filter(|part| {
+            .map(|part| {
                 let x_box = p.x_box_in_safe_set(&part.lower, &part.upper, frame.safe);
-                !crate::surrogate_error::proven_unsafe(p.pieces.scenario(), &x_box)
+                (part, x_box)
             })
+            .filter(|(_, x_box)| !crate::surrogate_error::proven_unsafe(p.pieces.scenario(), x_box))
             .collect();
         // The network over every part that takes it, in one batch (one at a time, the parts'
         // bounds were matrix–vector products).
         let (mut lo, mut hi, mut taken) = (Vec::new(), Vec::new(), 0);
         let rows: Vec<Option<usize>> = parts
             .iter()
-            .map(|part| {
-                let x_box = p.x_box_in_safe_set(&part.lower, &part.upper, frame.safe);
-                self.step_input(p, &x_box, self.set_facts(&x_box))
+            .map(|(part, x_box)| {
+                self.step_input(p, x_box, self.set_facts(x_box))
                     .margin
                     .map(|_| {
                         lo.extend(&part.lower);
@@ -389,7 +390,7 @@ impl ChunkRun<'_> {
         }
         let m = p.dynamics.m;
         let mut hull: Option<Rates> = None;
-        for (part, row) in parts.iter().zip(rows) {
+        for ((part, _), row) in parts.iter().zip(rows) {
             let nn = row.map(|r| bounds_of(&batch, r, n, m));
             let Some((lo, hi)) = self.field_on_box(frame, part, fb, zeros, nn)? else {
                 fb.pipe_batch = batch;
