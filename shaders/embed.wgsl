@@ -313,6 +313,40 @@ fn widen_up(v: real, slack: real) -> real {
     return v;
 }
 
+// Face rates of the embedding field: dx̲/dt (lo) and dx̄/dt (hi) per state.
+struct Rates {
+    lo: array<real, N0>,
+    hi: array<real, N0>,
+}
+
+// The face rates `r` of `piece`'s field over the box xb made to bound the Euler map over the
+// whole set where a step may turn a state around (euler_turn in src/reach/embedding.rs, before
+// any slack, as there): the slope is ∂ᵢf̃ᵢ over the box, plus with `row` (the network bounded
+// over the whole box, constant g) the interaction row's diagonal of that side.
+fn turned(r: Rates, xb: array<Iv, N0>, piece: u32, nb: NetBounds, margin: real, row: bool) -> Rates {
+    var out = r;
+    let dt = Iv(DT_LO, DT_HI);
+    for (var i = 0u; i < N0; i++) {
+        let jac = field_jac(piece, i, i, xb);
+        let w = iv_sub(iv_point(xb[i].hi), iv_point(xb[i].lo)).hi;
+        for (var side = 0u; side < 2u; side++) {
+            var slope = jac;
+            if (row && G_CONSTANT) {
+                slope = iv_add(jac, interaction_row(nb, margin, i, side).row[i]);
+            }
+            let extra = turn_rate(slope, w, dt);
+            if (extra > 0.0) {
+                if (side == 0u) {
+                    out.lo[i] = down(out.lo[i] - extra);
+                } else {
+                    out.hi[i] = up(out.hi[i] + extra);
+                }
+            }
+        }
+    }
+    return out;
+}
+
 // Bounds of the embedding field; `ok` false where there are none.
 struct Field {
     lo: array<real, N0>,
@@ -328,6 +362,7 @@ fn enclosure_field(xb: array<Iv, N0>, cen: array<real, N0>) -> Field {
     var out: Field;
     out.ok = false;
     var slack: real = 0.0;
+    var r: Rates;
     for (var f = 0u; f < 2u * N0; f++) {
         let i = f / 2u;
         let side = f % 2u;
@@ -351,14 +386,17 @@ fn enclosure_field(xb: array<Iv, N0>, cen: array<real, N0>) -> Field {
         }
         let field = face_field(i, side, xb, cen, constant_bounds(lo, hi), 0.0, 0u);
         if (side == 0u) {
-            out.lo[i] = field.lo;
+            r.lo[i] = field.lo;
         } else {
-            out.hi[i] = field.hi;
+            r.hi[i] = field.hi;
         }
     }
+    // Face enclosures say nothing of v inside the set: f̃'s part alone turns (design §7).
+    var none: array<real, M_OUT>;
+    r = turned(r, xb, 0u, constant_bounds(none, none), 0.0, false);
     for (var i = 0u; i < N0; i++) {
-        out.lo[i] = widen_down(out.lo[i], slack);
-        out.hi[i] = widen_up(out.hi[i], slack);
+        out.lo[i] = widen_down(r.lo[i], slack);
+        out.hi[i] = widen_up(r.hi[i], slack);
     }
     out.ok = true;
     return out;
@@ -433,15 +471,23 @@ fn embedding_step(g: u32, step: u32) -> u32 {
             none[k] = 0.0;
         }
         let zero = constant_bounds(none, none);
+        var r: Rates;
         for (var f = 0u; f < 2u * N0; f++) {
             let i = f / 2u;
             let side = f % 2u;
             let v = face_field(i, side, xb, cen, zero, 0.0, piece);
             if (side == 0u) {
-                dxl[i] = widen_down(v.lo, slack);
+                r.lo[i] = v.lo;
             } else {
-                dxu[i] = widen_up(v.hi, slack);
+                r.hi[i] = v.hi;
             }
+        }
+        // v = the piece's own closed form, inside the set as on its faces: the piece's whole
+        // field turns (its interaction row with zero bounds is zero).
+        r = turned(r, xb, piece, zero, 0.0, false);
+        for (var i = 0u; i < N0; i++) {
+            dxl[i] = widen_down(r.lo[i], slack);
+            dxu[i] = widen_up(r.hi[i], slack);
         }
         have = true;
     } else if (ENCLOSE) {
@@ -462,15 +508,23 @@ fn embedding_step(g: u32, step: u32) -> u32 {
         if (margin < HUGE && !poisoned) {
             // The embedding field, face by face (embedding_field_by_face in
             // src/reach/embedding.rs).
+            var r: Rates;
             for (var f = 0u; f < 2u * N0; f++) {
                 let i = f / 2u;
                 let side = f % 2u;
                 let v = face_field(i, side, xb, cen, load_bounds(face_index(g, i, side)), margin, 0u);
                 if (side == 0u) {
-                    dxl[i] = max(dxl[i], widen_down(v.lo, FIELD_SLACK));
+                    r.lo[i] = v.lo;
                 } else {
-                    dxu[i] = min(dxu[i], widen_up(v.hi, FIELD_SLACK));
+                    r.hi[i] = v.hi;
                 }
+            }
+            // Bounds over the whole box bound v inside the set too: their slope turns with f̃'s;
+            // face-local bounds say nothing of it there (design §7).
+            r = turned(r, xb, 0u, load_bounds(face_index(g, 0u, 0u)), margin, FACES == 1u);
+            for (var i = 0u; i < N0; i++) {
+                dxl[i] = max(dxl[i], widen_down(r.lo[i], FIELD_SLACK));
+                dxu[i] = min(dxu[i], widen_up(r.hi[i], FIELD_SLACK));
             }
             have = true;
         } else if (!have) {

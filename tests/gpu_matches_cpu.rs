@@ -1454,9 +1454,6 @@ fn cancelling_network() -> Mlp {
 /// `F64_TOL`; in f32 its sets contain the CPU's (up to `F32_FACTOR`). Both kinds of step occur,
 /// and the closed form makes the binding boxes' sets narrower than `v = 0` where inactive alone.
 #[test]
-#[ignore = "parts until the GPU kernels widen the faces where a step may turn a state around \
-            (the CPU's euler_turn, design §7): on scenario 1's box near (3.9, 0) the CPU's \
-            interval Jacobian of the binding piece allows it and the CPU's sets are wider"]
 fn closed_form_filter_matches_cpu() {
     let Some(gpu32) = gpu() else { return };
     let gpu64 = gpu_f64();
@@ -1532,6 +1529,57 @@ fn closed_form_filter_matches_cpu() {
             assert!(tighter, "{name}: the closed form tightened no set");
         }
     }
+}
+
+/// The f64 shaders' `turn_rate` (`shaders/turn.wgsl`: what a face of the Euler step grows by
+/// where the step may turn its state around) against the CPU's `euler_turn` that it mirrors, on
+/// the rates of a one-state `f̃ = a·x + d·x²` over boxes of several widths and steps: the slope
+/// `∂f̃/∂x` over the box as the CPU evaluates it, given to both. Equal to 1e-13 relative (the
+/// device steps each operation outward by 4 ulp, the CPU by 1), never below the CPU's, zero
+/// where `1 + h·L ≥ 0` (but for the device's own rounding of `1 + h·L` near 0), and many of
+/// them not zero.
+#[test]
+fn turn_rate_matches_the_cpus_euler_turn() {
+    use cbfreach::expressions::parse;
+    use cbfreach::intervals::Interval;
+    use cbfreach::reach::embedding::{euler_turn, Dynamics};
+    let Some(g) = gpu_f64() else { return };
+    let names = vec!["x".to_string()];
+    let (mut inputs, mut cpu) = (Vec::new(), Vec::new());
+    for a in [-60.0, -30.0, -20.5, -1.0, 0.0, 5.0] {
+        for d in [0.0, 3.0, -7.0] {
+            let f = parse(&format!("{a}*x + {d}*x^2"), &names, &Default::default()).unwrap();
+            let g1 = parse("1", &names, &Default::default()).unwrap();
+            let dynamics = Dynamics::new(1, 1, vec![f], vec![vec![g1]]);
+            for (lo, w) in [(-1.0, 0.0), (-1.0, 1e-3), (0.3, 0.5), (-1.3, 2.0)] {
+                let hi = lo + w;
+                for h in [0.01, 0.05, 0.1] {
+                    let (mut dl, mut du) = (vec![0.0], vec![0.0]);
+                    euler_turn(&dynamics, &[lo], &[hi], h, None, &mut dl, &mut du);
+                    assert_eq!(dl[0], -du[0]);
+                    let slope =
+                        dynamics.f_tilde_jacobian[0][0].eval_interval(&[Interval::new(lo, hi)]);
+                    let width = (Interval::point(hi) - Interval::point(lo)).upper;
+                    inputs.push([slope.lower, slope.upper, width, h, h]);
+                    cpu.push((du[0], width / h));
+                }
+            }
+        }
+    }
+    let dev = cbfreach::gpu::probe::turn_rate_on_device(g.context(), &inputs).unwrap();
+    assert_eq!(dev.len(), cpu.len());
+    let mut turned = 0;
+    for ((&d, &(c, scale)), input) in dev.iter().zip(&cpu).zip(&inputs) {
+        assert!(d >= c, "{input:?}: device {d} below the CPU's {c}");
+        // (Zero widths: both a few smallest normal numbers, from rounding 0 up.)
+        assert!(
+            d - c <= 1e-13 * c.max(scale) + 1e-300,
+            "{input:?}: device {d}, CPU {c}"
+        );
+        turned += usize::from(c > 0.0);
+    }
+    assert!(turned >= 40, "only {turned} of {} inputs turn", cpu.len());
+    eprintln!("turn_rate: {turned} of {} inputs turn", cpu.len());
 }
 
 /// The f64 shaders' `exp` enclosure (`shaders/real_f64.wgsl`) against its Rust mirror

@@ -183,42 +183,85 @@ fn other_time_models_are_refused_naming_them() {
     }
 }
 
-/// A system whose Euler step turns a state around on `C` (`1 + dt·∂₁f̃₁ = 1 − 30·0.05 < 0`):
-/// the CPU engine widens the faces there (tests/time_models.rs), the GPU's kernels do not, so
-/// the GPU engine refuses it before any work, naming the state and the way out, and `auto` runs
-/// the CPU; the paper's scenarios (`1 + dt·∂ᵢf̃ᵢ ≥ 0.96`) are not refused for it.
+/// A system whose Euler step turns a state around on `C` (`common::CONTRACTING`:
+/// `1 + dt·∂₁f̃₁ = 1 − 30·0.05 = −0.5`): the GPU engine widens the faces there as the CPU's
+/// `euler_turn` does (design §7), so its sets hold the Euler map's own trajectories (iterated
+/// exactly from 48 starts per box, the corners included; a step that moves each face by the
+/// field's bound on that face alone misses them by up to 0.01 after one step) with every source
+/// of the field: the filter's exact field (proven inactive), the network's bounds over the set
+/// and its face-local bounds (a zero network standing in for `v = 0`). Its sets equal the CPU's
+/// there, and with a random network over the whole set, whose interaction row adds to the slope.
 #[test]
-fn euler_steps_that_turn_a_state_around_are_refused() {
+fn euler_steps_that_turn_a_state_around_hold_the_euler_map() {
+    use cbfreach::filter::SafetyFilter;
+    use cbfreach::reach::ExactField;
+    use cbfreach::simulate::{sample_box, simulate_filtered, Integrator};
     let Some(gpu) = gpu_f64() else { return };
     let s = common::from_text(common::CONTRACTING).unwrap();
-    let net = cbfreach::network::Mlp::random(&[2, 4, 1], 3);
-    let problem = ReachProblem::new(&s, net, 0.001)
-        .unwrap()
-        .with_time(cbfreach::reach::TimeModel::Euler, 1);
-    let reach = ReachSettings::default();
-    assert_eq!(
-        gpu.supports(&problem, &reach),
-        Err(Unsupported::EulerTurn { state: 0 })
-    );
-    let e = gpu
-        .reach(&problem, &s.reach.initial, &reach, &|_, _| {})
-        .expect_err("the GPU engine refuses the step")
-        .to_string();
-    assert!(e.contains("state 0") && e.contains("--backend cpu"), "{e}");
-    let auto = choose_engine(EngineChoice::Auto, &GpuOptions::default(), &reach, &problem);
-    assert_eq!(auto.unwrap().backend.name(), "cpu");
-    for s in [common::integrator(), common::double_integrator()] {
-        let options = ProblemOptions {
-            time: Some("euler".into()),
-            ..ProblemOptions::default()
-        };
-        let problem = ReachProblem::from_scenario(&s, &options).unwrap();
+    assert!(1.0 + s.reach.dt * -30.0 < 0.0);
+    let random = cbfreach::network::Mlp::random(&[2, 4, 1], 3);
+    let mut zero = random.clone();
+    for layer in &mut zero.layers {
+        layer.weight.iter_mut().for_each(|w| *w = 0.0);
+        layer.bias.iter_mut().for_each(|b| *b = 0.0);
+    }
+    let problem_of = |net| {
+        ReachProblem::new(&s, net, 0.001)
+            .unwrap()
+            .with_time(cbfreach::reach::TimeModel::Euler, 1)
+    };
+    let (v_zero, v_random) = (problem_of(zero), problem_of(random));
+    let filter = SafetyFilter::new(&s);
+    let dt = s.reach.dt;
+    let mut checks = 0;
+    for (problem, exact, face_local) in [
+        (&v_zero, ExactField::ClosedForm, false),
+        (&v_zero, ExactField::Nowhere, false),
+        (&v_zero, ExactField::Nowhere, true),
+        (&v_random, ExactField::Nowhere, false),
+    ] {
         let settings = ReachSettings {
-            intersect_x: false,
+            exact,
+            face_local,
             ..ReachSettings::default()
         };
-        assert_eq!(gpu.supports(&problem, &settings), Ok(()), "{}", s.name);
+        let what = format!("{exact:?}, face-local {face_local}");
+        assert_eq!(gpu.supports(problem, &settings), Ok(()), "{what}");
+        let run = |b: &dyn Backend| b.reach(problem, &s.reach.initial, &settings, &|_, _| {});
+        let (cpu, dev) = (run(&CpuBackend).unwrap().boxes, run(&gpu).unwrap().boxes);
+        for (k, (c, g)) in cpu.iter().zip(&dev).enumerate() {
+            assert_eq!(c.end, g.end, "{what} box {k}");
+            assert_eq!(c.tube.len(), g.tube.len(), "{what} box {k}");
+            for (a, b) in c.tube.iter().zip(&g.tube) {
+                let pairs = a.set.lower.iter().zip(&b.set.lower);
+                for (x, y) in pairs.chain(a.set.upper.iter().zip(&b.set.upper)) {
+                    assert!(close(*x, *y), "{what} box {k} t = {}: {x} vs {y}", a.t);
+                }
+            }
+        }
+        if !std::ptr::eq(problem, &v_zero) {
+            continue;
+        }
+        for tube in &dev {
+            assert!(tube.valid(), "{what}: {:?}", tube.end);
+            for x0 in sample_box(&tube.initial, 48, 11) {
+                let xs = simulate_filtered(&filter, &x0, dt, s.reach.steps(), Integrator::Euler);
+                for sample in &tube.tube {
+                    let x = &xs.x[(sample.t / dt).round() as usize];
+                    let out = (0..2)
+                        .map(|i| (sample.set.lower[i] - x[i]).max(x[i] - sample.set.upper[i]))
+                        .fold(0.0, f64::max);
+                    assert!(
+                        out <= 1e-9,
+                        "{what} t = {}: {x:?} is {out} outside",
+                        sample.t
+                    );
+                    checks += 1;
+                }
+            }
+        }
     }
+    assert!(checks >= 3 * 2 * 48 * 10, "too few checks: {checks}");
 }
 
 /// The paper's construction (`cbfreach paper`: Theorem 2's Minkowski method with the paper's

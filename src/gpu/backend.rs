@@ -179,16 +179,6 @@ impl GpuBackend {
         if problem.time != TimeModel::Euler {
             return Err(Unsupported::Time(problem.time.name()));
         }
-        // The CPU engine widens the faces where a step turns a state around (euler_turn); the
-        // kernels do not, so a system whose f̃ may do so on C runs on the CPU. (v's own part,
-        // with face bounds, is assumed on both engines: design §7.)
-        let n = problem.dynamics.n;
-        if let Some(state) = (0..n).find(|&i| {
-            let c = 1.0 + problem.dt * problem.jacobian_over_region[i * n + i].lower;
-            c.is_nan() || c < 0.0
-        }) {
-            return Err(Unsupported::EulerTurn { state });
-        }
         let general_qp = problem
             .pieces
             .forms()

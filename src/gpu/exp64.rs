@@ -174,90 +174,13 @@ pub fn phi_on_device(ctx: &GpuContext, xs: &[f64]) -> Result<Vec<f64>, GpuError>
 
 /// Runs the test kernel `entry`, `per` outputs an input.
 fn run(ctx: &GpuContext, xs: &[f64], entry: &str, per: usize) -> Result<Vec<f64>, GpuError> {
-    use wgpu::util::DeviceExt;
-    if !ctx.has_f64() {
-        return Err(GpuError::NoF64(ctx.info.name.clone()));
-    }
-    if xs.is_empty() {
-        return Ok(Vec::new());
-    }
-    let device = &ctx.device;
     // The prelude's helpers use `down`, `up3` and `down3` (common.wgsl); they alone are
     // stated here.
     let helpers = "fn down(x: real) -> real {\n    return -up(-x);\n}\n\
                    fn up3(x: real) -> real {\n    return up(up(up(x)));\n}\n\
                    fn down3(x: real) -> real {\n    return down(down(down(x)));\n}\n";
     let source = format!("{REAL_F64}\n{F32_BITS}\n{helpers}{PHI}\n{KERNEL}");
-    let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-        label: Some("exp_test"),
-        source: wgpu::ShaderSource::Wgsl(source.into()),
-    });
-    let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-        label: Some(entry),
-        layout: None,
-        module: &module,
-        entry_point: Some(entry),
-        compilation_options: Default::default(),
-        cache: None,
-    });
-    if let Some(e) = pollster::block_on(scope.pop()) {
-        return Err(GpuError::Shader(e.to_string()));
-    }
-    let input = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-        label: Some("exp_test xs"),
-        contents: bytemuck::cast_slice(xs),
-        usage: wgpu::BufferUsages::STORAGE,
-    });
-    let size = (per * xs.len() * 8) as u64;
-    let output = device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("exp_test ys"),
-        size,
-        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
-        mapped_at_creation: false,
-    });
-    let staging = device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("exp_test staging"),
-        size,
-        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-        mapped_at_creation: false,
-    });
-    let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: Some("exp_test"),
-        layout: &pipeline.get_bind_group_layout(0),
-        entries: &[
-            wgpu::BindGroupEntry {
-                binding: 0,
-                resource: input.as_entire_binding(),
-            },
-            wgpu::BindGroupEntry {
-                binding: 1,
-                resource: output.as_entire_binding(),
-            },
-        ],
-    });
-    let mut enc = device.create_command_encoder(&Default::default());
-    {
-        let mut pass = enc.begin_compute_pass(&Default::default());
-        pass.set_pipeline(&pipeline);
-        pass.set_bind_group(0, &bind, &[]);
-        pass.dispatch_workgroups((xs.len() as u32).div_ceil(64), 1, 1);
-    }
-    enc.copy_buffer_to_buffer(&output, 0, &staging, 0, size);
-    ctx.queue.submit([enc.finish()]);
-    let slice = staging.slice(..);
-    let (tx, rx) = std::sync::mpsc::channel();
-    slice.map_async(wgpu::MapMode::Read, move |r| {
-        let _ = tx.send(r);
-    });
-    ctx.wait()?;
-    rx.recv()
-        .map_err(|e| GpuError::Device(e.to_string()))?
-        .map_err(|e| GpuError::Device(e.to_string()))?;
-    let view = slice
-        .get_mapped_range()
-        .map_err(|e| GpuError::Device(e.to_string()))?;
-    Ok(bytemuck::pod_collect_to_vec(&view))
+    super::probe::run(ctx, &source, entry, xs, xs.len(), per)
 }
 
 #[cfg(test)]

@@ -10,7 +10,7 @@ use super::{GpuError, Precision};
 const REAL_F32: &str = include_str!("../../shaders/real_f32.wgsl");
 pub(crate) const REAL_F64: &str = include_str!("../../shaders/real_f64.wgsl");
 pub(crate) const F32_BITS: &str = include_str!("../../shaders/f32_bits.wgsl");
-const COMMON: &str = include_str!("../../shaders/common.wgsl");
+pub(crate) const COMMON: &str = include_str!("../../shaders/common.wgsl");
 const PARAMS: &str = include_str!("../../shaders/params.wgsl");
 const BOX: &str = include_str!("../../shaders/box.wgsl");
 const GEMM: &str = include_str!("../../shaders/gemm.wgsl");
@@ -21,6 +21,7 @@ const EMBED: &str = include_str!("../../shaders/embed.wgsl");
 const FACES: &str = include_str!("../../shaders/faces.wgsl");
 const FILTER: &str = include_str!("../../shaders/filter.wgsl");
 const MARGINS: &str = include_str!("../../shaders/margins.wgsl");
+pub(crate) const TURN: &str = include_str!("../../shaders/turn.wgsl");
 pub(crate) const PHI: &str = include_str!("../../shaders/phi.wgsl");
 
 /// Workgroup size of the one-dimensional kernels (`@workgroup_size(64)` in the shaders).
@@ -133,7 +134,7 @@ pub fn shader_source(precision: Precision, problem_wgsl: &str, module: &str) -> 
         "backward" => &[BOX, BACKWARD],
         "output" => &[BOX, OUTPUT],
         "faces" => &[BOX, FACES],
-        _ => &[BOX, FILTER, MARGINS, PHI, EMBED],
+        _ => &[BOX, FILTER, MARGINS, PHI, TURN, EMBED],
     };
     for part in body {
         s.push_str(part);

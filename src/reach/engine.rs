@@ -100,11 +100,6 @@ pub fn refusal(unsupported: Unsupported) -> String {
              engine evaluates the one-row and scalar closed forms alone; set exact = \"inactive\" \
              (--exact inactive) or use the CPU engine (--backend cpu)"
             .to_string(),
-        Unsupported::EulerTurn { state } => format!(
-            "the Euler step may turn state {state} around (1 + dt·∂f̃ᵢ/∂xᵢ < 0 somewhere on C): \
-             the GPU engine's faces assume it does not; use the CPU engine (--backend cpu), \
-             a smaller dt, or --time continuous there"
-        ),
     }
 }
 

@@ -117,13 +117,6 @@ pub enum Unsupported {
     /// pieces of a general QP filter.
     #[error("the engine has no exact field for a general QP filter")]
     ExactGeneralQp,
-    /// The Euler step may turn state `i` around on `C` (`1 + dt·∂ᵢf̃ᵢ < 0` somewhere): the CPU
-    /// engine widens the faces there (design §7), the GPU's kernels do not.
-    #[error("the Euler step may turn state {state} around (1 + dt·∂f̃/∂x < 0 on C)")]
-    EulerTurn {
-        /// The state's index.
-        state: usize,
-    },
 }
 
 impl ReachSettings {
