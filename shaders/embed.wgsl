@@ -19,11 +19,23 @@
 @group(0) @binding(3) var<storage, read_write> flags: array<atomic<u32>>;
 // Recorded states: slot-major, SW reals per box.
 @group(0) @binding(4) var<storage, read_write> snap: array<real>;
+// Per box the x-box the frames share, lo[N0], hi[N0] (MEET; shaders/settle.wgsl writes it).
+@group(0) @binding(7) var<storage, read> known_x: array<real>;
 
 const LIVE: u32 = 0u;
 const LEFT_REGION: u32 = 1u;
 const INVERTED: u32 = 2u;
 const NON_FINITE: u32 = 3u;
+
+// How this frame's step of box g went, for the meet (MEET; shaders/settle.wgsl reads it).
+const STEP_NONE: u32 = 0u;
+const STEP_OK: u32 = 1u;
+const STEP_NON_FINITE: u32 = 2u;
+const STEP_INVERTED: u32 = 3u;
+
+fn stepped(g: u32, result: u32) {
+    atomicStore(&flags[g * FLAG_W + 5u], result);
+}
 
 fn stop(g: u32, status: u32, step: u32) {
     atomicStore(&flags[g * FLAG_W + 1u], status);
@@ -141,30 +153,14 @@ fn bounds_finite(g: u32) -> bool {
     return fin;
 }
 
-// The x-box of an embedding-coordinate box: S·z in interval arithmetic (identity without a
-// transform), as Transform::to_x_box.
-fn x_box(z: array<Iv, N0>) -> array<Iv, N0> {
-    if (!TRANSFORM) {
-        return z;
-    }
-    var x: array<Iv, N0>;
-    for (var i = 0u; i < N0; i++) {
-        var xi = iv_point(0.0);
-        for (var j = 0u; j < N0; j++) {
-            xi = iv_add(xi, iv_mul(Iv(S_LO[i * N0 + j], S_HI[i * N0 + j]), z[j]));
-        }
-        x[i] = xi;
-    }
-    return x;
-}
-
-// The disturbance bound of box g (embedding coordinates z): the error map's local bound over its
-// x-box within S plus the network slack (LOCAL_MARGIN), else the global MARGIN; HUGE for +∞.
-fn margin_of(z: array<Iv, N0>) -> real {
+// The disturbance bound of a box whose true states lie in the x-box `known` (within S): the error
+// map's local bound over it plus the network slack (LOCAL_MARGIN), else the global MARGIN; HUGE
+// for +∞.
+fn margin_of(known: array<Iv, N0>) -> real {
     if (!LOCAL_MARGIN) {
         return MARGIN;
     }
-    let m = local_margin(clip_to_safe_set(x_box(z), HS_Z, HS_X));
+    let m = local_margin(known);
     if (m >= HUGE) {
         return HUGE;
     }
@@ -257,47 +253,6 @@ fn face_field(i: u32, side: u32, xb: array<Iv, N0>, cen: array<real, N0>, nb: Ne
     return total;
 }
 
-// The intersection of a box with the safe set's half-spaces `normal·v + offset ≥ 0`, rows
-// [first, first + count) of the HS_ tables (src/gpu/codegen.rs: safe_set_wgsl), one coordinate
-// at a time as src/reach/safe_set.rs: clip_to_safe_set. The filtered system stays in S, so the
-// result still holds every true state. An empty intersection (a set outside S, which no true
-// trajectory can reach) leaves the box as it was, as on the CPU.
-fn clip_to_safe_set(b: array<Iv, N0>, first: u32, count: u32) -> array<Iv, N0> {
-    var v = b;
-    for (var k = first; k < first + count; k++) {
-        for (var j = 0u; j < N0; j++) {
-            let kind = HS_KIND[k * N0 + j];
-            if (kind == 0u) {
-                continue;
-            }
-            var bound = HS_CONST[k * N0 + j];
-            if (kind >= 3u) {
-                // normalⱼ vⱼ ≥ −offset − Σ_{i≠j} normalᵢ vᵢ, divided by every normalⱼ.
-                var rest = Iv(HS_OFF_LO[k], HS_OFF_HI[k]);
-                for (var i = 0u; i < N0; i++) {
-                    if (i != j) {
-                        rest = iv_add(rest, iv_mul(Iv(HS_N_LO[k * N0 + i], HS_N_HI[k * N0 + i]), v[i]));
-                    }
-                }
-                let l = -rest.hi;
-                let q = iv_div(Iv(l, l), Iv(HS_N_LO[k * N0 + j], HS_N_HI[k * N0 + j]));
-                bound = select(q.hi, q.lo, kind == 3u);
-            }
-            if (kind == 1u || kind == 3u) {
-                v[j].lo = max(v[j].lo, bound);
-            } else {
-                v[j].hi = min(v[j].hi, bound);
-            }
-        }
-    }
-    for (var j = 0u; j < N0; j++) {
-        if (!(v[j].lo <= v[j].hi)) {
-            return b;
-        }
-    }
-    return v;
-}
-
 // A lower / upper bound moved outward by a slack (none for a zero slack, as widen_by).
 fn widen_down(v: real, slack: real) -> real {
     if (slack > 0.0) {
@@ -356,9 +311,10 @@ struct Field {
 
 // The filtered system's field with v enclosed by the closed form on each face (enclosure_field
 // in src/reach/cpu.rs): each face's x-box within S gives an enclosure of v (shaders/filter.wgsl),
-// taken as constant bounds of the input, widened by the transform's slack; `ok` false where an
-// enclosure is unbounded (near a jump of v).
-fn enclosure_field(xb: array<Iv, N0>, cen: array<real, N0>) -> Field {
+// taken as constant bounds of the input (each face's x-box met with `known` where the frames are
+// met), widened by the transform's slack; `ok` false where an enclosure is unbounded (near a jump
+// of v).
+fn enclosure_field(xb: array<Iv, N0>, cen: array<real, N0>, known: array<Iv, N0>) -> Field {
     var out: Field;
     out.ok = false;
     var slack: real = 0.0;
@@ -372,7 +328,10 @@ fn enclosure_field(xb: array<Iv, N0>, cen: array<real, N0>) -> Field {
         } else {
             face[i] = iv_point(xb[i].hi);
         }
-        let x = clip_to_safe_set(x_box(face), HS_Z, HS_X);
+        var x = clip_to_safe_set(x_box(face), HS_Z, HS_X);
+        if (MEET) {
+            x = meet_or(x, known);
+        }
         let v = enclose_v(x);
         if (!v.ok) {
             return out;
@@ -451,7 +410,14 @@ fn embedding_step(g: u32, step: u32) -> u32 {
     // What bounds v on this step (src/reach/cpu.rs, horizon): the filter's own field where it is
     // provably one smooth function on the set, else its closed form's enclosures on each face
     // (ENCLOSE), and the network plus the error margin except where v = 0; their meet.
-    let known = clip_to_safe_set(x_box(xb), HS_Z, HS_X);
+    // Where the frames are met (MEET), the x-box every frame shares (shaders/settle.wgsl);
+    // else this set's own.
+    var known = clip_to_safe_set(x_box(xb), HS_Z, HS_X);
+    if (MEET) {
+        for (var j = 0u; j < N0; j++) {
+            known[j] = Iv(known_x[g * 2u * N0 + j], known_x[g * 2u * N0 + N0 + j]);
+        }
+    }
     let piece = piece_on(known);
     var dxl: array<real, N0>;
     var dxu: array<real, N0>;
@@ -491,7 +457,7 @@ fn embedding_step(g: u32, step: u32) -> u32 {
         }
         have = true;
     } else if (ENCLOSE) {
-        let enclosed = enclosure_field(xb, cen);
+        let enclosed = enclosure_field(xb, cen, known);
         if (enclosed.ok) {
             atomicAdd(&flags[g * FLAG_W + 4u], 1u);
             dxl = enclosed.lo;
@@ -503,7 +469,7 @@ fn embedding_step(g: u32, step: u32) -> u32 {
     if (piece != PIECE_INACTIVE) {
         // The disturbance bound first, as src/reach/cpu.rs: M = ∞ leaves the network out, and
         // ends the box where nothing else bounds v.
-        margin = margin_of(xb);
+        margin = margin_of(known);
         let poisoned = atomicLoad(&flags[g * FLAG_W]) != 0u || !bounds_finite(g);
         if (margin < HUGE && !poisoned) {
             // The embedding field, face by face (embedding_field_by_face in
@@ -528,6 +494,11 @@ fn embedding_step(g: u32, step: u32) -> u32 {
             }
             have = true;
         } else if (!have) {
+            if (MEET) {
+                // The meet ends the box where no frame stepped (shaders/settle.wgsl).
+                stepped(g, select(STEP_NON_FINITE, STEP_NONE, margin >= HUGE));
+                return LIVE;
+            }
             return select(NON_FINITE, NO_BOUND, margin >= HUGE);
         }
     }
@@ -579,6 +550,22 @@ fn embedding_step(g: u32, step: u32) -> u32 {
         hi[j] = up(hi[j] + max(up(DT_LO * dxu[j]), up(DT_HI * dxu[j])));
         inverted = inverted || lo[j] > hi[j];
         fin = fin && finite(lo[j]) && finite(hi[j]) && finite(dxl[j]) && finite(dxu[j]);
+    }
+    if (MEET) {
+        // The frames' sets are clipped, met, checked against C and recorded together
+        // (shaders/settle.wgsl), as src/reach/cpu.rs advances them.
+        if (!fin) {
+            stepped(g, STEP_NON_FINITE);
+        } else if (inverted) {
+            stepped(g, STEP_INVERTED);
+        } else {
+            for (var j = 0u; j < N0; j++) {
+                state[g * SW + j] = lo[j];
+                state[g * SW + N0 + j] = hi[j];
+            }
+            stepped(g, STEP_OK);
+        }
+        return LIVE;
     }
     if (!fin) {
         return NON_FINITE;

@@ -36,7 +36,7 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
-use self::chunk::ChunkResult;
+use self::chunk::{ChunkResult, FrameRun};
 use self::layout::{method_flags, Shape};
 use super::buffers::status;
 use super::codegen::{problem_wgsl, FLAG_W};
@@ -44,9 +44,10 @@ use super::kernels::{Kernels, GEMM_TILE, WORKGROUP};
 use super::margins::MarginMap;
 use super::{GpuContext, GpuError, Precision};
 use crate::boxes::IntervalBox;
+use crate::reach::safe_set::clip_to_safe_set;
 use crate::reach::{
-    Backend, ReachError, ReachProblem, ReachResult, ReachSettings, ReachTiming, SafeSet, TimeModel,
-    Tube, TubeEnd, Unsupported,
+    Backend, ReachError, ReachMethod, ReachProblem, ReachResult, ReachSettings, ReachTiming,
+    SafeSet, TimeModel, Tube, TubeEnd, TubeSample, Unsupported,
 };
 
 /// The largest buffer one chunk binds, whatever the device allows (bytes).
@@ -79,12 +80,12 @@ pub struct GpuBackend {
     kernels: KernelCache,
 }
 
-/// Pipelines with the generated WGSL they were compiled from.
-type CompiledKernels = (String, Arc<Kernels>);
+/// Pipelines with the generated WGSL they were compiled from (and whether with `settle`).
+type CompiledKernels = (String, bool, Arc<Kernels>);
 
-/// The last pipelines an engine compiled.
+/// The last pipelines an engine compiled: one problem's, or both frames' where two are met.
 #[derive(Clone, Default)]
-struct KernelCache(Arc<Mutex<Option<CompiledKernels>>>);
+struct KernelCache(Arc<Mutex<Vec<CompiledKernels>>>);
 
 impl std::fmt::Debug for KernelCache {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -92,25 +93,30 @@ impl std::fmt::Debug for KernelCache {
     }
 }
 
+/// Pipelines the cache keeps: both frames of a met run.
+const CACHED: usize = 2;
+
 impl KernelCache {
-    /// The pipelines for `source`, compiled only when it differs from the last one's.
+    /// The pipelines for `source`, compiled only when no cached one was compiled from it.
     fn get(
         &self,
         device: &wgpu::Device,
         precision: Precision,
         source: String,
+        settle: bool,
     ) -> Result<Arc<Kernels>, GpuError> {
         let mut last = self
             .0
             .lock()
             .map_err(|_| GpuError::Device("kernel cache poisoned".into()))?;
-        if let Some((s, k)) = last.as_ref() {
-            if *s == source {
-                return Ok(k.clone());
-            }
+        if let Some((_, _, k)) = last.iter().find(|(s, t, _)| *s == source && *t == settle) {
+            return Ok(k.clone());
         }
-        let kernels = Arc::new(Kernels::new(device, precision, &source)?);
-        *last = Some((source, kernels.clone()));
+        let kernels = Arc::new(Kernels::new(device, precision, &source, settle)?);
+        if last.len() == CACHED {
+            last.remove(0);
+        }
+        last.push((source, settle, kernels.clone()));
         Ok(kernels)
     }
 }
@@ -167,14 +173,11 @@ impl GpuBackend {
     }
 
     /// Whether this engine runs `problem` under `settings` as they are, or the setting it
-    /// refuses: bounds without a device kernel (IBP alone), sets met with their x-boxes (a
-    /// transform with `intersect_x`), a time model other than the Euler map.
+    /// refuses: bounds without a device kernel (IBP alone), a time model other than the Euler
+    /// map, the exact field of a general QP filter.
     pub fn runs(problem: &ReachProblem, settings: &ReachSettings) -> Result<(), Unsupported> {
         if !GpuBackend::supports(settings) {
             return Err(Unsupported::Bounds(settings.bounds));
-        }
-        if problem.frames(settings).len() > 1 {
-            return Err(Unsupported::IntersectX);
         }
         if problem.time != TimeModel::Euler {
             return Err(Unsupported::Time(problem.time.name()));
@@ -190,12 +193,29 @@ impl GpuBackend {
     }
 
     /// Boxes per chunk for a problem: every buffer of one chunk must fit one binding, all of
-    /// them together 1.5 GiB, and the dispatches the device's limits.
+    /// them together (both frames' where two are met) 1.5 GiB, and the dispatches the device's
+    /// limits.
     pub fn chunk_size(
         &self,
         problem: &ReachProblem,
         settings: &ReachSettings,
         boxes: usize,
+    ) -> usize {
+        let frames = problem.frames(settings);
+        frames
+            .iter()
+            .map(|f| self.frame_chunk_size(f, settings, boxes, frames.len() as u64))
+            .min()
+            .unwrap_or(1)
+    }
+
+    /// [`Self::chunk_size`] for one of `frames` frames, which share the memory.
+    fn frame_chunk_size(
+        &self,
+        problem: &ReachProblem,
+        settings: &ReachSettings,
+        boxes: usize,
+        frames: u64,
     ) -> usize {
         let lim = &self.ctx.limits;
         let binding = lim
@@ -208,7 +228,7 @@ impl GpuBackend {
         let largest = per_box.iter().map(|(_, n, _)| *n).max().unwrap_or(1) * bytes;
         let total: u64 = per_box.iter().map(|(_, n, copies)| n * copies).sum::<u64>() * bytes;
         let by_binding = (binding / largest.max(1)).max(1);
-        let by_memory = (MAX_CHUNK_BYTES / total.max(1)).max(1);
+        let by_memory = (MAX_CHUNK_BYTES / frames.max(1) / total.max(1)).max(1);
         let groups = lim.max_compute_workgroups_per_dimension as u64;
         let widest = (shape.kc.max(shape.r_max).max(3) * shape.faces) as u64;
         let by_dispatch = (groups * GEMM_TILE as u64 / widest).min(groups * WORKGROUP as u64);
@@ -275,18 +295,23 @@ impl Backend for GpuBackend {
         }
         let start = Instant::now();
         let every = settings.every.max(1);
-        let (n, steps) = (problem.dynamics.n, problem.steps);
+        let steps = problem.steps;
         let slots = steps.div_ceil(every);
         let safe = problem.safe_set_for(settings.method);
-        let z_boxes: Vec<IntervalBox> = initial
+        // The frames the sets are kept in (two where they are met with their x-boxes) and each
+        // box's sets in them before the first step, with the x-box they share.
+        let frames = problem.frames(settings);
+        let meet = frames.len() > 1;
+        let starts: Vec<(Vec<IntervalBox>, IntervalBox)> = initial
             .iter()
-            .map(|b| problem.initial_state(b, settings.method))
+            .map(|b| start_sets(&frames, settings.method, b))
             .collect();
+        let known_of = |k: &IntervalBox| meet.then_some(k.clone());
         let mut tubes: Vec<Tube> = initial
             .iter()
-            .zip(&z_boxes)
-            .map(|(b, z)| Tube {
-                tube: vec![problem.tube_sample(&z.lower, &z.upper, 0.0, 0.0, safe)],
+            .zip(&starts)
+            .map(|(b, (sets, known))| Tube {
+                tube: vec![sample_of(problem, safe, &sets[0], 0.0, known_of(known))],
                 ..Tube::new(b.clone())
             })
             .collect();
@@ -296,6 +321,7 @@ impl Backend for GpuBackend {
                 timing: ReachTiming::default(),
             });
         }
+        let n = problem.dynamics.n;
         let widths = problem.network.widths();
         if widths.iter().any(|&w| w == 0 || w > 1 << 18) || widths[0] != n {
             return Err(
@@ -319,25 +345,56 @@ impl Backend for GpuBackend {
             ))
             .into());
         }
-        let shape = Shape::new(problem, settings);
-        let mut margins = MarginMap::for_problem(problem, settings, self.precision);
-        margins.pad_loops = self.pad_loops;
-        let source = problem_wgsl(problem, settings, shape.flags, self.precision, &margins)?;
-        let kernels = self.kernels.get(&self.ctx.device, self.precision, source)?;
         let chunk = self.chunk_size(problem, settings, initial.len());
-        let bufs = self.buffers(problem, &shape, &margins, chunk)?;
+        let mut setups = Vec::new();
+        for (f, frame) in frames.iter().enumerate() {
+            let shape = Shape::new(frame, settings);
+            let mut margins = MarginMap::for_problem(frame, settings, self.precision);
+            margins.pad_loops = self.pad_loops;
+            let source =
+                problem_wgsl(frame, settings, shape.flags, self.precision, &margins, meet)?;
+            let kernels =
+                self.kernels
+                    .get(&self.ctx.device, self.precision, source, meet && f == 0)?;
+            let bufs = self.buffers(frame, &shape, &margins, chunk)?;
+            setups.push((shape, kernels, bufs));
+        }
+        let runs: Vec<FrameRun> = frames
+            .iter()
+            .zip(&setups)
+            .map(|(problem, (shape, kernels, bufs))| FrameRun {
+                problem,
+                shape,
+                kernels,
+                bufs,
+            })
+            .collect();
         let n_chunks = initial.len().div_ceil(chunk);
-        for (ci, boxes) in z_boxes.chunks(chunk).enumerate() {
-            let res = self.run_chunk(problem, &shape, &kernels, &bufs, boxes, slots, &|s| {
+        for (ci, part) in starts.chunks(chunk).enumerate() {
+            let sets: Vec<Vec<IntervalBox>> = (0..frames.len())
+                .map(|f| part.iter().map(|(s, _)| s[f].clone()).collect())
+                .collect();
+            let set_refs: Vec<&[IntervalBox]> = sets.iter().map(Vec::as_slice).collect();
+            let known: Vec<IntervalBox> = part.iter().map(|(_, k)| k.clone()).collect();
+            let res = self.run_chunk(&runs, &set_refs, &known, slots, &|s| {
                 progress(((ci * steps + s) / n_chunks).min(steps), steps)
             })?;
             let first = ci * chunk;
+            let met = res.get(1);
             // Turning snapshots into samples is per box: in parallel, or the host takes longer
             // than the device.
-            tubes[first..first + boxes.len()]
+            tubes[first..first + part.len()]
                 .par_iter_mut()
                 .enumerate()
-                .for_each(|(g, tube)| fill_tube(problem, safe, tube, &res, g, boxes.len(), every));
+                .for_each(|(g, tube)| {
+                    let read = Readback {
+                        res: &res[0],
+                        met,
+                        g,
+                        nb: part.len(),
+                    };
+                    fill_tube(problem, safe, tube, &read, every)
+                });
         }
         Ok(ReachResult {
             boxes: tubes,
@@ -349,16 +406,70 @@ impl Backend for GpuBackend {
     }
 }
 
+/// A box's sets in every frame before the first step and the x-box they share: each frame's
+/// initial state, met with the box of its coordinates around the meet of their x-boxes and
+/// clipped to `S` where two frames are met (the CPU engine's `start` and `settle`).
+fn start_sets(
+    frames: &[&ReachProblem],
+    method: ReachMethod,
+    initial: &IntervalBox,
+) -> (Vec<IntervalBox>, IntervalBox) {
+    let mut sets: Vec<IntervalBox> = frames
+        .iter()
+        .map(|f| f.initial_state(initial, method))
+        .collect();
+    let known = frames
+        .iter()
+        .zip(&sets)
+        .map(|(f, s)| f.x_box_in_safe_set(&s.lower, &s.upper, f.safe_set_for(method)))
+        .reduce(|a, b| a.intersection(&b).unwrap_or(a))
+        .unwrap_or_else(|| initial.clone());
+    if frames.len() > 1 {
+        for (f, set) in frames.iter().zip(&mut sets) {
+            let around = f.frame_box(&known);
+            *set = set.intersection(&around).unwrap_or_else(|| set.clone());
+            clip_to_safe_set(&mut set.lower, &mut set.upper, &f.safe_set_for(method).z);
+        }
+    }
+    (sets, known)
+}
+
+/// The recorded sample of frame 0's set `z` (radius 0 where frames are met), its x-box met with
+/// the shared `known` where there is one (the CPU engine's `sample`).
+fn sample_of(
+    problem: &ReachProblem,
+    safe: &SafeSet,
+    z: &IntervalBox,
+    t: f64,
+    known: Option<IntervalBox>,
+) -> TubeSample {
+    let mut sample = problem.tube_sample(&z.lower, &z.upper, 0.0, t, safe);
+    if let Some(met) = known.and_then(|k| sample.set.intersection(&k)) {
+        sample.lower.clone_from(&met.lower);
+        sample.upper.clone_from(&met.upper);
+        sample.set = met;
+    }
+    sample
+}
+
+/// Box `g` of a chunk of `nb` in its readback: frame 0's, and frame 1's where frames are met
+/// (its snapshots hold the shared x-boxes).
+struct Readback<'a> {
+    res: &'a ChunkResult,
+    met: Option<&'a ChunkResult>,
+    g: usize,
+    nb: usize,
+}
+
 /// A tube's samples from a chunk's readback (the CPU engine's recording rules).
 fn fill_tube(
     problem: &ReachProblem,
     safe: &SafeSet,
     tube: &mut Tube,
-    res: &ChunkResult,
-    g: usize,
-    nb: usize,
+    read: &Readback,
     every: usize,
 ) {
+    let (res, g, nb) = (read.res, read.g, read.nb);
     let n = problem.dynamics.n;
     let sw = 2 * n + 1; // a box's record: lower, upper, radius
     let steps = problem.steps;
@@ -366,8 +477,19 @@ fn fill_tube(
     let stop = res.flags[FLAG_W * g + 2] as usize + 1; // 1-based step at which it stopped
     tube.exact_steps = res.flags[FLAG_W * g + 3] as usize;
     tube.enclosed_steps = res.flags[FLAG_W * g + 4] as usize;
-    let read = |v: &[f64]| -> (Vec<f64>, Vec<f64>, f64) {
-        (v[..n].to_vec(), v[n..2 * n].to_vec(), v[2 * n])
+    let sample = |v: &[f64], known: Option<&[f64]>, t: f64| {
+        let z = IntervalBox {
+            lower: v[..n].to_vec(),
+            upper: v[n..2 * n].to_vec(),
+        };
+        let known = known.map(|k| IntervalBox {
+            lower: k[..n].to_vec(),
+            upper: k[n..2 * n].to_vec(),
+        });
+        match known {
+            Some(_) => sample_of(problem, safe, &z, t, known),
+            None => problem.tube_sample(&z.lower, &z.upper, v[2 * n], t, safe),
+        }
     };
     for (slot, s) in (1..=steps)
         .filter(|s| s % every == 0 || *s == steps)
@@ -377,17 +499,18 @@ fn fill_tube(
             break;
         }
         let at = (slot * nb + g) * sw;
-        let (lo, hi, r) = read(&res.snap[at..at + sw]);
+        let known = read.met.map(|m| &m.snap[at..at + sw]);
         tube.tube
-            .push(problem.tube_sample(&lo, &hi, r, s as f64 * problem.dt, safe));
+            .push(sample(&res.snap[at..at + sw], known, s as f64 * problem.dt));
     }
     let t = stop as f64 * problem.dt;
     tube.end = match st {
         // The step's start, as the CPU engine reports it.
         status::NO_BOUND => TubeEnd::NoCertifiedBound { t: t - problem.dt },
         status::LEFT_REGION => {
-            let (lo, hi, r) = read(&res.state[g * sw..(g + 1) * sw]);
-            tube.tube.push(problem.tube_sample(&lo, &hi, r, t, safe));
+            let known = read.met.map(|_| &res.known[g * 2 * n..(g + 1) * 2 * n]);
+            tube.tube
+                .push(sample(&res.state[g * sw..(g + 1) * sw], known, t));
             TubeEnd::LeftRegion { t }
         }
         status::INVERTED => TubeEnd::Inverted {

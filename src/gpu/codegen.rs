@@ -322,13 +322,15 @@ pub fn faces_per_box(n: usize, settings: &ReachSettings) -> usize {
 
 /// Everything problem-specific the kernels need: sizes, constants, the local-margin map's
 /// geometry (`margins`, with `--local-margin`) and the dynamics' inclusion functions
-/// `ft_iv(i, x)`, `jac_iv(i, j, x)`, `g_iv(i, k, x)`, in `precision`.
+/// `ft_iv(i, x)`, `jac_iv(i, j, x)`, `g_iv(i, k, x)`, in `precision`. With `meet` the problem
+/// is one of two frames met after every step (`shaders/settle.wgsl`).
 pub fn problem_wgsl(
     problem: &ReachProblem,
     settings: &ReachSettings,
     flags: MethodFlags,
     precision: Precision,
     margins: &MarginMap,
+    meet: bool,
 ) -> Result<String, GpuError> {
     let d = &problem.dynamics;
     let (n, m) = (d.n, d.m);
@@ -444,6 +446,18 @@ pub fn problem_wgsl(
     };
     s += &arr("S_LO", &mut s_lo.into_iter());
     s += &arr("S_HI", &mut s_hi.into_iter());
+    // T and its ρ for the z-box around an x-box (the meet of frames: shaders/sets.wgsl).
+    let (t_lo, t_hi, rho): (Vec<f64>, Vec<f64>, f64) = match &problem.transform {
+        Some(t) => {
+            let (lo, hi) = t.t.iter().map(|&v| (down(v), up(v))).unzip();
+            (lo, hi, up(t.rho))
+        }
+        None => (vec![0.0; n * n], vec![0.0; n * n], 0.0),
+    };
+    s += &arr("T_LO", &mut t_lo.into_iter());
+    s += &arr("T_HI", &mut t_hi.into_iter());
+    let _ = writeln!(s, "const RHO: real = {};", lit(rho));
+    let _ = writeln!(s, "const MEET: bool = {meet};");
     let b: Vec<f64> = d.g_constant.clone().unwrap_or_else(|| vec![0.0; n * m]);
     s += &arr("B_LO", &mut b.iter().map(|&v| down(v)));
     s += &arr("B_HI", &mut b.iter().map(|&v| up(v)));
@@ -611,10 +625,11 @@ fn closed_form_wgsl(
 }
 
 /// Per box in the flags buffer: the network's non-finite flag, the status, the step it stopped
-/// at, the steps on a proven piece of the filter (`v = 0`, or one row binding) and the steps
-/// with the closed form's enclosures; the step counter and the loop check (`embed.wgsl`,
+/// at, the steps on a proven piece of the filter (`v = 0`, or one row binding), the steps
+/// with the closed form's enclosures and how this step went in this frame (where frames are
+/// met: `embed.wgsl`, `stepped`); the step counter and the loop check (`embed.wgsl`,
 /// `loops_ran_in_full`) follow the boxes.
-pub const FLAG_W: usize = 5;
+pub const FLAG_W: usize = 6;
 
 /// Words of the flags buffer for `boxes` boxes: theirs, the step counter, the loop check.
 pub fn flag_words(boxes: usize) -> usize {

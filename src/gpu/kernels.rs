@@ -22,6 +22,8 @@ const FACES: &str = include_str!("../../shaders/faces.wgsl");
 const FILTER: &str = include_str!("../../shaders/filter.wgsl");
 const MARGINS: &str = include_str!("../../shaders/margins.wgsl");
 pub(crate) const TURN: &str = include_str!("../../shaders/turn.wgsl");
+const SETS: &str = include_str!("../../shaders/sets.wgsl");
+const SETTLE: &str = include_str!("../../shaders/settle.wgsl");
 pub(crate) const PHI: &str = include_str!("../../shaders/phi.wgsl");
 
 /// Workgroup size of the one-dimensional kernels (`@workgroup_size(64)` in the shaders).
@@ -57,6 +59,8 @@ pub struct Kernels {
     pub tick: Kernel,
     /// The 2n face boxes of every box, for face-local bounds (shaders/faces.wgsl).
     pub faces: Kernel,
+    /// The meet of two frames after a step (shaders/settle.wgsl), where frames are met.
+    pub settle: Option<Kernel>,
 }
 
 /// Binding kinds after the uniform at binding 0: `true` = read-only storage.
@@ -117,7 +121,7 @@ fn kernel(
 }
 
 /// The WGSL of a module: the precision prelude, shared helpers, the generated problem constants
-/// and the module's kernels (`gemm`, `relu`, `backward`, `output`, `faces`, `embed`).
+/// and the module's kernels (`gemm`, `relu`, `backward`, `output`, `faces`, `settle`, `embed`).
 pub fn shader_source(precision: Precision, problem_wgsl: &str, module: &str) -> String {
     let prelude = match precision {
         Precision::F32 => REAL_F32,
@@ -134,7 +138,8 @@ pub fn shader_source(precision: Precision, problem_wgsl: &str, module: &str) -> 
         "backward" => &[BOX, BACKWARD],
         "output" => &[BOX, OUTPUT],
         "faces" => &[BOX, FACES],
-        _ => &[BOX, FILTER, MARGINS, PHI, TURN, EMBED],
+        "settle" => &[SETS, SETTLE],
+        _ => &[BOX, SETS, FILTER, MARGINS, PHI, TURN, EMBED],
     };
     for part in body {
         s.push_str(part);
@@ -144,12 +149,13 @@ pub fn shader_source(precision: Precision, problem_wgsl: &str, module: &str) -> 
 }
 
 impl Kernels {
-    /// Compiles every pipeline for a problem's generated WGSL; shader errors become
-    /// [`GpuError::Shader`].
+    /// Compiles every pipeline for a problem's generated WGSL (`settle` too for the first of two
+    /// frames met after every step); shader errors become [`GpuError::Shader`].
     pub fn new(
         device: &wgpu::Device,
         precision: Precision,
         problem_wgsl: &str,
+        settle: bool,
     ) -> Result<Kernels, GpuError> {
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         // wgpu's default guard on every loop (an iteration counter, against infinite loops)
@@ -185,7 +191,7 @@ impl Kernels {
             module("embed"),
         );
         let backward = [true, true, false, true, false, false, false];
-        let embed = [false, true, false, false, true, true];
+        let embed = [false, true, false, false, true, true, true];
         let kernels = Kernels {
             gemm: kernel(device, &gemm_m, "gemm", &[true, true, false]),
             relu: kernel(
@@ -205,6 +211,7 @@ impl Kernels {
             embed: kernel(device, &embed_m, "embed", &embed),
             tick: kernel(device, &embed_m, "tick", &embed),
             faces: kernel(device, &faces_m, "faces_of", &[true, false]),
+            settle: settle.then(|| kernel(device, &module("settle"), "settle", &[false; 7])),
         };
         match pollster::block_on(scope.pop()) {
             Some(e) => Err(GpuError::Shader(e.to_string())),

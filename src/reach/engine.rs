@@ -88,10 +88,6 @@ pub fn refusal(unsupported: Unsupported) -> String {
             "{b} bounds (bounds = \"{b}\"): the GPU engine has forward, forward-backward and \
              crown bounds; use one of them (--bounds) or the CPU engine (--backend cpu)"
         ),
-        Unsupported::IntersectX => "intersect_x (sets met with their x-boxes, the default with a \
-             transform): the GPU engine keeps the parallelotope alone; set intersect_x = false \
-             (--parallelotope-only) or use the CPU engine (--backend cpu)"
-            .to_string(),
         Unsupported::Time(t) => format!(
             "time = \"{t}\": the GPU engine runs time = \"euler\" alone; set it (--time euler) \
              or use the CPU engine (--backend cpu)"

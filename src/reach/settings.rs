@@ -106,10 +106,6 @@ pub enum Unsupported {
     /// The engine has no such network bounds.
     #[error("the engine has no {0} bounds")]
     Bounds(BoundMethod),
-    /// The engine keeps the parallelotope alone: sets met with their x-boxes are the CPU
-    /// engine's.
-    #[error("the engine keeps the parallelotope alone (intersect_x is the CPU engine's)")]
-    IntersectX,
     /// The engine runs another time model only (the model's name).
     #[error("the engine runs time = \"euler\" alone, not time = \"{0}\"")]
     Time(&'static str),

@@ -1,5 +1,6 @@
-//! One chunk of boxes on the device: its initial states uploaded, every step submitted, the
-//! snapshots, states and flags read back (and, asked to, each kernel timed). Imports wgpu and
+//! One chunk of boxes on the device: its initial states uploaded (in each frame, where two are
+//! met), every step submitted, the snapshots, states and flags read back (and, asked to, each
+//! kernel timed). Imports wgpu and
 //! the engine's layout and plan.
 
 use std::time::Instant;
@@ -17,58 +18,89 @@ use crate::reach::ReachProblem;
 /// Steps recorded into one command buffer at most (progress is reported between them).
 const STEPS_PER_SUBMIT: usize = 25;
 
-/// What one chunk's readback holds.
+/// What one chunk's readback holds, per frame.
 pub(super) struct ChunkResult {
     pub(super) snap: Vec<f64>,
     pub(super) state: Vec<f64>,
     pub(super) flags: Vec<u32>,
+    /// The x-boxes the frames share at the end (frame 0's, where frames are met).
+    pub(super) known: Vec<f64>,
+}
+
+/// One frame of a run: its problem, array sizes, pipelines and buffers.
+pub(super) struct FrameRun<'a> {
+    pub(super) problem: &'a ReachProblem,
+    pub(super) shape: &'a Shape,
+    pub(super) kernels: &'a Kernels,
+    pub(super) bufs: &'a Buffers,
 }
 
 impl GpuBackend {
-    /// Runs every step for one chunk of boxes and reads its results back.
-    #[allow(clippy::too_many_arguments)]
-    pub(super) fn run_chunk(
-        &self,
-        problem: &ReachProblem,
-        shape: &Shape,
-        kernels: &Kernels,
-        bufs: &Buffers,
-        boxes: &[IntervalBox],
+    /// Runs every step for one chunk of boxes and reads its results back: `sets[f]` holds the
+    /// boxes' initial sets in frame `f`, `known` their shared x-boxes where two frames are met.
+    pub(super) fn run_chunk<'f>(
+        &'f self,
+        frames: &'f [FrameRun<'f>],
+        sets: &[&[IntervalBox]],
+        known: &[IntervalBox],
         slots: usize,
         progress: &dyn Fn(usize),
-    ) -> Result<ChunkResult, GpuError> {
+    ) -> Result<Vec<ChunkResult>, GpuError> {
         let (d, q) = (&self.ctx.device, &self.ctx.queue);
         let prec = self.precision;
-        let n = problem.dynamics.n;
-        let sw = 2 * n + 1;
+        let meet = frames.len() > 1;
+        let outward = |boxes: &[IntervalBox], radius: bool| -> Result<Vec<f64>, GpuError> {
+            let mut init = Vec::new();
+            for b in boxes {
+                init.extend(b.lower.iter().map(|&v| round_down(v, prec)));
+                init.extend(b.upper.iter().map(|&v| round_up(v, prec)));
+                if radius {
+                    init.push(0.0);
+                }
+            }
+            if init.iter().any(|v| v.abs() > 1e30) {
+                return Err(GpuError::Problem("an initial box exceeds 1e30".into()));
+            }
+            Ok(init)
+        };
+        let boxes = sets[0].len();
         // Initial states, rounded outward to the device's numbers.
-        let mut init = Vec::with_capacity(boxes.len() * sw);
-        for b in boxes {
-            init.extend(b.lower.iter().map(|&v| round_down(v, prec)));
-            init.extend(b.upper.iter().map(|&v| round_up(v, prec)));
-            init.push(0.0);
+        for (f, frame_sets) in frames.iter().zip(sets) {
+            let bufs = f.bufs;
+            q.write_buffer(
+                &bufs.state,
+                0,
+                &device_bytes(&outward(frame_sets, true)?, prec),
+            );
+            q.write_buffer(
+                &bufs.flags,
+                0,
+                bytemuck::cast_slice(&vec![0u32; flag_words(boxes)]),
+            );
         }
-        if init.iter().any(|v| v.abs() > 1e30) {
-            return Err(GpuError::Problem("an initial box exceeds 1e30".into()));
+        if meet {
+            let init = outward(known, false)?;
+            q.write_buffer(&frames[0].bufs.known, 0, &device_bytes(&init, prec));
         }
-        q.write_buffer(&bufs.state, 0, &device_bytes(&init, prec));
-        q.write_buffer(
-            &bufs.flags,
-            0,
-            bytemuck::cast_slice(&vec![0u32; flag_words(boxes.len())]),
-        );
 
-        let plan = StepPlan {
+        let known_buf = &frames[0].bufs.known;
+        let plan = |f: &'f FrameRun<'f>, tick: bool| StepPlan {
             device: d,
-            kernels,
-            bufs,
-            shape,
-            offsets: flatten_network(&problem.network).1,
-            nb: (shape.faces * boxes.len()) as u32,
-            boxes: boxes.len() as u32,
+            kernels: f.kernels,
+            bufs: f.bufs,
+            shape: f.shape,
+            offsets: flatten_network(&f.problem.network).1,
+            nb: (f.shape.faces * boxes) as u32,
+            boxes: boxes as u32,
+            known: known_buf,
+            tick,
             ops: Vec::new(),
         };
-        let ops = plan.build();
+        let mut ops = plan(&frames[0], !meet).build();
+        if meet {
+            ops.extend(plan(&frames[1], true).build());
+            ops.extend(plan(&frames[0], false).meet(frames[1].bufs));
+        }
         let limit = self.ctx.limits.max_compute_workgroups_per_dimension;
         if let Some(op) = ops.iter().find(|op| op.groups.iter().any(|&g| g > limit)) {
             return Err(GpuError::TooLarge(format!(
@@ -77,7 +109,7 @@ impl GpuBackend {
             )));
         }
 
-        let steps = problem.steps;
+        let steps = frames[0].problem.steps;
         let mut done = 0;
         while done < steps {
             let batch = STEPS_PER_SUBMIT.min(steps - done);
@@ -87,24 +119,58 @@ impl GpuBackend {
             progress(done);
         }
 
-        // One readback: snapshots, final states, flags.
+        let n = frames[0].problem.dynamics.n;
+        let results = frames
+            .iter()
+            .map(|f| self.read_back(f.bufs, slots, boxes, n))
+            .collect::<Result<Vec<ChunkResult>, GpuError>>()?;
+        // The loop check is the last word.
+        if results
+            .iter()
+            .any(|r| r.flags.last().is_some_and(|&w| w != 0))
+        {
+            return Err(GpuError::Device(format!(
+                "the device's driver ({}) cut the embedding kernel's loops short (llvmpipe ends \
+                 an invocation's loops after {LLVMPIPE_LOOP_LIMIT} iterations in all); its sets \
+                 cannot be trusted: run this problem on the CPU (--backend cpu)",
+                self.ctx.info.name
+            )));
+        }
+        if self.profile {
+            self.profile_step(&ops, boxes)?;
+        }
+        Ok(results)
+    }
+
+    /// One readback of a frame's buffers: snapshots, final states, flags, shared x-boxes.
+    fn read_back(
+        &self,
+        bufs: &Buffers,
+        slots: usize,
+        boxes: usize,
+        n: usize,
+    ) -> Result<ChunkResult, GpuError> {
+        let (d, q) = (&self.ctx.device, &self.ctx.queue);
+        let prec = self.precision;
+        let sw = 2 * n + 1;
         let bytes = prec.bytes();
-        let snap_bytes = (slots * boxes.len() * sw) as u64 * bytes;
-        let state_bytes = (boxes.len() * sw) as u64 * bytes;
-        let flag_bytes = (flag_words(boxes.len()) * 4) as u64;
+        let snap_bytes = (slots * boxes * sw) as u64 * bytes;
+        let state_bytes = (boxes * sw) as u64 * bytes;
+        let flag_bytes = (flag_words(boxes) * 4) as u64;
+        let known_bytes = (boxes * 2 * n) as u64 * bytes;
         let mut enc = d.create_command_encoder(&Default::default());
-        enc.copy_buffer_to_buffer(&bufs.snap, 0, &bufs.staging, 0, snap_bytes);
-        enc.copy_buffer_to_buffer(&bufs.state, 0, &bufs.staging, snap_bytes, state_bytes);
-        enc.copy_buffer_to_buffer(
-            &bufs.flags,
-            0,
-            &bufs.staging,
-            snap_bytes + state_bytes,
-            flag_bytes,
-        );
+        let mut at = 0;
+        for (buf, size) in [
+            (&bufs.snap, snap_bytes),
+            (&bufs.state, state_bytes),
+            (&bufs.flags, flag_bytes),
+            (&bufs.known, known_bytes),
+        ] {
+            enc.copy_buffer_to_buffer(buf, 0, &bufs.staging, at, size);
+            at += size;
+        }
         q.submit([enc.finish()]);
-        let total = snap_bytes + state_bytes + flag_bytes;
-        let slice = bufs.staging.slice(0..total);
+        let slice = bufs.staging.slice(0..at);
         let (tx, rx) = std::sync::mpsc::channel();
         slice.map_async(wgpu::MapMode::Read, move |r| {
             let _ = tx.send(r);
@@ -119,26 +185,16 @@ impl GpuBackend {
                 .map_err(|e| GpuError::Device(e.to_string()))?;
             let bytes: &[u8] = &view;
             let (a, rest) = bytes.split_at(snap_bytes as usize);
-            let (b, c) = rest.split_at(state_bytes as usize);
+            let (b, rest) = rest.split_at(state_bytes as usize);
+            let (c, k) = rest.split_at(flag_bytes as usize);
             ChunkResult {
                 snap: from_device_bytes(a, prec),
                 state: from_device_bytes(b, prec),
                 flags: bytemuck::pod_collect_to_vec(c),
+                known: from_device_bytes(k, prec),
             }
         };
         bufs.staging.unmap();
-        // The loop check is the last word.
-        if result.flags.last().is_some_and(|&w| w != 0) {
-            return Err(GpuError::Device(format!(
-                "the device's driver ({}) cut the embedding kernel's loops short (llvmpipe ends \
-                 an invocation's loops after {LLVMPIPE_LOOP_LIMIT} iterations in all); its sets \
-                 cannot be trusted: run this problem on the CPU (--backend cpu)",
-                self.ctx.info.name
-            )));
-        }
-        if self.profile {
-            self.profile_step(&ops, boxes.len())?;
-        }
         Ok(result)
     }
 

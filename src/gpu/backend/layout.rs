@@ -139,6 +139,7 @@ impl Shape {
             ("faces", faces, 1),
             ("state", sw, 2),
             ("snap", self.slots as u64 * sw, 2),
+            ("known", 2 * self.n as u64, 2),
         ]
     }
 }
@@ -163,6 +164,8 @@ pub(super) struct Buffers {
     /// The error map for local margins (`margins::MarginMap`).
     pub(super) map_index: wgpu::Buffer,
     pub(super) map_cells: wgpu::Buffer,
+    /// Per box the x-box that met frames share (frame 0's is the one read; `settle.wgsl`).
+    pub(super) known: wgpu::Buffer,
     pub(super) staging: wgpu::Buffer,
 }
 
@@ -202,7 +205,7 @@ impl GpuBackend {
         let (net, _) = flatten_network(&problem.network);
         let flags = flag_words(chunk) as u64 * 4;
         let sz = |name: &str| sizes.get(name).copied().unwrap_or(4);
-        let (snap, state) = (sz("snap"), sz("state"));
+        let (snap, state, known) = (sz("snap"), sz("state"), sz("known"));
         Ok(Buffers {
             net: storage_init(d, "net", &device_bytes(&net, self.precision)),
             state: storage(d, "state", state),
@@ -228,9 +231,10 @@ impl GpuBackend {
                 "map_cells",
                 &padded(&device_bytes(&margins.reals, self.precision)),
             ),
+            known: storage(d, "known", known),
             staging: d.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("staging"),
-                size: (snap + state + flags).next_multiple_of(8),
+                size: (snap + state + flags + known).next_multiple_of(8),
                 usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
                 mapped_at_creation: false,
             }),

@@ -28,6 +28,10 @@ pub(super) struct StepPlan<'a> {
     pub(super) nb: u32,
     /// Boxes in this chunk.
     pub(super) boxes: u32,
+    /// The x-box per box that met frames share (frame 0's buffer; read where frames are met).
+    pub(super) known: &'a wgpu::Buffer,
+    /// Whether the step ends with this frame's tick (frame 0's waits for the meet: [`Self::meet`]).
+    pub(super) tick: bool,
     pub(super) ops: Vec<Op<'a>>,
 }
 
@@ -302,9 +306,50 @@ impl<'a> StepPlan<'a> {
             &b.snap,
             &b.map_index,
             &b.map_cells,
+            self.known,
         ];
         self.push(&self.kernels.embed, &per_box, &group, groups);
-        self.push(&self.kernels.tick, &per_box, &group, [1, 1, 1]);
+        if self.tick {
+            self.push(&self.kernels.tick, &per_box, &group, [1, 1, 1]);
+        }
+    }
+
+    /// Frame 0's plan's last dispatches where two frames are met: the meet of this frame's sets
+    /// with `other`'s (shaders/settle.wgsl), then this frame's tick.
+    pub(super) fn meet(mut self, other: &'a Buffers) -> Vec<Op<'a>> {
+        let b = self.bufs;
+        let per_box = Params {
+            boxes: self.boxes,
+            ..Default::default()
+        };
+        let groups = [self.boxes.div_ceil(WORKGROUP), 1, 1];
+        if let Some(settle) = &self.kernels.settle {
+            let group = [
+                &b.state,
+                &other.state,
+                &b.flags,
+                &other.flags,
+                &b.snap,
+                &other.snap,
+                &b.known,
+            ];
+            self.push(settle, &per_box, &group, groups);
+        }
+        let group = [
+            &b.state,
+            &b.nnb,
+            &b.flags,
+            &b.snap,
+            &b.map_index,
+            &b.map_cells,
+            self.known,
+        ];
+        let tick = Params {
+            loop_check: LOOP_CHECK,
+            ..per_box
+        };
+        self.push(&self.kernels.tick, &tick, &group, [1, 1, 1]);
+        self.ops
     }
 
     /// The face boxes of every box (face-local bounds), first in a step.
