@@ -1,8 +1,10 @@
 //! The GPU engine (f64) against the CPU engine at the settings users run (issue 40): the same
-//! verdict for every box of `verify` on small grids of both paper scenarios and for the paper's
-//! initial boxes, with sets equal to 1e-9; settings the GPU engine does not run are refused,
-//! naming the setting, and `--backend auto` then runs the CPU. On whatever Vulkan adapter exists
-//! (lavapipe in CI); without one the tests skip, unless `CBFREACH_REQUIRE_GPU=1`.
+//! verdict for every box of `verify` on small grids of both paper scenarios (scenario 2 with its
+//! default meet with x-boxes) with final sets equal to 1e-10, and for the paper's initial boxes
+//! with sets equal to 1e-9; Euler steps that turn a state around hold the Euler map; settings the
+//! GPU engine does not run are refused, naming the setting, and `--backend auto` then runs the
+//! CPU. On whatever Vulkan adapter exists (lavapipe in CI); without one the tests skip, unless
+//! `CBFREACH_REQUIRE_GPU=1`.
 
 mod common;
 
@@ -151,49 +153,55 @@ fn verify_double_integrator_10x4_same_verdicts() {
     assert!(same_verdicts(&cpu, &dev, "scenario 2, 10 × 4, met with x-boxes") > 0);
 }
 
-/// The two `verify` parity tests above at a cost every run of the suite can pay: the same
-/// settings on 4 × 3 cells of `[−2, 2] × [−1.5, 1.5]` over the first 3 s (scenario 1: the goal,
-/// and the obstacle's edge, where the filter's closed form binds) and on 4 × 2 cells of
-/// `[−2, 2] × [−1, 1]` over the first 4 s (scenario 2: its parallelotope met with its x-box
-/// every step, with the closed form's two rows).
+/// `verify_integrator_8x6_same_verdicts` at a cost every run of the suite can pay: the same
+/// settings on 4 × 3 cells of `[−2, 2] × [−1.5, 1.5]` over the first 3 s (the goal, and the
+/// obstacle's edge, where the filter's closed form binds and its enclosures are taken).
 #[test]
-fn verify_small_grids_same_verdicts() {
+fn verify_integrator_small_same_verdicts() {
+    verify_small(
+        common::integrator(),
+        2.0,
+        [4, 3],
+        ([-2.0, -1.5], [2.0, 1.5]),
+    );
+}
+
+/// `verify_double_integrator_10x4_same_verdicts` at a cost every run of the suite can pay: the
+/// same settings (the parallelotope met with its x-box every step, the closed form's two rows)
+/// on 4 × 2 cells of `[−2, 2] × [−1, 1]` over the first 4 s.
+#[test]
+fn verify_double_integrator_small_same_verdicts() {
+    verify_small(
+        common::double_integrator(),
+        3.0,
+        [2, 2],
+        ([-1.0, -1.0], [1.0, 1.0]),
+    );
+}
+
+/// `verify --face-local` of `grid` cells of `region` with the scenario's settings otherwise, to
+/// `horizon`, on both engines: the same verdicts and final sets, and some cell verified.
+fn verify_small(mut s: Scenario, horizon: f64, grid: [usize; 2], region: ([f64; 2], [f64; 2])) {
     let Some(gpu) = gpu_f64() else { return };
-    let cases = [
-        (
-            common::integrator(),
-            3.0,
-            [4, 3],
-            ([-2.0, -1.5], [2.0, 1.5]),
-        ),
-        (
-            common::double_integrator(),
-            4.0,
-            [4, 2],
-            ([-2.0, -1.0], [2.0, 1.0]),
-        ),
-    ];
-    for (mut s, horizon, grid, region) in cases {
-        s.reach.horizon = horizon;
-        let problem = common::shipped_problem(&s).with_time(cbfreach::reach::TimeModel::Euler, 1);
-        let reach = ReachSettings {
-            face_local: true,
-            ..s.settings.reach.clone()
-        };
-        let frames = 1 + usize::from(problem.transform.is_some());
-        assert_eq!(problem.frames(&reach).len(), frames, "{}", s.name);
-        let clock = std::time::Instant::now();
-        let cpu = verify_on(&s, &problem, &CpuBackend, &reach, grid, Some(region));
-        let cpu_s = clock.elapsed().as_secs_f64();
-        let dev = verify_on(&s, &problem, &gpu, &reach, grid, Some(region));
-        let what = format!("{}, {grid:?} to t = {horizon}", s.name);
-        let verified = same_verdicts(&cpu, &dev, &what);
-        eprintln!(
-            "{what}: cpu {cpu_s:.1} s, gpu {:.1} s",
-            clock.elapsed().as_secs_f64() - cpu_s
-        );
-        assert!(verified > 0, "{what}: nothing verified");
-    }
+    s.reach.horizon = horizon;
+    let problem = common::shipped_problem(&s).with_time(cbfreach::reach::TimeModel::Euler, 1);
+    let reach = ReachSettings {
+        face_local: true,
+        ..s.settings.reach.clone()
+    };
+    let frames = 1 + usize::from(problem.transform.is_some());
+    assert_eq!(problem.frames(&reach).len(), frames, "{}", s.name);
+    let clock = std::time::Instant::now();
+    let cpu = verify_on(&s, &problem, &CpuBackend, &reach, grid, Some(region));
+    let cpu_s = clock.elapsed().as_secs_f64();
+    let dev = verify_on(&s, &problem, &gpu, &reach, grid, Some(region));
+    let what = format!("{}, {grid:?} to t = {horizon}", s.name);
+    let verified = same_verdicts(&cpu, &dev, &what);
+    eprintln!(
+        "{what}: cpu {cpu_s:.1} s, gpu {:.1} s",
+        clock.elapsed().as_secs_f64() - cpu_s
+    );
+    assert!(verified > 0, "{what}: nothing verified");
 }
 
 /// The time models the GPU engine does not run (it runs the Euler map alone) are refused before
