@@ -693,3 +693,66 @@ fn curved_end_rates_hold_the_exact_flow() {
         );
     }
 }
+
+/// The enclosure's halving (validated item 1d) and `C`'s side proven on the candidate's face
+/// (1c), on `ẋ₁ = a − λ(x₁ − c)`, `ẋ₂ = −x₂`, whose flow is known: the flowpipe holds every
+/// corner's exact path over the step, so a pipe that kept only one half, or clipped a side the
+/// field leaves by, would fail; with the field pointing out of `C` at the side no pipe is
+/// clipped to it.
+#[test]
+fn halved_and_c_side_enclosures_hold_the_exact_flow() {
+    use cbfreach::reach::validated::{enclose_step, Enclosure};
+    // Exact bounds of the field over a box (affine in each coordinate).
+    let field = |a: f64, lam: f64, c: f64| {
+        move |b: &IntervalBox, _| -> Result<_, ()> {
+            let f1 = |x: f64| a - lam * (x - c);
+            let (l1, u1) = (
+                f1(b.upper[0]).min(f1(b.lower[0])),
+                f1(b.upper[0]).max(f1(b.lower[0])),
+            );
+            Ok(Some((
+                vec![l1 - 1e-12, -b.upper[1] - 1e-12],
+                vec![u1 + 1e-12, -b.lower[1] + 1e-12],
+            )))
+        }
+    };
+    let path = |a: f64, lam: f64, c: f64, x: [f64; 2], t: f64| {
+        let e = (-lam * t).exp();
+        [c + a / lam + (x[0] - c - a / lam) * e, x[1] * (-t).exp()]
+    };
+    let holds = |pipe: &IntervalBox, set: &IntervalBox, a: f64, lam: f64, c: f64, h: f64| {
+        set.corners().all(|x| {
+            (0..=50).all(|k| {
+                let y = path(a, lam, c, [x[0], x[1]], h * k as f64 / 50.0);
+                (0..2).all(|i| pipe.lower[i] - 1e-9 <= y[i] && y[i] <= pipe.upper[i] + 1e-9)
+            })
+        })
+    };
+    // Stiff: h·λ = 2.4 does not close over h; its quarters do.
+    let (a, lam, c, h) = (0.0, 12.0, 0.0, 0.2);
+    let set = IntervalBox::new(vec![1.0, 1.0], vec![2.0, 1.5]).unwrap();
+    let Enclosure::Closed(pipe) = enclose_step(&set, h, None, None, field(a, lam, c)).unwrap()
+    else {
+        panic!("no enclosure with halving")
+    };
+    assert!(holds(&pipe.set, &set, a, lam, c, h), "{pipe:?}");
+    let end = path(a, lam, c, [1.0, 1.0], h)[0];
+    assert!(pipe.set.lower[0] <= end && end < 0.5, "{pipe:?}");
+
+    // `C = [0, 3] × [0, 3]`; the set on its side x₁ = 0, the field 0.5 there and −2.5 a
+    // candidate's width inside: the whole candidate's F̲₁ < 0, its face's > 0.
+    let region = IntervalBox::new(vec![0.0, 0.0], vec![3.0, 3.0]).unwrap();
+    let (a, lam, c, h) = (0.5, 10.0, 0.0, 0.05);
+    let set = IntervalBox::new(vec![0.0, 1.0], vec![0.3, 1.5]).unwrap();
+    let found = enclose_step(&set, h, None, Some(&region), field(a, lam, c)).unwrap();
+    let Enclosure::Closed(pipe) = found else {
+        panic!("C's side not proven on the face: {found:?}")
+    };
+    assert!(holds(&pipe.set, &set, a, lam, c, h), "{pipe:?}");
+    assert_eq!(pipe.set.lower[0], 0.0, "{pipe:?}");
+    // Pointing out of C at x₁ = 0: no pipe within C may claim it.
+    let found = enclose_step(&set, h, None, Some(&region), field(-0.5, lam, c)).unwrap();
+    if let Enclosure::Closed(pipe) = found {
+        panic!("closed within C while the field leaves it: {pipe:?}");
+    }
+}

@@ -102,10 +102,15 @@ impl ChunkRun<'_> {
                 .transform
                 .is_none()
                 .then_some(&frame.problem.region);
+            // The box `fb.pipe_nn` bounds the network on (the last one bounded whole; the parts
+            // keep it): a face of `C` (item 1c) or the second half of a halved step (1d) may
+            // come last, and the second-order rates need bounds over the whole flowpipe.
+            let mut bounded: Option<IntervalBox> = None;
             let found =
                 validated::enclose_step(&state.sets[f], self.h, guess, region, |a, parts| {
                     match parts {
                         false => {
+                            bounded = Some(a.clone());
                             let nn = pre
                                 .take()
                                 .filter(|(_, (cand, _))| cand == a)
@@ -118,7 +123,8 @@ impl ChunkRun<'_> {
             state.tube.end = match found {
                 Enclosure::Closed(pipe) => {
                     state.guess[f] = Some((pipe.f_lower.clone(), pipe.f_upper.clone()));
-                    state.pipe_nn[f] = fb.pipe_nn.take();
+                    let covers = bounded.is_some_and(|b| pipe.set.is_subset_of(&b));
+                    state.pipe_nn[f] = fb.pipe_nn.take().filter(|_| covers);
                     // A moving box from last step's rates, where the disturbance method
                     // runs (the Minkowski radius advances once per step, with no fallback).
                     let moving = match (self.settings.method, &state.rates[f]) {

@@ -18,6 +18,10 @@
 //!    *1c.* A side of `A` that is `C`'s may be shown inward by the field's bound on `A`'s face
 //!    there alone (the argument of 1b looks at the field on that face only); the trajectories
 //!    then keep to `C`'s side of it, so `B`'s end there is clipped to it.
+//!    *1d. Halving.* Where no candidate closes over `h` (or one meets no sound field), the first half is enclosed from `X`
+//!    (`B₁ ⊇ x([t, t + h/2])`), then the second from `B₁` (which holds every state at
+//!    `t + h/2`): `B₂ ⊇ x([t + h/2, t + h])`. Every trajectory then stays in `B₁ ∪ B₂` with its
+//!    derivative in the hull of both halves' `F`, which is all items 2–4 use of `B` and `F(A)`.
 //! 2. *Slabs.* Take `sᵢ ≥ sup{Fᵢ(x) : x ∈ B, xᵢ ∈ Iᵢ}` with the slab
 //!    `Iᵢ = [x̄ᵢ + h·min(0, F̲ᵢ), x̄ᵢ + h·max(0, F̄ᵢ)]`, and `u(τ) = x̄ᵢ + τ(sᵢ + ε)`. A trajectory
 //!    that first reaches `u` at `τ* ∈ [0, h]` does so at a state `x(τ*) ∈ B` whose `i`-th
@@ -141,6 +145,69 @@ pub fn enclose_step<E>(
     guess: Option<(&[f64], &[f64])>,
     region: Option<&IntervalBox>,
     mut field: impl FnMut(&IntervalBox, bool) -> Result<Option<(Vec<f64>, Vec<f64>)>, E>,
+) -> Result<Enclosure, E> {
+    enclose_halving(set, h, guess, region, &mut field, HALVINGS)
+}
+
+/// Halvings of a step whose enclosure does not close ([`enclose_halving`]).
+const HALVINGS: usize = 2;
+
+/// The field's bounds on a candidate, as [`enclose_step`] asks for them.
+type FieldOn<'f, E> = dyn FnMut(&IntervalBox, bool) -> Result<Option<(Vec<f64>, Vec<f64>)>, E> + 'f;
+
+/// [`enclose_step`]; where the step's enclosure does not close (or meets no sound field), the
+/// step's halves are enclosed one after the other (item 1d), up to `halvings` times.
+fn enclose_halving<E>(
+    set: &IntervalBox,
+    h: f64,
+    guess: Option<(&[f64], &[f64])>,
+    region: Option<&IntervalBox>,
+    field: &mut FieldOn<'_, E>,
+    halvings: usize,
+) -> Result<Enclosure, E> {
+    let whole = enclose_once(set, h, guess, region, field)?;
+    // A candidate without a sound field (it grew into cells with no finite margin) may be
+    // avoided by a shorter step's too.
+    if matches!(whole, Enclosure::Closed(_)) || halvings == 0 {
+        return Ok(whole);
+    }
+    let half = 0.5 * h;
+    let first = match enclose_halving(set, half, guess, region, field, halvings - 1)? {
+        Enclosure::Closed(pipe) => pipe,
+        other => return Ok(other),
+    };
+    let rates = Some((&first.f_lower[..], &first.f_upper[..]));
+    let second = match enclose_halving(&first.set, half, rates, region, field, halvings - 1)? {
+        Enclosure::Closed(pipe) => pipe,
+        other => return Ok(other),
+    };
+    let n = set.dim();
+    Ok(Enclosure::Closed(Flowpipe {
+        set: IntervalBox {
+            lower: (0..n)
+                .map(|i| first.set.lower[i].min(second.set.lower[i]))
+                .collect(),
+            upper: (0..n)
+                .map(|i| first.set.upper[i].max(second.set.upper[i]))
+                .collect(),
+        },
+        f_lower: (0..n)
+            .map(|i| first.f_lower[i].min(second.f_lower[i]))
+            .collect(),
+        f_upper: (0..n)
+            .map(|i| first.f_upper[i].max(second.f_upper[i]))
+            .collect(),
+        faces: None,
+    }))
+}
+
+/// One try of [`enclose_step`] over the whole step `h`.
+fn enclose_once<E>(
+    set: &IntervalBox,
+    h: f64,
+    guess: Option<(&[f64], &[f64])>,
+    region: Option<&IntervalBox>,
+    field: &mut FieldOn<'_, E>,
 ) -> Result<Enclosure, E> {
     let clip = |b: IntervalBox| match region {
         Some(r) => b.intersection(r),
