@@ -553,3 +553,206 @@ fn euler_sets_hold_the_euler_map_where_it_turns_a_coordinate_around() {
         assert!(e.checks >= 2 * 48 * 10, "too few checks: {e:?}");
     }
 }
+
+/// The second-order end rates of the validated step (`validated::curved_rates`), met with the
+/// slab rates, on linear systems whose flow is known: over 40 steps, moving boxes guessed from
+/// the last rates where they pass their check, every set holds the exact flow of its corners
+/// and edge points, and the curved rates are tighter than the slabs' on most sides. The face
+/// rates of the Euler map (the curved barrier without its second-order term) miss the flow,
+/// so the containment asserted here fails on a set that drops that term.
+#[test]
+fn curved_end_rates_hold_the_exact_flow() {
+    use cbfreach::reach::embedding::{embedding_field, embedding_step, Dynamics, NetworkBoundsRef};
+    use cbfreach::reach::validated::{
+        curved_rates, enclose_step, meet_with_pipe, moving, slab_field, verified, Enclosure,
+    };
+    let names = ["x1".to_string(), "x2".to_string()];
+    let parse = |s: &str| cbfreach::expressions::parse(s, &names, &Default::default()).unwrap();
+    let z = [0.0; 4];
+    let none = NetworkBoundsRef {
+        a_lower: &z[..2],
+        b_lower: &z[..1],
+        a_upper: &z[..2],
+        b_upper: &z[..1],
+        lower: &z[..1],
+        upper: &z[..1],
+    };
+    // ẋ = Ax: a damped rotation, and a stiff contraction coupled both ways.
+    let systems: [[[f64; 2]; 2]; 2] = [[[-0.5, 1.0], [-1.0, -0.5]], [[-5.0, 1.5], [-1.0, -1.0]]];
+    for a in systems {
+        let lin = |r: [f64; 2]| parse(&format!("{}*x1 + {}*x2", r[0], r[1]));
+        let zero = parse("0");
+        let d = Dynamics::new(
+            2,
+            1,
+            vec![lin(a[0]), lin(a[1])],
+            vec![vec![zero.clone()], vec![zero]],
+        );
+        let field = |b: &IntervalBox, _| -> Result<_, ()> {
+            // Over the whole box, not its faces: `Aᵢᵢ` on the whole range of `xᵢ`.
+            let x = |j: usize| (b.lower[j], b.upper[j]);
+            let whole = |i: usize, up: bool| {
+                (0..2)
+                    .map(|j| {
+                        let (p, q) = (a[i][j] * x(j).0, a[i][j] * x(j).1);
+                        if up {
+                            p.max(q)
+                        } else {
+                            p.min(q)
+                        }
+                    })
+                    .sum::<f64>()
+            };
+            Ok(Some((
+                vec![whole(0, false) - 1e-12, whole(1, false) - 1e-12],
+                vec![whole(0, true) + 1e-12, whole(1, true) + 1e-12],
+            )))
+        };
+        // The flow: RK4 at a fine step (exact to ~1e-13 over h).
+        let flow = |x: [f64; 2], t: f64| {
+            let f = |y: [f64; 2]| {
+                [
+                    a[0][0] * y[0] + a[0][1] * y[1],
+                    a[1][0] * y[0] + a[1][1] * y[1],
+                ]
+            };
+            let (mut y, k) = (x, 200);
+            let dt = t / k as f64;
+            for _ in 0..k {
+                let k1 = f(y);
+                let k2 = f([y[0] + 0.5 * dt * k1[0], y[1] + 0.5 * dt * k1[1]]);
+                let k3 = f([y[0] + 0.5 * dt * k2[0], y[1] + 0.5 * dt * k2[1]]);
+                let k4 = f([y[0] + dt * k3[0], y[1] + dt * k3[1]]);
+                for i in 0..2 {
+                    y[i] += dt / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]);
+                }
+            }
+            y
+        };
+        let h = 0.05;
+        let mut set = IntervalBox::new(vec![0.9, 0.4], vec![1.1, 0.6]).unwrap();
+        let mut points: Vec<[f64; 2]> = (0..=8)
+            .flat_map(|k| {
+                let s = 0.025 * k as f64;
+                [
+                    [0.9 + s, 0.4],
+                    [0.9 + s, 0.6],
+                    [0.9, 0.4 + s],
+                    [1.1, 0.4 + s],
+                ]
+            })
+            .collect();
+        let (mut rates, mut tighter, mut sides, mut euler_missed) = (None, 0, 0, false);
+        for _ in 0..40 {
+            let Enclosure::Closed(pipe) = enclose_step(&set, h, None, None, field).unwrap() else {
+                panic!("no enclosure")
+            };
+            let whole_slabs = slab_field(&d, &set, &pipe, h, |_, _| none, &[0.0]);
+            let mut used = pipe.clone();
+            let mut slabs = whole_slabs.clone();
+            if let Some(m) = rates
+                .as_ref()
+                .and_then(|(l, u): &(Vec<f64>, Vec<f64>)| moving(&set, &pipe, h, (l, u)))
+            {
+                let r = slab_field(&d, &set, &m, h, |_, _| none, &[0.0]);
+                if verified(&m, (&r.0, &r.1)) {
+                    (used, slabs) = (m, r);
+                }
+            }
+            let curved = curved_rates(&d, &set, &used, h, |_, _| none, &[0.0]);
+            for i in 0..2 {
+                sides += 2;
+                tighter +=
+                    usize::from(curved.0[i] > slabs.0[i]) + usize::from(curved.1[i] < slabs.1[i]);
+            }
+            let (e_lo, e_hi) = embedding_field(&d, &set.lower, &set.upper, none, &[0.0]);
+            let (mut lo, mut hi) = (set.lower.clone(), set.upper.clone());
+            let dl: Vec<f64> = (0..2).map(|i| slabs.0[i].max(curved.0[i])).collect();
+            let du: Vec<f64> = (0..2).map(|i| slabs.1[i].min(curved.1[i])).collect();
+            embedding_step(&mut lo, &mut hi, &dl, &du, h);
+            meet_with_pipe(&mut lo, &mut hi, &used);
+            let (mut elo, mut ehi) = (set.lower.clone(), set.upper.clone());
+            embedding_step(&mut elo, &mut ehi, &e_lo, &e_hi, h);
+            for x in points.iter_mut() {
+                *x = flow(*x, h);
+                for i in 0..2 {
+                    assert!(
+                        lo[i] - 1e-12 <= x[i] && x[i] <= hi[i] + 1e-12,
+                        "{a:?}: {x:?} outside {lo:?}..{hi:?}"
+                    );
+                    euler_missed |= x[i] < elo[i] - 1e-9 || x[i] > ehi[i] + 1e-9;
+                }
+            }
+            set = IntervalBox::new(lo, hi).unwrap();
+            rates = Some(slabs);
+        }
+        assert!(euler_missed, "{a:?}: the Euler face rates held the flow");
+        assert!(
+            2 * tighter > sides,
+            "{a:?}: curved tighter on {tighter} of {sides} sides"
+        );
+    }
+}
+
+/// The enclosure's halving (validated item 1d) and `C`'s side proven on the candidate's face
+/// (1c), on `ẋ₁ = a − λ(x₁ − c)`, `ẋ₂ = −x₂`, whose flow is known: the flowpipe holds every
+/// corner's exact path over the step, so a pipe that kept only one half, or clipped a side the
+/// field leaves by, would fail; with the field pointing out of `C` at the side no pipe is
+/// clipped to it.
+#[test]
+fn halved_and_c_side_enclosures_hold_the_exact_flow() {
+    use cbfreach::reach::validated::{enclose_step, Enclosure};
+    // Exact bounds of the field over a box (affine in each coordinate).
+    let field = |a: f64, lam: f64, c: f64| {
+        move |b: &IntervalBox, _| -> Result<_, ()> {
+            let f1 = |x: f64| a - lam * (x - c);
+            let (l1, u1) = (
+                f1(b.upper[0]).min(f1(b.lower[0])),
+                f1(b.upper[0]).max(f1(b.lower[0])),
+            );
+            Ok(Some((
+                vec![l1 - 1e-12, -b.upper[1] - 1e-12],
+                vec![u1 + 1e-12, -b.lower[1] + 1e-12],
+            )))
+        }
+    };
+    let path = |a: f64, lam: f64, c: f64, x: [f64; 2], t: f64| {
+        let e = (-lam * t).exp();
+        [c + a / lam + (x[0] - c - a / lam) * e, x[1] * (-t).exp()]
+    };
+    let holds = |pipe: &IntervalBox, set: &IntervalBox, a: f64, lam: f64, c: f64, h: f64| {
+        set.corners().all(|x| {
+            (0..=50).all(|k| {
+                let y = path(a, lam, c, [x[0], x[1]], h * k as f64 / 50.0);
+                (0..2).all(|i| pipe.lower[i] - 1e-9 <= y[i] && y[i] <= pipe.upper[i] + 1e-9)
+            })
+        })
+    };
+    // Stiff: h·λ = 2.4 does not close over h; its quarters do.
+    let (a, lam, c, h) = (0.0, 12.0, 0.0, 0.2);
+    let set = IntervalBox::new(vec![1.0, 1.0], vec![2.0, 1.5]).unwrap();
+    let Enclosure::Closed(pipe) = enclose_step(&set, h, None, None, field(a, lam, c)).unwrap()
+    else {
+        panic!("no enclosure with halving")
+    };
+    assert!(holds(&pipe.set, &set, a, lam, c, h), "{pipe:?}");
+    let end = path(a, lam, c, [1.0, 1.0], h)[0];
+    assert!(pipe.set.lower[0] <= end && end < 0.5, "{pipe:?}");
+
+    // `C = [0, 3] × [0, 3]`; the set on its side x₁ = 0, the field 0.5 there and −2.5 a
+    // candidate's width inside: the whole candidate's F̲₁ < 0, its face's > 0.
+    let region = IntervalBox::new(vec![0.0, 0.0], vec![3.0, 3.0]).unwrap();
+    let (a, lam, c, h) = (0.5, 10.0, 0.0, 0.05);
+    let set = IntervalBox::new(vec![0.0, 1.0], vec![0.3, 1.5]).unwrap();
+    let found = enclose_step(&set, h, None, Some(&region), field(a, lam, c)).unwrap();
+    let Enclosure::Closed(pipe) = found else {
+        panic!("C's side not proven on the face: {found:?}")
+    };
+    assert!(holds(&pipe.set, &set, a, lam, c, h), "{pipe:?}");
+    assert_eq!(pipe.set.lower[0], 0.0, "{pipe:?}");
+    // Pointing out of C at x₁ = 0: no pipe within C may claim it.
+    let found = enclose_step(&set, h, None, Some(&region), field(-0.5, lam, c)).unwrap();
+    if let Enclosure::Closed(pipe) = found {
+        panic!("closed within C while the field leaves it: {pipe:?}");
+    }
+}

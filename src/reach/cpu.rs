@@ -541,6 +541,7 @@ impl ChunkRun<'_> {
                         input,
                         &mut fields,
                         (&mut buf.frames[f], &buf.zeros, &buf.margin),
+                        input.margin.map(|_| buf.slots[f] - 1),
                     )?;
                     let [exact, enclosed, network] = fields;
                     let sources: Vec<_> = [exact, taylor, enclosed, network]

@@ -102,10 +102,15 @@ impl ChunkRun<'_> {
                 .transform
                 .is_none()
                 .then_some(&frame.problem.region);
+            // The box `fb.pipe_nn` bounds the network on (the last one bounded whole; the parts
+            // keep it): a face of `C` (item 1c) or the second half of a halved step (1d) may
+            // come last, and the second-order rates need bounds over the whole flowpipe.
+            let mut bounded: Option<IntervalBox> = None;
             let found =
                 validated::enclose_step(&state.sets[f], self.h, guess, region, |a, parts| {
                     match parts {
                         false => {
+                            bounded = Some(a.clone());
                             let nn = pre
                                 .take()
                                 .filter(|(_, (cand, _))| cand == a)
@@ -118,7 +123,8 @@ impl ChunkRun<'_> {
             state.tube.end = match found {
                 Enclosure::Closed(pipe) => {
                     state.guess[f] = Some((pipe.f_lower.clone(), pipe.f_upper.clone()));
-                    state.pipe_nn[f] = fb.pipe_nn.take();
+                    let covers = bounded.is_some_and(|b| pipe.set.is_subset_of(&b));
+                    state.pipe_nn[f] = fb.pipe_nn.take().filter(|_| covers);
                     // A moving box from last step's rates, where the disturbance method
                     // runs (the Minkowski radius advances once per step, with no fallback).
                     let moving = match (self.settings.method, &state.rates[f]) {
@@ -174,7 +180,10 @@ impl ChunkRun<'_> {
     /// enclosures, the network): where the slabs are a moving box's, checks them
     /// ([`validated::verified`]) and, where they fail, falls back to the whole enclosure's slabs
     /// (the network bounded there for this box alone). Keeps the rates for the next step's
-    /// guess; returns the second-order rates (met by the caller). Nothing for the Euler map.
+    /// guess; returns the second-order rates of every source (met by the caller;
+    /// [`validated::curved_rates`], [`validated::taylor_rates`]). `slot`: the box's rows in the
+    /// frame's batch, where the network was bounded. Nothing for the Euler map.
+    #[allow(clippy::too_many_arguments)]
     pub(super) fn check_step(
         &self,
         frame: &Frame,
@@ -183,6 +192,7 @@ impl ChunkRun<'_> {
         input: StepInput,
         fields: &mut [Option<Rates>; 3],
         (fb, zeros, margin): (&mut FrameBuffers, &[f64], &[f64]),
+        slot: Option<usize>,
     ) -> Result<Option<Rates>, ReachError> {
         let Some(Some(pipe)) = state.pipes.get(f) else {
             return Ok(None);
@@ -192,10 +202,14 @@ impl ChunkRun<'_> {
             .as_ref()
             .is_some_and(|(l, u)| validated::verified(pipe, (l, u)));
         let margin = margin.to_vec();
+        // The network's bounds on the slabs the step takes: this step's batch, or the
+        // fallback's own (one box, row 0).
+        let mut rows = slot.map(|s| (false, s));
         if !proven {
             if let Some(whole) = state.whole[f].take() {
                 state.pipes[f] = Some(whole);
                 *fields = self.whole_fields(frame, state, f, input, fb, zeros, &margin)?;
+                rows = slot.map(|_| (true, 0));
             }
         }
         state.rates[f] = fields.iter().flatten().cloned().reduce(meet_fields);
@@ -209,7 +223,60 @@ impl ChunkRun<'_> {
         let network = input
             .margin
             .and_then(|_| self.network_taylor(p, state, f, &margin));
-        Ok([piece, network].into_iter().flatten().reduce(meet_fields))
+        let curved = self.curved(frame, state, f, input, (fb, zeros, &margin), rows);
+        Ok([piece, network]
+            .into_iter()
+            .chain(curved)
+            .flatten()
+            .reduce(meet_fields))
+    }
+
+    /// [`validated::curved_rates`] of each source of the step's field on the slabs of
+    /// `state.pipes[f]`: the proven piece, the filter's enclosures, the network (`rows`: whether
+    /// its bounds are the fallback's, and the box's rows there).
+    fn curved(
+        &self,
+        frame: &Frame,
+        state: &Live,
+        f: usize,
+        input: StepInput,
+        (fb, zeros, margin): (&FrameBuffers, &[f64], &[f64]),
+        rows: Option<(bool, usize)>,
+    ) -> [Option<Rates>; 3] {
+        let p = frame.problem;
+        let (n, m) = (p.dynamics.n, p.dynamics.m);
+        let Some(Some(pipe)) = state.pipes.get(f) else {
+            return [None, None, None];
+        };
+        let set = &state.sets[f];
+        let exact = input.piece.map(|(piece, slack)| {
+            let dynamics = piece_dynamics(p, piece);
+            let zero = zero_bounds(zeros, n, m);
+            let (mut dl, mut du) =
+                validated::curved_rates(dynamics, set, pipe, self.h, |_, _| zero, zero.b_lower);
+            widen_by(&mut dl, &mut du, slack);
+            (dl, du)
+        });
+        let enclosed = match input.piece.is_none() && self.encloses {
+            true => {
+                let known = state.pipe_known.as_ref().unwrap_or(&state.known);
+                self.enclosure_slab_rates(frame, set, pipe, known, zeros, true)
+            }
+            false => None,
+        };
+        let network = rows.map(|(fallback, slot)| {
+            let batch = if fallback { &fb.pipe_batch } else { &fb.batch };
+            let face =
+                |i: usize, up: bool| bounds_of(batch, slot * 2 * n + 2 * i + usize::from(up), n, m);
+            let whole = |_: usize, _: bool| bounds_of(batch, slot, n, m);
+            let (mut dl, mut du) = match self.settings.face_local {
+                true => validated::curved_rates(&p.dynamics, set, pipe, self.h, face, margin),
+                false => validated::curved_rates(&p.dynamics, set, pipe, self.h, whole, margin),
+            };
+            widen_by(&mut dl, &mut du, p.field_slack);
+            (dl, du)
+        });
+        [exact, enclosed, network]
     }
 
     /// The rates on the whole enclosure's slabs (`state.pipes[f]`), the network bounded on them
@@ -438,6 +505,20 @@ impl ChunkRun<'_> {
         known: &IntervalBox,
         zeros: &[f64],
     ) -> Option<(Vec<f64>, Vec<f64>)> {
+        self.enclosure_slab_rates(frame, set, pipe, known, zeros, false)
+    }
+
+    /// [`ChunkRun::enclosure_slab_field`], or with `curved` its
+    /// [`validated::curved_rates`].
+    fn enclosure_slab_rates(
+        &self,
+        frame: &Frame,
+        set: &IntervalBox,
+        pipe: &Flowpipe,
+        known: &IntervalBox,
+        zeros: &[f64],
+        curved: bool,
+    ) -> Option<(Vec<f64>, Vec<f64>)> {
         let problem = frame.problem;
         let (n, m) = (problem.dynamics.n, problem.dynamics.m);
         let mut slack = 0.0_f64;
@@ -457,8 +538,11 @@ impl ChunkRun<'_> {
             let (l, u) = &ends[2 * i + usize::from(up)];
             constant_bounds(zeros, l, u, n)
         };
-        let (mut dl, mut du) =
-            validated::slab_field(&problem.dynamics, set, pipe, self.h, face, &zeros[..m]);
+        let dynamics = &problem.dynamics;
+        let (mut dl, mut du) = match curved {
+            false => validated::slab_field(dynamics, set, pipe, self.h, face, &zeros[..m]),
+            true => validated::curved_rates(dynamics, set, pipe, self.h, face, &zeros[..m]),
+        };
         widen_by(&mut dl, &mut du, slack);
         Some((dl, du))
     }

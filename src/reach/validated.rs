@@ -15,6 +15,13 @@
 //!    strictly into `C` on it: at `t₁` the state is then inside `A ∩ C` or on such a side, moving
 //!    inward, and stays in `A ∩ C` a while longer. Bounds over `A ∩ S` may be taken as the hull
 //!    of bounds over parts of `A`, dropping parts proven outside `S`.
+//!    *1c.* A side of `A` that is `C`'s may be shown inward by the field's bound on `A`'s face
+//!    there alone (the argument of 1b looks at the field on that face only); the trajectories
+//!    then keep to `C`'s side of it, so `B`'s end there is clipped to it.
+//!    *1d. Halving.* Where no candidate closes over `h` (or one meets no sound field), the first half is enclosed from `X`
+//!    (`B₁ ⊇ x([t, t + h/2])`), then the second from `B₁` (which holds every state at
+//!    `t + h/2`): `B₂ ⊇ x([t + h/2, t + h])`. Every trajectory then stays in `B₁ ∪ B₂` with its
+//!    derivative in the hull of both halves' `F`, which is all items 2–4 use of `B` and `F(A)`.
 //! 2. *Slabs.* Take `sᵢ ≥ sup{Fᵢ(x) : x ∈ B, xᵢ ∈ Iᵢ}` with the slab
 //!    `Iᵢ = [x̄ᵢ + h·min(0, F̲ᵢ), x̄ᵢ + h·max(0, F̄ᵢ)]`, and `u(τ) = x̄ᵢ + τ(sᵢ + ε)`. A trajectory
 //!    that first reaches `u` at `τ* ∈ [0, h]` does so at a state `x(τ*) ∈ B` whose `i`-th
@@ -139,6 +146,69 @@ pub fn enclose_step<E>(
     region: Option<&IntervalBox>,
     mut field: impl FnMut(&IntervalBox, bool) -> Result<Option<(Vec<f64>, Vec<f64>)>, E>,
 ) -> Result<Enclosure, E> {
+    enclose_halving(set, h, guess, region, &mut field, HALVINGS)
+}
+
+/// Halvings of a step whose enclosure does not close ([`enclose_halving`]).
+const HALVINGS: usize = 2;
+
+/// The field's bounds on a candidate, as [`enclose_step`] asks for them.
+type FieldOn<'f, E> = dyn FnMut(&IntervalBox, bool) -> Result<Option<(Vec<f64>, Vec<f64>)>, E> + 'f;
+
+/// [`enclose_step`]; where the step's enclosure does not close (or meets no sound field), the
+/// step's halves are enclosed one after the other (item 1d), up to `halvings` times.
+fn enclose_halving<E>(
+    set: &IntervalBox,
+    h: f64,
+    guess: Option<(&[f64], &[f64])>,
+    region: Option<&IntervalBox>,
+    field: &mut FieldOn<'_, E>,
+    halvings: usize,
+) -> Result<Enclosure, E> {
+    let whole = enclose_once(set, h, guess, region, field)?;
+    // A candidate without a sound field (it grew into cells with no finite margin) may be
+    // avoided by a shorter step's too.
+    if matches!(whole, Enclosure::Closed(_)) || halvings == 0 {
+        return Ok(whole);
+    }
+    let half = 0.5 * h;
+    let first = match enclose_halving(set, half, guess, region, field, halvings - 1)? {
+        Enclosure::Closed(pipe) => pipe,
+        other => return Ok(other),
+    };
+    let rates = Some((&first.f_lower[..], &first.f_upper[..]));
+    let second = match enclose_halving(&first.set, half, rates, region, field, halvings - 1)? {
+        Enclosure::Closed(pipe) => pipe,
+        other => return Ok(other),
+    };
+    let n = set.dim();
+    Ok(Enclosure::Closed(Flowpipe {
+        set: IntervalBox {
+            lower: (0..n)
+                .map(|i| first.set.lower[i].min(second.set.lower[i]))
+                .collect(),
+            upper: (0..n)
+                .map(|i| first.set.upper[i].max(second.set.upper[i]))
+                .collect(),
+        },
+        f_lower: (0..n)
+            .map(|i| first.f_lower[i].min(second.f_lower[i]))
+            .collect(),
+        f_upper: (0..n)
+            .map(|i| first.f_upper[i].max(second.f_upper[i]))
+            .collect(),
+        faces: None,
+    }))
+}
+
+/// One try of [`enclose_step`] over the whole step `h`.
+fn enclose_once<E>(
+    set: &IntervalBox,
+    h: f64,
+    guess: Option<(&[f64], &[f64])>,
+    region: Option<&IntervalBox>,
+    field: &mut FieldOn<'_, E>,
+) -> Result<Enclosure, E> {
     let clip = |b: IntervalBox| match region {
         Some(r) => b.intersection(r),
         None => Some(b),
@@ -165,7 +235,7 @@ pub fn enclose_step<E>(
         let whole = field(&a, false)?;
         let closes_with = |f: &(Vec<f64>, Vec<f64>)| {
             let b = sweep(set, h, &f.0, &f.1);
-            closes(&b, &a, f, region)
+            closes(&b, &a, &c_inward(&a, f, region))
         };
         let found = match whole {
             Some(w) if closes_with(&w) => Some(w),
@@ -177,8 +247,36 @@ pub fn enclose_step<E>(
         let Some((lo, hi)) = found else {
             return Ok(Enclosure::NoField);
         };
-        let b = sweep(set, h, &lo, &hi);
-        if closes(&b, &a, &(lo.clone(), hi.clone()), region) {
+        let mut b = sweep(set, h, &lo, &hi);
+        let mut inward = c_inward(&a, &(lo.clone(), hi.clone()), region);
+        if let Some(r) = region.filter(|_| !closes(&b, &a, &inward)) {
+            // Item 1c: a side of `C` the whole candidate's field does not prove inward may be
+            // proven on the candidate's face there.
+            for i in 0..a.dim() {
+                for up in [false, true] {
+                    let (side, c) = match up {
+                        false => (a.lower[i], r.lower[i]),
+                        true => (a.upper[i], r.upper[i]),
+                    };
+                    if side != c || inward[i][usize::from(up)] {
+                        continue;
+                    }
+                    let mut face = a.clone();
+                    (face.lower[i], face.upper[i]) = (side, side);
+                    let Some((fl, fu)) = field(&face, false)? else {
+                        continue;
+                    };
+                    if (!up && fl[i] > 0.0) || (up && fu[i] < 0.0) {
+                        inward[i][usize::from(up)] = true;
+                        match up {
+                            false => b.lower[i] = b.lower[i].max(side),
+                            true => b.upper[i] = b.upper[i].min(side),
+                        }
+                    }
+                }
+            }
+        }
+        if closes(&b, &a, &inward) {
             return Ok(Enclosure::Closed(Flowpipe {
                 set: b,
                 f_lower: lo,
@@ -198,26 +296,32 @@ pub fn enclose_step<E>(
     Ok(Enclosure::Open)
 }
 
-/// Whether `b = X + [0, h]·F(A ∩ C)` proves the enclosure (items 1 and 1b): in every coordinate
-/// `b` lies strictly inside `a`, or meets `a`'s side where that side is `C`'s and the field
-/// points strictly inward there (a trajectory on that face moves into `C`, so it cannot leave
-/// `A ∩ C` through it).
-fn closes(
-    b: &IntervalBox,
+/// Per coordinate, whether `a`'s lower and upper sides are `C`'s with the field `(lo, hi)`
+/// pointing strictly into `C` there (item 1b).
+fn c_inward(
     a: &IntervalBox,
     (lo, hi): &(Vec<f64>, Vec<f64>),
     region: Option<&IntervalBox>,
-) -> bool {
+) -> Vec<[bool; 2]> {
+    (0..a.dim())
+        .map(|i| match region {
+            Some(r) => [
+                a.lower[i] == r.lower[i] && lo[i] > 0.0,
+                a.upper[i] == r.upper[i] && hi[i] < 0.0,
+            ],
+            None => [false, false],
+        })
+        .collect()
+}
+
+/// Whether `b = X + [0, h]·F(A ∩ C)` proves the enclosure (items 1, 1b and 1c): in every
+/// coordinate `b` lies strictly inside `a`, or meets `a`'s side where that side is `C`'s and the
+/// field points strictly inward there (`inward`, from [`c_inward`] or the side's face: a
+/// trajectory on that face moves into `C`, so it cannot leave `A ∩ C` through it).
+fn closes(b: &IntervalBox, a: &IntervalBox, inward: &[[bool; 2]]) -> bool {
     (0..a.dim()).all(|i| {
-        let at_c = |side: f64, c: Option<f64>| c == Some(side);
-        let lower = a.lower[i] < b.lower[i]
-            || (at_c(a.lower[i], region.map(|r| r.lower[i]))
-                && lo[i] > 0.0
-                && a.lower[i] <= b.lower[i]);
-        let upper = b.upper[i] < a.upper[i]
-            || (at_c(a.upper[i], region.map(|r| r.upper[i]))
-                && hi[i] < 0.0
-                && b.upper[i] <= a.upper[i]);
+        let lower = a.lower[i] < b.lower[i] || (inward[i][0] && a.lower[i] <= b.lower[i]);
+        let upper = b.upper[i] < a.upper[i] || (inward[i][1] && b.upper[i] <= a.upper[i]);
         lower && upper
     })
 }
@@ -393,16 +497,38 @@ pub fn bound_on(
     margin: &[f64],
 ) -> Interval {
     let n = dynamics.n;
-    let x: Vec<Interval> = (0..n).map(|j| Interval::new(lower[j], upper[j])).collect();
     let p: Vec<f64> = (0..n)
         .map(|j| lower[j] + 0.5 * (upper[j] - lower[j]))
         .collect();
+    let (mut total, slopes) = form_on(dynamics, lower, upper, &p, i, on_upper, nn, margin);
+    for (j, k) in slopes.into_iter().enumerate() {
+        total = total + k * (Interval::new(lower[j], upper[j]) - point(p[j]));
+    }
+    total
+}
+
+/// The form `Fᵢ(x) ∈ c + Σⱼ kⱼ(xⱼ − pⱼ)` behind [`bound_on`], valid for `x` in the box
+/// `[lower, upper]` (within `S`) with `p` a point of the box: `(c, k)`. For constant `g = B` the
+/// interaction-aware side's row is in `k` (the lower side's for `on_upper = false`); otherwise
+/// `g`'s input term is in `c`.
+#[allow(clippy::too_many_arguments)]
+fn form_on(
+    dynamics: &Dynamics,
+    lower: &[f64],
+    upper: &[f64],
+    p: &[f64],
+    i: usize,
+    on_upper: bool,
+    nn: NetworkBoundsRef,
+    margin: &[f64],
+) -> (Interval, Vec<Interval>) {
+    let n = dynamics.n;
+    let x: Vec<Interval> = (0..n).map(|j| Interval::new(lower[j], upper[j])).collect();
     let p_box: Vec<Interval> = p.iter().map(|&v| point(v)).collect();
     let jac: Vec<Interval> = dynamics.f_tilde_jacobian[i]
         .iter()
         .map(|e| e.eval_interval(&x))
         .collect();
-    let offset = |j: usize| x[j] - point(p[j]);
     let mut total = dynamics.f_tilde[i].eval_interval(&p_box);
     match &dynamics.g_constant {
         Some(b) => {
@@ -410,21 +536,16 @@ pub fn bound_on(
             for j in 0..n {
                 total = total + row[j] * point(p[j]);
             }
-            total = total + delta;
-            for j in 0..n {
-                total = total + (jac[j] + row[j]) * offset(j);
-            }
+            let slopes = (0..n).map(|j| jac[j] + row[j]).collect();
+            (total + delta, slopes)
         }
         None => {
-            for (j, &jj) in jac.iter().enumerate() {
-                total = total + jj * offset(j);
-            }
             for (k, u) in input_enclosure(nn, margin).into_iter().enumerate() {
                 total = total + dynamics.g[i][k].eval_interval(&x) * u;
             }
+            (total, jac)
         }
     }
-    total
 }
 
 /// Bounds `[F̲, F̄]` of the field over the whole box `[lower, upper]` (for [`enclose_step`]).
@@ -470,6 +591,126 @@ pub fn slab_field<'a>(
         dl[i] = dl[i].min(depth(pipe, i, false));
     }
     (dl, du)
+}
+
+/// Second-order end rates on the slabs (item 4 of the module's argument): `(r̲, r̄)` with
+/// `x̄ᵢ(h) ≤ x̄ᵢ + h·r̄ᵢ` and `x̲ᵢ(h) ≥ x̲ᵢ + h·r̲ᵢ` for every trajectory, where the slab rates
+/// bound `Fᵢ` over the whole slab ([`slab_field`]; the loss per step is then about
+/// `h²·|∂F|·|F|`, here half that). An end the argument does not reach is `∓∞` (the caller meets
+/// these with the other rates). `nn` as for [`slab_field`].
+///
+/// Upper end of `i` (the lower mirrored): on the slab, `Fᵢ(x) ≤ c + Σⱼ kⱼ(xⱼ − pⱼ)` with
+/// `pᵢ = x̄ᵢ` and `pⱼ` the set's centre ([`form_on`]); at time `τ` every trajectory lies in
+/// `X(τ) = [x̲ + τa̲, x̄ + τā]` (the moving box's rates where the step proved it, else
+/// `F̲(A), F̄(A)`). Over `X(τ) ∩ {xᵢ = x̄ᵢ + y}` the form is at most `G₀ + τQ + sup kᵢy`, with
+/// `G₀` its sup over the set's face and `Q = Σ_{j≠i} max(kⱼa̲ⱼ, kⱼāⱼ)` (each end's product). The
+/// barrier `u(τ) = x̄ᵢ + τa + τ²b/2` with `a = G₀` and `b ≥ Q + sup kᵢ·[w̲, w̄]`,
+/// `[w̲, w̄] ∋ a + τb/2` (so `u − x̄ᵢ ∈ τ[w̲, w̄]`), is never crossed: a trajectory first reaching
+/// `u + εe^{Lτ}` (`L > |kᵢ|`, `ε → 0`) at `τ*` does so in `X(τ*)` with `xᵢ ≥ u(τ*)`, inside the
+/// slab where `u` stays in its `i`-range (checked), with rate at most
+/// `G₀ + τ*(Q + sup kᵢw) + |kᵢ|εe^{Lτ*} < u' + εLe^{Lτ*}`. So `r̄ᵢ = a + hb/2`.
+pub fn curved_rates<'a>(
+    dynamics: &Dynamics,
+    set: &IntervalBox,
+    pipe: &Flowpipe,
+    h: f64,
+    nn: impl Fn(usize, bool) -> NetworkBoundsRef<'a>,
+    margin: &[f64],
+) -> (Vec<f64>, Vec<f64>) {
+    let n = dynamics.n;
+    let rates = |j: usize| match &pipe.faces {
+        Some(m) => (m.lower[j], m.upper[j]),
+        None => (pipe.f_lower[j], pipe.f_upper[j]),
+    };
+    let mut dl = vec![f64::NEG_INFINITY; n];
+    let mut du = vec![f64::INFINITY; n];
+    for i in 0..n {
+        for up in [false, true] {
+            let (lo, hi) = slab(set, pipe, h, i, up);
+            let e = if up { set.upper[i] } else { set.lower[i] };
+            let mut p: Vec<f64> = (0..n)
+                .map(|j| set.lower[j] + 0.5 * (set.upper[j] - set.lower[j]))
+                .collect();
+            p[i] = e;
+            if (0..n).any(|j| !(lo[j] <= p[j] && p[j] <= hi[j])) {
+                continue;
+            }
+            let (c, k) = form_on(dynamics, &lo, &hi, &p, i, up, nn(i, up), margin);
+            // The lower end is the upper end of `yᵢ = −xᵢ`: `−Fᵢ ≤ −c̲ + Σ_{j≠i}(−kⱼ)(xⱼ − pⱼ)
+            // + kᵢ(yᵢ + x̲ᵢ)`, so `c` and the other slopes are negated, `kᵢ` is not.
+            let k: Vec<(f64, f64)> = k
+                .iter()
+                .enumerate()
+                .map(|(j, k)| match up || j == i {
+                    true => (k.lower, k.upper),
+                    false => (-k.upper, -k.lower),
+                })
+                .collect();
+            let c_up = if up { c.upper } else { -c.lower };
+            let others = (0..n).filter(|&j| j != i).map(|j| {
+                let d = (set.lower[j] - p[j], set.upper[j] - p[j]);
+                let (a_lo, a_hi) = rates(j);
+                (k[j], (round_down(d.0), round_up(d.1)), (a_lo, a_hi))
+            });
+            let Some((r, w_lo, w_hi)) = barrier(c_up, others, k[i], h) else {
+                continue;
+            };
+            // `u` must stay in the slab's `i`-range: `x̄ᵢ + h·min(0, w̲) ≥` its bottom (for the
+            // lower end: `x̲ᵢ − h·min(0, w̲) ≤` its top).
+            let reach = (point(h) * point(w_lo.min(0.0))).lower;
+            let inside = match up {
+                true => (point(e) + point(reach)).lower >= lo[i],
+                false => (point(e) - point(reach)).upper <= hi[i],
+            };
+            if inside && w_hi.is_finite() {
+                match up {
+                    true => du[i] = r,
+                    false => dl[i] = -r,
+                }
+            }
+        }
+    }
+    (dl, du)
+}
+
+/// [`curved_rates`]' barrier for one upper end, in that end's sign: `c` the form's upper value
+/// at `p`, per other coordinate `(k, (d̲, d̄), (a̲, ā))` (slopes, the set's offsets from `p`, its
+/// ends' rates), `kᵢ`. Returns `(a + hb/2, w̲, w̄)`, rounded up, or `None` where `b` does not
+/// settle (`h·|kᵢ|` near 2 or more) or a value is not finite.
+fn barrier(
+    c: f64,
+    others: impl Iterator<Item = ((f64, f64), (f64, f64), (f64, f64))>,
+    k_i: (f64, f64),
+    h: f64,
+) -> Option<(f64, f64, f64)> {
+    let up = |x: Interval| x.upper;
+    let sup = |(k0, k1): (f64, f64), (x0, x1): (f64, f64)| {
+        [k0, k1]
+            .iter()
+            .flat_map(|&k| [x0, x1].map(|x| up(point(k) * point(x))))
+            .fold(f64::NEG_INFINITY, f64::max)
+    };
+    let (mut g0, mut q) = (point(c), point(0.0));
+    for (k, d, a) in others {
+        g0 = g0 + point(sup(k, d));
+        q = q + point(sup(k, a));
+    }
+    let (a, q) = (g0.upper, q.upper);
+    let half_h = point(h) * point(0.5);
+    let mut b = up(point(q) + point(sup(k_i, (a, a))));
+    for _ in 0..4 {
+        let end = point(a) + half_h * point(b);
+        let w = (end.lower.min(a), end.upper.max(a));
+        let need = up(point(q) + point(sup(k_i, w)));
+        if !(need.is_finite() && b.is_finite() && a.is_finite()) {
+            return None;
+        }
+        if need <= b {
+            return Some((up(point(a) + half_h * point(b)), w.0, w.1));
+        }
+        b = need;
+    }
+    None
 }
 
 /// Second-order rates where the field is one smooth function `Φ` on the flowpipe (a proven
