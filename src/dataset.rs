@@ -13,7 +13,7 @@ use serde::Serialize;
 
 use crate::boxes::IntervalBox;
 use crate::filter::SafetyFilter;
-use crate::network::train::Dataset;
+use crate::network::train::{Dataset, Oracle};
 use crate::scenario::Scenario;
 
 /// What building a data set found.
@@ -141,6 +141,38 @@ pub fn filter_dataset(
         }
     }
     (data, summary)
+}
+
+/// The filter as the trainer's [`Oracle`]: fresh points are drawn from the training region
+/// and judged on `C ∩ S` (where the validation points lie).
+pub struct FilterOracle<'a> {
+    filter: SafetyFilter<'a>,
+}
+
+impl<'a> FilterOracle<'a> {
+    /// The oracle of `scenario`'s filter.
+    pub fn new(scenario: &'a Scenario) -> FilterOracle<'a> {
+        FilterOracle {
+            filter: SafetyFilter::new(scenario),
+        }
+    }
+}
+
+impl Oracle for FilterOracle<'_> {
+    fn bounds(&self) -> (Vec<f64>, Vec<f64>) {
+        let r = &self.filter.scenario().training.region;
+        (r.lower.clone(), r.upper.clone())
+    }
+
+    fn judged(&self, x: &[f64]) -> bool {
+        let s = self.filter.scenario();
+        s.is_safe(x) && s.reach.region.contains(x)
+    }
+
+    fn sample(&self, points: &[Vec<f64>], secant: Option<&[f64]>) -> Dataset {
+        let slopes = secant.map_or(Slopes::Pointwise, |h| Slopes::Secant(h.to_vec()));
+        filter_dataset(&self.filter, points, &slopes, &|_| {}).0
+    }
 }
 
 /// Points of the grid `factor` times finer per axis than the `counts` grid over `region`

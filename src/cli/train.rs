@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use cbfreach::dataset::{
     filter_dataset, grid_points, refinement_points, restrict_to_band, validation_points, weigh_box,
-    DatasetSummary, Slopes,
+    DatasetSummary, FilterOracle, Slopes,
 };
 use cbfreach::filter::SafetyFilter;
 use cbfreach::network::train::{
@@ -168,12 +168,28 @@ pub struct TrainArgs {
     pub out: Option<PathBuf>,
 }
 
+/// Most grid points a training grid may have (each sample holds `n + m + mn` numbers, twice
+/// with secant slopes).
+const MAX_GRID_POINTS: usize = 20_000_000;
+
 fn training_points(s: &Scenario, grid: Option<&Vec<usize>>) -> Result<Vec<Vec<f64>>, String> {
     let grid = grid.unwrap_or(&s.training.grid);
     if grid.len() != s.n() || grid.iter().any(|&k| k < 2) {
         return Err(format!(
             "--grid: expected {} counts, each at least 2",
             s.n()
+        ));
+    }
+    // The points, their targets and slopes are held in memory: refuse a grid that would not
+    // fit rather than abort on the allocation.
+    let total = grid
+        .iter()
+        .try_fold(1usize, |a, &k| a.checked_mul(k))
+        .filter(|&t| t <= MAX_GRID_POINTS);
+    if total.is_none() {
+        return Err(format!(
+            "training grid {grid:?}: {} points, more than the {MAX_GRID_POINTS} the trainer holds in memory; use a coarser grid (the refine stages add samples where v needs them)",
+            grid.iter().map(|&k| k as f64).product::<f64>()
         ));
     }
     Ok(grid_points(&s.training.region, grid))
@@ -621,24 +637,27 @@ fn run_recipe(
             )
         });
         bar.set_message(format!(
-            "{} ({}/{}) training max {:.4}{measured}",
+            "{} ({}/{}) {} samples, training max {:.4}{measured}",
             p.stage,
             p.stage_index + 1,
             p.stages,
+            p.samples,
             p.max_error
         ));
         if logged && p.measured != last_logged {
             last_logged = p.measured;
             eprintln!(
-                "{} epoch {}/{}: training max {:.4}{measured}",
-                p.stage, p.epoch, p.epochs, p.max_error
+                "{} epoch {}/{}: {} samples, training max {:.4}{measured}",
+                p.stage, p.epoch, p.epochs, p.samples, p.max_error
             );
         }
     };
+    let oracle = FilterOracle::new(s);
     let data = RecipeData {
         pointwise: &data,
         secant: Some(&secant),
         validation: &validation,
+        oracle: Some(&oracle),
     };
     let (net, report) = train::train_to_target(
         init.as_ref(),
@@ -658,6 +677,18 @@ fn run_recipe(
         norm.input_centre, norm.input_scale, norm.output_centre, norm.output_scale, report.learning_rate
     );
     for st in &report.stages {
+        if let Some(r) = &st.round {
+            let at: Vec<String> = r.at.iter().map(|x| format!("{x:.4}")).collect();
+            println!(
+                "  {}: on {} fresh points of C ∩ S max ℓ∞ {:.4} at ({}), {} above the target; {} samples added around the worst",
+                st.name,
+                r.scored,
+                r.max_error,
+                at.join(", "),
+                r.above,
+                r.added
+            );
+        }
         println!(
             "  {}: {} epochs, {:.1} s: max ℓ∞ {:.4}, mean {:.4}, slope p95 {:.3}, IBP looseness {:.2}×{}",
             st.name,
@@ -689,10 +720,11 @@ fn run_recipe(
         net.save_safetensors(out, &metadata)?;
     }
     println!(
-        "{} {} in {:.1} s on {} unseen points of C ∩ S: max ℓ∞ {:.4}, mean {:.4}, slope p95 {:.3}, IBP looseness {:.2}×",
+        "{} {} in {:.1} s ({} training samples) on {} unseen points of C ∩ S: max ℓ∞ {:.4}, mean {:.4}, slope p95 {:.3}, IBP looseness {:.2}×",
         if target.met(&measured) { "target reached:" } else { "target NOT reached:" },
         net.architecture(),
         report.seconds,
+        report.samples,
         validation.len(),
         measured.linf,
         measured.mean,
@@ -701,7 +733,7 @@ fn run_recipe(
     );
     if !target.met(&measured) && target.linf.is_some_and(|t| resolution.max > t) {
         println!(
-            "  the grid itself resolves v only to {:.4} (above): refine [training] grid before training longer",
+            "  the grid itself resolves v only to {:.4} (above), and the refine stages' samples did not close the gap: a larger network or a finer [training] grid",
             resolution.max
         );
     }

@@ -9,18 +9,23 @@
 //! 2. **secant** ×2: the network's own central differences against secant targets over half
 //!    the grid's spacing (λ = 0.3, then 1), with revival of dormant neurons every 4 epochs —
 //!    the terms that took scenario 1's slope p95 from 0.31 to 0.2 (docs/networks.md);
-//! 3. **certify** ×3: the IBP term at doubling weights, each kept only while the target still
+//! 3. **refine** ×6 (with an [`Oracle`]): a round of adaptive data ([`refine_round`]: the
+//!    worst of 8,192 fresh points of `C ∩ S` and points around them added to the training
+//!    set), then the second secant stage's training on the grown set, hard examples on; the
+//!    rounds end at the target or when a round finds nothing to add;
+//! 4. **certify** ×3: the IBP term at doubling weights, each kept only while the target still
 //!    holds (or, where it was never met, while the errors grow by under 10 %), else the run
 //!    ends with the stage before: tighter bounds for free where accuracy allows. Short of the
 //!    target, the run also ends after a certify stage that cut neither the max error nor the
 //!    IBP looseness by 5 %.
 //!
-//! Stages 1–2 stop as soon as the target is met on the validation data (checked about 20
-//! times a stage) and hand over to stage 3.
+//! Stages 1–3 stop as soon as the target is met on the validation data (checked about 20
+//! times a stage) and hand over to stage 4.
 
 use rand::{Rng, SeedableRng};
 use serde::{Deserialize, Serialize};
 
+use super::adaptive::{refine_round, Oracle, Refinement, RoundReport};
 use super::normalise::Normalisation;
 use super::report::pointwise_errors;
 use super::run::{train_until, Flow};
@@ -75,6 +80,9 @@ impl Target {
 pub enum StageKind {
     /// Values and the pointwise Sobolev term.
     Fit,
+    /// A round of adaptive data ([`refine_round`]), then values and the pointwise Sobolev
+    /// term on the grown set (needs [`RecipeData::oracle`], else skipped).
+    Refine,
     /// The secant term (needs [`RecipeData::secant`]).
     Secant,
     /// The IBP term at this weight.
@@ -106,7 +114,12 @@ pub struct Recipe {
     pub lr_candidates: Vec<f64>,
     /// Multiplies every stage's epochs (1 by default; `< 1` for a reduced budget).
     pub budget: f64,
+    /// How the refine stages choose their samples.
+    pub refinement: Refinement,
 }
+
+/// Refine stages of the default schedule.
+const REFINE_ROUNDS: usize = 6;
 
 impl Recipe {
     /// The default schedule for `samples` training points of `n_in` inputs on a grid of
@@ -154,6 +167,23 @@ impl Recipe {
                 },
             });
         }
+        // The secant stages' settings on a grown set: a restart at a higher rate (1e-3) undid
+        // ACC's fit (max error 147 N to 580 N); hard examples revisit the added samples.
+        for k in 0..REFINE_ROUNDS {
+            stages.push(Stage {
+                name: format!("refine {}", k + 1),
+                kind: StageKind::Refine,
+                settings: TrainSettings {
+                    epochs: epochs_for(5_000.0),
+                    learning_rate: 2e-4,
+                    lr_min: 1e-6,
+                    jacobian_weight: 1.0,
+                    secant_step: Some(secant_step.clone()),
+                    revive_every: 4,
+                    ..base.clone()
+                },
+            });
+        }
         for (k, w) in [0.002, 0.004, 0.008].into_iter().enumerate() {
             stages.push(Stage {
                 name: format!("certify {}", k + 1),
@@ -176,6 +206,7 @@ impl Recipe {
             secant_step,
             lr_candidates: vec![3e-4, 1e-3, 3e-3, 1e-2],
             budget,
+            refinement: Refinement::for_data(samples, spacing),
         }
     }
 }
@@ -189,6 +220,8 @@ pub struct RecipeData<'a> {
     pub secant: Option<&'a Dataset>,
     /// Points the training never sees, with pointwise slopes: what the target is judged on.
     pub validation: &'a Dataset,
+    /// The true `v`, for the refine stages' fresh samples (none: they are skipped).
+    pub oracle: Option<&'a dyn Oracle>,
 }
 
 /// What the progress callback of [`train_to_target`] sees after each epoch.
@@ -208,6 +241,8 @@ pub struct RecipeProgress {
     pub max_error: f64,
     /// The last validation measurement.
     pub measured: Option<Measured>,
+    /// Samples in the training set (grown by the refine stages).
+    pub samples: usize,
 }
 
 /// How a stage ended.
@@ -223,6 +258,8 @@ pub struct StageReport {
     pub measured: Measured,
     /// Whether its network was kept (certify stages that broke the target are not).
     pub kept: bool,
+    /// A refine stage's round of adaptive data.
+    pub round: Option<RoundReport>,
     /// Wall-clock seconds.
     pub seconds: f64,
 }
@@ -240,6 +277,8 @@ pub struct RecipeReport {
     pub measured: Measured,
     /// Whether it meets the target.
     pub reached: bool,
+    /// Samples in the training set at the end (the grid's and the refine stages').
+    pub samples: usize,
     /// Wall-clock seconds in all.
     pub seconds: f64,
 }
@@ -257,8 +296,9 @@ pub fn train_to_target(
 ) -> Result<(Mlp, RecipeReport), NetworkError> {
     let t0 = std::time::Instant::now();
     let norm = Normalisation::from_data(data.pointwise);
-    let pointwise = norm.dataset(data.pointwise, None)?;
-    let secant = data.secant.map(|d| norm.dataset(d, None)).transpose()?;
+    let mut pointwise = norm.dataset(data.pointwise, None)?;
+    let mut secant = data.secant.map(|d| norm.dataset(d, None)).transpose()?;
+    let (mut rounds, mut refining_done) = (0u64, false);
     let mut net = match init {
         Some(net) => norm.unfold(net)?,
         None => Mlp::random(widths, seed),
@@ -272,10 +312,57 @@ pub fn train_to_target(
     let mut stages = Vec::new();
     for (index, stage) in recipe.stages.iter().enumerate() {
         let certify = matches!(stage.kind, StageKind::Certify(_));
-        if reached && !certify {
+        if reached && !certify || refining_done && stage.kind == StageKind::Refine {
             continue;
         }
         let t_stage = std::time::Instant::now();
+        let mut round = None;
+        if stage.kind == StageKind::Refine {
+            let Some(oracle) = data.oracle else {
+                continue;
+            };
+            let added = refine_round(
+                &norm.fold(&net)?,
+                oracle,
+                &recipe.refinement,
+                rounds,
+                seed,
+                target.linf.unwrap_or(0.0),
+                pointwise.len(),
+                secant.as_ref().map(|_| recipe.secant_step.as_slice()),
+            )?;
+            rounds += 1;
+            let report = added.report.clone();
+            if report.added == 0 {
+                // Accurate on every fresh point, or the set is full: more rounds add nothing.
+                stages.push(StageReport {
+                    name: stage.name.clone(),
+                    epochs: 0,
+                    learning_rate: 0.0,
+                    measured: best.1,
+                    kept: true,
+                    round: Some(report),
+                    seconds: t_stage.elapsed().as_secs_f64(),
+                });
+                progress(&RecipeProgress {
+                    stage: stage.name.clone(),
+                    stage_index: index,
+                    stages: recipe.stages.len(),
+                    epoch: stage.settings.epochs,
+                    epochs: stage.settings.epochs,
+                    max_error: f64::NAN,
+                    measured: Some(best.1),
+                    samples: pointwise.len(),
+                });
+                refining_done = true;
+                continue;
+            }
+            pointwise.append(norm.dataset(&added.pointwise, None)?)?;
+            if let (Some(s), Some(a)) = (secant.as_mut(), added.secant.as_ref()) {
+                s.append(norm.dataset(a, None)?)?;
+            }
+            round = Some(report);
+        }
         let mut settings = norm.settings(&stage.settings);
         settings.seed = seed.wrapping_add(index as u64);
         if stage.kind == StageKind::Fit {
@@ -289,7 +376,7 @@ pub fn train_to_target(
         if stage_data.jacobians.is_none() {
             settings.jacobian_weight = 0.0;
         }
-        if stage.kind != StageKind::Secant || secant.is_none() {
+        if !matches!(stage.kind, StageKind::Secant | StageKind::Refine) || secant.is_none() {
             settings.secant_step = settings.secant_step.filter(|_| secant.is_some() && certify);
         }
         let check_every = (settings.epochs / 20).max(1);
@@ -319,6 +406,7 @@ pub fn train_to_target(
                 epochs: e.epochs,
                 max_error: e.max_error * norm.output_scale,
                 measured: last,
+                samples: stage_data.len(),
             });
             flow
         })?;
@@ -342,6 +430,7 @@ pub fn train_to_target(
             learning_rate: settings.learning_rate,
             measured,
             kept,
+            round,
             seconds: t_stage.elapsed().as_secs_f64(),
         });
         if !kept {
@@ -365,6 +454,7 @@ pub fn train_to_target(
         stages,
         measured: best.1,
         reached,
+        samples: pointwise.len(),
         seconds: t0.elapsed().as_secs_f64(),
     };
     Ok((norm.fold(&best.0)?, report))

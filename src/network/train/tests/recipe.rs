@@ -137,6 +137,7 @@ fn the_recipe_stops_at_its_target_and_says_when_it_is_not_reached() {
         pointwise: &data,
         secant: None,
         validation: &validation,
+        oracle: None,
     };
     // Within 5 % of the targets' range (2000): the fit stage gets there and stops early.
     let target = Target {
