@@ -567,7 +567,8 @@ fn run_recipe(
     let spacing: Vec<f64> = (0..s.n())
         .map(|i| (r.upper[i] - r.lower[i]) / (grid[i] - 1) as f64)
         .collect();
-    let recipe = Recipe::for_data(data.len(), &spacing, args.budget);
+    let mut recipe = Recipe::for_data(data.len(), &spacing, args.budget);
+    recipe.refinement.seed = args.seed;
     let (mut secant, _) = build(
         s,
         points,
@@ -731,6 +732,21 @@ fn run_recipe(
         measured.slope_p95,
         measured.ibp_looseness
     );
+    if let Some(r) = &report.fresh {
+        println!(
+            "  on {} fresh points of C ∩ S never trained on: max ℓ∞ {:.4} at ({}){}",
+            r.scored,
+            r.max_error,
+            r.at.iter()
+                .map(|x| format!("{x:.4}"))
+                .collect::<Vec<_>>()
+                .join(", "),
+            target.linf.map_or(String::new(), |t| format!(
+                ", {} above the target {t}",
+                r.above
+            ))
+        );
+    }
     if !target.met(&measured) && target.linf.is_some_and(|t| resolution.max > t) {
         println!(
             "  the grid itself resolves v only to {:.4} (above), and the refine stages' samples did not close the gap: a larger network or a finer [training] grid",
@@ -757,7 +773,7 @@ fn print_resolution(r: &train::Resolution, linf: Option<f64>) {
     );
     if linf.is_some_and(|t| r.max > t) {
         println!(
-            "  warning: v changes between the grid's points by more than the target: no network fitted to these samples is known to be that close between them; a finer [training] grid comes first"
+            "  v changes between the grid's points by more than the target: the refine stages sample it where the network errs most"
         );
     }
 }

@@ -42,19 +42,22 @@ pub struct Refinement {
     pub radius: Vec<f64>,
     /// Most samples the training set may hold: the rounds add nothing beyond it.
     pub max_samples: usize,
+    /// Seed of the sequence's shift and the neighbours.
+    pub seed: u64,
 }
 
 impl Refinement {
     /// The defaults for a training set of `samples` points on a grid of `spacing` per axis:
     /// 8,192 candidates a round, the worst 64 with 8 neighbours each, at most 4× the grid's
     /// samples (at least 50,000 more, at most 4 million in all).
-    pub fn for_data(samples: usize, spacing: &[f64]) -> Refinement {
+    pub fn for_data(samples: usize, spacing: &[f64], seed: u64) -> Refinement {
         Refinement {
             candidates: 8192,
             worst: 64,
             neighbours: 8,
             radius: spacing.iter().map(|h| 0.5 * h).collect(),
             max_samples: (4 * samples).max(samples + 50_000).min(4_000_000),
+            seed,
         }
     }
 }
@@ -106,7 +109,7 @@ fn halton(index: u64, shift: &[f64]) -> Vec<f64> {
 }
 
 /// One round: scores `refinement.candidates` fresh points (round `round` of the seed's
-/// sequence) by `net`'s ℓ∞ error against `oracle`, and returns the worst (at most
+/// sequence: rounds draw disjoint index ranges) by `net`'s ℓ∞ error against `oracle`, and returns the worst (at most
 /// [`Refinement::worst`] of those erring by more than half of `threshold`) with
 /// [`Refinement::neighbours`] random points around each, as samples of `v` with pointwise
 /// slopes and (with `secant`) secant slopes. Adds nothing once the training set holds
@@ -116,7 +119,6 @@ pub fn refine_round(
     oracle: &dyn Oracle,
     refinement: &Refinement,
     round: u64,
-    seed: u64,
     threshold: f64,
     current: usize,
     secant: Option<&[f64]>,
@@ -134,7 +136,7 @@ pub fn refine_round(
             ),
         });
     }
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut rng = ChaCha8Rng::seed_from_u64(refinement.seed);
     let shift: Vec<f64> = (0..n).map(|_| rng.random::<f64>()).collect();
     rng.set_stream(round.wrapping_add(1));
     let start = round.saturating_mul(refinement.candidates as u64);
@@ -260,14 +262,15 @@ mod tests {
             neighbours: 4,
             radius: vec![0.02, 0.02],
             max_samples,
+            seed: 3,
         }
     }
 
     #[test]
     fn a_round_adds_points_where_the_error_is_largest() {
         let r = refinement(1_000_000);
-        let added = refine_round(&zero(), &Spike, &r, 0, 3, 0.1, 100, Some(&[0.01, 0.01]))
-            .expect("refines");
+        let added =
+            refine_round(&zero(), &Spike, &r, 0, 0.1, 100, Some(&[0.01, 0.01])).expect("refines");
         let rep = &added.report;
         assert!(rep.scored > 3000 && rep.scored < 4096, "{rep:?}");
         // The spike is 0.01 of the square: about 37 candidates fall on it, some above 0.1.
@@ -282,7 +285,7 @@ mod tests {
         assert!(added.pointwise.targets.iter().sum::<f64>() > 16.0 * 0.05);
         assert_eq!(added.secant.as_ref().map(Dataset::len), Some(16 * 5));
         // The next round draws other candidates.
-        let next = refine_round(&zero(), &Spike, &r, 1, 3, 0.1, 180, None).expect("refines");
+        let next = refine_round(&zero(), &Spike, &r, 1, 0.1, 180, None).expect("refines");
         assert_ne!(next.report.at, rep.at);
         assert!(next.secant.is_none());
     }
@@ -290,16 +293,16 @@ mod tests {
     #[test]
     fn a_round_adds_nothing_where_the_network_is_accurate_or_the_set_is_full() {
         // Only points erring by more than half the threshold are added.
-        let added = refine_round(&zero(), &Spike, &refinement(1_000_000), 0, 3, 1.0, 0, None)
+        let added = refine_round(&zero(), &Spike, &refinement(1_000_000), 0, 1.0, 0, None)
             .expect("refines");
         assert_eq!(added.report.added, 0);
         assert_eq!(added.report.above, 0);
         // The set's bound: room for 2 points with their neighbours (5 each), no more.
         let added =
-            refine_round(&zero(), &Spike, &refinement(110), 0, 3, 0.1, 100, None).expect("refines");
+            refine_round(&zero(), &Spike, &refinement(110), 0, 0.1, 100, None).expect("refines");
         assert_eq!(added.report.added, 10);
         let full =
-            refine_round(&zero(), &Spike, &refinement(100), 0, 3, 0.1, 100, None).expect("refines");
+            refine_round(&zero(), &Spike, &refinement(100), 0, 0.1, 100, None).expect("refines");
         assert_eq!(full.report.added, 0);
         assert!(
             full.report.max_error > 0.15,

@@ -121,6 +121,9 @@ pub struct Recipe {
 /// Refine stages of the default schedule.
 const REFINE_ROUNDS: usize = 6;
 
+/// The round index of the last check on fresh points: far from the refine rounds' points.
+const FRESH_ROUND: u64 = 1 << 20;
+
 impl Recipe {
     /// The default schedule for `samples` training points of `n_in` inputs on a grid of
     /// spacing `spacing` (per input), sized so that the fit stage takes about 20,000 Adam
@@ -206,7 +209,7 @@ impl Recipe {
             secant_step,
             lr_candidates: vec![3e-4, 1e-3, 3e-3, 1e-2],
             budget,
-            refinement: Refinement::for_data(samples, spacing),
+            refinement: Refinement::for_data(samples, spacing, 0),
         }
     }
 }
@@ -279,6 +282,9 @@ pub struct RecipeReport {
     pub reached: bool,
     /// Samples in the training set at the end (the grid's and the refine stages').
     pub samples: usize,
+    /// The returned network on a last set of fresh points of `C ∩ S`, never trained on (with
+    /// an oracle): a check of the validation grid's figure between its points.
+    pub fresh: Option<RoundReport>,
     /// Wall-clock seconds in all.
     pub seconds: f64,
 }
@@ -326,7 +332,6 @@ pub fn train_to_target(
                 oracle,
                 &recipe.refinement,
                 rounds,
-                seed,
                 target.linf.unwrap_or(0.0),
                 pointwise.len(),
                 secant.as_ref().map(|_| recipe.secant_step.as_slice()),
@@ -448,6 +453,18 @@ pub fn train_to_target(
             break;
         }
     }
+    let folded = norm.fold(&best.0)?;
+    let fresh = match data.oracle {
+        Some(oracle) => {
+            let check = Refinement {
+                max_samples: 0,
+                ..recipe.refinement.clone()
+            };
+            let linf = target.linf.unwrap_or(f64::INFINITY);
+            Some(refine_round(&folded, oracle, &check, FRESH_ROUND, linf, 0, None)?.report)
+        }
+        None => None,
+    };
     let report = RecipeReport {
         normalisation: norm.clone(),
         learning_rate: lr,
@@ -455,9 +472,10 @@ pub fn train_to_target(
         measured: best.1,
         reached,
         samples: pointwise.len(),
+        fresh,
         seconds: t0.elapsed().as_secs_f64(),
     };
-    Ok((norm.fold(&best.0)?, report))
+    Ok((folded, report))
 }
 
 /// The learning rate among [`Recipe::lr_candidates`] whose single epoch on a subsample (at
