@@ -13,7 +13,7 @@ use serde::Serialize;
 
 use crate::boxes::IntervalBox;
 use crate::filter::SafetyFilter;
-use crate::network::train::{Dataset, Oracle};
+use crate::network::train::{Dataset, Oracle, SampleSlopes};
 use crate::scenario::Scenario;
 
 /// What building a data set found.
@@ -169,8 +169,30 @@ impl Oracle for FilterOracle<'_> {
         s.is_safe(x) && s.reach.region.contains(x)
     }
 
-    fn sample(&self, points: &[Vec<f64>], secant: Option<&[f64]>) -> Dataset {
-        let slopes = secant.map_or(Slopes::Pointwise, |h| Slopes::Secant(h.to_vec()));
+    fn sample(&self, points: &[Vec<f64>], slopes: SampleSlopes) -> Dataset {
+        let slopes = match slopes {
+            SampleSlopes::Pointwise => Slopes::Pointwise,
+            SampleSlopes::Secant(h) => Slopes::Secant(h.to_vec()),
+            SampleSlopes::Values => {
+                // One solve a point: the rounds score many more points than they keep.
+                let values: Vec<Option<Vec<f64>>> = points
+                    .par_iter()
+                    .map(|x| self.filter.eval(x).ok())
+                    .collect();
+                let mut data = Dataset {
+                    n_in: self.filter.scenario().n(),
+                    n_out: self.filter.scenario().m(),
+                    ..Dataset::default()
+                };
+                for (x, v) in points.iter().zip(values) {
+                    if let Some(v) = v {
+                        data.inputs.extend(x);
+                        data.targets.extend(v);
+                    }
+                }
+                return data;
+            }
+        };
         filter_dataset(&self.filter, points, &slopes, &|_| {}).0
     }
 }

@@ -722,7 +722,7 @@ fn run_recipe(
     }
     println!(
         "{} {} in {:.1} s ({} training samples) on {} unseen points of C ∩ S: max ℓ∞ {:.4}, mean {:.4}, slope p95 {:.3}, IBP looseness {:.2}×",
-        if target.met(&measured) { "target reached:" } else { "target NOT reached:" },
+        if report.reached { "target reached:" } else { "target NOT reached:" },
         net.architecture(),
         report.seconds,
         report.samples,
@@ -747,7 +747,7 @@ fn run_recipe(
             ))
         );
     }
-    if !target.met(&measured) && target.linf.is_some_and(|t| resolution.max > t) {
+    if !report.reached && target.linf.is_some_and(|t| resolution.max > t) {
         println!(
             "  the grid itself resolves v only to {:.4} (above), and the refine stages' samples did not close the gap: a larger network or a finer [training] grid",
             resolution.max

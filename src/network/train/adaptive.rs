@@ -18,15 +18,26 @@ use super::report::pointwise_errors;
 use super::Dataset;
 use crate::network::{Mlp, NetworkError};
 
+/// The slopes [`Oracle::sample`] returns with the values.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum SampleSlopes<'a> {
+    /// None (`Dataset::jacobians` is `None`): for scoring, a solve a point.
+    Values,
+    /// The pointwise Jacobian `Dv`.
+    Pointwise,
+    /// Secant slopes over `±h` per axis.
+    Secant(&'a [f64]),
+}
+
 /// The true `v` (the filter), asked for wherever a round needs samples.
 pub trait Oracle: Sync {
     /// Lower and upper corners of the box fresh points are drawn from (the training region).
     fn bounds(&self) -> (Vec<f64>, Vec<f64>);
     /// Whether accuracy is judged at `x` (`C ∩ S`): only such points are scored.
     fn judged(&self, x: &[f64]) -> bool;
-    /// `v` with slopes at those `points` where the filter is defined (the rest left out, in
-    /// order): pointwise Jacobians, or secant slopes over `±secant` per axis.
-    fn sample(&self, points: &[Vec<f64>], secant: Option<&[f64]>) -> Dataset;
+    /// `v` (with `slopes`) at those `points` where the filter is defined (the rest left out,
+    /// in order).
+    fn sample(&self, points: &[Vec<f64>], slopes: SampleSlopes) -> Dataset;
 }
 
 /// How a round of adaptive sampling chooses its points ([`refine_round`]).
@@ -48,11 +59,12 @@ pub struct Refinement {
 
 impl Refinement {
     /// The defaults for a training set of `samples` points on a grid of `spacing` per axis:
-    /// 8,192 candidates a round, the worst 64 with 8 neighbours each, at most 4× the grid's
+    /// 32,768 candidates a round (one solve each: ACC's worst spot, beside `∂S` near the
+    /// kink, was missed by 8,192), the worst 64 with 8 neighbours each, at most 4× the grid's
     /// samples (at least 50,000 more, at most 4 million in all).
     pub fn for_data(samples: usize, spacing: &[f64], seed: u64) -> Refinement {
         Refinement {
-            candidates: 8192,
+            candidates: 32_768,
             worst: 64,
             neighbours: 8,
             radius: spacing.iter().map(|h| 0.5 * h).collect(),
@@ -65,7 +77,8 @@ impl Refinement {
 /// What one round found and added.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RoundReport {
-    /// Fresh points of `C ∩ S` scored (where the filter is defined).
+    /// Fresh points scored (where the filter is defined): the candidates of `C ∩ S` and the
+    /// points drawn around the worst.
     pub scored: usize,
     /// The largest ℓ∞ error among them, in the scenario's units.
     pub max_error: f64,
@@ -109,11 +122,12 @@ fn halton(index: u64, shift: &[f64]) -> Vec<f64> {
 }
 
 /// One round: scores `refinement.candidates` fresh points (round `round` of the seed's
-/// sequence: rounds draw disjoint index ranges) by `net`'s ℓ∞ error against `oracle`, and returns the worst (at most
-/// [`Refinement::worst`] of those erring by more than half of `threshold`) with
-/// [`Refinement::neighbours`] random points around each, as samples of `v` with pointwise
-/// slopes and (with `secant`) secant slopes. Adds nothing once the training set holds
-/// `current` ≥ [`Refinement::max_samples`] samples.
+/// sequence: rounds draw disjoint index ranges) by `net`'s ℓ∞ error against `oracle`, and
+/// returns the worst (at most [`Refinement::worst`] of those erring by more than half of
+/// `threshold`) with [`Refinement::neighbours`] random points around each, as samples of `v`
+/// with pointwise slopes and (with `secant`) secant slopes. The points around the worst are
+/// scored too (a local search: the largest error is often beside the worst candidate). Adds
+/// nothing once the training set holds `current` ≥ [`Refinement::max_samples`] samples.
 pub fn refine_round(
     net: &Mlp,
     oracle: &dyn Oracle,
@@ -150,7 +164,7 @@ pub fn refine_round(
         })
         .filter(|x| oracle.judged(x))
         .collect();
-    let scored = oracle.sample(&candidates, None);
+    let scored = oracle.sample(&candidates, SampleSlopes::Values);
     let mut report = RoundReport {
         scored: scored.len(),
         max_error: 0.0,
@@ -181,27 +195,45 @@ pub fn refine_round(
     let room = refinement.max_samples.saturating_sub(current);
     let per_point = 1 + refinement.neighbours;
     let take = refinement.worst.min(room / per_point);
-    let mut points = Vec::new();
+    let (mut worst, mut around) = (Vec::new(), Vec::new());
     for &s in ranked
         .iter()
         .take(take)
         .take_while(|&&s| !(errors[s] <= 0.5 * threshold))
     {
         let x = scored.input(s);
-        points.push(x.to_vec());
+        worst.push(x.to_vec());
         for _ in 0..refinement.neighbours {
-            points.push(
+            around.push(
                 (0..n)
                     .map(|j| {
                         let r = refinement.radius[j];
                         (x[j] + r * rng.random_range(-1.0..=1.0)).clamp(lower[j], upper[j])
                     })
-                    .collect(),
+                    .collect::<Vec<f64>>(),
             );
         }
     }
-    let pointwise = oracle.sample(&points, None);
-    let secant = secant.map(|h| oracle.sample(&points, Some(h)));
+    let mut pointwise = oracle.sample(&worst, SampleSlopes::Pointwise);
+    let neighbours = oracle.sample(&around, SampleSlopes::Pointwise);
+    if !neighbours.is_empty() {
+        for (s, &e) in pointwise_errors(net, &neighbours)?.value.iter().enumerate() {
+            report.scored += 1;
+            report.above += usize::from(e > threshold);
+            if e > report.max_error {
+                report.max_error = e;
+                report.at = neighbours.input(s).to_vec();
+            }
+        }
+    }
+    if pointwise.is_empty() {
+        pointwise = empty();
+    }
+    if !neighbours.is_empty() {
+        pointwise.append(neighbours)?;
+    }
+    let points: Vec<Vec<f64>> = worst.into_iter().chain(around).collect();
+    let secant = secant.map(|h| oracle.sample(&points, SampleSlopes::Secant(h)));
     report.added = pointwise.len();
     Ok(Added {
         pointwise,
@@ -231,7 +263,7 @@ mod tests {
         fn judged(&self, x: &[f64]) -> bool {
             x[0] >= 0.1
         }
-        fn sample(&self, points: &[Vec<f64>], _secant: Option<&[f64]>) -> Dataset {
+        fn sample(&self, points: &[Vec<f64>], _slopes: SampleSlopes) -> Dataset {
             Dataset {
                 n_in: 2,
                 n_out: 1,
@@ -272,7 +304,8 @@ mod tests {
         let added =
             refine_round(&zero(), &Spike, &r, 0, 0.1, 100, Some(&[0.01, 0.01])).expect("refines");
         let rep = &added.report;
-        assert!(rep.scored > 3000 && rep.scored < 4096, "{rep:?}");
+        // The candidates of C ∩ S and the 16 × 4 points around the worst.
+        assert!(rep.scored > 3000 && rep.scored < 4096 + 64, "{rep:?}");
         // The spike is 0.01 of the square: about 37 candidates fall on it, some above 0.1.
         assert!(rep.max_error > 0.15 && rep.above > 0, "{rep:?}");
         assert!((rep.at[0] - 0.7).abs() < 0.05 && (rep.at[1] - 0.3).abs() < 0.05);

@@ -112,7 +112,7 @@ mod bench;
 #[cfg(test)]
 mod tests;
 
-pub use adaptive::{refine_round, Added, Oracle, Refinement, RoundReport};
+pub use adaptive::{refine_round, Added, Oracle, Refinement, RoundReport, SampleSlopes};
 pub use dataset::Dataset;
 pub use normalise::{Normalisation, METADATA_KEY as NORMALISATION_KEY};
 pub use recipe::{
