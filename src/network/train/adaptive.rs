@@ -218,6 +218,11 @@ pub fn refine_round(
     let neighbours = oracle.sample(&around, SampleSlopes::Pointwise);
     if !neighbours.is_empty() {
         for (s, &e) in pointwise_errors(net, &neighbours)?.value.iter().enumerate() {
+            // Trained on wherever they fall, judged only in `C ∩ S` (inside an obstacle `v`
+            // may grow without bound).
+            if !oracle.judged(neighbours.input(s)) {
+                continue;
+            }
             report.scored += 1;
             report.above += usize::from(e > threshold);
             if e > report.max_error {

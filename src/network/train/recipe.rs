@@ -351,9 +351,13 @@ pub fn train_to_target(
                 secant.as_ref().map(|_| recipe.secant_step.as_slice()),
             )?;
             rounds += 1;
-            let report = added.report.clone();
+            let mut report = added.report.clone();
             confirmed = report.max_error <= linf;
-            if report.added == 0 || met && confirmed {
+            if met && confirmed {
+                // Its points are not needed: the target holds on the grid and between.
+                report.added = 0;
+            }
+            if report.added == 0 {
                 // Confirmed, accurate on every fresh point, or the set is full: more rounds
                 // add nothing.
                 stages.push(StageReport {
@@ -380,7 +384,9 @@ pub fn train_to_target(
             }
             pointwise.append(norm.dataset(&added.pointwise, None)?)?;
             if let (Some(s), Some(a)) = (secant.as_mut(), added.secant.as_ref()) {
-                s.append(norm.dataset(a, None)?)?;
+                if !a.is_empty() {
+                    s.append(norm.dataset(a, None)?)?;
+                }
             }
             round = Some(report);
         }
