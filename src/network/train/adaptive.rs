@@ -199,7 +199,7 @@ pub fn refine_round(
     for &s in ranked
         .iter()
         .take(take)
-        .take_while(|&&s| !(errors[s] <= 0.5 * threshold))
+        .take_while(|&&s| errors[s] > 0.5 * threshold)
     {
         let x = scored.input(s);
         worst.push(x.to_vec());

@@ -409,7 +409,7 @@ pub fn train_to_target(
         let check_every = (settings.epochs / 20).max(1);
         // A refine stage that starts on the grid's target trains for the fresh points' sake:
         // it runs in full.
-        let stop_early = !certify && !(stage.kind == StageKind::Refine && met);
+        let stop_early = !(certify || stage.kind == StageKind::Refine && met);
         let mut last = Some(best.1);
         let mut measure_error = None;
         let (trained, report) = train_until(net.clone(), stage_data, &settings, |e, get| {
