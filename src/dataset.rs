@@ -13,7 +13,7 @@ use serde::Serialize;
 
 use crate::boxes::IntervalBox;
 use crate::filter::SafetyFilter;
-use crate::network::train::Dataset;
+use crate::network::train::{Dataset, Oracle, SampleSlopes};
 use crate::scenario::Scenario;
 
 /// What building a data set found.
@@ -141,6 +141,60 @@ pub fn filter_dataset(
         }
     }
     (data, summary)
+}
+
+/// The filter as the trainer's [`Oracle`]: fresh points are drawn from the training region
+/// and judged on `C ∩ S` (where the validation points lie).
+pub struct FilterOracle<'a> {
+    filter: SafetyFilter<'a>,
+}
+
+impl<'a> FilterOracle<'a> {
+    /// The oracle of `scenario`'s filter.
+    pub fn new(scenario: &'a Scenario) -> FilterOracle<'a> {
+        FilterOracle {
+            filter: SafetyFilter::new(scenario),
+        }
+    }
+}
+
+impl Oracle for FilterOracle<'_> {
+    fn bounds(&self) -> (Vec<f64>, Vec<f64>) {
+        let r = &self.filter.scenario().training.region;
+        (r.lower.clone(), r.upper.clone())
+    }
+
+    fn judged(&self, x: &[f64]) -> bool {
+        let s = self.filter.scenario();
+        s.is_safe(x) && s.reach.region.contains(x)
+    }
+
+    fn sample(&self, points: &[Vec<f64>], slopes: SampleSlopes) -> Dataset {
+        let slopes = match slopes {
+            SampleSlopes::Pointwise => Slopes::Pointwise,
+            SampleSlopes::Secant(h) => Slopes::Secant(h.to_vec()),
+            SampleSlopes::Values => {
+                // One solve a point: the rounds score many more points than they keep.
+                let values: Vec<Option<Vec<f64>>> = points
+                    .par_iter()
+                    .map(|x| self.filter.eval(x).ok())
+                    .collect();
+                let mut data = Dataset {
+                    n_in: self.filter.scenario().n(),
+                    n_out: self.filter.scenario().m(),
+                    ..Dataset::default()
+                };
+                for (x, v) in points.iter().zip(values) {
+                    if let Some(v) = v {
+                        data.inputs.extend(x);
+                        data.targets.extend(v);
+                    }
+                }
+                return data;
+            }
+        };
+        filter_dataset(&self.filter, points, &slopes, &|_| {}).0
+    }
 }
 
 /// Points of the grid `factor` times finer per axis than the `counts` grid over `region`

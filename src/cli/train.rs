@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use cbfreach::dataset::{
     filter_dataset, grid_points, refinement_points, restrict_to_band, validation_points, weigh_box,
-    DatasetSummary, Slopes,
+    DatasetSummary, FilterOracle, Slopes,
 };
 use cbfreach::filter::SafetyFilter;
 use cbfreach::network::train::{
@@ -168,12 +168,28 @@ pub struct TrainArgs {
     pub out: Option<PathBuf>,
 }
 
+/// Most grid points a training grid may have (each sample holds `n + m + mn` numbers, twice
+/// with secant slopes).
+const MAX_GRID_POINTS: usize = 20_000_000;
+
 fn training_points(s: &Scenario, grid: Option<&Vec<usize>>) -> Result<Vec<Vec<f64>>, String> {
     let grid = grid.unwrap_or(&s.training.grid);
     if grid.len() != s.n() || grid.iter().any(|&k| k < 2) {
         return Err(format!(
             "--grid: expected {} counts, each at least 2",
             s.n()
+        ));
+    }
+    // The points, their targets and slopes are held in memory: refuse a grid that would not
+    // fit rather than abort on the allocation.
+    let total = grid
+        .iter()
+        .try_fold(1usize, |a, &k| a.checked_mul(k))
+        .filter(|&t| t <= MAX_GRID_POINTS);
+    if total.is_none() {
+        return Err(format!(
+            "training grid {grid:?}: {} points, more than the {MAX_GRID_POINTS} the trainer holds in memory; use a coarser grid (the refine stages add samples where v needs them)",
+            grid.iter().map(|&k| k as f64).product::<f64>()
         ));
     }
     Ok(grid_points(&s.training.region, grid))
@@ -551,7 +567,8 @@ fn run_recipe(
     let spacing: Vec<f64> = (0..s.n())
         .map(|i| (r.upper[i] - r.lower[i]) / (grid[i] - 1) as f64)
         .collect();
-    let recipe = Recipe::for_data(data.len(), &spacing, args.budget);
+    let mut recipe = Recipe::for_data(data.len(), &spacing, args.budget);
+    recipe.refinement.seed = args.seed;
     let (mut secant, _) = build(
         s,
         points,
@@ -621,24 +638,27 @@ fn run_recipe(
             )
         });
         bar.set_message(format!(
-            "{} ({}/{}) training max {:.4}{measured}",
+            "{} ({}/{}) {} samples, training max {:.4}{measured}",
             p.stage,
             p.stage_index + 1,
             p.stages,
+            p.samples,
             p.max_error
         ));
         if logged && p.measured != last_logged {
             last_logged = p.measured;
             eprintln!(
-                "{} epoch {}/{}: training max {:.4}{measured}",
-                p.stage, p.epoch, p.epochs, p.max_error
+                "{} epoch {}/{}: {} samples, training max {:.4}{measured}",
+                p.stage, p.epoch, p.epochs, p.samples, p.max_error
             );
         }
     };
+    let oracle = FilterOracle::new(s);
     let data = RecipeData {
         pointwise: &data,
         secant: Some(&secant),
         validation: &validation,
+        oracle: Some(&oracle),
     };
     let (net, report) = train::train_to_target(
         init.as_ref(),
@@ -658,6 +678,18 @@ fn run_recipe(
         norm.input_centre, norm.input_scale, norm.output_centre, norm.output_scale, report.learning_rate
     );
     for st in &report.stages {
+        if let Some(r) = &st.round {
+            let at: Vec<String> = r.at.iter().map(|x| format!("{x:.4}")).collect();
+            println!(
+                "  {}: on {} fresh points of C ∩ S max ℓ∞ {:.4} at ({}), {} above the target; {} samples added around the worst",
+                st.name,
+                r.scored,
+                r.max_error,
+                at.join(", "),
+                r.above,
+                r.added
+            );
+        }
         println!(
             "  {}: {} epochs, {:.1} s: max ℓ∞ {:.4}, mean {:.4}, slope p95 {:.3}, IBP looseness {:.2}×{}",
             st.name,
@@ -689,19 +721,35 @@ fn run_recipe(
         net.save_safetensors(out, &metadata)?;
     }
     println!(
-        "{} {} in {:.1} s on {} unseen points of C ∩ S: max ℓ∞ {:.4}, mean {:.4}, slope p95 {:.3}, IBP looseness {:.2}×",
-        if target.met(&measured) { "target reached:" } else { "target NOT reached:" },
+        "{} {} in {:.1} s ({} training samples) on {} unseen points of C ∩ S: max ℓ∞ {:.4}, mean {:.4}, slope p95 {:.3}, IBP looseness {:.2}×",
+        if report.reached { "target reached:" } else { "target NOT reached:" },
         net.architecture(),
         report.seconds,
+        report.samples,
         validation.len(),
         measured.linf,
         measured.mean,
         measured.slope_p95,
         measured.ibp_looseness
     );
-    if !target.met(&measured) && target.linf.is_some_and(|t| resolution.max > t) {
+    if let Some(r) = &report.fresh {
         println!(
-            "  the grid itself resolves v only to {:.4} (above): refine [training] grid before training longer",
+            "  on {} fresh points of C ∩ S never trained on: max ℓ∞ {:.4} at ({}){}",
+            r.scored,
+            r.max_error,
+            r.at.iter()
+                .map(|x| format!("{x:.4}"))
+                .collect::<Vec<_>>()
+                .join(", "),
+            target.linf.map_or(String::new(), |t| format!(
+                ", {} above the target {t}",
+                r.above
+            ))
+        );
+    }
+    if !report.reached && target.linf.is_some_and(|t| resolution.max > t) {
+        println!(
+            "  the grid itself resolves v only to {:.4} (above), and the refine stages' samples did not close the gap: a larger network or a finer [training] grid",
             resolution.max
         );
     }
@@ -725,7 +773,7 @@ fn print_resolution(r: &train::Resolution, linf: Option<f64>) {
     );
     if linf.is_some_and(|t| r.max > t) {
         println!(
-            "  warning: v changes between the grid's points by more than the target: no network fitted to these samples is known to be that close between them; a finer [training] grid comes first"
+            "  v changes between the grid's points by more than the target: the refine stages sample it where the network errs most"
         );
     }
 }

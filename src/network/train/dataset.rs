@@ -66,6 +66,24 @@ impl Dataset {
                 ),
             });
         }
+        // Adaptive rounds grow the set while training: a failed allocation is an error, not an
+        // abort.
+        let len = self.len();
+        let fail = |what: &str, extra: usize| NetworkError::Dataset {
+            message: format!(
+                "cannot grow the {what} of {len} samples by {extra} values: out of memory"
+            ),
+        };
+        self.inputs
+            .try_reserve(other.inputs.len())
+            .map_err(|_| fail("inputs", other.inputs.len()))?;
+        self.targets
+            .try_reserve(other.targets.len())
+            .map_err(|_| fail("targets", other.targets.len()))?;
+        if let (Some(j), Some(o)) = (&mut self.jacobians, &other.jacobians) {
+            j.try_reserve(o.len())
+                .map_err(|_| fail("slopes", o.len()))?;
+        }
         if self.weights.is_some() || other.weights.is_some() {
             let (len, other_len) = (self.len(), other.len());
             let w = self.weights.get_or_insert_with(|| vec![1.0; len]);

@@ -92,9 +92,11 @@
 //! (the loop: [`train`], [`resume`], [`train_until`]), `report` (what a run reports;
 //! [`evaluate`]), `normalise` (the data's affine maps, folded into the saved network:
 //! [`Normalisation`]), `recipe` (the default staged schedule to an accuracy target:
-//! [`train_to_target`]), `resolution` (how finely the training grid resolves `v`:
+//! [`train_to_target`]), `adaptive` (more samples where the network errs most:
+//! [`refine_round`]), `resolution` (how finely the training grid resolves `v`:
 //! [`grid_resolution`]).
 
+mod adaptive;
 mod checkpoint;
 mod dataset;
 mod loss;
@@ -110,6 +112,7 @@ mod bench;
 #[cfg(test)]
 mod tests;
 
+pub use adaptive::{refine_round, Added, Oracle, Refinement, RoundReport, SampleSlopes};
 pub use dataset::Dataset;
 pub use normalise::{Normalisation, METADATA_KEY as NORMALISATION_KEY};
 pub use recipe::{

@@ -137,6 +137,7 @@ fn the_recipe_stops_at_its_target_and_says_when_it_is_not_reached() {
         pointwise: &data,
         secant: None,
         validation: &validation,
+        oracle: None,
     };
     // Within 5 % of the targets' range (2000): the fit stage gets there and stops early.
     let target = Target {
@@ -168,4 +169,87 @@ fn the_recipe_stops_at_its_target_and_says_when_it_is_not_reached() {
         train_to_target(None, &[2, 8, 2], 1, &input, &small, &target, |_| {}).expect("trains");
     assert!(!report.reached);
     assert_eq!(report.stages[0].epochs, small.stages[0].settings.epochs);
+}
+
+/// `v(x) = x₁ + 2 max(0, 0.1 − |x₁ − 0.375|)` on `[0, 1]²`: a bump of height 0.2 between the
+/// lines x₁ = 0.25 and 0.5 of a 5 × 5 grid, which sees only `x₁`.
+struct Bump;
+
+fn bump(x: &[f64]) -> f64 {
+    x[0] + 2.0 * (0.1 - (x[0] - 0.375).abs()).max(0.0)
+}
+
+impl Oracle for Bump {
+    fn bounds(&self) -> (Vec<f64>, Vec<f64>) {
+        (vec![0.0, 0.0], vec![1.0, 1.0])
+    }
+    fn judged(&self, _: &[f64]) -> bool {
+        true
+    }
+    fn sample(&self, points: &[Vec<f64>], slopes: SampleSlopes) -> Dataset {
+        let slope = |x: &[f64]| match x[0] - 0.375 {
+            d if d.abs() >= 0.1 => 1.0,
+            d if d < 0.0 => 3.0,
+            _ => -1.0,
+        };
+        Dataset {
+            n_in: 2,
+            n_out: 1,
+            inputs: points.iter().flatten().copied().collect(),
+            targets: points.iter().map(|x| bump(x)).collect(),
+            jacobians: (slopes != SampleSlopes::Values)
+                .then(|| points.iter().flat_map(|x| [slope(x), 0.0]).collect()),
+            weights: None,
+        }
+    }
+}
+
+#[test]
+fn refine_stages_add_samples_where_the_network_errs_and_check_it_on_fresh_points() {
+    let grid = |k: usize, offset: f64| -> Vec<Vec<f64>> {
+        let h = 1.0 / (k - 1) as f64;
+        (0..k * k)
+            .map(|s| vec![offset + (s % k) as f64 * h, offset + (s / k) as f64 * h])
+            .filter(|x| x[0] <= 1.0 && x[1] <= 1.0)
+            .collect()
+    };
+    let data = Bump.sample(&grid(5, 0.0), SampleSlopes::Pointwise);
+    let validation = Bump.sample(&grid(5, 0.125), SampleSlopes::Pointwise);
+    let mut recipe = Recipe::for_data(data.len(), &[0.25, 0.25], 0.1);
+    recipe.refinement.candidates = 1024;
+    recipe.stages.retain(|s| s.kind != StageKind::Secant);
+    let target = Target {
+        linf: Some(0.05),
+        slope_p95: None,
+    };
+    let input = RecipeData {
+        pointwise: &data,
+        secant: None,
+        validation: &validation,
+        oracle: Some(&Bump),
+    };
+    let (_, report) = train_to_target(None, &[2, 16, 16, 1], 1, &input, &recipe, &target, |_| {})
+        .expect("trains");
+    let rounds: Vec<&RoundReport> = report
+        .stages
+        .iter()
+        .filter_map(|s| s.round.as_ref())
+        .collect();
+    assert!(!rounds.is_empty(), "{report:?}");
+    let added: usize = rounds.iter().map(|r| r.added).sum();
+    assert!(
+        added > 0 && report.samples == data.len() + added,
+        "{report:?}"
+    );
+    // The first round's worst fresh point lies on the bump, which the grid does not show.
+    assert!((rounds[0].at[0] - 0.375).abs() < 0.1, "{:?}", rounds[0]);
+    assert!(rounds[0].max_error > 0.1, "{:?}", rounds[0]);
+    let fresh = report.fresh.as_ref().expect("a last check with an oracle");
+    assert_eq!((fresh.added, fresh.scored), (0, 1024), "{fresh:?}");
+    assert!(!report.reached || fresh.max_error <= 0.05, "{report:?}");
+    assert!(
+        fresh.max_error < 0.5 * rounds[0].max_error,
+        "fresh {fresh:?} against the first round {:?}",
+        rounds[0]
+    );
 }
