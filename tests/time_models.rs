@@ -563,8 +563,9 @@ fn euler_sets_hold_the_euler_map_where_it_turns_a_coordinate_around() {
 #[test]
 fn curved_end_rates_hold_the_exact_flow() {
     use cbfreach::reach::embedding::{embedding_field, embedding_step, Dynamics, NetworkBoundsRef};
+    use cbfreach::reach::end_rates::curved_rates;
     use cbfreach::reach::validated::{
-        curved_rates, enclose_step, meet_with_pipe, moving, slab_field, verified, Enclosure,
+        enclose_step, meet_with_pipe, moving, slab_field, verified, Enclosure,
     };
     let names = ["x1".to_string(), "x2".to_string()];
     let parse = |s: &str| cbfreach::expressions::parse(s, &names, &Default::default()).unwrap();

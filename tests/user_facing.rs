@@ -447,7 +447,7 @@ fn train_says_when_the_grid_cannot_resolve_the_target() {
     assert!(miss > 0.5, "{line}");
     assert!(line.contains("above the target 0.1"), "{line}");
     assert!(
-        stdout.contains("a finer [training] grid comes first"),
+        stdout.contains("the refine stages sample it where the network errs most"),
         "{stdout}"
     );
     assert!(stdout.contains("target NOT reached"), "{stdout}");

@@ -12,6 +12,7 @@ use std::time::Instant;
 use rayon::prelude::*;
 
 use super::embedding::{embedding_step, widen_by, NetworkBoundsRef};
+use super::end_rates;
 use super::safe_set::{clip_to_safe_set, SafeSet};
 use super::sampled::Plant;
 use super::validated::{self, Enclosure, Flowpipe};

@@ -181,7 +181,7 @@ impl ChunkRun<'_> {
     /// ([`validated::verified`]) and, where they fail, falls back to the whole enclosure's slabs
     /// (the network bounded there for this box alone). Keeps the rates for the next step's
     /// guess; returns the second-order rates of every source (met by the caller;
-    /// [`validated::curved_rates`], [`validated::taylor_rates`]). `slot`: the box's rows in the
+    /// [`end_rates::curved_rates`], [`end_rates::taylor_rates`]). `slot`: the box's rows in the
     /// frame's batch, where the network was bounded. Nothing for the Euler map.
     #[allow(clippy::too_many_arguments)]
     pub(super) fn check_step(
@@ -231,7 +231,7 @@ impl ChunkRun<'_> {
             .reduce(meet_fields))
     }
 
-    /// [`validated::curved_rates`] of each source of the step's field on the slabs of
+    /// [`end_rates::curved_rates`] of each source of the step's field on the slabs of
     /// `state.pipes[f]`: the proven piece, the filter's enclosures, the network (`rows`: whether
     /// its bounds are the fallback's, and the box's rows there).
     fn curved(
@@ -253,7 +253,7 @@ impl ChunkRun<'_> {
             let dynamics = piece_dynamics(p, piece);
             let zero = zero_bounds(zeros, n, m);
             let (mut dl, mut du) =
-                validated::curved_rates(dynamics, set, pipe, self.h, |_, _| zero, zero.b_lower);
+                end_rates::curved_rates(dynamics, set, pipe, self.h, |_, _| zero, zero.b_lower);
             widen_by(&mut dl, &mut du, slack);
             (dl, du)
         });
@@ -270,8 +270,8 @@ impl ChunkRun<'_> {
                 |i: usize, up: bool| bounds_of(batch, slot * 2 * n + 2 * i + usize::from(up), n, m);
             let whole = |_: usize, _: bool| bounds_of(batch, slot, n, m);
             let (mut dl, mut du) = match self.settings.face_local {
-                true => validated::curved_rates(&p.dynamics, set, pipe, self.h, face, margin),
-                false => validated::curved_rates(&p.dynamics, set, pipe, self.h, whole, margin),
+                true => end_rates::curved_rates(&p.dynamics, set, pipe, self.h, face, margin),
+                false => end_rates::curved_rates(&p.dynamics, set, pipe, self.h, whole, margin),
             };
             widen_by(&mut dl, &mut du, p.field_slack);
             (dl, du)
@@ -509,7 +509,7 @@ impl ChunkRun<'_> {
     }
 
     /// [`ChunkRun::enclosure_slab_field`], or with `curved` its
-    /// [`validated::curved_rates`].
+    /// [`end_rates::curved_rates`].
     fn enclosure_slab_rates(
         &self,
         frame: &Frame,
@@ -541,7 +541,7 @@ impl ChunkRun<'_> {
         let dynamics = &problem.dynamics;
         let (mut dl, mut du) = match curved {
             false => validated::slab_field(dynamics, set, pipe, self.h, face, &zeros[..m]),
-            true => validated::curved_rates(dynamics, set, pipe, self.h, face, &zeros[..m]),
+            true => end_rates::curved_rates(dynamics, set, pipe, self.h, face, &zeros[..m]),
         };
         widen_by(&mut dl, &mut du, slack);
         Some((dl, du))
@@ -603,7 +603,7 @@ impl ChunkRun<'_> {
     }
 
     /// Where the filter is proven one smooth piece on the set: the Taylor rates of that
-    /// piece's field over the flowpipe ([`validated::taylor_rates`]).
+    /// piece's field over the flowpipe ([`end_rates::taylor_rates`]).
     pub(super) fn piece_taylor(
         &self,
         p: &ReachProblem,
@@ -614,7 +614,7 @@ impl ChunkRun<'_> {
     ) -> Option<Rates> {
         let euler = Self::piece_field(p, set, piece, zeros, self.h);
         let dynamics = piece_dynamics(p, piece.0);
-        validated::taylor_rates(dynamics, set, pipe, self.h, euler)
+        end_rates::taylor_rates(dynamics, set, pipe, self.h, euler)
     }
 
     /// Network steps: the Taylor rates from the network's bounds over the flowpipe of frame
@@ -637,7 +637,7 @@ impl ChunkRun<'_> {
                     upper: &nn.upper,
                 };
                 let set = &state.sets[f];
-                validated::taylor_network_rates(&p.dynamics, set, pipe, self.h, nn, margin).map(
+                end_rates::taylor_network_rates(&p.dynamics, set, pipe, self.h, nn, margin).map(
                     |(mut dl, mut du)| {
                         widen_by(&mut dl, &mut du, p.field_slack);
                         (dl, du)

@@ -18,6 +18,7 @@
 pub mod closeness;
 pub mod cpu;
 pub mod embedding;
+pub mod end_rates;
 pub mod engine;
 pub mod pieces;
 pub mod safe_set;

@@ -1,0 +1,233 @@
+//! The validated step's second-order end rates (item 4 of [`super::validated`]'s argument):
+//! where a face's end may be bounded closer than by the slab rates, by a quadratic barrier on
+//! the slab ([`curved_rates`]) or by a Taylor form where the field is one smooth function on the
+//! flowpipe ([`taylor_rates`], [`taylor_network_rates`]). Callers meet these with the slab rates.
+
+use super::embedding::{interaction_row, Dynamics, NetworkBoundsRef};
+use super::validated::{form_on, point, slab, Flowpipe};
+use crate::boxes::IntervalBox;
+use crate::intervals::Interval;
+use crate::rounding::{round_down, round_up};
+
+/// Second-order end rates on the slabs (item 4 of the module's argument): `(r̲, r̄)` with
+/// `x̄ᵢ(h) ≤ x̄ᵢ + h·r̄ᵢ` and `x̲ᵢ(h) ≥ x̲ᵢ + h·r̲ᵢ` for every trajectory, where the slab rates
+/// bound `Fᵢ` over the whole slab ([`slab_field`](super::validated::slab_field); the loss per step is then about
+/// `h²·|∂F|·|F|`, here half that). An end the argument does not reach is `∓∞` (the caller meets
+/// these with the other rates). `nn` as for [`slab_field`](super::validated::slab_field).
+///
+/// Upper end of `i` (the lower mirrored): on the slab, `Fᵢ(x) ≤ c + Σⱼ kⱼ(xⱼ − pⱼ)` with
+/// `pᵢ = x̄ᵢ` and `pⱼ` the set's centre ([`form_on`]); at time `τ` every trajectory lies in
+/// `X(τ) = [x̲ + τa̲, x̄ + τā]` (the moving box's rates where the step proved it, else
+/// `F̲(A), F̄(A)`). Over `X(τ) ∩ {xᵢ = x̄ᵢ + y}` the form is at most `G₀ + τQ + sup kᵢy`, with
+/// `G₀` its sup over the set's face and `Q = Σ_{j≠i} max(kⱼa̲ⱼ, kⱼāⱼ)` (each end's product). The
+/// barrier `u(τ) = x̄ᵢ + τa + τ²b/2` with `a = G₀` and `b ≥ Q + sup kᵢ·[w̲, w̄]`,
+/// `[w̲, w̄] ∋ a + τb/2` (so `u − x̄ᵢ ∈ τ[w̲, w̄]`), is never crossed: a trajectory first reaching
+/// `u + εe^{Lτ}` (`L > |kᵢ|`, `ε → 0`) at `τ*` does so in `X(τ*)` with `xᵢ ≥ u(τ*)`, inside the
+/// slab where `u` stays in its `i`-range (checked), with rate at most
+/// `G₀ + τ*(Q + sup kᵢw) + |kᵢ|εe^{Lτ*} < u' + εLe^{Lτ*}`. So `r̄ᵢ = a + hb/2`.
+pub fn curved_rates<'a>(
+    dynamics: &Dynamics,
+    set: &IntervalBox,
+    pipe: &Flowpipe,
+    h: f64,
+    nn: impl Fn(usize, bool) -> NetworkBoundsRef<'a>,
+    margin: &[f64],
+) -> (Vec<f64>, Vec<f64>) {
+    let n = dynamics.n;
+    let rates = |j: usize| match &pipe.faces {
+        Some(m) => (m.lower[j], m.upper[j]),
+        None => (pipe.f_lower[j], pipe.f_upper[j]),
+    };
+    let mut dl = vec![f64::NEG_INFINITY; n];
+    let mut du = vec![f64::INFINITY; n];
+    for i in 0..n {
+        for up in [false, true] {
+            let (lo, hi) = slab(set, pipe, h, i, up);
+            let e = if up { set.upper[i] } else { set.lower[i] };
+            let mut p: Vec<f64> = (0..n)
+                .map(|j| set.lower[j] + 0.5 * (set.upper[j] - set.lower[j]))
+                .collect();
+            p[i] = e;
+            if (0..n).any(|j| !(lo[j] <= p[j] && p[j] <= hi[j])) {
+                continue;
+            }
+            let (c, k) = form_on(dynamics, &lo, &hi, &p, i, up, nn(i, up), margin);
+            // The lower end is the upper end of `yᵢ = −xᵢ`: `−Fᵢ ≤ −c̲ + Σ_{j≠i}(−kⱼ)(xⱼ − pⱼ)
+            // + kᵢ(yᵢ + x̲ᵢ)`, so `c` and the other slopes are negated, `kᵢ` is not.
+            let k: Vec<(f64, f64)> = k
+                .iter()
+                .enumerate()
+                .map(|(j, k)| match up || j == i {
+                    true => (k.lower, k.upper),
+                    false => (-k.upper, -k.lower),
+                })
+                .collect();
+            let c_up = if up { c.upper } else { -c.lower };
+            let others = (0..n).filter(|&j| j != i).map(|j| {
+                let d = (set.lower[j] - p[j], set.upper[j] - p[j]);
+                let (a_lo, a_hi) = rates(j);
+                (k[j], (round_down(d.0), round_up(d.1)), (a_lo, a_hi))
+            });
+            let Some((r, w_lo, w_hi)) = barrier(c_up, others, k[i], h) else {
+                continue;
+            };
+            // `u` must stay in the slab's `i`-range: `x̄ᵢ + h·min(0, w̲) ≥` its bottom (for the
+            // lower end: `x̲ᵢ − h·min(0, w̲) ≤` its top).
+            let reach = (point(h) * point(w_lo.min(0.0))).lower;
+            let inside = match up {
+                true => (point(e) + point(reach)).lower >= lo[i],
+                false => (point(e) - point(reach)).upper <= hi[i],
+            };
+            if inside && w_hi.is_finite() {
+                match up {
+                    true => du[i] = r,
+                    false => dl[i] = -r,
+                }
+            }
+        }
+    }
+    (dl, du)
+}
+
+/// [`curved_rates`]' barrier for one upper end, in that end's sign: `c` the form's upper value
+/// at `p`, per other coordinate `(k, (d̲, d̄), (a̲, ā))` (slopes, the set's offsets from `p`, its
+/// ends' rates), `kᵢ`. Returns `(a + hb/2, w̲, w̄)`, rounded up, or `None` where `b` does not
+/// settle (`h·|kᵢ|` near 2 or more) or a value is not finite.
+fn barrier(
+    c: f64,
+    others: impl Iterator<Item = ((f64, f64), (f64, f64), (f64, f64))>,
+    k_i: (f64, f64),
+    h: f64,
+) -> Option<(f64, f64, f64)> {
+    let up = |x: Interval| x.upper;
+    let sup = |(k0, k1): (f64, f64), (x0, x1): (f64, f64)| {
+        [k0, k1]
+            .iter()
+            .flat_map(|&k| [x0, x1].map(|x| up(point(k) * point(x))))
+            .fold(f64::NEG_INFINITY, f64::max)
+    };
+    let (mut g0, mut q) = (point(c), point(0.0));
+    for (k, d, a) in others {
+        g0 = g0 + point(sup(k, d));
+        q = q + point(sup(k, a));
+    }
+    let (a, q) = (g0.upper, q.upper);
+    let half_h = point(h) * point(0.5);
+    let mut b = up(point(q) + point(sup(k_i, (a, a))));
+    for _ in 0..4 {
+        let end = point(a) + half_h * point(b);
+        let w = (end.lower.min(a), end.upper.max(a));
+        let need = up(point(q) + point(sup(k_i, w)));
+        if !(need.is_finite() && b.is_finite() && a.is_finite()) {
+            return None;
+        }
+        if need <= b {
+            return Some((up(point(a) + half_h * point(b)), w.0, w.1));
+        }
+        b = need;
+    }
+    None
+}
+
+/// Second-order rates where the field is one smooth function `Φ` on the flowpipe (a proven
+/// piece of the filter): `x(h) = x₀ + hΦ(x₀) + ∫₀ʰ (h − s) DΦ(x(s)) ẋ(s) ds`, so
+/// `x(h) ∈ x₀ + hΦ(x₀) + h²/2 · DΦ(B)·F(B)`. `euler` bounds the Euler part on the set's faces
+/// (the embedding's face bounds), which bound `x₀ + hΦ(x₀)` over the set where `xᵢ + hΦᵢ(x)`
+/// grows with `xᵢ`, i.e. `1 + h·∂ᵢΦᵢ ≥ 0` on the set: checked, `None` where it fails. The
+/// rates `(euler + h/2·[DΦ(B)F(B)])` then bound the step's end like the slab rates (their meet
+/// is sound), with a loss of `O(h²)·width` per step instead of the slabs' `O(h²)·|F|`.
+pub fn taylor_rates(
+    dynamics: &Dynamics,
+    set: &IntervalBox,
+    pipe: &Flowpipe,
+    h: f64,
+    (dl, du): (Vec<f64>, Vec<f64>),
+) -> Option<(Vec<f64>, Vec<f64>)> {
+    let n = dynamics.n;
+    let x: Vec<Interval> = (0..n)
+        .map(|j| Interval::new(set.lower[j], set.upper[j]))
+        .collect();
+    let b: Vec<Interval> = (0..n)
+        .map(|j| Interval::new(pipe.set.lower[j], pipe.set.upper[j]))
+        .collect();
+    let f: Vec<Interval> = (0..n)
+        .map(|j| Interval::new(pipe.f_lower[j], pipe.f_upper[j]))
+        .collect();
+    let half_h = point(h) * point(0.5);
+    let mut lo = Vec::with_capacity(n);
+    let mut hi = Vec::with_capacity(n);
+    for i in 0..n {
+        let diag = dynamics.f_tilde_jacobian[i][i].eval_interval(&x);
+        let monotone = (point(1.0) + point(h) * diag).lower;
+        if monotone.is_nan() || monotone < 0.0 {
+            return None;
+        }
+        let r = (0..n).fold(point(0.0), |acc, j| {
+            acc + dynamics.f_tilde_jacobian[i][j].eval_interval(&b) * f[j]
+        });
+        if !(r.lower.is_finite() && r.upper.is_finite()) {
+            return None;
+        }
+        lo.push((point(dl[i]) + half_h * point(r.lower)).lower);
+        hi.push((point(du[i]) + half_h * point(r.upper)).upper);
+    }
+    Some((lo, hi))
+}
+
+/// Second-order rates for the network's field `f̃ + B(N + w)` (constant `g = B`), from affine
+/// bounds `C̲x + d̲ ≤ N(x) ≤ C̄x + d̄` valid on the flowpipe `B` (`nn`). Every trajectory stays in
+/// `B`, so `xᵢ(h) ≤ x₀ᵢ + ∫₀ʰ φ̄ᵢ(x(s)) ds` with the smooth `φ̄ᵢ(x) = f̃ᵢ(x) + m̄ᵢ·x + δ̄ᵢ` (the
+/// interaction-aware row: `m̄ᵢ = B⁺C̄ + B⁻C̲`, `δ̄ᵢ` with `d̄, d̲` widened by `M`), and
+/// `∫₀ʰ φ̄ᵢ(x(s)) ds ∈ h·φ̄ᵢ(x₀) + h²/2·(Df̃ᵢ(B) + m̄ᵢ)·F(B)`. The Euler part is maximal on the
+/// face `xᵢ = x̄ᵢ` where `1 + h(∂ᵢf̃ᵢ + m̄ᵢᵢ) ≥ 0` on the set (checked; `None` otherwise), and the
+/// embedding's face bound (with `nn` over `B`) bounds it there. Mirrored for the lower end.
+pub fn taylor_network_rates(
+    dynamics: &Dynamics,
+    set: &IntervalBox,
+    pipe: &Flowpipe,
+    h: f64,
+    nn: NetworkBoundsRef,
+    margin: &[f64],
+) -> Option<(Vec<f64>, Vec<f64>)> {
+    let b = dynamics.g_constant.as_ref()?;
+    let n = dynamics.n;
+    let (dl, du) = super::embedding::embedding_field(dynamics, &set.lower, &set.upper, nn, margin);
+    let x: Vec<Interval> = (0..n)
+        .map(|j| Interval::new(set.lower[j], set.upper[j]))
+        .collect();
+    let bb: Vec<Interval> = (0..n)
+        .map(|j| Interval::new(pipe.set.lower[j], pipe.set.upper[j]))
+        .collect();
+    let f: Vec<Interval> = (0..n)
+        .map(|j| Interval::new(pipe.f_lower[j], pipe.f_upper[j]))
+        .collect();
+    let half_h = point(h) * point(0.5);
+    let (mut lo, mut hi) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    for i in 0..n {
+        let jac_x = dynamics.f_tilde_jacobian[i][i].eval_interval(&x);
+        let jac_b: Vec<Interval> = dynamics.f_tilde_jacobian[i]
+            .iter()
+            .map(|e| e.eval_interval(&bb))
+            .collect();
+        let mut ends = [0.0; 2];
+        for (side, on_upper) in [false, true].into_iter().enumerate() {
+            let (row, _) = interaction_row(b, dynamics, nn, margin, i, on_upper);
+            let monotone = (point(1.0) + point(h) * (jac_x + row[i])).lower;
+            if monotone.is_nan() || monotone < 0.0 {
+                return None;
+            }
+            let r = (0..n).fold(point(0.0), |acc, j| acc + (jac_b[j] + row[j]) * f[j]);
+            if !(r.lower.is_finite() && r.upper.is_finite()) {
+                return None;
+            }
+            ends[side] = if on_upper {
+                (point(du[i]) + half_h * point(r.upper)).upper
+            } else {
+                (point(dl[i]) + half_h * point(r.lower)).lower
+            };
+        }
+        lo.push(ends[0]);
+        hi.push(ends[1]);
+    }
+    Some((lo, hi))
+}
