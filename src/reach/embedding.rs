@@ -78,7 +78,8 @@ fn point(x: f64) -> Interval {
     Interval::point(x)
 }
 
-fn boxed(lower: &[f64], upper: &[f64]) -> Vec<Interval> {
+/// The box `[lower, upper]` as intervals, one per coordinate.
+pub(super) fn boxed(lower: &[f64], upper: &[f64]) -> Vec<Interval> {
     lower
         .iter()
         .zip(upper)

@@ -3,7 +3,7 @@
 //! the slab ([`curved_rates`]) or by a Taylor form where the field is one smooth function on the
 //! flowpipe ([`taylor_rates`], [`taylor_network_rates`]). Callers meet these with the slab rates.
 
-use super::embedding::{interaction_row, Dynamics, NetworkBoundsRef};
+use super::embedding::{boxed, interaction_row, Dynamics, NetworkBoundsRef};
 use super::validated::{form_on, point, slab, Flowpipe};
 use crate::boxes::IntervalBox;
 use crate::intervals::Interval;
@@ -144,15 +144,9 @@ pub fn taylor_rates(
     (dl, du): (Vec<f64>, Vec<f64>),
 ) -> Option<(Vec<f64>, Vec<f64>)> {
     let n = dynamics.n;
-    let x: Vec<Interval> = (0..n)
-        .map(|j| Interval::new(set.lower[j], set.upper[j]))
-        .collect();
-    let b: Vec<Interval> = (0..n)
-        .map(|j| Interval::new(pipe.set.lower[j], pipe.set.upper[j]))
-        .collect();
-    let f: Vec<Interval> = (0..n)
-        .map(|j| Interval::new(pipe.f_lower[j], pipe.f_upper[j]))
-        .collect();
+    let x: Vec<Interval> = boxed(&set.lower, &set.upper);
+    let b: Vec<Interval> = boxed(&pipe.set.lower, &pipe.set.upper);
+    let f: Vec<Interval> = boxed(&pipe.f_lower, &pipe.f_upper);
     let half_h = point(h) * point(0.5);
     let mut lo = Vec::with_capacity(n);
     let mut hi = Vec::with_capacity(n);
@@ -192,15 +186,9 @@ pub fn taylor_network_rates(
     let b = dynamics.g_constant.as_ref()?;
     let n = dynamics.n;
     let (dl, du) = super::embedding::embedding_field(dynamics, &set.lower, &set.upper, nn, margin);
-    let x: Vec<Interval> = (0..n)
-        .map(|j| Interval::new(set.lower[j], set.upper[j]))
-        .collect();
-    let bb: Vec<Interval> = (0..n)
-        .map(|j| Interval::new(pipe.set.lower[j], pipe.set.upper[j]))
-        .collect();
-    let f: Vec<Interval> = (0..n)
-        .map(|j| Interval::new(pipe.f_lower[j], pipe.f_upper[j]))
-        .collect();
+    let x: Vec<Interval> = boxed(&set.lower, &set.upper);
+    let bb: Vec<Interval> = boxed(&pipe.set.lower, &pipe.set.upper);
+    let f: Vec<Interval> = boxed(&pipe.f_lower, &pipe.f_upper);
     let half_h = point(h) * point(0.5);
     let (mut lo, mut hi) = (Vec::with_capacity(n), Vec::with_capacity(n));
     for i in 0..n {
