@@ -62,6 +62,16 @@ fn outward_hull(p: [f64; 4]) -> Interval {
     }
 }
 
+/// The box `[lower, upper]` as one interval a coordinate (exact: the ends are taken as they are).
+pub fn box_of(lower: &[f64], upper: &[f64]) -> Vec<Interval> {
+    debug_assert_eq!(lower.len(), upper.len());
+    lower
+        .iter()
+        .zip(upper)
+        .map(|(&l, &u)| Interval::new(l, u))
+        .collect()
+}
+
 /// Is there an integer `k` with `x̲ ≤ phase + 2πk ≤ x̄`? Near misses count as hits (looser, never
 /// unsound): the slack covers the rounding of the quotient and of the constants `π/2`, `π`, `2π`.
 fn holds_lattice_point(x: Interval, phase: f64) -> bool {

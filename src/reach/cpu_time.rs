@@ -658,7 +658,7 @@ pub(super) fn in_frame(
         return (r.lower.clone(), r.upper.clone());
     };
     let n = t.n;
-    let rx: Vec<Interval> = crate::reach::embedding::boxed(&r.lower, &r.upper);
+    let rx: Vec<Interval> = crate::intervals::box_of(&r.lower, &r.upper);
     let rz: Vec<Interval> = (0..n)
         .map(|i| {
             (0..n).fold(Interval::point(0.0), |acc, j| {

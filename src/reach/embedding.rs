@@ -21,7 +21,7 @@
 //! integrator: README, Limitations).
 
 use crate::expressions::Expr;
-use crate::intervals::Interval;
+use crate::intervals::{box_of, Interval};
 
 /// The scenario's dynamics as the embedding needs them.
 #[derive(Clone, Debug)]
@@ -78,15 +78,6 @@ fn point(x: f64) -> Interval {
     Interval::point(x)
 }
 
-/// The box `[lower, upper]` as intervals, one per coordinate.
-pub(super) fn boxed(lower: &[f64], upper: &[f64]) -> Vec<Interval> {
-    lower
-        .iter()
-        .zip(upper)
-        .map(|(&l, &u)| Interval::new(l, u))
-        .collect()
-}
-
 /// Sound bounds `(dx̲/dt, dx̄/dt)` of the embedding system at the box `[lower, upper]`, for the
 /// disturbance `w ∈ [−margin, margin]` (per input), with one network bound for the whole box.
 pub fn embedding_field(
@@ -110,7 +101,7 @@ pub fn embedding_field_by_face<'a>(
     margin: &[f64],
 ) -> (Vec<f64>, Vec<f64>) {
     let n = dynamics.n;
-    let x = boxed(lower, upper);
+    let x = box_of(lower, upper);
     let centre: Vec<f64> = lower
         .iter()
         .zip(upper)
@@ -255,7 +246,7 @@ pub fn euler_turn(
     d_lower: &mut [f64],
     d_upper: &mut [f64],
 ) {
-    let x = boxed(lower, upper);
+    let x = box_of(lower, upper);
     for i in 0..dynamics.n {
         let jac = dynamics.f_tilde_jacobian[i][i].eval_interval(&x);
         let w = (point(upper[i]) - point(lower[i])).upper;

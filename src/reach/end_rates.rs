@@ -3,10 +3,10 @@
 //! the slab ([`curved_rates`]) or by a Taylor form where the field is one smooth function on the
 //! flowpipe ([`taylor_rates`], [`taylor_network_rates`]). Callers meet these with the slab rates.
 
-use super::embedding::{boxed, interaction_row, Dynamics, NetworkBoundsRef};
+use super::embedding::{interaction_row, Dynamics, NetworkBoundsRef};
 use super::validated::{form_on, point, slab, Flowpipe};
 use crate::boxes::IntervalBox;
-use crate::intervals::Interval;
+use crate::intervals::{box_of, Interval};
 use crate::rounding::{round_down, round_up};
 
 /// Second-order end rates on the slabs (item 4 of the module's argument): `(r̲, r̄)` with
@@ -144,9 +144,9 @@ pub fn taylor_rates(
     (dl, du): (Vec<f64>, Vec<f64>),
 ) -> Option<(Vec<f64>, Vec<f64>)> {
     let n = dynamics.n;
-    let x: Vec<Interval> = boxed(&set.lower, &set.upper);
-    let b: Vec<Interval> = boxed(&pipe.set.lower, &pipe.set.upper);
-    let f: Vec<Interval> = boxed(&pipe.f_lower, &pipe.f_upper);
+    let x: Vec<Interval> = box_of(&set.lower, &set.upper);
+    let b: Vec<Interval> = box_of(&pipe.set.lower, &pipe.set.upper);
+    let f: Vec<Interval> = box_of(&pipe.f_lower, &pipe.f_upper);
     let half_h = point(h) * point(0.5);
     let mut lo = Vec::with_capacity(n);
     let mut hi = Vec::with_capacity(n);
@@ -186,9 +186,9 @@ pub fn taylor_network_rates(
     let b = dynamics.g_constant.as_ref()?;
     let n = dynamics.n;
     let (dl, du) = super::embedding::embedding_field(dynamics, &set.lower, &set.upper, nn, margin);
-    let x: Vec<Interval> = boxed(&set.lower, &set.upper);
-    let bb: Vec<Interval> = boxed(&pipe.set.lower, &pipe.set.upper);
-    let f: Vec<Interval> = boxed(&pipe.f_lower, &pipe.f_upper);
+    let x: Vec<Interval> = box_of(&set.lower, &set.upper);
+    let bb: Vec<Interval> = box_of(&pipe.set.lower, &pipe.set.upper);
+    let f: Vec<Interval> = box_of(&pipe.f_lower, &pipe.f_upper);
     let half_h = point(h) * point(0.5);
     let (mut lo, mut hi) = (Vec::with_capacity(n), Vec::with_capacity(n));
     for i in 0..n {

@@ -33,7 +33,7 @@ use serde::Serialize;
 
 use crate::bounds::BoundMethod;
 use crate::boxes::IntervalBox;
-use crate::intervals::Interval;
+use crate::intervals::{box_of, Interval};
 use crate::network::Mlp;
 use crate::scenario::{Norm, Scenario};
 use embedding::Dynamics;
@@ -166,14 +166,7 @@ impl ReachProblem {
             }
         }
         let region = scenario.reach.region.clone();
-        let as_intervals = |b: &IntervalBox| -> Vec<Interval> {
-            b.lower
-                .iter()
-                .zip(&b.upper)
-                .map(|(&l, &u)| Interval::new(l, u))
-                .collect()
-        };
-        let c = as_intervals(&region);
+        let c = box_of(&region.lower, &region.upper);
         let in_x = match &transform {
             Some(_) => Some(Box::new(ReachProblem::with_transform(
                 scenario,
@@ -234,7 +227,7 @@ impl ReachProblem {
             }
         };
         let dynamics = Dynamics::new(n, m, f_tilde, g);
-        let cz = as_intervals(&region_z);
+        let cz = box_of(&region_z.lower, &region_z.upper);
         let jacobian_over_region = dynamics
             .f_tilde_jacobian
             .iter()

@@ -28,7 +28,7 @@ use super::transform::Transform;
 use crate::boxes::IntervalBox;
 use crate::expressions::Expr;
 use crate::filter::{row_expressions, FilterPiece, VForms};
-use crate::intervals::Interval;
+use crate::intervals::{box_of, Interval};
 use crate::scenario::Scenario;
 
 /// Bisections [`FilterPieces::proves_feasible`] tries below a box (at most `2⁶` leaves: sets
@@ -114,7 +114,7 @@ impl FilterPieces {
     /// undefined expression proves nothing). [`FilterPieces::piece_on`] proves more for
     /// closed-form filters, with mean-value forms.
     pub fn proves_inactive(&self, x_box: &IntervalBox) -> bool {
-        let xs = intervals_of(x_box);
+        let xs = box_of(&x_box.lower, &x_box.upper);
         self.slack_rows
             .iter()
             .all(|b| b.eval_interval(&xs).lower >= 0.0)
@@ -191,7 +191,7 @@ impl FilterPieces {
         let Some(t) = &self.transform else {
             return 0.0;
         };
-        let xs = intervals_of(x_box);
+        let xs = box_of(&x_box.lower, &x_box.upper);
         let s = &self.scenario;
         let f_max = (0..s.n())
             .map(|i| {
@@ -215,7 +215,7 @@ impl FilterPieces {
         let Some(t) = &self.transform else {
             return 0.0;
         };
-        let xs = intervals_of(x_box);
+        let xs = box_of(&x_box.lower, &x_box.upper);
         let f_max = self.binding[k]
             .field_x
             .iter()
@@ -223,12 +223,6 @@ impl FilterPieces {
             .fold(0.0, f64::max);
         t.field_slack(f_max)
     }
-}
-
-fn intervals_of(b: &IntervalBox) -> Vec<Interval> {
-    (0..b.dim())
-        .map(|i| Interval::new(b.lower[i], b.upper[i]))
-        .collect()
 }
 
 /// `max |x|` over an interval, `+∞` for NaN.

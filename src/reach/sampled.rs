@@ -22,7 +22,7 @@ use super::embedding::{input_enclosure, interaction_row, Dynamics, NetworkBounds
 use super::validated::{enclose_step, Enclosure};
 use crate::boxes::IntervalBox;
 use crate::expressions::Expr;
-use crate::intervals::Interval;
+use crate::intervals::{box_of, Interval};
 use crate::scenario::Scenario;
 
 /// The plant's parts, with the derivatives the remainder needs (x coordinates).
@@ -96,7 +96,7 @@ impl Intersample {
                 // The plant's field is one expression: no tighter over parts.
                 return Ok(None);
             }
-            let v = plant.velocity(&intervals(a), u);
+            let v = plant.velocity(&box_of(&a.lower, &a.upper), u);
             let finite = v.iter().all(|e| e.lower.is_finite() && e.upper.is_finite());
             Ok(finite.then(|| v.iter().map(|e| (e.lower, e.upper)).unzip()))
         };
@@ -107,7 +107,7 @@ impl Intersample {
             Some(b) => b.hull(&pipe.set),
             None => pipe.set.clone(),
         };
-        let a = intervals(&hull);
+        let a = box_of(&hull.lower, &hull.upper);
         // `Ẋ` over the whole hull (a later step's velocities bound earlier motion too).
         let xdot = plant.velocity(&a, u);
         let mut rho = Vec::with_capacity(plant.n);
@@ -195,7 +195,7 @@ impl Plant {
     /// The held input's enclosure `κ(X) + v`, `v` an enclosure of the filter's correction on
     /// the x-box `x`.
     pub fn held_input(&self, x: &IntervalBox, v: &[Interval]) -> Vec<Interval> {
-        let xs = intervals(x);
+        let xs = box_of(&x.lower, &x.upper);
         (0..self.m)
             .map(|k| self.kappa[k].eval_interval(&xs) + v[k])
             .collect()
@@ -240,7 +240,7 @@ pub fn euler_image(
     slack: f64,
 ) -> (Vec<f64>, Vec<f64>) {
     let n = dynamics.n;
-    let x = intervals(set);
+    let x = box_of(&set.lower, &set.upper);
     let t = Interval::point(tau);
     let jac: Vec<Vec<Interval>> = dynamics
         .f_tilde_jacobian
@@ -316,21 +316,13 @@ pub fn euler_image(
 /// The first CBF that the x-box `b` is not proven to satisfy (`hᵢ ≥ 0` on all of it, interval
 /// evaluation), and whether `b` lies entirely outside `S` by it (`hᵢ < 0` on all of `b`).
 pub fn not_proven_safe(scenario: &Scenario, b: &IntervalBox) -> Option<(String, bool)> {
-    let x = intervals(b);
+    let x = box_of(&b.lower, &b.upper);
     scenario.cbfs.iter().find_map(|c| {
         let h = c.h.eval_interval(&x);
         // NaN bounds (undefined somewhere on the box) count as not proven.
         let proven = h.lower >= 0.0;
         (!proven).then(|| (c.name.clone(), h.upper < 0.0))
     })
-}
-
-fn intervals(b: &IntervalBox) -> Vec<Interval> {
-    b.lower
-        .iter()
-        .zip(&b.upper)
-        .map(|(&l, &u)| Interval::new(l, u))
-        .collect()
 }
 
 #[cfg(test)]

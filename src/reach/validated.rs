@@ -523,7 +523,7 @@ pub(super) fn form_on(
     margin: &[f64],
 ) -> (Interval, Vec<Interval>) {
     let n = dynamics.n;
-    let x = super::embedding::boxed(lower, upper);
+    let x = crate::intervals::box_of(lower, upper);
     let p_box: Vec<Interval> = p.iter().map(|&v| point(v)).collect();
     let jac: Vec<Interval> = dynamics.f_tilde_jacobian[i]
         .iter()

@@ -12,7 +12,7 @@ use super::{
     FORMAT,
 };
 use crate::boxes::IntervalBox;
-use crate::intervals::Interval;
+use crate::intervals::{box_of, Interval};
 use crate::reach::{Backend, ReachProblem, ReachSettings, TimeModel, Tube, TubeEnd};
 use crate::scenario::Scenario;
 
@@ -28,7 +28,7 @@ pub enum Stage {
 /// `Some(UnsafeStart)`, `Some(PartlyUnsafe)` or `None` (the box starts safe), by interval
 /// evaluation of every CBF over the box.
 pub fn start_verdict(scenario: &Scenario, b: &IntervalBox) -> Option<Verdict> {
-    let x = as_intervals(b);
+    let x = box_of(&b.lower, &b.upper);
     let hs: Vec<Interval> = scenario
         .cbfs
         .iter()
@@ -42,14 +42,6 @@ pub fn start_verdict(scenario: &Scenario, b: &IntervalBox) -> Option<Verdict> {
     } else {
         None
     }
-}
-
-fn as_intervals(b: &IntervalBox) -> Vec<Interval> {
-    b.lower
-        .iter()
-        .zip(&b.upper)
-        .map(|(&l, &u)| Interval::new(l, u))
-        .collect()
 }
 
 /// Why a tube got its verdict, where there is more to say than the verdict; `Display` gives
@@ -159,7 +151,7 @@ pub fn judge(
         return Judgement::of(Verdict::UnsafeBetweenSamples, None, Some(why));
     }
     for (k, s) in tube.tube.iter().enumerate() {
-        let x = as_intervals(&s.set);
+        let x = box_of(&s.set.lower, &s.set.upper);
         for cbf in &scenario.cbfs {
             if cbf.h.eval_interval(&x).upper < 0.0 {
                 let (t, cbf, set) = (s.t, cbf.name.clone(), s.set.clone());
