@@ -168,10 +168,6 @@ impl Backend for CpuBackend {
             .sum::<f64>()
             / threads as f64;
         let elapsed = start.elapsed().as_secs_f64();
-        if std::env::var_os("CBF_STATS").is_some() {
-            let s: Vec<usize> = cpu_time::STATS.iter().map(|a| a.load(Ordering::Relaxed)).collect();
-            eprintln!("STATS guessed {} failed {} reguess-held {} picard {}", s[0], s[1], s[2], s[3]);
-        }
         Ok(ReachResult {
             boxes: live.into_iter().map(|l| l.tube).collect(),
             timing: ReachTiming {

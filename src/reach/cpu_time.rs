@@ -109,7 +109,6 @@ impl ChunkRun<'_> {
         state.pipe_nn.iter_mut().for_each(|w| *w = None);
         self.meet_pipes(state);
         state.guessed = true;
-        STATS[0].fetch_add(1, Ordering::Relaxed);
     }
 
     /// `state.pipe_known` from the frames' flowpipes (the whole enclosures where a moving box
@@ -294,13 +293,17 @@ impl ChunkRun<'_> {
         state: &mut Live,
         fields: &[([Option<Rates>; 3], StepInput, Option<(bool, usize)>)],
     ) -> bool {
-        let holds = state.pipes.iter().zip(fields).all(|(pipe, (fields, _, _))| {
-            let met = fields.iter().flatten().cloned().reduce(meet_fields);
-            match (pipe, met) {
-                (Some(pipe), Some((l, u))) => validated::verified(pipe, (&l, &u)),
-                _ => false,
-            }
-        });
+        let holds = state
+            .pipes
+            .iter()
+            .zip(fields)
+            .all(|(pipe, (fields, _, _))| {
+                let met = fields.iter().flatten().cloned().reduce(meet_fields);
+                match (pipe, met) {
+                    (Some(pipe), Some((l, u))) => validated::verified(pipe, (&l, &u)),
+                    _ => false,
+                }
+            });
         if holds {
             for (guess, pipe) in state.guess.iter_mut().zip(&state.pipes) {
                 if let Some(m) = pipe.as_ref().and_then(|p| p.faces.as_ref()) {
@@ -323,18 +326,15 @@ impl ChunkRun<'_> {
         buf: &mut ChunkBuffers,
         t0: f64,
     ) -> Result<(), ReachError> {
-        STATS[1].fetch_add(1, Ordering::Relaxed);
         for _ in 0..REGUESSES {
             if !self.reguess(state, &buf.fields) {
                 break;
             }
             self.refield(state, buf)?;
             if self.guess_holds(state, &buf.fields) {
-                STATS[2].fetch_add(1, Ordering::Relaxed);
                 return Ok(());
             }
         }
-        STATS[3].fetch_add(1, Ordering::Relaxed);
         state.guessed = false;
         self.enclose(state, buf, t0, None)?;
         if state.done {
@@ -360,7 +360,15 @@ impl ChunkRun<'_> {
             let Some((l, u)) = fields[f].0.iter().flatten().cloned().reduce(meet_fields) else {
                 return false;
             };
-            let Some(pipe) = validated::guessed(&state.sets[f], self.h, (&l, &u), None) else {
+            // Past a face its last guess missed, the next overshoots by the miss (as the
+            // trend of [`validated::guessed`]; elsewhere no trend).
+            let Some(m) = state.pipes[f].as_ref().and_then(|p| p.faces.as_ref()) else {
+                return false;
+            };
+            let missed_l: Vec<f64> = (0..l.len()).map(|i| l[i].max(m.lower[i])).collect();
+            let missed_u: Vec<f64> = (0..u.len()).map(|i| u[i].min(m.upper[i])).collect();
+            let before = Some((&missed_l[..], &missed_u[..]));
+            let Some(pipe) = validated::guessed(&state.sets[f], self.h, (&l, &u), before) else {
                 return false;
             };
             let p = frame.problem;
@@ -378,7 +386,10 @@ impl ChunkRun<'_> {
     /// box alone), with the facts of `state.pipe_known`, into `buf.fields`.
     fn refield(&self, state: &mut Live, buf: &mut ChunkBuffers) -> Result<(), ReachError> {
         let m = self.frames[0].problem.dynamics.m;
-        let known = state.pipe_known.clone().unwrap_or_else(|| state.known.clone());
+        let known = state
+            .pipe_known
+            .clone()
+            .unwrap_or_else(|| state.known.clone());
         let facts = self.set_facts(&known);
         for (f, frame) in self.frames.iter().enumerate() {
             let input = self.step_input(frame.problem, &known, facts);
@@ -789,7 +800,8 @@ impl ChunkRun<'_> {
         let (n, m) = (p.dynamics.n, p.dynamics.m);
         let zero = zero_bounds(zeros, n, m);
         let b = &pipe.set;
-        let (mut fl, mut fu) = validated::field_over(dynamics, &b.lower, &b.upper, zero, zero.b_lower);
+        let (mut fl, mut fu) =
+            validated::field_over(dynamics, &b.lower, &b.upper, zero, zero.b_lower);
         widen_by(&mut fl, &mut fu, piece.1);
         let over = Flowpipe {
             f_lower: fl,
@@ -862,17 +874,8 @@ pub(super) fn in_frame(
 }
 
 /// Guesses of a moving box after the first fails, before the enclosure ([`ChunkRun::fall_back`]).
-const REGUESSES: usize = 2;
-
-/// Temporary counters: guessed steps, failed first guesses, held re-guesses, Picard fallbacks.
-pub(super) static STATS: [AtomicUsize; 4] = [
-    AtomicUsize::new(0),
-    AtomicUsize::new(0),
-    AtomicUsize::new(0),
-    AtomicUsize::new(0),
-];
+const REGUESSES: usize = 4;
 
 /// Most parts a candidate enclosure is cut into ([`ChunkRun::field_on_parts`]): 3 × 3 in the
 /// plane, 2 × 2 × 2 in space, none beyond.
 const PARTS: usize = 9;
-
