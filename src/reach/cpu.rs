@@ -75,6 +75,11 @@ struct Live {
     whole: Vec<Option<Flowpipe>>,
     /// Continuous time: per frame, last step's rates on the slabs, to guess the moving box from.
     rates: Vec<Option<(Vec<f64>, Vec<f64>)>>,
+    /// Continuous time: per frame, the rates of the step before (their trend guesses too).
+    before: Vec<Option<(Vec<f64>, Vec<f64>)>>,
+    /// Continuous time: whether this step's moving boxes were guessed without an enclosure
+    /// ([`validated::guessed`]), to be proven by the step's rates.
+    guessed: bool,
     /// Why this step inverted a set, if it did (found where the field's bounds are met).
     inversion: Option<super::tube::Inversion>,
     /// Sampled-data: what the set holds over the current control period.
@@ -219,7 +224,13 @@ struct ChunkBuffers {
     stepped: Vec<bool>,
     /// Continuous time: per frame, the first Picard candidates and their network bounds.
     candidates: Vec<cpu_time::Candidates>,
+    /// Per frame of one box-step: its fields (piece, enclosures, network), how `v` is bounded,
+    /// and where the network's bounds are (whether the fallback's, and the row).
+    fields: Vec<([Option<Rates>; 3], StepInput, Option<(bool, usize)>)>,
 }
+
+/// Lower and upper rates of one step, `(dx̲/dt, dx̄/dt)`.
+type Rates = (Vec<f64>, Vec<f64>);
 
 /// What every chunk's run shares.
 struct ChunkRun<'a> {
@@ -290,6 +301,8 @@ impl ChunkRun<'_> {
             pipe_nn: vec![None; self.frames.len()],
             whole: vec![None; self.frames.len()],
             rates: vec![None; self.frames.len()],
+            before: vec![None; self.frames.len()],
+            guessed: false,
             inversion: None,
             held: None,
         };
@@ -424,8 +437,8 @@ impl ChunkRun<'_> {
                 (self.report)(states.len());
                 continue;
             }
+            let t0 = (step / k) as f64 * problem.dt + (step % k) as f64 * self.h;
             if self.time == TimeModel::Continuous {
-                let t0 = (step / k) as f64 * problem.dt + (step % k) as f64 * self.h;
                 self.enclose_all(states, buf, t0)?;
             }
             buf.facts.clear();
@@ -494,47 +507,32 @@ impl ChunkRun<'_> {
                     }
                     continue;
                 }
+                // Every frame's fields first: a guessed moving box stands only if all frames'
+                // rates prove it (item 3b); where not, the enclosure and its slabs replace it.
+                buf.fields.clear();
                 for (f, frame) in self.frames.iter().enumerate() {
-                    let p = frame.problem;
                     let input = buf.frames[f].inputs[k];
-                    let set = &state.sets[f];
-                    let pipe = state.pipes.get(f).and_then(Option::as_ref);
-                    let exact = input.piece.map(|piece| match pipe {
-                        Some(pipe) => self.piece_slab_field(p, set, pipe, piece, &buf.zeros),
-                        None => Self::piece_field(p, set, piece, &buf.zeros, self.h),
+                    // This box's rows in the batch (boxes without a margin have none).
+                    let slot = input.margin.map(|_| {
+                        buf.slots[f] += 1;
+                        buf.slots[f] - 1
                     });
-                    let enclosed = match (pipe, input.piece.is_none() && self.encloses) {
-                        (_, false) => None,
-                        (Some(pipe), true) => {
-                            let known = state.pipe_known.as_ref().unwrap_or(&state.known);
-                            self.enclosure_slab_field(frame, set, pipe, known, &buf.zeros)
-                        }
-                        (None, true) => self.enclosure_field(
-                            frame,
-                            set,
-                            &state.known,
-                            &mut buf.faces,
-                            &buf.zeros,
-                        ),
-                    };
-                    if f == 0 {
-                        state.tube.exact_steps += usize::from(exact.is_some());
-                        state.tube.enclosed_steps += usize::from(enclosed.is_some());
+                    let (fields, s) = self.first_fields(frame, state, f, input, slot, buf);
+                    minkowski_s += s;
+                    buf.fields.push((fields, input, slot.map(|s| (false, s))));
+                }
+                if state.guessed && !self.guess_holds(state, &buf.fields) {
+                    self.fall_back(state, buf, t0)?;
+                    if state.done {
+                        continue;
                     }
+                }
+                for (f, frame) in self.frames.iter().enumerate() {
+                    let (mut fields, input, rows) = buf.fields[f].clone();
                     buf.margin.clear();
                     buf.margin.resize(m, input.margin.unwrap_or(0.0));
-                    let network = input.margin.map(|_| {
-                        // This box's rows in the batch (boxes without a margin have none).
-                        let slot = buf.slots[f];
-                        buf.slots[f] += 1;
-                        let batch = &buf.frames[f].batch;
-                        let (field, s) = self.network_field(p, state, f, batch, slot, &buf.margin);
-                        minkowski_s += s;
-                        field
-                    });
                     // Continuous time: the moving box checked (else the whole enclosure's
                     // slabs), and second-order rates.
-                    let mut fields = [exact, enclosed, network];
                     let taylor = self.check_step(
                         frame,
                         state,
@@ -542,7 +540,7 @@ impl ChunkRun<'_> {
                         input,
                         &mut fields,
                         (&mut buf.frames[f], &buf.zeros, &buf.margin),
-                        input.margin.map(|_| buf.slots[f] - 1),
+                        rows,
                     )?;
                     let [exact, enclosed, network] = fields;
                     let sources: Vec<_> = [exact, taylor, enclosed, network]

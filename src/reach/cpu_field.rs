@@ -11,7 +11,7 @@ use super::super::embedding::{
 };
 use super::super::validated;
 use super::super::{ReachMethod, ReachProblem};
-use super::{ChunkRun, Frame, Live};
+use super::{ChunkBuffers, ChunkRun, Frame, Live, Rates, StepInput};
 use crate::bounds::AffineBoundsBatch;
 use crate::boxes::IntervalBox;
 use crate::filter::FilterPiece;
@@ -92,6 +92,51 @@ impl ChunkRun<'_> {
         );
         widen_by(&mut dl, &mut du, slack);
         Some((dl, du))
+    }
+
+    /// The fields of one frame's box-step from this step's batch (`slot`: the box's rows, where
+    /// the network was bounded): the filter's piece, its enclosures, the network (its margin
+    /// put in `buf.margin`). Returns them and the time spent on the closeness radius.
+    pub(super) fn first_fields(
+        &self,
+        frame: &Frame,
+        state: &mut Live,
+        f: usize,
+        input: StepInput,
+        slot: Option<usize>,
+        buf: &mut ChunkBuffers,
+    ) -> ([Option<Rates>; 3], f64) {
+        let p = frame.problem;
+        let set = &state.sets[f];
+        let pipe = state.pipes.get(f).and_then(Option::as_ref);
+        let exact = input.piece.map(|piece| match pipe {
+            Some(pipe) => self.piece_slab_field(p, set, pipe, piece, &buf.zeros),
+            None => Self::piece_field(p, set, piece, &buf.zeros, self.h),
+        });
+        let enclosed = match (pipe, input.piece.is_none() && self.encloses) {
+            (_, false) => None,
+            (Some(pipe), true) => {
+                let known = state.pipe_known.as_ref().unwrap_or(&state.known);
+                self.enclosure_slab_field(frame, set, pipe, known, &buf.zeros)
+            }
+            (None, true) => {
+                self.enclosure_field(frame, set, &state.known, &mut buf.faces, &buf.zeros)
+            }
+        };
+        if f == 0 {
+            state.tube.exact_steps += usize::from(exact.is_some());
+            state.tube.enclosed_steps += usize::from(enclosed.is_some());
+        }
+        buf.margin.clear();
+        buf.margin.resize(p.dynamics.m, input.margin.unwrap_or(0.0));
+        let mut minkowski_s = 0.0;
+        let network = slot.map(|slot| {
+            let batch = &buf.frames[f].batch;
+            let (field, s) = self.network_field(p, state, f, batch, slot, &buf.margin);
+            minkowski_s += s;
+            field
+        });
+        ([exact, enclosed, network], minkowski_s)
     }
 
     /// The embedding field from the network's bounds of this box-step (`slot`: the box's rows

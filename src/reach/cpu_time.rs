@@ -30,6 +30,12 @@ impl ChunkRun<'_> {
     ) -> Result<(), ReachError> {
         buf.candidates
             .resize_with(self.frames.len(), Candidates::default);
+        // Moving boxes guessed from last step's rates need no enclosure (item 3b): checked
+        // after the step's fields, with Picard–Lindelöf where they fail.
+        for state in states.iter_mut().filter(|s| !s.done) {
+            self.guess_moving(state);
+        }
+        let guessed_now = |s: &Live| s.guessed;
         for (f, frame) in self.frames.iter().enumerate() {
             let (fb, cands) = (&mut buf.frames[f], &mut buf.candidates[f]);
             let p = frame.problem;
@@ -39,6 +45,10 @@ impl ChunkRun<'_> {
             let region = p.transform.is_none().then_some(&p.region);
             let mut rows = 0;
             for state in states.iter().filter(|s| !s.done) {
+                if guessed_now(state) {
+                    cands.slots.push(None);
+                    continue;
+                }
                 let slot = state.guess[f].as_ref().and_then(|(l, u)| {
                     let a = validated::first_candidate(&state.sets[f], self.h, (l, u), region)?;
                     let x_box = p.x_box_in_safe_set(&a.lower, &a.upper, frame.safe);
@@ -63,20 +73,85 @@ impl ChunkRun<'_> {
         }
         let live = states.iter_mut().filter(|s| !s.done);
         for (k, state) in live.enumerate() {
-            self.enclose(state, buf, t0, k)?;
+            if !state.guessed {
+                self.enclose(state, buf, t0, Some(k))?;
+            }
         }
         Ok(())
     }
 
+    /// Where every frame has last step's rates (the disturbance method), the moving boxes
+    /// guessed from them without an enclosure ([`validated::guessed`]); the step's facts are
+    /// then taken on their hulls. Not where a hull leaves `C` in x coordinates (the enclosure
+    /// handles `C`'s sides, item 1c). Sets `state.guessed`.
+    fn guess_moving(&self, state: &mut Live) {
+        state.guessed = false;
+        if self.settings.method != ReachMethod::Disturbance {
+            return;
+        }
+        let mut pipes = Vec::with_capacity(self.frames.len());
+        for (f, frame) in self.frames.iter().enumerate() {
+            let Some((l, u)) = &state.rates[f] else {
+                return;
+            };
+            let before = state.before[f].as_ref().map(|(l, u)| (&l[..], &u[..]));
+            let Some(pipe) = validated::guessed(&state.sets[f], self.h, (l, u), before) else {
+                return;
+            };
+            let p = frame.problem;
+            if p.transform.is_none() && !pipe.set.is_subset_of(&p.region) {
+                return;
+            }
+            pipes.push(Some(pipe));
+        }
+        state.pipes = pipes;
+        state.whole.iter_mut().for_each(|w| *w = None);
+        state.pipe_nn.iter_mut().for_each(|w| *w = None);
+        self.meet_pipes(state);
+        state.guessed = true;
+    }
+
+    /// `state.pipe_known` from the frames' flowpipes (the whole enclosures where a moving box
+    /// lies in one), and with several frames each flowpipe met with the others.
+    fn meet_pipes(&self, state: &mut Live) {
+        let known = self
+            .frames
+            .iter()
+            .zip(state.pipes.iter().zip(&state.whole))
+            .filter_map(|(f, (p, whole))| {
+                let p = whole.as_ref().or(p.as_ref())?;
+                Some(
+                    f.problem
+                        .x_box_in_safe_set(&p.set.lower, &p.set.upper, f.safe),
+                )
+            })
+            .reduce(|a, b| a.intersection(&b).unwrap_or(a));
+        if self.frames.len() > 1 {
+            if let Some(known) = &known {
+                let pipes = state.pipes.iter_mut().chain(state.whole.iter_mut());
+                let frames = self.frames.iter().chain(&self.frames);
+                for (f, pipe) in frames.zip(pipes) {
+                    let Some(pipe) = pipe else { continue };
+                    let around = f.problem.frame_box(known);
+                    if let Some(met) = pipe.set.intersection(&around) {
+                        pipe.set = met;
+                    }
+                }
+            }
+        }
+        state.pipe_known = known;
+    }
+
     /// Encloses the next step of every frame's set (Picard–Lindelöf); the step's facts and
     /// bounds then come from the flowpipe. Ends the tube where no enclosure closes. `k`: the
-    /// box's place among the chunk's live boxes (its row in `buf.candidates`).
+    /// box's place among the chunk's live boxes (its row in `buf.candidates`), if its first
+    /// candidates were bounded there.
     pub(super) fn enclose(
         &self,
         state: &mut Live,
         buf: &mut ChunkBuffers,
         t0: f64,
-        k: usize,
+        k: Option<usize>,
     ) -> Result<(), ReachError> {
         let ChunkBuffers {
             frames,
@@ -93,9 +168,11 @@ impl ChunkRun<'_> {
             let guess = state.guess[f].as_ref().map(|(l, u)| (&l[..], &u[..]));
             let fb = &mut frames[f];
             // The batch's bounds over the first candidate, used once, for that box only.
-            let mut pre = candidates
-                .get(f)
-                .and_then(|c| c.slots.get(k).cloned().flatten().map(|s| (c, s)));
+            let mut pre = k.and_then(|k| {
+                candidates
+                    .get(f)
+                    .and_then(|c| c.slots.get(k).cloned().flatten().map(|s| (c, s)))
+            });
             // `C` bounds the enclosure in x frames (M and the verdicts hold there only).
             let region = frame
                 .problem
@@ -147,32 +224,7 @@ impl ChunkRun<'_> {
             return Ok(());
         }
         // Facts hold on the whole enclosures (a moving box lies in its frame's).
-        let known = self
-            .frames
-            .iter()
-            .zip(state.pipes.iter().zip(&state.whole))
-            .filter_map(|(f, (p, whole))| {
-                let p = whole.as_ref().or(p.as_ref())?;
-                Some(
-                    f.problem
-                        .x_box_in_safe_set(&p.set.lower, &p.set.upper, f.safe),
-                )
-            })
-            .reduce(|a, b| a.intersection(&b).unwrap_or(a));
-        if self.frames.len() > 1 {
-            if let Some(known) = &known {
-                let pipes = state.pipes.iter_mut().chain(state.whole.iter_mut());
-                let frames = self.frames.iter().chain(&self.frames);
-                for (f, pipe) in frames.zip(pipes) {
-                    let Some(pipe) = pipe else { continue };
-                    let around = f.problem.frame_box(known);
-                    if let Some(met) = pipe.set.intersection(&around) {
-                        pipe.set = met;
-                    }
-                }
-            }
-        }
-        state.pipe_known = known;
+        self.meet_pipes(state);
         Ok(())
     }
 
@@ -192,7 +244,7 @@ impl ChunkRun<'_> {
         input: StepInput,
         fields: &mut [Option<Rates>; 3],
         (fb, zeros, margin): (&mut FrameBuffers, &[f64], &[f64]),
-        slot: Option<usize>,
+        rows: Option<(bool, usize)>,
     ) -> Result<Option<Rates>, ReachError> {
         let Some(Some(pipe)) = state.pipes.get(f) else {
             return Ok(None);
@@ -204,14 +256,15 @@ impl ChunkRun<'_> {
         let margin = margin.to_vec();
         // The network's bounds on the slabs the step takes: this step's batch, or the
         // fallback's own (one box, row 0).
-        let mut rows = slot.map(|s| (false, s));
+        let mut rows = rows;
         if !proven {
             if let Some(whole) = state.whole[f].take() {
                 state.pipes[f] = Some(whole);
                 *fields = self.whole_fields(frame, state, f, input, fb, zeros, &margin)?;
-                rows = slot.map(|_| (true, 0));
+                rows = rows.map(|_| (true, 0));
             }
         }
+        state.before[f] = state.rates[f].take();
         state.rates[f] = fields.iter().flatten().cloned().reduce(meet_fields);
         let (p, set) = (frame.problem, &state.sets[f]);
         let Some(Some(pipe)) = state.pipes.get(f) else {
@@ -229,6 +282,131 @@ impl ChunkRun<'_> {
             .chain(curved)
             .flatten()
             .reduce(meet_fields))
+    }
+
+    /// Whether the rates of every frame (`fields`, this step's first) prove the moving boxes
+    /// guessed without an enclosure (item 3b: all frames together, as the facts were taken on
+    /// their hulls met). Where they do, each frame's next enclosure starts from the hull of its
+    /// face rates.
+    pub(super) fn guess_holds(
+        &self,
+        state: &mut Live,
+        fields: &[([Option<Rates>; 3], StepInput, Option<(bool, usize)>)],
+    ) -> bool {
+        let holds = state
+            .pipes
+            .iter()
+            .zip(fields)
+            .all(|(pipe, (fields, _, _))| {
+                let met = fields.iter().flatten().cloned().reduce(meet_fields);
+                match (pipe, met) {
+                    (Some(pipe), Some((l, u))) => validated::verified(pipe, (&l, &u)),
+                    _ => false,
+                }
+            });
+        if holds {
+            for (guess, pipe) in state.guess.iter_mut().zip(&state.pipes) {
+                if let Some(m) = pipe.as_ref().and_then(|p| p.faces.as_ref()) {
+                    let lo = m.lower.iter().zip(&m.upper).map(|(a, b)| a.min(*b));
+                    let hi = m.lower.iter().zip(&m.upper).map(|(a, b)| a.max(*b));
+                    *guess = Some((lo.collect(), hi.collect()));
+                }
+            }
+        }
+        holds
+    }
+
+    /// Where a guessed moving box fails: guesses again from the rates its slabs gave
+    /// (`buf.fields`) up to [`REGUESSES`] times, the network bounded on the new slabs for this
+    /// box alone, then falls back to the enclosure (Picard–Lindelöf) and its whole slabs.
+    /// Leaves the step's fields in `buf.fields`; ends the tube where no enclosure closes.
+    pub(super) fn fall_back(
+        &self,
+        state: &mut Live,
+        buf: &mut ChunkBuffers,
+        t0: f64,
+    ) -> Result<(), ReachError> {
+        for _ in 0..REGUESSES {
+            if !self.reguess(state, &buf.fields) {
+                break;
+            }
+            self.refield(state, buf)?;
+            if self.guess_holds(state, &buf.fields) {
+                return Ok(());
+            }
+        }
+        state.guessed = false;
+        self.enclose(state, buf, t0, None)?;
+        if state.done {
+            return Ok(());
+        }
+        for (pipe, whole) in state.pipes.iter_mut().zip(&mut state.whole) {
+            if let Some(w) = whole.take() {
+                *pipe = Some(w);
+            }
+        }
+        self.refield(state, buf)
+    }
+
+    /// New guessed moving boxes from the rates the last ones' slabs gave (`fields`); false
+    /// where none can be had (no rates, a box inside out, a hull leaving `C` in x).
+    fn reguess(
+        &self,
+        state: &mut Live,
+        fields: &[([Option<Rates>; 3], StepInput, Option<(bool, usize)>)],
+    ) -> bool {
+        let mut pipes = Vec::with_capacity(self.frames.len());
+        for (f, frame) in self.frames.iter().enumerate() {
+            let Some((l, u)) = fields[f].0.iter().flatten().cloned().reduce(meet_fields) else {
+                return false;
+            };
+            // Past a face its last guess missed, the next overshoots by the miss (as the
+            // trend of [`validated::guessed`]; elsewhere no trend).
+            let Some(m) = state.pipes[f].as_ref().and_then(|p| p.faces.as_ref()) else {
+                return false;
+            };
+            let missed_l: Vec<f64> = (0..l.len()).map(|i| l[i].max(m.lower[i])).collect();
+            let missed_u: Vec<f64> = (0..u.len()).map(|i| u[i].min(m.upper[i])).collect();
+            let before = Some((&missed_l[..], &missed_u[..]));
+            let Some(pipe) = validated::guessed(&state.sets[f], self.h, (&l, &u), before) else {
+                return false;
+            };
+            let p = frame.problem;
+            if p.transform.is_none() && !pipe.set.is_subset_of(&p.region) {
+                return false;
+            }
+            pipes.push(Some(pipe));
+        }
+        state.pipes = pipes;
+        self.meet_pipes(state);
+        true
+    }
+
+    /// Each frame's fields on the slabs of `state.pipes` (the network bounded there for this
+    /// box alone), with the facts of `state.pipe_known`, into `buf.fields`.
+    fn refield(&self, state: &mut Live, buf: &mut ChunkBuffers) -> Result<(), ReachError> {
+        let m = self.frames[0].problem.dynamics.m;
+        let known = state
+            .pipe_known
+            .clone()
+            .unwrap_or_else(|| state.known.clone());
+        let facts = self.set_facts(&known);
+        for (f, frame) in self.frames.iter().enumerate() {
+            let input = self.step_input(frame.problem, &known, facts);
+            buf.margin.clear();
+            buf.margin.resize(m, input.margin.unwrap_or(0.0));
+            let fields = self.whole_fields(
+                frame,
+                state,
+                f,
+                input,
+                &mut buf.frames[f],
+                &buf.zeros,
+                &buf.margin,
+            )?;
+            buf.fields[f] = (fields, input, input.margin.map(|_| (true, 0)));
+        }
+        Ok(())
     }
 
     /// [`end_rates::curved_rates`] of each source of the step's field on the slabs of
@@ -614,7 +792,24 @@ impl ChunkRun<'_> {
     ) -> Option<Rates> {
         let euler = Self::piece_field(p, set, piece, zeros, self.h);
         let dynamics = piece_dynamics(p, piece.0);
-        end_rates::taylor_rates(dynamics, set, pipe, self.h, euler)
+        if pipe.enclosed {
+            return end_rates::taylor_rates(dynamics, set, pipe, self.h, euler);
+        }
+        // A proven moving box holds every trajectory over the step (item 3b), and the piece
+        // is proven on its x-box: its field there bounds the motion.
+        let (n, m) = (p.dynamics.n, p.dynamics.m);
+        let zero = zero_bounds(zeros, n, m);
+        let b = &pipe.set;
+        let (mut fl, mut fu) =
+            validated::field_over(dynamics, &b.lower, &b.upper, zero, zero.b_lower);
+        widen_by(&mut fl, &mut fu, piece.1);
+        let over = Flowpipe {
+            f_lower: fl,
+            f_upper: fu,
+            enclosed: true,
+            ..pipe.clone()
+        };
+        end_rates::taylor_rates(dynamics, set, &over, self.h, euler)
     }
 
     /// Network steps: the Taylor rates from the network's bounds over the flowpipe of frame
@@ -678,9 +873,9 @@ pub(super) fn in_frame(
     )
 }
 
+/// Guesses of a moving box after the first fails, before the enclosure ([`ChunkRun::fall_back`]).
+const REGUESSES: usize = 4;
+
 /// Most parts a candidate enclosure is cut into ([`ChunkRun::field_on_parts`]): 3 × 3 in the
 /// plane, 2 × 2 × 2 in space, none beyond.
 const PARTS: usize = 9;
-
-/// Lower and upper rates of one step, `(dx̲/dt, dx̄/dt)`.
-type Rates = (Vec<f64>, Vec<f64>);

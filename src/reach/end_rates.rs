@@ -143,6 +143,10 @@ pub fn taylor_rates(
     h: f64,
     (dl, du): (Vec<f64>, Vec<f64>),
 ) -> Option<(Vec<f64>, Vec<f64>)> {
+    // `F(B)` is known only where Picard–Lindelöf proved the flowpipe.
+    if !pipe.enclosed {
+        return None;
+    }
     let n = dynamics.n;
     let x: Vec<Interval> = box_of(&set.lower, &set.upper);
     let b: Vec<Interval> = box_of(&pipe.set.lower, &pipe.set.upper);
@@ -184,6 +188,9 @@ pub fn taylor_network_rates(
     margin: &[f64],
 ) -> Option<(Vec<f64>, Vec<f64>)> {
     let b = dynamics.g_constant.as_ref()?;
+    if !pipe.enclosed {
+        return None;
+    }
     let n = dynamics.n;
     let (dl, du) = super::embedding::embedding_field(dynamics, &set.lower, &set.upper, nn, margin);
     let x: Vec<Interval> = box_of(&set.lower, &set.upper);

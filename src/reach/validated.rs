@@ -54,6 +54,10 @@ pub struct Flowpipe {
     /// Where the step checks a moving box ([`moving`]): its face rates and slab depths; then
     /// `set` is the moving box's hull, and the slabs are the moving faces' ([`slab`]).
     pub faces: Option<MovingFaces>,
+    /// Whether Picard–Lindelöf proved an enclosure holding `set` with the field within
+    /// `[f_lower, f_upper]` on it. False for a moving box guessed without one ([`guessed`]):
+    /// its `f_*` are its face rates, and only [`verified`]'s strict check on its slabs proves it.
+    pub enclosed: bool,
 }
 
 /// The moving box `X(τ) = [x̲ + τ·s̲, x̄ + τ·s̄]`, `τ ∈ [0, h]`, of a step (item 3 of the module's
@@ -198,6 +202,7 @@ fn enclose_halving<E>(
             .map(|i| first.f_upper[i].max(second.f_upper[i]))
             .collect(),
         faces: None,
+        enclosed: true,
     }))
 }
 
@@ -282,6 +287,7 @@ fn enclose_once<E>(
                 f_lower: lo,
                 f_upper: hi,
                 faces: None,
+                enclosed: true,
             }));
         }
         let grown = IntervalBox {
@@ -457,8 +463,69 @@ pub fn moving(
         f_lower: pipe.f_lower.clone(),
         f_upper: pipe.f_upper.clone(),
         faces: Some(m),
+        enclosed: true,
     })
 }
+
+/// A moving box of a step from `set` with no a-priori enclosure (item 3b of the module's
+/// argument): face rates guessed from last step's slab rates `(r̲, r̄)` and those of the step
+/// before (`before`), `s̄ = max(r̄, r̂) + δ`, `ρ̄ = min(r̄, r̂) − δ` with `r̂ = 2r̄ − r̄_before` the
+/// trend and `δ` a margin ([`GUESS_MARGIN`]; mirrored below). `None` where the box turns
+/// inside out or a value is not finite. Nothing is known of it until [`verified`] passes on
+/// every frame's rates, with the facts (piece, local `M`) taken on its hull.
+pub fn guessed(
+    set: &IntervalBox,
+    h: f64,
+    (r_lower, r_upper): (&[f64], &[f64]),
+    before: Option<(&[f64], &[f64])>,
+) -> Option<Flowpipe> {
+    let n = set.dim();
+    let mut m = MovingFaces {
+        lower: Vec::with_capacity(n),
+        upper: Vec::with_capacity(n),
+        depth_lower: Vec::with_capacity(n),
+        depth_upper: Vec::with_capacity(n),
+    };
+    for i in 0..n {
+        let (rl, ru) = (r_lower[i], r_upper[i]);
+        let (tl, tu) = match before {
+            Some((bl, bu)) => (2.0 * rl - bl[i], 2.0 * ru - bu[i]),
+            None => (rl, ru),
+        };
+        let delta = GUESS_MARGIN * ((ru - rl).abs() + rl.abs().max(ru.abs())) + 1e-9;
+        m.lower.push(rl.min(tl) - delta);
+        m.depth_lower.push(rl.max(tl) + delta);
+        m.upper.push(ru.max(tu) + delta);
+        m.depth_upper.push(ru.min(tu) - delta);
+    }
+    let values = m.lower.iter().chain(&m.upper);
+    if !values
+        .chain(&m.depth_lower)
+        .chain(&m.depth_upper)
+        .all(|v| v.is_finite())
+    {
+        return None;
+    }
+    let ends = |i: usize| {
+        let lo = point(set.lower[i]) + point(h) * point(m.lower[i]);
+        let hi = point(set.upper[i]) + point(h) * point(m.upper[i]);
+        (lo, hi)
+    };
+    if (0..n).any(|i| ends(i).0.upper > ends(i).1.lower) {
+        return None;
+    }
+    let hull = sweep(set, h, &m.lower, &m.upper);
+    Some(Flowpipe {
+        set: hull,
+        f_lower: m.lower.clone(),
+        f_upper: m.upper.clone(),
+        faces: Some(m),
+        enclosed: false,
+    })
+}
+
+/// [`guessed`]'s margin around the guessed rates, as a share of their spread and size.
+const GUESS_MARGIN: f64 = 0.05;
 
 /// Whether the rates `(dl, du)` found on a moving box's slabs prove it (item 3): every face
 /// moves faster than the field on its slab (`s̄ᵢ > du_i`, `s̲ᵢ < dl_i`), or at least as fast as
@@ -469,8 +536,9 @@ pub fn verified(pipe: &Flowpipe, (dl, du): (&[f64], &[f64])) -> bool {
         return true;
     };
     (0..dl.len()).all(|i| {
-        let upper = du[i] < m.upper[i] || m.upper[i] >= pipe.f_upper[i];
-        let lower = dl[i] > m.lower[i] || m.lower[i] <= pipe.f_lower[i];
+        // Without an enclosure only the strict check proves the box (item 3b).
+        let upper = du[i] < m.upper[i] || (pipe.enclosed && m.upper[i] >= pipe.f_upper[i]);
+        let lower = dl[i] > m.lower[i] || (pipe.enclosed && m.lower[i] <= pipe.f_lower[i]);
         upper && lower
     })
 }
