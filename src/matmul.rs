@@ -9,7 +9,18 @@
 //! Soundness does not depend on the kernel: the rounding model of [`crate::rounding`] bounds the
 //! error of *any* order of summation, with or without fused multiply–adds.
 
+use std::sync::atomic::{AtomicU64, Ordering};
+
 use gemm::Parallelism;
+
+/// Multiply–adds of every product since the process started (`m·k·n` each): what a benchmark
+/// divides by its time for the rate actually run, not a model's.
+static MULTIPLY_ADDS: AtomicU64 = AtomicU64::new(0);
+
+/// The multiply–adds [`matmul_strided`] has run in this process, all threads together.
+pub fn multiply_adds() -> u64 {
+    MULTIPLY_ADDS.load(Ordering::Relaxed)
+}
 
 /// Element types with a matrix product: `f32` and `f64`.
 pub trait MatmulScalar: Copy + Send + Sync + 'static {
@@ -73,6 +84,7 @@ pub fn matmul_strided<T: MatmulScalar>(
     if m == 0 || n == 0 {
         return;
     }
+    MULTIPLY_ADDS.fetch_add((m * k * n) as u64, Ordering::Relaxed);
     if k == 0 {
         for i in 0..m {
             for j in 0..n {

@@ -72,20 +72,28 @@ pub(crate) struct ForwardOptions {
 /// Buffers for one group of boxes, reused across the groups of one rayon task.
 #[derive(Default)]
 pub(crate) struct Workspace {
-    /// Centre forms `Ĉ`, `n_k × G(n+1)`.
+    /// Centre forms `Ĉ`, `n_k × G(d+1)`: `d` form coordinates per box (the box's free
+    /// coordinates, see [`Workspace::free`]), then the constant.
     c: Vec<f64>,
     c_next: Vec<f64>,
-    /// Radius forms `R̂` and form magnitudes `V` side by side, `n_k × (G(n+1) + G)`: row `i`
+    /// Radius forms `R̂` and form magnitudes `V` side by side, `n_k × (G(d+1) + G)`: row `i`
     /// is neuron `i`'s `R̂` for every box, then its `V` for every box, so that one product
     /// with `|W|` gives both (see [`magnitude_products`]).
     rv: Vec<f64>,
     rv_next: Vec<f64>,
-    /// Box centre, radius and magnitude bound, `G × n` each.
+    /// Per box and form coordinate (`G × d`): the input coordinate it stands for, or
+    /// `usize::MAX` for padding (a box with fewer free coordinates than `d`).
+    free: Vec<usize>,
+    /// Centre, radius and magnitude bound of each form coordinate, `G × d` (0 for padding).
     xc: Vec<f64>,
     xr: Vec<f64>,
     xmag: Vec<f64>,
     /// Underflow scale `1 + Σ mag` per box.
     scale: Vec<f64>,
+    /// Per box: a bound on `|z − Ĉ| − R̂` of every neuron of the current layer that is not in
+    /// `R̂` (the rounding of the pinned coordinates folded into layer 0's constant); added to
+    /// the concretisation, and as `rowsum(|W|)·pending` to the next layer's `R̂`.
+    pending: Vec<f64>,
     /// Whether a box's bounds overflowed.
     pub(crate) poisoned: Vec<bool>,
     /// Per hidden layer `k` (with [`ForwardOptions::record`]): concrete bounds of `z_k`,
@@ -106,7 +114,7 @@ pub(crate) struct Workspace {
     ie: Vec<f64>,
     /// IBP magnitude `|c| + r` of the current layer's input.
     imag: Vec<f64>,
-    /// Scratch of [`magnitude_products`].
+    /// Scratch of [`sparse_product`] and [`magnitude_products`].
     sparse: SparseScratch,
 }
 
@@ -118,18 +126,64 @@ pub(crate) fn forward_batch_into(
     schedule: Schedule<'_, Workspace>,
     rows: &mut [OutRow<'_>],
 ) {
-    let (net, abs_w) = (prepared.net(), &prepared.abs_w);
     super::for_each_group(
-        net,
+        prepared.net(),
         lower,
         upper,
         rows,
         MAX_GROUP,
         schedule,
         |ws: &mut Workspace, lo, hi, rows| {
-            forward_group(net, abs_w, lo, hi, rows, ws, ForwardOptions::default())
+            forward_group(prepared, lo, hi, rows, ws, ForwardOptions::default())
         },
     );
+}
+
+/// The box as centre ± radius over its free coordinates (those with `lower < upper`; a face
+/// of a box pins one), rigorously containing it, with `|x| ≤ xmag`; returns `d`, the largest
+/// number of free coordinates of a box of the group (the forms' coordinates).
+fn box_coordinates(
+    n0: usize,
+    g_count: usize,
+    lower: &[f64],
+    upper: &[f64],
+    ws: &mut Workspace,
+) -> usize {
+    let d = (0..g_count)
+        .map(|g| {
+            (0..n0)
+                .filter(|&p| lower[g * n0 + p] != upper[g * n0 + p])
+                .count()
+        })
+        .max()
+        .unwrap_or(0);
+    for v in [&mut ws.xc, &mut ws.xr, &mut ws.xmag] {
+        v.clear();
+        v.resize(g_count * d, 0.0);
+    }
+    ws.free.clear();
+    ws.free.resize(g_count * d, usize::MAX);
+    ws.scale.clear();
+    for g in 0..g_count {
+        let mut sum = 1.0;
+        let mut at = g * d;
+        for p in 0..n0 {
+            let (l, h) = (lower[g * n0 + p], upper[g * n0 + p]);
+            let m = l.abs().max(h.abs());
+            sum += m;
+            if l == h {
+                continue;
+            }
+            let c = 0.5 * l + 0.5 * h;
+            ws.xc[at] = c;
+            ws.xr[at] = round_up_keep_zero(h - c).max(round_up_keep_zero(c - l));
+            ws.xmag[at] = round_up_keep_zero(c.abs() + ws.xr[at]);
+            ws.free[at] = p;
+            at += 1;
+        }
+        ws.scale.push(round_up(sum));
+    }
+    d
 }
 
 /// Propagates one group of `rows.len()` boxes through the network and writes the forward
@@ -140,56 +194,55 @@ pub(crate) fn forward_batch_into(
 /// bounds of layer `k − 1`, with the rounding model of [`super::ibp`]; both enclosures are
 /// rigorous, so their intersection is too, and the ReLU lines chosen on it stay valid.
 pub(crate) fn forward_group(
-    net: &Mlp,
-    abs_w: &[Vec<f64>],
+    prepared: &PreparedNetwork<'_>,
     lower: &[f64],
     upper: &[f64],
     rows: &mut [OutRow<'_>],
     ws: &mut Workspace,
     opts: ForwardOptions,
 ) {
+    let (net, abs_w) = (prepared.net(), &prepared.abs_w);
     let n0 = net.input_dim();
     let g_count = rows.len();
-    let k_cols = n0 + 1;
+    let d = box_coordinates(n0, g_count, lower, upper, ws);
+    let k_cols = d + 1;
     let cols = g_count * k_cols;
     let stride = cols + g_count;
     let n_layers = net.layers.len();
-
-    // The box as centre ± radius, rigorously containing it, and |x| ≤ xmag.
-    ws.xc.clear();
-    ws.xr.clear();
-    ws.xmag.clear();
-    ws.scale.clear();
     ws.poisoned.clear();
     ws.poisoned.resize(g_count, false);
-    for g in 0..g_count {
-        let mut sum = 1.0;
-        for p in 0..n0 {
-            let (l, h) = (lower[g * n0 + p], upper[g * n0 + p]);
-            let c = 0.5 * l + 0.5 * h;
-            let r = round_up_keep_zero(h - c).max(round_up_keep_zero(c - l));
-            let m = round_up_keep_zero(c.abs() + r);
-            ws.xc.push(c);
-            ws.xr.push(r);
-            ws.xmag.push(m);
-            sum += m;
-        }
-        ws.scale.push(round_up(sum));
-    }
+    ws.pending.clear();
+    ws.pending.resize(g_count, 0.0);
 
-    // Layer 0 is exact: Ĉ = [W₀ | b₀] for every box, R̂ = 0.
+    // Layer 0: Ĉ = [W₀ on the free coordinates | b₀ + W₀ on the pinned ones], R̂ = 0; the
+    // constant is exact unless a coordinate is pinned, whose rounding goes to `pending`.
     let first = &net.layers[0];
     ws.c.clear();
     ws.c.resize(first.n_out * cols, 0.0);
     ws.rv.clear();
     ws.rv.resize(first.n_out * stride, 0.0);
-    for i in 0..first.n_out {
-        let w_row = &first.weight[i * n0..(i + 1) * n0];
-        for g in 0..g_count {
+    for g in 0..g_count {
+        let free = &ws.free[g * d..(g + 1) * d];
+        let pinned = n0 - free.iter().filter(|&&p| p != usize::MAX).count();
+        let point = &lower[g * n0..(g + 1) * n0];
+        let mut worst = 0.0f64;
+        for i in 0..first.n_out {
+            let w_row = &first.weight[i * n0..(i + 1) * n0];
             let dst = &mut ws.c[i * cols + g * k_cols..i * cols + (g + 1) * k_cols];
-            dst[..n0].copy_from_slice(w_row);
-            dst[n0] = first.bias[i];
+            for (slot, &p) in dst.iter_mut().zip(free) {
+                *slot = if p == usize::MAX { 0.0 } else { w_row[p] };
+            }
+            let (mut sum, mut mag) = (first.bias[i], first.bias[i].abs());
+            if pinned > 0 {
+                for p in (0..n0).filter(|p| !free.contains(p)) {
+                    sum += w_row[p] * point[p];
+                    mag += (w_row[p] * point[p]).abs();
+                }
+                worst = worst.max(err_bound(pinned + 1, mag, ws.scale[g]));
+            }
+            dst[d] = sum;
         }
+        ws.pending[g] = worst;
     }
 
     for k in 0..n_layers {
@@ -200,25 +253,25 @@ pub(crate) fn forward_group(
             // The products overwrite their outputs: sizing them needs no zeroing.
             ws.c_next.resize(n * cols, 0.0);
             ws.rv_next.resize(n * stride, 0.0);
-            gemm(n, n_prev, cols, &layer.weight, &ws.c, &mut ws.c_next);
+            let (c, c_next) = (&ws.c, &mut ws.c_next);
+            sparse_product((n, n_prev, cols), &layer.weight, c, c_next, &mut ws.sparse);
             let (rv, rv_next) = (&ws.rv, &mut ws.rv_next);
-            magnitude_products(
-                (n, n_prev, cols, g_count),
-                &abs_w[k],
-                rv,
-                rv_next,
-                &mut ws.sparse,
-            );
+            let shape = (n, n_prev, cols, g_count);
+            magnitude_products(shape, &abs_w[k], rv, rv_next, &mut ws.sparse);
+            let row_sums = &prepared.abs_row_sums[k];
             for i in 0..n {
                 let b = layer.bias[i];
                 let (r_row, v_row) = ws.rv_next[i * stride..(i + 1) * stride].split_at_mut(cols);
                 for g in 0..g_count {
-                    let at = g * k_cols + n0;
+                    let at = g * k_cols + d;
                     ws.c_next[i * cols + at] += b;
                     let err = err_bound(n_prev + 1, v_row[g] + b.abs(), ws.scale[g]);
-                    r_row[at] = add_up(r_row[at], err);
+                    // |W|·(pending, …, pending) ≤ rowsum(|W|)·pending.
+                    let carried = round_up_keep_zero(row_sums[i] * ws.pending[g]);
+                    r_row[at] = add_up(add_up(r_row[at], err), carried);
                 }
             }
+            ws.pending.iter_mut().for_each(|p| *p = 0.0);
             std::mem::swap(&mut ws.c, &mut ws.c_next);
             std::mem::swap(&mut ws.rv, &mut ws.rv_next);
             if opts.ibp {
@@ -232,7 +285,7 @@ pub(crate) fn forward_group(
         }
 
         if k + 1 == n_layers {
-            write_output(n, n0, ws, lower, upper, rows, opts.ibp && k > 0);
+            write_output(n, n0, d, ws, lower, upper, rows, opts.ibp && k > 0);
             return;
         }
         if opts.record {
@@ -251,31 +304,34 @@ pub(crate) fn forward_group(
         }
 
         // ReLU relaxation, per neuron and box; V of the result for the next layer. The
-        // common input dimensions get their own copy of the loop, unrolled by the compiler.
-        match n0 {
-            1 => relax_layer::<2>(k, n, g_count, n0, ws, opts),
-            2 => relax_layer::<3>(k, n, g_count, n0, ws, opts),
-            3 => relax_layer::<4>(k, n, g_count, n0, ws, opts),
-            4 => relax_layer::<5>(k, n, g_count, n0, ws, opts),
-            _ => relax_layer::<0>(k, n, g_count, n0, ws, opts),
+        // common form sizes get their own copy of the loop, unrolled by the compiler.
+        match d {
+            1 => relax_layer::<2>(k, n, g_count, d, ws, opts),
+            2 => relax_layer::<3>(k, n, g_count, d, ws, opts),
+            3 => relax_layer::<4>(k, n, g_count, d, ws, opts),
+            4 => relax_layer::<5>(k, n, g_count, d, ws, opts),
+            _ => relax_layer::<0>(k, n, g_count, d, ws, opts),
         }
     }
 }
 
 /// The ReLU relaxation of hidden layer `k` (`n` neurons) for every box of the group, in place
-/// on `ws.c`, `ws.r`, with each result's form magnitude into `ws.v` (and, as `opts` asks, the
-/// concrete bounds recorded and the IBP interval after the ReLU). `K` is `n0 + 1` when it is a
-/// compile-time constant (the loops over coefficients unroll), or 0 to read `n0` at run time.
+/// on `ws.c`, `ws.rv`, with each result's form magnitude into `ws.rv`'s `V` (and, as `opts` asks, the
+/// concrete bounds recorded and the IBP interval after the ReLU). `K` is `d + 1` when it is a
+/// compile-time constant (the loops over coefficients unroll), or 0 to read `d` at run time.
+///
+/// With `pending` error `ε` (`|z − Ĉ| ≤ R̂ + ε`) the concrete bounds widen by `ε`, and the
+/// relaxed forms keep `|a − Ĉ'| ≤ R̂' + ε`: the lines' slopes lie in `[0, 1]`.
 fn relax_layer<const K: usize>(
     k: usize,
     n: usize,
     g_count: usize,
-    n0: usize,
+    d: usize,
     ws: &mut Workspace,
     opts: ForwardOptions,
 ) {
-    let k_cols = if K == 0 { n0 + 1 } else { K };
-    let n0 = k_cols - 1;
+    let k_cols = if K == 0 { d + 1 } else { K };
+    let d = k_cols - 1;
     let cols = g_count * k_cols;
     let stride = cols + g_count;
     for i in 0..n {
@@ -283,24 +339,21 @@ fn relax_layer<const K: usize>(
         for g in 0..g_count {
             let span = g * k_cols..(g + 1) * k_cols;
             let (xc, xr, xmag) = (
-                &ws.xc[g * n0..(g + 1) * n0],
-                &ws.xr[g * n0..(g + 1) * n0],
-                &ws.xmag[g * n0..(g + 1) * n0],
+                &ws.xc[g * d..(g + 1) * d],
+                &ws.xr[g * d..(g + 1) * d],
+                &ws.xmag[g * d..(g + 1) * d],
             );
             let cf = &mut ws.c[i * cols..(i + 1) * cols][span.clone()];
             let rf = &mut r_row[span];
-            let (mut su, mut sl, mut mag) = (
-                cf[n0] + rf[n0],
-                cf[n0] - rf[n0],
-                cf[n0].abs() + rf[n0].abs(),
-            );
-            for p in 0..n0 {
+            let (mut su, mut sl, mut mag) =
+                (cf[d] + rf[d], cf[d] - rf[d], cf[d].abs() + rf[d].abs());
+            for p in 0..d {
                 let (up, lo) = (cf[p] + rf[p], cf[p] - rf[p]);
                 su += up * xc[p] + up.abs() * xr[p];
                 sl += lo * xc[p] - lo.abs() * xr[p];
                 mag += (cf[p].abs() + rf[p].abs()) * xmag[p];
             }
-            let err = err_bound(3 * n0 + 3, mag, ws.scale[g]);
+            let err = add_up(err_bound(3 * d + 3, mag, ws.scale[g]), ws.pending[g]);
             let (mut l, mut u) = (add_down(sl, -err), add_up(su, err));
             if !(l.is_finite() && u.is_finite()) {
                 ws.poisoned[g] = true;
@@ -335,12 +388,12 @@ fn relax_layer<const K: usize>(
                     cf[p] = alpha * c + beta * r;
                     rf[p] = beta * c + alpha * r;
                 }
-                cf[n0] += 0.5 * t;
-                rf[n0] += 0.5 * t;
+                cf[d] += 0.5 * t;
+                rf[d] += 0.5 * t;
                 let err = err_bound(8, s_up.max(s_lo) * mag + t, ws.scale[g]);
-                rf[n0] = add_up(rf[n0], err);
-                let mut v = cf[n0].abs() + rf[n0].abs();
-                for p in 0..n0 {
+                rf[d] = add_up(rf[d], err);
+                let mut v = cf[d].abs() + rf[d].abs();
+                for p in 0..d {
                     v += (cf[p].abs() + rf[p].abs()) * xmag[p];
                 }
                 v
@@ -350,7 +403,7 @@ fn relax_layer<const K: usize>(
     }
 }
 
-/// Buffers of [`magnitude_products`].
+/// Buffers of [`sparse_product`].
 #[derive(Default)]
 struct SparseScratch {
     rows: Vec<usize>,
@@ -358,14 +411,57 @@ struct SparseScratch {
     b: Vec<f64>,
 }
 
+/// `out = A·B` for `A` `m × k` and `B` `k × cols`, row-major, skipping the rows of `B` that
+/// are zero: after a ReLU the forms of neurons inactive over every box of the group are exact
+/// zeros (and, after the exact first layer, `R̂` is nonzero only where a neuron is unstable),
+/// so leaving them out changes no sum and no rounding bound. Dense when few rows are zero.
+fn sparse_product(
+    (m, k, cols): (usize, usize, usize),
+    a: &[f64],
+    b: &[f64],
+    out: &mut [f64],
+    scratch: &mut SparseScratch,
+) {
+    scratch.rows.clear();
+    scratch
+        .rows
+        .extend((0..k).filter(|&j| b[j * cols..(j + 1) * cols].iter().any(|&x| x != 0.0)));
+    let live = scratch.rows.len();
+    // Gathering costs `m·live` copies against the product's `m·live·cols` multiply-adds.
+    if 8 * live > 7 * k {
+        gemm(m, k, cols, a, b, out);
+        return;
+    }
+    if live == 0 {
+        out[..m * cols].fill(0.0);
+        return;
+    }
+    scratch.a.clear();
+    gather_columns(a, k, 0..m, Some(&scratch.rows), &mut scratch.a);
+    scratch.b.clear();
+    for &j in &scratch.rows {
+        scratch.b.extend_from_slice(&b[j * cols..(j + 1) * cols]);
+    }
+    matmul_strided(
+        (m, live, cols),
+        &scratch.a,
+        (live, 1),
+        &scratch.b,
+        (cols, 1),
+        out,
+        (cols, 1),
+        One,
+    );
+}
+
 /// `[R̂' | V'] = |W|·[R̂ | V]` for the layout of [`Workspace::rv`]: `|W|` is `m × k`, each of
 /// the `k` rows of `rv` holds `cols` entries of `R̂` then `g` of `V`.
 ///
-/// Usually one product over the whole row: one pass over `|W|` for both (the `G`-column
-/// product of `V` alone costs two thirds of the `G(n+1)`-column one at small `G`). But after
-/// the exact first layer `R̂` is nonzero only for the neurons unstable in some box of the
-/// group: when those are at most half the rows, `R̂'` is the product over them alone (the
-/// others are exact zeros, so no sum and no rounding bound changes) and `V'` a product of its
+/// Usually one product over the whole row (one pass over `|W|` for both: the `G`-column
+/// product of `V` alone costs two thirds of the `G(d+1)`-column one at small `G`), skipping the
+/// rows of neurons inactive over every box (`R̂` and `V` both zero). But after the exact first
+/// layer `R̂` is nonzero only for the neurons unstable in some box of the group: when those
+/// are at most half the rows, `R̂'` is the product over them alone and `V'` a product of its
 /// own.
 fn magnitude_products(
     (m, k, cols, g): (usize, usize, usize, usize),
@@ -375,19 +471,21 @@ fn magnitude_products(
     scratch: &mut SparseScratch,
 ) {
     let stride = cols + g;
-    scratch.rows.clear();
-    scratch
-        .rows
-        .extend((0..k).filter(|&j| rv[j * stride..j * stride + cols].iter().any(|&x| x != 0.0)));
-    let live = scratch.rows.len();
+    let live = (0..k)
+        .filter(|&j| rv[j * stride..j * stride + cols].iter().any(|&x| x != 0.0))
+        .count();
     if 2 * live > k {
-        gemm(m, k, stride, abs_w, rv, out);
+        sparse_product((m, k, stride), abs_w, rv, out, scratch);
         return;
     }
     let by_rows = |row_stride: usize| (row_stride, 1);
     if live == 0 {
         out.chunks_mut(stride).for_each(|row| row[..cols].fill(0.0));
     } else {
+        scratch.rows.clear();
+        scratch.rows.extend(
+            (0..k).filter(|&j| rv[j * stride..j * stride + cols].iter().any(|&x| x != 0.0)),
+        );
         scratch.a.clear();
         gather_columns(abs_w, k, 0..m, Some(&scratch.rows), &mut scratch.a);
         scratch.b.clear();
@@ -445,11 +543,15 @@ fn ibp_layer(layer: &crate::network::Layer, abs_w: &[f64], g_count: usize, ws: &
     }
 }
 
-/// Output forms `Ĉ ∓ R̂` with widened constants, and their concretisation over each box;
-/// with `ibp`, the concrete bounds are intersected with the IBP ones in `ws.ipre_*`.
+/// Output forms `Ĉ ∓ R̂` with widened constants (by the rounding and by `pending`) in the
+/// input's `n0` coordinates (0 on a pinned one: its value is in the constant), and their
+/// concretisation over each box; with `ibp`, the concrete bounds are intersected with the IBP
+/// ones in `ws.ipre_*`.
+#[allow(clippy::too_many_arguments)]
 fn write_output(
     m: usize,
     n0: usize,
+    d: usize,
     ws: &Workspace,
     lower: &[f64],
     upper: &[f64],
@@ -457,32 +559,40 @@ fn write_output(
     ibp: bool,
 ) {
     let g_count = rows.len();
-    let k_cols = n0 + 1;
+    let k_cols = d + 1;
     let cols = g_count * k_cols;
     let stride = cols + g_count;
+    let mut full_mag = Vec::with_capacity(n0);
     for (g, row) in rows.iter_mut().enumerate() {
         if ws.poisoned[g] {
             row.set_unbounded();
             continue;
         }
         let (lo, hi) = (&lower[g * n0..(g + 1) * n0], &upper[g * n0..(g + 1) * n0]);
-        let xmag = &ws.xmag[g * n0..(g + 1) * n0];
+        let (free, xmag) = (&ws.free[g * d..(g + 1) * d], &ws.xmag[g * d..(g + 1) * d]);
+        full_mag.clear();
+        full_mag.extend(lo.iter().zip(hi).map(|(l, h)| l.abs().max(h.abs())));
         for i in 0..m {
             let (at, at_r) = (i * cols + g * k_cols, i * stride + g * k_cols);
             let (cf, rf) = (&ws.c[at..at + k_cols], &ws.rv[at_r..at_r + k_cols]);
-            let mut mag = cf[n0].abs() + rf[n0].abs();
-            for p in 0..n0 {
-                row.a_lower[i * n0 + p] = cf[p] - rf[p];
-                row.a_upper[i * n0 + p] = cf[p] + rf[p];
-                mag += (cf[p].abs() + rf[p].abs()) * xmag[p];
+            let mut mag = cf[d].abs() + rf[d].abs();
+            row.a_lower[i * n0..(i + 1) * n0].fill(0.0);
+            row.a_upper[i * n0..(i + 1) * n0].fill(0.0);
+            for (q, &p) in free.iter().enumerate() {
+                if p == usize::MAX {
+                    continue;
+                }
+                row.a_lower[i * n0 + p] = cf[q] - rf[q];
+                row.a_upper[i * n0 + p] = cf[q] + rf[q];
+                mag += (cf[q].abs() + rf[q].abs()) * xmag[q];
             }
-            let err = err_bound(2, mag, ws.scale[g]);
-            row.b_lower[i] = add_down(cf[n0] - rf[n0], -err);
-            row.b_upper[i] = add_up(cf[n0] + rf[n0], err);
+            let err = add_up(err_bound(2, mag, ws.scale[g]), ws.pending[g]);
+            row.b_lower[i] = add_down(cf[d] - rf[d], -err);
+            row.b_upper[i] = add_up(cf[d] + rf[d], err);
             let a_lo = &row.a_lower[i * n0..(i + 1) * n0];
             let a_up = &row.a_upper[i * n0..(i + 1) * n0];
-            row.lower[i] = affine_min(a_lo, row.b_lower[i], lo, hi, xmag);
-            row.upper[i] = affine_max(a_up, row.b_upper[i], lo, hi, xmag);
+            row.lower[i] = affine_min(a_lo, row.b_lower[i], lo, hi, &full_mag);
+            row.upper[i] = affine_max(a_up, row.b_upper[i], lo, hi, &full_mag);
             if ibp {
                 let (c, r) = (ws.ipre_c[i * g_count + g], ws.ipre_r[i * g_count + g]);
                 row.lower[i] = row.lower[i].max(add_down(c, -r));
@@ -531,6 +641,34 @@ mod tests {
         }
     }
 
+    /// The sparse product gives the dense product whichever way it takes (dense, or the few
+    /// nonzero rows of `B` gathered) and writes every entry.
+    #[test]
+    fn sparse_product_gives_the_dense_product() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let (m, k, cols) = (37, 50, 9);
+        let a: Vec<f64> = (0..m * k).map(|_| rng.random_range(-1.0..1.0)).collect();
+        for live in [0, 3, 25, 43, 44, 50] {
+            // `live` nonzero rows of B, spread over the 50.
+            let mut b = vec![0.0; k * cols];
+            for j in 0..k {
+                if j * live / k != (j + 1) * live / k {
+                    b[j * cols..(j + 1) * cols]
+                        .iter_mut()
+                        .for_each(|x| *x = rng.random_range(-1.0..1.0));
+                }
+            }
+            let (mut dense, mut out) = (vec![0.0; m * cols], vec![f64::NAN; m * cols]);
+            gemm(m, k, cols, &a, &b, &mut dense);
+            let mut scratch = SparseScratch::default();
+            sparse_product((m, k, cols), &a, &b, &mut out, &mut scratch);
+            for (x, y) in dense.iter().zip(&out) {
+                assert!((x - y).abs() <= 1e-13, "{live} live rows: {x} vs {y}");
+            }
+        }
+    }
+
     #[test]
     fn forward_is_sound_on_random_networks_and_boxes() {
         for_each_case(40, |case| {
@@ -538,6 +676,73 @@ mod tests {
             check_bounds(&case.net, &case.lo, &case.hi, &b, &case.points)
                 .unwrap_or_else(|e| panic!("{}: {e}", case.name));
         });
+    }
+
+    /// A face (one coordinate pinned, as `--face-local` bounds) folds the pinned coordinate
+    /// into layer 0's constant, its rounding carried beside `R̂`: the bounds hold at sampled
+    /// points in double-double, and they are those of the box with that coordinate 1e-13
+    /// wide (kept as a form coordinate) to 1e-9, alone and in a group with other faces and
+    /// whole boxes (padding where boxes have fewer free coordinates).
+    #[test]
+    fn faces_fold_the_pinned_coordinate_soundly_and_tightly() {
+        use rand::Rng;
+        for (s, shape) in [[3usize, 24, 24, 2], [2, 40, 30, 3]].iter().enumerate() {
+            let net = Mlp::random(shape, 91 + s as u64);
+            let n0 = shape[0];
+            let mut rng = case_rng(5 + s as u64);
+            let (mut all_lo, mut all_hi, mut thin_lo, mut thin_hi) =
+                (vec![], vec![], vec![], vec![]);
+            for b in 0..12 {
+                let (mut lo, mut hi) = random_box(&mut rng, n0, BoxKind::Medium);
+                let (mut tlo, mut thi) = (lo.clone(), hi.clone());
+                if b % 4 != 3 {
+                    // A face: coordinate b % n0 pinned at its lower or upper end.
+                    let i = b % n0;
+                    let v = if rng.random::<bool>() { lo[i] } else { hi[i] };
+                    (lo[i], hi[i]) = (v, v);
+                    (tlo[i], thi[i]) = (v, v + 1e-13 * (1.0 + v.abs()));
+                }
+                let one = forward(&net, &lo, &hi).unwrap();
+                let pts = sample_points(&mut rng, &lo, &hi, 32);
+                check_bounds(&net, &lo, &hi, &one, &pts).unwrap_or_else(|e| panic!("box {b}: {e}"));
+                let thin = forward(&net, &tlo, &thi).unwrap();
+                for o in 0..net.output_dim() {
+                    let tol = 1e-9 * (1.0 + thin.upper[o] - thin.lower[o]);
+                    assert!(
+                        (one.lower[o] - thin.lower[o]).abs() <= tol,
+                        "box {b} output {o}"
+                    );
+                    assert!(
+                        (one.upper[o] - thin.upper[o]).abs() <= tol,
+                        "box {b} output {o}"
+                    );
+                }
+                all_lo.extend(&lo);
+                all_hi.extend(&hi);
+                thin_lo.extend(tlo);
+                thin_hi.extend(thi);
+            }
+            let batch =
+                crate::bounds::network_bounds_batch(&net, &all_lo, &all_hi, BoundMethod::Forward)
+                    .unwrap();
+            for b in 0..12 {
+                let one = forward(
+                    &net,
+                    &all_lo[b * n0..(b + 1) * n0],
+                    &all_hi[b * n0..(b + 1) * n0],
+                )
+                .unwrap();
+                for o in 0..net.output_dim() {
+                    let k = b * net.output_dim() + o;
+                    assert!(
+                        (batch.lower[k] - one.lower[o]).abs() <= 1e-12 * (1.0 + one.lower[o].abs())
+                    );
+                    assert!(
+                        (batch.upper[k] - one.upper[o]).abs() <= 1e-12 * (1.0 + one.upper[o].abs())
+                    );
+                }
+            }
+        }
     }
 
     #[test]

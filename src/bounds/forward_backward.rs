@@ -116,7 +116,7 @@ pub(crate) fn forward_backward_batch_into(
         MAX_GROUP,
         schedule,
         |ws: &mut Workspace, lo, hi, rows| {
-            forward_group(net, abs_w, lo, hi, rows, &mut ws.fwd, opts);
+            forward_group(prepared, lo, hi, rows, &mut ws.fwd, opts);
             if net.layers.len() > 1 {
                 backward_group(net, abs_w, lo, hi, relaxation, rows, ws);
             }
@@ -372,7 +372,7 @@ mod tests {
             record: true,
             ibp: true,
         };
-        forward_group(&net, &prepared.abs_w, &lo, &hi, &mut rows, &mut ws, opts);
+        forward_group(&prepared, &lo, &hi, &mut rows, &mut ws, opts);
         let mut positive = 0;
         for j in 1..net.layers.len() - 1 {
             let (n_j, n_in) = (net.layers[j].n_out, net.layers[j].n_in);

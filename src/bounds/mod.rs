@@ -303,6 +303,9 @@ pub struct PreparedNetwork<'a> {
     net: &'a Mlp,
     /// `|W_k|` of every layer, row-major like `W_k`.
     pub(crate) abs_w: Vec<Vec<f64>>,
+    /// Upper bounds of the row sums of `|W_k|` (`n_k` per layer): forward bounds bound
+    /// `|W_k| V ≤ rowsum · max V` for their rounding instead of computing the product.
+    pub(crate) abs_row_sums: Vec<Vec<f64>>,
 }
 
 impl<'a> PreparedNetwork<'a> {
@@ -315,7 +318,26 @@ impl<'a> PreparedNetwork<'a> {
             .iter()
             .map(|l| l.weight.iter().map(|w| w.abs()).collect())
             .collect();
-        Ok(PreparedNetwork { net, abs_w })
+        let abs_row_sums = net
+            .layers
+            .iter()
+            .map(|l| {
+                // A sum of n nonnegative terms errs by less than (n + 2)·ε relative.
+                let slack = 1.0 + (l.n_in as f64 + 2.0) * f64::EPSILON;
+                l.weight
+                    .chunks(l.n_in.max(1))
+                    .map(|row| {
+                        let sum: f64 = row.iter().map(|w| w.abs()).sum();
+                        crate::rounding::round_up_keep_zero(sum * slack)
+                    })
+                    .collect()
+            })
+            .collect();
+        Ok(PreparedNetwork {
+            net,
+            abs_w,
+            abs_row_sums,
+        })
     }
 
     /// The network.
