@@ -95,6 +95,7 @@ fn layout(device: &wgpu::Device, label: &str, read_only: &[bool]) -> wgpu::BindG
 
 fn kernel(
     device: &wgpu::Device,
+    cache: Option<&wgpu::PipelineCache>,
     module: &wgpu::ShaderModule,
     entry: &'static str,
     read_only: &[bool],
@@ -111,7 +112,7 @@ fn kernel(
         module,
         entry_point: Some(entry),
         compilation_options: Default::default(),
-        cache: None,
+        cache,
     });
     Kernel {
         name: entry,
@@ -119,6 +120,11 @@ fn kernel(
         layout,
     }
 }
+
+/// Every module [`Kernels::new`] compiles (`settle` where two frames are met).
+pub const MODULES: [&str; 7] = [
+    "gemm", "relu", "backward", "output", "faces", "embed", "settle",
+];
 
 /// The WGSL of a module: the precision prelude, shared helpers, the generated problem constants
 /// and the module's kernels (`gemm`, `relu`, `backward`, `output`, `faces`, `settle`, `embed`).
@@ -150,9 +156,11 @@ pub fn shader_source(precision: Precision, problem_wgsl: &str, module: &str) -> 
 
 impl Kernels {
     /// Compiles every pipeline for a problem's generated WGSL (`settle` too for the first of two
-    /// frames met after every step); shader errors become [`GpuError::Shader`].
+    /// frames met after every step), through `cache` where given (`disk_cache`); shader errors
+    /// become [`GpuError::Shader`].
     pub fn new(
         device: &wgpu::Device,
+        cache: Option<&wgpu::PipelineCache>,
         precision: Precision,
         problem_wgsl: &str,
         settle: bool,
@@ -193,25 +201,27 @@ impl Kernels {
         let backward = [true, true, false, true, false, false, false];
         let embed = [false, true, false, false, true, true, true];
         let kernels = Kernels {
-            gemm: kernel(device, &gemm_m, "gemm", &[true, true, false]),
+            gemm: kernel(device, cache, &gemm_m, "gemm", &[true, true, false]),
             relu: kernel(
                 device,
+                cache,
                 &relu_m,
                 "relu",
                 &[true, true, false, false, true, false, false, false],
             ),
-            bwd_scale: kernel(device, &bwd_m, "bwd_scale", &backward),
-            bwd_bounds: kernel(device, &bwd_m, "bwd_bounds", &backward),
+            bwd_scale: kernel(device, cache, &bwd_m, "bwd_scale", &backward),
+            bwd_bounds: kernel(device, cache, &bwd_m, "bwd_bounds", &backward),
             output: kernel(
                 device,
+                cache,
                 &out_m,
                 "output",
                 &[true, true, true, true, true, true, true, false],
             ),
-            embed: kernel(device, &embed_m, "embed", &embed),
-            tick: kernel(device, &embed_m, "tick", &embed),
-            faces: kernel(device, &faces_m, "faces_of", &[true, false]),
-            settle: settle.then(|| kernel(device, &module("settle"), "settle", &[false; 7])),
+            embed: kernel(device, cache, &embed_m, "embed", &embed),
+            tick: kernel(device, cache, &embed_m, "tick", &embed),
+            faces: kernel(device, cache, &faces_m, "faces_of", &[true, false]),
+            settle: settle.then(|| kernel(device, cache, &module("settle"), "settle", &[false; 7])),
         };
         match pollster::block_on(scope.pop()) {
             Some(e) => Err(GpuError::Shader(e.to_string())),
