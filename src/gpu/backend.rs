@@ -79,13 +79,18 @@ pub struct GpuBackend {
     /// (`verify` calls the engine once per batch; compiling every pipeline takes ~1 s on an
     /// NVIDIA driver).
     kernels: KernelCache,
+    /// The GEMM without workgroup tiles (`gemm_flat`), where every layer is at most as wide as
+    /// the device's dispatch allows: on by default on software adapters, where it is ~N× faster
+    /// than the tiles (barriers are coroutine switches there).
+    pub flat_gemm: bool,
     /// Where compiled pipelines are kept between runs (`disk_cache::cache_dir()` unless set;
     /// `None`: nowhere).
     pub cache_dir: Option<std::path::PathBuf>,
 }
 
-/// Pipelines with the generated WGSL they were compiled from (and whether with `settle`).
-type CompiledKernels = (String, bool, Arc<Kernels>);
+/// Pipelines with the generated WGSL they were compiled from (and whether with `settle`, and
+/// with the flat GEMM).
+type CompiledKernels = (String, [bool; 2], Arc<Kernels>);
 
 /// The last pipelines an engine compiled: one problem's, or both frames' where two are met.
 #[derive(Clone, Default)]
@@ -112,13 +117,16 @@ impl KernelCache {
         dir: Option<&std::path::Path>,
         precision: Precision,
         source: String,
-        settle: bool,
+        [settle, flat]: [bool; 2],
     ) -> Result<Arc<Kernels>, GpuError> {
         let mut last = self
             .0
             .lock()
             .map_err(|_| GpuError::Device("kernel cache poisoned".into()))?;
-        if let Some((_, _, k)) = last.iter().find(|(s, t, _)| *s == source && *t == settle) {
+        if let Some((_, _, k)) = last
+            .iter()
+            .find(|(s, t, _)| *s == source && *t == [settle, flat])
+        {
             return Ok(k.clone());
         }
         let modules: Vec<String> = MODULES
@@ -126,7 +134,8 @@ impl KernelCache {
             .filter(|&&m| settle || m != "settle")
             .map(|m| shader_source(precision, &source, m))
             .collect();
-        let sources: Vec<&str> = modules.iter().map(String::as_str).collect();
+        let mut sources: Vec<&str> = modules.iter().map(String::as_str).collect();
+        sources.push(if flat { "gemm_flat" } else { "gemm" });
         let disk = DiskCache::open_in(ctx, dir, &sources);
         let kernels = Arc::new(Kernels::new(
             &ctx.device,
@@ -134,6 +143,7 @@ impl KernelCache {
             precision,
             &source,
             settle,
+            flat,
         )?);
         let saved = disk.save();
         if let Ok(mut log) = self.1.lock() {
@@ -142,7 +152,7 @@ impl KernelCache {
         if last.len() == CACHED {
             last.remove(0);
         }
-        last.push((source, settle, kernels.clone()));
+        last.push((source, [settle, flat], kernels.clone()));
         Ok(kernels)
     }
 }
@@ -157,13 +167,14 @@ impl GpuBackend {
             Precision::F32
         };
         GpuBackend {
-            ctx,
             precision,
             max_chunk: None,
             pad_loops: 0,
             profile: false,
             kernels: KernelCache::default(),
             cache_dir: cache_dir(),
+            flat_gemm: ctx.is_software(),
+            ctx,
         }
     }
 
@@ -379,6 +390,8 @@ impl Backend for GpuBackend {
             .into());
         }
         let chunk = self.chunk_size(problem, settings, initial.len());
+        let rows_limit = self.ctx.limits.max_compute_workgroups_per_dimension as usize;
+        let flat = self.flat_gemm && widths.iter().all(|&w| w <= rows_limit);
         let mut setups = Vec::new();
         for (f, frame) in frames.iter().enumerate() {
             let shape = Shape::new(frame, settings);
@@ -391,7 +404,7 @@ impl Backend for GpuBackend {
                 self.cache_dir.as_deref(),
                 self.precision,
                 source,
-                meet && f == 0,
+                [meet && f == 0, flat],
             )?;
             let bufs = self.buffers(frame, &shape, &margins, chunk)?;
             setups.push((shape, kernels, bufs));

@@ -30,6 +30,8 @@ pub(crate) const PHI: &str = include_str!("../../shaders/phi.wgsl");
 pub const WORKGROUP: u32 = 64;
 /// Output tile of the GEMM kernel (64 × 64).
 pub const GEMM_TILE: u32 = 64;
+/// Rows and columns of the block of Y one thread of `gemm_flat` writes.
+pub const GEMM_FLAT_BLOCK: u32 = 4;
 
 /// A pipeline with its bind-group layout.
 pub struct Kernel {
@@ -43,8 +45,10 @@ pub struct Kernel {
 
 /// Every pipeline of the engine.
 pub struct Kernels {
-    /// `Y = op(W)·X`, tiled (shaders/gemm.wgsl).
+    /// `Y = op(W)·X`, tiled (shaders/gemm.wgsl), or `gemm_flat` where `flat`.
     pub gemm: Kernel,
+    /// Whether `gemm` is `gemm_flat` (a 4 × 4 block a thread, no workgroup memory).
+    pub flat: bool,
     /// Bias, rounding widening, IBP and ReLU relaxation of a hidden layer (shaders/relu.wgsl).
     pub relu: Kernel,
     /// One backward substitution's per-box part: `Λ∘s`, `β` (shaders/backward.wgsl).
@@ -156,14 +160,15 @@ pub fn shader_source(precision: Precision, problem_wgsl: &str, module: &str) -> 
 
 impl Kernels {
     /// Compiles every pipeline for a problem's generated WGSL (`settle` too for the first of two
-    /// frames met after every step), through `cache` where given (`disk_cache`); shader errors
-    /// become [`GpuError::Shader`].
+    /// frames met after every step), through `cache` where given (`disk_cache`), with the GEMM
+    /// without workgroup tiles where `flat`; shader errors become [`GpuError::Shader`].
     pub fn new(
         device: &wgpu::Device,
         cache: Option<&wgpu::PipelineCache>,
         precision: Precision,
         problem_wgsl: &str,
         settle: bool,
+        flat: bool,
     ) -> Result<Kernels, GpuError> {
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         // wgpu's default guard on every loop (an iteration counter, against infinite loops)
@@ -201,7 +206,14 @@ impl Kernels {
         let backward = [true, true, false, true, false, false, false];
         let embed = [false, true, false, false, true, true, true];
         let kernels = Kernels {
-            gemm: kernel(device, cache, &gemm_m, "gemm", &[true, true, false]),
+            gemm: kernel(
+                device,
+                cache,
+                &gemm_m,
+                if flat { "gemm_flat" } else { "gemm" },
+                &[true, true, false],
+            ),
+            flat,
             relu: kernel(
                 device,
                 cache,
