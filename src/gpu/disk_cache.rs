@@ -61,7 +61,8 @@ pub enum Loaded {
     Off,
     /// No file for this key yet.
     Missing,
-    /// The file's data was handed to the driver (bytes).
+    /// The file's data was handed to the device (bytes); wgpu and the driver may still drop
+    /// data they do not recognise as theirs, and compile.
     Read(usize),
     /// The file was unusable and the pipelines were compiled; why.
     Rejected(String),
@@ -110,7 +111,7 @@ fn fnv(parts: &[&[u8]]) -> u64 {
 }
 
 /// The file's payload if its header and checksum hold.
-fn unwrap_file(bytes: &[u8]) -> Result<&[u8], String> {
+fn decode(bytes: &[u8]) -> Result<&[u8], String> {
     if bytes.len() < HEADER || &bytes[..8] != MAGIC {
         return Err("not a cbfreach pipeline cache".into());
     }
@@ -125,7 +126,9 @@ fn unwrap_file(bytes: &[u8]) -> Result<&[u8], String> {
     Ok(payload)
 }
 
-fn wrap_file(payload: &[u8]) -> Vec<u8> {
+/// The file holding `payload` (the driver's data): magic `cbfpipe1`, the payload's length and
+/// FNV-1a checksum (u64, little-endian), the payload.
+pub fn encode(payload: &[u8]) -> Vec<u8> {
     let mut out = Vec::with_capacity(HEADER + payload.len());
     out.extend_from_slice(MAGIC);
     out.extend_from_slice(&(payload.len() as u64).to_le_bytes());
@@ -198,7 +201,7 @@ impl DiskCache {
         let (read, mut loaded) = match std::fs::read(&path) {
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => (None, Loaded::Missing),
             Err(e) => (None, Loaded::Rejected(format!("unreadable: {e}"))),
-            Ok(bytes) => match unwrap_file(&bytes) {
+            Ok(bytes) => match decode(&bytes) {
                 Ok(payload) => (Some(payload.to_vec()), Loaded::Read(payload.len())),
                 Err(why) => (None, Loaded::Rejected(why)),
             },
@@ -245,7 +248,7 @@ impl DiskCache {
         if self.read.as_deref() == Some(&data[..]) {
             return Saved::Unchanged;
         }
-        match write_atomic(path, &wrap_file(&data)) {
+        match write_atomic(path, &encode(&data)) {
             Ok(()) => {
                 prune(path.parent());
                 Saved::Written(data.len())
@@ -293,14 +296,14 @@ mod tests {
 
     #[test]
     fn file_checksum_rejects_damage() {
-        let file = wrap_file(b"some driver data");
-        assert_eq!(unwrap_file(&file), Ok(&b"some driver data"[..]));
-        assert!(unwrap_file(&file[..file.len() - 1]).is_err());
-        assert!(unwrap_file(&file[..10]).is_err());
+        let file = encode(b"some driver data");
+        assert_eq!(decode(&file), Ok(&b"some driver data"[..]));
+        assert!(decode(&file[..file.len() - 1]).is_err());
+        assert!(decode(&file[..10]).is_err());
         let mut flipped = file.clone();
         flipped[HEADER + 3] ^= 1;
-        assert_eq!(unwrap_file(&flipped), Err("checksum mismatch".into()));
-        assert!(unwrap_file(b"").is_err());
+        assert_eq!(decode(&flipped), Err("checksum mismatch".into()));
+        assert!(decode(b"").is_err());
     }
 
     #[test]
