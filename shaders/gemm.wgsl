@@ -117,3 +117,58 @@ fn store_row(gr: u32, gc: u32, v: vec4<real>) {
         }
     }
 }
+
+// The same product without workgroup memory or barriers, for software adapters (`flat_gemm`):
+// a 4 × 4 block of Y a thread (8 loads for 16 products), each output summed over k in the
+// tiles' order. llvmpipe runs a workgroup's invocations as SIMD loops and every barrier as a
+// switch between them: the tiles took 160 ms for 400 × 400 · 400 × 36 there, mostly padding
+// and barriers (docs/design.md §4).
+@compute @workgroup_size(64)
+fn gemm_flat(
+    @builtin(global_invocation_id) gid: vec3<u32>,
+    @builtin(num_workgroups) groups: vec3<u32>,
+) {
+    // Threads numbered row-major over (4 rows, 4 columns) blocks, so no lane idles past a row.
+    let quads = (p.cols + 3u) / 4u;
+    let i = gid.x + gid.y * groups.x * 64u;
+    if (i >= (p.rows + 3u) / 4u * quads) {
+        return;
+    }
+    let r = i / quads * 4u;
+    let c = (i % quads) * 4u;
+    let width = min(4u, p.cols - c);
+    var acc0 = vec4<real>(0.0);
+    var acc1 = vec4<real>(0.0);
+    var acc2 = vec4<real>(0.0);
+    var acc3 = vec4<real>(0.0);
+    for (var k = 0u; k < p.inner; k++) {
+        let base = k * p.ldx + p.x_off + c;
+        var b = vec4<real>(0.0);
+        for (var j = 0u; j < width; j++) {
+            var v = x[base + j];
+            if (p.relu_x != 0u) {
+                v = max(v, 0.0);
+            }
+            b[j] = v;
+        }
+        acc0 += weight(r, k) * b;
+        acc1 += weight(r + 1u, k) * b;
+        acc2 += weight(r + 2u, k) * b;
+        acc3 += weight(r + 3u, k) * b;
+    }
+    store_block(r, c, width, acc0);
+    store_block(r + 1u, c, width, acc1);
+    store_block(r + 2u, c, width, acc2);
+    store_block(r + 3u, c, width, acc3);
+}
+
+// Row `gr` of Y at columns gc … gc + width − 1 (nothing past the last row).
+fn store_block(gr: u32, gc: u32, width: u32, v: vec4<real>) {
+    if (gr >= p.rows) {
+        return;
+    }
+    let base = gr * p.ldy + p.y_off + gc;
+    for (var j = 0u; j < width; j++) {
+        y[base + j] = v[j];
+    }
+}

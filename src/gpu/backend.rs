@@ -40,7 +40,8 @@ use self::chunk::{ChunkResult, FrameRun};
 use self::layout::{method_flags, Shape};
 use super::buffers::status;
 use super::codegen::{problem_wgsl, FLAG_W};
-use super::kernels::{Kernels, GEMM_TILE, WORKGROUP};
+use super::disk_cache::{cache_dir, DiskCache, Loaded, Saved};
+use super::kernels::{shader_source, Kernels, GEMM_TILE, MODULES, WORKGROUP};
 use super::margins::MarginMap;
 use super::{GpuContext, GpuError, Precision};
 use crate::boxes::IntervalBox;
@@ -78,14 +79,25 @@ pub struct GpuBackend {
     /// (`verify` calls the engine once per batch; compiling every pipeline takes ~1 s on an
     /// NVIDIA driver).
     kernels: KernelCache,
+    /// The GEMM without workgroup tiles (`gemm_flat`), where every layer is at most as wide as
+    /// the device's dispatch allows: on by default on software adapters, where it is ~N× faster
+    /// than the tiles (barriers are coroutine switches there).
+    pub flat_gemm: bool,
+    /// Where compiled pipelines are kept between runs (`disk_cache::cache_dir()` unless set;
+    /// `None`: nowhere).
+    pub cache_dir: Option<std::path::PathBuf>,
 }
 
-/// Pipelines with the generated WGSL they were compiled from (and whether with `settle`).
-type CompiledKernels = (String, bool, Arc<Kernels>);
+/// Pipelines with the generated WGSL they were compiled from (and whether with `settle`, and
+/// with the flat GEMM).
+type CompiledKernels = (String, [bool; 2], Arc<Kernels>);
 
 /// The last pipelines an engine compiled: one problem's, or both frames' where two are met.
 #[derive(Clone, Default)]
-struct KernelCache(Arc<Mutex<Vec<CompiledKernels>>>);
+struct KernelCache(
+    Arc<Mutex<Vec<CompiledKernels>>>,
+    Arc<Mutex<Vec<(Loaded, Saved)>>>,
+);
 
 impl std::fmt::Debug for KernelCache {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -97,26 +109,50 @@ impl std::fmt::Debug for KernelCache {
 const CACHED: usize = 2;
 
 impl KernelCache {
-    /// The pipelines for `source`, compiled only when no cached one was compiled from it.
+    /// The pipelines for `source`, compiled only when no cached one was compiled from it;
+    /// compiled through the pipeline cache on disk in `dir` (`disk_cache`) where there is one.
     fn get(
         &self,
-        device: &wgpu::Device,
+        ctx: &GpuContext,
+        dir: Option<&std::path::Path>,
         precision: Precision,
         source: String,
-        settle: bool,
+        [settle, flat]: [bool; 2],
     ) -> Result<Arc<Kernels>, GpuError> {
         let mut last = self
             .0
             .lock()
             .map_err(|_| GpuError::Device("kernel cache poisoned".into()))?;
-        if let Some((_, _, k)) = last.iter().find(|(s, t, _)| *s == source && *t == settle) {
+        if let Some((_, _, k)) = last
+            .iter()
+            .find(|(s, t, _)| *s == source && *t == [settle, flat])
+        {
             return Ok(k.clone());
         }
-        let kernels = Arc::new(Kernels::new(device, precision, &source, settle)?);
+        let modules: Vec<String> = MODULES
+            .iter()
+            .filter(|&&m| settle || m != "settle")
+            .map(|m| shader_source(precision, &source, m))
+            .collect();
+        let mut sources: Vec<&str> = modules.iter().map(String::as_str).collect();
+        sources.push(if flat { "gemm_flat" } else { "gemm" });
+        let disk = DiskCache::open_in(ctx, dir, &sources);
+        let kernels = Arc::new(Kernels::new(
+            &ctx.device,
+            disk.pipeline_cache(),
+            precision,
+            &source,
+            settle,
+            flat,
+        )?);
+        let saved = disk.save();
+        if let Ok(mut log) = self.1.lock() {
+            log.push((disk.loaded().clone(), saved));
+        }
         if last.len() == CACHED {
             last.remove(0);
         }
-        last.push((source, settle, kernels.clone()));
+        last.push((source, [settle, flat], kernels.clone()));
         Ok(kernels)
     }
 }
@@ -131,12 +167,14 @@ impl GpuBackend {
             Precision::F32
         };
         GpuBackend {
-            ctx,
             precision,
             max_chunk: None,
             pad_loops: 0,
             profile: false,
             kernels: KernelCache::default(),
+            cache_dir: cache_dir(),
+            flat_gemm: ctx.is_software(),
+            ctx,
         }
     }
 
@@ -153,6 +191,12 @@ impl GpuBackend {
             precision,
             ..GpuBackend::new(ctx)
         })
+    }
+
+    /// For every compilation so far, what the pipeline cache on disk held and what was
+    /// written back (`disk_cache`).
+    pub fn disk_cache_log(&self) -> Vec<(Loaded, Saved)> {
+        self.kernels.1.lock().map(|l| l.clone()).unwrap_or_default()
     }
 
     /// The device.
@@ -346,6 +390,8 @@ impl Backend for GpuBackend {
             .into());
         }
         let chunk = self.chunk_size(problem, settings, initial.len());
+        let rows_limit = self.ctx.limits.max_compute_workgroups_per_dimension as usize;
+        let flat = self.flat_gemm && widths.iter().all(|&w| w <= rows_limit);
         let mut setups = Vec::new();
         for (f, frame) in frames.iter().enumerate() {
             let shape = Shape::new(frame, settings);
@@ -353,9 +399,13 @@ impl Backend for GpuBackend {
             margins.pad_loops = self.pad_loops;
             let source =
                 problem_wgsl(frame, settings, shape.flags, self.precision, &margins, meet)?;
-            let kernels =
-                self.kernels
-                    .get(&self.ctx.device, self.precision, source, meet && f == 0)?;
+            let kernels = self.kernels.get(
+                &self.ctx,
+                self.cache_dir.as_deref(),
+                self.precision,
+                source,
+                [meet && f == 0, flat],
+            )?;
             let bufs = self.buffers(frame, &shape, &margins, chunk)?;
             setups.push((shape, kernels, bufs));
         }

@@ -16,7 +16,8 @@ pub struct GpuContext {
     pub info: wgpu::AdapterInfo,
     /// The device's limits (the adapter's, not the WebGPU defaults).
     pub limits: wgpu::Limits,
-    /// The optional features the device was created with (`SHADER_F64` where available).
+    /// The optional features the device was created with (`SHADER_F64`, `PIPELINE_CACHE` where
+    /// available).
     pub features: wgpu::Features,
     errors: Arc<Mutex<Vec<String>>>,
 }
@@ -83,8 +84,10 @@ impl GpuContext {
             })?;
         let info = adapter.get_info();
         let limits = adapter.limits();
-        // f64 shaders (`--f64`) where the adapter has them; nothing else is optional.
-        let features = adapter.features() & wgpu::Features::SHADER_F64;
+        // f64 shaders (`--f64`) and pipeline caches (`disk_cache`) where the adapter has them;
+        // nothing else is optional.
+        let features =
+            adapter.features() & (wgpu::Features::SHADER_F64 | wgpu::Features::PIPELINE_CACHE);
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("cbfreach"),
             required_features: features,

@@ -11,9 +11,9 @@ const REAL_F32: &str = include_str!("../../shaders/real_f32.wgsl");
 pub(crate) const REAL_F64: &str = include_str!("../../shaders/real_f64.wgsl");
 pub(crate) const F32_BITS: &str = include_str!("../../shaders/f32_bits.wgsl");
 pub(crate) const COMMON: &str = include_str!("../../shaders/common.wgsl");
-const PARAMS: &str = include_str!("../../shaders/params.wgsl");
+pub(crate) const PARAMS: &str = include_str!("../../shaders/params.wgsl");
 const BOX: &str = include_str!("../../shaders/box.wgsl");
-const GEMM: &str = include_str!("../../shaders/gemm.wgsl");
+pub(crate) const GEMM: &str = include_str!("../../shaders/gemm.wgsl");
 const RELU: &str = include_str!("../../shaders/relu.wgsl");
 const BACKWARD: &str = include_str!("../../shaders/backward.wgsl");
 const OUTPUT: &str = include_str!("../../shaders/output.wgsl");
@@ -30,6 +30,8 @@ pub(crate) const PHI: &str = include_str!("../../shaders/phi.wgsl");
 pub const WORKGROUP: u32 = 64;
 /// Output tile of the GEMM kernel (64 × 64).
 pub const GEMM_TILE: u32 = 64;
+/// Rows and columns of the block of Y one thread of `gemm_flat` writes.
+pub const GEMM_FLAT_BLOCK: u32 = 4;
 
 /// A pipeline with its bind-group layout.
 pub struct Kernel {
@@ -43,8 +45,10 @@ pub struct Kernel {
 
 /// Every pipeline of the engine.
 pub struct Kernels {
-    /// `Y = op(W)·X`, tiled (shaders/gemm.wgsl).
+    /// `Y = op(W)·X`, tiled (shaders/gemm.wgsl), or `gemm_flat` where `flat`.
     pub gemm: Kernel,
+    /// Whether `gemm` is `gemm_flat` (a 4 × 4 block a thread, no workgroup memory).
+    pub flat: bool,
     /// Bias, rounding widening, IBP and ReLU relaxation of a hidden layer (shaders/relu.wgsl).
     pub relu: Kernel,
     /// One backward substitution's per-box part: `Λ∘s`, `β` (shaders/backward.wgsl).
@@ -95,6 +99,7 @@ fn layout(device: &wgpu::Device, label: &str, read_only: &[bool]) -> wgpu::BindG
 
 fn kernel(
     device: &wgpu::Device,
+    cache: Option<&wgpu::PipelineCache>,
     module: &wgpu::ShaderModule,
     entry: &'static str,
     read_only: &[bool],
@@ -111,7 +116,7 @@ fn kernel(
         module,
         entry_point: Some(entry),
         compilation_options: Default::default(),
-        cache: None,
+        cache,
     });
     Kernel {
         name: entry,
@@ -119,6 +124,11 @@ fn kernel(
         layout,
     }
 }
+
+/// Every module [`Kernels::new`] compiles (`settle` where two frames are met).
+pub const MODULES: [&str; 7] = [
+    "gemm", "relu", "backward", "output", "faces", "embed", "settle",
+];
 
 /// The WGSL of a module: the precision prelude, shared helpers, the generated problem constants
 /// and the module's kernels (`gemm`, `relu`, `backward`, `output`, `faces`, `settle`, `embed`).
@@ -150,12 +160,15 @@ pub fn shader_source(precision: Precision, problem_wgsl: &str, module: &str) -> 
 
 impl Kernels {
     /// Compiles every pipeline for a problem's generated WGSL (`settle` too for the first of two
-    /// frames met after every step); shader errors become [`GpuError::Shader`].
+    /// frames met after every step), through `cache` where given (`disk_cache`), with the GEMM
+    /// without workgroup tiles where `flat`; shader errors become [`GpuError::Shader`].
     pub fn new(
         device: &wgpu::Device,
+        cache: Option<&wgpu::PipelineCache>,
         precision: Precision,
         problem_wgsl: &str,
         settle: bool,
+        flat: bool,
     ) -> Result<Kernels, GpuError> {
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         // wgpu's default guard on every loop (an iteration counter, against infinite loops)
@@ -193,25 +206,34 @@ impl Kernels {
         let backward = [true, true, false, true, false, false, false];
         let embed = [false, true, false, false, true, true, true];
         let kernels = Kernels {
-            gemm: kernel(device, &gemm_m, "gemm", &[true, true, false]),
+            gemm: kernel(
+                device,
+                cache,
+                &gemm_m,
+                if flat { "gemm_flat" } else { "gemm" },
+                &[true, true, false],
+            ),
+            flat,
             relu: kernel(
                 device,
+                cache,
                 &relu_m,
                 "relu",
                 &[true, true, false, false, true, false, false, false],
             ),
-            bwd_scale: kernel(device, &bwd_m, "bwd_scale", &backward),
-            bwd_bounds: kernel(device, &bwd_m, "bwd_bounds", &backward),
+            bwd_scale: kernel(device, cache, &bwd_m, "bwd_scale", &backward),
+            bwd_bounds: kernel(device, cache, &bwd_m, "bwd_bounds", &backward),
             output: kernel(
                 device,
+                cache,
                 &out_m,
                 "output",
                 &[true, true, true, true, true, true, true, false],
             ),
-            embed: kernel(device, &embed_m, "embed", &embed),
-            tick: kernel(device, &embed_m, "tick", &embed),
-            faces: kernel(device, &faces_m, "faces_of", &[true, false]),
-            settle: settle.then(|| kernel(device, &module("settle"), "settle", &[false; 7])),
+            embed: kernel(device, cache, &embed_m, "embed", &embed),
+            tick: kernel(device, cache, &embed_m, "tick", &embed),
+            faces: kernel(device, cache, &faces_m, "faces_of", &[true, false]),
+            settle: settle.then(|| kernel(device, cache, &module("settle"), "settle", &[false; 7])),
         };
         match pollster::block_on(scope.pop()) {
             Some(e) => Err(GpuError::Shader(e.to_string())),

@@ -4,6 +4,7 @@
 //! - [`context`]: adapter selection (a real GPU before a software one, `--adapter NAME`), the
 //!   device with the adapter's limits.
 //! - [`kernels`]: one struct per pipeline (`shaders/*.wgsl`, included at compile time).
+//! - [`disk_cache`]: compiled pipelines kept on disk between runs (`$CBFREACH_CACHE_DIR`).
 //! - [`buffers`]: `#[repr(C)]` images of what the kernels read; the device layout.
 //! - [`codegen`]: scenario expressions as WGSL interval inclusion functions.
 //! - [`exp64`]: the f64 shaders' `exp` enclosure mirrored in Rust, and run on the device.
@@ -67,6 +68,7 @@ pub mod backend;
 pub mod buffers;
 pub mod codegen;
 pub mod context;
+pub mod disk_cache;
 pub mod exp64;
 pub mod kernels;
 pub mod margins;

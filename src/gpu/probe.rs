@@ -1,9 +1,129 @@
 //! Single WGSL primitives run on the device, for tests against the Rust they mirror
-//! (tests/gpu_matches_cpu.rs): `turn_rate` (`shaders/turn.wgsl`, the CPU's `euler_turn`), and the
-//! runner that [`super::exp64`] shares.
+//! (tests/gpu_matches_cpu.rs): `turn_rate` (`shaders/turn.wgsl`, the CPU's `euler_turn`), the
+//! GEMM kernels (tiled and flat) against each other, and the runner that [`super::exp64`]
+//! shares.
 
-use super::kernels::{COMMON, F32_BITS, REAL_F64, TURN};
+use wgpu::util::DeviceExt;
+
+use super::buffers::{uniform, Params};
+use super::kernels::{
+    COMMON, F32_BITS, GEMM, GEMM_FLAT_BLOCK, GEMM_TILE, PARAMS, REAL_F64, TURN, WORKGROUP,
+};
 use super::{GpuContext, GpuError};
+
+/// `y` after one dispatch of the f64 GEMM kernel (`gemm`, or `gemm_flat` where `flat`) with
+/// `p`'s shape and options (`rows`, `inner`, `cols`, `abs_w`, `trans_w`, `relu_x`, `w_off`,
+/// `x_off`, `ldx`, `y_off`, `ldy`) on `net`, `x` and `y` (unwritten entries stay).
+pub fn gemm_on_device(
+    ctx: &GpuContext,
+    flat: bool,
+    p: &Params,
+    net: &[f64],
+    x: &[f64],
+    y: &[f64],
+) -> Result<Vec<f64>, GpuError> {
+    if !ctx.has_f64() {
+        return Err(GpuError::NoF64(ctx.info.name.clone()));
+    }
+    let source =
+        format!("{REAL_F64}\n{F32_BITS}\n{PARAMS}\n{COMMON}\nconst ABS_UNIT: real = 0.0;\n{GEMM}");
+    let entry = if flat { "gemm_flat" } else { "gemm" };
+    let device = &ctx.device;
+    let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some(entry),
+        source: wgpu::ShaderSource::Wgsl(source.into()),
+    });
+    let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        label: Some(entry),
+        layout: None,
+        module: &module,
+        entry_point: Some(entry),
+        compilation_options: Default::default(),
+        cache: None,
+    });
+    if let Some(e) = pollster::block_on(scope.pop()) {
+        return Err(GpuError::Shader(e.to_string()));
+    }
+    let storage = |label, data: &[f64], usage| {
+        device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some(label),
+            contents: bytemuck::cast_slice(data),
+            usage: wgpu::BufferUsages::STORAGE | usage,
+        })
+    };
+    let params = uniform(device, "probe params", p);
+    let net_b = storage("probe net", net, wgpu::BufferUsages::empty());
+    let x_b = storage("probe x", x, wgpu::BufferUsages::empty());
+    let y_b = storage("probe y", y, wgpu::BufferUsages::COPY_SRC);
+    let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some(entry),
+        layout: &pipeline.get_bind_group_layout(0),
+        entries: &[
+            wgpu::BindGroupEntry {
+                binding: 0,
+                resource: params.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 1,
+                resource: net_b.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 2,
+                resource: x_b.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 3,
+                resource: y_b.as_entire_binding(),
+            },
+        ],
+    });
+    // As the engine dispatches them (backend/plan.rs).
+    let groups = if flat {
+        let g = (p.rows.div_ceil(GEMM_FLAT_BLOCK) * p.cols.div_ceil(GEMM_FLAT_BLOCK))
+            .div_ceil(WORKGROUP);
+        [g, 1, 1]
+    } else {
+        [p.cols.div_ceil(GEMM_TILE), p.rows.div_ceil(GEMM_TILE), 1]
+    };
+    let mut enc = device.create_command_encoder(&Default::default());
+    {
+        let mut pass = enc.begin_compute_pass(&Default::default());
+        pass.set_pipeline(&pipeline);
+        pass.set_bind_group(0, &bind, &[]);
+        pass.dispatch_workgroups(groups[0], groups[1], groups[2]);
+    }
+    ctx.queue.submit([enc.finish()]);
+    read_back(ctx, &y_b, y.len())
+}
+
+/// `len` f64 of `buf` (a `COPY_SRC` buffer), after the queue's work.
+pub fn read_back(ctx: &GpuContext, buf: &wgpu::Buffer, len: usize) -> Result<Vec<f64>, GpuError> {
+    let device = &ctx.device;
+    let size = (len * 8) as u64;
+    let staging = device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("probe staging"),
+        size,
+        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    let mut enc = device.create_command_encoder(&Default::default());
+    enc.copy_buffer_to_buffer(buf, 0, &staging, 0, size);
+    ctx.queue.submit([enc.finish()]);
+    let slice = staging.slice(..);
+    let (tx, rx) = std::sync::mpsc::channel();
+    slice.map_async(wgpu::MapMode::Read, move |r| {
+        let _ = tx.send(r);
+    });
+    ctx.wait()?;
+    rx.recv()
+        .map_err(|e| GpuError::Device(e.to_string()))?
+        .map_err(|e| GpuError::Device(e.to_string()))?;
+    let view = slice
+        .get_mapped_range()
+        .map_err(|e| GpuError::Device(e.to_string()))?;
+    Ok(bytemuck::pod_collect_to_vec(&view))
+}
 
 /// `turn_rate(slope, w, dt)` of `shaders/turn.wgsl` on the device (f64), for each input
 /// `[slope.lo, slope.hi, w, dt.lo, dt.hi]`: the rate a face of the Euler step grows by where the
@@ -40,7 +160,6 @@ pub(crate) fn run(
     items: usize,
     per: usize,
 ) -> Result<Vec<f64>, GpuError> {
-    use wgpu::util::DeviceExt;
     if !ctx.has_f64() {
         return Err(GpuError::NoF64(ctx.info.name.clone()));
     }
@@ -76,12 +195,6 @@ pub(crate) fn run(
         usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
         mapped_at_creation: false,
     });
-    let staging = device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("probe staging"),
-        size,
-        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-        mapped_at_creation: false,
-    });
     let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
         label: Some(entry),
         layout: &pipeline.get_bind_group_layout(0),
@@ -103,19 +216,6 @@ pub(crate) fn run(
         pass.set_bind_group(0, &bind, &[]);
         pass.dispatch_workgroups((items as u32).div_ceil(64), 1, 1);
     }
-    enc.copy_buffer_to_buffer(&output, 0, &staging, 0, size);
     ctx.queue.submit([enc.finish()]);
-    let slice = staging.slice(..);
-    let (tx, rx) = std::sync::mpsc::channel();
-    slice.map_async(wgpu::MapMode::Read, move |r| {
-        let _ = tx.send(r);
-    });
-    ctx.wait()?;
-    rx.recv()
-        .map_err(|e| GpuError::Device(e.to_string()))?
-        .map_err(|e| GpuError::Device(e.to_string()))?;
-    let view = slice
-        .get_mapped_range()
-        .map_err(|e| GpuError::Device(e.to_string()))?;
-    Ok(bytemuck::pod_collect_to_vec(&view))
+    read_back(ctx, &output, per * items)
 }
