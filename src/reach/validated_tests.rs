@@ -343,6 +343,9 @@ fn guessed_moving_box_holds_the_flow() {
     let mv = guessed(&set, h, (&[-1.0, -1.0], &[-3.0, -3.0]), None).unwrap();
     let r = slab_field(&d, &set, &mv, h, none, &[0.0]);
     assert!(!verified(&mv, (&r.0, &r.1)), "{:?} {r:?}", mv.faces);
+    // …rightly: the corner (2, 2) leaves that box at once.
+    let top = mv.faces.as_ref().unwrap().upper[0];
+    assert!(2.0 * (-0.01_f64).exp() > 2.0 + 0.01 * top);
     let mv = guessed(&set, h, (&[-1.0, -1.0], &[-1.7, -1.7]), None).unwrap();
     let r = slab_field(&d, &set, &mv, h, none, &[0.0]);
     assert!(verified(&mv, (&r.0, &r.1)), "{:?} {r:?}", mv.faces);
