@@ -288,11 +288,7 @@ impl ChunkRun<'_> {
     /// guessed without an enclosure (item 3b: all frames together, as the facts were taken on
     /// their hulls met). Where they do, each frame's next enclosure starts from the hull of its
     /// face rates.
-    pub(super) fn guess_holds(
-        &self,
-        state: &mut Live,
-        fields: &[([Option<Rates>; 3], StepInput, Option<(bool, usize)>)],
-    ) -> bool {
+    pub(super) fn guess_holds(&self, state: &mut Live, fields: &[FrameFields]) -> bool {
         let holds = state
             .pipes
             .iter()
@@ -350,11 +346,7 @@ impl ChunkRun<'_> {
 
     /// New guessed moving boxes from the rates the last ones' slabs gave (`fields`); false
     /// where none can be had (no rates, a box inside out, a hull leaving `C` in x).
-    fn reguess(
-        &self,
-        state: &mut Live,
-        fields: &[([Option<Rates>; 3], StepInput, Option<(bool, usize)>)],
-    ) -> bool {
+    fn reguess(&self, state: &mut Live, fields: &[FrameFields]) -> bool {
         let mut pipes = Vec::with_capacity(self.frames.len());
         for (f, frame) in self.frames.iter().enumerate() {
             let Some((l, u)) = fields[f].0.iter().flatten().cloned().reduce(meet_fields) else {
