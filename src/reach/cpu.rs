@@ -29,6 +29,9 @@ use crate::rounding::round_up;
 mod cpu_time;
 use cpu_time::in_frame;
 
+#[path = "cpu_guess.rs"]
+mod cpu_guess;
+
 #[path = "cpu_sampled.rs"]
 mod cpu_sampled;
 
