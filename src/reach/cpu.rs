@@ -29,6 +29,9 @@ use crate::rounding::round_up;
 mod cpu_time;
 use cpu_time::in_frame;
 
+#[path = "cpu_guess.rs"]
+mod cpu_guess;
+
 #[path = "cpu_sampled.rs"]
 mod cpu_sampled;
 
@@ -224,13 +227,16 @@ struct ChunkBuffers {
     stepped: Vec<bool>,
     /// Continuous time: per frame, the first Picard candidates and their network bounds.
     candidates: Vec<cpu_time::Candidates>,
-    /// Per frame of one box-step: its fields (piece, enclosures, network), how `v` is bounded,
-    /// and where the network's bounds are (whether the fallback's, and the row).
-    fields: Vec<([Option<Rates>; 3], StepInput, Option<(bool, usize)>)>,
+    /// Per frame of one box-step: its fields, how `v` is bounded, where the network's bounds are.
+    fields: Vec<FrameFields>,
 }
 
 /// Lower and upper rates of one step, `(dx̲/dt, dx̄/dt)`.
 type Rates = (Vec<f64>, Vec<f64>);
+
+/// One frame's box-step: its fields (piece, enclosures, network), how `v` is bounded, and where
+/// the network's bounds are (whether the fallback's, and the row).
+type FrameFields = ([Option<Rates>; 3], StepInput, Option<(bool, usize)>);
 
 /// What every chunk's run shares.
 struct ChunkRun<'a> {

@@ -467,9 +467,9 @@ pub fn moving(
     })
 }
 
-/// A moving box of a step from `set` with no a-priori enclosure (item 3b of the module's
-/// argument): face rates guessed from last step's slab rates `(r̲, r̄)` and those of the step
-/// before (`before`), `s̄ = max(r̄, r̂) + δ`, `ρ̄ = min(r̄, r̂) − δ` with `r̂ = 2r̄ − r̄_before` the
+/// A moving box of a step from `set` with no a-priori enclosure (docs/design.md §7.1, item
+/// 3b): face rates guessed from last step's slab rates `(r̲, r̄)` and those of the step before
+/// (`before`), `s̄ = max(r̄, r̂) + δ`, `ρ̄ = min(r̄, r̂) − δ` with `r̂ = 2r̄ − r̄_before` the
 /// trend and `δ` a margin ([`GUESS_MARGIN`]; mirrored below). `None` where the box turns
 /// inside out or a value is not finite. Nothing is known of it until [`verified`] passes on
 /// every frame's rates, with the facts (piece, local `M`) taken on its hull.
@@ -536,7 +536,7 @@ pub fn verified(pipe: &Flowpipe, (dl, du): (&[f64], &[f64])) -> bool {
         return true;
     };
     (0..dl.len()).all(|i| {
-        // Without an enclosure only the strict check proves the box (item 3b).
+        // Without an enclosure only the strict check proves the box (design §7.1 item 3b).
         let upper = du[i] < m.upper[i] || (pipe.enclosed && m.upper[i] >= pipe.f_upper[i]);
         let lower = dl[i] > m.lower[i] || (pipe.enclosed && m.lower[i] <= pipe.f_lower[i]);
         upper && lower
