@@ -40,6 +40,11 @@ parser.add_argument(
     default="immrax,lirpa",
     help="tools beside cbfreach: immrax, lirpa (auto_LiRPA), comma-separated",
 )
+parser.add_argument(
+    "--methods",
+    default="forward,crown",
+    help="cbfreach's bound methods to run: forward (beside immrax), crown (beside auto_LiRPA)",
+)
 args = parser.parse_args()
 if not Path(args.cbfreach).is_file():
     sys.exit(f"no cbfreach binary at {args.cbfreach}: run `cargo build --release` or pass --cbfreach")
@@ -133,14 +138,16 @@ for count in [int(c) for c in args.boxes.split(",")]:
     spec = {"boxes": boxes, "k": [scenario["parameters"]["k1"], scenario["parameters"]["k2"]],
             "m": args.m, "dt": reach["dt"], "steps": args.steps, "record_every": 1}
     spec_path.write_text(json.dumps(spec))
-    forward, forward_rate, forward_steps = run_cbfreach(path, "forward", True)
-    crown, crown_rate, crown_steps = run_cbfreach(path, "crown", False)
-    rows.append((count, "cbfreach", "forward, face-local (f64, rounding bounded)", forward_rate,
-                 f"{forward_steps} box-steps run", ""))
-    rows.append((count, "cbfreach", "crown (f64, rounding bounded)", crown_rate,
-                 f"{crown_steps} box-steps run", ""))
+    if "forward" in args.methods:
+        forward, forward_rate, forward_steps = run_cbfreach(path, "forward", True)
+        rows.append((count, "cbfreach", "forward, face-local (f64, rounding bounded)",
+                     forward_rate, f"{forward_steps} box-steps run", ""))
+    if "crown" in args.methods:
+        crown, crown_rate, crown_steps = run_cbfreach(path, "crown", False)
+        rows.append((count, "cbfreach", "crown (f64, rounding bounded)", crown_rate,
+                     f"{crown_steps} box-steps run", ""))
     full = count * args.steps
-    if "immrax" in args.tools:
+    if "immrax" in args.tools and "forward" in args.methods:
         for options, label in [(["--x64", "--plain-forward"], "plain forward, face-local (f64)"),
                                (["--x64"], "'crown', face-local (f64)"),
                                ([], "'crown', face-local (f32)")]:
@@ -149,7 +156,7 @@ for count in [int(c) for c in args.boxes.split(",")]:
             rows.append((count, "immrax", label, full / min(r["run_s"]),
                          f"compiled in {r['compile_and_first_run_s']:.1f} s",
                          f"{wider:.1e} / {tighter:.1e}"))
-    if "lirpa" in args.tools:
+    if "lirpa" in args.tools and "crown" in args.methods:
         for options, label in [([], "CROWN (f64)"), (["--f32"], "CROWN (f32)")]:
             r = run_tool("lirpa_reach.py", spec_path, network, options)
             wider, tighter = distance(crown, r)

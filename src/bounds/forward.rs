@@ -9,6 +9,12 @@
 //! ```
 //!
 //! * **Input.** `Ĉ = x`, `R̂ = 0`; so the first layer is exact: `Ĉ = W₁x + b₁`, `R̂ = 0`.
+//!   A coordinate with `lower = upper` (a face of a box, as `--face-local` bounds ask) is no
+//!   form coordinate: `W₁` times its value goes into the constant, so a face of a 2-D box
+//!   carries 2 coefficients a form, not 3. The rounding `ε` of that constant is carried beside
+//!   `R̂` (`|z − Ĉ| ≤ R̂ + ε`: the concretisation widens by `ε`, the ReLU lines' slopes lie in
+//!   `[0, 1]` so the relaxed forms keep it, and the next layer adds `rowsum(|W|)·ε` to `R̂`),
+//!   which keeps `R̂` zero where the neurons are stable.
 //! * **Affine layer** `z' = W a + b`: `|z' − (WĈ + b)| = |W (a − Ĉ)| ≤ |W| R̂`, so
 //!   `(Ĉ, R̂) ← (W Ĉ + b, |W| R̂)`. For a group of `G` boxes the forms are matrices
 //!   `n_k × G(n+1)` (columns box-major, `n` coefficients then the constant), and a layer is two
@@ -20,6 +26,9 @@
 //!   whose centre–radius form is `Ĉ ← αĈ + βR̂ + t̄/2`, `R̂ ← βĈ + αR̂ + t̄/2` with
 //!   `α = (s̄ + s̲)/2`, `β = (s̄ − s̲)/2`.
 //! * **Output.** `C̲ = Ĉ − R̂`, `C̄ = Ĉ + R̂`, concretised over the box.
+//!
+//! Neurons inactive over every box of the group have exact zero forms after the ReLU, so the
+//! products leave their rows out (`sparse_product`): no sum and no rounding bound changes.
 //!
 //! # Rounding (module error model of [`crate::bounds`])
 //!
