@@ -119,7 +119,7 @@ fn same_verdicts(cpu: &[BoxVerdict], gpu: &[BoxVerdict], what: &str) -> usize {
 /// Scenario 1, `verify --grid 8,6 --face-local` with the scenario's settings otherwise (the
 /// shipped network and its error map, forward-backward bounds, the filter's closed form).
 #[test]
-#[ignore = "minutes on lavapipe: cargo test --release --test gpu_parity -- --ignored"]
+#[ignore = "tens of minutes on lavapipe (the GEMMs, ~1 s a step per 8 cells face-local, 250 steps; the CPU engine takes seconds): cargo test --release --test gpu_parity -- --ignored"]
 fn verify_integrator_8x6_same_verdicts() {
     let Some(gpu) = gpu_f64() else { return };
     let s = common::integrator();
@@ -137,7 +137,7 @@ fn verify_integrator_8x6_same_verdicts() {
 /// met with its x-box after every step (`intersect_x`, a second frame in x on both engines), the
 /// shipped network and error map, the Euler map; `auto` takes the GPU's settings as they are.
 #[test]
-#[ignore = "minutes on lavapipe: cargo test --release --test gpu_parity -- --ignored"]
+#[ignore = "tens of minutes on lavapipe (the GEMMs dominate every step, two frames): cargo test --release --test gpu_parity -- --ignored"]
 fn verify_double_integrator_10x4_same_verdicts() {
     let Some(gpu) = gpu_f64() else { return };
     let s = common::double_integrator();
