@@ -1,5 +1,5 @@
 //! Single WGSL primitives run on the device, for tests against the Rust they mirror
-//! (tests/gpu_matches_cpu.rs): `turn_rate` (`shaders/turn.wgsl`, the CPU's `euler_turn`), and the
+//! (tests/gpu_matches_cpu/): `turn_rate` (`shaders/turn.wgsl`, the CPU's `euler_turn`), and the
 //! runner that [`super::exp64`] shares.
 
 use super::kernels::{COMMON, F32_BITS, REAL_F64, TURN};
