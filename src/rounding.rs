@@ -38,7 +38,7 @@
 //!   `γ̂_N = (N+3)·2⁻²¹`, an absolute part for flushed subnormals, and one step outward per
 //!   operation. The device code holds it (the GPU module's "Error model", `err_bound` in
 //!   `shaders/common.wgsl`, the preludes `shaders/real_f32.wgsl` and `real_f64.wgsl`); it
-//!   mirrors this module and is checked against it by `tests/gpu_matches_cpu.rs`.
+//!   mirrors this module and is checked against it by `tests/gpu_matches_cpu/`.
 
 /// Relative widening of libm results: `2⁻⁵⁰`, at least 4 ulp of the result.
 const LIBM_REL: f64 = 4.0 * f64::EPSILON;

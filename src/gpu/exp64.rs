@@ -1,6 +1,6 @@
 //! The f64 shaders' `exp` enclosure (`exp_enclosure` in `shaders/real_f64.wgsl`), mirrored
 //! operation for operation, and a one-kernel run of the shader's own on the device, so that a
-//! test compares the two on many inputs (tests/gpu_matches_cpu.rs).
+//! test compares the two on many inputs (tests/gpu_matches_cpu/).
 //!
 //! SPIR-V has `exp` for 32-bit floats only; taken in f32 and widened, it cost the Minkowski
 //! radius ~2e-7 relative a step against the CPU's libm `exp` (5e-4 at t = 5.2 on the paper's

@@ -1,7 +1,7 @@
 //! Single WGSL primitives run on the device, for tests against the Rust they mirror
-//! (tests/gpu_matches_cpu.rs): `turn_rate` (`shaders/turn.wgsl`, the CPU's `euler_turn`), the
-//! GEMM kernels (tiled and flat) against each other, and the runner that [`super::exp64`]
-//! shares.
+//! (tests/gpu_matches_cpu/, tests/gpu_pipelines.rs): `turn_rate` (`shaders/turn.wgsl`, the
+//! CPU's `euler_turn`), the GEMM kernels (tiled and flat) against each other, and the runner
+//! that [`super::exp64`] shares.
 
 use wgpu::util::DeviceExt;
 
