@@ -198,16 +198,37 @@ fn default_run_reproduces_the_papers_verdicts_and_they_are_true() {
 /// is not proven whole, are split and refined; every one of the nine is proven to converge with
 /// the QP feasible (the two at (±1, 1.5) and the one at (5, 1) only as pieces), and each does
 /// reach the goal set under the ground-truth filter (25 starts per box); the run prints the
-/// times table.
+/// times table. ~10 CPU-minutes (the box at (−1, 1.5) needs 576 pieces), so CI runs the cut
+/// below.
 #[test]
+#[ignore = "~10 CPU-minutes: cargo test --release --test cli paper_ -- --ignored"]
 fn paper_verifies_split_boxes_of_scenario_2_truly() {
+    paper_scenario_2(None, 9);
+}
+
+/// The same with the pieces' bisection off (`--refine 0`): each box is split into 4 × 4 pieces
+/// at most, which proves seven of the nine (not the two at (±1, 1.5), whose trajectories pass
+/// near the jump of `v` at (3, 0)); every verdict given is true.
+#[test]
+fn paper_verifies_split_boxes_of_scenario_2_truly_without_bisection() {
+    paper_scenario_2(Some("0"), 7);
+}
+
+/// Runs `cbfreach paper` (with `--refine` if given) and checks its figures and scenario 2's
+/// verdicts: at least `at_least` boxes proven to converge, each with the QP proven feasible and
+/// each reaching the goal under the ground-truth filter from 25 starts.
+fn paper_scenario_2(refine: Option<&str>, at_least: usize) {
     use cbfreach::filter::SafetyFilter;
     use cbfreach::simulate::{simulate_filtered, Integrator};
 
     let tmp = tempfile::tempdir().unwrap();
     // A folder not there yet: `paper` makes it.
     let dir = tmp.path().join("paper");
-    let (code, stdout, stderr) = cbfreach(&["paper", "-o", dir.to_str().unwrap()]);
+    let mut args = vec!["paper", "-o", dir.to_str().unwrap()];
+    if let Some(r) = refine {
+        args.extend(["--refine", r]);
+    }
+    let (code, stdout, stderr) = cbfreach(&args);
     assert_eq!(code, 0, "{stderr}");
     // Beside the paper's figures, each shipped network's error map.
     for name in ["integrator", "double-integrator"] {
@@ -244,9 +265,12 @@ fn paper_verifies_split_boxes_of_scenario_2_truly() {
             }
         }
     }
-    assert_eq!(proven, 9, "{scenario_2}");
+    assert!(proven >= at_least, "{proven} proven: {scenario_2}");
     assert!(scenario_2.contains("every piece converges"), "{scenario_2}");
-    assert!(scenario_2.contains("→ 9 converges"), "{scenario_2}");
+    assert!(
+        scenario_2.contains(&format!("→ {proven} converges")),
+        "{scenario_2}"
+    );
 }
 
 /// `cbfreach train` of a 2×8×2 network for one epoch on scenario 1's `grid` (points per

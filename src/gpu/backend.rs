@@ -80,8 +80,9 @@ pub struct GpuBackend {
     /// NVIDIA driver).
     kernels: KernelCache,
     /// The GEMM without workgroup tiles (`gemm_flat`), where every layer is at most as wide as
-    /// the device's dispatch allows: on by default on software adapters, where it is ~N× faster
-    /// than the tiles (barriers are coroutine switches there).
+    /// the device's dispatch allows and its loops stay within llvmpipe's limit: on by default on
+    /// software adapters, where it is ~4× faster than the tiles (barriers are coroutine
+    /// switches there; docs/design.md §4).
     pub flat_gemm: bool,
     /// Where compiled pipelines are kept between runs (`disk_cache::cache_dir()` unless set;
     /// `None`: nowhere).
@@ -303,6 +304,14 @@ fn bound_kernel_loops(widths: &[usize]) -> usize {
     backward.max(gemm)
 }
 
+/// Loop iterations a thread of `gemm_flat` runs for the widest product (every layer width is
+/// an inner dimension, forward or transposed): per `k`, one pass and a load loop of up to
+/// `GEMM_FLAT_BLOCK`. It has no loop check, so past llvmpipe's limit the tiles run instead.
+fn flat_gemm_loops(widths: &[usize]) -> usize {
+    let per_k = 1 + super::kernels::GEMM_FLAT_BLOCK as usize;
+    widths.iter().max().map_or(0, |&w| w * per_k)
+}
+
 impl Backend for GpuBackend {
     /// Thousands of boxes: a step of 4,096 boxes of a 2×400×400×400×2 network takes 2–5 ms
     /// on an H100, of 256 boxes nearly as long.
@@ -391,7 +400,9 @@ impl Backend for GpuBackend {
         }
         let chunk = self.chunk_size(problem, settings, initial.len());
         let rows_limit = self.ctx.limits.max_compute_workgroups_per_dimension as usize;
-        let flat = self.flat_gemm && widths.iter().all(|&w| w <= rows_limit);
+        let flat = self.flat_gemm
+            && widths.iter().all(|&w| w <= rows_limit)
+            && flat_gemm_loops(&widths) <= LLVMPIPE_LOOP_LIMIT;
         let mut setups = Vec::new();
         for (f, frame) in frames.iter().enumerate() {
             let shape = Shape::new(frame, settings);

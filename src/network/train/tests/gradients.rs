@@ -92,7 +92,10 @@ fn secant_term_gradient_is_its_loss_gradient() {
     // Zero in exact arithmetic; the GEMM kernel (AVX-512 or AVX2, with or without fused
     // multiply-adds) may leave rounding noise of order 1e-17 where the term adds zeros.
     let pointwise = bias_share(None);
-    assert!(pointwise < 1e-12, "pointwise Jacobian term moved the biases by {pointwise}");
+    assert!(
+        pointwise < 1e-12,
+        "pointwise Jacobian term moved the biases by {pointwise}"
+    );
     assert!(bias_share(Some(h.to_vec())) > 1e-3);
     // One step, or one per input: three steps for two inputs are refused by name.
     let three = TrainSettings {
