@@ -22,17 +22,6 @@
 // Per box the x-box the frames share, lo[N0], hi[N0] (MEET; shaders/settle.wgsl writes it).
 @group(0) @binding(7) var<storage, read> known_x: array<real>;
 
-const LIVE: u32 = 0u;
-const LEFT_REGION: u32 = 1u;
-const INVERTED: u32 = 2u;
-const NON_FINITE: u32 = 3u;
-
-// How this frame's step of box g went, for the meet (MEET; shaders/settle.wgsl reads it).
-const STEP_NONE: u32 = 0u;
-const STEP_OK: u32 = 1u;
-const STEP_NON_FINITE: u32 = 2u;
-const STEP_INVERTED: u32 = 3u;
-
 fn stepped(g: u32, result: u32) {
     atomicStore(&flags[g * FLAG_W + 5u], result);
 }
@@ -55,8 +44,6 @@ fn closeness_step(r: real, c: real) -> real {
 fn tick() {
     atomicAdd(&flags[FLAG_W * p.boxes], 1u);
 }
-
-const NO_BOUND: u32 = 4u;
 
 // The network's bounds over one bound box (a box, or one of its faces with FACES > 1):
 // C̲x + d̲ ≤ N(x) ≤ C̄x + d̄ and N̲ ≤ N ≤ N̄ (shaders/output.wgsl).

@@ -2,6 +2,19 @@
 // and the meet of the frames, shaders/settle.wgsl; src/reach/mod.rs and safe_set.rs are the
 // originals).
 
+// A box's status (src/gpu/buffers.rs `status`, the host's copy).
+const LIVE: u32 = 0u;
+const LEFT_REGION: u32 = 1u;
+const INVERTED: u32 = 2u;
+const NON_FINITE: u32 = 3u;
+const NO_BOUND: u32 = 4u;
+
+// How a frame's step of a box went: the embedding step writes it, the meet reads it.
+const STEP_NONE: u32 = 0u;
+const STEP_OK: u32 = 1u;
+const STEP_NON_FINITE: u32 = 2u;
+const STEP_INVERTED: u32 = 3u;
+
 // The x-box of an embedding-coordinate box: S·z in interval arithmetic (identity without a
 // transform), as Transform::to_x_box.
 fn x_box(z: array<Iv, N0>) -> array<Iv, N0> {

@@ -17,15 +17,6 @@
 @group(0) @binding(7) var<storage, read_write> known_x: array<real>;
 
 const SW: u32 = 2u * N0 + 1u;
-// Box statuses and the frames' step results (shaders/embed.wgsl).
-const LIVE: u32 = 0u;
-const LEFT_REGION: u32 = 1u;
-const INVERTED: u32 = 2u;
-const NON_FINITE: u32 = 3u;
-const NO_BOUND: u32 = 4u;
-const STEP_NONE: u32 = 0u;
-const STEP_NON_FINITE: u32 = 2u;
-const STEP_INVERTED: u32 = 3u;
 
 // Ends box g in both frames.
 fn end_box(g: u32, status: u32, step: u32) {
