@@ -440,6 +440,20 @@ pub fn moving(
         m.lower.push(s_lower);
         m.upper.push(s_upper);
     }
+    let hull = moving_hull(set, h, &m)?;
+    Some(Flowpipe {
+        set: hull,
+        f_lower: pipe.f_lower.clone(),
+        f_upper: pipe.f_upper.clone(),
+        faces: Some(m),
+        enclosed: true,
+    })
+}
+
+/// The hull over the step of the box whose faces move from `set` at the rates `m`; `None`
+/// where a rate or depth is not finite or the box turns inside out on the step (it is linear
+/// in τ: its end decides).
+fn moving_hull(set: &IntervalBox, h: f64, m: &MovingFaces) -> Option<IntervalBox> {
     let values = m.lower.iter().chain(&m.upper);
     if !values
         .chain(&m.depth_lower)
@@ -453,18 +467,10 @@ pub fn moving(
         let hi = point(set.upper[i]) + point(h) * point(m.upper[i]);
         (lo, hi)
     };
-    // `X(τ)` must not turn inside out on the step (it is linear in τ: its end decides).
-    if (0..n).any(|i| ends(i).0.upper > ends(i).1.lower) {
+    if (0..set.dim()).any(|i| ends(i).0.upper > ends(i).1.lower) {
         return None;
     }
-    let hull = sweep(set, h, &m.lower, &m.upper);
-    Some(Flowpipe {
-        set: hull,
-        f_lower: pipe.f_lower.clone(),
-        f_upper: pipe.f_upper.clone(),
-        faces: Some(m),
-        enclosed: true,
-    })
+    Some(sweep(set, h, &m.lower, &m.upper))
 }
 
 /// A moving box of a step from `set` with no a-priori enclosure (docs/design.md §7.1, item
@@ -498,23 +504,7 @@ pub fn guessed(
         m.upper.push(ru.max(tu) + delta);
         m.depth_upper.push(ru.min(tu) - delta);
     }
-    let values = m.lower.iter().chain(&m.upper);
-    if !values
-        .chain(&m.depth_lower)
-        .chain(&m.depth_upper)
-        .all(|v| v.is_finite())
-    {
-        return None;
-    }
-    let ends = |i: usize| {
-        let lo = point(set.lower[i]) + point(h) * point(m.lower[i]);
-        let hi = point(set.upper[i]) + point(h) * point(m.upper[i]);
-        (lo, hi)
-    };
-    if (0..n).any(|i| ends(i).0.upper > ends(i).1.lower) {
-        return None;
-    }
-    let hull = sweep(set, h, &m.lower, &m.upper);
+    let hull = moving_hull(set, h, &m)?;
     Some(Flowpipe {
         set: hull,
         f_lower: m.lower.clone(),
