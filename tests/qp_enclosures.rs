@@ -408,7 +408,7 @@ fn certified_cell_bounds_of_a_general_qp_hold() {
 }
 
 /// The same on the other shipped networks beyond the paper's (the paper's are checked in
-/// tests/surrogate_error.rs): ACC (input bounds; in N and in m/s²), int3 and the unicycle.
+/// tests/surrogate_error/): ACC (input bounds; in N and in m/s²), int3 and the unicycle.
 #[test]
 fn certified_cell_bounds_hold_on_the_other_shipped_networks() {
     for (stem, seed, least) in [

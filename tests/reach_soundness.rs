@@ -14,18 +14,7 @@ use cbfreach::reach::{
 };
 use cbfreach::scenario::Scenario;
 use cbfreach::simulate::{integrate, sample_box, simulate_filtered, Integrator};
-use common::{double_integrator, from_text, integrator};
-
-/// A random network scaled so that its outputs stay within ±`scale`-ish: a small
-/// perturbation of the zero controller correction.
-fn small_network(widths: &[usize], seed: u64, scale: f64) -> Mlp {
-    let mut net = Mlp::random(widths, seed);
-    if let Some(last) = net.layers.last_mut() {
-        last.weight.iter_mut().for_each(|w| *w *= scale);
-        last.bias.iter_mut().for_each(|b| *b *= scale);
-    }
-    net
-}
+use common::{double_integrator, from_text, integrator, small_network};
 
 /// The NN closed loop `f̃(x) + g(x) N(x)`.
 fn nn_field(s: &Scenario, net: &Mlp, x: &[f64]) -> Result<Vec<f64>, String> {

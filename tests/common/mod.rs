@@ -3,6 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
+use cbfreach::network::Mlp;
 use cbfreach::problem::ProblemOptions;
 use cbfreach::reach::ReachProblem;
 use cbfreach::scenario::Scenario;
@@ -129,4 +130,15 @@ pub fn cbfreach(args: &[&str]) -> (i32, String, String) {
         String::from_utf8_lossy(&out.stdout).into_owned(),
         String::from_utf8_lossy(&out.stderr).into_owned(),
     )
+}
+
+/// A random network (seeded) whose last layer is scaled by `scale`: outputs within about
+/// ±`scale`, a small perturbation of the zero controller correction.
+pub fn small_network(widths: &[usize], seed: u64, scale: f64) -> Mlp {
+    let mut net = Mlp::random(widths, seed);
+    if let Some(last) = net.layers.last_mut() {
+        last.weight.iter_mut().for_each(|w| *w *= scale);
+        last.bias.iter_mut().for_each(|b| *b *= scale);
+    }
+    net
 }

@@ -31,7 +31,7 @@ use cbfreach::reach::{
 use cbfreach::scenario::{Scenario, TransformChoice};
 use cbfreach::simulate::{integrate, sample_box, Integrator};
 use cbfreach::IntervalBox;
-use common::{double_integrator, integrator};
+use common::{double_integrator, integrator, small_network};
 
 /// Relative agreement of GPU (f32 widened, or f64) and CPU (f64) tubes.
 const REL_TOL: f64 = 1e-4;
@@ -93,15 +93,6 @@ fn gpu_f64() -> Option<GpuBackend> {
             None
         }
     }
-}
-
-fn small_network(widths: &[usize], seed: u64, scale: f64) -> Mlp {
-    let mut net = Mlp::random(widths, seed);
-    if let Some(last) = net.layers.last_mut() {
-        last.weight.iter_mut().for_each(|w| *w *= scale);
-        last.bias.iter_mut().for_each(|b| *b *= scale);
-    }
-    net
 }
 
 fn boxes(centres: &[[f64; 2]], half: f64) -> Vec<IntervalBox> {
