@@ -17,6 +17,19 @@ use cbfreach::scenario::{Margin, TransformChoice};
 
 use super::given;
 
+/// Which engine runs a command's sets, and the GPU's options (`reach`, `verify`).
+#[derive(clap::Args, Clone, Debug)]
+pub struct EngineArgs {
+    /// Engine: `cpu`, `gpu` (wgpu; forward, forward-backward and crown bounds), or `auto` (the
+    /// GPU when an adapter exists and runs these settings, else the CPU with a notice; never a
+    /// change in what is computed, only where).
+    #[arg(long, default_value = "cpu")]
+    pub backend: EngineChoice,
+    /// GPU adapter and precision.
+    #[command(flatten)]
+    pub gpu: GpuArgs,
+}
+
 /// How the GPU engine runs (`reach`, `verify`, `bench`).
 #[derive(clap::Args, Clone, Debug, Default)]
 pub struct GpuArgs {
@@ -215,12 +228,12 @@ pub fn compile(
 
 /// The engine asked for, its notices printed (an engine refuses settings it does not run).
 pub fn engine(
-    which: EngineChoice,
-    gpu: &GpuArgs,
+    args: &EngineArgs,
     settings: &mut ReachSettings,
     problem: &ReachProblem,
 ) -> Result<Box<dyn Backend + Sync>, Box<dyn std::error::Error>> {
-    let chosen = choose_engine(which, &gpu.options(), settings, problem).map_err(
+    let gpu = &args.gpu;
+    let chosen = choose_engine(args.backend, &gpu.options(), settings, problem).map_err(
         |e| -> Box<dyn std::error::Error> {
             match e {
                 EngineError::PrecisionOnCpu(_) => {

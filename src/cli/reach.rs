@@ -3,10 +3,10 @@
 use std::path::PathBuf;
 
 use cbfreach::bounds::BoundMethod;
-use cbfreach::reach::{EngineChoice, ExactField, ReachMethod, ReachResult, ReachSettings};
+use cbfreach::reach::{ExactField, ReachMethod, ReachResult, ReachSettings};
 use serde::Serialize;
 
-use super::args::{engine, settings_flag_error, GpuArgs, ProblemArgs, ReachFlags};
+use super::args::{engine, settings_flag_error, EngineArgs, ProblemArgs, ReachFlags};
 use super::{fmt_point, given, load_scenario, progress_bar, CliResult, INTERSECT_X_CLAUSE};
 
 /// Arguments of `cbfreach reach`.
@@ -14,13 +14,9 @@ use super::{fmt_point, given, load_scenario, progress_bar, CliResult, INTERSECT_
 pub struct ReachArgs {
     /// The scenario file (TOML).
     pub scenario: PathBuf,
-    /// Engine: `cpu`, `gpu` (wgpu; forward, forward-backward and crown bounds), or `auto` (the
-    /// GPU when an adapter exists and runs these settings, else the CPU with a notice).
-    #[arg(long, default_value = "cpu")]
-    pub backend: EngineChoice,
-    /// GPU adapter and precision.
+    /// Engine and GPU options.
     #[command(flatten)]
-    pub gpu: GpuArgs,
+    pub engine: EngineArgs,
     /// Bounds, method and sets (default: the scenario's `[settings.reach]`, else
     /// `ReachSettings::default()`).
     #[command(flatten)]
@@ -68,7 +64,7 @@ pub fn run(args: &ReachArgs) -> CliResult {
         settings.every = args.every;
     }
     settings.validate().map_err(|e| settings_flag_error(&e))?;
-    let backend = engine(args.backend, &args.gpu, &mut settings, &problem)?;
+    let backend = engine(&args.engine, &mut settings, &problem)?;
     let bar = progress_bar(problem.steps as u64, "Euler steps");
     let result = backend.reach(&problem, &s.reach.initial, &settings, &|done, _| {
         bar.set_position(done as u64)

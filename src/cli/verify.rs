@@ -4,14 +4,14 @@
 use std::path::{Path, PathBuf};
 
 use cbfreach::plot::{self, Figure};
-use cbfreach::reach::{Backend, EngineChoice, ReachProblem, ReachSettings};
+use cbfreach::reach::{Backend, ReachProblem, ReachSettings};
 use cbfreach::scenario::Scenario;
 use cbfreach::verify::{
     explain_unverified, merge, simulation_check, traps_for, Shard, SimulationCheck, Stage,
     UnverifiedCauses, Verdict, Verifier, VerifyError, VerifyReport, VerifySettings,
 };
 
-use super::args::{engine, settings_flag_error, GpuArgs, ProblemArgs, ReachFlags};
+use super::args::{engine, settings_flag_error, EngineArgs, ProblemArgs, ReachFlags};
 use super::simulate::parse_box;
 use super::{fmt_point, given, load_scenario, progress_bar, resume, CliResult, INTERSECT_X_CLAUSE};
 use cbfreach::problem::network_path;
@@ -29,12 +29,9 @@ pub struct VerifyArgs {
     /// Cells per axis, e.g. 64,64.
     #[arg(long, default_value_t = Grid(VerifySettings::default().grid))]
     pub grid: Grid,
-    /// Engine: `cpu`, `gpu`, or `auto` (a GPU when one exists and supports the bounds).
-    #[arg(long, default_value = "cpu")]
-    pub backend: EngineChoice,
-    /// GPU adapter and precision.
+    /// Engine and GPU options.
     #[command(flatten)]
-    pub gpu: GpuArgs,
+    pub engine: EngineArgs,
     /// Bounds, method and sets.
     #[command(flatten)]
     pub reach: ReachFlags,
@@ -156,7 +153,7 @@ pub fn run(args: &VerifyArgs) -> CliResult {
     let mut reach = args.reach.settings(&s.settings.reach);
     reach.every = 1;
     reach.validate().map_err(|e| settings_flag_error(&e))?;
-    let engine = engine(args.backend, &args.gpu, &mut reach, &problem)?;
+    let engine = engine(&args.engine, &mut reach, &problem)?;
     let network = network_path(&s, args.problem.network.as_deref())?;
     // With a checkpoint, chunks small enough that an interrupt ends soon and keeps most work
     // (the engine's preferred batch is 512 boxes on the CPU, minutes on a loaded machine).
