@@ -567,8 +567,8 @@ mod tests {
     use crate::bounds::crown;
     use crate::bounds::test_support::*;
 
-    /// The magnitude products give the dense product of `|W|` with `[R̂ | V]`, whichever way
-    /// they take (one product, or `R̂`'s few nonzero rows and `V` apart), and write every entry.
+    /// The magnitude products give the dense product of `|W|` with `[R̂ | V]` (each part over
+    /// its own nonzero rows), and write every entry.
     #[test]
     fn magnitude_products_give_the_dense_product() {
         use rand::{Rng, SeedableRng};
@@ -601,8 +601,8 @@ mod tests {
         }
     }
 
-    /// The sparse product gives the dense product whichever way it takes (dense, or the few
-    /// nonzero rows of `B` gathered) and writes every entry.
+    /// The sparse product (over the nonzero rows of `B`) gives the dense product and writes
+    /// every entry.
     #[test]
     fn sparse_product_gives_the_dense_product() {
         use rand::{Rng, SeedableRng};

@@ -11,6 +11,7 @@
 //!
 //! Soundness does not depend on the kernel: the rounding model ([`crate::rounding`]) bounds the
 //! error of any order of summation, with or without fused multiply–adds.
+#![allow(clippy::needless_range_loop)] // index loops over registers read as the formulas
 
 use std::sync::atomic::Ordering;
 
