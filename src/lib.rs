@@ -49,6 +49,7 @@ pub mod expressions;
 pub mod filter;
 pub mod gpu;
 pub mod intervals;
+pub mod machine;
 pub mod matmul;
 pub mod network;
 pub mod output;

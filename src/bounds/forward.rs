@@ -48,12 +48,11 @@
 #![allow(clippy::needless_range_loop)] // index loops read as the formulas
 
 use super::ibp::centre_radius;
-use super::live::gather_columns;
 use super::{
     gemm, one_box, relu_lines, AffineBounds, BoundMethod, BoundsError, OutRow, PreparedNetwork,
     Relaxation, Schedule,
 };
-use crate::matmul::{matmul_strided, Threads::One};
+use crate::matmul::PackedMatrix;
 use crate::network::Mlp;
 use crate::rounding::{
     add_down, add_up, affine_max, affine_min, err_bound, round_up, round_up_keep_zero,
@@ -263,10 +262,12 @@ pub(crate) fn forward_group(
             ws.c_next.resize(n * cols, 0.0);
             ws.rv_next.resize(n * stride, 0.0);
             let (c, c_next) = (&ws.c, &mut ws.c_next);
-            sparse_product((n, n_prev, cols), &layer.weight, c, c_next, &mut ws.sparse);
+            let w = &prepared.packed_w[k];
+            sparse_product((n_prev, cols), w, c, c_next, &mut ws.sparse);
             let (rv, rv_next) = (&ws.rv, &mut ws.rv_next);
-            let shape = (n, n_prev, cols, g_count);
-            magnitude_products(shape, &abs_w[k], rv, rv_next, &mut ws.sparse);
+            let shape = (n_prev, cols, g_count);
+            let abs_w_k = &prepared.packed_abs_w[k];
+            magnitude_products(shape, abs_w_k, rv, rv_next, &mut ws.sparse);
             let row_sums = &prepared.abs_row_sums[k];
             for i in 0..n {
                 let b = layer.bias[i];
@@ -412,120 +413,69 @@ fn relax_layer<const K: usize>(
     }
 }
 
-/// Buffers of [`sparse_product`].
+/// Buffers of [`sparse_product`] and [`magnitude_products`]: the live rows of the right factor.
 #[derive(Default)]
 struct SparseScratch {
     rows: Vec<usize>,
-    a: Vec<f64>,
-    b: Vec<f64>,
+    slabs: Vec<f64>,
 }
 
-/// `out = A·B` for `A` `m × k` and `B` `k × cols`, row-major, skipping the rows of `B` that
-/// are zero: after a ReLU the forms of neurons inactive over every box of the group are exact
-/// zeros (and, after the exact first layer, `R̂` is nonzero only where a neuron is unstable),
-/// so leaving them out changes no sum and no rounding bound. Dense when few rows are zero.
+/// The rows `j` whose entries `row_stride·j + range` are not all zero.
+fn nonzero_rows(
+    b: &[f64],
+    k: usize,
+    row_stride: usize,
+    range: std::ops::Range<usize>,
+    out: &mut Vec<usize>,
+) {
+    out.clear();
+    out.extend((0..k).filter(|&j| {
+        b[j * row_stride + range.start..j * row_stride + range.end]
+            .iter()
+            .any(|&x| x != 0.0)
+    }));
+}
+
+/// `out = A·B` for the packed `m × k` `A` and `B` `k × cols`, row-major, skipping the rows of
+/// `B` that are zero: after a ReLU the forms of neurons inactive over every box of the group
+/// are exact zeros, so leaving them out changes no sum and no rounding bound.
 fn sparse_product(
-    (m, k, cols): (usize, usize, usize),
-    a: &[f64],
+    (k, cols): (usize, usize),
+    a: &PackedMatrix,
     b: &[f64],
     out: &mut [f64],
     scratch: &mut SparseScratch,
 ) {
-    scratch.rows.clear();
-    scratch
-        .rows
-        .extend((0..k).filter(|&j| b[j * cols..(j + 1) * cols].iter().any(|&x| x != 0.0)));
-    let live = scratch.rows.len();
-    // Gathering costs `m·live` copies against the product's `m·live·cols` multiply-adds.
-    if 8 * live > 7 * k {
-        gemm(m, k, cols, a, b, out);
-        return;
-    }
-    if live == 0 {
-        out[..m * cols].fill(0.0);
-        return;
-    }
-    scratch.a.clear();
-    gather_columns(a, k, 0..m, Some(&scratch.rows), &mut scratch.a);
-    scratch.b.clear();
-    for &j in &scratch.rows {
-        scratch.b.extend_from_slice(&b[j * cols..(j + 1) * cols]);
-    }
-    matmul_strided(
-        (m, live, cols),
-        &scratch.a,
-        (live, 1),
-        &scratch.b,
-        (cols, 1),
-        out,
-        (cols, 1),
-        One,
+    nonzero_rows(b, k, cols, 0..cols, &mut scratch.rows);
+    a.product(
+        &scratch.rows,
+        (b, cols),
+        cols,
+        (out, cols),
+        &mut scratch.slabs,
     );
 }
 
-/// `[R̂' | V'] = |W|·[R̂ | V]` for the layout of [`Workspace::rv`]: `|W|` is `m × k`, each of
-/// the `k` rows of `rv` holds `cols` entries of `R̂` then `g` of `V`.
+/// `[R̂' | V'] = |W|·[R̂ | V]` for the layout of [`Workspace::rv`]: `|W|` is `m × k` (packed),
+/// each of the `k` rows of `rv` holds `cols` entries of `R̂` then `g` of `V`.
 ///
-/// Usually one product over the whole row (one pass over `|W|` for both: the `G`-column
-/// product of `V` alone costs two thirds of the `G(d+1)`-column one at small `G`), skipping the
-/// rows of neurons inactive over every box (`R̂` and `V` both zero). But after the exact first
-/// layer `R̂` is nonzero only for the neurons unstable in some box of the group: when those
-/// are at most half the rows, `R̂'` is the product over them alone and `V'` a product of its
-/// own.
+/// Two products, each over the rows where its part is nonzero: after the exact first layer
+/// `R̂` is nonzero only for the neurons unstable in some box of the group, and `V` is zero
+/// only for those inactive over every box.
 fn magnitude_products(
-    (m, k, cols, g): (usize, usize, usize, usize),
-    abs_w: &[f64],
+    (k, cols, g): (usize, usize, usize),
+    abs_w: &PackedMatrix,
     rv: &[f64],
     out: &mut [f64],
     scratch: &mut SparseScratch,
 ) {
     let stride = cols + g;
-    let live = (0..k)
-        .filter(|&j| rv[j * stride..j * stride + cols].iter().any(|&x| x != 0.0))
-        .count();
-    if 2 * live > k {
-        sparse_product((m, k, stride), abs_w, rv, out, scratch);
-        return;
-    }
-    let by_rows = |row_stride: usize| (row_stride, 1);
-    if live == 0 {
-        out.chunks_mut(stride).for_each(|row| row[..cols].fill(0.0));
-    } else {
-        scratch.rows.clear();
-        scratch.rows.extend(
-            (0..k).filter(|&j| rv[j * stride..j * stride + cols].iter().any(|&x| x != 0.0)),
-        );
-        scratch.a.clear();
-        gather_columns(abs_w, k, 0..m, Some(&scratch.rows), &mut scratch.a);
-        scratch.b.clear();
-        for &j in &scratch.rows {
-            scratch
-                .b
-                .extend_from_slice(&rv[j * stride..j * stride + cols]);
-        }
-        let (a, b) = (&scratch.a, &scratch.b);
-        matmul_strided(
-            (m, live, cols),
-            a,
-            by_rows(live),
-            b,
-            by_rows(cols),
-            out,
-            by_rows(stride),
-            One,
-        );
-    }
-    let (v, v_out) = (&rv[cols..], &mut out[cols..]);
-    matmul_strided(
-        (m, k, g),
-        abs_w,
-        by_rows(k),
-        v,
-        by_rows(stride),
-        v_out,
-        by_rows(stride),
-        One,
-    );
+    nonzero_rows(rv, k, stride, 0..cols, &mut scratch.rows);
+    let slabs = &mut scratch.slabs;
+    abs_w.product(&scratch.rows, (rv, stride), cols, (out, stride), slabs);
+    nonzero_rows(rv, k, stride, cols..stride, &mut scratch.rows);
+    let (v, v_out) = ((&rv[cols..], stride), (&mut out[cols..], stride));
+    abs_w.product(&scratch.rows, v, g, v_out, &mut scratch.slabs);
 }
 
 /// IBP through affine layer `layer` for the group: from `ws.ic ± ws.ir` (post-ReLU, `n_in × G`)
@@ -617,8 +567,8 @@ mod tests {
     use crate::bounds::crown;
     use crate::bounds::test_support::*;
 
-    /// The magnitude products give the dense product of `|W|` with `[R̂ | V]`, whichever way
-    /// they take (one product, or `R̂`'s few nonzero rows and `V` apart), and write every entry.
+    /// The magnitude products give the dense product of `|W|` with `[R̂ | V]` (each part over
+    /// its own nonzero rows), and write every entry.
     #[test]
     fn magnitude_products_give_the_dense_product() {
         use rand::{Rng, SeedableRng};
@@ -643,15 +593,16 @@ mod tests {
             let (mut dense, mut out) = (vec![0.0; m * stride], vec![f64::NAN; m * stride]);
             gemm(m, k, stride, &a, &rv, &mut dense);
             let mut scratch = SparseScratch::default();
-            magnitude_products((m, k, cols, g), &a, &rv, &mut out, &mut scratch);
+            let packed = PackedMatrix::new(m, k, &a);
+            magnitude_products((k, cols, g), &packed, &rv, &mut out, &mut scratch);
             for (x, y) in dense.iter().zip(&out) {
                 assert!((x - y).abs() <= 1e-13, "{live} live rows: {x} vs {y}");
             }
         }
     }
 
-    /// The sparse product gives the dense product whichever way it takes (dense, or the few
-    /// nonzero rows of `B` gathered) and writes every entry.
+    /// The sparse product (over the nonzero rows of `B`) gives the dense product and writes
+    /// every entry.
     #[test]
     fn sparse_product_gives_the_dense_product() {
         use rand::{Rng, SeedableRng};
@@ -671,7 +622,8 @@ mod tests {
             let (mut dense, mut out) = (vec![0.0; m * cols], vec![f64::NAN; m * cols]);
             gemm(m, k, cols, &a, &b, &mut dense);
             let mut scratch = SparseScratch::default();
-            sparse_product((m, k, cols), &a, &b, &mut out, &mut scratch);
+            let packed = PackedMatrix::new(m, k, &a);
+            sparse_product((k, cols), &packed, &b, &mut out, &mut scratch);
             for (x, y) in dense.iter().zip(&out) {
                 assert!((x - y).abs() <= 1e-13, "{live} live rows: {x} vs {y}");
             }

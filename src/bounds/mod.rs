@@ -60,6 +60,7 @@ pub use ibp::ibp;
 pub(crate) use affine::OutRow;
 pub(crate) use batch::{for_each_group, Schedule};
 
+use crate::matmul::PackedMatrix;
 use crate::network::Mlp;
 use crate::rounding::{round_down, round_up};
 use batch::{run_per_box, validate_boxes, validate_network};
@@ -303,6 +304,10 @@ pub struct PreparedNetwork<'a> {
     net: &'a Mlp,
     /// `|W_k|` of every layer, row-major like `W_k`.
     pub(crate) abs_w: Vec<Vec<f64>>,
+    /// `W_k` and `|W_k|` packed for the forward method's products
+    /// ([`crate::matmul::PackedMatrix`]).
+    pub(crate) packed_w: Vec<PackedMatrix>,
+    pub(crate) packed_abs_w: Vec<PackedMatrix>,
     /// Upper bounds of the row sums of `|W_k|` (`n_k` per layer): forward bounds bound
     /// `|W_k| V ≤ rowsum · max V` for their rounding instead of computing the product.
     pub(crate) abs_row_sums: Vec<Vec<f64>>,
@@ -313,10 +318,18 @@ impl<'a> PreparedNetwork<'a> {
     /// computes `|W|`.
     pub fn new(net: &'a Mlp) -> Result<PreparedNetwork<'a>, BoundsError> {
         validate_network(net)?;
-        let abs_w = net
+        let abs_w: Vec<Vec<f64>> = net
             .layers
             .iter()
             .map(|l| l.weight.iter().map(|w| w.abs()).collect())
+            .collect();
+        let pack = |w: &[f64], l: &crate::network::Layer| PackedMatrix::new(l.n_out, l.n_in, w);
+        let packed_w = net.layers.iter().map(|l| pack(&l.weight, l)).collect();
+        let packed_abs_w = net
+            .layers
+            .iter()
+            .zip(&abs_w)
+            .map(|(l, a)| pack(a, l))
             .collect();
         let abs_row_sums = net
             .layers
@@ -336,6 +349,8 @@ impl<'a> PreparedNetwork<'a> {
         Ok(PreparedNetwork {
             net,
             abs_w,
+            packed_w,
+            packed_abs_w,
             abs_row_sums,
         })
     }

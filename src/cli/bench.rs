@@ -1,5 +1,6 @@
 //! `cbfreach bench`: box-steps per second of the reach engines, side by side in one process,
-//! with the GFLOP/s they reach by docs/design.md §5's model and the fraction of a peak rate.
+//! with the GFLOP/s they reach by docs/design.md §5's model and by the products run, and the
+//! fraction of the CPU's f64 limit (per wall-second, and per CPU-second on a shared machine).
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -7,7 +8,7 @@ use std::time::Instant;
 
 use cbfreach::bounds::{model_multiply_adds, BoundMethod};
 use cbfreach::boxes::IntervalBox;
-use cbfreach::matmul::{matmul, Threads};
+use cbfreach::machine::{f64_limit_gflops, process_cpu_seconds};
 use cbfreach::network::Mlp;
 use cbfreach::reach::{Backend, CpuBackend, ExactField, ReachProblem, ReachSettings};
 use cbfreach::scenario::Scenario;
@@ -42,8 +43,9 @@ pub struct BenchArgs {
     /// layer scaled by 0.05 so that tubes stay in C).
     #[arg(long)]
     pub network: Option<PathBuf>,
-    /// Peak rate in GFLOP/s to compare with (default: measured with a plain f64 matrix product
-    /// on the CPU; none for the GPU).
+    /// Peak rate in GFLOP/s to compare with (default: the CPU's f64 limit, measured with
+    /// fused multiply–adds on every thread, `cbfreach::machine::f64_limit_gflops`; none for
+    /// the GPU).
     #[arg(long)]
     pub peak: Option<f64>,
     /// Print where a GPU step's time goes: every kind of dispatch timed on its own (stderr).
@@ -52,26 +54,6 @@ pub struct BenchArgs {
     /// GPU adapter and number type (f64 where the adapter has it; `--f32`, `--f64`).
     #[command(flatten)]
     pub gpu: GpuArgs,
-}
-
-/// The CPU's f64 rate on plain 512³ matrix products, one per rayon thread at once (each
-/// single-threaded, as the engine runs them), GFLOP/s: the best of five rounds.
-fn measured_cpu_peak() -> f64 {
-    use rayon::prelude::*;
-    let n = 512;
-    let threads = rayon::current_num_threads();
-    let a = vec![1.0e-3; n * n];
-    let b = vec![1.0e-3; n * n];
-    let mut best = f64::INFINITY;
-    for _ in 0..5 {
-        let start = Instant::now();
-        (0..threads).into_par_iter().for_each(|_| {
-            let mut c = vec![0.0; n * n];
-            matmul((n, n, n), &a, &b, &mut c, Threads::One);
-        });
-        best = best.min(start.elapsed().as_secs_f64());
-    }
-    2.0 * (threads * n * n * n) as f64 / best / 1e9
 }
 
 /// `count` boxes 0.02 wide around points spread over the middle of C's safe part.
@@ -119,7 +101,8 @@ pub fn run(args: &BenchArgs) -> CliResult {
     let mut problem =
         ReachProblem::new(&s, net, 0.0)?.with_time(cbfreach::reach::TimeModel::Euler, 1);
     problem.steps = args.steps.max(1);
-    let cpu_peak = args.peak.unwrap_or_else(measured_cpu_peak);
+    let cpu_peak = args.peak.unwrap_or_else(f64_limit_gflops);
+    let threads = rayon::current_num_threads().max(1);
     println!(
         "cbfreach bench: `{}`, network {}, {} steps, CPU peak {cpu_peak:.1} GFLOP/s ({})",
         s.name,
@@ -132,7 +115,7 @@ pub fn run(args: &BenchArgs) -> CliResult {
         if args.peak.is_some() {
             "given"
         } else {
-            "measured: 512³ f64 matrix products on every thread"
+            "measured: f64 fused multiply-adds on every thread, the best of 60 short rounds"
         }
     );
 
@@ -156,8 +139,16 @@ pub fn run(args: &BenchArgs) -> CliResult {
         }
     }
     println!(
-        "  {:<34} {:<28} {:>7} {:>14} {:>10} {:>8} {:>10} {:>8}",
-        "engine", "bounds", "boxes", "box-steps/s", "GFLOP/s", "of peak", "run GF/s", "of peak"
+        "  {:<34} {:<28} {:>7} {:>14} {:>10} {:>8} {:>10} {:>8} {:>8}",
+        "engine",
+        "bounds",
+        "boxes",
+        "box-steps/s",
+        "GFLOP/s",
+        "of peak",
+        "run GF/s",
+        "of peak",
+        "per CPU"
     );
     for (label, engine, peak) in &engines {
         for &method in &args.bounds {
@@ -177,8 +168,10 @@ pub fn run(args: &BenchArgs) -> CliResult {
             for &count in &args.boxes {
                 let boxes = bench_boxes(&s, count);
                 let (start, counted) = (Instant::now(), cbfreach::matmul::multiply_adds());
+                let cpu_start = process_cpu_seconds();
                 let result = engine.reach(&problem, &boxes, &settings, &|_, _| {})?;
                 let seconds = start.elapsed().as_secs_f64();
+                let cpu_seconds = process_cpu_seconds().zip(cpu_start).map(|(b, a)| b - a);
                 let done = (cbfreach::matmul::multiply_adds() - counted) as f64;
                 // Count the box-steps actually run (a tube that leaves C stops).
                 let box_steps: f64 = result
@@ -191,26 +184,36 @@ pub fn run(args: &BenchArgs) -> CliResult {
                 let share = peak.map_or("-".to_string(), |p| format!("{:.0}%", 100.0 * gflops / p));
                 // The products the CPU engine ran (it skips rows that are zero: fewer than the
                 // model's where neurons are stable), as GFLOP/s and share of the peak.
-                let (run_gflops, run_share) = match (label.as_str(), peak) {
+                // Per CPU-second: the products run over the CPU time the process used, against
+                // one thread's share of the peak (other work on the machine takes wall time,
+                // not CPU time).
+                let (run_gflops, run_share, cpu_share) = match (label.as_str(), peak) {
                     ("cpu", Some(p)) => {
                         let g = 2.0 * done / seconds / 1e9;
-                        (format!("{g:.1}"), format!("{:.0}%", 100.0 * g / p))
+                        let per_cpu = cpu_seconds.filter(|&c| c > 0.0).map_or("-".into(), |c| {
+                            format!(
+                                "{:.0}%",
+                                100.0 * 2.0 * done / c / 1e9 / (p / threads as f64)
+                            )
+                        });
+                        (format!("{g:.1}"), format!("{:.0}%", 100.0 * g / p), per_cpu)
                     }
-                    _ => ("-".to_string(), "-".to_string()),
+                    _ => ("-".to_string(), "-".to_string(), "-".to_string()),
                 };
                 println!(
-                    "  {label:<34} {:<28} {:>7} {:>14.0} {:>10.1} {:>8} {:>10} {:>8}",
+                    "  {label:<34} {:<28} {:>7} {:>14.0} {:>10.1} {:>8} {:>10} {:>8} {:>8}",
                     method.to_string(),
                     boxes.len(),
                     rate,
                     gflops,
                     share,
                     run_gflops,
-                    run_share
+                    run_share,
+                    cpu_share
                 );
             }
         }
     }
-    println!("  (GFLOP/s by docs/design.md §5's model of the network bounds only; run GF/s: the products the CPU engine ran, counted; GPU times include upload, shader compilation and readback)");
+    println!("  (GFLOP/s by docs/design.md §5's model of the network bounds only; run GF/s: the products the CPU engine ran, counted; per CPU: the same per CPU-second of the process against one thread's share of the peak; GPU times include upload, shader compilation and readback)");
     Ok(())
 }

@@ -11,6 +11,9 @@
 
 use std::sync::atomic::{AtomicU64, Ordering};
 
+mod packed;
+pub use packed::PackedMatrix;
+
 use gemm::Parallelism;
 
 /// Multiply–adds of every product since the process started (`m·k·n` each): what a benchmark
