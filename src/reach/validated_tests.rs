@@ -351,3 +351,79 @@ fn guessed_moving_box_holds_the_flow() {
     let r = slab_field(&d, &set, &mv, h, none, &[0.0]);
     assert!(verified(&mv, (&r.0, &r.1)), "{:?} {r:?}", mv.faces);
 }
+
+/// The first step's standing box (no rates yet): proven where the field points strictly into
+/// every face, and then every trajectory stays in the set over the step; where a face moves
+/// out it fails (rightly: a corner leaves at once), and the re-guess from its faces' rates, as
+/// the engine makes it, is proven and holds the exact flow at every τ.
+#[test]
+fn standing_box_is_proven_only_where_the_field_points_in() {
+    let z = [0.0; 4];
+    let none = |_: usize, _: bool| no_network(&z);
+    let h = 0.1;
+    // ẋ = −x on [−1, 1] × [−0.5, 0.5]: every face moves in.
+    let d = linear([[-1.0, 0.0], [0.0, -1.0]]);
+    let set = IntervalBox::new(vec![-1.0, -0.5], vec![1.0, 0.5]).unwrap();
+    let mv = standing(&set);
+    assert_eq!(mv.set, set);
+    let r = slab_field(&d, &set, &mv, h, none, &[0.0]);
+    assert!(verified(&mv, (&r.0, &r.1)), "{r:?}");
+    // A damped rotation from [0.9, 1.1] × [−0.1, 0.1]: x₂ falls on the lower face.
+    let d = linear([[-0.5, 1.0], [-1.0, -0.5]]);
+    let flow = |x: [f64; 2], t: f64| {
+        let (c, s, e) = (t.cos(), t.sin(), (-0.5 * t).exp());
+        [e * (c * x[0] + s * x[1]), e * (-s * x[0] + c * x[1])]
+    };
+    let set = IntervalBox::new(vec![0.9, -0.1], vec![1.1, 0.1]).unwrap();
+    let mv = standing(&set);
+    let r = slab_field(&d, &set, &mv, h, none, &[0.0]);
+    assert!(!verified(&mv, (&r.0, &r.1)), "{r:?}");
+    assert!(!set.contains(&flow([0.9, -0.1], 0.01).to_vec()));
+    // The re-guess (past the missed faces by the miss, as `cpu_guess::reguess`).
+    let m = mv.faces.as_ref().unwrap();
+    let missed_l: Vec<f64> = (0..2).map(|i| r.0[i].max(m.lower[i])).collect();
+    let missed_u: Vec<f64> = (0..2).map(|i| r.1[i].min(m.upper[i])).collect();
+    let mv = guessed(&set, h, (&r.0, &r.1), Some((&missed_l, &missed_u))).unwrap();
+    let r = slab_field(&d, &set, &mv, h, none, &[0.0]);
+    assert!(verified(&mv, (&r.0, &r.1)), "{r:?}");
+    let m = mv.faces.as_ref().unwrap();
+    for k in 0..=8 {
+        let a = 0.9 + 0.025 * k as f64;
+        let b = -0.1 + 0.025 * k as f64;
+        for x in [[a, -0.1], [a, 0.1], [0.9, b], [1.1, b]] {
+            for j in 0..=10 {
+                let tau = h * j as f64 / 10.0;
+                let y = flow(x, tau);
+                for i in 0..2 {
+                    let lo = set.lower[i] + tau * m.lower[i] - 1e-12;
+                    let hi = set.upper[i] + tau * m.upper[i] + 1e-12;
+                    assert!(lo <= y[i] && y[i] <= hi, "{y:?} left the box at τ = {tau}");
+                }
+            }
+        }
+    }
+}
+
+/// A set on a side of `C` where the field points out of `C` has no enclosure within `C`: the
+/// tries stop at once (a few field bounds, not eight tries at each halving); where the field
+/// points in, the enclosure closes as before.
+#[test]
+fn enclosure_stops_where_the_set_lies_on_a_side_of_c_it_leaves() {
+    let z = [0.0; 4];
+    let c = IntervalBox::new(vec![-2.0, -2.0], vec![1.0, 2.0]).unwrap();
+    let set = IntervalBox::new(vec![0.5, 0.0], vec![1.0, 1.0]).unwrap();
+    for (sign, closes) in [(1.0, false), (-1.0, true)] {
+        let d = linear([[sign, 0.0], [0.0, -1.0]]);
+        let field = exact_field(&d, &z);
+        let calls = std::cell::Cell::new(0);
+        let counted = |a: &IntervalBox, parts: bool| {
+            calls.set(calls.get() + 1);
+            field(a, parts)
+        };
+        let found = enclose_step(&set, 0.1, None, Some(&c), counted).unwrap();
+        assert_eq!(matches!(found, Enclosure::Closed(_)), closes);
+        if !closes {
+            assert!(calls.get() <= 15, "{} field bounds", calls.get());
+        }
+    }
+}
