@@ -18,19 +18,12 @@ impl ChunkRun<'_> {
         }
         let mut pipes = Vec::with_capacity(self.frames.len());
         for (f, frame) in self.frames.iter().enumerate() {
-            // The first step has no rates yet: faces that stand still (the check fails where
-            // the field moves a face outward, and the re-guess takes the faces' rates, Euler's),
-            // not a Picard enclosure from scratch (~20 network bounds a box).
-            let pipe = match &state.rates[f] {
-                None => validated::standing(&state.sets[f]),
-                Some((l, u)) => {
-                    let before = state.before[f].as_ref().map(|(l, u)| (&l[..], &u[..]));
-                    let Some(pipe) = validated::guessed(&state.sets[f], self.h, (l, u), before)
-                    else {
-                        return;
-                    };
-                    pipe
-                }
+            let Some((l, u)) = &state.rates[f] else {
+                return;
+            };
+            let before = state.before[f].as_ref().map(|(l, u)| (&l[..], &u[..]));
+            let Some(pipe) = validated::guessed(&state.sets[f], self.h, (l, u), before) else {
+                return;
             };
             let p = frame.problem;
             if p.transform.is_none() && !pipe.set.is_subset_of(&p.region) {

@@ -290,13 +290,6 @@ fn enclose_once<E>(
                 enclosed: true,
             }));
         }
-        if region.is_some_and(|r| pinned(set, &a, r, &inward)) {
-            // The set lies on a side of `C` the field is not proven to point into: every
-            // larger candidate is clipped to that side, where `B` reaches it, and its face
-            // there only grows; no try closes (these tries, each with its parts, were most
-            // of a run's time on boxes whose sets leave `C`).
-            break;
-        }
         let grown = IntervalBox {
             lower: (0..a.dim()).map(|i| a.lower[i].min(b.lower[i])).collect(),
             upper: (0..a.dim()).map(|i| a.upper[i].max(b.upper[i])).collect(),
@@ -307,16 +300,6 @@ fn enclose_once<E>(
         }
     }
     Ok(Enclosure::Open)
-}
-
-/// Whether `set` lies on a side of `C` that is also `a`'s and that `inward` does not prove
-/// (the field may point out of `C` there): [`enclose_once`] stops trying.
-fn pinned(set: &IntervalBox, a: &IntervalBox, r: &IntervalBox, inward: &[[bool; 2]]) -> bool {
-    (0..a.dim()).any(|i| {
-        let lower = set.lower[i] <= r.lower[i] && a.lower[i] == r.lower[i] && !inward[i][0];
-        let upper = set.upper[i] >= r.upper[i] && a.upper[i] == r.upper[i] && !inward[i][1];
-        lower || upper
-    })
 }
 
 /// Per coordinate, whether `a`'s lower and upper sides are `C`'s with the field `(lo, hi)`
@@ -533,25 +516,6 @@ pub fn guessed(
 
 /// [`guessed`]'s margin around the guessed rates, as a share of their spread and size.
 const GUESS_MARGIN: f64 = 0.05;
-
-/// The moving box of a step with no rates yet (the first): faces that stand still, so its hull
-/// and slabs are the set and its faces. [`verified`] proves it where the field on every face
-/// points strictly inward; elsewhere the caller guesses again from the faces' rates.
-pub fn standing(set: &IntervalBox) -> Flowpipe {
-    let zeros = vec![0.0; set.dim()];
-    Flowpipe {
-        set: set.clone(),
-        f_lower: zeros.clone(),
-        f_upper: zeros.clone(),
-        faces: Some(MovingFaces {
-            lower: zeros.clone(),
-            upper: zeros.clone(),
-            depth_lower: zeros.clone(),
-            depth_upper: zeros,
-        }),
-        enclosed: false,
-    }
-}
 
 /// Whether the rates `(dl, du)` found on a moving box's slabs prove it (item 3): every face
 /// moves faster than the field on its slab (`s̄ᵢ > du_i`, `s̲ᵢ < dl_i`), or at least as fast as
