@@ -319,13 +319,16 @@ pub struct BarrierCase {
     pub h: f64,
 }
 
+/// A barrier that settled: `(a + hb/2, w̲, w̄)` (`end_rates::barrier`'s `Some`).
+pub type Settled = (f64, f64, f64);
+
 /// `barrier` of `shaders/end_rates.wgsl` on the device (f64), for cases of one dimension `n`:
 /// `(a + hb/2, w̲, w̄)` where it settles.
 pub fn barrier_on_device(
     ctx: &GpuContext,
     n: usize,
     cases: &[BarrierCase],
-) -> Result<Vec<Option<(f64, f64, f64)>>, GpuError> {
+) -> Result<Vec<Option<Settled>>, GpuError> {
     let kernel = format!(
         "
 const ABS_UNIT: real = 0.0;
