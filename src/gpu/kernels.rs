@@ -7,7 +7,7 @@
 
 use super::{GpuError, Precision};
 
-const REAL_F32: &str = include_str!("../../shaders/real_f32.wgsl");
+pub(crate) const REAL_F32: &str = include_str!("../../shaders/real_f32.wgsl");
 pub(crate) const REAL_F64: &str = include_str!("../../shaders/real_f64.wgsl");
 pub(crate) const F32_BITS: &str = include_str!("../../shaders/f32_bits.wgsl");
 pub(crate) const COMMON: &str = include_str!("../../shaders/common.wgsl");

@@ -8,8 +8,8 @@ use wgpu::util::DeviceExt;
 
 use super::buffers::{uniform, Params};
 use super::kernels::{
-    COMMON, END_RATES, F32_BITS, GEMM, GEMM_FLAT_BLOCK, GEMM_TILE, PARAMS, REAL_F64, TURN,
-    VALIDATED, WORKGROUP,
+    COMMON, END_RATES, F32_BITS, GEMM, GEMM_FLAT_BLOCK, GEMM_TILE, PARAMS, REAL_F32, REAL_F64,
+    TURN, VALIDATED, WORKGROUP,
 };
 use super::{GpuContext, GpuError};
 use crate::boxes::IntervalBox;
@@ -380,6 +380,34 @@ fn barrier_test(@builtin(global_invocation_id) id: vec3<u32>) {{
         .chunks(4)
         .map(|y| (y[0] != 0.0).then_some((y[1], y[2], y[3])))
         .collect())
+}
+
+/// Compiles `shaders/validated.wgsl` and `shaders/end_rates.wgsl` with the f32 prelude, every
+/// function called (their probes run f64 alone): the shader's validation error where they do
+/// not compile.
+pub fn validated_compiles_in_f32(ctx: &GpuContext) -> Result<(), GpuError> {
+    let kernel = "
+const ABS_UNIT: real = 0.0;
+const N0: u32 = 2u;
+@group(0) @binding(0) var<storage, read_write> ys: array<f32>;
+
+@compute @workgroup_size(1)
+fn f32_check() {
+    var x: array<real, N0>;
+    x[0] = ys[0];
+    x[1] = ys[1];
+    let m = guessed(x, x, ys[2], x, x, x, x, ys[3] > 0.0);
+    let s = slab(x, x, m, ys[2], 0u, 1u);
+    let e = slab_step_end(x, x, m, ys[2], x, x, x, x);
+    var k: array<Iv, N0>;
+    k[0] = Iv(ys[0], ys[1]);
+    k[1] = k[0];
+    let b = barrier(ys[0], k, k, k, 0u, ys[2]);
+    ys[4] = s.lo[0] + e.hi[1] + b.r + select(0.0, 1.0, verified(m, x, x));
+}
+";
+    let source = format!("{REAL_F32}\n{F32_BITS}\n{COMMON}\n{VALIDATED}\n{END_RATES}\n{kernel}");
+    compile(&ctx.device, &source, "f32_check").map(|_| ())
 }
 
 /// Runs the kernel `entry` of the f64 WGSL `source` (binding 0: `xs`, read-only; binding 1:

@@ -281,3 +281,11 @@ fn curved_rates_barrier_matches_the_cpus() {
     eprintln!("barrier: {settled} settled, {unsettled} not");
     assert!(settled >= 6000 && unsettled >= 300);
 }
+
+/// The same shaders compile with the f32 prelude (the engine builds every kernel in both; the
+/// tests above run f64 alone).
+#[test]
+fn validated_shaders_compile_in_f32() {
+    let Some(g) = gpu() else { return };
+    cbfreach::gpu::probe::validated_compiles_in_f32(g.context()).unwrap();
+}
