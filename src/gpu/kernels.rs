@@ -7,7 +7,7 @@
 
 use super::{GpuError, Precision};
 
-const REAL_F32: &str = include_str!("../../shaders/real_f32.wgsl");
+pub(crate) const REAL_F32: &str = include_str!("../../shaders/real_f32.wgsl");
 pub(crate) const REAL_F64: &str = include_str!("../../shaders/real_f64.wgsl");
 pub(crate) const F32_BITS: &str = include_str!("../../shaders/f32_bits.wgsl");
 pub(crate) const COMMON: &str = include_str!("../../shaders/common.wgsl");
@@ -25,6 +25,10 @@ pub(crate) const TURN: &str = include_str!("../../shaders/turn.wgsl");
 const SETS: &str = include_str!("../../shaders/sets.wgsl");
 const SETTLE: &str = include_str!("../../shaders/settle.wgsl");
 pub(crate) const PHI: &str = include_str!("../../shaders/phi.wgsl");
+/// The continuous step's guessed moving box (not yet in a pipeline: run by [`super::probe`]).
+pub(crate) const VALIDATED: &str = include_str!("../../shaders/validated.wgsl");
+/// The curved rates' barrier (not yet in a pipeline: run by [`super::probe`]).
+pub(crate) const END_RATES: &str = include_str!("../../shaders/end_rates.wgsl");
 
 /// Workgroup size of the one-dimensional kernels (`@workgroup_size(64)` in the shaders).
 pub const WORKGROUP: u32 = 64;

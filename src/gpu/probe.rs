@@ -1,15 +1,19 @@
 //! Single WGSL primitives run on the device, for tests against the Rust they mirror
 //! (tests/gpu_matches_cpu/, tests/gpu_pipelines.rs): `turn_rate` (`shaders/turn.wgsl`, the
-//! CPU's `euler_turn`), the GEMM kernels (tiled and flat) against each other, and the runner
-//! that [`super::exp64`] shares.
+//! CPU's `euler_turn`), the continuous step's guessed moving box (`shaders/validated.wgsl`,
+//! the CPU's `validated`), the GEMM kernels (tiled and flat) against each other, and the
+//! runner that [`super::exp64`] shares.
 
 use wgpu::util::DeviceExt;
 
 use super::buffers::{uniform, Params};
 use super::kernels::{
-    COMMON, F32_BITS, GEMM, GEMM_FLAT_BLOCK, GEMM_TILE, PARAMS, REAL_F64, TURN, WORKGROUP,
+    COMMON, END_RATES, F32_BITS, GEMM, GEMM_FLAT_BLOCK, GEMM_TILE, PARAMS, REAL_F32, REAL_F64,
+    TURN, VALIDATED, WORKGROUP,
 };
 use super::{GpuContext, GpuError};
+use crate::boxes::IntervalBox;
+use crate::reach::validated::MovingFaces;
 
 /// `y` after one dispatch of the f64 GEMM kernel (`gemm`, or `gemm_flat` where `flat`) with
 /// `p`'s shape and options (`rows`, `inner`, `cols`, `abs_w`, `trans_w`, `relu_x`, `w_off`,
@@ -133,6 +137,277 @@ fn turn_test(@builtin(global_invocation_id) id: vec3<u32>) {
     let source = format!("{REAL_F64}\n{F32_BITS}\n{COMMON}\n{TURN}\n{kernel}");
     let xs: Vec<f64> = inputs.iter().flatten().copied().collect();
     run(ctx, &source, "turn_test", &xs, inputs.len(), 1)
+}
+
+/// One guessed step of the continuous model, as [`validated_on_device`] takes it: the set,
+/// the step `h`, last step's slab rates and those of the step before (where known), the rates
+/// the step's field gave on the guessed box's slabs, and second-order rates (`∓1e300` where
+/// none).
+#[derive(Clone, Debug)]
+pub struct GuessCase {
+    /// The set `[x̲, x̄]` at the step's start.
+    pub set: IntervalBox,
+    /// The step.
+    pub h: f64,
+    /// `(r̲, r̄)`: last step's slab rates.
+    pub rates: (Vec<f64>, Vec<f64>),
+    /// The slab rates of the step before, for the trend.
+    pub before: Option<(Vec<f64>, Vec<f64>)>,
+    /// `(dl, du)`: the field's bounds on the guessed box's slabs.
+    pub slab_rates: (Vec<f64>, Vec<f64>),
+    /// `(cl, cu)`: second-order rates, met with the clamped slab rates.
+    pub curved: (Vec<f64>, Vec<f64>),
+}
+
+/// What `shaders/validated.wgsl` made of a [`GuessCase`] on the device.
+#[derive(Clone, Debug)]
+pub struct GuessOnDevice {
+    /// `guessed`'s `ok` (the Rust's `Some`); the rest means nothing where false.
+    pub ok: bool,
+    /// The faces' rates and the slabs' depths.
+    pub faces: MovingFaces,
+    /// The hull over the step.
+    pub hull: IntervalBox,
+    /// The 2n slabs, in the order (0, lower), (0, upper), (1, lower), …
+    pub slabs: Vec<(Vec<f64>, Vec<f64>)>,
+    /// `verified` on the case's slab rates.
+    pub verified: bool,
+    /// `slab_step_end`: the set at the step's end.
+    pub end: IntervalBox,
+}
+
+/// The primitives of `shaders/validated.wgsl` (`guessed`, `slab`, `verified`,
+/// `slab_step_end`) on the device (f64), for cases of one dimension `n`.
+pub fn guessed_on_device(
+    ctx: &GpuContext,
+    n: usize,
+    cases: &[GuessCase],
+) -> Result<Vec<GuessOnDevice>, GpuError> {
+    let kernel = format!(
+        "
+const ABS_UNIT: real = 0.0;
+const N0: u32 = {n}u;
+{VALIDATED}
+@group(0) @binding(0) var<storage, read> xs: array<f64>;
+@group(0) @binding(1) var<storage, read_write> ys: array<f64>;
+
+// Per case lo, hi, h, r_lo, r_hi, b_lo, b_hi, before, dl, du, cl, cu.
+const IN: u32 = 10u * N0 + 2u;
+const OUT: u32 = 2u + 8u * N0 + 4u * N0 * N0;
+
+fn take(at: u32) -> array<real, N0> {{
+    var a: array<real, N0>;
+    for (var j = 0u; j < N0; j++) {{
+        a[j] = xs[at + j];
+    }}
+    return a;
+}}
+
+fn put(at: u32, a: array<real, N0>) {{
+    for (var j = 0u; j < N0; j++) {{
+        ys[at + j] = a[j];
+    }}
+}}
+
+@compute @workgroup_size(64)
+fn guess_test(@builtin(global_invocation_id) id: vec3<u32>) {{
+    let k = id.x;
+    if (k >= arrayLength(&xs) / IN) {{
+        return;
+    }}
+    let a = k * IN;
+    let lo = take(a);
+    let hi = take(a + N0);
+    let h = xs[a + 2u * N0];
+    let m = guessed(lo, hi, h, take(a + 2u * N0 + 1u), take(a + 3u * N0 + 1u), take(a + 4u * N0 + 1u), take(a + 5u * N0 + 1u), xs[a + 6u * N0 + 1u] != 0.0);
+    let dl = take(a + 6u * N0 + 2u);
+    let du = take(a + 7u * N0 + 2u);
+    var o = k * OUT;
+    ys[o] = select(real(0.0), real(1.0), m.ok);
+    put(o + 1u, m.s_lo);
+    put(o + 1u + N0, m.s_hi);
+    put(o + 1u + 2u * N0, m.d_lo);
+    put(o + 1u + 3u * N0, m.d_hi);
+    put(o + 1u + 4u * N0, m.hull_lo);
+    put(o + 1u + 5u * N0, m.hull_hi);
+    o = o + 1u + 6u * N0;
+    for (var i = 0u; i < N0; i++) {{
+        for (var side = 0u; side < 2u; side++) {{
+            let s = slab(lo, hi, m, h, i, side);
+            put(o, s.lo);
+            put(o + N0, s.hi);
+            o = o + 2u * N0;
+        }}
+    }}
+    ys[o] = select(real(0.0), real(1.0), verified(m, dl, du));
+    let end = slab_step_end(lo, hi, m, h, dl, du, take(a + 8u * N0 + 2u), take(a + 9u * N0 + 2u));
+    put(o + 1u, end.lo);
+    put(o + 1u + N0, end.hi);
+}}
+"
+    );
+    let source = format!("{REAL_F64}\n{F32_BITS}\n{COMMON}\n{kernel}");
+    let mut xs = Vec::with_capacity(cases.len() * (10 * n + 2));
+    for c in cases {
+        let (bl, bu) = c
+            .before
+            .clone()
+            .unwrap_or_else(|| (vec![0.0; n], vec![0.0; n]));
+        xs.extend(&c.set.lower);
+        xs.extend(&c.set.upper);
+        xs.push(c.h);
+        for v in [&c.rates.0, &c.rates.1, &bl, &bu] {
+            xs.extend(v);
+        }
+        xs.push(f64::from(u8::from(c.before.is_some())));
+        for v in [&c.slab_rates.0, &c.slab_rates.1, &c.curved.0, &c.curved.1] {
+            xs.extend(v);
+        }
+    }
+    let per = 2 + 8 * n + 4 * n * n;
+    let ys = run(ctx, &source, "guess_test", &xs, cases.len(), per)?;
+    Ok(ys
+        .chunks(per)
+        .map(|y| {
+            let part = |k: usize| y[1 + k * n..1 + (k + 1) * n].to_vec();
+            let at = 1 + 6 * n;
+            let slabs = (0..2 * n)
+                .map(|s| {
+                    let b = at + 2 * n * s;
+                    (y[b..b + n].to_vec(), y[b + n..b + 2 * n].to_vec())
+                })
+                .collect();
+            let end = at + 4 * n * n;
+            GuessOnDevice {
+                ok: y[0] != 0.0,
+                faces: MovingFaces {
+                    lower: part(0),
+                    upper: part(1),
+                    depth_lower: part(2),
+                    depth_upper: part(3),
+                },
+                hull: IntervalBox {
+                    lower: part(4),
+                    upper: part(5),
+                },
+                slabs,
+                verified: y[end] != 0.0,
+                end: IntervalBox {
+                    lower: y[end + 1..end + 1 + n].to_vec(),
+                    upper: y[end + 1 + n..end + 1 + 2 * n].to_vec(),
+                },
+            }
+        })
+        .collect())
+}
+
+/// One upper end's barrier of the curved rates, as [`barrier_on_device`] takes it
+/// (`end_rates::barrier`'s arguments, the other coordinates' beside `i`'s).
+#[derive(Clone, Debug)]
+pub struct BarrierCase {
+    /// The slab form's upper value at `p`.
+    pub c: f64,
+    /// Per coordinate the form's slope `[k̲ⱼ, k̄ⱼ]` (at `i`: `kᵢ`).
+    pub k: Vec<(f64, f64)>,
+    /// Per coordinate the set's offsets from `p` (unused at `i`).
+    pub d: Vec<(f64, f64)>,
+    /// Per coordinate its ends' rates (unused at `i`).
+    pub a: Vec<(f64, f64)>,
+    /// The end's coordinate.
+    pub i: usize,
+    /// The step.
+    pub h: f64,
+}
+
+/// A barrier that settled: `(a + hb/2, w̲, w̄)` (`end_rates::barrier`'s `Some`).
+pub type Settled = (f64, f64, f64);
+
+/// `barrier` of `shaders/end_rates.wgsl` on the device (f64), for cases of one dimension `n`:
+/// `(a + hb/2, w̲, w̄)` where it settles.
+pub fn barrier_on_device(
+    ctx: &GpuContext,
+    n: usize,
+    cases: &[BarrierCase],
+) -> Result<Vec<Option<Settled>>, GpuError> {
+    let kernel = format!(
+        "
+const ABS_UNIT: real = 0.0;
+const N0: u32 = {n}u;
+{END_RATES}
+@group(0) @binding(0) var<storage, read> xs: array<f64>;
+@group(0) @binding(1) var<storage, read_write> ys: array<f64>;
+
+// Per case c, i, h, then per coordinate k, d, a (two ends each).
+const IN: u32 = 3u + 6u * N0;
+
+fn iv_at(at: u32) -> Iv {{
+    return Iv(xs[at], xs[at + 1u]);
+}}
+
+@compute @workgroup_size(64)
+fn barrier_test(@builtin(global_invocation_id) id: vec3<u32>) {{
+    let q = id.x;
+    if (q >= arrayLength(&xs) / IN) {{
+        return;
+    }}
+    let at = q * IN;
+    var k: array<Iv, N0>;
+    var d: array<Iv, N0>;
+    var a: array<Iv, N0>;
+    for (var j = 0u; j < N0; j++) {{
+        k[j] = iv_at(at + 3u + 6u * j);
+        d[j] = iv_at(at + 5u + 6u * j);
+        a[j] = iv_at(at + 7u + 6u * j);
+    }}
+    let b = barrier(xs[at], k, d, a, u32(xs[at + 1u]), xs[at + 2u]);
+    ys[4u * q] = select(real(0.0), real(1.0), b.ok);
+    ys[4u * q + 1u] = b.r;
+    ys[4u * q + 2u] = b.w_lo;
+    ys[4u * q + 3u] = b.w_hi;
+}}
+"
+    );
+    let source = format!("{REAL_F64}\n{F32_BITS}\n{COMMON}\n{kernel}");
+    let mut xs = Vec::with_capacity(cases.len() * (3 + 6 * n));
+    for c in cases {
+        xs.extend([c.c, c.i as f64, c.h]);
+        for j in 0..n {
+            xs.extend([c.k[j].0, c.k[j].1, c.d[j].0, c.d[j].1, c.a[j].0, c.a[j].1]);
+        }
+    }
+    let ys = run(ctx, &source, "barrier_test", &xs, cases.len(), 4)?;
+    Ok(ys
+        .chunks(4)
+        .map(|y| (y[0] != 0.0).then_some((y[1], y[2], y[3])))
+        .collect())
+}
+
+/// Compiles `shaders/validated.wgsl` and `shaders/end_rates.wgsl` with the f32 prelude, every
+/// function called (their probes run f64 alone): the shader's validation error where they do
+/// not compile.
+pub fn validated_compiles_in_f32(ctx: &GpuContext) -> Result<(), GpuError> {
+    let kernel = "
+const ABS_UNIT: real = 0.0;
+const N0: u32 = 2u;
+@group(0) @binding(0) var<storage, read_write> ys: array<f32>;
+
+@compute @workgroup_size(1)
+fn f32_check() {
+    var x: array<real, N0>;
+    x[0] = ys[0];
+    x[1] = ys[1];
+    let m = guessed(x, x, ys[2], x, x, x, x, ys[3] > 0.0);
+    let s = slab(x, x, m, ys[2], 0u, 1u);
+    let e = slab_step_end(x, x, m, ys[2], x, x, x, x);
+    var k: array<Iv, N0>;
+    k[0] = Iv(ys[0], ys[1]);
+    k[1] = k[0];
+    let b = barrier(ys[0], k, k, k, 0u, ys[2]);
+    ys[4] = s.lo[0] + e.hi[1] + b.r + select(0.0, 1.0, verified(m, x, x));
+}
+";
+    let source = format!("{REAL_F32}\n{F32_BITS}\n{COMMON}\n{VALIDATED}\n{END_RATES}\n{kernel}");
+    compile(&ctx.device, &source, "f32_check").map(|_| ())
 }
 
 /// Runs the kernel `entry` of the f64 WGSL `source` (binding 0: `xs`, read-only; binding 1:

@@ -92,8 +92,9 @@ pub fn curved_rates<'a>(
 /// [`curved_rates`]' barrier for one upper end, in that end's sign: `c` the form's upper value
 /// at `p`, per other coordinate `(k, (d̲, d̄), (a̲, ā))` (slopes, the set's offsets from `p`, its
 /// ends' rates), `kᵢ`. Returns `(a + hb/2, w̲, w̄)`, rounded up, or `None` where `b` does not
-/// settle (`h·|kᵢ|` near 2 or more) or a value is not finite.
-fn barrier(
+/// settle (`h·|kᵢ|` near 2 or more) or a value is not finite. `barrier` in
+/// `shaders/end_rates.wgsl` mirrors it.
+pub fn barrier(
     c: f64,
     others: impl Iterator<Item = ((f64, f64), (f64, f64), (f64, f64))>,
     k_i: (f64, f64),
@@ -117,17 +118,25 @@ fn barrier(
     for _ in 0..4 {
         let end = point(a) + half_h * point(b);
         let w = (end.lower.min(a), end.upper.max(a));
-        let need = up(point(q) + point(sup(k_i, w)));
+        let s = sup(k_i, w);
+        let need = up(point(q) + point(s));
         if !(need.is_finite() && b.is_finite() && a.is_finite()) {
             return None;
         }
         if need <= b {
             return Some((up(point(a) + half_h * point(b)), w.0, w.1));
         }
-        b = need;
+        // Past the fixed point by more than the rounding of `need`: any `b` is sound (the check
+        // above decides), and without the margin the GPU's coarser outward steps (4 ulp) keep
+        // `need` a few ulps above `b` while it creeps up to the fixed point, never settling.
+        b = need + BARRIER_OVERSHOOT * (q.abs() + s.abs());
     }
     None
 }
+
+/// [`barrier`]'s step past its fixed point, relative to the magnitudes summed (`2¹⁰` ulp; the
+/// shaders' `BARRIER_OVERSHOOT` is the same in their unit, 1.2e-4 in f32).
+const BARRIER_OVERSHOOT: f64 = 1024.0 * f64::EPSILON;
 
 /// Second-order rates where the field is one smooth function `Φ` on the flowpipe (a proven
 /// piece of the filter): `x(h) = x₀ + hΦ(x₀) + ∫₀ʰ (h − s) DΦ(x(s)) ẋ(s) ds`, so

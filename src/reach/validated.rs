@@ -478,7 +478,8 @@ fn moving_hull(set: &IntervalBox, h: f64, m: &MovingFaces) -> Option<IntervalBox
 /// (`before`), `s̄ = max(r̄, r̂) + δ`, `ρ̄ = min(r̄, r̂) − δ` with `r̂ = 2r̄ − r̄_before` the
 /// trend and `δ` a margin ([`GUESS_MARGIN`]; mirrored below). `None` where the box turns
 /// inside out or a value is not finite. Nothing is known of it until [`verified`] passes on
-/// every frame's rates, with the facts (piece, local `M`) taken on its hull.
+/// every frame's rates, with the facts (piece, local `M`) taken on its hull. `guessed` in
+/// `shaders/validated.wgsl` mirrors it (and [`slab`], [`verified`] of such a box).
 pub fn guessed(
     set: &IntervalBox,
     h: f64,
@@ -642,13 +643,19 @@ pub fn slab_field<'a>(
     };
     let mut dl: Vec<f64> = (0..n).map(|i| side(i, false).lower).collect();
     let mut du: Vec<f64> = (0..n).map(|i| side(i, true).upper).collect();
-    // `s̄ᵢ ≥ F̲ᵢ` and `s̲ᵢ ≤ F̄ᵢ` hold for exact bounds (the slabs meet the flowpipe); kept so for
-    // any rounding, as the argument needs (for a moving box: `≥ ρ̄ᵢ`, `≤ ρ̲ᵢ`, item 3).
-    for i in 0..n {
+    clamp_to_depths(pipe, &mut dl, &mut du);
+    (dl, du)
+}
+
+/// Slab rates `(dl, du)` kept within the depths their slabs were built for: `s̄ᵢ ≥ F̲ᵢ` and
+/// `s̲ᵢ ≤ F̄ᵢ` hold for exact bounds (the slabs meet the flowpipe); kept so for any rounding, as
+/// the argument needs (for a moving box: `≥ ρ̄ᵢ`, `≤ ρ̲ᵢ`, item 3). [`slab_field`]'s last step;
+/// `slab_step_end` in `shaders/validated.wgsl` mirrors it.
+pub fn clamp_to_depths(pipe: &Flowpipe, dl: &mut [f64], du: &mut [f64]) {
+    for i in 0..dl.len() {
         du[i] = du[i].max(depth(pipe, i, true));
         dl[i] = dl[i].min(depth(pipe, i, false));
     }
-    (dl, du)
 }
 
 /// After the step: the new set lies in the flowpipe too.

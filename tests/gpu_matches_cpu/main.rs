@@ -17,6 +17,7 @@ mod common;
 mod margins;
 mod methods;
 mod primitives;
+mod validated;
 
 use cbfreach::reach::TimeModel;
 

@@ -1,0 +1,291 @@
+//! The continuous step's guessed moving box on the device (`shaders/validated.wgsl`) against the
+//! CPU's `validated` that it mirrors (docs/design.md §7.4), primitive by primitive.
+
+use super::*;
+use cbfreach::gpu::probe::{guessed_on_device, GuessCase};
+use cbfreach::reach::embedding::embedding_step;
+use cbfreach::reach::validated::{self, Flowpipe};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// A value the device's outward steps may move by (4 ulp a step, a few steps: 1e-13 relative of
+/// the numbers involved), on top of the one ulp by which a driver's fused multiply–add may change
+/// the guess's trend `2r − r_before`.
+const GUESS_TOL: f64 = 1e-13;
+
+/// Random steps in 1, 2 and 3 states: sets of widths from 0 to 1, steps of 0.004 to 0.04, last
+/// steps' rates up to ±15 (the paper's scenarios move at up to 15) with and without the step
+/// before, some contracting so fast that the guess turns the box inside out; rates on the slabs
+/// a little inside or outside each guessed face, second-order rates that bind or not.
+fn cases(n: usize, count: usize, seed: u64) -> Vec<GuessCase> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut out = Vec::with_capacity(count);
+    for _ in 0..count {
+        let width = match rng.random_range(0..4) {
+            0 => 0.0,
+            1 => 1e-7,
+            _ => rng.random_range(0.0..1.0),
+        };
+        let centre: Vec<f64> = (0..n).map(|_| rng.random_range(-4.0..4.0)).collect();
+        let set = IntervalBox {
+            lower: centre.iter().map(|c| c - 0.5 * width).collect(),
+            upper: centre.iter().map(|c| c + 0.5 * width).collect(),
+        };
+        let h = [0.04, 0.01, 0.04 / 3.0, 0.004][rng.random_range(0..4)];
+        let rate = |r: &mut ChaCha8Rng| r.random_range(-15.0..15.0);
+        let rl: Vec<f64> = (0..n).map(|_| rate(&mut rng)).collect();
+        let ru: Vec<f64> = (0..n)
+            .map(|i| match rng.random_bool(0.5) {
+                // A set that grows or drifts: the upper rate a little above the lower.
+                true => rl[i] + rng.random_range(0.0..2.0),
+                false => rate(&mut rng),
+            })
+            .collect();
+        let before = rng.random_bool(0.6).then(|| {
+            let jitter = |v: &[f64], r: &mut ChaCha8Rng| -> Vec<f64> {
+                v.iter().map(|x| x + r.random_range(-1.0..1.0)).collect()
+            };
+            (jitter(&rl, &mut rng), jitter(&ru, &mut rng))
+        });
+        let b = before.as_ref().map(|(l, u)| (&l[..], &u[..]));
+        let pipe = validated::guessed(&set, h, (&rl, &ru), b);
+        // Slab rates near the guessed faces: inside by 1e-6 to 1e-4 relative (the check
+        // passes), or outside on a fifth of the faces.
+        let near = |s: f64, inward: f64, r: &mut ChaCha8Rng| {
+            let gap = r.random_range(1e-6..1e-4) * (1.0 + s.abs());
+            match r.random_bool(0.9) {
+                true => s + inward * gap,
+                false => s - inward * gap,
+            }
+        };
+        let (dl, du): (Vec<f64>, Vec<f64>) = match &pipe {
+            Some(p) => {
+                let m = p.faces.as_ref().unwrap();
+                (0..n)
+                    .map(|i| {
+                        let l = near(m.lower[i], 1.0, &mut rng);
+                        (l, near(m.upper[i], -1.0, &mut rng))
+                    })
+                    .unzip()
+            }
+            None => (0..n).map(|i| (rl[i], ru[i])).unzip(),
+        };
+        let (cl, cu): (Vec<f64>, Vec<f64>) = (0..n)
+            .map(|i| match rng.random_bool(0.5) {
+                true => (-1e300, 1e300),
+                false => (
+                    dl[i] + rng.random_range(-0.5..0.5),
+                    du[i] + rng.random_range(-0.5..0.5),
+                ),
+            })
+            .unzip();
+        out.push(GuessCase {
+            set,
+            h,
+            rates: (rl, ru),
+            before,
+            slab_rates: (dl, du),
+            curved: (cl, cu),
+        });
+    }
+    out
+}
+
+/// The CPU engine's step end on a proven moving box (reach/cpu.rs): the slab rates clamped to
+/// the depths, met with the second-order rates, the Euler step, the meet with the hull.
+fn cpu_end(c: &GuessCase, pipe: &Flowpipe) -> IntervalBox {
+    let (mut dl, mut du) = c.slab_rates.clone();
+    validated::clamp_to_depths(pipe, &mut dl, &mut du);
+    for i in 0..dl.len() {
+        dl[i] = dl[i].max(c.curved.0[i]);
+        du[i] = du[i].min(c.curved.1[i]);
+    }
+    let mut end = c.set.clone();
+    embedding_step(&mut end.lower, &mut end.upper, &dl, &du, c.h);
+    validated::meet_with_pipe(&mut end.lower, &mut end.upper, pipe);
+    end
+}
+
+/// `shaders/validated.wgsl`'s `guessed`, `slab`, `verified` and `slab_step_end` against
+/// `validated::guessed`, `slabs`, `verified` and the CPU engine's step end (`clamp_to_depths`,
+/// the meet with the second-order rates, `embedding_step`, `meet_with_pipe`) on 3 × 4,000 random
+/// steps (`cases`), f64: the same guesses accepted and refused, the same verdicts; the faces'
+/// rates, hulls, slabs and ends equal to `GUESS_TOL` of the numbers involved, and where the
+/// device's guess is the CPU's bit for bit (no fused trend) the device's hull, slabs and end
+/// contain the CPU's (it rounds outward by more).
+#[test]
+fn guessed_moving_box_matches_the_cpus_validated_step() {
+    let Some(g) = gpu_f64() else { return };
+    let (mut refused, mut proven, mut failed, mut bitwise) = (0, 0, 0, 0);
+    for n in 1..=3 {
+        let cases = cases(n, 4000, 36 + n as u64);
+        let dev = guessed_on_device(g.context(), n, &cases).unwrap();
+        assert_eq!(dev.len(), cases.len());
+        for (k, (c, d)) in cases.iter().zip(&dev).enumerate() {
+            let b = c.before.as_ref().map(|(l, u)| (&l[..], &u[..]));
+            let cpu = validated::guessed(&c.set, c.h, (&c.rates.0, &c.rates.1), b);
+            let what = format!("n = {n}, case {k}: {c:?}");
+            assert_eq!(cpu.is_some(), d.ok, "{what}: accepted");
+            let Some(pipe) = cpu else {
+                refused += 1;
+                continue;
+            };
+            let m = pipe.faces.as_ref().unwrap();
+            let rate_scale = 1.0
+                + [&c.rates.0, &c.rates.1]
+                    .into_iter()
+                    .chain(c.before.as_ref().map(|(l, u)| [l, u]).into_iter().flatten())
+                    .flatten()
+                    .fold(0.0_f64, |a, v| a.max(v.abs()));
+            let near = |a: f64, b: f64, scale: f64| (a - b).abs() <= GUESS_TOL * scale;
+            let pairs = [
+                (&m.lower, &d.faces.lower),
+                (&m.upper, &d.faces.upper),
+                (&m.depth_lower, &d.faces.depth_lower),
+                (&m.depth_upper, &d.faces.depth_upper),
+            ];
+            for (cv, dv) in pairs {
+                for i in 0..n {
+                    assert!(
+                        near(cv[i], dv[i], rate_scale),
+                        "{what}: rates {m:?} vs {:?}",
+                        d.faces
+                    );
+                }
+            }
+            let same_guess = m == &d.faces;
+            bitwise += usize::from(same_guess);
+            let set_scale = c.set.lower.iter().chain(&c.set.upper);
+            let scale = 1.0 + set_scale.fold(0.0_f64, |a, v| a.max(v.abs())) + c.h * rate_scale;
+            let check = |cb: (&[f64], &[f64]), db: (&[f64], &[f64]), name: &str| {
+                for i in 0..n {
+                    assert!(
+                        near(cb.0[i], db.0[i], scale) && near(cb.1[i], db.1[i], scale),
+                        "{what}: {name} cpu {cb:?} device {db:?}"
+                    );
+                    if same_guess {
+                        assert!(
+                            db.0[i] <= cb.0[i] && cb.1[i] <= db.1[i],
+                            "{what}: {name} device {db:?} does not contain cpu {cb:?}"
+                        );
+                    }
+                }
+            };
+            check(
+                (&pipe.set.lower, &pipe.set.upper),
+                (&d.hull.lower, &d.hull.upper),
+                "hull",
+            );
+            let slabs: Vec<_> = validated::slabs(&c.set, &pipe, c.h).collect();
+            assert_eq!(slabs.len(), d.slabs.len());
+            for (cs, ds) in slabs.iter().zip(&d.slabs) {
+                check((&cs.0, &cs.1), (&ds.0, &ds.1), "slab");
+            }
+            let holds = validated::verified(&pipe, (&c.slab_rates.0, &c.slab_rates.1));
+            assert_eq!(holds, d.verified, "{what}: verified");
+            if holds {
+                proven += 1;
+            } else {
+                failed += 1;
+            }
+            let end = cpu_end(c, &pipe);
+            check(
+                (&end.lower, &end.upper),
+                (&d.end.lower, &d.end.upper),
+                "end",
+            );
+        }
+    }
+    eprintln!(
+        "guessed: {refused} refused, {proven} proven, {failed} failed; {bitwise} guesses bit for bit"
+    );
+    assert!(refused >= 300 && proven >= 1000 && failed >= 1000);
+}
+
+/// `shaders/end_rates.wgsl`'s `barrier` (the curved rates' quadratic barrier) against
+/// `end_rates::barrier` on 3 × 4,000 random upper ends in 1–3 states: slopes up to ±10 off the
+/// diagonal and down to −60 on it (`h·|kᵢ|` past 2 at the largest steps: no barrier), offsets
+/// of sets up to 1 wide, rates up to ±15. The same ends settle; where they do the device's rate
+/// is at least the CPU's (it rounds up by more, and settles no earlier) and within `GUESS_TOL`
+/// of the numbers involved, and its `[w̲, w̄]` too.
+#[test]
+fn curved_rates_barrier_matches_the_cpus() {
+    use cbfreach::gpu::probe::{barrier_on_device, BarrierCase};
+    use cbfreach::reach::end_rates::barrier;
+    let Some(g) = gpu_f64() else { return };
+    let (mut settled, mut unsettled) = (0, 0);
+    for n in 1..=3 {
+        let mut rng = ChaCha8Rng::seed_from_u64(400 + n as u64);
+        let ends = |r: &mut ChaCha8Rng, lo: f64, hi: f64, w: f64| {
+            let a = r.random_range(lo..hi);
+            (a, a + r.random_range(0.0..w))
+        };
+        let cases: Vec<BarrierCase> = (0..4000)
+            .map(|_| {
+                let i = rng.random_range(0..n);
+                let k = (0..n)
+                    .map(|j| match j == i {
+                        true => ends(&mut rng, -60.0, 5.0, 5.0),
+                        false => ends(&mut rng, -10.0, 10.0, 5.0),
+                    })
+                    .collect();
+                let d = (0..n)
+                    .map(|_| {
+                        let w = rng.random_range(0.0..1.0);
+                        (-0.5 * w, 0.5 * w)
+                    })
+                    .collect();
+                let a = (0..n).map(|_| ends(&mut rng, -15.0, 15.0, 3.0)).collect();
+                BarrierCase {
+                    c: rng.random_range(-15.0..15.0),
+                    k,
+                    d,
+                    a,
+                    i,
+                    h: [0.04, 0.01, 0.004][rng.random_range(0..3)],
+                }
+            })
+            .collect();
+        let dev = barrier_on_device(g.context(), n, &cases).unwrap();
+        for (c, d) in cases.iter().zip(&dev) {
+            let others = (0..n)
+                .filter(|&j| j != c.i)
+                .map(|j| (c.k[j], c.d[j], c.a[j]));
+            let cpu = barrier(c.c, others, c.k[c.i], c.h);
+            assert_eq!(
+                cpu.is_some(),
+                d.is_some(),
+                "{c:?}: cpu {cpu:?}, device {d:?}"
+            );
+            let (Some(cpu), Some(d)) = (cpu, d) else {
+                unsettled += 1;
+                continue;
+            };
+            settled += 1;
+            let scale = 1.0
+                + c.c.abs()
+                + (0..n)
+                    .map(|j| {
+                        let k = c.k[j].0.abs().max(c.k[j].1.abs());
+                        k * (1.0 + c.a[j].0.abs().max(c.a[j].1.abs()))
+                    })
+                    .sum::<f64>();
+            let near = |x: f64, y: f64| (x - y).abs() <= GUESS_TOL * scale;
+            assert!(d.0 >= cpu.0, "{c:?}: device {d:?} below cpu {cpu:?}");
+            assert!(
+                near(cpu.0, d.0) && near(cpu.1, d.1) && near(cpu.2, d.2),
+                "{c:?}: cpu {cpu:?}, device {d:?}"
+            );
+        }
+    }
+    eprintln!("barrier: {settled} settled, {unsettled} not");
+    assert!(settled >= 6000 && unsettled >= 300);
+}
+
+/// The same shaders compile with the f32 prelude (the engine builds every kernel in both; the
+/// tests above run f64 alone).
+#[test]
+fn validated_shaders_compile_in_f32() {
+    let Some(g) = gpu() else { return };
+    cbfreach::gpu::probe::validated_compiles_in_f32(g.context()).unwrap();
+}
