@@ -427,6 +427,67 @@ fn a_long_period_is_found_unsafe_between_samples() {
     assert!(tubes[0].tube.iter().all(|x| x.set.lower[0] >= 0.0));
 }
 
+/// The double integrator pushed down (`κ = −3`) and held at `x₂ ≥ −2` by the filter
+/// (`v = max(0, 1 − x₂)`, a one-neuron network, `M = 0.01`): `x₂` decays to −2, the sets' margin
+/// reaches past `x₂ = −2`, so interval evaluation alone cannot prove `S` there. The QP's row
+/// at each sample proves it (`h` affine: `ḧ = 0`), so no finding is recorded and the sets are
+/// met with `x₂ ≥ −2`; zero-order-hold trajectories stay in them.
+const VELOCITY: &str = r#"
+name = "velocity-bound"
+[system]
+states = ["x1", "x2"]
+inputs = ["u"]
+f = ["x2", "0"]
+g = [["0"], ["1"]]
+kappa = ["-3"]
+[[cbf]]
+name = "velocity"
+h = "x2 + 2"
+[reach]
+region = { lower = [-5, -2.5], upper = [5, 2.5] }
+m_c = 0.01
+dt = 0.05
+horizon = 2.0
+goal = { lower = [-0.1, -0.1], upper = [0.1, 0.1] }
+initial = [ { lower = [4.0, -1.9], upper = [4.1, -1.8] }, { lower = [3.5, -1.95], upper = [3.6, -1.85] } ]
+"#;
+
+#[test]
+fn the_filter_constraint_keeps_sampled_sets_in_s() {
+    let s = common::from_text(VELOCITY).unwrap();
+    let mut net = Mlp::random(&[2, 1, 1], 1);
+    net.layers[0].weight = vec![0.0, -1.0];
+    net.layers[0].bias = vec![1.0];
+    net.layers[1].weight = vec![1.0];
+    net.layers[1].bias = vec![0.0];
+    let filter = SafetyFilter::new(&s);
+    let x = [4.05, -1.85];
+    assert!((net.forward(&x)[0] - filter.eval(&x).unwrap()[0]).abs() < 1e-12);
+    let problem = ReachProblem::new(&s, net, 0.01).unwrap().with_time(
+        TimeModel::Sampled {
+            control_period: s.reach.dt,
+        },
+        1,
+    );
+    let tubes = run(&problem, &s.reach.initial, ExactField::Nowhere);
+    for tube in &tubes {
+        assert_eq!(tube.unsafe_between_samples, None, "{:?}", tube.end);
+        assert!(tube.tube.len() > 30, "{:?}", tube.end);
+        let lowest = tube
+            .tube
+            .iter()
+            .map(|x| x.set.lower[1])
+            .fold(f64::INFINITY, f64::min);
+        assert!(
+            lowest >= -2.0 - 1e-12 && lowest < -1.99,
+            "lowest x₂ {lowest}"
+        );
+    }
+    let e = zoh_escapes(&s, &tubes, 1, 1e-9);
+    assert_eq!((e.at_snapshots, e.between), (0, 0), "{e:?}");
+    assert!(e.checks >= 2 * 48 * 30, "too few checks: {e:?}");
+}
+
 /// The engines and settings refuse what they do not run, naming the setting.
 #[test]
 fn refusals_name_the_setting() {

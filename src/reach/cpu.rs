@@ -51,6 +51,20 @@ struct Frame<'a> {
     problem: &'a ReachProblem,
     network: PreparedNetwork<'a>,
     safe: &'a SafeSet,
+    /// What the sets may be clipped to on a step where every true state is proven in `S`:
+    /// `safe` itself, except for sampled-data runs, whose `safe` is empty and whose steps
+    /// prove `S` only where the filter's constraint or the sets do ([`Live::in_s`]).
+    in_s: &'a SafeSet,
+}
+
+impl<'a> Frame<'a> {
+    /// The safe set this step's sets are clipped to.
+    fn clip(&self, in_s: bool) -> &'a SafeSet {
+        match in_s {
+            true => self.in_s,
+            false => self.safe,
+        }
+    }
 }
 
 /// One box's embedding state while it is integrated.
@@ -87,6 +101,8 @@ struct Live {
     inversion: Option<super::tube::Inversion>,
     /// Sampled-data: what the set holds over the current control period.
     held: Option<cpu_sampled::Held>,
+    /// Sampled-data: this step's true states are proven in `S` (the sets may be clipped to it).
+    in_s: bool,
 }
 
 impl Backend for CpuBackend {
@@ -128,6 +144,7 @@ impl Backend for CpuBackend {
                         true => &super::safe_set::NO_SAFE_SET,
                         false => p.safe_set_for(settings.method),
                     },
+                    in_s: p.safe_set_for(settings.method),
                 })
             })
             .collect::<Result<Vec<Frame>, ReachError>>()?;
@@ -311,6 +328,7 @@ impl ChunkRun<'_> {
             guessed: false,
             inversion: None,
             held: None,
+            in_s: false,
         };
         self.settle(&mut state, &vec![true; self.frames.len()]);
         let sample = self.sample(&state, 0.0);
@@ -329,19 +347,23 @@ impl ChunkRun<'_> {
             .zip(&state.sets)
             .zip(stepped)
             .filter(|(_, &s)| s)
-            .map(|((f, set), _)| f.problem.x_box_in_safe_set(&set.lower, &set.upper, f.safe))
+            .map(|((f, set), _)| {
+                let safe = f.clip(state.in_s);
+                f.problem.x_box_in_safe_set(&set.lower, &set.upper, safe)
+            })
             .reduce(|a, b| a.intersection(&b).unwrap_or(a));
         let Some(known) = known else {
             return;
         };
         if self.frames.len() > 1 {
+            let in_s = state.in_s;
             for ((f, set), &s) in self.frames.iter().zip(&mut state.sets).zip(stepped) {
                 let around = f.problem.frame_box(&known);
                 *set = match s {
                     true => set.intersection(&around).unwrap_or_else(|| set.clone()),
                     false => around,
                 };
-                clip_to_safe_set(&mut set.lower, &mut set.upper, &f.safe.z);
+                clip_to_safe_set(&mut set.lower, &mut set.upper, &f.clip(in_s).z);
             }
         }
         state.known = known;
@@ -350,9 +372,9 @@ impl ChunkRun<'_> {
     /// The recorded sample of a state: the first frame's, its x-box met with `known`.
     fn sample(&self, state: &Live, t: f64) -> TubeSample {
         let (f, set) = (&self.frames[0], &state.sets[0]);
-        let mut sample = f
-            .problem
-            .tube_sample(&set.lower, &set.upper, state.radius, t, f.safe);
+        let mut sample =
+            f.problem
+                .tube_sample(&set.lower, &set.upper, state.radius, t, f.clip(state.in_s));
         if self.frames.len() > 1 {
             if let Some(met) = sample.set.intersection(&state.known) {
                 sample.lower.clone_from(&met.lower);
@@ -438,7 +460,7 @@ impl ChunkRun<'_> {
                 let t = (step + 1) as f64 * problem.dt;
                 let record = (step + 1) % self.every == 0 || step + 1 == problem.steps;
                 for state in states.iter_mut().filter(|s| !s.done) {
-                    self.sampled_step(state, held_j + 1, t, record);
+                    self.sampled_step(state, held_j + 1, t, record)?;
                 }
                 (self.report)(states.len());
                 continue;
@@ -509,7 +531,7 @@ impl ChunkRun<'_> {
                 if self.plant.is_some() {
                     self.hold(state, buf, k, t - self.h)?;
                     if !state.done {
-                        self.sampled_step(state, 1, t, record);
+                        self.sampled_step(state, 1, t, record)?;
                     }
                     continue;
                 }
@@ -617,6 +639,7 @@ impl ChunkRun<'_> {
             state.done = true;
             return;
         }
+        let in_s = state.in_s;
         for ((f, set), _) in self
             .frames
             .iter()
@@ -624,7 +647,7 @@ impl ChunkRun<'_> {
             .zip(stepped)
             .filter(|(_, &s)| s)
         {
-            clip_to_safe_set(&mut set.lower, &mut set.upper, &f.safe.z);
+            clip_to_safe_set(&mut set.lower, &mut set.upper, &f.clip(in_s).z);
         }
         self.settle(state, stepped);
         let mut sample = self.sample(state, t);

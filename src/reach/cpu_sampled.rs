@@ -4,7 +4,8 @@
 //! works on that engine's chunk state); imports what `cpu` imports.
 
 use super::*;
-use crate::reach::sampled::{euler_image, not_proven_safe, Intersample, Remainder};
+use crate::intervals::box_of;
+use crate::reach::sampled::{euler_image, proven_safe, Intersample, Remainder};
 
 /// What a set holds over one control period.
 pub(super) struct Held {
@@ -13,6 +14,17 @@ pub(super) struct Held {
     images: Vec<Option<Vec<IntervalBox>>>,
     /// The motion between samples.
     inter: Intersample,
+    /// The set's x-box at the sample, and what its box-step's frames shared there.
+    sample: IntervalBox,
+    facts: SetFacts,
+    /// Per CBF, `max(0, h̲)` over `sample`: a floor of `h(x_k)`.
+    h_floor: Vec<f64>,
+    /// Every state since the sample: the hull of the steps' flowpipes (`None` where a step
+    /// had none).
+    motion: Option<IntervalBox>,
+    /// The held input's enclosure for [`Plant::keeps`], the plant's own `U` or, for a still
+    /// plant (which needs none to move), made when a check first needs it.
+    input: Option<Option<Vec<Interval>>>,
 }
 
 impl ChunkRun<'_> {
@@ -41,7 +53,11 @@ impl ChunkRun<'_> {
         let buf = &*buf;
         let facts = buf.facts[live];
         let plant = self.plant.as_ref().expect("sampled runs have a plant");
-        let Some(u) = self.held_input(plant, &state.known, facts)? else {
+        let u = match plant.0.is_still() {
+            true => Some(Vec::new()),
+            false => self.held_input(plant, &state.known, facts)?,
+        };
+        let Some(u) = u else {
             state.tube.end = TubeEnd::NoIntersampleEnclosure { t };
             state.done = true;
             return Ok(());
@@ -102,7 +118,27 @@ impl ChunkRun<'_> {
             state.done = true;
             return Ok(());
         }
-        state.held = Some(Held { images, inter });
+        let at_sample = box_of(&state.known.lower, &state.known.upper);
+        let scenario = self.x_problem.pieces.scenario();
+        let h_floor = scenario
+            .cbfs
+            .iter()
+            .map(|c| c.h.eval_interval(&at_sample).lower)
+            .map(|h| if h > 0.0 { h } else { 0.0 })
+            .collect();
+        let input = (!plant.0.is_still()).then(|| Some(inter.input().to_vec()));
+        state.held = Some(Held {
+            images,
+            inter,
+            sample: state.known.clone(),
+            facts,
+            h_floor,
+            motion: Some(IntervalBox {
+                lower: state.known.lower.clone(),
+                upper: state.known.upper.clone(),
+            }),
+            input,
+        });
         Ok(())
     }
 
@@ -113,15 +149,21 @@ impl ChunkRun<'_> {
     /// (per trajectory the Euler part moves on a segment), met across frames and with the
     /// step's a-priori enclosure. A set or enclosure not proven inside `S` is the tube's finding
     /// ([`crate::reach::UnsafeBetweenSamples`]), not an end: the sets stay sound.
-    pub(super) fn sampled_step(&self, state: &mut Live, j: usize, t: f64, record: bool) {
+    pub(super) fn sampled_step(
+        &self,
+        state: &mut Live,
+        j: usize,
+        t: f64,
+        record: bool,
+    ) -> Result<(), ReachError> {
         let Some(held) = state.held.as_mut() else {
-            return;
+            return Ok(());
         };
         let (plant, _) = self.plant.as_ref().expect("sampled runs have a plant");
         let Some(apriori) = held.inter.step(plant, &state.known, self.h) else {
             state.tube.end = TubeEnd::NoIntersampleEnclosure { t: t - self.h };
             state.done = true;
-            return;
+            return Ok(());
         };
         let held = state.held.as_ref().expect("held above");
         let (a, b) = ((j - 1) as f64 * self.h, j as f64 * self.h);
@@ -155,42 +197,88 @@ impl ChunkRun<'_> {
             // The meet of sound images cannot be empty: `advance` reports it.
             state.inversion = Some(crate::reach::Inversion::BoundsDisagree);
         }
+        if let Some(held) = state.held.as_mut() {
+            held.motion = match (held.motion.take(), &pipe) {
+                (Some(m), Some(p)) => Some(m.hull(p)),
+                _ => None,
+            };
+        }
         state.pipe_known = pipe;
         let swept = state.pipe_known.clone();
+        // Per CBF, whether every true state over the step is proven in it (by the flowpipe, or
+        // by the filter's own constraint since the sample); where all are, the sets are
+        // clipped to `S` as in continuous time. Not after a finding: the constraint's argument
+        // needs the state in `S` at the sample.
+        let checking = state.tube.unsafe_between_samples.is_none();
+        let mut kept = Vec::new();
+        if checking {
+            let scenario = self.x_problem.pieces.scenario();
+            for c in 0..scenario.cbfs.len() {
+                let by_pipe = swept
+                    .as_ref()
+                    .is_some_and(|s| proven_safe(scenario, c, s).0);
+                kept.push(by_pipe || self.filter_keeps(state, c, j)?);
+            }
+        }
+        state.in_s = checking && kept.iter().all(|&k| k);
+        if let Some(pipe) = state.pipe_known.as_mut().filter(|_| state.in_s) {
+            clip_to_safe_set(&mut pipe.lower, &mut pipe.upper, &self.frames[0].in_s.x);
+        }
         let last = j == self.period;
         self.advance(state, t, record, &stepped);
+        state.in_s = false;
         state.pipe_known = None;
+        if checking {
+            if let Some((cbf, entirely)) = self.not_kept(state, &kept, swept.is_some()) {
+                state.tube.unsafe_between_samples =
+                    Some(crate::reach::UnsafeBetweenSamples { t, cbf, entirely });
+            }
+        }
         if last {
             state.held = None;
         }
-        if state.tube.unsafe_between_samples.is_some() {
-            return;
-        }
+        Ok(())
+    }
+
+    /// The first CBF not `kept` over the step; a step without a flowpipe is judged by its set
+    /// at `t` alone. With whether the set lies entirely outside it.
+    fn not_kept(&self, state: &Live, kept: &[bool], has_pipe: bool) -> Option<(String, bool)> {
         let scenario = self.x_problem.pieces.scenario();
-        let at_t = not_proven_safe(scenario, &state.known);
-        let between = swept.as_ref().and_then(|s| not_proven_safe(scenario, s));
-        if let Some((cbf, _)) = at_t.clone().or(between) {
-            state.tube.unsafe_between_samples = Some(crate::reach::UnsafeBetweenSamples {
-                t,
-                cbf,
-                entirely: at_t.is_some_and(|(_, e)| e),
-            });
+        (0..kept.len()).find_map(|c| {
+            let (at_t, entirely) = proven_safe(scenario, c, &state.known);
+            let fine = kept[c] || (at_t && !has_pipe);
+            (!fine).then(|| (scenario.cbfs[c].name.clone(), entirely))
+        })
+    }
+
+    /// [`Plant::keeps`] for CBF `c` over the held period's first `j` steps.
+    fn filter_keeps(&self, state: &mut Live, c: usize, j: usize) -> Result<bool, ReachError> {
+        let Some(plant) = self.plant.as_ref() else {
+            return Ok(false);
+        };
+        let Some(held) = state.held.as_mut() else {
+            return Ok(false);
+        };
+        if held.input.is_none() {
+            held.input = Some(self.held_input(plant, &held.sample, held.facts)?);
         }
+        let (Some(motion), Some(Some(u))) = (&held.motion, &held.input) else {
+            return Ok(false);
+        };
+        let tau = j as f64 * self.h;
+        Ok(plant.0.keeps(c, held.h_floor[c], motion, u, tau))
     }
 
     /// The held input's enclosure `κ(X) + v` over the x-box `known` of the set, `v` enclosed by
     /// the network's bounds on `X` plus the error margin (or 0 where the filter is proven
     /// inactive), met with the closed form's enclosure where there is one; `None` where it is
-    /// unbounded. A still plant needs none.
+    /// unbounded.
     fn held_input(
         &self,
         (plant, x_net): &(Plant, PreparedNetwork),
         known: &IntervalBox,
         facts: SetFacts,
     ) -> Result<Option<Vec<Interval>>, ReachError> {
-        if plant.is_still() {
-            return Ok(Some(Vec::new()));
-        }
         let xp = self.x_problem;
         let m = xp.dynamics.m;
         let mut v = match facts.piece {

@@ -29,6 +29,7 @@ fn settling_meets_the_frames_and_reseeds_one_that_could_not_step() {
             problem: p,
             network: PreparedNetwork::new(&p.network).unwrap(),
             safe: p.safe_set_for(settings.method),
+            in_s: p.safe_set_for(settings.method),
         })
         .collect();
     assert_eq!(frames.len(), 2);

@@ -37,6 +37,11 @@ pub struct Plant {
     /// `∂gᵢₖ/∂xⱼ`, indexed `[i][k][j]`.
     dg: Vec<Vec<Vec<Expr>>>,
     kappa: Vec<Expr>,
+    /// Per CBF, `∇h` and `∇²h` ([`Plant::keeps`]).
+    cbf_gradient: Vec<Vec<Expr>>,
+    cbf_hessian: Vec<Vec<Vec<Expr>>>,
+    /// Per CBF, the gain `a` of `α(s) = a·s`.
+    alpha: Vec<f64>,
 }
 
 /// The remainder over one control period and the enclosure of the intersample motion.
@@ -137,6 +142,11 @@ impl Intersample {
         Some(Some(pipe.set))
     }
 
+    /// `U`, the held input's enclosure (empty for a still plant).
+    pub fn input(&self) -> &[Interval] {
+        &self.u
+    }
+
     /// The remainder's bounds at `τ`: `τ²/2·ρ`.
     pub fn at(&self, tau: f64) -> (Vec<f64>, Vec<f64>) {
         self.between(tau, tau)
@@ -183,7 +193,83 @@ impl Plant {
                 })
                 .collect(),
             kappa: s.kappa.clone(),
+            cbf_gradient: s.cbfs.iter().map(|c| c.gradient.clone()).collect(),
+            cbf_hessian: s
+                .cbfs
+                .iter()
+                .map(|c| crate::expressions::jacobian(&c.gradient, n))
+                .collect(),
+            alpha: s.cbfs.iter().map(|c| c.alpha).collect(),
         }
+    }
+
+    /// Whether the filter's own constraint keeps the true state in `{h_c ≥ 0}` at every
+    /// `τ ∈ [0, tau]` after a sample (design §7.2 item 4). The true input `u_k` satisfies the QP's row
+    /// `φ(x_k) = ∇h(x_k)·(f(x_k) + g(x_k)u_k) ≥ −a·h(x_k)`, and `φ` is `d/dt h` along the held
+    /// motion, so by Taylor's theorem with the integral remainder
+    /// `h(x(τ)) ≥ (1 − aτ)·h(x_k) + τ²/2·inf φ̇`, the infimum over `motion` (every state since
+    /// the sample) and `u` (the held input's enclosure). With `h(x_k) ≥ h_floor ≥ 0` (the true
+    /// state is in `S` at the sample: the tube's earlier checks) and `aτ ≤ 1`, both terms only
+    /// fall as `τ` grows, so the bound at `tau` covers the interval. `ḧ ≥ 0` (a convex `h` on
+    /// `ẋ = u`) proves it whatever `h_floor`. NaN (a kink's `delta`, a domain) proves nothing.
+    pub fn keeps(
+        &self,
+        c: usize,
+        h_floor: f64,
+        motion: &IntervalBox,
+        u: &[Interval],
+        tau: f64,
+    ) -> bool {
+        let accel = self.held_acceleration(c, motion, u).lower;
+        if accel.is_nan() {
+            return false;
+        }
+        let t = Interval::point(tau);
+        let decay = (Interval::point(1.0) - Interval::point(self.alpha[c]) * t).lower;
+        if decay < 0.0 {
+            return false;
+        }
+        // Terms that are exactly 0 stay 0 (outward rounding would push them below).
+        let kept = match h_floor > 0.0 {
+            true => (Interval::point(decay) * Interval::point(h_floor)).lower,
+            false => 0.0,
+        };
+        if accel >= 0.0 {
+            return kept >= 0.0;
+        }
+        let half_t2 = (t * t * Interval::point(0.5)).upper;
+        let lost = Interval::point(half_t2) * Interval::point(accel);
+        (Interval::point(kept) + lost).lower >= 0.0
+    }
+
+    /// An enclosure of `ḧ = ẋᵀ∇²h ẋ + ∇h·ẍ` for CBF `c` over the states `motion` with the
+    /// input held in `u`: `ẋ = f + g·u`, `ẍ = (Df + Σₖ uₖ Dgₖ)·ẋ`. The quadratic form's diagonal
+    /// takes `ẋᵢ²` as a square (never negative), which the expression `φ̇` evaluated term by
+    /// term would lose (`u·u` over `[−1, 2]` is `[−2, 4]`).
+    fn held_acceleration(&self, c: usize, motion: &IntervalBox, u: &[Interval]) -> Interval {
+        let x = box_of(&motion.lower, &motion.upper);
+        let v = self.velocity(&x, u);
+        let (grad, hess) = (&self.cbf_gradient[c], &self.cbf_hessian[c]);
+        let mut total = Interval::point(0.0);
+        for i in 0..self.n {
+            let square = v[i].sqr();
+            let square = Interval::new(square.lower.max(0.0), square.upper);
+            total = total + signed_mul(hess[i][i].eval_interval(&x), square);
+            for j in i + 1..self.n {
+                let hij = hess[i][j].eval_interval(&x) + hess[j][i].eval_interval(&x);
+                total = total + signed_mul(hij, signed_mul(v[i], v[j]));
+            }
+            let mut xddot = Interval::point(0.0);
+            for j in 0..self.n {
+                let mut d = self.df[i][j].eval_interval(&x);
+                for (k, uk) in u.iter().enumerate() {
+                    d = d + signed_mul(self.dg[i][k][j].eval_interval(&x), *uk);
+                }
+                xddot = xddot + signed_mul(d, v[j]);
+            }
+            total = total + signed_mul(grad[i].eval_interval(&x), xddot);
+        }
+        total
     }
 
     /// Whether the remainder is 0 whatever the state (`Df = 0`, `Dg = 0`: `ẋ = u`).
@@ -220,6 +306,26 @@ impl Plant {
         let pipe = m.step(self, x, h)?.unwrap_or_else(|| x.clone());
         let (lower, upper) = m.at(h);
         Some(Remainder { lower, upper, pipe })
+    }
+}
+
+/// `a·b` outward rounded, with the sign the factors' signs give kept exactly (rounding would
+/// push an exact 0 end past 0, and a sign is all [`Plant::keeps`] asks of a term that cannot
+/// be negative).
+fn signed_mul(a: Interval, b: Interval) -> Interval {
+    let zero = |x: Interval| x.lower == 0.0 && x.upper == 0.0;
+    if zero(a) || zero(b) {
+        return Interval::point(0.0);
+    }
+    let p = a * b;
+    let (a_pos, a_neg) = (a.lower >= 0.0, a.upper <= 0.0);
+    let (b_pos, b_neg) = (b.lower >= 0.0, b.upper <= 0.0);
+    if (a_pos && b_pos) || (a_neg && b_neg) {
+        Interval::new(p.lower.max(0.0), p.upper)
+    } else if (a_pos && b_neg) || (a_neg && b_pos) {
+        Interval::new(p.lower, p.upper.min(0.0))
+    } else {
+        p
     }
 }
 
@@ -313,16 +419,13 @@ pub fn euler_image(
     (lower, upper)
 }
 
-/// The first CBF that the x-box `b` is not proven to satisfy (`hᵢ ≥ 0` on all of it, interval
-/// evaluation), and whether `b` lies entirely outside `S` by it (`hᵢ < 0` on all of `b`).
-pub fn not_proven_safe(scenario: &Scenario, b: &IntervalBox) -> Option<(String, bool)> {
-    let x = box_of(&b.lower, &b.upper);
-    scenario.cbfs.iter().find_map(|c| {
-        let h = c.h.eval_interval(&x);
-        // NaN bounds (undefined somewhere on the box) count as not proven.
-        let proven = h.lower >= 0.0;
-        (!proven).then(|| (c.name.clone(), h.upper < 0.0))
-    })
+/// Whether the x-box `b` is proven inside CBF `c`'s `{h ≥ 0}` (interval evaluation; NaN bounds,
+/// undefined somewhere on the box, prove nothing), and whether it lies entirely outside it.
+pub fn proven_safe(scenario: &Scenario, c: usize, b: &IntervalBox) -> (bool, bool) {
+    let h = scenario.cbfs[c]
+        .h
+        .eval_interval(&box_of(&b.lower, &b.upper));
+    (h.lower >= 0.0, h.upper < 0.0)
 }
 
 #[cfg(test)]
@@ -330,6 +433,10 @@ mod tests {
     use super::*;
 
     fn scenario(f: &str, g: &str) -> Scenario {
+        scenario_with(f, g, "x2 + 2")
+    }
+
+    fn scenario_with(f: &str, g: &str, h: &str) -> Scenario {
         let text = format!(
             r#"
 name = "t"
@@ -340,7 +447,7 @@ f = {f}
 g = {g}
 kappa = ["-x1 - 2*x2"]
 [[cbf]]
-h = "x2 + 2"
+h = "{h}"
 [reach]
 region = {{ lower = [-3, -3], upper = [3, 3] }}
 m_c = 0.1
@@ -377,5 +484,90 @@ goal = {{ lower = [-0.1, -0.1], upper = [0.1, 0.1] }}
             .remainder(&x, &[Interval::new(-2.0, 1.0)], 0.04)
             .unwrap();
         assert_eq!((r.lower, r.upper), (vec![0.0; 2], vec![0.0; 2]));
+    }
+
+    /// [`Plant::keeps`] against the exact held motion of the double integrator past the disc
+    /// obstacle, where `ḧ = 2x₂² + 2(x₁ − 2)u + 2u²` takes both signs: from random states in `S`
+    /// and inputs that satisfy the QP's row, a proof never meets a trajectory that leaves `S`
+    /// before `τ`; some trajectories do leave (a digital filter does not keep `S`), and some
+    /// proofs are given (the test is not vacuous either way).
+    #[test]
+    fn the_filter_constraint_proof_holds_on_the_exact_held_motion() {
+        let s = scenario_with(
+            r#"["x2", "0"]"#,
+            r#"[["0"], ["1"]]"#,
+            "(x1 - 2)^2 + x2^2 - 1",
+        );
+        let plant = Plant::of(&s);
+        let h = |x: [f64; 2]| (x[0] - 2.0).powi(2) + x[1] * x[1] - 1.0;
+        let mut seed = 7u64;
+        let mut uniform = |lo: f64, hi: f64| {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            lo + (hi - lo) * ((seed >> 11) as f64 / (1u64 << 53) as f64)
+        };
+        let (mut proofs, mut exits) = (0, 0);
+        for trial in 0..40_000 {
+            // Near the disc, where the held input can carry the state into it.
+            let (r, angle) = (1.0 + uniform(0.0, 0.2), uniform(0.0, std::f64::consts::TAU));
+            let x = [2.0 + r * angle.cos(), r * angle.sin()];
+            let u = uniform(-4.0, 4.0);
+            let phi = 2.0 * (x[0] - 2.0) * x[1] + 2.0 * x[1] * u;
+            if h(x) < 0.0 || phi < -h(x) {
+                continue;
+            }
+            let tau = [0.1, 0.3, 0.6, 0.9][trial % 4];
+            let at = |t: f64| [x[0] + x[1] * t + u * t * t / 2.0, x[1] + u * t];
+            let path: Vec<[f64; 2]> = (0..=400).map(|k| at(tau * k as f64 / 400.0)).collect();
+            // The grid's hull, padded past the parabola's sag between grid points.
+            let pad = 1e-9 + u.abs() * (tau / 400.0).powi(2);
+            let motion = IntervalBox::new(
+                (0..2)
+                    .map(|i| path.iter().map(|p| p[i]).fold(f64::INFINITY, f64::min) - pad)
+                    .collect(),
+                (0..2)
+                    .map(|i| path.iter().map(|p| p[i]).fold(f64::NEG_INFINITY, f64::max) + pad)
+                    .collect(),
+            )
+            .unwrap();
+            let leaves = path.iter().any(|&p| h(p) < -1e-12);
+            exits += usize::from(leaves);
+            let floor = h(x) * (1.0 - 1e-12);
+            if plant.keeps(0, floor, &motion, &[Interval::point(u)], tau) {
+                proofs += 1;
+                assert!(
+                    !leaves,
+                    "proven at x = {x:?}, u = {u}, τ = {tau}, yet it leaves S"
+                );
+            }
+        }
+        assert!(
+            proofs > 1_000 && exits > 15,
+            "{proofs} proofs, {exits} exits"
+        );
+    }
+
+    /// A convex `h` on `ẋ = u` (`ḧ = 2|u|² ≥ 0`) is kept whatever the floor, for `aτ ≤ 1`
+    /// alone; a concave one near its boundary is not.
+    #[test]
+    fn convexity_along_the_motion_proves_a_touching_set() {
+        let u = [Interval::new(-1.0, 2.0)];
+        let motion = IntervalBox::new(vec![0.0, -1.0], vec![1.0, 1.0]).unwrap();
+        let convex = Plant::of(&scenario_with(
+            r#"["0", "0"]"#,
+            r#"[["1"], ["0"]]"#,
+            "x1^2 + x2^2 - 1",
+        ));
+        assert!(convex.keeps(0, 0.0, &motion, &u, 0.5));
+        assert!(convex.keeps(0, 0.0, &motion, &u, 0.99));
+        assert!(!convex.keeps(0, 0.0, &motion, &u, 1.01), "aτ > 1");
+        let concave = Plant::of(&scenario_with(
+            r#"["0", "0"]"#,
+            r#"[["1"], ["0"]]"#,
+            "1 - x1^2 - x2^2",
+        ));
+        assert!(!concave.keeps(0, 0.0, &motion, &u, 0.1));
+        assert!(concave.keeps(0, 0.5, &motion, &u, 0.1));
     }
 }
