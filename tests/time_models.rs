@@ -479,7 +479,7 @@ fn the_filter_constraint_keeps_sampled_sets_in_s() {
             .map(|x| x.set.lower[1])
             .fold(f64::INFINITY, f64::min);
         assert!(
-            lowest >= -2.0 - 1e-12 && lowest < -1.99,
+            (-2.0 - 1e-12..-1.99).contains(&lowest),
             "lowest x₂ {lowest}"
         );
     }

@@ -260,12 +260,12 @@ impl Plant {
                 total = total + signed_mul(hij, signed_mul(v[i], v[j]));
             }
             let mut xddot = Interval::point(0.0);
-            for j in 0..self.n {
+            for (j, vj) in v.iter().enumerate() {
                 let mut d = self.df[i][j].eval_interval(&x);
                 for (k, uk) in u.iter().enumerate() {
                     d = d + signed_mul(self.dg[i][k][j].eval_interval(&x), *uk);
                 }
-                xddot = xddot + signed_mul(d, v[j]);
+                xddot = xddot + signed_mul(d, *vj);
             }
             total = total + signed_mul(grad[i].eval_interval(&x), xddot);
         }
