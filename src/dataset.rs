@@ -311,6 +311,63 @@ pub fn weigh_box(data: &mut Dataset, focus: &IntervalBox, weight: f64) -> usize 
     count
 }
 
+/// Most grid points a training grid may have (each sample holds `n + m + mn` numbers, twice
+/// with secant slopes).
+pub const MAX_GRID_POINTS: usize = 20_000_000;
+
+/// The training grid's points over `[training] region` (`grid`, else the scenario's), refused
+/// with a message naming the grid where it has the wrong length, a count below 2, or more
+/// points than the trainer holds in memory.
+pub fn training_points(s: &Scenario, grid: Option<&Vec<usize>>) -> Result<Vec<Vec<f64>>, String> {
+    let grid = grid.unwrap_or(&s.training.grid);
+    if grid.len() != s.n() || grid.iter().any(|&k| k < 2) {
+        return Err(format!(
+            "training grid {grid:?} (--grid): expected {} counts, each at least 2",
+            s.n()
+        ));
+    }
+    // The points, their targets and slopes are held in memory: refuse a grid that would not
+    // fit rather than abort on the allocation.
+    let total = grid
+        .iter()
+        .try_fold(1usize, |a, &k| a.checked_mul(k))
+        .filter(|&t| t <= MAX_GRID_POINTS);
+    if total.is_none() {
+        return Err(format!(
+            "training grid {grid:?}: {} points, more than the {MAX_GRID_POINTS} the trainer holds in memory; use a coarser grid (the refine stages add samples where v needs them)",
+            grid.iter().map(|&k| k as f64).product::<f64>()
+        ));
+    }
+    Ok(grid_points(&s.training.region, grid))
+}
+
+/// The inputs of the samples in `S` whose steepest target slope `max |∂vᵢ/∂xⱼ|` exceeds
+/// `slope` but not `cap` (inside an obstacle `v` steepens without bound, and `M_C` is not
+/// measured there; slopes above `--jacobian-cap` mark jumps of `v`, where no continuous
+/// network can be close and finer samples only add error that cannot be trained away).
+pub fn steep_samples<'a>(
+    s: &Scenario,
+    data: &'a Dataset,
+    slope: f64,
+    cap: Option<f64>,
+) -> Vec<&'a [f64]> {
+    let Some(jacobians) = &data.jacobians else {
+        return Vec::new();
+    };
+    let mn = data.n_in * data.n_out;
+    let cap = cap.unwrap_or(f64::INFINITY);
+    (0..data.len())
+        .filter(|&k| {
+            let steepest = jacobians[k * mn..(k + 1) * mn]
+                .iter()
+                .fold(0.0f64, |a, d| a.max(d.abs()));
+            steepest > slope && steepest <= cap
+        })
+        .map(|k| &data.inputs[k * data.n_in..(k + 1) * data.n_in])
+        .filter(|x| s.is_safe(x))
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
