@@ -333,7 +333,7 @@ impl ChunkRun<'_> {
         for (lo, hi) in validated::slabs(set, pipe, self.h) {
             let x_box = problem.x_box_in_safe_set(&lo, &hi, frame.safe);
             let x_box = x_box.intersection(known).unwrap_or(x_box);
-            let v = problem.pieces.enclosure(&x_box)?;
+            let v = slab_enclosure(problem, &x_box)?;
             if !v.iter().all(|e| e.lower.is_finite() && e.upper.is_finite()) {
                 return None;
             }
@@ -500,4 +500,34 @@ pub(super) fn in_frame(
             .map(|e| (Interval::point(e.upper) + Interval::point(slack)).upper)
             .collect(),
     )
+}
+
+thread_local! {
+    /// The closed form's last enclosures of `v` on slabs, per problem and x-box: a step's slab
+    /// field and its curved rates take them on the same slabs (each computed them once, a fifth
+    /// of a continuous run's interval evaluation).
+    static SLAB_V: std::cell::RefCell<Vec<SlabV>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// One entry of [`SLAB_V`]: the problem (by address), the x-box, `v`'s enclosure there.
+type SlabV = (usize, IntervalBox, Option<Vec<Interval>>);
+
+/// Entries [`SLAB_V`] keeps: the `2n` slabs of a few frames.
+const SLAB_V_KEPT: usize = 24;
+
+/// [`FilterPieces::enclosure`](crate::reach::pieces::FilterPieces::enclosure) on `x_box`,
+/// through [`SLAB_V`] (a pure function of the problem and the box).
+fn slab_enclosure(problem: &ReachProblem, x_box: &IntervalBox) -> Option<Vec<Interval>> {
+    let key = problem as *const ReachProblem as usize;
+    SLAB_V.with_borrow_mut(|kept| {
+        if let Some((_, _, v)) = kept.iter().find(|(p, b, _)| *p == key && b == x_box) {
+            return v.clone();
+        }
+        let v = problem.pieces.enclosure(x_box);
+        if kept.len() >= SLAB_V_KEPT {
+            kept.remove(0);
+        }
+        kept.push((key, x_box.clone(), v.clone()));
+        v
+    })
 }
