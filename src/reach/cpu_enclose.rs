@@ -4,7 +4,8 @@
 //! step, most of a continuous run's time). Here every box's enclosure is replayed against the
 //! answers found so far up to its next ask, and the asks of all boxes are answered together:
 //! their network bounds in one batch (GEMMs), then each field as before. The answers are the
-//! same boxes' bounds, so every enclosure is the one the box alone would find.
+//! same boxes' bounds (up to the batch's rounding, sound either way), so each enclosure is the
+//! one the box alone would find.
 //! A child of `reach::cpu`; imports what `cpu` imports.
 
 use super::*;

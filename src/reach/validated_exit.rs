@@ -1,8 +1,8 @@
 //! Item 1e of [`super`]'s argument: a proof that some trajectory from a step's set leaves `C`
 //! within a time `T`. Every enclosure within `C` of a step longer than `T` then fails (item 1b
 //! would put that trajectory in `B ⊆ C` over the whole step), so [`super::enclose_within`]
-//! skips their tries: on sets leaving `C`, they were most of the continuous run's network
-//! bounds (~230 a box, for the same "no enclosure" at the same time).
+//! skips their tries (a failing enclosure costs 100–230 network bounds, for the same "no
+//! enclosure" at the same time).
 //!
 //! Why it is sound: let `x*` be a point of the set proven in `S`, on its end nearest a side of
 //! `C` (say `xᵢ = C̄ᵢ`), and `R` the box from `x*` to that side in `xᵢ` and `x*ⱼ ± wⱼ` in every
