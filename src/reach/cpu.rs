@@ -29,6 +29,9 @@ use crate::rounding::round_up;
 mod cpu_time;
 use cpu_time::in_frame;
 
+#[path = "cpu_enclose.rs"]
+mod cpu_enclose;
+
 #[path = "cpu_guess.rs"]
 mod cpu_guess;
 
@@ -242,8 +245,8 @@ struct ChunkBuffers {
     slots: Vec<usize>,
     /// Per frame, whether the box's set stepped this step.
     stepped: Vec<bool>,
-    /// Continuous time: per frame, the first Picard candidates and their network bounds.
-    candidates: Vec<cpu_time::Candidates>,
+    /// Continuous time: the Picard enclosures in flight, batched over the chunk's boxes.
+    enclosures: cpu_enclose::Enclosures,
     /// Per frame of one box-step: its fields, how `v` is bounded, where the network's bounds are.
     fields: Vec<FrameFields>,
 }

@@ -86,7 +86,7 @@ impl ChunkRun<'_> {
             }
         }
         state.guessed = false;
-        self.enclose(state, buf, t0, None)?;
+        self.enclose_boxes(&mut [state], buf, t0)?;
         if state.done {
             return Ok(());
         }

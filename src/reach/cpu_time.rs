@@ -5,79 +5,26 @@
 
 use super::*;
 
-/// One frame's first Picard candidates of a chunk's live boxes, and the network's bounds over
-/// them, found in one batch ([`ChunkRun::enclose_all`]): one box at a time, these bounds were
-/// most of the continuous step's cost (matrix–vector products where the faces' batch has
-/// GEMMs).
-#[derive(Default)]
-pub(super) struct Candidates {
-    bounds: BoundsWorkspace,
-    batch: AffineBoundsBatch,
-    /// Per live box: its candidate and its row in `batch` (where the network is bounded there).
-    slots: Vec<Option<(IntervalBox, usize)>>,
-}
-
 /// Continuous time ([`TimeModel::Continuous`], [`validated`]): the a-priori enclosure of each
 /// step and the field on slabs of it.
 impl ChunkRun<'_> {
-    /// [`ChunkRun::enclose`] for every live box of a chunk, the network bounded over their
-    /// first candidates (from last step's guess) in one batch per frame.
+    /// This step's moving boxes, guessed from last step's rates where they can be (item 3b:
+    /// checked after the step's fields, with Picard–Lindelöf where they fail), and the
+    /// enclosures of every other live box ([`ChunkRun::enclose_boxes`]).
     pub(super) fn enclose_all(
         &self,
         states: &mut [Live],
         buf: &mut ChunkBuffers,
         t0: f64,
     ) -> Result<(), ReachError> {
-        buf.candidates
-            .resize_with(self.frames.len(), Candidates::default);
-        // Moving boxes guessed from last step's rates need no enclosure (item 3b): checked
-        // after the step's fields, with Picard–Lindelöf where they fail.
         for state in states.iter_mut().filter(|s| !s.done) {
             self.guess_moving(state);
         }
-        let guessed_now = |s: &Live| s.guessed;
-        for (f, frame) in self.frames.iter().enumerate() {
-            let (fb, cands) = (&mut buf.frames[f], &mut buf.candidates[f]);
-            let p = frame.problem;
-            fb.flat_lo.clear();
-            fb.flat_hi.clear();
-            cands.slots.clear();
-            let region = p.transform.is_none().then_some(&p.region);
-            let mut rows = 0;
-            for state in states.iter().filter(|s| !s.done) {
-                if guessed_now(state) {
-                    cands.slots.push(None);
-                    continue;
-                }
-                let slot = state.guess[f].as_ref().and_then(|(l, u)| {
-                    let a = validated::first_candidate(&state.sets[f], self.h, (l, u), region)?;
-                    let x_box = p.x_box_in_safe_set(&a.lower, &a.upper, frame.safe);
-                    // The network is bounded only where the step takes it (as field_on_box).
-                    self.step_input(p, &x_box, self.set_facts(&x_box)).margin?;
-                    fb.flat_lo.extend(&a.lower);
-                    fb.flat_hi.extend(&a.upper);
-                    rows += 1;
-                    Some((a, rows - 1))
-                });
-                cands.slots.push(slot);
-            }
-            if rows > 0 {
-                frame.network.bounds_serial_into(
-                    &fb.flat_lo,
-                    &fb.flat_hi,
-                    self.settings.bounds,
-                    &mut cands.bounds,
-                    &mut cands.batch,
-                )?;
-            }
-        }
-        let live = states.iter_mut().filter(|s| !s.done);
-        for (k, state) in live.enumerate() {
-            if !state.guessed {
-                self.enclose(state, buf, t0, Some(k))?;
-            }
-        }
-        Ok(())
+        let mut open: Vec<&mut Live> = states
+            .iter_mut()
+            .filter(|s| !s.done && !s.guessed)
+            .collect();
+        self.enclose_boxes(&mut open, buf, t0)
     }
 
     /// `state.pipe_known` from the frames' flowpipes (the whole enclosures where a moving box
@@ -109,92 +56,6 @@ impl ChunkRun<'_> {
             }
         }
         state.pipe_known = known;
-    }
-
-    /// Encloses the next step of every frame's set (Picard–Lindelöf); the step's facts and
-    /// bounds then come from the flowpipe. Ends the tube where no enclosure closes. `k`: the
-    /// box's place among the chunk's live boxes (its row in `buf.candidates`), if its first
-    /// candidates were bounded there.
-    pub(super) fn enclose(
-        &self,
-        state: &mut Live,
-        buf: &mut ChunkBuffers,
-        t0: f64,
-        k: Option<usize>,
-    ) -> Result<(), ReachError> {
-        let ChunkBuffers {
-            frames,
-            zeros,
-            candidates,
-            ..
-        } = buf;
-        let (n, m) = (
-            self.frames[0].problem.dynamics.n,
-            self.frames[0].problem.dynamics.m,
-        );
-        state.pipes.clear();
-        for (f, frame) in self.frames.iter().enumerate() {
-            let guess = state.guess[f].as_ref().map(|(l, u)| (&l[..], &u[..]));
-            let fb = &mut frames[f];
-            // The batch's bounds over the first candidate, used once, for that box only.
-            let mut pre = k.and_then(|k| {
-                candidates
-                    .get(f)
-                    .and_then(|c| c.slots.get(k).cloned().flatten().map(|s| (c, s)))
-            });
-            // `C` bounds the enclosure in x frames (M and the verdicts hold there only).
-            let region = frame
-                .problem
-                .transform
-                .is_none()
-                .then_some(&frame.problem.region);
-            // The box `fb.pipe_nn` bounds the network on (the last one bounded whole; the parts
-            // keep it): a face of `C` (item 1c) or the second half of a halved step (1d) may
-            // come last, and the second-order rates need bounds over the whole flowpipe.
-            let mut bounded: Option<IntervalBox> = None;
-            let found =
-                validated::enclose_step(&state.sets[f], self.h, guess, region, |a, parts| {
-                    match parts {
-                        false => {
-                            bounded = Some(a.clone());
-                            let nn = pre
-                                .take()
-                                .filter(|(_, (cand, _))| cand == a)
-                                .map(|(c, (_, row))| bounds_of(&c.batch, row, n, m));
-                            self.field_on_box(frame, a, fb, zeros, nn)
-                        }
-                        true => self.field_on_parts(frame, a, fb, zeros),
-                    }
-                })?;
-            state.tube.end = match found {
-                Enclosure::Closed(pipe) => {
-                    state.guess[f] = Some((pipe.f_lower.clone(), pipe.f_upper.clone()));
-                    let covers = bounded.is_some_and(|b| pipe.set.is_subset_of(&b));
-                    state.pipe_nn[f] = fb.pipe_nn.take().filter(|_| covers);
-                    // A moving box from last step's rates, where the disturbance method
-                    // runs (the Minkowski radius advances once per step, with no fallback).
-                    let moving = match (self.settings.method, &state.rates[f]) {
-                        (ReachMethod::Disturbance, Some((l, u))) => {
-                            validated::moving(&state.sets[f], &pipe, self.h, (l, u))
-                        }
-                        _ => None,
-                    };
-                    state
-                        .pipes
-                        .push(Some(moving.clone().unwrap_or_else(|| pipe.clone())));
-                    state.whole[f] = moving.map(|_| pipe);
-                    continue;
-                }
-                // The step's enclosure meets cells of the error map with no certified bound.
-                Enclosure::NoField => TubeEnd::NoCertifiedBound { t: t0 },
-                Enclosure::Open => TubeEnd::NoEnclosure { t: t0, h: self.h },
-            };
-            state.done = true;
-            return Ok(());
-        }
-        // Facts hold on the whole enclosures (a moving box lies in its frame's).
-        self.meet_pipes(state);
-        Ok(())
     }
 
     /// Continuous time, after the rates on the slabs (`fields`: the filter's piece, its
@@ -423,82 +284,6 @@ impl ChunkRun<'_> {
             .reduce(meet_fields))
     }
 
-    /// [`ChunkRun::field_on_box`] as the hull over [`validated::parts`] of `a`, parts proven
-    /// outside `S` dropped (no trajectory visits them): each part has its own piece and error
-    /// margin. Keeps the network's bounds over the whole box found by the last
-    /// [`ChunkRun::field_on_box`].
-    pub(super) fn field_on_parts(
-        &self,
-        frame: &Frame,
-        a: &IntervalBox,
-        fb: &mut FrameBuffers,
-        zeros: &[f64],
-    ) -> Result<Option<Rates>, ReachError> {
-        let p = frame.problem;
-        let n = p.dynamics.n;
-        // Parts per axis: at most `PARTS` boxes in all.
-        let k = (2..=3)
-            .rev()
-            .find(|k: &usize| k.pow(n as u32) <= PARTS)
-            .unwrap_or(1);
-        if k == 1 {
-            return Ok(None);
-        }
-        let whole_nn = fb.pipe_nn.take();
-        // Each part with its x-box (within S), the parts proven unsafe dropped.
-        let parts: Vec<(IntervalBox, IntervalBox)> = validated::parts(a, k)
-            .into_iter()
-            .map(|part| {
-                let x_box = p.x_box_in_safe_set(&part.lower, &part.upper, frame.safe);
-                (part, x_box)
-            })
-            .filter(|(_, x_box)| !crate::surrogate_error::proven_unsafe(p.pieces.scenario(), x_box))
-            .collect();
-        // The network over every part that takes it, in one batch (one at a time, the parts'
-        // bounds were matrix–vector products).
-        let (mut lo, mut hi, mut taken) = (Vec::new(), Vec::new(), 0);
-        let rows: Vec<Option<usize>> = parts
-            .iter()
-            .map(|(part, x_box)| {
-                self.step_input(p, x_box, self.set_facts(x_box))
-                    .margin
-                    .map(|_| {
-                        lo.extend(&part.lower);
-                        hi.extend(&part.upper);
-                        taken += 1;
-                        taken - 1
-                    })
-            })
-            .collect();
-        let mut batch = std::mem::take(&mut fb.pipe_batch);
-        if taken > 0 {
-            let bounds = self.settings.bounds;
-            frame
-                .network
-                .bounds_serial_into(&lo, &hi, bounds, &mut fb.pipe_bounds, &mut batch)?;
-        }
-        let m = p.dynamics.m;
-        let mut hull: Option<Rates> = None;
-        for ((part, _), row) in parts.iter().zip(rows) {
-            let nn = row.map(|r| bounds_of(&batch, r, n, m));
-            let Some((lo, hi)) = self.field_on_box(frame, part, fb, zeros, nn)? else {
-                fb.pipe_batch = batch;
-                fb.pipe_nn = whole_nn;
-                return Ok(None);
-            };
-            hull = Some(match hull {
-                None => (lo, hi),
-                Some((l, u)) => (
-                    l.iter().zip(&lo).map(|(x, y)| x.min(*y)).collect(),
-                    u.iter().zip(&hi).map(|(x, y)| x.max(*y)).collect(),
-                ),
-            });
-        }
-        fb.pipe_batch = batch;
-        fb.pipe_nn = whole_nn;
-        Ok(hull)
-    }
-
     /// [`ChunkRun::piece_field`] on the slabs of a flowpipe.
     pub(super) fn piece_slab_field(
         &self,
@@ -548,7 +333,7 @@ impl ChunkRun<'_> {
         for (lo, hi) in validated::slabs(set, pipe, self.h) {
             let x_box = problem.x_box_in_safe_set(&lo, &hi, frame.safe);
             let x_box = x_box.intersection(known).unwrap_or(x_box);
-            let v = problem.pieces.enclosure(&x_box)?;
+            let v = slab_enclosure(problem, &x_box)?;
             if !v.iter().all(|e| e.lower.is_finite() && e.upper.is_finite()) {
                 return None;
             }
@@ -717,6 +502,32 @@ pub(super) fn in_frame(
     )
 }
 
-/// Most parts a candidate enclosure is cut into ([`ChunkRun::field_on_parts`]): 3 × 3 in the
-/// plane, 2 × 2 × 2 in space, none beyond.
-const PARTS: usize = 9;
+thread_local! {
+    /// The closed form's last enclosures of `v` on slabs, per problem and x-box: a step's slab
+    /// field and its curved rates take them on the same slabs (each computed them once, a fifth
+    /// of a continuous run's interval evaluation).
+    static SLAB_V: std::cell::RefCell<Vec<SlabV>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// One entry of [`SLAB_V`]: the problem (by address), the x-box, `v`'s enclosure there.
+type SlabV = (usize, IntervalBox, Option<Vec<Interval>>);
+
+/// Entries [`SLAB_V`] keeps: the `2n` slabs of a few frames.
+const SLAB_V_KEPT: usize = 24;
+
+/// [`FilterPieces::enclosure`](crate::reach::pieces::FilterPieces::enclosure) on `x_box`,
+/// through [`SLAB_V`] (a pure function of the problem and the box).
+fn slab_enclosure(problem: &ReachProblem, x_box: &IntervalBox) -> Option<Vec<Interval>> {
+    let key = problem as *const ReachProblem as usize;
+    SLAB_V.with_borrow_mut(|kept| {
+        if let Some((_, _, v)) = kept.iter().find(|(p, b, _)| *p == key && b == x_box) {
+            return v.clone();
+        }
+        let v = problem.pieces.enclosure(x_box);
+        if kept.len() >= SLAB_V_KEPT {
+            kept.remove(0);
+        }
+        kept.push((key, x_box.clone(), v.clone()));
+        v
+    })
+}

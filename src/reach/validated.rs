@@ -148,10 +148,32 @@ pub fn enclose_step<E>(
     h: f64,
     guess: Option<(&[f64], &[f64])>,
     region: Option<&IntervalBox>,
+    field: impl FnMut(&IntervalBox, bool) -> Result<Option<(Vec<f64>, Vec<f64>)>, E>,
+) -> Result<Enclosure, E> {
+    enclose_within(set, h, guess, region, &|_| false, field)
+}
+
+/// [`enclose_step`] where `safe(x)` proves points in `S` (the filtered system's trajectories
+/// stay there): with `region`, a step from which some trajectory provably leaves `C` within a
+/// time `T` (item 1e, [`exit::exit_time`]) has no enclosure within `C` over any step longer
+/// than `T`, and those steps are not tried.
+pub fn enclose_within<E>(
+    set: &IntervalBox,
+    h: f64,
+    guess: Option<(&[f64], &[f64])>,
+    region: Option<&IntervalBox>,
+    safe: &dyn Fn(&[f64]) -> bool,
     mut field: impl FnMut(&IntervalBox, bool) -> Result<Option<(Vec<f64>, Vec<f64>)>, E>,
 ) -> Result<Enclosure, E> {
-    enclose_halving(set, h, guess, region, &mut field, HALVINGS)
+    let exit = match region {
+        Some(r) => exit::exit_time(set, h, guess, r, safe, &mut field)?,
+        None => None,
+    };
+    enclose_halving(set, h, guess, region, &mut field, HALVINGS, exit)
 }
+
+#[path = "validated_exit.rs"]
+mod exit;
 
 /// Halvings of a step whose enclosure does not close ([`enclose_halving`]).
 const HALVINGS: usize = 2;
@@ -160,7 +182,8 @@ const HALVINGS: usize = 2;
 type FieldOn<'f, E> = dyn FnMut(&IntervalBox, bool) -> Result<Option<(Vec<f64>, Vec<f64>)>, E> + 'f;
 
 /// [`enclose_step`]; where the step's enclosure does not close (or meets no sound field), the
-/// step's halves are enclosed one after the other (item 1d), up to `halvings` times.
+/// step's halves are enclosed one after the other (item 1d), up to `halvings` times. `exit`:
+/// a time within which a trajectory from `set` leaves `C` (item 1e), if one is proven.
 fn enclose_halving<E>(
     set: &IntervalBox,
     h: f64,
@@ -168,20 +191,26 @@ fn enclose_halving<E>(
     region: Option<&IntervalBox>,
     field: &mut FieldOn<'_, E>,
     halvings: usize,
+    exit: Option<f64>,
 ) -> Result<Enclosure, E> {
-    let whole = enclose_once(set, h, guess, region, field)?;
+    // Item 1e: a trajectory from `set` leaves `C` within the step; no candidate closes.
+    let whole = match exit {
+        Some(t) if t < h => Enclosure::Open,
+        _ => enclose_once(set, h, guess, region, field)?,
+    };
     // A candidate without a sound field (it grew into cells with no finite margin) may be
     // avoided by a shorter step's too.
     if matches!(whole, Enclosure::Closed(_)) || halvings == 0 {
         return Ok(whole);
     }
     let half = 0.5 * h;
-    let first = match enclose_halving(set, half, guess, region, field, halvings - 1)? {
+    let first = match enclose_halving(set, half, guess, region, field, halvings - 1, exit)? {
         Enclosure::Closed(pipe) => pipe,
         other => return Ok(other),
     };
     let rates = Some((&first.f_lower[..], &first.f_upper[..]));
-    let second = match enclose_halving(&first.set, half, rates, region, field, halvings - 1)? {
+    let second = match enclose_halving(&first.set, half, rates, region, field, halvings - 1, None)?
+    {
         Enclosure::Closed(pipe) => pipe,
         other => return Ok(other),
     };

@@ -351,3 +351,84 @@ fn guessed_moving_box_holds_the_flow() {
     let r = slab_field(&d, &set, &mv, h, none, &[0.0]);
     assert!(verified(&mv, (&r.0, &r.1)), "{:?} {r:?}", mv.faces);
 }
+
+/// Item 1e: under a rotation (`ẋ₁ = x₂`, `ẋ₂ = −x₁`), sets approaching `C`'s side `x₁ = 1`.
+/// Where the exit time is proven, the exact flow from some point of the set's end reaches
+/// `x₁ > 1` by then; where [`enclose_step`] closes, [`enclose_within`] finds the same
+/// enclosure (a wrong exit proof would skip it); where it does not, the skipped tries save
+/// most field bounds.
+#[test]
+fn exit_proofs_hold_the_flow_and_skip_only_steps_that_cannot_close() {
+    use std::cell::Cell;
+    let z = [0.0; 4];
+    let d = linear([[0.0, 1.0], [-1.0, 0.0]]);
+    let flow = |x: [f64; 2], t: f64| {
+        let (c, s) = (t.cos(), t.sin());
+        [c * x[0] + s * x[1], -s * x[0] + c * x[1]]
+    };
+    let c = IntervalBox::new(vec![-2.0, -2.0], vec![1.0, 2.0]).unwrap();
+    let h = 0.1;
+    let (mut proven, mut saved) = (0, 0);
+    for k in 0..=20 {
+        let top = 0.5 + 0.025 * k as f64;
+        let set = IntervalBox::new(vec![top - 0.2, 0.8], vec![top, 1.0]).unwrap();
+        let mut field = exact_field(&d, &z);
+        let exit = exit::exit_time(&set, h, None, &c, &|_| true, &mut field).unwrap();
+        if let Some(t) = exit {
+            proven += 1;
+            let leaves = (0..=40).any(|j| {
+                let x = [top, 0.8 + 0.005 * j as f64];
+                (0..=100).any(|q| flow(x, t * q as f64 / 100.0)[0] > 1.0 - 1e-12)
+            });
+            assert!(
+                leaves,
+                "exit within {t} claimed from {set:?}, the flow stays in C"
+            );
+        }
+        fn count<'a>(
+            calls: &'a Cell<usize>,
+            field: impl Fn(&IntervalBox, bool) -> Result<Option<Bounds>, ()> + 'a,
+        ) -> impl FnMut(&IntervalBox, bool) -> Result<Option<Bounds>, ()> + 'a {
+            move |a, parts| {
+                calls.set(calls.get() + 1);
+                field(a, parts)
+            }
+        }
+        let (plain_calls, within_calls) = (Cell::new(0), Cell::new(0));
+        let plain = enclose_step(
+            &set,
+            h,
+            None,
+            Some(&c),
+            count(&plain_calls, exact_field(&d, &z)),
+        )
+        .unwrap();
+        let safe = |_: &[f64]| true;
+        let within = enclose_within(
+            &set,
+            h,
+            None,
+            Some(&c),
+            &safe,
+            count(&within_calls, exact_field(&d, &z)),
+        )
+        .unwrap();
+        match (&plain, &within) {
+            (Enclosure::Closed(a), Enclosure::Closed(b)) => assert_eq!(a, b, "at {top}"),
+            (Enclosure::Closed(_), _) => panic!("a step that closes was skipped at {top}"),
+            (_, Enclosure::Closed(_)) => panic!("a step closed only with item 1e at {top}"),
+            _ if exit.is_some_and(|t| t < h / 4.0) => {
+                assert!(within_calls.get() * 4 < plain_calls.get(), "at {top}");
+                saved += 1;
+            }
+            _ => {}
+        }
+        // Points not proven in S prove nothing.
+        let never = |_: &[f64]| false;
+        let mut field = exact_field(&d, &z);
+        assert!(exit::exit_time(&set, h, None, &c, &never, &mut field)
+            .unwrap()
+            .is_none());
+    }
+    assert!(proven > 0 && saved > 0, "{proven} proven, {saved} saved");
+}
