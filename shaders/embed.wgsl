@@ -114,21 +114,6 @@ fn margin_of(known: array<Iv, N0>) -> real {
     return up(m + SLACK);
 }
 
-// A lower / upper bound moved outward by a slack (none for a zero slack, as widen_by).
-fn widen_down(v: real, slack: real) -> real {
-    if (slack > 0.0) {
-        return down(v - slack);
-    }
-    return v;
-}
-
-fn widen_up(v: real, slack: real) -> real {
-    if (slack > 0.0) {
-        return up(v + slack);
-    }
-    return v;
-}
-
 // Face rates of the embedding field: dx̲/dt (lo) and dx̄/dt (hi) per state.
 struct Rates {
     lo: array<real, N0>,

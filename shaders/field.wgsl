@@ -189,3 +189,18 @@ fn bound_on(i: u32, side: u32, lo: array<real, N0>, hi: array<real, N0>, nb: Net
     }
     return total;
 }
+
+// A lower / upper bound moved outward by a slack (none for a zero slack, as widen_by).
+fn widen_down(v: real, slack: real) -> real {
+    if (slack > 0.0) {
+        return down(v - slack);
+    }
+    return v;
+}
+
+fn widen_up(v: real, slack: real) -> real {
+    if (slack > 0.0) {
+        return up(v + slack);
+    }
+    return v;
+}

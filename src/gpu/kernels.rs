@@ -33,6 +33,9 @@ pub(crate) const VALIDATED: &str = include_str!("../../shaders/validated.wgsl");
 pub(crate) const END_RATES: &str = include_str!("../../shaders/end_rates.wgsl");
 /// The curved rates around the barrier (not yet in a pipeline: run by [`super::probe_field`]).
 pub(crate) const CURVED: &str = include_str!("../../shaders/curved.wgsl");
+/// One box-step of the continuous model's common path (not yet in a pipeline: run by
+/// [`super::probe_field`]).
+pub(crate) const SLAB_STEP: &str = include_str!("../../shaders/slab_step.wgsl");
 
 /// Workgroup size of the one-dimensional kernels (`@workgroup_size(64)` in the shaders).
 pub const WORKGROUP: u32 = 64;

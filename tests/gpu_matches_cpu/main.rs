@@ -18,6 +18,7 @@ mod field;
 mod margins;
 mod methods;
 mod primitives;
+mod step;
 mod validated;
 
 use cbfreach::reach::TimeModel;
