@@ -16,7 +16,8 @@ use cbfreach::rounding::round_up;
 /// with the network's bounds on the slabs (or the hull) of the CPU's guess. The device takes
 /// the common path exactly where the CPU guessed a box within `C`, proves it exactly where the
 /// CPU's first check held, and there its set and the rates it keeps equal the CPU's to 1e-10
-/// relative (f64; the device rounds each operation outward by 4 ulp, the CPU by 1).
+/// relative (f64; the device rounds each operation outward by 4 ulp, the CPU by 1), and it
+/// keeps the rates it started from as the step before's.
 #[test]
 fn common_step_matches_the_cpu_engines_step() {
     let Some(g) = gpu_f64() else { return };
@@ -147,6 +148,12 @@ fn common_step_matches_the_cpu_engines_step() {
                 "{what}: rates"
             );
             assert_eq!(d.known_rates, 1 + u32::from(o.state.before.is_some()));
+            // The step before's, for the next guess's trend: the rates the step started from.
+            let (bl, bu) = o.state.before.as_ref().unwrap();
+            assert!(
+                bl == &d.before.0 && bu == &d.before.1,
+                "{what}: the step before's"
+            );
         }
     }
     eprintln!(
