@@ -18,17 +18,24 @@ const RELU: &str = include_str!("../../shaders/relu.wgsl");
 const BACKWARD: &str = include_str!("../../shaders/backward.wgsl");
 const OUTPUT: &str = include_str!("../../shaders/output.wgsl");
 const EMBED: &str = include_str!("../../shaders/embed.wgsl");
+/// The field on a face or slab, shared by the embedding kernel and the probes.
+pub(crate) const FIELD: &str = include_str!("../../shaders/field.wgsl");
 const FACES: &str = include_str!("../../shaders/faces.wgsl");
-const FILTER: &str = include_str!("../../shaders/filter.wgsl");
-const MARGINS: &str = include_str!("../../shaders/margins.wgsl");
+pub(crate) const FILTER: &str = include_str!("../../shaders/filter.wgsl");
+pub(crate) const MARGINS: &str = include_str!("../../shaders/margins.wgsl");
 pub(crate) const TURN: &str = include_str!("../../shaders/turn.wgsl");
-const SETS: &str = include_str!("../../shaders/sets.wgsl");
+pub(crate) const SETS: &str = include_str!("../../shaders/sets.wgsl");
 const SETTLE: &str = include_str!("../../shaders/settle.wgsl");
 pub(crate) const PHI: &str = include_str!("../../shaders/phi.wgsl");
 /// The continuous step's guessed moving box (not yet in a pipeline: run by [`super::probe`]).
 pub(crate) const VALIDATED: &str = include_str!("../../shaders/validated.wgsl");
 /// The curved rates' barrier (not yet in a pipeline: run by [`super::probe`]).
 pub(crate) const END_RATES: &str = include_str!("../../shaders/end_rates.wgsl");
+/// The curved rates around the barrier (not yet in a pipeline: run by [`super::probe_field`]).
+pub(crate) const CURVED: &str = include_str!("../../shaders/curved.wgsl");
+/// One box-step of the continuous model's common path (not yet in a pipeline: run by
+/// [`super::probe_field`]).
+pub(crate) const SLAB_STEP: &str = include_str!("../../shaders/slab_step.wgsl");
 
 /// Workgroup size of the one-dimensional kernels (`@workgroup_size(64)` in the shaders).
 pub const WORKGROUP: u32 = 64;
@@ -153,7 +160,7 @@ pub fn shader_source(precision: Precision, problem_wgsl: &str, module: &str) -> 
         "output" => &[BOX, OUTPUT],
         "faces" => &[BOX, FACES],
         "settle" => &[SETS, SETTLE],
-        _ => &[BOX, SETS, FILTER, MARGINS, PHI, TURN, EMBED],
+        _ => &[BOX, SETS, FILTER, MARGINS, PHI, TURN, FIELD, EMBED],
     };
     for part in body {
         s.push_str(part);

@@ -8,7 +8,8 @@
 //! - [`buffers`]: `#[repr(C)]` images of what the kernels read; the device layout.
 //! - [`codegen`]: scenario expressions as WGSL interval inclusion functions.
 //! - [`exp64`]: the f64 shaders' `exp` enclosure mirrored in Rust, and run on the device.
-//! - [`probe`]: single WGSL primitives run on the device, for tests against their Rust originals.
+//! - [`probe`]: single WGSL primitives run on the device, for tests against their Rust originals;
+//!   [`probe_field`] those that read the problem's generated field (the slab form, curved rates).
 //! - [`margins`]: the error map as a range-maximum structure on the device, for local error
 //!   margins (`--local-margin`): the CPU's exact `M` for any set size in O(log) reads.
 //! - [`GpuBackend`]: [`crate::reach::Backend`] on the device: forward linear bounds,
@@ -73,6 +74,7 @@ pub mod exp64;
 pub mod kernels;
 pub mod margins;
 pub mod probe;
+pub mod probe_field;
 
 pub use backend::GpuBackend;
 pub use context::GpuContext;

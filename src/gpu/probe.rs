@@ -467,7 +467,7 @@ pub(crate) fn run(
 
 /// The compute pipeline of `entry` in `source`, with the layout the shader implies; a
 /// validation error is the shader's.
-fn compile(
+pub(crate) fn compile(
     device: &wgpu::Device,
     source: &str,
     entry: &str,

@@ -40,9 +40,13 @@ mod cpu_sampled;
 
 #[path = "cpu_field.rs"]
 mod cpu_field;
+
+#[path = "cpu_host.rs"]
+mod cpu_host;
 use cpu_field::{
     bounds_of, constant_bounds, inverts, meet_fields, piece_dynamics, pinned, zero_bounds,
 };
+pub use cpu_host::{StepOutcome, StepState};
 
 /// The CPU engine.
 #[derive(Clone, Copy, Debug, Default)]
@@ -100,6 +104,9 @@ struct Live {
     /// Continuous time: whether this step's moving boxes were guessed without an enclosure
     /// ([`validated::guessed`]), to be proven by the step's rates.
     guessed: bool,
+    /// Continuous time: whether the last step was the common path (its guessed moving boxes
+    /// proven by the first check: what the GPU engine runs on the device, design §7.4).
+    common: bool,
     /// Why this step inverted a set, if it did (found where the field's bounds are met).
     inversion: Option<super::tube::Inversion>,
     /// Sampled-data: what the set holds over the current control period.
@@ -329,6 +336,7 @@ impl ChunkRun<'_> {
             rates: vec![None; self.frames.len()],
             before: vec![None; self.frames.len()],
             guessed: false,
+            common: false,
             inversion: None,
             held: None,
             in_s: false,
@@ -552,7 +560,8 @@ impl ChunkRun<'_> {
                     minkowski_s += s;
                     buf.fields.push((fields, input, slot.map(|s| (false, s))));
                 }
-                if state.guessed && !self.guess_holds(state, &buf.fields) {
+                state.common = state.guessed && self.guess_holds(state, &buf.fields);
+                if state.guessed && !state.common {
                     self.fall_back(state, buf, t0)?;
                     if state.done {
                         continue;

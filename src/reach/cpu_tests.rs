@@ -80,3 +80,66 @@ fn settling_meets_the_frames_and_reseeds_one_that_could_not_step() {
     let sample = run.sample(&state, 0.0);
     assert_eq!(sample.set, narrow);
 }
+
+/// `CpuBackend::continuous_step` from each step's outcome retraces the engine's own tubes
+/// (scenario 1, a small network, continuous time, 20 steps, the whole set's bounds and the
+/// faces'): every set equal bit for bit, every tube ending at the same step; both the common
+/// path and the fallback occur.
+#[test]
+fn host_steps_from_a_state_retrace_the_engines_tubes() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios");
+    let s = Scenario::load(&dir.join("integrator.toml")).unwrap();
+    let net = Mlp::random(&[2, 12, 2], 5);
+    let mut problem = ReachProblem::new(&s, net, 0.05)
+        .unwrap()
+        .with_time(TimeModel::Continuous, 1);
+    problem.steps = 20;
+    let boxes: Vec<IntervalBox> = [[-2.0, 2.0], [1.0, -1.5], [2.5, 0.6], [3.5, 2.0], [0.3, 0.2]]
+        .iter()
+        .map(|c| IntervalBox {
+            lower: c.iter().map(|v| v - 0.05).collect(),
+            upper: c.iter().map(|v| v + 0.05).collect(),
+        })
+        .collect();
+    let (mut common, mut fallback) = (0, 0);
+    for face_local in [false, true] {
+        let settings = ReachSettings {
+            bounds: crate::bounds::BoundMethod::Forward,
+            exact: crate::reach::ExactField::Nowhere,
+            face_local,
+            every: 1,
+            ..ReachSettings::default()
+        };
+        let tubes = CpuBackend
+            .reach(&problem, &boxes, &settings, &|_, _| {})
+            .unwrap()
+            .boxes;
+        for (b, tube) in boxes.iter().zip(&tubes) {
+            let mut state = StepState {
+                set: b.clone(),
+                rates: None,
+                before: None,
+                guess: None,
+            };
+            for k in 1..=problem.steps {
+                let out = CpuBackend
+                    .continuous_step(&problem, &settings, std::slice::from_ref(&state))
+                    .unwrap()
+                    .remove(0);
+                if let Some(end) = out.end {
+                    assert_eq!(end, tube.end, "{b:?}: step {k}");
+                    break;
+                }
+                common += usize::from(out.common);
+                fallback += usize::from(!out.common && k > 1);
+                let sample = &tube.tube[k];
+                assert_eq!(out.state.set, sample.set, "{b:?}: step {k}");
+                state = out.state;
+            }
+        }
+    }
+    assert!(
+        common > 100 && fallback > 0,
+        "{common} common, {fallback} fallback"
+    );
+}

@@ -14,9 +14,11 @@
 mod cli;
 #[path = "../common/mod.rs"]
 mod common;
+mod field;
 mod margins;
 mod methods;
 mod primitives;
+mod step;
 mod validated;
 
 use cbfreach::reach::TimeModel;

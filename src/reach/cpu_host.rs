@@ -1,0 +1,120 @@
+//! One continuous-time box-step of the CPU engine from a state held elsewhere (docs/design.md
+//! §7.4): the GPU engine keeps each box's set and the rates it guesses from on the device, and
+//! the box-steps its common path cannot finish (a tube's first step, a guess refused or not
+//! proven) are the CPU engine's own step, run here on that state. The GPU's parity tests compare
+//! the device's common path with this step too. A child of `reach::cpu` (it builds that engine's
+//! chunk state); imports what `cpu` imports.
+
+use super::*;
+
+/// One box's continuous-time state between two steps, in the problem's own frame, as the GPU
+/// engine keeps it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StepState {
+    /// The set.
+    pub set: IntervalBox,
+    /// The last step's rates on its slabs `(r̲, r̄)`, which the next moving box is guessed from
+    /// (`None` before a tube's first step).
+    pub rates: Option<(Vec<f64>, Vec<f64>)>,
+    /// The step before's (the guess's trend).
+    pub before: Option<(Vec<f64>, Vec<f64>)>,
+    /// The hull of the last proven moving box's face rates, which a step that falls back to
+    /// Picard–Lindelöf starts its enclosure from (`None`: from the set's own field).
+    pub guess: Option<(Vec<f64>, Vec<f64>)>,
+}
+
+/// What one step made of a [`StepState`].
+#[derive(Clone, Debug)]
+pub struct StepOutcome {
+    /// The state after the step (as it was where the tube ended on it).
+    pub state: StepState,
+    /// Whether the step was the common path: its moving box guessed from the rates and proven
+    /// by the first check (design §7.1 item 3b), with no re-guess or enclosure.
+    pub common: bool,
+    /// Where the tube ended on this step, why (`None`: it goes on).
+    pub end: Option<TubeEnd>,
+}
+
+impl CpuBackend {
+    /// One continuous-time step of length `problem.dt / substeps` from each state, as
+    /// [`Backend::reach`] takes it: one frame (no meet with x-boxes), the disturbance method.
+    /// Stepping each outcome's state again retraces the engine's tube.
+    pub fn continuous_step(
+        &self,
+        problem: &ReachProblem,
+        settings: &ReachSettings,
+        states: &[StepState],
+    ) -> Result<Vec<StepOutcome>, ReachError> {
+        settings.validate()?;
+        problem.check_time()?;
+        if problem.time != TimeModel::Continuous
+            || settings.method != ReachMethod::Disturbance
+            || problem.frames(settings).len() != 1
+        {
+            return Err(ReachError::Settings(
+                "one continuous step from a given state needs time = \"continuous\", the \
+                 disturbance method and one frame (no meet with x-boxes)"
+                    .into(),
+            ));
+        }
+        for s in states {
+            problem.check_initial(std::slice::from_ref(&s.set))?;
+        }
+        let mut one = problem.clone();
+        one.steps = 1;
+        let frame = Frame {
+            problem: &one,
+            network: PreparedNetwork::new(&one.network)?,
+            safe: one.safe_set_for(settings.method),
+        };
+        let report = |_: usize| {};
+        let run = ChunkRun {
+            frames: vec![frame],
+            settings,
+            every: 1,
+            encloses: settings.exact_field() == ExactField::ClosedForm
+                && one.pieces.has_closed_form(),
+            report: &report,
+            time: one.time,
+            substeps: 1,
+            h: problem.dt / problem.steps_per_dt() as f64,
+            plant: None,
+            x_problem: &one,
+            period: 1,
+        };
+        let mut live: Vec<Live> = states
+            .iter()
+            .map(|s| {
+                let mut state = run.start(&s.set);
+                state.sets = vec![s.set.clone()];
+                run.settle(&mut state, &[true]);
+                state.rates = vec![s.rates.clone()];
+                state.before = vec![s.rates.as_ref().and(s.before.clone())];
+                state.guess = vec![s.guess.clone()];
+                state
+            })
+            .collect();
+        run.horizon(&mut live, &mut ChunkBuffers::default())?;
+        Ok(live
+            .into_iter()
+            .zip(states)
+            .map(|(l, s)| {
+                let end = (l.tube.end != TubeEnd::Horizon).then_some(l.tube.end);
+                let state = match end {
+                    Some(_) => s.clone(),
+                    None => StepState {
+                        set: l.sets[0].clone(),
+                        rates: l.rates[0].clone(),
+                        before: l.before[0].clone(),
+                        guess: l.guess[0].clone(),
+                    },
+                };
+                StepOutcome {
+                    state,
+                    common: l.common,
+                    end,
+                }
+            })
+            .collect())
+    }
+}
