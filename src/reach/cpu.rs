@@ -65,6 +65,26 @@ struct Frame<'a> {
 }
 
 impl<'a> Frame<'a> {
+    /// The frame of problem `p` (one of a run's coordinate frames) under `method`; a digital
+    /// filter does not keep the state in `S` between samples, so `sampled` sets are clipped to
+    /// it only on steps proven in it.
+    fn new(
+        p: &'a ReachProblem,
+        method: ReachMethod,
+        sampled: bool,
+    ) -> Result<Frame<'a>, ReachError> {
+        let in_s = p.safe_set_for(method);
+        Ok(Frame {
+            problem: p,
+            network: PreparedNetwork::new(&p.network)?,
+            safe: match sampled {
+                true => &super::safe_set::NO_SAFE_SET,
+                false => in_s,
+            },
+            in_s,
+        })
+    }
+
     /// The safe set this step's sets are clipped to.
     fn clip(&self, in_s: bool) -> &'a SafeSet {
         match in_s {
@@ -144,19 +164,7 @@ impl Backend for CpuBackend {
         let frames = problem
             .frames(settings)
             .into_iter()
-            .map(|p| {
-                Ok(Frame {
-                    problem: p,
-                    network: PreparedNetwork::new(&p.network)?,
-                    // A digital filter does not keep the state in `S` between samples: sampled
-                    // sets are not clipped to it.
-                    safe: match sampled {
-                        true => &super::safe_set::NO_SAFE_SET,
-                        false => p.safe_set_for(settings.method),
-                    },
-                    in_s: p.safe_set_for(settings.method),
-                })
-            })
+            .map(|p| Frame::new(p, settings.method, sampled))
             .collect::<Result<Vec<Frame>, ReachError>>()?;
         let plant = match sampled {
             true => Some((

@@ -62,11 +62,7 @@ impl CpuBackend {
         }
         let mut one = problem.clone();
         one.steps = 1;
-        let frame = Frame {
-            problem: &one,
-            network: PreparedNetwork::new(&one.network)?,
-            safe: one.safe_set_for(settings.method),
-        };
+        let frame = Frame::new(&one, settings.method, false)?;
         let report = |_: usize| {};
         let run = ChunkRun {
             frames: vec![frame],

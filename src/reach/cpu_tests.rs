@@ -25,12 +25,7 @@ fn settling_meets_the_frames_and_reseeds_one_that_could_not_step() {
     let frames: Vec<Frame> = problem
         .frames(&settings)
         .into_iter()
-        .map(|p| Frame {
-            problem: p,
-            network: PreparedNetwork::new(&p.network).unwrap(),
-            safe: p.safe_set_for(settings.method),
-            in_s: p.safe_set_for(settings.method),
-        })
+        .map(|p| Frame::new(p, settings.method, false).unwrap())
         .collect();
     assert_eq!(frames.len(), 2);
     let run = ChunkRun {
