@@ -1,0 +1,282 @@
+//! The sampled-data model: sets against exact zero-order-hold trajectories, the findings
+//! between samples, and the filter's own constraint that proves `S` where the sets cannot.
+
+use super::*;
+
+/// Trajectories of the sampled-data system with the input held over `k` steps of `dt`
+/// (`u = κ(x) + v(x)` at every `k`-th step, the plant integrated by RK4 at `dt/10` meanwhile),
+/// every `dt`: exact zero-order hold up to RK4's error.
+fn zoh(filter: &SafetyFilter, x0: &[f64], dt: f64, k: usize, steps: usize) -> Vec<Vec<f64>> {
+    let s = filter.scenario();
+    let (n, m) = (s.n(), s.m());
+    let mut x = x0.to_vec();
+    let mut out = vec![x.clone()];
+    let mut u = vec![0.0; m];
+    for i in 0..steps {
+        if i % k == 0 {
+            let Ok(v) = filter.eval(&x) else { break };
+            u = s.kappa_at(&x).iter().zip(&v).map(|(a, b)| a + b).collect();
+        }
+        let plant = |y: &[f64]| -> Result<Vec<f64>, ()> {
+            let g = s.g_at(y);
+            Ok((0..n)
+                .map(|r| s.f[r].eval(y) + (0..m).map(|c| g[r * m + c] * u[c]).sum::<f64>())
+                .collect())
+        };
+        for _ in 0..10 {
+            x = step(plant, &x, dt / 10.0, Integrator::Rk4).unwrap();
+        }
+        out.push(x.clone());
+    }
+    out
+}
+
+/// States of held-input trajectories (period `k·dt`, 48 starts per box, corners first) outside
+/// their sets at every snapshot, and outside the recorded enclosure of the motion between
+/// snapshots; and the checks made.
+fn zoh_escapes(s: &Scenario, tubes: &[Tube], k: usize, tol: f64) -> Escapes {
+    let filter = SafetyFilter::new(s);
+    let dt = s.reach.dt;
+    let mut e = Escapes::default();
+    for tube in tubes {
+        let steps = (tube.tube.last().unwrap().t / dt).round() as usize;
+        for x0 in sample_box(&tube.initial, 48, 11) {
+            let xs = zoh(&filter, &x0, dt, k, steps);
+            for sample in &tube.tube {
+                let j = (sample.t / dt).round() as usize;
+                let Some(x) = xs.get(j) else { break };
+                e.checks += 1;
+                let d = outside(&sample.set, x);
+                if d > tol {
+                    e.at_snapshots += 1;
+                    e.worst = e.worst.max(d);
+                }
+                if let Some(pipe) = &sample.flowpipe {
+                    e.between += usize::from(j > 0 && outside(pipe, &xs[j - 1]) > tol);
+                    e.between += usize::from(outside(pipe, x) > tol);
+                }
+            }
+        }
+    }
+    e
+}
+
+/// Sampled-data at `T_s = dt`: on scenario 1 (`ẋ = u`, no remainder: the held input's motion
+/// is the Euler map's) the sets hold the Euler map's trajectories; on scenario 2 they hold
+/// zero-order-hold trajectories (the control held over each step, the plant integrated
+/// finely), which the Euler map's sets miss.
+#[test]
+fn sampled_sets_hold_zero_order_hold_trajectories() {
+    let s1 = common::integrator();
+    let sampled = TimeModel::Sampled {
+        control_period: s1.reach.dt,
+    };
+    let a = paper_run(&s1, 25, sampled, 1);
+    let e = zoh_escapes(&s1, &a, 1, 1e-9);
+    assert_eq!((e.at_snapshots, e.between), (0, 0), "{e:?}");
+    assert!(e.checks >= 12 * 48 * 20, "too few checks: {e:?}");
+
+    let s2 = common::double_integrator();
+    let dt = s2.reach.dt;
+    let sampled = TimeModel::Sampled { control_period: dt };
+    let tubes = paper_run(&s2, 200, sampled, 1);
+    let e = zoh_escapes(&s2, &tubes, 1, 1e-9);
+    assert_eq!((e.at_snapshots, e.between), (0, 0), "{e:?}");
+    assert!(e.checks >= 9 * 48 * 20, "too few checks: {e:?}");
+    let euler = paper_run(&s2, 200, TimeModel::Euler, 1);
+    let e = zoh_escapes(&s2, &euler, 1, 1e-9);
+    assert!(
+        e.at_snapshots > 0,
+        "Euler sets held every held-input state: {e:?}"
+    );
+}
+
+/// The input held over `K = 2` and `4` integration steps (`T_s = K·dt`): the sets hold exact
+/// zero-order-hold trajectories at every step and the recorded enclosures between steps hold
+/// the states at both ends; the Euler map's sets at `dt` miss them.
+#[test]
+fn sampled_sets_hold_the_input_over_several_steps() {
+    let s = common::double_integrator();
+    let dt = s.reach.dt;
+    for k in [2, 4] {
+        let sampled = TimeModel::Sampled {
+            control_period: k as f64 * dt,
+        };
+        let tubes = paper_run(&s, 80, sampled, 1);
+        assert!(
+            tubes.iter().all(|t| t.tube.len() > 20),
+            "K = {k}: tubes end early"
+        );
+        let e = zoh_escapes(&s, &tubes, k, 1e-9);
+        assert_eq!((e.at_snapshots, e.between), (0, 0), "K = {k}: {e:?}");
+        assert!(e.checks >= 9 * 48 * 20, "K = {k}: too few checks: {e:?}");
+        let euler = paper_run(&s, 80, TimeModel::Euler, 1);
+        let e = zoh_escapes(&s, &euler, k, 1e-9);
+        assert!(
+            e.at_snapshots > 0,
+            "K = {k}: Euler sets held every state: {e:?}"
+        );
+    }
+}
+
+/// A period that is not a whole number of steps is refused, naming the field and the value.
+#[test]
+fn a_period_off_the_step_grid_is_refused() {
+    let err = common::from_text(&common::SMALL.replace(
+        "m_c = 0.1",
+        "m_c = 0.1\ntime = \"sampled\"\ncontrol_period = 0.12",
+    ))
+    .unwrap_err()
+    .to_string();
+    assert!(
+        err.contains("reach.control_period") && err.contains("0.12"),
+        "{err}"
+    );
+}
+
+/// A wall `x₁ ≥ 0` approached under `κ = −2(x₁ + 1)`: the filter's `u = −x₁` makes `x₁` decay
+/// at rate 1 in continuous time, but held over `T_s = 1.5` it overshoots, `x₁ ← −0.5·x₁`: the
+/// held input carries the state into the obstacle. `x₂` just decays. The network is the
+/// filter's correction `v = x₁ + 2` (exact on `x₁ ≥ −2`), built by hand.
+const WALL: &str = r#"
+name = "wall"
+[system]
+states = ["x1", "x2"]
+inputs = ["u"]
+f = ["0", "-x2"]
+g = [["1"], ["0"]]
+kappa = ["-2*x1 - 2"]
+[[cbf]]
+name = "wall"
+h = "x1"
+[reach]
+region = { lower = [-1.5, -1], upper = [1.5, 1] }
+m_c = 0.01
+dt = 0.1
+horizon = 3.0
+goal = { lower = [-0.1, -0.1], upper = [0.1, 0.1] }
+initial = [ { lower = [1.0, 0.0], upper = [1.1, 0.1] } ]
+"#;
+
+fn wall_network() -> Mlp {
+    let mut net = Mlp::random(&[2, 1, 1], 1);
+    net.layers[0].weight = vec![1.0, 0.0];
+    net.layers[0].bias = vec![2.0];
+    net.layers[1].weight = vec![1.0];
+    net.layers[1].bias = vec![0.0];
+    net
+}
+
+/// The held input carries the state into the obstacle: the tube records the finding (with the
+/// time, the whole set outside `S`), and verify's verdict says so; with a short period the same
+/// box gives no finding. Continuous time keeps the set in `S`.
+#[test]
+fn a_long_period_is_found_unsafe_between_samples() {
+    let s = common::from_text(WALL).unwrap();
+    let filter = SafetyFilter::new(&s);
+    let x = [1.05, 0.05];
+    assert!((wall_network().forward(&x)[0] - filter.eval(&x).unwrap()[0]).abs() < 1e-12);
+    let problem = ReachProblem::new(&s, wall_network(), 0.01).unwrap();
+    let long = problem.clone().with_time(
+        TimeModel::Sampled {
+            control_period: 1.5,
+        },
+        1,
+    );
+    let tubes = run(&long, &s.reach.initial, ExactField::ClosedForm);
+    let found = tubes[0].unsafe_between_samples.clone().expect("a finding");
+    assert!(found.t > 0.5 && found.t <= 1.1 + 1e-9, "{found:?}");
+    assert_eq!(found.cbf, "wall");
+    assert!(
+        tubes[0].tube.iter().any(|x| x.set.upper[0] < 0.0),
+        "no set entirely in the obstacle"
+    );
+    let xs = zoh(&filter, &s.reach.initial[0].lower, s.reach.dt, 15, 30);
+    assert!(
+        xs[15][0] < 0.0,
+        "the true held-input system stays safe: {:?}",
+        xs[15]
+    );
+    let e = zoh_escapes(&s, &tubes, 15, 1e-9);
+    assert_eq!((e.at_snapshots, e.between), (0, 0), "{e:?}");
+    let json = serde_json::to_string(&tubes[0]).unwrap();
+    assert!(json.contains("\"unsafe_between_samples\""), "{json}");
+
+    let (j, _) = cbfreach::verify::judge_with_feasibility(&long, &s, &[], &tubes[0]);
+    assert_eq!(j.verdict, cbfreach::verify::Verdict::UnsafeBetweenSamples);
+    assert_eq!(j.verdict.name(), "unsafe-between-samples");
+
+    let short = problem.clone().with_time(
+        TimeModel::Sampled {
+            control_period: 0.1,
+        },
+        1,
+    );
+    let tubes = run(&short, &s.reach.initial, ExactField::ClosedForm);
+    assert_eq!(tubes[0].unsafe_between_samples, None, "{:?}", tubes[0].end);
+    let cont = problem.with_time(TimeModel::Continuous, 1);
+    let tubes = run(&cont, &s.reach.initial, ExactField::ClosedForm);
+    assert_eq!(tubes[0].unsafe_between_samples, None);
+    assert!(tubes[0].tube.iter().all(|x| x.set.lower[0] >= 0.0));
+}
+
+/// The double integrator pushed down (`κ = −3`) and held at `x₂ ≥ −2` by the filter
+/// (`v = max(0, 1 − x₂)`, a one-neuron network, `M = 0.01`): `x₂` decays to −2, the sets' margin
+/// reaches past `x₂ = −2`, so interval evaluation alone cannot prove `S` there. The QP's row
+/// at each sample proves it (`h` affine: `ḧ = 0`), so no finding is recorded and the sets are
+/// met with `x₂ ≥ −2`; zero-order-hold trajectories stay in them.
+const VELOCITY: &str = r#"
+name = "velocity-bound"
+[system]
+states = ["x1", "x2"]
+inputs = ["u"]
+f = ["x2", "0"]
+g = [["0"], ["1"]]
+kappa = ["-3"]
+[[cbf]]
+name = "velocity"
+h = "x2 + 2"
+[reach]
+region = { lower = [-5, -2.5], upper = [5, 2.5] }
+m_c = 0.01
+dt = 0.05
+horizon = 2.0
+goal = { lower = [-0.1, -0.1], upper = [0.1, 0.1] }
+initial = [ { lower = [4.0, -1.9], upper = [4.1, -1.8] }, { lower = [3.5, -1.95], upper = [3.6, -1.85] } ]
+"#;
+
+#[test]
+fn the_filter_constraint_keeps_sampled_sets_in_s() {
+    let s = common::from_text(VELOCITY).unwrap();
+    let mut net = Mlp::random(&[2, 1, 1], 1);
+    net.layers[0].weight = vec![0.0, -1.0];
+    net.layers[0].bias = vec![1.0];
+    net.layers[1].weight = vec![1.0];
+    net.layers[1].bias = vec![0.0];
+    let filter = SafetyFilter::new(&s);
+    let x = [4.05, -1.85];
+    assert!((net.forward(&x)[0] - filter.eval(&x).unwrap()[0]).abs() < 1e-12);
+    let problem = ReachProblem::new(&s, net, 0.01).unwrap().with_time(
+        TimeModel::Sampled {
+            control_period: s.reach.dt,
+        },
+        1,
+    );
+    let tubes = run(&problem, &s.reach.initial, ExactField::Nowhere);
+    for tube in &tubes {
+        assert_eq!(tube.unsafe_between_samples, None, "{:?}", tube.end);
+        assert!(tube.tube.len() > 30, "{:?}", tube.end);
+        let lowest = tube
+            .tube
+            .iter()
+            .map(|x| x.set.lower[1])
+            .fold(f64::INFINITY, f64::min);
+        assert!(
+            (-2.0 - 1e-12..-1.99).contains(&lowest),
+            "lowest x₂ {lowest}"
+        );
+    }
+    let e = zoh_escapes(&s, &tubes, 1, 1e-9);
+    assert_eq!((e.at_snapshots, e.between), (0, 0), "{e:?}");
+    assert!(e.checks >= 2 * 48 * 30, "too few checks: {e:?}");
+}
