@@ -134,8 +134,11 @@ fn source(
     Ok(parts.join("\n"))
 }
 
-/// The kernels' reader of one [`NetCase`] at `xs[at]`.
+/// The probes' buffers, and their readers of one [`NetCase`] and of `n` reals at `xs[at]`.
 const READ_NB: &str = "
+@group(0) @binding(0) var<storage, read> xs: array<f64>;
+@group(0) @binding(1) var<storage, read_write> ys: array<f64>;
+
 fn nb_at(at: u32) -> NetBounds {
     var b: NetBounds;
     for (var q = 0u; q < M_OUT * N0; q++) {
@@ -161,6 +164,19 @@ fn take(at: u32) -> array<real, N0> {
 }
 ";
 
+/// Appends the network's bounds on a moving box's `2n` slabs, refusing another count.
+fn push_slabs(xs: &mut Vec<f64>, nn: &[NetCase], n: usize) -> Result<(), GpuError> {
+    if nn.len() != 2 * n {
+        return Err(GpuError::Problem(format!(
+            "{} network bounds for {} slabs",
+            nn.len(),
+            2 * n
+        )));
+    }
+    nn.iter().for_each(|b| b.push(xs));
+    Ok(())
+}
+
 /// Reals of one [`NetCase`].
 fn nb_len(n: usize, m: usize) -> usize {
     2 * m * n + 4 * m
@@ -177,8 +193,6 @@ pub fn bound_on_device(
     let (n, m) = (problem.dynamics.n, problem.dynamics.m);
     let kernel = format!(
         "
-@group(0) @binding(0) var<storage, read> xs: array<f64>;
-@group(0) @binding(1) var<storage, read_write> ys: array<f64>;
 {READ_NB}
 // Per case lo, hi, i, side, piece, margin, then the network's bounds.
 const IN: u32 = 2u * N0 + 4u + {nb}u;
@@ -252,8 +266,6 @@ pub fn curved_on_device(
     let (n, m) = (problem.dynamics.n, problem.dynamics.m);
     let kernel = format!(
         "
-@group(0) @binding(0) var<storage, read> xs: array<f64>;
-@group(0) @binding(1) var<storage, read_write> ys: array<f64>;
 {READ_NB}
 // Per case lo, hi, r_lo, r_hi, b_lo, b_hi, h, before, piece, margin, then 2N0 network bounds.
 const NB: u32 = {nb}u;
@@ -289,13 +301,6 @@ fn curved_test(@builtin(global_invocation_id) id: vec3<u32>) {{
     let source = source(problem, settings, Precision::F64, &kernel)?;
     let mut xs = Vec::new();
     for c in cases {
-        if c.nn.len() != 2 * n {
-            return Err(GpuError::Problem(format!(
-                "{} network bounds for {} slabs",
-                c.nn.len(),
-                2 * n
-            )));
-        }
         let (bl, bu) = c
             .before
             .clone()
@@ -309,9 +314,7 @@ fn curved_test(@builtin(global_invocation_id) id: vec3<u32>) {{
             f64::from(c.piece),
             c.margin,
         ]);
-        for nn in &c.nn {
-            nn.push(&mut xs);
-        }
+        push_slabs(&mut xs, &c.nn, n)?;
     }
     let per = 1 + 4 * n;
     let ys = run(ctx, &source, "curved_test", &xs, cases.len(), per)?;
@@ -387,8 +390,6 @@ pub fn common_step_on_device(
     let (n, m) = (problem.dynamics.n, problem.dynamics.m);
     let kernel = format!(
         "
-@group(0) @binding(0) var<storage, read> xs: array<f64>;
-@group(0) @binding(1) var<storage, read_write> ys: array<f64>;
 {READ_NB}
 // Per case lo, hi, r_lo, r_hi, b_lo, b_hi, h, rates, margin, then 2N0 network bounds.
 const NB: u32 = {nb}u;
@@ -452,13 +453,6 @@ fn step_test(@builtin(global_invocation_id) id: vec3<u32>) {{
     let source = source(problem, settings, Precision::F64, &kernel)?;
     let mut xs = Vec::new();
     for c in cases {
-        if c.nn.len() != 2 * n {
-            return Err(GpuError::Problem(format!(
-                "{} network bounds for {} slabs",
-                c.nn.len(),
-                2 * n
-            )));
-        }
         let zero = || (vec![0.0; n], vec![0.0; n]);
         let (rl, ru) = c.rates.clone().unwrap_or_else(zero);
         let (bl, bu) = c.before.clone().unwrap_or_else(zero);
@@ -471,9 +465,7 @@ fn step_test(@builtin(global_invocation_id) id: vec3<u32>) {{
             (Some(_), Some(_)) => 2.0,
         };
         xs.extend([c.h, known, c.margin]);
-        for nn in &c.nn {
-            nn.push(&mut xs);
-        }
+        push_slabs(&mut xs, &c.nn, n)?;
     }
     let per = 3 + 10 * n;
     let ys = run(ctx, &source, "step_test", &xs, cases.len(), per)?;

@@ -133,10 +133,7 @@ impl ChunkRun<'_> {
             sample: state.known.clone(),
             facts,
             h_floor,
-            motion: Some(IntervalBox {
-                lower: state.known.lower.clone(),
-                upper: state.known.upper.clone(),
-            }),
+            motion: Some(state.known.clone()),
             input,
         });
         Ok(())
