@@ -6,14 +6,12 @@
 // filter's own field where the filter is provably one smooth function on the set and with its
 // closed form's enclosures elsewhere (shaders/filter.wgsl), advances the closeness radius
 // (Minkowski), takes the Euler step, checks the set against C and writes the recorded
-// snapshot. `tick` then advances the step counter.
+// snapshot. `tick` then advances the step counter. Needs nnb.wgsl (the network's bounds).
 
 // Params (boxes).
 @group(0) @binding(0) var<uniform> p: Params;
 // Per box lo[N0], hi[N0], radius (embedding coordinates).
 @group(0) @binding(1) var<storage, read_write> state: array<real>;
-// The network's bounds over each bound box, FACES per box (shaders/output.wgsl).
-@group(0) @binding(2) var<storage, read> nnb: array<real>;
 // Per box [poisoned, status, stop step, exact steps, enclosed steps], then the step counter and
 // the loop check (1: the device cut a loop short; loops_ran_in_full).
 @group(0) @binding(3) var<storage, read_write> flags: array<atomic<u32>>;
@@ -45,33 +43,6 @@ fn tick() {
     atomicAdd(&flags[FLAG_W * p.boxes], 1u);
 }
 
-// The network's bounds over bound box k, as shaders/output.wgsl records them.
-fn load_bounds(k: u32) -> NetBounds {
-    var b: NetBounds;
-    let at = k * NB_W;
-    for (var q = 0u; q < M_OUT * N0; q++) {
-        b.a_lo[q] = nnb[at + q];
-        b.a_hi[q] = nnb[at + M_OUT * N0 + q];
-    }
-    let o = at + 2u * M_OUT * N0;
-    for (var q = 0u; q < M_OUT; q++) {
-        b.d_lo[q] = nnb[o + q];
-        b.d_hi[q] = nnb[o + M_OUT + q];
-        b.n_lo[q] = nnb[o + 2u * M_OUT + q];
-        b.n_hi[q] = nnb[o + 3u * M_OUT + q];
-    }
-    return b;
-}
-
-// The bound box of face (i, side) of box g: g·2N0 + 2i + side with face-local bounds (the order
-// of src/reach/cpu.rs and shaders/faces.wgsl), else the box itself.
-fn face_index(g: u32, i: u32, side: u32) -> u32 {
-    if (FACES == 1u) {
-        return g;
-    }
-    return g * FACES + 2u * i + side;
-}
-
 // The smooth piece `v` provably is on an x-box (within S) of the set (set_facts in
 // src/reach/cpu.rs): with ENCLOSE (the filter's closed form), VForms::piece's mean-value forms
 // (shaders/filter.wgsl); with EXACT_INACTIVE alone, PIECE_INACTIVE where every row's b(x) ≥ 0
@@ -89,15 +60,6 @@ fn piece_on(x: array<Iv, N0>) -> u32 {
         }
     }
     return PIECE_INACTIVE;
-}
-
-// Whether every bound box of box g is finite.
-fn bounds_finite(g: u32) -> bool {
-    var fin = true;
-    for (var f = 0u; f < FACES; f++) {
-        fin = fin && nnb[(g * FACES + f) * NB_W + NB_W - 1u] == 0.0;
-    }
-    return fin;
 }
 
 // The disturbance bound of a box whose true states lie in the x-box `known` (within S): the error

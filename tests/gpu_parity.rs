@@ -13,8 +13,8 @@ use std::sync::Arc;
 use cbfreach::gpu::{GpuBackend, GpuContext, Precision};
 use cbfreach::problem::ProblemOptions;
 use cbfreach::reach::{
-    choose_engine, Backend, CpuBackend, EngineChoice, GpuOptions, ReachMethod, ReachProblem,
-    ReachSettings, Tube, Unsupported,
+    choose_engine, Backend, CpuBackend, EngineChoice, ExactField, GpuOptions, ReachMethod,
+    ReachProblem, ReachSettings, TimeModel, Tube,
 };
 use cbfreach::scenario::{Margin, Scenario};
 use cbfreach::verify::{judge, traps_for, BoxVerdict, Verifier, VerifySettings};
@@ -204,34 +204,76 @@ fn verify_small(mut s: Scenario, horizon: f64, grid: [usize; 2], region: ([f64; 
     assert!(verified > 0, "{what}: nothing verified");
 }
 
-/// The time models the GPU engine does not run (it runs the Euler map alone) are refused before
-/// any work, naming the setting and the way out, and `auto` runs them on the CPU.
+/// The time model the GPU engine does not run (`sampled`) and the continuous settings its
+/// device step does not take yet are refused before any work, naming the setting and the way
+/// out, and `auto` runs them on the CPU.
 #[test]
 fn other_time_models_are_refused_naming_them() {
     let Some(gpu) = gpu_f64() else { return };
     let s = common::integrator();
     let reach = ReachSettings::default();
-    for time in ["continuous", "sampled"] {
+    let problem_with = |time: &str, m_c: Option<Margin>| {
         let options = ProblemOptions {
             time: Some(time.into()),
+            m_c,
             ..ProblemOptions::default()
         };
-        let problem = ReachProblem::from_scenario(&s, &options).unwrap();
-        assert_eq!(
-            gpu.supports(&problem, &reach),
-            Err(Unsupported::Time(problem.time.name()))
-        );
+        ReachProblem::from_scenario(&s, &options).unwrap()
+    };
+    let certified = Some(Margin::Certified);
+    let nowhere = ReachSettings {
+        exact: ExactField::Nowhere,
+        ..reach.clone()
+    };
+    let cases = [
+        (
+            problem_with("sampled", None),
+            reach.clone(),
+            "time = \"sampled\"",
+            "--time euler",
+        ),
+        (
+            // The scenario's own settings: m_c = "local", exact = "closed-form".
+            problem_with("continuous", None),
+            reach.clone(),
+            "local error margins",
+            "--backend cpu",
+        ),
+        (
+            problem_with("continuous", certified),
+            reach.clone(),
+            "exact = ",
+            "--exact nowhere",
+        ),
+        (
+            problem_with("continuous", certified),
+            ReachSettings {
+                method: ReachMethod::Minkowski,
+                ..nowhere.clone()
+            },
+            "method = \"minkowski\"",
+            "--backend cpu",
+        ),
+        (
+            problem_with("continuous", certified).with_time(TimeModel::Continuous, 2),
+            nowhere.clone(),
+            "substeps",
+            "--backend cpu",
+        ),
+    ];
+    for (problem, reach, names, way_out) in cases {
+        assert!(gpu.supports(&problem, &reach).is_err(), "{names}");
         let e = gpu
             .reach(&problem, &s.reach.initial, &reach, &|_, _| {})
-            .expect_err("the GPU engine refuses the time model")
+            .expect_err("the GPU engine refuses the setting")
             .to_string();
-        assert!(
-            e.contains(&format!("time = \"{time}\"")) && e.contains("--time euler"),
-            "{e}"
-        );
+        assert!(e.contains(names) && e.contains(way_out), "{e}");
         let auto = choose_engine(EngineChoice::Auto, &GpuOptions::default(), &reach, &problem);
         assert_eq!(auto.unwrap().backend.name(), "cpu");
     }
+    assert!(gpu
+        .supports(&problem_with("continuous", certified), &nowhere)
+        .is_ok());
 }
 
 /// A system whose Euler step turns a state around on `C` (`common::CONTRACTING`:
@@ -245,7 +287,6 @@ fn other_time_models_are_refused_naming_them() {
 #[test]
 fn euler_steps_that_turn_a_state_around_hold_the_euler_map() {
     use cbfreach::filter::SafetyFilter;
-    use cbfreach::reach::ExactField;
     use cbfreach::simulate::{sample_box, simulate_filtered, Integrator};
     let Some(gpu) = gpu_f64() else { return };
     let s = common::from_text(common::CONTRACTING).unwrap();

@@ -28,6 +28,7 @@
 //! dispatches, `chunk` runs one chunk of boxes and reads it back.
 
 mod chunk;
+mod continuous;
 mod layout;
 mod plan;
 
@@ -87,11 +88,14 @@ pub struct GpuBackend {
     /// Where compiled pipelines are kept between runs (`disk_cache::cache_dir()` unless set;
     /// `None`: nowhere).
     pub cache_dir: Option<std::path::PathBuf>,
+    /// Box-steps of continuous runs so far: on the device, on the host
+    /// ([`GpuBackend::continuous_steps`]).
+    continuous_steps: Arc<[std::sync::atomic::AtomicUsize; 2]>,
 }
 
-/// Pipelines with the generated WGSL they were compiled from (and whether with `settle`, and
-/// with the flat GEMM).
-type CompiledKernels = (String, [bool; 2], Arc<Kernels>);
+/// Pipelines with the generated WGSL they were compiled from (and whether with `settle`, with
+/// the flat GEMM, with the continuous kernels).
+type CompiledKernels = (String, [bool; 3], Arc<Kernels>);
 
 /// The last pipelines an engine compiled: one problem's, or both frames' where two are met.
 #[derive(Clone, Default)]
@@ -118,7 +122,7 @@ impl KernelCache {
         dir: Option<&std::path::Path>,
         precision: Precision,
         source: String,
-        [settle, flat]: [bool; 2],
+        [settle, flat, continuous]: [bool; 3],
     ) -> Result<Arc<Kernels>, GpuError> {
         let mut last = self
             .0
@@ -126,13 +130,13 @@ impl KernelCache {
             .map_err(|_| GpuError::Device("kernel cache poisoned".into()))?;
         if let Some((_, _, k)) = last
             .iter()
-            .find(|(s, t, _)| *s == source && *t == [settle, flat])
+            .find(|(s, t, _)| *s == source && *t == [settle, flat, continuous])
         {
             return Ok(k.clone());
         }
         let modules: Vec<String> = MODULES
             .iter()
-            .filter(|&&m| settle || m != "settle")
+            .filter(|&&m| (settle || m != "settle") && (continuous || m != "continuous"))
             .map(|m| shader_source(precision, &source, m))
             .collect();
         let mut sources: Vec<&str> = modules.iter().map(String::as_str).collect();
@@ -143,8 +147,7 @@ impl KernelCache {
             disk.pipeline_cache(),
             precision,
             &source,
-            settle,
-            flat,
+            [settle, flat, continuous],
         )?);
         let saved = disk.save();
         if let Ok(mut log) = self.1.lock() {
@@ -153,7 +156,7 @@ impl KernelCache {
         if last.len() == CACHED {
             last.remove(0);
         }
-        last.push((source, [settle, flat], kernels.clone()));
+        last.push((source, [settle, flat, continuous], kernels.clone()));
         Ok(kernels)
     }
 }
@@ -175,8 +178,18 @@ impl GpuBackend {
             kernels: KernelCache::default(),
             cache_dir: cache_dir(),
             flat_gemm: ctx.is_software(),
+            continuous_steps: Arc::default(),
             ctx,
         }
+    }
+
+    /// Box-steps of this engine's continuous runs so far: `(on the device, on the host)` (the
+    /// common path's share, design §7.4).
+    pub fn continuous_steps(&self) -> (usize, usize) {
+        let [d, h] = &*self.continuous_steps;
+        let load =
+            |a: &std::sync::atomic::AtomicUsize| a.load(std::sync::atomic::Ordering::Relaxed);
+        (load(d), load(h))
     }
 
     /// An engine in `precision`; [`GpuError::NoF64`] when f64 is asked of a device without
@@ -218,14 +231,17 @@ impl GpuBackend {
     }
 
     /// Whether this engine runs `problem` under `settings` as they are, or the setting it
-    /// refuses: bounds without a device kernel (IBP alone), a time model other than the Euler
-    /// map, the exact field of a general QP filter.
+    /// refuses: bounds without a device kernel (IBP alone), the sampled time model, a
+    /// continuous run with a setting its device step does not take yet
+    /// ([`continuous::refused`]), the exact field of a general QP filter.
     pub fn runs(problem: &ReachProblem, settings: &ReachSettings) -> Result<(), Unsupported> {
         if !GpuBackend::supports(settings) {
             return Err(Unsupported::Bounds(settings.bounds));
         }
-        if problem.time != TimeModel::Euler {
-            return Err(Unsupported::Time(problem.time.name()));
+        match problem.time {
+            TimeModel::Euler => {}
+            TimeModel::Continuous => continuous::refused(problem, settings)?,
+            _ => return Err(Unsupported::Time(problem.time.name())),
         }
         let general_qp = problem
             .pieces
@@ -346,6 +362,11 @@ impl Backend for GpuBackend {
         if let Err(u) = GpuBackend::runs(problem, settings) {
             return Err(GpuError::Unsupported(crate::reach::refusal(u)).into());
         }
+        let continuous = problem.time == TimeModel::Continuous;
+        if continuous && self.precision == Precision::F32 {
+            let u = Unsupported::Continuous("f32 (--f32)");
+            return Err(GpuError::Unsupported(crate::reach::refusal(u)).into());
+        }
         let start = Instant::now();
         let every = settings.every.max(1);
         let steps = problem.steps;
@@ -415,7 +436,7 @@ impl Backend for GpuBackend {
                 self.cache_dir.as_deref(),
                 self.precision,
                 source,
-                [meet && f == 0, flat],
+                [meet && f == 0, flat, continuous],
             )?;
             let bufs = self.buffers(frame, &shape, &margins, chunk)?;
             setups.push((shape, kernels, bufs));
@@ -431,6 +452,26 @@ impl Backend for GpuBackend {
             })
             .collect();
         let n_chunks = initial.len().div_ceil(chunk);
+        if continuous {
+            for (ci, part) in starts.chunks(chunk).enumerate() {
+                let sets: Vec<IntervalBox> = part.iter().map(|(s, _)| s[0].clone()).collect();
+                let first = ci * chunk;
+                self.continuous_chunk(
+                    &runs[0],
+                    settings,
+                    &sets,
+                    &mut tubes[first..first + part.len()],
+                    &|s| progress(((ci * steps + s) / n_chunks).min(steps), steps),
+                )?;
+            }
+            return Ok(ReachResult {
+                boxes: tubes,
+                timing: ReachTiming {
+                    reach_s: start.elapsed().as_secs_f64(),
+                    minkowski_s: 0.0,
+                },
+            });
+        }
         for (ci, part) in starts.chunks(chunk).enumerate() {
             let sets: Vec<Vec<IntervalBox>> = (0..frames.len())
                 .map(|f| part.iter().map(|(s, _)| s[f].clone()).collect())

@@ -386,6 +386,9 @@ pub fn problem_wgsl(
     let _ = writeln!(s, "const EVERY: u32 = {every}u;");
     let _ = writeln!(s, "const DT_LO: real = {};", lit(down(problem.dt)));
     let _ = writeln!(s, "const DT_HI: real = {};", lit(up(problem.dt)));
+    // The continuous model's step (exact in f64, the CPU engine's `dt / substeps`).
+    let h = problem.dt / problem.steps_per_dt() as f64;
+    let _ = writeln!(s, "const H_STEP: real = {};", lit(h));
     let _ = writeln!(s, "const MARGIN: real = {};", lit(up(margin)));
     // Local margins (disturbance method with an error map): M = local bound + SLACK per box.
     let local = settings.method == ReachMethod::Disturbance && problem.error_map.is_some();

@@ -27,15 +27,19 @@ pub(crate) const TURN: &str = include_str!("../../shaders/turn.wgsl");
 pub(crate) const SETS: &str = include_str!("../../shaders/sets.wgsl");
 const SETTLE: &str = include_str!("../../shaders/settle.wgsl");
 pub(crate) const PHI: &str = include_str!("../../shaders/phi.wgsl");
-/// The continuous step's guessed moving box (not yet in a pipeline: run by [`super::probe`]).
+/// The continuous step's guessed moving box.
 pub(crate) const VALIDATED: &str = include_str!("../../shaders/validated.wgsl");
-/// The curved rates' barrier (not yet in a pipeline: run by [`super::probe`]).
+/// The curved rates' barrier.
 pub(crate) const END_RATES: &str = include_str!("../../shaders/end_rates.wgsl");
-/// The curved rates around the barrier (not yet in a pipeline: run by [`super::probe_field`]).
+/// The curved rates around the barrier.
 pub(crate) const CURVED: &str = include_str!("../../shaders/curved.wgsl");
-/// One box-step of the continuous model's common path (not yet in a pipeline: run by
-/// [`super::probe_field`]).
+/// One box-step of the continuous model's common path (the continuous kernels' and
+/// [`super::probe_field`]'s).
 pub(crate) const SLAB_STEP: &str = include_str!("../../shaders/slab_step.wgsl");
+/// The network's bounds per bound box, as the embedding and continuous kernels read them.
+const NNB: &str = include_str!("../../shaders/nnb.wgsl");
+/// The continuous model's slabs and box-step (shaders/continuous.wgsl).
+const CONTINUOUS: &str = include_str!("../../shaders/continuous.wgsl");
 
 /// Workgroup size of the one-dimensional kernels (`@workgroup_size(64)` in the shaders).
 pub const WORKGROUP: u32 = 64;
@@ -76,6 +80,16 @@ pub struct Kernels {
     pub faces: Kernel,
     /// The meet of two frames after a step (shaders/settle.wgsl), where frames are met.
     pub settle: Option<Kernel>,
+    /// The continuous model's slab and step kernels (shaders/continuous.wgsl), for its runs.
+    pub continuous: Option<Continuous>,
+}
+
+/// The continuous model's kernels.
+pub struct Continuous {
+    /// Each live box's slabs (or hull) as its bound boxes.
+    pub slabs: Kernel,
+    /// The box-step of the common path.
+    pub step: Kernel,
 }
 
 /// Binding kinds after the uniform at binding 0: `true` = read-only storage.
@@ -136,13 +150,22 @@ fn kernel(
     }
 }
 
-/// Every module [`Kernels::new`] compiles (`settle` where two frames are met).
-pub const MODULES: [&str; 7] = [
-    "gemm", "relu", "backward", "output", "faces", "embed", "settle",
+/// Every module [`Kernels::new`] compiles (`settle` where two frames are met, `continuous` for
+/// the continuous time model).
+pub const MODULES: [&str; 8] = [
+    "gemm",
+    "relu",
+    "backward",
+    "output",
+    "faces",
+    "embed",
+    "settle",
+    "continuous",
 ];
 
 /// The WGSL of a module: the precision prelude, shared helpers, the generated problem constants
-/// and the module's kernels (`gemm`, `relu`, `backward`, `output`, `faces`, `settle`, `embed`).
+/// and the module's kernels (`gemm`, `relu`, `backward`, `output`, `faces`, `settle`,
+/// `continuous`, `embed`).
 pub fn shader_source(precision: Precision, problem_wgsl: &str, module: &str) -> String {
     let prelude = match precision {
         Precision::F32 => REAL_F32,
@@ -160,7 +183,10 @@ pub fn shader_source(precision: Precision, problem_wgsl: &str, module: &str) -> 
         "output" => &[BOX, OUTPUT],
         "faces" => &[BOX, FACES],
         "settle" => &[SETS, SETTLE],
-        _ => &[BOX, SETS, FILTER, MARGINS, PHI, TURN, FIELD, EMBED],
+        "continuous" => &[
+            SETS, FILTER, MARGINS, FIELD, VALIDATED, END_RATES, CURVED, SLAB_STEP, NNB, CONTINUOUS,
+        ],
+        _ => &[BOX, SETS, FILTER, MARGINS, PHI, TURN, FIELD, NNB, EMBED],
     };
     for part in body {
         s.push_str(part);
@@ -171,15 +197,15 @@ pub fn shader_source(precision: Precision, problem_wgsl: &str, module: &str) -> 
 
 impl Kernels {
     /// Compiles every pipeline for a problem's generated WGSL (`settle` too for the first of two
-    /// frames met after every step), through `cache` where given (`disk_cache`), with the GEMM
-    /// without workgroup tiles where `flat`; shader errors become [`GpuError::Shader`].
+    /// frames met after every step, `continuous` for the continuous time model), through
+    /// `cache` where given (`disk_cache`), with the GEMM without workgroup tiles where `flat`;
+    /// shader errors become [`GpuError::Shader`].
     pub fn new(
         device: &wgpu::Device,
         cache: Option<&wgpu::PipelineCache>,
         precision: Precision,
         problem_wgsl: &str,
-        settle: bool,
-        flat: bool,
+        [settle, flat, continuous]: [bool; 3],
     ) -> Result<Kernels, GpuError> {
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         // wgpu's default guard on every loop (an iteration counter, against infinite loops)
@@ -245,6 +271,15 @@ impl Kernels {
             tick: kernel(device, cache, &embed_m, "tick", &embed),
             faces: kernel(device, cache, &faces_m, "faces_of", &[true, false]),
             settle: settle.then(|| kernel(device, cache, &module("settle"), "settle", &[false; 7])),
+            continuous: continuous.then(|| {
+                let m = module("continuous");
+                // cont, nnb, flags, bound boxes, then the error map's (margins.wgsl).
+                let bindings = [false, true, false, false, true, true];
+                Continuous {
+                    slabs: kernel(device, cache, &m, "slabs_of", &bindings),
+                    step: kernel(device, cache, &m, "cstep", &bindings),
+                }
+            }),
         };
         match pollster::block_on(scope.pop()) {
             Some(e) => Err(GpuError::Shader(e.to_string())),

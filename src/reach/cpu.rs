@@ -46,7 +46,7 @@ mod cpu_host;
 use cpu_field::{
     bounds_of, constant_bounds, inverts, meet_fields, piece_dynamics, pinned, zero_bounds,
 };
-pub use cpu_host::{StepOutcome, StepState};
+pub use cpu_host::{record_sample, StepOutcome, StepState};
 
 /// The CPU engine.
 #[derive(Clone, Copy, Debug, Default)]
@@ -670,17 +670,12 @@ impl ChunkRun<'_> {
             clip_to_safe_set(&mut set.lower, &mut set.upper, &f.clip(in_s).z);
         }
         self.settle(state, stepped);
-        let mut sample = self.sample(state, t);
-        let problem = self.frames[0].problem;
-        if self.sweep(state, &mut sample, problem, t, record) {
-            return;
-        }
-        if !sample.set.is_subset_of(&problem.region) {
-            state.tube.end = TubeEnd::LeftRegion { t };
-            state.tube.tube.push(sample);
+        let sample = self.sample(state, t);
+        let region = &self.frames[0].problem.region;
+        let pipe = state.pipe_known.as_ref();
+        let (tube, swept) = (&mut state.tube, &mut state.swept);
+        if record_sample(region, tube, swept, pipe, sample, (t, self.h), record) {
             state.done = true;
-        } else if record {
-            state.tube.tube.push(sample);
         }
     }
 }

@@ -33,6 +33,54 @@ pub struct StepOutcome {
     pub common: bool,
     /// Where the tube ended on this step, why (`None`: it goes on).
     pub end: Option<TubeEnd>,
+    /// The sample of the set after the step (at `t = h`, without a flowpipe), where the step
+    /// got that far (also where the set or its flowpipe then left `C`): what
+    /// [`record_sample`] takes.
+    pub sample: Option<TubeSample>,
+    /// The x-box of the step's flowpipe, where it has one.
+    pub flowpipe: Option<IntervalBox>,
+}
+
+/// The last of a step's bookkeeping, once its set is sampled (the CPU engine's, and the GPU
+/// engine's for the box-steps it takes on the device): the x-box of the step's flowpipe
+/// (`pipe`, continuous time) joins `swept`, the hull since the last sample, which must lie in
+/// `C`; then the sample must. Pushes `sample` where it is recorded (with the hull) or where the
+/// tube ends on it; returns whether it ended. `(t, h)`: the step's end and length.
+pub fn record_sample(
+    region: &IntervalBox,
+    tube: &mut Tube,
+    swept: &mut Option<IntervalBox>,
+    pipe: Option<&IntervalBox>,
+    mut sample: TubeSample,
+    (t, h): (f64, f64),
+    record: bool,
+) -> bool {
+    if let Some(pipe) = pipe {
+        let hull = match swept.take() {
+            Some(s) => s.hull(pipe),
+            None => pipe.clone(),
+        };
+        let left = !hull.is_subset_of(region);
+        if record || left {
+            sample.flowpipe = Some(hull);
+        } else {
+            *swept = Some(hull);
+        }
+        if left {
+            tube.end = TubeEnd::FlowpipeLeftRegion { t: t - h };
+            tube.tube.push(sample);
+            return true;
+        }
+    }
+    if !sample.set.is_subset_of(region) {
+        tube.end = TubeEnd::LeftRegion { t };
+        tube.tube.push(sample);
+        return true;
+    }
+    if record {
+        tube.tube.push(sample);
+    }
+    false
 }
 
 impl CpuBackend {
@@ -57,8 +105,17 @@ impl CpuBackend {
                     .into(),
             ));
         }
-        for s in states {
-            problem.check_initial(std::slice::from_ref(&s.set))?;
+        // The states are in the frame's coordinates (z where there is a transform): no check
+        // against `C`, which is in x.
+        let n = problem.dynamics.n;
+        if let Some(index) = states.iter().position(|s| s.set.dim() != n) {
+            return Err(ReachError::InitialBox {
+                index,
+                message: format!(
+                    "a state with {} coordinates, expected {n}",
+                    states[index].set.dim()
+                ),
+            });
         }
         let mut one = problem.clone();
         one.steps = 1;
@@ -96,6 +153,10 @@ impl CpuBackend {
             .zip(states)
             .map(|(l, s)| {
                 let end = (l.tube.end != TubeEnd::Horizon).then_some(l.tube.end);
+                let sample = l.tube.tube.get(1).cloned().map(|s| TubeSample {
+                    flowpipe: None,
+                    ..s
+                });
                 let state = match end {
                     Some(_) => s.clone(),
                     None => StepState {
@@ -109,6 +170,8 @@ impl CpuBackend {
                     state,
                     common: l.common,
                     end,
+                    sample,
+                    flowpipe: l.pipe_known,
                 }
             })
             .collect())

@@ -355,8 +355,8 @@ impl ChunkRun<'_> {
     }
 }
 
-/// Continuous time: the boxes to bound the network on, second-order rates (met with the
-/// first-order ones by the caller) and the flowpipe since the last sample.
+/// Continuous time: the boxes to bound the network on and second-order rates (met with the
+/// first-order ones by the caller).
 impl ChunkRun<'_> {
     /// Queues the boxes of one set's network bounds: slabs for faces, the flowpipe for the
     /// whole set.
@@ -375,38 +375,6 @@ impl ChunkRun<'_> {
             fb.flat_lo.extend(&pipe.set.lower);
             fb.flat_hi.extend(&pipe.set.upper);
         }
-    }
-
-    /// The flowpipe since the last sample, which must lie in `C` too: kept for the next
-    /// recorded sample, or put in `sample` when it is recorded or leaves `C`. Returns true
-    /// (the tube ended, `sample` pushed) where it leaves `C`.
-    pub(super) fn sweep(
-        &self,
-        state: &mut Live,
-        sample: &mut TubeSample,
-        problem: &ReachProblem,
-        t: f64,
-        record: bool,
-    ) -> bool {
-        let Some(pipe) = &state.pipe_known else {
-            return false;
-        };
-        let swept = match state.swept.take() {
-            Some(s) => s.hull(pipe),
-            None => pipe.clone(),
-        };
-        let left = !swept.is_subset_of(&problem.region);
-        if record || left {
-            sample.flowpipe = Some(swept);
-        } else {
-            state.swept = Some(swept);
-        }
-        if left {
-            state.tube.end = TubeEnd::FlowpipeLeftRegion { t: t - self.h };
-            state.tube.tube.push(sample.clone());
-            state.done = true;
-        }
-        left
     }
 
     /// Where the filter is proven one smooth piece on the set: the Taylor rates of that

@@ -89,8 +89,14 @@ pub fn refusal(unsupported: Unsupported) -> String {
              crown bounds; use one of them (--bounds) or the CPU engine (--backend cpu)"
         ),
         Unsupported::Time(t) => format!(
-            "time = \"{t}\": the GPU engine runs time = \"euler\" alone; set it (--time euler) \
-             or use the CPU engine (--backend cpu)"
+            "time = \"{t}\": the GPU engine runs time = \"euler\" and \"continuous\"; set one \
+             (--time euler) or use the CPU engine (--backend cpu)"
+        ),
+        Unsupported::Continuous(what) => format!(
+            "time = \"continuous\" with {what}: the GPU engine's continuous step takes the \
+             network's field with a global error bound in one frame, the disturbance method and \
+             f64 alone so far (docs/design.md §7.4); change the setting or use the CPU engine \
+             (--backend cpu)"
         ),
         Unsupported::ExactGeneralQp => "exact = \"closed-form\" for a general QP filter: the GPU \
              engine evaluates the one-row and scalar closed forms alone; set exact = \"inactive\" \

@@ -106,9 +106,13 @@ pub enum Unsupported {
     /// The engine has no such network bounds.
     #[error("the engine has no {0} bounds")]
     Bounds(BoundMethod),
-    /// The engine runs another time model only (the model's name).
-    #[error("the engine runs time = \"euler\" alone, not time = \"{0}\"")]
+    /// The engine does not run this time model (the model's name).
+    #[error("the engine does not run time = \"{0}\"")]
     Time(&'static str),
+    /// The engine runs `time = "continuous"`, but not with this setting (named as a user sets
+    /// it).
+    #[error("the engine does not run time = \"continuous\" with {0}")]
+    Continuous(&'static str),
     /// The engine evaluates the one-row and scalar closed forms alone, not the active-set
     /// pieces of a general QP filter.
     #[error("the engine has no exact field for a general QP filter")]

@@ -116,6 +116,22 @@ impl TubeEnd {
         *self == TubeEnd::Horizon
     }
 
+    /// The same end `by` later (a step taken from `t = 0` placed in a longer tube).
+    pub fn later(self, by: f64) -> TubeEnd {
+        let mut end = self;
+        match &mut end {
+            TubeEnd::Horizon => {}
+            TubeEnd::LeftRegion { t }
+            | TubeEnd::NoCertifiedBound { t }
+            | TubeEnd::FlowpipeLeftRegion { t }
+            | TubeEnd::NoEnclosure { t, .. }
+            | TubeEnd::NoIntersampleEnclosure { t }
+            | TubeEnd::Inverted { t, .. }
+            | TubeEnd::NonFinite { t } => *t += by,
+        }
+        end
+    }
+
     /// When the tube ended early (`None` at the horizon).
     pub fn t(&self) -> Option<f64> {
         match *self {

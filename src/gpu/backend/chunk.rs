@@ -101,13 +101,7 @@ impl GpuBackend {
             ops.extend(plan(&frames[1], true).build());
             ops.extend(plan(&frames[0], false).meet(frames[1].bufs));
         }
-        let limit = self.ctx.limits.max_compute_workgroups_per_dimension;
-        if let Some(op) = ops.iter().find(|op| op.groups.iter().any(|&g| g > limit)) {
-            return Err(GpuError::TooLarge(format!(
-                "a dispatch of {:?} workgroups exceeds the device's {limit}",
-                op.groups
-            )));
-        }
+        self.check_groups(&ops)?;
 
         let steps = frames[0].problem.steps;
         let mut done = 0;
@@ -140,6 +134,18 @@ impl GpuBackend {
             self.profile_step(&ops, boxes)?;
         }
         Ok(results)
+    }
+
+    /// Refuses a step whose dispatches exceed the device's workgroup limits.
+    pub(super) fn check_groups(&self, ops: &[Op]) -> Result<(), GpuError> {
+        let limit = self.ctx.limits.max_compute_workgroups_per_dimension;
+        if let Some(op) = ops.iter().find(|op| op.groups.iter().any(|&g| g > limit)) {
+            return Err(GpuError::TooLarge(format!(
+                "a dispatch of {:?} workgroups exceeds the device's {limit}",
+                op.groups
+            )));
+        }
+        Ok(())
     }
 
     /// One readback of a frame's buffers: snapshots, final states, flags, shared x-boxes.

@@ -7,7 +7,7 @@ use super::super::margins::MarginMap;
 use super::super::GpuError;
 use super::GpuBackend;
 use crate::bounds::{BoundMethod, Relaxation};
-use crate::reach::{ReachProblem, ReachSettings};
+use crate::reach::{ReachProblem, ReachSettings, TimeModel};
 
 /// The passes a bound method runs on the device (`None`: not on the GPU).
 pub(super) fn method_flags(bounds: BoundMethod, n_layers: usize) -> Option<MethodFlags> {
@@ -68,6 +68,9 @@ pub(super) struct Shape {
     pub(super) slots: usize,
     /// Bound boxes per box (`2n` face-local, else 1).
     pub(super) faces: usize,
+    /// The continuous time model: the bound boxes are each box's slabs or hull (`slabs_of`),
+    /// and its step the continuous kernel's.
+    pub(super) continuous: bool,
 }
 
 impl Shape {
@@ -102,6 +105,7 @@ impl Shape {
             kc: problem.dynamics.n + 1,
             slots: problem.steps.div_ceil(every).max(1),
             faces: faces_per_box(problem.dynamics.n, settings),
+            continuous: problem.time == TimeModel::Continuous,
             w,
             flags,
             crown,
@@ -123,7 +127,17 @@ impl Shape {
         let (kc, sw, f) = (self.kc as u64, 2 * self.n as u64 + 1, self.faces as u64);
         let forms = if self.flags.forward { width * kc } else { 0 };
         let record = if self.flags.record { sum } else { 0 };
-        let faces = if self.faces > 1 { f * sw } else { 0 };
+        let faces = if self.faces > 1 || self.continuous {
+            f * sw
+        } else {
+            0
+        };
+        // Continuous: per box its step state and what the step leaves the host
+        // (shaders/continuous.wgsl, `CW`); no snapshots (the host records the samples).
+        let (cont, snap) = match self.continuous {
+            true => (10 * self.n as u64 + 1, 0),
+            false => (0, self.slots as u64 * sw),
+        };
         vec![
             ("forms", f * forms, 4),
             ("aux", f * width * AUX as u64, 2),
@@ -138,8 +152,9 @@ impl Shape {
             ),
             ("faces", faces, 1),
             ("state", sw, 2),
-            ("snap", self.slots as u64 * sw, 2),
+            ("snap", snap, 2),
             ("known", 2 * self.n as u64, 2),
+            ("cont", cont, 2),
         ]
     }
 }
@@ -166,13 +181,16 @@ pub(super) struct Buffers {
     pub(super) map_cells: wgpu::Buffer,
     /// Per box the x-box that met frames share (frame 0's is the one read; `settle.wgsl`).
     pub(super) known: wgpu::Buffer,
+    /// Continuous: per box its step state and the step's hull and rates (continuous.wgsl).
+    pub(super) cont: wgpu::Buffer,
     pub(super) staging: wgpu::Buffer,
 }
 
 impl Buffers {
-    /// What the bound kernels read as their boxes: the faces, or the states themselves.
+    /// What the bound kernels read as their boxes: the faces (or a continuous step's slabs or
+    /// hull), or the states themselves.
     pub(super) fn bound_boxes(&self, shape: &Shape) -> &wgpu::Buffer {
-        if shape.faces > 1 {
+        if shape.faces > 1 || shape.continuous {
             &self.faces
         } else {
             &self.state
@@ -205,7 +223,7 @@ impl GpuBackend {
         let (net, _) = flatten_network(&problem.network);
         let flags = flag_words(chunk) as u64 * 4;
         let sz = |name: &str| sizes.get(name).copied().unwrap_or(4);
-        let (snap, state, known) = (sz("snap"), sz("state"), sz("known"));
+        let (snap, state, known, cont) = (sz("snap"), sz("state"), sz("known"), sz("cont"));
         Ok(Buffers {
             net: storage_init(d, "net", &device_bytes(&net, self.precision)),
             state: storage(d, "state", state),
@@ -232,9 +250,10 @@ impl GpuBackend {
                 &padded(&device_bytes(&margins.reals, self.precision)),
             ),
             known: storage(d, "known", known),
+            cont: storage(d, "cont", cont),
             staging: d.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("staging"),
-                size: (snap + state + flags + known).next_multiple_of(8),
+                size: (snap + state + flags + known + cont).next_multiple_of(8),
                 usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
                 mapped_at_creation: false,
             }),

@@ -307,6 +307,18 @@ impl<'a> StepPlan<'a> {
             ..Default::default()
         };
         let groups = [self.boxes.div_ceil(WORKGROUP), 1, 1];
+        if let Some(c) = self.continuous() {
+            let group = [
+                &b.cont,
+                &b.nnb,
+                &b.flags,
+                &b.faces,
+                &b.map_index,
+                &b.map_cells,
+            ];
+            self.push(&c.step, &per_box, &group, groups);
+            return;
+        }
         let group = [
             &b.state,
             &b.nnb,
@@ -360,8 +372,36 @@ impl<'a> StepPlan<'a> {
         self.ops
     }
 
-    /// The face boxes of every box (face-local bounds), first in a step.
+    /// The continuous kernels, where this run is continuous.
+    fn continuous(&self) -> Option<&'a super::super::kernels::Continuous> {
+        let kernels: &'a Kernels = self.kernels;
+        kernels
+            .continuous
+            .as_ref()
+            .filter(|_| self.shape.continuous)
+    }
+
+    /// The face boxes of every box (face-local bounds), or in continuous time each box's slabs
+    /// or hull (shaders/continuous.wgsl), first in a step.
     fn faces(&mut self) {
+        if let Some(c) = self.continuous() {
+            let p = Params {
+                boxes: self.boxes,
+                ..Default::default()
+            };
+            let b = self.bufs;
+            let group = [
+                &b.cont,
+                &b.nnb,
+                &b.flags,
+                &b.faces,
+                &b.map_index,
+                &b.map_cells,
+            ];
+            let groups = [self.boxes.div_ceil(WORKGROUP), 1, 1];
+            self.push(&c.slabs, &p, &group, groups);
+            return;
+        }
         if self.shape.faces > 1 {
             let p = Params {
                 boxes: self.boxes,

@@ -1,0 +1,148 @@
+// The continuous time model's common path in a pipeline (docs/design.md §7.1 item 3b, §7.4),
+// one frame, the network's field with the global disturbance bound: `slabs_of` writes each live
+// box's 2n slabs of its guessed moving box (face-local, FACES = 2N0) or its hull (FACES = 1) as
+// its bound boxes, so the GEMM, ReLU, backward and output kernels run on them unchanged; `cstep`
+// then takes the box-step (slab_step.wgsl: guess_step, end_rates, finish_step), clips the set to
+// S and keeps the hull and the faces' rates for the host. A box-step it cannot finish (a tube's
+// first step, a guess refused, a check failed, bounds not finite, a set inside out) keeps its
+// state and is flagged: the host steps it with the CPU engine's own step
+// (src/gpu/backend/continuous.rs). The host reads every box's result after each step and
+// records the samples and flowpipes (the CPU engine's rules). Needs slab_step.wgsl and what it
+// needs, sets.wgsl, nnb.wgsl.
+
+// Params (boxes).
+@group(0) @binding(0) var<uniform> p: Params;
+// Per box CW reals: the StepState (lo, hi, r_lo, r_hi, b_lo, b_hi: N0 each; the rates it has),
+// then what the step leaves for the host: the hull (lo, hi) and the faces' rates (s_lo, s_hi).
+@group(0) @binding(1) var<storage, read_write> cont: array<real>;
+// Per box [poisoned, status, -, -, -, result]: status is the host's (LIVE while it steps),
+// result this step's (C_DEVICE, C_HOST).
+@group(0) @binding(3) var<storage, read_write> flags: array<atomic<u32>>;
+// The bound boxes, FACES per box: lo[N0], hi[N0], radius (as shaders/faces.wgsl writes faces).
+@group(0) @binding(4) var<storage, read_write> bound_boxes: array<real>;
+
+const CW: u32 = 10u * N0 + 1u;
+const SWB: u32 = 2u * N0 + 1u;
+// The step's result per box: stepped on the device, or left to the host.
+const C_DEVICE: u32 = 1u;
+const C_HOST: u32 = 2u;
+
+fn part(g: u32, k: u32) -> array<real, N0> {
+    var a: array<real, N0>;
+    for (var j = 0u; j < N0; j++) {
+        a[j] = cont[g * CW + k * N0 + j];
+    }
+    return a;
+}
+
+fn put(g: u32, k: u32, a: array<real, N0>) {
+    for (var j = 0u; j < N0; j++) {
+        cont[g * CW + k * N0 + j] = a[j];
+    }
+}
+
+fn load_state(g: u32) -> StepState {
+    return StepState(part(g, 0u), part(g, 1u), part(g, 2u), part(g, 3u), part(g, 4u), part(g, 5u), u32(cont[g * CW + 6u * N0]));
+}
+
+fn put_bound_box(k: u32, lo: array<real, N0>, hi: array<real, N0>) {
+    for (var j = 0u; j < N0; j++) {
+        bound_boxes[k * SWB + j] = lo[j];
+        bound_boxes[k * SWB + N0 + j] = hi[j];
+    }
+    bound_boxes[k * SWB + 2u * N0] = 0.0;
+}
+
+@compute @workgroup_size(64)
+fn slabs_of(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let g = gid.x;
+    if (g >= p.boxes) {
+        return;
+    }
+    let st = load_state(g);
+    let gs = guess_step(st, H_STEP);
+    // Boxes the device does not step this time get their set (finite, bounds unused).
+    let live = atomicLoad(&flags[g * FLAG_W + 1u]) == LIVE && gs.on_path;
+    for (var f = 0u; f < FACES; f++) {
+        if (!live) {
+            put_bound_box(g * FACES + f, st.lo, st.hi);
+        } else if (FACES == 1u) {
+            put_bound_box(g, gs.m.hull_lo, gs.m.hull_hi);
+        } else {
+            let s = slab(st.lo, st.hi, gs.m, H_STEP, f / 2u, f % 2u);
+            put_bound_box(g * FACES + f, s.lo, s.hi);
+        }
+    }
+}
+
+@compute @workgroup_size(64)
+fn cstep(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let g = gid.x;
+    if (g >= p.boxes) {
+        return;
+    }
+    if (atomicLoad(&flags[g * FLAG_W + 1u]) != LIVE) {
+        return;
+    }
+    let poisoned = atomicLoad(&flags[g * FLAG_W]) != 0u;
+    // A bound kernel marks a box whose bounds overflowed; the host's step decides what it means.
+    atomicStore(&flags[g * FLAG_W], 0u);
+    atomicStore(&flags[g * FLAG_W + 5u], C_HOST);
+    let st = load_state(g);
+    let gs = guess_step(st, H_STEP);
+    if (!gs.on_path || poisoned || !bounds_finite(g)) {
+        return;
+    }
+    var dl: array<real, N0>;
+    var du: array<real, N0>;
+    var cl: array<real, N0>;
+    var cu: array<real, N0>;
+    for (var f = 0u; f < 2u * N0; f++) {
+        let i = f / 2u;
+        let side = f % 2u;
+        let e = end_rates(st, gs.m, H_STEP, i, side, load_bounds(face_index(g, i, side)), MARGIN);
+        if (side == 0u) {
+            dl[i] = e.field;
+            cl[i] = e.curved;
+        } else {
+            du[i] = e.field;
+            cu[i] = e.curved;
+        }
+    }
+    let s = finish_step(st, gs.m, H_STEP, dl, du, cl, cu);
+    if (!s.proven) {
+        return;
+    }
+    // The CPU engine's advance: a set inside out or not finite ends the tube (the host's step
+    // ends it as the CPU does); else the set is clipped to S's half-spaces in its coordinates.
+    var zb: array<Iv, N0>;
+    for (var j = 0u; j < N0; j++) {
+        if (!(s.st.lo[j] <= s.st.hi[j] && finite(s.st.lo[j]) && finite(s.st.hi[j]))) {
+            return;
+        }
+        zb[j] = Iv(s.st.lo[j], s.st.hi[j]);
+    }
+    if (HS_Z > 0u) {
+        zb = clip_to_safe_set(zb, 0u, HS_Z);
+    }
+    var lo: array<real, N0>;
+    var hi: array<real, N0>;
+    for (var j = 0u; j < N0; j++) {
+        lo[j] = zb[j].lo;
+        hi[j] = zb[j].hi;
+    }
+    put(g, 0u, lo);
+    put(g, 1u, hi);
+    put(g, 2u, s.st.r_lo);
+    put(g, 3u, s.st.r_hi);
+    put(g, 4u, s.st.b_lo);
+    put(g, 5u, s.st.b_hi);
+    cont[g * CW + 6u * N0] = real(s.st.rates);
+    for (var j = 0u; j < N0; j++) {
+        cont[g * CW + 6u * N0 + 1u + j] = gs.m.hull_lo[j];
+        cont[g * CW + 7u * N0 + 1u + j] = gs.m.hull_hi[j];
+        cont[g * CW + 8u * N0 + 1u + j] = gs.m.s_lo[j];
+        cont[g * CW + 9u * N0 + 1u + j] = gs.m.s_hi[j];
+    }
+    atomicStore(&flags[g * FLAG_W + 5u], C_DEVICE);
+}

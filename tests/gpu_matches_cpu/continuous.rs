@@ -1,0 +1,227 @@
+//! `reach` in continuous time on the GPU engine against the CPU engine (docs/design.md §7.4):
+//! the device takes the common path's box-steps, the host the rest with the CPU engine's own
+//! step. Same verdicts, sets and flowpipes equal to 1e-10 relative in f64, and every set and
+//! flowpipe holds RK4 trajectories of the system it bounds.
+
+use super::*;
+use cbfreach::filter::SafetyFilter;
+use cbfreach::problem::ProblemOptions;
+use cbfreach::scenario::Margin;
+use cbfreach::simulate::simulate_filtered;
+
+/// Sets and flowpipes agree to this, relative to `max(1, |x|)` (f64; the device rounds each
+/// operation outward by 4 ulp, the CPU by 1).
+const TOL: f64 = 1e-10;
+
+/// States outside their sample's set, or between samples outside its flowpipe, beyond 1e-9
+/// (RK4's own error at `dt/10` is far below), of `trajectories[box][start]` sampled every
+/// `dt/10`; and how many states were checked.
+fn escapes(tubes: &[Tube], trajectories: &[Vec<Vec<Vec<f64>>>], dt: f64) -> (usize, usize) {
+    let outside = |b: &IntervalBox, x: &[f64]| {
+        (0..b.dim()).any(|i| x[i] < b.lower[i] - 1e-9 || x[i] > b.upper[i] + 1e-9)
+    };
+    let (mut out, mut checks) = (0, 0);
+    for (tube, paths) in tubes.iter().zip(trajectories) {
+        for path in paths {
+            for (k, s) in tube.tube.iter().enumerate() {
+                let j = (s.t / dt).round() as usize * 10;
+                // A trajectory the filter could not continue ends early.
+                let Some(x) = path.get(j) else { break };
+                checks += 1;
+                out += usize::from(outside(&s.set, x));
+                if let (Some(pipe), true) = (&s.flowpipe, k > 0) {
+                    let j0 = (tube.tube[k - 1].t / dt).round() as usize * 10;
+                    out += path[j0..=j].iter().filter(|x| outside(pipe, x)).count();
+                }
+            }
+        }
+    }
+    (out, checks)
+}
+
+/// RK4 at `dt/10` from 12 points of each box (its corners first) of the system the disturbance
+/// method bounds, `ẋ = f̃(x) + g(x)(N(x) + d)`, with a constant `d = ±m` per input (its signs
+/// fixed per trajectory).
+fn nn_paths(
+    s: &Scenario,
+    net: &Mlp,
+    init: &[IntervalBox],
+    m: f64,
+    dt: f64,
+    steps: usize,
+) -> Vec<Vec<Vec<Vec<f64>>>> {
+    let (n, inputs) = (s.n(), s.m());
+    init.iter()
+        .map(|b| {
+            sample_box(b, 12, 7)
+                .into_iter()
+                .enumerate()
+                .map(|(k, x0)| {
+                    let d: Vec<f64> = (0..inputs)
+                        .map(|q| if (k >> q) % 2 == 0 { m } else { -m })
+                        .collect();
+                    let field = |x: &[f64]| {
+                        let (f, g, u) = (s.f_tilde_at(x), s.g_at(x), net.forward(x));
+                        let v = (0..n).map(|i| {
+                            f[i] + (0..inputs)
+                                .map(|q| g[i * inputs + q] * (u[q] + d[q]))
+                                .sum::<f64>()
+                        });
+                        Ok::<_, String>(v.collect())
+                    };
+                    integrate(field, &x0, dt / 10.0, steps * 10, Integrator::Rk4).x
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// Largest relative difference of two runs' flowpipes (the samples' sets: [`compare_within`]);
+/// fails above [`TOL`] or where one has a flowpipe and the other not.
+fn compare_flowpipes(cpu: &[Tube], gpu: &[Tube], what: &str) -> f64 {
+    let mut worst = 0.0_f64;
+    for (k, (a, b)) in cpu.iter().zip(gpu).enumerate() {
+        for (sa, sb) in a.tube.iter().zip(&b.tube) {
+            match (&sa.flowpipe, &sb.flowpipe) {
+                (Some(p), Some(q)) => {
+                    let ends = p
+                        .lower
+                        .iter()
+                        .zip(&q.lower)
+                        .chain(p.upper.iter().zip(&q.upper));
+                    for (x, y) in ends {
+                        let rel = (x - y).abs() / x.abs().max(1.0);
+                        worst = worst.max(rel);
+                        assert!(
+                            rel <= TOL,
+                            "{what} box {k} t = {}: flowpipe {p:?} vs {q:?}",
+                            sa.t
+                        );
+                    }
+                }
+                (None, None) => {}
+                _ => panic!(
+                    "{what} box {k} t = {}: a flowpipe on one engine alone",
+                    sa.t
+                ),
+            }
+        }
+    }
+    worst
+}
+
+/// Both engines on `problem` under `s`: the GPU's sets hold `paths` (checked first, so a wrong
+/// set fails here even where both engines agree), then the same verdicts, sample times, sets
+/// and flowpipes as the CPU's; the device took part of the box-steps. Returns the device's
+/// and the host's box-steps.
+fn continuous_parity(
+    g: &GpuBackend,
+    problem: &ReachProblem,
+    init: &[IntervalBox],
+    s: &ReachSettings,
+    paths: &[Vec<Vec<Vec<f64>>>],
+    what: &str,
+) -> (usize, usize) {
+    let before = g.continuous_steps();
+    let (cpu, dev) = run_both_with(g, problem, init, s);
+    let after = g.continuous_steps();
+    let (on_device, on_host) = (after.0 - before.0, after.1 - before.1);
+    let (out, checks) = escapes(&dev, paths, problem.dt);
+    assert_eq!(
+        out, 0,
+        "{what}: {out} of {checks} states outside the GPU's sets or flowpipes"
+    );
+    assert!(checks >= init.len() * 12 * 10, "{what}: {checks} checks");
+    let sets = compare_within(&cpu, &dev, what, TOL);
+    let pipes = compare_flowpipes(&cpu, &dev, what);
+    let valid = dev.iter().filter(|t| t.valid()).count();
+    eprintln!(
+        "{what}: {on_device} box-steps on the device, {on_host} on the host; {valid} of {} \
+         valid; sets within {sets:.1e}, flowpipes {pipes:.1e}",
+        dev.len()
+    );
+    assert!(
+        on_device > 4 * on_host,
+        "{what}: {on_device} on the device, {on_host} on the host"
+    );
+    (on_device, on_host)
+}
+
+/// Scenario 1 (x coordinates) and scenario 2 (z = Tx) with small networks in continuous time,
+/// forward bounds, the network everywhere with a global `M`, face-local and over the moving
+/// box's hull, f64, 40 steps: the GPU engine's tubes are the CPU's (verdicts, sets, flowpipes)
+/// and hold the disturbed NN system's RK4 trajectories.
+#[test]
+fn continuous_runs_match_the_cpu_engine() {
+    let Some(g) = gpu_f64() else { return };
+    let steps = 40;
+    let [(p1, _), (p2, b2)] = paper_problems(steps);
+    let b1 = boxes(
+        &[
+            [-3.0, 2.0],
+            [-1.0, 1.0],
+            [0.5, -1.5],
+            [1.5, 2.5],
+            [3.5, 1.5],
+            [4.0, -0.5],
+            [1.0, 0.8],
+            [4.0, 2.5],
+        ],
+        0.05,
+    );
+    let (s1, s2) = (integrator(), double_integrator());
+    for (s, problem, init) in [(&s1, p1, b1), (&s2, p2, b2)] {
+        let problem = problem.with_time(TimeModel::Continuous, 1);
+        let paths = nn_paths(s, &problem.network, &init, problem.m_c, problem.dt, steps);
+        for face_local in [true, false] {
+            let st = ReachSettings {
+                face_local,
+                ..settings(ReachMethod::Disturbance)
+            };
+            let what = format!("{}, face-local {face_local}", s.name);
+            continuous_parity(&g, &problem, &init, &st, &paths, &what);
+        }
+    }
+}
+
+/// Scenario 1 with its shipped network and its certified global `M_C` (0.179), face-local
+/// forward bounds, the paper's twelve boxes over 25 steps: the GPU engine's sets and flowpipes
+/// hold the true filtered system's RK4 trajectories (the ground-truth filter) and equal the
+/// CPU's.
+#[test]
+fn continuous_sets_hold_the_filtered_system_on_scenario_1() {
+    let Some(g) = gpu_f64() else { return };
+    let s = integrator();
+    let options = ProblemOptions {
+        m_c: Some(Margin::Certified),
+        time: Some("continuous".into()),
+        ..ProblemOptions::default()
+    };
+    let mut problem = ReachProblem::from_scenario(&s, &options).unwrap();
+    problem.steps = 25;
+    let st = ReachSettings {
+        face_local: true,
+        ..settings(ReachMethod::Disturbance)
+    };
+    let filter = SafetyFilter::new(&s);
+    let dt = problem.dt;
+    let paths: Vec<_> = s
+        .reach
+        .initial
+        .iter()
+        .map(|b| {
+            sample_box(b, 12, 11)
+                .into_iter()
+                .map(|x0| simulate_filtered(&filter, &x0, dt / 10.0, 250, Integrator::Rk4).x)
+                .collect()
+        })
+        .collect();
+    continuous_parity(
+        &g,
+        &problem,
+        &s.reach.initial,
+        &st,
+        &paths,
+        "scenario 1, shipped network",
+    );
+}
