@@ -204,6 +204,58 @@ fn verify_small(mut s: Scenario, horizon: f64, grid: [usize; 2], region: ([f64; 
     assert!(verified > 0, "{what}: nothing verified");
 }
 
+/// `verify --face-local` in continuous time on small grids with what the GPU's continuous step
+/// takes (docs/design.md §7.4): the shipped network with a global `M_C` (scenario 1's certified
+/// 0.179; scenario 2's certified bound is +∞, so a given 0.1 there), the network everywhere (`--exact nowhere`), one frame (scenario 2 in z alone), the scenario's
+/// bounds; the same verdicts and final sets on both engines.
+#[test]
+fn verify_continuous_small_same_verdicts() {
+    let Some(gpu) = gpu_f64() else { return };
+    let cases = [
+        (
+            common::integrator(),
+            Margin::Certified,
+            2.0,
+            [4, 3],
+            ([-2.0, -1.5], [2.0, 1.5]),
+        ),
+        (
+            common::double_integrator(),
+            Margin::Value(0.1),
+            3.0,
+            [2, 2],
+            ([-1.0, -1.0], [1.0, 1.0]),
+        ),
+    ];
+    for (mut s, m_c, horizon, grid, region) in cases {
+        s.reach.horizon = horizon;
+        let options = ProblemOptions {
+            m_c: Some(m_c),
+            time: Some("continuous".into()),
+            ..ProblemOptions::default()
+        };
+        let problem = ReachProblem::from_scenario(&s, &options).unwrap();
+        let reach = ReachSettings {
+            face_local: true,
+            exact: ExactField::Nowhere,
+            intersect_x: false,
+            ..s.settings.reach.clone()
+        };
+        assert_eq!(gpu.supports(&problem, &reach), Ok(()), "{}", s.name);
+        let cpu = verify_on(&s, &problem, &CpuBackend, &reach, grid, Some(region));
+        let dev = verify_on(&s, &problem, &gpu, &reach, grid, Some(region));
+        let (on_device, on_host) = gpu.continuous_steps();
+        let what = format!("{}, continuous, {grid:?} to t = {horizon}", s.name);
+        let verified = same_verdicts(&cpu, &dev, &what);
+        eprintln!("{what}: {on_device} box-steps on the device, {on_host} on the host so far");
+        // Scenario 1's goal cells reach the goal by t = 2 (3 of 12 measured).
+        assert!(
+            verified > 0 || s.name != "integrator",
+            "{what}: nothing verified"
+        );
+    }
+}
+
 /// The time model the GPU engine does not run (`sampled`) and the continuous settings its
 /// device step does not take yet are refused before any work, naming the setting and the way
 /// out, and `auto` runs them on the CPU.
