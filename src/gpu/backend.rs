@@ -347,7 +347,11 @@ impl Backend for GpuBackend {
         problem: &ReachProblem,
         settings: &ReachSettings,
     ) -> Result<(), Unsupported> {
-        GpuBackend::runs(problem, settings)
+        GpuBackend::runs(problem, settings)?;
+        if problem.time == TimeModel::Continuous && self.precision == Precision::F32 {
+            return Err(Unsupported::Continuous("f32 (--f32)"));
+        }
+        Ok(())
     }
 
     fn reach(
@@ -359,14 +363,10 @@ impl Backend for GpuBackend {
     ) -> Result<ReachResult, ReachError> {
         problem.check_initial(initial)?;
         settings.validate()?;
-        if let Err(u) = GpuBackend::runs(problem, settings) {
+        if let Err(u) = Backend::supports(self, problem, settings) {
             return Err(GpuError::Unsupported(crate::reach::refusal(u)).into());
         }
         let continuous = problem.time == TimeModel::Continuous;
-        if continuous && self.precision == Precision::F32 {
-            let u = Unsupported::Continuous("f32 (--f32)");
-            return Err(GpuError::Unsupported(crate::reach::refusal(u)).into());
-        }
         let start = Instant::now();
         let every = settings.every.max(1);
         let steps = problem.steps;

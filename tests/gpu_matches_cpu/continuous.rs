@@ -36,6 +36,7 @@ fn escapes(tubes: &[Tube], trajectories: &[Vec<Vec<Vec<f64>>>], dt: f64) -> (usi
                 out += usize::from(outside(&s.set, x));
                 if let (Some(pipe), true) = (&s.flowpipe, k > 0) {
                     let j0 = (tube.tube[k - 1].t / dt).round() as usize * 10;
+                    checks += j + 1 - j0;
                     out += path[j0..=j].iter().filter(|x| outside(pipe, x)).count();
                 }
             }
@@ -153,8 +154,8 @@ fn continuous_parity(
 }
 
 /// Scenario 1 (x coordinates) and scenario 2 (z = Tx) with small networks in continuous time,
-/// forward bounds, the network everywhere with a global `M`, face-local and over the moving
-/// box's hull, f64, 40 steps: the GPU engine's tubes are the CPU's (verdicts, sets, flowpipes)
+/// the network everywhere with a global `M`, forward bounds face-local and over the moving box's
+/// hull and CROWN face-local, f64, 40 steps: the GPU engine's tubes are the CPU's (verdicts, sets, flowpipes)
 /// and hold the disturbed NN system's RK4 trajectories.
 #[test]
 fn continuous_runs_match_the_cpu_engine() {
@@ -178,12 +179,17 @@ fn continuous_runs_match_the_cpu_engine() {
     for (s, problem, init) in [(&s1, p1, b1), (&s2, p2, b2)] {
         let problem = problem.with_time(TimeModel::Continuous, 1);
         let paths = nn_paths(s, &problem.network, &init, problem.m_c, problem.dt, steps);
-        for face_local in [true, false] {
+        let cases = [
+            (BoundMethod::Forward, true),
+            (BoundMethod::Forward, false),
+            (BoundMethod::Crown, true),
+        ];
+        for (bounds, face_local) in cases {
             let st = ReachSettings {
                 face_local,
-                ..settings(ReachMethod::Disturbance)
+                ..with_bounds(bounds, ReachMethod::Disturbance)
             };
-            let what = format!("{}, face-local {face_local}", s.name);
+            let what = format!("{}, {bounds} bounds, face-local {face_local}", s.name);
             continuous_parity(&g, &problem, &init, (&st, TOL), &paths, &what);
         }
     }
