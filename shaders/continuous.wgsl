@@ -1,5 +1,6 @@
 // The continuous time model's common path in a pipeline (docs/design.md §7.1 item 3b, §7.4),
-// one frame, the network's field with the global disturbance bound: `slabs_of` writes each live
+// one frame, the network's field with the disturbance bound M taken on the hull's x-box within S
+// (global, or the error map's local bound: margins.wgsl): `slabs_of` writes each live
 // box's 2n slabs of its guessed moving box (face-local, FACES = 2N0) or its hull (FACES = 1) as
 // its bound boxes, so the GEMM, ReLU, backward and output kernels run on them unchanged; `cstep`
 // then takes the box-step (slab_step.wgsl: guess_step, end_rates, finish_step), clips the set to
@@ -8,7 +9,7 @@
 // state and is flagged: the host steps it with the CPU engine's own step
 // (src/gpu/backend/continuous.rs). The host reads every box's result after each step and
 // records the samples and flowpipes (the CPU engine's rules). Needs slab_step.wgsl and what it
-// needs, sets.wgsl, nnb.wgsl.
+// needs, sets.wgsl, margins.wgsl, nnb.wgsl, loops.wgsl.
 
 // Params (boxes).
 @group(0) @binding(0) var<uniform> p: Params;
@@ -84,6 +85,13 @@ fn cstep(@builtin(global_invocation_id) gid: vec3<u32>) {
     if (atomicLoad(&flags[g * FLAG_W + 1u]) != LIVE) {
         return;
     }
+    box_step(g);
+    if (!loops_ran_in_full()) {
+        atomicStore(&flags[FLAG_W * p.boxes + 1u], 1u);
+    }
+}
+
+fn box_step(g: u32) {
     let poisoned = atomicLoad(&flags[g * FLAG_W]) != 0u;
     // A bound kernel marks a box whose bounds overflowed; the host's step decides what it means.
     atomicStore(&flags[g * FLAG_W], 0u);
@@ -93,6 +101,16 @@ fn cstep(@builtin(global_invocation_id) gid: vec3<u32>) {
     if (!gs.on_path || poisoned || !bounds_finite(g)) {
         return;
     }
+    // The facts on the hull's x-box within S (the CPU's `pipe_known`): M there; where it is +∞
+    // the host's step ends the box as the CPU does.
+    var hull: array<Iv, N0>;
+    for (var j = 0u; j < N0; j++) {
+        hull[j] = Iv(gs.m.hull_lo[j], gs.m.hull_hi[j]);
+    }
+    let margin = margin_of(clip_to_safe_set(x_box(hull), HS_Z, HS_X));
+    if (margin >= HUGE) {
+        return;
+    }
     var dl: array<real, N0>;
     var du: array<real, N0>;
     var cl: array<real, N0>;
@@ -100,7 +118,7 @@ fn cstep(@builtin(global_invocation_id) gid: vec3<u32>) {
     for (var f = 0u; f < 2u * N0; f++) {
         let i = f / 2u;
         let side = f % 2u;
-        let e = end_rates(st, gs.m, H_STEP, i, side, load_bounds(face_index(g, i, side)), MARGIN);
+        let e = end_rates(st, gs.m, H_STEP, i, side, load_bounds(face_index(g, i, side)), margin);
         if (side == 0u) {
             dl[i] = e.field;
             cl[i] = e.curved;

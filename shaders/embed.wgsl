@@ -6,7 +6,7 @@
 // filter's own field where the filter is provably one smooth function on the set and with its
 // closed form's enclosures elsewhere (shaders/filter.wgsl), advances the closeness radius
 // (Minkowski), takes the Euler step, checks the set against C and writes the recorded
-// snapshot. `tick` then advances the step counter. Needs nnb.wgsl (the network's bounds).
+// snapshot. `tick` then advances the step counter. Needs nnb.wgsl (the network's bounds) and loops.wgsl.
 
 // Params (boxes).
 @group(0) @binding(0) var<uniform> p: Params;
@@ -60,20 +60,6 @@ fn piece_on(x: array<Iv, N0>) -> u32 {
         }
     }
     return PIECE_INACTIVE;
-}
-
-// The disturbance bound of a box whose true states lie in the x-box `known` (within S): the error
-// map's local bound over it plus the network slack (LOCAL_MARGIN), else the global MARGIN; HUGE
-// for +∞.
-fn margin_of(known: array<Iv, N0>) -> real {
-    if (!LOCAL_MARGIN) {
-        return MARGIN;
-    }
-    let m = local_margin(known);
-    if (m >= HUGE) {
-        return HUGE;
-    }
-    return up(m + SLACK);
 }
 
 // Face rates of the embedding field: dx̲/dt (lo) and dx̄/dt (hi) per state.
@@ -186,18 +172,6 @@ fn embed(@builtin(global_invocation_id) gid: vec3<u32>) {
     if (status != LIVE) {
         stop(g, status, step);
     }
-}
-
-// Whether this invocation's loops still run to their end: a loop of p.loop_check (2)
-// iterations, a count the compiler cannot unroll, runs once only after a driver has cut the
-// invocation's loops short (llvmpipe ends them all after 65,535 iterations in all, shared by
-// the lanes of a SIMD group: src/gpu/margins.rs). The host then fails the run.
-fn loops_ran_in_full() -> bool {
-    var ran = 0u;
-    for (var k = 0u; k < p.loop_check; k++) {
-        ran += 1u;
-    }
-    return ran == p.loop_check;
 }
 
 // One Euler step of box g (step `step`): writes its state (and snapshot); its status after

@@ -118,3 +118,17 @@ fn local_margin(xb: array<Iv, N0>) -> real {
     }
     return max(worst, min(pad, 0.0));
 }
+
+// The disturbance bound of a box whose true states lie in the x-box `known` (within S): the error
+// map's local bound over it plus the network slack (LOCAL_MARGIN), else the global MARGIN; HUGE
+// for +∞.
+fn margin_of(known: array<Iv, N0>) -> real {
+    if (!LOCAL_MARGIN) {
+        return MARGIN;
+    }
+    let m = local_margin(known);
+    if (m >= HUGE) {
+        return HUGE;
+    }
+    return up(m + SLACK);
+}

@@ -38,6 +38,8 @@ pub(crate) const CURVED: &str = include_str!("../../shaders/curved.wgsl");
 pub(crate) const SLAB_STEP: &str = include_str!("../../shaders/slab_step.wgsl");
 /// The network's bounds per bound box, as the embedding and continuous kernels read them.
 const NNB: &str = include_str!("../../shaders/nnb.wgsl");
+/// The loop-limit check of the embedding and continuous kernels.
+const LOOPS: &str = include_str!("../../shaders/loops.wgsl");
 /// The continuous model's slabs and box-step (shaders/continuous.wgsl).
 const CONTINUOUS: &str = include_str!("../../shaders/continuous.wgsl");
 
@@ -184,9 +186,12 @@ pub fn shader_source(precision: Precision, problem_wgsl: &str, module: &str) -> 
         "faces" => &[BOX, FACES],
         "settle" => &[SETS, SETTLE],
         "continuous" => &[
-            SETS, FILTER, MARGINS, FIELD, VALIDATED, END_RATES, CURVED, SLAB_STEP, NNB, CONTINUOUS,
+            SETS, FILTER, MARGINS, FIELD, VALIDATED, END_RATES, CURVED, SLAB_STEP, NNB, LOOPS,
+            CONTINUOUS,
         ],
-        _ => &[BOX, SETS, FILTER, MARGINS, PHI, TURN, FIELD, NNB, EMBED],
+        _ => &[
+            BOX, SETS, FILTER, MARGINS, PHI, TURN, FIELD, NNB, LOOPS, EMBED,
+        ],
     };
     for part in body {
         s.push_str(part);

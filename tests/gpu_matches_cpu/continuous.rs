@@ -195,27 +195,20 @@ fn continuous_runs_match_the_cpu_engine() {
     }
 }
 
-/// Scenario 1 with its shipped network and its certified global `M_C` (0.179), face-local
-/// forward bounds, the paper's twelve boxes over 25 steps: the GPU engine's sets and flowpipes
-/// hold the true filtered system's RK4 trajectories (the ground-truth filter) and equal the
-/// CPU's to [`SHIPPED_TOL`].
+/// Scenario 1 with its shipped network, its certified global `M_C` (0.179) and its error map's
+/// local bounds, face-local forward bounds, the paper's twelve boxes over 25 steps: the GPU
+/// engine's sets and flowpipes hold the true filtered system's RK4 trajectories (the
+/// ground-truth filter) and equal the CPU's to [`SHIPPED_TOL`].
 #[test]
 fn continuous_sets_hold_the_filtered_system_on_scenario_1() {
     let Some(g) = gpu_f64() else { return };
     let s = integrator();
-    let options = ProblemOptions {
-        m_c: Some(Margin::Certified),
-        time: Some("continuous".into()),
-        ..ProblemOptions::default()
-    };
-    let mut problem = ReachProblem::from_scenario(&s, &options).unwrap();
-    problem.steps = 25;
     let st = ReachSettings {
         face_local: true,
         ..settings(ReachMethod::Disturbance)
     };
     let filter = SafetyFilter::new(&s);
-    let dt = problem.dt;
+    let dt = s.reach.dt;
     let paths: Vec<_> = s
         .reach
         .initial
@@ -227,22 +220,28 @@ fn continuous_sets_hold_the_filtered_system_on_scenario_1() {
                 .collect()
         })
         .collect();
-    continuous_parity(
-        &g,
-        &problem,
-        &s.reach.initial,
-        (&st, SHIPPED_TOL),
-        &paths,
-        "scenario 1, shipped network",
-    );
-    // The same network's bounds on the Euler map's faces, for scale: how far the engines'
-    // network bounds alone part.
-    let euler = problem.clone().with_time(TimeModel::Euler, 1);
-    let (cpu, dev) = run_both_with(&g, &euler, &s.reach.initial, &st);
-    compare_within(
-        &cpu,
-        &dev,
-        "scenario 1, shipped network, Euler",
-        SHIPPED_TOL,
-    );
+    for (m_c, name) in [(Some(Margin::Certified), "certified"), (None, "local")] {
+        let options = ProblemOptions {
+            m_c,
+            time: Some("continuous".into()),
+            ..ProblemOptions::default()
+        };
+        let mut problem = ReachProblem::from_scenario(&s, &options).unwrap();
+        assert_eq!(problem.error_map.is_some(), m_c.is_none());
+        problem.steps = 25;
+        let what = format!("scenario 1, shipped network, {name} M_C");
+        continuous_parity(
+            &g,
+            &problem,
+            &s.reach.initial,
+            (&st, SHIPPED_TOL),
+            &paths,
+            &what,
+        );
+        // The same network's bounds on the Euler map's faces, for scale: how far the engines'
+        // network bounds alone part.
+        let euler = problem.clone().with_time(TimeModel::Euler, 1);
+        let (cpu, dev) = run_both_with(&g, &euler, &s.reach.initial, &st);
+        compare_within(&cpu, &dev, &format!("{what}, Euler"), SHIPPED_TOL);
+    }
 }

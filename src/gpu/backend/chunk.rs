@@ -123,17 +123,22 @@ impl GpuBackend {
             .iter()
             .any(|r| r.flags.last().is_some_and(|&w| w != 0))
         {
-            return Err(GpuError::Device(format!(
-                "the device's driver ({}) cut the embedding kernel's loops short (llvmpipe ends \
-                 an invocation's loops after {LLVMPIPE_LOOP_LIMIT} iterations in all); its sets \
-                 cannot be trusted: run this problem on the CPU (--backend cpu)",
-                self.ctx.info.name
-            )));
+            return Err(self.loops_cut_short());
         }
         if self.profile {
             self.profile_step(&ops, boxes)?;
         }
         Ok(results)
+    }
+
+    /// The error of a run whose embedding (or continuous) kernel found its loops cut short.
+    pub(super) fn loops_cut_short(&self) -> GpuError {
+        GpuError::Device(format!(
+            "the device's driver ({}) cut the embedding kernel's loops short (llvmpipe ends an \
+             invocation's loops after {LLVMPIPE_LOOP_LIMIT} iterations in all); its sets cannot \
+             be trusted: run this problem on the CPU (--backend cpu)",
+            self.ctx.info.name
+        ))
     }
 
     /// Refuses a step whose dispatches exceed the device's workgroup limits.

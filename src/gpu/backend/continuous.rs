@@ -33,9 +33,8 @@ fn cw(n: usize) -> usize {
 
 /// The settings of a continuous run the device's step does not take yet, named as a user sets
 /// them: the Minkowski method (the CPU guesses moving boxes under the disturbance method alone,
-/// so every step would be the host's), two frames met, validated substeps, local error margins,
-/// and a proven piece or the closed form's enclosures (their slab, curved and Taylor rates are
-/// not ported).
+/// so every step would be the host's), two frames met, validated substeps, and a proven piece or
+/// the closed form's enclosures (their slab, curved and Taylor rates are not ported).
 pub(super) fn refused(problem: &ReachProblem, settings: &ReachSettings) -> Result<(), Unsupported> {
     let what = if settings.method == ReachMethod::Minkowski {
         "method = \"minkowski\""
@@ -43,8 +42,6 @@ pub(super) fn refused(problem: &ReachProblem, settings: &ReachSettings) -> Resul
         "intersect_x = true (two frames met)"
     } else if problem.steps_per_dt() > 1 {
         "substeps > 1"
-    } else if problem.error_map.is_some() {
-        "local error margins (m_c = \"local\")"
     } else if settings.exact_field() != ExactField::Nowhere {
         "exact = \"inactive\" or \"closed-form\" (the filter's own field; --exact nowhere)"
     } else {
@@ -171,6 +168,9 @@ impl GpuBackend {
             }
             q.submit([encode_steps(d, ops.iter(), 1)]);
             let (dev, dev_flags) = self.read_cont(run.bufs, boxes * w, boxes)?;
+            if dev_flags[FLAG_W * boxes + 1] != 0 {
+                return Err(self.loops_cut_short().into());
+            }
             let t = (step + 1) as f64 * problem.dt;
             let record = (step + 1) % every == 0 || step + 1 == problem.steps;
             let live = held.iter().filter(|b| !b.done).count();
