@@ -4,8 +4,9 @@
 // step's end. The CPU engine's order (src/reach/cpu.rs `horizon`; cpu_guess.rs `guess_moving`;
 // cpu_field.rs `network_field`; cpu_time.rs `check_step`, `curved`), for the network's field
 // (no proven piece, no closed-form enclosures yet). A box-step this cannot finish is flagged
-// and keeps its state, for the host. src/gpu/probe_field.rs runs it, tests/gpu_matches_cpu/field.rs
-// compares it with the CPU's. Needs validated.wgsl, end_rates.wgsl, field.wgsl, curved.wgsl.
+// and keeps its state, for the host. continuous.wgsl runs it in the engine's pipeline;
+// src/gpu/probe_field.rs runs it alone, tests/gpu_matches_cpu/step.rs compares it with the
+// CPU's. Needs validated.wgsl, end_rates.wgsl, field.wgsl, curved.wgsl.
 
 // What one box keeps between steps in one frame: its set, the slab rates of the last step and
 // of the step before, and how many of those it has (0 on a tube's first step).

@@ -23,9 +23,15 @@
 //! the embedding step takes each box's `M` from the map (`margins`), and a box that meets a
 //! cell without a certified bound stops as invalid (`status::NO_BOUND`), as on the CPU.
 //!
+//! In continuous time (docs/design.md §7.4) `slabs_of` replaces the faces kernel (each box's
+//! slabs or hull of its guessed moving box), `cstep` the embedding step, and the host reads
+//! every step back, steps the boxes the device leaves to it with the CPU engine's step and
+//! records the samples (`continuous`).
+//!
 //! This file holds the engine and its [`Backend`] impl (checks, chunking, the tubes' assembly);
 //! `layout` sizes the device arrays and creates the buffers, `plan` records one step's
-//! dispatches, `chunk` runs one chunk of boxes and reads it back.
+//! dispatches, `chunk` runs one chunk of boxes and reads it back, `continuous` runs a chunk in
+//! continuous time.
 
 mod chunk;
 mod continuous;
