@@ -107,7 +107,13 @@ fn box_step(g: u32) {
     for (var j = 0u; j < N0; j++) {
         hull[j] = Iv(gs.m.hull_lo[j], gs.m.hull_hi[j]);
     }
-    let margin = margin_of(clip_to_safe_set(x_box(hull), HS_Z, HS_X));
+    let known = clip_to_safe_set(x_box(hull), HS_Z, HS_X);
+    // A proven piece's sources (its slab field, curved and Taylor rates) and the closed form's
+    // enclosures are the host's (not ported): so is a box-step that takes them.
+    if (ENCLOSE || piece_on(known) != PIECE_NONE) {
+        return;
+    }
+    let margin = margin_of(known);
     if (margin >= HUGE) {
         return;
     }

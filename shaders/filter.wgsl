@@ -435,3 +435,22 @@ fn binding_slack(k: u32, x: array<Iv, N0>) -> real {
     }
     return up(TSLACK_UNIT * f_max);
 }
+
+// The smooth piece `v` provably is on an x-box (within S) of the set (set_facts in
+// src/reach/cpu.rs): with ENCLOSE (the filter's closed form), VForms::piece's mean-value forms
+// (shaders/filter.wgsl); with EXACT_INACTIVE alone, PIECE_INACTIVE where every row's b(x) ≥ 0
+// by natural interval evaluation (row_b_iv, src/reach/pieces.rs slack_rows); else PIECE_NONE.
+fn piece_on(x: array<Iv, N0>) -> u32 {
+    if (ENCLOSE) {
+        return proven_piece(x);
+    }
+    if (!EXACT_INACTIVE) {
+        return PIECE_NONE;
+    }
+    for (var k = 0u; k < ROWS; k++) {
+        if (!(row_b_iv(k, x).lo >= 0.0)) {
+            return PIECE_NONE;
+        }
+    }
+    return PIECE_INACTIVE;
+}

@@ -212,8 +212,9 @@ fn verify_small(mut s: Scenario, horizon: f64, grid: [usize; 2], region: ([f64; 
 
 /// `verify --face-local` in continuous time on small grids with what the GPU's continuous step
 /// takes (docs/design.md §7.4): the shipped network and its error map (local margins), the
-/// network everywhere (`--exact nowhere`), one frame (scenario 2 in z alone), the scenario's
-/// bounds; the same verdicts and final sets on both engines.
+/// filter's field where it is proven inactive (`--exact inactive`; those steps the host's), the
+/// network elsewhere, one frame (scenario 2 in z alone), the scenario's bounds; the same
+/// verdicts and final sets on both engines.
 #[test]
 fn verify_continuous_small_same_verdicts() {
     let Some(gpu) = gpu_f64() else { return };
@@ -240,7 +241,7 @@ fn verify_continuous_small_same_verdicts() {
         let problem = ReachProblem::from_scenario(&s, &options).unwrap();
         let reach = ReachSettings {
             face_local: true,
-            exact: ExactField::Nowhere,
+            exact: ExactField::Inactive,
             intersect_x: false,
             ..s.settings.reach.clone()
         };
@@ -291,8 +292,8 @@ fn other_time_models_are_refused_naming_them() {
             // The scenario's own settings: exact = "closed-form".
             problem_with("continuous", None),
             reach.clone(),
-            "exact = ",
-            "--exact nowhere",
+            "exact = \"closed-form\"",
+            "--exact inactive",
         ),
         (
             problem_with("continuous", certified),
@@ -320,10 +321,16 @@ fn other_time_models_are_refused_naming_them() {
         let auto = choose_engine(EngineChoice::Auto, &GpuOptions::default(), &reach, &problem);
         assert_eq!(auto.unwrap().backend.name(), "cpu");
     }
+    let inactive = ReachSettings {
+        exact: ExactField::Inactive,
+        ..reach.clone()
+    };
     for m_c in [None, certified] {
-        assert!(gpu
-            .supports(&problem_with("continuous", m_c), &nowhere)
-            .is_ok());
+        for settings in [&nowhere, &inactive] {
+            assert!(gpu
+                .supports(&problem_with("continuous", m_c), settings)
+                .is_ok());
+        }
     }
     // In f32 the GPU engine runs the Euler map alone.
     let ctx = Arc::new(GpuContext::new().unwrap());

@@ -39,6 +39,9 @@ pub struct StepOutcome {
     pub sample: Option<TubeSample>,
     /// The x-box of the step's flowpipe, where it has one.
     pub flowpipe: Option<IntervalBox>,
+    /// Whether the step took the filter's proven piece, and its closed form's enclosures
+    /// (each adds one to [`Tube::exact_steps`], [`Tube::enclosed_steps`]).
+    pub sources: (bool, bool),
 }
 
 /// The last of a step's bookkeeping, once its set is sampled (the CPU engine's, and the GPU
@@ -172,6 +175,7 @@ impl CpuBackend {
                     end,
                     sample,
                     flowpipe: l.pipe_known,
+                    sources: (l.tube.exact_steps > 0, l.tube.enclosed_steps > 0),
                 }
             })
             .collect())

@@ -94,8 +94,8 @@ pub fn refusal(unsupported: Unsupported) -> String {
         ),
         Unsupported::Continuous(what) => format!(
             "time = \"continuous\" with {what}: the GPU engine's continuous step takes the \
-             network's field with a global error bound in one frame, the disturbance method and \
-             f64 alone so far (docs/design.md §7.4); change the setting or use the CPU engine \
+             network's field alone (exact = \"nowhere\"), in one frame, with the disturbance \
+             method, in f64 (docs/design.md §7.4); change the setting or use the CPU engine \
              (--backend cpu)"
         ),
         Unsupported::ExactGeneralQp => "exact = \"closed-form\" for a general QP filter: the GPU \

@@ -117,9 +117,9 @@ fn compare_flowpipes(cpu: &[Tube], gpu: &[Tube], what: &str, tol: f64) -> f64 {
 }
 
 /// Both engines on `problem` under `s`: the GPU's sets hold `paths` (checked first, so a wrong
-/// set fails here even where both engines agree), then the same verdicts, sample times, sets
-/// and flowpipes as the CPU's (to `tol`); the device took most of the box-steps. Returns the
-/// device's and the host's box-steps.
+/// set fails here even where both engines agree), then the same verdicts, sample times, sets,
+/// flowpipes and exact steps as the CPU's (to `tol`); the device took most of the box-steps.
+/// Returns the device's and the host's box-steps.
 fn continuous_parity(
     g: &GpuBackend,
     problem: &ReachProblem,
@@ -139,6 +139,8 @@ fn continuous_parity(
     );
     assert!(checks >= init.len() * 12 * 10, "{what}: {checks} checks");
     let sets = compare_within(&cpu, &dev, what, tol);
+    let exact = |t: &[Tube]| t.iter().map(|t| t.exact_steps).collect::<Vec<_>>();
+    assert_eq!(exact(&cpu), exact(&dev), "{what}: exact steps");
     let pipes = compare_flowpipes(&cpu, &dev, what, tol);
     let valid = dev.iter().filter(|t| t.valid()).count();
     eprintln!(
@@ -196,9 +198,11 @@ fn continuous_runs_match_the_cpu_engine() {
 }
 
 /// Scenario 1 with its shipped network, its certified global `M_C` (0.179) and its error map's
-/// local bounds, face-local forward bounds, the paper's twelve boxes over 25 steps: the GPU
-/// engine's sets and flowpipes hold the true filtered system's RK4 trajectories (the
-/// ground-truth filter) and equal the CPU's to [`SHIPPED_TOL`].
+/// local bounds (with the network everywhere, and with the filter's field where it is proven
+/// inactive: those steps are the host's), face-local forward bounds, the paper's twelve boxes
+/// over 25 steps: the GPU engine's sets and flowpipes hold the true filtered system's RK4
+/// trajectories (the ground-truth filter) and equal the CPU's to [`SHIPPED_TOL`], exact steps
+/// counted alike.
 #[test]
 fn continuous_sets_hold_the_filtered_system_on_scenario_1() {
     let Some(g) = gpu_f64() else { return };
@@ -220,7 +224,20 @@ fn continuous_sets_hold_the_filtered_system_on_scenario_1() {
                 .collect()
         })
         .collect();
-    for (m_c, name) in [(Some(Margin::Certified), "certified"), (None, "local")] {
+    let cases = [
+        (
+            Some(Margin::Certified),
+            ExactField::Nowhere,
+            "certified M_C",
+        ),
+        (None, ExactField::Nowhere, "local M_C"),
+        (None, ExactField::Inactive, "local M_C, exact inactive"),
+    ];
+    for (m_c, exact, name) in cases {
+        let st = ReachSettings {
+            exact,
+            ..st.clone()
+        };
         let options = ProblemOptions {
             m_c,
             time: Some("continuous".into()),
@@ -229,7 +246,7 @@ fn continuous_sets_hold_the_filtered_system_on_scenario_1() {
         let mut problem = ReachProblem::from_scenario(&s, &options).unwrap();
         assert_eq!(problem.error_map.is_some(), m_c.is_none());
         problem.steps = 25;
-        let what = format!("scenario 1, shipped network, {name} M_C");
+        let what = format!("scenario 1, shipped network, {name}");
         continuous_parity(
             &g,
             &problem,

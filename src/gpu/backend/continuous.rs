@@ -33,8 +33,10 @@ fn cw(n: usize) -> usize {
 
 /// The settings of a continuous run the device's step does not take yet, named as a user sets
 /// them: the Minkowski method (the CPU guesses moving boxes under the disturbance method alone,
-/// so every step would be the host's), two frames met, validated substeps, and a proven piece or
-/// the closed form's enclosures (their slab, curved and Taylor rates are not ported).
+/// so every step would be the host's), two frames met, validated substeps, and the filter's
+/// closed form (its pieces' slab, curved and Taylor rates and its enclosures are not ported:
+/// every step would be the host's). With `exact = "inactive"` the steps on a proven inactive
+/// piece are the host's, the others the device's.
 pub(super) fn refused(problem: &ReachProblem, settings: &ReachSettings) -> Result<(), Unsupported> {
     let what = if settings.method == ReachMethod::Minkowski {
         "method = \"minkowski\""
@@ -42,8 +44,8 @@ pub(super) fn refused(problem: &ReachProblem, settings: &ReachSettings) -> Resul
         "intersect_x = true (two frames met)"
     } else if problem.steps_per_dt() > 1 {
         "substeps > 1"
-    } else if settings.exact_field() != ExactField::Nowhere {
-        "exact = \"inactive\" or \"closed-form\" (the filter's own field; --exact nowhere)"
+    } else if settings.exact_field() == ExactField::ClosedForm {
+        "exact = \"closed-form\" (the filter's own field; --exact inactive or nowhere)"
     } else {
         return Ok(());
     };
@@ -208,6 +210,8 @@ impl GpuBackend {
                 let outcomes = CpuBackend.continuous_step(problem, settings, &states)?;
                 for (&g, o) in host.iter().zip(outcomes) {
                     let b = &mut held[g];
+                    tubes[g].exact_steps += usize::from(o.sources.0);
+                    tubes[g].enclosed_steps += usize::from(o.sources.1);
                     match (o.sample, o.end) {
                         (Some(sample), _) => {
                             let sample = crate::reach::TubeSample { t, ..sample };
