@@ -161,7 +161,6 @@ impl GpuBackend {
         boxes: usize,
         n: usize,
     ) -> Result<ChunkResult, GpuError> {
-        let (d, q) = (&self.ctx.device, &self.ctx.queue);
         let prec = self.precision;
         let sw = 2 * n + 1;
         let bytes = prec.bytes();
@@ -169,14 +168,38 @@ impl GpuBackend {
         let state_bytes = (boxes * sw) as u64 * bytes;
         let flag_bytes = (flag_words(boxes) * 4) as u64;
         let known_bytes = (boxes * 2 * n) as u64 * bytes;
-        let mut enc = d.create_command_encoder(&Default::default());
-        let mut at = 0;
-        for (buf, size) in [
+        let copies = [
             (&bufs.snap, snap_bytes),
             (&bufs.state, state_bytes),
             (&bufs.flags, flag_bytes),
             (&bufs.known, known_bytes),
-        ] {
+        ];
+        self.read_staging(bufs, &copies, |bytes| {
+            let (a, rest) = bytes.split_at(snap_bytes as usize);
+            let (b, rest) = rest.split_at(state_bytes as usize);
+            let (c, k) = rest.split_at(flag_bytes as usize);
+            ChunkResult {
+                snap: from_device_bytes(a, prec),
+                state: from_device_bytes(b, prec),
+                flags: bytemuck::pod_collect_to_vec(c),
+                known: from_device_bytes(k, prec),
+            }
+        })
+    }
+
+    /// `read` of the bytes of `copies` (each buffer's first `size` bytes, one after the other),
+    /// copied to the staging buffer in one submit and mapped (not copied again: a chunk's
+    /// snapshots may be hundreds of MB).
+    pub(super) fn read_staging<T>(
+        &self,
+        bufs: &Buffers,
+        copies: &[(&wgpu::Buffer, u64)],
+        read: impl FnOnce(&[u8]) -> T,
+    ) -> Result<T, GpuError> {
+        let (d, q) = (&self.ctx.device, &self.ctx.queue);
+        let mut enc = d.create_command_encoder(&Default::default());
+        let mut at = 0;
+        for &(buf, size) in copies {
             enc.copy_buffer_to_buffer(buf, 0, &bufs.staging, at, size);
             at += size;
         }
@@ -190,23 +213,14 @@ impl GpuBackend {
         rx.recv()
             .map_err(|e| GpuError::Device(e.to_string()))?
             .map_err(|e| GpuError::Device(e.to_string()))?;
-        let result = {
+        let out = {
             let view = slice
                 .get_mapped_range()
                 .map_err(|e| GpuError::Device(e.to_string()))?;
-            let bytes: &[u8] = &view;
-            let (a, rest) = bytes.split_at(snap_bytes as usize);
-            let (b, rest) = rest.split_at(state_bytes as usize);
-            let (c, k) = rest.split_at(flag_bytes as usize);
-            ChunkResult {
-                snap: from_device_bytes(a, prec),
-                state: from_device_bytes(b, prec),
-                flags: bytemuck::pod_collect_to_vec(c),
-                known: from_device_bytes(k, prec),
-            }
+            read(&view)
         };
         bufs.staging.unmap();
-        Ok(result)
+        Ok(out)
     }
 
     /// Times one step's dispatches by kernel (each kind repeated on its own, then the whole

@@ -262,33 +262,15 @@ impl GpuBackend {
         reals: usize,
         boxes: usize,
     ) -> Result<(Vec<f64>, Vec<u32>), GpuError> {
-        let (d, q) = (&self.ctx.device, &self.ctx.queue);
         let cont_bytes = reals as u64 * self.precision.bytes();
         let flag_bytes = (flag_words(boxes) * 4) as u64;
-        let mut enc = d.create_command_encoder(&Default::default());
-        enc.copy_buffer_to_buffer(&bufs.cont, 0, &bufs.staging, 0, cont_bytes);
-        enc.copy_buffer_to_buffer(&bufs.flags, 0, &bufs.staging, cont_bytes, flag_bytes);
-        q.submit([enc.finish()]);
-        let slice = bufs.staging.slice(0..cont_bytes + flag_bytes);
-        let (tx, rx) = std::sync::mpsc::channel();
-        slice.map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
-        self.ctx.wait()?;
-        rx.recv()
-            .map_err(|e| GpuError::Device(e.to_string()))?
-            .map_err(|e| GpuError::Device(e.to_string()))?;
-        let out = {
-            let view = slice
-                .get_mapped_range()
-                .map_err(|e| GpuError::Device(e.to_string()))?;
-            let (a, b) = view.split_at(cont_bytes as usize);
+        let copies = [(&bufs.cont, cont_bytes), (&bufs.flags, flag_bytes)];
+        self.read_staging(bufs, &copies, |bytes| {
+            let (a, b) = bytes.split_at(cont_bytes as usize);
             (
                 from_device_bytes(a, self.precision),
                 bytemuck::pod_collect_to_vec(b),
             )
-        };
-        bufs.staging.unmap();
-        Ok(out)
+        })
     }
 }
