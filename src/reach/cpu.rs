@@ -188,6 +188,7 @@ impl Backend for CpuBackend {
                 && problem.pieces.has_closed_form(),
             report: &report,
             time: problem.time,
+            steps: problem.steps,
             substeps: problem.steps_per_dt(),
             h: problem.dt / problem.steps_per_dt() as f64,
             plant,
@@ -287,6 +288,8 @@ struct ChunkRun<'a> {
     report: &'a (dyn Fn(usize) + Sync),
     /// What the sets bound.
     time: TimeModel,
+    /// Steps of `dt` to run (the problem's; one for the host's step from a given state).
+    steps: usize,
     /// Engine steps per `dt` (validated substeps in continuous time, else 1).
     substeps: usize,
     /// The engine's step, `dt / substeps`.
@@ -467,9 +470,10 @@ impl ChunkRun<'_> {
         buf.frames
             .resize_with(self.frames.len(), FrameBuffers::default);
         let k = self.substeps;
-        for step in 0..problem.steps * k {
+        let steps = self.steps;
+        for step in 0..steps * k {
             if states.iter().all(|s| s.done) {
-                (self.report)((problem.steps - step / k) * states.len());
+                (self.report)((steps - step / k) * states.len());
                 break;
             }
             // Sampled-data within a control period: the sets follow the images held at its
@@ -477,7 +481,7 @@ impl ChunkRun<'_> {
             let held_j = step % self.period;
             if self.plant.is_some() && held_j != 0 {
                 let t = (step + 1) as f64 * problem.dt;
-                let record = (step + 1) % self.every == 0 || step + 1 == problem.steps;
+                let record = (step + 1) % self.every == 0 || step + 1 == steps;
                 for state in states.iter_mut().filter(|s| !s.done) {
                     self.sampled_step(state, held_j + 1, t, record)?;
                 }
@@ -541,7 +545,7 @@ impl ChunkRun<'_> {
                 true => (outer + 1) as f64 * problem.dt,
                 false => outer as f64 * problem.dt + ((step % k) + 1) as f64 * self.h,
             };
-            let record = last_sub && ((outer + 1) % self.every == 0 || outer + 1 == problem.steps);
+            let record = last_sub && ((outer + 1) % self.every == 0 || outer + 1 == steps);
             buf.slots.clear();
             buf.slots.resize(self.frames.len(), 0);
             let live = states.iter_mut().filter(|s| !s.done);

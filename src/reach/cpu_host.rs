@@ -120,22 +120,23 @@ impl CpuBackend {
                 ),
             });
         }
-        let mut one = problem.clone();
-        one.steps = 1;
-        let frame = Frame::new(&one, settings.method, false)?;
+        // One step of the problem as it is (no copy of its network and error map per call: the
+        // GPU engine asks every step).
+        let frame = Frame::new(problem, settings.method, false)?;
         let report = |_: usize| {};
         let run = ChunkRun {
             frames: vec![frame],
             settings,
             every: 1,
             encloses: settings.exact_field() == ExactField::ClosedForm
-                && one.pieces.has_closed_form(),
+                && problem.pieces.has_closed_form(),
             report: &report,
-            time: one.time,
+            time: problem.time,
+            steps: 1,
             substeps: 1,
             h: problem.dt / problem.steps_per_dt() as f64,
             plant: None,
-            x_problem: &one,
+            x_problem: problem,
             period: 1,
         };
         let mut live: Vec<Live> = states

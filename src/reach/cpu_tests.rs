@@ -35,6 +35,7 @@ fn settling_meets_the_frames_and_reseeds_one_that_could_not_step() {
         encloses: false,
         report: &report,
         time: problem.time,
+        steps: problem.steps,
         substeps: 1,
         h: problem.dt,
         plant: None,

@@ -308,15 +308,7 @@ impl<'a> StepPlan<'a> {
         };
         let groups = [self.boxes.div_ceil(WORKGROUP), 1, 1];
         if let Some(c) = self.continuous() {
-            let group = [
-                &b.cont,
-                &b.nnb,
-                &b.flags,
-                &b.faces,
-                &b.map_index,
-                &b.map_cells,
-            ];
-            self.push(&c.step, &per_box, &group, groups);
+            self.push(&c.step, &per_box, &self.continuous_group(), groups);
             return;
         }
         let group = [
@@ -372,6 +364,20 @@ impl<'a> StepPlan<'a> {
         self.ops
     }
 
+    /// The bindings of shaders/continuous.wgsl, shared by its two entry points (`slabs_of`,
+    /// `cstep`).
+    fn continuous_group(&self) -> [&'a wgpu::Buffer; 6] {
+        let b = self.bufs;
+        [
+            &b.cont,
+            &b.nnb,
+            &b.flags,
+            &b.faces,
+            &b.map_index,
+            &b.map_cells,
+        ]
+    }
+
     /// The continuous kernels, where this run is continuous.
     fn continuous(&self) -> Option<&'a super::super::kernels::Continuous> {
         let kernels: &'a Kernels = self.kernels;
@@ -389,17 +395,8 @@ impl<'a> StepPlan<'a> {
                 boxes: self.boxes,
                 ..Default::default()
             };
-            let b = self.bufs;
-            let group = [
-                &b.cont,
-                &b.nnb,
-                &b.flags,
-                &b.faces,
-                &b.map_index,
-                &b.map_cells,
-            ];
             let groups = [self.boxes.div_ceil(WORKGROUP), 1, 1];
-            self.push(&c.slabs, &p, &group, groups);
+            self.push(&c.slabs, &p, &self.continuous_group(), groups);
             return;
         }
         if self.shape.faces > 1 {
