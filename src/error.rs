@@ -48,6 +48,9 @@ pub enum Error {
     /// An error map could not be read, written or used.
     #[error(transparent)]
     ErrorMap(#[from] crate::error_map::ErrorMapError),
+    /// A training job could not run.
+    #[error(transparent)]
+    Training(#[from] crate::training::TrainingError),
     /// A picture could not be drawn.
     #[error(transparent)]
     Plot(#[from] crate::plot::PlotError),

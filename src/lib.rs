@@ -61,6 +61,7 @@ pub mod rounding;
 pub mod scenario;
 pub mod simulate;
 pub mod surrogate_error;
+pub mod training;
 pub mod verify;
 
 pub use boxes::IntervalBox;

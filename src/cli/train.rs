@@ -3,16 +3,14 @@
 use std::io::IsTerminal;
 use std::path::PathBuf;
 
-use cbfreach::dataset::{
-    filter_dataset, refinement_points, restrict_to_band, steep_samples, training_points,
-    validation_points, weigh_box, DatasetSummary, FilterOracle, Slopes,
-};
+use cbfreach::dataset::{filter_dataset, training_points, DatasetSummary, Slopes};
 use cbfreach::filter::SafetyFilter;
-use cbfreach::network::train::{
-    self, Dataset, Normalisation, Recipe, RecipeData, RecipeProgress, Target, TrainSettings,
-};
+use cbfreach::network::train::{self, EpochStats, RecipeProgress, TrainSettings};
 use cbfreach::network::Mlp;
 use cbfreach::scenario::Scenario;
+use cbfreach::training::{
+    self, DataOptions, DataProgress, Dense, OneStage, StagedPlan, TrainingData,
+};
 
 use super::{load_scenario, progress_bar, CliResult};
 
@@ -168,20 +166,26 @@ pub struct TrainArgs {
     pub out: Option<PathBuf>,
 }
 
-/// The filter on a set of points, with a progress bar.
-fn build(
-    s: &Scenario,
-    points: &[Vec<f64>],
-    slopes: &Slopes,
-    what: &str,
-) -> (Dataset, DatasetSummary) {
-    let filter = SafetyFilter::new(s);
-    let bar = progress_bar(points.len() as u64, what);
-    let out = filter_dataset(&filter, points, slopes, &|done| {
-        bar.set_position(done as u64)
-    });
-    bar.finish_and_clear();
-    out
+/// The filter's sampling, one progress bar per data set.
+#[derive(Default)]
+struct Bars(std::sync::Mutex<Option<indicatif::ProgressBar>>);
+
+impl DataProgress for Bars {
+    fn begin(&self, what: &str, points: usize) {
+        if let Ok(mut bar) = self.0.lock() {
+            *bar = Some(progress_bar(points as u64, what));
+        }
+    }
+    fn done(&self, points: usize) {
+        if let Ok(Some(bar)) = self.0.lock().as_deref() {
+            bar.set_position(points as u64);
+        }
+    }
+    fn end(&self) {
+        if let Ok(Some(bar)) = self.0.lock().as_deref() {
+            bar.finish_and_clear();
+        }
+    }
 }
 
 fn print_summary(s: &Scenario, d: &DatasetSummary) {
@@ -195,7 +199,13 @@ fn print_summary(s: &Scenario, d: &DatasetSummary) {
 pub fn run_dataset(args: &DatasetArgs) -> CliResult {
     let s = load_scenario(&args.scenario)?;
     let points = training_points(&s, args.grid.as_ref())?;
-    let (data, summary) = build(&s, &points, &Slopes::Pointwise, "filter on the grid");
+    let filter = SafetyFilter::new(&s);
+    let bars = Bars::default();
+    bars.begin("filter on the grid", points.len());
+    let (data, summary) = filter_dataset(&filter, &points, &Slopes::Pointwise, &|done| {
+        bars.done(done)
+    });
+    bars.end();
     print_summary(&s, &summary);
     if let Some(path) = &args.out {
         let mut text = String::new();
@@ -238,34 +248,56 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
         return Err(format!("--budget {}: expected a finite factor > 0", args.budget).into());
     }
     let s = load_scenario(&args.scenario)?;
-    let architecture = match (&args.architecture, &s.network) {
-        (Some(a), _) => a.clone(),
-        (None, Some(net)) => net.architecture.clone(),
-        (None, None) => return Err("no [network] in the scenario: give --architecture".into()),
-    };
-    if architecture.len() < 2
-        || architecture[0] != s.n()
-        || architecture[architecture.len() - 1] != s.m()
-    {
-        return Err(format!(
-            "--architecture {architecture:?}: must start with n = {} and end with m = {}",
-            s.n(),
-            s.m()
-        )
-        .into());
-    }
+    let architecture = training::architecture(&s, args.architecture.as_deref())?;
     let out = match (&args.out, &s.network) {
         (Some(p), _) => p.clone(),
         (None, Some(net)) => net.file.clone(),
         (None, None) => return Err("give --out FILE".into()),
     };
-    let grid = args.grid.clone().unwrap_or(s.training.grid.clone());
-    let points = training_points(&s, Some(&grid))?;
+    let options = data_options(args, &s)?;
+    let bars = Bars::default();
+    let data = TrainingData::sample(&s, &options, &bars)?;
+    if let (Some((added, seeds)), Some(dense)) = (data.notes.dense, &options.dense) {
+        println!(
+            "{added} samples {}× finer added around the {seeds} grid points of S where some |∂vᵢ/∂xⱼ| > {}{}",
+            dense.factor,
+            dense.slope,
+            args.jacobian_cap
+                .map_or(String::new(), |cap| format!(" and none > {cap} (a jump)"))
+        );
+    }
+    print_summary(&s, &data.summary);
+    if let Some(excluded) = data.notes.left_out {
+        println!(
+            "{excluded} unsafe samples farther than {} from S left out of the training",
+            args.unsafe_band
+        );
+    }
+    if let Some(count) = data.notes.focused {
+        println!(
+            "{count} samples in the focus box weigh {}",
+            args.focus_weight
+        );
+    }
+    let init = args
+        .init
+        .as_deref()
+        .map(|path| Mlp::load_safetensors(path).map(|net| (path, net)))
+        .transpose()?;
+    let init = init.as_ref().map(|(path, net)| (*path, net));
+    match args.epochs {
+        None => run_staged(args, &s, &architecture, &out, &data, init, &bars),
+        Some(epochs) => run_one_stage(args, &s, &architecture, &out, &data, init, epochs),
+    }
+}
+
+/// The data options the flags give, each flag's value checked.
+fn data_options(args: &TrainArgs, s: &Scenario) -> Result<DataOptions, String> {
     let slopes = match &args.slope_step {
         None => Slopes::Pointwise,
         Some(h) if h.len() == 1 || h.len() == s.n() => {
             if let Some(bad) = h.iter().find(|h| !(h.is_finite() && **h > 0.0)) {
-                return Err(format!("--slope-step {bad}: expected a finite step > 0").into());
+                return Err(format!("--slope-step {bad}: expected a finite step > 0"));
             }
             Slopes::Secant(h.clone())
         }
@@ -274,80 +306,54 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
                 "--slope-step: {} values, expected one or one per state ({})",
                 h.len(),
                 s.n()
-            )
-            .into())
+            ))
         }
     };
-    let (mut data, mut summary) = build(&s, &points, &slopes, "training data");
-    if let Some(slope) = args.dense_slope {
-        if !(slope.is_finite() && slope >= 0.0) {
-            return Err(format!("--dense-slope {slope}: expected a finite slope ≥ 0").into());
-        }
-        let seeds = steep_samples(&s, &data, slope, args.jacobian_cap);
-        // Only in S: inside an obstacle `v` can grow without bound (scenario 2 near (1, 0)),
-        // and more such targets would drag the fit on the safe side.
-        let mut added = refinement_points(
-            &s.training.region,
-            &grid,
-            seeds.iter().copied(),
-            args.dense_factor,
-        );
-        added.retain(|x| s.is_safe(x));
-        println!(
-            "{} samples {}× finer added around the {} grid points of S where some |∂vᵢ/∂xⱼ| > {slope}{}",
-            added.len(),
-            args.dense_factor,
-            seeds.len(),
-            args.jacobian_cap
-                .map_or(String::new(), |cap| format!(" and none > {cap} (a jump)"))
-        );
-        let (finer, finer_summary) = build(&s, &added, &slopes, "finer samples");
-        data.append(finer)?;
-        summary.add(&finer_summary);
-    }
-    print_summary(&s, &summary);
-    if args.unsafe_band >= 0.0 {
-        let excluded = restrict_to_band(&s, &mut data, args.unsafe_band);
-        println!(
-            "{excluded} unsafe samples farther than {} from S left out of the training",
-            args.unsafe_band
-        );
-    }
-    if let Some(text) = &args.focus_box {
-        let focus = super::simulate::parse_box("--focus-box", text, s.n())?;
-        if !(args.focus_weight.is_finite() && args.focus_weight > 0.0) {
+    let dense = match args.dense_slope {
+        Some(slope) if !(slope.is_finite() && slope >= 0.0) => {
             return Err(format!(
-                "--focus-weight {}: expected a finite weight > 0",
-                args.focus_weight
-            )
-            .into());
+                "--dense-slope {slope}: expected a finite slope ≥ 0"
+            ))
         }
-        let count = weigh_box(&mut data, &focus, args.focus_weight);
-        println!(
-            "{count} samples in the focus box weigh {}",
-            args.focus_weight
-        );
-    }
-    // Validated against the pointwise slopes, as `cbfreach error` measures.
-    let (validation, vsummary) = build(
-        &s,
-        &validation_points(&s, &grid),
-        &Slopes::Pointwise,
-        "validation data",
-    );
-
-    let Some(epochs) = args.epochs else {
-        return run_recipe(
-            args,
-            &s,
-            &architecture,
-            &out,
-            &grid,
-            &points,
-            data,
-            validation,
-        );
+        Some(slope) => Some(Dense {
+            slope,
+            factor: args.dense_factor,
+        }),
+        None => None,
     };
+    let focus = match &args.focus_box {
+        Some(text) => {
+            let focus = super::simulate::parse_box("--focus-box", text, s.n())?;
+            if !(args.focus_weight.is_finite() && args.focus_weight > 0.0) {
+                return Err(format!(
+                    "--focus-weight {}: expected a finite weight > 0",
+                    args.focus_weight
+                ));
+            }
+            Some((focus, args.focus_weight))
+        }
+        None => None,
+    };
+    Ok(DataOptions {
+        grid: args.grid.clone(),
+        slopes,
+        dense,
+        jacobian_cap: args.jacobian_cap,
+        unsafe_band: args.unsafe_band,
+        focus,
+    })
+}
+
+/// `cbfreach train --epochs N`: one stage of the flags' settings.
+fn run_one_stage(
+    args: &TrainArgs,
+    s: &Scenario,
+    architecture: &[usize],
+    out: &std::path::Path,
+    data: &TrainingData,
+    init: Option<(&std::path::Path, &Mlp)>,
+    epochs: usize,
+) -> CliResult {
     let checkpoint = out.with_extension("ckpt");
     let settings = TrainSettings {
         epochs,
@@ -368,28 +374,18 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
         ibp_ramp: args.ibp_ramp,
         ibp_excess: args.ibp_excess,
         revive_every: args.revive_every,
-        secant_step: match &slopes {
-            Slopes::Secant(h) if args.secant_network => Some(h.clone()),
+        secant_step: match &args.slope_step {
+            Some(h) if args.secant_network => Some(h.clone()),
             _ => None,
         },
         checkpoint: Some(checkpoint.clone()),
         ..TrainSettings::default()
     };
-    // Trained on normalised data, folded back into the saved network.
-    let norm = if args.no_normalise {
-        Normalisation::identity(s.n(), s.m())
-    } else {
-        Normalisation::from_data(&data)
-    };
-    let physical = data;
-    let data = norm.dataset(&physical, settings.jacobian_cap)?;
-    let settings = norm.settings(&settings);
-    let scale = norm.output_scale;
     let bar = progress_bar(epochs as u64, "epochs");
     // A run takes minutes to hours: where the bar is hidden (stderr to a log file, a batch
     // job), a line per epoch takes its place.
     let logged = !std::io::stderr().is_terminal();
-    let progress = |e: &train::EpochStats| {
+    let progress = |e: &EpochStats| {
         bar.set_position(e.epoch as u64);
         let ibp = e
             .ibp_width
@@ -400,82 +396,42 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
         };
         bar.set_message(format!(
             "loss {:.3e}, max error {:.4}{ibp}",
-            e.loss,
-            e.max_error * scale
+            e.loss, e.max_error
         ));
         if logged {
             eprintln!(
                 "epoch {}/{}: loss {:.4e}, max error {:.4}, mean error {:.4}{ibp}, lr {:.2e}, {:.1} s{revived}",
-                e.epoch, e.epochs, e.loss, e.max_error * scale, e.mean_error * scale, e.lr, e.seconds
+                e.epoch, e.epochs, e.loss, e.max_error, e.mean_error, e.lr, e.seconds
             );
         }
     };
-    let (net, report) = if args.resume && checkpoint.exists() {
-        train::resume(&checkpoint, &data, &settings, progress)?
-    } else {
-        let init = match &args.init {
-            Some(path) => {
-                let net = norm.unfold(&Mlp::load_safetensors(path)?)?;
-                if net.architecture() != Mlp::random(&architecture, 0).architecture() {
-                    return Err(format!(
-                        "--init {}: architecture {} differs from {architecture:?}",
-                        path.display(),
-                        net.architecture()
-                    )
-                    .into());
-                }
-                net
-            }
-            None => Mlp::random(&architecture, args.seed),
-        };
-        train::train(init, &data, &settings, progress)?
+    let start = OneStage {
+        normalise: !args.no_normalise,
+        init,
+        resume: args.resume.then_some(checkpoint),
+        f32: args.f32,
     };
+    let run = training::train_one_stage(s, data, architecture, &settings, start, progress)?;
     bar.finish_and_clear();
-    let net = norm.fold(&net)?;
-    let net = if args.f32 { rounded_to_f32(&net) } else { net };
-    let val = train::evaluate(&net, &validation)?;
-    let training_errors = train::evaluate(&net, &physical)?;
-    let mut metadata = report.metadata();
-    metadata.extend(norm.metadata());
-    metadata.insert("scenario".into(), s.name.clone());
-    if let Some(slope) = args.dense_slope {
-        // Not a trainer setting: the data it saw (reproducing the run needs both).
-        metadata.insert("dense_slope".into(), slope.to_string());
-        metadata.insert("dense_factor".into(), args.dense_factor.to_string());
-    }
-    if let Slopes::Secant(h) = &slopes {
-        metadata.insert("slope_step".into(), format!("{h:?}"));
-        if args.secant_network {
-            metadata.insert("secant_network".into(), "true".into());
-        }
-    }
-    if let Some(text) = &args.focus_box {
-        metadata.insert("focus_box".into(), text.clone());
-        metadata.insert("focus_weight".into(), args.focus_weight.to_string());
-    }
-    metadata.insert("validation_max_linf".into(), val.max_error.to_string());
-    metadata.insert("validation_max_l2".into(), val.max_error_l2.to_string());
-    if args.f32 {
-        net.save_safetensors_f32(&out, &metadata)?;
-    } else {
-        net.save_safetensors(&out, &metadata)?;
-    }
+    run.trained.save(out)?;
+    let net = &run.trained.net;
     println!(
         "trained {} in {:.1} s ({} epochs): training max ℓ∞ error {:.4}",
         net.architecture(),
-        report.seconds,
-        report.epochs.len(),
-        training_errors.max_error
+        run.report.seconds,
+        run.report.epochs.len(),
+        run.training.max_error
     );
-    if let Some(w) = report.epochs.last().and_then(|e| e.ibp_width) {
+    if let Some(w) = run.report.epochs.last().and_then(|e| e.ibp_width) {
         println!(
             "mean IBP output width of the last epoch (ε = {:?}): {w:.4}",
             args.ibp_radius
         );
     }
+    let val = &run.validation;
     println!(
         "validation on {} unseen points of C ∩ S: max ℓ∞ {:.4}, max ℓ2 {:.4}, mean ℓ∞ {:.4}, max slope error {:.3}",
-        vsummary.samples,
+        data.validation_summary.samples,
         val.max_error,
         val.max_error_l2,
         val.mean_error,
@@ -485,63 +441,18 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
     Ok(())
 }
 
-/// The network with every weight rounded to the nearest f32 (saved as F32; its errors are
-/// measured after the rounding).
-fn rounded_to_f32(net: &Mlp) -> Mlp {
-    let mut out = net.clone();
-    for l in &mut out.layers {
-        for w in l.weight.iter_mut().chain(&mut l.bias) {
-            *w = *w as f32 as f64;
-        }
-    }
-    out
-}
-
 /// `cbfreach train` without `--epochs`: the default staged schedule to the scenario's target.
-#[allow(clippy::too_many_arguments)]
-fn run_recipe(
+fn run_staged(
     args: &TrainArgs,
     s: &Scenario,
     architecture: &[usize],
     out: &std::path::Path,
-    grid: &[usize],
-    points: &[Vec<f64>],
-    data: Dataset,
-    validation: Dataset,
+    data: &TrainingData,
+    init: Option<(&std::path::Path, &Mlp)>,
+    bars: &Bars,
 ) -> CliResult {
-    let r = &s.training.region;
-    let spacing: Vec<f64> = (0..s.n())
-        .map(|i| (r.upper[i] - r.lower[i]) / (grid[i] - 1) as f64)
-        .collect();
-    let mut recipe = Recipe::for_data(data.len(), &spacing, args.budget);
-    recipe.refinement.seed = args.seed;
-    let (mut secant, _) = build(
-        s,
-        points,
-        &Slopes::Secant(recipe.secant_step.clone()),
-        "secant slopes",
-    );
-    if args.unsafe_band >= 0.0 {
-        restrict_to_band(s, &mut secant, args.unsafe_band);
-    }
-    let target = s.training.target.map_or(Target::default(), |t| Target {
-        linf: t.linf,
-        slope_p95: t.slope_p95,
-    });
-    let init = args
-        .init
-        .as_deref()
-        .map(Mlp::load_safetensors)
-        .transpose()?;
-    if let Some(net) = &init {
-        if net.widths() != architecture {
-            return Err(format!(
-                "--init: architecture {} differs from {architecture:?}",
-                net.architecture()
-            )
-            .into());
-        }
-    }
+    let plan = StagedPlan::new(s, data, args.budget, args.seed);
+    let (recipe, target) = (&plan.recipe, &plan.target);
     let total: usize = recipe.stages.iter().map(|st| st.settings.epochs).sum();
     println!(
         "schedule: {} (batch {}), target {}",
@@ -554,15 +465,7 @@ fn run_recipe(
         recipe.stages[0].settings.batch_size,
         target
     );
-    let resolution = train::grid_resolution(
-        &r.lower,
-        &r.upper,
-        grid,
-        &data,
-        &validation,
-        target.linf.unwrap_or(f64::INFINITY),
-    );
-    print_resolution(&resolution, target.linf);
+    print_resolution(&plan.resolution, target.linf);
     let bar = progress_bar(total as u64, "fit");
     let logged = !std::io::stderr().is_terminal();
     let offsets: Vec<usize> = recipe
@@ -599,25 +502,19 @@ fn run_recipe(
             );
         }
     };
-    let oracle = FilterOracle::new(s);
-    let data = RecipeData {
-        pointwise: &data,
-        secant: Some(&secant),
-        validation: &validation,
-        oracle: Some(&oracle),
-    };
-    let (net, report) = train::train_to_target(
-        init.as_ref(),
+    let run = plan.run(
+        s,
+        data,
         architecture,
+        init,
         args.seed,
-        &data,
-        &recipe,
-        &target,
+        args.f32,
+        bars,
         progress,
     )?;
     bar.finish_and_clear();
-    let net = if args.f32 { rounded_to_f32(&net) } else { net };
-    let measured = train::measure(&net, &validation, &recipe.ibp_radius)?;
+    run.trained.save(out)?;
+    let (report, measured) = (&run.report, &run.measured);
     let norm = &report.normalisation;
     println!(
         "normalised: inputs centre {:?} scale {:?}; outputs centre {:?} scale {:.4e}; learning rate {:.0e} (range test)",
@@ -648,31 +545,13 @@ fn run_recipe(
             if st.kept { "" } else { " (not kept: target broken)" }
         );
     }
-    let mut metadata = norm.metadata();
-    metadata.insert("scenario".into(), s.name.clone());
-    if let Ok(json) = serde_json::to_string(&report) {
-        metadata.insert("recipe_report".into(), json);
-    }
-    if let Ok(json) = serde_json::to_string(&resolution) {
-        metadata.insert("grid_resolution".into(), json);
-    }
-    metadata.insert("validation_max_linf".into(), measured.linf.to_string());
-    metadata.insert(
-        "validation_slope_p95".into(),
-        measured.slope_p95.to_string(),
-    );
-    if args.f32 {
-        net.save_safetensors_f32(out, &metadata)?;
-    } else {
-        net.save_safetensors(out, &metadata)?;
-    }
     println!(
         "{} {} in {:.1} s ({} training samples) on {} unseen points of C ∩ S: max ℓ∞ {:.4}, mean {:.4}, slope p95 {:.3}, IBP looseness {:.2}×",
         if report.reached { "target reached:" } else { "target NOT reached:" },
-        net.architecture(),
+        run.trained.net.architecture(),
         report.seconds,
         report.samples,
-        validation.len(),
+        data.validation.len(),
         measured.linf,
         measured.mean,
         measured.slope_p95,
@@ -693,10 +572,10 @@ fn run_recipe(
             ))
         );
     }
-    if !report.reached && target.linf.is_some_and(|t| resolution.max > t) {
+    if !report.reached && target.linf.is_some_and(|t| plan.resolution.max > t) {
         println!(
             "  the grid itself resolves v only to {:.4} (above), and the refine stages' samples did not close the gap: a larger network or a finer [training] grid",
-            resolution.max
+            plan.resolution.max
         );
     }
     println!("network written to {}", out.display());
