@@ -285,10 +285,30 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
         .map(|path| Mlp::load_safetensors(path).map(|net| (path, net)))
         .transpose()?;
     let init = init.as_ref().map(|(path, net)| (*path, net));
+    let job = Job {
+        args,
+        s: &s,
+        architecture: &architecture,
+        out: &out,
+        data: &data,
+        init,
+    };
     match args.epochs {
-        None => run_staged(args, &s, &architecture, &out, &data, init, &bars),
-        Some(epochs) => run_one_stage(args, &s, &architecture, &out, &data, init, epochs),
+        None => run_staged(&job, &bars),
+        Some(epochs) => run_one_stage(&job, epochs),
     }
+}
+
+/// What both ways of training share.
+struct Job<'a> {
+    args: &'a TrainArgs,
+    s: &'a Scenario,
+    architecture: &'a [usize],
+    /// Where the network goes.
+    out: &'a std::path::Path,
+    data: &'a TrainingData,
+    /// The network to start from, and its file.
+    init: Option<(&'a std::path::Path, &'a Mlp)>,
 }
 
 /// The data options the flags give, each flag's value checked.
@@ -345,15 +365,15 @@ fn data_options(args: &TrainArgs, s: &Scenario) -> Result<DataOptions, String> {
 }
 
 /// `cbfreach train --epochs N`: one stage of the flags' settings.
-fn run_one_stage(
-    args: &TrainArgs,
-    s: &Scenario,
-    architecture: &[usize],
-    out: &std::path::Path,
-    data: &TrainingData,
-    init: Option<(&std::path::Path, &Mlp)>,
-    epochs: usize,
-) -> CliResult {
+fn run_one_stage(job: &Job, epochs: usize) -> CliResult {
+    let Job {
+        args,
+        s,
+        architecture,
+        out,
+        data,
+        init,
+    } = *job;
     let checkpoint = out.with_extension("ckpt");
     let settings = TrainSettings {
         epochs,
@@ -442,15 +462,15 @@ fn run_one_stage(
 }
 
 /// `cbfreach train` without `--epochs`: the default staged schedule to the scenario's target.
-fn run_staged(
-    args: &TrainArgs,
-    s: &Scenario,
-    architecture: &[usize],
-    out: &std::path::Path,
-    data: &TrainingData,
-    init: Option<(&std::path::Path, &Mlp)>,
-    bars: &Bars,
-) -> CliResult {
+fn run_staged(job: &Job, bars: &Bars) -> CliResult {
+    let Job {
+        args,
+        s,
+        architecture,
+        out,
+        data,
+        init,
+    } = *job;
     let plan = StagedPlan::new(s, data, args.budget, args.seed);
     let (recipe, target) = (&plan.recipe, &plan.target);
     let total: usize = recipe.stages.iter().map(|st| st.settings.epochs).sum();
