@@ -13,13 +13,16 @@ use cbfreach::simulate::step;
 /// Sets and flowpipes agree to this, relative to `max(1, |x|)` (f64, small networks).
 const TOL: f64 = 1e-10;
 
+/// The filter's correction at a state for trajectory `q` of its box (`None`: undefined there).
+type Correction<'a> = &'a dyn Fn(&[f64], usize) -> Option<Vec<f64>>;
+
 /// Zero-order-hold trajectories from 12 points of each box (its corners first): every `k`
 /// steps of `dt` the input `u = κ(x) + v(x, q)` is computed and held (`q`: the trajectory's
 /// index among its box's; a trajectory ends where `v` has no value) while the plant
 /// `ẋ = f(x) + g(x)u` is integrated by RK4 at `dt/10`; the states every `dt/10`.
 fn zoh_paths(
     s: &Scenario,
-    v: &dyn Fn(&[f64], usize) -> Option<Vec<f64>>,
+    v: Correction,
     init: &[IntervalBox],
     (dt, k): (f64, usize),
     steps: usize,
