@@ -139,16 +139,26 @@ struct Live {
 /// GPU engine's device at each sample of a sampled-data run (docs/design.md §7.4,
 /// [`CpuBackend::reach_sampled_with`]). Each must be sound, as the CPU's are.
 pub trait BatchBounds: Sync {
-    /// The network of frame `frame` (an index into [`ReachProblem::frames`]) bounded over the
-    /// boxes `[lower, upper]` (`n` coordinates per box, one after the other), written to `out`
-    /// (resized to the boxes).
+    /// The network `which` bounded over the boxes `[lower, upper]` (`n` coordinates per box, one
+    /// after the other), written to `out` (resized to the boxes).
     fn bound(
         &self,
-        frame: usize,
+        which: Bounded,
         lower: &[f64],
         upper: &[f64],
         out: &mut AffineBoundsBatch,
     ) -> Result<(), ReachError>;
+}
+
+/// Which network a [`BatchBounds`] bounds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Bounded {
+    /// The network of a frame the sets are kept in (an index into [`ReachProblem::frames`]),
+    /// over the sets in its coordinates.
+    Frame(usize),
+    /// The network in x ([`ReachProblem::in_x`], or the problem's own), over the sets' x-boxes:
+    /// the held input's enclosure of a sampled-data run.
+    X,
 }
 
 impl CpuBackend {
@@ -320,6 +330,9 @@ struct ChunkBuffers {
     enclosures: cpu_enclose::Enclosures,
     /// Per frame of one box-step: its fields, how `v` is bounded, where the network's bounds are.
     fields: Vec<FrameFields>,
+    /// Sampled-data: the x network's bounds over the live boxes' x-boxes at a sample, for the
+    /// held input ([`ChunkRun::held_bounds`]).
+    held: cpu_sampled::HeldBounds,
 }
 
 /// Lower and upper rates of one step, `(dx̲/dt, dx̄/dt)`.
@@ -588,7 +601,9 @@ impl ChunkRun<'_> {
                 }
                 match self.source {
                     _ if fb.flat_lo.is_empty() => {}
-                    Some(source) => source.bound(f, &fb.flat_lo, &fb.flat_hi, &mut fb.batch)?,
+                    Some(s) => {
+                        s.bound(Bounded::Frame(f), &fb.flat_lo, &fb.flat_hi, &mut fb.batch)?
+                    }
                     None => frame.network.bounds_serial_into(
                         &fb.flat_lo,
                         &fb.flat_hi,
@@ -607,6 +622,9 @@ impl ChunkRun<'_> {
             let record = last_sub && ((outer + 1) % self.every == 0 || outer + 1 == steps);
             buf.slots.clear();
             buf.slots.resize(self.frames.len(), 0);
+            if self.plant.is_some() {
+                self.held_bounds(states, buf)?;
+            }
             let live = states.iter_mut().filter(|s| !s.done);
             for (k, state) in live.enumerate() {
                 buf.stepped.clear();

@@ -1,10 +1,11 @@
 //! The sampled-data time model on the GPU engine (docs/design.md §7.2, §7.4), first stage: at
 //! each sample the device bounds the network over every live box's whole set in one batch per
-//! frame (the bound kernels unchanged, no step kernel: [`StepPlan::bounds_only`]), the host
-//! reads the bounds back and runs the CPU engine's own sampled step on them
-//! ([`CpuBackend::reach_sampled_with`]: the held input's images, the remainder, the motion
-//! between samples, the filter's constraint, the findings, the tubes). The plant's step is the
-//! host's in this stage; the bounds are the whole of what the device computes.
+//! frame, and the x network over their x-boxes for the held input (the bound kernels
+//! unchanged, no step kernel: [`StepPlan::bounds_only`]); the host reads the bounds back and
+//! runs the CPU engine's own sampled step on them ([`CpuBackend::reach_sampled_with`]: the
+//! held input's images, the remainder, the motion between samples, the filter's constraint,
+//! the findings, the tubes). The plant's step is the host's in this stage; the bounds are the
+//! whole of what the device computes.
 
 use std::sync::atomic::Ordering::Relaxed;
 use std::sync::{Arc, Mutex};
@@ -21,7 +22,7 @@ use super::GpuBackend;
 use crate::bounds::AffineBoundsBatch;
 use crate::boxes::IntervalBox;
 use crate::reach::{
-    Backend, BatchBounds, CpuBackend, ExactField, ReachError, ReachProblem, ReachResult,
+    Backend, BatchBounds, Bounded, CpuBackend, ExactField, ReachError, ReachProblem, ReachResult,
     ReachSettings, ReachTiming,
 };
 
@@ -49,7 +50,10 @@ struct FrameSetup<'a> {
 /// The device as the CPU engine's source of network bounds.
 struct DeviceBounds<'a> {
     gpu: &'a GpuBackend,
+    /// The run's frames, then the x problem's where it is none of them.
     frames: Vec<FrameSetup<'a>>,
+    /// The x problem's index in `frames` ([`Bounded::X`]).
+    x: usize,
     /// The frames' buffers are used by one batch at a time.
     busy: Mutex<()>,
 }
@@ -57,7 +61,7 @@ struct DeviceBounds<'a> {
 impl BatchBounds for DeviceBounds<'_> {
     fn bound(
         &self,
-        frame: usize,
+        which: Bounded,
         lower: &[f64],
         upper: &[f64],
         out: &mut AffineBoundsBatch,
@@ -66,7 +70,10 @@ impl BatchBounds for DeviceBounds<'_> {
             .busy
             .lock()
             .map_err(|_| GpuError::Device("sampled bounds poisoned".into()))?;
-        let fr = &self.frames[frame];
+        let fr = match which {
+            Bounded::Frame(f) => &self.frames[f],
+            Bounded::X => &self.frames[self.x],
+        };
         let (gpu, prec) = (self.gpu, self.gpu.precision);
         let (d, q) = (&gpu.ctx.device, &gpu.ctx.queue);
         let n = fr.problem.dynamics.n;
@@ -163,9 +170,24 @@ impl GpuBackend {
         let start = Instant::now();
         let flat = self.check_network(problem)?;
         let device = device_settings(settings);
-        let chunk = self.chunk_size(problem, &device, initial.len());
-        let frames = problem
-            .frames(settings)
+        // The held input's bounds are the x problem's (design §7.2 item 2): its own pipelines
+        // where no frame is in x.
+        let mut frames = problem.frames(settings);
+        let x_problem = problem.in_x.as_deref().unwrap_or(problem);
+        let x = match frames.iter().position(|f| std::ptr::eq(*f, x_problem)) {
+            Some(x) => x,
+            None => {
+                frames.push(x_problem);
+                frames.len() - 1
+            }
+        };
+        let share = frames.len() as u64;
+        let chunk = frames
+            .iter()
+            .map(|f| self.frame_chunk_size(f, &device, initial.len(), share))
+            .min()
+            .unwrap_or(1);
+        let frames = frames
             .into_iter()
             .map(|frame| {
                 let shape = Shape::new(frame, &device);
@@ -192,6 +214,7 @@ impl GpuBackend {
         let source = DeviceBounds {
             gpu: self,
             frames,
+            x,
             busy: Mutex::new(()),
         };
         let n_chunks = initial.len().div_ceil(chunk);
