@@ -17,7 +17,7 @@ use cbfreach::reach::{
     ReachProblem, ReachSettings, TimeModel, Tube,
 };
 use cbfreach::scenario::{Margin, Scenario};
-use cbfreach::verify::{judge, traps_for, BoxVerdict, Verifier, VerifySettings};
+use cbfreach::verify::{judge, traps_for, BoxVerdict, Verdict, Verifier, VerifySettings};
 use cbfreach::IntervalBox;
 
 /// Sets of the two engines agree to this, relative to `max(1, |x|)`: the two engines round
@@ -260,9 +260,9 @@ fn verify_continuous_small_same_verdicts() {
     }
 }
 
-/// The time model the GPU engine does not run (`sampled`) and the continuous settings its
-/// device step does not take yet are refused before any work, naming the setting and the way
-/// out, and `auto` runs them on the CPU.
+/// The continuous settings the GPU engine's device step does not take yet, and sampled runs in
+/// f32, are refused before any work, naming the setting and the way out, and `auto` runs them
+/// on the CPU; sampled runs in f64 are the GPU's, with the scenario's own settings.
 #[test]
 fn other_time_models_are_refused_naming_them() {
     let Some(gpu) = gpu_f64() else { return };
@@ -282,12 +282,6 @@ fn other_time_models_are_refused_naming_them() {
         ..reach.clone()
     };
     let cases = [
-        (
-            problem_with("sampled", None),
-            reach.clone(),
-            "time = \"sampled\"",
-            "--time euler",
-        ),
         (
             // The scenario's own settings: exact = "closed-form".
             problem_with("continuous", None),
@@ -332,15 +326,95 @@ fn other_time_models_are_refused_naming_them() {
                 .is_ok());
         }
     }
+    let sampled = problem_with("sampled", None);
+    assert_eq!(GpuBackend::runs(&sampled, &reach), Ok(()));
+    assert_eq!(gpu.supports(&sampled, &reach), Ok(()));
     // In f32 the GPU engine runs the Euler map alone.
     let ctx = Arc::new(GpuContext::new().unwrap());
     let f32 = GpuBackend::with_precision(ctx, Precision::F32).unwrap();
-    let problem = problem_with("continuous", None);
-    let e = f32
-        .reach(&problem, &s.reach.initial, &nowhere, &|_, _| {})
-        .expect_err("f32 continuous refused")
-        .to_string();
-    assert!(e.contains("f32") && e.contains("--backend cpu"), "{e}");
+    for (problem, name) in [
+        (problem_with("continuous", None), "continuous"),
+        (sampled, "sampled"),
+    ] {
+        let e = f32
+            .reach(&problem, &s.reach.initial, &nowhere, &|_, _| {})
+            .expect_err("f32 refused")
+            .to_string();
+        assert!(
+            e.contains("f32") && e.contains(name) && e.contains("--backend cpu"),
+            "{e}"
+        );
+    }
+}
+
+/// [`CONTINUOUS_VERIFY_TOL`] for sampled runs, for the same reason: the engines' bounds of the
+/// 400-wide network part by ~1e-9.
+const SAMPLED_VERIFY_TOL: f64 = 1e-8;
+
+/// `verify` with `time = "sampled"` on small grids (docs/design.md §7.4: the device bounds the
+/// network over every live cell's set at each sample, the host runs the CPU engine's sampled
+/// step): the shipped networks and error maps (local margins), the scenarios' own settings
+/// (scenario 2's parallelotope met with its x-box: two frames), `T_s = dt` on scenario 1 and
+/// `2·dt` on scenario 2; the same verdict, end and final set for every cell on both engines,
+/// some cells verified and, on scenario 2, some unsafe between samples.
+#[test]
+fn verify_sampled_small_same_verdicts() {
+    let Some(gpu) = gpu_f64() else { return };
+    // Cells small enough to verify (scenario 1's [4, 3] cells of `[−2, 2] × [−1.5, 1.5]` do
+    // not, on either engine); scenario 2's obstacle cells are unsafe between samples.
+    let cases = [
+        (
+            common::integrator(),
+            2.0,
+            [4, 4],
+            ([-1.5, -1.5], [1.5, 1.5]),
+            1.0,
+        ),
+        (
+            common::double_integrator(),
+            3.0,
+            [4, 4],
+            ([-1.0, -1.0], [1.0, 1.0]),
+            2.0,
+        ),
+    ];
+    for (mut s, horizon, grid, region, k) in cases {
+        s.reach.horizon = horizon;
+        let options = ProblemOptions {
+            time: Some("sampled".into()),
+            control_period: Some(k * s.reach.dt),
+            ..ProblemOptions::default()
+        };
+        let problem = ReachProblem::from_scenario(&s, &options).unwrap();
+        let reach = s.settings.reach.clone();
+        assert_eq!(gpu.supports(&problem, &reach), Ok(()), "{}", s.name);
+        let before = gpu.sampled_bounds();
+        let clock = std::time::Instant::now();
+        let cpu = verify_on(&s, &problem, &CpuBackend, &reach, grid, Some(region));
+        let cpu_s = clock.elapsed().as_secs_f64();
+        let dev = verify_on(&s, &problem, &gpu, &reach, grid, Some(region));
+        let what = format!(
+            "{}, sampled T_s = {k}·dt, {grid:?} to t = {horizon}",
+            s.name
+        );
+        let verified = same_verdicts_within(&cpu, &dev, &what, SAMPLED_VERIFY_TOL);
+        let bounded = gpu.sampled_bounds() - before;
+        let verdicts: Vec<&str> = dev.iter().map(|b| b.verdict.name()).collect();
+        eprintln!(
+            "{what}: {bounded} sets bounded on the device; cpu {cpu_s:.1} s, gpu {:.1} s; \
+             {verdicts:?}",
+            clock.elapsed().as_secs_f64() - cpu_s
+        );
+        assert!(
+            bounded >= grid[0] * grid[1],
+            "{what}: {bounded} on the device"
+        );
+        assert!(verified > 0, "{what}: nothing verified");
+        let found = dev
+            .iter()
+            .any(|b| b.verdict == Verdict::UnsafeBetweenSamples);
+        assert!(found || s.name == "integrator", "{what}: no finding");
+    }
 }
 
 /// A system whose Euler step turns a state around on `C` (`common::CONTRACTING`:

@@ -37,6 +37,7 @@ mod chunk;
 mod continuous;
 mod layout;
 mod plan;
+mod sampled;
 
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
@@ -97,6 +98,8 @@ pub struct GpuBackend {
     /// Box-steps of continuous runs so far: on the device, on the host
     /// ([`GpuBackend::continuous_steps`]).
     continuous_steps: Arc<[std::sync::atomic::AtomicUsize; 2]>,
+    /// Sets of sampled runs bounded on the device so far ([`GpuBackend::sampled_bounds`]).
+    sampled_bounds: Arc<std::sync::atomic::AtomicUsize>,
 }
 
 /// Pipelines with the generated WGSL they were compiled from (and whether with `settle`, with
@@ -185,6 +188,7 @@ impl GpuBackend {
             cache_dir: cache_dir(),
             flat_gemm: ctx.is_software(),
             continuous_steps: Arc::default(),
+            sampled_bounds: Arc::default(),
             ctx,
         }
     }
@@ -237,9 +241,9 @@ impl GpuBackend {
     }
 
     /// Whether this engine runs `problem` under `settings` as they are, or the setting it
-    /// refuses: bounds without a device kernel (IBP alone), the sampled time model, a
-    /// continuous run with a setting its device step does not take yet
-    /// ([`continuous::refused`]), the exact field of a general QP filter.
+    /// refuses: bounds without a device kernel (IBP alone), a continuous run with a setting its
+    /// device step does not take yet ([`continuous::refused`]), the exact field of a general QP
+    /// filter (on the device's step: a sampled run's is the host's).
     pub fn runs(problem: &ReachProblem, settings: &ReachSettings) -> Result<(), Unsupported> {
         if !GpuBackend::supports(settings) {
             return Err(Unsupported::Bounds(settings.bounds));
@@ -247,7 +251,8 @@ impl GpuBackend {
         match problem.time {
             TimeModel::Euler => {}
             TimeModel::Continuous => continuous::refused(problem, settings)?,
-            _ => return Err(Unsupported::Time(problem.time.name())),
+            // The device bounds the network alone; the rest is the CPU engine's (`sampled`).
+            TimeModel::Sampled { .. } => return Ok(()),
         }
         let general_qp = problem
             .pieces
@@ -310,6 +315,39 @@ impl GpuBackend {
     }
 }
 
+impl GpuBackend {
+    /// Refuses a network the bound kernels cannot run on this device (widths, llvmpipe's loop
+    /// limit, storage bindings); returns whether the GEMMs run flat ([`GpuBackend::flat_gemm`]).
+    fn check_network(&self, problem: &ReachProblem) -> Result<bool, GpuError> {
+        let n = problem.dynamics.n;
+        let widths = problem.network.widths();
+        if widths.iter().any(|&w| w == 0 || w > 1 << 18) || widths[0] != n {
+            return Err(GpuError::Problem(format!(
+                "network widths {widths:?} not supported"
+            )));
+        }
+        let loops = bound_kernel_loops(&widths);
+        if self.ctx.info.name.contains("llvmpipe") && loops > LLVMPIPE_LOOP_LIMIT {
+            return Err(GpuError::TooLarge(format!(
+                "network widths {widths:?}: a bound kernel would run ~{loops} loop iterations \
+                 per thread, and llvmpipe silently ends a shader's loops after \
+                 {LLVMPIPE_LOOP_LIMIT}; use the CPU engine (--backend cpu) or a real GPU"
+            )));
+        }
+        let stage_limit = self.ctx.limits.max_storage_buffers_per_shader_stage;
+        if stage_limit < STORAGE_BINDINGS {
+            return Err(GpuError::TooLarge(format!(
+                "the kernels bind {STORAGE_BINDINGS} storage buffers; the device allows \
+                 {stage_limit}"
+            )));
+        }
+        let rows_limit = self.ctx.limits.max_compute_workgroups_per_dimension as usize;
+        Ok(self.flat_gemm
+            && widths.iter().all(|&w| w <= rows_limit)
+            && flat_gemm_loops(&widths) <= LLVMPIPE_LOOP_LIMIT)
+    }
+}
+
 /// An upper estimate of the loop iterations one thread of the bound kernels runs for a network
 /// of `widths` (input first): `bwd_scale`'s loops over a layer's neurons and its input's, and
 /// the GEMM's loop over its inner width in tiles of 16 (with up to 24 inner iterations each
@@ -357,6 +395,9 @@ impl Backend for GpuBackend {
         if problem.time == TimeModel::Continuous && self.precision == Precision::F32 {
             return Err(Unsupported::Continuous("f32 (--f32)"));
         }
+        if matches!(problem.time, TimeModel::Sampled { .. }) && self.precision == Precision::F32 {
+            return Err(Unsupported::Sampled("f32 (--f32)"));
+        }
         Ok(())
     }
 
@@ -371,6 +412,9 @@ impl Backend for GpuBackend {
         settings.validate()?;
         if let Err(u) = Backend::supports(self, problem, settings) {
             return Err(GpuError::Unsupported(crate::reach::refusal(u)).into());
+        }
+        if matches!(problem.time, TimeModel::Sampled { .. }) {
+            return self.sampled(problem, initial, settings, progress);
         }
         let continuous = problem.time == TimeModel::Continuous;
         let start = Instant::now();
@@ -401,35 +445,8 @@ impl Backend for GpuBackend {
                 timing: ReachTiming::default(),
             });
         }
-        let n = problem.dynamics.n;
-        let widths = problem.network.widths();
-        if widths.iter().any(|&w| w == 0 || w > 1 << 18) || widths[0] != n {
-            return Err(
-                GpuError::Problem(format!("network widths {widths:?} not supported")).into(),
-            );
-        }
-        let loops = bound_kernel_loops(&widths);
-        if self.ctx.info.name.contains("llvmpipe") && loops > LLVMPIPE_LOOP_LIMIT {
-            return Err(GpuError::TooLarge(format!(
-                "network widths {widths:?}: a bound kernel would run ~{loops} loop iterations \
-                 per thread, and llvmpipe silently ends a shader's loops after \
-                 {LLVMPIPE_LOOP_LIMIT}; use the CPU engine (--backend cpu) or a real GPU"
-            ))
-            .into());
-        }
-        let stage_limit = self.ctx.limits.max_storage_buffers_per_shader_stage;
-        if stage_limit < STORAGE_BINDINGS {
-            return Err(GpuError::TooLarge(format!(
-                "the kernels bind {STORAGE_BINDINGS} storage buffers; the device allows \
-                 {stage_limit}"
-            ))
-            .into());
-        }
+        let flat = self.check_network(problem)?;
         let chunk = self.chunk_size(problem, settings, initial.len());
-        let rows_limit = self.ctx.limits.max_compute_workgroups_per_dimension as usize;
-        let flat = self.flat_gemm
-            && widths.iter().all(|&w| w <= rows_limit)
-            && flat_gemm_loops(&widths) <= LLVMPIPE_LOOP_LIMIT;
         let mut setups = Vec::new();
         for (f, frame) in frames.iter().enumerate() {
             let shape = Shape::new(frame, settings);

@@ -135,17 +135,62 @@ struct Live {
     in_s: bool,
 }
 
-impl Backend for CpuBackend {
-    fn name(&self) -> String {
-        "cpu".into()
-    }
+/// Where a run's network bounds over a batch of sets come from in place of the CPU's own: the
+/// GPU engine's device at each sample of a sampled-data run (docs/design.md §7.4,
+/// [`CpuBackend::reach_sampled_with`]). Each must be sound, as the CPU's are.
+pub trait BatchBounds: Sync {
+    /// The network `which` bounded over the boxes `[lower, upper]` (`n` coordinates per box, one
+    /// after the other), written to `out` (resized to the boxes).
+    fn bound(
+        &self,
+        which: Bounded,
+        lower: &[f64],
+        upper: &[f64],
+        out: &mut AffineBoundsBatch,
+    ) -> Result<(), ReachError>;
+}
 
-    fn reach(
+/// Which network a [`BatchBounds`] bounds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Bounded {
+    /// The network of a frame the sets are kept in (an index into [`ReachProblem::frames`]),
+    /// over the sets in its coordinates.
+    Frame(usize),
+    /// The network in x ([`ReachProblem::in_x`], or the problem's own), over the sets' x-boxes:
+    /// the held input's enclosure of a sampled-data run.
+    X,
+}
+
+impl CpuBackend {
+    /// A sampled-data run of this engine whose network bounds over every live box's set at each
+    /// sample come from `source` (one batch per frame: `initial` is one chunk, stepped in this
+    /// thread); everything else (the images, the remainder, the findings, the tubes) is this
+    /// engine's own code. The GPU engine runs `time = "sampled"` so, its device the source.
+    pub fn reach_sampled_with(
         &self,
         problem: &ReachProblem,
         initial: &[IntervalBox],
         settings: &ReachSettings,
         progress: &(dyn Fn(usize, usize) + Sync),
+        source: &dyn BatchBounds,
+    ) -> Result<ReachResult, ReachError> {
+        if !matches!(problem.time, TimeModel::Sampled { .. }) {
+            return Err(ReachError::Settings(format!(
+                "network bounds from elsewhere are for time = \"sampled\", not \"{}\"",
+                problem.time.name()
+            )));
+        }
+        self.run(problem, initial, settings, progress, Some(source))
+    }
+
+    /// [`Backend::reach`], its network bounds from `source` where there is one (in one chunk).
+    fn run(
+        &self,
+        problem: &ReachProblem,
+        initial: &[IntervalBox],
+        settings: &ReachSettings,
+        progress: &(dyn Fn(usize, usize) + Sync),
+        source: Option<&dyn BatchBounds>,
     ) -> Result<ReachResult, ReachError> {
         problem.check_initial(initial)?;
         settings.validate()?;
@@ -194,9 +239,13 @@ impl Backend for CpuBackend {
             plant,
             x_problem,
             period,
+            source,
         };
         let mut live: Vec<Live> = initial.iter().map(|b| run.start(b)).collect();
-        let chunk = chunk_len(live.len(), threads);
+        let chunk = match source {
+            Some(_) => live.len().max(1),
+            None => chunk_len(live.len(), threads),
+        };
         let minkowski_s: f64 = live
             .par_chunks_mut(chunk)
             .map_init(ChunkBuffers::default, |buffers, states| {
@@ -214,6 +263,22 @@ impl Backend for CpuBackend {
                 minkowski_s,
             },
         })
+    }
+}
+
+impl Backend for CpuBackend {
+    fn name(&self) -> String {
+        "cpu".into()
+    }
+
+    fn reach(
+        &self,
+        problem: &ReachProblem,
+        initial: &[IntervalBox],
+        settings: &ReachSettings,
+        progress: &(dyn Fn(usize, usize) + Sync),
+    ) -> Result<ReachResult, ReachError> {
+        self.run(problem, initial, settings, progress, None)
     }
 }
 
@@ -265,6 +330,9 @@ struct ChunkBuffers {
     enclosures: cpu_enclose::Enclosures,
     /// Per frame of one box-step: its fields, how `v` is bounded, where the network's bounds are.
     fields: Vec<FrameFields>,
+    /// Sampled-data: the x network's bounds over the live boxes' x-boxes at a sample, for the
+    /// held input ([`ChunkRun::held_bounds`]).
+    held: cpu_sampled::HeldBounds,
 }
 
 /// Lower and upper rates of one step, `(dx̲/dt, dx̄/dt)`.
@@ -300,6 +368,8 @@ struct ChunkRun<'a> {
     x_problem: &'a ReachProblem,
     /// Sampled-data: steps per control period (1 otherwise).
     period: usize,
+    /// Where the network's bounds over a step's batch come from, if not this engine.
+    source: Option<&'a dyn BatchBounds>,
 }
 
 /// What the frames of one box-step share ([`ChunkRun::set_facts`]).
@@ -529,14 +599,18 @@ impl ChunkRun<'_> {
                         fb.flat_hi.extend(hi);
                     }
                 }
-                if !fb.flat_lo.is_empty() {
-                    frame.network.bounds_serial_into(
+                match self.source {
+                    _ if fb.flat_lo.is_empty() => {}
+                    Some(s) => {
+                        s.bound(Bounded::Frame(f), &fb.flat_lo, &fb.flat_hi, &mut fb.batch)?
+                    }
+                    None => frame.network.bounds_serial_into(
                         &fb.flat_lo,
                         &fb.flat_hi,
                         settings.bounds,
                         &mut fb.bounds,
                         &mut fb.batch,
-                    )?;
+                    )?,
                 }
             }
             let last_sub = (step + 1) % k == 0;
@@ -548,6 +622,9 @@ impl ChunkRun<'_> {
             let record = last_sub && ((outer + 1) % self.every == 0 || outer + 1 == steps);
             buf.slots.clear();
             buf.slots.resize(self.frames.len(), 0);
+            if self.plant.is_some() {
+                self.held_bounds(states, buf)?;
+            }
             let live = states.iter_mut().filter(|s| !s.done);
             for (k, state) in live.enumerate() {
                 buf.stepped.clear();

@@ -138,6 +138,7 @@ impl CpuBackend {
             plant: None,
             x_problem: problem,
             period: 1,
+            source: None,
         };
         let mut live: Vec<Live> = states
             .iter()

@@ -7,6 +7,30 @@ use super::*;
 use crate::intervals::box_of;
 use crate::reach::sampled::{euler_image, proven_safe, Intersample, Remainder};
 
+/// The x network's bounds at a sample over the x-boxes of the chunk's live boxes whose held
+/// input needs them, in one batch ([`ChunkRun::held_bounds`]).
+#[derive(Default)]
+pub(super) struct HeldBounds {
+    batch: AffineBoundsBatch,
+    workspace: BoundsWorkspace,
+    lower: Vec<f64>,
+    upper: Vec<f64>,
+    /// Per live box, its row in `batch` (`None`: its held input bounds no network).
+    rows: Vec<Option<usize>>,
+}
+
+impl HeldBounds {
+    /// Box `live`'s `(N̲, N̄)`, where it has a row.
+    fn of(&self, live: usize) -> Option<(&[f64], &[f64])> {
+        let r = self.rows.get(live).copied().flatten()?;
+        let m = self.batch.n_out;
+        Some((
+            &self.batch.lower[r * m..(r + 1) * m],
+            &self.batch.upper[r * m..(r + 1) * m],
+        ))
+    }
+}
+
 /// What a set holds over one control period.
 pub(super) struct Held {
     /// Per frame, the Euler part's images at `τ = 0, dt, …, K·dt` (the first: the set at the
@@ -28,6 +52,46 @@ pub(super) struct Held {
 }
 
 impl ChunkRun<'_> {
+    /// At a sample, before [`Self::hold`]: the x network bounded over the x-box of every live
+    /// box whose held input bounds `v` by the network (a plant that moves, `v` not proven 0, a
+    /// finite margin; `buf.facts` this sample's), in one batch, from the run's source where it
+    /// has one (the GPU engine's device).
+    pub(super) fn held_bounds(
+        &self,
+        states: &[Live],
+        buf: &mut ChunkBuffers,
+    ) -> Result<(), ReachError> {
+        let (plant, x_net) = self.plant.as_ref().expect("sampled runs have a plant");
+        let held = &mut buf.held;
+        held.rows.clear();
+        held.lower.clear();
+        held.upper.clear();
+        let n = self.x_problem.dynamics.n;
+        let live = states.iter().filter(|s| !s.done);
+        for (state, facts) in live.zip(&buf.facts) {
+            let needs = !plant.is_still()
+                && facts.piece != Some(FilterPiece::Inactive)
+                && facts.m.is_some_and(f64::is_finite);
+            held.rows.push(needs.then(|| {
+                held.lower.extend(&state.known.lower);
+                held.upper.extend(&state.known.upper);
+                held.lower.len() / n - 1
+            }));
+        }
+        match self.source {
+            _ if held.lower.is_empty() => {}
+            Some(s) => s.bound(Bounded::X, &held.lower, &held.upper, &mut held.batch)?,
+            None => x_net.bounds_serial_into(
+                &held.lower,
+                &held.upper,
+                self.settings.bounds,
+                &mut held.workspace,
+                &mut held.batch,
+            )?,
+        }
+        Ok(())
+    }
+
     /// At a sample: encloses the period's motion from the set and images its Euler part over
     /// every step of the period, per frame, from the meet of the sound bounds of the field over
     /// the whole set (the filter's proven piece, its enclosure of `v`, the network's bounds
@@ -55,7 +119,7 @@ impl ChunkRun<'_> {
         let plant = self.plant.as_ref().expect("sampled runs have a plant");
         let u = match plant.0.is_still() {
             true => Some(Vec::new()),
-            false => self.held_input(plant, &state.known, facts)?,
+            false => self.held_input(plant, &state.known, facts, buf.held.of(live))?,
         };
         let Some(u) = u else {
             state.tube.end = TubeEnd::NoIntersampleEnclosure { t };
@@ -257,7 +321,7 @@ impl ChunkRun<'_> {
             return Ok(false);
         };
         if held.input.is_none() {
-            held.input = Some(self.held_input(plant, &held.sample, held.facts)?);
+            held.input = Some(self.held_input(plant, &held.sample, held.facts, None)?);
         }
         let (Some(motion), Some(Some(u))) = (&held.motion, &held.input) else {
             return Ok(false);
@@ -267,14 +331,15 @@ impl ChunkRun<'_> {
     }
 
     /// The held input's enclosure `κ(X) + v` over the x-box `known` of the set, `v` enclosed by
-    /// the network's bounds on `X` plus the error margin (or 0 where the filter is proven
-    /// inactive), met with the closed form's enclosure where there is one; `None` where it is
-    /// unbounded.
+    /// the network's bounds on `X` (`bounds`, `(N̲, N̄)`, where the sample's batch has them;
+    /// else bounded here) plus the error margin (or 0 where the filter is proven inactive), met
+    /// with the closed form's enclosure where there is one; `None` where it is unbounded.
     fn held_input(
         &self,
         (plant, x_net): &(Plant, PreparedNetwork),
         known: &IntervalBox,
         facts: SetFacts,
+        bounds: Option<(&[f64], &[f64])>,
     ) -> Result<Option<Vec<Interval>>, ReachError> {
         let xp = self.x_problem;
         let m = xp.dynamics.m;
@@ -282,11 +347,19 @@ impl ChunkRun<'_> {
             Some(FilterPiece::Inactive) => vec![Interval::point(0.0); m],
             _ => match facts.m.filter(|m| m.is_finite()) {
                 Some(margin) => {
-                    let b = x_net.bounds(&known.lower, &known.upper, self.settings.bounds)?;
+                    let here;
+                    let (lower, upper) = match bounds {
+                        Some(b) => b,
+                        None => {
+                            here =
+                                x_net.bounds(&known.lower, &known.upper, self.settings.bounds)?;
+                            (&here.lower[..], &here.upper[..])
+                        }
+                    };
                     (0..m)
                         .map(|k| {
-                            let lo = Interval::point(b.lower[k]) - Interval::point(margin);
-                            let hi = Interval::point(b.upper[k]) + Interval::point(margin);
+                            let lo = Interval::point(lower[k]) - Interval::point(margin);
+                            let hi = Interval::point(upper[k]) + Interval::point(margin);
                             Interval::new(lo.lower, hi.upper)
                         })
                         .collect()

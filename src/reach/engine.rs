@@ -89,8 +89,13 @@ pub fn refusal(unsupported: Unsupported) -> String {
              crown bounds; use one of them (--bounds) or the CPU engine (--backend cpu)"
         ),
         Unsupported::Time(t) => format!(
-            "time = \"{t}\": the GPU engine runs time = \"euler\" and \"continuous\"; set one \
-             (--time euler) or use the CPU engine (--backend cpu)"
+            "time = \"{t}\": the GPU engine runs time = \"euler\", \"continuous\" and \
+             \"sampled\"; set one (--time euler) or use the CPU engine (--backend cpu)"
+        ),
+        Unsupported::Sampled(what) => format!(
+            "time = \"sampled\" with {what}: the GPU engine bounds a sampled run's network in \
+             f64 alone, to compute what the CPU engine computes (docs/design.md §7.4); drop the \
+             setting or use the CPU engine (--backend cpu)"
         ),
         Unsupported::Continuous(what) => format!(
             "time = \"continuous\" with {what}: the GPU engine's continuous step takes the \

@@ -42,7 +42,7 @@ pub use time::TimeModel;
 pub use transform::{log_norm_inf, CoordinatesReason, Transform};
 pub use tube::{Inversion, Tube, TubeEnd, TubeSample, UnsafeBetweenSamples};
 
-pub use cpu::CpuBackend;
+pub use cpu::{BatchBounds, Bounded, CpuBackend};
 pub use engine::{choose_engine, refusal, EngineChoice, GpuOptions};
 pub use settings::{ExactField, ReachMethod, ReachSettings, SettingsError, Unsupported};
 

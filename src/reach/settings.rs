@@ -113,6 +113,9 @@ pub enum Unsupported {
     /// it).
     #[error("the engine does not run time = \"continuous\" with {0}")]
     Continuous(&'static str),
+    /// The engine runs `time = "sampled"`, but not with this setting (named as a user sets it).
+    #[error("the engine does not run time = \"sampled\" with {0}")]
+    Sampled(&'static str),
     /// The engine evaluates the one-row and scalar closed forms alone, not the active-set
     /// pieces of a general QP filter.
     #[error("the engine has no exact field for a general QP filter")]

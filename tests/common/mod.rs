@@ -142,3 +142,37 @@ pub fn small_network(widths: &[usize], seed: u64, scale: f64) -> Mlp {
     }
     net
 }
+
+/// A wall `x₁ ≥ 0` approached under `κ = −2(x₁ + 1)`: the filter's `u = −x₁` makes `x₁` decay
+/// at rate 1 in continuous time, but held over `T_s = 1.5` it overshoots, `x₁ ← −0.5·x₁`: the
+/// held input carries the state into the obstacle. `x₂` just decays. The network is the
+/// filter's correction `v = x₁ + 2` (exact on `x₁ ≥ −2`), built by hand.
+pub const WALL: &str = r#"
+name = "wall"
+[system]
+states = ["x1", "x2"]
+inputs = ["u"]
+f = ["0", "-x2"]
+g = [["1"], ["0"]]
+kappa = ["-2*x1 - 2"]
+[[cbf]]
+name = "wall"
+h = "x1"
+[reach]
+region = { lower = [-1.5, -1], upper = [1.5, 1] }
+m_c = 0.01
+dt = 0.1
+horizon = 3.0
+goal = { lower = [-0.1, -0.1], upper = [0.1, 0.1] }
+initial = [ { lower = [1.0, 0.0], upper = [1.1, 0.1] } ]
+"#;
+
+/// [`WALL`]'s network: the filter's correction `v = x₁ + 2`, one neuron.
+pub fn wall_network() -> Mlp {
+    let mut net = Mlp::random(&[2, 1, 1], 1);
+    net.layers[0].weight = vec![1.0, 0.0];
+    net.layers[0].bias = vec![2.0];
+    net.layers[1].weight = vec![1.0];
+    net.layers[1].bias = vec![0.0];
+    net
+}

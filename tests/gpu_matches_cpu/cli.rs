@@ -167,3 +167,55 @@ fn cli_backend_gpu_and_auto() {
     assert_eq!(kernel_count(gemm), gemm_lines, "{text}");
     assert_eq!(kernel_count("embed"), 1, "{text}");
 }
+
+/// `cbfreach reach --time sampled --backend gpu` runs on the GPU engine (f64) and prints the
+/// CPU engine's tubes (the same lines, findings between samples included); `--f32` is refused
+/// naming the setting and the way out.
+#[test]
+fn cli_sampled_on_the_gpu() {
+    let Some(_gpu) = gpu_f64() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let net_path = dir.path().join("net.safetensors");
+    small_network(&[2, 16, 16, 2], 8, 0.05)
+        .save_safetensors(&net_path, &Default::default())
+        .unwrap();
+    let run = |extra: &[&str]| {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_cbfreach"))
+            .arg("reach")
+            .arg(common::scenario_path("integrator.toml"))
+            .arg("--network")
+            .arg(&net_path)
+            .args(["--m-c", "0.05", "--every", "25", "--time", "sampled"])
+            .args(["--exact", "nowhere", "--bounds", "forward"])
+            .args(extra)
+            .output()
+            .unwrap();
+        let stdout = String::from_utf8_lossy(&out.stdout).to_string();
+        let all = stdout.clone() + &String::from_utf8_lossy(&out.stderr);
+        (out.status.success(), stdout, all)
+    };
+    let (ok, cpu, text) = run(&["--backend", "cpu"]);
+    assert!(ok, "{text}");
+    let (ok, gpu, text) = run(&["--backend", "gpu"]);
+    assert!(
+        ok && text.contains("backend gpu") && text.contains("f64)"),
+        "{text}"
+    );
+    // The tubes' lines and their findings (the header names the backend, the footer times it).
+    let tubes = |s: &str| -> Vec<String> {
+        s.lines()
+            .filter(|l| l.starts_with("  (") || l.starts_with("    "))
+            .map(String::from)
+            .collect()
+    };
+    assert!(
+        tubes(&cpu).len() >= 12 && cpu.contains("UNSAFE BETWEEN SAMPLES"),
+        "{cpu}"
+    );
+    assert_eq!(tubes(&cpu), tubes(&gpu), "{cpu}\n{gpu}");
+    let (ok, _, text) = run(&["--backend", "gpu", "--f32"]);
+    assert!(
+        !ok && text.contains("sampled") && text.contains("f32") && text.contains("--backend cpu"),
+        "{text}"
+    );
+}

@@ -16,12 +16,16 @@ use cbfreach::simulate::simulate_filtered;
 const TOL: f64 = 1e-10;
 
 /// [`TOL`] for the shipped network (measured 3.6e-9 over 25 steps of scenario 1).
-const SHIPPED_TOL: f64 = 1e-8;
+pub(super) const SHIPPED_TOL: f64 = 1e-8;
 
 /// States outside their sample's set, or between samples outside its flowpipe, beyond 1e-9
 /// (RK4's own error at `dt/10` is far below), of `trajectories[box][start]` sampled every
 /// `dt/10`; and how many states were checked.
-fn escapes(tubes: &[Tube], trajectories: &[Vec<Vec<Vec<f64>>>], dt: f64) -> (usize, usize) {
+pub(super) fn escapes(
+    tubes: &[Tube],
+    trajectories: &[Vec<Vec<Vec<f64>>>],
+    dt: f64,
+) -> (usize, usize) {
     let outside = |b: &IntervalBox, x: &[f64]| {
         (0..b.dim()).any(|i| x[i] < b.lower[i] - 1e-9 || x[i] > b.upper[i] + 1e-9)
     };
@@ -84,7 +88,7 @@ fn nn_paths(
 
 /// Largest relative difference of two runs' flowpipes (the samples' sets: [`compare_within`]);
 /// fails above `tol` or where one has a flowpipe and the other not.
-fn compare_flowpipes(cpu: &[Tube], gpu: &[Tube], what: &str, tol: f64) -> f64 {
+pub(super) fn compare_flowpipes(cpu: &[Tube], gpu: &[Tube], what: &str, tol: f64) -> f64 {
     let mut worst = 0.0_f64;
     for (k, (a, b)) in cpu.iter().zip(gpu).enumerate() {
         for (sa, sb) in a.tube.iter().zip(&b.tube) {

@@ -19,6 +19,7 @@ mod field;
 mod margins;
 mod methods;
 mod primitives;
+mod sampled;
 mod step;
 mod validated;
 

@@ -134,49 +134,16 @@ fn a_period_off_the_step_grid_is_refused() {
     );
 }
 
-/// A wall `x₁ ≥ 0` approached under `κ = −2(x₁ + 1)`: the filter's `u = −x₁` makes `x₁` decay
-/// at rate 1 in continuous time, but held over `T_s = 1.5` it overshoots, `x₁ ← −0.5·x₁`: the
-/// held input carries the state into the obstacle. `x₂` just decays. The network is the
-/// filter's correction `v = x₁ + 2` (exact on `x₁ ≥ −2`), built by hand.
-const WALL: &str = r#"
-name = "wall"
-[system]
-states = ["x1", "x2"]
-inputs = ["u"]
-f = ["0", "-x2"]
-g = [["1"], ["0"]]
-kappa = ["-2*x1 - 2"]
-[[cbf]]
-name = "wall"
-h = "x1"
-[reach]
-region = { lower = [-1.5, -1], upper = [1.5, 1] }
-m_c = 0.01
-dt = 0.1
-horizon = 3.0
-goal = { lower = [-0.1, -0.1], upper = [0.1, 0.1] }
-initial = [ { lower = [1.0, 0.0], upper = [1.1, 0.1] } ]
-"#;
-
-fn wall_network() -> Mlp {
-    let mut net = Mlp::random(&[2, 1, 1], 1);
-    net.layers[0].weight = vec![1.0, 0.0];
-    net.layers[0].bias = vec![2.0];
-    net.layers[1].weight = vec![1.0];
-    net.layers[1].bias = vec![0.0];
-    net
-}
-
 /// The held input carries the state into the obstacle: the tube records the finding (with the
 /// time, the whole set outside `S`), and verify's verdict says so; with a short period the same
 /// box gives no finding. Continuous time keeps the set in `S`.
 #[test]
 fn a_long_period_is_found_unsafe_between_samples() {
-    let s = common::from_text(WALL).unwrap();
+    let s = common::from_text(common::WALL).unwrap();
     let filter = SafetyFilter::new(&s);
     let x = [1.05, 0.05];
-    assert!((wall_network().forward(&x)[0] - filter.eval(&x).unwrap()[0]).abs() < 1e-12);
-    let problem = ReachProblem::new(&s, wall_network(), 0.01).unwrap();
+    assert!((common::wall_network().forward(&x)[0] - filter.eval(&x).unwrap()[0]).abs() < 1e-12);
+    let problem = ReachProblem::new(&s, common::wall_network(), 0.01).unwrap();
     let long = problem.clone().with_time(
         TimeModel::Sampled {
             control_period: 1.5,

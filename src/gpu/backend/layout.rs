@@ -253,7 +253,10 @@ impl GpuBackend {
             cont: storage(d, "cont", cont),
             staging: d.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("staging"),
-                size: (snap + state + flags + known + cont).next_multiple_of(8),
+                // A sampled run reads the network's bounds back (`sampled`).
+                size: (snap + state + flags + known + cont)
+                    .max(sz("nnb") + flags)
+                    .next_multiple_of(8),
                 usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
                 mapped_at_creation: false,
             }),

@@ -273,6 +273,12 @@ impl<'a> StepPlan<'a> {
 
     /// The network's bounds per box, the Euler step and the tick.
     fn finish(&mut self, lam: usize) {
+        self.output(lam);
+        self.step();
+    }
+
+    /// The output kernel: the network's bounds per bound box (`nnb`).
+    fn output(&mut self, lam: usize) {
         let b = self.bufs;
         let last = self.shape.w.len() - 2;
         let p = Params {
@@ -301,6 +307,12 @@ impl<'a> StepPlan<'a> {
             &b.nnb,
         ];
         self.push(&self.kernels.output, &p, &bufs, groups);
+    }
+
+    /// The box-step after the network's bounds: the continuous kernel's, or the Euler
+    /// embedding step and the tick.
+    fn step(&mut self) {
+        let b = self.bufs;
         let per_box = Params {
             boxes: self.boxes,
             loop_check: LOOP_CHECK,
@@ -412,9 +424,25 @@ impl<'a> StepPlan<'a> {
 
     /// Every dispatch of one step.
     pub(super) fn build(mut self) -> Vec<Op<'a>> {
+        self.faces();
+        let lam = self.network();
+        self.finish(lam);
+        self.ops
+    }
+
+    /// The network's bounds over the bound boxes alone (`nnb`), no step: what a sampled-data
+    /// run asks of the device at each sample (`sampled`).
+    pub(super) fn bounds_only(mut self) -> Vec<Op<'a>> {
+        let lam = self.network();
+        self.output(lam);
+        self.ops
+    }
+
+    /// The bound kernels' passes by method, up to the output kernel; returns the index of the
+    /// Λ buffer the output reads.
+    fn network(&mut self) -> usize {
         let n_layers = self.shape.w.len() - 1;
         let last = n_layers - 1;
-        self.faces();
         if self.shape.crown {
             self.pass_bounds(0, 0);
             let mut lam = 0;
@@ -425,8 +453,7 @@ impl<'a> StepPlan<'a> {
                     self.pass_bounds(k, lam);
                 }
             }
-            self.finish(lam);
-            return self.ops;
+            return lam;
         }
         for k in 0..n_layers {
             if k > 0 {
@@ -439,13 +466,11 @@ impl<'a> StepPlan<'a> {
                 self.relu(k);
             }
         }
-        let lam = if self.shape.flags.backward {
+        if self.shape.flags.backward {
             self.backward_pass(last)
         } else {
             0
-        };
-        self.finish(lam);
-        self.ops
+        }
     }
 }
 
