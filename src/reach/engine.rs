@@ -88,10 +88,6 @@ pub fn refusal(unsupported: Unsupported) -> String {
             "{b} bounds (bounds = \"{b}\"): the GPU engine has forward, forward-backward and \
              crown bounds; use one of them (--bounds) or the CPU engine (--backend cpu)"
         ),
-        Unsupported::Time(t) => format!(
-            "time = \"{t}\": the GPU engine runs time = \"euler\", \"continuous\" and \
-             \"sampled\"; set one (--time euler) or use the CPU engine (--backend cpu)"
-        ),
         Unsupported::Sampled(what) => format!(
             "time = \"sampled\" with {what}: the GPU engine bounds a sampled run's network in \
              f64 alone, to compute what the CPU engine computes (docs/design.md §7.4); drop the \

@@ -106,9 +106,6 @@ pub enum Unsupported {
     /// The engine has no such network bounds.
     #[error("the engine has no {0} bounds")]
     Bounds(BoundMethod),
-    /// The engine does not run this time model (the model's name).
-    #[error("the engine does not run time = \"{0}\"")]
-    Time(&'static str),
     /// The engine runs `time = "continuous"`, but not with this setting (named as a user sets
     /// it).
     #[error("the engine does not run time = \"continuous\" with {0}")]
