@@ -119,7 +119,9 @@ fn box_step(g: u32) {
     if (piece != PIECE_INACTIVE) {
         margin = margin_of(known);
     }
-    let r = step_rates(st, gs.m, H_STEP, known, piece, margin, g);
+    // 2N0 ends, from a value the driver cannot fold (step_rates keeps its loop then).
+    let ends = select(2u * N0, 0x7fffffffu, arrayLength(&cont) == 0x7fffffffu);
+    let r = step_rates(st, gs.m, H_STEP, known, piece, margin, g, ends);
     if (!r.ok) {
         return;
     }

@@ -105,42 +105,12 @@ fn meet_pair(a: EndPair, b: EndPair) -> EndPair {
     return r;
 }
 
-// One source's rates on the slabs of the moving box m: its slab field (validated::slab_field:
-// bound_on each end's slab, clamped to the slab's depth) and its curved rates (curved_end, ∓HUGE
-// where none), each widened by `slack` (widen_by). The source is `piece`'s field with the
-// network bounded by `nb` plus `margin`, or (piece 0, zero slopes) v's constant bounds.
-struct SourceRates {
-    field: EndPair,
-    curved: EndPair,
-}
-
-// End (i, side)'s rates of one source: the slab field and the curved rate, widened.
+// End (i, side)'s rates of one source: its slab field (validated::slab_field: the bound on the
+// end's slab, clamped to the slab's depth) and its curved rate (curved_end, ∓HUGE where none),
+// each widened by the source's slack (widen_by).
 struct EndRate {
     field: real,
     curved: real,
-}
-
-fn end_rate(st: StepState, m: Moving, h: real, i: u32, side: u32, nb: NetBounds, margin: real, piece: u32, slack: real) -> EndRate {
-    let s = slab(st.lo, st.hi, m, h, i, side);
-    let b = bound_on(i, side, s.lo, s.hi, nb, margin, piece);
-    let c = curved_end(st.lo, st.hi, m, h, i, side, nb, margin, piece);
-    if (side == 0u) {
-        return EndRate(widen_down(min(b.lo, m.d_lo[i]), slack), select(-HUGE, widen_down(c.r, slack), c.ok));
-    }
-    return EndRate(widen_up(max(b.hi, m.d_hi[i]), slack), select(HUGE, widen_up(c.r, slack), c.ok));
-}
-
-// `r` with end (i, side) set to `e`.
-fn with_end(r: SourceRates, i: u32, side: u32, e: EndRate) -> SourceRates {
-    var out = r;
-    if (side == 0u) {
-        out.field.lo[i] = e.field;
-        out.curved.lo[i] = e.curved;
-    } else {
-        out.field.hi[i] = e.field;
-        out.curved.hi[i] = e.curved;
-    }
-    return out;
 }
 
 fn zero_net() -> NetBounds {
@@ -151,124 +121,115 @@ fn zero_net() -> NetBounds {
     return constant_bounds(none, none);
 }
 
-// The proven piece's field on the slabs and its curved rates (cpu_time.rs piece_slab_field and
-// `curved`'s exact source): the piece's own field, zero bounds, the piece's slack.
-fn piece_rates(st: StepState, m: Moving, h: real, piece: u32, slack: real) -> SourceRates {
-    var r = SourceRates(no_rates(), no_rates());
-    let zero = zero_net();
-    for (var f = 0u; f < 2u * N0; f++) {
-        r = with_end(r, f / 2u, f % 2u, end_rate(st, m, h, f / 2u, f % 2u, zero, 0.0, piece, slack));
+// One source's first-order and curved rates.
+struct SourceRates {
+    field: EndPair,
+    curved: EndPair,
+}
+
+// `r` met with the rate `v` at end (i, side).
+fn meet_end(r: EndPair, i: u32, side: u32, v: real) -> EndPair {
+    var out = r;
+    if (side == 0u) {
+        out.lo[i] = max(out.lo[i], v);
+    } else {
+        out.hi[i] = min(out.hi[i], v);
     }
-    return r;
+    return out;
+}
+
+// `r` widened by `slack` (widen_by).
+fn widen_pair(r: EndPair, slack: real) -> EndPair {
+    var out: EndPair;
+    for (var i = 0u; i < N0; i++) {
+        out.lo[i] = widen_down(r.lo[i], slack);
+        out.hi[i] = widen_up(r.hi[i], slack);
+    }
+    return out;
 }
 
 // The proven piece's Taylor rates over the step (cpu_time.rs piece_taylor on a proven guessed
-// moving box, end_rates::taylor_rates): the piece's field F over the hull (every state of the
-// step lies there) bounds the motion, so x(h) ∈ x₀ + hΦ(x₀) + h²/2·DΦ(hull)·F; the Euler part is
-// bounded on the set's faces (the embedding's face bounds) where 1 + h·∂ᵢΦᵢ ≥ 0 on the set
-// (checked: where it holds the CPU's turn of the Euler part adds nothing, so none is taken).
-// `ok` false where the check fails or a value is not finite (the Rust's None).
+// moving box, end_rates::taylor_rates): the piece's field `over` the hull (every state of the
+// step lies there) bounds the motion, so x(h) ∈ x₀ + hΦ(x₀) + h²/2·DΦ(hull)·F; the Euler part
+// x₀ + hΦ(x₀) is bounded by the piece's field on the set's faces (`euler`) where
+// 1 + h·∂ᵢΦᵢ ≥ 0 on the set (checked: where it holds the CPU's turn of the Euler part adds
+// nothing, so none is taken). `over` and `euler` are widened by the piece's slack (step_rates
+// takes both). `ok` false where the check fails or a value is not finite (the Rust's None).
 struct Taylor {
     r: EndPair,
     ok: bool,
 }
 
-fn piece_taylor(st: StepState, m: Moving, h: real, piece: u32, slack: real) -> Taylor {
+fn piece_taylor(st: StepState, m: Moving, h: real, piece: u32, over: EndPair, euler: EndPair, ends: u32) -> Taylor {
     var t: Taylor;
     t.ok = false;
-    let zero = zero_net();
     var xb: array<Iv, N0>;
-    var cen: array<real, N0>;
     var hull: array<Iv, N0>;
-    var f: array<Iv, N0>;
     for (var j = 0u; j < N0; j++) {
         xb[j] = Iv(st.lo[j], st.hi[j]);
-        cen[j] = clamp(st.lo[j] + 0.5 * (st.hi[j] - st.lo[j]), st.lo[j], st.hi[j]);
         hull[j] = Iv(m.hull_lo[j], m.hull_hi[j]);
     }
-    // validated::field_over on the hull, widened by the slack.
-    for (var j = 0u; j < N0; j++) {
-        let lo = bound_on(j, 0u, m.hull_lo, m.hull_hi, zero, 0.0, piece).lo;
-        let hi = bound_on(j, 1u, m.hull_lo, m.hull_hi, zero, 0.0, piece).hi;
-        f[j] = Iv(widen_down(lo, slack), widen_up(hi, slack));
+    // DΦ over the hull and its diagonal over the set, from one call in a loop the driver keeps
+    // (N0 from `ends`).
+    let n0 = ends / 2u;
+    var jac: array<Iv, N0 * N0>;
+    var diag: array<Iv, N0>;
+    for (var q = 0u; q < n0 * (n0 + 1u); q++) {
+        var at = hull;
+        var i = q / N0;
+        var j = q % N0;
+        if (q >= n0 * n0) {
+            at = xb;
+            i = q - n0 * n0;
+            j = i;
+        }
+        let d = field_jac(piece, i, j, at);
+        if (q < n0 * n0) {
+            jac[q] = d;
+        } else {
+            diag[i] = d;
+        }
     }
     let half_h = iv_mul(iv_point(h), iv_point(0.5));
-    for (var i = 0u; i < N0; i++) {
-        let diag = field_jac(piece, i, i, xb);
-        let monotone = iv_add(iv_point(1.0), iv_mul(iv_point(h), diag)).lo;
+    for (var i = 0u; i < n0; i++) {
+        let monotone = iv_add(iv_point(1.0), iv_mul(iv_point(h), diag[i])).lo;
         if (!(monotone >= 0.0)) {
             return t;
         }
         var r = iv_point(0.0);
         for (var j = 0u; j < N0; j++) {
-            r = iv_add(r, iv_mul(field_jac(piece, i, j, hull), f[j]));
+            r = iv_add(r, iv_mul(jac[i * N0 + j], Iv(over.lo[j], over.hi[j])));
         }
         if (!(finite(r.lo) && finite(r.hi))) {
             return t;
         }
-        let el = widen_down(face_field(i, 0u, xb, cen, zero, 0.0, piece).lo, slack);
-        let eu = widen_up(face_field(i, 1u, xb, cen, zero, 0.0, piece).hi, slack);
-        t.r.lo[i] = iv_add(iv_point(el), iv_mul(half_h, iv_point(r.lo))).lo;
-        t.r.hi[i] = iv_add(iv_point(eu), iv_mul(half_h, iv_point(r.hi))).hi;
+        t.r.lo[i] = iv_add(iv_point(euler.lo[i]), iv_mul(half_h, iv_point(r.lo))).lo;
+        t.r.hi[i] = iv_add(iv_point(euler.hi[i]), iv_mul(half_h, iv_point(r.hi))).hi;
     }
     t.ok = true;
     return t;
 }
 
-// The closed form's enclosures of v on every slab (cpu_time.rs enclosure_slab_rates): each
-// slab's x-box within S, met with `known` (the hull's), gives an enclosure (filter.wgsl
-// enclose_v), taken as constant bounds of the input on that slab; every source is widened by the
-// largest slack of them. `ok` false where one is unbounded (the Rust's None: near a jump of v).
-struct Enclosed {
-    r: SourceRates,
-    ok: bool,
-}
-
-fn enclosed_rates(st: StepState, m: Moving, h: real, known: array<Iv, N0>) -> Enclosed {
-    var e: Enclosed;
-    e.ok = false;
-    var vs: array<Iv, 2u * N0 * M_OUT>;
-    var slack: real = 0.0;
-    for (var f = 0u; f < 2u * N0; f++) {
-        let s = slab(st.lo, st.hi, m, h, f / 2u, f % 2u);
-        var sb: array<Iv, N0>;
-        for (var j = 0u; j < N0; j++) {
-            sb[j] = Iv(s.lo[j], s.hi[j]);
-        }
-        let x = meet_or(clip_to_safe_set(x_box(sb), HS_Z, HS_X), known);
-        let v = enclose_v(x);
-        if (!v.ok) {
-            return e;
-        }
-        slack = max(slack, enclosed_slack(x, v.v));
-        for (var k = 0u; k < M_OUT; k++) {
-            vs[f * M_OUT + k] = v.v[k];
-        }
-    }
-    e.r = SourceRates(no_rates(), no_rates());
-    for (var f = 0u; f < 2u * N0; f++) {
-        var lo: array<real, M_OUT>;
-        var hi: array<real, M_OUT>;
-        for (var k = 0u; k < M_OUT; k++) {
-            lo[k] = vs[f * M_OUT + k].lo;
-            hi[k] = vs[f * M_OUT + k].hi;
-        }
-        let er = end_rate(st, m, h, f / 2u, f % 2u, constant_bounds(lo, hi), 0.0, 0u, slack);
-        e.r = with_end(e.r, f / 2u, f % 2u, er);
-    }
-    e.ok = true;
-    return e;
-}
-
-// The step's rates from every source of the CPU's step on the moving box m (cpu.rs `horizon`):
-// with `known` the hull's x-box within S, the proven piece there (`piece`: piece_on(known),
-// which the caller takes for M too) brings its slab field,
-// curved and Taylor rates; where none is proven, the closed form's enclosures (ENCLOSE) their
-// slab field and curved rates; the network, except on the inactive piece (v = 0), its slab
-// field and curved rates with the disturbance bound `margin` (≥ HUGE: no finite bound, no
-// network), its bounds on the slabs from `slab_bounds(at, f)`. `field` meets the first-order
-// rates (the check's and the ones kept), `second` the curved and Taylor ones; `ok` false where
-// no source bounds the field (the host's step ends the box as the CPU does).
+// The step's rates from every source of the CPU's step on the moving box m (cpu.rs `horizon`,
+// cpu_field.rs `first_fields`, cpu_time.rs `check_step`), with `known` the hull's x-box within S:
+// - the proven piece there (`piece`: piece_on(known), which the caller takes for M too): its
+//   own field on the slabs and its curved rates (cpu_time.rs piece_slab_field, `curved`),
+//   widened by its slack, and its Taylor rates (piece_taylor: its field over the hull and on
+//   the set's faces, validated::field_over and the embedding's face bounds);
+// - where none is proven, the closed form's enclosures (ENCLOSE; cpu_time.rs
+//   enclosure_slab_rates): each slab's x-box within S, met with `known`, gives an enclosure of
+//   v (filter.wgsl enclose_v), taken as constant bounds of the input on that slab; slab field
+//   and curved rates, widened by the largest slack of them; none where one is unbounded (near
+//   a jump of v);
+// - the network, except on the inactive piece (v = 0), with the disturbance bound `margin`
+//   (≥ HUGE: no finite bound, no network), its bounds on the slabs from `slab_bounds(at, f)`:
+//   slab field and curved rates, widened by the transform's slack (cpu_field.rs network_field).
+// `field` meets the first-order rates (the check's and the ones kept), `second` the curved and
+// Taylor ones; `ok` false where no source bounds the field (the host's step ends the box as the
+// CPU does). One loop over the ends and the sources with one call of each bound, the source
+// picking its box and bounds of v, and `ends` (2N0) passed in from a value the driver cannot
+// see through: lavapipe compiled the unrolled copies of the piece's generated field (one per
+// call and coordinate) for minutes.
 struct StepRates {
     field: EndPair,
     second: EndPair,
@@ -277,39 +238,119 @@ struct StepRates {
     ok: bool,
 }
 
-fn step_rates(st: StepState, m: Moving, h: real, known: array<Iv, N0>, piece: u32, margin: real, at: u32) -> StepRates {
+// The sources of step_rates' loop: the piece on the slabs, the enclosures, the network, the
+// piece over the hull and on the set's faces (the last two for its Taylor rates).
+const SOURCES: u32 = 5u;
+
+fn step_rates(st: StepState, m: Moving, h: real, known: array<Iv, N0>, piece: u32, margin: real, at: u32, ends: u32) -> StepRates {
     var out = StepRates(no_rates(), no_rates(), piece, false, false);
-    if (out.piece != PIECE_NONE) {
-        var slack = FIELD_SLACK;
-        if (out.piece != PIECE_INACTIVE) {
-            slack = binding_slack(out.piece - 1u, known);
+    var slack = FIELD_SLACK;
+    if (piece != PIECE_NONE && piece != PIECE_INACTIVE) {
+        slack = binding_slack(piece - 1u, known);
+    }
+    let network = piece != PIECE_INACTIVE && margin < HUGE;
+    // The enclosures' rates before their slack, which is the largest over every slab.
+    var enclosing = ENCLOSE && piece == PIECE_NONE;
+    var enc_slack: real = 0.0;
+    var enc = SourceRates(no_rates(), no_rates());
+    var over = no_rates();
+    var euler = no_rates();
+    let zero = zero_net();
+    for (var k = 0u; k < SOURCES * ends; k++) {
+        let f = k / SOURCES;
+        let src = k % SOURCES;
+        let i = f / 2u;
+        let side = f % 2u;
+        let on_piece = src == 0u || src >= 3u;
+        if ((on_piece && piece == PIECE_NONE) || (src == 1u && !enclosing) || (src == 2u && !network)) {
+            continue;
         }
-        let p = piece_rates(st, m, h, out.piece, slack);
-        out.field = p.field;
-        out.second = p.curved;
-        let t = piece_taylor(st, m, h, out.piece, slack);
+        // The box the source is bounded on: the end's slab, the hull, or the set's face.
+        let s = slab(st.lo, st.hi, m, h, i, side);
+        var lo = s.lo;
+        var hi = s.hi;
+        if (src == 3u) {
+            lo = m.hull_lo;
+            hi = m.hull_hi;
+        } else if (src == 4u) {
+            lo = st.lo;
+            hi = st.hi;
+            if (side == 0u) {
+                hi[i] = st.lo[i];
+            } else {
+                lo[i] = st.hi[i];
+            }
+        }
+        // The source's bounds of v, M, field and slack.
+        var nb = zero;
+        var mg: real = 0.0;
+        var pc: u32 = 0u;
+        var sl = slack;
+        if (on_piece) {
+            pc = piece;
+        } else if (src == 1u) {
+            var sb: array<Iv, N0>;
+            for (var j = 0u; j < N0; j++) {
+                sb[j] = Iv(s.lo[j], s.hi[j]);
+            }
+            let x = meet_or(clip_to_safe_set(x_box(sb), HS_Z, HS_X), known);
+            let v = enclose_v(x);
+            if (!v.ok) {
+                enclosing = false;
+                continue;
+            }
+            enc_slack = max(enc_slack, enclosed_slack(x, v.v));
+            var vl: array<real, M_OUT>;
+            var vh: array<real, M_OUT>;
+            for (var q = 0u; q < M_OUT; q++) {
+                vl[q] = v.v[q].lo;
+                vh[q] = v.v[q].hi;
+            }
+            nb = constant_bounds(vl, vh);
+            sl = 0.0;
+        } else {
+            nb = slab_bounds(at, f);
+            mg = margin;
+            sl = FIELD_SLACK;
+        }
+        let b = bound_on(i, side, lo, hi, nb, mg, pc);
+        if (src >= 3u) {
+            var v = widen_up(b.hi, sl);
+            if (side == 0u) {
+                v = widen_down(b.lo, sl);
+            }
+            if (src == 3u) {
+                over = meet_end(over, i, side, v);
+            } else {
+                euler = meet_end(euler, i, side, v);
+            }
+            continue;
+        }
+        // validated::slab_field's clamp to the slab's depth, and the curved rate.
+        let c = curved_end(st.lo, st.hi, m, h, i, side, nb, mg, pc);
+        var e = EndRate(widen_up(max(b.hi, m.d_hi[i]), sl), select(HUGE, widen_up(c.r, sl), c.ok));
+        if (side == 0u) {
+            e = EndRate(widen_down(min(b.lo, m.d_lo[i]), sl), select(-HUGE, widen_down(c.r, sl), c.ok));
+        }
+        if (src == 1u) {
+            enc.field = meet_end(enc.field, i, side, e.field);
+            enc.curved = meet_end(enc.curved, i, side, e.curved);
+        } else {
+            out.field = meet_end(out.field, i, side, e.field);
+            out.second = meet_end(out.second, i, side, e.curved);
+        }
+    }
+    if (piece != PIECE_NONE) {
+        let t = piece_taylor(st, m, h, piece, over, euler, ends);
         if (t.ok) {
             out.second = meet_pair(out.second, t.r);
         }
-        out.ok = true;
-    } else if (ENCLOSE) {
-        let e = enclosed_rates(st, m, h, known);
-        if (e.ok) {
-            out.field = e.r.field;
-            out.second = e.r.curved;
-            out.enclosed = true;
-            out.ok = true;
-        }
     }
-    if (out.piece != PIECE_INACTIVE && margin < HUGE) {
-        var r = SourceRates(no_rates(), no_rates());
-        for (var f = 0u; f < 2u * N0; f++) {
-            let er = end_rate(st, m, h, f / 2u, f % 2u, slab_bounds(at, f), margin, 0u, FIELD_SLACK);
-            r = with_end(r, f / 2u, f % 2u, er);
-        }
-        out.field = meet_pair(out.field, r.field);
-        out.second = meet_pair(out.second, r.curved);
-        out.ok = true;
+    if (enclosing) {
+        out.field = meet_pair(out.field, widen_pair(enc.field, enc_slack));
+        out.second = meet_pair(out.second, widen_pair(enc.curved, enc_slack));
+        out.enclosed = true;
     }
+    out.ok = piece != PIECE_NONE || enclosing || network;
     return out;
 }

@@ -435,7 +435,8 @@ fn step_test(@builtin(global_invocation_id) id: vec3<u32>) {{
     }}
     let known = clip_to_safe_set(x_box(hull), HS_Z, HS_X);
     let piece = piece_on(known);
-    let r = step_rates(st, g.m, h, known, piece, xs[c + 2u], c);
+    let ends = select(2u * N0, 0x7fffffffu, arrayLength(&xs) == 0x7fffffffu);
+    let r = step_rates(st, g.m, h, known, piece, xs[c + 2u], c, ends);
     ys[o + 3u + 10u * N0] = select(real(piece), -1.0, piece == PIECE_NONE);
     ys[o + 4u + 10u * N0] = select(real(0.0), real(1.0), r.enclosed);
     if (!r.ok) {{
@@ -537,7 +538,7 @@ fn f32_check() {
     for (var j = 0u; j < N0; j++) {
         k[j] = Iv(x[j], x[j]);
     }
-    let r = step_rates(st, g.m, ys[0], k, piece_on(k), ys[1], 0u);
+    let r = step_rates(st, g.m, ys[0], k, piece_on(k), ys[1], 0u, select(2u * N0, 0x7fffffffu, arrayLength(&ys) == 0x7fffffffu));
     let s = finish_step(st, g.m, ys[0], x, x, x, x);
     ys[0] = b.hi + select(0.0, e.r, e.ok) + r.field.lo[0] + r.second.hi[0] + s.st.lo[0];
 }
