@@ -212,9 +212,9 @@ fn verify_small(mut s: Scenario, horizon: f64, grid: [usize; 2], region: ([f64; 
 
 /// `verify --face-local` in continuous time on small grids with what the GPU's continuous step
 /// takes (docs/design.md §7.4): the shipped network and its error map (local margins), the
-/// filter's field where it is proven inactive (`--exact inactive`; those steps the host's), the
-/// network elsewhere, one frame (scenario 2 in z alone), the scenario's bounds; the same
-/// verdicts and final sets on both engines.
+/// filter's field where it is proven inactive (`--exact inactive`), the network elsewhere, one
+/// frame (scenario 2 in z alone), the scenario's bounds; the same verdicts and final sets on
+/// both engines.
 #[test]
 fn verify_continuous_small_same_verdicts() {
     let Some(gpu) = gpu_f64() else { return };
