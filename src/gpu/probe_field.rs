@@ -95,11 +95,12 @@ pub struct BoundCase {
 }
 
 /// The module a probe runs: the problem's generated WGSL, the field, the continuous step's
-/// primitives, and `kernel`.
+/// primitives, and `kernel`; with `step` the box-step too (`shaders/slab_step.wgsl`, whose
+/// `step_rates` reads the network's bounds through the kernel's `slab_bounds`).
 fn source(
     problem: &ReachProblem,
     settings: &ReachSettings,
-    precision: Precision,
+    (precision, step): (Precision, bool),
     kernel: &str,
 ) -> Result<String, GpuError> {
     let flags = MethodFlags {
@@ -128,7 +129,7 @@ fn source(
         VALIDATED,
         END_RATES,
         CURVED,
-        SLAB_STEP,
+        if step { SLAB_STEP } else { "" },
         kernel,
     ];
     Ok(parts.join("\n"))
@@ -212,7 +213,7 @@ fn bound_test(@builtin(global_invocation_id) id: vec3<u32>) {{
 ",
         nb = nb_len(n, m)
     );
-    let source = source(problem, settings, Precision::F64, &kernel)?;
+    let source = source(problem, settings, (Precision::F64, false), &kernel)?;
     let mut xs = Vec::with_capacity(cases.len() * (2 * n + 4 + nb_len(n, m)));
     for c in cases {
         xs.extend(&c.set.lower);
@@ -298,7 +299,7 @@ fn curved_test(@builtin(global_invocation_id) id: vec3<u32>) {{
 ",
         nb = nb_len(n, m)
     );
-    let source = source(problem, settings, Precision::F64, &kernel)?;
+    let source = source(problem, settings, (Precision::F64, false), &kernel)?;
     let mut xs = Vec::new();
     for c in cases {
         let (bl, bu) = c
@@ -463,7 +464,7 @@ fn step_test(@builtin(global_invocation_id) id: vec3<u32>) {{
 ",
         nb = nb_len(n, m)
     );
-    let source = source(problem, settings, Precision::F64, &kernel)?;
+    let source = source(problem, settings, (Precision::F64, true), &kernel)?;
     let mut xs = Vec::new();
     for c in cases {
         let zero = || (vec![0.0; n], vec![0.0; n]);
@@ -543,6 +544,6 @@ fn f32_check() {
     ys[0] = b.hi + select(0.0, e.r, e.ok) + r.field.lo[0] + r.second.hi[0] + s.st.lo[0];
 }
 ";
-    let source = source(problem, settings, Precision::F32, kernel)?;
+    let source = source(problem, settings, (Precision::F32, true), kernel)?;
     super::probe::compile(&ctx.device, &source, "f32_check").map(|_| ())
 }
