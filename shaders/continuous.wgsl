@@ -1,23 +1,26 @@
 // The continuous time model's common path in a pipeline (docs/design.md §7.1 item 3b, §7.4),
-// one frame, the network's field with the disturbance bound M taken on the hull's x-box within S
-// (global, or the error map's local bound: margins.wgsl): `slabs_of` writes each live
+// one frame, the facts taken on the hull's x-box within S: the filter's proven piece and its
+// closed form's enclosures (filter.wgsl), and the disturbance bound M (global, or the error
+// map's local bound: margins.wgsl) for the network's field. `slabs_of` writes each live
 // box's 2n slabs of its guessed moving box (face-local, FACES = 2N0) or its hull (FACES = 1) as
 // its bound boxes, so the GEMM, ReLU, backward and output kernels run on them unchanged; `cstep`
-// then takes the box-step (slab_step.wgsl: guess_step, end_rates, finish_step), clips the set to
+// then takes the box-step (slab_step.wgsl: guess_step, step_rates, finish_step), clips the set to
 // S and keeps the hull and the faces' rates for the host. A box-step it cannot finish (a tube's
 // first step, a guess refused, a check failed, bounds not finite, a set inside out) keeps its
 // state and is flagged: the host steps it with the CPU engine's own step
 // (src/gpu/backend/continuous.rs). The host reads every box's result after each step and
 // records the samples and flowpipes (the CPU engine's rules). Needs slab_step.wgsl and what it
-// needs, sets.wgsl, margins.wgsl, nnb.wgsl, loops.wgsl.
+// needs (filter.wgsl, sets.wgsl), margins.wgsl, nnb.wgsl, loops.wgsl.
 
 // Params (boxes).
 @group(0) @binding(0) var<uniform> p: Params;
 // Per box CW reals: the StepState (lo, hi, r_lo, r_hi, b_lo, b_hi: N0 each; the rates it has),
 // then what the step leaves for the host: the hull (lo, hi) and the faces' rates (s_lo, s_hi).
 @group(0) @binding(1) var<storage, read_write> cont: array<real>;
-// Per box [poisoned, status, -, -, -, result]: status is the host's (LIVE while it steps),
-// result this step's (C_DEVICE, C_HOST).
+// Per box [poisoned, status, -, piece, enclosed, result]: status is the host's (LIVE while it
+// steps), result this step's (C_DEVICE, C_HOST); piece and enclosed whether a step the device
+// took had the filter's proven piece, its closed form's enclosures (the tube's exact and
+// enclosed steps).
 @group(0) @binding(3) var<storage, read_write> flags: array<atomic<u32>>;
 // The bound boxes, FACES per box: lo[N0], hi[N0], radius (as shaders/faces.wgsl writes faces).
 @group(0) @binding(4) var<storage, read_write> bound_boxes: array<real>;
@@ -101,38 +104,31 @@ fn box_step(g: u32) {
     if (!gs.on_path || poisoned || !bounds_finite(g)) {
         return;
     }
-    // The facts on the hull's x-box within S (the CPU's `pipe_known`): M there; where it is +∞
-    // the host's step ends the box as the CPU does.
+    // The facts on the hull's x-box within S (the CPU's `pipe_known`): the piece, M there; where
+    // nothing bounds the field (M = +∞ and no piece or enclosure) the host's step ends the box as
+    // the CPU does.
     var hull: array<Iv, N0>;
     for (var j = 0u; j < N0; j++) {
         hull[j] = Iv(gs.m.hull_lo[j], gs.m.hull_hi[j]);
     }
     let known = clip_to_safe_set(x_box(hull), HS_Z, HS_X);
-    // A proven piece's sources (its slab field, curved and Taylor rates) and the closed form's
-    // enclosures are the host's (not ported): so is a box-step that takes them.
-    if (ENCLOSE || piece_on(known) != PIECE_NONE) {
+    // Every source of the CPU's step (slab_step.wgsl step_rates): the proven piece, the closed
+    // form's enclosures, the network with M (not on the inactive piece: v = 0 there).
+    let piece = piece_on(known);
+    var margin = HUGE;
+    if (piece != PIECE_INACTIVE) {
+        margin = margin_of(known);
+    }
+    // 2N0 ends, from a value the driver cannot fold (step_rates keeps its loop then).
+    let ends = select(2u * N0, 0x7fffffffu, arrayLength(&cont) == 0x7fffffffu);
+    let r = step_rates(st, gs.m, H_STEP, known, piece, margin, g, ends);
+    if (!r.ok) {
         return;
     }
-    let margin = margin_of(known);
-    if (margin >= HUGE) {
-        return;
-    }
-    var dl: array<real, N0>;
-    var du: array<real, N0>;
-    var cl: array<real, N0>;
-    var cu: array<real, N0>;
-    for (var f = 0u; f < 2u * N0; f++) {
-        let i = f / 2u;
-        let side = f % 2u;
-        let e = end_rates(st, gs.m, H_STEP, i, side, load_bounds(face_index(g, i, side)), margin);
-        if (side == 0u) {
-            dl[i] = e.field;
-            cl[i] = e.curved;
-        } else {
-            du[i] = e.field;
-            cu[i] = e.curved;
-        }
-    }
+    let dl = r.field.lo;
+    let du = r.field.hi;
+    let cl = r.second.lo;
+    let cu = r.second.hi;
     let s = finish_step(st, gs.m, H_STEP, dl, du, cl, cu);
     if (!s.proven) {
         return;
@@ -168,5 +164,12 @@ fn box_step(g: u32) {
         cont[g * CW + 8u * N0 + 1u + j] = gs.m.s_lo[j];
         cont[g * CW + 9u * N0 + 1u + j] = gs.m.s_hi[j];
     }
+    atomicStore(&flags[g * FLAG_W + 3u], u32(r.piece != PIECE_NONE));
+    atomicStore(&flags[g * FLAG_W + 4u], u32(r.enclosed));
     atomicStore(&flags[g * FLAG_W + 5u], C_DEVICE);
+}
+
+// The network's bounds on slab f of box g (slab_step.wgsl's step_rates): the bound kernels'.
+fn slab_bounds(g: u32, f: u32) -> NetBounds {
+    return load_bounds(face_index(g, f / 2u, f % 2u));
 }

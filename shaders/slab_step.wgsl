@@ -1,12 +1,17 @@
 // One box-step of the continuous model's common path in one frame (docs/design.md §7.1 item 3b,
 // §7.4): the moving box guessed from the rates the box keeps, the field's rates on its 2n slabs
-// from the network's bounds there, the strict check, the rates kept for the next guess, the
-// step's end. The CPU engine's order (src/reach/cpu.rs `horizon`; cpu_guess.rs `guess_moving`;
-// cpu_field.rs `network_field`; cpu_time.rs `check_step`, `curved`), for the network's field
-// (no proven piece, no closed-form enclosures yet). A box-step this cannot finish is flagged
-// and keeps its state, for the host. continuous.wgsl runs it in the engine's pipeline;
-// src/gpu/probe_field.rs runs it alone, tests/gpu_matches_cpu/step.rs compares it with the
-// CPU's. Needs validated.wgsl, end_rates.wgsl, field.wgsl, curved.wgsl.
+// from every source the CPU's step meets there (the filter's proven piece: its slab field,
+// curved and Taylor rates; the closed form's enclosures of v on each slab: their slab field and
+// curved rates; the network's bounds: its slab field and curved rates), the strict check, the
+// rates kept for the next guess, the step's end. The CPU engine's order (src/reach/cpu.rs
+// `horizon`; cpu_guess.rs `guess_moving`; cpu_field.rs `first_fields`, `network_field`;
+// cpu_time.rs `check_step`, `curved`, `piece_slab_field`, `enclosure_slab_rates`,
+// `piece_taylor`). A box-step this cannot finish is flagged and keeps its state, for the host.
+// continuous.wgsl runs it in the engine's pipeline; src/gpu/probe_field.rs runs it alone,
+// tests/gpu_matches_cpu/step.rs compares it with the CPU's. Needs validated.wgsl, end_rates.wgsl,
+// field.wgsl, curved.wgsl, filter.wgsl, sets.wgsl, and from the module that includes it
+// `slab_bounds(at, f)`: the network's bounds on slab f (in the order (0, lower), (0, upper), …)
+// of the box or case at `at`.
 
 // What one box keeps between steps in one frame: its set, the slab rates of the last step and
 // of the step before, and how many of those it has (0 on a tube's first step).
@@ -49,28 +54,7 @@ fn guess_step(st: StepState, h: real) -> Guess {
     return g;
 }
 
-// End (i, side)'s rates from the network's bounds nb on its slab (face-local) or on the hull,
-// with the disturbance bound `margin`: the field's bound on the slab clamped to the slab's depth
-// (validated::slab_field) and the curved end (curved_end; ∓HUGE where none), each widened by
-// the transform's slack (network_field, curved).
-struct EndRates {
-    field: real,
-    curved: real,
-}
-
-fn end_rates(st: StepState, m: Moving, h: real, i: u32, side: u32, nb: NetBounds, margin: real) -> EndRates {
-    let s = slab(st.lo, st.hi, m, h, i, side);
-    let b = bound_on(i, side, s.lo, s.hi, nb, margin, 0u);
-    let c = curved_end(st.lo, st.hi, m, h, i, side, nb, margin, 0u);
-    if (side == 0u) {
-        let field = widen_down(min(b.lo, m.d_lo[i]), FIELD_SLACK);
-        return EndRates(field, select(-HUGE, widen_down(c.r, FIELD_SLACK), c.ok));
-    }
-    let field = widen_up(max(b.hi, m.d_hi[i]), FIELD_SLACK);
-    return EndRates(field, select(HUGE, widen_up(c.r, FIELD_SLACK), c.ok));
-}
-
-// The step from every end's rates (dl, du: the field's; cl, cu: the curved): where the check
+// The step from every end's rates (dl, du: the field's; cl, cu: the second-order): where the check
 // proves the moving box (validated::verified), the rates kept for the next guess (the last
 // step's become the step before's) and the set at the step's end (slab_step_end: the meet with
 // the curved rates, the outward step, the meet with the hull); else the state as it was, for the
@@ -94,4 +78,279 @@ fn finish_step(st: StepState, m: Moving, h: real, dl: array<real, N0>, du: array
     out.lo = end.lo;
     out.hi = end.hi;
     return Stepped(out, true);
+}
+
+// Rates (lower, upper) per coordinate, ∓HUGE where a source says nothing.
+struct EndPair {
+    lo: array<real, N0>,
+    hi: array<real, N0>,
+}
+
+fn no_rates() -> EndPair {
+    var r: EndPair;
+    for (var i = 0u; i < N0; i++) {
+        r.lo[i] = -HUGE;
+        r.hi[i] = HUGE;
+    }
+    return r;
+}
+
+// The meet of two sound bounds of the same rates (cpu_field.rs meet_fields).
+fn meet_pair(a: EndPair, b: EndPair) -> EndPair {
+    var r: EndPair;
+    for (var i = 0u; i < N0; i++) {
+        r.lo[i] = max(a.lo[i], b.lo[i]);
+        r.hi[i] = min(a.hi[i], b.hi[i]);
+    }
+    return r;
+}
+
+// End (i, side)'s rates of one source: its slab field (validated::slab_field: the bound on the
+// end's slab, clamped to the slab's depth) and its curved rate (curved_end, ∓HUGE where none),
+// each widened by the source's slack (widen_by).
+struct EndRate {
+    field: real,
+    curved: real,
+}
+
+fn zero_net() -> NetBounds {
+    var none: array<real, M_OUT>;
+    for (var k = 0u; k < M_OUT; k++) {
+        none[k] = 0.0;
+    }
+    return constant_bounds(none, none);
+}
+
+// One source's first-order and curved rates.
+struct SourceRates {
+    field: EndPair,
+    curved: EndPair,
+}
+
+// `r` met with the rate `v` at end (i, side).
+fn meet_end(r: EndPair, i: u32, side: u32, v: real) -> EndPair {
+    var out = r;
+    if (side == 0u) {
+        out.lo[i] = max(out.lo[i], v);
+    } else {
+        out.hi[i] = min(out.hi[i], v);
+    }
+    return out;
+}
+
+// `r` widened by `slack` (widen_by).
+fn widen_pair(r: EndPair, slack: real) -> EndPair {
+    var out: EndPair;
+    for (var i = 0u; i < N0; i++) {
+        out.lo[i] = widen_down(r.lo[i], slack);
+        out.hi[i] = widen_up(r.hi[i], slack);
+    }
+    return out;
+}
+
+// The proven piece's Taylor rates over the step (cpu_time.rs piece_taylor on a proven guessed
+// moving box, end_rates::taylor_rates): the piece's field `over` the hull (every state of the
+// step lies there) bounds the motion, so x(h) ∈ x₀ + hΦ(x₀) + h²/2·DΦ(hull)·F; the Euler part
+// x₀ + hΦ(x₀) is bounded by the piece's field on the set's faces (`euler`) where
+// 1 + h·∂ᵢΦᵢ ≥ 0 on the set (checked: where it holds the CPU's turn of the Euler part adds
+// nothing, so none is taken). `over` and `euler` are widened by the piece's slack (step_rates
+// takes both). `ok` false where the check fails or a value is not finite (the Rust's None).
+struct Taylor {
+    r: EndPair,
+    ok: bool,
+}
+
+fn piece_taylor(st: StepState, m: Moving, h: real, piece: u32, over: EndPair, euler: EndPair, ends: u32) -> Taylor {
+    var t: Taylor;
+    t.ok = false;
+    var xb: array<Iv, N0>;
+    var hull: array<Iv, N0>;
+    for (var j = 0u; j < N0; j++) {
+        xb[j] = Iv(st.lo[j], st.hi[j]);
+        hull[j] = Iv(m.hull_lo[j], m.hull_hi[j]);
+    }
+    // DΦ over the hull and its diagonal over the set, from one call in a loop the driver keeps
+    // (N0 from `ends`).
+    let n0 = ends / 2u;
+    var jac: array<Iv, N0 * N0>;
+    var diag: array<Iv, N0>;
+    for (var q = 0u; q < n0 * (n0 + 1u); q++) {
+        var at = hull;
+        var i = q / N0;
+        var j = q % N0;
+        if (q >= n0 * n0) {
+            at = xb;
+            i = q - n0 * n0;
+            j = i;
+        }
+        let d = field_jac(piece, i, j, at);
+        if (q < n0 * n0) {
+            jac[q] = d;
+        } else {
+            diag[i] = d;
+        }
+    }
+    let half_h = iv_mul(iv_point(h), iv_point(0.5));
+    for (var i = 0u; i < n0; i++) {
+        let monotone = iv_add(iv_point(1.0), iv_mul(iv_point(h), diag[i])).lo;
+        if (!(monotone >= 0.0)) {
+            return t;
+        }
+        var r = iv_point(0.0);
+        for (var j = 0u; j < N0; j++) {
+            r = iv_add(r, iv_mul(jac[i * N0 + j], Iv(over.lo[j], over.hi[j])));
+        }
+        if (!(finite(r.lo) && finite(r.hi))) {
+            return t;
+        }
+        t.r.lo[i] = iv_add(iv_point(euler.lo[i]), iv_mul(half_h, iv_point(r.lo))).lo;
+        t.r.hi[i] = iv_add(iv_point(euler.hi[i]), iv_mul(half_h, iv_point(r.hi))).hi;
+    }
+    t.ok = true;
+    return t;
+}
+
+// The step's rates from every source of the CPU's step on the moving box m (cpu.rs `horizon`,
+// cpu_field.rs `first_fields`, cpu_time.rs `check_step`), with `known` the hull's x-box within S:
+// - the proven piece there (`piece`: piece_on(known), which the caller takes for M too): its
+//   own field on the slabs and its curved rates (cpu_time.rs piece_slab_field, `curved`),
+//   widened by its slack, and its Taylor rates (piece_taylor: its field over the hull and on
+//   the set's faces, validated::field_over and the embedding's face bounds);
+// - where none is proven, the closed form's enclosures (ENCLOSE; cpu_time.rs
+//   enclosure_slab_rates): each slab's x-box within S, met with `known`, gives an enclosure of
+//   v (filter.wgsl enclose_v), taken as constant bounds of the input on that slab; slab field
+//   and curved rates, widened by the largest slack of them; none where one is unbounded (near
+//   a jump of v);
+// - the network, except on the inactive piece (v = 0), with the disturbance bound `margin`
+//   (≥ HUGE: no finite bound, no network), its bounds on the slabs from `slab_bounds(at, f)`:
+//   slab field and curved rates, widened by the transform's slack (cpu_field.rs network_field).
+// `field` meets the first-order rates (the check's and the ones kept), `second` the curved and
+// Taylor ones; `ok` false where no source bounds the field (the host's step ends the box as the
+// CPU does). One loop over the ends and the sources with one call of each bound, the source
+// picking its box and bounds of v, and `ends` (2N0) passed in from a value the driver cannot
+// see through: lavapipe compiled the unrolled copies of the piece's generated field (one per
+// call and coordinate) for minutes.
+struct StepRates {
+    field: EndPair,
+    second: EndPair,
+    piece: u32,
+    enclosed: bool,
+    ok: bool,
+}
+
+// The sources of step_rates' loop: the piece on the slabs, the enclosures, the network, the
+// piece over the hull and on the set's faces (the last two for its Taylor rates).
+const SOURCES: u32 = 5u;
+
+fn step_rates(st: StepState, m: Moving, h: real, known: array<Iv, N0>, piece: u32, margin: real, at: u32, ends: u32) -> StepRates {
+    var out = StepRates(no_rates(), no_rates(), piece, false, false);
+    var slack = FIELD_SLACK;
+    if (piece != PIECE_NONE && piece != PIECE_INACTIVE) {
+        slack = binding_slack(piece - 1u, known);
+    }
+    let network = piece != PIECE_INACTIVE && margin < HUGE;
+    // The enclosures' rates before their slack, which is the largest over every slab.
+    var enclosing = ENCLOSE && piece == PIECE_NONE;
+    var enc_slack: real = 0.0;
+    var enc = SourceRates(no_rates(), no_rates());
+    var over = no_rates();
+    var euler = no_rates();
+    let zero = zero_net();
+    for (var k = 0u; k < SOURCES * ends; k++) {
+        let f = k / SOURCES;
+        let src = k % SOURCES;
+        let i = f / 2u;
+        let side = f % 2u;
+        let on_piece = src == 0u || src >= 3u;
+        if ((on_piece && piece == PIECE_NONE) || (src == 1u && !enclosing) || (src == 2u && !network)) {
+            continue;
+        }
+        // The box the source is bounded on: the end's slab, the hull, or the set's face.
+        let s = slab(st.lo, st.hi, m, h, i, side);
+        var lo = s.lo;
+        var hi = s.hi;
+        if (src == 3u) {
+            lo = m.hull_lo;
+            hi = m.hull_hi;
+        } else if (src == 4u) {
+            lo = st.lo;
+            hi = st.hi;
+            if (side == 0u) {
+                hi[i] = st.lo[i];
+            } else {
+                lo[i] = st.hi[i];
+            }
+        }
+        // The source's bounds of v, M, field and slack.
+        var nb = zero;
+        var mg: real = 0.0;
+        var pc: u32 = 0u;
+        var sl = slack;
+        if (on_piece) {
+            pc = piece;
+        } else if (src == 1u) {
+            var sb: array<Iv, N0>;
+            for (var j = 0u; j < N0; j++) {
+                sb[j] = Iv(s.lo[j], s.hi[j]);
+            }
+            let x = meet_or(clip_to_safe_set(x_box(sb), HS_Z, HS_X), known);
+            let v = enclose_v(x);
+            if (!v.ok) {
+                enclosing = false;
+                continue;
+            }
+            enc_slack = max(enc_slack, enclosed_slack(x, v.v));
+            var vl: array<real, M_OUT>;
+            var vh: array<real, M_OUT>;
+            for (var q = 0u; q < M_OUT; q++) {
+                vl[q] = v.v[q].lo;
+                vh[q] = v.v[q].hi;
+            }
+            nb = constant_bounds(vl, vh);
+            sl = 0.0;
+        } else {
+            nb = slab_bounds(at, f);
+            mg = margin;
+            sl = FIELD_SLACK;
+        }
+        let b = bound_on(i, side, lo, hi, nb, mg, pc);
+        if (src >= 3u) {
+            var v = widen_up(b.hi, sl);
+            if (side == 0u) {
+                v = widen_down(b.lo, sl);
+            }
+            if (src == 3u) {
+                over = meet_end(over, i, side, v);
+            } else {
+                euler = meet_end(euler, i, side, v);
+            }
+            continue;
+        }
+        // validated::slab_field's clamp to the slab's depth, and the curved rate.
+        let c = curved_end(st.lo, st.hi, m, h, i, side, nb, mg, pc);
+        var e = EndRate(widen_up(max(b.hi, m.d_hi[i]), sl), select(HUGE, widen_up(c.r, sl), c.ok));
+        if (side == 0u) {
+            e = EndRate(widen_down(min(b.lo, m.d_lo[i]), sl), select(-HUGE, widen_down(c.r, sl), c.ok));
+        }
+        if (src == 1u) {
+            enc.field = meet_end(enc.field, i, side, e.field);
+            enc.curved = meet_end(enc.curved, i, side, e.curved);
+        } else {
+            out.field = meet_end(out.field, i, side, e.field);
+            out.second = meet_end(out.second, i, side, e.curved);
+        }
+    }
+    if (piece != PIECE_NONE) {
+        let t = piece_taylor(st, m, h, piece, over, euler, ends);
+        if (t.ok) {
+            out.second = meet_pair(out.second, t.r);
+        }
+    }
+    if (enclosing) {
+        out.field = meet_pair(out.field, widen_pair(enc.field, enc_slack));
+        out.second = meet_pair(out.second, widen_pair(enc.curved, enc_slack));
+        out.enclosed = true;
+    }
+    out.ok = piece != PIECE_NONE || enclosing || network;
+    return out;
 }

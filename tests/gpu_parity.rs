@@ -212,9 +212,9 @@ fn verify_small(mut s: Scenario, horizon: f64, grid: [usize; 2], region: ([f64; 
 
 /// `verify --face-local` in continuous time on small grids with what the GPU's continuous step
 /// takes (docs/design.md §7.4): the shipped network and its error map (local margins), the
-/// filter's field where it is proven inactive (`--exact inactive`; those steps the host's), the
-/// network elsewhere, one frame (scenario 2 in z alone), the scenario's bounds; the same
-/// verdicts and final sets on both engines.
+/// filter's field where it is proven inactive (`--exact inactive`), the network elsewhere, one
+/// frame (scenario 2 in z alone), the scenario's bounds; the same verdicts and final sets on
+/// both engines.
 #[test]
 fn verify_continuous_small_same_verdicts() {
     let Some(gpu) = gpu_f64() else { return };
@@ -260,6 +260,39 @@ fn verify_continuous_small_same_verdicts() {
     }
 }
 
+/// `verify` of scenario 1 with the scenario's own settings (continuous time, the filter's closed
+/// form, its error map's local margins, its bounds) on a 4 × 3 grid to t = 2 on both engines:
+/// the same verdict for every cell, final sets within [`CONTINUOUS_VERIFY_TOL`], and most
+/// box-steps on the device (the proven pieces' and the enclosures' steps among them).
+#[test]
+fn verify_scenario_defaults_continuous_same_verdicts() {
+    let Some(gpu) = gpu_f64() else { return };
+    let mut s = common::integrator();
+    s.reach.horizon = 2.0;
+    let problem = ReachProblem::from_scenario(&s, &ProblemOptions::default()).unwrap();
+    let reach = s.settings.reach.clone();
+    assert_eq!(problem.time, TimeModel::Continuous);
+    assert_eq!(reach.exact_field(), ExactField::ClosedForm);
+    assert_eq!(gpu.supports(&problem, &reach), Ok(()));
+    let grid = [4, 3];
+    let region = Some(([-2.0, -1.5], [2.0, 1.5]));
+    let cpu = verify_on(&s, &problem, &CpuBackend, &reach, grid, region);
+    let before = gpu.continuous_steps();
+    let dev = verify_on(&s, &problem, &gpu, &reach, grid, region);
+    let after = gpu.continuous_steps();
+    let (on_device, on_host) = (after.0 - before.0, after.1 - before.1);
+    let what = format!("integrator, scenario defaults, {grid:?} to t = 2");
+    let verified = same_verdicts_within(&cpu, &dev, &what, CONTINUOUS_VERIFY_TOL);
+    eprintln!(
+        "{what}: {verified} verified; {on_device} box-steps on the device, {on_host} on the host"
+    );
+    assert!(verified > 0, "{what}: nothing verified");
+    assert!(
+        on_device > on_host,
+        "{what}: {on_device} on the device, {on_host} on the host"
+    );
+}
+
 /// The continuous settings the GPU engine's device step does not take yet, and sampled runs in
 /// f32, are refused before any work, naming the setting and the way out, and `auto` runs them
 /// on the CPU; sampled runs in f64 are the GPU's, with the scenario's own settings.
@@ -282,13 +315,6 @@ fn other_time_models_are_refused_naming_them() {
         ..reach.clone()
     };
     let cases = [
-        (
-            // The scenario's own settings: exact = "closed-form".
-            problem_with("continuous", None),
-            reach.clone(),
-            "exact = \"closed-form\"",
-            "--exact inactive",
-        ),
         (
             problem_with("continuous", certified),
             ReachSettings {
@@ -319,8 +345,9 @@ fn other_time_models_are_refused_naming_them() {
         exact: ExactField::Inactive,
         ..reach.clone()
     };
+    // The scenario's own settings (exact = "closed-form") run on the device too.
     for m_c in [None, certified] {
-        for settings in [&nowhere, &inactive] {
+        for settings in [&nowhere, &inactive, &reach] {
             assert!(gpu
                 .supports(&problem_with("continuous", m_c), settings)
                 .is_ok());

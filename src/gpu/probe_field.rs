@@ -95,11 +95,12 @@ pub struct BoundCase {
 }
 
 /// The module a probe runs: the problem's generated WGSL, the field, the continuous step's
-/// primitives, and `kernel`.
+/// primitives, and `kernel`; with `step` the box-step too (`shaders/slab_step.wgsl`, whose
+/// `step_rates` reads the network's bounds through the kernel's `slab_bounds`).
 fn source(
     problem: &ReachProblem,
     settings: &ReachSettings,
-    precision: Precision,
+    (precision, step): (Precision, bool),
     kernel: &str,
 ) -> Result<String, GpuError> {
     let flags = MethodFlags {
@@ -128,7 +129,7 @@ fn source(
         VALIDATED,
         END_RATES,
         CURVED,
-        SLAB_STEP,
+        if step { SLAB_STEP } else { "" },
         kernel,
     ];
     Ok(parts.join("\n"))
@@ -212,7 +213,7 @@ fn bound_test(@builtin(global_invocation_id) id: vec3<u32>) {{
 ",
         nb = nb_len(n, m)
     );
-    let source = source(problem, settings, Precision::F64, &kernel)?;
+    let source = source(problem, settings, (Precision::F64, false), &kernel)?;
     let mut xs = Vec::with_capacity(cases.len() * (2 * n + 4 + nb_len(n, m)));
     for c in cases {
         xs.extend(&c.set.lower);
@@ -298,7 +299,7 @@ fn curved_test(@builtin(global_invocation_id) id: vec3<u32>) {{
 ",
         nb = nb_len(n, m)
     );
-    let source = source(problem, settings, Precision::F64, &kernel)?;
+    let source = source(problem, settings, (Precision::F64, false), &kernel)?;
     let mut xs = Vec::new();
     for c in cases {
         let (bl, bu) = c
@@ -375,12 +376,17 @@ pub struct StepOnDevice {
     pub known_rates: u32,
     /// The field's rates on the slabs (clamped, widened), `(dl, du)`.
     pub field: (Vec<f64>, Vec<f64>),
-    /// The curved rates, `∓1e300` where none.
+    /// The second-order rates (curved, and the proven piece's Taylor), `∓1e300` where none.
     pub curved: (Vec<f64>, Vec<f64>),
+    /// The filter's piece proven on the hull's x-box (0: inactive, `k + 1`: row `k` binding).
+    pub piece: Option<u32>,
+    /// Whether the closed form's enclosures were a source.
+    pub enclosed: bool,
 }
 
-/// `guess_step`, `end_rates` at every end and `finish_step` of `shaders/slab_step.wgsl` on the
-/// device (f64), for each case.
+/// `guess_step`, `step_rates` (the facts on the hull's x-box, every source at every end) and
+/// `finish_step` of `shaders/slab_step.wgsl` on the device (f64), for each case: as
+/// `shaders/continuous.wgsl` takes a box-step, with the case's network bounds and margin.
 pub fn common_step_on_device(
     ctx: &GpuContext,
     problem: &ReachProblem,
@@ -394,7 +400,12 @@ pub fn common_step_on_device(
 // Per case lo, hi, r_lo, r_hi, b_lo, b_hi, h, rates, margin, then 2N0 network bounds.
 const NB: u32 = {nb}u;
 const IN: u32 = 6u * N0 + 3u + 2u * N0 * NB;
-const OUT: u32 = 3u + 10u * N0;
+const OUT: u32 = 5u + 10u * N0;
+
+// The network's bounds on slab f of the case whose reals after its state start at c.
+fn slab_bounds(c: u32, f: u32) -> NetBounds {{
+    return nb_at(c + 3u + f * NB);
+}}
 
 fn put(at: u32, a: array<real, N0>) {{
     for (var j = 0u; j < N0; j++) {{
@@ -418,21 +429,24 @@ fn step_test(@builtin(global_invocation_id) id: vec3<u32>) {{
     if (!g.on_path) {{
         return;
     }}
-    var dl: array<real, N0>;
-    var du: array<real, N0>;
-    var cl: array<real, N0>;
-    var cu: array<real, N0>;
-    for (var f = 0u; f < 2u * N0; f++) {{
-        let i = f / 2u;
-        let e = end_rates(st, g.m, h, i, f % 2u, nb_at(c + 3u + f * NB), xs[c + 2u]);
-        if (f % 2u == 0u) {{
-            dl[i] = e.field;
-            cl[i] = e.curved;
-        }} else {{
-            du[i] = e.field;
-            cu[i] = e.curved;
-        }}
+    // The facts on the hull's x-box within S, as continuous.wgsl's box_step takes them.
+    var hull: array<Iv, N0>;
+    for (var j = 0u; j < N0; j++) {{
+        hull[j] = Iv(g.m.hull_lo[j], g.m.hull_hi[j]);
     }}
+    let known = clip_to_safe_set(x_box(hull), HS_Z, HS_X);
+    let piece = piece_on(known);
+    let ends = select(2u * N0, 0x7fffffffu, arrayLength(&xs) == 0x7fffffffu);
+    let r = step_rates(st, g.m, h, known, piece, xs[c + 2u], c, ends);
+    ys[o + 3u + 10u * N0] = select(real(piece), -1.0, piece == PIECE_NONE);
+    ys[o + 4u + 10u * N0] = select(real(0.0), real(1.0), r.enclosed);
+    if (!r.ok) {{
+        return;
+    }}
+    let dl = r.field.lo;
+    let du = r.field.hi;
+    let cl = r.second.lo;
+    let cu = r.second.hi;
     let s = finish_step(st, g.m, h, dl, du, cl, cu);
     ys[o + 1u] = select(real(0.0), real(1.0), s.proven);
     ys[o + 2u] = real(s.st.rates);
@@ -450,7 +464,7 @@ fn step_test(@builtin(global_invocation_id) id: vec3<u32>) {{
 ",
         nb = nb_len(n, m)
     );
-    let source = source(problem, settings, Precision::F64, &kernel)?;
+    let source = source(problem, settings, (Precision::F64, true), &kernel)?;
     let mut xs = Vec::new();
     for c in cases {
         let zero = || (vec![0.0; n], vec![0.0; n]);
@@ -467,7 +481,7 @@ fn step_test(@builtin(global_invocation_id) id: vec3<u32>) {{
         xs.extend([c.h, known, c.margin]);
         push_slabs(&mut xs, &c.nn, n)?;
     }
-    let per = 3 + 10 * n;
+    let per = 5 + 10 * n;
     let ys = run(ctx, &source, "step_test", &xs, cases.len(), per)?;
     Ok(ys
         .chunks(per)
@@ -485,6 +499,8 @@ fn step_test(@builtin(global_invocation_id) id: vec3<u32>) {{
                 before: (part(4), part(5)),
                 field: (part(6), part(7)),
                 curved: (part(8), part(9)),
+                piece: (y[3 + 10 * n] >= 0.0).then_some(y[3 + 10 * n] as u32),
+                enclosed: y[4 + 10 * n] != 0.0,
             }
         })
         .collect())
@@ -501,6 +517,11 @@ pub fn field_compiles_in_f32(
     let kernel = "
 @group(0) @binding(0) var<storage, read_write> ys: array<f32>;
 
+fn slab_bounds(c: u32, f: u32) -> NetBounds {
+    var none: array<real, M_OUT>;
+    return constant_bounds(none, none);
+}
+
 @compute @workgroup_size(1)
 fn f32_check() {
     var x: array<real, N0>;
@@ -514,11 +535,15 @@ fn f32_check() {
     let e = curved_end(x, x, m, ys[0], 0u, 0u, nb, ys[1], 0u);
     let st = StepState(x, x, x, x, x, x, 2u);
     let g = guess_step(st, ys[0]);
-    let r = end_rates(st, g.m, ys[0], 0u, 1u, nb, ys[1]);
+    var k: array<Iv, N0>;
+    for (var j = 0u; j < N0; j++) {
+        k[j] = Iv(x[j], x[j]);
+    }
+    let r = step_rates(st, g.m, ys[0], k, piece_on(k), ys[1], 0u, select(2u * N0, 0x7fffffffu, arrayLength(&ys) == 0x7fffffffu));
     let s = finish_step(st, g.m, ys[0], x, x, x, x);
-    ys[0] = b.hi + select(0.0, e.r, e.ok) + r.field + r.curved + s.st.lo[0];
+    ys[0] = b.hi + select(0.0, e.r, e.ok) + r.field.lo[0] + r.second.hi[0] + s.st.lo[0];
 }
 ";
-    let source = source(problem, settings, Precision::F32, kernel)?;
+    let source = source(problem, settings, (Precision::F32, true), kernel)?;
     super::probe::compile(&ctx.device, &source, "f32_check").map(|_| ())
 }

@@ -120,31 +120,35 @@ pub(super) fn compare_flowpipes(cpu: &[Tube], gpu: &[Tube], what: &str, tol: f64
     worst
 }
 
-/// Both engines on `problem` under `s`: the GPU's sets hold `paths` (checked first, so a wrong
-/// set fails here even where both engines agree), then the same verdicts, sample times, sets,
-/// flowpipes and exact steps as the CPU's (to `tol`); the device took most of the box-steps.
-/// Returns the device's and the host's box-steps.
+/// Both engines on `problem` under `s`: the GPU's sets hold `paths` where given (checked first,
+/// so a wrong set fails here even where both engines agree), then the same verdicts, sample
+/// times, sets, flowpipes, exact and enclosed steps as the CPU's (to `tol`); the device took
+/// most of the box-steps. Returns the device's and the host's box-steps.
 fn continuous_parity(
     g: &GpuBackend,
     problem: &ReachProblem,
     init: &[IntervalBox],
     (s, tol): (&ReachSettings, f64),
-    paths: &[Vec<Vec<Vec<f64>>>],
+    paths: Option<&[Vec<Vec<Vec<f64>>>]>,
     what: &str,
 ) -> (usize, usize) {
     let before = g.continuous_steps();
     let (cpu, dev) = run_both_with(g, problem, init, s);
     let after = g.continuous_steps();
     let (on_device, on_host) = (after.0 - before.0, after.1 - before.1);
-    let (out, checks) = escapes(&dev, paths, problem.dt);
-    assert_eq!(
-        out, 0,
-        "{what}: {out} of {checks} states outside the GPU's sets or flowpipes"
-    );
-    assert!(checks >= init.len() * 12 * 10, "{what}: {checks} checks");
+    if let Some(paths) = paths {
+        let (out, checks) = escapes(&dev, paths, problem.dt);
+        assert_eq!(
+            out, 0,
+            "{what}: {out} of {checks} states outside the GPU's sets or flowpipes"
+        );
+        assert!(checks >= init.len() * 12 * 10, "{what}: {checks} checks");
+    }
     let sets = compare_within(&cpu, &dev, what, tol);
     let exact = |t: &[Tube]| t.iter().map(|t| t.exact_steps).collect::<Vec<_>>();
     assert_eq!(exact(&cpu), exact(&dev), "{what}: exact steps");
+    let enclosed = |t: &[Tube]| t.iter().map(|t| t.enclosed_steps).collect::<Vec<_>>();
+    assert_eq!(enclosed(&cpu), enclosed(&dev), "{what}: enclosed steps");
     let pipes = compare_flowpipes(&cpu, &dev, what, tol);
     let valid = dev.iter().filter(|t| t.valid()).count();
     eprintln!(
@@ -196,14 +200,52 @@ fn continuous_runs_match_the_cpu_engine() {
                 ..with_bounds(bounds, ReachMethod::Disturbance)
             };
             let what = format!("{}, {bounds} bounds, face-local {face_local}", s.name);
-            continuous_parity(&g, &problem, &init, (&st, TOL), &paths, &what);
+            continuous_parity(&g, &problem, &init, (&st, TOL), Some(&paths), &what);
+        }
+    }
+}
+
+/// Scenario 1 (x) and scenario 2 (z) with small networks under the filter's closed form
+/// (`exact = "closed-form"`: its proven pieces and its enclosures of `v` met with the network
+/// on the slabs, on the device since the fifth stage) and under `"inactive"`, a global `M`,
+/// face-local forward bounds, 30 steps, boxes near the obstacle and the rows: the same
+/// verdicts, sets, flowpipes, exact and enclosed steps as the CPU engine's, most box-steps on
+/// the device. (The small networks' `M` bounds nothing: the sets' soundness is checked on the
+/// shipped network, [`continuous_sets_hold_the_filtered_system_on_scenario_1`].)
+#[test]
+fn continuous_closed_form_runs_match_the_cpu_engine() {
+    let Some(g) = gpu_f64() else { return };
+    let steps = 30;
+    let [(p1, _), (p2, b2)] = paper_problems(steps);
+    let b1 = boxes(
+        &[
+            [0.8, 0.0],
+            [2.0, 1.3],
+            [3.2, 0.2],
+            [1.2, -1.0],
+            [-1.0, 1.0],
+            [3.9, 0.0],
+        ],
+        0.05,
+    );
+    for (name, problem, init) in [("scenario 1", p1, b1), ("scenario 2", p2, b2)] {
+        let problem = problem.with_time(TimeModel::Continuous, 1);
+        for exact in [ExactField::ClosedForm, ExactField::Inactive] {
+            let st = ReachSettings {
+                face_local: true,
+                exact,
+                ..settings(ReachMethod::Disturbance)
+            };
+            let what = format!("{name}, exact {exact:?}");
+            continuous_parity(&g, &problem, &init, (&st, TOL), None, &what);
         }
     }
 }
 
 /// Scenario 1 with its shipped network, its certified global `M_C` (0.179) and its error map's
-/// local bounds (with the network everywhere, and with the filter's field where it is proven
-/// inactive: those steps are the host's), face-local forward bounds, the paper's twelve boxes
+/// local bounds (with the network everywhere, with the filter's field where it is proven
+/// inactive, and with the filter's closed form: its pieces and enclosures of `v`, the scenario's
+/// default), face-local forward bounds, the paper's twelve boxes
 /// over 25 steps: the GPU engine's sets and flowpipes hold the true filtered system's RK4
 /// trajectories (the ground-truth filter) and equal the CPU's to [`SHIPPED_TOL`], exact steps
 /// counted alike.
@@ -236,6 +278,7 @@ fn continuous_sets_hold_the_filtered_system_on_scenario_1() {
         ),
         (None, ExactField::Nowhere, "local M_C"),
         (None, ExactField::Inactive, "local M_C, exact inactive"),
+        (None, ExactField::ClosedForm, "local M_C, closed form"),
     ];
     for (m_c, exact, name) in cases {
         let st = ReachSettings {
@@ -256,9 +299,12 @@ fn continuous_sets_hold_the_filtered_system_on_scenario_1() {
             &problem,
             &s.reach.initial,
             (&st, SHIPPED_TOL),
-            &paths,
+            Some(&paths),
             &what,
         );
+        if exact == ExactField::ClosedForm {
+            continue;
+        }
         // The same network's bounds on the Euler map's faces, for scale: how far the engines'
         // network bounds alone part.
         let euler = problem.clone().with_time(TimeModel::Euler, 1);

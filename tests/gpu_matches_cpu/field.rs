@@ -310,7 +310,13 @@ fn curved_rates_match_the_cpus() {
 fn field_shaders_compile_in_f32() {
     let Some(g) = gpu() else { return };
     for p in problems() {
+        let clock = std::time::Instant::now();
         cbfreach::gpu::probe_field::field_compiles_in_f32(g.context(), &p.problem, &p.settings)
             .unwrap_or_else(|e| panic!("{}: {e}", p.name));
+        eprintln!(
+            "{}: compiled in {:.1} s",
+            p.name,
+            clock.elapsed().as_secs_f64()
+        );
     }
 }

@@ -19,7 +19,7 @@ use super::GpuBackend;
 use crate::boxes::IntervalBox;
 use crate::reach::cpu::{record_sample, StepState};
 use crate::reach::{
-    CpuBackend, ExactField, ReachError, ReachMethod, ReachProblem, ReachSettings, Tube, Unsupported,
+    CpuBackend, ReachError, ReachMethod, ReachProblem, ReachSettings, Tube, Unsupported,
 };
 
 /// A box-step `cstep` took on the device (flags word 5); anything else is the host's.
@@ -33,10 +33,9 @@ fn cw(n: usize) -> usize {
 
 /// The settings of a continuous run the device's step does not take yet, named as a user sets
 /// them: the Minkowski method (the CPU guesses moving boxes under the disturbance method alone,
-/// so every step would be the host's), two frames met, validated substeps, and the filter's
-/// closed form (its pieces' slab, curved and Taylor rates and its enclosures are not ported:
-/// every step would be the host's). With `exact = "inactive"` the steps on a proven inactive
-/// piece are the host's, the others the device's.
+/// so every step would be the host's), two frames met, validated substeps. Every `exact` runs:
+/// the device's step meets the filter's proven piece and its closed form's enclosures on the
+/// slabs as the CPU's does (`shaders/slab_step.wgsl`).
 pub(super) fn refused(problem: &ReachProblem, settings: &ReachSettings) -> Result<(), Unsupported> {
     let what = if settings.method == ReachMethod::Minkowski {
         "method = \"minkowski\""
@@ -44,8 +43,6 @@ pub(super) fn refused(problem: &ReachProblem, settings: &ReachSettings) -> Resul
         "intersect_x = true (two frames met)"
     } else if problem.steps_per_dt() > 1 {
         "substeps > 1"
-    } else if settings.exact_field() == ExactField::ClosedForm {
-        "exact = \"closed-form\" (the filter's own field; --exact inactive or nowhere)"
     } else {
         return Ok(());
     };
@@ -184,6 +181,9 @@ impl GpuBackend {
                 }
                 let c = &dev[g * w..(g + 1) * w];
                 cont[g * w..(g + 1) * w].copy_from_slice(c);
+                // The step's sources (flags words 3 and 4: the proven piece, the enclosures).
+                tubes[g].exact_steps += usize::from(dev_flags[g * FLAG_W + 3] != 0);
+                tubes[g].enclosed_steps += usize::from(dev_flags[g * FLAG_W + 4] != 0);
                 let (state, hull) = stepped(c, n);
                 let pipe = problem.x_box_in_safe_set(&hull.lower, &hull.upper, safe);
                 let set = &state.set;
