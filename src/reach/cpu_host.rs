@@ -86,16 +86,34 @@ pub fn record_sample(
     false
 }
 
+/// The CPU engine's continuous step from given states, prepared once for a problem (its
+/// network packed for the bounds) and taken as often as the GPU engine asks: every step of a
+/// run with host boxes.
+pub struct HostStep<'a> {
+    run: ChunkRun<'a>,
+}
+
 impl CpuBackend {
     /// One continuous-time step of length `problem.dt / substeps` from each state, as
     /// [`Backend::reach`] takes it: one frame (no meet with x-boxes), the disturbance method.
-    /// Stepping each outcome's state again retraces the engine's tube.
+    /// Stepping each outcome's state again retraces the engine's tube. A caller that steps
+    /// again and again prepares the step once ([`CpuBackend::host_step`]).
     pub fn continuous_step(
         &self,
         problem: &ReachProblem,
         settings: &ReachSettings,
         states: &[StepState],
     ) -> Result<Vec<StepOutcome>, ReachError> {
+        self.host_step(problem, settings)?.step(states)
+    }
+
+    /// [`CpuBackend::continuous_step`] prepared for `problem` under `settings`: their checks
+    /// and the packed network, once.
+    pub fn host_step<'a>(
+        &self,
+        problem: &'a ReachProblem,
+        settings: &'a ReachSettings,
+    ) -> Result<HostStep<'a>, ReachError> {
         settings.validate()?;
         problem.check_time()?;
         if problem.time != TimeModel::Continuous
@@ -108,6 +126,35 @@ impl CpuBackend {
                     .into(),
             ));
         }
+        // One step of the problem as it is (no copy of its network and error map: the GPU
+        // engine asks every step).
+        let frame = Frame::new(problem, settings.method, false)?;
+        const NO_REPORT: &(dyn Fn(usize) + Sync) = &|_: usize| {};
+        Ok(HostStep {
+            run: ChunkRun {
+                frames: vec![frame],
+                settings,
+                every: 1,
+                encloses: settings.exact_field() == ExactField::ClosedForm
+                    && problem.pieces.has_closed_form(),
+                report: NO_REPORT,
+                time: problem.time,
+                steps: 1,
+                substeps: 1,
+                h: problem.dt / problem.steps_per_dt() as f64,
+                plant: None,
+                x_problem: problem,
+                period: 1,
+                source: None,
+            },
+        })
+    }
+}
+
+impl HostStep<'_> {
+    /// One step from each state ([`CpuBackend::continuous_step`]).
+    pub fn step(&self, states: &[StepState]) -> Result<Vec<StepOutcome>, ReachError> {
+        let (run, problem) = (&self.run, self.run.x_problem);
         // The states are in the frame's coordinates (z where there is a transform): no check
         // against `C`, which is in x.
         let n = problem.dynamics.n;
@@ -120,26 +167,6 @@ impl CpuBackend {
                 ),
             });
         }
-        // One step of the problem as it is (no copy of its network and error map per call: the
-        // GPU engine asks every step).
-        let frame = Frame::new(problem, settings.method, false)?;
-        let report = |_: usize| {};
-        let run = ChunkRun {
-            frames: vec![frame],
-            settings,
-            every: 1,
-            encloses: settings.exact_field() == ExactField::ClosedForm
-                && problem.pieces.has_closed_form(),
-            report: &report,
-            time: problem.time,
-            steps: 1,
-            substeps: 1,
-            h: problem.dt / problem.steps_per_dt() as f64,
-            plant: None,
-            x_problem: problem,
-            period: 1,
-            source: None,
-        };
         let mut live: Vec<Live> = states
             .iter()
             .map(|s| {

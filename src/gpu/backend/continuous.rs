@@ -144,6 +144,8 @@ impl GpuBackend {
         if cont.iter().any(|v| v.abs() > 1e30) {
             return Err(GpuError::Problem("an initial box exceeds 1e30".into()).into());
         }
+        // The host's step, its network packed once for the run's steps.
+        let host_step = CpuBackend.host_step(problem, settings)?;
         let mut flags = vec![0u32; flag_words(boxes)];
         q.write_buffer(&run.bufs.cont, 0, &device_bytes(&cont, prec));
         q.write_buffer(&run.bufs.flags, 0, bytemuck::cast_slice(&flags));
@@ -207,7 +209,7 @@ impl GpuBackend {
             on_host.fetch_add(host.len(), Relaxed);
             if !host.is_empty() {
                 let states: Vec<StepState> = host.iter().map(|&g| held[g].state.clone()).collect();
-                let outcomes = CpuBackend.continuous_step(problem, settings, &states)?;
+                let outcomes = host_step.step(&states)?;
                 for (&g, o) in host.iter().zip(outcomes) {
                     let b = &mut held[g];
                     tubes[g].exact_steps += usize::from(o.sources.0);
