@@ -18,6 +18,23 @@ const TOL: f64 = 1e-10;
 /// [`TOL`] for the shipped network (measured 3.6e-9 over 25 steps of scenario 1).
 pub(super) const SHIPPED_TOL: f64 = 1e-8;
 
+/// Asserts that no state of `trajectories` ([`escapes`]) lies outside the GPU's sets or
+/// flowpipes, and that at least 12 starts a box were checked over 10 samples.
+pub(super) fn assert_no_escapes(
+    dev: &[Tube],
+    trajectories: &[Vec<Vec<Vec<f64>>>],
+    dt: f64,
+    boxes: usize,
+    what: &str,
+) {
+    let (out, checks) = escapes(dev, trajectories, dt);
+    assert_eq!(
+        out, 0,
+        "{what}: {out} of {checks} states outside the GPU's sets or flowpipes"
+    );
+    assert!(checks >= boxes * 12 * 10, "{what}: {checks} checks");
+}
+
 /// States outside their sample's set, or between samples outside its flowpipe, beyond 1e-9
 /// (RK4's own error at `dt/10` is far below), of `trajectories[box][start]` sampled every
 /// `dt/10`; and how many states were checked.
@@ -137,12 +154,7 @@ fn continuous_parity(
     let after = g.continuous_steps();
     let (on_device, on_host) = (after.0 - before.0, after.1 - before.1);
     if let Some(paths) = paths {
-        let (out, checks) = escapes(&dev, paths, problem.dt);
-        assert_eq!(
-            out, 0,
-            "{what}: {out} of {checks} states outside the GPU's sets or flowpipes"
-        );
-        assert!(checks >= init.len() * 12 * 10, "{what}: {checks} checks");
+        assert_no_escapes(&dev, paths, problem.dt, init.len(), what);
     }
     let sets = compare_within(&cpu, &dev, what, tol);
     let exact = |t: &[Tube]| t.iter().map(|t| t.exact_steps).collect::<Vec<_>>();
@@ -172,19 +184,7 @@ fn continuous_runs_match_the_cpu_engine() {
     let Some(g) = gpu_f64() else { return };
     let steps = 40;
     let [(p1, _), (p2, b2)] = paper_problems(steps);
-    let b1 = boxes(
-        &[
-            [-3.0, 2.0],
-            [-1.0, 1.0],
-            [0.5, -1.5],
-            [1.5, 2.5],
-            [3.5, 1.5],
-            [4.0, -0.5],
-            [1.0, 0.8],
-            [4.0, 2.5],
-        ],
-        0.05,
-    );
+    let b1 = scenario_1_starts();
     let (s1, s2) = (integrator(), double_integrator());
     for (s, problem, init) in [(&s1, p1, b1), (&s2, p2, b2)] {
         let problem = problem.with_time(TimeModel::Continuous, 1);

@@ -100,6 +100,23 @@ fn gpu_f64() -> Option<GpuBackend> {
     }
 }
 
+/// Eight boxes 0.1 wide across scenario 1's `C`: around the obstacle, behind it, near the goal.
+fn scenario_1_starts() -> Vec<IntervalBox> {
+    boxes(
+        &[
+            [-3.0, 2.0],
+            [-1.0, 1.0],
+            [0.5, -1.5],
+            [1.5, 2.5],
+            [3.5, 1.5],
+            [4.0, -0.5],
+            [1.0, 0.8],
+            [4.0, 2.5],
+        ],
+        0.05,
+    )
+}
+
 fn boxes(centres: &[[f64; 2]], half: f64) -> Vec<IntervalBox> {
     centres
         .iter()

@@ -4,7 +4,7 @@
 //! exact steps, sets and flowpipes equal to 1e-10 relative in f64, and the GPU's sets and
 //! flowpipes hold exact zero-order-hold trajectories of the system they bound.
 
-use super::continuous::{compare_flowpipes, escapes, SHIPPED_TOL};
+use super::continuous::{assert_no_escapes, compare_flowpipes, SHIPPED_TOL};
 use super::*;
 use cbfreach::filter::SafetyFilter;
 use cbfreach::problem::ProblemOptions;
@@ -95,12 +95,7 @@ fn sampled_parity_within(
     let (cpu, dev) = run_both_with(g, problem, init, st);
     let bounded = g.sampled_bounds() - before;
     if let Some(paths) = paths {
-        let (out, checks) = escapes(&dev, paths, problem.dt);
-        assert_eq!(
-            out, 0,
-            "{what}: {out} of {checks} states outside the GPU's sets or flowpipes"
-        );
-        assert!(checks >= init.len() * 12 * 10, "{what}: {checks} checks");
+        assert_no_escapes(&dev, paths, problem.dt, init.len(), what);
     }
     for (k, (a, b)) in cpu.iter().zip(&dev).enumerate() {
         assert_eq!(a.end, b.end, "{what} box {k}: end");
@@ -152,19 +147,7 @@ fn sampled_runs_match_the_cpu_engine() {
     let Some(g) = gpu_f64() else { return };
     let steps = 40;
     let [(p1, _), (p2, b2)] = paper_problems(steps);
-    let b1 = boxes(
-        &[
-            [-3.0, 2.0],
-            [-1.0, 1.0],
-            [0.5, -1.5],
-            [1.5, 2.5],
-            [3.5, 1.5],
-            [4.0, -0.5],
-            [1.0, 0.8],
-            [4.0, 2.5],
-        ],
-        0.05,
-    );
+    let b1 = scenario_1_starts();
     let (s1, s2) = (integrator(), double_integrator());
     let case = |bounds, exact, intersect_x| ReachSettings {
         exact,
