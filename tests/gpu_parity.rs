@@ -271,8 +271,20 @@ fn verify_continuous_small_same_verdicts() {
 fn verify_scenario_defaults_continuous_same_verdicts() {
     let Some(gpu) = gpu_f64() else { return };
     let cases = [
-        (common::integrator(), 2.0, [4, 3], ([-2.0, -1.5], [2.0, 1.5]), 1),
-        (common::double_integrator(), 1.0, [2, 2], ([-3.0, -2.0], [-1.0, 0.0]), 2),
+        (
+            common::integrator(),
+            2.0,
+            [4, 3],
+            ([-2.0, -1.5], [2.0, 1.5]),
+            1,
+        ),
+        (
+            common::double_integrator(),
+            1.0,
+            [2, 2],
+            ([-3.0, -2.0], [-1.0, 0.0]),
+            2,
+        ),
     ];
     for (mut s, horizon, grid, region, frames) in cases {
         s.reach.horizon = horizon;

@@ -130,9 +130,7 @@ impl CpuBackend {
     ) -> Result<HostStep<'a>, ReachError> {
         settings.validate()?;
         problem.check_time()?;
-        if problem.time != TimeModel::Continuous
-            || settings.method != ReachMethod::Disturbance
-        {
+        if problem.time != TimeModel::Continuous || settings.method != ReachMethod::Disturbance {
             return Err(ReachError::Settings(
                 "one continuous step from a given state needs time = \"continuous\" and the \
                  disturbance method"
@@ -184,7 +182,13 @@ impl HostStep<'_> {
         met: &[MetState],
     ) -> Result<Vec<StepOutcome>, ReachError> {
         let (run, problem) = (&self.run, self.run.x_problem);
-        if met.len() != if run.frames.len() > 1 { states.len() } else { 0 } {
+        if met.len()
+            != if run.frames.len() > 1 {
+                states.len()
+            } else {
+                0
+            }
+        {
             return Err(ReachError::Settings(format!(
                 "{} frames and {} states in x for {} states",
                 run.frames.len(),

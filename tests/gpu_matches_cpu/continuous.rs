@@ -194,7 +194,14 @@ fn continuous_runs_match_the_cpu_engine() {
     let (s1, s2) = (integrator(), double_integrator());
     for (s, problem, init) in [(&s1, p1, b1), (&s2, p2, b2)] {
         let problem = problem.with_time(TimeModel::Continuous, 1);
-        let paths = nn_paths(s, x_network(&problem), &init, problem.m_c, problem.dt, steps);
+        let paths = nn_paths(
+            s,
+            x_network(&problem),
+            &init,
+            problem.m_c,
+            problem.dt,
+            steps,
+        );
         let cases = [
             (BoundMethod::Forward, true),
             (BoundMethod::Forward, false),
@@ -243,7 +250,14 @@ fn continuous_two_frames_match_the_cpu_engine() {
     };
     assert_eq!(problem.frames(&st).len(), 2);
     assert_eq!(g.supports(&problem, &st), Ok(()));
-    let paths = nn_paths(&s, x_network(&problem), &init, problem.m_c, problem.dt, steps);
+    let paths = nn_paths(
+        &s,
+        x_network(&problem),
+        &init,
+        problem.m_c,
+        problem.dt,
+        steps,
+    );
     let what = "scenario 2, two frames met, forward bounds, face-local";
     let (on_device, on_host) =
         continuous_parity(&g, &problem, &init, (&st, TOL), Some(&paths), what);

@@ -17,9 +17,9 @@ use super::super::codegen::{flag_words, round_down, round_up, FLAG_W};
 use super::super::GpuError;
 use super::chunk::FrameRun;
 use super::plan::{encode_steps, StepPlan};
+use super::sample_of;
 use super::GpuBackend;
 use crate::boxes::IntervalBox;
-use super::sample_of;
 use crate::reach::cpu::{record_sample, MetState, StepState};
 use crate::reach::{
     CpuBackend, ReachError, ReachMethod, ReachProblem, ReachSettings, Tube, Unsupported,
@@ -247,7 +247,10 @@ impl GpuBackend {
                     false => {
                         let pipe = problem.x_box_in_safe_set(&hull.lower, &hull.upper, safe);
                         let set = &state.set;
-                        (pipe, problem.tube_sample(&set.lower, &set.upper, 0.0, t, safe))
+                        (
+                            pipe,
+                            problem.tube_sample(&set.lower, &set.upper, 0.0, t, safe),
+                        )
                     }
                 };
                 b.state = state;
@@ -269,7 +272,8 @@ impl GpuBackend {
             on_host.fetch_add(host.len(), Relaxed);
             if !host.is_empty() {
                 let states: Vec<StepState> = host.iter().map(|&g| held[g].state.clone()).collect();
-                let mets: Vec<MetState> = host.iter().filter_map(|&g| held[g].met.clone()).collect();
+                let mets: Vec<MetState> =
+                    host.iter().filter_map(|&g| held[g].met.clone()).collect();
                 let outcomes = host_step.step_met(&states, &mets)?;
                 for (&g, o) in host.iter().zip(outcomes) {
                     let b = &mut held[g];
@@ -334,7 +338,11 @@ impl GpuBackend {
         let bytes = self.precision.bytes();
         let cont_bytes = reals as u64 * bytes;
         let flag_bytes = (flag_words(boxes) * 4) as u64;
-        let known_bytes = if meet { (boxes * 2 * n) as u64 * bytes } else { 0 };
+        let known_bytes = if meet {
+            (boxes * 2 * n) as u64 * bytes
+        } else {
+            0
+        };
         let mut read = StepRead {
             cont: Vec::new(),
             flags: Vec::new(),
