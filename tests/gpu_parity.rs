@@ -314,9 +314,10 @@ fn verify_scenario_defaults_continuous_same_verdicts() {
     }
 }
 
-/// The continuous settings the GPU engine's device step does not take yet, and sampled runs in
-/// f32, are refused before any work, naming the setting and the way out, and `auto` runs them
-/// on the CPU; sampled runs in f64 are the GPU's, with the scenario's own settings.
+/// The continuous setting the GPU engine's device step does not take (the Minkowski method),
+/// and continuous and sampled runs in f32, are refused before any work, naming the setting and
+/// the way out, and `auto` runs them on the CPU; validated substeps, the scenario's own
+/// settings and sampled runs in f64 are the GPU's.
 #[test]
 fn other_time_models_are_refused_naming_them() {
     let Some(gpu) = gpu_f64() else { return };
@@ -335,23 +336,15 @@ fn other_time_models_are_refused_naming_them() {
         exact: ExactField::Nowhere,
         ..reach.clone()
     };
-    let cases = [
-        (
-            problem_with("continuous", certified),
-            ReachSettings {
-                method: ReachMethod::Minkowski,
-                ..nowhere.clone()
-            },
-            "method = \"minkowski\"",
-            "--backend cpu",
-        ),
-        (
-            problem_with("continuous", certified).with_time(TimeModel::Continuous, 2),
-            nowhere.clone(),
-            "substeps",
-            "--backend cpu",
-        ),
-    ];
+    let cases = [(
+        problem_with("continuous", certified),
+        ReachSettings {
+            method: ReachMethod::Minkowski,
+            ..nowhere.clone()
+        },
+        "method = \"minkowski\"",
+        "--backend cpu",
+    )];
     for (problem, reach, names, way_out) in cases {
         assert!(gpu.supports(&problem, &reach).is_err(), "{names}");
         let e = gpu
@@ -366,6 +359,9 @@ fn other_time_models_are_refused_naming_them() {
         exact: ExactField::Inactive,
         ..reach.clone()
     };
+    // Validated substeps run on the device (its step is dt / substeps).
+    let substeps = problem_with("continuous", certified).with_time(TimeModel::Continuous, 2);
+    assert_eq!(gpu.supports(&substeps, &nowhere), Ok(()));
     // The scenario's own settings (exact = "closed-form") run on the device too.
     for m_c in [None, certified] {
         for settings in [&nowhere, &inactive, &reach] {

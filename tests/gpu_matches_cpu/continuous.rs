@@ -183,8 +183,9 @@ fn continuous_parity(
 
 /// Scenario 1 (x coordinates) and scenario 2 (z = Tx) with small networks in continuous time,
 /// the network everywhere with a global `M`, forward bounds face-local and over the moving box's
-/// hull and CROWN face-local, f64, 40 steps: the GPU engine's tubes are the CPU's (verdicts, sets, flowpipes)
-/// and hold the disturbed NN system's RK4 trajectories.
+/// hull and CROWN face-local, f64, 40 steps (scenario 1 also with 2 substeps a step): the GPU
+/// engine's tubes are the CPU's (verdicts, sets, flowpipes) and hold the disturbed NN system's
+/// RK4 trajectories.
 #[test]
 fn continuous_runs_match_the_cpu_engine() {
     let Some(g) = gpu_f64() else { return };
@@ -214,6 +215,14 @@ fn continuous_runs_match_the_cpu_engine() {
             };
             let what = format!("{}, {bounds} bounds, face-local {face_local}", s.name);
             continuous_parity(&g, &problem, &init, (&st, TOL), Some(&paths), &what);
+        }
+        if s.name == "integrator" {
+            // Validated substeps: the step h = dt/2 on the device and on the host, samples and
+            // flowpipes (the hull of two steps') at every dt.
+            let problem = problem.with_time(TimeModel::Continuous, 2);
+            let st = with_faces(BoundMethod::Forward);
+            let what = "integrator, substeps 2, forward bounds, face-local";
+            continuous_parity(&g, &problem, &init, (&st, TOL), Some(&paths), what);
         }
     }
 }

@@ -34,20 +34,20 @@ fn cw(n: usize) -> usize {
     12 * n + 1
 }
 
-/// The settings of a continuous run the device's step does not take yet, named as a user sets
+/// The settings of a continuous run the device's step does not take, named as a user sets
 /// them: the Minkowski method (the CPU guesses moving boxes under the disturbance method alone,
-/// so every step would be the host's), validated substeps. Every `exact` runs (the device's
-/// step meets the filter's proven piece and its closed form's enclosures on the slabs as the
-/// CPU's does: `shaders/slab_step.wgsl`), in one frame or two met (`shaders/cmeet.wgsl`).
-pub(super) fn refused(problem: &ReachProblem, settings: &ReachSettings) -> Result<(), Unsupported> {
-    let what = if settings.method == ReachMethod::Minkowski {
-        "method = \"minkowski\""
-    } else if problem.steps_per_dt() > 1 {
-        "substeps > 1"
-    } else {
-        return Ok(());
-    };
-    Err(Unsupported::Continuous(what))
+/// so every step would be the host's). Every `exact` runs (the device's step meets the
+/// filter's proven piece and its closed form's enclosures on the slabs as the CPU's does:
+/// `shaders/slab_step.wgsl`), in one frame or two met (`shaders/cmeet.wgsl`), with any
+/// number of validated substeps (the device's step is `H_STEP = dt / substeps`).
+pub(super) fn refused(
+    _problem: &ReachProblem,
+    settings: &ReachSettings,
+) -> Result<(), Unsupported> {
+    match settings.method {
+        ReachMethod::Minkowski => Err(Unsupported::Continuous("method = \"minkowski\"")),
+        ReachMethod::Disturbance => Ok(()),
+    }
 }
 
 /// A box of a chunk while it runs: its state as the host keeps it (the Picard guess lives
@@ -142,7 +142,10 @@ impl GpuBackend {
         let meet = runs.len() > 1;
         let (n, boxes, w) = (problem.dynamics.n, starts.len(), cw(problem.dynamics.n));
         let safe = problem.safe_set_for(settings.method);
-        let h = problem.dt;
+        // Validated substeps: `k` steps of `h` a `dt` (the device's `H_STEP`), as the CPU
+        // engine's `horizon` takes them.
+        let k = problem.steps_per_dt();
+        let h = problem.dt / k as f64;
         let every = settings.every.max(1);
         let fresh = |set: &IntervalBox| StepState {
             set: set.clone(),
@@ -169,8 +172,23 @@ impl GpuBackend {
         if cont.iter().flatten().any(|v| v.abs() > 1e30) {
             return Err(GpuError::Problem("an initial box exceeds 1e30".into()).into());
         }
-        // The host's step, its network packed once for the run's steps.
-        let host_step = CpuBackend.host_step(problem, settings)?;
+        // The host's step, its network packed once for the run's steps; with substeps, of a copy
+        // of the problem whose `dt` is the substep (the host's step reports its sample, ends and
+        // flowpipe as of one `dt` from 0: here `h`, placed at the substep's start below).
+        let sub;
+        let host_problem = match k {
+            1 => problem,
+            _ => {
+                let mut p = problem.clone().with_time(problem.time, 1);
+                p.dt = h;
+                if let Some(x) = p.in_x.as_mut() {
+                    x.dt = h;
+                }
+                sub = p;
+                &sub
+            }
+        };
+        let host_step = CpuBackend.host_step(host_problem, settings)?;
         let mut flags = vec![0u32; flag_words(boxes)];
         for (r, c) in runs.iter().zip(&cont) {
             q.write_buffer(&r.bufs.cont, 0, &device_bytes(c, prec));
@@ -207,7 +225,7 @@ impl GpuBackend {
         }
         ops.extend(settle);
         self.check_groups(&ops)?;
-        for step in 0..problem.steps {
+        for step in 0..problem.steps * k {
             if held.iter().all(|b| b.done) {
                 break;
             }
@@ -217,8 +235,15 @@ impl GpuBackend {
                 return Err(self.loops_cut_short().into());
             }
             let dev_flags = &read.flags[0];
-            let t = (step + 1) as f64 * problem.dt;
-            let record = (step + 1) % every == 0 || step + 1 == problem.steps;
+            // The CPU engine's times and recording (`horizon`): samples at the last substep of
+            // a `dt` alone.
+            let (outer, last_sub) = (step / k, (step + 1) % k == 0);
+            let t0 = outer as f64 * problem.dt + (step % k) as f64 * h;
+            let t = match last_sub {
+                true => (outer + 1) as f64 * problem.dt,
+                false => outer as f64 * problem.dt + ((step % k) + 1) as f64 * h,
+            };
+            let record = last_sub && ((outer + 1) % every == 0 || outer + 1 == problem.steps);
             let live = held.iter().filter(|b| !b.done).count();
             let (mut host, mut changed) = (Vec::new(), false);
             for (g, b) in held.iter_mut().enumerate().filter(|(_, b)| !b.done) {
@@ -294,7 +319,7 @@ impl GpuBackend {
                             );
                         }
                         (None, Some(end)) => {
-                            tubes[g].end = end.later(step as f64 * problem.dt);
+                            tubes[g].end = end.later(t0);
                             b.done = true;
                         }
                         (None, None) => {
@@ -320,7 +345,9 @@ impl GpuBackend {
                     q.write_buffer(&r.bufs.flags, 0, bytemuck::cast_slice(&flags));
                 }
             }
-            progress(step + 1);
+            if last_sub {
+                progress(outer + 1);
+            }
         }
         Ok(())
     }
