@@ -9,13 +9,19 @@
 // first step, a guess refused, a check failed, bounds not finite, a set inside out) keeps its
 // state and is flagged: the host steps it with the CPU engine's own step
 // (src/gpu/backend/continuous.rs). The host reads every box's result after each step and
-// records the samples and flowpipes (the CPU engine's rules). Needs slab_step.wgsl and what it
-// needs (filter.wgsl, sets.wgsl), margins.wgsl, nnb.wgsl, loops.wgsl.
+// records the samples and flowpipes (the CPU engine's rules). Where two frames are met (MEET),
+// `cpipes` (cmeet.wgsl, in the first frame's module) has guessed both frames' moving boxes, met
+// their hulls and written them to `cont` with the flowpipes' shared x-box (`pipe_known`): both
+// kernels take the step's moving box from there, `cstep` its facts on `pipe_known`, and it leaves
+// the clip to S to the meet after the step (`cmeet`). Needs slab_step.wgsl and what it needs
+// (guess.wgsl, filter.wgsl, sets.wgsl), margins.wgsl, nnb.wgsl, loops.wgsl.
 
 // Params (boxes).
 @group(0) @binding(0) var<uniform> p: Params;
 // Per box CW reals: the StepState (lo, hi, r_lo, r_hi, b_lo, b_hi: N0 each; the rates it has),
-// then what the step leaves for the host: the hull (lo, hi) and the faces' rates (s_lo, s_hi).
+// then the step's moving box: its hull (lo, hi) and faces' rates (s_lo, s_hi), which the step
+// leaves for the host, and its slabs' depths (d_lo, d_hi; written by `cpipes` where frames are
+// met).
 @group(0) @binding(1) var<storage, read_write> cont: array<real>;
 // Per box [poisoned, status, -, piece, enclosed, result]: status is the host's (LIVE while it
 // steps), result this step's (C_DEVICE, C_HOST); piece and enclosed whether a step the device
@@ -24,12 +30,17 @@
 @group(0) @binding(3) var<storage, read_write> flags: array<atomic<u32>>;
 // The bound boxes, FACES per box: lo[N0], hi[N0], radius (as shaders/faces.wgsl writes faces).
 @group(0) @binding(4) var<storage, read_write> bound_boxes: array<real>;
+// Where frames are met, per box the x-box of this step's flowpipes within S, met over the frames
+// (`cpipes`; the CPU's `pipe_known`): the step's facts are taken there.
+@group(0) @binding(7) var<storage, read> pipe_known: array<real>;
 
-const CW: u32 = 10u * N0 + 1u;
+const CW: u32 = 12u * N0 + 1u;
+// Offsets in a box's CW reals of its moving box's hull, faces' rates and depths.
+const C_HULL: u32 = 6u * N0 + 1u;
+const C_RATES: u32 = 8u * N0 + 1u;
+const C_DEPTHS: u32 = 10u * N0 + 1u;
+
 const SWB: u32 = 2u * N0 + 1u;
-// The step's result per box: stepped on the device, or left to the host.
-const C_DEVICE: u32 = 1u;
-const C_HOST: u32 = 2u;
 
 fn part(g: u32, k: u32) -> array<real, N0> {
     var a: array<real, N0>;
@@ -43,6 +54,32 @@ fn put(g: u32, k: u32, a: array<real, N0>) {
     for (var j = 0u; j < N0; j++) {
         cont[g * CW + k * N0 + j] = a[j];
     }
+}
+
+fn reals_at(g: u32, at: u32) -> array<real, N0> {
+    var a: array<real, N0>;
+    for (var j = 0u; j < N0; j++) {
+        a[j] = cont[g * CW + at + j];
+    }
+    return a;
+}
+
+// The step's moving box: guessed from the box's state, or where frames are met the one `cpipes`
+// guessed and met with the other frame's (on the common path only where both frames' were).
+fn step_guess(g: u32, st: StepState) -> Guess {
+    if (!MEET) {
+        return guess_step(st, H_STEP);
+    }
+    var gs: Guess;
+    gs.on_path = atomicLoad(&flags[g * FLAG_W + 2u]) == MET_GUESSED;
+    gs.m.hull_lo = reals_at(g, C_HULL);
+    gs.m.hull_hi = reals_at(g, C_HULL + N0);
+    gs.m.s_lo = reals_at(g, C_RATES);
+    gs.m.s_hi = reals_at(g, C_RATES + N0);
+    gs.m.d_lo = reals_at(g, C_DEPTHS);
+    gs.m.d_hi = reals_at(g, C_DEPTHS + N0);
+    gs.m.ok = gs.on_path;
+    return gs;
 }
 
 fn load_state(g: u32) -> StepState {
@@ -64,7 +101,7 @@ fn slabs_of(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let st = load_state(g);
-    let gs = guess_step(st, H_STEP);
+    let gs = step_guess(g, st);
     // Boxes the device does not step this time get their set (finite, bounds unused).
     let live = atomicLoad(&flags[g * FLAG_W + 1u]) == LIVE && gs.on_path;
     for (var f = 0u; f < FACES; f++) {
@@ -100,18 +137,23 @@ fn box_step(g: u32) {
     atomicStore(&flags[g * FLAG_W], 0u);
     atomicStore(&flags[g * FLAG_W + 5u], C_HOST);
     let st = load_state(g);
-    let gs = guess_step(st, H_STEP);
+    let gs = step_guess(g, st);
     if (!gs.on_path || poisoned || !bounds_finite(g)) {
         return;
     }
-    // The facts on the hull's x-box within S (the CPU's `pipe_known`): the piece, M there; where
-    // nothing bounds the field (M = +∞ and no piece or enclosure) the host's step ends the box as
-    // the CPU does.
+    // The facts on the hull's x-box within S, met over the frames where they are (the CPU's
+    // `pipe_known`): the piece, M there; where nothing bounds the field (M = +∞ and no piece or
+    // enclosure) the host's step ends the box as the CPU does.
     var hull: array<Iv, N0>;
     for (var j = 0u; j < N0; j++) {
         hull[j] = Iv(gs.m.hull_lo[j], gs.m.hull_hi[j]);
     }
-    let known = clip_to_safe_set(x_box(hull), HS_Z, HS_X);
+    var known = clip_to_safe_set(x_box(hull), HS_Z, HS_X);
+    if (MEET) {
+        for (var j = 0u; j < N0; j++) {
+            known[j] = Iv(pipe_known[g * 2u * N0 + j], pipe_known[g * 2u * N0 + N0 + j]);
+        }
+    }
     // Every source of the CPU's step (slab_step.wgsl step_rates): the proven piece, the closed
     // form's enclosures, the network with M (not on the inactive piece: v = 0 there).
     let piece = piece_on(known);
@@ -134,7 +176,8 @@ fn box_step(g: u32) {
         return;
     }
     // The CPU engine's advance: a set inside out or not finite ends the tube (the host's step
-    // ends it as the CPU does); else the set is clipped to S's half-spaces in its coordinates.
+    // ends it as the CPU does); else the set is clipped to S's half-spaces in its coordinates
+    // (where frames are met, by the meet after the step: cmeet.wgsl).
     var zb: array<Iv, N0>;
     for (var j = 0u; j < N0; j++) {
         if (!(s.st.lo[j] <= s.st.hi[j] && finite(s.st.lo[j]) && finite(s.st.hi[j]))) {
@@ -142,7 +185,7 @@ fn box_step(g: u32) {
         }
         zb[j] = Iv(s.st.lo[j], s.st.hi[j]);
     }
-    if (HS_Z > 0u) {
+    if (HS_Z > 0u && !MEET) {
         zb = clip_to_safe_set(zb, 0u, HS_Z);
     }
     var lo: array<real, N0>;
@@ -159,10 +202,10 @@ fn box_step(g: u32) {
     put(g, 5u, s.st.b_hi);
     cont[g * CW + 6u * N0] = real(s.st.rates);
     for (var j = 0u; j < N0; j++) {
-        cont[g * CW + 6u * N0 + 1u + j] = gs.m.hull_lo[j];
-        cont[g * CW + 7u * N0 + 1u + j] = gs.m.hull_hi[j];
-        cont[g * CW + 8u * N0 + 1u + j] = gs.m.s_lo[j];
-        cont[g * CW + 9u * N0 + 1u + j] = gs.m.s_hi[j];
+        cont[g * CW + C_HULL + j] = gs.m.hull_lo[j];
+        cont[g * CW + C_HULL + N0 + j] = gs.m.hull_hi[j];
+        cont[g * CW + C_RATES + j] = gs.m.s_lo[j];
+        cont[g * CW + C_RATES + N0 + j] = gs.m.s_hi[j];
     }
     atomicStore(&flags[g * FLAG_W + 3u], u32(r.piece != PIECE_NONE));
     atomicStore(&flags[g * FLAG_W + 4u], u32(r.enclosed));

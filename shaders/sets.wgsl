@@ -107,3 +107,48 @@ fn z_box_of(x: array<Iv, N0>) -> array<Iv, N0> {
     }
     return z;
 }
+
+// Two frames' sets after a step, met (src/reach/cpu.rs `advance` and `settle`): frame 0's `z` in
+// this module's coordinates, frame 1's `x` in x (its half-spaces of S are the x rows of this
+// module's tables). Of the frames that stepped (`s0`, `s1`), each set is clipped to S, `known`
+// becomes the meet of their x-boxes within S, and each set is met with `known`'s box in its
+// coordinates (replaced by it where the frame did not step) and clipped again. Shared by the
+// Euler engine's meet (settle.wgsl) and the continuous model's (cmeet.wgsl).
+struct Met {
+    z: array<Iv, N0>,
+    x: array<Iv, N0>,
+    known: array<Iv, N0>,
+}
+
+fn meet_frames(z_in: array<Iv, N0>, x_in: array<Iv, N0>, s0: bool, s1: bool) -> Met {
+    var z = z_in;
+    var x = x_in;
+    var known: array<Iv, N0>;
+    if (s0) {
+        z = clip_to_safe_set(z, 0u, HS_Z);
+        known = clip_to_safe_set(x_box(z), HS_Z, HS_X);
+    }
+    if (s1) {
+        x = clip_to_safe_set(x, HS_Z, HS_X);
+        let own = clip_to_safe_set(x, HS_Z, HS_X);
+        if (s0) {
+            known = meet_or(known, own);
+        } else {
+            known = own;
+        }
+    }
+    let around = z_box_of(known);
+    if (s0) {
+        z = meet_or(z, around);
+    } else {
+        z = around;
+    }
+    z = clip_to_safe_set(z, 0u, HS_Z);
+    if (s1) {
+        x = meet_or(x, known);
+    } else {
+        x = known;
+    }
+    x = clip_to_safe_set(x, HS_Z, HS_X);
+    return Met(z, x, known);
+}

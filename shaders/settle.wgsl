@@ -3,7 +3,7 @@
 // module's problem), frame 1 in x. Of the frames that stepped, a non-finite or inverted set ends
 // the box; each set is clipped to S, `known` becomes the meet of their x-boxes within S, and each
 // set is met with `known`'s box in its coordinates (replaced by it where the frame could not
-// step) and clipped again; a box ends only where no frame stepped. The recorded sample is frame
+// step) and clipped again (sets.wgsl meet_frames); a box ends only where no frame stepped. The recorded sample is frame
 // 0's x-box met with `known`: checked against C here, written to frame 0's snapshot (its z-set)
 // and frame 1's (`known`) for the host.
 
@@ -53,34 +53,10 @@ fn settle(@builtin(global_invocation_id) gid: vec3<u32>) {
         z[j] = Iv(state0[g * SW + j], state0[g * SW + N0 + j]);
         x[j] = Iv(state1[g * SW + j], state1[g * SW + N0 + j]);
     }
-    // Frame 1's half-spaces of S are the x rows of frame 0's tables.
-    var known: array<Iv, N0>;
-    if (r0 != STEP_NONE) {
-        z = clip_to_safe_set(z, 0u, HS_Z);
-        known = clip_to_safe_set(x_box(z), HS_Z, HS_X);
-    }
-    if (r1 != STEP_NONE) {
-        x = clip_to_safe_set(x, HS_Z, HS_X);
-        let own = clip_to_safe_set(x, HS_Z, HS_X);
-        if (r0 != STEP_NONE) {
-            known = meet_or(known, own);
-        } else {
-            known = own;
-        }
-    }
-    let around = z_box_of(known);
-    if (r0 != STEP_NONE) {
-        z = meet_or(z, around);
-    } else {
-        z = around;
-    }
-    z = clip_to_safe_set(z, 0u, HS_Z);
-    if (r1 != STEP_NONE) {
-        x = meet_or(x, known);
-    } else {
-        x = known;
-    }
-    x = clip_to_safe_set(x, HS_Z, HS_X);
+    let met = meet_frames(z, x, r0 != STEP_NONE, r1 != STEP_NONE);
+    z = met.z;
+    x = met.x;
+    let known = met.known;
     for (var j = 0u; j < N0; j++) {
         state0[g * SW + j] = z[j].lo;
         state0[g * SW + N0 + j] = z[j].hi;

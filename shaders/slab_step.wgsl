@@ -8,51 +8,10 @@
 // cpu_time.rs `check_step`, `curved`, `piece_slab_field`, `enclosure_slab_rates`,
 // `piece_taylor`). A box-step this cannot finish is flagged and keeps its state, for the host.
 // continuous.wgsl runs it in the engine's pipeline; src/gpu/probe_field.rs runs it alone,
-// tests/gpu_matches_cpu/step.rs compares it with the CPU's. Needs validated.wgsl, end_rates.wgsl,
-// field.wgsl, curved.wgsl, filter.wgsl, sets.wgsl, and from the module that includes it
+// tests/gpu_matches_cpu/step.rs compares it with the CPU's. Needs guess.wgsl, validated.wgsl,
+// end_rates.wgsl, field.wgsl, curved.wgsl, filter.wgsl, sets.wgsl, and from the module that includes it
 // `slab_bounds(at, f)`: the network's bounds on slab f (in the order (0, lower), (0, upper), …)
 // of the box or case at `at`.
-
-// What one box keeps between steps in one frame: its set, the slab rates of the last step and
-// of the step before, and how many of those it has (0 on a tube's first step).
-struct StepState {
-    lo: array<real, N0>,
-    hi: array<real, N0>,
-    r_lo: array<real, N0>,
-    r_hi: array<real, N0>,
-    b_lo: array<real, N0>,
-    b_hi: array<real, N0>,
-    rates: u32,
-}
-
-// The step's moving box (cpu_guess.rs guess_moving); `on_path` false where the common path
-// cannot take the step: no rates yet, the guess refused (inside out, not finite) or, in x
-// coordinates, its hull not within C (the enclosure handles C's sides, §7.1 item 1c).
-struct Guess {
-    m: Moving,
-    on_path: bool,
-}
-
-fn guess_step(st: StepState, h: real) -> Guess {
-    var g: Guess;
-    g.on_path = false;
-    if (st.rates == 0u) {
-        return g;
-    }
-    g.m = guessed(st.lo, st.hi, h, st.r_lo, st.r_hi, st.b_lo, st.b_hi, st.rates >= 2u);
-    if (!g.m.ok) {
-        return g;
-    }
-    if (!TRANSFORM) {
-        for (var i = 0u; i < N0; i++) {
-            if (!(REGION_LO[i] <= g.m.hull_lo[i] && g.m.hull_hi[i] <= REGION_HI[i])) {
-                return g;
-            }
-        }
-    }
-    g.on_path = true;
-    return g;
-}
 
 // The step from every end's rates (dl, du: the field's; cl, cu: the second-order): where the check
 // proves the moving box (validated::verified), the rates kept for the next guess (the last

@@ -49,7 +49,7 @@ use self::layout::{method_flags, Shape};
 use super::buffers::status;
 use super::codegen::{problem_wgsl, FLAG_W};
 use super::disk_cache::{cache_dir, DiskCache, Loaded, Saved};
-use super::kernels::{shader_source, Kernels, GEMM_TILE, MODULES, WORKGROUP};
+use super::kernels::{compiles, shader_source, Kernels, GEMM_TILE, MODULES, WORKGROUP};
 use super::margins::MarginMap;
 use super::{GpuContext, GpuError, Precision};
 use crate::boxes::IntervalBox;
@@ -145,7 +145,7 @@ impl KernelCache {
         }
         let modules: Vec<String> = MODULES
             .iter()
-            .filter(|&&m| (settle || m != "settle") && (continuous || m != "continuous"))
+            .filter(|&&m| compiles(m, [settle, flat, continuous]))
             .map(|m| shader_source(precision, &source, m))
             .collect();
         let mut sources: Vec<&str> = modules.iter().map(String::as_str).collect();
@@ -477,12 +477,11 @@ impl Backend for GpuBackend {
         let n_chunks = initial.len().div_ceil(chunk);
         if continuous {
             for (ci, part) in starts.chunks(chunk).enumerate() {
-                let sets: Vec<IntervalBox> = part.iter().map(|(s, _)| s[0].clone()).collect();
                 let first = ci * chunk;
                 self.continuous_chunk(
-                    &runs[0],
+                    &runs,
                     settings,
-                    &sets,
+                    part,
                     &mut tubes[first..first + part.len()],
                     &|s| progress(((ci * steps + s) / n_chunks).min(steps), steps),
                 )?;

@@ -42,6 +42,10 @@ const NNB: &str = include_str!("../../shaders/nnb.wgsl");
 const LOOPS: &str = include_str!("../../shaders/loops.wgsl");
 /// The continuous model's slabs and box-step (shaders/continuous.wgsl).
 const CONTINUOUS: &str = include_str!("../../shaders/continuous.wgsl");
+/// A box's continuous-time state and its guessed moving box (shaders/guess.wgsl).
+pub(crate) const GUESS: &str = include_str!("../../shaders/guess.wgsl");
+/// The continuous model's meet of two frames (shaders/cmeet.wgsl).
+const CMEET: &str = include_str!("../../shaders/cmeet.wgsl");
 
 /// Workgroup size of the one-dimensional kernels (`@workgroup_size(64)` in the shaders).
 pub const WORKGROUP: u32 = 64;
@@ -80,7 +84,7 @@ pub struct Kernels {
     pub tick: Kernel,
     /// The 2n face boxes of every box, for face-local bounds (shaders/faces.wgsl).
     pub faces: Kernel,
-    /// The meet of two frames after a step (shaders/settle.wgsl), where frames are met.
+    /// The meet of two frames after an Euler step (shaders/settle.wgsl), where frames are met.
     pub settle: Option<Kernel>,
     /// The continuous model's slab and step kernels (shaders/continuous.wgsl), for its runs.
     pub continuous: Option<Continuous>,
@@ -92,6 +96,21 @@ pub struct Continuous {
     pub slabs: Kernel,
     /// The box-step of the common path.
     pub step: Kernel,
+    /// Where two frames are met (the first frame's kernels): both frames' moving boxes guessed
+    /// and met before the step, and the sets met after it (shaders/cmeet.wgsl).
+    pub meet: Option<[Kernel; 2]>,
+}
+
+/// Which of a problem's modules a run compiles: `settle` for the first of two frames met after
+/// every step (shaders/settle.wgsl, or in continuous time shaders/cmeet.wgsl), `continuous` for
+/// the continuous time model.
+pub fn compiles(module: &str, [settle, _, continuous]: [bool; 3]) -> bool {
+    match module {
+        "settle" => settle && !continuous,
+        "cmeet" => settle && continuous,
+        "continuous" => continuous,
+        _ => true,
+    }
 }
 
 /// Binding kinds after the uniform at binding 0: `true` = read-only storage.
@@ -154,7 +173,7 @@ fn kernel(
 
 /// Every module [`Kernels::new`] compiles (`settle` where two frames are met, `continuous` for
 /// the continuous time model).
-pub const MODULES: [&str; 8] = [
+pub const MODULES: [&str; 9] = [
     "gemm",
     "relu",
     "backward",
@@ -163,11 +182,12 @@ pub const MODULES: [&str; 8] = [
     "embed",
     "settle",
     "continuous",
+    "cmeet",
 ];
 
 /// The WGSL of a module: the precision prelude, shared helpers, the generated problem constants
 /// and the module's kernels (`gemm`, `relu`, `backward`, `output`, `faces`, `settle`,
-/// `continuous`, `embed`).
+/// `continuous`, `cmeet`, `embed`).
 pub fn shader_source(precision: Precision, problem_wgsl: &str, module: &str) -> String {
     let prelude = match precision {
         Precision::F32 => REAL_F32,
@@ -186,9 +206,10 @@ pub fn shader_source(precision: Precision, problem_wgsl: &str, module: &str) -> 
         "faces" => &[BOX, FACES],
         "settle" => &[SETS, SETTLE],
         "continuous" => &[
-            SETS, FILTER, MARGINS, FIELD, VALIDATED, END_RATES, CURVED, SLAB_STEP, NNB, LOOPS,
-            CONTINUOUS,
+            SETS, FILTER, MARGINS, FIELD, VALIDATED, END_RATES, CURVED, GUESS, SLAB_STEP, NNB,
+            LOOPS, CONTINUOUS,
         ],
+        "cmeet" => &[SETS, VALIDATED, GUESS, CMEET],
         _ => &[
             BOX, SETS, FILTER, MARGINS, PHI, TURN, FIELD, NNB, LOOPS, EMBED,
         ],
@@ -201,8 +222,8 @@ pub fn shader_source(precision: Precision, problem_wgsl: &str, module: &str) -> 
 }
 
 impl Kernels {
-    /// Compiles every pipeline for a problem's generated WGSL (`settle` too for the first of two
-    /// frames met after every step, `continuous` for the continuous time model), through
+    /// Compiles every pipeline for a problem's generated WGSL (the modules [`compiles`] names),
+    /// through
     /// `cache` where given (`disk_cache`), with the GEMM without workgroup tiles where `flat`;
     /// shader errors become [`GpuError::Shader`].
     pub fn new(
@@ -275,14 +296,24 @@ impl Kernels {
             embed: kernel(device, cache, &embed_m, "embed", &embed),
             tick: kernel(device, cache, &embed_m, "tick", &embed),
             faces: kernel(device, cache, &faces_m, "faces_of", &[true, false]),
-            settle: settle.then(|| kernel(device, cache, &module("settle"), "settle", &[false; 7])),
+            settle: compiles("settle", [settle, flat, continuous])
+                .then(|| kernel(device, cache, &module("settle"), "settle", &[false; 7])),
             continuous: continuous.then(|| {
                 let m = module("continuous");
-                // cont, nnb, flags, bound boxes, then the error map's (margins.wgsl).
-                let bindings = [false, true, false, false, true, true];
+                // cont, nnb, flags, bound boxes, the error map's (margins.wgsl), pipe_known.
+                let bindings = [false, true, false, false, true, true, true];
+                let meet = compiles("cmeet", [settle, flat, continuous]).then(|| {
+                    let m = module("cmeet");
+                    let bindings = [false; 6];
+                    [
+                        kernel(device, cache, &m, "cpipes", &bindings),
+                        kernel(device, cache, &m, "cmeet", &bindings),
+                    ]
+                });
                 Continuous {
                     slabs: kernel(device, cache, &m, "slabs_of", &bindings),
                     step: kernel(device, cache, &m, "cstep", &bindings),
+                    meet,
                 }
             }),
         };

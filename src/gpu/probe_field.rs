@@ -8,8 +8,8 @@
 
 use super::codegen::{problem_wgsl, MethodFlags};
 use super::kernels::{
-    COMMON, CURVED, END_RATES, F32_BITS, FIELD, FILTER, MARGINS, PARAMS, REAL_F32, REAL_F64, SETS,
-    SLAB_STEP, VALIDATED,
+    COMMON, CURVED, END_RATES, F32_BITS, FIELD, FILTER, GUESS, MARGINS, PARAMS, REAL_F32, REAL_F64,
+    SETS, SLAB_STEP, VALIDATED,
 };
 use super::margins::MarginMap;
 use super::probe::run;
@@ -129,6 +129,7 @@ fn source(
         VALIDATED,
         END_RATES,
         CURVED,
+        if step { GUESS } else { "" },
         if step { SLAB_STEP } else { "" },
         kernel,
     ];

@@ -46,7 +46,7 @@ mod cpu_host;
 use cpu_field::{
     bounds_of, constant_bounds, inverts, meet_fields, piece_dynamics, pinned, zero_bounds,
 };
-pub use cpu_host::{record_sample, HostStep, StepOutcome, StepState};
+pub use cpu_host::{record_sample, HostStep, MetState, StepOutcome, StepState};
 
 /// The CPU engine.
 #[derive(Clone, Copy, Debug, Default)]

@@ -23,6 +23,16 @@ pub struct StepState {
     pub guess: Option<(Vec<f64>, Vec<f64>)>,
 }
 
+/// Where two frames are met (design §2.11): a box's state in x, the second frame, and the
+/// x-box the frames share after the last meet ([`HostStep::step_met`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct MetState {
+    /// The state in x.
+    pub x: StepState,
+    /// The meet of the frames' x-boxes within `S` after the last step.
+    pub known: IntervalBox,
+}
+
 /// What one step made of a [`StepState`].
 #[derive(Clone, Debug)]
 pub struct StepOutcome {
@@ -42,6 +52,9 @@ pub struct StepOutcome {
     /// Whether the step took the filter's proven piece, and its closed form's enclosures
     /// (each adds one to [`Tube::exact_steps`], [`Tube::enclosed_steps`]).
     pub sources: (bool, bool),
+    /// Where two frames are met, the second frame's state and the shared x-box after the step
+    /// (as they were where the tube ended on it).
+    pub met: Option<MetState>,
 }
 
 /// The last of a step's bookkeeping, once its set is sampled (the CPU engine's, and the GPU
@@ -95,7 +108,8 @@ pub struct HostStep<'a> {
 
 impl CpuBackend {
     /// One continuous-time step of length `problem.dt / substeps` from each state, as
-    /// [`Backend::reach`] takes it: one frame (no meet with x-boxes), the disturbance method.
+    /// [`Backend::reach`] takes it: one frame (no meet with x-boxes; two with
+    /// [`HostStep::step_met`]), the disturbance method.
     /// Stepping each outcome's state again retraces the engine's tube. A caller that steps
     /// again and again prepares the step once ([`CpuBackend::host_step`]).
     pub fn continuous_step(
@@ -116,23 +130,24 @@ impl CpuBackend {
     ) -> Result<HostStep<'a>, ReachError> {
         settings.validate()?;
         problem.check_time()?;
-        if problem.time != TimeModel::Continuous
-            || settings.method != ReachMethod::Disturbance
-            || problem.frames(settings).len() != 1
-        {
+        if problem.time != TimeModel::Continuous || settings.method != ReachMethod::Disturbance {
             return Err(ReachError::Settings(
-                "one continuous step from a given state needs time = \"continuous\", the \
-                 disturbance method and one frame (no meet with x-boxes)"
+                "one continuous step from a given state needs time = \"continuous\" and the \
+                 disturbance method"
                     .into(),
             ));
         }
         // One step of the problem as it is (no copy of its network and error map: the GPU
-        // engine asks every step).
-        let frame = Frame::new(problem, settings.method, false)?;
+        // engine asks every step), in each of its frames.
+        let frames = problem
+            .frames(settings)
+            .into_iter()
+            .map(|p| Frame::new(p, settings.method, false))
+            .collect::<Result<Vec<Frame>, ReachError>>()?;
         const NO_REPORT: &(dyn Fn(usize) + Sync) = &|_: usize| {};
         Ok(HostStep {
             run: ChunkRun {
-                frames: vec![frame],
+                frames,
                 settings,
                 every: 1,
                 encloses: settings.exact_field() == ExactField::ClosedForm
@@ -152,30 +167,63 @@ impl CpuBackend {
 }
 
 impl HostStep<'_> {
-    /// One step from each state ([`CpuBackend::continuous_step`]).
+    /// One step from each state ([`CpuBackend::continuous_step`]), where the run keeps one frame.
     pub fn step(&self, states: &[StepState]) -> Result<Vec<StepOutcome>, ReachError> {
+        self.step_met(states, &[])
+    }
+
+    /// One step from each state where two frames are met: `states` in the problem's own
+    /// coordinates, `met` (one per state) in x with the x-box they shared after the last meet;
+    /// the frames are not met again before the step, so stepping each outcome's states again
+    /// retraces the engine's tube. With one frame `met` is empty ([`HostStep::step`]).
+    pub fn step_met(
+        &self,
+        states: &[StepState],
+        met: &[MetState],
+    ) -> Result<Vec<StepOutcome>, ReachError> {
         let (run, problem) = (&self.run, self.run.x_problem);
+        if met.len()
+            != if run.frames.len() > 1 {
+                states.len()
+            } else {
+                0
+            }
+        {
+            return Err(ReachError::Settings(format!(
+                "{} frames and {} states in x for {} states",
+                run.frames.len(),
+                met.len(),
+                states.len()
+            )));
+        }
         // The states are in the frame's coordinates (z where there is a transform): no check
         // against `C`, which is in x.
         let n = problem.dynamics.n;
-        if let Some(index) = states.iter().position(|s| s.set.dim() != n) {
+        let dims = states.iter().chain(met.iter().map(|m| &m.x));
+        if let Some(index) = dims.clone().position(|s| s.set.dim() != n) {
+            let dim = dims.clone().nth(index).map_or(0, |s| s.set.dim());
             return Err(ReachError::InitialBox {
-                index,
-                message: format!(
-                    "a state with {} coordinates, expected {n}",
-                    states[index].set.dim()
-                ),
+                index: index % states.len().max(1),
+                message: format!("a state with {dim} coordinates, expected {n}"),
             });
         }
         let mut live: Vec<Live> = states
             .iter()
-            .map(|s| {
+            .enumerate()
+            .map(|(k, s)| {
                 let mut state = run.start(&s.set);
-                state.sets = vec![s.set.clone()];
-                run.settle(&mut state, &[true]);
-                state.rates = vec![s.rates.clone()];
-                state.before = vec![s.rates.as_ref().and(s.before.clone())];
-                state.guess = vec![s.guess.clone()];
+                let frames = std::iter::once(s).chain(met.get(k).map(|m| &m.x));
+                state.sets = frames.clone().map(|s| s.set.clone()).collect();
+                match met.get(k) {
+                    Some(m) => state.known = m.known.clone(),
+                    None => run.settle(&mut state, &[true]),
+                }
+                state.rates = frames.clone().map(|s| s.rates.clone()).collect();
+                state.before = frames
+                    .clone()
+                    .map(|s| s.rates.as_ref().and(s.before.clone()))
+                    .collect();
+                state.guess = frames.map(|s| s.guess.clone()).collect();
                 state
             })
             .collect();
@@ -183,20 +231,28 @@ impl HostStep<'_> {
         Ok(live
             .into_iter()
             .zip(states)
-            .map(|(l, s)| {
+            .enumerate()
+            .map(|(k, (l, s))| {
                 let end = (l.tube.end != TubeEnd::Horizon).then_some(l.tube.end);
                 let sample = l.tube.tube.get(1).cloned().map(|s| TubeSample {
                     flowpipe: None,
                     ..s
                 });
-                let state = match end {
-                    Some(_) => s.clone(),
-                    None => StepState {
-                        set: l.sets[0].clone(),
-                        rates: l.rates[0].clone(),
-                        before: l.before[0].clone(),
-                        guess: l.guess[0].clone(),
-                    },
+                let frame = |f: usize| StepState {
+                    set: l.sets[f].clone(),
+                    rates: l.rates[f].clone(),
+                    before: l.before[f].clone(),
+                    guess: l.guess[f].clone(),
+                };
+                let (state, met) = match end {
+                    Some(_) => (s.clone(), met.get(k).cloned()),
+                    None => (
+                        frame(0),
+                        met.get(k).map(|_| MetState {
+                            x: frame(1),
+                            known: l.known.clone(),
+                        }),
+                    ),
                 };
                 StepOutcome {
                     state,
@@ -205,6 +261,7 @@ impl HostStep<'_> {
                     sample,
                     flowpipe: l.pipe_known,
                     sources: (l.tube.exact_steps > 0, l.tube.enclosed_steps > 0),
+                    met,
                 }
             })
             .collect())

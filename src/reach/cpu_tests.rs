@@ -140,3 +140,101 @@ fn host_steps_from_a_state_retrace_the_engines_tubes() {
         "{common} common, {fallback} fallback"
     );
 }
+
+/// Where two frames are met (scenario 2 in z = T x met with x-boxes, a small network,
+/// continuous time, 20 steps, face-local bounds), `HostStep::step_met` from each step's outcome
+/// (both frames' states and the x-box they share, not met again first) retraces the engine's
+/// own tubes: every sample equal bit for bit, every tube ending at the same step; both the
+/// common path and the fallback occur. The GPU engine's host steps rest on this.
+#[test]
+fn host_steps_from_met_states_retrace_the_engines_tubes() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios");
+    let s = Scenario::load(&dir.join("double-integrator.toml")).unwrap();
+    let t = Transform::for_scenario(&s, &s.reach.transform).unwrap();
+    let net = Mlp::random(&[2, 12, 1], 5);
+    let mut problem = ReachProblem::with_transform(&s, net, 0.02, t)
+        .unwrap()
+        .with_time(TimeModel::Continuous, 1);
+    problem.steps = 20;
+    let settings = ReachSettings {
+        bounds: crate::bounds::BoundMethod::Forward,
+        exact: crate::reach::ExactField::Nowhere,
+        face_local: true,
+        intersect_x: true,
+        every: 1,
+        ..ReachSettings::default()
+    };
+    let frames = problem.frames(&settings);
+    assert_eq!(frames.len(), 2);
+    let boxes: Vec<IntervalBox> = [[-1.0, 0.5], [-1.09, 1.41], [-2.5, 1.0], [0.0, -1.0]]
+        .iter()
+        .map(|c| IntervalBox {
+            lower: c.iter().map(|v| v - 0.05).collect(),
+            upper: c.iter().map(|v| v + 0.05).collect(),
+        })
+        .collect();
+    let tubes = CpuBackend
+        .reach(&problem, &boxes, &settings, &|_, _| {})
+        .unwrap()
+        .boxes;
+    let host = CpuBackend.host_step(&problem, &settings).unwrap();
+    let fresh = |set: IntervalBox| StepState {
+        set,
+        rates: None,
+        before: None,
+        guess: None,
+    };
+    let (mut common, mut fallback) = (0, 0);
+    for (b, tube) in boxes.iter().zip(&tubes) {
+        // The engine's start: each frame's initial set met with the box around the shared
+        // x-box and clipped to S.
+        let method = settings.method;
+        let mut sets: Vec<IntervalBox> =
+            frames.iter().map(|f| f.initial_state(b, method)).collect();
+        let known = frames
+            .iter()
+            .zip(&sets)
+            .map(|(f, z)| f.x_box_in_safe_set(&z.lower, &z.upper, f.safe_set_for(method)))
+            .reduce(|a, c| a.intersection(&c).unwrap_or(a))
+            .unwrap();
+        for (f, set) in frames.iter().zip(&mut sets) {
+            *set = set
+                .intersection(&f.frame_box(&known))
+                .unwrap_or(set.clone());
+            clip_to_safe_set(&mut set.lower, &mut set.upper, &f.safe_set_for(method).z);
+        }
+        assert_eq!(tube.tube[0].set, {
+            let x = frames[0].x_box_in_safe_set(
+                &sets[0].lower,
+                &sets[0].upper,
+                frames[0].safe_set_for(method),
+            );
+            x.intersection(&known).unwrap_or(x)
+        });
+        let mut state = fresh(sets[0].clone());
+        let mut met = MetState {
+            x: fresh(sets[1].clone()),
+            known,
+        };
+        for k in 1..=problem.steps {
+            let out = host
+                .step_met(std::slice::from_ref(&state), std::slice::from_ref(&met))
+                .unwrap()
+                .remove(0);
+            if let Some(end) = out.end {
+                assert_eq!(end, tube.end, "{b:?}: step {k}");
+                break;
+            }
+            common += usize::from(out.common);
+            fallback += usize::from(!out.common && k > 1);
+            let sample = out.sample.as_ref().expect("a sample");
+            assert_eq!(sample.set, tube.tube[k].set, "{b:?}: step {k}");
+            state = out.state;
+            met = out.met.expect("the state in x");
+        }
+    }
+    assert!(
+        common > 20 && fallback > 0,
+        "{common} common, {fallback} fallback"
+    );
+}

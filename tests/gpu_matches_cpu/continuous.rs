@@ -66,6 +66,12 @@ pub(super) fn escapes(
     (out, checks)
 }
 
+/// The network in x of a problem (with a transform, `problem.network` takes z = T x: its first
+/// layer absorbs `T⁻¹`).
+fn x_network(problem: &ReachProblem) -> &Mlp {
+    &problem.in_x.as_deref().unwrap_or(problem).network
+}
+
 /// RK4 at `dt/10` from 12 points of each box (its corners first) of the system the disturbance
 /// method bounds, `ẋ = f̃(x) + g(x)(N(x) + d)`, with a constant `d = ±m` per input (its signs
 /// fixed per trajectory).
@@ -177,8 +183,9 @@ fn continuous_parity(
 
 /// Scenario 1 (x coordinates) and scenario 2 (z = Tx) with small networks in continuous time,
 /// the network everywhere with a global `M`, forward bounds face-local and over the moving box's
-/// hull and CROWN face-local, f64, 40 steps: the GPU engine's tubes are the CPU's (verdicts, sets, flowpipes)
-/// and hold the disturbed NN system's RK4 trajectories.
+/// hull and CROWN face-local, f64, 40 steps (scenario 1 also with 2 substeps a step): the GPU
+/// engine's tubes are the CPU's (verdicts, sets, flowpipes) and hold the disturbed NN system's
+/// RK4 trajectories.
 #[test]
 fn continuous_runs_match_the_cpu_engine() {
     let Some(g) = gpu_f64() else { return };
@@ -188,7 +195,14 @@ fn continuous_runs_match_the_cpu_engine() {
     let (s1, s2) = (integrator(), double_integrator());
     for (s, problem, init) in [(&s1, p1, b1), (&s2, p2, b2)] {
         let problem = problem.with_time(TimeModel::Continuous, 1);
-        let paths = nn_paths(s, &problem.network, &init, problem.m_c, problem.dt, steps);
+        let paths = nn_paths(
+            s,
+            x_network(&problem),
+            &init,
+            problem.m_c,
+            problem.dt,
+            steps,
+        );
         let cases = [
             (BoundMethod::Forward, true),
             (BoundMethod::Forward, false),
@@ -202,7 +216,66 @@ fn continuous_runs_match_the_cpu_engine() {
             let what = format!("{}, {bounds} bounds, face-local {face_local}", s.name);
             continuous_parity(&g, &problem, &init, (&st, TOL), Some(&paths), &what);
         }
+        if s.name == "integrator" {
+            // Validated substeps: the step h = dt/2 on the device and on the host, samples and
+            // flowpipes (the hull of two steps') at every dt.
+            let problem = problem.with_time(TimeModel::Continuous, 2);
+            let st = with_faces(BoundMethod::Forward);
+            let what = "integrator, substeps 2, forward bounds, face-local";
+            continuous_parity(&g, &problem, &init, (&st, TOL), Some(&paths), what);
+        }
     }
+}
+
+/// Scenario 2 with a small network in z = T x met with its x-box after every step (two frames,
+/// `intersect_x`: the scenario's default, design §2.11), the network everywhere with a global
+/// `M`, face-local forward bounds, 40 steps, boxes that pass over the obstacle and near the
+/// goal: the device guesses both frames' moving boxes, meets their hulls, proves them on both
+/// frames and meets the sets after the step (shaders/cmeet.wgsl); the GPU engine's tubes are
+/// the CPU's (verdicts, sets, flowpipes to 1e-10 relative), most box-steps are the device's, and
+/// its sets and flowpipes hold the disturbed NN system's RK4 trajectories.
+#[test]
+fn continuous_two_frames_match_the_cpu_engine() {
+    let Some(g) = gpu_f64() else { return };
+    let steps = 40;
+    let [_, (problem, _)] = paper_problems(steps);
+    let problem = problem.with_time(TimeModel::Continuous, 1);
+    let s = double_integrator();
+    let init = boxes(
+        &[
+            [-1.0, 0.5],
+            [0.5, 1.0],
+            [-1.09, 1.41],
+            [-2.5, 1.0],
+            [1.0, 1.3],
+            [0.0, -1.0],
+        ],
+        0.05,
+    );
+    let st = ReachSettings {
+        face_local: true,
+        intersect_x: true,
+        ..settings(ReachMethod::Disturbance)
+    };
+    assert_eq!(problem.frames(&st).len(), 2);
+    assert_eq!(g.supports(&problem, &st), Ok(()));
+    let paths = nn_paths(
+        &s,
+        x_network(&problem),
+        &init,
+        problem.m_c,
+        problem.dt,
+        steps,
+    );
+    let what = "scenario 2, two frames met, forward bounds, face-local";
+    let (on_device, on_host) =
+        continuous_parity(&g, &problem, &init, (&st, TOL), Some(&paths), what);
+    // A substantial share: every tube's first step is the host's (no rates yet), and a step
+    // the check fails on either frame.
+    assert!(
+        on_device >= 3 * on_host,
+        "{what}: {on_device} on the device, {on_host} on the host"
+    );
 }
 
 /// Scenario 1 (x) and scenario 2 (z) with small networks under the filter's closed form

@@ -5,7 +5,10 @@
 //! device left to it with the CPU engine's own step ([`CpuBackend::continuous_step`]: a tube's
 //! first step, guesses refused or not proven, re-guesses, Picard–Lindelöf, the ends), writes
 //! their states back, and records every box's sample and flowpipe by the CPU engine's rules
-//! ([`record_sample`]). What the device runs is [`refused`]'s complement.
+//! ([`record_sample`]). Where two frames are met, `cpipes` guesses and meets both frames' moving
+//! boxes before their bounds and steps and `cmeet` meets their sets after
+//! (`shaders/cmeet.wgsl`): a box-step is the device's only where both frames' were, else the
+//! host's step takes both frames. What the device runs is [`refused`]'s complement.
 
 use std::sync::atomic::Ordering::Relaxed;
 
@@ -13,11 +16,11 @@ use super::super::buffers::{device_bytes, flatten_network, from_device_bytes};
 use super::super::codegen::{flag_words, round_down, round_up, FLAG_W};
 use super::super::GpuError;
 use super::chunk::FrameRun;
-use super::layout::Buffers;
 use super::plan::{encode_steps, StepPlan};
+use super::sample_of;
 use super::GpuBackend;
 use crate::boxes::IntervalBox;
-use crate::reach::cpu::{record_sample, StepState};
+use crate::reach::cpu::{record_sample, MetState, StepState};
 use crate::reach::{
     CpuBackend, ReachError, ReachMethod, ReachProblem, ReachSettings, Tube, Unsupported,
 };
@@ -26,37 +29,36 @@ use crate::reach::{
 const C_DEVICE: u32 = 1;
 
 /// Reals per box in `cont` (shaders/continuous.wgsl's `CW`): the step state (`6n + 1`), the
-/// step's hull (`2n`) and its faces' rates (`2n`).
+/// step's moving box: its hull (`2n`), faces' rates (`2n`) and slabs' depths (`2n`).
 fn cw(n: usize) -> usize {
-    10 * n + 1
+    12 * n + 1
 }
 
-/// The settings of a continuous run the device's step does not take yet, named as a user sets
+/// The settings of a continuous run the device's step does not take, named as a user sets
 /// them: the Minkowski method (the CPU guesses moving boxes under the disturbance method alone,
-/// so every step would be the host's), two frames met, validated substeps. Every `exact` runs:
-/// the device's step meets the filter's proven piece and its closed form's enclosures on the
-/// slabs as the CPU's does (`shaders/slab_step.wgsl`).
-pub(super) fn refused(problem: &ReachProblem, settings: &ReachSettings) -> Result<(), Unsupported> {
-    let what = if settings.method == ReachMethod::Minkowski {
-        "method = \"minkowski\""
-    } else if problem.frames(settings).len() > 1 {
-        "intersect_x = true (two frames met)"
-    } else if problem.steps_per_dt() > 1 {
-        "substeps > 1"
-    } else {
-        return Ok(());
-    };
-    Err(Unsupported::Continuous(what))
+/// so every step would be the host's). Every `exact` runs (the device's step meets the
+/// filter's proven piece and its closed form's enclosures on the slabs as the CPU's does:
+/// `shaders/slab_step.wgsl`), in one frame or two met (`shaders/cmeet.wgsl`), with any
+/// number of validated substeps (the device's step is `H_STEP = dt / substeps`).
+pub(super) fn refused(
+    _problem: &ReachProblem,
+    settings: &ReachSettings,
+) -> Result<(), Unsupported> {
+    match settings.method {
+        ReachMethod::Minkowski => Err(Unsupported::Continuous("method = \"minkowski\"")),
+        ReachMethod::Disturbance => Ok(()),
+    }
 }
 
 /// A box of a chunk while it runs: its state as the host keeps it (the Picard guess lives
-/// here alone), the hull of its flowpipes since the last sample, whether its tube ended.
+/// here alone), in x too where frames are met, the hull of its flowpipes since the last
+/// sample, whether its tube ended.
 struct Held {
     state: StepState,
+    met: Option<MetState>,
     swept: Option<IntervalBox>,
     done: bool,
 }
-
 /// A box's state as `cont` holds it, rounded outward to the device's numbers (the rates are
 /// a guess's inputs: as they are).
 fn put_state(c: &mut [f64], s: &StepState, n: usize, prec: super::super::Precision) {
@@ -106,74 +108,142 @@ fn stepped(c: &[f64], n: usize) -> (StepState, IntervalBox) {
     (state, hull)
 }
 
+/// What one step's readback holds, per frame: `cont` and the flags; where frames are met, the
+/// sets' shared x-box after the meet and the flowpipes' (frame 0's and frame 1's `known`).
+struct StepRead {
+    cont: Vec<Vec<f64>>,
+    flags: Vec<Vec<u32>>,
+    known: Vec<Vec<f64>>,
+}
+
+/// Box `g`'s x-box in a `known` buffer's reals.
+fn known_box(k: &[f64], g: usize, n: usize) -> IntervalBox {
+    IntervalBox {
+        lower: k[g * 2 * n..g * 2 * n + n].to_vec(),
+        upper: k[g * 2 * n + n..(g + 1) * 2 * n].to_vec(),
+    }
+}
+
 impl GpuBackend {
-    /// Runs one chunk of boxes over the horizon in continuous time: `sets` are their initial
-    /// states in the frame, `tubes` their tubes with the first sample.
+    /// Runs one chunk of boxes over the horizon in continuous time: `starts` are their initial
+    /// sets in every frame of `runs` (two where they are met) with the x-box they share,
+    /// `tubes` their tubes with the first sample.
     pub(super) fn continuous_chunk(
         &self,
-        run: &FrameRun,
+        runs: &[FrameRun],
         settings: &ReachSettings,
-        sets: &[IntervalBox],
+        starts: &[(Vec<IntervalBox>, IntervalBox)],
         tubes: &mut [Tube],
         progress: &dyn Fn(usize),
     ) -> Result<(), ReachError> {
         let (d, q) = (&self.ctx.device, &self.ctx.queue);
         let prec = self.precision;
-        let problem = run.problem;
-        let (n, boxes, w) = (problem.dynamics.n, sets.len(), cw(problem.dynamics.n));
+        let problem = runs[0].problem;
+        let meet = runs.len() > 1;
+        let (n, boxes, w) = (problem.dynamics.n, starts.len(), cw(problem.dynamics.n));
         let safe = problem.safe_set_for(settings.method);
-        let h = problem.dt;
+        // Validated substeps: `k` steps of `h` a `dt` (the device's `H_STEP`), as the CPU
+        // engine's `horizon` takes them.
+        let k = problem.steps_per_dt();
+        let h = problem.dt / k as f64;
         let every = settings.every.max(1);
-        let mut held: Vec<Held> = sets
+        let fresh = |set: &IntervalBox| StepState {
+            set: set.clone(),
+            rates: None,
+            before: None,
+            guess: None,
+        };
+        let mut held: Vec<Held> = starts
             .iter()
-            .map(|s| Held {
-                state: StepState {
-                    set: s.clone(),
-                    rates: None,
-                    before: None,
-                    guess: None,
-                },
+            .map(|(sets, known)| Held {
+                state: fresh(&sets[0]),
+                met: meet.then(|| MetState {
+                    x: fresh(&sets[1]),
+                    known: known.clone(),
+                }),
                 swept: None,
                 done: false,
             })
             .collect();
-        let mut cont = vec![0.0; boxes * w];
-        for (c, b) in cont.chunks_mut(w).zip(&held) {
-            put_state(c, &b.state, n, prec);
+        let mut cont = vec![vec![0.0; boxes * w]; runs.len()];
+        for (g, b) in held.iter().enumerate() {
+            put_states(&mut cont, g, w, b, n, prec);
         }
-        if cont.iter().any(|v| v.abs() > 1e30) {
+        if cont.iter().flatten().any(|v| v.abs() > 1e30) {
             return Err(GpuError::Problem("an initial box exceeds 1e30".into()).into());
         }
-        // The host's step, its network packed once for the run's steps.
-        let host_step = CpuBackend.host_step(problem, settings)?;
+        // The host's step, its network packed once for the run's steps; with substeps, of a copy
+        // of the problem whose `dt` is the substep (the host's step reports its sample, ends and
+        // flowpipe as of one `dt` from 0: here `h`, placed at the substep's start below).
+        let sub;
+        let host_problem = match k {
+            1 => problem,
+            _ => {
+                let mut p = problem.clone().with_time(problem.time, 1);
+                p.dt = h;
+                if let Some(x) = p.in_x.as_mut() {
+                    x.dt = h;
+                }
+                sub = p;
+                &sub
+            }
+        };
+        let host_step = CpuBackend.host_step(host_problem, settings)?;
         let mut flags = vec![0u32; flag_words(boxes)];
-        q.write_buffer(&run.bufs.cont, 0, &device_bytes(&cont, prec));
-        q.write_buffer(&run.bufs.flags, 0, bytemuck::cast_slice(&flags));
-        let ops = StepPlan {
+        for (r, c) in runs.iter().zip(&cont) {
+            q.write_buffer(&r.bufs.cont, 0, &device_bytes(c, prec));
+            q.write_buffer(&r.bufs.flags, 0, bytemuck::cast_slice(&flags));
+        }
+        // Where frames are met, the flowpipes' shared x-box lives in frame 1's `known`.
+        let pipe_known = &runs[runs.len() - 1].bufs.known;
+        let plan = |f: usize| StepPlan {
             device: d,
-            kernels: run.kernels,
-            bufs: run.bufs,
-            shape: run.shape,
-            offsets: flatten_network(&problem.network).1,
-            nb: (run.shape.faces * boxes) as u32,
+            kernels: runs[f].kernels,
+            bufs: runs[f].bufs,
+            shape: runs[f].shape,
+            offsets: flatten_network(&runs[f].problem.network).1,
+            nb: (runs[f].shape.faces * boxes) as u32,
             boxes: boxes as u32,
-            known: &run.bufs.known,
+            known: pipe_known,
             tick: false,
             ops: Vec::new(),
+        };
+        let mut ops = Vec::new();
+        let met_ops = match meet {
+            true => Some(plan(0).continuous_meet(runs[1].bufs).ok_or_else(|| {
+                GpuError::Device("the continuous meet's kernels were not compiled".into())
+            })?),
+            false => None,
+        };
+        let [pipes, settle] = match met_ops {
+            Some([a, b]) => [Some(a), Some(b)],
+            None => [None, None],
+        };
+        ops.extend(pipes);
+        for f in 0..runs.len() {
+            ops.extend(plan(f).build());
         }
-        .build();
+        ops.extend(settle);
         self.check_groups(&ops)?;
-        for step in 0..problem.steps {
+        for step in 0..problem.steps * k {
             if held.iter().all(|b| b.done) {
                 break;
             }
             q.submit([encode_steps(d, ops.iter(), 1)]);
-            let (dev, dev_flags) = self.read_cont(run.bufs, boxes * w, boxes)?;
-            if dev_flags[FLAG_W * boxes + 1] != 0 {
+            let read = self.read_step(runs, boxes * w, boxes, meet)?;
+            if read.flags.iter().any(|f| f[FLAG_W * boxes + 1] != 0) {
                 return Err(self.loops_cut_short().into());
             }
-            let t = (step + 1) as f64 * problem.dt;
-            let record = (step + 1) % every == 0 || step + 1 == problem.steps;
+            let dev_flags = &read.flags[0];
+            // The CPU engine's times and recording (`horizon`): samples at the last substep of
+            // a `dt` alone.
+            let (outer, last_sub) = (step / k, (step + 1) % k == 0);
+            let t0 = outer as f64 * problem.dt + (step % k) as f64 * h;
+            let t = match last_sub {
+                true => (outer + 1) as f64 * problem.dt,
+                false => outer as f64 * problem.dt + ((step % k) + 1) as f64 * h,
+            };
+            let record = last_sub && ((outer + 1) % every == 0 || outer + 1 == problem.steps);
             let live = held.iter().filter(|b| !b.done).count();
             let (mut host, mut changed) = (Vec::new(), false);
             for (g, b) in held.iter_mut().enumerate().filter(|(_, b)| !b.done) {
@@ -181,15 +251,33 @@ impl GpuBackend {
                     host.push(g);
                     continue;
                 }
-                let c = &dev[g * w..(g + 1) * w];
-                cont[g * w..(g + 1) * w].copy_from_slice(c);
-                // The step's sources (flags words 3 and 4: the proven piece, the enclosures).
+                for (c, dev) in cont.iter_mut().zip(&read.cont) {
+                    c[g * w..(g + 1) * w].copy_from_slice(&dev[g * w..(g + 1) * w]);
+                }
+                // The step's sources (frame 0's flags words 3 and 4: the proven piece, the
+                // enclosures; the CPU counts the first frame's).
                 tubes[g].exact_steps += usize::from(dev_flags[g * FLAG_W + 3] != 0);
                 tubes[g].enclosed_steps += usize::from(dev_flags[g * FLAG_W + 4] != 0);
-                let (state, hull) = stepped(c, n);
-                let pipe = problem.x_box_in_safe_set(&hull.lower, &hull.upper, safe);
-                let set = &state.set;
-                let sample = problem.tube_sample(&set.lower, &set.upper, 0.0, t, safe);
+                let (state, hull) = stepped(&read.cont[0][g * w..(g + 1) * w], n);
+                let (pipe, sample) = match meet {
+                    true => {
+                        let known = known_box(&read.known[0], g, n);
+                        b.met = Some(MetState {
+                            x: stepped(&read.cont[1][g * w..(g + 1) * w], n).0,
+                            known: known.clone(),
+                        });
+                        let sample = sample_of(problem, safe, &state.set, t, Some(known));
+                        (known_box(&read.known[1], g, n), sample)
+                    }
+                    false => {
+                        let pipe = problem.x_box_in_safe_set(&hull.lower, &hull.upper, safe);
+                        let set = &state.set;
+                        (
+                            pipe,
+                            problem.tube_sample(&set.lower, &set.upper, 0.0, t, safe),
+                        )
+                    }
+                };
                 b.state = state;
                 let ended = record_sample(
                     &problem.region,
@@ -209,7 +297,9 @@ impl GpuBackend {
             on_host.fetch_add(host.len(), Relaxed);
             if !host.is_empty() {
                 let states: Vec<StepState> = host.iter().map(|&g| held[g].state.clone()).collect();
-                let outcomes = host_step.step(&states)?;
+                let mets: Vec<MetState> =
+                    host.iter().filter_map(|&g| held[g].met.clone()).collect();
+                let outcomes = host_step.step_met(&states, &mets)?;
                 for (&g, o) in host.iter().zip(outcomes) {
                     let b = &mut held[g];
                     tubes[g].exact_steps += usize::from(o.sources.0);
@@ -229,7 +319,7 @@ impl GpuBackend {
                             );
                         }
                         (None, Some(end)) => {
-                            tubes[g].end = end.later(step as f64 * problem.dt);
+                            tubes[g].end = end.later(t0);
                             b.done = true;
                         }
                         (None, None) => {
@@ -241,7 +331,8 @@ impl GpuBackend {
                     }
                     if !b.done {
                         b.state = o.state;
-                        put_state(&mut cont[g * w..(g + 1) * w], &b.state, n, prec);
+                        b.met = o.met;
+                        put_states(&mut cont, g, w, b, n, prec);
                     }
                 }
             }
@@ -249,30 +340,75 @@ impl GpuBackend {
                 for (g, b) in held.iter().enumerate() {
                     flags[g * FLAG_W + 1] = u32::from(b.done);
                 }
-                q.write_buffer(&run.bufs.cont, 0, &device_bytes(&cont, prec));
-                q.write_buffer(&run.bufs.flags, 0, bytemuck::cast_slice(&flags));
+                for (r, c) in runs.iter().zip(&cont) {
+                    q.write_buffer(&r.bufs.cont, 0, &device_bytes(c, prec));
+                    q.write_buffer(&r.bufs.flags, 0, bytemuck::cast_slice(&flags));
+                }
             }
-            progress(step + 1);
+            if last_sub {
+                progress(outer + 1);
+            }
         }
         Ok(())
     }
 
-    /// One readback of `cont` (`reals`) and the flags after a step.
-    fn read_cont(
+    /// One readback after a step: each frame's `cont` (`reals`) and flags, and where frames are
+    /// met their `known` buffers (through each frame's own staging buffer).
+    fn read_step(
         &self,
-        bufs: &Buffers,
+        runs: &[FrameRun],
         reals: usize,
         boxes: usize,
-    ) -> Result<(Vec<f64>, Vec<u32>), GpuError> {
-        let cont_bytes = reals as u64 * self.precision.bytes();
+        meet: bool,
+    ) -> Result<StepRead, GpuError> {
+        let n = runs[0].problem.dynamics.n;
+        let bytes = self.precision.bytes();
+        let cont_bytes = reals as u64 * bytes;
         let flag_bytes = (flag_words(boxes) * 4) as u64;
-        let copies = [(&bufs.cont, cont_bytes), (&bufs.flags, flag_bytes)];
-        self.read_staging(bufs, &copies, |bytes| {
-            let (a, b) = bytes.split_at(cont_bytes as usize);
-            (
-                from_device_bytes(a, self.precision),
-                bytemuck::pod_collect_to_vec(b),
-            )
-        })
+        let known_bytes = if meet {
+            (boxes * 2 * n) as u64 * bytes
+        } else {
+            0
+        };
+        let mut read = StepRead {
+            cont: Vec::new(),
+            flags: Vec::new(),
+            known: Vec::new(),
+        };
+        for r in runs {
+            let bufs = r.bufs;
+            let mut copies = vec![(&bufs.cont, cont_bytes), (&bufs.flags, flag_bytes)];
+            if meet {
+                copies.push((&bufs.known, known_bytes));
+            }
+            let (c, f, k) = self.read_staging(bufs, &copies, |bytes| {
+                let (a, rest) = bytes.split_at(cont_bytes as usize);
+                let (b, k) = rest.split_at(flag_bytes as usize);
+                (
+                    from_device_bytes(a, self.precision),
+                    bytemuck::pod_collect_to_vec(b),
+                    from_device_bytes(k, self.precision),
+                )
+            })?;
+            read.cont.push(c);
+            read.flags.push(f);
+            read.known.push(k);
+        }
+        Ok(read)
+    }
+}
+
+/// Box `g`'s state in every frame's `cont` (`w` reals a box), from the host's copy.
+fn put_states(
+    cont: &mut [Vec<f64>],
+    g: usize,
+    w: usize,
+    b: &Held,
+    n: usize,
+    prec: super::super::Precision,
+) {
+    let frames = std::iter::once(&b.state).chain(b.met.as_ref().map(|m| &m.x));
+    for (c, s) in cont.iter_mut().zip(frames) {
+        put_state(&mut c[g * w..(g + 1) * w], s, n, prec);
     }
 }

@@ -377,8 +377,8 @@ impl<'a> StepPlan<'a> {
     }
 
     /// The bindings of shaders/continuous.wgsl, shared by its two entry points (`slabs_of`,
-    /// `cstep`).
-    fn continuous_group(&self) -> [&'a wgpu::Buffer; 6] {
+    /// `cstep`); `known` is the flowpipes' shared x-box where frames are met (`pipe_known`).
+    fn continuous_group(&self) -> [&'a wgpu::Buffer; 7] {
         let b = self.bufs;
         [
             &b.cont,
@@ -387,7 +387,34 @@ impl<'a> StepPlan<'a> {
             &b.faces,
             &b.map_index,
             &b.map_cells,
+            self.known,
         ]
+    }
+
+    /// Where two frames are met in continuous time, the first frame's plan's dispatches before
+    /// and after both frames' steps (shaders/cmeet.wgsl): `cpipes` (both moving boxes guessed,
+    /// met, the flowpipes' x-box to `self.known`) and `cmeet` (the sets met, their x-box to this
+    /// frame's `known`). None without the kernels.
+    pub(super) fn continuous_meet(mut self, other: &'a Buffers) -> Option<[Op<'a>; 2]> {
+        let [pipes, meet] = self.continuous()?.meet.as_ref()?;
+        let b = self.bufs;
+        let p = Params {
+            boxes: self.boxes,
+            ..Default::default()
+        };
+        let groups = [self.boxes.div_ceil(WORKGROUP), 1, 1];
+        let group = [
+            &b.cont,
+            &other.cont,
+            &b.flags,
+            &other.flags,
+            &b.known,
+            self.known,
+        ];
+        self.push(pipes, &p, &group, groups);
+        self.push(meet, &p, &group, groups);
+        let [a, b]: [Op<'a>; 2] = self.ops.try_into().ok()?;
+        Some([a, b])
     }
 
     /// The continuous kernels, where this run is continuous.
