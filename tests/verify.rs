@@ -486,8 +486,8 @@ fn feasibility_refinement_splits_verified_boxes_until_their_qp_is_proven_feasibl
             refine_depth: 6,
             budget: 128,
             refine_feasibility,
-            shard: None,
             chunk: Some(64),
+            ..VerifySettings::default()
         };
         verifier.run(&settings, &|_, _, _| {}).unwrap()
     };
@@ -525,4 +525,142 @@ fn feasibility_refinement_splits_verified_boxes_until_their_qp_is_proven_feasibl
     assert_eq!(check.starts, 16 * leaves.len());
     assert_eq!(check.stopped, 0);
     assert!(check.disagreements.is_empty(), "{:?}", check.disagreements);
+}
+
+/// An engine that runs the CPU's steps but no substeps: refinement that would cut the step
+/// must be refused before any box runs.
+struct NoSubsteps;
+
+impl Backend for NoSubsteps {
+    fn name(&self) -> String {
+        "no substeps".into()
+    }
+
+    fn reach(
+        &self,
+        _: &ReachProblem,
+        _: &[cbfreach::IntervalBox],
+        _: &ReachSettings,
+        _: &(dyn Fn(usize, usize) + Sync),
+    ) -> Result<cbfreach::reach::ReachResult, cbfreach::reach::ReachError> {
+        panic!("a box ran although the run's deepest round was refused")
+    }
+
+    fn supports(
+        &self,
+        problem: &ReachProblem,
+        _: &ReachSettings,
+    ) -> Result<(), cbfreach::reach::Unsupported> {
+        match problem.substeps {
+            1 => Ok(()),
+            _ => Err(cbfreach::reach::Unsupported::Continuous("substeps > 1")),
+        }
+    }
+}
+
+#[test]
+fn refinement_cuts_the_validated_step_in_continuous_time() {
+    let s = common::integrator();
+    let (path, m_c) = network();
+    let net = Mlp::load_safetensors(path).unwrap();
+    let problem = ReachProblem::with_transform(&s, net, *m_c, None)
+        .unwrap()
+        .with_time(TimeModel::Continuous, 1);
+    let reach = ReachSettings {
+        face_local: true,
+        exact: ExactField::Nowhere,
+        intersect_x: false,
+        every: 1,
+        ..ReachSettings::default()
+    };
+    let verifier = Verifier {
+        reach: reach.clone(),
+        ..Verifier::new(&s, &problem, &CpuBackend)
+    };
+    let run = |max_substeps: usize| {
+        let settings = VerifySettings {
+            grid: vec![4, 3],
+            refine_depth: 3,
+            budget: 48,
+            max_substeps,
+            chunk: Some(64),
+            ..VerifySettings::default()
+        };
+        verifier.run(&settings, &|_, _, _| {}).unwrap()
+    };
+    // Each leaf as its own tube on `problem` with `substeps` a step: its last set and end.
+    let retrace = |leaf: &cbfreach::verify::BoxVerdict, substeps: usize| {
+        let p = problem.clone().with_time(TimeModel::Continuous, substeps);
+        let r = CpuBackend
+            .reach(&p, std::slice::from_ref(&leaf.initial), &reach, &|_, _| {})
+            .unwrap();
+        r.boxes[0].last().map(|l| (l.set.clone(), l.t))
+    };
+    // Equal up to the rounding of the batch a box ran in (its network bounds are GEMMs).
+    let same = |a: &Option<(cbfreach::IntervalBox, f64)>,
+                b: &Option<(cbfreach::IntervalBox, f64)>| {
+        match (a, b) {
+            (None, None) => true,
+            (Some((x, s)), Some((y, t))) => {
+                let ends = x
+                    .lower
+                    .iter()
+                    .chain(&x.upper)
+                    .zip(y.lower.iter().chain(&y.upper));
+                s == t
+                    && ends
+                        .into_iter()
+                        .all(|(p, q)| (p - q).abs() <= 1e-9 * (1.0 + p.abs()))
+            }
+            _ => false,
+        }
+    };
+    let found = |b: &cbfreach::verify::BoxVerdict| b.final_set.clone().zip(b.t_end);
+    let cut = run(4);
+    assert_eq!((cut.run.substeps, cut.run.max_substeps), (1, 4));
+    let refined: Vec<_> = cut.after.iter().filter(|b| b.depth > 0).collect();
+    assert!(refined.iter().any(|b| b.depth == 3), "{refined:?}");
+    // Two states: steps of dt/2 at depths 1 and 2, dt/4 at depth 3 (the cap).
+    let mut moved = 0;
+    for leaf in &refined {
+        let substeps = [1, 2, 2, 4][leaf.depth];
+        let own = retrace(leaf, substeps);
+        assert!(
+            same(&found(leaf), &own),
+            "depth {}: {leaf:?} against {own:?}",
+            leaf.depth
+        );
+        moved += usize::from(!same(&retrace(leaf, 1), &own));
+    }
+    // The shorter steps change what the leaves' tubes are (else the check above proves nothing).
+    assert!(
+        moved > 0,
+        "no refined leaf's tube differs from its whole-step tube"
+    );
+
+    // max_substeps = 1: refinement keeps the step.
+    let kept = run(1);
+    assert_eq!(kept.run.max_substeps, 1);
+    for leaf in kept.after.iter().filter(|b| b.depth > 0) {
+        assert!(same(&found(leaf), &retrace(leaf, 1)), "{leaf:?}");
+    }
+
+    // An engine without substeps: refused up front, naming the setting.
+    let verifier = Verifier {
+        reach: reach.clone(),
+        ..Verifier::new(&s, &problem, &NoSubsteps)
+    };
+    let settings = VerifySettings {
+        grid: vec![4, 3],
+        refine_depth: 1,
+        ..VerifySettings::default()
+    };
+    let err = verifier
+        .run(&settings, &|_, _, _| {})
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("max_substeps") && err.contains("substeps > 1"),
+        "{err}"
+    );
 }

@@ -53,11 +53,12 @@ pub fn identity(
             .map_or("none".into(), |m| m.cells_digest()),
     );
     let run = format!(
-        "{settings:?}|{reach:?}|{:?}|{}|{}|{}|{}|{:?}",
+        "{settings:?}|{reach:?}|{:?}|{}|{}|{}|{}|{}|{:?}",
         problem.m_c.to_bits(),
         problem.dt.to_bits(),
         problem.steps,
         problem.time,
+        problem.steps_per_dt(),
         problem.transform.is_some(),
         s.reach.goal
     );

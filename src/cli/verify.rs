@@ -48,6 +48,10 @@ pub struct VerifyArgs {
     /// unverified ones, within the budget); their halves keep the verdict.
     #[arg(long)]
     pub refine_feasibility: bool,
+    /// In continuous time, the most substeps refinement cuts a refined box's step into (the
+    /// step halves once every n rounds, n states; 1: refinement keeps the step).
+    #[arg(long, value_name = "K", default_value_t = VerifySettings::default().max_substeps)]
+    pub max_substeps: usize,
     /// Run only the K-th of N contiguous slices of the cells (1 ≤ K ≤ N); merge the JSON files
     /// with `cbfreach merge`.
     #[arg(long, value_name = "K/N")]
@@ -138,6 +142,9 @@ pub fn run(args: &VerifyArgs) -> CliResult {
         settings.budget = args.budget;
     }
     settings.refine_feasibility |= args.refine_feasibility;
+    if given("max_substeps") {
+        settings.max_substeps = args.max_substeps;
+    }
     settings.validate(&s).map_err(|e| flag_error(&e))?;
     let checkpoint = resume::checkpoint_path(args.checkpoint.as_deref(), args.json.as_deref());
     if args.resume && checkpoint.is_none() {
@@ -153,7 +160,9 @@ pub fn run(args: &VerifyArgs) -> CliResult {
     let mut reach = args.reach.settings(&s.settings.reach);
     reach.every = 1;
     reach.validate().map_err(|e| settings_flag_error(&e))?;
-    let engine = engine(&args.engine, &mut reach, &problem)?;
+    // `auto` picks an engine that runs every round, refinement's shorter steps too.
+    let deepest = settings.problem_at(&problem, settings.refine_depth);
+    let engine = engine(&args.engine, &mut reach, &deepest)?;
     let network = network_path(&s, args.problem.network.as_deref())?;
     // With a checkpoint, chunks small enough that an interrupt ends soon and keeps most work
     // (the engine's preferred batch is 512 boxes on the CPU, minutes on a loaded machine).
@@ -188,7 +197,11 @@ pub fn run(args: &VerifyArgs) -> CliResult {
             )
             .into());
         }
-        r => r?,
+        Err(e) => match e.downcast_ref::<VerifyError>() {
+            Some(v @ VerifyError::Settings { .. }) => return Err(flag_error(v).into()),
+            _ => return Err(e),
+        },
+        Ok(r) => r,
     };
     report.run.network_hash = identity["network"].clone();
     report.run.filter_hash = identity["filter"].clone();
@@ -321,6 +334,32 @@ pub fn run_verify(
     Ok(report)
 }
 
+/// The time model, and in continuous time the step of the cells and of the refined boxes.
+fn time_clause(r: &VerifyReport) -> String {
+    let time = if r.run.time.is_empty() {
+        "euler"
+    } else {
+        &r.run.time
+    };
+    if time != "continuous" {
+        return time.to_string();
+    }
+    let step = |k: usize| match k {
+        1 => "dt".to_string(),
+        k => format!("dt/{k}"),
+    };
+    let deepest = r.after.iter().map(|b| b.depth).max().unwrap_or(0);
+    let finest = r.run.max_substeps.max(r.run.substeps);
+    match deepest > 0 && finest > r.run.substeps {
+        true => format!(
+            "continuous (step {}, refined boxes down to {})",
+            step(r.run.substeps),
+            step(finest)
+        ),
+        false => format!("continuous (step {})", step(r.run.substeps)),
+    }
+}
+
 /// The summary table: boxes and area share per verdict, before and after refinement.
 pub fn print_summary(r: &VerifyReport) {
     let (b, a) = (r.shares_before(), r.shares_after());
@@ -337,11 +376,7 @@ pub fn print_summary(r: &VerifyReport) {
             ", shard {s} (cells {}..{})",
             r.cells[0], r.cells[1]
         )),
-        if r.run.time.is_empty() {
-            "euler"
-        } else {
-            &r.run.time
-        },
+        time_clause(r),
         r.run.bounds,
         if r.run.face_local {
             " (face-local)"

@@ -94,9 +94,8 @@ pub fn refusal(unsupported: Unsupported) -> String {
              setting or use the CPU engine (--backend cpu)"
         ),
         Unsupported::Continuous(what) => format!(
-            "time = \"continuous\" with {what}: the GPU engine's continuous step takes the \
-             network's field (exact = \"nowhere\" or \"inactive\"), in one frame, with the \
-             disturbance method, in f64 (docs/design.md §7.4); change the setting or use the CPU \
+            "time = \"continuous\" with {what}: the GPU engine's continuous step runs the \
+             disturbance method in f64 (docs/design.md §7.4); change the setting or use the CPU \
              engine (--backend cpu)"
         ),
         Unsupported::ExactGeneralQp => "exact = \"closed-form\" for a general QP filter: the GPU \

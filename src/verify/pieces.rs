@@ -214,6 +214,7 @@ pub fn verify_by_pieces(
                 refine_depth: refine,
                 budget: REFINE_BUDGET,
                 refine_feasibility: true,
+                max_substeps: VerifySettings::default().max_substeps,
                 shard: None,
                 chunk: Some(512),
             },

@@ -69,6 +69,11 @@ impl BoxVerdict {
     }
 }
 
+/// Serde's default of a count that was 1 before it was recorded.
+fn one() -> usize {
+    1
+}
+
 /// What a run was: everything two shards must share to be merged.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RunInfo {
@@ -109,6 +114,13 @@ pub struct RunInfo {
     /// (files from before the setting existed: empty, and their sets bound the Euler map).
     #[serde(default)]
     pub time: String,
+    /// Validated steps per `dt` of the grid's cells (1 outside continuous time).
+    #[serde(default = "one")]
+    pub substeps: usize,
+    /// The most substeps refinement cut refined boxes' steps into
+    /// (`VerifySettings::max_substeps`; files from before it: 1, refinement kept the step).
+    #[serde(default = "one")]
+    pub max_substeps: usize,
     /// Whether the embedding ran in transformed coordinates.
     pub transformed: bool,
     /// The CBFs whose half-spaces bounded the sets (`reach::safe_set`; empty with
@@ -409,6 +421,8 @@ mod tests {
                 dt: 0.1,
                 steps: 1,
                 time: String::new(),
+                substeps: 1,
+                max_substeps: 1,
                 transformed: false,
                 safe_set: vec![],
                 network_hash: String::new(),

@@ -233,6 +233,22 @@ impl<'a> Verifier<'a> {
         journal: &dyn Journal,
     ) -> Result<VerifyReport, VerifyError> {
         settings.validate(self.scenario)?;
+        // Refinement's shorter steps must run on this engine too: refused before any box runs.
+        let deepest = settings.problem_at(self.problem, settings.refine_depth);
+        if let Err(u) = self.backend.supports(&deepest, &self.reach) {
+            return Err(VerifyError::Settings {
+                field: "max_substeps",
+                message: format!(
+                    "refinement to depth {} cuts the step into {} substeps (max_substeps = {}), \
+                     which this engine refuses: {}; or set max_substeps = 1 (refinement then \
+                     keeps the step)",
+                    settings.refine_depth,
+                    deepest.substeps,
+                    settings.max_substeps,
+                    crate::reach::refusal(u)
+                ),
+            });
+        }
         let clock = Instant::now();
         let region = settings.region_in(self.scenario);
         let chunk = settings
@@ -246,9 +262,14 @@ impl<'a> Verifier<'a> {
             .clone()
             .map(|k| (k, 0, region.partition_cell(&settings.grid, k)))
             .collect();
-        let before = self.run_boxes(&cells, chunk, &mut timing, journal, &|d, t| {
-            progress(Stage::Cells, d, t)
-        })?;
+        let before = self.run_boxes(
+            self.problem,
+            &cells,
+            chunk,
+            &mut timing,
+            journal,
+            &|d, t| progress(Stage::Cells, d, t),
+        )?;
 
         let mut leaves = before.clone();
         let mut left = settings.budget;
@@ -275,9 +296,11 @@ impl<'a> Verifier<'a> {
                     [(leaves[i].cell, depth, l), (leaves[i].cell, depth, r)]
                 })
                 .collect();
-            let judged = self.run_boxes(&children, chunk, &mut timing, journal, &|d, t| {
-                progress(Stage::Refine(depth), d, t)
-            })?;
+            let problem = settings.problem_at(self.problem, depth);
+            let judged =
+                self.run_boxes(&problem, &children, chunk, &mut timing, journal, &|d, t| {
+                    progress(Stage::Refine(depth), d, t)
+                })?;
             // Replace each parent by its two halves, in place.
             let mut next = Vec::with_capacity(leaves.len() + parents.len());
             let mut halves = judged.into_iter();
@@ -311,6 +334,8 @@ impl<'a> Verifier<'a> {
                 dt: self.problem.dt,
                 steps: self.problem.steps,
                 time: self.problem.time.to_string(),
+                substeps: self.problem.steps_per_dt(),
+                max_substeps: settings.max_substeps,
                 transformed: self.problem.transform.is_some(),
                 safe_set: (self.problem.safe_set_for(self.reach.method).names())
                     .into_iter()
@@ -332,9 +357,11 @@ impl<'a> Verifier<'a> {
         })
     }
 
-    /// Start check, then the engine in chunks, then [`judge`]; keeps the input order.
+    /// Start check, then the engine in chunks on `problem` (the verifier's, or a refinement
+    /// round's with shorter steps), then [`judge`]; keeps the input order.
     fn run_boxes(
         &self,
+        problem: &ReachProblem,
         boxes: &[(usize, usize, IntervalBox)],
         chunk: usize,
         timing: &mut VerifyTiming,
@@ -388,7 +415,7 @@ impl<'a> Verifier<'a> {
             let clock = Instant::now();
             let result = self
                 .backend
-                .reach(self.problem, &initial, &settings, &|s, all| {
+                .reach(problem, &initial, &settings, &|s, all| {
                     progress(done + idx.len() * s / all.max(1), total)
                 })?;
             timing.reach_s += clock.elapsed().as_secs_f64();
@@ -396,7 +423,7 @@ impl<'a> Verifier<'a> {
             // Judging (and the feasibility proof along each verified tube, an interval
             // evaluation of the QP's rows at every step) is per tube: in parallel, or it takes
             // longer than a GPU's reach.
-            let (scenario, traps, problem) = (self.scenario, &self.traps, self.problem);
+            let (scenario, traps) = (self.scenario, &self.traps);
             let judged: Vec<_> = result
                 .boxes
                 .par_iter()

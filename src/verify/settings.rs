@@ -3,13 +3,16 @@
 
 use serde::{Deserialize, Serialize};
 
+use std::borrow::Cow;
+
 use super::{Shard, VerifyError};
 use crate::boxes::IntervalBox;
+use crate::reach::{ReachProblem, TimeModel};
 use crate::scenario::Scenario;
 
 /// Settings of a verification run. `VerifySettings::default()` is what `cbfreach verify` runs
 /// with no options; a scenario's `[settings.verify]` table sets `region`, `grid`,
-/// `refine_depth`, `budget` and `refine_feasibility` by name, and command-line options
+/// `refine_depth`, `budget`, `refine_feasibility` and `max_substeps` by name, and command-line options
 /// override both.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -26,6 +29,14 @@ pub struct VerifySettings {
     /// unverified ones, within the same budget): their halves keep the verdict and may prove
     /// feasibility on their own sets. Default: false.
     pub refine_feasibility: bool,
+    /// In continuous time refinement cuts the step as it cuts the boxes: a box of depth `d`
+    /// runs `2^⌈d/n⌉` times the problem's substeps (n states; [`VerifySettings::substeps_at`]),
+    /// at most this many (never fewer than the problem's own). A validated step's excess over
+    /// the flow is `O(h²)`, so `O(h)` over the horizon, whatever the box's width: bisection,
+    /// which halves a box's widest side once every `n` rounds, gains little on boxes that
+    /// small unless `h` shrinks with it (docs/design.md §7.3). Default: 4. 1: refinement keeps
+    /// the step.
+    pub max_substeps: usize,
     /// Run only this slice of the cells. Default: `None`, every cell (not read from a
     /// scenario: shards split one run across jobs).
     #[serde(skip)]
@@ -44,6 +55,7 @@ impl Default for VerifySettings {
             refine_depth: 0,
             budget: 8192,
             refine_feasibility: false,
+            max_substeps: 4,
             shard: None,
             chunk: None,
         }
@@ -61,12 +73,39 @@ impl VerifySettings {
             .unwrap_or_else(|| scenario.reach.region.clone())
     }
 
+    /// Validated steps per `dt` for the boxes of refinement depth `depth`: in continuous time
+    /// `2^⌈depth/n⌉` times the problem's substeps, at most `max_substeps` and never fewer than
+    /// the problem's own; the problem's substeps in the other time models.
+    pub fn substeps_at(&self, problem: &ReachProblem, depth: usize) -> usize {
+        let base = problem.substeps.max(1);
+        match problem.time {
+            TimeModel::Continuous => cut_step(base, problem.dynamics.n, depth, self.max_substeps),
+            _ => base,
+        }
+    }
+
+    /// The problem the boxes of refinement depth `depth` run: `problem` with
+    /// [`VerifySettings::substeps_at`] substeps (itself where that is its own).
+    pub fn problem_at<'p>(&self, problem: &'p ReachProblem, depth: usize) -> Cow<'p, ReachProblem> {
+        let substeps = self.substeps_at(problem, depth);
+        match substeps == problem.substeps.max(1) {
+            true => Cow::Borrowed(problem),
+            false => Cow::Owned(problem.clone().with_time(problem.time, substeps)),
+        }
+    }
+
     /// Checks the settings against the scenario; errors name the field.
     pub fn validate(&self, scenario: &Scenario) -> Result<(), VerifyError> {
         let n = scenario.n();
         let c = &scenario.reach.region;
         let region = self.region_in(scenario);
         let bad = |field: &'static str, message: String| VerifyError::Settings { field, message };
+        if self.max_substeps == 0 {
+            return Err(bad(
+                "max_substeps",
+                "must be at least 1 (1: refinement keeps the step)".into(),
+            ));
+        }
         if region.dim() != n {
             return Err(bad(
                 "region",
@@ -126,5 +165,34 @@ impl VerifySettings {
             ));
         }
         Ok(())
+    }
+}
+
+/// `base · 2^⌈depth/n⌉` substeps, at most `max` and never fewer than `base`.
+fn cut_step(base: usize, n: usize, depth: usize, max: usize) -> usize {
+    let halvings = depth.div_ceil(n.max(1));
+    let cut = u32::try_from(halvings)
+        .ok()
+        .and_then(|h| 1usize.checked_shl(h))
+        .unwrap_or(usize::MAX);
+    base.saturating_mul(cut).min(max).max(base)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::cut_step;
+
+    #[test]
+    fn the_step_halves_once_every_n_rounds_within_its_bounds() {
+        // Two states: the widest side halves at depths 1, 3, 5, …; so does the step.
+        let two: Vec<usize> = (0..8).map(|d| cut_step(1, 2, d, 8)).collect();
+        assert_eq!(two, [1, 2, 2, 4, 4, 8, 8, 8]);
+        let three: Vec<usize> = (0..8).map(|d| cut_step(1, 3, d, 64)).collect();
+        assert_eq!(three, [1, 2, 2, 2, 4, 4, 4, 8]);
+        // The cap, the scenario's own substeps kept when above it, 1 = off, no overflow.
+        assert_eq!(cut_step(3, 2, 1, 4), 4);
+        assert_eq!(cut_step(8, 2, 3, 4), 8);
+        assert_eq!(cut_step(1, 2, 6, 1), 1);
+        assert_eq!(cut_step(1, 1, 200, usize::MAX), usize::MAX);
     }
 }
