@@ -23,6 +23,18 @@ pub struct StepState {
     pub guess: Option<(Vec<f64>, Vec<f64>)>,
 }
 
+impl StepState {
+    /// A tube's state before its first step: the set alone (no rates to guess from).
+    pub fn start(set: IntervalBox) -> StepState {
+        StepState {
+            set,
+            rates: None,
+            before: None,
+            guess: None,
+        }
+    }
+}
+
 /// Where two frames are met (design §2.11): a box's state in x, the second frame, and the
 /// x-box the frames share after the last meet ([`HostStep::step_met`]).
 #[derive(Clone, Debug, PartialEq)]

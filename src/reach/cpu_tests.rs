@@ -112,12 +112,7 @@ fn host_steps_from_a_state_retrace_the_engines_tubes() {
             .unwrap()
             .boxes;
         for (b, tube) in boxes.iter().zip(&tubes) {
-            let mut state = StepState {
-                set: b.clone(),
-                rates: None,
-                before: None,
-                guess: None,
-            };
+            let mut state = StepState::start(b.clone());
             for k in 1..=problem.steps {
                 let out = CpuBackend
                     .continuous_step(&problem, &settings, std::slice::from_ref(&state))
@@ -178,12 +173,6 @@ fn host_steps_from_met_states_retrace_the_engines_tubes() {
         .unwrap()
         .boxes;
     let host = CpuBackend.host_step(&problem, &settings).unwrap();
-    let fresh = |set: IntervalBox| StepState {
-        set,
-        rates: None,
-        before: None,
-        guess: None,
-    };
     let (mut common, mut fallback) = (0, 0);
     for (b, tube) in boxes.iter().zip(&tubes) {
         // The engine's start: each frame's initial set met with the box around the shared
@@ -211,9 +200,9 @@ fn host_steps_from_met_states_retrace_the_engines_tubes() {
             );
             x.intersection(&known).unwrap_or(x)
         });
-        let mut state = fresh(sets[0].clone());
+        let mut state = StepState::start(sets[0].clone());
         let mut met = MetState {
-            x: fresh(sets[1].clone()),
+            x: StepState::start(sets[1].clone()),
             known,
         };
         for k in 1..=problem.steps {

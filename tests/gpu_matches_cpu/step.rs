@@ -47,15 +47,7 @@ fn compare_steps(
     let within_c = |p: &validated::Flowpipe| {
         problem.transform.is_some() || p.set.is_subset_of(&problem.region)
     };
-    let mut states: Vec<StepState> = init
-        .iter()
-        .map(|b| StepState {
-            set: b.clone(),
-            rates: None,
-            before: None,
-            guess: None,
-        })
-        .collect();
+    let mut states: Vec<StepState> = init.iter().map(|b| StepState::start(b.clone())).collect();
     let (mut cases, mut cpu) = (Vec::new(), Vec::new());
     for _ in 0..steps {
         let out = CpuBackend.continuous_step(problem, st, &states).unwrap();

@@ -147,18 +147,12 @@ impl GpuBackend {
         let k = problem.steps_per_dt();
         let h = problem.dt / k as f64;
         let every = settings.every.max(1);
-        let fresh = |set: &IntervalBox| StepState {
-            set: set.clone(),
-            rates: None,
-            before: None,
-            guess: None,
-        };
         let mut held: Vec<Held> = starts
             .iter()
             .map(|(sets, known)| Held {
-                state: fresh(&sets[0]),
+                state: StepState::start(sets[0].clone()),
                 met: meet.then(|| MetState {
-                    x: fresh(&sets[1]),
+                    x: StepState::start(sets[1].clone()),
                     known: known.clone(),
                 }),
                 swept: None,
