@@ -4,6 +4,7 @@
 
 #[path = "../common/mod.rs"]
 mod common;
+mod refined;
 mod sampled;
 
 use cbfreach::filter::SafetyFilter;
