@@ -49,9 +49,9 @@ pub struct PaperArgs {
     pub timed: Vec<BoundMethod>,
     /// Rounds of bisection of the pieces of an initial box that are not verified whole, or
     /// whose QP feasibility is not proven (as `verify --refine --refine-feasibility`; at most
-    /// 4,096 extra pieces per box). Scenario 2's box at (−1, 1.5), whose true trajectories
-    /// pass 0.12–0.25 from the jump of `v` at (3, 0), needs 8 (650 pieces, the narrowest
-    /// eight bisections of a 0.05-wide one).
+    /// 4,096 extra pieces per box). Scenario 2's box at (−1, 1.5), whose trajectories pass
+    /// 0.11–0.25 from the jump of `v` at (3, 0), needs 8 under `euler` (576 pieces, the
+    /// narrowest eight bisections of a 0.05-wide one), 10 under `continuous`.
     #[arg(long, default_value_t = PiecesSettings::default().refine)]
     pub refine: usize,
     /// What the sound verdicts' sets bound: the paper's Euler map by default (its
@@ -64,7 +64,8 @@ pub struct PaperArgs {
     pub substeps: Option<usize>,
     /// In continuous time, the most substeps refinement cuts a refined piece's step into (as
     /// `verify --max-substeps`: the step halves once every n rounds; 1: refinement keeps the
-    /// step).
+    /// step). Twice verify's default: the deepest pieces of scenario 2's box at (−1, 1.5)
+    /// need steps of dt/8.
     #[arg(
         long,
         value_name = "K",
