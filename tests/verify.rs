@@ -21,8 +21,8 @@ use cbfreach::reach::{Backend, CpuBackend, ExactField, ReachProblem, ReachSettin
 use cbfreach::scenario::Scenario;
 use cbfreach::simulate::{simulate_filtered, Integrator};
 use cbfreach::verify::{
-    judge, merge, simulation_check, traps_for, Reason, Shard, Verdict, Verifier, VerifyReport,
-    VerifySettings,
+    judge, merge, simulation_check, traps_for, verify_by_pieces, PieceOutcome, PiecesSettings,
+    Reason, Shard, Verdict, Verifier, VerifyReport, VerifySettings,
 };
 
 /// `M_C` for the small network trained here (see the module docs).
@@ -663,4 +663,71 @@ fn refinement_cuts_the_validated_step_in_continuous_time() {
         err.contains("max_substeps") && err.contains("substeps > 1"),
         "{err}"
     );
+}
+
+/// `verify_by_pieces` (`cbfreach paper`) refines a box's pieces as `verify` does, its step cut
+/// down to `PiecesSettings::max_substeps`: with the cap at 1 and at 4 it counts the leaves and
+/// the proven ones that `verify` counts on the same box with the same cap, and the two caps
+/// give different counts (else the comparison would not show the cap reaching the pieces).
+#[test]
+fn pieces_cut_the_step_as_verify_does() {
+    let s = common::integrator();
+    let (path, m_c) = network();
+    let net = Mlp::load_safetensors(path).unwrap();
+    let problem = ReachProblem::with_transform(&s, net, *m_c, None)
+        .unwrap()
+        .with_time(TimeModel::Continuous, 1);
+    let reach = ReachSettings {
+        face_local: true,
+        exact: ExactField::Nowhere,
+        intersect_x: false,
+        every: 1,
+        ..ReachSettings::default()
+    };
+    let verifier = Verifier {
+        reach: reach.clone(),
+        ..Verifier::new(&s, &problem, &CpuBackend)
+    };
+    let region = s.reach.region.clone();
+    let whole = CpuBackend
+        .reach(&problem, std::slice::from_ref(&region), &reach, &|_, _| {})
+        .unwrap();
+    let counts = |max_substeps: usize| {
+        let pieces = verify_by_pieces(
+            &s,
+            &problem,
+            &reach,
+            &verifier.traps,
+            &whole.boxes,
+            PiecesSettings {
+                refine: 2,
+                max_substeps,
+            },
+            &|_, _| {},
+        )
+        .unwrap();
+        let PieceOutcome::Undecided { proven, pieces, .. } = pieces[0].outcome else {
+            panic!("C itself is not expected to verify: {:?}", pieces[0]);
+        };
+        let settings = VerifySettings {
+            region: Some(region.clone()),
+            grid: vec![4, 4],
+            refine_depth: 2,
+            budget: 4096, // verify_by_pieces' own budget per box
+            refine_feasibility: true,
+            max_substeps,
+            chunk: Some(512),
+            ..VerifySettings::default()
+        };
+        let report = verifier.run(&settings, &|_, _, _| {}).unwrap();
+        let verified = report.after.iter().filter(|b| b.verdict.is_verified());
+        assert_eq!(
+            (proven, pieces),
+            (verified.count(), report.after.len()),
+            "max_substeps {max_substeps}"
+        );
+        (proven, pieces)
+    };
+    let (kept, cut) = (counts(1), counts(4));
+    assert_ne!(kept, cut, "the cap changes no count");
 }

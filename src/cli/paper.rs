@@ -12,7 +12,9 @@ use cbfreach::plot::{self, Figure};
 use cbfreach::problem::network_path;
 use cbfreach::reach::{ReachMethod, ReachSettings, Tube};
 use cbfreach::scenario::{Margin, Scenario};
-use cbfreach::verify::{traps_for_equilibria, verify_by_pieces, PiecesVerdict, Verdict};
+use cbfreach::verify::{
+    traps_for_equilibria, verify_by_pieces, PiecesSettings, PiecesVerdict, Verdict,
+};
 
 use super::args::{compile, ProblemArgs};
 use super::equilibria::print_table;
@@ -47,10 +49,10 @@ pub struct PaperArgs {
     pub timed: Vec<BoundMethod>,
     /// Rounds of bisection of the pieces of an initial box that are not verified whole, or
     /// whose QP feasibility is not proven (as `verify --refine --refine-feasibility`; at most
-    /// 4,096 extra pieces per box). Scenario 2's box at (−1, 1.5), whose true trajectories
-    /// pass 0.12–0.25 from the jump of `v` at (3, 0), needs 8 (650 pieces, the narrowest
-    /// eight bisections of a 0.05-wide one).
-    #[arg(long, default_value_t = 10)]
+    /// 4,096 extra pieces per box). Scenario 2's box at (−1, 1.5), whose trajectories pass
+    /// 0.11–0.25 from the jump of `v` at (3, 0), needs 8 under `euler` (576 pieces, the
+    /// narrowest eight bisections of a 0.05-wide one), 10 under `continuous`.
+    #[arg(long, default_value_t = PiecesSettings::default().refine)]
     pub refine: usize,
     /// What the sound verdicts' sets bound: the paper's Euler map by default (its
     /// experiments step it), or `continuous` (the ODE, validated steps) or `sampled`.
@@ -60,6 +62,17 @@ pub struct PaperArgs {
     /// O(h²) loss: scenario 2's pieces passing (3, 0) need 2; default: the scenario's, else 1).
     #[arg(long, value_parser = |s: &str| super::whole_at_least(s, 1))]
     pub substeps: Option<usize>,
+    /// In continuous time, the most substeps refinement cuts a refined piece's step into (as
+    /// `verify --max-substeps`: the step halves once every n rounds; 1: refinement keeps the
+    /// step). Twice verify's default: the deepest pieces of scenario 2's box at (−1, 1.5)
+    /// need steps of dt/8.
+    #[arg(
+        long,
+        value_name = "K",
+        default_value_t = PiecesSettings::default().max_substeps,
+        value_parser = |s: &str| super::whole_at_least(s, 1)
+    )]
+    pub max_substeps: usize,
 }
 
 /// What the paper reports for one experiment: its times and its sampled `M_C`.
@@ -129,7 +142,10 @@ pub fn run(args: &PaperArgs) -> CliResult {
         let s = Scenario::load(&scenario_path(file))?;
         let verdicts = VerdictSettings {
             bounds: args.bounds,
-            refine: args.refine,
+            pieces: PiecesSettings {
+                refine: args.refine,
+                max_substeps: args.max_substeps,
+            },
             time: args.time.clone(),
             substeps: args.substeps,
         };
@@ -164,7 +180,10 @@ pub fn run_default() -> CliResult {
     let timed = [BoundMethod::Forward, BoundMethod::ForwardBackward];
     let verdicts = VerdictSettings {
         bounds: ReachSettings::default().bounds,
-        refine: 0,
+        pieces: PiecesSettings {
+            refine: 0,
+            ..PiecesSettings::default()
+        },
         time: "euler".into(),
         substeps: None,
     };
@@ -248,12 +267,15 @@ fn run_scenario(
             ..ProblemArgs::default()
         },
     )?;
-    let cut = match problem.substeps {
-        k if k > 1 && problem.time == cbfreach::reach::TimeModel::Continuous => {
-            format!(", each step cut in {k}")
-        }
+    let continuous = problem.time == cbfreach::reach::TimeModel::Continuous;
+    let mut cut = match problem.substeps {
+        k if k > 1 && continuous => format!(", each step cut in {k}"),
         _ => String::new(),
     };
+    let finest = verdict_settings.pieces.max_substeps;
+    if continuous && verdict_settings.pieces.refine > 0 && finest > problem.substeps.max(1) {
+        cut += &format!(", refined pieces' steps down to dt/{finest}");
+    }
     println!(
         "Time model: {} — {}{cut}",
         problem.time,
@@ -310,7 +332,7 @@ fn run_scenario(
         &pieces,
         &traps,
         &dist.boxes,
-        verdict_settings.refine,
+        verdict_settings.pieces,
         &|done, all| {
             let Ok(mut bar) = bar.lock() else { return };
             bar.get_or_insert_with(|| super::progress_bar(all as u64, "initial boxes split"))
@@ -402,8 +424,8 @@ fn steps_run(tubes: &[Tube], dt: f64) -> usize {
 struct VerdictSettings {
     /// Network bounds (on each face of a box).
     bounds: BoundMethod,
-    /// Bisection rounds of the pieces not verified.
-    refine: usize,
+    /// Bisection rounds of the pieces not verified, and how far their step is cut.
+    pieces: PiecesSettings,
     /// The time model (`euler` by default: the paper's).
     time: String,
     /// Substeps of a continuous step (`None`: the scenario's).

@@ -16,6 +16,30 @@ pub const SPLIT: usize = 4;
 /// Extra pieces refinement may run per initial box.
 pub const REFINE_BUDGET: usize = 4096;
 
+/// How [`verify_by_pieces`] refines the pieces of an initial box not verified whole
+/// (`cbfreach paper --refine --max-substeps`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PiecesSettings {
+    /// Bisection rounds of the pieces not verified. Default: 10.
+    pub refine: usize,
+    /// In continuous time, the most substeps a refined piece's step is cut into
+    /// ([`VerifySettings::max_substeps`]). Default: 8, twice `verify`'s: the pieces of
+    /// scenario 2's box at (−1, 1.5) pass 0.11 from the jump of `v` at (3, 0), and at the
+    /// tenth round (0.0016 wide, steps of dt/4 there) its corner piece's set still meets the
+    /// error map's `M = ∞` cells; with dt/8 it converges (docs/results.md). Only pieces of
+    /// depth ≥ 5 in two states see the difference.
+    pub max_substeps: usize,
+}
+
+impl Default for PiecesSettings {
+    fn default() -> Self {
+        PiecesSettings {
+            refine: 10,
+            max_substeps: 8,
+        }
+    }
+}
+
 /// How an initial box got its verdict ([`verify_by_pieces`]); `Display` gives the note that
 /// `cbfreach paper` prints.
 #[derive(Clone, Debug, PartialEq)]
@@ -157,8 +181,10 @@ impl std::fmt::Display for PiecesVerdict {
 
 /// The verdict of each initial box of `tubes` (their tubes under `reach`): from its own tube,
 /// or, where that proves nothing (or does not prove the QP feasible), from its `SPLITⁿ`
-/// pieces and `refine` rounds of bisection of the pieces not verified (the refinement of
-/// `verify`, on the CPU engine), whose leaves must all share one verified verdict.
+/// pieces and `settings.refine` rounds of bisection of the pieces not verified (the
+/// refinement of `verify`, on the CPU engine, cutting the step of deeper pieces up to
+/// `settings.max_substeps` in continuous time), whose leaves must all share one verified
+/// verdict.
 /// `progress` is told (boxes split, boxes to split).
 pub fn verify_by_pieces(
     scenario: &Scenario,
@@ -166,7 +192,7 @@ pub fn verify_by_pieces(
     reach: &ReachSettings,
     traps: &[Trap],
     tubes: &[Tube],
-    refine: usize,
+    settings: PiecesSettings,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Vec<PiecesVerdict>, VerifyError> {
     let mut out: Vec<PiecesVerdict> = tubes
@@ -211,10 +237,10 @@ pub fn verify_by_pieces(
             &VerifySettings {
                 region: Some(tubes[k].initial.clone()),
                 grid: vec![SPLIT; scenario.n()],
-                refine_depth: refine,
+                refine_depth: settings.refine,
                 budget: REFINE_BUDGET,
                 refine_feasibility: true,
-                max_substeps: VerifySettings::default().max_substeps,
+                max_substeps: settings.max_substeps,
                 shard: None,
                 chunk: Some(512),
             },
