@@ -28,19 +28,26 @@ const KC: usize = 128;
 pub struct PackedMatrix {
     m: usize,
     k: usize,
-    panels: Vec<f64>,
+    panels: Vec<Column>,
 }
+
+/// One column of a panel: [`MR`] entries on one 64-byte cache line (the allocator aligns a
+/// `Vec<f64>` to 16 bytes only, so an unaligned column's second half split across two lines
+/// on every load).
+#[derive(Clone, Copy, Debug, Default)]
+#[repr(C, align(64))]
+struct Column([f64; MR]);
 
 impl PackedMatrix {
     /// Packs the row-major `m × k` matrix `a`.
     pub fn new(m: usize, k: usize, a: &[f64]) -> PackedMatrix {
         assert!(a.len() >= m * k, "packed matrix: buffer too small");
         let n_panels = m.div_ceil(MR);
-        let mut panels = vec![0.0; n_panels * k * MR];
+        let mut panels = vec![Column::default(); n_panels * k];
         for i in 0..m {
             let (p, r) = (i / MR, i % MR);
             for j in 0..k {
-                panels[(p * k + j) * MR + r] = a[i * k + j];
+                panels[p * k + j].0[r] = a[i * k + j];
             }
         }
         PackedMatrix { m, k, panels }
@@ -135,7 +142,7 @@ fn product_body<const FMA: bool>(job: &Job<'_>, (out, out_stride): (&mut [f64], 
         let lv = &live[j0..j1];
         let add = chunk > 0;
         for p in 0..a.m.div_ceil(MR) {
-            let panel = &a.panels[p * a.k * MR..(p + 1) * a.k * MR];
+            let panel = &a.panels[p * a.k..(p + 1) * a.k];
             let at = (p * MR, MR.min(a.m - p * MR));
             let mut c0 = 0;
             while c0 < whole {
@@ -196,13 +203,14 @@ fn product_body<const FMA: bool>(job: &Job<'_>, (out, out_stride): (&mut [f64], 
 /// `MR × C` accumulators of one panel against a slab of `C` columns of the live rows.
 #[inline(always)]
 fn block<const FMA: bool, const C: usize>(
-    panel: &[f64],
+    panel: &[Column],
     live: &[usize],
     slab: &[f64],
 ) -> [[f64; MR]; C] {
     let mut acc = [[0.0; MR]; C];
     for (&j, row) in live.iter().zip(slab.chunks_exact(C)) {
-        let col: &[f64; MR] = panel[j * MR..j * MR + MR].try_into().unwrap();
+        // SAFETY: `product` checked every live index against the panel's length.
+        let col = unsafe { &panel.get_unchecked(j).0 };
         for c in 0..C {
             let x = row[c];
             for r in 0..MR {
