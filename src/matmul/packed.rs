@@ -25,9 +25,8 @@ use std::sync::atomic::Ordering;
 const MR: usize = 8;
 /// Columns of the right factor a kernel call keeps in registers (`MR × NR` accumulators).
 const NR: usize = 6;
-/// Inner indices a block: a panel's block (8 KiB) and the parts' slabs over it (up to
-/// ~30 KiB at 6 boxes a thread) stay in L1 while the block runs over every panel (64 and
-/// 200 measured within 5 %; shorter blocks add stores of partial sums).
+/// Inner indices a block of the packed storage (8 KiB of a panel): blocks are stored one after
+/// another, each block's panels in order.
 const KB: usize = 128;
 /// Most parts one [`PackedMatrix::products`] call takes.
 const MAX_PARTS: usize = 4;
@@ -203,70 +202,84 @@ unsafe fn products_fma(job: &Job<'_>, outs: &mut [(&mut [f64], usize)]) {
     products_body::<true>(job, outs);
 }
 
-/// The products, block by block of [`KB`] inner indices and panel by panel (the order `A` is
-/// stored in), every part's slabs over each panel's block while it is in L1; the first block
-/// writes the outputs, later ones add to them. `FMA` selects fused multiply–adds (compiled
-/// where the CPU has them: `mul_add` is a library call elsewhere).
+/// The products, panel by panel, each part's slabs in turn, each slab's sum over every block
+/// of [`KB`] inner indices kept in registers and stored once. A panel's blocks (`k·MR`
+/// entries, 25 KiB at `k = 400`) stay in L1 while every part's slabs run over them; the slabs
+/// stream from L2. (Blocks outermost, partial sums stored and added after each block, ran as
+/// fast, within the noise of a shared machine; this order sums each entry in one register,
+/// with no partial sums to add.) `FMA` selects fused multiply–adds (compiled where the CPU has
+/// them: `mul_add` is a library call elsewhere).
 #[inline(always)]
 fn products_body<const FMA: bool>(job: &Job<'_>, outs: &mut [(&mut [f64], usize)]) {
     let a = job.a;
-    // Per part, the positions in `live` of the current block's indices.
-    let mut from = [0usize; MAX_PARTS];
-    let mut to = [0usize; MAX_PARTS];
-    for b in 0..a.k.div_ceil(KB).max(1) {
-        let (j0, j1) = (b * KB, a.k.min(b * KB + KB));
+    for p in 0..a.m.div_ceil(MR) {
+        let at = (p * MR, MR.min(a.m - p * MR));
         for (qi, q) in job.parts.iter().enumerate() {
-            from[qi] = to[qi];
-            to[qi] = from[qi] + q.live[from[qi]..].partition_point(|&j| j < j1);
-        }
-        let add = b > 0;
-        for p in 0..a.m.div_ceil(MR) {
-            let cols = if a.k == 0 { &[][..] } else { a.block(b, p) };
-            let at = (p * MR, MR.min(a.m - p * MR));
-            for (qi, q) in job.parts.iter().enumerate() {
-                if add && from[qi] == to[qi] {
-                    continue;
+            let (out, stride) = &mut outs[q.out];
+            let len = q.live.len();
+            let mut c0 = 0;
+            while c0 < q.n {
+                let w = NR.min(q.n - c0);
+                let s0 = job.base[qi] + c0 * len;
+                let slab = &job.slabs[s0..s0 + len * w];
+                let dst = (&mut **out, *stride, at, q.out_col + c0);
+                match (q.abs, w) {
+                    (false, 6) => store(&sum::<FMA, false, 6>(a, p, q.live, slab), dst),
+                    (false, 5) => store(&sum::<FMA, false, 5>(a, p, q.live, slab), dst),
+                    (false, 4) => store(&sum::<FMA, false, 4>(a, p, q.live, slab), dst),
+                    (false, 3) => store(&sum::<FMA, false, 3>(a, p, q.live, slab), dst),
+                    (false, 2) => store(&sum::<FMA, false, 2>(a, p, q.live, slab), dst),
+                    (false, _) => store(&sum::<FMA, false, 1>(a, p, q.live, slab), dst),
+                    (true, 6) => store(&sum::<FMA, true, 6>(a, p, q.live, slab), dst),
+                    (true, 5) => store(&sum::<FMA, true, 5>(a, p, q.live, slab), dst),
+                    (true, 4) => store(&sum::<FMA, true, 4>(a, p, q.live, slab), dst),
+                    (true, 3) => store(&sum::<FMA, true, 3>(a, p, q.live, slab), dst),
+                    (true, 2) => store(&sum::<FMA, true, 2>(a, p, q.live, slab), dst),
+                    (true, _) => store(&sum::<FMA, true, 1>(a, p, q.live, slab), dst),
                 }
-                let lv = &q.live[from[qi]..to[qi]];
-                let (out, stride) = &mut outs[q.out];
-                let len = q.live.len();
-                let mut c0 = 0;
-                while c0 < q.n {
-                    let w = NR.min(q.n - c0);
-                    let s0 = job.base[qi] + c0 * len;
-                    let slab = &job.slabs[s0 + from[qi] * w..s0 + to[qi] * w];
-                    let dst = (&mut **out, *stride, at, q.out_col + c0, add);
-                    match (q.abs, w) {
-                        (false, 6) => store(&block::<FMA, false, 6>(cols, j0, lv, slab), dst),
-                        (false, 5) => store(&block::<FMA, false, 5>(cols, j0, lv, slab), dst),
-                        (false, 4) => store(&block::<FMA, false, 4>(cols, j0, lv, slab), dst),
-                        (false, 3) => store(&block::<FMA, false, 3>(cols, j0, lv, slab), dst),
-                        (false, 2) => store(&block::<FMA, false, 2>(cols, j0, lv, slab), dst),
-                        (false, _) => store(&block::<FMA, false, 1>(cols, j0, lv, slab), dst),
-                        (true, 6) => store(&block::<FMA, true, 6>(cols, j0, lv, slab), dst),
-                        (true, 5) => store(&block::<FMA, true, 5>(cols, j0, lv, slab), dst),
-                        (true, 4) => store(&block::<FMA, true, 4>(cols, j0, lv, slab), dst),
-                        (true, 3) => store(&block::<FMA, true, 3>(cols, j0, lv, slab), dst),
-                        (true, 2) => store(&block::<FMA, true, 2>(cols, j0, lv, slab), dst),
-                        (true, _) => store(&block::<FMA, true, 1>(cols, j0, lv, slab), dst),
-                    }
-                    c0 += w;
-                }
+                c0 += w;
             }
         }
     }
 }
 
-/// `MR × C` accumulators of one panel's block (its columns `j0 ..`) against a slab of `C`
-/// columns of the live rows; with `ABS`, of `|A|`.
+/// Panel `p`'s `MR × C` sums over all `live` indices against a slab of `C` columns (one row
+/// per live index), block by block.
 #[inline(always)]
-fn block<const FMA: bool, const ABS: bool, const C: usize>(
-    cols: &[Column],
-    j0: usize,
+fn sum<const FMA: bool, const ABS: bool, const C: usize>(
+    a: &PackedMatrix,
+    p: usize,
     live: &[usize],
     slab: &[f64],
 ) -> [[f64; MR]; C] {
     let mut acc = [[0.0; MR]; C];
+    let mut from = 0;
+    while from < live.len() {
+        let b = live[from] / KB;
+        let to = from + live[from..].partition_point(|&j| j < b * KB + KB);
+        let cols = a.block(b, p);
+        block::<FMA, ABS, C>(
+            &mut acc,
+            cols,
+            b * KB,
+            &live[from..to],
+            &slab[from * C..to * C],
+        );
+        from = to;
+    }
+    acc
+}
+
+/// Adds to `MR × C` accumulators one panel's block (its columns `j0 ..`) times a slab of `C`
+/// columns of the live rows; with `ABS`, `|A|`'s.
+#[inline(always)]
+fn block<const FMA: bool, const ABS: bool, const C: usize>(
+    acc: &mut [[f64; MR]; C],
+    cols: &[Column],
+    j0: usize,
+    live: &[usize],
+    slab: &[f64],
+) {
     for (&j, row) in live.iter().zip(slab.chunks_exact(C)) {
         debug_assert!(j >= j0 && j - j0 < cols.len());
         // SAFETY: the live indices of a block lie in `j0 .. j0 + cols.len()` (ascending,
@@ -284,20 +297,18 @@ fn block<const FMA: bool, const ABS: bool, const C: usize>(
             }
         }
     }
-    acc
 }
 
-/// Writes (or, with `add`, adds) the first `rows` rows of the accumulators to `out` at row
-/// `i0`, column `c0`.
+/// Writes the first `rows` rows of the accumulators to `out` at row `i0`, column `c0`.
 #[inline(always)]
 fn store<const C: usize>(
     acc: &[[f64; MR]; C],
-    (out, out_stride, (i0, rows), c0, add): (&mut [f64], usize, (usize, usize), usize, bool),
+    (out, out_stride, (i0, rows), c0): (&mut [f64], usize, (usize, usize), usize),
 ) {
     for r in 0..rows {
         let dst = &mut out[(i0 + r) * out_stride + c0..(i0 + r) * out_stride + c0 + C];
         for c in 0..C {
-            dst[c] = if add { dst[c] + acc[c][r] } else { acc[c][r] };
+            dst[c] = acc[c][r];
         }
     }
 }
