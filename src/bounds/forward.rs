@@ -261,13 +261,12 @@ pub(crate) fn forward_group(
             // The products overwrite their outputs: sizing them needs no zeroing.
             ws.c_next.resize(n * cols, 0.0);
             ws.rv_next.resize(n * stride, 0.0);
-            let (c, c_next) = (&ws.c, &mut ws.c_next);
             let w = &prepared.packed_w[k];
-            sparse_product((n_prev, cols), w, c, c_next, &mut ws.sparse);
-            let (rv, rv_next) = (&ws.rv, &mut ws.rv_next);
-            let shape = (n_prev, cols, g_count);
-            let abs_w_k = &prepared.packed_abs_w[k];
-            magnitude_products(shape, abs_w_k, rv, rv_next, &mut ws.sparse);
+            let (ins, outs) = (
+                (&ws.c[..], &ws.rv[..]),
+                (&mut ws.c_next[..], &mut ws.rv_next[..]),
+            );
+            layer_products((n_prev, cols, g_count), w, ins, outs, &mut ws.sparse);
             let row_sums = &prepared.abs_row_sums[k];
             for i in 0..n {
                 let b = layer.bias[i];
@@ -413,10 +412,12 @@ fn relax_layer<const K: usize>(
     }
 }
 
-/// Buffers of [`sparse_product`] and [`magnitude_products`]: the live rows of the right factor.
+/// Buffers of [`layer_products`]: the live rows of each right factor, and the slabs.
 #[derive(Default)]
 struct SparseScratch {
-    rows: Vec<usize>,
+    rows_c: Vec<usize>,
+    rows_r: Vec<usize>,
+    rows_v: Vec<usize>,
     slabs: Vec<f64>,
 }
 
@@ -436,46 +437,44 @@ fn nonzero_rows(
     }));
 }
 
-/// `out = A·B` for the packed `m × k` `A` and `B` `k × cols`, row-major, skipping the rows of
-/// `B` that are zero: after a ReLU the forms of neurons inactive over every box of the group
-/// are exact zeros, so leaving them out changes no sum and no rounding bound.
-fn sparse_product(
-    (k, cols): (usize, usize),
-    a: &PackedMatrix,
-    b: &[f64],
-    out: &mut [f64],
-    scratch: &mut SparseScratch,
-) {
-    nonzero_rows(b, k, cols, 0..cols, &mut scratch.rows);
-    a.product(
-        &scratch.rows,
-        (b, cols),
-        cols,
-        (out, cols),
-        &mut scratch.slabs,
-    );
-}
-
-/// `[R̂' | V'] = |W|·[R̂ | V]` for the layout of [`Workspace::rv`]: `|W|` is `m × k` (packed),
-/// each of the `k` rows of `rv` holds `cols` entries of `R̂` then `g` of `V`.
+/// An affine layer's products, `Ĉ' = W·Ĉ` and `[R̂' | V'] = |W|·[R̂ | V]`, in one pass over the
+/// packed `m × k` `W` ([`PackedMatrix::products`]; `|W|` is exact): `Ĉ` is `k × cols`
+/// row-major, each of the `k` rows of `rv` holds `cols` entries of `R̂` then `g` of `V`
+/// ([`Workspace::rv`]).
 ///
-/// Two products, each over the rows where its part is nonzero: after the exact first layer
-/// `R̂` is nonzero only for the neurons unstable in some box of the group, and `V` is zero
-/// only for those inactive over every box.
-fn magnitude_products(
+/// Each product runs over the rows where its right factor is nonzero: after a ReLU the forms
+/// of neurons inactive over every box of the group are exact zeros (no sum and no rounding
+/// bound changes), after the exact first layer `R̂` is nonzero only for the neurons unstable
+/// in some box, and `V` is zero only for those inactive over every box.
+fn layer_products(
     (k, cols, g): (usize, usize, usize),
-    abs_w: &PackedMatrix,
-    rv: &[f64],
-    out: &mut [f64],
+    w: &PackedMatrix,
+    (c, rv): (&[f64], &[f64]),
+    (c_out, rv_out): (&mut [f64], &mut [f64]),
     scratch: &mut SparseScratch,
 ) {
+    use crate::matmul::Part;
     let stride = cols + g;
-    nonzero_rows(rv, k, stride, 0..cols, &mut scratch.rows);
-    let slabs = &mut scratch.slabs;
-    abs_w.product(&scratch.rows, (rv, stride), cols, (out, stride), slabs);
-    nonzero_rows(rv, k, stride, cols..stride, &mut scratch.rows);
-    let (v, v_out) = ((&rv[cols..], stride), (&mut out[cols..], stride));
-    abs_w.product(&scratch.rows, v, g, v_out, &mut scratch.slabs);
+    nonzero_rows(c, k, cols, 0..cols, &mut scratch.rows_c);
+    nonzero_rows(rv, k, stride, 0..cols, &mut scratch.rows_r);
+    nonzero_rows(rv, k, stride, cols..stride, &mut scratch.rows_v);
+    let part = |abs, live, b, b_stride, b_col, n, out, out_col| Part {
+        abs,
+        live,
+        b,
+        b_stride,
+        b_col,
+        n,
+        out,
+        out_col,
+    };
+    let parts = [
+        part(false, &scratch.rows_c[..], c, cols, 0, cols, 0, 0),
+        part(true, &scratch.rows_r[..], rv, stride, 0, cols, 1, 0),
+        part(true, &scratch.rows_v[..], rv, stride, cols, g, 1, cols),
+    ];
+    let mut outs = [(c_out, cols), (rv_out, stride)];
+    w.products(&parts, &mut outs, &mut scratch.slabs);
 }
 
 /// IBP through affine layer `layer` for the group: from `ws.ic ± ws.ir` (post-ReLU, `n_in × G`)
@@ -567,64 +566,49 @@ mod tests {
     use crate::bounds::crown;
     use crate::bounds::test_support::*;
 
-    /// The magnitude products give the dense product of `|W|` with `[R̂ | V]` (each part over
-    /// its own nonzero rows), and write every entry.
+    /// The layer's products give the dense products `W·Ĉ` and `|W|·[R̂ | V]` (each part over
+    /// its own nonzero rows, in one pass) and write every entry.
     #[test]
-    fn magnitude_products_give_the_dense_product() {
+    fn layer_products_give_the_dense_products() {
         use rand::{Rng, SeedableRng};
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
-        let (m, k, cols, g) = (37, 50, 9, 3);
+        let (m, k, cols, g) = (37, 150, 9, 3);
         let stride = cols + g;
-        let a: Vec<f64> = (0..m * k).map(|_| rng.random_range(0.0..1.0)).collect();
-        for live in [0, 3, 25, 26, 50] {
-            // `live` nonzero rows of R̂, spread over the 50; V nonzero everywhere.
-            let mut rv = vec![0.0; k * stride];
+        let a: Vec<f64> = (0..m * k).map(|_| rng.random_range(-1.0..1.0)).collect();
+        let abs_a: Vec<f64> = a.iter().map(|x| x.abs()).collect();
+        let packed = PackedMatrix::new(m, k, &a);
+        for live in [0, 3, 25, 26, 97, 150] {
+            // `live` nonzero rows of Ĉ and of R̂, spread over the 150 (R̂'s shifted);
+            // V nonzero on Ĉ's rows.
+            let (mut c, mut rv) = (vec![0.0; k * cols], vec![0.0; k * stride]);
             for j in 0..k {
-                let row = &mut rv[j * stride..(j + 1) * stride];
-                row[cols..]
-                    .iter_mut()
-                    .for_each(|x| *x = rng.random_range(0.0..1.0));
                 if j * live / k != (j + 1) * live / k {
-                    row[..cols]
+                    c[j * cols..(j + 1) * cols]
+                        .iter_mut()
+                        .for_each(|x| *x = rng.random_range(-1.0..1.0));
+                    rv[j * stride + cols..(j + 1) * stride]
+                        .iter_mut()
+                        .for_each(|x| *x = rng.random_range(0.0..1.0));
+                }
+                let jr = (j + 7) % k;
+                if jr * live / k != (jr + 1) * live / k {
+                    rv[j * stride..j * stride + cols]
                         .iter_mut()
                         .for_each(|x| *x = rng.random_range(0.0..1.0));
                 }
             }
-            let (mut dense, mut out) = (vec![0.0; m * stride], vec![f64::NAN; m * stride]);
-            gemm(m, k, stride, &a, &rv, &mut dense);
+            let (mut dense_c, mut dense_rv) = (vec![0.0; m * cols], vec![0.0; m * stride]);
+            gemm(m, k, cols, &a, &c, &mut dense_c);
+            gemm(m, k, stride, &abs_a, &rv, &mut dense_rv);
+            let (mut c_out, mut rv_out) = (vec![f64::NAN; m * cols], vec![f64::NAN; m * stride]);
             let mut scratch = SparseScratch::default();
-            let packed = PackedMatrix::new(m, k, &a);
-            magnitude_products((k, cols, g), &packed, &rv, &mut out, &mut scratch);
-            for (x, y) in dense.iter().zip(&out) {
-                assert!((x - y).abs() <= 1e-13, "{live} live rows: {x} vs {y}");
-            }
-        }
-    }
-
-    /// The sparse product (over the nonzero rows of `B`) gives the dense product and writes
-    /// every entry.
-    #[test]
-    fn sparse_product_gives_the_dense_product() {
-        use rand::{Rng, SeedableRng};
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
-        let (m, k, cols) = (37, 50, 9);
-        let a: Vec<f64> = (0..m * k).map(|_| rng.random_range(-1.0..1.0)).collect();
-        for live in [0, 3, 25, 43, 44, 50] {
-            // `live` nonzero rows of B, spread over the 50.
-            let mut b = vec![0.0; k * cols];
-            for j in 0..k {
-                if j * live / k != (j + 1) * live / k {
-                    b[j * cols..(j + 1) * cols]
-                        .iter_mut()
-                        .for_each(|x| *x = rng.random_range(-1.0..1.0));
-                }
-            }
-            let (mut dense, mut out) = (vec![0.0; m * cols], vec![f64::NAN; m * cols]);
-            gemm(m, k, cols, &a, &b, &mut dense);
-            let mut scratch = SparseScratch::default();
-            let packed = PackedMatrix::new(m, k, &a);
-            sparse_product((k, cols), &packed, &b, &mut out, &mut scratch);
-            for (x, y) in dense.iter().zip(&out) {
+            let (ins, outs) = ((&c[..], &rv[..]), (&mut c_out[..], &mut rv_out[..]));
+            layer_products((k, cols, g), &packed, ins, outs, &mut scratch);
+            for (x, y) in dense_c
+                .iter()
+                .zip(&c_out)
+                .chain(dense_rv.iter().zip(&rv_out))
+            {
                 assert!((x - y).abs() <= 1e-13, "{live} live rows: {x} vs {y}");
             }
         }

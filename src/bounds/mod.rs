@@ -304,10 +304,9 @@ pub struct PreparedNetwork<'a> {
     net: &'a Mlp,
     /// `|W_k|` of every layer, row-major like `W_k`.
     pub(crate) abs_w: Vec<Vec<f64>>,
-    /// `W_k` and `|W_k|` packed for the forward method's products
-    /// ([`crate::matmul::PackedMatrix`]).
+    /// `W_k` packed for the forward method's products ([`crate::matmul::PackedMatrix`],
+    /// which also multiplies by `|W_k|`).
     pub(crate) packed_w: Vec<PackedMatrix>,
-    pub(crate) packed_abs_w: Vec<PackedMatrix>,
     /// Upper bounds of the row sums of `|W_k|` (`n_k` per layer): forward bounds bound
     /// `|W_k| V ≤ rowsum · max V` for their rounding instead of computing the product.
     pub(crate) abs_row_sums: Vec<Vec<f64>>,
@@ -325,12 +324,6 @@ impl<'a> PreparedNetwork<'a> {
             .collect();
         let pack = |w: &[f64], l: &crate::network::Layer| PackedMatrix::new(l.n_out, l.n_in, w);
         let packed_w = net.layers.iter().map(|l| pack(&l.weight, l)).collect();
-        let packed_abs_w = net
-            .layers
-            .iter()
-            .zip(&abs_w)
-            .map(|(l, a)| pack(a, l))
-            .collect();
         let abs_row_sums = net
             .layers
             .iter()
@@ -350,7 +343,6 @@ impl<'a> PreparedNetwork<'a> {
             net,
             abs_w,
             packed_w,
-            packed_abs_w,
             abs_row_sums,
         })
     }

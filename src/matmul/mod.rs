@@ -12,7 +12,7 @@
 use std::sync::atomic::{AtomicU64, Ordering};
 
 mod packed;
-pub use packed::PackedMatrix;
+pub use packed::{PackedMatrix, Part};
 
 use gemm::Parallelism;
 

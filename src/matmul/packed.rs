@@ -1,16 +1,22 @@
-//! Products `A·B` with a fixed left factor (a layer's `W` or `|W|`) packed once, over a chosen
-//! subset of the inner dimension.
+//! Products `A·B` and `|A|·B` with a fixed left factor (a layer's `W`) packed once, over a
+//! chosen subset of the inner dimension, several right factors in one pass over `A`.
 //!
 //! The forward bound method multiplies each weight matrix by thin panels (`2`–`3` columns a
-//! face or box: 48–72 columns at the paper's 12 boxes), many times a second, skipping the rows
-//! of the right factor that are zero (neurons inactive over every box). Through a general
-//! GEMM that meant gathering the live columns of `W` and the GEMM packing them again on every
-//! call, a quarter of the step's time; here `W` is packed once, in panels of [`MR`] rows with
-//! the [`MR`] entries of each column contiguous, and the kernel walks the live inner indices
-//! directly (no copy of either factor).
+//! face or box: 18–48 columns a thread at the paper's 12 boxes), many times a second, skipping
+//! the rows of the right factor that are zero (neurons inactive over every box). Through a
+//! general GEMM that meant gathering the live columns of `W` and the GEMM packing them again on
+//! every call; here `W` is packed once, in panels of [`MR`] rows with the [`MR`] entries of each
+//! column on one cache line, and the kernel walks the live inner indices directly.
+//!
+//! A layer's three products (`W·Ĉ`, `|W|·R̂`, `|W|·V`) run as [`Part`]s of one
+//! [`PackedMatrix::products`] call: `|W|` is `W` with the sign bit cleared as it is loaded, and
+//! the packed matrix is stored block by block ([`KB`] inner indices), each block's panels one
+//! after another, so that one sequential pass over `W` (which does not fit in L2 beside the
+//! next layer's) serves all three; each block of a panel is read from memory once and reused
+//! from L1 by every part. Three passes over `W`, `|W|`, `|W|` before.
 //!
 //! Soundness does not depend on the kernel: the rounding model ([`crate::rounding`]) bounds the
-//! error of any order of summation, with or without fused multiply–adds.
+//! error of any order of summation, with or without fused multiply–adds; `|w|` is exact.
 #![allow(clippy::needless_range_loop)] // index loops over registers read as the formulas
 
 use std::sync::atomic::Ordering;
@@ -19,16 +25,50 @@ use std::sync::atomic::Ordering;
 const MR: usize = 8;
 /// Columns of the right factor a kernel call keeps in registers (`MR × NR` accumulators).
 const NR: usize = 6;
-/// Live inner indices a chunk: a panel's chunk (8 KiB) and a slab's (6 KiB) stay in L1.
-const KC: usize = 128;
+/// Inner indices a block of the packed storage (8 KiB of a panel): blocks are stored one after
+/// another, each block's panels in order.
+const KB: usize = 128;
+/// Most parts one [`PackedMatrix::products`] call takes.
+const MAX_PARTS: usize = 4;
 
-/// An `m × k` matrix packed in panels of [`MR`] rows (the last one padded with zeros): panel
-/// `p` holds, for each column `j`, rows `p·MR .. p·MR + MR` contiguously.
+/// An `m × k` matrix packed in panels of [`MR`] rows (the last one padded with zeros), stored
+/// block-major: block `b` (columns `b·KB ..`, `w_b` of them) holds panel 0's columns, then
+/// panel 1's, …, each column's [`MR`] rows on one cache line.
 #[derive(Clone, Debug, Default)]
 pub struct PackedMatrix {
     m: usize,
     k: usize,
-    panels: Vec<f64>,
+    columns: Vec<Column>,
+}
+
+/// One column of a panel: [`MR`] entries on one 64-byte cache line (the allocator aligns a
+/// `Vec<f64>` to 16 bytes only, so an unaligned column's second half split across two lines
+/// on every load).
+#[derive(Clone, Copy, Debug, Default)]
+#[repr(C, align(64))]
+struct Column([f64; MR]);
+
+/// One product of a [`PackedMatrix::products`] call: `out[i·stride + out_col + c] =
+/// Σ_{j ∈ live} A'[i][j] · b[j·b_stride + b_col + c]` for every row `i` and `c < n`, with
+/// `A' = |A|` if `abs`, else `A`; the rows of `b` not in `live` are taken as zero.
+#[derive(Clone, Copy, Debug)]
+pub struct Part<'a> {
+    /// Multiply by `|A|` (every entry's sign bit cleared: exact).
+    pub abs: bool,
+    /// The inner indices to sum over, ascending, each `< k`.
+    pub live: &'a [usize],
+    /// The right factor.
+    pub b: &'a [f64],
+    /// Its row stride.
+    pub b_stride: usize,
+    /// Its first column read.
+    pub b_col: usize,
+    /// Columns.
+    pub n: usize,
+    /// Which of the call's outputs.
+    pub out: usize,
+    /// The first column written there.
+    pub out_col: usize,
 }
 
 impl PackedMatrix {
@@ -36,14 +76,15 @@ impl PackedMatrix {
     pub fn new(m: usize, k: usize, a: &[f64]) -> PackedMatrix {
         assert!(a.len() >= m * k, "packed matrix: buffer too small");
         let n_panels = m.div_ceil(MR);
-        let mut panels = vec![0.0; n_panels * k * MR];
+        let mut columns = vec![Column::default(); n_panels * k];
         for i in 0..m {
             let (p, r) = (i / MR, i % MR);
             for j in 0..k {
-                panels[(p * k + j) * MR + r] = a[i * k + j];
+                let (b, w) = (j / KB, KB.min(k - j / KB * KB));
+                columns[b * KB * n_panels + p * w + j % KB].0[r] = a[i * k + j];
             }
         }
-        PackedMatrix { m, k, panels }
+        PackedMatrix { m, k, columns }
     }
 
     /// Rows `m`.
@@ -56,13 +97,15 @@ impl PackedMatrix {
         self.k
     }
 
-    /// `out[i·out_stride + c] = Σ_{j ∈ live} A[i][j] · b[j·b_stride + c]` for every row `i` and
-    /// `c < n`: the product of `A` with the rows `live` of `b` (the other rows taken as zero).
-    /// Every `j` in `live` must be `< k`. `scratch` holds the live rows of `b` packed in slabs
-    /// of [`NR`] columns (each slab contiguous, so that it stays in L1 while a panel of `A`
-    /// runs over it).
-    ///
-    /// Panics only on an internal shape bug (a slice shorter than its view).
+    /// Panel `p`'s columns of block `b` (`j − b·KB` indexes them).
+    fn block(&self, b: usize, p: usize) -> &[Column] {
+        let w = KB.min(self.k - b * KB);
+        let at = b * KB * self.m.div_ceil(MR) + p * w;
+        &self.columns[at..at + w]
+    }
+
+    /// One product (see [`Part`]): `out[i·out_stride + c] = Σ_{j ∈ live} A[i][j] ·
+    /// b[j·b_stride + c]`, `live` ascending.
     pub fn product(
         &self,
         live: &[usize],
@@ -71,138 +114,178 @@ impl PackedMatrix {
         (out, out_stride): (&mut [f64], usize),
         scratch: &mut Vec<f64>,
     ) {
-        if self.m == 0 || n == 0 {
+        let part = Part {
+            abs: false,
+            live,
+            b,
+            b_stride,
+            b_col: 0,
+            n,
+            out: 0,
+            out_col: 0,
+        };
+        self.products(&[part], &mut [(out, out_stride)], scratch);
+    }
+
+    /// The [`Part`]s' products in one pass over `A`; `outs` are the outputs as (buffer, row
+    /// stride). Parts may share an output (disjoint columns). `scratch` holds each part's live
+    /// rows of `b` packed in slabs of [`NR`] columns (each slab contiguous, so that it stays
+    /// in L1 while the panels run over it).
+    ///
+    /// Panics only on an internal shape bug (a slice shorter than its view, unsorted `live`).
+    pub fn products(
+        &self,
+        parts: &[Part<'_>],
+        outs: &mut [(&mut [f64], usize)],
+        scratch: &mut Vec<f64>,
+    ) {
+        assert!(parts.len() <= MAX_PARTS, "packed products: too many parts");
+        for q in parts {
+            let (out, stride) = &outs[q.out];
+            assert!(
+                q.live.windows(2).all(|w| w[0] < w[1])
+                    && q.live.last().is_none_or(|&j| j < self.k)
+                    && q.live
+                        .iter()
+                        .all(|&j| j * q.b_stride + q.b_col + q.n <= q.b.len())
+                    && (self.m == 0 || (self.m - 1) * stride + q.out_col + q.n <= out.len()),
+                "packed product: shape bug"
+            );
+        }
+        if self.m == 0 {
             return;
         }
-        assert!(
-            live.iter()
-                .all(|&j| j < self.k && j * b_stride + n <= b.len())
-                && (self.m - 1) * out_stride + n <= out.len(),
-            "packed product: shape bug"
-        );
-        super::MULTIPLY_ADDS.fetch_add((self.m * live.len() * n) as u64, Ordering::Relaxed);
-        // Slab `s` (columns `s·NR ..`, the last one narrower): for each live row in order, its
-        // entries of those columns.
+        let madds: usize = parts.iter().map(|q| self.m * q.live.len() * q.n).sum();
+        super::MULTIPLY_ADDS.fetch_add(madds as u64, Ordering::Relaxed);
+        // Part `q`'s slab `s` (columns `s·NR ..`, the last one narrower) at `base[q] + s·NR·len`:
+        // for each live row in order, its entries of those columns.
         scratch.clear();
-        for c0 in (0..n).step_by(NR) {
-            let c1 = n.min(c0 + NR);
-            for &j in live {
-                scratch.extend_from_slice(&b[j * b_stride + c0..j * b_stride + c1]);
+        let mut base = [0; MAX_PARTS];
+        for (qi, q) in parts.iter().enumerate() {
+            base[qi] = scratch.len();
+            for c0 in (0..q.n).step_by(NR) {
+                let c1 = q.n.min(c0 + NR);
+                for &j in q.live {
+                    let at = j * q.b_stride + q.b_col;
+                    scratch.extend_from_slice(&q.b[at + c0..at + c1]);
+                }
             }
         }
         let job = Job {
             a: self,
-            live,
+            parts,
+            base,
             slabs: scratch,
-            n,
         };
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
         {
             // SAFETY: the CPU has the features the function is compiled for.
-            unsafe { product_fma(&job, (out, out_stride)) };
+            unsafe { products_fma(&job, outs) };
             return;
         }
-        product_body::<false>(&job, (out, out_stride));
+        products_body::<false>(&job, outs);
     }
 }
 
-/// One product: the packed `A`, the live inner indices and the slabs of `B` over them.
+/// One call: the packed `A`, the parts and their slabs.
 struct Job<'a> {
     a: &'a PackedMatrix,
-    live: &'a [usize],
+    parts: &'a [Part<'a>],
+    base: [usize; MAX_PARTS],
     slabs: &'a [f64],
-    n: usize,
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-unsafe fn product_fma(job: &Job<'_>, out: (&mut [f64], usize)) {
-    product_body::<true>(job, out);
+unsafe fn products_fma(job: &Job<'_>, outs: &mut [(&mut [f64], usize)]) {
+    products_body::<true>(job, outs);
 }
 
-/// The product, in chunks of [`KC`] live inner indices (a panel's chunk, `KC·MR` entries,
-/// stays in L1 while it runs over every slab's chunk), panel by panel and slab by slab; the
-/// first chunk writes `out`, later ones add to it. `FMA` selects fused multiply–adds
-/// (compiled where the CPU has them: `mul_add` is a library call elsewhere).
+/// The products, panel by panel, each part's slabs in turn, each slab's sum over every block
+/// of [`KB`] inner indices kept in registers and stored once. A panel's blocks (`k·MR`
+/// entries, 25 KiB at `k = 400`) stay in L1 while every part's slabs run over them; the slabs
+/// stream from L2. (Blocks outermost, partial sums stored and added after each block, ran as
+/// fast, within the noise of a shared machine; this order sums each entry in one register,
+/// with no partial sums to add.) `FMA` selects fused multiply–adds (compiled where the CPU has
+/// them: `mul_add` is a library call elsewhere).
 #[inline(always)]
-fn product_body<const FMA: bool>(job: &Job<'_>, (out, out_stride): (&mut [f64], usize)) {
-    let (a, live, n) = (job.a, job.live, job.n);
-    let whole = n - n % NR;
-    let chunks = live.len().div_ceil(KC).max(1);
-    for chunk in 0..chunks {
-        let (j0, j1) = (chunk * KC, live.len().min(chunk * KC + KC));
-        let lv = &live[j0..j1];
-        let add = chunk > 0;
-        for p in 0..a.m.div_ceil(MR) {
-            let panel = &a.panels[p * a.k * MR..(p + 1) * a.k * MR];
-            let at = (p * MR, MR.min(a.m - p * MR));
+fn products_body<const FMA: bool>(job: &Job<'_>, outs: &mut [(&mut [f64], usize)]) {
+    let a = job.a;
+    for p in 0..a.m.div_ceil(MR) {
+        let at = (p * MR, MR.min(a.m - p * MR));
+        for (qi, q) in job.parts.iter().enumerate() {
+            let (out, stride) = &mut outs[q.out];
+            let len = q.live.len();
             let mut c0 = 0;
-            while c0 < whole {
-                let slab = &job.slabs[c0 * live.len() + j0 * NR..c0 * live.len() + j1 * NR];
-                let acc = block::<FMA, NR>(panel, lv, slab);
-                store(&acc, out, out_stride, at, c0, add);
-                c0 += NR;
-            }
-            let r = n - whole;
-            let slab = &job.slabs[c0 * live.len() + j0 * r..c0 * live.len() + j1 * r];
-            match r {
-                0 => {}
-                1 => store(
-                    &block::<FMA, 1>(panel, lv, slab),
-                    out,
-                    out_stride,
-                    at,
-                    c0,
-                    add,
-                ),
-                2 => store(
-                    &block::<FMA, 2>(panel, lv, slab),
-                    out,
-                    out_stride,
-                    at,
-                    c0,
-                    add,
-                ),
-                3 => store(
-                    &block::<FMA, 3>(panel, lv, slab),
-                    out,
-                    out_stride,
-                    at,
-                    c0,
-                    add,
-                ),
-                4 => store(
-                    &block::<FMA, 4>(panel, lv, slab),
-                    out,
-                    out_stride,
-                    at,
-                    c0,
-                    add,
-                ),
-                _ => store(
-                    &block::<FMA, 5>(panel, lv, slab),
-                    out,
-                    out_stride,
-                    at,
-                    c0,
-                    add,
-                ),
+            while c0 < q.n {
+                let w = NR.min(q.n - c0);
+                let s0 = job.base[qi] + c0 * len;
+                let slab = &job.slabs[s0..s0 + len * w];
+                let dst = (&mut **out, *stride, at, q.out_col + c0);
+                match (q.abs, w) {
+                    (false, 6) => store(&sum::<FMA, false, 6>(a, p, q.live, slab), dst),
+                    (false, 5) => store(&sum::<FMA, false, 5>(a, p, q.live, slab), dst),
+                    (false, 4) => store(&sum::<FMA, false, 4>(a, p, q.live, slab), dst),
+                    (false, 3) => store(&sum::<FMA, false, 3>(a, p, q.live, slab), dst),
+                    (false, 2) => store(&sum::<FMA, false, 2>(a, p, q.live, slab), dst),
+                    (false, _) => store(&sum::<FMA, false, 1>(a, p, q.live, slab), dst),
+                    (true, 6) => store(&sum::<FMA, true, 6>(a, p, q.live, slab), dst),
+                    (true, 5) => store(&sum::<FMA, true, 5>(a, p, q.live, slab), dst),
+                    (true, 4) => store(&sum::<FMA, true, 4>(a, p, q.live, slab), dst),
+                    (true, 3) => store(&sum::<FMA, true, 3>(a, p, q.live, slab), dst),
+                    (true, 2) => store(&sum::<FMA, true, 2>(a, p, q.live, slab), dst),
+                    (true, _) => store(&sum::<FMA, true, 1>(a, p, q.live, slab), dst),
+                }
+                c0 += w;
             }
         }
     }
 }
 
-/// `MR × C` accumulators of one panel against a slab of `C` columns of the live rows.
+/// Panel `p`'s `MR × C` sums over all `live` indices against a slab of `C` columns (one row
+/// per live index), block by block.
 #[inline(always)]
-fn block<const FMA: bool, const C: usize>(
-    panel: &[f64],
+fn sum<const FMA: bool, const ABS: bool, const C: usize>(
+    a: &PackedMatrix,
+    p: usize,
     live: &[usize],
     slab: &[f64],
 ) -> [[f64; MR]; C] {
     let mut acc = [[0.0; MR]; C];
+    let mut from = 0;
+    while from < live.len() {
+        let b = live[from] / KB;
+        let to = from + live[from..].partition_point(|&j| j < b * KB + KB);
+        let cols = a.block(b, p);
+        block::<FMA, ABS, C>(
+            &mut acc,
+            cols,
+            b * KB,
+            &live[from..to],
+            &slab[from * C..to * C],
+        );
+        from = to;
+    }
+    acc
+}
+
+/// Adds to `MR × C` accumulators one panel's block (its columns `j0 ..`) times a slab of `C`
+/// columns of the live rows; with `ABS`, `|A|`'s.
+#[inline(always)]
+fn block<const FMA: bool, const ABS: bool, const C: usize>(
+    acc: &mut [[f64; MR]; C],
+    cols: &[Column],
+    j0: usize,
+    live: &[usize],
+    slab: &[f64],
+) {
     for (&j, row) in live.iter().zip(slab.chunks_exact(C)) {
-        let col: &[f64; MR] = panel[j * MR..j * MR + MR].try_into().unwrap();
+        debug_assert!(j >= j0 && j - j0 < cols.len());
+        // SAFETY: the live indices of a block lie in `j0 .. j0 + cols.len()` (ascending,
+        // checked in `products`, and cut at the block's ends).
+        let col = unsafe { &cols.get_unchecked(j - j0).0 };
+        let col = if ABS { col.map(f64::abs) } else { *col };
         for c in 0..C {
             let x = row[c];
             for r in 0..MR {
@@ -214,24 +297,18 @@ fn block<const FMA: bool, const C: usize>(
             }
         }
     }
-    acc
 }
 
-/// Writes (or, with `add`, adds) the first `rows` rows of the accumulators to `out` at row
-/// `i0`, column `c0`.
+/// Writes the first `rows` rows of the accumulators to `out` at row `i0`, column `c0`.
 #[inline(always)]
 fn store<const C: usize>(
     acc: &[[f64; MR]; C],
-    out: &mut [f64],
-    out_stride: usize,
-    (i0, rows): (usize, usize),
-    c0: usize,
-    add: bool,
+    (out, out_stride, (i0, rows), c0): (&mut [f64], usize, (usize, usize), usize),
 ) {
     for r in 0..rows {
         let dst = &mut out[(i0 + r) * out_stride + c0..(i0 + r) * out_stride + c0 + C];
         for c in 0..C {
-            dst[c] = if add { dst[c] + acc[c][r] } else { acc[c][r] };
+            dst[c] = acc[c][r];
         }
     }
 }
@@ -241,8 +318,9 @@ mod tests {
     use super::*;
 
     /// Dyadic entries with small numerators: every product and sum is exact in f64, so the
-    /// packed product must equal a triple loop over the live rows exactly, for shapes with
-    /// partial panels and partial column blocks, strided operands, and both kernels.
+    /// packed products must equal a triple loop over the live rows exactly, for shapes with
+    /// partial panels, partial blocks and partial column slabs, strided operands, `A` and
+    /// `|A|` parts sharing an output, and both kernels.
     #[test]
     fn packed_products_equal_a_triple_loop_over_the_live_rows() {
         for &(m, k, n) in &[
@@ -250,45 +328,102 @@ mod tests {
             (3, 5, 2),
             (8, 7, 6),
             (17, 33, 13),
-            (64, 40, 48),
+            (64, 70, 48),
             (9, 300, 7),
         ] {
             let a: Vec<f64> = (0..m * k)
                 .map(|i| ((i * 37 % 101) as f64 - 50.0) / 16.0)
                 .collect();
-            let b_stride = n + 3;
+            let b_stride = 2 * n + 3;
             let b: Vec<f64> = (0..k * b_stride)
                 .map(|i| ((i * 53 % 97) as f64 - 48.0) / 8.0)
                 .collect();
             let packed = PackedMatrix::new(m, k, &a);
-            for live in [
-                (0..k).collect::<Vec<_>>(),
-                (0..k).step_by(3).collect(),
-                vec![],
-            ] {
-                let out_stride = n + 2;
-                let mut want = vec![-1.0; m * out_stride];
-                for i in 0..m {
-                    for c in 0..n {
-                        want[i * out_stride + c] = live
-                            .iter()
-                            .map(|&j| a[i * k + j] * b[j * b_stride + c])
-                            .sum();
+            let lives: [Vec<usize>; 3] = [(0..k).collect(), (0..k).step_by(3).collect(), vec![]];
+            for (l0, l1) in [(0, 1), (1, 0), (2, 0), (1, 2)] {
+                let (live0, live1) = (&lives[l0], &lives[l1]);
+                // Part 0: A on b's first n columns into out0; parts 1 and 2: |A| on b's next
+                // n columns (live1) and on its first n (live0), side by side in out1.
+                let (s0, s1) = (n + 2, 2 * n + 1);
+                let want = |abs: bool, live: &[usize], col: usize, i: usize, c: usize| -> f64 {
+                    live.iter()
+                        .map(|&j| {
+                            let w = a[i * k + j];
+                            (if abs { w.abs() } else { w }) * b[j * b_stride + col + c]
+                        })
+                        .sum()
+                };
+                let parts = [
+                    Part {
+                        abs: false,
+                        live: live0,
+                        b: &b,
+                        b_stride,
+                        b_col: 0,
+                        n,
+                        out: 0,
+                        out_col: 0,
+                    },
+                    Part {
+                        abs: true,
+                        live: live1,
+                        b: &b,
+                        b_stride,
+                        b_col: n,
+                        n,
+                        out: 1,
+                        out_col: 0,
+                    },
+                    Part {
+                        abs: true,
+                        live: live0,
+                        b: &b,
+                        b_stride,
+                        b_col: 0,
+                        n,
+                        out: 1,
+                        out_col: n,
+                    },
+                ];
+                for fma in [true, false] {
+                    let (mut o0, mut o1) = (vec![-1.0; m * s0], vec![-1.0; m * s1]);
+                    let mut scratch = vec![];
+                    let mut outs = [(&mut o0[..], s0), (&mut o1[..], s1)];
+                    if fma {
+                        packed.products(&parts, &mut outs, &mut scratch);
+                    } else {
+                        // The slabs as `products` packs them, then the portable kernel.
+                        packed.products(&parts, &mut outs, &mut scratch);
+                        let mut base = [0; MAX_PARTS];
+                        let mut at = 0;
+                        for (qi, q) in parts.iter().enumerate() {
+                            base[qi] = at;
+                            at += q.live.len() * q.n;
+                        }
+                        for (o, _) in outs.iter_mut() {
+                            o.fill(-1.0);
+                        }
+                        let job = Job {
+                            a: &packed,
+                            parts: &parts,
+                            base,
+                            slabs: &scratch,
+                        };
+                        products_body::<false>(&job, &mut outs);
+                    }
+                    for i in 0..m {
+                        for c in 0..n {
+                            let tag =
+                                format!("{m}×{k}×{n}, lives {l0} {l1}, fma {fma}, ({i}, {c})");
+                            assert_eq!(o0[i * s0 + c], want(false, live0, 0, i, c), "{tag}");
+                            assert_eq!(o1[i * s1 + c], want(true, live1, n, i, c), "{tag}");
+                            assert_eq!(o1[i * s1 + n + c], want(true, live0, 0, i, c), "{tag}");
+                        }
+                        // Columns past the parts stay untouched.
+                        assert!(o0[i * s0 + n..(i + 1) * s0].iter().all(|&x| x == -1.0));
+                        assert!(o1[i * s1 + 2 * n..(i + 1) * s1].iter().all(|&x| x == -1.0));
                     }
                 }
-                let (mut got, mut scratch) = (vec![-1.0; m * out_stride], vec![]);
-                let b_view = (&b[..], b_stride);
-                packed.product(&live, b_view, n, (&mut got, out_stride), &mut scratch);
-                assert_eq!(got, want, "{m}×{k}×{n}, {} live", live.len());
-                let job = Job {
-                    a: &packed,
-                    live: &live,
-                    slabs: &scratch,
-                    n,
-                };
-                let mut plain = vec![-1.0; m * out_stride];
-                product_body::<false>(&job, (&mut plain, out_stride));
-                assert_eq!(plain, want, "{m}×{k}×{n} without FMA");
             }
         }
     }
