@@ -284,7 +284,7 @@ fn curved_test(@builtin(global_invocation_id) id: vec3<u32>) {{
     let lo = take(a);
     let hi = take(a + N0);
     let c = a + 6u * N0;
-    let h = xs[c];
+    let h = iv_point(xs[c]);
     let mv = guessed(lo, hi, h, take(a + 2u * N0), take(a + 3u * N0), take(a + 4u * N0), take(a + 5u * N0), xs[c + 1u] != 0.0);
     let o = q * OUT;
     ys[o] = select(real(0.0), real(1.0), mv.ok);
@@ -422,7 +422,7 @@ fn step_test(@builtin(global_invocation_id) id: vec3<u32>) {{
     }}
     let a = q * IN;
     let c = a + 6u * N0;
-    let h = xs[c];
+    let h = iv_point(xs[c]);
     let st = StepState(take(a), take(a + N0), take(a + 2u * N0), take(a + 3u * N0), take(a + 4u * N0), take(a + 5u * N0), u32(xs[c + 1u]));
     let g = guess_step(st, h);
     let o = q * OUT;
