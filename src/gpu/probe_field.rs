@@ -531,17 +531,18 @@ fn f32_check() {
     }
     var none: array<real, M_OUT>;
     let nb = constant_bounds(none, none);
-    let m = guessed(x, x, ys[0], x, x, x, x, true);
+    let h = h_step();
+    let m = guessed(x, x, h, x, x, x, x, true);
     let b = bound_on(0u, 1u, x, x, nb, ys[1], 0u);
-    let e = curved_end(x, x, m, ys[0], 0u, 0u, nb, ys[1], 0u);
+    let e = curved_end(x, x, m, h, 0u, 0u, nb, ys[1], 0u);
     let st = StepState(x, x, x, x, x, x, 2u);
-    let g = guess_step(st, ys[0]);
+    let g = guess_step(st, h);
     var k: array<Iv, N0>;
     for (var j = 0u; j < N0; j++) {
         k[j] = Iv(x[j], x[j]);
     }
-    let r = step_rates(st, g.m, ys[0], k, piece_on(k), ys[1], 0u, select(2u * N0, 0x7fffffffu, arrayLength(&ys) == 0x7fffffffu));
-    let s = finish_step(st, g.m, ys[0], x, x, x, x);
+    let r = step_rates(st, g.m, h, k, piece_on(k), ys[1], 0u, select(2u * N0, 0x7fffffffu, arrayLength(&ys) == 0x7fffffffu));
+    let s = finish_step(st, g.m, h, x, x, x, x);
     ys[0] = b.hi + select(0.0, e.r, e.ok) + r.field.lo[0] + r.second.hi[0] + s.st.lo[0];
 }
 ";
