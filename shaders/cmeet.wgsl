@@ -108,8 +108,8 @@ fn cpipes(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     atomicStore(&flags0[g * FLAG_W + 2u], 0u);
     atomicStore(&flags1[g * FLAG_W + 2u], 0u);
-    let g0 = guess_in(state_of(0u, g), H_STEP, !TRANSFORM);
-    let g1 = guess_in(state_of(1u, g), H_STEP, true);
+    let g0 = guess_in(state_of(0u, g), h_step(), !TRANSFORM);
+    let g1 = guess_in(state_of(1u, g), h_step(), true);
     if (!g0.on_path || !g1.on_path) {
         return;
     }

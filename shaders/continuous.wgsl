@@ -68,7 +68,7 @@ fn reals_at(g: u32, at: u32) -> array<real, N0> {
 // guessed and met with the other frame's (on the common path only where both frames' were).
 fn step_guess(g: u32, st: StepState) -> Guess {
     if (!MEET) {
-        return guess_step(st, H_STEP);
+        return guess_step(st, h_step());
     }
     var gs: Guess;
     gs.on_path = atomicLoad(&flags[g * FLAG_W + 2u]) == MET_GUESSED;
@@ -110,7 +110,7 @@ fn slabs_of(@builtin(global_invocation_id) gid: vec3<u32>) {
         } else if (FACES == 1u) {
             put_bound_box(g, gs.m.hull_lo, gs.m.hull_hi);
         } else {
-            let s = slab(st.lo, st.hi, gs.m, H_STEP, f / 2u, f % 2u);
+            let s = slab(st.lo, st.hi, gs.m, h_step(), f / 2u, f % 2u);
             put_bound_box(g * FACES + f, s.lo, s.hi);
         }
     }
@@ -163,7 +163,7 @@ fn box_step(g: u32) {
     }
     // 2N0 ends, from a value the driver cannot fold (step_rates keeps its loop then).
     let ends = select(2u * N0, 0x7fffffffu, arrayLength(&cont) == 0x7fffffffu);
-    let r = step_rates(st, gs.m, H_STEP, known, piece, margin, g, ends);
+    let r = step_rates(st, gs.m, h_step(), known, piece, margin, g, ends);
     if (!r.ok) {
         return;
     }
@@ -171,7 +171,7 @@ fn box_step(g: u32) {
     let du = r.field.hi;
     let cl = r.second.lo;
     let cu = r.second.hi;
-    let s = finish_step(st, gs.m, H_STEP, dl, du, cl, cu);
+    let s = finish_step(st, gs.m, h_step(), dl, du, cl, cu);
     if (!s.proven) {
         return;
     }

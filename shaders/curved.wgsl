@@ -16,7 +16,7 @@ struct CurvedEnd {
 // The form is taken about p, the set's centre with pᵢ on the end; the lower end is the upper end
 // of yᵢ = −xᵢ (c and the other slopes negated, kᵢ not); the barrier's u must stay within the
 // slab's i-range.
-fn curved_end(lo: array<real, N0>, hi: array<real, N0>, m: Moving, h: real, i: u32, side: u32, nb: NetBounds, margin: real, piece: u32) -> CurvedEnd {
+fn curved_end(lo: array<real, N0>, hi: array<real, N0>, m: Moving, h: Iv, i: u32, side: u32, nb: NetBounds, margin: real, piece: u32) -> CurvedEnd {
     let none = CurvedEnd(0.0, false);
     let s = slab(lo, hi, m, h, i, side);
     let upper = side == 1u;
@@ -54,7 +54,7 @@ fn curved_end(lo: array<real, N0>, hi: array<real, N0>, m: Moving, h: real, i: u
     if (!b.ok) {
         return none;
     }
-    let reach = iv_mul(iv_point(h), iv_point(min(b.w_lo, 0.0))).lo;
+    let reach = iv_mul(h, iv_point(min(b.w_lo, 0.0))).lo;
     var inside = iv_add(iv_point(e), iv_point(reach)).lo >= s.lo[i];
     if (!upper) {
         inside = iv_sub(iv_point(e), iv_point(reach)).hi <= s.hi[i];

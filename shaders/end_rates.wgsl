@@ -4,9 +4,9 @@
 // tests/gpu_matches_cpu/validated.rs compares it with the Rust. Needs N0 and common.wgsl.
 
 struct Barrier {
-    // a + hb/2, rounded up: the end's rate.
+    // a + hb/2, rounded up (its largest over the enclosure of h): the end's rate.
     r: real,
-    // [w̲, w̄] ∋ a + τb/2 for τ ∈ [0, h].
+    // [w̲, w̄] ∋ a + τb/2 for τ ∈ [0, h̄] (h̄ the enclosure's upper end).
     w_lo: real,
     w_hi: real,
     // false where b does not settle in four rounds or a value is not finite (the Rust's None).
@@ -21,7 +21,7 @@ fn sup_products(k: Iv, x: Iv) -> real {
 // `c` the slab form's upper value at p; per coordinate j ≠ i the slopes k[j], the set's offsets
 // from p d[j] and its ends' rates a[j]; k[i] the slope in xᵢ. G₀ = c + Σ sup k·d (the face's
 // bound), Q = Σ sup k·a, then b ≥ Q + sup kᵢ·[w̲, w̄] with [w̲, w̄] ∋ a + τb/2, four rounds.
-fn barrier(c: real, k: array<Iv, N0>, d: array<Iv, N0>, a: array<Iv, N0>, i: u32, h: real) -> Barrier {
+fn barrier(c: real, k: array<Iv, N0>, d: array<Iv, N0>, a: array<Iv, N0>, i: u32, h: Iv) -> Barrier {
     var g0 = c;
     var q: real = 0.0;
     for (var j = 0u; j < N0; j++) {
@@ -30,7 +30,7 @@ fn barrier(c: real, k: array<Iv, N0>, d: array<Iv, N0>, a: array<Iv, N0>, i: u32
             q = up(q + sup_products(k[j], a[j]));
         }
     }
-    let half_h = iv_mul(iv_point(h), iv_point(0.5));
+    let half_h = iv_mul(h, iv_point(0.5));
     var b = up(q + sup_products(k[i], iv_point(g0)));
     for (var it = 0u; it < 4u; it++) {
         let end = iv_add(iv_point(g0), iv_mul(half_h, iv_point(b)));

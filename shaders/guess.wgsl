@@ -28,13 +28,20 @@ struct Guess {
     on_path: bool,
 }
 
-fn guess_step(st: StepState, h: real) -> Guess {
+// The validated step h = dt / substeps (the CPU engine's, an f64) as the problem's enclosure
+// [H_LO, H_HI] of it: a point in f64; in f32 the neighbouring f32 numbers, so that every
+// product with it (validated.wgsl `moved`, the Taylor and curved rates) holds the exact step's.
+fn h_step() -> Iv {
+    return Iv(H_LO, H_HI);
+}
+
+fn guess_step(st: StepState, h: Iv) -> Guess {
     return guess_in(st, h, !TRANSFORM);
 }
 
 // guess_step for a frame in x coordinates (`in_x`: its hull must lie within C) or not: the meet
 // of two frames (cmeet.wgsl) guesses the x frame's box in the first frame's module.
-fn guess_in(st: StepState, h: real, in_x: bool) -> Guess {
+fn guess_in(st: StepState, h: Iv, in_x: bool) -> Guess {
     var g: Guess;
     g.on_path = false;
     if (st.rates == 0u) {

@@ -23,7 +23,7 @@ struct Stepped {
     proven: bool,
 }
 
-fn finish_step(st: StepState, m: Moving, h: real, dl: array<real, N0>, du: array<real, N0>, cl: array<real, N0>, cu: array<real, N0>) -> Stepped {
+fn finish_step(st: StepState, m: Moving, h: Iv, dl: array<real, N0>, du: array<real, N0>, cl: array<real, N0>, cu: array<real, N0>) -> Stepped {
     if (!verified(m, dl, du)) {
         return Stepped(st, false);
     }
@@ -119,7 +119,7 @@ struct Taylor {
     ok: bool,
 }
 
-fn piece_taylor(st: StepState, m: Moving, h: real, piece: u32, over: EndPair, euler: EndPair, ends: u32) -> Taylor {
+fn piece_taylor(st: StepState, m: Moving, h: Iv, piece: u32, over: EndPair, euler: EndPair, ends: u32) -> Taylor {
     var t: Taylor;
     t.ok = false;
     var xb: array<Iv, N0>;
@@ -149,9 +149,9 @@ fn piece_taylor(st: StepState, m: Moving, h: real, piece: u32, over: EndPair, eu
             diag[i] = d;
         }
     }
-    let half_h = iv_mul(iv_point(h), iv_point(0.5));
+    let half_h = iv_mul(h, iv_point(0.5));
     for (var i = 0u; i < n0; i++) {
-        let monotone = iv_add(iv_point(1.0), iv_mul(iv_point(h), diag[i])).lo;
+        let monotone = iv_add(iv_point(1.0), iv_mul(h, diag[i])).lo;
         if (!(monotone >= 0.0)) {
             return t;
         }
@@ -201,7 +201,7 @@ struct StepRates {
 // piece over the hull and on the set's faces (the last two for its Taylor rates).
 const SOURCES: u32 = 5u;
 
-fn step_rates(st: StepState, m: Moving, h: real, known: array<Iv, N0>, piece: u32, margin: real, at: u32, ends: u32) -> StepRates {
+fn step_rates(st: StepState, m: Moving, h: Iv, known: array<Iv, N0>, piece: u32, margin: real, at: u32, ends: u32) -> StepRates {
     var out = StepRates(no_rates(), no_rates(), piece, false, false);
     var slack = FIELD_SLACK;
     if (piece != PIECE_NONE && piece != PIECE_INACTIVE) {

@@ -24,15 +24,17 @@ struct Moving {
     ok: bool,
 }
 
-// `e + h·s` as an interval (the Rust's point(e) + point(h)·point(s)).
-fn moved(e: real, h: real, s: real) -> Iv {
-    return iv_add(iv_point(e), iv_mul(iv_point(h), iv_point(s)));
+// `e + h·s` as an interval (the Rust's point(e) + point(h)·point(s)). The step `h` is an
+// enclosure [h̲, h̄] of the f64 step (a point in f64; in f32 its two neighbours, H_LO and
+// H_HI): the result holds e + τs for every τ in it, whatever the sign of s.
+fn moved(e: real, h: Iv, s: real) -> Iv {
+    return iv_add(iv_point(e), iv_mul(h, iv_point(s)));
 }
 
 // validated::guessed: face rates from last step's slab rates (r̲, r̄) and, where `before`, the
 // trend r̂ = 2r − r_before: s̄ = max(r̄, r̂) + δ, ρ̄ = min(r̄, r̂) − δ (mirrored below), δ = 5 % of
 // |r̄ − r̲| + max(|r̲|, |r̄|) plus 1e-9; then validated::moving_hull.
-fn guessed(lo: array<real, N0>, hi: array<real, N0>, h: real, r_lo: array<real, N0>, r_hi: array<real, N0>, b_lo: array<real, N0>, b_hi: array<real, N0>, before: bool) -> Moving {
+fn guessed(lo: array<real, N0>, hi: array<real, N0>, h: Iv, r_lo: array<real, N0>, r_hi: array<real, N0>, b_lo: array<real, N0>, b_hi: array<real, N0>, before: bool) -> Moving {
     var m: Moving;
     for (var i = 0u; i < N0; i++) {
         let rl = r_lo[i];
@@ -82,7 +84,7 @@ struct Box {
 // the hull with xᵢ ∈ [x̄ᵢ + h·min(0, ρ̄ᵢ), x̄ᵢ + h·max(0, s̄ᵢ)] (at the lower end
 // [x̲ᵢ + h·min(0, s̲ᵢ), x̲ᵢ + h·max(0, ρ̲ᵢ)]), met with the hull. The step's network is bounded
 // over these 2n boxes (the order (0, lower), (0, upper), (1, lower), …, as Euler's faces).
-fn slab(lo: array<real, N0>, hi: array<real, N0>, m: Moving, h: real, i: u32, side: u32) -> Box {
+fn slab(lo: array<real, N0>, hi: array<real, N0>, m: Moving, h: Iv, i: u32, side: u32) -> Box {
     var end = lo[i];
     var down_rate = m.s_lo[i];
     var up_rate = m.d_lo[i];
@@ -121,7 +123,7 @@ fn verified(m: Moving, dl: array<real, N0>, du: array<real, N0>) -> bool {
 // second-order rates (cl, cu: end_rates::curved_rates, ∓HUGE where there are none), the Euler
 // step x ← x + h·rate rounded outward (embedding::embedding_step), met with the hull
 // (validated::meet_with_pipe).
-fn slab_step_end(lo: array<real, N0>, hi: array<real, N0>, m: Moving, h: real, dl: array<real, N0>, du: array<real, N0>, cl: array<real, N0>, cu: array<real, N0>) -> Box {
+fn slab_step_end(lo: array<real, N0>, hi: array<real, N0>, m: Moving, h: Iv, dl: array<real, N0>, du: array<real, N0>, cl: array<real, N0>, cu: array<real, N0>) -> Box {
     var out: Box;
     for (var i = 0u; i < N0; i++) {
         let l = max(min(dl[i], m.d_lo[i]), cl[i]);

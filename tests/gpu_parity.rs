@@ -398,9 +398,9 @@ fn paper_boxes_on_both(gpu: &GpuBackend, s: &Scenario, problem: &ReachProblem) {
 }
 
 /// The continuous setting the GPU engine's device step does not take (the Minkowski method),
-/// and continuous and sampled runs in f32, are refused before any work, naming the setting and
-/// the way out, and `auto` runs them on the CPU; validated substeps, the scenario's own
-/// settings and sampled runs in f64 are the GPU's.
+/// and sampled runs in f32, are refused before any work, naming the setting and the way out,
+/// and `auto` runs them on the CPU; validated substeps, the scenario's own settings, sampled
+/// runs in f64 and continuous runs in f32 are the GPU's.
 #[test]
 fn other_time_models_are_refused_naming_them() {
     let Some(gpu) = gpu_f64() else { return };
@@ -456,22 +456,24 @@ fn other_time_models_are_refused_naming_them() {
     let sampled = problem_with("sampled", None);
     assert_eq!(GpuBackend::runs(&sampled, &reach), Ok(()));
     assert_eq!(gpu.supports(&sampled, &reach), Ok(()));
-    // In f32 the GPU engine runs the Euler map alone.
+    // In f32 the GPU engine runs the Euler map and continuous time (its step enclosed:
+    // gpu_matches_cpu::continuous_f32), and refuses sampled time, naming it.
     let ctx = Arc::new(GpuContext::new().unwrap());
     let f32 = GpuBackend::with_precision(ctx, Precision::F32).unwrap();
-    for (problem, name) in [
-        (problem_with("continuous", None), "continuous"),
-        (sampled, "sampled"),
-    ] {
-        let e = f32
-            .reach(&problem, &s.reach.initial, &nowhere, &|_, _| {})
-            .expect_err("f32 refused")
-            .to_string();
-        assert!(
-            e.contains("f32") && e.contains(name) && e.contains("--backend cpu"),
-            "{e}"
-        );
+    for settings in [&nowhere, &reach] {
+        let problem = problem_with("continuous", None);
+        assert_eq!(f32.supports(&problem, settings), Ok(()));
+        let substeps = problem.with_time(TimeModel::Continuous, 2);
+        assert_eq!(f32.supports(&substeps, settings), Ok(()));
     }
+    let e = f32
+        .reach(&sampled, &s.reach.initial, &nowhere, &|_, _| {})
+        .expect_err("f32 refused")
+        .to_string();
+    assert!(
+        e.contains("f32") && e.contains("sampled") && e.contains("--backend cpu"),
+        "{e}"
+    );
 }
 
 /// [`CONTINUOUS_VERIFY_TOL`] for sampled runs, for the same reason: the engines' bounds of the

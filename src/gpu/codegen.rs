@@ -105,6 +105,13 @@ pub fn round_up(x: f64, precision: Precision) -> f64 {
     -round_down(-x, precision)
 }
 
+/// `[↓h, ↑h]`: the device numbers around the f64 `h` (both `h` in f64, where it is normal). The
+/// continuous step enters every f32 product as this interval, never rounded to nearest
+/// (docs/design.md §7.4).
+pub fn h_enclosure(h: f64, precision: Precision) -> (f64, f64) {
+    (round_down(h, precision), round_up(h, precision))
+}
+
 /// A device number (exact in `precision`) as a WGSL literal of type `real`.
 pub fn real_literal(x: f64, precision: Precision) -> String {
     match precision {
@@ -386,9 +393,11 @@ pub fn problem_wgsl(
     let _ = writeln!(s, "const EVERY: u32 = {every}u;");
     let _ = writeln!(s, "const DT_LO: real = {};", lit(down(problem.dt)));
     let _ = writeln!(s, "const DT_HI: real = {};", lit(up(problem.dt)));
-    // The continuous model's step (exact in f64, the CPU engine's `dt / substeps`).
-    let h = problem.dt / problem.steps_per_dt() as f64;
-    let _ = writeln!(s, "const H_STEP: real = {};", lit(h));
+    // The continuous model's step, the CPU engine's `dt / substeps` (an f64), as an enclosure
+    // in the device's numbers (a point in f64; f32's neighbours around it in f32).
+    let (h_lo, h_hi) = h_enclosure(problem.dt / problem.steps_per_dt() as f64, precision);
+    let _ = writeln!(s, "const H_LO: real = {};", lit(h_lo));
+    let _ = writeln!(s, "const H_HI: real = {};", lit(h_hi));
     let _ = writeln!(s, "const MARGIN: real = {};", lit(up(margin)));
     // Local margins (disturbance method with an error map): M = local bound + SLACK per box.
     let local = settings.method == ReachMethod::Disturbance && problem.error_map.is_some();
@@ -651,6 +660,22 @@ pub fn nnb_width(n: usize, m: usize) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The continuous step's enclosure holds the f64 step (0.04/3 and 0.1 are not f32
+    /// numbers: their nearest f32 lies on one side, the enclosure on both).
+    #[test]
+    fn the_step_is_enclosed_not_rounded() {
+        for h in [0.04 / 3.0, 0.1, 0.05, 0.01 / 7.0, 0.125] {
+            let (lo, hi) = h_enclosure(h, Precision::F32);
+            assert!(lo <= h && h <= hi, "{h}: [{lo}, {hi}]");
+            assert!(lo as f32 as f64 == lo && hi as f32 as f64 == hi);
+            assert!(hi - lo <= 2.0 * f64::from(f32::EPSILON) * h);
+            assert_eq!(h_enclosure(h, Precision::F64), (h, h));
+        }
+        let (lo, hi) = h_enclosure(0.1, Precision::F32);
+        assert!(lo < hi, "0.1 is no f32: its enclosure is two numbers");
+        assert_eq!(h_enclosure(0.125, Precision::F32), (0.125, 0.125));
+    }
 
     #[test]
     fn outward_f32_contains_the_f64() {

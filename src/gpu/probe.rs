@@ -6,12 +6,13 @@
 
 use wgpu::util::DeviceExt;
 
-use super::buffers::{uniform, Params};
+use super::buffers::{device_bytes, from_device_bytes, uniform, Params};
+use super::codegen::{h_enclosure, round_down, round_up};
 use super::kernels::{
     COMMON, END_RATES, F32_BITS, GEMM, GEMM_FLAT_BLOCK, GEMM_TILE, PARAMS, REAL_F32, REAL_F64,
     TURN, VALIDATED, WORKGROUP,
 };
-use super::{GpuContext, GpuError};
+use super::{GpuContext, GpuError, Precision};
 use crate::boxes::IntervalBox;
 use crate::reach::validated::MovingFaces;
 
@@ -88,8 +89,13 @@ pub fn gemm_on_device(
 
 /// `len` f64 of `buf` (a `COPY_SRC` buffer), after the queue's work.
 pub fn read_back(ctx: &GpuContext, buf: &wgpu::Buffer, len: usize) -> Result<Vec<f64>, GpuError> {
+    let bytes = read_back_bytes(ctx, buf, (len * 8) as u64)?;
+    Ok(bytemuck::pod_collect_to_vec(&bytes))
+}
+
+/// The first `size` bytes of `buf` (a `COPY_SRC` buffer), after the queue's work.
+fn read_back_bytes(ctx: &GpuContext, buf: &wgpu::Buffer, size: u64) -> Result<Vec<u8>, GpuError> {
     let device = &ctx.device;
-    let size = (len * 8) as u64;
     let staging = device.create_buffer(&wgpu::BufferDescriptor {
         label: Some("probe staging"),
         size,
@@ -111,7 +117,7 @@ pub fn read_back(ctx: &GpuContext, buf: &wgpu::Buffer, len: usize) -> Result<Vec
     let view = slice
         .get_mapped_range()
         .map_err(|e| GpuError::Device(e.to_string()))?;
-    Ok(bytemuck::pod_collect_to_vec(&view))
+    Ok(view.to_vec())
 }
 
 /// `turn_rate(slope, w, dt)` of `shaders/turn.wgsl` on the device (f64), for each input
@@ -183,16 +189,42 @@ pub fn guessed_on_device(
     n: usize,
     cases: &[GuessCase],
 ) -> Result<Vec<GuessOnDevice>, GpuError> {
+    guessed_on_device_in(ctx, n, cases, Precision::F64, F32Break::None)
+}
+
+/// How [`guessed_on_device_in`] breaks the f32 arithmetic, for tests that must see the break:
+/// not at all, the step `h` rounded to the nearest f32 instead of enclosed, or no outward
+/// rounding (the prelude's `up` the identity).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum F32Break {
+    /// As the engine runs.
+    None,
+    /// `h` the nearest f32 (a point).
+    NearestStep,
+    /// `up(x) = x`.
+    NoOutward,
+}
+
+/// [`guessed_on_device`] in `precision`: the set's ends rounded outward to it, the rates to
+/// nearest (a guess's inputs), the step `h` as its enclosure (`codegen::h_enclosure`, or as
+/// `broken` says).
+pub fn guessed_on_device_in(
+    ctx: &GpuContext,
+    n: usize,
+    cases: &[GuessCase],
+    precision: Precision,
+    broken: F32Break,
+) -> Result<Vec<GuessOnDevice>, GpuError> {
     let kernel = format!(
         "
 const ABS_UNIT: real = 0.0;
 const N0: u32 = {n}u;
 {VALIDATED}
-@group(0) @binding(0) var<storage, read> xs: array<f64>;
-@group(0) @binding(1) var<storage, read_write> ys: array<f64>;
+@group(0) @binding(0) var<storage, read> xs: array<real>;
+@group(0) @binding(1) var<storage, read_write> ys: array<real>;
 
-// Per case lo, hi, h, r_lo, r_hi, b_lo, b_hi, before, dl, du, cl, cu.
-const IN: u32 = 10u * N0 + 2u;
+// Per case lo, hi, h's lower end, r_lo, r_hi, b_lo, b_hi, before, dl, du, cl, cu, h's upper end.
+const IN: u32 = 10u * N0 + 3u;
 const OUT: u32 = 2u + 8u * N0 + 4u * N0 * N0;
 
 fn take(at: u32) -> array<real, N0> {{
@@ -218,7 +250,7 @@ fn guess_test(@builtin(global_invocation_id) id: vec3<u32>) {{
     let a = k * IN;
     let lo = take(a);
     let hi = take(a + N0);
-    let h = xs[a + 2u * N0];
+    let h = Iv(xs[a + 2u * N0], xs[a + IN - 1u]);
     let m = guessed(lo, hi, h, take(a + 2u * N0 + 1u), take(a + 3u * N0 + 1u), take(a + 4u * N0 + 1u), take(a + 5u * N0 + 1u), xs[a + 6u * N0 + 1u] != 0.0);
     let dl = take(a + 6u * N0 + 2u);
     let du = take(a + 7u * N0 + 2u);
@@ -246,16 +278,25 @@ fn guess_test(@builtin(global_invocation_id) id: vec3<u32>) {{
 }}
 "
     );
-    let source = format!("{REAL_F64}\n{F32_BITS}\n{COMMON}\n{kernel}");
-    let mut xs = Vec::with_capacity(cases.len() * (10 * n + 2));
+    let prelude = match (precision, broken) {
+        (Precision::F64, _) => REAL_F64.to_string(),
+        (Precision::F32, F32Break::NoOutward) => REAL_F32.replace("return up32(x);", "return x;"),
+        (Precision::F32, _) => REAL_F32.to_string(),
+    };
+    let source = format!("{prelude}\n{F32_BITS}\n{COMMON}\n{kernel}");
+    let mut xs = Vec::with_capacity(cases.len() * (10 * n + 3));
     for c in cases {
         let (bl, bu) = c
             .before
             .clone()
             .unwrap_or_else(|| (vec![0.0; n], vec![0.0; n]));
-        xs.extend(&c.set.lower);
-        xs.extend(&c.set.upper);
-        xs.push(c.h);
+        xs.extend(c.set.lower.iter().map(|&x| round_down(x, precision)));
+        xs.extend(c.set.upper.iter().map(|&x| round_up(x, precision)));
+        let (h_lo, h_hi) = match broken {
+            F32Break::NearestStep => (f64::from(c.h as f32), f64::from(c.h as f32)),
+            _ => h_enclosure(c.h, precision),
+        };
+        xs.push(h_lo);
         for v in [&c.rates.0, &c.rates.1, &bl, &bu] {
             xs.extend(v);
         }
@@ -263,9 +304,17 @@ fn guess_test(@builtin(global_invocation_id) id: vec3<u32>) {{
         for v in [&c.slab_rates.0, &c.slab_rates.1, &c.curved.0, &c.curved.1] {
             xs.extend(v);
         }
+        xs.push(h_hi);
     }
     let per = 2 + 8 * n + 4 * n * n;
-    let ys = run(ctx, &source, "guess_test", &xs, cases.len(), per)?;
+    let ys = run_in(
+        ctx,
+        &source,
+        "guess_test",
+        &xs,
+        (cases.len(), per),
+        precision,
+    )?;
     Ok(ys
         .chunks(per)
         .map(|y| {
@@ -359,7 +408,7 @@ fn barrier_test(@builtin(global_invocation_id) id: vec3<u32>) {{
         d[j] = iv_at(at + 5u + 6u * j);
         a[j] = iv_at(at + 7u + 6u * j);
     }}
-    let b = barrier(xs[at], k, d, a, u32(xs[at + 1u]), xs[at + 2u]);
+    let b = barrier(xs[at], k, d, a, u32(xs[at + 1u]), iv_point(xs[at + 2u]));
     ys[4u * q] = select(real(0.0), real(1.0), b.ok);
     ys[4u * q + 1u] = b.r;
     ys[4u * q + 2u] = b.w_lo;
@@ -396,13 +445,14 @@ fn f32_check() {
     var x: array<real, N0>;
     x[0] = ys[0];
     x[1] = ys[1];
-    let m = guessed(x, x, ys[2], x, x, x, x, ys[3] > 0.0);
-    let s = slab(x, x, m, ys[2], 0u, 1u);
-    let e = slab_step_end(x, x, m, ys[2], x, x, x, x);
+    let h = Iv(ys[2], ys[3]);
+    let m = guessed(x, x, h, x, x, x, x, ys[3] > 0.0);
+    let s = slab(x, x, m, h, 0u, 1u);
+    let e = slab_step_end(x, x, m, h, x, x, x, x);
     var k: array<Iv, N0>;
     k[0] = Iv(ys[0], ys[1]);
     k[1] = k[0];
-    let b = barrier(ys[0], k, k, k, 0u, ys[2]);
+    let b = barrier(ys[0], k, k, k, 0u, h);
     ys[4] = s.lo[0] + e.hi[1] + b.r + select(0.0, 1.0, verified(m, x, x));
 }
 ";
@@ -420,7 +470,20 @@ pub(crate) fn run(
     items: usize,
     per: usize,
 ) -> Result<Vec<f64>, GpuError> {
-    if !ctx.has_f64() {
+    run_in(ctx, source, entry, xs, (items, per), Precision::F64)
+}
+
+/// [`run`] for a `source` whose `xs` and `ys` hold `precision`'s numbers (`xs` converted to
+/// nearest: callers round what must be rounded outward).
+fn run_in(
+    ctx: &GpuContext,
+    source: &str,
+    entry: &str,
+    xs: &[f64],
+    (items, per): (usize, usize),
+    precision: Precision,
+) -> Result<Vec<f64>, GpuError> {
+    if precision == Precision::F64 && !ctx.has_f64() {
         return Err(GpuError::NoF64(ctx.info.name.clone()));
     }
     if xs.is_empty() || items == 0 {
@@ -430,10 +493,10 @@ pub(crate) fn run(
     let pipeline = compile(device, source, entry)?;
     let input = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
         label: Some("probe xs"),
-        contents: bytemuck::cast_slice(xs),
+        contents: &device_bytes(xs, precision),
         usage: wgpu::BufferUsages::STORAGE,
     });
-    let size = (per * items * 8) as u64;
+    let size = per as u64 * items as u64 * precision.bytes();
     let output = device.create_buffer(&wgpu::BufferDescriptor {
         label: Some("probe ys"),
         size,
@@ -462,7 +525,8 @@ pub(crate) fn run(
         pass.dispatch_workgroups((items as u32).div_ceil(64), 1, 1);
     }
     ctx.queue.submit([enc.finish()]);
-    read_back(ctx, &output, per * items)
+    let bytes = read_back_bytes(ctx, &output, size)?;
+    Ok(from_device_bytes(&bytes, precision))
 }
 
 /// Validates `source` as a module (naga's parse and validation, which wgpu runs on every

@@ -284,7 +284,7 @@ fn curved_test(@builtin(global_invocation_id) id: vec3<u32>) {{
     let lo = take(a);
     let hi = take(a + N0);
     let c = a + 6u * N0;
-    let h = xs[c];
+    let h = iv_point(xs[c]);
     let mv = guessed(lo, hi, h, take(a + 2u * N0), take(a + 3u * N0), take(a + 4u * N0), take(a + 5u * N0), xs[c + 1u] != 0.0);
     let o = q * OUT;
     ys[o] = select(real(0.0), real(1.0), mv.ok);
@@ -422,7 +422,7 @@ fn step_test(@builtin(global_invocation_id) id: vec3<u32>) {{
     }}
     let a = q * IN;
     let c = a + 6u * N0;
-    let h = xs[c];
+    let h = iv_point(xs[c]);
     let st = StepState(take(a), take(a + N0), take(a + 2u * N0), take(a + 3u * N0), take(a + 4u * N0), take(a + 5u * N0), u32(xs[c + 1u]));
     let g = guess_step(st, h);
     let o = q * OUT;
@@ -532,17 +532,18 @@ fn f32_check() {
     }
     var none: array<real, M_OUT>;
     let nb = constant_bounds(none, none);
-    let m = guessed(x, x, ys[0], x, x, x, x, true);
+    let h = h_step();
+    let m = guessed(x, x, h, x, x, x, x, true);
     let b = bound_on(0u, 1u, x, x, nb, ys[1], 0u);
-    let e = curved_end(x, x, m, ys[0], 0u, 0u, nb, ys[1], 0u);
+    let e = curved_end(x, x, m, h, 0u, 0u, nb, ys[1], 0u);
     let st = StepState(x, x, x, x, x, x, 2u);
-    let g = guess_step(st, ys[0]);
+    let g = guess_step(st, h);
     var k: array<Iv, N0>;
     for (var j = 0u; j < N0; j++) {
         k[j] = Iv(x[j], x[j]);
     }
-    let r = step_rates(st, g.m, ys[0], k, piece_on(k), ys[1], 0u, select(2u * N0, 0x7fffffffu, arrayLength(&ys) == 0x7fffffffu));
-    let s = finish_step(st, g.m, ys[0], x, x, x, x);
+    let r = step_rates(st, g.m, h, k, piece_on(k), ys[1], 0u, select(2u * N0, 0x7fffffffu, arrayLength(&ys) == 0x7fffffffu));
+    let s = finish_step(st, g.m, h, x, x, x, x);
     ys[0] = b.hi + select(0.0, e.r, e.ok) + r.field.lo[0] + r.second.hi[0] + s.st.lo[0];
 }
 ";

@@ -144,7 +144,7 @@ pub fn choose_engine(
             let notice = format!("GPU adapter: {}", ctx.describe());
             let precision = gpu.precision_for(&ctx);
             let engine = GpuBackend::with_precision(Arc::new(ctx), precision)?;
-            // What the engine refuses in its precision (f32 continuous runs).
+            // What the engine refuses in its precision (f32 sampled runs).
             if let (true, Err(u)) = (auto, engine.supports(problem, settings)) {
                 return Ok(cpu(vec![format!(
                     "notice: --backend auto: not on the GPU engine: {}; using the CPU",

@@ -15,6 +15,7 @@ mod cli;
 #[path = "../common/mod.rs"]
 mod common;
 mod continuous;
+mod continuous_f32;
 mod field;
 mod margins;
 mod methods;

@@ -39,7 +39,8 @@ fn cw(n: usize) -> usize {
 /// so every step would be the host's). Every `exact` runs (the device's step meets the
 /// filter's proven piece and its closed form's enclosures on the slabs as the CPU's does:
 /// `shaders/slab_step.wgsl`), in one frame or two met (`shaders/cmeet.wgsl`), with any
-/// number of validated substeps (the device's step is `H_STEP = dt / substeps`).
+/// number of validated substeps (the device's step is `dt / substeps`, an enclosure of it in f32:
+/// `H_LO`, `H_HI`), in f64 or f32.
 pub(super) fn refused(
     _problem: &ReachProblem,
     settings: &ReachSettings,
@@ -142,7 +143,7 @@ impl GpuBackend {
         let meet = runs.len() > 1;
         let (n, boxes, w) = (problem.dynamics.n, starts.len(), cw(problem.dynamics.n));
         let safe = problem.safe_set_for(settings.method);
-        // Validated substeps: `k` steps of `h` a `dt` (the device's `H_STEP`), as the CPU
+        // Validated substeps: `k` steps of `h` a `dt` (the device's `[H_LO, H_HI]`), as the CPU
         // engine's `horizon` takes them.
         let k = problem.steps_per_dt();
         let h = problem.dt / k as f64;
