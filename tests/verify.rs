@@ -22,7 +22,7 @@ use cbfreach::scenario::Scenario;
 use cbfreach::simulate::{simulate_filtered, Integrator};
 use cbfreach::verify::{
     judge, merge, simulation_check, traps_for, verify_by_pieces, PieceOutcome, PiecesSettings,
-    Reason, Shard, Verdict, Verifier, VerifyReport, VerifySettings,
+    Reason, Shard, Verdict, Verifier, VerifyReport, VerifySettings, REFINE_BUDGET, SPLIT,
 };
 
 /// `M_C` for the small network trained here (see the module docs).
@@ -558,12 +558,13 @@ impl Backend for NoSubsteps {
     }
 }
 
-#[test]
-fn refinement_cuts_the_validated_step_in_continuous_time() {
-    let s = common::integrator();
+/// The small network's problem in continuous time with one step a `dt`, and the settings the
+/// refinement tests run it with (face-local, the network everywhere, one frame, every step
+/// recorded).
+fn continuous_case(s: &Scenario) -> (ReachProblem, ReachSettings) {
     let (path, m_c) = network();
     let net = Mlp::load_safetensors(path).unwrap();
-    let problem = ReachProblem::with_transform(&s, net, *m_c, None)
+    let problem = ReachProblem::with_transform(s, net, *m_c, None)
         .unwrap()
         .with_time(TimeModel::Continuous, 1);
     let reach = ReachSettings {
@@ -573,6 +574,13 @@ fn refinement_cuts_the_validated_step_in_continuous_time() {
         every: 1,
         ..ReachSettings::default()
     };
+    (problem, reach)
+}
+
+#[test]
+fn refinement_cuts_the_validated_step_in_continuous_time() {
+    let s = common::integrator();
+    let (problem, reach) = continuous_case(&s);
     let verifier = Verifier {
         reach: reach.clone(),
         ..Verifier::new(&s, &problem, &CpuBackend)
@@ -672,18 +680,7 @@ fn refinement_cuts_the_validated_step_in_continuous_time() {
 #[test]
 fn pieces_cut_the_step_as_verify_does() {
     let s = common::integrator();
-    let (path, m_c) = network();
-    let net = Mlp::load_safetensors(path).unwrap();
-    let problem = ReachProblem::with_transform(&s, net, *m_c, None)
-        .unwrap()
-        .with_time(TimeModel::Continuous, 1);
-    let reach = ReachSettings {
-        face_local: true,
-        exact: ExactField::Nowhere,
-        intersect_x: false,
-        every: 1,
-        ..ReachSettings::default()
-    };
+    let (problem, reach) = continuous_case(&s);
     let verifier = Verifier {
         reach: reach.clone(),
         ..Verifier::new(&s, &problem, &CpuBackend)
@@ -711,9 +708,9 @@ fn pieces_cut_the_step_as_verify_does() {
         };
         let settings = VerifySettings {
             region: Some(region.clone()),
-            grid: vec![4, 4],
+            grid: vec![SPLIT; 2],
             refine_depth: 2,
-            budget: 4096, // verify_by_pieces' own budget per box
+            budget: REFINE_BUDGET,
             refine_feasibility: true,
             max_substeps,
             chunk: Some(512),

@@ -104,29 +104,6 @@ impl PackedMatrix {
         &self.columns[at..at + w]
     }
 
-    /// One product (see [`Part`]): `out[i·out_stride + c] = Σ_{j ∈ live} A[i][j] ·
-    /// b[j·b_stride + c]`, `live` ascending.
-    pub fn product(
-        &self,
-        live: &[usize],
-        (b, b_stride): (&[f64], usize),
-        n: usize,
-        (out, out_stride): (&mut [f64], usize),
-        scratch: &mut Vec<f64>,
-    ) {
-        let part = Part {
-            abs: false,
-            live,
-            b,
-            b_stride,
-            b_col: 0,
-            n,
-            out: 0,
-            out_col: 0,
-        };
-        self.products(&[part], &mut [(out, out_stride)], scratch);
-    }
-
     /// The [`Part`]s' products in one pass over `A`; `outs` are the outputs as (buffer, row
     /// stride). Parts may share an output (disjoint columns). `scratch` holds each part's live
     /// rows of `b` packed in slabs of [`NR`] columns (each slab contiguous, so that it stays

@@ -56,7 +56,9 @@ mod shard;
 mod traps;
 
 pub use check::{explain_unverified, simulation_check, SimulationCheck, UnverifiedCauses};
-pub use pieces::{verify_by_pieces, PieceOutcome, PiecesSettings, PiecesVerdict};
+pub use pieces::{
+    verify_by_pieces, PieceOutcome, PiecesSettings, PiecesVerdict, REFINE_BUDGET, SPLIT,
+};
 pub use report::{BoxVerdict, Headline, RunInfo, Shares, VerifyReport, VerifyTiming};
 pub use run::{judge, judge_with_feasibility, start_verdict, Judgement, Reason, Stage, Verifier};
 pub use settings::VerifySettings;
