@@ -50,7 +50,12 @@ fn curved_end(lo: array<real, N0>, hi: array<real, N0>, m: Moving, h: Iv, i: u32
     if (!upper) {
         c = -f.c.lo;
     }
-    let b = barrier(c, k, d, a, i, h);
+    // The slab's bottom in the end's sign (end_rates::curved_rates' floor).
+    var bottom = min(m.d_hi[i], 0.0);
+    if (!upper) {
+        bottom = min(-m.d_lo[i], 0.0);
+    }
+    let b = barrier(c, k, d, a, i, h, bottom);
     if (!b.ok) {
         return none;
     }

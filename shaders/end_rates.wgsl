@@ -20,8 +20,9 @@ fn sup_products(k: Iv, x: Iv) -> real {
 
 // `c` the slab form's upper value at p; per coordinate j ≠ i the slopes k[j], the set's offsets
 // from p d[j] and its ends' rates a[j]; k[i] the slope in xᵢ. G₀ = c + Σ sup k·d (the face's
-// bound), Q = Σ sup k·a, then b ≥ Q + sup kᵢ·[w̲, w̄] with [w̲, w̄] ∋ a + τb/2, four rounds.
-fn barrier(c: real, k: array<Iv, N0>, d: array<Iv, N0>, a: array<Iv, N0>, i: u32, h: Iv) -> Barrier {
+// bound), a = max(G₀, bottom) (the slab's bottom), Q = Σ sup k·a, then b ≥ Q + sup kᵢ·[w̲, w̄] with
+// [w̲, w̄] ∋ a + τb/2, four rounds.
+fn barrier(c: real, k: array<Iv, N0>, d: array<Iv, N0>, a: array<Iv, N0>, i: u32, h: Iv, bottom: real) -> Barrier {
     var g0 = c;
     var q: real = 0.0;
     for (var j = 0u; j < N0; j++) {
@@ -30,6 +31,8 @@ fn barrier(c: real, k: array<Iv, N0>, d: array<Iv, N0>, a: array<Iv, N0>, i: u32
             q = up(q + sup_products(k[j], a[j]));
         }
     }
+    // a = max(G₀, bottom): u stays in the slab (end_rates::barrier's floor).
+    g0 = max(g0, bottom);
     let half_h = iv_mul(h, iv_point(0.5));
     var b = up(q + sup_products(k[i], iv_point(g0)));
     for (var it = 0u; it < 4u; it++) {

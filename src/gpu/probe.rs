@@ -371,6 +371,8 @@ pub struct BarrierCase {
     pub i: usize,
     /// The step.
     pub h: f64,
+    /// The slab's bottom in the end's sign: the barrier's `a` is at least this.
+    pub floor: f64,
 }
 
 /// A barrier that settled: `(a + hb/2, w̲, w̄)` (`end_rates::barrier`'s `Some`).
@@ -391,8 +393,8 @@ const N0: u32 = {n}u;
 @group(0) @binding(0) var<storage, read> xs: array<f64>;
 @group(0) @binding(1) var<storage, read_write> ys: array<f64>;
 
-// Per case c, i, h, then per coordinate k, d, a (two ends each).
-const IN: u32 = 3u + 6u * N0;
+// Per case c, i, h, floor, then per coordinate k, d, a (two ends each).
+const IN: u32 = 4u + 6u * N0;
 
 fn iv_at(at: u32) -> Iv {{
     return Iv(xs[at], xs[at + 1u]);
@@ -409,11 +411,11 @@ fn barrier_test(@builtin(global_invocation_id) id: vec3<u32>) {{
     var d: array<Iv, N0>;
     var a: array<Iv, N0>;
     for (var j = 0u; j < N0; j++) {{
-        k[j] = iv_at(at + 3u + 6u * j);
-        d[j] = iv_at(at + 5u + 6u * j);
-        a[j] = iv_at(at + 7u + 6u * j);
+        k[j] = iv_at(at + 4u + 6u * j);
+        d[j] = iv_at(at + 6u + 6u * j);
+        a[j] = iv_at(at + 8u + 6u * j);
     }}
-    let b = barrier(xs[at], k, d, a, u32(xs[at + 1u]), iv_point(xs[at + 2u]));
+    let b = barrier(xs[at], k, d, a, u32(xs[at + 1u]), iv_point(xs[at + 2u]), xs[at + 3u]);
     ys[4u * q] = select(real(0.0), real(1.0), b.ok);
     ys[4u * q + 1u] = b.r;
     ys[4u * q + 2u] = b.w_lo;
@@ -422,9 +424,9 @@ fn barrier_test(@builtin(global_invocation_id) id: vec3<u32>) {{
 "
     );
     let source = format!("{REAL_F64}\n{F32_BITS}\n{COMMON}\n{kernel}");
-    let mut xs = Vec::with_capacity(cases.len() * (3 + 6 * n));
+    let mut xs = Vec::with_capacity(cases.len() * (4 + 6 * n));
     for c in cases {
-        xs.extend([c.c, c.i as f64, c.h]);
+        xs.extend([c.c, c.i as f64, c.h, c.floor]);
         for j in 0..n {
             xs.extend([c.k[j].0, c.k[j].1, c.d[j].0, c.d[j].1, c.a[j].0, c.a[j].1]);
         }
@@ -457,7 +459,7 @@ fn f32_check() {
     var k: array<Iv, N0>;
     k[0] = Iv(ys[0], ys[1]);
     k[1] = k[0];
-    let b = barrier(ys[0], k, k, k, 0u, h);
+    let b = barrier(ys[0], k, k, k, 0u, h, ys[1]);
     ys[4] = s.lo[0] + e.hi[1] + b.r + select(0.0, 1.0, verified(m, x, x));
 }
 ";

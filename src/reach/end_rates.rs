@@ -4,7 +4,7 @@
 //! flowpipe ([`taylor_rates`], [`taylor_network_rates`]). Callers meet these with the slab rates.
 
 use super::embedding::{interaction_row, Dynamics, NetworkBoundsRef};
-use super::validated::{form_on, point, slab, Flowpipe};
+use super::validated::{depth, form_on, point, slab, Flowpipe};
 use crate::boxes::IntervalBox;
 use crate::intervals::{box_of, Interval};
 use crate::rounding::{round_down, round_up};
@@ -24,7 +24,8 @@ use crate::rounding::{round_down, round_up};
 /// `[w̲, w̄] ∋ a + τb/2` (so `u − x̄ᵢ ∈ τ[w̲, w̄]`), is never crossed: a trajectory first reaching
 /// `u + εe^{Lτ}` (`L > |kᵢ|`, `ε → 0`) at `τ*` does so in `X(τ*)` with `xᵢ ≥ u(τ*)`, inside the
 /// slab where `u` stays in its `i`-range (checked), with rate at most
-/// `G₀ + τ*(Q + sup kᵢw) + |kᵢ|εe^{Lτ*} < u' + εLe^{Lτ*}`. So `r̄ᵢ = a + hb/2`.
+/// `G₀ + τ*(Q + sup kᵢw) + |kᵢ|εe^{Lτ*} < u' + εLe^{Lτ*}`. So `r̄ᵢ = a + hb/2`; any `a ≥ G₀`
+/// does, and [`barrier`] raises `a` to the slab's depth where `G₀` lies below it.
 pub fn curved_rates<'a>(
     dynamics: &Dynamics,
     set: &IntervalBox,
@@ -68,7 +69,12 @@ pub fn curved_rates<'a>(
                 let (a_lo, a_hi) = rates(j);
                 (k[j], (round_down(d.0), round_up(d.1)), (a_lo, a_hi))
             });
-            let Some((r, w_lo, w_hi)) = barrier(c_up, others, k[i], h) else {
+            // The slab's bottom in the end's sign (`slab`'s `min(0, depth)`): `u` stays above it.
+            let floor = match up {
+                true => depth(pipe, i, true).min(0.0),
+                false => (-depth(pipe, i, false)).min(0.0),
+            };
+            let Some((r, w_lo, w_hi)) = barrier(c_up, others, k[i], h, floor) else {
                 continue;
             };
             // `u` must stay in the slab's `i`-range: `x̄ᵢ + h·min(0, w̲) ≥` its bottom (for the
@@ -91,14 +97,19 @@ pub fn curved_rates<'a>(
 
 /// [`curved_rates`]' barrier for one upper end, in that end's sign: `c` the form's upper value
 /// at `p`, per other coordinate `(k, (d̲, d̄), (a̲, ā))` (slopes, the set's offsets from `p`, its
-/// ends' rates), `kᵢ`. Returns `(a + hb/2, w̲, w̄)`, rounded up, or `None` where `b` does not
-/// settle (`h·|kᵢ|` near 2 or more) or a value is not finite. `barrier` in
-/// `shaders/end_rates.wgsl` mirrors it.
+/// ends' rates), `kᵢ`, and `floor`, the lowest first rate the end's slab was built for
+/// (`min(0, depth)` in the end's sign): the barrier's `a` is `max(G₀, floor)`. Any `a ≥ G₀`
+/// keeps the argument, and below the floor `u` would leave the slab: where `G₀` dips under it
+/// by rounding alone (a face at rest, `G₀ ≈ 0` under a slab that starts at the end) the end
+/// keeps its second-order rate instead of losing it to the last ulp of `c`. Returns
+/// `(a + hb/2, w̲, w̄)`, rounded up, or `None` where `b` does not settle (`h·|kᵢ|` near 2 or
+/// more) or a value is not finite. `barrier` in `shaders/end_rates.wgsl` mirrors it.
 pub fn barrier(
     c: f64,
     others: impl Iterator<Item = ((f64, f64), (f64, f64), (f64, f64))>,
     k_i: (f64, f64),
     h: f64,
+    floor: f64,
 ) -> Option<(f64, f64, f64)> {
     let up = |x: Interval| x.upper;
     let sup = |(k0, k1): (f64, f64), (x0, x1): (f64, f64)| {
@@ -112,7 +123,7 @@ pub fn barrier(
         g0 = g0 + point(sup(k, d));
         q = q + point(sup(k, a));
     }
-    let (a, q) = (g0.upper, q.upper);
+    let (a, q) = (g0.upper.max(floor), q.upper);
     let half_h = point(h) * point(0.5);
     let mut b = up(point(q) + point(sup(k_i, (a, a))));
     for _ in 0..4 {

@@ -444,7 +444,7 @@ pub fn slab(
 /// The lowest upper rate (`on_upper`) or highest lower rate the slab of coordinate `i` was
 /// built for: `F̲ᵢ` (`F̄ᵢ`) for the whole enclosure's slabs, `ρ̄ᵢ` (`ρ̲ᵢ`) for a moving box's.
 /// A rate past it reaches a state outside the slab, so rates are clamped to it.
-fn depth(pipe: &Flowpipe, i: usize, on_upper: bool) -> f64 {
+pub(super) fn depth(pipe: &Flowpipe, i: usize, on_upper: bool) -> f64 {
     match (&pipe.faces, on_upper) {
         (None, true) => pipe.f_lower[i],
         (None, false) => pipe.f_upper[i],

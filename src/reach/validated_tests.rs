@@ -432,3 +432,40 @@ fn exit_proofs_hold_the_flow_and_skip_only_steps_that_cannot_close() {
     }
     assert!(proven > 0 && saved > 0, "{proven} proven, {saved} saved");
 }
+
+/// A face at rest under a slab that starts at it (`ρ̄ ≥ 0`, a guess from a step where the face
+/// rose): `ẋ = −x` with `x̄₂ = 10⁻⁹`, where the field on the face is `−10⁻⁹`. The barrier
+/// would sink below the slab's bottom and the end lose its second-order rate (`+∞`, the first
+/// order's `0.5` kept); with `a` raised to the slab's floor the end stays put (rate 0), and
+/// the true `x̄₂(h) = 10⁻⁹e^{−h}` lies below it. The knife edge of this case made the engines'
+/// sets differ where rounding put `G₀` a few ulps on either side of 0 (issue 40, 10 × 4 grid).
+#[test]
+fn a_face_at_rest_keeps_its_second_order_rate() {
+    use crate::reach::end_rates::curved_rates;
+    let d = linear([[-1.0, 0.0], [0.0, -1.0]]);
+    let z = vec![0.0; 4];
+    let h = 0.05;
+    let set = IntervalBox::new(vec![1.0, -1.0], vec![2.0, 1e-9]).unwrap();
+    let faces = MovingFaces {
+        lower: vec![-2.2, 0.9],
+        upper: vec![-0.9, 0.5],
+        depth_lower: vec![-1.9, 1.1],
+        depth_upper: vec![-1.1, 0.3],
+    };
+    let hull = IntervalBox::new(
+        vec![1.0 + h * faces.lower[0], -1.0],
+        vec![2.0, 1e-9 + h * faces.upper[1]],
+    )
+    .unwrap();
+    let pipe = Flowpipe {
+        set: hull,
+        f_lower: faces.lower.clone(),
+        f_upper: faces.upper.clone(),
+        faces: Some(faces),
+        enclosed: false,
+    };
+    let (_, du) = curved_rates(&d, &set, &pipe, h, |_, _| no_network(&z), &[0.0]);
+    assert!(du[1].is_finite(), "the face at rest lost its rate: {du:?}");
+    assert!((0.0..=1e-12).contains(&du[1]), "{du:?}");
+    assert!(1e-9 * (-h).exp() <= 1e-9 + h * du[1]);
+}

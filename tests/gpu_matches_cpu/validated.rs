@@ -205,7 +205,8 @@ fn guessed_moving_box_matches_the_cpus_validated_step() {
 /// `shaders/end_rates.wgsl`'s `barrier` (the curved rates' quadratic barrier) against
 /// `end_rates::barrier` on 3 × 4,000 random upper ends in 1–3 states: slopes up to ±10 off the
 /// diagonal and down to −60 on it (`h·|kᵢ|` past 2 at the largest steps: no barrier), offsets
-/// of sets up to 1 wide, rates up to ±15. The same ends settle; where they do the device's rate
+/// of sets up to 1 wide, rates up to ±15, slabs' floors none, 0 or down to −15 (at least 1,000
+/// cases where the floor raises `a`). The same ends settle; where they do the device's rate
 /// is at least the CPU's (it rounds up by more, and settles no earlier) and within `GUESS_TOL`
 /// of the numbers involved, and its `[w̲, w̄]` too.
 #[test]
@@ -213,7 +214,7 @@ fn curved_rates_barrier_matches_the_cpus() {
     use cbfreach::gpu::probe::{barrier_on_device, BarrierCase};
     use cbfreach::reach::end_rates::barrier;
     let Some(g) = gpu_f64() else { return };
-    let (mut settled, mut unsettled) = (0, 0);
+    let (mut settled, mut unsettled, mut raised) = (0, 0, 0);
     for n in 1..=3 {
         let mut rng = ChaCha8Rng::seed_from_u64(400 + n as u64);
         let ends = |r: &mut ChaCha8Rng, lo: f64, hi: f64, w: f64| {
@@ -243,6 +244,8 @@ fn curved_rates_barrier_matches_the_cpus() {
                     a,
                     i,
                     h: [0.04, 0.01, 0.004][rng.random_range(0..3)],
+                    // None, a slab starting at the end, one reaching below it.
+                    floor: [-1e300, 0.0, rng.random_range(-15.0..0.0)][rng.random_range(0..3)],
                 }
             })
             .collect();
@@ -251,7 +254,8 @@ fn curved_rates_barrier_matches_the_cpus() {
             let others = (0..n)
                 .filter(|&j| j != c.i)
                 .map(|j| (c.k[j], c.d[j], c.a[j]));
-            let cpu = barrier(c.c, others, c.k[c.i], c.h);
+            let cpu = barrier(c.c, others.clone(), c.k[c.i], c.h, c.floor);
+            raised += usize::from(cpu != barrier(c.c, others, c.k[c.i], c.h, -1e300));
             assert_eq!(
                 cpu.is_some(),
                 d.is_some(),
@@ -278,8 +282,8 @@ fn curved_rates_barrier_matches_the_cpus() {
             );
         }
     }
-    eprintln!("barrier: {settled} settled, {unsettled} not");
-    assert!(settled >= 6000 && unsettled >= 300);
+    eprintln!("barrier: {settled} settled, {unsettled} not, {raised} raised to their floor");
+    assert!(settled >= 6000 && unsettled >= 300 && raised >= 1000);
 }
 
 /// The same shaders compile with the f32 prelude (the engine builds every kernel in both; the
