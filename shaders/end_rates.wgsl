@@ -37,7 +37,11 @@ fn barrier(c: real, k: array<Iv, N0>, d: array<Iv, N0>, a: array<Iv, N0>, i: u32
     var b = up(q + sup_products(k[i], iv_point(g0)));
     for (var it = 0u; it < 4u; it++) {
         let end = iv_add(iv_point(g0), iv_mul(half_h, iv_point(b)));
-        let w = Iv(min(end.lo, g0), max(end.hi, g0));
+        // a + τb/2 runs from a to a + hb/2: a is one end exactly (the Rust's `w`).
+        var w = Iv(g0, max(end.hi, g0));
+        if (b < 0.0) {
+            w = Iv(min(end.lo, g0), g0);
+        }
         let s = sup_products(k[i], w);
         let need = up(q + s);
         if (!(finite(need) && finite(b) && finite(g0))) {

@@ -127,8 +127,13 @@ pub fn barrier(
     let half_h = point(h) * point(0.5);
     let mut b = up(point(q) + point(sup(k_i, (a, a))));
     for _ in 0..4 {
+        // `a + τb/2` runs from `a` to `a + hb/2`: `a` is one end exactly (rounding it would
+        // put a barrier raised to its floor an ulp below the slab).
         let end = point(a) + half_h * point(b);
-        let w = (end.lower.min(a), end.upper.max(a));
+        let w = match b >= 0.0 {
+            true => (a, end.upper.max(a)),
+            false => (end.lower.min(a), a),
+        };
         let s = sup(k_i, w);
         let need = up(point(q) + point(s));
         if !(need.is_finite() && b.is_finite() && a.is_finite()) {
