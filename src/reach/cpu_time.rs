@@ -234,7 +234,7 @@ impl ChunkRun<'_> {
             (dl, du)
         });
         let enclosed = match input.piece.is_none() && self.encloses {
-            true => p.pieces.finite_enclosure(&x_box),
+            true => p.pieces.finite_enclosure(x_box),
             false => None,
         }
         .map(|v| {
@@ -242,7 +242,7 @@ impl ChunkRun<'_> {
             let consts = constant_bounds(zeros, &lo, &hi, n);
             let (mut dl, mut du) =
                 validated::field_over(&p.dynamics, &a.lower, &a.upper, consts, &zeros[..m]);
-            widen_by(&mut dl, &mut du, p.pieces.field_slack(&x_box, &v));
+            widen_by(&mut dl, &mut du, p.pieces.field_slack(x_box, &v));
             (dl, du)
         });
         let network = match input.margin {
