@@ -657,7 +657,9 @@ impl ChunkRun<'_> {
                     }
                 }
                 for (f, frame) in self.frames.iter().enumerate() {
-                    let (mut fields, input, rows) = buf.fields[f].clone();
+                    // Taken, not cloned: the box's fields are not read again this step.
+                    let (fields, input, rows) = &mut buf.fields[f];
+                    let (mut fields, input, rows) = (std::mem::take(fields), *input, *rows);
                     buf.margin.clear();
                     buf.margin.resize(m, input.margin.unwrap_or(0.0));
                     // Continuous time: the moving box checked (else the whole enclosure's

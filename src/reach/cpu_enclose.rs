@@ -33,6 +33,9 @@ pub(super) struct Enclosures {
     batch: AffineBoundsBatch,
 }
 
+/// A box's x-box within `S` and how `v` is bounded there ([`ChunkRun::field_on_box`]).
+pub(super) type BoxInput = (IntervalBox, StepInput);
+
 /// A replay that ended: what it found, the last whole candidate it bounded, and the network's
 /// bounds there.
 type Replayed = (Enclosure, Option<IntervalBox>, Option<AffineBounds>);
@@ -134,8 +137,10 @@ impl ChunkRun<'_> {
         lo.clear();
         hi.clear();
         let mut rows = 0;
-        // Per ask, its boxes and each one's row in the batch (where the network is bounded).
-        let queued: Vec<Vec<(IntervalBox, Option<usize>)>> = asks
+        // Per ask, its boxes, each with its x-box and input (computed once: the facts are a
+        // fifth of an enclosure's interval evaluation) and its row in the batch (where the
+        // network is bounded).
+        let queued: Vec<Vec<(IntervalBox, BoxInput, Option<usize>)>> = asks
             .iter()
             .map(|(_, (a, parts))| {
                 let boxes = match parts {
@@ -153,7 +158,7 @@ impl ChunkRun<'_> {
                             rows += 1;
                             rows - 1
                         });
-                        (b, row)
+                        (b, (x_box, input), row)
                     })
                     .collect()
             })
@@ -166,9 +171,9 @@ impl ChunkRun<'_> {
         }
         for ((k, ask), boxes) in asks.iter().zip(queued) {
             let mut field: Option<Rates> = None;
-            for (b, row) in &boxes {
+            for (b, input, row) in &boxes {
                 let nn = row.map(|r| bounds_of(batch, r, n, m));
-                let Some((l, u)) = self.field_on_box(frame, b, fb, zeros, nn)? else {
+                let Some((l, u)) = self.field_on_box(frame, b, input, fb, zeros, nn)? else {
                     field = None;
                     break;
                 };

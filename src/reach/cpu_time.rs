@@ -83,14 +83,13 @@ impl ChunkRun<'_> {
         let proven = met
             .as_ref()
             .is_some_and(|(l, u)| validated::verified(pipe, (l, u)));
-        let margin = margin.to_vec();
         // The network's bounds on the slabs the step takes: this step's batch, or the
         // fallback's own (one box, row 0).
         let mut rows = rows;
         if !proven {
             if let Some(whole) = state.whole[f].take() {
                 state.pipes[f] = Some(whole);
-                *fields = self.whole_fields(frame, state, f, input, fb, zeros, &margin)?;
+                *fields = self.whole_fields(frame, state, f, input, fb, zeros, margin)?;
                 rows = rows.map(|_| (true, 0));
             }
         }
@@ -105,8 +104,8 @@ impl ChunkRun<'_> {
             .and_then(|piece| self.piece_taylor(p, set, pipe, piece, zeros));
         let network = input
             .margin
-            .and_then(|_| self.network_taylor(p, state, f, &margin));
-        let curved = self.curved(frame, state, f, input, (fb, zeros, &margin), rows);
+            .and_then(|_| self.network_taylor(p, state, f, margin));
+        let curved = self.curved(frame, state, f, input, (fb, zeros, margin), rows);
         Ok([piece, network]
             .into_iter()
             .chain(curved)
@@ -211,19 +210,20 @@ impl ChunkRun<'_> {
 
     /// Bounds of the filtered field (the method's system) over the whole box `a` of one frame:
     /// the meet of the filter's proven piece, its enclosures, and the network's bounds over `a`
-    /// plus the error margin there; `None` where none is sound.
+    /// plus the error margin there; `None` where none is sound. `(x_box, input)`: `a`'s x-box
+    /// within `S` and [`ChunkRun::step_input`] there.
     pub(super) fn field_on_box(
         &self,
         frame: &Frame,
         a: &IntervalBox,
+        (x_box, input): &super::cpu_enclose::BoxInput,
         fb: &mut FrameBuffers,
         zeros: &[f64],
         batched: Option<NetworkBoundsRef>,
     ) -> Result<Option<Rates>, ReachError> {
         let p = frame.problem;
         let (n, m) = (p.dynamics.n, p.dynamics.m);
-        let x_box = p.x_box_in_safe_set(&a.lower, &a.upper, frame.safe);
-        let input = self.step_input(p, &x_box, self.set_facts(&x_box));
+        let input = *input;
         fb.pipe_nn = None;
         let exact = input.piece.map(|(piece, slack)| {
             let dynamics = piece_dynamics(p, piece);
@@ -234,7 +234,7 @@ impl ChunkRun<'_> {
             (dl, du)
         });
         let enclosed = match input.piece.is_none() && self.encloses {
-            true => p.pieces.finite_enclosure(&x_box),
+            true => p.pieces.finite_enclosure(x_box),
             false => None,
         }
         .map(|v| {
@@ -242,7 +242,7 @@ impl ChunkRun<'_> {
             let consts = constant_bounds(zeros, &lo, &hi, n);
             let (mut dl, mut du) =
                 validated::field_over(&p.dynamics, &a.lower, &a.upper, consts, &zeros[..m]);
-            widen_by(&mut dl, &mut du, p.pieces.field_slack(&x_box, &v));
+            widen_by(&mut dl, &mut du, p.pieces.field_slack(x_box, &v));
             (dl, du)
         });
         let network = match input.margin {

@@ -624,33 +624,62 @@ pub(super) fn form_on(
     nn: NetworkBoundsRef,
     margin: &[f64],
 ) -> (Interval, Vec<Interval>) {
-    let n = dynamics.n;
+    let at = form_at(dynamics, lower, upper, p, i);
+    form_side(dynamics, &at, p, i, on_upper, nn, margin)
+}
+
+/// What [`form_on`]'s two sides share on one box and point: the box, `Df̃ᵢ` over it, `f̃ᵢ(p)`.
+struct FormAt {
+    x: Vec<Interval>,
+    jac: Vec<Interval>,
+    f_p: Interval,
+}
+
+/// [`FormAt`] of coordinate `i` on the box `[lower, upper]` at `p`.
+fn form_at(dynamics: &Dynamics, lower: &[f64], upper: &[f64], p: &[f64], i: usize) -> FormAt {
     let x = crate::intervals::box_of(lower, upper);
     let p_box: Vec<Interval> = p.iter().map(|&v| point(v)).collect();
-    let jac: Vec<Interval> = dynamics.f_tilde_jacobian[i]
+    let jac = dynamics.f_tilde_jacobian[i]
         .iter()
         .map(|e| e.eval_interval(&x))
         .collect();
-    let mut total = dynamics.f_tilde[i].eval_interval(&p_box);
+    let f_p = dynamics.f_tilde[i].eval_interval(&p_box);
+    FormAt { x, jac, f_p }
+}
+
+/// [`form_on`] of one side from what both share.
+fn form_side(
+    dynamics: &Dynamics,
+    at: &FormAt,
+    p: &[f64],
+    i: usize,
+    on_upper: bool,
+    nn: NetworkBoundsRef,
+    margin: &[f64],
+) -> (Interval, Vec<Interval>) {
+    let n = dynamics.n;
+    let mut total = at.f_p;
     match &dynamics.g_constant {
         Some(b) => {
             let (row, delta) = interaction_row(b, dynamics, nn, margin, i, on_upper);
             for j in 0..n {
                 total = total + row[j] * point(p[j]);
             }
-            let slopes = (0..n).map(|j| jac[j] + row[j]).collect();
+            let slopes = (0..n).map(|j| at.jac[j] + row[j]).collect();
             (total + delta, slopes)
         }
         None => {
             for (k, u) in input_enclosure(nn, margin).into_iter().enumerate() {
-                total = total + dynamics.g[i][k].eval_interval(&x) * u;
+                total = total + dynamics.g[i][k].eval_interval(&at.x) * u;
             }
-            (total, jac)
+            (total, at.jac.clone())
         }
     }
 }
 
-/// Bounds `[F̲, F̄]` of the field over the whole box `[lower, upper]` (for [`enclose_step`]).
+/// Bounds `[F̲, F̄]` of the field over the whole box `[lower, upper]` (for [`enclose_step`]):
+/// per coordinate [`bound_on`]'s lower end and its upper end, the box's Jacobian and `f̃ᵢ` at its
+/// centre evaluated once for both (the same operations as two calls, so the same bits).
 pub fn field_over(
     dynamics: &Dynamics,
     lower: &[f64],
@@ -659,12 +688,30 @@ pub fn field_over(
     margin: &[f64],
 ) -> (Vec<f64>, Vec<f64>) {
     let n = dynamics.n;
-    let lo = (0..n)
-        .map(|i| bound_on(dynamics, lower, upper, i, false, nn, margin).lower)
+    let p: Vec<f64> = (0..n)
+        .map(|j| lower[j] + 0.5 * (upper[j] - lower[j]))
         .collect();
-    let hi = (0..n)
-        .map(|i| bound_on(dynamics, lower, upper, i, true, nn, margin).upper)
-        .collect();
+    let (mut lo, mut hi) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    for i in 0..n {
+        let at = form_at(dynamics, lower, upper, &p, i);
+        let end = |on_upper: bool| {
+            let (mut total, slopes) = form_side(dynamics, &at, &p, i, on_upper, nn, margin);
+            for (j, k) in slopes.into_iter().enumerate() {
+                total = total + k * (Interval::new(lower[j], upper[j]) - point(p[j]));
+            }
+            total
+        };
+        // Without a constant `g` the form does not depend on the side.
+        let (l, u) = match dynamics.g_constant {
+            Some(_) => (end(false), end(true)),
+            None => {
+                let both = end(false);
+                (both, both)
+            }
+        };
+        lo.push(l.lower);
+        hi.push(u.upper);
+    }
     (lo, hi)
 }
 

@@ -469,3 +469,53 @@ fn a_face_at_rest_keeps_its_second_order_rate() {
     assert!((0.0..=1e-12).contains(&du[1]), "{du:?}");
     assert!(1e-9 * (-h).exp() <= 1e-9 + h * du[1]);
 }
+
+/// [`field_over`] shares each coordinate's Jacobian and `f̃ᵢ(p)` between its two ends: it must
+/// give [`bound_on`]'s two ends bit for bit, with a constant `g` (the sides' interaction rows
+/// differ) and a state-dependent one (the sides' forms are the same).
+#[test]
+fn field_over_is_bound_on_at_both_ends_bit_for_bit() {
+    let names = ["x1".to_string(), "x2".to_string()];
+    let parse = |s: &str| crate::expressions::parse(s, &names, &Default::default()).unwrap();
+    let f = || vec![parse("x2*x1 - 0.3*x1"), parse("-sin(x1) + x2^2")];
+    let constant = Dynamics::new(2, 1, f(), vec![vec![parse("0.5")], vec![parse("-2")]]);
+    let varying = Dynamics::new(
+        2,
+        1,
+        f(),
+        vec![vec![parse("1")], vec![parse("x1 + 0.1*x2")]],
+    );
+    let nn = NetworkBoundsRef {
+        a_lower: &[0.3, -0.2],
+        b_lower: &[-0.1],
+        a_upper: &[0.4, -0.1],
+        b_upper: &[0.2],
+        lower: &[-1.0],
+        upper: &[1.25],
+    };
+    let margin = [0.05];
+    let boxes = [
+        ([-0.4, 0.1], [0.3, 0.7]),
+        ([1.0, -2.0], [1.0, -1.5]),
+        ([-3.1, 0.25], [-2.9, 0.35]),
+    ];
+    for d in [&constant, &varying] {
+        for (lo, hi) in &boxes {
+            let (fl, fu) = field_over(d, lo, hi, nn, &margin);
+            for i in 0..2 {
+                let low = bound_on(d, lo, hi, i, false, nn, &margin).lower;
+                let up = bound_on(d, lo, hi, i, true, nn, &margin).upper;
+                assert_eq!(
+                    fl[i].to_bits(),
+                    low.to_bits(),
+                    "lower end {i} on {lo:?}..{hi:?}"
+                );
+                assert_eq!(
+                    fu[i].to_bits(),
+                    up.to_bits(),
+                    "upper end {i} on {lo:?}..{hi:?}"
+                );
+            }
+        }
+    }
+}
