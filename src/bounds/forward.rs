@@ -16,10 +16,10 @@
 //!   `[0, 1]` so the relaxed forms keep it, and the next layer adds `rowsum(|W|)·ε` to `R̂`),
 //!   which keeps `R̂` zero where the neurons are stable.
 //! * **Affine layer** `z' = W a + b`: `|z' − (WĈ + b)| = |W (a − Ĉ)| ≤ |W| R̂`, so
-//!   `(Ĉ, R̂) ← (W Ĉ + b, |W| R̂)`. For a group of `G` boxes the forms are matrices
-//!   `n_k × G(n+1)` (columns box-major, `n` coefficients then the constant), and a layer is two
-//!   GEMMs: `W·Ĉ`, and `|W|·[R̂ | V]` with the rounding magnitudes `V` below as `G` more
-//!   columns beside `R̂` (one pass over `|W|` for both).
+//!   `(Ĉ, R̂) ← (W Ĉ + b, |W| R̂)`. For a group of `G` boxes the forms are `n + 1` planes of
+//!   `n_k × G` each (one per coefficient, the constant last), and a layer is the products
+//!   `W·Ĉ` and `|W|·[R̂ | V]` plane by plane, with the rounding magnitudes `V` below as one
+//!   more plane after `R̂`'s, all in one pass over `W`.
 //! * **ReLU.** Concretise `l = min(Ĉ − R̂)`, `u = max(Ĉ + R̂)` over the box (by its centre and
 //!   radius); if `u ≤ 0` the forms become 0, if `l ≥ 0` they stay; otherwise with the adaptive
 //!   lines `s̲ z ≤ ReLU(z) ≤ s̄ z + t̄` (`relu_lines`) `ReLU(z) ∈ [s̲(Ĉ − R̂), s̄(Ĉ + R̂) + t̄]`,
@@ -28,7 +28,7 @@
 //! * **Output.** `C̲ = Ĉ − R̂`, `C̄ = Ĉ + R̂`, concretised over the box.
 //!
 //! Neurons inactive over every box of the group have exact zero forms after the ReLU, so the
-//! products leave their rows out (`sparse_product`): no sum and no rounding bound changes.
+//! products leave their rows out (`layer_products`): no sum and no rounding bound changes.
 //!
 //! # Rounding (module error model of [`crate::bounds`])
 //!
