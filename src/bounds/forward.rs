@@ -16,10 +16,10 @@
 //!   `[0, 1]` so the relaxed forms keep it, and the next layer adds `rowsum(|W|)·ε` to `R̂`),
 //!   which keeps `R̂` zero where the neurons are stable.
 //! * **Affine layer** `z' = W a + b`: `|z' − (WĈ + b)| = |W (a − Ĉ)| ≤ |W| R̂`, so
-//!   `(Ĉ, R̂) ← (W Ĉ + b, |W| R̂)`. For a group of `G` boxes the forms are matrices
-//!   `n_k × G(n+1)` (columns box-major, `n` coefficients then the constant), and a layer is two
-//!   GEMMs: `W·Ĉ`, and `|W|·[R̂ | V]` with the rounding magnitudes `V` below as `G` more
-//!   columns beside `R̂` (one pass over `|W|` for both).
+//!   `(Ĉ, R̂) ← (W Ĉ + b, |W| R̂)`. For a group of `G` boxes the forms are `n + 1` planes of
+//!   `n_k × G` each (one per coefficient, the constant last), and a layer is the products
+//!   `W·Ĉ` and `|W|·[R̂ | V]` plane by plane, with the rounding magnitudes `V` below as one
+//!   more plane after `R̂`'s, all in one pass over `W`.
 //! * **ReLU.** Concretise `l = min(Ĉ − R̂)`, `u = max(Ĉ + R̂)` over the box (by its centre and
 //!   radius); if `u ≤ 0` the forms become 0, if `l ≥ 0` they stay; otherwise with the adaptive
 //!   lines `s̲ z ≤ ReLU(z) ≤ s̄ z + t̄` (`relu_lines`) `ReLU(z) ∈ [s̲(Ĉ − R̂), s̄(Ĉ + R̂) + t̄]`,
@@ -28,7 +28,7 @@
 //! * **Output.** `C̲ = Ĉ − R̂`, `C̄ = Ĉ + R̂`, concretised over the box.
 //!
 //! Neurons inactive over every box of the group have exact zero forms after the ReLU, so the
-//! products leave their rows out (`sparse_product`): no sum and no rounding bound changes.
+//! products leave their rows out (`layer_products`): no sum and no rounding bound changes.
 //!
 //! # Rounding (module error model of [`crate::bounds`])
 //!
@@ -47,10 +47,9 @@
 //! The absolute (underflow) part uses the scale `1 + Σ_q mag_q` (`err_bound`).
 #![allow(clippy::needless_range_loop)] // index loops read as the formulas
 
-use super::ibp::centre_radius;
+use super::relax::{self, relax};
 use super::{
-    gemm, one_box, relu_lines, AffineBounds, BoundMethod, BoundsError, OutRow, PreparedNetwork,
-    Relaxation, Schedule,
+    gemm, one_box, AffineBounds, BoundMethod, BoundsError, OutRow, PreparedNetwork, Schedule,
 };
 use crate::matmul::PackedMatrix;
 use crate::network::Mlp;
@@ -80,13 +79,15 @@ pub(crate) struct ForwardOptions {
 /// Buffers for one group of boxes, reused across the groups of one rayon task.
 #[derive(Default)]
 pub(crate) struct Workspace {
-    /// Centre forms `Ĉ`, `n_k × G(d+1)`: `d` form coordinates per box (the box's free
-    /// coordinates, see [`Workspace::free`]), then the constant.
+    /// Centre forms `Ĉ` in `d + 1` planes of `n_k × G`: coefficient `p` of neuron `i` in box
+    /// `g` at `p·n_kG + i·G + g`; `d` form coordinates per box (the box's free coordinates,
+    /// see [`Workspace::free`]), then the constant. A plane is one run over (neuron, box)
+    /// pairs, which the relaxation ([`super::relax`]) walks a vector at a time; for the
+    /// products each plane is an `n_k × G` right factor.
     c: Vec<f64>,
     c_next: Vec<f64>,
-    /// Radius forms `R̂` and form magnitudes `V` side by side, `n_k × (G(d+1) + G)`: row `i`
-    /// is neuron `i`'s `R̂` for every box, then its `V` for every box, so that one product
-    /// with `|W|` gives both (see [`magnitude_products`]).
+    /// Radius forms `R̂` in `d + 1` planes as `c`, then a plane of form magnitudes `V`, so that
+    /// one pass over `|W|` gives both (see [`layer_products`]).
     rv: Vec<f64>,
     rv_next: Vec<f64>,
     /// Per box and form coordinate (`G × d`): the input coordinate it stands for, or
@@ -122,8 +123,11 @@ pub(crate) struct Workspace {
     ie: Vec<f64>,
     /// IBP magnitude `|c| + r` of the current layer's input.
     imag: Vec<f64>,
-    /// Scratch of [`sparse_product`] and [`magnitude_products`].
-    sparse: SparseScratch,
+    /// The rows of `c`, `R̂` and `V` the next products read (from the relaxation).
+    live: relax::LiveRows,
+    /// Scratch of the relaxation and of the products' slabs.
+    blocks: relax::Blocks,
+    slabs: Vec<f64>,
 }
 
 /// Forward bounds for a validated batch, into `rows` (one per box).
@@ -214,8 +218,6 @@ pub(crate) fn forward_group(
     let g_count = rows.len();
     let d = box_coordinates(n0, g_count, lower, upper, ws);
     let k_cols = d + 1;
-    let cols = g_count * k_cols;
-    let stride = cols + g_count;
     let n_layers = net.layers.len();
     ws.poisoned.clear();
     ws.poisoned.resize(g_count, false);
@@ -225,10 +227,11 @@ pub(crate) fn forward_group(
     // Layer 0: Ĉ = [W₀ on the free coordinates | b₀ + W₀ on the pinned ones], R̂ = 0; the
     // constant is exact unless a coordinate is pinned, whose rounding goes to `pending`.
     let first = &net.layers[0];
+    let plane = first.n_out * g_count;
     ws.c.clear();
-    ws.c.resize(first.n_out * cols, 0.0);
+    ws.c.resize(k_cols * plane, 0.0);
     ws.rv.clear();
-    ws.rv.resize(first.n_out * stride, 0.0);
+    ws.rv.resize((k_cols + 1) * plane, 0.0);
     for g in 0..g_count {
         let free = &ws.free[g * d..(g + 1) * d];
         let pinned = n0 - free.iter().filter(|&&p| p != usize::MAX).count();
@@ -236,9 +239,8 @@ pub(crate) fn forward_group(
         let mut worst = 0.0f64;
         for i in 0..first.n_out {
             let w_row = &first.weight[i * n0..(i + 1) * n0];
-            let dst = &mut ws.c[i * cols + g * k_cols..i * cols + (g + 1) * k_cols];
-            for (slot, &p) in dst.iter_mut().zip(free) {
-                *slot = if p == usize::MAX { 0.0 } else { w_row[p] };
+            for (q, &p) in free.iter().enumerate() {
+                ws.c[q * plane + i * g_count + g] = if p == usize::MAX { 0.0 } else { w_row[p] };
             }
             let (mut sum, mut mag) = (first.bias[i], first.bias[i].abs());
             if pinned > 0 {
@@ -248,7 +250,7 @@ pub(crate) fn forward_group(
                 }
                 worst = worst.max(err_bound(pinned + 1, mag, ws.scale[g]));
             }
-            dst[d] = sum;
+            ws.c[d * plane + i * g_count + g] = sum;
         }
         ws.pending[g] = worst;
     }
@@ -256,31 +258,19 @@ pub(crate) fn forward_group(
     for k in 0..n_layers {
         let layer = &net.layers[k];
         let n = layer.n_out;
+        let plane = n * g_count;
         if k > 0 {
             let n_prev = layer.n_in;
             // The products overwrite their outputs: sizing them needs no zeroing.
-            ws.c_next.resize(n * cols, 0.0);
-            ws.rv_next.resize(n * stride, 0.0);
+            ws.c_next.resize(k_cols * plane, 0.0);
+            ws.rv_next.resize((k_cols + 1) * plane, 0.0);
             let w = &prepared.packed_w[k];
             let (ins, outs) = (
                 (&ws.c[..], &ws.rv[..]),
                 (&mut ws.c_next[..], &mut ws.rv_next[..]),
             );
-            layer_products((n_prev, cols, g_count), w, ins, outs, &mut ws.sparse);
-            let row_sums = &prepared.abs_row_sums[k];
-            for i in 0..n {
-                let b = layer.bias[i];
-                let (r_row, v_row) = ws.rv_next[i * stride..(i + 1) * stride].split_at_mut(cols);
-                for g in 0..g_count {
-                    let at = g * k_cols + d;
-                    ws.c_next[i * cols + at] += b;
-                    let err = err_bound(n_prev + 1, v_row[g] + b.abs(), ws.scale[g]);
-                    // |W|·(pending, …, pending) ≤ rowsum(|W|)·pending.
-                    let carried = round_up_keep_zero(row_sums[i] * ws.pending[g]);
-                    r_row[at] = add_up(add_up(r_row[at], err), carried);
-                }
-            }
-            ws.pending.iter_mut().for_each(|p| *p = 0.0);
+            let shape = (n_prev, g_count, k_cols);
+            layer_products(shape, w, ins, outs, &ws.live, &mut ws.slabs);
             std::mem::swap(&mut ws.c, &mut ws.c_next);
             std::mem::swap(&mut ws.rv, &mut ws.rv_next);
             if opts.ibp {
@@ -294,6 +284,9 @@ pub(crate) fn forward_group(
         }
 
         if k + 1 == n_layers {
+            if k > 0 {
+                output_bias(prepared, k, g_count, d, ws);
+            }
             write_output(n, n0, d, ws, lower, upper, rows, opts.ibp && k > 0);
             return;
         }
@@ -302,179 +295,114 @@ pub(crate) fn forward_group(
             ws.pre_hi.resize(n_layers - 1, Vec::new());
             for v in [&mut ws.pre_lo[k], &mut ws.pre_hi[k]] {
                 v.clear();
-                v.resize(n * g_count, 0.0);
+                v.resize(plane, 0.0);
             }
         }
         if opts.ibp {
             ws.ic.clear();
-            ws.ic.resize(n * g_count, 0.0);
+            ws.ic.resize(plane, 0.0);
             ws.ir.clear();
-            ws.ir.resize(n * g_count, 0.0);
+            ws.ir.resize(plane, 0.0);
         }
 
-        // ReLU relaxation, per neuron and box; V of the result for the next layer. The
-        // common form sizes get their own copy of the loop, unrolled by the compiler.
-        match d {
-            1 => relax_layer::<2>(k, n, g_count, d, ws, opts),
-            2 => relax_layer::<3>(k, n, g_count, d, ws, opts),
-            3 => relax_layer::<4>(k, n, g_count, d, ws, opts),
-            4 => relax_layer::<5>(k, n, g_count, d, ws, opts),
-            _ => relax_layer::<0>(k, n, g_count, d, ws, opts),
+        // After a product, the bias and its rounding; then the ReLU relaxation, per neuron and
+        // box, a vector of them at a time; V of the result for the next layer, and the rows
+        // the next products read.
+        let bias = (k > 0).then(|| (&layer.bias[..], &prepared.abs_row_sums[k][..], layer.n_in));
+        let layer_forms = relax::Layer {
+            n,
+            g: g_count,
+            d,
+            c: &mut ws.c[..k_cols * plane],
+            rv: &mut ws.rv[..(k_cols + 1) * plane],
+            xc: &ws.xc,
+            xr: &ws.xr,
+            xmag: &ws.xmag,
+            scale: &ws.scale,
+            pending: &ws.pending,
+            bias,
+            ibp_pre: (opts.ibp && k > 0).then(|| (&ws.ipre_c[..], &ws.ipre_r[..])),
+            ibp_post: opts.ibp.then(|| (&mut ws.ic[..], &mut ws.ir[..])),
+            record: match opts.record {
+                true => Some((&mut ws.pre_lo[k][..], &mut ws.pre_hi[k][..])),
+                false => None,
+            },
+        };
+        relax(layer_forms, &mut ws.poisoned, &mut ws.blocks, &mut ws.live);
+        if k > 0 {
+            ws.pending.iter_mut().for_each(|p| *p = 0.0);
         }
     }
 }
 
-/// The ReLU relaxation of hidden layer `k` (`n` neurons) for every box of the group, in place
-/// on `ws.c`, `ws.rv`, with each result's form magnitude into `ws.rv`'s `V` (and, as `opts` asks, the
-/// concrete bounds recorded and the IBP interval after the ReLU). `K` is `d + 1` when it is a
-/// compile-time constant (the loops over coefficients unroll), or 0 to read `d` at run time.
-///
-/// With `pending` error `ε` (`|z − Ĉ| ≤ R̂ + ε`) the concrete bounds widen by `ε`, and the
-/// relaxed forms keep `|a − Ĉ'| ≤ R̂' + ε`: the lines' slopes lie in `[0, 1]`.
-fn relax_layer<const K: usize>(
+/// The output layer's bias and the rounding of its product, into `Ĉ`'s and `R̂`'s constants
+/// (the hidden layers' take theirs in the relaxation); `pending` is then carried and cleared.
+fn output_bias(
+    prepared: &PreparedNetwork<'_>,
     k: usize,
-    n: usize,
     g_count: usize,
     d: usize,
     ws: &mut Workspace,
-    opts: ForwardOptions,
 ) {
-    let k_cols = if K == 0 { d + 1 } else { K };
-    let d = k_cols - 1;
-    let cols = g_count * k_cols;
-    let stride = cols + g_count;
+    let layer = &prepared.net().layers[k];
+    let (n, n_prev) = (layer.n_out, layer.n_in);
+    let plane = n * g_count;
+    let row_sums = &prepared.abs_row_sums[k];
     for i in 0..n {
-        let (r_row, v_row) = ws.rv[i * stride..(i + 1) * stride].split_at_mut(cols);
+        let b = layer.bias[i];
         for g in 0..g_count {
-            let span = g * k_cols..(g + 1) * k_cols;
-            let (xc, xr, xmag) = (
-                &ws.xc[g * d..(g + 1) * d],
-                &ws.xr[g * d..(g + 1) * d],
-                &ws.xmag[g * d..(g + 1) * d],
-            );
-            let cf = &mut ws.c[i * cols..(i + 1) * cols][span.clone()];
-            let rf = &mut r_row[span];
-            let (mut su, mut sl, mut mag) =
-                (cf[d] + rf[d], cf[d] - rf[d], cf[d].abs() + rf[d].abs());
-            for p in 0..d {
-                let (up, lo) = (cf[p] + rf[p], cf[p] - rf[p]);
-                su += up * xc[p] + up.abs() * xr[p];
-                sl += lo * xc[p] - lo.abs() * xr[p];
-                mag += (cf[p].abs() + rf[p].abs()) * xmag[p];
-            }
-            let err = add_up(err_bound(3 * d + 3, mag, ws.scale[g]), ws.pending[g]);
-            let (mut l, mut u) = (add_down(sl, -err), add_up(su, err));
-            if !(l.is_finite() && u.is_finite()) {
-                ws.poisoned[g] = true;
-            }
-            let at = i * g_count + g;
-            if opts.ibp {
-                if k > 0 {
-                    let (c, r) = (ws.ipre_c[at], ws.ipre_r[at]);
-                    l = l.max(add_down(c, -r));
-                    u = u.min(add_up(c, r));
-                }
-                let (c, r) = centre_radius(l.max(0.0), u.max(0.0));
-                ws.ic[at] = c;
-                ws.ir[at] = r;
-            }
-            if opts.record {
-                ws.pre_lo[k][at] = l;
-                ws.pre_hi[k][at] = u;
-            }
-            let v = if u <= 0.0 {
-                cf.fill(0.0);
-                rf.fill(0.0);
-                0.0
-            } else if l >= 0.0 {
-                mag
-            } else {
-                let (s_lo, s_up, t) = relu_lines(l, u, Relaxation::Adaptive);
-                let alpha = 0.5 * (s_up + s_lo);
-                let beta = 0.5 * (s_up - s_lo);
-                for p in 0..k_cols {
-                    let (c, r) = (cf[p], rf[p]);
-                    cf[p] = alpha * c + beta * r;
-                    rf[p] = beta * c + alpha * r;
-                }
-                cf[d] += 0.5 * t;
-                rf[d] += 0.5 * t;
-                let err = err_bound(8, s_up.max(s_lo) * mag + t, ws.scale[g]);
-                rf[d] = add_up(rf[d], err);
-                let mut v = cf[d].abs() + rf[d].abs();
-                for p in 0..d {
-                    v += (cf[p].abs() + rf[p].abs()) * xmag[p];
-                }
-                v
-            };
-            v_row[g] = v;
+            let at = d * plane + i * g_count + g;
+            ws.c[at] += b;
+            let v = ws.rv[(d + 1) * plane + i * g_count + g];
+            let err = err_bound(n_prev + 1, v + b.abs(), ws.scale[g]);
+            // |W|·(pending, …, pending) ≤ rowsum(|W|)·pending.
+            let carried = round_up_keep_zero(row_sums[i] * ws.pending[g]);
+            ws.rv[at] = add_up(add_up(ws.rv[at], err), carried);
         }
     }
-}
-
-/// Buffers of [`layer_products`]: the live rows of each right factor, and the slabs.
-#[derive(Default)]
-struct SparseScratch {
-    rows_c: Vec<usize>,
-    rows_r: Vec<usize>,
-    rows_v: Vec<usize>,
-    slabs: Vec<f64>,
-}
-
-/// The rows `j` whose entries `row_stride·j + range` are not all zero.
-fn nonzero_rows(
-    b: &[f64],
-    k: usize,
-    row_stride: usize,
-    range: std::ops::Range<usize>,
-    out: &mut Vec<usize>,
-) {
-    out.clear();
-    out.extend((0..k).filter(|&j| {
-        b[j * row_stride + range.start..j * row_stride + range.end]
-            .iter()
-            .any(|&x| x != 0.0)
-    }));
+    ws.pending.iter_mut().for_each(|p| *p = 0.0);
 }
 
 /// An affine layer's products, `Ĉ' = W·Ĉ` and `[R̂' | V'] = |W|·[R̂ | V]`, in one pass over the
-/// packed `m × k` `W` ([`PackedMatrix::products`]; `|W|` is exact): `Ĉ` is `k × cols`
-/// row-major, each of the `k` rows of `rv` holds `cols` entries of `R̂` then `g` of `V`
-/// ([`Workspace::rv`]).
+/// packed `m × k` `W` ([`PackedMatrix::products`]; `|W|` is exact): `Ĉ` is `K = d + 1` planes
+/// of `k × G`, `rv` `K` planes of `R̂` then one of `V` ([`Workspace::c`], [`Workspace::rv`]);
+/// the outputs the same with `m` rows.
 ///
-/// Each product runs over the rows where its right factor is nonzero: after a ReLU the forms
-/// of neurons inactive over every box of the group are exact zeros (no sum and no rounding
-/// bound changes), after the exact first layer `R̂` is nonzero only for the neurons unstable
-/// in some box, and `V` is zero only for those inactive over every box.
+/// Each product runs over the rows where its right factor is nonzero (`live`, from the
+/// relaxation): after a ReLU the forms of neurons inactive over every box of the group are
+/// exact zeros (no sum and no rounding bound changes), after the exact first layer `R̂` is
+/// nonzero only for the neurons unstable in some box, and `V` is zero only for those
+/// inactive over every box.
 fn layer_products(
-    (k, cols, g): (usize, usize, usize),
+    (k, g, planes): (usize, usize, usize),
     w: &PackedMatrix,
     (c, rv): (&[f64], &[f64]),
     (c_out, rv_out): (&mut [f64], &mut [f64]),
-    scratch: &mut SparseScratch,
+    live: &relax::LiveRows,
+    slabs: &mut Vec<f64>,
 ) {
     use crate::matmul::Part;
-    let stride = cols + g;
-    nonzero_rows(c, k, cols, 0..cols, &mut scratch.rows_c);
-    nonzero_rows(rv, k, stride, 0..cols, &mut scratch.rows_r);
-    nonzero_rows(rv, k, stride, cols..stride, &mut scratch.rows_v);
-    let part = |abs, live, b, b_stride, b_col, n, out, out_col| Part {
+    let m = w.rows();
+    let part = |abs, live, b, b_col, planes, out, out_col| Part {
         abs,
         live,
         b,
-        b_stride,
+        b_stride: g,
         b_col,
-        n,
+        n: g,
+        planes,
+        b_plane: k * g,
         out,
         out_col,
+        out_plane: m * g,
     };
     let parts = [
-        part(false, &scratch.rows_c[..], c, cols, 0, cols, 0, 0),
-        part(true, &scratch.rows_r[..], rv, stride, 0, cols, 1, 0),
-        part(true, &scratch.rows_v[..], rv, stride, cols, g, 1, cols),
+        part(false, &live.c[..], c, 0, planes, 0, 0),
+        part(true, &live.r[..], rv, 0, planes, 1, 0),
+        part(true, &live.v[..], rv, planes * k * g, 1, 1, planes * m * g),
     ];
-    let mut outs = [(c_out, cols), (rv_out, stride)];
-    w.products(&parts, &mut outs, &mut scratch.slabs);
+    let mut outs = [(c_out, g), (rv_out, g)];
+    w.products(&parts, &mut outs, slabs);
 }
 
 /// IBP through affine layer `layer` for the group: from `ws.ic ± ws.ir` (post-ReLU, `n_in × G`)
@@ -517,9 +445,7 @@ fn write_output(
     ibp: bool,
 ) {
     let g_count = rows.len();
-    let k_cols = d + 1;
-    let cols = g_count * k_cols;
-    let stride = cols + g_count;
+    let plane = m * g_count;
     let mut full_mag = Vec::with_capacity(n0);
     for (g, row) in rows.iter_mut().enumerate() {
         if ws.poisoned[g] {
@@ -531,22 +457,25 @@ fn write_output(
         full_mag.clear();
         full_mag.extend(lo.iter().zip(hi).map(|(l, h)| l.abs().max(h.abs())));
         for i in 0..m {
-            let (at, at_r) = (i * cols + g * k_cols, i * stride + g * k_cols);
-            let (cf, rf) = (&ws.c[at..at + k_cols], &ws.rv[at_r..at_r + k_cols]);
-            let mut mag = cf[d].abs() + rf[d].abs();
+            let at = i * g_count + g;
+            let (cf, rf) = (
+                |q: usize| ws.c[q * plane + at],
+                |q: usize| ws.rv[q * plane + at],
+            );
+            let mut mag = cf(d).abs() + rf(d).abs();
             row.a_lower[i * n0..(i + 1) * n0].fill(0.0);
             row.a_upper[i * n0..(i + 1) * n0].fill(0.0);
             for (q, &p) in free.iter().enumerate() {
                 if p == usize::MAX {
                     continue;
                 }
-                row.a_lower[i * n0 + p] = cf[q] - rf[q];
-                row.a_upper[i * n0 + p] = cf[q] + rf[q];
-                mag += (cf[q].abs() + rf[q].abs()) * xmag[q];
+                row.a_lower[i * n0 + p] = cf(q) - rf(q);
+                row.a_upper[i * n0 + p] = cf(q) + rf(q);
+                mag += (cf(q).abs() + rf(q).abs()) * xmag[q];
             }
             let err = add_up(err_bound(2, mag, ws.scale[g]), ws.pending[g]);
-            row.b_lower[i] = add_down(cf[d] - rf[d], -err);
-            row.b_upper[i] = add_up(cf[d] + rf[d], err);
+            row.b_lower[i] = add_down(cf(d) - rf(d), -err);
+            row.b_upper[i] = add_up(cf(d) + rf(d), err);
             let a_lo = &row.a_lower[i * n0..(i + 1) * n0];
             let a_up = &row.a_upper[i * n0..(i + 1) * n0];
             row.lower[i] = affine_min(a_lo, row.b_lower[i], lo, hi, &full_mag);
@@ -563,53 +492,72 @@ fn write_output(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bounds::crown;
     use crate::bounds::test_support::*;
+    use crate::bounds::{crown, Relaxation};
 
-    /// The layer's products give the dense products `W·Ĉ` and `|W|·[R̂ | V]` (each part over
-    /// its own nonzero rows, in one pass) and write every entry.
+    /// The layer's products give the dense products `W·Ĉ` and `|W|·[R̂ | V]` plane by plane
+    /// (each part over its own nonzero rows, in one pass) and write every entry.
     #[test]
     fn layer_products_give_the_dense_products() {
         use rand::{Rng, SeedableRng};
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
-        let (m, k, cols, g) = (37, 150, 9, 3);
-        let stride = cols + g;
+        let (m, k, g, planes) = (37, 150, 3, 3);
         let a: Vec<f64> = (0..m * k).map(|_| rng.random_range(-1.0..1.0)).collect();
         let abs_a: Vec<f64> = a.iter().map(|x| x.abs()).collect();
         let packed = PackedMatrix::new(m, k, &a);
-        for live in [0, 3, 25, 26, 97, 150] {
-            // `live` nonzero rows of Ĉ and of R̂, spread over the 150 (R̂'s shifted);
+        for live_count in [0, 3, 25, 26, 97, 150] {
+            // `live_count` nonzero rows of Ĉ and of R̂, spread over the 150 (R̂'s shifted);
             // V nonzero on Ĉ's rows.
-            let (mut c, mut rv) = (vec![0.0; k * cols], vec![0.0; k * stride]);
+            let (mut c, mut rv) = (vec![0.0; planes * k * g], vec![0.0; (planes + 1) * k * g]);
+            let mut live = relax::LiveRows::default();
+            let on = |j: usize| j * live_count / k != (j + 1) * live_count / k;
             for j in 0..k {
-                if j * live / k != (j + 1) * live / k {
-                    c[j * cols..(j + 1) * cols]
-                        .iter_mut()
-                        .for_each(|x| *x = rng.random_range(-1.0..1.0));
-                    rv[j * stride + cols..(j + 1) * stride]
-                        .iter_mut()
-                        .for_each(|x| *x = rng.random_range(0.0..1.0));
-                }
                 let jr = (j + 7) % k;
-                if jr * live / k != (jr + 1) * live / k {
-                    rv[j * stride..j * stride + cols]
-                        .iter_mut()
-                        .for_each(|x| *x = rng.random_range(0.0..1.0));
+                for q in 0..planes {
+                    for b in 0..g {
+                        if on(j) {
+                            c[q * k * g + j * g + b] = rng.random_range(-1.0..1.0);
+                        }
+                        if on(jr) {
+                            rv[q * k * g + j * g + b] = rng.random_range(0.0..1.0);
+                        }
+                    }
+                }
+                for b in 0..g {
+                    if on(j) {
+                        rv[planes * k * g + j * g + b] = rng.random_range(0.0..1.0);
+                    }
+                }
+                if on(j) {
+                    live.c.push(j);
+                    live.v.push(j);
+                }
+                if on(jr) {
+                    live.r.push(j);
                 }
             }
-            let (mut dense_c, mut dense_rv) = (vec![0.0; m * cols], vec![0.0; m * stride]);
-            gemm(m, k, cols, &a, &c, &mut dense_c);
-            gemm(m, k, stride, &abs_a, &rv, &mut dense_rv);
-            let (mut c_out, mut rv_out) = (vec![f64::NAN; m * cols], vec![f64::NAN; m * stride]);
-            let mut scratch = SparseScratch::default();
+            let (mut c_out, mut rv_out) = (
+                vec![f64::NAN; planes * m * g],
+                vec![f64::NAN; (planes + 1) * m * g],
+            );
+            let mut slabs = Vec::new();
             let (ins, outs) = ((&c[..], &rv[..]), (&mut c_out[..], &mut rv_out[..]));
-            layer_products((k, cols, g), &packed, ins, outs, &mut scratch);
-            for (x, y) in dense_c
-                .iter()
-                .zip(&c_out)
-                .chain(dense_rv.iter().zip(&rv_out))
-            {
-                assert!((x - y).abs() <= 1e-13, "{live} live rows: {x} vs {y}");
+            layer_products((k, g, planes), &packed, ins, outs, &live, &mut slabs);
+            let mut dense = vec![0.0; m * g];
+            for q in 0..=planes {
+                let pairs = [(&a, &c, &c_out), (&abs_a, &rv, &rv_out)];
+                for (w, b, got) in pairs.into_iter().take(if q < planes { 2 } else { 1 }) {
+                    let (w, b, got) = if q < planes {
+                        (w, b, got)
+                    } else {
+                        (&abs_a, &rv, &rv_out)
+                    };
+                    gemm(m, k, g, w, &b[q * k * g..(q + 1) * k * g], &mut dense);
+                    let got = &got[q * m * g..(q + 1) * m * g];
+                    for (x, y) in dense.iter().zip(got) {
+                        assert!((x - y).abs() <= 1e-13, "{live_count} live rows: {x} vs {y}");
+                    }
+                }
             }
         }
     }

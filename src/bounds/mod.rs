@@ -47,6 +47,7 @@ mod forward;
 mod forward_backward;
 mod ibp;
 mod live;
+mod relax;
 #[cfg(test)]
 pub(crate) mod test_support;
 
@@ -451,7 +452,7 @@ impl<'a> PreparedNetwork<'a> {
 }
 
 /// Slopes below this are flushed to zero in `relu_lines`.
-const TINY_SLOPE: f64 = 1e-290;
+pub(super) const TINY_SLOPE: f64 = 1e-290;
 
 /// Linear relaxation lines of `ReLU` on a pre-activation interval `[l, u]`:
 /// `s̲·z ≤ ReLU(z) ≤ s̄·z + t̄` for every real `z ∈ [l, u]`, rigorously despite rounding.

@@ -28,8 +28,6 @@ const NR: usize = 6;
 /// Inner indices a block of the packed storage (8 KiB of a panel): blocks are stored one after
 /// another, each block's panels in order.
 const KB: usize = 128;
-/// Most parts one [`PackedMatrix::products`] call takes.
-const MAX_PARTS: usize = 4;
 
 /// An `m × k` matrix packed in panels of [`MR`] rows (the last one padded with zeros), stored
 /// block-major: block `b` (columns `b·KB ..`, `w_b` of them) holds panel 0's columns, then
@@ -48,9 +46,11 @@ pub struct PackedMatrix {
 #[repr(C, align(64))]
 struct Column([f64; MR]);
 
-/// One product of a [`PackedMatrix::products`] call: `out[i·stride + out_col + c] =
-/// Σ_{j ∈ live} A'[i][j] · b[j·b_stride + b_col + c]` for every row `i` and `c < n`, with
-/// `A' = |A|` if `abs`, else `A`; the rows of `b` not in `live` are taken as zero.
+/// One product of a [`PackedMatrix::products`] call, for each of `planes` right factors `q`:
+/// `out[i·stride + out_col + q·out_plane + c] = Σ_{j ∈ live} A'[i][j] · b[j·b_stride + b_col +
+/// q·b_plane + c]` for every row `i` and `c < n`, with `A' = |A|` if `abs`, else `A`; the rows
+/// of `b` not in `live` are taken as zero. (The forward method's forms are stored as planes,
+/// one per coefficient: `planes` products of `n` columns.)
 #[derive(Clone, Copy, Debug)]
 pub struct Part<'a> {
     /// Multiply by `|A|` (every entry's sign bit cleared: exact).
@@ -65,10 +65,16 @@ pub struct Part<'a> {
     pub b_col: usize,
     /// Columns.
     pub n: usize,
+    /// Right factors: plane `q` of `b` starts `q·b_plane` further on.
+    pub planes: usize,
+    /// Offset between planes in `b`.
+    pub b_plane: usize,
     /// Which of the call's outputs.
     pub out: usize,
     /// The first column written there.
     pub out_col: usize,
+    /// Offset between the planes' products in the output.
+    pub out_plane: usize,
 }
 
 impl PackedMatrix {
@@ -116,42 +122,49 @@ impl PackedMatrix {
         outs: &mut [(&mut [f64], usize)],
         scratch: &mut Vec<f64>,
     ) {
-        assert!(parts.len() <= MAX_PARTS, "packed products: too many parts");
         for q in parts {
             let (out, stride) = &outs[q.out];
+            let last = q.planes.saturating_sub(1);
             assert!(
                 q.live.windows(2).all(|w| w[0] < w[1])
                     && q.live.last().is_none_or(|&j| j < self.k)
-                    && q.live
-                        .iter()
-                        .all(|&j| j * q.b_stride + q.b_col + q.n <= q.b.len())
-                    && (self.m == 0 || (self.m - 1) * stride + q.out_col + q.n <= out.len()),
+                    && q.live.last().is_none_or(|&j| {
+                        q.planes == 0
+                            || j * q.b_stride + q.b_col + last * q.b_plane + q.n <= q.b.len()
+                    })
+                    && (self.m == 0
+                        || q.planes == 0
+                        || (self.m - 1) * stride + q.out_col + last * q.out_plane + q.n
+                            <= out.len()),
                 "packed product: shape bug"
             );
         }
         if self.m == 0 {
             return;
         }
-        let madds: usize = parts.iter().map(|q| self.m * q.live.len() * q.n).sum();
+        let madds: usize = parts
+            .iter()
+            .map(|q| self.m * q.live.len() * q.n * q.planes)
+            .sum();
         super::MULTIPLY_ADDS.fetch_add(madds as u64, Ordering::Relaxed);
-        // Part `q`'s slab `s` (columns `s·NR ..`, the last one narrower) at `base[q] + s·NR·len`:
-        // for each live row in order, its entries of those columns.
+        // Part by part, plane by plane, slab by slab (columns `c0 ..`, [`NR`] of them, the last
+        // one narrower): for each live row in order, its entries of those columns; the kernel
+        // walks them in the same order.
         scratch.clear();
-        let mut base = [0; MAX_PARTS];
-        for (qi, q) in parts.iter().enumerate() {
-            base[qi] = scratch.len();
-            for c0 in (0..q.n).step_by(NR) {
-                let c1 = q.n.min(c0 + NR);
-                for &j in q.live {
-                    let at = j * q.b_stride + q.b_col;
-                    scratch.extend_from_slice(&q.b[at + c0..at + c1]);
+        for q in parts {
+            for plane in 0..q.planes {
+                for c0 in (0..q.n).step_by(NR) {
+                    let c1 = q.n.min(c0 + NR);
+                    for &j in q.live {
+                        let at = j * q.b_stride + q.b_col + plane * q.b_plane;
+                        scratch.extend_from_slice(&q.b[at + c0..at + c1]);
+                    }
                 }
             }
         }
         let job = Job {
             a: self,
             parts,
-            base,
             slabs: scratch,
         };
         #[cfg(target_arch = "x86_64")]
@@ -169,7 +182,6 @@ impl PackedMatrix {
 struct Job<'a> {
     a: &'a PackedMatrix,
     parts: &'a [Part<'a>],
-    base: [usize; MAX_PARTS],
     slabs: &'a [f64],
 }
 
@@ -191,15 +203,22 @@ fn products_body<const FMA: bool>(job: &Job<'_>, outs: &mut [(&mut [f64], usize)
     let a = job.a;
     for p in 0..a.m.div_ceil(MR) {
         let at = (p * MR, MR.min(a.m - p * MR));
-        for (qi, q) in job.parts.iter().enumerate() {
+        let mut s0 = 0;
+        for q in job.parts {
             let (out, stride) = &mut outs[q.out];
             let len = q.live.len();
-            let mut c0 = 0;
-            while c0 < q.n {
+            for (c0, plane) in
+                (0..q.planes).flat_map(|pl| (0..q.n).step_by(NR).map(move |c| (c, pl)))
+            {
                 let w = NR.min(q.n - c0);
-                let s0 = job.base[qi] + c0 * len;
                 let slab = &job.slabs[s0..s0 + len * w];
-                let dst = (&mut **out, *stride, at, q.out_col + c0);
+                s0 += len * w;
+                let dst = (
+                    &mut **out,
+                    *stride,
+                    at,
+                    q.out_col + plane * q.out_plane + c0,
+                );
                 match (q.abs, w) {
                     (false, 6) => store(&sum::<FMA, false, 6>(a, p, q.live, slab), dst),
                     (false, 5) => store(&sum::<FMA, false, 5>(a, p, q.live, slab), dst),
@@ -214,7 +233,6 @@ fn products_body<const FMA: bool>(job: &Job<'_>, outs: &mut [(&mut [f64], usize)
                     (true, 2) => store(&sum::<FMA, true, 2>(a, p, q.live, slab), dst),
                     (true, _) => store(&sum::<FMA, true, 1>(a, p, q.live, slab), dst),
                 }
-                c0 += w;
             }
         }
     }
@@ -320,8 +338,10 @@ mod tests {
             for (l0, l1) in [(0, 1), (1, 0), (2, 0), (1, 2)] {
                 let (live0, live1) = (&lives[l0], &lives[l1]);
                 // Part 0: A on b's first n columns into out0; parts 1 and 2: |A| on b's next
-                // n columns (live1) and on its first n (live0), side by side in out1.
-                let (s0, s1) = (n + 2, 2 * n + 1);
+                // n columns (live1) and on its first n (live0), side by side in out1; part 3:
+                // A on two planes of b (columns 1 .. n + 1 and n + 1 .. 2n + 1, live1) into
+                // out0's columns n + 2 .. 3n + 2.
+                let (s0, s1) = (3 * n + 2, 2 * n + 1);
                 let want = |abs: bool, live: &[usize], col: usize, i: usize, c: usize| -> f64 {
                     live.iter()
                         .map(|&j| {
@@ -338,8 +358,11 @@ mod tests {
                         b_stride,
                         b_col: 0,
                         n,
+                        planes: 1,
+                        b_plane: 0,
                         out: 0,
                         out_col: 0,
+                        out_plane: 0,
                     },
                     Part {
                         abs: true,
@@ -348,8 +371,11 @@ mod tests {
                         b_stride,
                         b_col: n,
                         n,
+                        planes: 1,
+                        b_plane: 0,
                         out: 1,
                         out_col: 0,
+                        out_plane: 0,
                     },
                     Part {
                         abs: true,
@@ -358,8 +384,24 @@ mod tests {
                         b_stride,
                         b_col: 0,
                         n,
+                        planes: 1,
+                        b_plane: 0,
                         out: 1,
                         out_col: n,
+                        out_plane: 0,
+                    },
+                    Part {
+                        abs: false,
+                        live: live1,
+                        b: &b,
+                        b_stride,
+                        b_col: 1,
+                        n,
+                        planes: 2,
+                        b_plane: n,
+                        out: 0,
+                        out_col: n + 2,
+                        out_plane: n,
                     },
                 ];
                 for fma in [true, false] {
@@ -371,19 +413,12 @@ mod tests {
                     } else {
                         // The slabs as `products` packs them, then the portable kernel.
                         packed.products(&parts, &mut outs, &mut scratch);
-                        let mut base = [0; MAX_PARTS];
-                        let mut at = 0;
-                        for (qi, q) in parts.iter().enumerate() {
-                            base[qi] = at;
-                            at += q.live.len() * q.n;
-                        }
                         for (o, _) in outs.iter_mut() {
                             o.fill(-1.0);
                         }
                         let job = Job {
                             a: &packed,
                             parts: &parts,
-                            base,
                             slabs: &scratch,
                         };
                         products_body::<false>(&job, &mut outs);
@@ -395,9 +430,13 @@ mod tests {
                             assert_eq!(o0[i * s0 + c], want(false, live0, 0, i, c), "{tag}");
                             assert_eq!(o1[i * s1 + c], want(true, live1, n, i, c), "{tag}");
                             assert_eq!(o1[i * s1 + n + c], want(true, live0, 0, i, c), "{tag}");
+                            for q in 0..2 {
+                                let got = o0[i * s0 + n + 2 + q * n + c];
+                                assert_eq!(got, want(false, live1, 1 + q * n, i, c), "{tag}");
+                            }
                         }
                         // Columns past the parts stay untouched.
-                        assert!(o0[i * s0 + n..(i + 1) * s0].iter().all(|&x| x == -1.0));
+                        assert!(o0[i * s0 + n..i * s0 + n + 2].iter().all(|&x| x == -1.0));
                         assert!(o1[i * s1 + 2 * n..(i + 1) * s1].iter().all(|&x| x == -1.0));
                     }
                 }
