@@ -135,7 +135,7 @@ fn verify_integrator_8x6_same_verdicts() {
 /// met with its x-box after every step (`intersect_x`, a second frame in x on both engines), the
 /// shipped network and error map, in continuous time (the default) and under the Euler map.
 #[test]
-#[ignore = "about half an hour on lavapipe (the GEMMs of the 500-wide network dominate every step, two frames, both time models); fails today in continuous time on the cell (0, -2)…(1, -1), issue 40 (docs/results.md): cargo test --release --test gpu_parity -- --ignored"]
+#[ignore = "about half an hour on lavapipe (the GEMMs of the 500-wide network dominate every step, two frames, both time models): cargo test --release --test gpu_parity -- --ignored"]
 fn verify_double_integrator_10x4_same_verdicts() {
     verify_grid_on_both(common::double_integrator(), [10, 4]);
 }
