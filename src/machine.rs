@@ -12,17 +12,42 @@ const CHAINS: usize = 12;
 /// f64 lanes of an AVX2 register.
 const LANES: usize = 4;
 
+/// f64 lanes of an AVX-512 register.
+const LANES_512: usize = 8;
+
+/// The widest fused multiply–add [`f64_limit_gflops`] measures on this CPU: `"AVX-512"`,
+/// `"AVX2"` or `"scalar"`.
+pub fn f64_limit_isa() -> &'static str {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx512f") {
+            return "AVX-512";
+        }
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+        {
+            return "AVX2";
+        }
+    }
+    "scalar"
+}
+
 /// The cores' f64 limit in GFLOP/s: fused multiply–adds on independent registers (no memory
 /// traffic) on every rayon thread at once, each thread timing its own short rounds and keeping
 /// its best (a round that other work on the machine interrupted, or a thread that started
-/// late, does not count); the threads' rates summed. On x86-64 with AVX2 and FMA that is
-/// `threads × FMA pipes × 4 lanes × 2 FLOP × clock`, the ceiling no matrix product can pass;
-/// elsewhere a scalar loop, a lower bound of the limit.
+/// late, does not count); the threads' rates summed. On x86-64 that is `threads × FMA pipes ×
+/// lanes × 2 FLOP × clock` with the widest registers the CPU has ([`f64_limit_isa`]: 8 lanes
+/// with AVX-512, whose two pipes on server cores double AVX2's limit, 4 with AVX2), the ceiling
+/// no matrix product can pass; elsewhere a scalar loop, a lower bound of the limit.
 pub fn f64_limit_gflops() -> f64 {
     use rayon::prelude::*;
     let threads = rayon::current_num_threads().max(1);
     let iters = 20_000;
-    let flops = (iters * CHAINS * LANES * 2) as f64;
+    let lanes = if f64_limit_isa() == "AVX-512" {
+        LANES_512
+    } else {
+        LANES
+    };
+    let flops = (iters * CHAINS * lanes * 2) as f64;
     let per_thread: Vec<f64> = (0..threads)
         .into_par_iter()
         .map(|_| {
@@ -39,6 +64,11 @@ pub fn f64_limit_gflops() -> f64 {
 }
 
 fn fma_loop(iters: usize) -> f64 {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx512f") {
+        // SAFETY: the CPU has the feature the function is compiled for.
+        return unsafe { fma_loop_avx512(iters) };
+    }
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
         // SAFETY: the CPU has the features the function is compiled for.
@@ -74,6 +104,25 @@ unsafe fn fma_loop_avx2(iters: usize) -> f64 {
         .fold(_mm256_setzero_pd(), |s, &a| _mm256_add_pd(s, a));
     _mm256_storeu_pd(lanes.as_mut_ptr(), sum);
     lanes.iter().sum()
+}
+
+/// [`fma_loop_avx2`] on AVX-512 registers.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+unsafe fn fma_loop_avx512(iters: usize) -> f64 {
+    use std::arch::x86_64::*;
+    let x = _mm512_set1_pd(black_box(0.999_999_9));
+    let y = _mm512_set1_pd(black_box(1e-9));
+    let mut acc = [_mm512_set1_pd(1.0); CHAINS];
+    for _ in 0..iters {
+        for a in acc.iter_mut() {
+            *a = _mm512_fmadd_pd(*a, x, y);
+        }
+    }
+    let sum = acc
+        .iter()
+        .fold(_mm512_setzero_pd(), |s, &a| _mm512_add_pd(s, a));
+    _mm512_reduce_add_pd(sum)
 }
 
 /// User plus system CPU time of this process so far, all threads, in seconds (`getrusage`);

@@ -105,7 +105,7 @@ pub(super) fn validate_boxes(
     upper: &[f64],
 ) -> Result<usize, BoundsError> {
     let n = net.input_dim();
-    if lower.len() != upper.len() || lower.len() % n != 0 {
+    if lower.len() != upper.len() || !lower.len().is_multiple_of(n) {
         return Err(BoundsError::BatchShape {
             lower_len: lower.len(),
             upper_len: upper.len(),

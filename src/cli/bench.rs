@@ -8,7 +8,7 @@ use std::time::Instant;
 
 use cbfreach::bounds::{model_multiply_adds, BoundMethod};
 use cbfreach::boxes::IntervalBox;
-use cbfreach::machine::{f64_limit_gflops, process_cpu_seconds};
+use cbfreach::machine::{f64_limit_gflops, f64_limit_isa, process_cpu_seconds};
 use cbfreach::network::Mlp;
 use cbfreach::reach::{Backend, CpuBackend, ExactField, ReachProblem, ReachSettings};
 use cbfreach::scenario::Scenario;
@@ -112,10 +112,12 @@ pub fn run(args: &BenchArgs) -> CliResult {
             .collect::<Vec<_>>()
             .join("×"),
         problem.steps,
-        if args.peak.is_some() {
-            "given"
-        } else {
-            "measured: f64 fused multiply-adds on every thread, the best of 60 short rounds"
+        match args.peak {
+            Some(_) => "given".to_string(),
+            None => format!(
+                "measured: f64 fused multiply-adds ({}) on every thread, the best of 60 short rounds",
+                f64_limit_isa()
+            ),
         }
     );
 

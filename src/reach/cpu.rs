@@ -619,7 +619,7 @@ impl ChunkRun<'_> {
                 true => (outer + 1) as f64 * problem.dt,
                 false => outer as f64 * problem.dt + ((step % k) + 1) as f64 * self.h,
             };
-            let record = last_sub && ((outer + 1) % self.every == 0 || outer + 1 == steps);
+            let record = last_sub && ((outer + 1).is_multiple_of(self.every) || outer + 1 == steps);
             buf.slots.clear();
             buf.slots.resize(self.frames.len(), 0);
             if self.plant.is_some() {

@@ -62,7 +62,7 @@ fn zoh_paths(
 fn disturbed(net: &Mlp, m: f64) -> impl Fn(&[f64], usize) -> Option<Vec<f64>> + '_ {
     move |x, q| {
         let v = net.forward(x);
-        let d = |c: usize| if (q >> c) % 2 == 0 { m } else { -m };
+        let d = |c: usize| if (q >> c).is_multiple_of(2) { m } else { -m };
         Some(v.iter().enumerate().map(|(c, v)| v + d(c)).collect())
     }
 }

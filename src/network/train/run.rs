@@ -251,7 +251,7 @@ fn run<T: Scalar>(
         }
         st.epoch += 1;
         let revived = if settings.revive_every > 0
-            && st.epoch % settings.revive_every == 0
+            && st.epoch.is_multiple_of(settings.revive_every)
             && st.epoch < settings.epochs
         {
             let input = |i: usize| data.input(active[i]);
