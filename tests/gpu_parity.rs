@@ -36,6 +36,14 @@ const VERIFY_TOL: f64 = 1e-10;
 /// and a cell's set grows several times wider (3.3e-10 measured on scenario 1's 4 × 3 cells).
 const CONTINUOUS_VERIFY_TOL: f64 = 1e-8;
 
+/// The final sets of whole grids over whole horizons with the shipped networks, in either time
+/// model: a cell whose set grows several units wide before it ends carries the engines'
+/// per-step rounding differences in the 400-wide network's bounds (~1e-13) through hundreds of
+/// steps (scenario 1's (3.5, −2)…(4.5, −1) under Euler ends 4.4 × 3 wide, its sets 9.9e-10
+/// apart). Measured worst: 8 × 6 Euler 5.1e-9, continuous 6.2e-10; 10 × 4 continuous 1.5e-10,
+/// Euler 4.5e-11.
+const GRID_TOL: f64 = 1e-8;
+
 fn gpu_f64() -> Option<GpuBackend> {
     let required = std::env::var("CBFREACH_REQUIRE_GPU").as_deref() == Ok("1");
     let engine = GpuContext::new()
@@ -142,7 +150,7 @@ fn verify_double_integrator_10x4_same_verdicts() {
 
 /// `verify --face-local` of `grid` cells of `C` with the scenario's settings otherwise, under
 /// its time model (continuous) and the Euler map, on both engines: the same verdicts and end
-/// times for every cell, final sets equal.
+/// times for every cell, final sets within [`GRID_TOL`].
 fn verify_grid_on_both(s: Scenario, grid: [usize; 2]) {
     let Some(gpu) = gpu_f64() else { return };
     let shipped = common::shipped_problem(&s);
@@ -151,16 +159,13 @@ fn verify_grid_on_both(s: Scenario, grid: [usize; 2]) {
         face_local: true,
         ..s.settings.reach.clone()
     };
-    let cases = [
-        (shipped.clone(), CONTINUOUS_VERIFY_TOL),
-        (shipped.with_time(TimeModel::Euler, 1), VERIFY_TOL),
-    ];
-    for (problem, tol) in cases {
+    let cases = [shipped.clone(), shipped.with_time(TimeModel::Euler, 1)];
+    for problem in cases {
         assert_eq!(gpu.supports(&problem, &reach), Ok(()));
         let cpu = verify_on(&s, &problem, &CpuBackend, &reach, grid, None);
         let dev = verify_on(&s, &problem, &gpu, &reach, grid, None);
         let what = format!("{}, {grid:?}, {}", s.name, problem.time);
-        same_verdicts_within(&cpu, &dev, &what, tol);
+        same_verdicts_within(&cpu, &dev, &what, GRID_TOL);
     }
 }
 
