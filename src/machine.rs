@@ -9,12 +9,6 @@ use std::time::Instant;
 /// current x86 cores (4–5 cycles, two pipes).
 const CHAINS: usize = 12;
 
-/// f64 lanes of an AVX2 register.
-const LANES: usize = 4;
-
-/// f64 lanes of an AVX-512 register.
-const LANES_512: usize = 8;
-
 /// The widest fused multiply–add [`f64_limit_gflops`] measures on this CPU: `"AVX-512"`,
 /// `"AVX2"` or `"scalar"`.
 pub fn f64_limit_isa() -> &'static str {
@@ -42,10 +36,11 @@ pub fn f64_limit_gflops() -> f64 {
     use rayon::prelude::*;
     let threads = rayon::current_num_threads().max(1);
     let iters = 20_000;
-    let lanes = if f64_limit_isa() == "AVX-512" {
-        LANES_512
-    } else {
-        LANES
+    // f64 lanes a fused multiply–add of the loop takes.
+    let lanes = match f64_limit_isa() {
+        "AVX-512" => 8,
+        "AVX2" => 4,
+        _ => 1,
     };
     let flops = (iters * CHAINS * lanes * 2) as f64;
     let per_thread: Vec<f64> = (0..threads)
@@ -63,25 +58,26 @@ pub fn f64_limit_gflops() -> f64 {
     per_thread.iter().sum()
 }
 
+/// The limit loop on the registers [`f64_limit_isa`] names (the same detection, so the
+/// counted lanes are the ones run).
 fn fma_loop(iters: usize) -> f64 {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx512f") {
-        // SAFETY: the CPU has the feature the function is compiled for.
-        return unsafe { fma_loop_avx512(iters) };
-    }
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
-        // SAFETY: the CPU has the features the function is compiled for.
-        return unsafe { fma_loop_avx2(iters) };
-    }
-    let (x, y) = (black_box(0.999_999_9), black_box(1e-9));
-    let mut acc = [1.0f64; CHAINS];
-    for _ in 0..iters {
-        for a in acc.iter_mut() {
-            *a = a.mul_add(x, y);
+    match f64_limit_isa() {
+        // SAFETY: the CPU has the features the functions are compiled for.
+        #[cfg(target_arch = "x86_64")]
+        "AVX-512" => unsafe { fma_loop_avx512(iters) },
+        #[cfg(target_arch = "x86_64")]
+        "AVX2" => unsafe { fma_loop_avx2(iters) },
+        _ => {
+            let (x, y) = (black_box(0.999_999_9), black_box(1e-9));
+            let mut acc = [1.0f64; CHAINS];
+            for _ in 0..iters {
+                for a in acc.iter_mut() {
+                    *a = a.mul_add(x, y);
+                }
+            }
+            acc.iter().sum()
         }
     }
-    acc.iter().sum::<f64>() * LANES as f64
 }
 
 /// [`CHAINS`] independent AVX2 registers, each `acc ← acc·x + y` per iteration (written with
@@ -98,7 +94,7 @@ unsafe fn fma_loop_avx2(iters: usize) -> f64 {
             *a = _mm256_fmadd_pd(*a, x, y);
         }
     }
-    let mut lanes = [0.0; LANES];
+    let mut lanes = [0.0; 4];
     let sum = acc
         .iter()
         .fold(_mm256_setzero_pd(), |s, &a| _mm256_add_pd(s, a));
