@@ -214,6 +214,23 @@ fn paper_verifies_split_boxes_of_scenario_2_truly_without_bisection() {
     paper_scenario_2(Some("0"), 7);
 }
 
+/// `paper` refuses to start over an interrupted run's checkpoints, naming the file and
+/// `--resume`, before any work.
+#[test]
+fn paper_refuses_to_start_over_an_interrupted_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    let stray = tmp.path().join("double-integrator-box03.checkpoint");
+    std::fs::write(&stray, "{}\n").unwrap();
+    let (code, stdout, stderr) = cbfreach(&["paper", "-o", tmp.path().to_str().unwrap()]);
+    assert_ne!(code, 0, "{stdout}");
+    assert!(
+        stderr.contains("double-integrator-box03.checkpoint") && stderr.contains("--resume"),
+        "{stderr}"
+    );
+    assert!(!stdout.contains("Scenario 1"), "{stdout}");
+    assert!(stray.exists());
+}
+
 /// Runs `cbfreach paper` (with `--refine` if given) and checks its figures and scenario 2's
 /// verdicts: at least `at_least` boxes proven to converge, each with the QP proven feasible and
 /// each reaching the goal under the ground-truth filter from 25 starts.
@@ -230,6 +247,14 @@ fn paper_scenario_2(refine: Option<&str>, at_least: usize) {
     }
     let (code, stdout, stderr) = cbfreach(&args);
     assert_eq!(code, 0, "{stderr}");
+    // The split boxes' checkpoints go once the run has ended.
+    let left: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .flatten()
+        .filter(|e| e.file_name().to_string_lossy().ends_with(".checkpoint"))
+        .map(|e| e.path())
+        .collect();
+    assert!(left.is_empty(), "{left:?}");
     // Beside the paper's figures, each shipped network's error map.
     for name in ["integrator", "double-integrator"] {
         let map = dir.join(format!("{name}-error-map.png"));

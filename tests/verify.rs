@@ -21,8 +21,9 @@ use cbfreach::reach::{Backend, CpuBackend, ExactField, ReachProblem, ReachSettin
 use cbfreach::scenario::Scenario;
 use cbfreach::simulate::{simulate_filtered, Integrator};
 use cbfreach::verify::{
-    judge, merge, simulation_check, traps_for, verify_by_pieces, PieceOutcome, PiecesSettings,
-    Reason, Shard, Verdict, Verifier, VerifyReport, VerifySettings, REFINE_BUDGET, SPLIT,
+    judge, merge, no_journals, simulation_check, traps_for, verify_by_pieces, PieceOutcome,
+    PiecesSettings, Reason, Shard, Verdict, Verifier, VerifyReport, VerifySettings, PIECES_CHUNK,
+    REFINE_BUDGET, SPLIT,
 };
 
 /// `M_C` for the small network trained here (see the module docs).
@@ -700,6 +701,7 @@ fn pieces_cut_the_step_as_verify_does() {
                 refine: 2,
                 max_substeps,
             },
+            &no_journals,
             &|_, _| {},
         )
         .unwrap();
@@ -713,7 +715,7 @@ fn pieces_cut_the_step_as_verify_does() {
             budget: REFINE_BUDGET,
             refine_feasibility: true,
             max_substeps,
-            chunk: Some(512),
+            chunk: Some(PIECES_CHUNK),
             ..VerifySettings::default()
         };
         let report = verifier.run(&settings, &|_, _, _| {}).unwrap();
@@ -727,4 +729,107 @@ fn pieces_cut_the_step_as_verify_does() {
     };
     let (kept, cut) = (counts(1), counts(4));
     assert_ne!(kept, cut, "the cap changes no count");
+}
+
+/// `cbfreach paper --resume`: `verify_by_pieces` interrupted after its first journaled chunk
+/// resumes from that box's checkpoint without running the recorded pieces again, and ends in
+/// the verdict an uninterrupted run gives.
+#[test]
+fn pieces_resume_from_their_checkpoints() {
+    use cbfreach::boxes::IntervalBox;
+    use cbfreach::verify::checkpoint::{Checkpoint, Journal};
+    use cbfreach::verify::{BoxVerdict, PiecesJournals, VerifyError};
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    use std::sync::Arc;
+
+    /// A checkpoint that counts the boxes it hands back and, with `stop`, asks to stop once
+    /// it has recorded a chunk.
+    struct Watched {
+        c: Checkpoint,
+        stop: bool,
+        recorded: AtomicUsize,
+        handed_back: Arc<AtomicUsize>,
+    }
+    impl Journal for Watched {
+        fn lookup(&self, c: usize, d: usize, b: &IntervalBox) -> Option<(BoxVerdict, usize)> {
+            let found = self.c.lookup(c, d, b);
+            self.handed_back
+                .fetch_add(usize::from(found.is_some()), Ordering::SeqCst);
+            found
+        }
+        fn record(&self, done: &[(BoxVerdict, usize)]) -> Result<(), VerifyError> {
+            self.recorded.fetch_add(done.len(), Ordering::SeqCst);
+            self.c.record(done)
+        }
+        fn stop_requested(&self) -> bool {
+            self.stop && self.recorded.load(Ordering::SeqCst) > 0
+        }
+    }
+
+    let s = common::integrator();
+    let (path, m_c) = network();
+    let net = Mlp::load_safetensors(path).unwrap();
+    let problem = ReachProblem::with_transform(&s, net, *m_c, None)
+        .unwrap()
+        .with_time(TimeModel::Euler, 1);
+    let verifier = Verifier::new(&s, &problem, &CpuBackend);
+    let whole = CpuBackend
+        .reach(
+            &problem,
+            std::slice::from_ref(&s.reach.region),
+            &verifier.reach,
+            &|_, _| {},
+        )
+        .unwrap();
+    let pieces = |journals: &PiecesJournals<'_>| {
+        let settings = PiecesSettings {
+            refine: 1,
+            ..PiecesSettings::default()
+        };
+        let (reach, traps) = (&verifier.reach, &verifier.traps);
+        verify_by_pieces(
+            &s,
+            &problem,
+            reach,
+            traps,
+            &whole.boxes,
+            settings,
+            journals,
+            &|_, _| {},
+        )
+    };
+    let straight = pieces(&no_journals).unwrap();
+    assert!(
+        !matches!(straight[0].outcome, PieceOutcome::Whole { .. }),
+        "C itself was expected to need its pieces: {:?}",
+        straight[0]
+    );
+    let tmp = tempfile::tempdir().unwrap();
+    let file = tmp.path().join("box.checkpoint");
+    let identity = || [("run".to_string(), "test".to_string())].into();
+    let handed_back = Arc::new(AtomicUsize::new(0));
+    let watched = |c: Checkpoint, stop: bool| -> Box<dyn Journal> {
+        Box::new(Watched {
+            c,
+            stop,
+            recorded: AtomicUsize::new(0),
+            handed_back: handed_back.clone(),
+        })
+    };
+    let first = pieces(&|_, _| Ok(watched(Checkpoint::create(&file, identity())?, true)));
+    assert!(matches!(first, Err(VerifyError::Interrupted)), "{first:?}");
+    assert_eq!(handed_back.load(Ordering::SeqCst), 0);
+    let recorded = AtomicUsize::new(0);
+    let resumed = pieces(&|_, _| {
+        let c = Checkpoint::resume(&file, identity())?;
+        recorded.store(c.recorded(), Ordering::SeqCst);
+        Ok(watched(c, false))
+    })
+    .unwrap();
+    // The first round's pieces that run (those not judged at their start) ran as one chunk
+    // before the stop, and came back instead of running again.
+    let recorded = recorded.load(Ordering::SeqCst);
+    assert!((1..=SPLIT * SPLIT).contains(&recorded), "{recorded}");
+    assert_eq!(handed_back.load(Ordering::SeqCst), recorded);
+    assert_eq!(resumed, straight);
 }

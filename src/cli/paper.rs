@@ -13,7 +13,8 @@ use cbfreach::problem::network_path;
 use cbfreach::reach::{ReachMethod, ReachSettings, Tube};
 use cbfreach::scenario::{Margin, Scenario};
 use cbfreach::verify::{
-    traps_for_equilibria, verify_by_pieces, PiecesSettings, PiecesVerdict, Verdict,
+    no_journals, traps_for_equilibria, verify_by_pieces, PiecesSettings, PiecesVerdict, Verdict,
+    VerifyError,
 };
 
 use super::args::{compile, ProblemArgs};
@@ -21,7 +22,7 @@ use super::equilibria::print_table;
 use super::plot::{
     box_trajectories, figure_points, reach_initial, trajectories, tubes_title, tubes_title_local,
 };
-use super::{fmt_point, CliResult};
+use super::{fmt_point, resume, CliResult};
 
 /// Arguments of `cbfreach paper`.
 #[derive(clap::Args)]
@@ -73,6 +74,11 @@ pub struct PaperArgs {
         value_parser = |s: &str| super::whole_at_least(s, 1)
     )]
     pub max_substeps: usize,
+    /// Continue an interrupted run (the same command otherwise) from the checkpoints it left
+    /// in --out: the split boxes' finished pieces are not run again. Without it, a run
+    /// refuses to start over those files.
+    #[arg(long)]
+    pub resume: bool,
 }
 
 /// What the paper reports for one experiment: its times and its sampled `M_C`.
@@ -130,16 +136,18 @@ fn scenario_path(file: &str) -> PathBuf {
 pub fn run(args: &PaperArgs) -> CliResult {
     let clock = Instant::now();
     std::fs::create_dir_all(&args.out).map_err(|e| format!("{}: {e}", args.out.display()))?;
-    let mut times = Vec::new();
-    for (k, (file, net, paper)) in [
+    let experiments = [
         ("integrator.toml", &args.network_1, SCENARIO_1),
         ("double-integrator.toml", &args.network_2, SCENARIO_2),
     ]
     .into_iter()
-    .enumerate()
-    {
+    .map(|(file, net, paper)| Ok((Scenario::load(&scenario_path(file))?, net, paper)))
+    .collect::<Result<Vec<_>, Box<dyn std::error::Error>>>()?;
+    let names: Vec<&str> = experiments.iter().map(|(s, ..)| s.name.as_str()).collect();
+    let checkpoints = resume::PiecesCheckpoints::new(&args.out, args.resume, &names)?;
+    let mut times = Vec::new();
+    for (k, (s, net, paper)) in experiments.iter().enumerate() {
         println!("══ Scenario {} ══", k + 1);
-        let s = Scenario::load(&scenario_path(file))?;
         let verdicts = VerdictSettings {
             bounds: args.bounds,
             pieces: PiecesSettings {
@@ -149,11 +157,33 @@ pub fn run(args: &PaperArgs) -> CliResult {
             time: args.time.clone(),
             substeps: args.substeps,
         };
-        if let Some(t) = run_scenario(&s, net.as_ref(), &args.out, verdicts, &args.timed, paper)? {
-            times.push(t);
+        let run = run_scenario(
+            s,
+            net.as_ref(),
+            &args.out,
+            verdicts,
+            &args.timed,
+            *paper,
+            Some(&checkpoints),
+        );
+        match run {
+            Err(e) if matches!(e.downcast_ref(), Some(VerifyError::Interrupted)) => {
+                return Err(format!(
+                    "interrupted; the split boxes' finished pieces are in {}/*.checkpoint (run \
+                     the same command with --resume to continue)",
+                    args.out.display()
+                )
+                .into())
+            }
+            Err(e) => return Err(e),
+            Ok(Some(t)) => times.push(t),
+            Ok(None) => {}
         }
         println!();
     }
+    checkpoints
+        .finish()
+        .map_err(|e| format!("removing the checkpoints in {}: {e}", args.out.display()))?;
     print_times(&times);
     println!(
         "\nFigures are in {}/ ({:.1} s in all).",
@@ -187,7 +217,8 @@ pub fn run_default() -> CliResult {
         time: "euler".into(),
         substeps: None,
     };
-    let times = run_scenario(&s, None, &out, verdicts, &timed, SCENARIO_1)?;
+    // Seconds of work (no refinement): nothing worth a checkpoint.
+    let times = run_scenario(&s, None, &out, verdicts, &timed, SCENARIO_1, None)?;
     if let Some(t) = times {
         println!();
         print_times(&[t]);
@@ -203,7 +234,8 @@ pub fn run_default() -> CliResult {
 }
 
 /// One experiment: equilibria and trajectories (always), then, when the network exists, tubes
-/// of both methods, the initial boxes' verdicts and the times.
+/// of both methods, the initial boxes' verdicts (split boxes' pieces journaled in
+/// `checkpoints`) and the times.
 fn run_scenario(
     s: &Scenario,
     network: Option<&PathBuf>,
@@ -211,6 +243,7 @@ fn run_scenario(
     verdict_settings: VerdictSettings,
     timed: &[BoundMethod],
     paper: PaperFigures,
+    checkpoints: Option<&resume::PiecesCheckpoints>,
 ) -> Result<Option<PaperTimes>, Box<dyn std::error::Error>> {
     let bounds = verdict_settings.bounds;
     let filter = SafetyFilter::new(s);
@@ -333,6 +366,10 @@ fn run_scenario(
         &traps,
         &dist.boxes,
         verdict_settings.pieces,
+        &|k, run| match checkpoints {
+            Some(c) => c.journal(s, &problem, &net_path, run, &pieces, k),
+            None => no_journals(k, run),
+        },
         &|done, all| {
             let Ok(mut bar) = bar.lock() else { return };
             bar.get_or_insert_with(|| super::progress_bar(all as u64, "initial boxes split"))

@@ -1,16 +1,17 @@
-//! `verify --checkpoint` / `--resume` and interrupts: the run's identity (what its verdicts
+//! `verify --checkpoint` / `--resume`, `paper --resume`, and interrupts: the run's identity (what its verdicts
 //! depend on), the checkpoint file, and a SIGINT/SIGTERM handler that lets the current chunk
 //! finish so that the checkpoint keeps it.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Mutex;
 
 use cbfreach::provenance::{filter_hash, network_hash, region_hash, Fnv};
 use cbfreach::reach::{ReachProblem, ReachSettings};
 use cbfreach::scenario::Scenario;
-use cbfreach::verify::checkpoint::Checkpoint;
-use cbfreach::verify::VerifySettings;
+use cbfreach::verify::checkpoint::{Checkpoint, Journal};
+use cbfreach::verify::{VerifyError, VerifySettings};
 
 /// Set by the first SIGINT or SIGTERM; a second one ends the process at once.
 static STOP: AtomicBool = AtomicBool::new(false);
@@ -95,4 +96,91 @@ pub fn open(
         Checkpoint::create(path, identity)?
     };
     Ok(c.stop_on(stop_on_interrupt()))
+}
+
+/// The checkpoints of `paper`'s split boxes: a file a box in the output folder
+/// (`<scenario>-box<k>.checkpoint`), kept until the whole run ends so that `paper --resume`
+/// continues an interrupted run; [`PiecesCheckpoints::finish`] removes them.
+pub struct PiecesCheckpoints {
+    folder: PathBuf,
+    resume: bool,
+    made: Mutex<Vec<PathBuf>>,
+}
+
+impl PiecesCheckpoints {
+    /// The checkpoints of scenarios `names` in `folder`. Without `resume`, refused when one is
+    /// there (an interrupted run's work, before any of this run's is done).
+    pub fn new(folder: &Path, resume: bool, names: &[&str]) -> Result<Self, String> {
+        let this = PiecesCheckpoints {
+            folder: folder.to_path_buf(),
+            resume,
+            made: Mutex::new(Vec::new()),
+        };
+        if !resume {
+            let entries =
+                std::fs::read_dir(folder).map_err(|e| format!("{}: {e}", folder.display()))?;
+            for entry in entries.flatten() {
+                let name = entry.file_name().to_string_lossy().into_owned();
+                if names.iter().any(|s| this.is_checkpoint_of(s, &name)) {
+                    return Err(format!(
+                        "{}: exists (an interrupted run?): give --resume to continue it, or remove it",
+                        entry.path().display()
+                    ));
+                }
+            }
+        }
+        Ok(this)
+    }
+
+    fn is_checkpoint_of(&self, scenario: &str, file: &str) -> bool {
+        file.strip_prefix(scenario)
+            .and_then(|rest| rest.strip_prefix("-box"))
+            .and_then(|rest| rest.strip_suffix(".checkpoint"))
+            .is_some_and(|k| !k.is_empty() && k.bytes().all(|b| b.is_ascii_digit()))
+    }
+
+    /// Initial box `k`'s journal (numbered from 1 in the file name, as printed), whose pieces
+    /// run as `settings`: resumed where an earlier run left it, else new; interrupts stop the
+    /// run after a chunk.
+    pub fn journal(
+        &self,
+        s: &Scenario,
+        problem: &ReachProblem,
+        network: &Path,
+        settings: &VerifySettings,
+        reach: &ReachSettings,
+        k: usize,
+    ) -> Result<Box<dyn Journal>, VerifyError> {
+        let path = self
+            .folder
+            .join(format!("{}-box{:02}.checkpoint", s.name, k + 1));
+        let identity =
+            identity(s, problem, network, settings, reach).map_err(|e| VerifyError::Format {
+                file: network.display().to_string(),
+                message: e.to_string(),
+            })?;
+        let c = if self.resume && path.exists() {
+            let c = Checkpoint::resume(&path, identity)?;
+            eprintln!(
+                "resuming from {}: {} pieces already done",
+                path.display(),
+                c.recorded()
+            );
+            c
+        } else {
+            Checkpoint::create(&path, identity)?
+        };
+        if let Ok(mut made) = self.made.lock() {
+            made.push(path);
+        }
+        Ok(Box::new(c.stop_on(stop_on_interrupt())))
+    }
+
+    /// Removes the checkpoints (the run finished and its verdicts are printed).
+    pub fn finish(self) -> std::io::Result<()> {
+        for path in self.made.into_inner().unwrap_or_default() {
+            std::fs::remove_file(path)?;
+        }
+        Ok(())
+    }
 }

@@ -57,7 +57,8 @@ mod traps;
 
 pub use check::{explain_unverified, simulation_check, SimulationCheck, UnverifiedCauses};
 pub use pieces::{
-    verify_by_pieces, PieceOutcome, PiecesSettings, PiecesVerdict, REFINE_BUDGET, SPLIT,
+    no_journals, verify_by_pieces, PieceOutcome, PiecesJournals, PiecesSettings, PiecesVerdict,
+    PIECES_CHUNK, REFINE_BUDGET, SPLIT,
 };
 pub use report::{BoxVerdict, Headline, RunInfo, Shares, VerifyReport, VerifyTiming};
 pub use run::{judge, judge_with_feasibility, start_verdict, Judgement, Reason, Stage, Verifier};

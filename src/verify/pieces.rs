@@ -2,6 +2,7 @@
 //! from its pieces, split and refined as `verify` refines ([`verify_by_pieces`], `cbfreach
 //! paper`). May import `reach` and `verify`'s verifier.
 
+use super::checkpoint::Journal;
 use super::{
     judge_with_feasibility, BoxVerdict, Reason, Trap, Verdict, Verifier, VerifyError,
     VerifySettings,
@@ -12,6 +13,22 @@ use crate::scenario::Scenario;
 
 /// Pieces per axis of an initial box that is not verified whole.
 pub const SPLIT: usize = 4;
+
+/// Boxes a refined box's pieces run in at a time: each finished chunk is journaled, so an
+/// interrupt waits for at most one (seconds), while a 64-box batch still spreads the
+/// network's weights over enough boxes (scenario 2's hard box runs ~2,700 pieces).
+pub const PIECES_CHUNK: usize = 64;
+
+/// Where [`verify_by_pieces`] keeps the finished pieces of initial box `k`, whose pieces run
+/// as `settings` (a checkpoint a box, so that an interrupted run resumes: `cbfreach paper
+/// --resume`); [`no_journals`] keeps nothing.
+pub type PiecesJournals<'a> =
+    dyn Fn(usize, &VerifySettings) -> Result<Box<dyn Journal>, VerifyError> + 'a;
+
+/// Journals that keep nothing ([`PiecesJournals`]).
+pub fn no_journals(_: usize, _: &VerifySettings) -> Result<Box<dyn Journal>, VerifyError> {
+    Ok(Box::new(super::checkpoint::NoJournal))
+}
 
 /// Extra pieces refinement may run per initial box.
 pub const REFINE_BUDGET: usize = 4096;
@@ -185,7 +202,10 @@ impl std::fmt::Display for PiecesVerdict {
 /// refinement of `verify`, on the CPU engine, cutting the step of deeper pieces up to
 /// `settings.max_substeps` in continuous time), whose leaves must all share one verified
 /// verdict.
-/// `progress` is told (boxes split, boxes to split).
+/// Each split box's finished pieces go to its journal from `journals` (boxes it recorded are
+/// not run again; [`VerifyError::Interrupted`] when it asks to stop). `progress` is told
+/// (boxes split, boxes to split).
+#[allow(clippy::too_many_arguments)]
 pub fn verify_by_pieces(
     scenario: &Scenario,
     problem: &ReachProblem,
@@ -193,6 +213,7 @@ pub fn verify_by_pieces(
     traps: &[Trap],
     tubes: &[Tube],
     settings: PiecesSettings,
+    journals: &PiecesJournals<'_>,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<Vec<PiecesVerdict>, VerifyError> {
     let mut out: Vec<PiecesVerdict> = tubes
@@ -233,19 +254,18 @@ pub fn verify_by_pieces(
     };
     progress(0, retry.len());
     for (done, &k) in retry.iter().enumerate() {
-        let report = verifier.run(
-            &VerifySettings {
-                region: Some(tubes[k].initial.clone()),
-                grid: vec![SPLIT; scenario.n()],
-                refine_depth: settings.refine,
-                budget: REFINE_BUDGET,
-                refine_feasibility: true,
-                max_substeps: settings.max_substeps,
-                shard: None,
-                chunk: Some(512),
-            },
-            &|_, _, _| {},
-        )?;
+        let run = VerifySettings {
+            region: Some(tubes[k].initial.clone()),
+            grid: vec![SPLIT; scenario.n()],
+            refine_depth: settings.refine,
+            budget: REFINE_BUDGET,
+            refine_feasibility: true,
+            max_substeps: settings.max_substeps,
+            shard: None,
+            chunk: Some(PIECES_CHUNK),
+        };
+        let journal = journals(k, &run)?;
+        let report = verifier.run_journaled(&run, &|_, _, _| {}, journal.as_ref())?;
         progress(done + 1, retry.len());
         let leaves = &report.after;
         let proven = leaves.iter().filter(|b| b.verdict.is_verified()).count();
