@@ -1,7 +1,11 @@
-//! Point and interval evaluation: one rule per node.
+//! Point and interval evaluation: one rule per node (the [`super::Tape`]'s operations, and the
+//! tree walks they are tested against).
 
-use super::{Func, Node};
+use super::Func;
+#[cfg(test)]
+use super::Node;
 use crate::intervals::Interval;
+#[cfg(test)]
 use crate::rounding::pow_int;
 
 /// `f(u)` for a one-argument function (NaN for `min`/`max`, which take two).
@@ -42,6 +46,8 @@ pub(super) fn apply2(f: Func, u: f64, v: f64) -> f64 {
     }
 }
 
+/// The tree walk at a point: the reference the [`super::Tape`] is tested against.
+#[cfg(test)]
 pub(super) fn eval(n: &Node, x: &[f64]) -> f64 {
     match n {
         Node::Const(c) => *c,
@@ -61,7 +67,7 @@ pub(super) fn eval(n: &Node, x: &[f64]) -> f64 {
 }
 
 /// Interval version of [`apply1`]; the kink functions enclose their generalized derivatives.
-fn apply1_interval(f: Func, u: Interval) -> Interval {
+pub(super) fn apply1_interval(f: Func, u: Interval) -> Interval {
     if u.is_nan() {
         return Interval::NAN;
     }
@@ -89,6 +95,8 @@ fn apply1_interval(f: Func, u: Interval) -> Interval {
     }
 }
 
+/// The tree walk over a box: the reference the [`super::Tape`] is tested against.
+#[cfg(test)]
 pub(super) fn eval_interval(n: &Node, x: &[Interval]) -> Interval {
     match n {
         Node::Const(c) => Interval::point(*c),

@@ -47,19 +47,35 @@
 mod diff;
 mod eval;
 mod parse;
+mod tape;
 #[cfg(test)]
 mod tests;
 
 pub use parse::parse;
+pub use tape::Tape;
 
 use crate::intervals::Interval;
 use std::fmt;
+use std::sync::OnceLock;
 
 /// A parsed expression over variables `x₀ … x_{n−1}`: a [`Node`] tree whose calls always have
-/// their function's arity.
-#[derive(Clone, Debug, PartialEq)]
+/// their function's arity, and its [`Tape`] (compiled at the first evaluation).
+#[derive(Clone)]
 pub struct Expr {
     node: Node,
+    tape: OnceLock<Tape>,
+}
+
+impl PartialEq for Expr {
+    fn eq(&self, other: &Expr) -> bool {
+        self.node == other.node
+    }
+}
+
+impl fmt::Debug for Expr {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Expr").field("node", &self.node).finish()
+    }
 }
 
 /// A node of an expression tree. Printing one as code is one recursive `match`
@@ -177,37 +193,42 @@ pub struct ExprError {
 }
 
 impl Expr {
+    fn of(node: Node) -> Expr {
+        Expr {
+            node,
+            tape: OnceLock::new(),
+        }
+    }
+
     /// The tree.
     pub fn node(&self) -> &Node {
         &self.node
     }
 
+    fn tape(&self) -> &Tape {
+        self.tape.get_or_init(|| Tape::compile([&self.node]))
+    }
+
     /// The constant `c`.
     pub fn constant(c: f64) -> Expr {
-        Expr {
-            node: Node::Const(c),
-        }
+        Expr::of(Node::Const(c))
     }
 
     /// The variable `x_i`.
     pub fn variable(i: usize) -> Expr {
-        Expr { node: Node::Var(i) }
+        Expr::of(Node::Var(i))
     }
 
     /// `max(self, other)`.
     pub fn max(self, other: Expr) -> Expr {
-        Expr {
-            node: Node::Call(Func::Max, vec![self.node, other.node]),
-        }
+        Expr::of(Node::Call(Func::Max, vec![self.node, other.node]))
     }
 
     /// The expression with `x_i` replaced by `with[i]` (a change of variables, e.g.
     /// `x = T⁻¹z`); `with` must cover every variable the expression uses.
     pub fn substitute(&self, with: &[Expr]) -> Expr {
         let nodes: Vec<Node> = with.iter().map(|e| e.node.clone()).collect();
-        Expr {
-            node: diff::substitute(&self.node, &nodes),
-        }
+        Expr::of(diff::substitute(&self.node, &nodes))
     }
 
     /// `Some(c)` when the (simplified) tree is the constant `c`.
@@ -236,27 +257,27 @@ impl Expr {
 
     /// `e(x)`, `x[i]` being `x_i`; NaN outside the domain, or for a variable missing from `x`.
     pub fn eval(&self, x: &[f64]) -> f64 {
-        eval::eval(&self.node, x)
+        let mut out = [0.0];
+        self.tape().eval(x, &mut out);
+        out[0]
     }
 
     /// The natural inclusion `E(X) ⊇ {e(x) : x ∈ X}` over the box `X`, outward rounded (a variable
     /// missing from `X` gives the NaN interval).
     pub fn eval_interval(&self, x: &[Interval]) -> Interval {
-        eval::eval_interval(&self.node, x)
+        let mut out = [Interval::NAN];
+        self.tape().eval_interval(x, &mut out);
+        out[0]
     }
 
     /// The simplified symbolic derivative `∂e/∂x_var` (see the module docs for kinks).
     pub fn derivative(&self, var: usize) -> Expr {
-        Expr {
-            node: diff::derivative(&self.node, var),
-        }
+        Expr::of(diff::derivative(&self.node, var))
     }
 
     /// `self^n`, simplified.
     pub fn powi(&self, n: i32) -> Expr {
-        Expr {
-            node: diff::pow(self.node.clone(), n),
-        }
+        Expr::of(diff::pow(self.node.clone(), n))
     }
 
     /// Infix text with the given variable names (`x{i}` for an index past the list), parenthesised
@@ -286,7 +307,7 @@ macro_rules! expr_ops {
         impl std::ops::$tr for Expr {
             type Output = Expr;
             fn $method(self, rhs: Expr) -> Expr {
-                Expr { node: diff::$method(self.node, rhs.node) }
+                Expr::of(diff::$method(self.node, rhs.node))
             }
         }
     )*};
@@ -296,9 +317,7 @@ expr_ops!(Add add, Sub sub, Mul mul, Div div);
 impl std::ops::Neg for Expr {
     type Output = Expr;
     fn neg(self) -> Expr {
-        Expr {
-            node: diff::neg(self.node),
-        }
+        Expr::of(diff::neg(self.node))
     }
 }
 

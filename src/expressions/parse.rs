@@ -122,7 +122,7 @@ pub fn parse(
     };
     let node = p.expr()?;
     match p.peek() {
-        None => Ok(Expr { node }),
+        None => Ok(Expr::of(node)),
         Some(t) if t.tok == Tok::Sym(')') => {
             err(t.col, "unbalanced parenthesis: `)` without a matching `(`")
         }

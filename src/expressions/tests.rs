@@ -330,16 +330,13 @@ fn soundness(
 
 #[test]
 fn interval_evaluation_encloses_sampled_points() {
-    let (checked, missed) = soundness(Ops::All, 11, eval::eval_interval);
+    let (checked, missed) = soundness(Ops::All, 11, on_tape);
     assert!(checked > 100_000, "only {checked} finite samples");
     assert_eq!(missed, 0, "{missed} of {checked} samples escaped");
     // Derivative trees (with sign/step/delta and quotient rules) too.
     let mut rng = ChaCha8Rng::seed_from_u64(12);
     for _ in 0..300 {
-        let e = Expr {
-            node: random_node(&mut rng, 2, 4, Ops::All),
-        }
-        .derivative(0);
+        let e = Expr::of(random_node(&mut rng, 2, 4, Ops::All)).derivative(0);
         let b = random_box(&mut rng, 2);
         let enclosure = e.eval_interval(&b);
         for x in box_samples(&mut rng, &b) {
@@ -372,7 +369,7 @@ fn soundness_check_catches_a_sign_blind_product() {
         missed > checked / 100,
         "naive product missed only {missed} of {checked}"
     );
-    assert_eq!(soundness(Ops::Ring, 13, eval::eval_interval).1, 0);
+    assert_eq!(soundness(Ops::Ring, 13, on_tape).1, 0);
 }
 
 #[test]
@@ -380,9 +377,7 @@ fn display_parses_back_to_the_same_values() {
     let n = names(3);
     let mut rng = ChaCha8Rng::seed_from_u64(17);
     let mut trees: Vec<Expr> = BANK.iter().map(|s| p(s)).collect();
-    trees.extend((0..300).map(|_| Expr {
-        node: random_node(&mut rng, 3, 5, Ops::All),
-    }));
+    trees.extend((0..300).map(|_| Expr::of(random_node(&mut rng, 3, 5, Ops::All))));
     let derivatives: Vec<Expr> = trees.iter().map(|e| e.derivative(0)).collect();
     trees.extend(derivatives);
     for e in &trees {
@@ -413,4 +408,80 @@ fn expression_arithmetic_simplifies() {
     assert_eq!(e.to_string(), "x0 + x0");
     assert_eq!((x.clone() * Expr::constant(0.0)).as_constant(), Some(0.0));
     assert_eq!(x.powi(2).derivative(0).to_string(), "2 * x0");
+}
+
+/// A tree's natural inclusion as the engines take it: from its tape.
+fn on_tape(n: &Node, x: &[Interval]) -> Interval {
+    let mut out = [Interval::NAN];
+    Tape::compile([n]).eval_interval(x, &mut out);
+    out[0]
+}
+
+/// Whether two intervals are the same bits (two NaN intervals count as the same).
+fn same_bits(a: Interval, b: Interval) -> bool {
+    (a.is_nan() && b.is_nan())
+        || (a.lower.to_bits() == b.lower.to_bits() && a.upper.to_bits() == b.upper.to_bits())
+}
+
+/// The tape gives the tree walk's values bit for bit, at points and over boxes, for random
+/// trees, their derivatives (repeated subtrees) and a tape of several trees at once (shared
+/// ones), while holding fewer operations than the trees have nodes.
+#[test]
+fn tapes_give_the_tree_walks_bits() {
+    fn nodes(n: &Node) -> usize {
+        1 + match n {
+            Node::Const(_) | Node::Var(_) => 0,
+            Node::Neg(u) | Node::Pow(u, _) => nodes(u),
+            Node::Add(u, v) | Node::Sub(u, v) | Node::Mul(u, v) | Node::Div(u, v) => {
+                nodes(u) + nodes(v)
+            }
+            Node::Call(_, args) => args.iter().map(nodes).sum(),
+        }
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(23);
+    let (mut compared, mut tree_nodes, mut tape_ops) = (0, 0, 0);
+    for _ in 0..400 {
+        let vars = rng.random_range(2..=3);
+        let e = Expr::of(random_node(&mut rng, vars, 5, Ops::All));
+        let grad = gradient(&e, vars);
+        let trees: Vec<&Node> = std::iter::once(e.node())
+            .chain(grad.iter().map(|g| g.node()))
+            .collect();
+        let tape = Tape::compile(trees.iter().copied());
+        tree_nodes += trees.iter().map(|t| nodes(t)).sum::<usize>();
+        tape_ops += tape.ops();
+        let mut boxed = vec![Interval::NAN; trees.len()];
+        let mut pointed = vec![0.0; trees.len()];
+        for _ in 0..4 {
+            let b = random_box(&mut rng, vars);
+            tape.eval_interval(&b, &mut boxed);
+            for (k, t) in trees.iter().enumerate() {
+                let walked = eval::eval_interval(t, &b);
+                assert!(
+                    same_bits(boxed[k], walked),
+                    "{t:?} over {b:?}: {:?} against {walked:?}",
+                    boxed[k]
+                );
+                let alone = Expr::of((*t).clone()).eval_interval(&b);
+                assert!(same_bits(alone, walked), "{t:?} over {b:?}");
+                compared += 1;
+            }
+            for x in box_samples(&mut rng, &b) {
+                tape.eval(&x, &mut pointed);
+                for (k, t) in trees.iter().enumerate() {
+                    let walked = eval::eval(t, &x);
+                    assert!(
+                        pointed[k].to_bits() == walked.to_bits()
+                            || (pointed[k].is_nan() && walked.is_nan()),
+                        "{t:?} at {x:?}"
+                    );
+                }
+            }
+        }
+    }
+    assert!(compared > 4000, "{compared}");
+    assert!(
+        tape_ops * 2 < tree_nodes,
+        "{tape_ops} operations for {tree_nodes} nodes"
+    );
 }

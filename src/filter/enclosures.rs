@@ -6,7 +6,7 @@ use super::active_sets::{natural_qp_enclosure, QpForms};
 use super::rows::{interval_rows, row_expressions};
 use super::{FilterMethod, SafetyFilter};
 use crate::boxes::IntervalBox;
-use crate::expressions::Expr;
+use crate::expressions::{Expr, Tape};
 use crate::intervals::Interval;
 use crate::scenario::Scenario;
 
@@ -93,6 +93,8 @@ pub struct Smooth {
     pub e: Expr,
     /// `∂e/∂xᵢ`, one per state.
     pub grad: Vec<Expr>,
+    /// The gradient on one tape: its entries share most subtrees (the quotient rule's).
+    grad_tape: Tape,
 }
 
 /// `e(c)` and `∇e(X)` over a box, and the centred form `e(c) + ∇e(X)·(X − c)`.
@@ -103,9 +105,10 @@ pub(super) struct CentredForm {
 }
 
 impl Smooth {
-    pub(super) fn new(e: Expr, n: usize) -> Smooth {
-        let grad = (0..n).map(|i| e.derivative(i)).collect();
-        Smooth { e, grad }
+    pub(crate) fn new(e: Expr, n: usize) -> Smooth {
+        let grad: Vec<Expr> = (0..n).map(|i| e.derivative(i)).collect();
+        let grad_tape = Tape::compile(grad.iter().map(Expr::node));
+        Smooth { e, grad, grad_tape }
     }
 
     /// The mean-value form over `xs` around `c` (a point of the box); valid wherever `e` is
@@ -113,7 +116,8 @@ impl Smooth {
     /// on the box. Every evaluation is outward rounded.
     pub(super) fn centred(&self, xs: &[Interval], c: &[Interval], dx: &[Interval]) -> CentredForm {
         let value = self.e.eval_interval(c);
-        let grad: Vec<Interval> = self.grad.iter().map(|g| g.eval_interval(xs)).collect();
+        let mut grad = vec![Interval::NAN; self.grad.len()];
+        self.grad_tape.eval_interval(xs, &mut grad);
         let enclosure = value + sum(grad.iter().zip(dx).map(|(&g, &d)| g * d));
         CentredForm {
             value,

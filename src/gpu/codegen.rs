@@ -586,10 +586,7 @@ fn closed_form_wgsl(
     // The pairwise differences `rₖ − rⱼ` at `k·V_ROWS + j` (an empty slot: no form).
     let r_diff = parts.map_or(&[][..], |v| v.r_diff);
     let zero = Expr::constant(0.0);
-    let missing = Smooth {
-        e: zero.clone(),
-        grad: vec![zero.clone(); n],
-    };
+    let missing = Smooth::new(zero.clone(), n);
     let diffs: Vec<&Smooth> = (0..rows * rows)
         .map(|kj| r_diff.get(kj).and_then(Option::as_ref).unwrap_or(&missing))
         .collect();
