@@ -181,7 +181,7 @@ pub(super) struct Blocks {
     nz_c: Vec<f64>,
     nz_r: Vec<f64>,
     nz_v: Vec<f64>,
-    /// Per entry: the bound was not finite.
+    /// Per entry: a bound of the layer there was not finite.
     bad: Vec<f64>,
 }
 
@@ -376,13 +376,11 @@ fn relax_body<const K: usize, const L: usize>(
                 live.v.push(i0 + r);
             }
         }
-        for r in 0..rows {
-            let bad = &b.bad[r * g_count..(r + 1) * g_count];
-            for (flag, &x) in poisoned.iter_mut().zip(bad) {
-                *flag |= x != 0.0;
-            }
-        }
         i0 += rows;
+    }
+    // Entry `o` of the block belongs to box `o mod G`.
+    for (o, &x) in b.bad.iter().enumerate() {
+        poisoned[o % g_count] |= x != 0.0;
     }
 }
 
@@ -440,8 +438,9 @@ fn lanes<const K: usize, const L: usize>(
         let (inf, zero, one) = (V::splat(f64::INFINITY), V::splat(0.0), V::splat(1.0));
         x.abs().pick(inf, |a, m| a < m, zero, one)
     };
-    let bad = not_finite(l).max(not_finite(u));
-    b.bad[o..o + L].copy_from_slice(&bad.0);
+    // Kept over the whole layer, read once at its end.
+    let bad = not_finite(l).max(not_finite(u)).max(V::load(&b.bad, o));
+    bad.store(&mut b.bad, o);
     if let Some((pc, pr)) = layer.ibp_pre {
         let (pc, pr) = (ld(pc, t), ld(pr, t));
         l = l.max(pc.add_down(pr.neg()));
