@@ -9,20 +9,58 @@ use std::time::Instant;
 /// current x86 cores (4–5 cycles, two pipes).
 const CHAINS: usize = 12;
 
-/// The widest fused multiply–add [`f64_limit_gflops`] measures on this CPU: `"AVX-512"`,
-/// `"AVX2"` or `"scalar"`.
-pub fn f64_limit_isa() -> &'static str {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if std::arch::is_x86_feature_detected!("avx512f") {
-            return "AVX-512";
-        }
-        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
-        {
-            return "AVX2";
+/// The vector instructions the hand-written kernels (`matmul::PackedMatrix`, the forward
+/// method's relaxation) run on: each has a path per kind, chosen at run time, since the
+/// binary is built for baseline x86-64 and CI machines may lack AVX-512 or even AVX2.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Isa {
+    /// Portable code (SSE2 on x86-64).
+    Scalar,
+    /// Four f64 lanes with fused multiply–adds (AVX2 and FMA).
+    Avx2,
+    /// Eight f64 lanes (AVX-512 F; it implies AVX2 and FMA).
+    Avx512,
+}
+
+impl Isa {
+    /// The widest kind this CPU has (std caches the CPUID answer: cheap per call).
+    pub fn detect() -> Isa {
+        [Isa::Avx512, Isa::Avx2]
+            .into_iter()
+            .find(|isa| isa.available())
+            .unwrap_or(Isa::Scalar)
+    }
+
+    /// Whether this CPU runs this kind's code.
+    pub fn available(self) -> bool {
+        match self {
+            Isa::Scalar => true,
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx2 => {
+                std::arch::is_x86_feature_detected!("avx2")
+                    && std::arch::is_x86_feature_detected!("fma")
+            }
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx512 => std::arch::is_x86_feature_detected!("avx512f"),
+            #[cfg(not(target_arch = "x86_64"))]
+            _ => false,
         }
     }
-    "scalar"
+
+    /// `"AVX-512"`, `"AVX2"` or `"scalar"`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Isa::Scalar => "scalar",
+            Isa::Avx2 => "AVX2",
+            Isa::Avx512 => "AVX-512",
+        }
+    }
+}
+
+/// The widest fused multiply–add [`f64_limit_gflops`] measures on this CPU: `"AVX-512"`,
+/// `"AVX2"` or `"scalar"` ([`Isa::detect`]).
+pub fn f64_limit_isa() -> &'static str {
+    Isa::detect().name()
 }
 
 /// The cores' f64 limit in GFLOP/s: fused multiply–adds on independent registers (no memory

@@ -1,13 +1,13 @@
-//! The forward method's work between two layers' products, across [`LANES`] neurons and boxes
-//! at a time: the bias and its rounding, the concretisation of each neuron's forms over its
+//! The forward method's work between two layers' products, across 4 or 8 neurons and boxes at
+//! a time (AVX2 or AVX-512 registers, chosen at run time): the bias and its rounding, the concretisation of each neuron's forms over its
 //! box, the ReLU relaxation, the result's form magnitude `V`, and which rows the next products
 //! read (docs/design.md §5).
 //!
 //! The forms are stored in planes ([`super::forward::Workspace`]): coefficient `p` of neuron
 //! `i` in box `g` at `p·nG + i·G + g`, so that one plane is a contiguous run over (neuron,
-//! box) pairs and the relaxation walks it [`LANES`] entries at a time, whatever the number of
+//! box) pairs and the relaxation walks it `L` entries at a time, whatever the number of
 //! boxes `G`. What depends on the box (its centre, radius, magnitudes, scale) is laid out once
-//! per call in blocks of `lcm(G, LANES)` entries, what depends on the neuron (bias, `|W|`'s
+//! per call in blocks of `lcm(G, L)` entries, what depends on the neuron (bias, `|W|`'s
 //! row sum) once per block; the loads are then plain vector loads.
 //!
 //! Every lane computes what the scalar code of the rounding model computes, operation for
@@ -16,8 +16,12 @@
 //! code's, which the tests of this module check.
 #![allow(clippy::needless_range_loop)] // lane loops read as the formulas
 
-/// Lanes of a vector step: four f64 in an AVX2 register.
-pub(super) const LANES: usize = 4;
+use crate::machine::Isa;
+
+/// Lanes of a vector step: four f64 in an AVX2 register (and in the portable code, which the
+/// compiler vectorises as it can), eight in an AVX-512 one.
+const LANES: usize = 4;
+const LANES_512: usize = 8;
 
 /// `L` values computed lane by lane: each method is one loop of one operation, which the
 /// compiler turns into one vector instruction (where the function is compiled for AVX2).
@@ -158,7 +162,7 @@ impl<const L: usize> Lanes<L> {
     }
 }
 
-/// What varies per box, laid out in a block of `lcm(G, LANES)` entries (entry `o` belongs to
+/// What varies per box, laid out in a block of `lcm(G, L)` entries (entry `o` belongs to
 /// box `o mod G`), and per neuron, refilled per block of rows.
 #[derive(Default)]
 pub(super) struct Blocks {
@@ -177,7 +181,7 @@ pub(super) struct Blocks {
     nz_c: Vec<f64>,
     nz_r: Vec<f64>,
     nz_v: Vec<f64>,
-    /// Per entry: the bound was not finite.
+    /// Per entry: a bound of the layer there was not finite.
     bad: Vec<f64>,
 }
 
@@ -217,43 +221,74 @@ pub(super) struct LiveRows {
     pub(super) v: Vec<usize>,
 }
 
-/// Relaxes `layer` in place; boxes whose bounds are not finite are marked in `poisoned`.
+/// Relaxes `layer` in place; boxes whose bounds are not finite are marked in `poisoned`. Runs
+/// the widest vector code the CPU has.
 pub(super) fn relax(
     layer: Layer<'_>,
     poisoned: &mut [bool],
     blocks: &mut Blocks,
     live: &mut LiveRows,
 ) {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU has the feature the function is compiled for.
-        unsafe { relax_avx2(layer, poisoned, blocks, live) };
-        return;
+    relax_on(Isa::detect(), layer, poisoned, blocks, live);
+}
+
+/// [`relax`] on `isa`'s code (panics where the CPU lacks it). Every path computes the same
+/// numbers (no fused or reordered arithmetic in [`Lanes`]), only so many lanes at a time.
+fn relax_on(
+    isa: Isa,
+    layer: Layer<'_>,
+    poisoned: &mut [bool],
+    b: &mut Blocks,
+    live: &mut LiveRows,
+) {
+    assert!(isa.available(), "relaxation: no {} here", isa.name());
+    match isa {
+        // SAFETY: the CPU has the features the functions are compiled for (asserted).
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx512 => unsafe { relax_avx512(layer, poisoned, b, live) },
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx2 => unsafe { relax_avx2(layer, poisoned, b, live) },
+        _ => relax_dispatch::<LANES>(layer, poisoned, b, live),
     }
-    relax_dispatch(layer, poisoned, blocks, live);
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 unsafe fn relax_avx2(layer: Layer<'_>, poisoned: &mut [bool], b: &mut Blocks, live: &mut LiveRows) {
-    relax_dispatch(layer, poisoned, b, live);
+    relax_dispatch::<LANES>(layer, poisoned, b, live);
 }
 
-/// The common form sizes get their own copy, the loops over coefficients unrolled.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+unsafe fn relax_avx512(
+    layer: Layer<'_>,
+    poisoned: &mut [bool],
+    b: &mut Blocks,
+    live: &mut LiveRows,
+) {
+    relax_dispatch::<LANES_512>(layer, poisoned, b, live);
+}
+
+/// The common form sizes get their own copy, the loops over coefficients unrolled; `L` lanes.
 #[inline(always)]
-fn relax_dispatch(layer: Layer<'_>, poisoned: &mut [bool], b: &mut Blocks, live: &mut LiveRows) {
+fn relax_dispatch<const L: usize>(
+    layer: Layer<'_>,
+    poisoned: &mut [bool],
+    b: &mut Blocks,
+    live: &mut LiveRows,
+) {
     match layer.d {
-        1 => relax_body::<2>(layer, poisoned, b, live),
-        2 => relax_body::<3>(layer, poisoned, b, live),
-        3 => relax_body::<4>(layer, poisoned, b, live),
-        4 => relax_body::<5>(layer, poisoned, b, live),
-        _ => relax_body::<0>(layer, poisoned, b, live),
+        1 => relax_body::<2, L>(layer, poisoned, b, live),
+        2 => relax_body::<3, L>(layer, poisoned, b, live),
+        3 => relax_body::<4, L>(layer, poisoned, b, live),
+        4 => relax_body::<5, L>(layer, poisoned, b, live),
+        _ => relax_body::<0, L>(layer, poisoned, b, live),
     }
 }
 
 /// `K` is `d + 1` when it is a compile-time constant, or 0 to read `d` at run time.
 #[inline(always)]
-fn relax_body<const K: usize>(
+fn relax_body<const K: usize, const L: usize>(
     mut layer: Layer<'_>,
     poisoned: &mut [bool],
     b: &mut Blocks,
@@ -261,7 +296,7 @@ fn relax_body<const K: usize>(
 ) {
     let (n, g_count, d) = (layer.n, layer.g, layer.d);
     debug_assert!(K == 0 || K == d + 1);
-    let block = g_count * LANES / gcd(g_count, LANES);
+    let block = g_count * L / gcd(g_count, L);
     let rows_per_block = block / g_count;
     b.xc.clear();
     b.xr.clear();
@@ -320,9 +355,9 @@ fn relax_body<const K: usize>(
         }
         let t0 = i0 * g_count;
         let mut o = 0;
-        while o + LANES <= len {
-            lanes::<K, LANES>(&mut layer, b, t0 + o, o);
-            o += LANES;
+        while o + L <= len {
+            lanes::<K, L>(&mut layer, b, t0 + o, o);
+            o += L;
         }
         while o < len {
             lanes::<K, 1>(&mut layer, b, t0 + o, o);
@@ -341,13 +376,11 @@ fn relax_body<const K: usize>(
                 live.v.push(i0 + r);
             }
         }
-        for r in 0..rows {
-            let bad = &b.bad[r * g_count..(r + 1) * g_count];
-            for (flag, &x) in poisoned.iter_mut().zip(bad) {
-                *flag |= x != 0.0;
-            }
-        }
         i0 += rows;
+    }
+    // Entry `o` of the block belongs to box `o mod G`.
+    for (o, &x) in b.bad.iter().enumerate() {
+        poisoned[o % g_count] |= x != 0.0;
     }
 }
 
@@ -405,8 +438,9 @@ fn lanes<const K: usize, const L: usize>(
         let (inf, zero, one) = (V::splat(f64::INFINITY), V::splat(0.0), V::splat(1.0));
         x.abs().pick(inf, |a, m| a < m, zero, one)
     };
-    let bad = not_finite(l).max(not_finite(u));
-    b.bad[o..o + L].copy_from_slice(&bad.0);
+    // Kept over the whole layer, read once at its end.
+    let bad = not_finite(l).max(not_finite(u)).max(V::load(&b.bad, o));
+    bad.store(&mut b.bad, o);
     if let Some((pc, pr)) = layer.ibp_pre {
         let (pc, pr) = (ld(pc, t), ld(pr, t));
         l = l.max(pc.add_down(pr.neg()));
@@ -512,286 +546,4 @@ fn lanes<const K: usize, const L: usize>(
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::bounds::ibp::centre_radius;
-    use crate::bounds::{relu_lines, Relaxation};
-    use crate::rounding::{add_down, add_up, err_bound, round_up, round_up_keep_zero};
-    use rand::{Rng, SeedableRng};
-
-    fn same(a: f64, b: f64) -> bool {
-        a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan())
-    }
-
-    /// `Lanes::up` is `round_up` bit for bit (zeros, subnormals, the largest finite numbers,
-    /// infinities, NaN, random bit patterns), four lanes and one; `up_nonneg` on `+0` and
-    /// positive finite numbers too.
-    #[test]
-    fn lane_round_up_is_round_up() {
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
-        let mut xs = vec![
-            0.0,
-            -0.0,
-            f64::from_bits(1),
-            -f64::from_bits(1),
-            f64::MIN_POSITIVE,
-            -f64::MIN_POSITIVE,
-            f64::MAX,
-            -f64::MAX,
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-            f64::NAN,
-            1.0,
-            -1.0,
-        ];
-        xs.extend((0..20_000).map(|_| f64::from_bits(rng.random::<u64>())));
-        xs.extend((0..20_000).map(|_| rng.random_range(-1e3..1e3)));
-        while xs.len() % 4 != 0 {
-            xs.push(0.5);
-        }
-        for chunk in xs.chunks(4) {
-            let four = Lanes::<4>::load(chunk, 0).up();
-            for (q, &x) in chunk.iter().enumerate() {
-                let one = Lanes::<1>::splat(x).up().0[0];
-                assert!(same(four.0[q], round_up(x)), "{x:e}: {:e}", four.0[q]);
-                assert!(same(one, round_up(x)), "{x:e}: {one:e}");
-                if x.is_finite() && x.is_sign_positive() {
-                    let nonneg = Lanes::<1>::splat(x).up_nonneg().0[0];
-                    assert!(same(nonneg, round_up(x)), "{x:e}: {nonneg:e}");
-                }
-            }
-        }
-    }
-
-    /// Per box: centres, radii, magnitudes, scales, pending errors.
-    type PerBox<'a> = (&'a [f64], &'a [f64], &'a [f64], &'a [f64], &'a [f64]);
-
-    /// What the relaxation computed neuron by neuron and box by box before it ran in lanes
-    /// (the formulas of `forward`'s module documentation, scalar rounding functions).
-    #[allow(clippy::too_many_arguments)]
-    fn scalar(
-        (n, g_count, d): (usize, usize, usize),
-        c: &mut [f64],
-        rv: &mut [f64],
-        (xc, xr, xmag, scale, pending): PerBox<'_>,
-        bias: Option<(&[f64], &[f64], usize)>,
-        ibp_pre: Option<(&[f64], &[f64])>,
-        post: &mut [f64],
-        poisoned: &mut [bool],
-    ) {
-        let plane = n * g_count;
-        for i in 0..n {
-            for g in 0..g_count {
-                let at = i * g_count + g;
-                let (ci, ri) = (|p: usize| p * plane + at, |p: usize| p * plane + at);
-                let mut widen = pending[g];
-                if let Some((b, rs, n_prev)) = bias {
-                    c[ci(d)] += b[i];
-                    let err = err_bound(n_prev + 1, rv[ri(d + 1)] + b[i].abs(), scale[g]);
-                    let carried = round_up_keep_zero(rs[i] * pending[g]);
-                    rv[ri(d)] = add_up(add_up(rv[ri(d)], err), carried);
-                    widen = 0.0;
-                }
-                let (cd, rd) = (c[ci(d)], rv[ri(d)]);
-                let (mut su, mut sl, mut mag) = (cd + rd, cd - rd, cd.abs() + rd.abs());
-                for p in 0..d {
-                    let (cp, rp) = (c[ci(p)], rv[ri(p)]);
-                    let (up, lo) = (cp + rp, cp - rp);
-                    let (xc, xr) = (xc[g * d + p], xr[g * d + p]);
-                    su += up * xc + up.abs() * xr;
-                    sl += lo * xc - lo.abs() * xr;
-                    mag += (cp.abs() + rp.abs()) * xmag[g * d + p];
-                }
-                let err = add_up(err_bound(3 * d + 3, mag, scale[g]), widen);
-                let (mut l, mut u) = (add_down(sl, -err), add_up(su, err));
-                if !(l.is_finite() && u.is_finite()) {
-                    poisoned[g] = true;
-                }
-                if let Some((pc, pr)) = ibp_pre {
-                    l = l.max(add_down(pc[at], -pr[at]));
-                    u = u.min(add_up(pc[at], pr[at]));
-                }
-                let (ic, ir) = centre_radius(l.max(0.0), u.max(0.0));
-                post[4 * at..4 * at + 4].copy_from_slice(&[l, u, ic, ir]);
-                let v = if u <= 0.0 {
-                    (0..=d).for_each(|p| (c[ci(p)], rv[ri(p)]) = (0.0, 0.0));
-                    0.0
-                } else if l >= 0.0 {
-                    mag
-                } else {
-                    let (s_lo, s_up, t) = relu_lines(l, u, Relaxation::Adaptive);
-                    let (alpha, beta) = (0.5 * (s_up + s_lo), 0.5 * (s_up - s_lo));
-                    for p in 0..=d {
-                        let (cp, rp) = (c[ci(p)], rv[ri(p)]);
-                        c[ci(p)] = alpha * cp + beta * rp;
-                        rv[ri(p)] = beta * cp + alpha * rp;
-                    }
-                    c[ci(d)] += 0.5 * t;
-                    rv[ri(d)] += 0.5 * t;
-                    let err = err_bound(8, s_up.max(s_lo) * mag + t, scale[g]);
-                    rv[ri(d)] = add_up(rv[ri(d)], err);
-                    let mut v = c[ci(d)].abs() + rv[ri(d)].abs();
-                    for p in 0..d {
-                        v += (c[ci(p)].abs() + rv[ri(p)].abs()) * xmag[g * d + p];
-                    }
-                    v
-                };
-                rv[ri(d + 1)] = v;
-            }
-        }
-    }
-
-    /// The relaxation in lanes gives the scalar relaxation's forms, `V`, concrete bounds, IBP
-    /// interval and poisoned boxes bit for bit, and the rows that are not all zero, for
-    /// numbers of boxes that fill the lanes or leave a tail (1, 3, 6, 7), form sizes that
-    /// have their own copy and one that does not (d = 1, 2, 6), with and without the bias
-    /// stage and IBP; neurons dead, active and unstable, some rows zero, a box overflowing.
-    #[test]
-    fn lanes_relax_as_the_scalar_code() {
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
-        for (g_count, d, with_bias) in [
-            (1, 1, false),
-            (3, 2, true),
-            (6, 2, true),
-            (7, 6, true),
-            (6, 1, false),
-        ] {
-            let n = 41;
-            let plane = n * g_count;
-            let mut c: Vec<f64> = (0..(d + 1) * plane)
-                .map(|_| rng.random_range(-1.0..1.0))
-                .collect();
-            let mut rv: Vec<f64> = (0..(d + 2) * plane)
-                .map(|_| rng.random_range(0.0..0.3))
-                .collect();
-            for i in 0..n {
-                for g in 0..g_count {
-                    let at = i * g_count + g;
-                    // Constants spread so that neurons are dead, active or unstable.
-                    c[d * plane + at] = rng.random_range(-4.0..4.0);
-                    if i % 5 == 0 {
-                        (0..=d).for_each(|p| (c[p * plane + at], rv[p * plane + at]) = (0.0, 0.0));
-                    }
-                }
-            }
-            if g_count > 2 {
-                c[d * plane + g_count + 2] = f64::MAX; // box 2 overflows
-            }
-            let xc: Vec<f64> = (0..g_count * d)
-                .map(|_| rng.random_range(-1.0..1.0))
-                .collect();
-            let xr: Vec<f64> = (0..g_count * d)
-                .map(|_| rng.random_range(0.0..0.5))
-                .collect();
-            let xmag: Vec<f64> = xc
-                .iter()
-                .zip(&xr)
-                .map(|(c, r)| round_up(c.abs() + r))
-                .collect();
-            let scale: Vec<f64> = (0..g_count).map(|_| rng.random_range(1.0..3.0)).collect();
-            let pending: Vec<f64> = (0..g_count).map(|_| rng.random_range(0.0..1e-12)).collect();
-            let b: Vec<f64> = (0..n).map(|_| rng.random_range(-0.5..0.5)).collect();
-            let rs: Vec<f64> = (0..n).map(|_| rng.random_range(0.0..9.0)).collect();
-            let bias = with_bias.then_some((&b[..], &rs[..], 77));
-            let pc: Vec<f64> = (0..plane).map(|_| rng.random_range(-3.0..3.0)).collect();
-            let pr: Vec<f64> = (0..plane).map(|_| rng.random_range(0.0..3.0)).collect();
-            let ibp_pre = with_bias.then_some((&pc[..], &pr[..]));
-
-            let (mut c0, mut rv0) = (c.clone(), rv.clone());
-            let (mut post, mut poisoned0) = (vec![0.0; 4 * plane], vec![false; g_count]);
-            let per_box = (&xc[..], &xr[..], &xmag[..], &scale[..], &pending[..]);
-            let shape = (n, g_count, d);
-            scalar(
-                shape,
-                &mut c0,
-                &mut rv0,
-                per_box,
-                bias,
-                ibp_pre,
-                &mut post,
-                &mut poisoned0,
-            );
-
-            let (mut lo, mut hi, mut ic, mut ir) = (
-                vec![0.0; plane],
-                vec![0.0; plane],
-                vec![0.0; plane],
-                vec![0.0; plane],
-            );
-            let mut poisoned = vec![false; g_count];
-            let (mut blocks, mut live) = (Blocks::default(), LiveRows::default());
-            let layer = Layer {
-                n,
-                g: g_count,
-                d,
-                c: &mut c,
-                rv: &mut rv,
-                xc: &xc,
-                xr: &xr,
-                xmag: &xmag,
-                scale: &scale,
-                pending: &pending,
-                bias,
-                ibp_pre,
-                ibp_post: Some((&mut ic, &mut ir)),
-                record: Some((&mut lo, &mut hi)),
-            };
-            relax(layer, &mut poisoned, &mut blocks, &mut live);
-            let tag = format!("G = {g_count}, d = {d}, bias {with_bias}");
-            assert_eq!(poisoned, poisoned0, "{tag}");
-            let bad = |at: usize| g_count > 2 && at % g_count == 2;
-            for at in (0..plane).filter(|&at| !bad(at)) {
-                let want = &post[4 * at..4 * at + 4];
-                for (q, (got, want)) in [lo[at], hi[at], ic[at], ir[at]]
-                    .into_iter()
-                    .zip(want)
-                    .enumerate()
-                {
-                    assert!(
-                        same(got, *want),
-                        "{tag}, entry {at}, l/u/c/r {q}: {got:e} vs {want:e}"
-                    );
-                }
-                for p in 0..=d {
-                    assert!(
-                        same(c[p * plane + at], c0[p * plane + at]),
-                        "{tag}, Ĉ {p} at {at}"
-                    );
-                }
-                for p in 0..d + 2 {
-                    assert!(
-                        same(rv[p * plane + at], rv0[p * plane + at]),
-                        "{tag}, R̂/V {p} at {at}"
-                    );
-                }
-            }
-            let rows = |v: &[f64], planes: std::ops::Range<usize>| -> Vec<usize> {
-                (0..n)
-                    .filter(|i| {
-                        planes
-                            .clone()
-                            .any(|p| (0..g_count).any(|g| v[p * plane + i * g_count + g] != 0.0))
-                    })
-                    .collect()
-            };
-            assert_eq!(live.c, rows(&c, 0..d + 1), "{tag}");
-            assert_eq!(live.r, rows(&rv, 0..d + 1), "{tag}");
-            assert_eq!(live.v, rows(&rv, d + 1..d + 2), "{tag}");
-            let counts = (0..plane).fold([0; 3], |mut k, at| {
-                let (l, u) = (post[4 * at], post[4 * at + 1]);
-                k[if u <= 0.0 {
-                    0
-                } else if l >= 0.0 {
-                    1
-                } else {
-                    2
-                }] += 1;
-                k
-            });
-            assert!(
-                counts.iter().all(|&k| k > 0),
-                "{tag}: dead/active/unstable {counts:?}"
-            );
-        }
-    }
-}
+mod tests;

@@ -15,16 +15,32 @@
 //! next layer's) serves all three; each block of a panel is read from memory once and reused
 //! from L1 by every part. Three passes over `W`, `|W|`, `|W|` before.
 //!
+//! Three kernels, chosen at run time ([`Isa`]): AVX-512 (a panel column is one register; two
+//! panels at a time against slabs of up to [`NR_512`] columns, 24 accumulators), AVX2 (two
+//! registers a column, one panel against [`NR`] columns) and portable code.
+//!
 //! Soundness does not depend on the kernel: the rounding model ([`crate::rounding`]) bounds the
-//! error of any order of summation, with or without fused multiply–adds; `|w|` is exact.
+//! error of any order of summation of the `N` terms, with or without fused multiply–adds, by
+//! `γ̂_N` times the computed magnitude sum; `|w|` is exact. Every kernel sums each output entry
+//! in one accumulator, from 0, over the live indices in ascending order (blocks and slabs only
+//! decide which entries share a pass, not the order within one), so the AVX2 and AVX-512
+//! kernels give the same bits; the portable one rounds each product before adding it.
 #![allow(clippy::needless_range_loop)] // index loops over registers read as the formulas
 
 use std::sync::atomic::Ordering;
 
-/// Rows of a panel: two AVX2 registers of f64.
+use crate::machine::Isa;
+
+/// Rows of a panel: two AVX2 registers of f64, one AVX-512 register.
 const MR: usize = 8;
-/// Columns of the right factor a kernel call keeps in registers (`MR × NR` accumulators).
+/// Columns of the right factor an AVX2 or portable kernel call keeps in registers (`MR × NR`
+/// accumulators: 12 AVX2 registers).
 const NR: usize = 6;
+/// Columns an AVX-512 kernel call keeps in registers, for two panels at once (`2·MR × NR_512`
+/// accumulators: 24 of the 32 registers). Per inner index that is 2 loads of `A` and up to 12
+/// broadcasts for 24 fused multiply–adds: one panel at a time would load as often as it
+/// multiplies, and the loads would limit it.
+const NR_512: usize = 12;
 /// Inner indices a block of the packed storage (8 KiB of a panel): blocks are stored one after
 /// another, each block's panels in order.
 const KB: usize = 128;
@@ -41,7 +57,7 @@ pub struct PackedMatrix {
 
 /// One column of a panel: [`MR`] entries on one 64-byte cache line (the allocator aligns a
 /// `Vec<f64>` to 16 bytes only, so an unaligned column's second half split across two lines
-/// on every load).
+/// on every load; the AVX-512 kernel's aligned loads rely on it).
 #[derive(Clone, Copy, Debug, Default)]
 #[repr(C, align(64))]
 struct Column([f64; MR]);
@@ -50,7 +66,8 @@ struct Column([f64; MR]);
 /// `out[i·stride + out_col + q·out_plane + c] = Σ_{j ∈ live} A'[i][j] · b[j·b_stride + b_col +
 /// q·b_plane + c]` for every row `i` and `c < n`, with `A' = |A|` if `abs`, else `A`; the rows
 /// of `b` not in `live` are taken as zero. (The forward method's forms are stored as planes,
-/// one per coefficient: `planes` products of `n` columns.)
+/// one per coefficient: `planes` products of `n` columns. The kernels take the `planes · n`
+/// (plane, column) pairs in order, in slabs that may span planes.)
 #[derive(Clone, Copy, Debug)]
 pub struct Part<'a> {
     /// Multiply by `|A|` (every entry's sign bit cleared: exact).
@@ -75,6 +92,19 @@ pub struct Part<'a> {
     pub out_col: usize,
     /// Offset between the planes' products in the output.
     pub out_plane: usize,
+}
+
+/// `$body` with `$c` a constant equal to the slab width `$w`, one of `$n`.
+macro_rules! with_width {
+    ($w:expr, $c:ident in [$($n:literal),*] => $body:expr) => {
+        match $w {
+            $($n => {
+                const $c: usize = $n;
+                $body
+            })*
+            _ => unreachable!("slab width"),
+        }
+    };
 }
 
 impl PackedMatrix {
@@ -112,8 +142,8 @@ impl PackedMatrix {
 
     /// The [`Part`]s' products in one pass over `A`; `outs` are the outputs as (buffer, row
     /// stride). Parts may share an output (disjoint columns). `scratch` holds each part's live
-    /// rows of `b` packed in slabs of [`NR`] columns (each slab contiguous, so that it stays
-    /// in L1 while the panels run over it).
+    /// rows of `b` packed in slabs of a few columns (each slab contiguous, so that it stays in
+    /// L1 while the panels run over it). Runs the widest kernel the CPU has.
     ///
     /// Panics only on an internal shape bug (a slice shorter than its view, unsorted `live`).
     pub fn products(
@@ -122,6 +152,18 @@ impl PackedMatrix {
         outs: &mut [(&mut [f64], usize)],
         scratch: &mut Vec<f64>,
     ) {
+        self.products_on(Isa::detect(), parts, outs, scratch);
+    }
+
+    /// [`PackedMatrix::products`] on `isa`'s kernel (panics where the CPU lacks it).
+    fn products_on(
+        &self,
+        isa: Isa,
+        parts: &[Part<'_>],
+        outs: &mut [(&mut [f64], usize)],
+        scratch: &mut Vec<f64>,
+    ) {
+        assert!(isa.available(), "packed product: no {} here", isa.name());
         for q in parts {
             let (out, stride) = &outs[q.out];
             let last = q.planes.saturating_sub(1);
@@ -147,43 +189,73 @@ impl PackedMatrix {
             .map(|q| self.m * q.live.len() * q.n * q.planes)
             .sum();
         super::MULTIPLY_ADDS.fetch_add(madds as u64, Ordering::Relaxed);
-        // Part by part, plane by plane, slab by slab (columns `c0 ..`, [`NR`] of them, the last
-        // one narrower): for each live row in order, its entries of those columns; the kernel
-        // walks them in the same order.
+        let nr = match isa {
+            Isa::Avx512 => NR_512,
+            _ => NR,
+        };
+        // Part by part, slab by slab (its (plane, column) pairs `v0 .. v0 + w`): for each live
+        // row in order, its entries of those pairs; the kernels walk them in the same order.
         scratch.clear();
         for q in parts {
-            for plane in 0..q.planes {
-                for c0 in (0..q.n).step_by(NR) {
-                    let c1 = q.n.min(c0 + NR);
-                    for &j in q.live {
-                        let at = j * q.b_stride + q.b_col + plane * q.b_plane;
-                        scratch.extend_from_slice(&q.b[at + c0..at + c1]);
-                    }
+            for (v0, w) in slabs(q.planes * q.n, nr) {
+                // Where each pair of the slab sits in a row of `b`: the rows are copied by
+                // these offsets, unrolled for the width (runs of a few entries through
+                // `memcpy` had cost as much as a tenth of the kernel's time).
+                let mut offs = [0; NR_512];
+                for (c, off) in offs[..w].iter_mut().enumerate() {
+                    let v = v0 + c;
+                    *off = q.b_col + v / q.n * q.b_plane + v % q.n;
                 }
+                let at = scratch.len();
+                scratch.resize(at + q.live.len() * w, 0.0);
+                let dst = &mut scratch[at..];
+                with_width!(w, C in [1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12] => {
+                    for (&j, dst) in q.live.iter().zip(dst.chunks_exact_mut(C)) {
+                        let row = &q.b[j * q.b_stride..];
+                        for c in 0..C {
+                            dst[c] = row[offs[c]];
+                        }
+                    }
+                })
             }
         }
         let job = Job {
             a: self,
             parts,
             slabs: scratch,
+            nr,
         };
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
-        {
-            // SAFETY: the CPU has the features the function is compiled for.
-            unsafe { products_fma(&job, outs) };
-            return;
+        match isa {
+            // SAFETY: the CPU has the features the functions are compiled for (asserted).
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx512 => unsafe { products_avx512(&job, outs) },
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx2 => unsafe { products_fma(&job, outs) },
+            _ => products_body::<false>(&job, outs),
         }
-        products_body::<false>(&job, outs);
     }
 }
 
-/// One call: the packed `A`, the parts and their slabs.
+/// The slabs of a part's `total` (plane, column) pairs, at most `nr` wide, as even as their
+/// number allows: `(first pair, width)`.
+fn slabs(total: usize, nr: usize) -> impl Iterator<Item = (usize, usize)> {
+    let count = total.div_ceil(nr);
+    (0..count).map(move |s| {
+        let (base, extra) = (total / count, total % count);
+        (s * base + s.min(extra), base + usize::from(s < extra))
+    })
+}
+
+/// One call: the packed `A`, the parts and their slabs, at most `nr` columns each.
 struct Job<'a> {
     a: &'a PackedMatrix,
     parts: &'a [Part<'a>],
     slabs: &'a [f64],
+    nr: usize,
 }
+
+/// Where a block of sums goes: the output and its row stride, the first row and the rows.
+type Dst<'a> = (&'a mut [f64], usize, (usize, usize));
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
@@ -202,37 +274,20 @@ unsafe fn products_fma(job: &Job<'_>, outs: &mut [(&mut [f64], usize)]) {
 fn products_body<const FMA: bool>(job: &Job<'_>, outs: &mut [(&mut [f64], usize)]) {
     let a = job.a;
     for p in 0..a.m.div_ceil(MR) {
-        let at = (p * MR, MR.min(a.m - p * MR));
+        let rows = (p * MR, MR.min(a.m - p * MR));
         let mut s0 = 0;
         for q in job.parts {
             let (out, stride) = &mut outs[q.out];
             let len = q.live.len();
-            for (c0, plane) in
-                (0..q.planes).flat_map(|pl| (0..q.n).step_by(NR).map(move |c| (c, pl)))
-            {
-                let w = NR.min(q.n - c0);
+            for (v0, w) in slabs(q.planes * q.n, job.nr) {
                 let slab = &job.slabs[s0..s0 + len * w];
                 s0 += len * w;
-                let dst = (
-                    &mut **out,
-                    *stride,
-                    at,
-                    q.out_col + plane * q.out_plane + c0,
-                );
-                match (q.abs, w) {
-                    (false, 6) => store(&sum::<FMA, false, 6>(a, p, q.live, slab), dst),
-                    (false, 5) => store(&sum::<FMA, false, 5>(a, p, q.live, slab), dst),
-                    (false, 4) => store(&sum::<FMA, false, 4>(a, p, q.live, slab), dst),
-                    (false, 3) => store(&sum::<FMA, false, 3>(a, p, q.live, slab), dst),
-                    (false, 2) => store(&sum::<FMA, false, 2>(a, p, q.live, slab), dst),
-                    (false, _) => store(&sum::<FMA, false, 1>(a, p, q.live, slab), dst),
-                    (true, 6) => store(&sum::<FMA, true, 6>(a, p, q.live, slab), dst),
-                    (true, 5) => store(&sum::<FMA, true, 5>(a, p, q.live, slab), dst),
-                    (true, 4) => store(&sum::<FMA, true, 4>(a, p, q.live, slab), dst),
-                    (true, 3) => store(&sum::<FMA, true, 3>(a, p, q.live, slab), dst),
-                    (true, 2) => store(&sum::<FMA, true, 2>(a, p, q.live, slab), dst),
-                    (true, _) => store(&sum::<FMA, true, 1>(a, p, q.live, slab), dst),
-                }
+                let dst = (&mut **out, *stride, rows);
+                with_width!(w, C in [1, 2, 3, 4, 5, 6] => if q.abs {
+                    store(&sum::<FMA, true, C>(a, p, q.live, slab), q, v0, dst)
+                } else {
+                    store(&sum::<FMA, false, C>(a, p, q.live, slab), q, v0, dst)
+                })
             }
         }
     }
@@ -294,153 +349,104 @@ fn block<const FMA: bool, const ABS: bool, const C: usize>(
     }
 }
 
-/// Writes the first `rows` rows of the accumulators to `out` at row `i0`, column `c0`.
+/// Writes the first `rows` rows of an `MR × C` block of sums, the part's (plane, column) pairs
+/// `v0 ..`, to its output at row `i0`.
 #[inline(always)]
 fn store<const C: usize>(
     acc: &[[f64; MR]; C],
-    (out, out_stride, (i0, rows), c0): (&mut [f64], usize, (usize, usize), usize),
+    q: &Part<'_>,
+    v0: usize,
+    (out, out_stride, (i0, rows)): Dst<'_>,
 ) {
-    for r in 0..rows {
-        let dst = &mut out[(i0 + r) * out_stride + c0..(i0 + r) * out_stride + c0 + C];
-        for c in 0..C {
-            dst[c] = acc[c][r];
+    for c in 0..C {
+        let v = v0 + c;
+        let col = q.out_col + v / q.n * q.out_plane + v % q.n;
+        for r in 0..rows {
+            out[(i0 + r) * out_stride + col] = acc[c][r];
         }
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Dyadic entries with small numerators: every product and sum is exact in f64, so the
-    /// packed products must equal a triple loop over the live rows exactly, for shapes with
-    /// partial panels, partial blocks and partial column slabs, strided operands, `A` and
-    /// `|A|` parts sharing an output, and both kernels.
-    #[test]
-    fn packed_products_equal_a_triple_loop_over_the_live_rows() {
-        for &(m, k, n) in &[
-            (1, 1, 1),
-            (3, 5, 2),
-            (8, 7, 6),
-            (17, 33, 13),
-            (64, 70, 48),
-            (9, 300, 7),
-        ] {
-            let a: Vec<f64> = (0..m * k)
-                .map(|i| ((i * 37 % 101) as f64 - 50.0) / 16.0)
-                .collect();
-            let b_stride = 2 * n + 3;
-            let b: Vec<f64> = (0..k * b_stride)
-                .map(|i| ((i * 53 % 97) as f64 - 48.0) / 8.0)
-                .collect();
-            let packed = PackedMatrix::new(m, k, &a);
-            let lives: [Vec<usize>; 3] = [(0..k).collect(), (0..k).step_by(3).collect(), vec![]];
-            for (l0, l1) in [(0, 1), (1, 0), (2, 0), (1, 2)] {
-                let (live0, live1) = (&lives[l0], &lives[l1]);
-                // Part 0: A on b's first n columns into out0; parts 1 and 2: |A| on b's next
-                // n columns (live1) and on its first n (live0), side by side in out1; part 3:
-                // A on two planes of b (columns 1 .. n + 1 and n + 1 .. 2n + 1, live1) into
-                // out0's columns n + 2 .. 3n + 2.
-                let (s0, s1) = (3 * n + 2, 2 * n + 1);
-                let want = |abs: bool, live: &[usize], col: usize, i: usize, c: usize| -> f64 {
-                    live.iter()
-                        .map(|&j| {
-                            let w = a[i * k + j];
-                            (if abs { w.abs() } else { w }) * b[j * b_stride + col + c]
-                        })
-                        .sum()
-                };
-                let parts = [
-                    Part {
-                        abs: false,
-                        live: live0,
-                        b: &b,
-                        b_stride,
-                        b_col: 0,
-                        n,
-                        planes: 1,
-                        b_plane: 0,
-                        out: 0,
-                        out_col: 0,
-                        out_plane: 0,
-                    },
-                    Part {
-                        abs: true,
-                        live: live1,
-                        b: &b,
-                        b_stride,
-                        b_col: n,
-                        n,
-                        planes: 1,
-                        b_plane: 0,
-                        out: 1,
-                        out_col: 0,
-                        out_plane: 0,
-                    },
-                    Part {
-                        abs: true,
-                        live: live0,
-                        b: &b,
-                        b_stride,
-                        b_col: 0,
-                        n,
-                        planes: 1,
-                        b_plane: 0,
-                        out: 1,
-                        out_col: n,
-                        out_plane: 0,
-                    },
-                    Part {
-                        abs: false,
-                        live: live1,
-                        b: &b,
-                        b_stride,
-                        b_col: 1,
-                        n,
-                        planes: 2,
-                        b_plane: n,
-                        out: 0,
-                        out_col: n + 2,
-                        out_plane: n,
-                    },
-                ];
-                for fma in [true, false] {
-                    let (mut o0, mut o1) = (vec![-1.0; m * s0], vec![-1.0; m * s1]);
-                    let mut scratch = vec![];
-                    let mut outs = [(&mut o0[..], s0), (&mut o1[..], s1)];
-                    if fma {
-                        packed.products(&parts, &mut outs, &mut scratch);
-                    } else {
-                        // The slabs as `products` packs them, then the portable kernel.
-                        packed.products(&parts, &mut outs, &mut scratch);
-                        for (o, _) in outs.iter_mut() {
-                            o.fill(-1.0);
-                        }
-                        let job = Job {
-                            a: &packed,
-                            parts: &parts,
-                            slabs: &scratch,
-                        };
-                        products_body::<false>(&job, &mut outs);
-                    }
-                    for i in 0..m {
-                        for c in 0..n {
-                            let tag =
-                                format!("{m}×{k}×{n}, lives {l0} {l1}, fma {fma}, ({i}, {c})");
-                            assert_eq!(o0[i * s0 + c], want(false, live0, 0, i, c), "{tag}");
-                            assert_eq!(o1[i * s1 + c], want(true, live1, n, i, c), "{tag}");
-                            assert_eq!(o1[i * s1 + n + c], want(true, live0, 0, i, c), "{tag}");
-                            for q in 0..2 {
-                                let got = o0[i * s0 + n + 2 + q * n + c];
-                                assert_eq!(got, want(false, live1, 1 + q * n, i, c), "{tag}");
-                            }
-                        }
-                        // Columns past the parts stay untouched.
-                        assert!(o0[i * s0 + n..i * s0 + n + 2].iter().all(|&x| x == -1.0));
-                        assert!(o1[i * s1 + 2 * n..(i + 1) * s1].iter().all(|&x| x == -1.0));
-                    }
-                }
+/// [`products_body`] on AVX-512 registers: panels two at a time (`2·MR × C` sums in 24
+/// registers at most), the same sums in the same order.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+unsafe fn products_avx512(job: &Job<'_>, outs: &mut [(&mut [f64], usize)]) {
+    let a = job.a;
+    let panels = a.m.div_ceil(MR);
+    for p in (0..panels).step_by(2) {
+        let two = p + 1 < panels;
+        let rows = (p * MR, (2 * MR).min(a.m - p * MR));
+        let mut s0 = 0;
+        for q in job.parts {
+            let (out, stride) = &mut outs[q.out];
+            let len = q.live.len();
+            for (v0, w) in slabs(q.planes * q.n, job.nr) {
+                let slab = &job.slabs[s0..s0 + len * w];
+                s0 += len * w;
+                let dst = (&mut **out, *stride, rows);
+                with_width!(w, C in [1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12] => match (q.abs, two) {
+                    (false, false) => panels_avx512::<false, 1, C>(a, p, q, v0, slab, dst),
+                    (false, true) => panels_avx512::<false, 2, C>(a, p, q, v0, slab, dst),
+                    (true, false) => panels_avx512::<true, 1, C>(a, p, q, v0, slab, dst),
+                    (true, true) => panels_avx512::<true, 2, C>(a, p, q, v0, slab, dst),
+                })
             }
         }
     }
 }
+
+/// Panels `p .. p + P`'s sums against a slab of `C` columns over all the part's live indices,
+/// block by block, one register per panel and column, stored once.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+#[inline]
+unsafe fn panels_avx512<const ABS: bool, const P: usize, const C: usize>(
+    a: &PackedMatrix,
+    p: usize,
+    q: &Part<'_>,
+    v0: usize,
+    slab: &[f64],
+    (out, stride, (i0, rows)): Dst<'_>,
+) {
+    use std::arch::x86_64::*;
+    let live = q.live;
+    let mut acc = [[_mm512_setzero_pd(); C]; P];
+    let mut from = 0;
+    while from < live.len() {
+        let b = live[from] / KB;
+        let to = from + live[from..].partition_point(|&j| j < b * KB + KB);
+        let cols: [&[Column]; P] = std::array::from_fn(|h| a.block(b, p + h));
+        let j0 = b * KB;
+        for (&j, row) in live[from..to]
+            .iter()
+            .zip(slab[from * C..to * C].chunks_exact(C))
+        {
+            let mut w = [_mm512_setzero_pd(); P];
+            for h in 0..P {
+                debug_assert!(j >= j0 && j - j0 < cols[h].len());
+                // SAFETY: as in `block`; a column is 64-byte aligned.
+                let col = _mm512_load_pd(cols[h].get_unchecked(j - j0).0.as_ptr());
+                w[h] = if ABS { _mm512_abs_pd(col) } else { col };
+            }
+            for c in 0..C {
+                let x = _mm512_set1_pd(row[c]);
+                for h in 0..P {
+                    acc[h][c] = _mm512_fmadd_pd(w[h], x, acc[h][c]);
+                }
+            }
+        }
+        from = to;
+    }
+    for h in 0..P {
+        let mut sums = [[0.0; MR]; C];
+        for c in 0..C {
+            _mm512_storeu_pd(sums[c].as_mut_ptr(), acc[h][c]);
+        }
+        let dst = (&mut *out, stride, (i0 + h * MR, MR.min(rows - h * MR)));
+        store(&sums, q, v0, dst);
+    }
+}
+
+#[cfg(test)]
+mod tests;
