@@ -47,6 +47,15 @@ impl Isa {
         }
     }
 
+    /// f64 lanes of one of its registers.
+    pub fn lanes(self) -> usize {
+        match self {
+            Isa::Scalar => 1,
+            Isa::Avx2 => 4,
+            Isa::Avx512 => 8,
+        }
+    }
+
     /// `"AVX-512"`, `"AVX2"` or `"scalar"`.
     pub fn name(self) -> &'static str {
         match self {
@@ -74,20 +83,15 @@ pub fn f64_limit_gflops() -> f64 {
     use rayon::prelude::*;
     let threads = rayon::current_num_threads().max(1);
     let iters = 20_000;
-    // f64 lanes a fused multiply–add of the loop takes.
-    let lanes = match f64_limit_isa() {
-        "AVX-512" => 8,
-        "AVX2" => 4,
-        _ => 1,
-    };
-    let flops = (iters * CHAINS * lanes * 2) as f64;
+    let isa = Isa::detect();
+    let flops = (iters * CHAINS * isa.lanes() * 2) as f64;
     let per_thread: Vec<f64> = (0..threads)
         .into_par_iter()
         .map(|_| {
             let mut best = f64::INFINITY;
             for _ in 0..60 {
                 let start = Instant::now();
-                black_box(fma_loop(iters));
+                black_box(fma_loop(isa, iters));
                 best = best.min(start.elapsed().as_secs_f64());
             }
             flops / best / 1e9
@@ -96,15 +100,15 @@ pub fn f64_limit_gflops() -> f64 {
     per_thread.iter().sum()
 }
 
-/// The limit loop on the registers [`f64_limit_isa`] names (the same detection, so the
-/// counted lanes are the ones run).
-fn fma_loop(iters: usize) -> f64 {
-    match f64_limit_isa() {
-        // SAFETY: the CPU has the features the functions are compiled for.
+/// The limit loop on `isa`'s registers (the lanes counted are the ones run).
+fn fma_loop(isa: Isa, iters: usize) -> f64 {
+    match isa {
+        // SAFETY: `isa` is what `Isa::detect` found, so the CPU has the features the functions
+        // are compiled for.
         #[cfg(target_arch = "x86_64")]
-        "AVX-512" => unsafe { fma_loop_avx512(iters) },
+        Isa::Avx512 => unsafe { fma_loop_avx512(iters) },
         #[cfg(target_arch = "x86_64")]
-        "AVX2" => unsafe { fma_loop_avx2(iters) },
+        Isa::Avx2 => unsafe { fma_loop_avx2(iters) },
         _ => {
             let (x, y) = (black_box(0.999_999_9), black_box(1e-9));
             let mut acc = [1.0f64; CHAINS];

@@ -2,10 +2,10 @@
 //! depend on), the checkpoint file, and a SIGINT/SIGTERM handler that lets the current chunk
 //! finish so that the checkpoint keeps it.
 
+use std::cell::RefCell;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Mutex;
 
 use cbfreach::provenance::{filter_hash, network_hash, region_hash, Fnv};
 use cbfreach::reach::{ReachProblem, ReachSettings};
@@ -83,7 +83,7 @@ pub fn open(
     path: &Path,
     resume: bool,
     identity: BTreeMap<String, String>,
-) -> Result<Checkpoint, Box<dyn std::error::Error>> {
+) -> Result<Checkpoint, VerifyError> {
     let c = if resume {
         let c = Checkpoint::resume(path, identity)?;
         eprintln!(
@@ -104,7 +104,7 @@ pub fn open(
 pub struct PiecesCheckpoints {
     folder: PathBuf,
     resume: bool,
-    made: Mutex<Vec<PathBuf>>,
+    made: RefCell<Vec<PathBuf>>,
 }
 
 impl PiecesCheckpoints {
@@ -114,14 +114,14 @@ impl PiecesCheckpoints {
         let this = PiecesCheckpoints {
             folder: folder.to_path_buf(),
             resume,
-            made: Mutex::new(Vec::new()),
+            made: RefCell::new(Vec::new()),
         };
         if !resume {
             let entries =
                 std::fs::read_dir(folder).map_err(|e| format!("{}: {e}", folder.display()))?;
             for entry in entries.flatten() {
                 let name = entry.file_name().to_string_lossy().into_owned();
-                if names.iter().any(|s| this.is_checkpoint_of(s, &name)) {
+                if names.iter().any(|s| is_checkpoint_of(s, &name)) {
                     return Err(format!(
                         "{}: exists (an interrupted run?): give --resume to continue it, or remove it",
                         entry.path().display()
@@ -130,13 +130,6 @@ impl PiecesCheckpoints {
             }
         }
         Ok(this)
-    }
-
-    fn is_checkpoint_of(&self, scenario: &str, file: &str) -> bool {
-        file.strip_prefix(scenario)
-            .and_then(|rest| rest.strip_prefix("-box"))
-            .and_then(|rest| rest.strip_suffix(".checkpoint"))
-            .is_some_and(|k| !k.is_empty() && k.bytes().all(|b| b.is_ascii_digit()))
     }
 
     /// Initial box `k`'s journal (numbered from 1 in the file name, as printed), whose pieces
@@ -151,36 +144,35 @@ impl PiecesCheckpoints {
         reach: &ReachSettings,
         k: usize,
     ) -> Result<Box<dyn Journal>, VerifyError> {
-        let path = self
-            .folder
-            .join(format!("{}-box{:02}.checkpoint", s.name, k + 1));
+        let path = self.folder.join(checkpoint_name(&s.name, k));
         let identity =
             identity(s, problem, network, settings, reach).map_err(|e| VerifyError::Format {
                 file: network.display().to_string(),
                 message: e.to_string(),
             })?;
-        let c = if self.resume && path.exists() {
-            let c = Checkpoint::resume(&path, identity)?;
-            eprintln!(
-                "resuming from {}: {} pieces already done",
-                path.display(),
-                c.recorded()
-            );
-            c
-        } else {
-            Checkpoint::create(&path, identity)?
-        };
-        if let Ok(mut made) = self.made.lock() {
-            made.push(path);
-        }
-        Ok(Box::new(c.stop_on(stop_on_interrupt())))
+        let c = open(&path, self.resume && path.exists(), identity)?;
+        self.made.borrow_mut().push(path);
+        Ok(Box::new(c))
     }
 
     /// Removes the checkpoints (the run finished and its verdicts are printed).
     pub fn finish(self) -> std::io::Result<()> {
-        for path in self.made.into_inner().unwrap_or_default() {
+        for path in self.made.into_inner() {
             std::fs::remove_file(path)?;
         }
         Ok(())
     }
+}
+
+/// Initial box `k`'s checkpoint file in a `paper` run (numbered from 1, as printed).
+fn checkpoint_name(scenario: &str, k: usize) -> String {
+    format!("{scenario}-box{:02}.checkpoint", k + 1)
+}
+
+/// Whether `file` is a name [`checkpoint_name`] gives for `scenario`.
+fn is_checkpoint_of(scenario: &str, file: &str) -> bool {
+    file.strip_prefix(scenario)
+        .and_then(|rest| rest.strip_prefix("-box"))
+        .and_then(|rest| rest.strip_suffix(".checkpoint"))
+        .is_some_and(|k| !k.is_empty() && k.bytes().all(|b| b.is_ascii_digit()))
 }

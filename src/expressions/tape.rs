@@ -15,10 +15,13 @@ use super::{Func, Node};
 use crate::intervals::Interval;
 use crate::rounding::pow_int;
 
-/// One operation; operands are earlier slots.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// One operation; operands are earlier slots. It is also its own identity for hash-consing:
+/// a constant is kept by its bits, so `0.0` and `−0.0` (or two NaNs) are told apart exactly as
+/// their values are.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 enum Op {
-    Const(f64),
+    /// `f64::from_bits` of it.
+    Const(u64),
     /// `x[i]` (NaN where `x` has no `i`).
     Var(usize),
     Neg(u32),
@@ -32,39 +35,6 @@ enum Op {
     Call2(Func, u32, u32),
 }
 
-/// A node's identity for hash-consing: its operation with constants by their bits (so `0.0`
-/// and `−0.0`, or two NaNs, are told apart exactly as their values are).
-#[derive(Clone, Copy, PartialEq, Eq, Hash)]
-enum Key {
-    Const(u64),
-    Var(usize),
-    Neg(u32),
-    Add(u32, u32),
-    Sub(u32, u32),
-    Mul(u32, u32),
-    Div(u32, u32),
-    Pow(u32, i32),
-    Call1(Func, u32),
-    Call2(Func, u32, u32),
-}
-
-impl Key {
-    fn of(op: Op) -> Key {
-        match op {
-            Op::Const(c) => Key::Const(c.to_bits()),
-            Op::Var(i) => Key::Var(i),
-            Op::Neg(u) => Key::Neg(u),
-            Op::Add(u, v) => Key::Add(u, v),
-            Op::Sub(u, v) => Key::Sub(u, v),
-            Op::Mul(u, v) => Key::Mul(u, v),
-            Op::Div(u, v) => Key::Div(u, v),
-            Op::Pow(u, k) => Key::Pow(u, k),
-            Op::Call1(f, u) => Key::Call1(f, u),
-            Op::Call2(f, u, v) => Key::Call2(f, u, v),
-        }
-    }
-}
-
 /// Trees compiled together; [`Tape::eval_interval`] gives each tree's value.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Tape {
@@ -76,24 +46,20 @@ pub struct Tape {
 /// Builds a tape, one distinct subexpression a slot.
 struct Builder {
     ops: Vec<Op>,
-    seen: HashMap<Key, u32>,
+    seen: HashMap<Op, u32>,
 }
 
 impl Builder {
     fn push(&mut self, op: Op) -> u32 {
-        let key = Key::of(op);
-        if let Some(&slot) = self.seen.get(&key) {
-            return slot;
-        }
-        let slot = self.ops.len() as u32;
-        self.ops.push(op);
-        self.seen.insert(key, slot);
-        slot
+        *self.seen.entry(op).or_insert_with(|| {
+            self.ops.push(op);
+            self.ops.len() as u32 - 1
+        })
     }
 
     fn node(&mut self, n: &Node) -> u32 {
         let op = match n {
-            Node::Const(c) => Op::Const(*c),
+            Node::Const(c) => Op::Const(c.to_bits()),
             Node::Var(i) => Op::Var(*i),
             Node::Neg(u) => Op::Neg(self.node(u)),
             Node::Add(u, v) => Op::Add(self.node(u), self.node(v)),
@@ -104,7 +70,7 @@ impl Builder {
             Node::Call(f, args) => match args.as_slice() {
                 [u] => Op::Call1(*f, self.node(u)),
                 [u, v] => Op::Call2(*f, self.node(u), self.node(v)),
-                _ => Op::Const(f64::NAN),
+                _ => Op::Const(f64::NAN.to_bits()),
             },
         };
         self.push(op)
@@ -131,16 +97,6 @@ impl Tape {
         }
     }
 
-    /// How many trees it holds.
-    pub fn len(&self) -> usize {
-        self.outputs.len()
-    }
-
-    /// Whether it holds none.
-    pub fn is_empty(&self) -> bool {
-        self.outputs.is_empty()
-    }
-
     /// Each tree's natural inclusion over the box `x` into `out` (one per tree), as
     /// [`super::Expr::eval_interval`] gives it.
     pub fn eval_interval(&self, x: &[Interval], out: &mut [Interval]) {
@@ -149,7 +105,7 @@ impl Tape {
         for op in &self.ops {
             let at = |i: u32| slots[i as usize];
             let value = match *op {
-                Op::Const(c) => Interval::point(c),
+                Op::Const(c) => Interval::point(f64::from_bits(c)),
                 Op::Var(i) => x.get(i).copied().unwrap_or(Interval::NAN),
                 Op::Neg(u) => -at(u),
                 Op::Add(u, v) => at(u) + at(v),
@@ -177,7 +133,7 @@ impl Tape {
         for op in &self.ops {
             let at = |i: u32| slots[i as usize];
             let value = match *op {
-                Op::Const(c) => c,
+                Op::Const(c) => f64::from_bits(c),
                 Op::Var(i) => x.get(i).copied().unwrap_or(f64::NAN),
                 Op::Neg(u) => -at(u),
                 Op::Add(u, v) => at(u) + at(v),

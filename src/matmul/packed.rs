@@ -94,6 +94,18 @@ pub struct Part<'a> {
     pub out_plane: usize,
 }
 
+impl Part<'_> {
+    /// Where (plane, column) pair `v` (`v = plane·n + column`) sits in a row of `b`.
+    fn b_offset(&self, v: usize) -> usize {
+        self.b_col + v / self.n * self.b_plane + v % self.n
+    }
+
+    /// Where pair `v`'s product sits in a row of the output.
+    fn out_offset(&self, v: usize) -> usize {
+        self.out_col + v / self.n * self.out_plane + v % self.n
+    }
+}
+
 /// `$body` with `$c` a constant equal to the slab width `$w`, one of `$n`.
 macro_rules! with_width {
     ($w:expr, $c:ident in [$($n:literal),*] => $body:expr) => {
@@ -203,8 +215,7 @@ impl PackedMatrix {
                 // `memcpy` had cost as much as a tenth of the kernel's time).
                 let mut offs = [0; NR_512];
                 for (c, off) in offs[..w].iter_mut().enumerate() {
-                    let v = v0 + c;
-                    *off = q.b_col + v / q.n * q.b_plane + v % q.n;
+                    *off = q.b_offset(v0 + c);
                 }
                 let at = scratch.len();
                 scratch.resize(at + q.live.len() * w, 0.0);
@@ -243,6 +254,20 @@ fn slabs(total: usize, nr: usize) -> impl Iterator<Item = (usize, usize)> {
     (0..count).map(move |s| {
         let (base, extra) = (total / count, total % count);
         (s * base + s.min(extra), base + usize::from(s < extra))
+    })
+}
+
+/// The blocks of [`KB`] inner indices that ascending `live` indices fall in: each block and
+/// the range of `live` (and of a slab's rows) inside it.
+fn live_blocks(live: &[usize]) -> impl Iterator<Item = (usize, std::ops::Range<usize>)> + '_ {
+    let mut from = 0;
+    std::iter::from_fn(move || {
+        let &first = live.get(from)?;
+        let b = first / KB;
+        let to = from + live[from..].partition_point(|&j| j < b * KB + KB);
+        let at = from..to;
+        from = to;
+        Some((b, at))
     })
 }
 
@@ -303,19 +328,10 @@ fn sum<const FMA: bool, const ABS: bool, const C: usize>(
     slab: &[f64],
 ) -> [[f64; MR]; C] {
     let mut acc = [[0.0; MR]; C];
-    let mut from = 0;
-    while from < live.len() {
-        let b = live[from] / KB;
-        let to = from + live[from..].partition_point(|&j| j < b * KB + KB);
+    for (b, at) in live_blocks(live) {
         let cols = a.block(b, p);
-        block::<FMA, ABS, C>(
-            &mut acc,
-            cols,
-            b * KB,
-            &live[from..to],
-            &slab[from * C..to * C],
-        );
-        from = to;
+        let slab = &slab[at.start * C..at.end * C];
+        block::<FMA, ABS, C>(&mut acc, cols, b * KB, &live[at], slab);
     }
     acc
 }
@@ -359,8 +375,7 @@ fn store<const C: usize>(
     (out, out_stride, (i0, rows)): Dst<'_>,
 ) {
     for c in 0..C {
-        let v = v0 + c;
-        let col = q.out_col + v / q.n * q.out_plane + v % q.n;
+        let col = q.out_offset(v0 + c);
         for r in 0..rows {
             out[(i0 + r) * out_stride + col] = acc[c][r];
         }
@@ -412,16 +427,11 @@ unsafe fn panels_avx512<const ABS: bool, const P: usize, const C: usize>(
     use std::arch::x86_64::*;
     let live = q.live;
     let mut acc = [[_mm512_setzero_pd(); C]; P];
-    let mut from = 0;
-    while from < live.len() {
-        let b = live[from] / KB;
-        let to = from + live[from..].partition_point(|&j| j < b * KB + KB);
+    for (b, at) in live_blocks(live) {
         let cols: [&[Column]; P] = std::array::from_fn(|h| a.block(b, p + h));
         let j0 = b * KB;
-        for (&j, row) in live[from..to]
-            .iter()
-            .zip(slab[from * C..to * C].chunks_exact(C))
-        {
+        let slab = &slab[at.start * C..at.end * C];
+        for (&j, row) in live[at].iter().zip(slab.chunks_exact(C)) {
             let mut w = [_mm512_setzero_pd(); P];
             for h in 0..P {
                 debug_assert!(j >= j0 && j - j0 < cols[h].len());
@@ -436,7 +446,6 @@ unsafe fn panels_avx512<const ABS: bool, const P: usize, const C: usize>(
                 }
             }
         }
-        from = to;
     }
     for h in 0..P {
         let mut sums = [[0.0; MR]; C];

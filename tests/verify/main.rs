@@ -75,12 +75,17 @@ fn network() -> &'static (PathBuf, f64) {
     })
 }
 
-fn run(s: &Scenario, grid: [usize; 2], refine: usize, shard: Option<Shard>) -> VerifyReport {
+/// The small network's problem under the Euler map, in x.
+fn euler_problem(s: &Scenario) -> ReachProblem {
     let (path, m_c) = network();
     let net = Mlp::load_safetensors(path).unwrap();
-    let problem = ReachProblem::with_transform(s, net, *m_c, None)
+    ReachProblem::with_transform(s, net, *m_c, None)
         .unwrap()
-        .with_time(TimeModel::Euler, 1);
+        .with_time(TimeModel::Euler, 1)
+}
+
+fn run(s: &Scenario, grid: [usize; 2], refine: usize, shard: Option<Shard>) -> VerifyReport {
+    let problem = euler_problem(s);
     let verifier = Verifier {
         reach: ReachSettings {
             face_local: true,

@@ -243,11 +243,7 @@ fn pieces_resume_from_their_checkpoints() {
     }
 
     let s = common::integrator();
-    let (path, m_c) = network();
-    let net = Mlp::load_safetensors(path).unwrap();
-    let problem = ReachProblem::with_transform(&s, net, *m_c, None)
-        .unwrap()
-        .with_time(TimeModel::Euler, 1);
+    let problem = euler_problem(&s);
     let verifier = Verifier::new(&s, &problem, &CpuBackend);
     let whole = CpuBackend
         .reach(
