@@ -62,6 +62,9 @@ struct Frame<'a> {
     /// `safe` itself, except for sampled-data runs, whose `safe` is empty and whose steps
     /// prove `S` only where the filter's constraint or the sets do ([`Live::in_s`]).
     in_s: &'a SafeSet,
+    /// `safe`'s walls in this frame's coordinates ([`SafeSet::walls`]): sides no trajectory
+    /// crosses, for the continuous step's enclosures.
+    walls: Option<IntervalBox>,
 }
 
 impl<'a> Frame<'a> {
@@ -74,14 +77,16 @@ impl<'a> Frame<'a> {
         sampled: bool,
     ) -> Result<Frame<'a>, ReachError> {
         let in_s = p.safe_set_for(method);
+        let safe = match sampled {
+            true => &super::safe_set::NO_SAFE_SET,
+            false => in_s,
+        };
         Ok(Frame {
             problem: p,
             network: PreparedNetwork::new(&p.network)?,
-            safe: match sampled {
-                true => &super::safe_set::NO_SAFE_SET,
-                false => in_s,
-            },
+            safe,
             in_s,
+            walls: safe.walls(p.dynamics.n),
         })
     }
 

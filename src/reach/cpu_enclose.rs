@@ -100,16 +100,19 @@ impl ChunkRun<'_> {
         let disturbance = self.settings.method == ReachMethod::Disturbance;
         let safe = |x: &[f64]| disturbance && point_in_safe_set(scenario, x);
         let set = &state.sets[f];
-        let found = validated::enclose_within(set, self.h, guess, region, &safe, |a, parts| {
-            let Some(answer) = answers.iter().find(|x| x.ask.1 == parts && x.ask.0 == *a) else {
-                return Err((a.clone(), parts));
-            };
-            if !parts {
-                bounded = Some(a.clone());
-                nn = answer.nn.as_ref();
-            }
-            Ok(answer.field.clone())
-        })?;
+        let walls = frame.walls.as_ref().filter(|_| disturbance);
+        let found =
+            validated::enclose_within(set, self.h, guess, region, walls, &safe, |a, parts| {
+                let Some(answer) = answers.iter().find(|x| x.ask.1 == parts && x.ask.0 == *a)
+                else {
+                    return Err((a.clone(), parts));
+                };
+                if !parts {
+                    bounded = Some(a.clone());
+                    nn = answer.nn.as_ref();
+                }
+                Ok(answer.field.clone())
+            })?;
         Ok((found, bounded, nn.cloned()))
     }
 

@@ -16,6 +16,7 @@
 //! constraint that is also an edge of `C`, the over-approximation pokes out of `C` and the
 //! result would be invalid, although the true set never leaves `S`.
 
+use crate::boxes::IntervalBox;
 use crate::intervals::Interval;
 use crate::rounding::{div_down, div_up};
 use crate::scenario::Scenario;
@@ -54,6 +55,30 @@ impl SafeSet {
     /// The names of the CBFs whose half-spaces bound the sets (empty when none do).
     pub fn names(&self) -> Vec<&str> {
         self.x.iter().map(|h| h.name.as_str()).collect()
+    }
+
+    /// `S`'s walls in the embedding's coordinates (`n` of them): per coordinate, the bounds
+    /// that the half-spaces on that coordinate alone put on every state of `S` (∓∞ where
+    /// none), rounded outward; `None` where no half-space is on a single coordinate. No
+    /// trajectory of the filtered system crosses them (design §7.1 item 1f).
+    pub fn walls(&self, n: usize) -> Option<IntervalBox> {
+        let mut walls = IntervalBox {
+            lower: vec![f64::NEG_INFINITY; n],
+            upper: vec![f64::INFINITY; n],
+        };
+        let zeros = vec![0.0; n];
+        let mut any = false;
+        for hs in &self.z {
+            for j in (0..n).filter(|&j| hs.only_on(j)) {
+                match hs.tightening(j, &zeros, &zeros) {
+                    Some(Tightening::Lower(b)) => walls.lower[j] = walls.lower[j].max(b),
+                    Some(Tightening::Upper(b)) => walls.upper[j] = walls.upper[j].min(b),
+                    None => continue,
+                }
+                any = true;
+            }
+        }
+        any.then_some(walls)
     }
 
     /// The half-spaces of the scenario's affine CBFs.
@@ -192,6 +217,25 @@ mod tests {
             normal: normal.iter().map(|&v| Interval::point(v)).collect(),
             offset: Interval::point(offset),
         }
+    }
+
+    #[test]
+    fn walls_are_the_bounds_on_single_coordinates() {
+        let on_x2 = SafeSet {
+            z: vec![halfspace(&[0.0, 1.0], 2.0), halfspace(&[-2.0, 0.0], 6.0)],
+            x: vec![],
+        };
+        let w = on_x2.walls(2).unwrap();
+        assert_eq!(
+            (w.lower, w.upper),
+            (vec![f64::NEG_INFINITY, -2.0], vec![3.0, f64::INFINITY])
+        );
+        let slanted = SafeSet {
+            z: vec![halfspace(&[1.0, 1.0], 2.0)],
+            x: vec![],
+        };
+        assert_eq!(slanted.walls(2), None);
+        assert_eq!(NO_SAFE_SET.walls(2), None);
     }
 
     #[test]

@@ -155,26 +155,59 @@ pub fn enclose_step<E>(
     region: Option<&IntervalBox>,
     field: impl FnMut(&IntervalBox, bool) -> Result<Option<(Vec<f64>, Vec<f64>)>, E>,
 ) -> Result<Enclosure, E> {
-    enclose_within(set, h, guess, region, &|_| false, field)
+    enclose_within(set, h, guess, region, None, &|_| false, field)
 }
 
-/// [`enclose_step`] where `safe(x)` proves points in `S` (the filtered system's trajectories
-/// stay there): with `region`, a step from which some trajectory provably leaves `C` within a
-/// time `T` (item 1e, [`exit::exit_time`]) has no enclosure within `C` over any step longer
-/// than `T`, and those steps are not tried.
+/// [`enclose_step`] for the filtered system, whose trajectories stay in `S`: `walls` are `S`'s
+/// bounds on single coordinates ([`crate::reach::safe_set::SafeSet::walls`]), which no
+/// trajectory crosses (item 1f), and `safe(x)` proves points in `S`: with `region`, a step from
+/// which some trajectory provably leaves `C` within a time `T` (item 1e, [`exit::exit_time`])
+/// has no enclosure within `C` over any step longer than `T`, and those steps are not tried.
 pub fn enclose_within<E>(
     set: &IntervalBox,
     h: f64,
     guess: Option<(&[f64], &[f64])>,
     region: Option<&IntervalBox>,
+    walls: Option<&IntervalBox>,
     safe: &dyn Fn(&[f64]) -> bool,
     mut field: impl FnMut(&IntervalBox, bool) -> Result<Option<(Vec<f64>, Vec<f64>)>, E>,
 ) -> Result<Enclosure, E> {
     let exit = match region {
-        Some(r) => exit::exit_time(set, h, guess, r, safe, &mut field)?,
+        Some(r) => exit::exit_time(set, h, guess, r, walls, safe, &mut field)?,
         None => None,
     };
-    enclose_halving(set, h, guess, region, &mut field, HALVINGS, exit)
+    let confines = Confines { region, walls };
+    enclose_halving(set, h, guess, confines, &mut field, HALVINGS, exit)
+}
+
+/// Where a step's candidates are kept: `C` (item 1b), and `S`'s walls (item 1f).
+#[derive(Clone, Copy)]
+struct Confines<'a> {
+    region: Option<&'a IntervalBox>,
+    walls: Option<&'a IntervalBox>,
+}
+
+impl Confines<'_> {
+    /// `b` within `C` and the walls (`None` where it misses them).
+    fn clip(&self, b: IntervalBox) -> Option<IntervalBox> {
+        let b = match self.walls {
+            Some(w) => b.intersection(w)?,
+            None => b,
+        };
+        match self.region {
+            Some(r) => b.intersection(r),
+            None => Some(b),
+        }
+    }
+}
+
+/// The sweep `b` met with the walls: every state of a trajectory lies within them.
+fn within_walls(b: &mut IntervalBox, walls: Option<&IntervalBox>) {
+    let Some(w) = walls else { return };
+    for i in 0..b.dim() {
+        b.lower[i] = b.lower[i].max(w.lower[i]).min(b.upper[i]);
+        b.upper[i] = b.upper[i].min(w.upper[i]).max(b.lower[i]);
+    }
 }
 
 #[path = "validated_exit.rs"]
@@ -193,7 +226,7 @@ fn enclose_halving<E>(
     set: &IntervalBox,
     h: f64,
     guess: Option<(&[f64], &[f64])>,
-    region: Option<&IntervalBox>,
+    confines: Confines,
     field: &mut FieldOn<'_, E>,
     halvings: usize,
     exit: Option<f64>,
@@ -206,7 +239,7 @@ fn enclose_halving<E>(
     let parts = halvings > 0;
     let whole = match exit {
         Some(t) if t < h => Enclosure::Open,
-        _ => enclose_once(set, h, guess, region, field, parts)?,
+        _ => enclose_once(set, h, guess, confines, field, parts)?,
     };
     // A candidate without a sound field (it grew into cells with no finite margin) may be
     // avoided by a shorter step's too.
@@ -214,16 +247,16 @@ fn enclose_halving<E>(
         return Ok(whole);
     }
     let half = 0.5 * h;
-    let first = match enclose_halving(set, half, guess, region, field, halvings - 1, exit)? {
+    let first = match enclose_halving(set, half, guess, confines, field, halvings - 1, exit)? {
         Enclosure::Closed(pipe) => pipe,
         other => return Ok(other),
     };
     let rates = Some((&first.f_lower[..], &first.f_upper[..]));
-    let second = match enclose_halving(&first.set, half, rates, region, field, halvings - 1, None)?
-    {
-        Enclosure::Closed(pipe) => pipe,
-        other => return Ok(other),
-    };
+    let second =
+        match enclose_halving(&first.set, half, rates, confines, field, halvings - 1, None)? {
+            Enclosure::Closed(pipe) => pipe,
+            other => return Ok(other),
+        };
     let n = set.dim();
     Ok(Enclosure::Closed(Flowpipe {
         set: IntervalBox {
@@ -252,13 +285,17 @@ fn enclose_once<E>(
     set: &IntervalBox,
     h: f64,
     guess: Option<(&[f64], &[f64])>,
-    region: Option<&IntervalBox>,
+    confines: Confines,
     field: &mut FieldOn<'_, E>,
     parts: bool,
 ) -> Result<Enclosure, E> {
-    let clip = |b: IntervalBox| match region {
-        Some(r) => b.intersection(r),
-        None => Some(b),
+    let Confines { region, walls } = confines;
+    let clip = |b: IntervalBox| confines.clip(b);
+    // The sweep over the step, within the walls.
+    let sweep = |lo: &[f64], hi: &[f64]| {
+        let mut b = sweep(set, h, lo, hi);
+        within_walls(&mut b, walls);
+        b
     };
     let first = match guess {
         Some(guess) => {
@@ -268,9 +305,9 @@ fn enclose_once<E>(
             a
         }
         None => match field(set, false)? {
-            Some((lo, hi)) => inflate(&sweep(set, h, &lo, &hi)),
+            Some((lo, hi)) => inflate(&sweep(&lo, &hi)),
             None => match field(set, true)? {
-                Some((lo, hi)) => inflate(&sweep(set, h, &lo, &hi)),
+                Some((lo, hi)) => inflate(&sweep(&lo, &hi)),
                 None => return Ok(Enclosure::NoField),
             },
         },
@@ -281,8 +318,8 @@ fn enclose_once<E>(
     for _ in 0..TRIES {
         let whole = field(&a, false)?;
         let closes_with = |f: &(Vec<f64>, Vec<f64>)| {
-            let b = sweep(set, h, &f.0, &f.1);
-            closes(&b, &a, &c_inward(&a, f, region))
+            let b = sweep(&f.0, &f.1);
+            closes(&b, &a, &c_inward(&a, f, confines))
         };
         let found = match whole {
             Some(w) if closes_with(&w) => Some(w),
@@ -295,8 +332,8 @@ fn enclose_once<E>(
         let Some((lo, hi)) = found else {
             return Ok(Enclosure::NoField);
         };
-        let mut b = sweep(set, h, &lo, &hi);
-        let mut inward = c_inward(&a, &(lo.clone(), hi.clone()), region);
+        let mut b = sweep(&lo, &hi);
+        let mut inward = c_inward(&a, &(lo.clone(), hi.clone()), confines);
         if let Some(r) = region.filter(|_| !closes(&b, &a, &inward)) {
             // Item 1c: a side of `C` the whole candidate's field does not prove inward may be
             // proven on the candidate's face there.
@@ -345,20 +382,28 @@ fn enclose_once<E>(
     Ok(Enclosure::Open)
 }
 
-/// Per coordinate, whether `a`'s lower and upper sides are `C`'s with the field `(lo, hi)`
-/// pointing strictly into `C` there (item 1b).
+/// Per coordinate, whether no trajectory leaves through `a`'s lower and upper sides: those
+/// that are `C`'s with the field `(lo, hi)` pointing strictly into `C` there (item 1b), and
+/// those on or beyond a wall of `S` (item 1f).
 fn c_inward(
     a: &IntervalBox,
     (lo, hi): &(Vec<f64>, Vec<f64>),
-    region: Option<&IntervalBox>,
+    Confines { region, walls }: Confines,
 ) -> Vec<[bool; 2]> {
     (0..a.dim())
-        .map(|i| match region {
-            Some(r) => [
-                a.lower[i] == r.lower[i] && lo[i] > 0.0,
-                a.upper[i] == r.upper[i] && hi[i] < 0.0,
-            ],
-            None => [false, false],
+        .map(|i| {
+            let c = match region {
+                Some(r) => [
+                    a.lower[i] == r.lower[i] && lo[i] > 0.0,
+                    a.upper[i] == r.upper[i] && hi[i] < 0.0,
+                ],
+                None => [false, false],
+            };
+            let wall = match walls {
+                Some(w) => [a.lower[i] <= w.lower[i], a.upper[i] >= w.upper[i]],
+                None => [false, false],
+            };
+            [c[0] || wall[0], c[1] || wall[1]]
         })
         .collect()
 }

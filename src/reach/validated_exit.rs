@@ -20,13 +20,14 @@ use crate::rounding::{round_down, round_up};
 
 /// An upper bound on the time some trajectory from `set` takes to leave `region` (`C`), where
 /// one is proven: for each side of `C` that the set's sweep over `h` by the field's estimate
-/// (`guess`, else `field` on the set) crosses, [`side_exit`]; the least. `safe(x)`: whether the
-/// point `x` is proven in `S`.
+/// (`guess`, else `field` on the set) crosses, but not at a wall of `S` (`walls`), [`side_exit`];
+/// the least. `safe(x)`: whether the point `x` is proven in `S`.
 pub(super) fn exit_time<E>(
     set: &IntervalBox,
     h: f64,
     guess: Option<(&[f64], &[f64])>,
     region: &IntervalBox,
+    walls: Option<&IntervalBox>,
     safe: &dyn Fn(&[f64]) -> bool,
     field: &mut FieldOn<'_, E>,
 ) -> Result<Option<f64>, E> {
@@ -45,7 +46,12 @@ pub(super) fn exit_time<E>(
                 true => reach.upper[i] > region.upper[i],
                 false => reach.lower[i] < region.lower[i],
             };
-            if !crosses {
+            // No trajectory leaves through a side of `C` on or beyond a wall of `S` (item 1f).
+            let walled = walls.is_some_and(|w| match up {
+                true => region.upper[i] >= w.upper[i],
+                false => region.lower[i] <= w.lower[i],
+            });
+            if !crosses || walled {
                 continue;
             }
             let estimate = (&lo[..], &hi[..]);

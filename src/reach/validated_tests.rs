@@ -243,6 +243,65 @@ fn parts_cover_and_c_clips_only_inward_motion() {
     }
 }
 
+/// Item 1f: `ẋ₂ = max(−0.5, −(x₂ + 2))` keeps `x₂ ≥ −2` (a CBF's wall, also `C`'s side), but a
+/// sound bound of it, `[−0.5, 1]`, points out through the wall; within `C` the step closes only
+/// with the wall, its flowpipe stays on it, and exact trajectories (RK4 at h/1000) lie in it.
+#[test]
+fn a_wall_of_s_closes_a_step_its_field_bound_would_cross() {
+    let region = IntervalBox::new(vec![-3.0, -2.0], vec![3.0, 3.0]).unwrap();
+    let walls = IntervalBox {
+        lower: vec![f64::NEG_INFINITY, -2.0],
+        upper: vec![f64::INFINITY; 2],
+    };
+    let set = IntervalBox::new(vec![0.0, -2.0], vec![0.5, -1.8]).unwrap();
+    // ẋ₁ = x₂ exactly; ẋ₂ bounded by [−0.5, 1].
+    let field = |a: &IntervalBox, _: bool| -> Result<Option<Bounds>, ()> {
+        Ok(Some((vec![a.lower[1], -0.5], vec![a.upper[1], 1.0])))
+    };
+    let h = 0.1;
+    let no_wall = enclose_within(&set, h, None, Some(&region), None, &|_| false, field).unwrap();
+    assert!(!matches!(no_wall, Enclosure::Closed(_)), "{no_wall:?}");
+    let Enclosure::Closed(pipe) = enclose_within(
+        &set,
+        h,
+        None,
+        Some(&region),
+        Some(&walls),
+        &|_| false,
+        field,
+    )
+    .unwrap() else {
+        panic!("the wall does not close the step")
+    };
+    assert_eq!(pipe.set.lower[1], -2.0);
+    let f = |x: [f64; 2]| [x[1], (-0.5_f64).max(-(x[1] + 2.0))];
+    let k = 1000;
+    let dt = h / k as f64;
+    for x0 in [
+        [0.0, -2.0],
+        [0.5, -1.8],
+        [0.25, -1.9],
+        [0.0, -1.8],
+        [0.5, -2.0],
+    ] {
+        let mut x = x0;
+        for _ in 0..k {
+            let add = |x: [f64; 2], d: [f64; 2], s: f64| [x[0] + s * d[0], x[1] + s * d[1]];
+            let k1 = f(x);
+            let k2 = f(add(x, k1, dt / 2.0));
+            let k3 = f(add(x, k2, dt / 2.0));
+            let k4 = f(add(x, k3, dt));
+            x = [
+                x[0] + dt / 6.0 * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0]),
+                x[1] + dt / 6.0 * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1]),
+            ];
+            let inside = (0..2)
+                .all(|i| pipe.set.lower[i] - 1e-12 <= x[i] && x[i] <= pipe.set.upper[i] + 1e-12);
+            assert!(inside, "{x:?} outside {:?}", pipe.set);
+        }
+    }
+}
+
 /// Moving boxes guessed without an enclosure (item 3b): where the check passes, every exact
 /// trajectory stays in `X(τ)` at every τ and ends in the step's set, for a damped rotation and
 /// a stiff system (−5 on the diagonal, the step's `h·∂F = −0.5`); a guess faster than the
@@ -373,7 +432,7 @@ fn exit_proofs_hold_the_flow_and_skip_only_steps_that_cannot_close() {
         let top = 0.5 + 0.025 * k as f64;
         let set = IntervalBox::new(vec![top - 0.2, 0.8], vec![top, 1.0]).unwrap();
         let mut field = exact_field(&d, &z);
-        let exit = exit::exit_time(&set, h, None, &c, &|_| true, &mut field).unwrap();
+        let exit = exit::exit_time(&set, h, None, &c, None, &|_| true, &mut field).unwrap();
         if let Some(t) = exit {
             proven += 1;
             let leaves = (0..=40).any(|j| {
@@ -409,6 +468,7 @@ fn exit_proofs_hold_the_flow_and_skip_only_steps_that_cannot_close() {
             h,
             None,
             Some(&c),
+            None,
             &safe,
             count(&within_calls, exact_field(&d, &z)),
         )
@@ -426,7 +486,7 @@ fn exit_proofs_hold_the_flow_and_skip_only_steps_that_cannot_close() {
         // Points not proven in S prove nothing.
         let never = |_: &[f64]| false;
         let mut field = exact_field(&d, &z);
-        assert!(exit::exit_time(&set, h, None, &c, &never, &mut field)
+        assert!(exit::exit_time(&set, h, None, &c, None, &never, &mut field)
             .unwrap()
             .is_none());
     }
