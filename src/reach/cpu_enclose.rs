@@ -167,7 +167,7 @@ impl ChunkRun<'_> {
             })
             .collect();
         if rows > 0 {
-            let method = self.settings.bounds;
+            let method = self.settings.bounds.for_enclosures();
             frame
                 .network
                 .bounds_serial_into(lo, hi, method, bounds, batch)?;

@@ -253,7 +253,7 @@ impl ChunkRun<'_> {
                         frame.network.bounds_serial_into(
                             &a.lower,
                             &a.upper,
-                            self.settings.bounds,
+                            self.settings.bounds.for_enclosures(),
                             &mut fb.pipe_bounds,
                             &mut fb.pipe_batch,
                         )?;
