@@ -156,8 +156,13 @@ pub struct VerifyTiming {
     pub equilibria_s: f64,
     /// Boxes run through the engine (cells and refined halves).
     pub boxes_run: usize,
-    /// Euler box-steps.
+    /// Box-steps of the scenario's `dt` (as many as the Euler map takes over the same time).
     pub box_steps: usize,
+    /// Steps of the integrator: box-steps times the substeps each was cut into (`--substeps`,
+    /// and refinement's shorter steps under `continuous`: a refined box's box-step is two to
+    /// four of them); `box_steps` where no step is cut.
+    #[serde(default)]
+    pub integration_steps: usize,
 }
 
 /// Area per verdict of a set of boxes.

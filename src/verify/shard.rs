@@ -149,6 +149,7 @@ pub fn merge(parts: Vec<(String, VerifyReport)>) -> Result<VerifyReport, VerifyE
         merged.timing.equilibria_s += r.timing.equilibria_s;
         merged.timing.boxes_run += r.timing.boxes_run;
         merged.timing.box_steps += r.timing.box_steps;
+        merged.timing.integration_steps += r.timing.integration_steps;
     }
     Ok(merged)
 }

@@ -123,9 +123,17 @@ fn refinement_cuts_the_validated_step_in_continuous_time() {
         "no refined leaf's tube differs from its whole-step tube"
     );
 
+    // The integrator's steps count the refined boxes' substeps; box-steps count dt.
+    let t = &cut.timing;
+    assert!(
+        t.box_steps < t.integration_steps && t.integration_steps <= 4 * t.box_steps,
+        "{t:?}"
+    );
+
     // max_substeps = 1: refinement keeps the step.
     let kept = run(1);
     assert_eq!(kept.run.max_substeps, 1);
+    assert_eq!(kept.timing.integration_steps, kept.timing.box_steps);
     for leaf in kept.after.iter().filter(|b| b.depth > 0) {
         assert!(same(&found(leaf), &retrace(leaf, 1)), "{leaf:?}");
     }
