@@ -100,7 +100,8 @@ impl ChunkRun<'_> {
         let disturbance = self.settings.method == ReachMethod::Disturbance;
         let safe = |x: &[f64]| disturbance && point_in_safe_set(scenario, x);
         let set = &state.sets[f];
-        let walls = frame.walls.as_ref().filter(|_| disturbance);
+        // None but under the disturbance method (the frame's `safe` is empty otherwise).
+        let walls = frame.walls.as_ref();
         let found =
             validated::enclose_within(set, self.h, guess, region, walls, &safe, |a, parts| {
                 let Some(answer) = answers.iter().find(|x| x.ask.1 == parts && x.ask.0 == *a)

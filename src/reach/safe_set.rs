@@ -67,17 +67,20 @@ impl SafeSet {
             upper: vec![f64::INFINITY; n],
         };
         let zeros = vec![0.0; n];
-        let mut any = false;
         for hs in &self.z {
             for j in (0..n).filter(|&j| hs.only_on(j)) {
                 match hs.tightening(j, &zeros, &zeros) {
                     Some(Tightening::Lower(b)) => walls.lower[j] = walls.lower[j].max(b),
                     Some(Tightening::Upper(b)) => walls.upper[j] = walls.upper[j].min(b),
-                    None => continue,
+                    None => {}
                 }
-                any = true;
             }
         }
+        let any = walls
+            .lower
+            .iter()
+            .chain(&walls.upper)
+            .any(|v| v.is_finite());
         any.then_some(walls)
     }
 

@@ -274,9 +274,8 @@ fn a_wall_of_s_closes_a_step_its_field_bound_would_cross() {
         panic!("the wall does not close the step")
     };
     assert_eq!(pipe.set.lower[1], -2.0);
-    let f = |x: [f64; 2]| [x[1], (-0.5_f64).max(-(x[1] + 2.0))];
+    let f = |x: &[f64]| Ok::<_, ()>(vec![x[1], (-0.5_f64).max(-(x[1] + 2.0))]);
     let k = 1000;
-    let dt = h / k as f64;
     for x0 in [
         [0.0, -2.0],
         [0.5, -1.8],
@@ -284,17 +283,10 @@ fn a_wall_of_s_closes_a_step_its_field_bound_would_cross() {
         [0.0, -1.8],
         [0.5, -2.0],
     ] {
-        let mut x = x0;
+        let mut x = x0.to_vec();
         for _ in 0..k {
-            let add = |x: [f64; 2], d: [f64; 2], s: f64| [x[0] + s * d[0], x[1] + s * d[1]];
-            let k1 = f(x);
-            let k2 = f(add(x, k1, dt / 2.0));
-            let k3 = f(add(x, k2, dt / 2.0));
-            let k4 = f(add(x, k3, dt));
-            x = [
-                x[0] + dt / 6.0 * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0]),
-                x[1] + dt / 6.0 * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1]),
-            ];
+            x = crate::simulate::step(f, &x, h / k as f64, crate::simulate::Integrator::Rk4)
+                .unwrap();
             let inside = (0..2)
                 .all(|i| pipe.set.lower[i] - 1e-12 <= x[i] && x[i] <= pipe.set.upper[i] + 1e-12);
             assert!(inside, "{x:?} outside {:?}", pipe.set);

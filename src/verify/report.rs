@@ -165,6 +165,14 @@ pub struct VerifyTiming {
     pub integration_steps: usize,
 }
 
+impl VerifyTiming {
+    /// Counts a tube of `steps` box-steps, each cut into `per_dt` steps of the integrator.
+    pub fn count_steps(&mut self, steps: usize, per_dt: usize) {
+        self.box_steps += steps;
+        self.integration_steps += steps * per_dt;
+    }
+}
+
 /// Area per verdict of a set of boxes.
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct Shares {

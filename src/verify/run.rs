@@ -393,8 +393,7 @@ impl<'a> Verifier<'a> {
                 Some((v, steps)) => {
                     *b = v;
                     timing.boxes_run += 1;
-                    timing.box_steps += steps;
-                    timing.integration_steps += steps * problem.steps_per_dt();
+                    timing.count_steps(steps, problem.steps_per_dt());
                     false
                 }
                 None => true,
@@ -440,8 +439,7 @@ impl<'a> Verifier<'a> {
             {
                 let last = tube.last();
                 let steps = tube.steps_run(self.problem.dt);
-                timing.box_steps += steps;
-                timing.integration_steps += steps * problem.steps_per_dt();
+                timing.count_steps(steps, problem.steps_per_dt());
                 let b = &mut out[i];
                 b.verdict = verdict;
                 b.trap = trap;
