@@ -6,6 +6,7 @@
 mod common;
 mod refined;
 mod sampled;
+mod shipped;
 
 use cbfreach::filter::SafetyFilter;
 use cbfreach::network::Mlp;
@@ -35,7 +36,9 @@ fn outside(b: &IntervalBox, x: &[f64]) -> f64 {
 }
 
 /// Simulates 48 starts per box (corners first) with RK4 at `dt/10` and compares with the tubes
-/// (every step recorded). `tol` absorbs RK4's own error.
+/// (every step recorded). `tol` absorbs RK4's own error. Starts outside `S` are skipped: the
+/// sets hold the trajectories from `X₀ ∩ S` (the engine clips the initial set to `S`'s
+/// half-spaces).
 fn escapes(s: &Scenario, tubes: &[Tube], dt: f64, tol: f64) -> Escapes {
     escapes_with(s, tubes, dt, tol, Integrator::Rk4)
 }
@@ -49,6 +52,9 @@ fn escapes_with(s: &Scenario, tubes: &[Tube], dt: f64, tol: f64, how: Integrator
     for tube in tubes {
         let steps = tube.tube.len() - 1;
         for x0 in sample_box(&tube.initial, 48, 11) {
+            if !s.is_safe(&x0) {
+                continue;
+            }
             let fine = simulate_filtered(&filter, &x0, dt / sub as f64, steps * sub, how);
             for (k, sample) in tube.tube.iter().enumerate() {
                 let j = (sample.t / dt).round() as usize * sub;

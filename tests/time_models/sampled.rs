@@ -34,13 +34,16 @@ fn zoh(filter: &SafetyFilter, x0: &[f64], dt: f64, k: usize, steps: usize) -> Ve
 /// States of held-input trajectories (period `k·dt`, 48 starts per box, corners first) outside
 /// their sets at every snapshot, and outside the recorded enclosure of the motion between
 /// snapshots; and the checks made.
-fn zoh_escapes(s: &Scenario, tubes: &[Tube], k: usize, tol: f64) -> Escapes {
+pub(super) fn zoh_escapes(s: &Scenario, tubes: &[Tube], k: usize, tol: f64) -> Escapes {
     let filter = SafetyFilter::new(s);
     let dt = s.reach.dt;
     let mut e = Escapes::default();
     for tube in tubes {
         let steps = (tube.tube.last().unwrap().t / dt).round() as usize;
         for x0 in sample_box(&tube.initial, 48, 11) {
+            if !s.is_safe(&x0) {
+                continue;
+            }
             let xs = zoh(&filter, &x0, dt, k, steps);
             for sample in &tube.tube {
                 let j = (sample.t / dt).round() as usize;
