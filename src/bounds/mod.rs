@@ -320,6 +320,8 @@ pub struct PreparedNetwork<'a> {
     /// `W_k` packed for the forward method's products ([`crate::matmul::PackedMatrix`],
     /// which also multiplies by `|W_k|`).
     pub(crate) packed_w: Vec<PackedMatrix>,
+    /// `W_kᵀ` packed: the backward passes' `Λ·W_k` over the live neurons, as `W_kᵀ·Λᵀ`.
+    pub(crate) packed_wt: Vec<PackedMatrix>,
     /// Upper bounds of the row sums of `|W_k|` (`n_k` per layer): forward bounds bound
     /// `|W_k| V ≤ rowsum · max V` for their rounding instead of computing the product.
     pub(crate) abs_row_sums: Vec<Vec<f64>>,
@@ -337,6 +339,15 @@ impl<'a> PreparedNetwork<'a> {
             .collect();
         let pack = |w: &[f64], l: &crate::network::Layer| PackedMatrix::new(l.n_out, l.n_in, w);
         let packed_w = net.layers.iter().map(|l| pack(&l.weight, l)).collect();
+        let packed_wt = net
+            .layers
+            .iter()
+            .map(|l| {
+                let (m, k) = (l.n_out, l.n_in);
+                let wt: Vec<f64> = (0..k * m).map(|x| l.weight[(x % m) * k + x / m]).collect();
+                PackedMatrix::new(k, m, &wt)
+            })
+            .collect();
         let abs_row_sums = net
             .layers
             .iter()
@@ -356,6 +367,7 @@ impl<'a> PreparedNetwork<'a> {
             net,
             abs_w,
             packed_w,
+            packed_wt,
             abs_row_sums,
         })
     }
