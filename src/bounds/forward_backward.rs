@@ -209,8 +209,7 @@ fn backward_group(
 
         // Relaxation of a_{j+1} = ReLU(z_j) per box, box-major; neurons live in some box.
         for v in [&mut ws.s_lo, &mut ws.s_up, &mut ws.t_up] {
-            v.clear();
-            v.resize(g_count * n_j, 0.0);
+            v.resize(g_count * n_j, 0.0); // every entry written below
         }
         ws.live.clear();
         let (pre_lo, pre_hi) = (&ws.fwd.pre_lo[j], &ws.fwd.pre_hi[j]);
@@ -231,8 +230,7 @@ fn backward_group(
         let n_live = ws.live.len();
 
         // Λ∘s on the live columns, and the intercept sums with their rounding bound.
-        ws.lam_s.clear();
-        ws.lam_s.resize(rows_total * n_live, 0.0);
+        ws.lam_s.resize(rows_total * n_live, 0.0); // every entry written below
         let n_terms = 2 * n_j + 2;
         for g in 0..g_count {
             let span = g * n_j..(g + 1) * n_j;
@@ -260,8 +258,7 @@ fn backward_group(
         }
 
         // Λ ← (Λ∘s)_live · W_j[live], one product for the whole group.
-        ws.lam_next.clear();
-        ws.lam_next.resize(rows_total * n_in, 0.0);
+        ws.lam_next.resize(rows_total * n_in, 0.0); // overwritten by either product
         if rows_total <= PACKED_ROWS {
             live_product_packed(&prepared.packed_wt[j], rows_total, ws);
         } else {
@@ -354,8 +351,7 @@ const PACKED_ROWS: usize = 96;
 fn live_product_packed(wt: &crate::matmul::PackedMatrix, rows_total: usize, ws: &mut Workspace) {
     let (n_in, n_live) = (wt.rows(), ws.live.len());
     let n_j = wt.cols();
-    ws.lam_t.clear();
-    ws.lam_t.resize(n_j * rows_total, 0.0); // only the live rows are read
+    ws.lam_t.resize(n_j * rows_total, 0.0); // only the live rows are read, each written
     for row in 0..rows_total {
         let lam_s = &ws.lam_s[row * n_live..(row + 1) * n_live];
         for (&q, &v) in ws.live.iter().zip(lam_s) {
