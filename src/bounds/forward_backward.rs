@@ -339,9 +339,9 @@ fn tighter_than(forward: f64, backward: f64) -> bool {
 /// (the fallback slabs of one box in continuous time: 4 boxes × 2 rows) the gather of `W_j`
 /// (2 MB for a 500-wide layer) and the GEMM's packing of it were most of the pass; over
 /// hundreds of rows they are amortised and the GEMM's blocking wins over the transposes.
-/// Measured (one thread, `verify --grid 16,12` / `20,8 --face-local`): 32, 96 and 256 rows
-/// cost scenario 1 (400-wide) the same, the same and +5 %, scenario 2 (500-wide) −5 %, −8 %
-/// and −8 % against the GEMM alone.
+/// Measured (one thread, continuous `verify --grid 16,12` and `20,8 --face-local`, CPU against
+/// the GEMM at every size): at most 32, 96 or 256 rows packed, scenario 1 (400-wide) −7 %,
+/// −6 %, −4 %, scenario 2 (500-wide) −5 %, −9 %, −10 %.
 const PACKED_ROWS: usize = 96;
 
 /// `Λ' = (Λ∘s)_live · W_j[live]` (`ws.lam_s`, `G·R × n_live` on the live neurons `ws.live`,
