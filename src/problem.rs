@@ -130,7 +130,14 @@ impl ReachProblem {
             let name = options.time.as_deref().unwrap_or(s.reach.time.name());
             let time = TimeModel::parse(name, options.control_period.or(old), s.reach.dt)
                 .map_err(|e| ProblemError::Time(e.to_string()))?;
-            problem = problem.with_time(time, options.substeps.unwrap_or(s.reach.substeps));
+            // The scenario's `substeps` cut continuous steps: another model asked for here
+            // runs without them (given here with it, they are refused by name).
+            let substeps = match (options.substeps, time) {
+                (Some(k), _) => k,
+                (None, TimeModel::Continuous) => s.reach.substeps,
+                (None, _) => 1,
+            };
+            problem = problem.with_time(time, substeps);
         }
         if options.no_safe_set {
             problem = problem.without_safe_set();

@@ -141,7 +141,8 @@ impl super::ReachProblem {
     pub fn check_time(&self) -> Result<(), super::ReachError> {
         if self.substeps > 1 && self.time != TimeModel::Continuous {
             return Err(super::ReachError::Settings(format!(
-                "substeps = {} cut validated steps: they need time = \"continuous\" (found \"{}\")",
+                "substeps = {} cut validated steps: they need time = \"continuous\" (found \"{}\": \
+                 --substeps 1, or leave it out)",
                 self.substeps,
                 self.time.name()
             )));

@@ -282,6 +282,22 @@ fn refusals_name_the_setting() {
             .to_string()
             .contains("reach.time")
     );
+    // A scenario file that asks substeps of another model is refused at load, by field.
+    let sampled = "m_c = 0.1\ntime = \"sampled\"\nsubsteps = 2";
+    let err = common::from_text(&common::SMALL.replace("m_c = 0.1", sampled)).unwrap_err();
+    assert!(err.to_string().contains("reach.substeps"), "{err}");
+    // The scenario's substeps cut continuous steps: `--time sampled` on ACC (substeps = 2) runs
+    // without them (before: refused), and asked for together they are refused by name.
+    let acc = common::scenario_path("acc.toml");
+    let acc = acc.to_str().unwrap();
+    let (code, _, err) = common::cbfreach(&["reach", acc, "--time", "sampled"]);
+    assert_eq!(code, 0, "{err}");
+    let (code, _, err) = common::cbfreach(&["reach", acc, "--time", "euler", "--substeps", "2"]);
+    assert_ne!(code, 0);
+    assert!(
+        err.contains("substeps") && err.contains("--substeps 1"),
+        "{err}"
+    );
 }
 
 /// Validity against `C` speaks of all times: every flowpipe recorded on a valid stretch of a
