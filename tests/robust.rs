@@ -105,6 +105,32 @@ fn a_full_or_closed_standard_output_ends_with_a_message_after_the_files() {
     assert!(cbfreach::VerifyReport::from_json(&text, "v.json").is_ok());
 }
 
+/// A reader that closes the pipe (`cbfreach simulate … | head`) ends the output it wanted: the
+/// run ends quietly, with the status of a process the pipe's signal ended (128 + 13), as `cat`
+/// does (before: `error: Broken pipe (os error 32)`, and a panic before that).
+#[test]
+fn a_closed_pipe_ends_quietly() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = small(dir.path(), &[]);
+    for args in [
+        &["simulate", s.to_str().unwrap(), "--samples", "200"][..],
+        &["check", s.to_str().unwrap()][..],
+    ] {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_cbfreach"))
+            .args(args)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        drop(child.stdout.take());
+        let out = child.wait_with_output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        no_panic(out.status.code().unwrap_or(-1), &err);
+        assert_eq!(out.status.code(), Some(141), "{args:?}: {err}");
+        assert!(err.trim().is_empty(), "{args:?}: {err}");
+    }
+}
+
 // --- aborts -----------------------------------------------------------------------------------
 
 #[test]

@@ -67,6 +67,14 @@ pub fn finish_stdout() -> Result<(), String> {
     }
 }
 
+/// Whether standard output was closed by its reader (`| head`): the end of the output the
+/// reader wanted, not an error to report.
+pub fn stdout_closed() -> bool {
+    STDOUT_FAILED
+        .get()
+        .is_some_and(|e| e.kind() == std::io::ErrorKind::BrokenPipe)
+}
+
 /// The parsed command line, for [`given`].
 static MATCHES: OnceLock<clap::ArgMatches> = OnceLock::new();
 
