@@ -96,15 +96,16 @@ fn main() -> ExitCode {
     // Standard output may have failed (closed or full) after the work was done.
     let printed = cli::finish_stdout().map_err(Into::into);
     // A reader that closed the pipe (`| head`) has what it wanted: end quietly, with the
-    // status of a process the pipe's signal ended (128 + SIGPIPE), as `cat` would.
-    let pipe_closed = |e: &(dyn std::error::Error + 'static)| {
-        cli::stdout_closed()
-            || e.downcast_ref::<std::io::Error>()
-                .is_some_and(|e| e.kind() == std::io::ErrorKind::BrokenPipe)
+    // status of a process the pipe's signal ended (128 + SIGPIPE), as `cat` would. Any other
+    // failure is reported.
+    let broken_pipe = |e: &(dyn std::error::Error + 'static)| {
+        e.downcast_ref::<std::io::Error>()
+            .is_some_and(|e| e.kind() == std::io::ErrorKind::BrokenPipe)
     };
     match (result, printed) {
         (Ok(()), Ok(())) => ExitCode::SUCCESS,
-        (Err(e), _) | (Ok(()), Err(e)) if pipe_closed(e.as_ref()) => ExitCode::from(141),
+        (Err(e), _) if broken_pipe(e.as_ref()) => ExitCode::from(141),
+        (Ok(()), Err(_)) if cli::stdout_closed() => ExitCode::from(141),
         (Err(e), _) | (Ok(()), Err(e)) => {
             eprintln!("error: {e}");
             ExitCode::from(2)

@@ -61,6 +61,20 @@ fn a_huge_partition_is_an_error_not_a_panic() {
     assert!(err.contains("reach.partition.counts"), "{err}");
 }
 
+/// Runs cbfreach with `args` (and `last`, a path) with its standard output closed by the reader
+/// before it writes (`| head -c 0`).
+fn with_stdout_closed(args: &[&str], last: Option<&Path>) -> std::process::Output {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_cbfreach"))
+        .args(args)
+        .args(last)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    child.wait_with_output().unwrap()
+}
+
 #[test]
 fn a_full_or_closed_standard_output_ends_with_a_message_after_the_files() {
     let dir = tempfile::tempdir().unwrap();
@@ -81,23 +95,9 @@ fn a_full_or_closed_standard_output_ends_with_a_message_after_the_files() {
     assert!(err.contains("standard output"), "{err}");
     // A closed pipe (`| head -c 0`), with a result file that must still be written.
     let json = dir.path().join("v.json");
-    let mut child = Command::new(env!("CARGO_BIN_EXE_cbfreach"))
-        .args([
-            "verify",
-            s.to_str().unwrap(),
-            "--time",
-            "euler",
-            "--grid",
-            "4,4",
-            "--json",
-        ])
-        .arg(&json)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    drop(child.stdout.take());
-    let out = child.wait_with_output().unwrap();
+    let s = s.to_str().unwrap();
+    let grid = ["verify", s, "--time", "euler", "--grid", "4,4", "--json"];
+    let out = with_stdout_closed(&grid, Some(&json));
     let err = String::from_utf8_lossy(&out.stderr);
     no_panic(out.status.code().unwrap_or(-1), &err);
     assert_ne!(out.status.code(), Some(0), "{err}");
@@ -116,14 +116,7 @@ fn a_closed_pipe_ends_quietly() {
         &["simulate", s.to_str().unwrap(), "--samples", "200"][..],
         &["check", s.to_str().unwrap()][..],
     ] {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_cbfreach"))
-            .args(args)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap();
-        drop(child.stdout.take());
-        let out = child.wait_with_output().unwrap();
+        let out = with_stdout_closed(args, None);
         let err = String::from_utf8_lossy(&out.stderr);
         no_panic(out.status.code().unwrap_or(-1), &err);
         assert_eq!(out.status.code(), Some(141), "{args:?}: {err}");

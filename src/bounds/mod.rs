@@ -320,7 +320,8 @@ pub struct PreparedNetwork<'a> {
     /// `W_k` packed for the forward method's products ([`crate::matmul::PackedMatrix`],
     /// which also multiplies by `|W_k|`).
     pub(crate) packed_w: Vec<PackedMatrix>,
-    /// `W_kᵀ` packed: the backward passes' `Λ·W_k` over the live neurons, as `W_kᵀ·Λᵀ`.
+    /// `W_kᵀ` packed, for every layer but the last (the backward passes start from its `W`):
+    /// their `Λ·W_k` over the live neurons, as `W_kᵀ·Λᵀ`.
     pub(crate) packed_wt: Vec<PackedMatrix>,
     /// Upper bounds of the row sums of `|W_k|` (`n_k` per layer): forward bounds bound
     /// `|W_k| V ≤ rowsum · max V` for their rounding instead of computing the product.
@@ -342,6 +343,7 @@ impl<'a> PreparedNetwork<'a> {
         let packed_wt = net
             .layers
             .iter()
+            .take(net.layers.len().saturating_sub(1))
             .map(|l| {
                 let (m, k) = (l.n_out, l.n_in);
                 let wt: Vec<f64> = (0..k * m).map(|x| l.weight[(x % m) * k + x / m]).collect();

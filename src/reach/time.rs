@@ -37,6 +37,18 @@ impl TimeModel {
         }
     }
 
+    /// Whether `substeps` validated steps per `dt` fit this model: they cut continuous steps
+    /// only. The message names the conflict; the caller names the setting.
+    pub fn check_substeps(self, substeps: usize) -> Result<(), String> {
+        match substeps > 1 && self != TimeModel::Continuous {
+            true => Err(format!(
+                "{substeps} substeps cut validated steps: they need time = \"continuous\" (found \"{}\")",
+                self.name()
+            )),
+            false => Ok(()),
+        }
+    }
+
     /// Reads `time = name` with `control_period` (`sampled` only; `K·dt` with `K` a whole
     /// number ≥ 1, `dt` when absent).
     pub fn parse(name: &str, control_period: Option<f64>, dt: f64) -> Result<TimeModel, TimeError> {
@@ -139,15 +151,9 @@ impl super::ReachProblem {
 
     /// Checks the time model against the problem: substeps cut continuous-time steps only.
     pub fn check_time(&self) -> Result<(), super::ReachError> {
-        if self.substeps > 1 && self.time != TimeModel::Continuous {
-            return Err(super::ReachError::Settings(format!(
-                "substeps = {} cut validated steps: they need time = \"continuous\" (found \"{}\": \
-                 --substeps 1, or leave it out)",
-                self.substeps,
-                self.time.name()
-            )));
-        }
-        Ok(())
+        self.time
+            .check_substeps(self.substeps)
+            .map_err(|e| super::ReachError::Settings(format!("{e}: --substeps 1, or leave it out")))
     }
 }
 

@@ -474,15 +474,8 @@ fn compile_reach(c: &Compiler, r: &ReachSection, n: usize) -> Result<ReachConfig
     if substeps == 0 {
         return Err(c.invalid("reach.substeps", "expected a whole number ≥ 1"));
     }
-    if substeps > 1 && time != crate::reach::TimeModel::Continuous {
-        return Err(c.invalid(
-            "reach.substeps",
-            format!(
-                "{substeps} substeps cut validated steps: they need time = \"continuous\" (found \"{}\")",
-                time.name()
-            ),
-        ));
-    }
+    time.check_substeps(substeps)
+        .map_err(|e| c.invalid("reach.substeps", e))?;
     let steps = (horizon / dt).ceil() * substeps as f64;
     if steps.is_nan() || steps > limits::MAX_STEPS {
         return Err(c.invalid(
