@@ -1,11 +1,12 @@
-//! The GPU engine's pipelines (issue 40): the flat GEMM that software adapters run equals the
-//! tiled one bit for bit and the exact product within its rounding bound; the pipeline cache on
-//! disk never breaks a run (a missing, corrupt, stale or unwritable file falls back to
+//! The GPU engine's pipelines (issue 40): the three GEMM kernels (flat for software adapters,
+//! tiles, wide tiles for real GPUs) agree bit for bit and with the exact product within its
+//! rounding bound; the pipeline cache on disk never breaks a run (a missing, corrupt, stale or unwritable file falls back to
 //! compiling) and parallel writers leave a whole file. On whatever Vulkan adapter exists
 //! (lavapipe in CI); without one the tests skip, unless `CBFREACH_REQUIRE_GPU=1`.
 
 use cbfreach::gpu::buffers::Params;
 use cbfreach::gpu::disk_cache::{encode, DiskCache, Loaded, Saved};
+use cbfreach::gpu::kernels::Gemm;
 use cbfreach::gpu::probe::{gemm_on_device, read_back};
 use cbfreach::gpu::GpuContext;
 use rand::{Rng, SeedableRng};
@@ -26,9 +27,10 @@ fn context() -> Option<GpuContext> {
 
 /// Shapes and options the engine uses: forward layers (`W·X`, `|W|·X`), backward
 /// substitutions (`Wᵀ`, with offsets and strides), `|W|·max(X, 0)`, rows and columns off the
-/// 4 × 4 blocks and the 64 × 64 tiles.
+/// 4 × 4 blocks, the 64 × 64 tiles and the 64 × 256 wide tiles (depths off 8 and 16). The
+/// three kernels sum in the same order, so they agree bit for bit.
 #[test]
-fn flat_gemm_equals_the_tiled_one_and_the_exact_product() {
+fn gemm_kernels_agree_with_each_other_and_the_exact_product() {
     let Some(ctx) = context() else { return };
     if !ctx.has_f64() {
         eprintln!("skipping: no f64 shaders");
@@ -42,6 +44,9 @@ fn flat_gemm_equals_the_tiled_one_and_the_exact_product() {
         (2, 100, 36, 1, 0, 1, 11, 0, 7, 1),
         (129, 64, 3, 1, 1, 0, 0, 9, 0, 0),
         (400, 400, 36, 0, 0, 1, 1, 1, 1, 0),
+        (65, 19, 257, 0, 1, 1, 2, 1, 3, 2),
+        (131, 9, 300, 1, 0, 0, 0, 4, 1, 0),
+        (3, 400, 520, 1, 1, 1, 6, 0, 0, 3),
     ];
     for (rows, inner, cols, trans_w, abs_w, relu_x, w_off, x_off, y_off, pad) in cases {
         let p = Params {
@@ -64,11 +69,13 @@ fn flat_gemm_equals_the_tiled_one_and_the_exact_product() {
         let net = draw(w_off as usize + r * k);
         let x = draw(x_off as usize + k * p.ldx as usize);
         let y0 = vec![7.5; y_off as usize + r * p.ldy as usize];
-        let flat = gemm_on_device(&ctx, true, &p, &net, &x, &y0).unwrap();
-        let tiled = gemm_on_device(&ctx, false, &p, &net, &x, &y0).unwrap();
+        let flat = gemm_on_device(&ctx, Gemm::Flat, &p, &net, &x, &y0).unwrap();
+        let tiled = gemm_on_device(&ctx, Gemm::Tiles, &p, &net, &x, &y0).unwrap();
+        let wide = gemm_on_device(&ctx, Gemm::Wide, &p, &net, &x, &y0).unwrap();
         let what =
             format!("{rows} × {inner} · {inner} × {cols}, ᵀ {trans_w}, |·| {abs_w}, relu {relu_x}");
-        assert_eq!(flat, tiled, "{what}");
+        assert_eq!(flat, tiled, "{what}: flat against tiles");
+        assert_eq!(flat, wide, "{what}: flat against wide tiles");
         // The exact product (in f64, with its own rounding bound) against the device's.
         let gamma = |n: usize| (n as f64 + 3.0) * f64::EPSILON;
         for (i, &got) in flat.iter().enumerate() {

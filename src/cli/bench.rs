@@ -51,6 +51,10 @@ pub struct BenchArgs {
     /// Print where a GPU step's time goes: every kind of dispatch timed on its own (stderr).
     #[arg(long)]
     pub profile: bool,
+    /// The GPU engine's GEMM kernel (default: `flat` on software adapters, `tiles` on real
+    /// GPUs; all three give the same sets), to compare them on one device.
+    #[arg(long, value_enum)]
+    pub gemm: Option<cbfreach::gpu::kernels::Gemm>,
     /// GPU adapter and number type (f64 where the adapter has it; `--f32`, `--f64`).
     #[command(flatten)]
     pub gpu: GpuArgs,
@@ -133,6 +137,9 @@ pub fn run(args: &BenchArgs) -> CliResult {
                     let mut backend =
                         cbfreach::gpu::GpuBackend::with_precision(Arc::new(ctx), precision)?;
                     backend.profile = args.profile;
+                    if let Some(g) = args.gemm {
+                        backend.gemm = g;
+                    }
                     engines.push((label, Box::new(backend), args.peak));
                 }
                 Err(e) => println!("notice: no GPU engine: {e}"),

@@ -49,7 +49,9 @@ use self::layout::{method_flags, Shape};
 use super::buffers::status;
 use super::codegen::{problem_wgsl, FLAG_W};
 use super::disk_cache::{cache_dir, DiskCache, Loaded, Saved};
-use super::kernels::{compiles, shader_source, Kernels, GEMM_TILE, MODULES, WORKGROUP};
+use super::kernels::{
+    compiles, shader_source, Gemm, Kernels, Variant, GEMM_TILE, MODULES, WORKGROUP,
+};
 use super::margins::MarginMap;
 use super::{GpuContext, GpuError, Precision};
 use crate::boxes::IntervalBox;
@@ -87,11 +89,13 @@ pub struct GpuBackend {
     /// (`verify` calls the engine once per batch; compiling every pipeline takes ~1 s on an
     /// NVIDIA driver).
     kernels: KernelCache,
-    /// The GEMM without workgroup tiles (`gemm_flat`), where every layer is at most as wide as
-    /// the device's dispatch allows and its loops stay within llvmpipe's limit: on by default on
-    /// software adapters, where it is ~4× faster than the tiles (barriers are coroutine
-    /// switches there; docs/design.md §4).
-    pub flat_gemm: bool,
+    /// The GEMM kernel: [`Gemm::Flat`] by default on software adapters, where it is ~4×
+    /// faster than the tiles (barriers are coroutine switches there; docs/design.md §4), and
+    /// runs where every layer is at most as wide as the device's dispatch allows and its loops
+    /// stay within llvmpipe's limit (else [`Gemm::Tiles`]); [`Gemm::Tiles`] on real GPUs
+    /// (measured on an H200; [`Gemm::Wide`] gives the same products and is not yet measured
+    /// on one: `cbfreach bench --gemm wide`).
+    pub gemm: Gemm,
     /// Where compiled pipelines are kept between runs (`disk_cache::cache_dir()` unless set;
     /// `None`: nowhere).
     pub cache_dir: Option<std::path::PathBuf>,
@@ -102,9 +106,8 @@ pub struct GpuBackend {
     sampled_bounds: Arc<std::sync::atomic::AtomicUsize>,
 }
 
-/// Pipelines with the generated WGSL they were compiled from (and whether with `settle`, with
-/// the flat GEMM, with the continuous kernels).
-type CompiledKernels = (String, [bool; 3], Arc<Kernels>);
+/// Pipelines with the generated WGSL and the variant they were compiled from.
+type CompiledKernels = (String, Variant, Arc<Kernels>);
 
 /// The last pipelines an engine compiled: one problem's, or both frames' where two are met.
 #[derive(Clone, Default)]
@@ -131,32 +134,29 @@ impl KernelCache {
         dir: Option<&std::path::Path>,
         precision: Precision,
         source: String,
-        [settle, flat, continuous]: [bool; 3],
+        variant: Variant,
     ) -> Result<Arc<Kernels>, GpuError> {
         let mut last = self
             .0
             .lock()
             .map_err(|_| GpuError::Device("kernel cache poisoned".into()))?;
-        if let Some((_, _, k)) = last
-            .iter()
-            .find(|(s, t, _)| *s == source && *t == [settle, flat, continuous])
-        {
+        if let Some((_, _, k)) = last.iter().find(|(s, v, _)| *s == source && *v == variant) {
             return Ok(k.clone());
         }
         let modules: Vec<String> = MODULES
             .iter()
-            .filter(|&&m| compiles(m, [settle, flat, continuous]))
+            .filter(|&&m| compiles(m, variant))
             .map(|m| shader_source(precision, &source, m))
             .collect();
         let mut sources: Vec<&str> = modules.iter().map(String::as_str).collect();
-        sources.push(if flat { "gemm_flat" } else { "gemm" });
+        sources.push(variant.gemm.entry());
         let disk = DiskCache::open_in(ctx, dir, &sources);
         let kernels = Arc::new(Kernels::new(
             &ctx.device,
             disk.pipeline_cache(),
             precision,
             &source,
-            [settle, flat, continuous],
+            variant,
         )?);
         let saved = disk.save();
         if let Ok(mut log) = self.1.lock() {
@@ -165,7 +165,7 @@ impl KernelCache {
         if last.len() == CACHED {
             last.remove(0);
         }
-        last.push((source, [settle, flat, continuous], kernels.clone()));
+        last.push((source, variant, kernels.clone()));
         Ok(kernels)
     }
 }
@@ -186,7 +186,11 @@ impl GpuBackend {
             profile: false,
             kernels: KernelCache::default(),
             cache_dir: cache_dir(),
-            flat_gemm: ctx.is_software(),
+            gemm: if ctx.is_software() {
+                Gemm::Flat
+            } else {
+                Gemm::Tiles
+            },
             continuous_steps: Arc::default(),
             sampled_bounds: Arc::default(),
             ctx,
@@ -317,8 +321,8 @@ impl GpuBackend {
 
 impl GpuBackend {
     /// Refuses a network the bound kernels cannot run on this device (widths, llvmpipe's loop
-    /// limit, storage bindings); returns whether the GEMMs run flat ([`GpuBackend::flat_gemm`]).
-    fn check_network(&self, problem: &ReachProblem) -> Result<bool, GpuError> {
+    /// limit, storage bindings); returns the GEMM kernel the run takes ([`GpuBackend::gemm`]).
+    fn check_network(&self, problem: &ReachProblem) -> Result<Gemm, GpuError> {
         let n = problem.dynamics.n;
         let widths = problem.network.widths();
         if widths.iter().any(|&w| w == 0 || w > 1 << 18) || widths[0] != n {
@@ -342,9 +346,12 @@ impl GpuBackend {
             )));
         }
         let rows_limit = self.ctx.limits.max_compute_workgroups_per_dimension as usize;
-        Ok(self.flat_gemm
-            && widths.iter().all(|&w| w <= rows_limit)
-            && flat_gemm_loops(&widths) <= LLVMPIPE_LOOP_LIMIT)
+        let flat_runs = widths.iter().all(|&w| w <= rows_limit)
+            && flat_gemm_loops(&widths) <= LLVMPIPE_LOOP_LIMIT;
+        Ok(match self.gemm {
+            Gemm::Flat if !flat_runs => Gemm::Tiles,
+            g => g,
+        })
     }
 }
 
@@ -444,7 +451,7 @@ impl Backend for GpuBackend {
                 timing: ReachTiming::default(),
             });
         }
-        let flat = self.check_network(problem)?;
+        let gemm = self.check_network(problem)?;
         let chunk = self.chunk_size(problem, settings, initial.len());
         let mut setups = Vec::new();
         for (f, frame) in frames.iter().enumerate() {
@@ -458,7 +465,11 @@ impl Backend for GpuBackend {
                 self.cache_dir.as_deref(),
                 self.precision,
                 source,
-                [meet && f == 0, flat, continuous],
+                Variant {
+                    settle: meet && f == 0,
+                    gemm,
+                    continuous,
+                },
             )?;
             let bufs = self.buffers(frame, &shape, &margins, chunk)?;
             setups.push((shape, kernels, bufs));

@@ -49,10 +49,63 @@ const CMEET: &str = include_str!("../../shaders/cmeet.wgsl");
 
 /// Workgroup size of the one-dimensional kernels (`@workgroup_size(64)` in the shaders).
 pub const WORKGROUP: u32 = 64;
-/// Output tile of the GEMM kernel (64 × 64).
+/// Output tile of the GEMM kernel (64 × 64), the columns of the narrowest tile.
 pub const GEMM_TILE: u32 = 64;
 /// Rows and columns of the block of Y one thread of `gemm_flat` writes.
 pub const GEMM_FLAT_BLOCK: u32 = 4;
+
+/// Which kernel computes the GEMMs `Y = op(W)·X` (shaders/gemm.wgsl). All three sum every
+/// output over `k` in ascending order, so they give the same `Y` (tests/gpu_pipelines.rs).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, clap::ValueEnum)]
+pub enum Gemm {
+    /// `gemm_flat`: a 4 × 4 block of Y a thread, no workgroup memory or barriers: for software
+    /// adapters, whose barriers are coroutine switches (docs/design.md §4).
+    Flat,
+    /// `gemm`: 64 × 64 tiles, 16 × 16 threads with 4 × 4 outputs each, depth 16.
+    Tiles,
+    /// `gemm_wide`: 64 × 256 tiles, 8 × 32 threads with 8 × 8 outputs each, depth 8, operands
+    /// read from workgroup memory as vectors: twice the products per workgroup-memory read of
+    /// `Tiles` (1 byte a multiply–add in f32, what an SM's workgroup memory delivers).
+    Wide,
+}
+
+impl Gemm {
+    /// The entry point in shaders/gemm.wgsl.
+    pub fn entry(self) -> &'static str {
+        match self {
+            Gemm::Flat => "gemm_flat",
+            Gemm::Tiles => "gemm",
+            Gemm::Wide => "gemm_wide",
+        }
+    }
+
+    /// Workgroups of a `rows × cols` product (WebGPU's least limit of 65,535 a dimension kept
+    /// by spreading the flat kernel's over two).
+    pub fn groups(self, rows: u32, cols: u32) -> [u32; 3] {
+        match self {
+            Gemm::Flat => {
+                let g = (rows.div_ceil(GEMM_FLAT_BLOCK) * cols.div_ceil(GEMM_FLAT_BLOCK))
+                    .div_ceil(WORKGROUP);
+                let x = g.clamp(1, 65_535);
+                [x, g.div_ceil(x), 1]
+            }
+            Gemm::Tiles => [cols.div_ceil(GEMM_TILE), rows.div_ceil(GEMM_TILE), 1],
+            Gemm::Wide => [cols.div_ceil(256), rows.div_ceil(64), 1],
+        }
+    }
+}
+
+/// What a problem's pipelines are compiled with: `settle` for the first of two frames met
+/// after every step, the GEMM kernel, the continuous model's kernels.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Variant {
+    /// The meet of two frames (shaders/settle.wgsl, or in continuous time shaders/cmeet.wgsl).
+    pub settle: bool,
+    /// The GEMM kernel.
+    pub gemm: Gemm,
+    /// The continuous model's kernels (shaders/continuous.wgsl).
+    pub continuous: bool,
+}
 
 /// A pipeline with its bind-group layout.
 pub struct Kernel {
@@ -66,10 +119,10 @@ pub struct Kernel {
 
 /// Every pipeline of the engine.
 pub struct Kernels {
-    /// `Y = op(W)·X`, tiled (shaders/gemm.wgsl), or `gemm_flat` where `flat`.
+    /// `Y = op(W)·X` (shaders/gemm.wgsl), the entry point of `gemm_kind`.
     pub gemm: Kernel,
-    /// Whether `gemm` is `gemm_flat` (a 4 × 4 block a thread, no workgroup memory).
-    pub flat: bool,
+    /// Which GEMM kernel `gemm` is.
+    pub gemm_kind: Gemm,
     /// Bias, rounding widening, IBP and ReLU relaxation of a hidden layer (shaders/relu.wgsl).
     pub relu: Kernel,
     /// One backward substitution's per-box part: `Λ∘s`, `β` (shaders/backward.wgsl).
@@ -104,7 +157,8 @@ pub struct Continuous {
 /// Which of a problem's modules a run compiles: `settle` for the first of two frames met after
 /// every step (shaders/settle.wgsl, or in continuous time shaders/cmeet.wgsl), `continuous` for
 /// the continuous time model.
-pub fn compiles(module: &str, [settle, _, continuous]: [bool; 3]) -> bool {
+pub fn compiles(module: &str, v: Variant) -> bool {
+    let (settle, continuous) = (v.settle, v.continuous);
     match module {
         "settle" => settle && !continuous,
         "cmeet" => settle && continuous,
@@ -171,6 +225,50 @@ fn kernel(
     }
 }
 
+/// A pipeline to build: its module, entry point and bindings' kinds ([`layout`]).
+type Job<'m> = (&'m wgpu::ShaderModule, &'static str, &'static [bool]);
+
+/// Builds `jobs`' pipelines, in their order, each on a thread of its own: drivers compile
+/// pipelines independently, and the few that hold the filter's closed form take most of a
+/// problem's compile (`embed` and `cstep` ~5 s each of scenario 1's ~11 s on lavapipe; ~70 s
+/// in all on an NVIDIA driver), so a run waits for the slowest pipeline, not for their sum.
+/// Error scopes are per thread in wgpu: each thread pops its own.
+fn kernels_in_parallel(
+    device: &wgpu::Device,
+    cache: Option<&wgpu::PipelineCache>,
+    jobs: &[Job<'_>],
+) -> Result<Vec<Kernel>, GpuError> {
+    let build = |&(module, entry, read_only): &Job<'_>| {
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let k = kernel(device, cache, module, entry, read_only);
+        match pollster::block_on(scope.pop()) {
+            Some(e) => Err(GpuError::Shader(e.to_string())),
+            None => Ok(k),
+        }
+    };
+    std::thread::scope(|s| {
+        let threads: Vec<_> = jobs
+            .iter()
+            .map(|job| {
+                // Translating a large shader recurses deeply (wgpu's note on stack space).
+                std::thread::Builder::new()
+                    .stack_size(64 << 20)
+                    .spawn_scoped(s, move || build(job))
+            })
+            .collect();
+        jobs.iter()
+            .zip(threads)
+            .map(|(job, thread)| match thread {
+                Ok(t) => t.join().unwrap_or_else(|_| {
+                    Err(GpuError::Device(format!("compiling {} panicked", job.1)))
+                }),
+                // No thread to be had: build it here.
+                Err(_) => build(job),
+            })
+            .collect()
+    })
+}
+
 /// Every module [`Kernels::new`] compiles (`settle` where two frames are met, `continuous` for
 /// the continuous time model).
 pub const MODULES: [&str; 9] = [
@@ -224,14 +322,14 @@ pub fn shader_source(precision: Precision, problem_wgsl: &str, module: &str) -> 
 impl Kernels {
     /// Compiles every pipeline for a problem's generated WGSL (the modules [`compiles`] names),
     /// through
-    /// `cache` where given (`disk_cache`), with the GEMM without workgroup tiles where `flat`;
+    /// `cache` where given (`disk_cache`), with `variant`'s GEMM kernel and modules;
     /// shader errors become [`GpuError::Shader`].
     pub fn new(
         device: &wgpu::Device,
         cache: Option<&wgpu::PipelineCache>,
         precision: Precision,
         problem_wgsl: &str,
-        [settle, flat, continuous]: [bool; 3],
+        variant: Variant,
     ) -> Result<Kernels, GpuError> {
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         // wgpu's default guard on every loop (an iteration counter, against infinite loops)
@@ -266,60 +364,70 @@ impl Kernels {
             module("faces"),
             module("embed"),
         );
-        let backward = [true, true, false, true, false, false, false];
-        let embed = [false, true, false, false, true, true, true];
-        let kernels = Kernels {
-            gemm: kernel(
-                device,
-                cache,
-                &gemm_m,
-                if flat { "gemm_flat" } else { "gemm" },
-                &[true, true, false],
-            ),
-            flat,
-            relu: kernel(
-                device,
-                cache,
+        let settle_m = compiles("settle", variant).then(|| module("settle"));
+        let cont_m = variant.continuous.then(|| module("continuous"));
+        let meet_m = (variant.continuous && compiles("cmeet", variant)).then(|| module("cmeet"));
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(GpuError::Shader(e.to_string()));
+        }
+        const BACKWARD: &[bool] = &[true, true, false, true, false, false, false];
+        const EMBED: &[bool] = &[false, true, false, false, true, true, true];
+        // cont, nnb, flags, bound boxes, the error map's (margins.wgsl), pipe_known.
+        const CONTINUOUS: &[bool] = &[false, true, false, false, true, true, true];
+        let mut jobs: Vec<Job<'_>> = vec![
+            (&gemm_m, variant.gemm.entry(), &[true, true, false]),
+            (
                 &relu_m,
                 "relu",
                 &[true, true, false, false, true, false, false, false],
             ),
-            bwd_scale: kernel(device, cache, &bwd_m, "bwd_scale", &backward),
-            bwd_bounds: kernel(device, cache, &bwd_m, "bwd_bounds", &backward),
-            output: kernel(
-                device,
-                cache,
+            (&bwd_m, "bwd_scale", BACKWARD),
+            (&bwd_m, "bwd_bounds", BACKWARD),
+            (
                 &out_m,
                 "output",
                 &[true, true, true, true, true, true, true, false],
             ),
-            embed: kernel(device, cache, &embed_m, "embed", &embed),
-            tick: kernel(device, cache, &embed_m, "tick", &embed),
-            faces: kernel(device, cache, &faces_m, "faces_of", &[true, false]),
-            settle: compiles("settle", [settle, flat, continuous])
-                .then(|| kernel(device, cache, &module("settle"), "settle", &[false; 7])),
-            continuous: continuous.then(|| {
-                let m = module("continuous");
-                // cont, nnb, flags, bound boxes, the error map's (margins.wgsl), pipe_known.
-                let bindings = [false, true, false, false, true, true, true];
-                let meet = compiles("cmeet", [settle, flat, continuous]).then(|| {
-                    let m = module("cmeet");
-                    let bindings = [false; 6];
-                    [
-                        kernel(device, cache, &m, "cpipes", &bindings),
-                        kernel(device, cache, &m, "cmeet", &bindings),
-                    ]
-                });
-                Continuous {
-                    slabs: kernel(device, cache, &m, "slabs_of", &bindings),
-                    step: kernel(device, cache, &m, "cstep", &bindings),
-                    meet,
-                }
-            }),
-        };
-        match pollster::block_on(scope.pop()) {
-            Some(e) => Err(GpuError::Shader(e.to_string())),
-            None => Ok(kernels),
+            (&embed_m, "embed", EMBED),
+            (&embed_m, "tick", EMBED),
+            (&faces_m, "faces_of", &[true, false]),
+        ];
+        if let Some(m) = &settle_m {
+            jobs.push((m, "settle", &[false; 7]));
         }
+        if let Some(m) = &cont_m {
+            jobs.push((m, "slabs_of", CONTINUOUS));
+            jobs.push((m, "cstep", CONTINUOUS));
+        }
+        if let Some(m) = &meet_m {
+            jobs.push((m, "cpipes", &[false; 6]));
+            jobs.push((m, "cmeet", &[false; 6]));
+        }
+        let mut built = kernels_in_parallel(device, cache, &jobs)?.into_iter();
+        let mut next = || built.next().expect("one kernel a job");
+        let (gemm, relu, bwd_scale, bwd_bounds, output) = (next(), next(), next(), next(), next());
+        let (embed, tick, faces) = (next(), next(), next());
+        let settle = settle_m.is_some().then(&mut next);
+        let continuous = cont_m.is_some().then(|| {
+            let (slabs, step) = (next(), next());
+            Continuous {
+                slabs,
+                step,
+                meet: meet_m.is_some().then(|| [next(), next()]),
+            }
+        });
+        Ok(Kernels {
+            gemm,
+            gemm_kind: variant.gemm,
+            relu,
+            bwd_scale,
+            bwd_bounds,
+            output,
+            embed,
+            tick,
+            faces,
+            settle,
+            continuous,
+        })
     }
 }

@@ -9,19 +9,18 @@ use wgpu::util::DeviceExt;
 use super::buffers::{device_bytes, from_device_bytes, uniform, Params};
 use super::codegen::{h_enclosure, round_down, round_up};
 use super::kernels::{
-    COMMON, END_RATES, F32_BITS, GEMM, GEMM_FLAT_BLOCK, GEMM_TILE, PARAMS, REAL_F32, REAL_F64,
-    TURN, VALIDATED, WORKGROUP,
+    Gemm, COMMON, END_RATES, F32_BITS, GEMM, PARAMS, REAL_F32, REAL_F64, TURN, VALIDATED,
 };
 use super::{GpuContext, GpuError, Precision};
 use crate::boxes::IntervalBox;
 use crate::reach::validated::MovingFaces;
 
-/// `y` after one dispatch of the f64 GEMM kernel (`gemm`, or `gemm_flat` where `flat`) with
+/// `y` after one dispatch of the f64 GEMM kernel `gemm` (dispatched as the engine does) with
 /// `p`'s shape and options (`rows`, `inner`, `cols`, `abs_w`, `trans_w`, `relu_x`, `w_off`,
 /// `x_off`, `ldx`, `y_off`, `ldy`) on `net`, `x` and `y` (unwritten entries stay).
 pub fn gemm_on_device(
     ctx: &GpuContext,
-    flat: bool,
+    gemm: Gemm,
     p: &Params,
     net: &[f64],
     x: &[f64],
@@ -32,7 +31,7 @@ pub fn gemm_on_device(
     }
     let source =
         format!("{REAL_F64}\n{F32_BITS}\n{PARAMS}\n{COMMON}\nconst ABS_UNIT: real = 0.0;\n{GEMM}");
-    let entry = if flat { "gemm_flat" } else { "gemm" };
+    let entry = gemm.entry();
     let device = &ctx.device;
     let pipeline = compile(device, &source, entry)?;
     let storage = |label, data: &[f64], usage| {
@@ -68,14 +67,7 @@ pub fn gemm_on_device(
             },
         ],
     });
-    // As the engine dispatches them (backend/plan.rs).
-    let groups = if flat {
-        let g = (p.rows.div_ceil(GEMM_FLAT_BLOCK) * p.cols.div_ceil(GEMM_FLAT_BLOCK))
-            .div_ceil(WORKGROUP);
-        [g, 1, 1]
-    } else {
-        [p.cols.div_ceil(GEMM_TILE), p.rows.div_ceil(GEMM_TILE), 1]
-    };
+    let groups = gemm.groups(p.rows, p.cols);
     let mut enc = device.create_command_encoder(&Default::default());
     {
         let mut pass = enc.begin_compute_pass(&Default::default());

@@ -159,12 +159,19 @@ fn cli_backend_gpu_and_auto() {
         .filter(|l| l.trim_start().starts_with("gemm ") && l.contains("GFLOP/s"))
         .count();
     assert!(gemm_lines > 0, "{text}");
-    // Software adapters run the flat GEMM (one kernel name or the other, never both).
-    let flat = text
-        .lines()
-        .any(|l| l.trim_start().starts_with("gemm_flat "));
-    let gemm = if flat { "gemm_flat" } else { "gemm" };
-    assert_eq!(kernel_count(gemm), gemm_lines, "{text}");
+    // Software adapters run the flat GEMM, real GPUs the tiles: one kernel, never two.
+    let kernels: Vec<&str> = ["gemm_flat", "gemm_wide", "gemm"]
+        .into_iter()
+        .filter(|&k| {
+            // A kernel's line is its name and its count ("gemm  12×"), not a product's line.
+            text.lines().any(|l| {
+                let mut words = l.split_whitespace();
+                words.next() == Some(k) && words.next().is_some_and(|w| w.ends_with('×'))
+            })
+        })
+        .collect();
+    assert_eq!(kernels.len(), 1, "{text}");
+    assert_eq!(kernel_count(kernels[0]), gemm_lines, "{text}");
     assert_eq!(kernel_count("embed"), 1, "{text}");
 }
 

@@ -4,7 +4,7 @@
 
 use super::super::buffers::{uniform, Params, LOOP_CHECK};
 use super::super::codegen::AUX;
-use super::super::kernels::{Kernel, Kernels, GEMM_FLAT_BLOCK, GEMM_TILE, WORKGROUP};
+use super::super::kernels::{Kernel, Kernels, WORKGROUP};
 use super::layout::{Buffers, Shape};
 
 /// One dispatch of a step.
@@ -97,15 +97,7 @@ impl<'a> StepPlan<'a> {
             w_off: self.offsets[k].0,
             ..base
         };
-        let groups = if self.kernels.flat {
-            let g = (rows.div_ceil(GEMM_FLAT_BLOCK) * cols.div_ceil(GEMM_FLAT_BLOCK))
-                .div_ceil(WORKGROUP);
-            // 65,535 workgroups a dimension: WebGPU's least limit.
-            let x = g.clamp(1, 65_535);
-            [x, g.div_ceil(x), 1]
-        } else {
-            [cols.div_ceil(GEMM_TILE), rows.div_ceil(GEMM_TILE), 1]
-        };
+        let groups = self.kernels.gemm_kind.groups(rows, cols);
         let net = &self.bufs.net;
         self.push(&self.kernels.gemm, &p, &[net, x, y], groups);
         if let Some(op) = self.ops.last_mut() {

@@ -13,7 +13,7 @@ use std::time::Instant;
 
 use super::super::buffers::{device_bytes, flatten_network, from_device_bytes};
 use super::super::codegen::{flag_words, nnb_width, problem_wgsl, round_down, round_up, FLAG_W};
-use super::super::kernels::Kernels;
+use super::super::kernels::{Kernels, Variant};
 use super::super::margins::MarginMap;
 use super::super::GpuError;
 use super::layout::{Buffers, Shape};
@@ -168,7 +168,7 @@ impl GpuBackend {
             return CpuBackend.reach(problem, initial, settings, progress);
         }
         let start = Instant::now();
-        let flat = self.check_network(problem)?;
+        let gemm = self.check_network(problem)?;
         let device = device_settings(settings);
         // The held input's bounds are the x problem's (design §7.2 item 2): its own pipelines
         // where no frame is in x.
@@ -199,7 +199,11 @@ impl GpuBackend {
                     self.cache_dir.as_deref(),
                     self.precision,
                     source,
-                    [false, flat, false],
+                    Variant {
+                        settle: false,
+                        gemm,
+                        continuous: false,
+                    },
                 )?;
                 let bufs = self.buffers(frame, &shape, &margins, chunk)?;
                 Ok(FrameSetup {
