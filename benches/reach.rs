@@ -1,4 +1,5 @@
-//! Box-steps per second of the CPU reach engine, per bound method (issue 5 item 7).
+//! Box-steps per second of the CPU reach engine, per bound method (issue 5 item 7), and of
+//! the GPU engine over batch sizes (`reach_gpu`; `cbfreach bench` prints both side by side).
 //!
 //! Scenario 1's dynamics with a random 2×400×400×400×2 network whose last layer is scaled by
 //! 0.05 (so that the closed loop stays close to the nominal one and tubes stay bounded), the
@@ -7,9 +8,15 @@
 //! the whole 12 × 250 run; throughput is in box-steps. `CBFREACH_BENCH_QUICK=1` runs 25 steps.
 //! `M_C = 0`: the bound method, not the margin, is what is timed.
 
+use std::sync::Arc;
+
 use cbfreach::bounds::BoundMethod;
+use cbfreach::boxes::IntervalBox;
+use cbfreach::gpu::{GpuBackend, GpuContext};
 use cbfreach::network::Mlp;
-use cbfreach::reach::{Backend, CpuBackend, ExactField, ReachMethod, ReachProblem, ReachSettings};
+use cbfreach::reach::{
+    Backend, CpuBackend, ExactField, ReachMethod, ReachProblem, ReachSettings, TimeModel,
+};
 use cbfreach::scenario::Scenario;
 use divan::counter::ItemsCount;
 use divan::Bencher;
@@ -56,6 +63,70 @@ fn reach_12_boxes(bencher: Bencher, method: BoundMethod) {
                 result.boxes.len()
             );
             divan::black_box(result)
+        });
+}
+
+/// `count` boxes 0.02 wide around safe points spread over the middle of `C` (as `cbfreach
+/// bench` places them).
+fn spread_boxes(scenario: &Scenario, count: usize) -> Vec<IntervalBox> {
+    let c = &scenario.reach.region;
+    let middle = IntervalBox {
+        lower: (0..2)
+            .map(|i| c.lower[i] + 0.3 * (c.upper[i] - c.lower[i]))
+            .collect(),
+        upper: (0..2)
+            .map(|i| c.upper[i] - 0.3 * (c.upper[i] - c.lower[i]))
+            .collect(),
+    };
+    cbfreach::simulate::sample_box(&middle, 4 * count + 16, 1)
+        .into_iter()
+        .filter(|x| scenario.is_safe(x))
+        .take(count)
+        .map(|x| IntervalBox {
+            lower: x.iter().map(|v| v - 0.01).collect(),
+            upper: x.iter().map(|v| v + 0.01).collect(),
+        })
+        .collect()
+}
+
+/// The GPU engine beside the CPU's (`reach_12_boxes`): forward-backward bounds on `count`
+/// boxes, 10 steps of the Euler map (2 with `CBFREACH_BENCH_QUICK=1`), f64 where the adapter has it; the
+/// pipelines compiled by an untimed run first. Skipped without a Vulkan adapter.
+#[divan::bench(args = [256, 4096, 16384], sample_count = 1, sample_size = 1)]
+fn reach_gpu(bencher: Bencher, count: usize) {
+    let ctx = match GpuContext::new() {
+        Ok(ctx) => ctx,
+        Err(e) => {
+            eprintln!("reach_gpu skipped: {e}");
+            return;
+        }
+    };
+    let engine = GpuBackend::new(Arc::new(ctx));
+    // The Euler map, as `cbfreach bench` runs both engines.
+    let (problem, _) = problem();
+    let mut problem = problem.with_time(TimeModel::Euler, 1);
+    problem.steps = if quick() { 2 } else { 10 };
+    let scenario = Scenario::builtin().expect("built-in scenario 1");
+    let boxes = spread_boxes(&scenario, count);
+    let settings = ReachSettings {
+        bounds: BoundMethod::ForwardBackward,
+        method: ReachMethod::Disturbance,
+        every: 50,
+        face_local: false,
+        exact: ExactField::Nowhere,
+        intersect_x: false,
+    };
+    engine
+        .reach(&problem, &boxes[..1], &settings, &|_, _| {})
+        .expect("the GPU engine runs");
+    bencher
+        .counter(ItemsCount::new(boxes.len() * problem.steps))
+        .bench_local(|| {
+            divan::black_box(
+                engine
+                    .reach(&problem, &boxes, &settings, &|_, _| {})
+                    .expect("the GPU engine runs"),
+            )
         });
 }
 
