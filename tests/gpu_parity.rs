@@ -440,7 +440,13 @@ fn other_time_models_are_refused_naming_them() {
             .expect_err("the GPU engine refuses the setting")
             .to_string();
         assert!(e.contains(names) && e.contains(way_out), "{e}");
-        let auto = choose_engine(EngineChoice::Auto, &GpuOptions::default(), &reach, &problem);
+        let auto = choose_engine(
+            EngineChoice::Auto,
+            &GpuOptions::default(),
+            &reach,
+            &problem,
+            1 << 20,
+        );
         assert_eq!(auto.unwrap().backend.name(), "cpu");
     }
     let inactive = ReachSettings {

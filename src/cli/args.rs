@@ -226,14 +226,16 @@ pub fn compile(
     })
 }
 
-/// The engine asked for, its notices printed (an engine refuses settings it does not run).
+/// The engine asked for a run of `boxes` boxes, its notices printed (an engine refuses
+/// settings it does not run).
 pub fn engine(
     args: &EngineArgs,
     settings: &mut ReachSettings,
     problem: &ReachProblem,
+    boxes: usize,
 ) -> Result<Box<dyn Backend + Sync>, Box<dyn std::error::Error>> {
     let gpu = &args.gpu;
-    let chosen = choose_engine(args.backend, &gpu.options(), settings, problem).map_err(
+    let chosen = choose_engine(args.backend, &gpu.options(), settings, problem, boxes).map_err(
         |e| -> Box<dyn std::error::Error> {
             match e {
                 EngineError::PrecisionOnCpu(_) => {

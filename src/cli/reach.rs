@@ -64,7 +64,7 @@ pub fn run(args: &ReachArgs) -> CliResult {
         settings.every = args.every;
     }
     settings.validate().map_err(|e| settings_flag_error(&e))?;
-    let backend = engine(&args.engine, &mut settings, &problem)?;
+    let backend = engine(&args.engine, &mut settings, &problem, s.reach.initial.len())?;
     let bar = progress_bar(problem.steps as u64, "Euler steps");
     let result = backend.reach(&problem, &s.reach.initial, &settings, &|done, _| {
         bar.set_position(done as u64)

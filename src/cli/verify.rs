@@ -162,7 +162,8 @@ pub fn run(args: &VerifyArgs) -> CliResult {
     reach.validate().map_err(|e| settings_flag_error(&e))?;
     // `auto` picks an engine that runs every round, refinement's shorter steps too.
     let deepest = settings.problem_at(&problem, settings.refine_depth);
-    let engine = engine(&args.engine, &mut reach, &deepest)?;
+    let cells = settings.grid.iter().product();
+    let engine = engine(&args.engine, &mut reach, &deepest, cells)?;
     let network = network_path(&s, args.problem.network.as_deref())?;
     // With a checkpoint, chunks small enough that an interrupt ends soon and keeps most work
     // (the engine's preferred batch is 512 boxes on the CPU, minutes on a loaded machine).

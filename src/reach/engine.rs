@@ -105,10 +105,18 @@ pub fn refusal(unsupported: Unsupported) -> String {
     }
 }
 
-/// The engine for `choice` on `gpu`'s adapter. `auto` never changes what is computed, only
-/// where: it takes the GPU where that engine runs `problem` under `settings` as they are
-/// ([`GpuBackend::runs`]) and the adapter is a real GPU (a software adapter is many times
-/// slower than the CPU engine), else the CPU with a notice naming why. `gpu` with settings the
+/// Boxes a run needs for `auto` to take a real GPU: below it the CPU engine was the faster
+/// (an H200 took ~3.3 ms a step for 12 boxes, its host's 16 cores run ~45,000 box-steps a
+/// second, and a cold start compiles the pipelines for up to a minute; docs/results.md); from
+/// thousands of boxes the GPU is several times faster.
+pub const AUTO_GPU_BOXES: usize = 1024;
+
+/// The engine for `choice` on `gpu`'s adapter, for a run of `boxes` boxes. `auto` never
+/// changes what is computed, only where: it takes the GPU where that engine runs `problem`
+/// under `settings` as they are ([`GpuBackend::runs`]), the adapter is a real GPU (a software
+/// adapter is many times slower than the CPU engine) and the run has at least
+/// [`AUTO_GPU_BOXES`] boxes (both unless the adapter is named), else the CPU with a notice
+/// naming why. `gpu` with settings the
 /// GPU engine does not run is refused by its `reach`, naming the setting ([`refusal`]). A
 /// precision asked of an adapter without f64 shaders is an error, also with `auto`.
 pub fn choose_engine(
@@ -116,6 +124,7 @@ pub fn choose_engine(
     gpu: &GpuOptions,
     settings: &ReachSettings,
     problem: &ReachProblem,
+    boxes: usize,
 ) -> Result<Engine, EngineError> {
     let cpu = |notices: Vec<String>| Engine {
         backend: Box::new(CpuBackend),
@@ -132,6 +141,12 @@ pub fn choose_engine(
         return Ok(cpu(vec![format!(
             "notice: --backend auto: not on the GPU engine: {}; using the CPU",
             refusal(u)
+        )]));
+    }
+    if auto && boxes < AUTO_GPU_BOXES && gpu.adapter.is_none() {
+        return Ok(cpu(vec![format!(
+            "notice: --backend auto: {boxes} boxes run faster on the CPU engine (the GPU's \
+             pays from about {AUTO_GPU_BOXES}); using the CPU (--backend gpu to use it anyway)"
         )]));
     }
     match GpuContext::with_adapter(gpu.adapter.as_deref()) {

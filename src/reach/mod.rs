@@ -43,7 +43,7 @@ pub use transform::{log_norm_inf, CoordinatesReason, Transform};
 pub use tube::{Inversion, Tube, TubeEnd, TubeSample, UnsafeBetweenSamples};
 
 pub use cpu::{BatchBounds, Bounded, CpuBackend};
-pub use engine::{choose_engine, refusal, EngineChoice, GpuOptions};
+pub use engine::{choose_engine, refusal, EngineChoice, GpuOptions, AUTO_GPU_BOXES};
 pub use settings::{ExactField, ReachMethod, ReachSettings, SettingsError, Unsupported};
 
 /// Why a reach run could not start.
