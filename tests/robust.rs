@@ -61,18 +61,19 @@ fn a_huge_partition_is_an_error_not_a_panic() {
     assert!(err.contains("reach.partition.counts"), "{err}");
 }
 
-/// Runs cbfreach with `args` (and `last`, a path) with its standard output closed by the reader
-/// before it writes (`| head -c 0`).
+/// Runs cbfreach with `args` (and `last`, a path) with its standard output a pipe whose reader
+/// is gone (`| head -c 0`). The reading end is closed before the process starts: closed after
+/// the spawn, a fast command could fill the pipe's buffer first and succeed.
 fn with_stdout_closed(args: &[&str], last: Option<&Path>) -> std::process::Output {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_cbfreach"))
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    Command::new(env!("CARGO_BIN_EXE_cbfreach"))
         .args(args)
         .args(last)
-        .stdout(Stdio::piped())
+        .stdout(writer)
         .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    drop(child.stdout.take());
-    child.wait_with_output().unwrap()
+        .output()
+        .unwrap()
 }
 
 #[test]

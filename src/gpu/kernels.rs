@@ -365,8 +365,8 @@ impl Kernels {
             module("embed"),
         );
         let settle_m = compiles("settle", variant).then(|| module("settle"));
-        let cont_m = variant.continuous.then(|| module("continuous"));
-        let meet_m = (variant.continuous && compiles("cmeet", variant)).then(|| module("cmeet"));
+        let cont_m = compiles("continuous", variant).then(|| module("continuous"));
+        let meet_m = compiles("cmeet", variant).then(|| module("cmeet"));
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(GpuError::Shader(e.to_string()));
         }

@@ -116,9 +116,9 @@ pub const AUTO_GPU_BOXES: usize = 1024;
 /// under `settings` as they are ([`GpuBackend::runs`]), the adapter is a real GPU (a software
 /// adapter is many times slower than the CPU engine) and the run has at least
 /// [`AUTO_GPU_BOXES`] boxes (both unless the adapter is named), else the CPU with a notice
-/// naming why. `gpu` with settings the
-/// GPU engine does not run is refused by its `reach`, naming the setting ([`refusal`]). A
-/// precision asked of an adapter without f64 shaders is an error, also with `auto`.
+/// naming why. `gpu` with settings the GPU engine does not run is refused by its `reach`,
+/// naming the setting ([`refusal`]). A precision asked of an adapter without f64 shaders is an
+/// error, also with `auto`.
 pub fn choose_engine(
     choice: EngineChoice,
     gpu: &GpuOptions,
@@ -145,8 +145,9 @@ pub fn choose_engine(
     }
     if auto && boxes < AUTO_GPU_BOXES && gpu.adapter.is_none() {
         return Ok(cpu(vec![format!(
-            "notice: --backend auto: {boxes} boxes run faster on the CPU engine (the GPU's \
-             pays from about {AUTO_GPU_BOXES}); using the CPU (--backend gpu to use it anyway)"
+            "notice: --backend auto: {boxes} boxes run faster on the CPU engine (the GPU \
+             engine pays from about {AUTO_GPU_BOXES} boxes); using the CPU (--backend gpu to use \
+             the GPU anyway)"
         )]));
     }
     match GpuContext::with_adapter(gpu.adapter.as_deref()) {
