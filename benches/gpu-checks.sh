@@ -54,8 +54,12 @@ for precision in f32 f64; do
 done
 stage "CROWN, profiles"
 run 90 "$CBFREACH" bench --backend gpu --boxes 4096,16384 --steps 10 --bounds crown --f32
-run 60 "$CBFREACH" bench --backend gpu --boxes 16384 --steps 5 --bounds forward-backward --f32 --profile
-run 60 "$CBFREACH" bench --backend gpu --boxes 16384 --steps 5 --bounds forward-backward --f64 --profile
+for gemm in tiles wide; do
+    for precision in f32 f64; do
+        run 60 "$CBFREACH" bench --backend gpu --boxes 16384 --steps 5 --bounds forward-backward \
+            --"$precision" --gemm "$gemm" --profile
+    done
+done
 stage "the CPU engine beside the GPU"
 run 120 "$CBFREACH" bench --backend cpu,gpu --boxes 12,256,16384 --steps 20 --bounds forward-backward
 
