@@ -9,6 +9,7 @@ use cbfreach::gpu::disk_cache::{encode, DiskCache, Loaded, Saved};
 use cbfreach::gpu::kernels::Gemm;
 use cbfreach::gpu::probe::{gemm_on_device, read_back};
 use cbfreach::gpu::GpuContext;
+use cbfreach::gpu::Precision;
 use rand::{Rng, SeedableRng};
 use wgpu::util::DeviceExt;
 
@@ -27,14 +28,14 @@ fn context() -> Option<GpuContext> {
 
 /// Shapes and options the engine uses: forward layers (`W·X`, `|W|·X`), backward
 /// substitutions (`Wᵀ`, with offsets and strides), `|W|·max(X, 0)`, rows and columns off the
-/// 4 × 4 blocks, the 64 × 64 tiles and the 64 × 256 wide tiles (depths off 8 and 16). The
-/// three kernels sum in the same order, so they agree bit for bit.
+/// 4 × 4 blocks, the 64 × 64 tiles and the 64 × 256 wide tiles (depths off 8 and 16), in f32
+/// and f64. The three kernels sum in the same order, so they agree bit for bit.
 #[test]
 fn gemm_kernels_agree_with_each_other_and_the_exact_product() {
     let Some(ctx) = context() else { return };
-    if !ctx.has_f64() {
-        eprintln!("skipping: no f64 shaders");
-        return;
+    let mut precisions = vec![Precision::F32];
+    if ctx.has_f64() {
+        precisions.push(Precision::F64);
     }
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(40);
     // (rows, inner, cols, trans_w, abs_w, relu_x, w_off, x_off, y_off, extra ldx/ldy)
@@ -69,43 +70,53 @@ fn gemm_kernels_agree_with_each_other_and_the_exact_product() {
         let net = draw(w_off as usize + r * k);
         let x = draw(x_off as usize + k * p.ldx as usize);
         let y0 = vec![7.5; y_off as usize + r * p.ldy as usize];
-        let flat = gemm_on_device(&ctx, Gemm::Flat, &p, &net, &x, &y0).unwrap();
-        let tiled = gemm_on_device(&ctx, Gemm::Tiles, &p, &net, &x, &y0).unwrap();
-        let wide = gemm_on_device(&ctx, Gemm::Wide, &p, &net, &x, &y0).unwrap();
-        let what =
-            format!("{rows} × {inner} · {inner} × {cols}, ᵀ {trans_w}, |·| {abs_w}, relu {relu_x}");
-        assert_eq!(flat, tiled, "{what}: flat against tiles");
-        assert_eq!(flat, wide, "{what}: flat against wide tiles");
-        // The exact product (in f64, with its own rounding bound) against the device's.
-        let gamma = |n: usize| (n as f64 + 3.0) * f64::EPSILON;
-        for (i, &got) in flat.iter().enumerate() {
-            let (ldx, ldy) = (p.ldx as usize, p.ldy as usize);
-            let Some(j) = i.checked_sub(y_off as usize).filter(|j| j % ldy < c) else {
-                assert_eq!(got, 7.5, "{what}: entry {i} outside Y was written");
-                continue;
-            };
-            let (row, col) = (j / ldy, j % ldy);
-            let (mut sum, mut mag) = (0.0, 0.0);
-            for kk in 0..k {
-                let mut w = if trans_w != 0 {
-                    net[w_off as usize + kk * r + row]
-                } else {
-                    net[w_off as usize + row * k + kk]
-                };
-                if abs_w != 0 {
-                    w = w.abs();
-                }
-                let mut v = x[x_off as usize + kk * ldx + col];
-                if relu_x != 0 {
-                    v = v.max(0.0);
-                }
-                sum += w * v;
-                mag += (w * v).abs();
-            }
-            assert!(
-                (got - sum).abs() <= 2.0 * gamma(k) * mag + f64::MIN_POSITIVE,
-                "{what}: Y[{row}, {col}] = {got}, exact {sum}"
+        for &precision in &precisions {
+            let on = |gemm| gemm_on_device(&ctx, precision, gemm, &p, &net, &x, &y0).unwrap();
+            let (flat, tiled, wide) = (on(Gemm::Flat), on(Gemm::Tiles), on(Gemm::Wide));
+            let what = format!(
+                "{rows} × {inner} · {inner} × {cols}, ᵀ {trans_w}, |·| {abs_w}, relu {relu_x}, {}",
+                precision.name()
             );
+            assert_eq!(flat, tiled, "{what}: flat against tiles");
+            assert_eq!(flat, wide, "{what}: flat against wide tiles");
+            // The exact product (in f64, of the inputs as the device holds them) against the
+            // device's, within the device's rounding bound.
+            let (eps, tiny, held): (f64, f64, fn(f64) -> f64) = match precision {
+                Precision::F64 => (f64::EPSILON, f64::MIN_POSITIVE, |v| v),
+                Precision::F32 => (f32::EPSILON as f64, f32::MIN_POSITIVE as f64, |v| {
+                    v as f32 as f64
+                }),
+            };
+            let gamma = |n: usize| (n as f64 + 3.0) * eps;
+            for (i, &got) in flat.iter().enumerate() {
+                let (ldx, ldy) = (p.ldx as usize, p.ldy as usize);
+                let Some(j) = i.checked_sub(y_off as usize).filter(|j| j % ldy < c) else {
+                    assert_eq!(got, 7.5, "{what}: entry {i} outside Y was written");
+                    continue;
+                };
+                let (row, col) = (j / ldy, j % ldy);
+                let (mut sum, mut mag) = (0.0, 0.0);
+                for kk in 0..k {
+                    let mut w = held(if trans_w != 0 {
+                        net[w_off as usize + kk * r + row]
+                    } else {
+                        net[w_off as usize + row * k + kk]
+                    });
+                    if abs_w != 0 {
+                        w = w.abs();
+                    }
+                    let mut v = held(x[x_off as usize + kk * ldx + col]);
+                    if relu_x != 0 {
+                        v = v.max(0.0);
+                    }
+                    sum += w * v;
+                    mag += (w * v).abs();
+                }
+                assert!(
+                    (got - sum).abs() <= 2.0 * gamma(k) * mag + tiny,
+                    "{what}: Y[{row}, {col}] = {got}, exact {sum}"
+                );
+            }
         }
     }
 }

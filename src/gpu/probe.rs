@@ -15,29 +15,42 @@ use super::{GpuContext, GpuError, Precision};
 use crate::boxes::IntervalBox;
 use crate::reach::validated::MovingFaces;
 
-/// `y` after one dispatch of the f64 GEMM kernel `gemm` (dispatched as the engine does) with
-/// `p`'s shape and options (`rows`, `inner`, `cols`, `abs_w`, `trans_w`, `relu_x`, `w_off`,
-/// `x_off`, `ldx`, `y_off`, `ldy`) on `net`, `x` and `y` (unwritten entries stay).
+/// `y` after one dispatch of the GEMM kernel `gemm` (dispatched as the engine does) in
+/// `precision` with `p`'s shape and options (`rows`, `inner`, `cols`, `abs_w`, `trans_w`,
+/// `relu_x`, `w_off`, `x_off`, `ldx`, `y_off`, `ldy`) on `net`, `x` and `y` (unwritten entries
+/// stay; in f32 the inputs rounded to f32 and the result widened back).
 pub fn gemm_on_device(
     ctx: &GpuContext,
+    precision: Precision,
     gemm: Gemm,
     p: &Params,
     net: &[f64],
     x: &[f64],
     y: &[f64],
 ) -> Result<Vec<f64>, GpuError> {
-    if !ctx.has_f64() {
+    if precision == Precision::F64 && !ctx.has_f64() {
         return Err(GpuError::NoF64(ctx.info.name.clone()));
     }
+    let real = match precision {
+        Precision::F64 => REAL_F64,
+        Precision::F32 => REAL_F32,
+    };
     let source =
-        format!("{REAL_F64}\n{F32_BITS}\n{PARAMS}\n{COMMON}\nconst ABS_UNIT: real = 0.0;\n{GEMM}");
+        format!("{real}\n{F32_BITS}\n{PARAMS}\n{COMMON}\nconst ABS_UNIT: real = 0.0;\n{GEMM}");
     let entry = gemm.entry();
     let device = &ctx.device;
     let pipeline = compile(device, &source, entry)?;
     let storage = |label, data: &[f64], usage| {
+        let contents: Vec<u8> = match precision {
+            Precision::F64 => bytemuck::cast_slice(data).to_vec(),
+            Precision::F32 => data
+                .iter()
+                .flat_map(|&v| (v as f32).to_ne_bytes())
+                .collect(),
+        };
         device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some(label),
-            contents: bytemuck::cast_slice(data),
+            contents: &contents,
             usage: wgpu::BufferUsages::STORAGE | usage,
         })
     };
@@ -76,7 +89,14 @@ pub fn gemm_on_device(
         pass.dispatch_workgroups(groups[0], groups[1], groups[2]);
     }
     ctx.queue.submit([enc.finish()]);
-    read_back(ctx, &y_b, y.len())
+    match precision {
+        Precision::F64 => read_back(ctx, &y_b, y.len()),
+        Precision::F32 => {
+            let bytes = read_back_bytes(ctx, &y_b, (y.len() * 4) as u64)?;
+            let ys: Vec<f32> = bytemuck::pod_collect_to_vec(&bytes);
+            Ok(ys.into_iter().map(f64::from).collect())
+        }
+    }
 }
 
 /// `len` f64 of `buf` (a `COPY_SRC` buffer), after the queue's work.
