@@ -64,11 +64,14 @@ stage "the CPU engine beside the GPU"
 run 120 "$CBFREACH" bench --backend cpu,gpu --boxes 12,256,16384 --steps 20 --bounds forward-backward
 
 stage "the paper's 12 boxes: CPU, GPU cold, GPU cached"
+# The JSONs (p12-*.json) compare the engines' sets box by box and step by step.
 for time in continuous euler; do
-    run 60 "$CBFREACH" reach scenarios/integrator.toml --time "$time" --backend cpu
+    run 60 "$CBFREACH" reach scenarios/integrator.toml --time "$time" --backend cpu \
+        --json "$out/p12-$time-cpu.json"
     rm -rf "$CBFREACH_CACHE_DIR"
     run 180 "$CBFREACH" reach scenarios/integrator.toml --time "$time" --backend gpu
-    run 60 "$CBFREACH" reach scenarios/integrator.toml --time "$time" --backend gpu
+    run 60 "$CBFREACH" reach scenarios/integrator.toml --time "$time" --backend gpu \
+        --json "$out/p12-$time-gpu.json"
 done
 
 stage "verify 256 × 256 on the GPU: Euler, then the scenario's default (continuous)"
