@@ -20,9 +20,9 @@ use super::given;
 /// Which engine runs a command's sets, and the GPU's options (`reach`, `verify`).
 #[derive(clap::Args, Clone, Debug)]
 pub struct EngineArgs {
-    /// Engine: `cpu`, `gpu` (wgpu; forward, forward-backward and crown bounds), or `auto` (the
-    /// GPU when an adapter exists and runs these settings, else the CPU with a notice; never a
-    /// change in what is computed, only where).
+    /// Engine: `cpu`, `gpu` (wgpu; forward, forward-backward and crown bounds), or `auto` (a
+    /// real GPU that runs these settings, for runs of 1,024 boxes or more; else the CPU with a
+    /// notice; never a change in what is computed, only where).
     #[arg(long, default_value = "cpu")]
     pub backend: EngineChoice,
     /// GPU adapter and precision.
