@@ -11,7 +11,6 @@
 use std::sync::Arc;
 
 use cbfreach::bounds::BoundMethod;
-use cbfreach::boxes::IntervalBox;
 use cbfreach::gpu::{GpuBackend, GpuContext};
 use cbfreach::network::Mlp;
 use cbfreach::reach::{
@@ -66,29 +65,6 @@ fn reach_12_boxes(bencher: Bencher, method: BoundMethod) {
         });
 }
 
-/// `count` boxes 0.02 wide around safe points spread over the middle of `C` (as `cbfreach
-/// bench` places them).
-fn spread_boxes(scenario: &Scenario, count: usize) -> Vec<IntervalBox> {
-    let c = &scenario.reach.region;
-    let middle = IntervalBox {
-        lower: (0..2)
-            .map(|i| c.lower[i] + 0.3 * (c.upper[i] - c.lower[i]))
-            .collect(),
-        upper: (0..2)
-            .map(|i| c.upper[i] - 0.3 * (c.upper[i] - c.lower[i]))
-            .collect(),
-    };
-    cbfreach::simulate::sample_box(&middle, 4 * count + 16, 1)
-        .into_iter()
-        .filter(|x| scenario.is_safe(x))
-        .take(count)
-        .map(|x| IntervalBox {
-            lower: x.iter().map(|v| v - 0.01).collect(),
-            upper: x.iter().map(|v| v + 0.01).collect(),
-        })
-        .collect()
-}
-
 /// The GPU engine beside the CPU's (`reach_12_boxes`): forward-backward bounds on `count`
 /// boxes, 10 steps of the Euler map (2 with `CBFREACH_BENCH_QUICK=1`), f64 where the adapter has it; the
 /// pipelines compiled by an untimed run first. Skipped without a Vulkan adapter.
@@ -107,7 +83,7 @@ fn reach_gpu(bencher: Bencher, count: usize) {
     let mut problem = problem.with_time(TimeModel::Euler, 1);
     problem.steps = if quick() { 2 } else { 10 };
     let scenario = Scenario::builtin().expect("built-in scenario 1");
-    let boxes = spread_boxes(&scenario, count);
+    let boxes = cbfreach::simulate::spread_boxes(&scenario, count);
     let settings = ReachSettings {
         bounds: BoundMethod::ForwardBackward,
         method: ReachMethod::Disturbance,

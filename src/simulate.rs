@@ -222,6 +222,31 @@ pub fn simulate_filtered(
     )
 }
 
+/// `count` boxes 0.02 wide around safe points spread over the middle of `C` (its central 40 %
+/// along each axis): the boxes `cbfreach bench` and the reach benchmarks time (fewer where the
+/// middle holds fewer safe points among its samples).
+pub fn spread_boxes(scenario: &crate::scenario::Scenario, count: usize) -> Vec<IntervalBox> {
+    let c = &scenario.reach.region;
+    let n = scenario.n();
+    let middle = IntervalBox {
+        lower: (0..n)
+            .map(|i| c.lower[i] + 0.3 * (c.upper[i] - c.lower[i]))
+            .collect(),
+        upper: (0..n)
+            .map(|i| c.upper[i] - 0.3 * (c.upper[i] - c.lower[i]))
+            .collect(),
+    };
+    sample_box(&middle, 4 * count + 16, 1)
+        .into_iter()
+        .filter(|x| scenario.is_safe(x))
+        .take(count)
+        .map(|x| IntervalBox {
+            lower: x.iter().map(|v| v - 0.01).collect(),
+            upper: x.iter().map(|v| v + 0.01).collect(),
+        })
+        .collect()
+}
+
 /// `count` points drawn uniformly from `b`, deterministic for `seed`; the corners come first
 /// (up to `count`), since extreme trajectories often start there.
 pub fn sample_box(b: &IntervalBox, count: usize, seed: u64) -> Vec<Vec<f64>> {

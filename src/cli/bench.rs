@@ -7,11 +7,11 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use cbfreach::bounds::{model_multiply_adds, BoundMethod};
-use cbfreach::boxes::IntervalBox;
 use cbfreach::machine::{f64_limit_gflops, f64_limit_isa, process_cpu_seconds};
 use cbfreach::network::Mlp;
 use cbfreach::reach::{Backend, CpuBackend, ExactField, ReachProblem, ReachSettings};
 use cbfreach::scenario::Scenario;
+use cbfreach::simulate::spread_boxes;
 
 use super::args::GpuArgs;
 use super::{load_scenario, CliResult};
@@ -59,28 +59,6 @@ pub struct BenchArgs {
     /// GPU adapter and number type (f64 where the adapter has it; `--f32`, `--f64`).
     #[command(flatten)]
     pub gpu: GpuArgs,
-}
-
-/// `count` boxes 0.02 wide around points spread over the middle of C's safe part.
-fn bench_boxes(s: &Scenario, count: usize) -> Vec<IntervalBox> {
-    let c = &s.reach.region;
-    let inner = IntervalBox {
-        lower: (0..s.n())
-            .map(|i| c.lower[i] + 0.3 * (c.upper[i] - c.lower[i]))
-            .collect(),
-        upper: (0..s.n())
-            .map(|i| c.upper[i] - 0.3 * (c.upper[i] - c.lower[i]))
-            .collect(),
-    };
-    cbfreach::simulate::sample_box(&inner, 4 * count + 16, 1)
-        .into_iter()
-        .filter(|x| s.is_safe(x))
-        .take(count)
-        .map(|x| IntervalBox {
-            lower: x.iter().map(|v| v - 0.01).collect(),
-            upper: x.iter().map(|v| v + 0.01).collect(),
-        })
-        .collect()
 }
 
 /// Runs the command.
@@ -183,10 +161,10 @@ pub fn run(args: &BenchArgs) -> CliResult {
             // compiler (the step count is part of the problem's WGSL: the same problem).
             // Not with --profile, whose report is of the first run.
             if !args.profile {
-                engine.reach(&problem, &bench_boxes(&s, 1), &settings, &|_, _| {})?;
+                engine.reach(&problem, &spread_boxes(&s, 1), &settings, &|_, _| {})?;
             }
             for &count in &args.boxes {
-                let boxes = bench_boxes(&s, count);
+                let boxes = spread_boxes(&s, count);
                 let (start, counted) = (Instant::now(), cbfreach::matmul::multiply_adds());
                 let cpu_start = process_cpu_seconds();
                 let result = engine.reach(&problem, &boxes, &settings, &|_, _| {})?;
