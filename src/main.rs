@@ -100,7 +100,7 @@ fn main() -> ExitCode {
     // failure is reported.
     let broken_pipe = |e: &(dyn std::error::Error + 'static)| {
         e.downcast_ref::<std::io::Error>()
-            .is_some_and(|e| e.kind() == std::io::ErrorKind::BrokenPipe)
+            .is_some_and(cli::is_broken_pipe)
     };
     match (result, printed) {
         (Ok(()), Ok(())) => ExitCode::SUCCESS,

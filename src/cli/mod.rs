@@ -70,9 +70,12 @@ pub fn finish_stdout() -> Result<(), String> {
 /// Whether standard output was closed by its reader (`| head`): the end of the output the
 /// reader wanted, not an error to report.
 pub fn stdout_closed() -> bool {
-    STDOUT_FAILED
-        .get()
-        .is_some_and(|e| e.kind() == std::io::ErrorKind::BrokenPipe)
+    STDOUT_FAILED.get().is_some_and(is_broken_pipe)
+}
+
+/// Whether `e` is a write to a pipe whose reader is gone.
+pub fn is_broken_pipe(e: &std::io::Error) -> bool {
+    e.kind() == std::io::ErrorKind::BrokenPipe
 }
 
 /// The parsed command line, for [`given`].

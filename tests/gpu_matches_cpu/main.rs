@@ -29,6 +29,7 @@ use cbfreach::reach::TimeModel;
 use std::sync::Arc;
 
 use cbfreach::bounds::BoundMethod;
+use cbfreach::gpu::kernels::Gemm;
 use cbfreach::gpu::{GpuBackend, GpuContext, Precision};
 use cbfreach::network::{Layer, Mlp};
 use cbfreach::reach::{

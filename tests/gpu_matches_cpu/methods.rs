@@ -47,6 +47,42 @@ fn pipelines_are_reused_only_for_the_same_problem() {
     }
 }
 
+/// The GEMM kernel is where, not what: the flat kernel, the 64 × 64 tiles and the wide tiles
+/// give the engine the same sets bit for bit (forward products and the backward pass's
+/// transposed ones, f32 and f64), as `bench --gemm` promises; a layer wider than a wide tile's
+/// 64 rows and the boxes' columns off its 256 check the edges.
+#[test]
+fn gemm_kernels_give_the_same_sets() {
+    let s = integrator();
+    let net = small_network(&[2, 70, 20, 2], 3, 0.05);
+    let mut problem = ReachProblem::new(&s, net, 0.05)
+        .unwrap()
+        .with_time(TimeModel::Euler, 1);
+    problem.steps = 20;
+    let init = boxes(&[[-2.0, 2.0], [1.0, -2.0], [-3.0, 0.0]], 0.1);
+    let settings = with_bounds(BoundMethod::ForwardBackward, ReachMethod::Disturbance);
+    for engine in [gpu(), gpu_f64()] {
+        let Some(mut engine) = engine else { continue };
+        let mut runs = Vec::new();
+        for gemm in [Gemm::Flat, Gemm::Tiles, Gemm::Wide] {
+            engine.gemm = gemm;
+            let tubes = engine
+                .reach(&problem, &init, &settings, &|_, _| {})
+                .unwrap();
+            runs.push((gemm, tubes.boxes));
+        }
+        let (_, flat) = &runs[0];
+        for (gemm, tubes) in &runs[1..] {
+            for (a, b) in flat.iter().zip(tubes) {
+                assert_eq!(a.tube.len(), b.tube.len(), "{gemm:?}");
+                for (sa, sb) in a.tube.iter().zip(&b.tube) {
+                    assert_eq!(sa.set, sb.set, "{gemm:?} at t = {}", sa.t);
+                }
+            }
+        }
+    }
+}
+
 #[test]
 fn scenario_2_small_network_matches_cpu_with_and_without_transform() {
     let Some(gpu) = gpu() else { return };
