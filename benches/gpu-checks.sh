@@ -2,9 +2,9 @@
 # The GPU engine's figures on a real GPU in one run (issue 40's targets; docs/results.md,
 # "GPU engine"): bench of the seeded scenario-1 network in f32 and f64 with both tiled GEMM
 # kernels, CROWN, where a step's time goes (--profile), the paper's 12 boxes with the pipelines
-# cold and cached against the CPU engine, verify 256 × 256 on the GPU, and the GPU tests with
-# their ignored whole-grid cases on that adapter. Roughly 10 minutes on an H200, most of it
-# the GPU tests and the cold compiles.
+# cold and cached against the CPU engine, the GEMM kernels at small batches, verify 256 × 256
+# on the GPU, and the GPU tests with their ignored whole-grid cases on that adapter. Roughly
+# 11 minutes on an H200, most of it the GPU tests and the cold compiles.
 #
 #   benches/gpu-checks.sh [OUT]        # OUT: where the logs go (default: gpu-checks/)
 #
@@ -59,6 +59,16 @@ for gemm in tiles wide; do
         run 60 "$CBFREACH" bench --backend gpu --boxes 16384 --steps 5 --bounds forward-backward \
             --"$precision" --gemm "$gemm" --profile
     done
+done
+stage "small batches: the three GEMM kernels at the paper's 12 boxes and 64"
+# A 400 × 36 output is 7 of the tiled kernel's 64 × 64 tiles (a few of the GPU's SMs busy),
+# 225 of the flat kernel's workgroups: which is faster there decides `Gemm`'s default for
+# small runs (all three give the same bits).
+for gemm in flat tiles wide; do
+    run 60 "$CBFREACH" bench --backend gpu --boxes 12,64 --steps 50 --bounds forward-backward \
+        --f64 --gemm "$gemm"
+    run 60 "$CBFREACH" bench --backend gpu --boxes 12 --steps 5 --bounds forward-backward \
+        --f64 --gemm "$gemm" --profile
 done
 stage "the CPU engine beside the GPU"
 run 120 "$CBFREACH" bench --backend cpu,gpu --boxes 12,256,16384 --steps 20 --bounds forward-backward

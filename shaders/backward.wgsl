@@ -16,7 +16,8 @@
 // E = Σ_q |Λ̂∘s|_q w_q + |Λ̂_q t_q| with w = |W_j| mag_j + |b_j| bounds both, and β moves outward
 // by err_bound(2 n_j + 2, E, 1 + Σ w + Σ mag_j). The pass starts from Λ = W̃_k, β = b̃_k, whose
 // conversion from f64 errs by at most 2⁻²⁴(|W_k| |a_k| + |b_k|) ≤ err_bound(2, wm_k + |b_k|,
-// 1 + Σ|a_k|), with wm_k = |W_k| max(u_{k−1}, 0) from a GEMM and |a_k| ≤ max(u_{k−1}, 0).
+// 1 + Σ|a_k|) (common.wgsl: conversion_error; in f64 they are exact), with wm_k = |W_k|
+// max(u_{k−1}, 0) from a GEMM and |a_k| ≤ max(u_{k−1}, 0).
 
 // Params of this substitution (layer j = the one substituted).
 @group(0) @binding(0) var<uniform> p: Params;
@@ -118,7 +119,7 @@ fn bwd_scale(@builtin(global_invocation_id) gid: vec3<u32>) {
     var bl: real;
     if (p.first != 0u) {
         let bk = net[p.k_b_off + i];
-        let conv = err_bound(2u, up(wm[p.k_wm_off + i * p.boxes + g] + abs(bk)), up(1.0 + a_mag));
+        let conv = conversion_error(up(wm[p.k_wm_off + i * p.boxes + g] + abs(bk)), up(1.0 + a_mag));
         bu = up(bk + conv);
         bl = down(bk - conv);
     } else {
@@ -153,7 +154,7 @@ fn bwd_bounds(@builtin(global_invocation_id) gid: vec3<u32>) {
             al[q] = w;
             m = up(m + up(abs(w) * bx.xmag[q]));
         }
-        let e = err_bound(2u, m, bx.scale);
+        let e = conversion_error(m, bx.scale);
         bu = up(b + e);
         bl = down(b - e);
     } else {

@@ -40,6 +40,15 @@ fn err_bound(n: u32, mag: real, scale: real) -> real {
     return up(rel + a);
 }
 
+// How far the device's copy of a layer's weights and bias, applied to inputs whose magnitude
+// sum (with |b|) is `mag`, can be from the f64 originals: rounded to f32, at most 2⁻²⁴ relative
+// (err_bound(2, mag, scale) covers it); in f64 they are exact, and only the absolute part for
+// a flushed subnormal weight is left (the CPU adds nothing there: one term fewer in f64 kept
+// the engines ~4e-13 a step apart on the output layer's magnitudes).
+fn conversion_error(mag: real, scale: real) -> real {
+    return err_bound(2u, select(0.0, mag, WEIGHTS_ROUNDED), scale);
+}
+
 struct Iv {
     lo: real,
     hi: real,

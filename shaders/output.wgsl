@@ -50,7 +50,7 @@ fn forward_row(i: u32, g: u32, bx: BoxInfo) -> Row {
             m0 = up(m0 + up(abs(w) * bx.xmag[q]));
         }
         c[N0] = b;
-        r[N0] = err_bound(2u, m0, bx.scale);
+        r[N0] = conversion_error(m0, bx.scale);
     } else {
         let base = i * p.boxes * KC + g * KC;
         for (var q = 0u; q < KC; q++) {

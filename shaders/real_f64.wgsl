@@ -8,6 +8,8 @@ alias real = f64;
 const EPS: real = 2.220446049250313e-16lf;
 // γ̂_n = (n + 3)·GAMMA_UNIT = 4(n + 3)u ≥ 2γ_{n+3} (err_bound).
 const GAMMA_UNIT: real = 8.881784197001252e-16lf;
+// The device's copy of the network is the host's f64, exactly (common.wgsl: conversion_error).
+const WEIGHTS_ROUNDED: bool = false;
 const HUGE: real = 1.0e300lf;
 const MIN_NORMAL: real = 2.2250738585072014e-308lf;
 const TINY_SLOPE: real = 1.0e-290lf;

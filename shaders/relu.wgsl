@@ -47,7 +47,7 @@ fn relu(@builtin(global_invocation_id) gid: vec3<u32>) {
     var c: array<real, KC>;
     var r: array<real, KC>;
     if (p.first != 0u) {
-        // Ĉ = [W₁ᵢ | b₁ᵢ] rounded to f32; the rounding (≤ 2⁻²⁴ relative) goes into R̂'s constant.
+        // Ĉ = [W₁ᵢ | b₁ᵢ] as the device holds them; their rounding goes into R̂'s constant.
         var mag = abs(b);
         for (var q = 0u; q < N0; q++) {
             let w = net[p.w_off + i * N0 + q];
@@ -56,7 +56,7 @@ fn relu(@builtin(global_invocation_id) gid: vec3<u32>) {
             mag = up(mag + up(abs(w) * bx.xmag[q]));
         }
         c[N0] = b;
-        r[N0] = err_bound(2u, mag, bx.scale);
+        r[N0] = conversion_error(mag, bx.scale);
     } else {
         for (var q = 0u; q < KC; q++) {
             c[q] = cf[base + q];

@@ -27,7 +27,12 @@
 //!   product. The magnitude sum `m̂ ≈ Σ|t_j|` is computed alongside (for a GEMM it is `|W|·|X|`);
 //!   `m̂` is itself a sum of non-negative rounded terms, so `Σ|t_j| ≤ m̂ / (1 − γ_{N+2})`. Hence,
 //!   for `N ≤ 2³⁰`, `|ŝ − Σ t_j| ≤ γ̂_N m̂ + N·2⁻¹⁰⁷²` with `γ̂_N = (N+3)·2⁻⁵²` (twice
-//!   `γ_{N+3}`, which covers both `1/(1−γ)` factors). `err_bound` evaluates that bound, with the
+//!   `γ_{N+3}`, which covers both `1/(1−γ)` factors). The CPU takes `γ̂_N = (N+3)·2⁻⁵⁰`
+//!   ([`GAMMA_UNIT`]), four times that: the GPU's f64 unit (its devices may round towards
+//!   zero), so that both engines bound every sum by the same amount and their f64 sets agree
+//!   to ~10⁻¹⁴ a step instead of ~10⁻¹² (`tests/gpu_parity.rs` holds them to 10⁻¹⁰), at a cost
+//!   of `3(N+3)·2⁻⁵²` of a sum's magnitude (~3·10⁻¹³ of it for a 400-wide layer).
+//!   `err_bound` evaluates that bound, with the
 //!   underflow part taken as `N·2⁻¹⁰²²` (a normal number: subnormal arithmetic is slow), and
 //!   rounds it up. When the computed numbers are *coefficients* later multiplied by variables
 //!   bounded by `mag`, the absolute (underflow) part is scaled by `1 + Σ mag`; relative errors
@@ -188,10 +193,15 @@ pub fn pow_int(x: f64, n: i32) -> f64 {
     }
 }
 
-/// `γ̂_N = (N + 3)·2⁻⁵²`, exact in f64 (module documentation).
+/// The unit of [`gamma_hat`]: `2⁻⁵⁰`, the GPU's f64 `GAMMA_UNIT` (`shaders/real_f64.wgsl`),
+/// four times what round-to-nearest needs (module documentation: one rounding model for both
+/// engines).
+pub const GAMMA_UNIT: f64 = 4.0 * f64::EPSILON;
+
+/// `γ̂_N = (N + 3)·2⁻⁵⁰`, exact in f64 (module documentation).
 #[inline]
 pub fn gamma_hat(n_terms: usize) -> f64 {
-    (n_terms as f64 + 3.0) * f64::EPSILON
+    (n_terms as f64 + 3.0) * GAMMA_UNIT
 }
 
 /// Rigorous bound on the rounding error of a computed sum of `n_terms` products of at most three

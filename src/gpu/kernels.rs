@@ -431,3 +431,33 @@ impl Kernels {
         })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::REAL_F64;
+
+    /// The value of `const {name}: real = …lf;` in a precision prelude.
+    fn constant(prelude: &str, name: &str) -> f64 {
+        let line = prelude
+            .lines()
+            .find(|l| l.starts_with(&format!("const {name}: real = ")))
+            .unwrap_or_else(|| panic!("no constant {name}"));
+        let value = line.split('=').nth(1).unwrap().trim();
+        value
+            .trim_end_matches(';')
+            .trim_end_matches("lf")
+            .parse()
+            .unwrap()
+    }
+
+    /// One rounding model for both engines (`crate::rounding`): the f64 shaders bound a sum's
+    /// rounding with the CPU's `γ̂_N`, so the engines' f64 sets agree to ~1e-14 a step.
+    #[test]
+    fn the_f64_shaders_bound_sums_as_the_cpu_does() {
+        assert_eq!(
+            constant(REAL_F64, "GAMMA_UNIT"),
+            crate::rounding::GAMMA_UNIT
+        );
+        assert_eq!(constant(REAL_F64, "EPS"), f64::EPSILON);
+    }
+}
