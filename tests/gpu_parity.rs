@@ -10,6 +10,7 @@ mod common;
 
 use std::sync::Arc;
 
+use cbfreach::bounds::BoundMethod;
 use cbfreach::gpu::{GpuBackend, GpuContext, Precision};
 use cbfreach::problem::ProblemOptions;
 use cbfreach::reach::{
@@ -39,9 +40,10 @@ const VERIFY_TOL: f64 = 1e-10;
 /// The final sets of whole grids over whole horizons with the shipped networks, in either time
 /// model: a cell whose set grows several units wide before it ends amplifies the engines'
 /// per-step differences (~2e-13 on 1.0-wide cells): scenario 1's cell (3.5, −1)…(4.5, 0) under
-/// Euler, 1.0 → 5.3 wide in its last 8 steps, ends 5.7e-10 apart (2.5e-11 at t = 1.0), every
+/// Euler, 1.0 → 5.3 wide in its last 8 steps, ends 5.4e-10 apart (2.5e-11 at t = 1.0), every
 /// other cell of 8 × 6 within 6.1e-11. Measured worst (lavapipe, 2026-12-04): 8 × 6 Euler
-/// 5.7e-10, continuous 4.4e-13 (before the CPU took the device's `γ̂_N`: 5.1e-9 and 6.2e-10).
+/// 5.4e-10, continuous 1.5e-13; 10 × 4 Euler 4.3e-12, continuous 7.9e-12 (before the CPU took
+/// the device's `γ̂_N`: 5.1e-9, 6.2e-10, 4.5e-11, 1.5e-10).
 const GRID_TOL: f64 = 1e-9;
 
 fn gpu_f64() -> Option<GpuBackend> {
@@ -715,4 +717,47 @@ fn width(lower: &[f64], upper: &[f64]) -> f64 {
         .zip(upper)
         .map(|(l, u)| u - l)
         .fold(0.0, f64::max)
+}
+
+/// One Euler step of the paper's 12 boxes with scenario 1's shipped network bounded over each
+/// whole box (forward and forward-backward, `M = 0.179`): the engines bound every sum's rounding
+/// by the same `γ̂_N` and the f64 device adds no conversion error for weights it holds exactly,
+/// so their sets agree to a few ulps of the states' magnitudes. Measured 5.2e-15 and 4.1e-15 on
+/// lavapipe; checked that it fails with the CPU's former `γ̂_N = (N+3)·2⁻⁵²` (forward 5.4e-12)
+/// and with the device's former conversion term in f64 (forward 6.0e-14, forward-backward
+/// 2.0e-14).
+#[test]
+fn one_step_sets_agree_to_a_few_ulps() {
+    let Some(gpu) = gpu_f64() else { return };
+    let s = common::integrator();
+    let options = ProblemOptions {
+        m_c: Some(Margin::Value(0.179)),
+        time: Some("euler".into()),
+        ..ProblemOptions::default()
+    };
+    let mut problem = ReachProblem::from_scenario(&s, &options).unwrap();
+    problem.steps = 1;
+    for bounds in [BoundMethod::Forward, BoundMethod::ForwardBackward] {
+        let settings = ReachSettings {
+            bounds,
+            exact: ExactField::Nowhere,
+            ..ReachSettings::default()
+        };
+        let run = |b: &dyn Backend| {
+            b.reach(&problem, &s.reach.initial, &settings, &|_, _| {})
+                .unwrap()
+                .boxes
+        };
+        let (cpu, dev) = (run(&CpuBackend), run(&gpu));
+        let mut worst: f64 = 0.0;
+        for (c, g) in cpu.iter().zip(&dev) {
+            let (a, b) = (&c.tube[1].set, &g.tube[1].set);
+            let pairs = a.lower.iter().zip(&b.lower);
+            for (x, y) in pairs.chain(a.upper.iter().zip(&b.upper)) {
+                worst = worst.max((x - y).abs() / x.abs().max(1.0));
+            }
+        }
+        eprintln!("{bounds}: one step, sets within {worst:.2e}");
+        assert!(worst <= 1e-14, "{bounds}: {worst:.2e}");
+    }
 }

@@ -34,13 +34,15 @@
 //!   bound is added to the constant of the radius form `R̂`, rounded up (`err_bound` in
 //!   `shaders/common.wgsl`); layer widths are limited to 2¹⁸ so that `N u ≤ 1/32`.
 //! - **First layer**: `Ĉ = [fl(W₁) | fl(b₁)]` with the conversion error
-//!   `≤ 2⁻²⁴(Σ|W₁|·|x| + |b₁|)` in `R̂`'s constant.
+//!   `≤ 2⁻²⁴(Σ|W₁|·|x| + |b₁|)` in `R̂`'s constant (f32; in f64 the weights are the host's
+//!   exactly, and only the absolute part for a flushed subnormal is added: `conversion_error`
+//!   in `shaders/common.wgsl`).
 //! - **ReLU and output**: as `bounds::forward` on the CPU, with the device's `γ̂`; IBP alongside
 //!   (forward-backward) as `bounds::ibp`, intersected.
 //! - **Backward passes** (`shaders/backward.wgsl`): as `bounds::crown`: `Λ ← Wⱼᵀ·(Λ∘s)` is one
 //!   GEMM for all boxes, and `β` moves outward by `err_bound(2nⱼ + 2, Σ|Λ∘s| w + |Λt|)`, with
 //!   `w = |Wⱼ| magⱼ + |bⱼ|` from a GEMM of `max(u, 0)`; the pass's start `Λ = fl(W_k)` adds its
-//!   conversion error `err_bound(2, |W_k| mag_k + |b_k|)` to `β`.
+//!   conversion error `err_bound(2, |W_k| mag_k + |b_k|)` to `β` (f32; as above in f64).
 //! - **Single operations** (interval arithmetic, concretisation, Euler step): each result is
 //!   stepped outward (`up`, `down`: one ulp through the bit pattern in f32; `max(|x|·2⁻⁵⁰,
 //!   MIN_NORMAL)` arithmetically in f64, which WGSL cannot bitcast without 64-bit integers);
