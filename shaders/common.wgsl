@@ -43,8 +43,8 @@ fn err_bound(n: u32, mag: real, scale: real) -> real {
 // How far the device's copy of a layer's weights and bias, applied to inputs whose magnitude
 // sum (with |b|) is `mag`, can be from the f64 originals: rounded to f32, at most 2⁻²⁴ relative
 // (err_bound(2, mag, scale) covers it); in f64 they are exact, and only the absolute part for
-// a flushed subnormal weight is left (the CPU adds nothing there: one term fewer in f64 kept
-// the engines ~4e-13 a step apart on the output layer's magnitudes).
+// a flushed subnormal weight is left. (The CPU holds them exactly and adds nothing; the term
+// this added in f64 too had kept the engines ~4e-13 a step apart.)
 fn conversion_error(mag: real, scale: real) -> real {
     return err_bound(2u, select(0.0, mag, WEIGHTS_ROUNDED), scale);
 }

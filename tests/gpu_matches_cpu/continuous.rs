@@ -22,8 +22,10 @@ pub(super) const SHIPPED_TOL: f64 = 1e-10;
 
 /// The Euler map's sets on the same problem, for scale: its boxes that leave `C` grow several
 /// times wider in 25 steps, carrying the one difference of the engines' face-local forward
-/// bounds left (the CPU folds a face's pinned coordinate into the constant and carries its
-/// rounding as `rowsum(|W|)·ε`, ~4e-13 a step; the device keeps the coordinate): 1.9e-9.
+/// bounds left (the CPU folds a face's fixed coordinate into the forms' constant, so its
+/// magnitude sums, and the rounding bounds taken from them, leave out that coordinate's
+/// `|w|·|x|` where the sum cancels; the device keeps the coordinate): ~5e-13 a step on a face
+/// at x₁ ≈ 3.9, 1.9e-9 at the end.
 const EULER_TOL: f64 = 1e-8;
 
 /// Asserts that no state of `trajectories` ([`escapes`]) lies outside the GPU's sets or
