@@ -660,12 +660,7 @@ fn paper_boxes(horizons: [f64; 2]) {
     ];
     for ((mut s, m_c), horizon) in scenarios.into_iter().zip(horizons) {
         s.reach.horizon = horizon;
-        let options = ProblemOptions {
-            m_c: Some(Margin::Value(m_c)),
-            time: Some("euler".into()),
-            ..ProblemOptions::default()
-        };
-        let problem = ReachProblem::from_scenario(&s, &options).unwrap();
+        let problem = euler_with_margin(&s, m_c);
         let settings = ReachSettings {
             method: ReachMethod::Minkowski,
             ..ReachSettings::default()
@@ -710,6 +705,17 @@ fn paper_boxes(horizons: [f64; 2]) {
     }
 }
 
+/// Scenario `s`'s problem (its shipped network) under the Euler map with the global margin
+/// `m_c`.
+fn euler_with_margin(s: &Scenario, m_c: f64) -> ReachProblem {
+    let options = ProblemOptions {
+        m_c: Some(Margin::Value(m_c)),
+        time: Some("euler".into()),
+        ..ProblemOptions::default()
+    };
+    ReachProblem::from_scenario(s, &options).unwrap()
+}
+
 /// The largest side of a box.
 fn width(lower: &[f64], upper: &[f64]) -> f64 {
     lower
@@ -730,12 +736,7 @@ fn width(lower: &[f64], upper: &[f64]) -> f64 {
 fn one_step_sets_agree_to_a_few_ulps() {
     let Some(gpu) = gpu_f64() else { return };
     let s = common::integrator();
-    let options = ProblemOptions {
-        m_c: Some(Margin::Value(0.179)),
-        time: Some("euler".into()),
-        ..ProblemOptions::default()
-    };
-    let mut problem = ReachProblem::from_scenario(&s, &options).unwrap();
+    let mut problem = euler_with_margin(&s, 0.179);
     problem.steps = 1;
     for bounds in [BoundMethod::Forward, BoundMethod::ForwardBackward] {
         let settings = ReachSettings {

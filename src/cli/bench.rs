@@ -139,6 +139,13 @@ pub fn run(args: &BenchArgs) -> CliResult {
         "per CPU",
         "× first"
     );
+    // The boxes of each size (the same for every engine and bounds), and one for the warm-up.
+    let sizes: Vec<(usize, Vec<_>)> = args
+        .boxes
+        .iter()
+        .map(|&count| (count, spread_boxes(&s, count)))
+        .collect();
+    let one = spread_boxes(&s, 1);
     // Each run's rate, for the ratio of a later engine's to the first engine's.
     let mut first_rates: Vec<((BoundMethod, usize), f64)> = Vec::new();
     for (e, (label, engine, peak)) in engines.iter().enumerate() {
@@ -161,13 +168,13 @@ pub fn run(args: &BenchArgs) -> CliResult {
             // compiler (the step count is part of the problem's WGSL: the same problem).
             // Not with --profile, whose report is of the first run.
             if !args.profile {
-                engine.reach(&problem, &spread_boxes(&s, 1), &settings, &|_, _| {})?;
+                engine.reach(&problem, &one, &settings, &|_, _| {})?;
             }
-            for &count in &args.boxes {
-                let boxes = spread_boxes(&s, count);
+            for (count, boxes) in &sizes {
+                let count = *count;
                 let (start, counted) = (Instant::now(), cbfreach::matmul::multiply_adds());
                 let cpu_start = process_cpu_seconds();
-                let result = engine.reach(&problem, &boxes, &settings, &|_, _| {})?;
+                let result = engine.reach(&problem, boxes, &settings, &|_, _| {})?;
                 let seconds = start.elapsed().as_secs_f64();
                 let cpu_seconds = process_cpu_seconds().zip(cpu_start).map(|(b, a)| b - a);
                 let done = (cbfreach::matmul::multiply_adds() - counted) as f64;

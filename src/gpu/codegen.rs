@@ -20,8 +20,8 @@ use crate::reach::safe_set::{SafeHalfspace, Tightening};
 use crate::reach::{ExactField, ReachMethod, ReachProblem, ReachSettings, SafeSet};
 use crate::scenario::Norm;
 
-/// The largest f32 the shaders treat as a number (`HUGE` in `common.wgsl`).
-const HUGE: f32 = 3.0e38;
+/// The largest f32 the shaders treat as a number (`HUGE` in `real_f32.wgsl`).
+pub(crate) const HUGE: f32 = 3.0e38;
 const MIN_NORMAL: f32 = f32::MIN_POSITIVE;
 
 /// The largest f32 `≤ x` (`−HUGE` for `x < −HUGE` or NaN); subnormals go to the next normal
@@ -75,7 +75,7 @@ pub fn literal(x: f32) -> String {
 }
 
 /// The largest f64 the f64 shaders treat as a number (`HUGE` in `real_f64.wgsl`).
-const HUGE_F64: f64 = 1.0e300;
+pub(crate) const HUGE_F64: f64 = 1.0e300;
 
 /// The largest device number `≤ x` in `precision`, as an f64 (exact).
 pub fn round_down(x: f64, precision: Precision) -> f64 {

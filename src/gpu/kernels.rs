@@ -51,6 +51,8 @@ const CMEET: &str = include_str!("../../shaders/cmeet.wgsl");
 pub const WORKGROUP: u32 = 64;
 /// Output tile of the GEMM kernel (64 × 64), the columns of the narrowest tile.
 pub const GEMM_TILE: u32 = 64;
+/// Output tile of `gemm_wide` (rows × columns: 64 × 256; `WM`, `WN` in shaders/gemm.wgsl).
+pub const GEMM_WIDE_TILE: [u32; 2] = [64, 256];
 /// Rows and columns of the block of Y one thread of `gemm_flat` writes.
 pub const GEMM_FLAT_BLOCK: u32 = 4;
 
@@ -90,7 +92,10 @@ impl Gemm {
                 [x, g.div_ceil(x), 1]
             }
             Gemm::Tiles => [cols.div_ceil(GEMM_TILE), rows.div_ceil(GEMM_TILE), 1],
-            Gemm::Wide => [cols.div_ceil(256), rows.div_ceil(64), 1],
+            Gemm::Wide => {
+                let [tm, tn] = GEMM_WIDE_TILE;
+                [cols.div_ceil(tn), rows.div_ceil(tm), 1]
+            }
         }
     }
 }
@@ -283,16 +288,20 @@ pub const MODULES: [&str; 9] = [
     "cmeet",
 ];
 
+/// The precision prelude (`real`, its unit, `up` and `down`) of `precision`'s shaders.
+pub(crate) fn prelude(precision: Precision) -> &'static str {
+    match precision {
+        Precision::F32 => REAL_F32,
+        Precision::F64 => REAL_F64,
+    }
+}
+
 /// The WGSL of a module: the precision prelude, shared helpers, the generated problem constants
 /// and the module's kernels (`gemm`, `relu`, `backward`, `output`, `faces`, `settle`,
 /// `continuous`, `cmeet`, `embed`).
 pub fn shader_source(precision: Precision, problem_wgsl: &str, module: &str) -> String {
-    let prelude = match precision {
-        Precision::F32 => REAL_F32,
-        Precision::F64 => REAL_F64,
-    };
     let mut s = String::new();
-    for part in [prelude, F32_BITS, PARAMS, COMMON, problem_wgsl] {
+    for part in [prelude(precision), F32_BITS, PARAMS, COMMON, problem_wgsl] {
         s.push_str(part);
         s.push('\n');
     }
@@ -434,18 +443,20 @@ impl Kernels {
 
 #[cfg(test)]
 mod tests {
-    use super::REAL_F64;
+    use super::{GEMM, GEMM_TILE, GEMM_WIDE_TILE, REAL_F32, REAL_F64};
+    use crate::gpu::codegen::{HUGE, HUGE_F64};
 
-    /// The value of `const {name}: real = …lf;` in a precision prelude.
-    fn constant(prelude: &str, name: &str) -> f64 {
-        let line = prelude
+    /// The value of `const {name}: … = …;` in WGSL source (suffixes `lf`, `u` dropped).
+    fn constant(source: &str, name: &str) -> f64 {
+        let line = source
             .lines()
-            .find(|l| l.starts_with(&format!("const {name}: real = ")))
+            .find(|l| l.starts_with(&format!("const {name}: ")))
             .unwrap_or_else(|| panic!("no constant {name}"));
         let value = line.split('=').nth(1).unwrap().trim();
         value
             .trim_end_matches(';')
             .trim_end_matches("lf")
+            .trim_end_matches('u')
             .parse()
             .unwrap()
     }
@@ -459,5 +470,19 @@ mod tests {
             crate::rounding::GAMMA_UNIT
         );
         assert_eq!(constant(REAL_F64, "EPS"), f64::EPSILON);
+    }
+
+    /// The host's mirrors of shader constants: the largest number the preludes treat as one
+    /// (the host rounds what it uploads into that range) and the GEMM tiles it dispatches by.
+    #[test]
+    fn host_mirrors_of_shader_constants_agree() {
+        // The f32 prelude's literal is an f32.
+        assert_eq!(constant(REAL_F32, "HUGE") as f32, HUGE);
+        assert_eq!(constant(REAL_F64, "HUGE"), HUGE_F64);
+        for name in ["TM", "TN"] {
+            assert_eq!(constant(GEMM, name), f64::from(GEMM_TILE), "{name}");
+        }
+        assert_eq!(constant(GEMM, "WM"), f64::from(GEMM_WIDE_TILE[0]));
+        assert_eq!(constant(GEMM, "WN"), f64::from(GEMM_WIDE_TILE[1]));
     }
 }

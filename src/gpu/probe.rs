@@ -9,7 +9,7 @@ use wgpu::util::DeviceExt;
 use super::buffers::{device_bytes, from_device_bytes, uniform, Params};
 use super::codegen::{h_enclosure, round_down, round_up};
 use super::kernels::{
-    Gemm, COMMON, END_RATES, F32_BITS, GEMM, PARAMS, REAL_F32, REAL_F64, TURN, VALIDATED,
+    prelude, Gemm, COMMON, END_RATES, F32_BITS, GEMM, PARAMS, REAL_F32, REAL_F64, TURN, VALIDATED,
 };
 use super::{GpuContext, GpuError, Precision};
 use crate::boxes::IntervalBox;
@@ -31,26 +31,16 @@ pub fn gemm_on_device(
     if precision == Precision::F64 && !ctx.has_f64() {
         return Err(GpuError::NoF64(ctx.info.name.clone()));
     }
-    let real = match precision {
-        Precision::F64 => REAL_F64,
-        Precision::F32 => REAL_F32,
-    };
+    let real = prelude(precision);
     let source =
         format!("{real}\n{F32_BITS}\n{PARAMS}\n{COMMON}\nconst ABS_UNIT: real = 0.0;\n{GEMM}");
     let entry = gemm.entry();
     let device = &ctx.device;
     let pipeline = compile(device, &source, entry)?;
     let storage = |label, data: &[f64], usage| {
-        let contents: Vec<u8> = match precision {
-            Precision::F64 => bytemuck::cast_slice(data).to_vec(),
-            Precision::F32 => data
-                .iter()
-                .flat_map(|&v| (v as f32).to_ne_bytes())
-                .collect(),
-        };
         device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some(label),
-            contents: &contents,
+            contents: &device_bytes(data, precision),
             usage: wgpu::BufferUsages::STORAGE | usage,
         })
     };
@@ -89,14 +79,11 @@ pub fn gemm_on_device(
         pass.dispatch_workgroups(groups[0], groups[1], groups[2]);
     }
     ctx.queue.submit([enc.finish()]);
-    match precision {
-        Precision::F64 => read_back(ctx, &y_b, y.len()),
-        Precision::F32 => {
-            let bytes = read_back_bytes(ctx, &y_b, (y.len() * 4) as u64)?;
-            let ys: Vec<f32> = bytemuck::pod_collect_to_vec(&bytes);
-            Ok(ys.into_iter().map(f64::from).collect())
-        }
-    }
+    let size = y.len() as u64 * precision.bytes();
+    Ok(from_device_bytes(
+        &read_back_bytes(ctx, &y_b, size)?,
+        precision,
+    ))
 }
 
 /// `len` f64 of `buf` (a `COPY_SRC` buffer), after the queue's work.
