@@ -9,6 +9,8 @@ struct BoxInfo {
     xr: array<real, N0>,
     xmag: array<real, N0>,
     scale: real,
+    // The coordinates with lo < hi (a face pins one): the forms' coordinates on the CPU.
+    free: u32,
 }
 
 fn box_info(g: u32) -> BoxInfo {
@@ -26,6 +28,7 @@ fn box_info(g: u32) -> BoxInfo {
         b.xr[q] = r;
         b.xmag[q] = m;
         sum = up(sum + m);
+        b.free += select(1u, 0u, l == h);
     }
     b.scale = sum;
     return b;

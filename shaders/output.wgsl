@@ -42,15 +42,9 @@ fn forward_row(i: u32, g: u32, bx: BoxInfo) -> Row {
     var r: array<real, KC>;
     let b = net[p.b_off + i];
     if (p.first != 0u) {
-        var m0 = abs(b);
-        for (var q = 0u; q < N0; q++) {
-            let w = net[p.w_off + i * N0 + q];
-            c[q] = w;
-            r[q] = 0.0;
-            m0 = up(m0 + up(abs(w) * bx.xmag[q]));
-        }
-        c[N0] = b;
-        r[N0] = conversion_error(m0, bx.scale);
+        let f = first_layer_forms(i, bx);
+        c = f.c;
+        r = f.r;
     } else {
         let base = i * p.boxes * KC + g * KC;
         for (var q = 0u; q < KC; q++) {
@@ -60,7 +54,7 @@ fn forward_row(i: u32, g: u32, bx: BoxInfo) -> Row {
         c[N0] = c[N0] + b;
         let vg = aux_g[(i * AUX + S_V) * p.boxes + g];
         let e = err_bound(p.n_prev + 1u, up(vg + abs(b)), bx.scale);
-        r[N0] = up(r[N0] + e);
+        r[N0] = widened(up(r[N0] + e), fold_carry(i, bx));
     }
     var row: Row;
     var mag = abs(c[N0]) + abs(r[N0]);
@@ -69,8 +63,12 @@ fn forward_row(i: u32, g: u32, bx: BoxInfo) -> Row {
         row.a_hi[q] = c[q] + r[q];
         mag += (abs(c[q]) + abs(r[q])) * bx.xmag[q];
     }
-    // Forming Ĉ ∓ R̂ errs by at most γ̂ V, moved into the constants.
-    let e = err_bound(2u, mag, bx.scale);
+    // Forming Ĉ ∓ R̂ errs by at most γ̂ V, moved into the constants; a first layer's forms are
+    // off by the fold's rounding besides (fold.wgsl).
+    var e = err_bound(2u, mag, bx.scale);
+    if (p.first != 0u) {
+        e = widened(e, fold_error(bx));
+    }
     row.d_lo = down(down(c[N0] - r[N0]) - e);
     row.d_hi = up(up(c[N0] + r[N0]) + e);
     row.n_lo = affine_min(row.a_lo, row.d_lo, bx);

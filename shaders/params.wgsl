@@ -42,4 +42,9 @@ struct Params {
     k_wm_off: u32,
     // The embedding step: 2, the trip count of its loop-limit check (loops_ran_in_full).
     loop_check: u32,
+    // Offset in `net` of the constants of a face's folded first layer (src/gpu/buffers.rs:
+    // FlatNetwork; shaders/fold.wgsl).
+    fold_off: u32,
+    // 1 for the layer after the first: R̂ takes rowsum(|W|)·ε of the first layer's fold.
+    carry: u32,
 }

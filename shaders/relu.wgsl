@@ -47,16 +47,9 @@ fn relu(@builtin(global_invocation_id) gid: vec3<u32>) {
     var c: array<real, KC>;
     var r: array<real, KC>;
     if (p.first != 0u) {
-        // Ĉ = [W₁ᵢ | b₁ᵢ] as the device holds them; their rounding goes into R̂'s constant.
-        var mag = abs(b);
-        for (var q = 0u; q < N0; q++) {
-            let w = net[p.w_off + i * N0 + q];
-            c[q] = w;
-            r[q] = 0.0;
-            mag = up(mag + up(abs(w) * bx.xmag[q]));
-        }
-        c[N0] = b;
-        r[N0] = conversion_error(mag, bx.scale);
+        let f = first_layer_forms(i, bx);
+        c = f.c;
+        r = f.r;
     } else {
         for (var q = 0u; q < KC; q++) {
             c[q] = cf[base + q];
@@ -64,7 +57,7 @@ fn relu(@builtin(global_invocation_id) gid: vec3<u32>) {
         }
         c[N0] = c[N0] + b;
         let e = err_bound(p.n_prev + 1u, up(aux_g[aux_at(i, S_V, g)] + abs(b)), bx.scale);
-        r[N0] = up(r[N0] + e);
+        r[N0] = widened(up(r[N0] + e), fold_carry(i, bx));
     }
     // Concretise l ≤ z ≤ u over the box.
     var su = c[N0] + r[N0];
@@ -77,7 +70,11 @@ fn relu(@builtin(global_invocation_id) gid: vec3<u32>) {
         sl += lo_q * bx.xc[q] - abs(lo_q) * bx.xr[q];
         mag += (abs(c[q]) + abs(r[q])) * bx.xmag[q];
     }
-    let err = err_bound(3u * N0 + 3u, mag, bx.scale);
+    // The first layer's forms are off by the fold's rounding beside R̂ (fold.wgsl).
+    var err = err_bound(3u * bx.free + 3u, mag, bx.scale);
+    if (p.first != 0u) {
+        err = widened(err, fold_error(bx));
+    }
     var l = down(sl - err);
     var u = up(su + err);
     if (!(finite(l) && finite(u) && finite(mag))) {

@@ -60,6 +60,7 @@ pub use ibp::ibp;
 
 pub(crate) use affine::OutRow;
 pub(crate) use batch::{for_each_group, Schedule};
+pub(crate) use forward::FoldBound;
 
 use crate::matmul::PackedMatrix;
 use crate::network::Mlp;
@@ -326,6 +327,22 @@ pub struct PreparedNetwork<'a> {
     /// Upper bounds of the row sums of `|W_k|` (`n_k` per layer): forward bounds bound
     /// `|W_k| V ≤ rowsum · max V` for their rounding instead of computing the product.
     pub(crate) abs_row_sums: Vec<Vec<f64>>,
+    /// Layer 0's bounds for the rounding of a face's folded constant.
+    pub(crate) fold: forward::FoldBound,
+}
+
+/// Upper bounds of the row sums of `|W|` of `layer` (the GPU engine uploads the same).
+pub(crate) fn abs_row_sums(layer: &crate::network::Layer) -> Vec<f64> {
+    // A sum of n nonnegative terms errs by less than (n + 2)·ε relative.
+    let slack = 1.0 + (layer.n_in as f64 + 2.0) * f64::EPSILON;
+    layer
+        .weight
+        .chunks(layer.n_in.max(1))
+        .map(|row| {
+            let sum: f64 = row.iter().map(|w| w.abs()).sum();
+            crate::rounding::round_up_keep_zero(sum * slack)
+        })
+        .collect()
 }
 
 impl<'a> PreparedNetwork<'a> {
@@ -350,27 +367,14 @@ impl<'a> PreparedNetwork<'a> {
                 PackedMatrix::new(k, m, &wt)
             })
             .collect();
-        let abs_row_sums = net
-            .layers
-            .iter()
-            .map(|l| {
-                // A sum of n nonnegative terms errs by less than (n + 2)·ε relative.
-                let slack = 1.0 + (l.n_in as f64 + 2.0) * f64::EPSILON;
-                l.weight
-                    .chunks(l.n_in.max(1))
-                    .map(|row| {
-                        let sum: f64 = row.iter().map(|w| w.abs()).sum();
-                        crate::rounding::round_up_keep_zero(sum * slack)
-                    })
-                    .collect()
-            })
-            .collect();
+        let abs_row_sums = net.layers.iter().map(abs_row_sums).collect();
         Ok(PreparedNetwork {
             net,
             abs_w,
             packed_w,
             packed_wt,
             abs_row_sums,
+            fold: forward::FoldBound::new(&net.layers[0]),
         })
     }
 

@@ -75,6 +75,11 @@ pub struct Params {
     pub k_wm_off: u32,
     /// The embedding step: [`LOOP_CHECK`], the trip count of its loop-limit check.
     pub loop_check: u32,
+    /// Offset of the fold constants in the network buffer ([`FlatNetwork`]).
+    pub fold_off: u32,
+    /// 1 for the layer after the first (forward forms): `R̂` takes `rowsum(|W|)·ε` of the
+    /// first layer's fold.
+    pub carry: u32,
 }
 
 /// Iterations of the embedding kernel's last loop (`loops_ran_in_full` in
@@ -127,18 +132,83 @@ pub fn uniform(device: &wgpu::Device, label: &str, p: &Params) -> wgpu::Buffer {
     })
 }
 
-/// The network as one array (each layer's `W` row-major, then its `b`) and the offsets.
-pub fn flatten_network(net: &crate::network::Mlp) -> (Vec<f64>, Vec<(u32, u32)>) {
-    let mut data = Vec::new();
-    let mut offsets = Vec::new();
-    for layer in &net.layers {
-        let w_off = data.len() as u32;
-        data.extend(&layer.weight);
-        let b_off = data.len() as u32;
-        data.extend(&layer.bias);
-        offsets.push((w_off, b_off));
+/// Where each part of the network lies in the kernels' network buffer ([`flatten_network`]).
+#[derive(Clone, Debug)]
+pub struct NetworkOffsets {
+    /// Every layer's `W` (row-major) and `b`.
+    pub layers: Vec<(u32, u32)>,
+    /// The constants of a face's folded first layer, after the layers: `max|b₀|`, `max|W₀|`
+    /// per input (`bounds::FoldBound`), then the row sums of `|W₁|` (`bounds::abs_row_sums`;
+    /// none for a one-layer network).
+    pub fold: u32,
+}
+
+impl NetworkOffsets {
+    /// The offsets of `net`'s buffer.
+    pub fn of(net: &crate::network::Mlp) -> NetworkOffsets {
+        let mut at = 0u32;
+        let layers = net
+            .layers
+            .iter()
+            .map(|l| {
+                let (w_off, b_off) = (at, at + (l.n_out * l.n_in) as u32);
+                at = b_off + l.n_out as u32;
+                (w_off, b_off)
+            })
+            .collect();
+        NetworkOffsets { layers, fold: at }
     }
-    (data, offsets)
+}
+
+/// The network buffer's numbers: each layer's `W` then `b`, then the fold constants
+/// ([`NetworkOffsets`]).
+pub struct FlatNetwork {
+    /// The numbers, in f64.
+    pub data: Vec<f64>,
+    /// Where each part lies.
+    pub offsets: NetworkOffsets,
+}
+
+impl FlatNetwork {
+    /// The data in the device's type. The weights are rounded to nearest in f32 (their
+    /// conversion error the kernels bound); the fold constants, bounds themselves, upwards.
+    pub fn device_bytes(&self, precision: Precision) -> Vec<u8> {
+        let (weights, bounds) = self.data.split_at(self.offsets.fold as usize);
+        let mut bytes = device_bytes(weights, precision);
+        let bounds: Vec<f64> = match precision {
+            Precision::F32 => bounds
+                .iter()
+                .map(|&x| f64::from(super::codegen::f32_up(x)))
+                .collect(),
+            Precision::F64 => bounds.to_vec(),
+        };
+        bytes.extend(device_bytes(&bounds, precision));
+        bytes
+    }
+}
+
+/// The network buffer's numbers ([`FlatNetwork`]).
+pub fn flatten_network(net: &crate::network::Mlp) -> FlatNetwork {
+    let mut data = Vec::new();
+    for layer in &net.layers {
+        data.extend(&layer.weight);
+        data.extend(&layer.bias);
+    }
+    if let Some(first) = net.layers.first() {
+        let fold = crate::bounds::FoldBound::new(first);
+        data.push(fold.b_max);
+        data.extend(&fold.w_max);
+    }
+    if let Some(second) = net.layers.get(1) {
+        data.extend(crate::bounds::abs_row_sums(second));
+    }
+    let offsets = NetworkOffsets::of(net);
+    let second = net.layers.get(1).map_or(0, |l| l.n_out);
+    debug_assert_eq!(
+        data.len(),
+        offsets.fold as usize + 1 + net.input_dim() + second
+    );
+    FlatNetwork { data, offsets }
 }
 
 /// Numbers in the device's type: f64 as is, or rounded to the nearest f32 (exact for numbers

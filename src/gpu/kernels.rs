@@ -15,6 +15,8 @@ pub(crate) const PARAMS: &str = include_str!("../../shaders/params.wgsl");
 const BOX: &str = include_str!("../../shaders/box.wgsl");
 pub(crate) const GEMM: &str = include_str!("../../shaders/gemm.wgsl");
 const RELU: &str = include_str!("../../shaders/relu.wgsl");
+/// The first layer's forms, a face's pinned coordinates folded (relu and output kernels).
+const FOLD: &str = include_str!("../../shaders/fold.wgsl");
 const BACKWARD: &str = include_str!("../../shaders/backward.wgsl");
 const OUTPUT: &str = include_str!("../../shaders/output.wgsl");
 const EMBED: &str = include_str!("../../shaders/embed.wgsl");
@@ -307,9 +309,9 @@ pub fn shader_source(precision: Precision, problem_wgsl: &str, module: &str) -> 
     }
     let body: &[&str] = match module {
         "gemm" => &[GEMM],
-        "relu" => &[BOX, RELU],
+        "relu" => &[BOX, FOLD, RELU],
         "backward" => &[BOX, BACKWARD],
-        "output" => &[BOX, OUTPUT],
+        "output" => &[BOX, FOLD, OUTPUT],
         "faces" => &[BOX, FACES],
         "settle" => &[SETS, SETTLE],
         "continuous" => &[
@@ -443,7 +445,7 @@ impl Kernels {
 
 #[cfg(test)]
 mod tests {
-    use super::{GEMM, GEMM_TILE, GEMM_WIDE_TILE, REAL_F32, REAL_F64};
+    use super::{GEMM, GEMM_TILE, GEMM_WIDE_TILE, PARAMS, REAL_F32, REAL_F64};
     use crate::gpu::codegen::{HUGE, HUGE_F64};
 
     /// The value of `const {name}: … = …;` in WGSL source (suffixes `lf`, `u` dropped).
@@ -484,5 +486,29 @@ mod tests {
         }
         assert_eq!(constant(GEMM, "WM"), f64::from(GEMM_WIDE_TILE[0]));
         assert_eq!(constant(GEMM, "WN"), f64::from(GEMM_WIDE_TILE[1]));
+    }
+
+    /// The host's `Params` (bytes cast as they are) has the uniform's fields, all `u32`, in the
+    /// order of shaders/params.wgsl: a field out of order would be read as another.
+    #[test]
+    fn host_params_mirror_the_shaders_uniform() {
+        let fields = |source: &str, start: &str| -> Vec<String> {
+            let body = &source[source.find(start).expect(start) + start.len()..];
+            let body = &body[..body.find('}').unwrap()];
+            body.lines()
+                .map(|l| l.trim().trim_start_matches("pub "))
+                .filter(|l| !l.starts_with("//") && l.contains(':'))
+                .map(|l| l.trim_end_matches(','))
+                .map(String::from)
+                .collect()
+        };
+        let host = include_str!("buffers.rs");
+        let wgsl = fields(PARAMS, "struct Params {");
+        assert_eq!(fields(host, "pub struct Params {"), wgsl);
+        assert!(wgsl.iter().all(|f| f.ends_with(": u32")), "{wgsl:?}");
+        assert_eq!(
+            std::mem::size_of::<crate::gpu::buffers::Params>(),
+            4 * wgsl.len()
+        );
     }
 }

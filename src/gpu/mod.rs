@@ -36,7 +36,11 @@
 //! - **First layer**: `Ĉ = [fl(W₁) | fl(b₁)]` with the conversion error
 //!   `≤ 2⁻²⁴(Σ|W₁|·|x| + |b₁|)` in `R̂`'s constant (f32; in f64 the weights are the host's
 //!   exactly, and only the absolute part for a flushed subnormal is added: `conversion_error`
-//!   in `shaders/common.wgsl`).
+//!   in `shaders/common.wgsl`). A face's pinned coordinates are folded into the constant, as
+//!   on the CPU, with the CPU's one bound `ε` of the fold's rounding per box (from constants
+//!   uploaded after the network, rounded up in f32: `buffers::FlatNetwork`), widening the
+//!   first layer's concretisation and entering the next layer's `R̂` as `rowsum(|W|)·ε`
+//!   (`shaders/fold.wgsl`).
 //! - **ReLU and output**: as `bounds::forward` on the CPU, with the device's `γ̂`; IBP alongside
 //!   (forward-backward) as `bounds::ibp`, intersected.
 //! - **Backward passes** (`shaders/backward.wgsl`): as `bounds::crown`: `Λ ← Wⱼᵀ·(Λ∘s)` is one

@@ -220,12 +220,12 @@ impl GpuBackend {
                 "a chunk of {chunk} boxes needs {size} bytes in one buffer ({name})"
             )));
         }
-        let (net, _) = flatten_network(&problem.network);
+        let net = flatten_network(&problem.network);
         let flags = flag_words(chunk) as u64 * 4;
         let sz = |name: &str| sizes.get(name).copied().unwrap_or(4);
         let (snap, state, known, cont) = (sz("snap"), sz("state"), sz("known"), sz("cont"));
         Ok(Buffers {
-            net: storage_init(d, "net", &device_bytes(&net, self.precision)),
+            net: storage_init(d, "net", &net.device_bytes(self.precision)),
             state: storage(d, "state", state),
             flags: storage(d, "flags", flags),
             snap: storage(d, "snap", snap),

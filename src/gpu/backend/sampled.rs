@@ -11,7 +11,7 @@ use std::sync::atomic::Ordering::Relaxed;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
-use super::super::buffers::{device_bytes, flatten_network, from_device_bytes};
+use super::super::buffers::{device_bytes, from_device_bytes, NetworkOffsets};
 use super::super::codegen::{flag_words, nnb_width, problem_wgsl, round_down, round_up, FLAG_W};
 use super::super::kernels::{Kernels, Variant};
 use super::super::margins::MarginMap;
@@ -43,8 +43,8 @@ struct FrameSetup<'a> {
     shape: Shape,
     kernels: Arc<Kernels>,
     bufs: Buffers,
-    /// Offsets of every layer's `W` and `b` in the network buffer.
-    offsets: Vec<(u32, u32)>,
+    /// Where the network's parts lie in its buffer.
+    network: NetworkOffsets,
 }
 
 /// The device as the CPU engine's source of network bounds.
@@ -94,7 +94,7 @@ impl BatchBounds for DeviceBounds<'_> {
             kernels: &fr.kernels,
             bufs: &fr.bufs,
             shape: &fr.shape,
-            offsets: fr.offsets.clone(),
+            network: fr.network.clone(),
             nb: boxes as u32,
             boxes: boxes as u32,
             known: &fr.bufs.known,
@@ -211,7 +211,7 @@ impl GpuBackend {
                     shape,
                     kernels,
                     bufs,
-                    offsets: flatten_network(&frame.network).1,
+                    network: NetworkOffsets::of(&frame.network),
                 })
             })
             .collect::<Result<Vec<_>, GpuError>>()?;
