@@ -111,7 +111,10 @@ pub fn run(args: &BenchArgs) -> CliResult {
             "gpu" => match cbfreach::gpu::GpuContext::with_adapter(args.gpu.adapter.as_deref()) {
                 Ok(ctx) => {
                     let precision = args.gpu.options().precision_for(&ctx);
-                    let name: String = ctx.info.name.chars().take(20).collect();
+                    // The adapter's name without its parenthesised details (lavapipe's
+                    // "llvmpipe (LLVM 15.0.7, 256 bits)"), to fit the column.
+                    let short = ctx.info.name.split(" (").next().unwrap_or_default();
+                    let name: String = short.chars().take(20).collect();
                     let label = format!("gpu ({name}, {})", precision.name());
                     let mut backend =
                         cbfreach::gpu::GpuBackend::with_precision(Arc::new(ctx), precision)?;
