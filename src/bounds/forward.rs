@@ -72,6 +72,7 @@ pub(crate) struct FoldBound {
 }
 
 impl FoldBound {
+    /// The bounds of `first`, the network's first layer.
     pub(crate) fn new(first: &crate::network::Layer) -> FoldBound {
         let n0 = first.n_in;
         let mut w_max = vec![0.0f64; n0];
@@ -284,15 +285,14 @@ pub(crate) fn forward_group(
     for g in 0..g_count {
         let free = &ws.free[g * d..(g + 1) * d];
         let (lo, hi) = (&lower[g * n0..(g + 1) * n0], &upper[g * n0..(g + 1) * n0]);
-        let pinned: Vec<usize> = (0..n0).filter(|&p| lo[p] == hi[p]).collect();
         for i in 0..first.n_out {
             let w_row = &first.weight[i * n0..(i + 1) * n0];
             for (q, &p) in free.iter().enumerate() {
                 ws.c[q * plane + i * g_count + g] = if p == usize::MAX { 0.0 } else { w_row[p] };
             }
-            let sum = pinned
-                .iter()
-                .fold(first.bias[i], |s, &p| s + w_row[p] * lo[p]);
+            let sum = (0..n0)
+                .filter(|&p| lo[p] == hi[p])
+                .fold(first.bias[i], |s, p| s + w_row[p] * lo[p]);
             ws.c[d * plane + i * g_count + g] = sum;
         }
         ws.pending[g] = prepared.fold.error(lo, hi, ws.scale[g]);
