@@ -132,7 +132,7 @@ fn same_verdicts_within(cpu: &[BoxVerdict], gpu: &[BoxVerdict], what: &str, tol:
 /// shipped network and its error map, forward-backward bounds, the filter's closed form), in
 /// continuous time (the default) and under the Euler map.
 #[test]
-#[ignore = "about half an hour on lavapipe (the GEMMs of the 400-wide network on every face of 48 cells, 250 steps, both time models; the CPU engine takes seconds): cargo test --release --test gpu_parity -- --ignored"]
+#[ignore = "10–30 minutes on lavapipe, 9 on a quiet 2-core VM (the GEMMs of the 400-wide network on every face of 48 cells, 250 steps, both time models; the CPU engine takes seconds): cargo test --release --test gpu_parity -- --ignored"]
 fn verify_integrator_8x6_same_verdicts() {
     verify_grid_on_both(common::integrator(), [8, 6]);
 }
@@ -141,7 +141,7 @@ fn verify_integrator_8x6_same_verdicts() {
 /// met with its x-box after every step (`intersect_x`, a second frame in x on both engines), the
 /// shipped network and error map, in continuous time (the default) and under the Euler map.
 #[test]
-#[ignore = "about half an hour on lavapipe (the GEMMs of the 500-wide network dominate every step, two frames, both time models): cargo test --release --test gpu_parity -- --ignored"]
+#[ignore = "10–30 minutes on lavapipe (the GEMMs of the 500-wide network dominate every step, two frames, both time models): cargo test --release --test gpu_parity -- --ignored"]
 fn verify_double_integrator_10x4_same_verdicts() {
     verify_grid_on_both(common::double_integrator(), [10, 4]);
 }
