@@ -1,5 +1,5 @@
 // The first layer's forms, with a face's pinned coordinates folded into the constant
-// (src/bounds/forward.rs: layer 0, `FoldBound`; the same numbers): the forms keep the free
+// (src/bounds/forward.rs: layer 0; src/bounds/fold.rs; the same numbers): the forms keep the free
 // coordinates only, so no later magnitude sum, nor the rounding bound taken from it, carries a
 // pinned coordinate's |w|·|x| where the constant cancels it. For the kernels that read `net`
 // and `p` (relu.wgsl, output.wgsl).

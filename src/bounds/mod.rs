@@ -43,6 +43,7 @@
 mod affine;
 mod batch;
 mod crown;
+mod fold;
 mod forward;
 mod forward_backward;
 mod ibp;
@@ -60,7 +61,7 @@ pub use ibp::ibp;
 
 pub(crate) use affine::OutRow;
 pub(crate) use batch::{for_each_group, Schedule};
-pub(crate) use forward::FoldBound;
+pub(crate) use fold::FoldBound;
 
 use crate::matmul::PackedMatrix;
 use crate::network::Mlp;
@@ -328,7 +329,7 @@ pub struct PreparedNetwork<'a> {
     /// `|W_k| V ≤ rowsum · max V` for their rounding instead of computing the product.
     pub(crate) abs_row_sums: Vec<Vec<f64>>,
     /// Layer 0's bounds for the rounding of a face's folded constant.
-    pub(crate) fold: forward::FoldBound,
+    pub(crate) fold: FoldBound,
 }
 
 /// Upper bounds of the row sums of `|W|` of `layer` (the GPU engine uploads the same).
@@ -374,7 +375,7 @@ impl<'a> PreparedNetwork<'a> {
             packed_w,
             packed_wt,
             abs_row_sums,
-            fold: forward::FoldBound::new(&net.layers[0]),
+            fold: FoldBound::new(&net.layers[0]),
         })
     }
 
