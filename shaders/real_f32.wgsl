@@ -6,9 +6,9 @@ alias real = f32;
 const EPS: real = 1.1920929e-7;
 // γ̂_n = (n + 3)·GAMMA_UNIT = 4(n + 3)u ≥ 2γ_{n+3} (err_bound).
 const GAMMA_UNIT: real = 4.76837158e-7;
-// The largest number the kernels treat as finite-but-unbounded (iv_entire).
 // The device's copy of the network is rounded to f32 (common.wgsl: conversion_error).
 const WEIGHTS_ROUNDED: bool = true;
+// The largest number the kernels treat as finite-but-unbounded (iv_entire).
 const HUGE: real = 3.0e38;
 const MIN_NORMAL: real = 1.17549435e-38;
 // Unstable-ReLU chord slopes below this are flushed to 0 (relu_lines).

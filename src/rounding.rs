@@ -33,9 +33,10 @@
 //!   to ~10⁻¹⁴ a step instead of ~10⁻¹² (`tests/gpu_parity.rs` holds them to 10⁻¹⁰), at a cost
 //!   of `3(N+3)·2⁻⁵²` of a sum's magnitude (~3·10⁻¹³ of it for a 400-wide layer).
 //!   `err_bound` evaluates that bound, with the underflow part taken as `N·2⁻¹⁰²²` (a normal
-//!   number: subnormal arithmetic is slow), and rounds it up. When the computed numbers are *coefficients* later multiplied by variables
-//!   bounded by `mag`, the absolute (underflow) part is scaled by `1 + Σ mag`; relative errors
-//!   are already carried through the magnitude sums. A widened bound is
+//!   number: subnormal arithmetic is slow), and rounds it up. When the computed numbers are
+//!   *coefficients* later multiplied by variables bounded by `mag`, the absolute (underflow)
+//!   part is scaled by `1 + Σ mag`; relative errors are already carried through the magnitude
+//!   sums. A widened bound is
 //!   `add_up(ŝ, err_bound(N, m̂, scale))` or `add_down(ŝ, −err_bound(N, m̂, scale))`
 //!   (`affine_max`, `affine_min`).
 //! * **Dot products, f32 (the GPU engine).** The same bound with the device's unit: `u = 2⁻²³`,

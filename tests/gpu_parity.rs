@@ -1,9 +1,10 @@
 //! The GPU engine (f64) against the CPU engine at the settings users run (issue 40): the same
 //! verdict for every box of `verify` on small grids of both paper scenarios (scenario 2 with its
-//! default meet with x-boxes) with final sets equal to 1e-10 (whole grids over whole horizons,
-//! ignored here: 1e-9), and for the paper's initial boxes with sets equal to 1e-10; Euler steps that turn a state around hold the Euler map; settings the
-//! GPU engine does not run are refused, naming the setting, and `--backend auto` then runs the
-//! CPU. On whatever Vulkan adapter exists (lavapipe in CI); without one the tests skip, unless
+//! default meet with x-boxes) and of whole grids over whole horizons (ignored here: minutes on
+//! lavapipe) with final sets equal to 1e-10, and for the paper's initial boxes with sets equal
+//! to 1e-10; Euler steps that turn a state around hold the Euler map; settings the GPU engine
+//! does not run are refused, naming the setting, and `--backend auto` then runs the CPU. On
+//! whatever Vulkan adapter exists (lavapipe in CI); without one the tests skip, unless
 //! `CBFREACH_REQUIRE_GPU=1`.
 
 mod common;

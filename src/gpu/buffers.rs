@@ -202,13 +202,10 @@ pub fn flatten_network(net: &crate::network::Mlp) -> FlatNetwork {
     if let Some(second) = net.layers.get(1) {
         data.extend(crate::bounds::abs_row_sums(second));
     }
-    let offsets = NetworkOffsets::of(net);
-    let second = net.layers.get(1).map_or(0, |l| l.n_out);
-    debug_assert_eq!(
-        data.len(),
-        offsets.fold as usize + 1 + net.input_dim() + second
-    );
-    FlatNetwork { data, offsets }
+    FlatNetwork {
+        data,
+        offsets: NetworkOffsets::of(net),
+    }
 }
 
 /// Numbers in the device's type: f64 as is, or rounded to the nearest f32 (exact for numbers
@@ -232,5 +229,49 @@ pub fn from_device_bytes(bytes: &[u8], precision: Precision) -> Vec<f64> {
             .map(f64::from)
             .collect(),
         Precision::F64 => bytemuck::pod_collect_to_vec(bytes),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The network buffer holds each layer where its offsets say and the fold constants after
+    /// them, those the CPU's forward bounds use; in f32 the weights round to nearest (their
+    /// conversion error the kernels bound) and the fold constants, themselves bounds, upwards.
+    #[test]
+    fn the_network_buffer_holds_the_layers_and_fold_bounds_rounded_up_in_f32() {
+        let net = crate::network::Mlp::random(&[3, 17, 11, 2], 5);
+        let flat = flatten_network(&net);
+        let offsets = NetworkOffsets::of(&net);
+        for (layer, &(w, b)) in net.layers.iter().zip(&offsets.layers) {
+            let (w, b) = (w as usize, b as usize);
+            assert_eq!(&flat.data[w..w + layer.weight.len()], &layer.weight[..]);
+            assert_eq!(&flat.data[b..b + layer.bias.len()], &layer.bias[..]);
+        }
+        let fold = crate::bounds::FoldBound::new(&net.layers[0]);
+        let mut bounds = vec![fold.b_max];
+        bounds.extend(&fold.w_max);
+        bounds.extend(crate::bounds::abs_row_sums(&net.layers[1]));
+        let at = offsets.fold as usize;
+        assert_eq!(&flat.data[at..], &bounds[..]);
+
+        assert_eq!(
+            flat.device_bytes(Precision::F64),
+            device_bytes(&flat.data, Precision::F64)
+        );
+        let f32s = from_device_bytes(&flat.device_bytes(Precision::F32), Precision::F32);
+        for (k, (&x, &y)) in flat.data.iter().zip(&f32s).enumerate() {
+            if k < at {
+                assert_eq!(y, f64::from(x as f32), "weight {k}");
+            } else {
+                assert!(
+                    y >= x && y - x <= x.abs() * 1.2e-7,
+                    "fold constant {k}: {y} < {x}"
+                );
+            }
+        }
+        // The random network's numbers are not f32s: rounding up is not rounding to nearest.
+        assert!((at..flat.data.len()).any(|k| f32s[k] != f64::from(flat.data[k] as f32)));
     }
 }
