@@ -245,19 +245,30 @@ impl Plant {
     /// An enclosure of `ḧ = ẋᵀ∇²h ẋ + ∇h·ẍ` for CBF `c` over the states `motion` with the
     /// input held in `u`: `ẋ = f + g·u`, `ẍ = (Df + Σₖ uₖ Dgₖ)·ẋ`. The quadratic form's diagonal
     /// takes `ẋᵢ²` as a square (never negative), which the expression `φ̇` evaluated term by
-    /// term would lose (`u·u` over `[−1, 2]` is `[−2, 4]`).
+    /// term would lose (`u·u` over `[−1, 2]` is `[−2, 4]`); its lower end is also taken row by
+    /// row ([`quadratic_floor`]), which keeps a positive definite `∇²h` nonnegative where `ẋ`'s
+    /// enclosure holds 0 (at a state that comes to rest on `∂S`, as scenario 1's trap at (3, 0)).
     fn held_acceleration(&self, c: usize, motion: &IntervalBox, u: &[Interval]) -> Interval {
         let x = box_of(&motion.lower, &motion.upper);
         let v = self.velocity(&x, u);
         let (grad, hess) = (&self.cbf_gradient[c], &self.cbf_hessian[c]);
+        let n = self.n;
+        // `∇²h` over the motion, symmetrised: off the diagonal `hᵢⱼ + hⱼᵢ` (twice the entry).
+        let mut hs = vec![Interval::point(0.0); n * n];
+        for i in 0..n {
+            hs[i * n + i] = hess[i][i].eval_interval(&x);
+            for j in i + 1..n {
+                let hij = hess[i][j].eval_interval(&x) + hess[j][i].eval_interval(&x);
+                (hs[i * n + j], hs[j * n + i]) = (hij, hij);
+            }
+        }
         let mut total = Interval::point(0.0);
-        for i in 0..self.n {
+        for i in 0..n {
             let square = v[i].sqr();
             let square = Interval::new(square.lower.max(0.0), square.upper);
-            total = total + signed_mul(hess[i][i].eval_interval(&x), square);
-            for j in i + 1..self.n {
-                let hij = hess[i][j].eval_interval(&x) + hess[j][i].eval_interval(&x);
-                total = total + signed_mul(hij, signed_mul(v[i], v[j]));
+            total = total + signed_mul(hs[i * n + i], square);
+            for j in i + 1..n {
+                total = total + signed_mul(hs[i * n + j], signed_mul(v[i], v[j]));
             }
             let mut xddot = Interval::point(0.0);
             for (j, vj) in v.iter().enumerate() {
@@ -268,6 +279,24 @@ impl Plant {
                 xddot = xddot + signed_mul(d, *vj);
             }
             total = total + signed_mul(grad[i].eval_interval(&x), xddot);
+        }
+        let floor = quadratic_floor(&hs, &v, n);
+        if floor.lower > total.lower {
+            // The same quadratic form bounded row by row; the rest of `ḧ` as above.
+            let mut rest = Interval::point(0.0);
+            for i in 0..n {
+                let mut xddot = Interval::point(0.0);
+                for (j, vj) in v.iter().enumerate() {
+                    let mut d = self.df[i][j].eval_interval(&x);
+                    for (k, uk) in u.iter().enumerate() {
+                        d = d + signed_mul(self.dg[i][k][j].eval_interval(&x), *uk);
+                    }
+                    xddot = xddot + signed_mul(d, *vj);
+                }
+                rest = rest + signed_mul(grad[i].eval_interval(&x), xddot);
+            }
+            let by_rows = floor + rest;
+            total = Interval::new(total.lower.max(by_rows.lower), total.upper);
         }
         total
     }
@@ -307,6 +336,34 @@ impl Plant {
         let (lower, upper) = m.at(h);
         Some(Remainder { lower, upper, pipe })
     }
+}
+
+/// A lower bound on `vᵀHv` for every `v` in the box `v` and every symmetric `H` in `hs`
+/// (n×n, off the diagonal twice the entry, as [`Plant::held_acceleration`] builds it), row by
+/// row: `2|hᵢⱼvᵢvⱼ| ≤ |hᵢⱼ|(vᵢ² + vⱼ²)`, so `vᵀHv ≥ Σᵢ cᵢvᵢ²` with
+/// `cᵢ = h̲ᵢᵢ − ½Σⱼ≠ᵢ|hᵢⱼ + hⱼᵢ|`, each `vᵢ²` at the end of its enclosure that makes `cᵢvᵢ²`
+/// least. Nonnegative wherever `H` is diagonally dominant with a nonnegative diagonal, whatever
+/// `v`'s signs, which the term-by-term product (`vᵢvⱼ` over a box around 0) cannot see.
+/// Returned as `[floor, +∞)`.
+fn quadratic_floor(hs: &[Interval], v: &[Interval], n: usize) -> Interval {
+    let mut floor = Interval::point(0.0);
+    for i in 0..n {
+        let off = (0..n)
+            .filter(|&j| j != i)
+            .fold(Interval::point(0.0), |a, j| {
+                a + Interval::point(hs[i * n + j].mag())
+            });
+        let ci = Interval::point(hs[i * n + i].lower) - off * Interval::point(0.5);
+        let square = v[i].sqr();
+        let square = Interval::new(square.lower.max(0.0), square.upper);
+        // `cᵢ·vᵢ²`'s lower end: the least square for a positive `cᵢ`, the largest otherwise.
+        let term = match ci.lower >= 0.0 {
+            true => signed_mul(Interval::point(ci.lower), Interval::point(square.lower)),
+            false => Interval::point(ci.lower) * Interval::point(square.upper),
+        };
+        floor = floor + Interval::point(term.lower);
+    }
+    Interval::new(floor.lower, f64::INFINITY)
 }
 
 /// `a·b` outward rounded, with the sign the factors' signs give kept exactly (rounding would
@@ -569,5 +626,66 @@ goal = {{ lower = [-0.1, -0.1], upper = [0.1, 0.1] }}
         ));
         assert!(!concave.keeps(0, 0.0, &motion, &u, 0.1));
         assert!(concave.keeps(0, 0.5, &motion, &u, 0.1));
+    }
+
+    /// A positive definite `∇²h` with cross terms (`h = x₁² + x₁x₂ + x₂² − 1`, `ẋ = (u, u)`,
+    /// `ḧ = 6u²`) is kept at the floor 0 where `u`'s enclosure holds 0: term by term the cross
+    /// term's `u·u` over `[−1, 2]` is `[−2, 4]` and `ḧ`'s lower end −4; row by row it is 0. An
+    /// indefinite one (`x₁² + 3x₁x₂ + x₂²`, `ḧ = 10u²` on this motion but not on others) is not.
+    #[test]
+    fn a_dominant_hessian_keeps_a_touching_set_whatever_the_inputs_sign() {
+        let u = [Interval::new(-1.0, 2.0)];
+        let motion = IntervalBox::new(vec![0.0, -1.0], vec![1.0, 1.0]).unwrap();
+        let plant = |h: &str| Plant::of(&scenario_with(r#"["0", "0"]"#, r#"[["1"], ["1"]]"#, h));
+        let dominant = plant("x1^2 + x1*x2 + x2^2 - 1");
+        assert!(dominant.keeps(0, 0.0, &motion, &u, 0.5));
+        assert!(dominant.held_acceleration(0, &motion, &u).lower >= 0.0);
+        let indefinite = plant("x1^2 + 3*x1*x2 + x2^2 - 1");
+        assert!(!indefinite.keeps(0, 0.0, &motion, &u, 0.5));
+    }
+
+    /// [`quadratic_floor`] against `vᵀHv` at random symmetric matrices and vectors drawn from
+    /// random interval enclosures, 2 and 3 dimensions.
+    #[test]
+    fn the_row_floor_bounds_every_quadratic_form_in_the_enclosures() {
+        let mut seed = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut next = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for trial in 0..400 {
+            let n = 2 + trial % 2;
+            let mut pick = |scale: f64| {
+                let (a, b) = (scale * (2.0 * next() - 1.0), scale * (2.0 * next() - 1.0));
+                Interval::new(a.min(b), a.max(b))
+            };
+            let mut hs = vec![Interval::point(0.0); n * n];
+            for i in 0..n {
+                hs[i * n + i] = pick(3.0) + Interval::point(2.0);
+                for j in i + 1..n {
+                    let hij = pick(2.0);
+                    (hs[i * n + j], hs[j * n + i]) = (hij, hij);
+                }
+            }
+            let v: Vec<Interval> = (0..n).map(|_| pick(2.0)).collect();
+            let floor = quadratic_floor(&hs, &v, n).lower;
+            let at = |x: Interval, r: f64| x.lower + r * (x.upper - x.lower);
+            for _ in 0..50 {
+                let h: Vec<f64> = hs.iter().map(|&e| at(e, next())).collect();
+                let w: Vec<f64> = v.iter().map(|&e| at(e, next())).collect();
+                // Off the diagonal `hs` holds twice the entry: the form is Σ hᵢᵢwᵢ² + Σᵢ<ⱼ hᵢⱼwᵢwⱼ,
+                // with the symmetric pair drawn once.
+                let mut q = 0.0;
+                for i in 0..n {
+                    q += h[i * n + i] * w[i] * w[i];
+                    for j in i + 1..n {
+                        q += h[i * n + j] * w[i] * w[j];
+                    }
+                }
+                assert!(q >= floor - 1e-12, "trial {trial}: {q} < {floor}");
+            }
+        }
     }
 }
