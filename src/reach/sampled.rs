@@ -262,13 +262,14 @@ impl Plant {
                 (hs[i * n + j], hs[j * n + i]) = (hij, hij);
             }
         }
-        let mut total = Interval::point(0.0);
-        for i in 0..n {
+        // The quadratic form term by term, and `∇h·ẍ`.
+        let (mut quad, mut rest) = (Interval::point(0.0), Interval::point(0.0));
+        for (i, gi) in grad.iter().enumerate() {
             let square = v[i].sqr();
             let square = Interval::new(square.lower.max(0.0), square.upper);
-            total = total + signed_mul(hs[i * n + i], square);
+            quad = quad + signed_mul(hs[i * n + i], square);
             for j in i + 1..n {
-                total = total + signed_mul(hs[i * n + j], signed_mul(v[i], v[j]));
+                quad = quad + signed_mul(hs[i * n + j], signed_mul(v[i], v[j]));
             }
             let mut xddot = Interval::point(0.0);
             for (j, vj) in v.iter().enumerate() {
@@ -278,27 +279,15 @@ impl Plant {
                 }
                 xddot = xddot + signed_mul(d, *vj);
             }
-            total = total + signed_mul(grad[i].eval_interval(&x), xddot);
+            rest = rest + signed_mul(gi.eval_interval(&x), xddot);
         }
-        let floor = quadratic_floor(&hs, &v, n);
-        if floor.lower > total.lower {
-            // The same quadratic form bounded row by row; the rest of `ḧ` as above.
-            let mut rest = Interval::point(0.0);
-            for i in 0..n {
-                let mut xddot = Interval::point(0.0);
-                for (j, vj) in v.iter().enumerate() {
-                    let mut d = self.df[i][j].eval_interval(&x);
-                    for (k, uk) in u.iter().enumerate() {
-                        d = d + signed_mul(self.dg[i][k][j].eval_interval(&x), *uk);
-                    }
-                    xddot = xddot + signed_mul(d, *vj);
-                }
-                rest = rest + signed_mul(grad[i].eval_interval(&x), xddot);
-            }
-            let by_rows = floor + rest;
-            total = Interval::new(total.lower.max(by_rows.lower), total.upper);
+        let total = quad + rest;
+        let by_rows = quadratic_floor(&hs, &v, n) + rest;
+        if total.lower.is_nan() || by_rows.lower.is_nan() {
+            // NaN proves nothing (`f64::max` would drop it).
+            return Interval::new(f64::NAN, total.upper);
         }
-        total
+        Interval::new(total.lower.max(by_rows.lower), total.upper)
     }
 
     /// Whether the remainder is 0 whatever the state (`Df = 0`, `Dg = 0`: `ẋ = u`).
