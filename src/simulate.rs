@@ -184,6 +184,16 @@ fn rk4<E>(
 /// One zero-order-hold step of the filtered system: `u = κ(x) + v(x)` held over `dt` while
 /// `ẋ = f(x) + g(x)u` is integrated by RK4 at `dt / ZOH_SUBSTEPS`.
 fn zoh_step(filter: &SafetyFilter, x: &[f64], dt: f64) -> Result<Vec<f64>, FilterError> {
+    zoh_step_watched(filter, x, dt, |_| {})
+}
+
+/// [`zoh_step`], showing `watch` each of its RK4 substeps' states.
+fn zoh_step_watched(
+    filter: &SafetyFilter,
+    x: &[f64],
+    dt: f64,
+    mut watch: impl FnMut(&[f64]),
+) -> Result<Vec<f64>, FilterError> {
     let s = filter.scenario();
     let (n, m) = (s.n(), s.m());
     let v = filter.eval(x)?;
@@ -197,8 +207,38 @@ fn zoh_step(filter: &SafetyFilter, x: &[f64], dt: f64) -> Result<Vec<f64>, Filte
     let mut y = x.to_vec();
     for _ in 0..ZOH_SUBSTEPS {
         y = rk4(&plant, &y, dt / ZOH_SUBSTEPS as f64)?;
+        watch(&y);
     }
     Ok(y)
+}
+
+/// The held-input trajectory from `x0` over `periods` control periods `ts` with the first time
+/// (at the end of one of [`ZOH_SUBSTEPS`] RK4 substeps a period) at which the plant is outside
+/// `S`: a digital filter does not keep `S` invariant between samples, and this is where the
+/// true sampled system shows it.
+pub fn simulate_sampled_watching_s(
+    filter: &SafetyFilter,
+    x0: &[f64],
+    ts: f64,
+    periods: usize,
+) -> (Trajectory, Option<f64>) {
+    let s = filter.scenario();
+    let h = ts / ZOH_SUBSTEPS as f64;
+    let (mut substep, mut left) = (0usize, None);
+    let traj = iterate(
+        |x| {
+            zoh_step_watched(filter, x, ts, |y| {
+                substep += 1;
+                if left.is_none() && !s.is_safe(y) {
+                    left = Some(substep as f64 * h);
+                }
+            })
+        },
+        x0,
+        ts,
+        periods,
+    );
+    (traj, left)
 }
 
 /// Simulates the filtered system `ẋ = f̃(x) + g(x) v(x)`.

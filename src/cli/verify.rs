@@ -237,6 +237,13 @@ fn print_causes(c: &UnverifiedCauses) {
         "  not verified: {:.1}% of the safe area. From each such box's centre the true filtered system",
         100.0 * c.unverified
     );
+    if c.unsafe_between_samples > 0.0 {
+        println!(
+            "    leaves S between samples on {:.1}% (the held input carries it out: the digital \
+             filter does not keep S invariant there)",
+            100.0 * c.unsafe_between_samples
+        );
+    }
     println!(
         "    leaves C on {:.1}%, meets an infeasible QP on {:.1}%, ends in neither the goal nor a trap \
          on {:.1}%, and ends in one on {:.1}% (there the sets were too loose)",

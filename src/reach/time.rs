@@ -64,6 +64,20 @@ impl TimeModel {
         }
     }
 
+    /// The model a report's label names ([`std::fmt::Display`]'s text; empty in reports from
+    /// before the setting existed, whose sets bound the Euler map); `None` for any other text.
+    pub fn from_label(label: &str) -> Option<TimeModel> {
+        match label {
+            "" | "euler" => Some(TimeModel::Euler),
+            "continuous" => Some(TimeModel::Continuous),
+            other => {
+                let ts = other.strip_prefix("sampled (T_s = ")?.strip_suffix(')')?;
+                let control_period = ts.parse().ok()?;
+                Some(TimeModel::Sampled { control_period })
+            }
+        }
+    }
+
     /// A clause for summaries: what the sets bound.
     pub fn clause(self) -> String {
         match self {
@@ -169,6 +183,26 @@ impl std::fmt::Display for TimeModel {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Every model's label reads back as the model (a report's checks simulate what it names).
+    #[test]
+    fn labels_read_back_as_their_models() {
+        for time in [
+            TimeModel::Continuous,
+            TimeModel::Euler,
+            TimeModel::Sampled {
+                control_period: 0.08,
+            },
+            TimeModel::Sampled {
+                control_period: 0.1 + 0.2,
+            },
+        ] {
+            assert_eq!(TimeModel::from_label(&time.to_string()), Some(time));
+        }
+        assert_eq!(TimeModel::from_label(""), Some(TimeModel::Euler));
+        assert_eq!(TimeModel::from_label("sampled"), None);
+        assert_eq!(TimeModel::from_label("sampled (T_s = x)"), None);
+    }
 
     #[test]
     fn names_parse_and_periods_are_multiples_of_dt() {

@@ -5,7 +5,9 @@
 use rayon::prelude::*;
 
 use super::{BoxVerdict, Shares, Verdict, VerifyReport};
+use crate::reach::TimeModel;
 use crate::scenario::Scenario;
+use crate::simulate::{simulate_filtered, simulate_sampled_watching_s, Integrator, Trajectory};
 
 /// What simulating starts in the verified boxes with the ground-truth filter found
 /// ([`simulation_check`]).
@@ -26,15 +28,14 @@ pub struct SimulationCheck {
 
 /// An independent check of the verdicts: simulates a `per_axis`ⁿ grid of starts (corners
 /// included) in every `converges` or `trapped` leaf of `report` with the ground-truth filter
-/// (the system the sets bound over the scenario's horizon: RK4 at `dt/10` in continuous time,
-/// the control held over `dt` when sampled, Euler at `dt` for the Euler map) and checks that
-/// each trajectory ends in the goal set or in its trap box. The sets bound the filtered system,
-/// so a disagreement means a bug, an unsound `M`, or Euler's error across a basin boundary.
+/// (the system the sets bound over the scenario's horizon, [`simulate_model`]) and checks that
+/// each trajectory ends in the goal set or in its trap box, and in sampled data that it stays
+/// in `S` between samples (those verdicts say it does). The sets bound the filtered system, so
+/// a disagreement means a bug or an unsound `M`.
 pub fn simulation_check(s: &Scenario, report: &VerifyReport, per_axis: usize) -> SimulationCheck {
     use crate::filter::SafetyFilter;
-    use crate::simulate::{simulate_filtered, Integrator};
     let filter = SafetyFilter::new(s);
-    let steps = s.reach.steps();
+    let time = model_of(report);
     let k = per_axis.max(1);
     let fraction = |i: usize| {
         if k == 1 {
@@ -64,23 +65,12 @@ pub fn simulation_check(s: &Scenario, report: &VerifyReport, per_axis: usize) ->
                     .map(|d| fraction(code / k.pow(d as u32) % k))
                     .collect();
                 let x0 = b.initial.point_at(&at);
-                // The system the sets bound (`RunInfo::time`): the ODE by RK4 at dt/10, the
-                // held control, or the Euler map.
-                let tr = match report.run.time.split(' ').next() {
-                    Some("continuous") => simulate_filtered(
-                        &filter,
-                        &x0,
-                        s.reach.dt / 10.0,
-                        10 * steps,
-                        Integrator::Rk4,
-                    ),
-                    Some("sampled") => {
-                        simulate_filtered(&filter, &x0, s.reach.dt, steps, Integrator::Zoh)
-                    }
-                    _ => simulate_filtered(&filter, &x0, s.reach.dt, steps, Integrator::Euler),
-                };
+                let (tr, left_s) = simulate_model(&filter, &x0, time, 10);
                 out.starts += 1;
-                if tr.stopped.is_some() && b.feasible == Some(true) {
+                if left_s.is_some() {
+                    // Sampled data: the verdict's sets were proven inside `S` between samples.
+                    out.disagreements.push((x0, b.verdict, tr.last().to_vec()));
+                } else if tr.stopped.is_some() && b.feasible == Some(true) {
                     // The QP was proven feasible on every set, and the sets hold the Euler
                     // trajectory at every step.
                     out.disagreements.push((x0, b.verdict, tr.last().to_vec()));
@@ -104,6 +94,40 @@ pub fn simulation_check(s: &Scenario, report: &VerifyReport, per_axis: usize) ->
         })
 }
 
+/// The system a report's sets bound ([`TimeModel::from_label`] of its `run.time`; a label no
+/// version wrote is read as the Euler map, the model of reports from before the setting).
+fn model_of(report: &VerifyReport) -> TimeModel {
+    TimeModel::from_label(&report.run.time).unwrap_or(TimeModel::Euler)
+}
+
+/// The ground-truth filter's trajectory from `x0` over the scenario's horizon in the system
+/// `time` names: the ODE by RK4 at `dt/fine`, the control held over each period `T_s` (with the
+/// first time the plant is outside `S` between samples), or the Euler map at `dt`.
+pub fn simulate_model(
+    filter: &crate::filter::SafetyFilter,
+    x0: &[f64],
+    time: TimeModel,
+    fine: usize,
+) -> (Trajectory, Option<f64>) {
+    let s = filter.scenario();
+    let (dt, steps, fine) = (s.reach.dt, s.reach.steps(), fine.max(1));
+    match time {
+        TimeModel::Continuous => {
+            let (h, n) = (dt / fine as f64, fine * steps);
+            let tr = simulate_filtered(filter, x0, h, n, Integrator::Rk4);
+            (tr, None)
+        }
+        TimeModel::Sampled { control_period } => {
+            let periods = (s.reach.horizon / control_period).round() as usize;
+            simulate_sampled_watching_s(filter, x0, control_period, periods)
+        }
+        TimeModel::Euler => {
+            let tr = simulate_filtered(filter, x0, dt, steps, Integrator::Euler);
+            (tr, None)
+        }
+    }
+}
+
 /// Where the ground-truth filtered system goes from the centre of each leaf that was not
 /// verified (`unknown` or `invalid`), as shares of the leaves' safe area
 /// ([`explain_unverified`]). A diagnostic, not a proof: it separates what no sound set can
@@ -111,8 +135,11 @@ pub fn simulation_check(s: &Scenario, report: &VerifyReport, per_axis: usize) ->
 /// error and the over-approximation left open.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct UnverifiedCauses {
-    /// Not verified (the sum of the four below).
+    /// Not verified (the sum of the five below).
     pub unverified: f64,
+    /// Sampled data: the centre's held-input trajectory leaves `S` between samples (the
+    /// digital filter does not keep `S` invariant: a finding about the system, checked first).
+    pub unsafe_between_samples: f64,
     /// The centre's trajectory leaves `C`, where `M_C` no longer holds.
     pub leaves_region: f64,
     /// The centre's trajectory stops at an infeasible QP.
@@ -123,13 +150,14 @@ pub struct UnverifiedCauses {
     pub too_loose: f64,
 }
 
-/// Simulates the centre of every `unknown` or `invalid` leaf of `report` with the ground-truth
-/// filter (Euler at the scenario's `dt` over its horizon, as the engine integrates) and sorts
-/// the leaves' area into [`UnverifiedCauses`].
+/// Simulates the centre of every leaf of `report` that refinement could still decide
+/// (`unknown`, `invalid`, `unsafe-between-samples`) with the ground-truth filter, in the
+/// system its sets bound ([`simulate_model`]), and sorts the leaves' area into
+/// [`UnverifiedCauses`].
 pub fn explain_unverified(s: &Scenario, report: &VerifyReport) -> UnverifiedCauses {
     use crate::filter::SafetyFilter;
-    use crate::simulate::{simulate_filtered, Integrator};
     let filter = SafetyFilter::new(s);
+    let time = model_of(report);
     let safe_area = Shares::of(&report.after).safe_area;
     if safe_area <= 0.0 {
         return UnverifiedCauses::default();
@@ -142,18 +170,16 @@ pub fn explain_unverified(s: &Scenario, report: &VerifyReport) -> UnverifiedCaus
         .filter(|b| b.verdict.is_refinable())
         .map(|b| {
             let share = b.initial.volume() / safe_area;
-            let tr = simulate_filtered(
-                &filter,
-                &b.initial.center(),
-                s.reach.dt,
-                s.reach.steps(),
-                Integrator::Euler,
-            );
+            // A diagnostic, one start a leaf: the ODE by RK4 at `dt` (a QP filter solves four
+            // times a step; the proof-grade check, `simulation_check`, takes `dt/10`).
+            let (tr, left_s) = simulate_model(&filter, &b.initial.center(), time, 1);
             let mut c = UnverifiedCauses {
                 unverified: share,
                 ..UnverifiedCauses::default()
             };
-            if tr.x.iter().any(|x| !s.reach.region.contains(x)) {
+            if left_s.is_some() {
+                c.unsafe_between_samples = share;
+            } else if tr.x.iter().any(|x| !s.reach.region.contains(x)) {
                 c.leaves_region = share;
             } else if tr.stopped.is_some() {
                 c.infeasible = share;
@@ -166,6 +192,7 @@ pub fn explain_unverified(s: &Scenario, report: &VerifyReport) -> UnverifiedCaus
         })
         .reduce(UnverifiedCauses::default, |a, b| UnverifiedCauses {
             unverified: a.unverified + b.unverified,
+            unsafe_between_samples: a.unsafe_between_samples + b.unsafe_between_samples,
             leaves_region: a.leaves_region + b.leaves_region,
             infeasible: a.infeasible + b.infeasible,
             ends_elsewhere: a.ends_elsewhere + b.ends_elsewhere,

@@ -55,7 +55,9 @@ mod settings;
 mod shard;
 mod traps;
 
-pub use check::{explain_unverified, simulation_check, SimulationCheck, UnverifiedCauses};
+pub use check::{
+    explain_unverified, simulate_model, simulation_check, SimulationCheck, UnverifiedCauses,
+};
 pub use pieces::{
     no_journals, verify_by_pieces, PieceOutcome, PiecesJournals, PiecesSettings, PiecesVerdict,
     PIECES_CHUNK, REFINE_BUDGET, SPLIT,

@@ -2,6 +2,8 @@
 //! between samples, and the filter's own constraint that proves `S` where the sets cannot.
 
 use super::*;
+use cbfreach::simulate::simulate_sampled_watching_s;
+use cbfreach::verify::simulate_model;
 
 /// Trajectories of the sampled-data system with the input held over `k` steps of `dt`
 /// (`u = κ(x) + v(x)` at every `k`-th step, the plant integrated by RK4 at `dt/10` meanwhile),
@@ -249,4 +251,58 @@ fn the_filter_constraint_keeps_sampled_sets_in_s() {
     let e = zoh_escapes(&s, &tubes, 1, 1e-9);
     assert_eq!((e.at_snapshots, e.between), (0, 0), "{e:?}");
     assert!(e.checks >= 2 * 48 * 30, "too few checks: {e:?}");
+}
+
+/// The true sampled system can leave `S` between samples, and the checks see it: scenario 1 held
+/// over `T_s = 0.4` (ten steps) from (4, 0.5) cuts into the obstacle within the first period
+/// (at 0.28 s, by the reference in Python, at the ZOH's substeps of 0.04 s), where the
+/// continuous-time filtered system stays in `S`.
+#[test]
+fn the_held_input_leaves_s_between_samples_and_the_simulation_says_when() {
+    let s = common::integrator();
+    let filter = SafetyFilter::new(&s);
+    let x0 = [4.0, 0.5];
+    let (tr, left) = simulate_sampled_watching_s(&filter, &x0, 0.4, 25);
+    let t = left.expect("the held input carries the plant into the obstacle");
+    assert!((0.0..=0.4).contains(&t), "within the first period, not {t}");
+    assert!((t - 0.28).abs() < 1e-9, "at the substep 0.28, not {t}");
+    assert_eq!(tr.t.len(), 26, "25 periods recorded");
+    let (ode, none) = simulate_model(&filter, &x0, TimeModel::Continuous, 10);
+    assert!(none.is_none());
+    assert!(ode.x.iter().all(|x| s.is_safe(x)), "the ODE stays in S");
+}
+
+/// The checks simulate the model a report names with its control period: held over
+/// `T_s = 2·dt`, not over `dt` (which the verdicts' check did before), and the Euler map and
+/// the ODE at their own steps.
+#[test]
+fn the_checks_simulate_the_reports_model_with_its_period() {
+    let s = common::double_integrator();
+    let filter = SafetyFilter::new(&s);
+    let x0 = [-3.0, 1.0];
+    let ts = 2.0 * s.reach.dt;
+    let time = TimeModel::from_label(&TimeModel::Sampled { control_period: ts }.to_string());
+    let (held, left) = simulate_model(&filter, &x0, time.expect("the label reads back"), 10);
+    assert!(left.is_none());
+    let periods = (s.reach.horizon / ts).round() as usize;
+    assert_eq!(held.t.len(), periods + 1);
+    assert!(
+        (held.t[1] - ts).abs() < 1e-15,
+        "one sample every T_s: {}",
+        held.t[1]
+    );
+    // Against the same hold computed here (ZOH over two steps of `dt`).
+    let reference = zoh(&filter, &x0, s.reach.dt, 2, 2 * periods);
+    for (k, x) in held.x.iter().enumerate() {
+        let r = &reference[2 * k];
+        assert!(
+            (x[0] - r[0]).abs() + (x[1] - r[1]).abs() < 1e-9,
+            "t = {}",
+            held.t[k]
+        );
+    }
+    let (euler, _) = simulate_model(&filter, &x0, TimeModel::Euler, 10);
+    assert!((euler.t[1] - s.reach.dt).abs() < 1e-15);
+    let (ode, _) = simulate_model(&filter, &x0, TimeModel::Continuous, 10);
+    assert!((ode.t[1] - s.reach.dt / 10.0).abs() < 1e-15);
 }
