@@ -71,7 +71,7 @@ pub fn simulation_check(s: &Scenario, report: &VerifyReport, per_axis: usize) ->
                     // Sampled data: the verdict's sets were proven inside `S` between samples.
                     out.disagreements.push((x0, b.verdict, tr.last().to_vec()));
                 } else if tr.stopped.is_some() && b.feasible == Some(true) {
-                    // The QP was proven feasible on every set, and the sets hold the Euler
+                    // The QP was proven feasible on every set, and the sets hold the
                     // trajectory at every step.
                     out.disagreements.push((x0, b.verdict, tr.last().to_vec()));
                 } else if tr.stopped.is_some() {
@@ -129,7 +129,7 @@ pub fn simulate_model(
 }
 
 /// Where the ground-truth filtered system goes from the centre of each leaf that was not
-/// verified (`unknown` or `invalid`), as shares of the leaves' safe area
+/// verified (`unknown`, `invalid` or `unsafe-between-samples`), as shares of the leaves' safe area
 /// ([`explain_unverified`]). A diagnostic, not a proof: it separates what no sound set can
 /// show (the system itself leaves `C`, or the horizon ends elsewhere) from what the network's
 /// error and the over-approximation left open.
