@@ -56,7 +56,13 @@ fn fold_carry(i: u32, bx: BoxInfo) -> real {
     if (p.carry == 0u) {
         return 0.0;
     }
-    return up(net[p.fold_off + 1u + N0 + i] * fold_error(bx));
+    let e = fold_error(bx);
+    if (e == 0.0) {
+        // Nothing folded (a whole box): `up` would turn the exact 0 into MIN_NORMAL, and
+        // `widened` would then move R̂ by an ulp.
+        return 0.0;
+    }
+    return up(net[p.fold_off + 1u + N0 + i] * e);
 }
 
 // `x` widened by `e` (rounded up), or `x` itself where `e` is 0 (a whole box: its bits as before

@@ -10,7 +10,7 @@ use crate::rounding::err_bound;
 /// engine uploads the same constants (`gpu::buffers::flatten_network`) and computes the same
 /// `ε` (`fold_error` in shaders/fold.wgsl).
 #[derive(Clone, Debug)]
-pub(crate) struct FoldBound {
+pub struct FoldBound {
     /// `max_j |b₀ⱼ|`.
     pub(crate) b_max: f64,
     /// `max_j |W₀ⱼₚ|` per input `p`.
@@ -19,7 +19,7 @@ pub(crate) struct FoldBound {
 
 impl FoldBound {
     /// The bounds of `first`, the network's first layer.
-    pub(crate) fn new(first: &crate::network::Layer) -> FoldBound {
+    pub fn new(first: &crate::network::Layer) -> FoldBound {
         let n0 = first.n_in;
         let mut w_max = vec![0.0f64; n0];
         for row in first.weight.chunks(n0.max(1)) {
@@ -36,7 +36,7 @@ impl FoldBound {
     /// `err_bound(pinned + 1, M, scale)` with `M = max|b| + Σ_p max|W_p|·|x_p|`, computed in
     /// the same order. Rounding is monotone, so the computed `M` is at least every neuron's
     /// computed magnitude sum, and `err_bound` is monotone in it.
-    pub(crate) fn error(&self, lower: &[f64], upper: &[f64], scale: f64) -> f64 {
+    pub fn error(&self, lower: &[f64], upper: &[f64], scale: f64) -> f64 {
         let (mut m, mut pinned) = (self.b_max, 0);
         for p in 0..lower.len() {
             if lower[p] == upper[p] {

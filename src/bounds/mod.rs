@@ -55,13 +55,13 @@ pub(crate) mod test_support;
 pub use affine::{AffineBounds, AffineBoundsBatch};
 pub use batch::BoundsWorkspace;
 pub use crown::crown;
+pub use fold::FoldBound;
 pub use forward::forward;
 pub use forward_backward::{forward_backward, FORM_TIE};
 pub use ibp::ibp;
 
 pub(crate) use affine::OutRow;
 pub(crate) use batch::{for_each_group, Schedule};
-pub(crate) use fold::FoldBound;
 
 use crate::matmul::PackedMatrix;
 use crate::network::Mlp;

@@ -12,11 +12,11 @@ pub(crate) const REAL_F64: &str = include_str!("../../shaders/real_f64.wgsl");
 pub(crate) const F32_BITS: &str = include_str!("../../shaders/f32_bits.wgsl");
 pub(crate) const COMMON: &str = include_str!("../../shaders/common.wgsl");
 pub(crate) const PARAMS: &str = include_str!("../../shaders/params.wgsl");
-const BOX: &str = include_str!("../../shaders/box.wgsl");
+pub(crate) const BOX: &str = include_str!("../../shaders/box.wgsl");
 pub(crate) const GEMM: &str = include_str!("../../shaders/gemm.wgsl");
 const RELU: &str = include_str!("../../shaders/relu.wgsl");
 /// The first layer's forms, a face's pinned coordinates folded (relu and output kernels).
-const FOLD: &str = include_str!("../../shaders/fold.wgsl");
+pub(crate) const FOLD: &str = include_str!("../../shaders/fold.wgsl");
 const BACKWARD: &str = include_str!("../../shaders/backward.wgsl");
 const OUTPUT: &str = include_str!("../../shaders/output.wgsl");
 const EMBED: &str = include_str!("../../shaders/embed.wgsl");

@@ -1,15 +1,17 @@
 //! Single WGSL primitives run on the device, for tests against the Rust they mirror
 //! (tests/gpu_matches_cpu/, tests/gpu_pipelines.rs): `turn_rate` (`shaders/turn.wgsl`, the
 //! CPU's `euler_turn`), the continuous step's guessed moving box (`shaders/validated.wgsl`,
-//! the CPU's `validated`), the GEMM kernels (tiled and flat) against each other, and the
+//! the CPU's `validated`), a face's folded first layer (`shaders/fold.wgsl`, the CPU's
+//! `bounds::FoldBound`), the GEMM kernels (tiled and flat) against each other, and the
 //! runner that [`super::exp64`] shares.
 
 use wgpu::util::DeviceExt;
 
-use super::buffers::{device_bytes, from_device_bytes, uniform, Params};
+use super::buffers::{device_bytes, flatten_network, from_device_bytes, uniform, Params};
 use super::codegen::{h_enclosure, round_down, round_up};
 use super::kernels::{
-    prelude, Gemm, COMMON, END_RATES, F32_BITS, GEMM, PARAMS, REAL_F32, REAL_F64, TURN, VALIDATED,
+    prelude, Gemm, BOX, COMMON, END_RATES, F32_BITS, FOLD, GEMM, PARAMS, REAL_F32, REAL_F64, TURN,
+    VALIDATED,
 };
 use super::{GpuContext, GpuError, Precision};
 use crate::boxes::IntervalBox;
@@ -434,6 +436,86 @@ fn barrier_test(@builtin(global_invocation_id) id: vec3<u32>) {{
     Ok(ys
         .chunks(4)
         .map(|y| (y[0] != 0.0).then_some((y[1], y[2], y[3])))
+        .collect())
+}
+
+/// What `shaders/fold.wgsl` computes for one box ([`fold_on_device`]).
+#[derive(Clone, Copy, Debug)]
+pub struct FoldOnDevice {
+    /// The box's underflow scale (`box_info`).
+    pub scale: f64,
+    /// `fold_error`: one bound of every first-layer neuron's folded constant's rounding.
+    pub eps: f64,
+    /// `fold_carry` for the second layer's neuron `g mod n₂`: `rowsum(|W₂|)·ε`.
+    pub carry: f64,
+    /// `first_layer_forms`' constant for the first layer's neuron `g mod n₁`: `b + W·x` over
+    /// the pinned coordinates.
+    pub constant: f64,
+}
+
+/// `shaders/fold.wgsl` on the device (f64), with `net`'s buffer as the engine uploads it
+/// (`flatten_network`), for the boxes `(lower, upper)` (`lower = upper` pins a coordinate).
+pub fn fold_on_device(
+    ctx: &GpuContext,
+    net: &crate::network::Mlp,
+    boxes: &[(Vec<f64>, Vec<f64>)],
+) -> Result<Vec<FoldOnDevice>, GpuError> {
+    let flat = flatten_network(net);
+    let (n0, n1) = (net.input_dim(), net.layers[0].n_out);
+    let n2 = net.layers.get(1).map_or(1, |l| l.n_out);
+    let at = flat.data.len();
+    let ((w_off, b_off), fold_off) = (flat.offsets.layers[0], flat.offsets.fold);
+    let kernel = format!(
+        "
+const ABS_UNIT: real = 0.0;
+const N0: u32 = {n0}u;
+const KC: u32 = {kc}u;
+@group(0) @binding(0) var<storage, read> net: array<f64>;
+@group(0) @binding(1) var<storage, read_write> ys: array<f64>;
+{BOX}
+{FOLD}
+// box_info reads one box from `state`; the boxes follow the network in `net`.
+var<private> state: array<real, SW>;
+var<private> p: Params;
+
+@compute @workgroup_size(64)
+fn fold_test(@builtin(global_invocation_id) id: vec3<u32>) {{
+    let g = id.x;
+    if (g >= {cases}u) {{
+        return;
+    }}
+    for (var k = 0u; k < SW; k++) {{
+        state[k] = net[{at}u + g * SW + k];
+    }}
+    p.w_off = {w_off}u;
+    p.b_off = {b_off}u;
+    p.fold_off = {fold_off}u;
+    p.carry = 1u;
+    let bx = box_info(0u);
+    ys[4u * g] = bx.scale;
+    ys[4u * g + 1u] = fold_error(bx);
+    ys[4u * g + 2u] = fold_carry(g % {n2}u, bx);
+    ys[4u * g + 3u] = first_layer_forms(g % {n1}u, bx).c[N0];
+}}
+",
+        kc = n0 + 1,
+        cases = boxes.len(),
+    );
+    let source = format!("{REAL_F64}\n{F32_BITS}\n{PARAMS}\n{COMMON}\n{kernel}");
+    let mut xs = flat.data;
+    for (lo, hi) in boxes {
+        xs.extend(lo.iter().chain(hi));
+        xs.push(0.0);
+    }
+    let ys = run(ctx, &source, "fold_test", &xs, boxes.len(), 4)?;
+    Ok(ys
+        .chunks(4)
+        .map(|y| FoldOnDevice {
+            scale: y[0],
+            eps: y[1],
+            carry: y[2],
+            constant: y[3],
+        })
         .collect())
 }
 

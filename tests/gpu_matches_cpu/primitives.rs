@@ -1,4 +1,4 @@
-//! Rounding at its edges (point boxes, cancelling sums) and single WGSL primitives against their Rust mirrors (the closed-form filter, `turn_rate`, `exp`, `φ`).
+//! Rounding at its edges (point boxes, cancelling sums) and single WGSL primitives against their Rust mirrors (the closed-form filter, `turn_rate`, `exp`, `φ`, the fold of a face's pinned coordinates).
 
 use super::*;
 
@@ -298,4 +298,77 @@ fn f64_phi_matches_its_rust_mirror_and_the_cpu() {
         }
     }
     eprintln!("phi: {bitwise} of {} inputs bit for bit", zs.len());
+}
+
+/// `shaders/fold.wgsl` (a face's pinned coordinates folded into the first layer's constant)
+/// against the CPU's fold, whose bound `bounds::FoldBound` is tested against double-double: on
+/// 3 × 300 random boxes of 1–3 inputs with random coordinates pinned (a face pins one, a whole
+/// box none), the device's folded constant is the CPU's sum, in the same order; its `ε` is at
+/// least `FoldBound::error` at the device's scale and within 1e-14 of it (the device's
+/// underflow unit is 0 here); its carry is `rowsum(|W₂|)·ε` rounded up; a whole box folds and
+/// carries nothing (its carry was `up(0)`, one `MIN_NORMAL` that widened `R̂` by an ulp).
+#[test]
+fn the_devices_fold_matches_the_cpus() {
+    use cbfreach::bounds::FoldBound;
+    use cbfreach::gpu::probe::fold_on_device;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+    let Some(g) = gpu_f64() else { return };
+    let (mut pinned_boxes, mut whole) = (0, 0);
+    for n0 in 1..=3usize {
+        let net = Mlp::random(&[n0, 24, 16, 1], 40 + n0 as u64);
+        let mut rng = ChaCha8Rng::seed_from_u64(90 + n0 as u64);
+        let boxes: Vec<(Vec<f64>, Vec<f64>)> = (0..300)
+            .map(|_| {
+                let lo: Vec<f64> = (0..n0).map(|_| rng.random_range(-3.0..3.0)).collect();
+                let hi = lo
+                    .iter()
+                    .map(|&l| match rng.random_range(0..3) {
+                        0 => l,
+                        _ => l + rng.random_range(0.0..0.5),
+                    })
+                    .collect();
+                (lo, hi)
+            })
+            .collect();
+        let dev = fold_on_device(g.context(), &net, &boxes).unwrap();
+        let (first, second) = (&net.layers[0], &net.layers[1]);
+        let fold = FoldBound::new(first);
+        for (k, ((lo, hi), d)) in boxes.iter().zip(&dev).enumerate() {
+            let pinned: Vec<usize> = (0..n0).filter(|&p| lo[p] == hi[p]).collect();
+            let j = k % first.n_out;
+            let w = &first.weight[j * n0..(j + 1) * n0];
+            let constant = pinned.iter().fold(first.bias[j], |s, &p| s + w[p] * lo[p]);
+            assert_eq!(d.constant, constant, "n0 = {n0}, box {k}: folded constant");
+            let eps = fold.error(lo, hi, d.scale);
+            if pinned.is_empty() {
+                whole += 1;
+                assert_eq!((d.eps, d.carry), (0.0, 0.0), "n0 = {n0}, box {k}: whole");
+                continue;
+            }
+            pinned_boxes += 1;
+            // The prelude's `up` steps by 4u relative where the CPU's `round_up` steps by an
+            // ulp: the device's bound is the larger, by a few of those steps.
+            assert!(
+                d.eps >= eps && d.eps <= eps * (1.0 + 1e-14),
+                "n0 = {n0}, box {k}: device ε {} against {eps}",
+                d.eps
+            );
+            let i = k % second.n_out;
+            let rowsum: f64 = second.weight[i * 24..(i + 1) * 24]
+                .iter()
+                .map(|w| w.abs())
+                .sum();
+            let carry = rowsum * d.eps;
+            assert!(
+                d.carry >= carry && d.carry <= carry * (1.0 + 1e-13),
+                "n0 = {n0}, box {k}: carry {} against {carry}",
+                d.carry
+            );
+        }
+    }
+    assert!(
+        pinned_boxes > 300 && whole > 50,
+        "{pinned_boxes} pinned, {whole} whole"
+    );
 }
