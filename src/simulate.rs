@@ -182,13 +182,9 @@ fn rk4<E>(
 }
 
 /// One zero-order-hold step of the filtered system: `u = κ(x) + v(x)` held over `dt` while
-/// `ẋ = f(x) + g(x)u` is integrated by RK4 at `dt / ZOH_SUBSTEPS`.
-fn zoh_step(filter: &SafetyFilter, x: &[f64], dt: f64) -> Result<Vec<f64>, FilterError> {
-    zoh_step_watched(filter, x, dt, |_| {})
-}
-
-/// [`zoh_step`], showing `watch` each of its RK4 substeps' states.
-fn zoh_step_watched(
+/// `ẋ = f(x) + g(x)u` is integrated by RK4 at `dt / ZOH_SUBSTEPS`, `watch` shown the state
+/// after each substep.
+fn zoh_step(
     filter: &SafetyFilter,
     x: &[f64],
     dt: f64,
@@ -227,7 +223,7 @@ pub fn simulate_sampled_watching_s(
     let (mut substep, mut left) = (0usize, None);
     let traj = iterate(
         |x| {
-            zoh_step_watched(filter, x, ts, |y| {
+            zoh_step(filter, x, ts, |y| {
                 substep += 1;
                 if left.is_none() && !s.is_safe(y) {
                     left = Some(substep as f64 * h);
@@ -251,7 +247,7 @@ pub fn simulate_filtered(
 ) -> Trajectory {
     if integrator == Integrator::Zoh {
         // The held input is not a function of the current state: step the sampled map.
-        return iterate(|x| zoh_step(filter, x, dt), x0, dt, steps);
+        return simulate_sampled_watching_s(filter, x0, dt, steps).0;
     }
     integrate(
         |x: &[f64]| -> Result<Vec<f64>, FilterError> { filter.closed_loop(x) },

@@ -143,23 +143,6 @@ pub struct NetworkOffsets {
     pub fold: u32,
 }
 
-impl NetworkOffsets {
-    /// The offsets of `net`'s buffer.
-    pub fn of(net: &crate::network::Mlp) -> NetworkOffsets {
-        let mut at = 0u32;
-        let layers = net
-            .layers
-            .iter()
-            .map(|l| {
-                let (w_off, b_off) = (at, at + (l.n_out * l.n_in) as u32);
-                at = b_off + l.n_out as u32;
-                (w_off, b_off)
-            })
-            .collect();
-        NetworkOffsets { layers, fold: at }
-    }
-}
-
 /// The network buffer's numbers: each layer's `W` then `b`, then the fold constants
 /// ([`NetworkOffsets`]).
 pub struct FlatNetwork {
@@ -190,10 +173,14 @@ impl FlatNetwork {
 /// The network buffer's numbers ([`FlatNetwork`]).
 pub fn flatten_network(net: &crate::network::Mlp) -> FlatNetwork {
     let mut data = Vec::new();
+    let mut layers = Vec::with_capacity(net.layers.len());
     for layer in &net.layers {
+        let w_off = data.len() as u32;
         data.extend(&layer.weight);
+        layers.push((w_off, data.len() as u32));
         data.extend(&layer.bias);
     }
+    let fold = data.len() as u32;
     if let Some(first) = net.layers.first() {
         let fold = crate::bounds::FoldBound::new(first);
         data.push(fold.b_max);
@@ -204,7 +191,7 @@ pub fn flatten_network(net: &crate::network::Mlp) -> FlatNetwork {
     }
     FlatNetwork {
         data,
-        offsets: NetworkOffsets::of(net),
+        offsets: NetworkOffsets { layers, fold },
     }
 }
 
@@ -243,7 +230,7 @@ mod tests {
     fn the_network_buffer_holds_the_layers_and_fold_bounds_rounded_up_in_f32() {
         let net = crate::network::Mlp::random(&[3, 17, 11, 2], 5);
         let flat = flatten_network(&net);
-        let offsets = NetworkOffsets::of(&net);
+        let offsets = &flat.offsets;
         for (layer, &(w, b)) in net.layers.iter().zip(&offsets.layers) {
             let (w, b) = (w as usize, b as usize);
             assert_eq!(&flat.data[w..w + layer.weight.len()], &layer.weight[..]);

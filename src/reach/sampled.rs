@@ -246,8 +246,8 @@ impl Plant {
     /// input held in `u`: `ẋ = f + g·u`, `ẍ = (Df + Σₖ uₖ Dgₖ)·ẋ`. The quadratic form's diagonal
     /// takes `ẋᵢ²` as a square (never negative), which the expression `φ̇` evaluated term by
     /// term would lose (`u·u` over `[−1, 2]` is `[−2, 4]`); its lower end is also taken row by
-    /// row ([`quadratic_floor`]), which keeps a positive definite `∇²h` nonnegative where `ẋ`'s
-    /// enclosure holds 0 (at a state that comes to rest on `∂S`, as scenario 1's trap at (3, 0)).
+    /// row ([`quadratic_floor`]), which keeps a diagonally dominant `∇²h` with a nonnegative
+    /// diagonal nonnegative where `ẋ`'s enclosure holds 0 (a state coming to rest on `∂S`).
     fn held_acceleration(&self, c: usize, motion: &IntervalBox, u: &[Interval]) -> Interval {
         let x = box_of(&motion.lower, &motion.upper);
         let v = self.velocity(&x, u);
@@ -262,12 +262,11 @@ impl Plant {
                 (hs[i * n + j], hs[j * n + i]) = (hij, hij);
             }
         }
+        let squares: Vec<Interval> = v.iter().map(|&vi| square(vi)).collect();
         // The quadratic form term by term, and `∇h·ẍ`.
         let (mut quad, mut rest) = (Interval::point(0.0), Interval::point(0.0));
         for (i, gi) in grad.iter().enumerate() {
-            let square = v[i].sqr();
-            let square = Interval::new(square.lower.max(0.0), square.upper);
-            quad = quad + signed_mul(hs[i * n + i], square);
+            quad = quad + signed_mul(hs[i * n + i], squares[i]);
             for j in i + 1..n {
                 quad = quad + signed_mul(hs[i * n + j], signed_mul(v[i], v[j]));
             }
@@ -282,7 +281,7 @@ impl Plant {
             rest = rest + signed_mul(gi.eval_interval(&x), xddot);
         }
         let total = quad + rest;
-        let by_rows = quadratic_floor(&hs, &v, n) + rest;
+        let by_rows = Interval::point(quadratic_floor(&hs, &squares, n)) + rest;
         if total.lower.is_nan() || by_rows.lower.is_nan() {
             // NaN proves nothing (`f64::max` would drop it).
             return Interval::new(f64::NAN, total.upper);
@@ -327,32 +326,36 @@ impl Plant {
     }
 }
 
-/// A lower bound on `vᵀHv` for every `v` in the box `v` and every symmetric `H` in `hs`
-/// (n×n, off the diagonal twice the entry, as [`Plant::held_acceleration`] builds it), row by
-/// row: `2|hᵢⱼvᵢvⱼ| ≤ |hᵢⱼ|(vᵢ² + vⱼ²)`, so `vᵀHv ≥ Σᵢ cᵢvᵢ²` with
+/// `v²` of an enclosure, never below 0 (`sqr` of an interval around 0 is `[0, …]` exactly, but
+/// its outward rounding may not be).
+fn square(v: Interval) -> Interval {
+    let s = v.sqr();
+    Interval::new(s.lower.max(0.0), s.upper)
+}
+
+/// A lower bound on `vᵀHv` for every `v` whose squares lie in `squares` and every symmetric
+/// `H` in `hs` (n×n, off the diagonal twice the entry, as [`Plant::held_acceleration`] builds
+/// it), row by row: `2|hᵢⱼvᵢvⱼ| ≤ |hᵢⱼ|(vᵢ² + vⱼ²)`, so `vᵀHv ≥ Σᵢ cᵢvᵢ²` with
 /// `cᵢ = h̲ᵢᵢ − ½Σⱼ≠ᵢ|hᵢⱼ + hⱼᵢ|`, each `vᵢ²` at the end of its enclosure that makes `cᵢvᵢ²`
 /// least. Nonnegative wherever `H` is diagonally dominant with a nonnegative diagonal, whatever
 /// `v`'s signs, which the term-by-term product (`vᵢvⱼ` over a box around 0) cannot see.
-/// Returned as `[floor, +∞)`.
-fn quadratic_floor(hs: &[Interval], v: &[Interval], n: usize) -> Interval {
+fn quadratic_floor(hs: &[Interval], squares: &[Interval], n: usize) -> f64 {
     let mut floor = Interval::point(0.0);
-    for i in 0..n {
+    for (i, sq) in squares.iter().enumerate() {
         let off = (0..n)
             .filter(|&j| j != i)
             .fold(Interval::point(0.0), |a, j| {
                 a + Interval::point(hs[i * n + j].mag())
             });
-        let ci = Interval::point(hs[i * n + i].lower) - off * Interval::point(0.5);
-        let square = v[i].sqr();
-        let square = Interval::new(square.lower.max(0.0), square.upper);
+        let ci = (Interval::point(hs[i * n + i].lower) - off * Interval::point(0.5)).lower;
         // `cᵢ·vᵢ²`'s lower end: the least square for a positive `cᵢ`, the largest otherwise.
-        let term = match ci.lower >= 0.0 {
-            true => signed_mul(Interval::point(ci.lower), Interval::point(square.lower)),
-            false => Interval::point(ci.lower) * Interval::point(square.upper),
+        let term = match ci >= 0.0 {
+            true => signed_mul(Interval::point(ci), Interval::point(sq.lower)),
+            false => Interval::point(ci) * Interval::point(sq.upper),
         };
         floor = floor + Interval::point(term.lower);
     }
-    Interval::new(floor.lower, f64::INFINITY)
+    floor.lower
 }
 
 /// `a·b` outward rounded, with the sign the factors' signs give kept exactly (rounding would
@@ -637,17 +640,15 @@ goal = {{ lower = [-0.1, -0.1], upper = [0.1, 0.1] }}
     /// random interval enclosures, 2 and 3 dimensions.
     #[test]
     fn the_row_floor_bounds_every_quadratic_form_in_the_enclosures() {
-        let mut seed = 0x9e37_79b9_7f4a_7c15_u64;
-        let mut next = move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        use rand::Rng;
+        let mut rng = crate::bounds::test_support::case_rng(31);
         for trial in 0..400 {
             let n = 2 + trial % 2;
             let mut pick = |scale: f64| {
-                let (a, b) = (scale * (2.0 * next() - 1.0), scale * (2.0 * next() - 1.0));
+                let (a, b) = (
+                    rng.random_range(-scale..scale),
+                    rng.random_range(-scale..scale),
+                );
                 Interval::new(a.min(b), a.max(b))
             };
             let mut hs = vec![Interval::point(0.0); n * n];
@@ -659,11 +660,12 @@ goal = {{ lower = [-0.1, -0.1], upper = [0.1, 0.1] }}
                 }
             }
             let v: Vec<Interval> = (0..n).map(|_| pick(2.0)).collect();
-            let floor = quadratic_floor(&hs, &v, n).lower;
-            let at = |x: Interval, r: f64| x.lower + r * (x.upper - x.lower);
+            let squares: Vec<Interval> = v.iter().map(|&vi| square(vi)).collect();
+            let floor = quadratic_floor(&hs, &squares, n);
+            let mut at = |x: Interval| x.lower + rng.random::<f64>() * (x.upper - x.lower);
             for _ in 0..50 {
-                let h: Vec<f64> = hs.iter().map(|&e| at(e, next())).collect();
-                let w: Vec<f64> = v.iter().map(|&e| at(e, next())).collect();
+                let h: Vec<f64> = hs.iter().map(|&e| at(e)).collect();
+                let w: Vec<f64> = v.iter().map(|&e| at(e)).collect();
                 // Off the diagonal `hs` holds twice the entry: the form is Σ hᵢᵢwᵢ² + Σᵢ<ⱼ hᵢⱼwᵢwⱼ,
                 // with the symmetric pair drawn once.
                 let mut q = 0.0;

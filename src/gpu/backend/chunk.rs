@@ -5,7 +5,7 @@
 
 use std::time::Instant;
 
-use super::super::buffers::{device_bytes, from_device_bytes, NetworkOffsets};
+use super::super::buffers::{device_bytes, from_device_bytes};
 use super::super::codegen::{flag_words, round_down, round_up};
 use super::super::kernels::Kernels;
 use super::super::GpuError;
@@ -89,7 +89,6 @@ impl GpuBackend {
             kernels: f.kernels,
             bufs: f.bufs,
             shape: f.shape,
-            network: NetworkOffsets::of(&f.problem.network),
             nb: (f.shape.faces * boxes) as u32,
             boxes: boxes as u32,
             known: known_buf,

@@ -12,7 +12,7 @@
 
 use std::sync::atomic::Ordering::Relaxed;
 
-use super::super::buffers::{device_bytes, from_device_bytes, NetworkOffsets};
+use super::super::buffers::{device_bytes, from_device_bytes};
 use super::super::codegen::{flag_words, round_down, round_up, FLAG_W};
 use super::super::GpuError;
 use super::chunk::FrameRun;
@@ -196,7 +196,6 @@ impl GpuBackend {
             kernels: runs[f].kernels,
             bufs: runs[f].bufs,
             shape: runs[f].shape,
-            network: NetworkOffsets::of(&runs[f].problem.network),
             nb: (runs[f].shape.faces * boxes) as u32,
             boxes: boxes as u32,
             known: pipe_known,

@@ -1,7 +1,7 @@
 //! The device arrays of one problem (their sizes per box, [`Shape`]) and the buffers of a run
 //! ([`Buffers`]). Imports the GPU's buffer and codegen layouts, the reach problem, wgpu.
 
-use super::super::buffers::{device_bytes, flatten_network, storage, storage_init};
+use super::super::buffers::{device_bytes, flatten_network, storage, storage_init, NetworkOffsets};
 use super::super::codegen::{faces_per_box, flag_words, nnb_width, MethodFlags, AUX};
 use super::super::margins::MarginMap;
 use super::super::GpuError;
@@ -162,6 +162,8 @@ impl Shape {
 /// Device buffers of one run, sized for the largest chunk.
 pub(super) struct Buffers {
     pub(super) net: wgpu::Buffer,
+    /// Where the network's parts lie in `net` (the offsets of the data uploaded there).
+    pub(super) network: NetworkOffsets,
     pub(super) state: wgpu::Buffer,
     pub(super) flags: wgpu::Buffer,
     pub(super) snap: wgpu::Buffer,
@@ -226,6 +228,7 @@ impl GpuBackend {
         let (snap, state, known, cont) = (sz("snap"), sz("state"), sz("known"), sz("cont"));
         Ok(Buffers {
             net: storage_init(d, "net", &net.device_bytes(self.precision)),
+            network: net.offsets,
             state: storage(d, "state", state),
             flags: storage(d, "flags", flags),
             snap: storage(d, "snap", snap),

@@ -2,7 +2,7 @@
 //! the passes by bound method) and their recording into command buffers. Imports wgpu and the
 //! engine's layout.
 
-use super::super::buffers::{uniform, NetworkOffsets, Params, LOOP_CHECK};
+use super::super::buffers::{uniform, Params, LOOP_CHECK};
 use super::super::codegen::AUX;
 use super::super::kernels::{Kernel, Kernels, WORKGROUP};
 use super::layout::{Buffers, Shape};
@@ -22,8 +22,6 @@ pub(super) struct StepPlan<'a> {
     pub(super) kernels: &'a Kernels,
     pub(super) bufs: &'a Buffers,
     pub(super) shape: &'a Shape,
-    /// Where the network's parts lie in `net`.
-    pub(super) network: NetworkOffsets,
     /// Bound boxes in this chunk (`faces` per box): the columns of the bound kernels.
     pub(super) nb: u32,
     /// Boxes in this chunk.
@@ -94,7 +92,7 @@ impl<'a> StepPlan<'a> {
             rows,
             inner,
             cols,
-            w_off: self.network.layers[k].0,
+            w_off: self.bufs.network.layers[k].0,
             ..base
         };
         let groups = self.kernels.gemm_kind.groups(rows, cols);
@@ -158,11 +156,11 @@ impl<'a> StepPlan<'a> {
         let cur = k % 2;
         let p = Params {
             rows: self.n(k),
-            w_off: self.network.layers[k].0,
-            b_off: self.network.layers[k].1,
+            w_off: self.bufs.network.layers[k].0,
+            b_off: self.bufs.network.layers[k].1,
             n_prev: self.shape.w[k] as u32,
             first: (k == 0) as u32,
-            fold_off: self.network.fold,
+            fold_off: self.bufs.network.fold,
             carry: (k == 1) as u32,
             boxes: self.nb,
             pre_off: self.pre_off(k),
@@ -196,8 +194,8 @@ impl<'a> StepPlan<'a> {
                 first: (j + 1 == k) as u32,
                 boxes: self.nb,
                 rpb,
-                w_off: self.network.layers[j].0,
-                b_off: self.network.layers[j].1,
+                w_off: self.bufs.network.layers[j].0,
+                b_off: self.bufs.network.layers[j].1,
                 pre_off: self.pre_off(j),
                 wm_off: self.wm_off(j),
                 prev_u_off: if j > 0 {
@@ -206,8 +204,8 @@ impl<'a> StepPlan<'a> {
                     0
                 },
                 at_input: (j == 0) as u32,
-                k_w_off: self.network.layers[k].0,
-                k_b_off: self.network.layers[k].1,
+                k_w_off: self.bufs.network.layers[k].0,
+                k_b_off: self.bufs.network.layers[k].1,
                 k_rows: self.n(k),
                 k_wm_off: self.wm_off(k),
                 ..Default::default()
@@ -247,8 +245,8 @@ impl<'a> StepPlan<'a> {
             rpb: self.shape.rows(k) as u32,
             first: (k == 0) as u32,
             pre_off: self.pre_off(k),
-            k_w_off: self.network.layers[k].0,
-            k_b_off: self.network.layers[k].1,
+            k_w_off: self.bufs.network.layers[k].0,
+            k_b_off: self.bufs.network.layers[k].1,
             k_rows: self.n(k),
             ..Default::default()
         };
@@ -276,11 +274,11 @@ impl<'a> StepPlan<'a> {
         let b = self.bufs;
         let last = self.shape.w.len() - 2;
         let p = Params {
-            w_off: self.network.layers[last].0,
-            b_off: self.network.layers[last].1,
+            w_off: self.bufs.network.layers[last].0,
+            b_off: self.bufs.network.layers[last].1,
             n_prev: self.shape.w[last] as u32,
             first: (last == 0) as u32,
-            fold_off: self.network.fold,
+            fold_off: self.bufs.network.fold,
             carry: (last == 1) as u32,
             boxes: self.nb,
             rpb: if self.shape.flags.backward {

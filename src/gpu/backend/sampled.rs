@@ -11,7 +11,7 @@ use std::sync::atomic::Ordering::Relaxed;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
-use super::super::buffers::{device_bytes, from_device_bytes, NetworkOffsets};
+use super::super::buffers::{device_bytes, from_device_bytes};
 use super::super::codegen::{flag_words, nnb_width, problem_wgsl, round_down, round_up, FLAG_W};
 use super::super::kernels::{Kernels, Variant};
 use super::super::margins::MarginMap;
@@ -43,8 +43,6 @@ struct FrameSetup<'a> {
     shape: Shape,
     kernels: Arc<Kernels>,
     bufs: Buffers,
-    /// Where the network's parts lie in its buffer.
-    network: NetworkOffsets,
 }
 
 /// The device as the CPU engine's source of network bounds.
@@ -94,7 +92,6 @@ impl BatchBounds for DeviceBounds<'_> {
             kernels: &fr.kernels,
             bufs: &fr.bufs,
             shape: &fr.shape,
-            network: fr.network.clone(),
             nb: boxes as u32,
             boxes: boxes as u32,
             known: &fr.bufs.known,
@@ -211,7 +208,6 @@ impl GpuBackend {
                     shape,
                     kernels,
                     bufs,
-                    network: NetworkOffsets::of(&frame.network),
                 })
             })
             .collect::<Result<Vec<_>, GpuError>>()?;
