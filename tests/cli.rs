@@ -145,9 +145,10 @@ fn bench_reports_rates_for_each_method_and_batch() {
 }
 
 /// `cbfreach` with no arguments reproduces the paper's scenario-1 verdicts with the shipped
-/// network and its certified error map — four boxes behind the obstacle `trapped` at (3, 0), the
-/// other eight `converges` — and those verdicts agree with the ground-truth filtered system from
-/// a 5 × 5 grid of starts in every box (a wrong verdict, or a trap that is not one, fails here).
+/// network and its certified error map, in continuous time — four boxes behind the obstacle
+/// `trapped` at (3, 0), the other eight `converges` (two of them as pieces) — and those
+/// verdicts agree with the ground-truth filtered ODE (RK4 at a tenth of `dt`) from a 5 × 5 grid
+/// of starts in every box (a wrong verdict, or a trap that is not one, fails here).
 #[test]
 fn default_run_reproduces_the_papers_verdicts_and_they_are_true() {
     use cbfreach::filter::SafetyFilter;
@@ -166,6 +167,7 @@ fn default_run_reproduces_the_papers_verdicts_and_they_are_true() {
         String::from_utf8_lossy(&out.stderr)
     );
     assert!(stdout.contains("→ 8 converges, 4 trapped"), "{stdout}");
+    assert!(stdout.contains("Time model: continuous"), "{stdout}");
     for fig in ["trajectories", "tubes", "minkowski"] {
         let png = dir.join("out").join(format!("integrator-{fig}.png"));
         assert!(
@@ -178,13 +180,14 @@ fn default_run_reproduces_the_papers_verdicts_and_they_are_true() {
 
     let s = common::integrator();
     let filter = SafetyFilter::new(&s);
-    let steps = (s.reach.horizon / s.reach.dt).round() as usize;
+    let fine = s.reach.dt / 10.0;
+    let steps = (s.reach.horizon / fine).round() as usize;
     for (k, b) in s.reach.initial.iter().enumerate() {
         let trapped_box = k < 4;
         for i in 0..5 {
             for j in 0..5 {
                 let x0 = b.point_at(&[i as f64 / 4.0, j as f64 / 4.0]);
-                let tr = simulate_filtered(&filter, &x0, s.reach.dt, steps, Integrator::Euler);
+                let tr = simulate_filtered(&filter, &x0, fine, steps, Integrator::Rk4);
                 let end = tr.x.last().unwrap();
                 let target = if trapped_box { [3.0, 0.0] } else { [0.0, 0.0] };
                 let d = (end[0] - target[0]).hypot(end[1] - target[1]);

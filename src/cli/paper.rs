@@ -13,8 +13,8 @@ use cbfreach::problem::network_path;
 use cbfreach::reach::{ReachMethod, ReachSettings, Tube};
 use cbfreach::scenario::{Margin, Scenario};
 use cbfreach::verify::{
-    no_journals, traps_for_equilibria, verify_by_pieces, PiecesSettings, PiecesVerdict, Verdict,
-    VerifyError,
+    no_journals, traps_for_equilibria, verify_by_pieces, BoxVerdict, PieceOutcome, PiecesSettings,
+    PiecesVerdict, Verdict, VerifyError,
 };
 
 use super::args::{compile, ProblemArgs};
@@ -208,16 +208,19 @@ pub fn run_default() -> CliResult {
     );
     println!("  {}\n", s.description.replace('\n', "\n  "));
     let timed = [BoundMethod::Forward, BoundMethod::ForwardBackward];
+    // The verdicts speak of the filtered ODE, the system a user runs (the paper's Euler map
+    // stays in the table of times below, as the paper's construction). Two of the 12 boxes
+    // pass the obstacle at speed and are proven as 16 pieces: four rounds cover them.
     let verdicts = VerdictSettings {
         bounds: ReachSettings::default().bounds,
         pieces: PiecesSettings {
-            refine: 0,
+            refine: 4,
             ..PiecesSettings::default()
         },
-        time: "euler".into(),
+        time: "continuous".into(),
         substeps: None,
     };
-    // Seconds of work (no refinement): nothing worth a checkpoint.
+    // Seconds of work (two boxes in pieces): nothing worth a checkpoint.
     let times = run_scenario(&s, None, &out, verdicts, &timed, SCENARIO_1, None)?;
     if let Some(t) = times {
         println!();
@@ -331,23 +334,6 @@ fn run_scenario(
     };
     let every = 10;
     let dist = reach_initial(s, &problem, bounds, ReachMethod::Disturbance, 1, true)?;
-    let path = fig("tubes");
-    let title = if local {
-        tubes_title_local(s, every)
-    } else {
-        tubes_title(s, problem.m_c, every)
-    };
-    plot::save(
-        &Figure::Tubes {
-            scenario: s,
-            tubes: &dist.boxes,
-            every,
-            title,
-        },
-        &path,
-        size,
-    )?;
-    println!("Figure 2 (tubes, disturbance method): {}", path.display());
     let traps = traps_for_equilibria(s, &found);
     println!(
         "Sound verdicts of the {} initial boxes (disturbance method, {bounds} bounds on faces, {margin}):",
@@ -380,6 +366,35 @@ fn run_scenario(
         bar.finish_and_clear();
     }
     print_verdicts(&dist.boxes, &verdicts);
+    let split: Vec<(usize, &[BoxVerdict])> = verdicts
+        .iter()
+        .enumerate()
+        .filter_map(|(k, v)| match &v.outcome {
+            PieceOutcome::Pieces { leaves, .. } => Some((k, leaves.as_slice())),
+            _ => None,
+        })
+        .collect();
+    let path = fig("tubes");
+    let title = if local {
+        tubes_title_local(s, every)
+    } else {
+        tubes_title(s, problem.m_c, every)
+    };
+    plot::save(
+        &Figure::Tubes {
+            scenario: s,
+            tubes: &dist.boxes,
+            split: &split,
+            every,
+            title,
+        },
+        &path,
+        size,
+    )?;
+    println!(
+        "Figure 2 (tubes, disturbance method; boxes proven in pieces drawn as their pieces): {}",
+        path.display()
+    );
 
     // The paper's construction (Theorem 2) with the scenario's M_C, timed per bound method.
     let paper_problem = compile(

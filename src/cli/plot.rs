@@ -180,6 +180,7 @@ pub fn run(args: &PlotArgs) -> CliResult {
                     &Figure::Tubes {
                         scenario: &s,
                         tubes: &r.boxes,
+                        split: &[],
                         every: 1,
                         title: titled_tubes(&s, &problem, method, args.every.max(1)),
                     },
@@ -287,6 +288,7 @@ pub fn plot_tubes(
         &Figure::Tubes {
             scenario: s,
             tubes: &r.boxes,
+            split: &[],
             every,
             title: titled_tubes(s, problem, method, every * recorded_every.max(1)),
         },

@@ -29,7 +29,7 @@ use crate::error_map::ErrorMap;
 use crate::reach::Tube;
 use crate::scenario::Scenario;
 use crate::simulate::Trajectory;
-use crate::verify::{Verdict, VerifyReport};
+use crate::verify::{BoxVerdict, Verdict, VerifyReport};
 
 mod maps;
 mod view;
@@ -102,6 +102,9 @@ pub enum Figure<'a> {
         scenario: &'a Scenario,
         /// The tubes.
         tubes: &'a [Tube],
+        /// Boxes proven in pieces: the index of the box's tube, drawn as its pieces (outlined
+        /// in their verdict's colour, with their last sets) in place of the whole box's sets.
+        split: &'a [(usize, &'a [BoxVerdict])],
         /// Draw every K-th recorded sample (and the last).
         every: usize,
         /// The title.
@@ -248,9 +251,10 @@ fn draw<DB: DrawingBackend<ErrorType: 'static>>(
         Figure::Tubes {
             scenario,
             tubes,
+            split,
             every,
             title,
-        } => draw_tubes(root, view, scenario, tubes, *every, title),
+        } => draw_tubes(root, view, scenario, tubes, split, *every, title),
         Figure::Minkowski {
             scenario,
             tubes,
@@ -602,6 +606,7 @@ fn draw_tubes<DB: DrawingBackend<ErrorType: 'static>>(
     view: &View,
     scenario: &Scenario,
     tubes: &[Tube],
+    split: &[(usize, &[BoxVerdict])],
     every: usize,
     title: &str,
 ) -> Result<(), DrawError> {
@@ -609,7 +614,10 @@ fn draw_tubes<DB: DrawingBackend<ErrorType: 'static>>(
     let mut chart = chart(root, view, scenario, region, title)?;
     shade_unsafe(&mut chart, view, scenario, region)?;
     let mut seen: Vec<&str> = Vec::new();
-    for tube in tubes {
+    for (k, tube) in tubes.iter().enumerate() {
+        if split.iter().any(|&(i, _)| i == k) {
+            continue;
+        }
         let (colour, label) = tube_class(scenario, tube);
         let boxes: Vec<IntervalBox> = pick_samples(tube, every).map(|s| s.set.clone()).collect();
         let new = !seen.contains(&label);
@@ -624,6 +632,22 @@ fn draw_tubes<DB: DrawingBackend<ErrorType: 'static>>(
             colour.mix(0.8).stroke_width(1),
             new.then_some(label),
         )?;
+    }
+    // A split box's whole sets say nothing (they failed); its pieces and where they end do.
+    for (converges, colour, label) in [
+        (true, BLUE, "pieces proven to reach the goal, last sets"),
+        (false, VERMILION, "pieces proven not to, last sets"),
+    ] {
+        let boxes: Vec<IntervalBox> = split
+            .iter()
+            .flat_map(|(_, leaves)| leaves.iter())
+            .filter(|b| (b.verdict == Verdict::Converges) == converges)
+            .flat_map(|b| std::iter::once(b.initial.clone()).chain(b.final_set.clone()))
+            .collect();
+        if !boxes.is_empty() {
+            let style = colour.mix(0.8).stroke_width(1);
+            box_series(&mut chart, view, &boxes, region, style, Some(label))?;
+        }
     }
     let initial: Vec<IntervalBox> = tubes.iter().map(|t| t.initial.clone()).collect();
     box_series(

@@ -80,6 +80,8 @@ pub enum PieceOutcome {
         feasible_pieces: usize,
         /// Their share of the box's volume.
         feasible_share: f64,
+        /// The pieces themselves, with their verdicts and last sets (for the pictures).
+        leaves: Vec<BoxVerdict>,
     },
     /// The pieces did not all verify: the whole box's outcome stands.
     Undecided {
@@ -174,6 +176,7 @@ impl std::fmt::Display for PiecesVerdict {
                 width,
                 feasible_pieces,
                 feasible_share,
+                ..
             } => {
                 write!(
                     f,
@@ -267,7 +270,7 @@ pub fn verify_by_pieces(
         let journal = journals(k, &run)?;
         let report = verifier.run_journaled(&run, &|_, _, _| {}, journal.as_ref())?;
         progress(done + 1, retry.len());
-        let leaves = &report.after;
+        let leaves = report.after;
         let proven = leaves.iter().filter(|b| b.verdict.is_verified()).count();
         // A piece's size is its widest side (bisection halves one side at a time).
         let width = leaves
@@ -290,6 +293,7 @@ pub fn verify_by_pieces(
                         width,
                         feasible_pieces,
                         feasible_share,
+                        leaves,
                     },
                 };
             }
