@@ -193,7 +193,8 @@ pub fn run(args: &PaperArgs) -> CliResult {
     Ok(())
 }
 
-/// `cbfreach` with no arguments: scenario 1 of the paper, figures into `out/`.
+/// `cbfreach` with no arguments: scenario 1 of the paper, its boxes verified in continuous
+/// time, figures into `out/`.
 pub fn run_default() -> CliResult {
     let clock = Instant::now();
     let s = match Scenario::load(&scenario_path("integrator.toml")) {
