@@ -13,8 +13,8 @@ use cbfreach::problem::network_path;
 use cbfreach::reach::{ReachMethod, ReachSettings, Tube};
 use cbfreach::scenario::{Margin, Scenario};
 use cbfreach::verify::{
-    no_journals, traps_for_equilibria, verify_by_pieces, BoxVerdict, PieceOutcome, PiecesSettings,
-    PiecesVerdict, Verdict, VerifyError,
+    no_journals, traps_for_equilibria, verify_by_pieces, BoxVerdict, PiecesSettings, PiecesVerdict,
+    Verdict, VerifyError,
 };
 
 use super::args::{compile, ProblemArgs};
@@ -370,10 +370,7 @@ fn run_scenario(
     let split: Vec<(usize, &[BoxVerdict])> = verdicts
         .iter()
         .enumerate()
-        .filter_map(|(k, v)| match &v.outcome {
-            PieceOutcome::Pieces { leaves, .. } => Some((k, leaves.as_slice())),
-            _ => None,
-        })
+        .filter_map(|(k, v)| Some((k, v.proven_pieces()?)))
         .collect();
     let path = fig("tubes");
     let title = if local {

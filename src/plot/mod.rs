@@ -636,7 +636,7 @@ fn draw_tubes<DB: DrawingBackend<ErrorType: 'static>>(
     // A split box's whole sets say nothing (they failed); its pieces and where they end do.
     for (converges, colour, label) in [
         (true, BLUE, "pieces proven to reach the goal, last sets"),
-        (false, VERMILION, "pieces proven not to, last sets"),
+        (false, VERMILION, "pieces proven trapped, last sets"),
     ] {
         let boxes: Vec<IntervalBox> = split
             .iter()

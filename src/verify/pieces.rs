@@ -105,6 +105,16 @@ pub struct PiecesVerdict {
     pub outcome: PieceOutcome,
 }
 
+impl PiecesVerdict {
+    /// The pieces that proved the verdict, where the box was proven in pieces.
+    pub fn proven_pieces(&self) -> Option<&[BoxVerdict]> {
+        match &self.outcome {
+            PieceOutcome::Pieces { leaves, .. } => Some(leaves),
+            _ => None,
+        }
+    }
+}
+
 /// Formats a vector compactly: `(1.000, -2.500)`; values that print as zero print unsigned.
 fn fmt_point(x: &[f64]) -> String {
     let parts: Vec<String> = x
