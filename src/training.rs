@@ -20,11 +20,17 @@ use crate::network::train::{
 use crate::network::{Mlp, NetworkError};
 use crate::scenario::Scenario;
 
+/// Most weights and biases a network to train may have (100 million: ~2 GB of f32 copies).
+pub const MAX_PARAMETERS: usize = 100_000_000;
+
 /// Why a training job could not run.
 #[derive(Debug, thiserror::Error)]
 pub enum TrainingError {
-    /// The layer widths do not fit the scenario's states and inputs.
-    #[error("architecture {architecture:?}: must start with n = {n} and end with m = {m}")]
+    /// The layer widths do not fit the scenario's states and inputs, or one is 0.
+    #[error(
+        "architecture {architecture:?}: expected positive widths that start with n = {n} and \
+         end with m = {m} (e.g. [{n}, 64, 64, {m}])"
+    )]
     Architecture {
         /// The widths given.
         architecture: Vec<usize>,
@@ -32,6 +38,17 @@ pub enum TrainingError {
         n: usize,
         /// Its inputs.
         m: usize,
+    },
+    /// More weights than the trainer holds.
+    #[error(
+        "architecture {architecture:?}: {parameters} weights and biases, more than the \
+         {MAX_PARAMETERS} the trainer holds in memory"
+    )]
+    TooLarge {
+        /// The widths given.
+        architecture: Vec<usize>,
+        /// Its weights and biases (saturating).
+        parameters: usize,
     },
     /// No architecture given and none in the scenario's `[network]`.
     #[error("no [network] in the scenario: give an architecture")]
@@ -243,6 +260,7 @@ pub fn architecture(s: &Scenario, given: Option<&[usize]>) -> Result<Vec<usize>,
         (None, None) => return Err(TrainingError::NoArchitecture),
     };
     if architecture.len() < 2
+        || architecture.contains(&0)
         || architecture[0] != s.n()
         || architecture[architecture.len() - 1] != s.m()
     {
@@ -250,6 +268,18 @@ pub fn architecture(s: &Scenario, given: Option<&[usize]>) -> Result<Vec<usize>,
             architecture,
             n: s.n(),
             m: s.m(),
+        });
+    }
+    // Weights, Adam's two moments and each thread's gradients are f32 copies of these: refused
+    // here rather than aborted on when allocated.
+    let parameters = architecture
+        .windows(2)
+        .map(|w| (w[0].saturating_add(1)).saturating_mul(w[1]))
+        .fold(0_usize, usize::saturating_add);
+    if parameters > MAX_PARAMETERS {
+        return Err(TrainingError::TooLarge {
+            architecture,
+            parameters,
         });
     }
     Ok(architecture)
@@ -520,6 +550,23 @@ mod tests {
         assert!(matches!(
             architecture(&s, Some(&[3, 8, 2])),
             Err(TrainingError::Architecture { n: 2, m: 2, .. })
+        ));
+        // A zero width (it panicked in the trainer's chunking) and an architecture too large
+        // to hold are refused by name before any data is made.
+        assert!(matches!(
+            architecture(&s, Some(&[2, 0, 2])),
+            Err(TrainingError::Architecture { .. })
+        ));
+        assert!(matches!(
+            architecture(&s, Some(&[2, 100_000, 100_000, 2])),
+            Err(TrainingError::TooLarge {
+                parameters: 10_000_600_002,
+                ..
+            })
+        ));
+        assert!(matches!(
+            architecture(&s, Some(&[2, usize::MAX, 2])),
+            Err(TrainingError::TooLarge { .. })
         ));
         assert_eq!(architecture(&s, None).unwrap(), vec![2, 400, 400, 400, 2]);
         let focus = IntervalBox::new(vec![-0.5, -0.5], vec![0.5, 0.5]).unwrap();
