@@ -97,7 +97,8 @@ pub enum ProblemError {
     /// The transform could not be built.
     #[error("{0}")]
     Transform(String),
-    /// The time model of the options is not one (its name, or `T_s` not a multiple of `dt`).
+    /// The time model of the options is not one (its name, or `T_s` not a multiple of `dt`),
+    /// or its substeps make more engine steps than a run takes.
     #[error("{0}")]
     Time(String),
     /// The problem does not fit together (network shape, `M_C`, error map over `C`).
@@ -137,6 +138,16 @@ impl ReachProblem {
                 (None, TimeModel::Continuous) => s.reach.substeps,
                 (None, _) => 1,
             };
+            // The scenario's own substeps were checked with its steps; these are the options'.
+            let total = problem.steps as f64 * substeps as f64;
+            if total > crate::scenario::limits::MAX_STEPS {
+                return Err(ProblemError::Time(format!(
+                    "--substeps {substeps}: {} steps × {substeps} is {total:.3e} engine steps, \
+                     more than {:.0e}",
+                    problem.steps,
+                    crate::scenario::limits::MAX_STEPS
+                )));
+            }
             problem = problem.with_time(time, substeps);
         }
         if options.no_safe_set {

@@ -185,6 +185,28 @@ fn a_run_of_billions_of_steps_is_refused() {
             "{err}"
         );
     }
+    // The same number of steps asked for on the command line (it ran on, silently).
+    let s = small(dir.path(), &[]);
+    let (code, _, err) = cbfreach(&["reach", s.to_str().unwrap(), "--substeps", "1000000000"]);
+    no_panic(code, &err);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("--substeps 1000000000"), "{err}");
+}
+
+/// `bench` with an empty batch printed NaN rates; with 10¹¹ boxes it filled the memory.
+#[test]
+fn bench_refuses_empty_and_huge_batches_by_name() {
+    for (option, value) in [
+        ("--boxes", "0"),
+        ("--boxes", "1,100000000000"),
+        ("--steps", "0"),
+    ] {
+        let (code, out, err) = cbfreach(&["bench", "--backend", "cpu", option, value]);
+        no_panic(code, &err);
+        assert_eq!(code, 2, "{out}{err}");
+        assert!(err.contains(option), "{err}");
+        assert!(!out.contains("NaN"), "{out}");
+    }
 }
 
 // --- silent acceptance ------------------------------------------------------------------------

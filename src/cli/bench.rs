@@ -17,16 +17,24 @@ use super::args::GpuArgs;
 use super::{load_scenario, CliResult};
 
 /// Arguments of `cbfreach bench`.
+/// The largest batch `bench` runs: its boxes, tubes and the engines' buffers stay a few GB.
+const MAX_BOXES: usize = 1 << 20;
+
 #[derive(clap::Args)]
 pub struct BenchArgs {
     /// Engines to run: `cpu`, `gpu`, or both (comma-separated).
     #[arg(long, value_delimiter = ',', default_value = "cpu,gpu")]
     pub backend: Vec<String>,
-    /// Batch sizes (boxes).
-    #[arg(long, value_delimiter = ',', default_value = "1,16,256,4096")]
+    /// Batch sizes (boxes), each 1 to 1,048,576 (a batch's boxes and sets are held in memory).
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "1,16,256,4096",
+        value_parser = |s: &str| super::whole_in(s, 1, MAX_BOXES)
+    )]
     pub boxes: Vec<usize>,
     /// Euler steps per run.
-    #[arg(long, default_value_t = 10)]
+    #[arg(long, default_value_t = 10, value_parser = |s: &str| super::whole_at_least(s, 1))]
     pub steps: usize,
     /// Bound methods (comma-separated).
     #[arg(

@@ -162,6 +162,14 @@ pub fn whole_at_least(text: &str, min: usize) -> Result<usize, String> {
         .ok_or_else(|| format!("expected a whole number ≥ {min}"))
 }
 
+/// Parses a whole number in `min..=max` (a batch size) for clap.
+pub fn whole_in(text: &str, min: usize, max: usize) -> Result<usize, String> {
+    text.parse::<usize>()
+        .ok()
+        .filter(|k| (min..=max).contains(k))
+        .ok_or_else(|| format!("expected a whole number from {min} to {max}"))
+}
+
 /// Formats a vector compactly: `(1.000, -2.500)`.
 pub fn fmt_point(x: &[f64]) -> String {
     // Values that print as zero print without a sign.
