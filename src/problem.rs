@@ -131,6 +131,17 @@ impl ReachProblem {
             let name = options.time.as_deref().unwrap_or(s.reach.time.name());
             let time = TimeModel::parse(name, options.control_period.or(old), s.reach.dt)
                 .map_err(|e| ProblemError::Time(e.to_string()))?;
+            if let (Some(ts), false) = (
+                options.control_period,
+                matches!(time, TimeModel::Sampled { .. }),
+            ) {
+                // A period nothing holds the input over: said, not ignored.
+                return Err(ProblemError::Time(format!(
+                    "--control-period {ts} holds the input of `sampled` runs; this run's sets \
+                     bound {} (add --time sampled)",
+                    time.clause()
+                )));
+            }
             // The scenario's `substeps` cut continuous steps: another model asked for here
             // runs without them (given here with it, they are refused by name).
             let substeps = match (options.substeps, time) {

@@ -193,6 +193,26 @@ fn a_run_of_billions_of_steps_is_refused() {
     assert!(err.contains("--substeps 1000000000"), "{err}");
 }
 
+/// A control period where nothing is sampled was ignored; one of 10³⁰⁰ hung the engine.
+#[test]
+fn control_periods_that_hold_nothing_or_forever_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = small(dir.path(), &[]);
+    let s = s.to_str().unwrap();
+    for args in [
+        vec!["reach", s, "--control-period", "0.1"],
+        vec!["reach", s, "--time", "sampled", "--control-period", "1e300"],
+    ] {
+        let (code, _, err) = cbfreach(&args);
+        no_panic(code, &err);
+        assert_eq!(code, 2, "{args:?}: {err}");
+        assert!(
+            err.contains("control") && !err.contains("00000000"),
+            "{err}"
+        );
+    }
+}
+
 /// `bench` with an empty batch printed NaN rates; with 10¹¹ boxes it filled the memory.
 #[test]
 fn bench_refuses_empty_and_huge_batches_by_name() {

@@ -95,8 +95,17 @@ impl TimeModel {
 /// `K` with `ts = K·dt`, `K` a whole number ≥ 1 (to a relative 1e-9), else `None`.
 fn periods(ts: f64, dt: f64) -> Option<usize> {
     let k = (ts / dt).round();
-    (ts.is_finite() && ts > 0.0 && k >= 1.0 && (ts - k * dt).abs() <= 1e-9 * ts)
-        .then_some(k as usize)
+    // A hold of more steps than a run may take is no period (1e300 once hung the engine).
+    let held = (1.0..=crate::scenario::limits::MAX_STEPS).contains(&k);
+    (ts.is_finite() && ts > 0.0 && held && (ts - k * dt).abs() <= 1e-9 * ts).then_some(k as usize)
+}
+
+/// `v` as typed where that is short, else in scientific notation (`1e300`, not 301 digits).
+fn short(v: f64) -> String {
+    match v != 0.0 && (v.abs() >= 1e6 || v.abs() < 1e-4) {
+        true => format!("{v:e}"),
+        false => v.to_string(),
+    }
 }
 
 /// A time model that cannot be read; [`TimeError::field`] names the setting at fault.
@@ -107,8 +116,9 @@ pub enum TimeError {
     Name(String),
     /// `control_period` is not `K·dt` with `K` a whole number ≥ 1.
     #[error(
-        "control_period = {ts}: expected K·dt with K a whole number ≥ 1 (dt = {dt}): the input \
-         is held over K integration steps"
+        "control_period = {}: expected K·dt with K a whole number from 1 to 1e7 (dt = {dt}): \
+         the input is held over K integration steps",
+        short(*ts)
     )]
     Period {
         /// The period asked for.
@@ -226,7 +236,8 @@ mod tests {
         let e = TimeModel::parse("sampled", Some(0.12), 0.05).unwrap_err();
         assert_eq!(e.field(), "reach.control_period");
         assert!(e.to_string().contains("control_period = 0.12"), "{e}");
-        for bad in [0.0, -0.1, 0.025, f64::NAN] {
+        // 1e300 and 1e6 (2·10⁷ steps a hold) were accepted, and the first hung the engine.
+        for bad in [0.0, -0.1, 0.025, f64::NAN, f64::INFINITY, 1e300, 1e6] {
             assert!(
                 TimeModel::parse("sampled", Some(bad), 0.05).is_err(),
                 "{bad}"
