@@ -213,6 +213,36 @@ fn control_periods_that_hold_nothing_or_forever_are_refused() {
     }
 }
 
+/// `error --max-cells 0` certified for 40 s and wrote a map of `M = ∞` beside the network;
+/// the other counts and widths of `error` took any value. Refused before any work.
+#[test]
+fn error_refuses_empty_budgets_and_widths() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = small(dir.path(), &[]);
+    let s = s.to_str().unwrap();
+    for (option, value) in [
+        ("--max-cells", "0"),
+        ("--budget", "0"),
+        ("--refine", "0"),
+        ("--local-ratio", "0.5"),
+        ("--floor", "-0.5"),
+        ("--box-width", "0"),
+        ("--min-cell", "nan"),
+    ] {
+        let (code, _, err) = cbfreach(&["error", s, &format!("{option}={value}")]);
+        no_panic(code, &err);
+        assert_eq!(code, 2, "{option} {value}: {err}");
+        assert!(err.contains(option), "{err}");
+    }
+    let left: Vec<_> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name())
+        .filter(|n| n.to_string_lossy().contains("errormap"))
+        .collect();
+    assert!(left.is_empty(), "{left:?}");
+}
+
 /// `bench` with an empty batch printed NaN rates; with 10¹¹ boxes it filled the memory.
 #[test]
 fn bench_refuses_empty_and_huge_batches_by_name() {

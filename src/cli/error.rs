@@ -28,33 +28,33 @@ pub struct ErrorArgs {
     #[arg(long)]
     pub json: bool,
     /// Cell evaluations allowed to the certified bound.
-    #[arg(long, default_value_t = 40_000)]
+    #[arg(long, default_value_t = 40_000, value_parser = |s: &str| super::whole_at_least(s, 1))]
     pub budget: usize,
     /// Refine each cell until its bound is within this many times its sampled error ...
-    #[arg(long, default_value_t = 1.5)]
+    #[arg(long, default_value_t = 1.5, value_parser = |s: &str| super::number_at_least(s, 1.0, false))]
     pub local_ratio: f64,
     /// ... or below this absolute floor.
-    #[arg(long, default_value_t = 0.01)]
+    #[arg(long, default_value_t = 0.01, value_parser = |s: &str| super::number_at_least(s, 0.0, false))]
     pub floor: f64,
     /// At most this many cells in the error map (about 80 bytes of JSON each).
-    #[arg(long, default_value_t = 24_000)]
+    #[arg(long, default_value_t = 24_000, value_parser = |s: &str| super::whole_at_least(s, 1))]
     pub max_cells: usize,
     /// When every cell meets its target, bisect further (largest bound × width first) up to
     /// this many cells, so that a set's local bound comes from cells near its size.
     #[arg(long, default_value_t = 4_000)]
     pub detail_cells: usize,
     /// Measurement grid: this many times the training grid's points per axis.
-    #[arg(long, default_value_t = 2)]
+    #[arg(long, default_value_t = 2, value_parser = |s: &str| super::whole_at_least(s, 1))]
     pub refine: usize,
     /// Looseness: at most this many boxes across C ∩ S (0 skips the looseness).
     #[arg(long, default_value_t = 300)]
     pub looseness_boxes: usize,
     /// Width of the boxes of the looseness and of the slope error over boxes. The engine's
     /// sets grow wider than 0.1 along the way: a wider box shows how bounds hold up there.
-    #[arg(long, default_value_t = 0.1)]
+    #[arg(long, default_value_t = 0.1, value_parser = |s: &str| super::number_at_least(s, 0.0, true))]
     pub box_width: f64,
     /// Cells narrower than this are not refined further.
-    #[arg(long, default_value_t = 1.0 / 256.0)]
+    #[arg(long, default_value_t = 1.0 / 256.0, value_parser = |s: &str| super::number_at_least(s, 0.0, true))]
     pub min_cell: f64,
     /// How the network is bounded on a cell where IBP is not tight enough.
     #[arg(long, value_enum, default_value_t = BoundMethod::ForwardBackward)]
@@ -131,7 +131,7 @@ pub fn run(args: &ErrorArgs) -> CliResult {
         check_writable(&map_path).map_err(|e| format!("{}: {e}", map_path.display()))?;
     }
     let settings = ErrorSettings {
-        refine: args.refine.max(1),
+        refine: args.refine,
         budget: args.budget,
         looseness_boxes: args.looseness_boxes,
         looseness_width: args.box_width,

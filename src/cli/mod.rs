@@ -170,6 +170,17 @@ pub fn whole_in(text: &str, min: usize, max: usize) -> Result<usize, String> {
         .ok_or_else(|| format!("expected a whole number from {min} to {max}"))
 }
 
+/// Parses a finite number of at least `min` (above it where `strict`) for clap.
+pub fn number_at_least(text: &str, min: f64, strict: bool) -> Result<f64, String> {
+    text.parse::<f64>()
+        .ok()
+        .filter(|&v| v.is_finite() && if strict { v > min } else { v >= min })
+        .ok_or_else(|| match strict {
+            true => format!("expected a finite number > {min}"),
+            false => format!("expected a finite number ≥ {min}"),
+        })
+}
+
 /// Formats a vector compactly: `(1.000, -2.500)`.
 pub fn fmt_point(x: &[f64]) -> String {
     // Values that print as zero print without a sign.
