@@ -451,6 +451,40 @@ fn output_paths_are_checked_before_the_work() {
     assert_eq!(code, 2);
     assert!(err.contains("/no/such/folder/v.json"), "{err}");
     assert!(!out.contains("verdict"), "ran before failing: {out}");
+    // train (it trained, then failed on its first checkpoint), dataset (it sampled the
+    // filter first) and plot (the figure's work first, then a backend's error).
+    let s = s.to_str().unwrap();
+    for args in [
+        vec![
+            "train",
+            s,
+            "--grid",
+            "5,5",
+            "--epochs",
+            "1",
+            "-o",
+            "/no/such/folder/n.safetensors",
+        ],
+        vec!["dataset", s, "--grid", "5,5", "-o", "/no/such/folder/d.csv"],
+        vec![
+            "plot",
+            s,
+            "--figure",
+            "tubes",
+            "-o",
+            "/no/such/folder/p.png",
+        ],
+    ] {
+        let (code, out, err) = cbfreach(&args);
+        no_panic(code, &err);
+        assert_eq!(code, 2, "{args:?}: {err}");
+        assert!(err.contains("/no/such/folder/"), "{err}");
+        assert!(
+            !err.contains("backend error") && !out.contains("epoch"),
+            "{out}{err}"
+        );
+        assert!(!err.contains("epoch 1/1"), "trained before failing: {err}");
+    }
 }
 
 /// A journal that stops the run after `stop_after` recorded chunks.

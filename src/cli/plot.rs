@@ -143,6 +143,7 @@ pub fn reach_initial(
 /// Runs `plot`.
 pub fn run(args: &PlotArgs) -> CliResult {
     let s = load_scenario(&args.scenario)?;
+    super::check_outputs(&[Some(&args.out)])?;
     let view = View::parse(&s, args.axes.as_deref(), &args.slice)?;
     let size = match &args.size {
         Some(t) => parse_size(t)?,

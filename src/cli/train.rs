@@ -198,6 +198,7 @@ fn print_summary(s: &Scenario, d: &DatasetSummary) {
 /// Runs `cbfreach dataset`.
 pub fn run_dataset(args: &DatasetArgs) -> CliResult {
     let s = load_scenario(&args.scenario)?;
+    super::check_outputs(&[args.out.as_deref()])?;
     let points = training_points(&s, args.grid.as_ref())?;
     let filter = SafetyFilter::new(&s);
     let bars = Bars::default();
@@ -254,6 +255,8 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
         (None, Some(net)) => net.file.clone(),
         (None, None) => return Err("give --out FILE".into()),
     };
+    // The network and its checkpoint (beside it) are written after the work: checked now.
+    super::check_outputs(&[Some(&out)])?;
     let options = data_options(args, &s)?;
     let bars = Bars::default();
     let data = TrainingData::sample(&s, &options, &bars)?;
