@@ -131,10 +131,8 @@ impl ReachProblem {
             let name = options.time.as_deref().unwrap_or(s.reach.time.name());
             let time = TimeModel::parse(name, options.control_period.or(old), s.reach.dt)
                 .map_err(|e| ProblemError::Time(e.to_string()))?;
-            if let (Some(ts), false) = (
-                options.control_period,
-                matches!(time, TimeModel::Sampled { .. }),
-            ) {
+            let sampled = matches!(time, TimeModel::Sampled { .. });
+            if let Some(ts) = options.control_period.filter(|_| !sampled) {
                 // A period nothing holds the input over: said, not ignored.
                 return Err(ProblemError::Time(format!(
                     "--control-period {ts} holds the input of `sampled` runs; this run's sets \

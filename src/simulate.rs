@@ -246,8 +246,9 @@ pub fn simulate_filtered(
     integrator: Integrator,
 ) -> Trajectory {
     if integrator == Integrator::Zoh {
-        // The held input is not a function of the current state: step the sampled map.
-        return simulate_sampled_watching_s(filter, x0, dt, steps).0;
+        // The held input is not a function of the current state: step the sampled map (no
+        // one watching `S` between samples here).
+        return iterate(|x| zoh_step(filter, x, dt, |_| {}), x0, dt, steps);
     }
     integrate(
         |x: &[f64]| -> Result<Vec<f64>, FilterError> { filter.closed_loop(x) },

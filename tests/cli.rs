@@ -152,7 +152,8 @@ fn bench_reports_rates_for_each_method_and_batch() {
 #[test]
 fn default_run_reproduces_the_papers_verdicts_and_they_are_true() {
     use cbfreach::filter::SafetyFilter;
-    use cbfreach::simulate::{simulate_filtered, Integrator};
+    use cbfreach::reach::TimeModel;
+    use cbfreach::verify::simulate_model;
 
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path();
@@ -180,14 +181,13 @@ fn default_run_reproduces_the_papers_verdicts_and_they_are_true() {
 
     let s = common::integrator();
     let filter = SafetyFilter::new(&s);
-    let fine = s.reach.dt / 10.0;
-    let steps = (s.reach.horizon / fine).round() as usize;
     for (k, b) in s.reach.initial.iter().enumerate() {
         let trapped_box = k < 4;
         for i in 0..5 {
             for j in 0..5 {
                 let x0 = b.point_at(&[i as f64 / 4.0, j as f64 / 4.0]);
-                let tr = simulate_filtered(&filter, &x0, fine, steps, Integrator::Rk4);
+                // The ODE by RK4 at dt/10, as `verify --check` simulates it.
+                let (tr, _) = simulate_model(&filter, &x0, TimeModel::Continuous, 10);
                 let end = tr.x.last().unwrap();
                 let target = if trapped_box { [3.0, 0.0] } else { [0.0, 0.0] };
                 let d = (end[0] - target[0]).hypot(end[1] - target[1]);

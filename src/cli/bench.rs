@@ -16,10 +16,10 @@ use cbfreach::simulate::spread_boxes;
 use super::args::GpuArgs;
 use super::{load_scenario, CliResult};
 
-/// Arguments of `cbfreach bench`.
 /// The largest batch `bench` runs: its boxes, tubes and the engines' buffers stay a few GB.
 const MAX_BOXES: usize = 1 << 20;
 
+/// Arguments of `cbfreach bench`.
 #[derive(clap::Args)]
 pub struct BenchArgs {
     /// Engines to run: `cpu`, `gpu`, or both (comma-separated).

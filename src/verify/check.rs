@@ -67,12 +67,10 @@ pub fn simulation_check(s: &Scenario, report: &VerifyReport, per_axis: usize) ->
                 let x0 = b.initial.point_at(&at);
                 let (tr, left_s) = simulate_model(&filter, &x0, time, 10);
                 out.starts += 1;
-                if left_s.is_some() {
-                    // Sampled data: the verdict's sets were proven inside `S` between samples.
-                    out.disagreements.push((x0, b.verdict, tr.last().to_vec()));
-                } else if tr.stopped.is_some() && b.feasible == Some(true) {
-                    // The QP was proven feasible on every set, and the sets hold the
-                    // trajectory at every step.
+                // Sampled data: the verdict's sets were proven inside `S` between samples. A
+                // stop with the QP proven feasible on every set: the sets hold the trajectory
+                // at every step.
+                if left_s.is_some() || (tr.stopped.is_some() && b.feasible == Some(true)) {
                     out.disagreements.push((x0, b.verdict, tr.last().to_vec()));
                 } else if tr.stopped.is_some() {
                     out.stopped += 1;

@@ -72,15 +72,8 @@ pub enum PieceOutcome {
     },
     /// Every piece has the same verified verdict.
     Pieces {
-        /// Pieces (leaves of the refinement).
-        pieces: usize,
-        /// The narrowest and widest piece (by its widest side).
-        width: (f64, f64),
-        /// Pieces whose QP is proven feasible along their tubes.
-        feasible_pieces: usize,
-        /// Their share of the box's volume.
-        feasible_share: f64,
-        /// The pieces themselves, with their verdicts and last sets (for the pictures).
+        /// The pieces (leaves of the refinement), with their verdicts and last sets: their
+        /// count, sizes and proven-feasible share are read from them.
         leaves: Vec<BoxVerdict>,
     },
     /// The pieces did not all verify: the whole box's outcome stands.
@@ -133,6 +126,17 @@ fn feasibility_clause(feasible: Option<bool>) -> &'static str {
     }
 }
 
+/// The narrowest and widest of `leaves`, a piece's size being its widest side (bisection
+/// halves one side at a time).
+fn piece_widths(leaves: &[BoxVerdict]) -> (f64, f64) {
+    leaves
+        .iter()
+        .map(|b| b.initial.widths().into_iter().fold(0.0_f64, f64::max))
+        .fold((f64::INFINITY, 0.0_f64), |(lo, hi), w| {
+            (lo.min(w), hi.max(w))
+        })
+}
+
 /// `0.031` or `0.016–0.031`.
 fn size((narrow, wide): (f64, f64)) -> String {
     let (narrow, wide) = (format!("{narrow:.3}"), format!("{wide:.3}"));
@@ -181,26 +185,24 @@ impl std::fmt::Display for PieceOutcome {
 impl std::fmt::Display for PiecesVerdict {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match &self.outcome {
-            PieceOutcome::Pieces {
-                pieces,
-                width,
-                feasible_pieces,
-                feasible_share,
-                ..
-            } => {
+            PieceOutcome::Pieces { leaves } => {
                 write!(
                     f,
-                    "as {pieces} pieces {} wide: every piece {}",
-                    size(*width),
+                    "as {} pieces {} wide: every piece {}",
+                    leaves.len(),
+                    size(piece_widths(leaves)),
                     self.verdict.name()
                 )?;
-                match *feasible_pieces {
-                    n if n == *pieces => f.write_str(feasibility_clause(Some(true))),
+                let proven_feasible = |b: &&BoxVerdict| b.feasible == Some(true);
+                let area = |b: &BoxVerdict| b.initial.volume();
+                match leaves.iter().filter(proven_feasible).count() {
+                    n if n == leaves.len() => f.write_str(feasibility_clause(Some(true))),
                     0 => f.write_str(feasibility_clause(Some(false))),
                     _ => write!(
                         f,
                         "; QP proven feasible on {:.1} % of the box",
-                        100.0 * feasible_share
+                        100.0 * leaves.iter().filter(proven_feasible).map(area).sum::<f64>()
+                            / leaves.iter().map(area).sum::<f64>()
                     ),
                 }
             }
@@ -282,29 +284,11 @@ pub fn verify_by_pieces(
         progress(done + 1, retry.len());
         let leaves = report.after;
         let proven = leaves.iter().filter(|b| b.verdict.is_verified()).count();
-        // A piece's size is its widest side (bisection halves one side at a time).
-        let width = leaves
-            .iter()
-            .map(|b| b.initial.widths().into_iter().fold(0.0_f64, f64::max))
-            .fold((f64::INFINITY, 0.0_f64), |(lo, hi), w| {
-                (lo.min(w), hi.max(w))
-            });
         match leaves.first().map(|b| b.verdict) {
             Some(v) if proven == leaves.len() && leaves.iter().all(|b| b.verdict == v) => {
-                let proven_feasible = |b: &&BoxVerdict| b.feasible == Some(true);
-                let area = |b: &BoxVerdict| b.initial.volume();
-                let feasible_pieces = leaves.iter().filter(proven_feasible).count();
-                let feasible_share = leaves.iter().filter(proven_feasible).map(area).sum::<f64>()
-                    / leaves.iter().map(area).sum::<f64>();
                 out[k] = PiecesVerdict {
                     verdict: v,
-                    outcome: PieceOutcome::Pieces {
-                        pieces: leaves.len(),
-                        width,
-                        feasible_pieces,
-                        feasible_share,
-                        leaves,
-                    },
+                    outcome: PieceOutcome::Pieces { leaves },
                 };
             }
             _ => {
@@ -320,7 +304,7 @@ pub fn verify_by_pieces(
                     whole: Box::new(whole),
                     proven,
                     pieces: leaves.len(),
-                    width,
+                    width: piece_widths(&leaves),
                 };
             }
         }
