@@ -533,6 +533,11 @@ impl ErrorMap {
             .fold(0.0, f64::max)
     }
 
+    /// Whether every cell has a finite certified bound (the cells cover the region).
+    pub fn certified_everywhere(&self) -> bool {
+        self.certified_linf.is_some() && self.cells.iter().all(|c| c.bound.is_finite())
+    }
+
     /// The certified bound of `‖N − v‖∞` over `b ∩ S`: the max over the cells that meet `b` (0
     /// when `b` meets only cells proven unsafe, +∞ when it meets none). +∞ when `b` is not inside the mapped region (or
     /// the map holds no certified cells); see [`ErrorMap::try_local_bound`] for an error instead.

@@ -413,6 +413,44 @@ initial = [{{ lower = [{lo}, 0.9], upper = [{hi}, 1.1] }}]
     assert!(end.to_string().contains("M is below"), "{end}");
 }
 
+/// A tube that ends for want of an error bound says whether the map lacks bounds there (a jump
+/// of `v`) or the step asked beyond `C`: the shipped unicycle's map certifies every cell, and
+/// its box's sets, in z coordinates, widen until a step's a-priori enclosure reaches past
+/// `px = −3.5`. The old message blamed cells "with no certified bound", of which it has none.
+#[test]
+fn a_tube_without_an_error_bound_says_whether_it_reached_beyond_c() {
+    use cbfreach::reach::{Backend, CpuBackend, ReachSettings, TubeEnd};
+    let s = Scenario::load(&common::scenario_path("unicycle.toml")).unwrap();
+    let problem = common::shipped_problem(&s);
+    assert!(problem.certified_on_all_of_c());
+    let r = CpuBackend
+        .reach(
+            &problem,
+            &s.reach.initial,
+            &ReachSettings::default(),
+            &|_, _| {},
+        )
+        .unwrap();
+    let end = r.boxes[0].end;
+    assert!(
+        matches!(end, TubeEnd::NoCertifiedBound { beyond_c: true, .. }),
+        "{end:?}"
+    );
+    assert!(end
+        .to_string()
+        .contains("beyond C, where the error map certifies nothing"));
+    // Scenario 2's map has cells without a bound (v jumps at (1, 0) and (3, 0)): either cause.
+    let s2 = Scenario::load(&common::scenario_path("double-integrator.toml")).unwrap();
+    assert!(!common::shipped_problem(&s2).certified_on_all_of_c());
+    let either = TubeEnd::NoCertifiedBound {
+        t: 1.0,
+        beyond_c: false,
+    };
+    assert!(either
+        .to_string()
+        .contains("no certified bound (M = ∞), or its step reaches beyond C"));
+}
+
 #[test]
 fn train_says_when_the_grid_cannot_resolve_the_target() {
     // The unicycle's filter steepens to ~76 per unit next to the obstacle: on a 9×7×9 grid

@@ -640,7 +640,10 @@ fn fill_tube(
     let t = stop as f64 * problem.dt;
     tube.end = match st {
         // The step's start, as the CPU engine reports it.
-        status::NO_BOUND => TubeEnd::NoCertifiedBound { t: t - problem.dt },
+        status::NO_BOUND => TubeEnd::NoCertifiedBound {
+            t: t - problem.dt,
+            beyond_c: problem.certified_on_all_of_c(),
+        },
         status::LEFT_REGION => {
             let known = read.met.map(|_| &res.known[g * 2 * n..(g + 1) * 2 * n]);
             tube.tube

@@ -710,7 +710,10 @@ impl ChunkRun<'_> {
                 if !buf.stepped.iter().any(|&s| s) {
                     // The error map has no finite bound where the set is (e.g. where `v`
                     // jumps), in every frame: nothing sound can be said from here on.
-                    state.tube.end = TubeEnd::NoCertifiedBound { t: t - self.h };
+                    state.tube.end = TubeEnd::NoCertifiedBound {
+                        t: t - self.h,
+                        beyond_c: problem.certified_on_all_of_c(),
+                    };
                     state.done = true;
                     continue;
                 }

@@ -251,7 +251,10 @@ impl ChunkRun<'_> {
                 return;
             }
             // The step's enclosure meets cells of the error map with no certified bound.
-            Enclosure::NoField => TubeEnd::NoCertifiedBound { t: t0 },
+            Enclosure::NoField => TubeEnd::NoCertifiedBound {
+                t: t0,
+                beyond_c: self.frames[0].problem.certified_on_all_of_c(),
+            },
             Enclosure::Open => TubeEnd::NoEnclosure { t: t0, h: self.h },
         };
         state.done = true;

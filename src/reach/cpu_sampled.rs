@@ -178,7 +178,10 @@ impl ChunkRun<'_> {
             images.push(held);
         }
         if images.iter().all(Option::is_none) {
-            state.tube.end = TubeEnd::NoCertifiedBound { t };
+            state.tube.end = TubeEnd::NoCertifiedBound {
+                t,
+                beyond_c: self.x_problem.certified_on_all_of_c(),
+            };
             state.done = true;
             return Ok(());
         }

@@ -342,6 +342,16 @@ impl ReachProblem {
         x
     }
 
+    /// Whether a finite `M` exists for every box within `C`: `m_c` is finite and, with an error
+    /// map, the map certifies every one of its cells. Then a step that finds no finite `M` asked
+    /// for it beyond `C`.
+    pub fn certified_on_all_of_c(&self) -> bool {
+        match &self.error_map {
+            Some(map) => map.certified_everywhere(),
+            None => self.m_c.is_finite(),
+        }
+    }
+
     /// The disturbance bound `M` for a set whose x-bounding box is `x_box`: the error map's
     /// local bound when there is one, else `M_C`.
     pub fn margin_for(&self, x_box: &IntervalBox) -> f64 {

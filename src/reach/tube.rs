@@ -71,11 +71,15 @@ pub enum TubeEnd {
         /// The time of the step whose set left `C`.
         t: f64,
     },
-    /// The step from `t` found no finite error bound where the set is (cells of the error map
-    /// without a certified bound, e.g. where `v` jumps), in every frame.
+    /// The step from `t` found no finite error bound where the set is, in every frame: cells of
+    /// the error map without a certified bound (e.g. where `v` jumps), or a box beyond the map's
+    /// region `C` (the set's x-box, or its step's a-priori enclosure).
     NoCertifiedBound {
         /// The start of the step that could not be taken.
         t: f64,
+        /// The map certifies every cell of `C` ([`crate::reach::ReachProblem::certified_on_all_of_c`]),
+        /// so the bound was asked beyond `C`: the sets grew too wide, not a jump of `v`.
+        beyond_c: bool,
     },
     /// Continuous time: the flowpipe of the step ending at `t` left the region `C`.
     FlowpipeLeftRegion {
@@ -122,7 +126,7 @@ impl TubeEnd {
         match &mut end {
             TubeEnd::Horizon => {}
             TubeEnd::LeftRegion { t }
-            | TubeEnd::NoCertifiedBound { t }
+            | TubeEnd::NoCertifiedBound { t, .. }
             | TubeEnd::FlowpipeLeftRegion { t }
             | TubeEnd::NoEnclosure { t, .. }
             | TubeEnd::NoIntersampleEnclosure { t }
@@ -137,7 +141,7 @@ impl TubeEnd {
         match *self {
             TubeEnd::Horizon => None,
             TubeEnd::LeftRegion { t }
-            | TubeEnd::NoCertifiedBound { t }
+            | TubeEnd::NoCertifiedBound { t, .. }
             | TubeEnd::FlowpipeLeftRegion { t }
             | TubeEnd::NoEnclosure { t, .. }
             | TubeEnd::NoIntersampleEnclosure { t }
@@ -159,9 +163,17 @@ impl std::fmt::Display for TubeEnd {
         match *self {
             TubeEnd::Horizon => f.write_str("ran to the horizon"),
             TubeEnd::LeftRegion { t } => write!(f, "t = {t:.3}: the set left the region C"),
-            TubeEnd::NoCertifiedBound { t } => write!(
+            TubeEnd::NoCertifiedBound { t, beyond_c: false } => write!(
                 f,
-                "t = {t:.3}: the set meets cells of the error map with no certified bound (M = ∞)"
+                "t = {t:.3}: the set meets cells of the error map with no certified bound \
+                 (M = ∞), or its step reaches beyond C"
+            ),
+            TubeEnd::NoCertifiedBound { t, beyond_c: true } => write!(
+                f,
+                "t = {t:.3}: the step needs the error bound beyond C, where the error map \
+                 certifies nothing (the set or its step's enclosure reaches past C's sides): the \
+                 sets grew too wide here; a more accurate network (a smaller M) or smaller boxes \
+                 keep them in C"
             ),
             TubeEnd::FlowpipeLeftRegion { t } => {
                 write!(f, "t = {t:.3}: the flowpipe of the step left the region C")
