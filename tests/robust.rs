@@ -172,19 +172,28 @@ goal = { lower = [-0.1, -0.1, -0.1, -0.1, -0.1, -0.1], upper = [0.1, 0.1, 0.1, 0
 #[test]
 fn a_run_of_billions_of_steps_is_refused() {
     let dir = tempfile::tempdir().unwrap();
-    for edit in [
-        ("horizon = 1.0", "horizon = 1e9"),
-        ("dt = 0.05", "dt = 1e-300"),
+    for (edit, shown) in [
+        (("horizon = 1.0", "horizon = 1e9"), "horizon 1e9 / dt 0.05"),
+        (("dt = 0.05", "dt = 1e-300"), "horizon 1 / dt 1e-300"),
+        (
+            ("horizon = 1.0", "horizon = 1e300"),
+            "horizon 1e300 / dt 0.05",
+        ),
     ] {
         let s = small(dir.path(), &[edit]);
         let (code, _, err) = cbfreach(&["check", s.to_str().unwrap()]);
         no_panic(code, &err);
         assert_eq!(code, 2);
+        // The numbers as typed, not 300 digits.
         assert!(
-            err.contains("reach.horizon") && err.contains("steps"),
+            err.contains("reach.horizon") && err.contains("steps") && err.contains(shown),
             "{err}"
         );
     }
+    let s = small(dir.path(), &[]);
+    let (code, _, err) = cbfreach(&["simulate", s.to_str().unwrap(), "--horizon", "1e300"]);
+    no_panic(code, &err);
+    assert!(err.contains("--horizon 1e300 / --dt 0.05"), "{err}");
     // The same number of steps asked for on the command line (it ran on, silently).
     let s = small(dir.path(), &[]);
     let (code, _, err) = cbfreach(&["reach", s.to_str().unwrap(), "--substeps", "1000000000"]);

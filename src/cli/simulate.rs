@@ -141,7 +141,9 @@ pub fn run(args: &SimulateArgs) -> CliResult {
     let steps_f = (horizon / dt - 1e-9).ceil();
     if steps_f.is_nan() || steps_f > limits::MAX_STEPS {
         return Err(format!(
-            "--horizon {horizon} / --dt {dt} is {steps_f:.3e} steps, more than {:.0e}",
+            "--horizon {} / --dt {} is {steps_f:.3e} steps, more than {:.0e}",
+            limits::shown(horizon),
+            limits::shown(dt),
             limits::MAX_STEPS
         )
         .into());

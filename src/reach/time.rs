@@ -100,14 +100,6 @@ fn periods(ts: f64, dt: f64) -> Option<usize> {
     (ts.is_finite() && ts > 0.0 && held && (ts - k * dt).abs() <= 1e-9 * ts).then_some(k as usize)
 }
 
-/// `v` as typed where that is short, else in scientific notation (`1e300`, not 301 digits).
-fn short(v: f64) -> String {
-    match v != 0.0 && (v.abs() >= 1e6 || v.abs() < 1e-4) {
-        true => format!("{v:e}"),
-        false => v.to_string(),
-    }
-}
-
 /// A time model that cannot be read; [`TimeError::field`] names the setting at fault.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum TimeError {
@@ -118,7 +110,7 @@ pub enum TimeError {
     #[error(
         "control_period = {}: expected K·dt with K a whole number from 1 to 1e7 (dt = {dt}): \
          the input is held over K integration steps",
-        short(*ts)
+        crate::scenario::limits::shown(*ts)
     )]
     Period {
         /// The period asked for.

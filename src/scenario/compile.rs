@@ -481,7 +481,9 @@ fn compile_reach(c: &Compiler, r: &ReachSection, n: usize) -> Result<ReachConfig
         return Err(c.invalid(
             "reach.horizon",
             format!(
-                "horizon {horizon} / dt {dt} × {substeps} substep(s) is {steps:.3e} steps, more than {:.0e} (a longer dt or a shorter horizon)",
+                "horizon {} / dt {} × {substeps} substep(s) is {steps:.3e} steps, more than {:.0e} (a longer dt or a shorter horizon)",
+                limits::shown(horizon),
+                limits::shown(dt),
                 limits::MAX_STEPS
             ),
         ));

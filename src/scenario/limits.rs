@@ -19,6 +19,15 @@ pub const MAX_DERIVATIVE_NODES: f64 = 200_000.0;
 /// Interval evaluations the search for NaN or ∞ over `C` may spend.
 const FINITE_BUDGET: usize = 2_000;
 
+/// A number as a message about a limit shows it: plainly, or in scientific notation when it is
+/// huge or tiny (`1e300`, not three hundred digits).
+pub fn shown(v: f64) -> String {
+    match v != 0.0 && v.is_finite() && (v.abs() >= 1e6 || v.abs() < 1e-4) {
+        true => format!("{v:e}"),
+        false => v.to_string(),
+    }
+}
+
 /// Nodes of a tree.
 pub fn size(n: &Node) -> f64 {
     1.0 + children(n).iter().map(|c| size(c)).sum::<f64>()
