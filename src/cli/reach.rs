@@ -119,6 +119,7 @@ pub fn run(args: &ReachArgs) -> CliResult {
                 where_,
                 match tube.note() {
                     None => String::new(),
+                    Some(note) if tube.valid() => format!("  ({note})"),
                     Some(note) => format!("  INVALID ({note})"),
                 }
             );

@@ -52,6 +52,11 @@ pub struct VerifyArgs {
     /// step halves once every n rounds, n states; 1: refinement keeps the step).
     #[arg(long, value_name = "K", default_value_t = VerifySettings::default().max_substeps)]
     pub max_substeps: usize,
+    /// Run every tube to the horizon, not only until its set lies in a box proven absorbing
+    /// for the goal or a trap (the verdicts stay or improve with absorbing boxes; without,
+    /// converging tubes take every step).
+    #[arg(long)]
+    pub no_absorb: bool,
     /// Run only the K-th of N contiguous slices of the cells (1 ≤ K ≤ N); merge the JSON files
     /// with `cbfreach merge`.
     #[arg(long, value_name = "K/N")]
@@ -145,6 +150,7 @@ pub fn run(args: &VerifyArgs) -> CliResult {
     if given("max_substeps") {
         settings.max_substeps = args.max_substeps;
     }
+    settings.absorb &= !args.no_absorb;
     settings.validate(&s).map_err(|e| flag_error(&e))?;
     let checkpoint = resume::checkpoint_path(args.checkpoint.as_deref(), args.json.as_deref());
     if args.resume && checkpoint.is_none() {
@@ -403,6 +409,16 @@ pub fn print_summary(r: &VerifyReport) {
                 ""
             }
     );
+    for a in &r.run.absorbing {
+        println!(
+            "  absorbing for {}: {} … {} (back in it after {} steps); tubes stop there",
+            a.trap
+                .map_or("the goal".to_string(), |k| format!("trap {k}")),
+            super::fmt_point(&a.inner.lower),
+            super::fmt_point(&a.inner.upper),
+            a.period
+        );
+    }
     if refined {
         println!(
             "  {:<22} {:>7} {:>8}   {:>7} {:>8}",

@@ -407,7 +407,26 @@ impl Backend for GpuBackend {
         Ok(())
     }
 
+    /// The device runs every tube to its end; tubes are cut where a set is absorbed, at the
+    /// sample where the CPU engine stops them (`reach::absorb`).
     fn reach(
+        &self,
+        problem: &ReachProblem,
+        initial: &[IntervalBox],
+        settings: &ReachSettings,
+        progress: &(dyn Fn(usize, usize) + Sync),
+    ) -> Result<ReachResult, ReachError> {
+        let mut result = self.reach_to_the_end(problem, initial, settings, progress)?;
+        for tube in &mut result.boxes {
+            crate::reach::absorb::cut(problem, tube);
+        }
+        Ok(result)
+    }
+}
+
+impl GpuBackend {
+    /// [`Backend::reach`] before the tubes are cut at their absorbed samples.
+    fn reach_to_the_end(
         &self,
         problem: &ReachProblem,
         initial: &[IntervalBox],

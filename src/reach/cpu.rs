@@ -244,6 +244,7 @@ impl CpuBackend {
             plant,
             x_problem,
             period,
+            absorb: true,
             source,
         };
         let mut live: Vec<Live> = initial.iter().map(|b| run.start(b)).collect();
@@ -373,6 +374,9 @@ struct ChunkRun<'a> {
     x_problem: &'a ReachProblem,
     /// Sampled-data: steps per control period (1 otherwise).
     period: usize,
+    /// Whether tubes stop in the problem's absorbing boxes (not on the host's single steps,
+    /// whose times start at each step).
+    absorb: bool,
     /// Where the network's bounds over a step's batch come from, if not this engine.
     source: Option<&'a dyn BatchBounds>,
 }
@@ -762,10 +766,23 @@ impl ChunkRun<'_> {
         }
         self.settle(state, stepped);
         let sample = self.sample(state, t);
-        let region = &self.frames[0].problem.region;
+        let problem = self.frames[0].problem;
+        // Checked on recorded samples alone, which the GPU engine's tubes are cut at too.
+        let absorbed = record && self.absorb && super::absorb::absorbs(problem, t, &sample.set);
         let pipe = state.pipe_known.as_ref();
         let (tube, swept) = (&mut state.tube, &mut state.swept);
-        if record_sample(region, tube, swept, pipe, sample, (t, self.h), record) {
+        if record_sample(
+            &problem.region,
+            tube,
+            swept,
+            pipe,
+            sample,
+            (t, self.h),
+            record,
+        ) {
+            state.done = true;
+        } else if absorbed {
+            state.tube.end = TubeEnd::Absorbed { t };
             state.done = true;
         }
     }

@@ -172,6 +172,7 @@ impl CpuBackend {
                 plant: None,
                 x_problem: problem,
                 period: 1,
+                absorb: false,
                 source: None,
             },
         })

@@ -41,6 +41,7 @@ fn settling_meets_the_frames_and_reseeds_one_that_could_not_step() {
         plant: None,
         x_problem: &problem,
         period: 1,
+        absorb: false,
         source: None,
     };
     let initial = IntervalBox::new(vec![0.9, 1.4], vec![1.1, 1.6]).unwrap();

@@ -15,6 +15,7 @@
 //! invalid from the first step where its set leaves `C`: the theorem (and `M_C`) only hold
 //! inside `C`.
 
+pub mod absorb;
 pub mod closeness;
 pub mod cpu;
 pub mod embedding;
@@ -127,6 +128,10 @@ pub struct ReachProblem {
     pub time: TimeModel,
     /// Validated steps per `dt` ([`TimeModel::Continuous`]).
     pub substeps: usize,
+    /// Boxes proven absorbing for the goal or a trap ([`absorb`]): a tube whose set lies in
+    /// one at a sample time stops there. Empty (tubes run to the horizon) but where `verify`
+    /// proves them.
+    pub absorbing: Vec<IntervalBox>,
 }
 
 impl ReachProblem {
@@ -263,6 +268,7 @@ impl ReachProblem {
             in_x,
             time: scenario.reach.time,
             substeps: scenario.reach.substeps,
+            absorbing: Vec::new(),
         })
     }
 

@@ -65,6 +65,13 @@ pub enum TubeEnd {
     /// Every step ran and every set stayed in `C`.
     #[default]
     Horizon,
+    /// The set at the sample time `t` lies in a box proven absorbing for the goal or a trap
+    /// ([`super::absorb`]): every later state stays in that target, so the tube stops there (its
+    /// last sample is that set). Only where the problem has absorbing boxes (`verify`).
+    Absorbed {
+        /// The sample time.
+        t: f64,
+    },
     /// The set left the region `C` at `t` (the tube's last sample is that set): the theorem
     /// and `M_C` only hold inside `C`.
     LeftRegion {
@@ -115,9 +122,9 @@ pub enum TubeEnd {
 
 impl TubeEnd {
     /// Whether the tube ran to the horizon inside `C` (its sets bound the filtered system
-    /// throughout).
+    /// throughout), or stopped in an absorbing box, which bounds it from there on.
     pub fn valid(&self) -> bool {
-        *self == TubeEnd::Horizon
+        matches!(self, TubeEnd::Horizon | TubeEnd::Absorbed { .. })
     }
 
     /// The same end `by` later (a step taken from `t = 0` placed in a longer tube).
@@ -125,7 +132,8 @@ impl TubeEnd {
         let mut end = self;
         match &mut end {
             TubeEnd::Horizon => {}
-            TubeEnd::LeftRegion { t }
+            TubeEnd::Absorbed { t }
+            | TubeEnd::LeftRegion { t }
             | TubeEnd::NoCertifiedBound { t, .. }
             | TubeEnd::FlowpipeLeftRegion { t }
             | TubeEnd::NoEnclosure { t, .. }
@@ -140,7 +148,8 @@ impl TubeEnd {
     pub fn t(&self) -> Option<f64> {
         match *self {
             TubeEnd::Horizon => None,
-            TubeEnd::LeftRegion { t }
+            TubeEnd::Absorbed { t }
+            | TubeEnd::LeftRegion { t }
             | TubeEnd::NoCertifiedBound { t, .. }
             | TubeEnd::FlowpipeLeftRegion { t }
             | TubeEnd::NoEnclosure { t, .. }
@@ -162,6 +171,11 @@ impl std::fmt::Display for TubeEnd {
         };
         match *self {
             TubeEnd::Horizon => f.write_str("ran to the horizon"),
+            TubeEnd::Absorbed { t } => write!(
+                f,
+                "t = {t:.3}: absorbed: the set lies in a box proven absorbing for the goal or a \
+                 trap, so every later state stays in that target"
+            ),
             TubeEnd::LeftRegion { t } => write!(f, "t = {t:.3}: the set left the region C"),
             TubeEnd::NoCertifiedBound { t, beyond_c: false } => write!(
                 f,
@@ -209,13 +223,14 @@ impl std::fmt::Display for TubeEnd {
     }
 }
 
-/// As the fields `valid` and, for an early end, `note` (the ending's text) of the tube.
+/// As the fields `valid` and, for an end before the horizon (absorbed included), `note` (the
+/// ending's text) of the tube.
 impl Serialize for TubeEnd {
     fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
-        let valid = self.valid();
-        let mut s = serializer.serialize_struct("TubeEnd", if valid { 1 } else { 2 })?;
-        s.serialize_field("valid", &valid)?;
-        if !valid {
+        let early = *self != TubeEnd::Horizon;
+        let mut s = serializer.serialize_struct("TubeEnd", if early { 2 } else { 1 })?;
+        s.serialize_field("valid", &self.valid())?;
+        if early {
             s.serialize_field("note", &self.to_string())?;
         }
         s.end()
@@ -296,9 +311,9 @@ impl Tube {
         self.end.valid()
     }
 
-    /// Why the tube ended early, as text (`None` when it ran to the horizon).
+    /// Why the tube ended before the horizon, as text (`None` when it ran to it).
     pub fn note(&self) -> Option<String> {
-        (!self.valid()).then(|| self.end.to_string())
+        (self.end != TubeEnd::Horizon).then(|| self.end.to_string())
     }
 
     /// The last recorded sample.

@@ -46,6 +46,7 @@
 //! `check` (checks against the ground-truth filter). May import `reach`, `scenario`,
 //! `equilibria`, `filter` and `simulate`.
 
+mod absorb;
 mod check;
 pub mod checkpoint;
 mod pieces;
@@ -55,6 +56,7 @@ mod settings;
 mod shard;
 mod traps;
 
+pub use absorb::{absorbing_boxes, Absorbing, SCALES};
 pub use check::{
     explain_unverified, simulate_model, simulation_check, SimulationCheck, UnverifiedCauses,
 };

@@ -276,6 +276,7 @@ pub fn verify_by_pieces(
             budget: REFINE_BUDGET,
             refine_feasibility: true,
             max_substeps: settings.max_substeps,
+            absorb: VerifySettings::default().absorb,
             shard: None,
             chunk: Some(PIECES_CHUNK),
         };

@@ -134,6 +134,10 @@ pub struct RunInfo {
     /// Refinement also bisected verified leaves whose QP feasibility was not proven.
     #[serde(default)]
     pub refine_feasibility: bool,
+    /// The boxes proven absorbing, where tubes stopped (`VerifySettings::absorb`; none in
+    /// files from before it: every tube ran to the horizon).
+    #[serde(default)]
+    pub absorbing: Vec<super::Absorbing>,
     /// Hash of the network file (`provenance::network_hash`), so that `merge` refuses shards
     /// run with different networks; empty when not recorded.
     #[serde(default, skip_serializing_if = "String::is_empty")]
@@ -443,6 +447,7 @@ mod tests {
                 refine_depth: 0,
                 budget: 0,
                 refine_feasibility: false,
+                absorbing: Vec::new(),
             },
             shard: None,
             cells: [0, 2],

@@ -233,8 +233,25 @@ impl<'a> Verifier<'a> {
         journal: &dyn Journal,
     ) -> Result<VerifyReport, VerifyError> {
         settings.validate(self.scenario)?;
+        let clock = Instant::now();
+        // Tubes stop in the boxes proven absorbing (proven once, on the CPU engine).
+        let absorbing = match settings.absorb {
+            true => super::absorbing_boxes(self.scenario, self.problem, &self.reach, &self.traps)?,
+            false => Vec::new(),
+        };
+        let stopping;
+        let base = match absorbing.is_empty() {
+            true => self.problem,
+            false => {
+                stopping = ReachProblem {
+                    absorbing: absorbing.iter().map(|a| a.inner.clone()).collect(),
+                    ..self.problem.clone()
+                };
+                &stopping
+            }
+        };
         // Refinement's shorter steps must run on this engine too: refused before any box runs.
-        let deepest = settings.problem_at(self.problem, settings.refine_depth);
+        let deepest = settings.problem_at(base, settings.refine_depth);
         if let Err(u) = self.backend.supports(&deepest, &self.reach) {
             return Err(VerifyError::Settings {
                 field: "max_substeps",
@@ -249,7 +266,6 @@ impl<'a> Verifier<'a> {
                 ),
             });
         }
-        let clock = Instant::now();
         let region = settings.region_in(self.scenario);
         let chunk = settings
             .chunk
@@ -262,14 +278,9 @@ impl<'a> Verifier<'a> {
             .clone()
             .map(|k| (k, 0, region.partition_cell(&settings.grid, k)))
             .collect();
-        let before = self.run_boxes(
-            self.problem,
-            &cells,
-            chunk,
-            &mut timing,
-            journal,
-            &|d, t| progress(Stage::Cells, d, t),
-        )?;
+        let before = self.run_boxes(base, &cells, chunk, &mut timing, journal, &|d, t| {
+            progress(Stage::Cells, d, t)
+        })?;
 
         let mut leaves = before.clone();
         let mut left = settings.budget;
@@ -296,7 +307,7 @@ impl<'a> Verifier<'a> {
                     [(leaves[i].cell, depth, l), (leaves[i].cell, depth, r)]
                 })
                 .collect();
-            let problem = settings.problem_at(self.problem, depth);
+            let problem = settings.problem_at(base, depth);
             let judged =
                 self.run_boxes(&problem, &children, chunk, &mut timing, journal, &|d, t| {
                     progress(Stage::Refine(depth), d, t)
@@ -344,6 +355,7 @@ impl<'a> Verifier<'a> {
                 refine_depth: settings.refine_depth,
                 budget: settings.budget,
                 refine_feasibility: settings.refine_feasibility,
+                absorbing,
                 // The caller that knows the files records them (the CLI).
                 network_hash: String::new(),
                 filter_hash: crate::provenance::filter_hash(self.scenario),

@@ -37,6 +37,12 @@ pub struct VerifySettings {
     /// small unless `h` shrinks with it (docs/design.md §7.3). Default: 4. 1: refinement keeps
     /// the step.
     pub max_substeps: usize,
+    /// Stop each tube once its set lies in a box proven absorbing for the goal or a trap
+    /// ([`super::absorbing_boxes`]; docs/design.md §2.12): every later state is then proven in
+    /// that target, so the verdict is decided. Verdicts stay or improve (a set that would have
+    /// outgrown the target later no longer matters), and converging tubes skip most of their
+    /// steps. Default: true. false: every tube runs to the horizon.
+    pub absorb: bool,
     /// Run only this slice of the cells. Default: `None`, every cell (not read from a
     /// scenario: shards split one run across jobs).
     #[serde(skip)]
@@ -56,6 +62,7 @@ impl Default for VerifySettings {
             budget: 8192,
             refine_feasibility: false,
             max_substeps: 4,
+            absorb: true,
             shard: None,
             chunk: None,
         }

@@ -2,6 +2,7 @@
 //! per box, the corners included) lie in the sets at every snapshot and in the flowpipe between
 //! snapshots; the Euler map's sets (`time = "euler"`) miss some of them, so each test can fail.
 
+mod absorbing;
 #[path = "../common/mod.rs"]
 mod common;
 mod refined;

@@ -73,9 +73,14 @@ fn refinement_cuts_the_validated_step_in_continuous_time() {
         };
         verifier.run(&settings, &|_, _, _| {}).unwrap()
     };
-    // Each leaf as its own tube on `problem` with `substeps` a step: its last set and end.
+    let cut = run(4);
+    let absorbing: Vec<cbfreach::IntervalBox> =
+        cut.run.absorbing.iter().map(|a| a.inner.clone()).collect();
+    // Each leaf as its own tube on `problem` with `substeps` a step, stopping in the run's
+    // absorbing boxes as the run's tubes do: its last set and end.
     let retrace = |leaf: &cbfreach::verify::BoxVerdict, substeps: usize| {
-        let p = problem.clone().with_time(TimeModel::Continuous, substeps);
+        let mut p = problem.clone().with_time(TimeModel::Continuous, substeps);
+        p.absorbing = absorbing.clone();
         let r = CpuBackend
             .reach(&p, std::slice::from_ref(&leaf.initial), &reach, &|_, _| {})
             .unwrap();
@@ -101,7 +106,6 @@ fn refinement_cuts_the_validated_step_in_continuous_time() {
         }
     };
     let found = |b: &cbfreach::verify::BoxVerdict| b.final_set.clone().zip(b.t_end);
-    let cut = run(4);
     assert_eq!((cut.run.substeps, cut.run.max_substeps), (1, 4));
     let refined: Vec<_> = cut.after.iter().filter(|b| b.depth > 0).collect();
     assert!(refined.iter().any(|b| b.depth == 3), "{refined:?}");
