@@ -768,7 +768,8 @@ impl ChunkRun<'_> {
         let sample = self.sample(state, t);
         let problem = self.frames[0].problem;
         // Checked on recorded samples alone, which the GPU engine's tubes are cut at too.
-        let absorbed = record && self.absorb && super::absorb::absorbs(problem, t, &sample.set);
+        let absorbed =
+            record && self.absorb && super::absorb::absorber(problem, t, &sample.set).is_some();
         let pipe = state.pipe_known.as_ref();
         let (tube, swept) = (&mut state.tube, &mut state.swept);
         if record_sample(

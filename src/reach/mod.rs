@@ -128,10 +128,10 @@ pub struct ReachProblem {
     pub time: TimeModel,
     /// Validated steps per `dt` ([`TimeModel::Continuous`]).
     pub substeps: usize,
-    /// Boxes proven absorbing for the goal or a trap ([`absorb`]): a tube whose set lies in
-    /// one at a sample time stops there. Empty (tubes run to the horizon) but where `verify`
-    /// proves them.
-    pub absorbing: Vec<IntervalBox>,
+    /// Boxes whose trajectories are proven in the goal or a trap from a time on ([`absorb`]):
+    /// a tube whose set lies in one at a sample time, with that time left, stops there. Empty
+    /// (tubes run to the horizon) but where `verify` proves them.
+    pub absorbing: absorb::Absorbers,
 }
 
 impl ReachProblem {
@@ -268,7 +268,7 @@ impl ReachProblem {
             in_x,
             time: scenario.reach.time,
             substeps: scenario.reach.substeps,
-            absorbing: Vec::new(),
+            absorbing: absorb::Absorbers::default(),
         })
     }
 

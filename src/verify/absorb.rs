@@ -16,8 +16,9 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::Trap;
+use super::{BoxVerdict, Trap};
 use crate::boxes::IntervalBox;
+use crate::reach::absorb::Absorber;
 use crate::reach::{Backend, CpuBackend, ReachError, ReachProblem, ReachSettings, Tube, TubeEnd};
 use crate::scenario::Scenario;
 
@@ -68,7 +69,7 @@ pub fn absorbing_boxes(
         .collect();
     let initial: Vec<IntervalBox> = runs.iter().filter_map(|&k| candidates[k].clone()).collect();
     let unabsorbed = ReachProblem {
-        absorbing: Vec::new(),
+        absorbing: Default::default(),
         ..problem.clone()
     };
     let settings = ReachSettings {
@@ -148,4 +149,35 @@ fn period_of(
         }
     }
     None
+}
+
+/// The verified leaves whose tubes stopped in one of `proven`'s boxes (at `t_end`, before the
+/// horizon `T`), the QP proven feasible on their sets: absorbers with `τ = t_end`, for the next
+/// rounds' tubes. Leaves that stopped in another leaf are left out (their `τ` would chain).
+pub fn leaf_absorbers(leaves: &[BoxVerdict], proven: &[Absorbing], horizon: f64) -> Vec<Absorber> {
+    leaves
+        .iter()
+        .filter(|b| b.verdict.is_verified() && b.feasible == Some(true))
+        .filter_map(|b| {
+            let (t, last) = (b.t_end?, b.final_set.as_ref()?);
+            let into = proven.iter().find(|a| last.is_subset_of(&a.inner))?;
+            (t < horizon * (1.0 - 1e-12)).then(|| Absorber {
+                set: b.initial.clone(),
+                within: t,
+                trap: into.trap,
+            })
+        })
+        .collect()
+}
+
+/// `proven`'s boxes as absorbers (`τ = 0`).
+pub fn target_absorbers(proven: &[Absorbing]) -> Vec<Absorber> {
+    proven
+        .iter()
+        .map(|a| Absorber {
+            set: a.inner.clone(),
+            within: 0.0,
+            trap: a.trap,
+        })
+        .collect()
 }

@@ -56,7 +56,7 @@ mod settings;
 mod shard;
 mod traps;
 
-pub use absorb::{absorbing_boxes, Absorbing, SCALES};
+pub use absorb::{absorbing_boxes, leaf_absorbers, target_absorbers, Absorbing, SCALES};
 pub use check::{
     explain_unverified, simulate_model, simulation_check, SimulationCheck, UnverifiedCauses,
 };

@@ -13,6 +13,7 @@ use super::{
 };
 use crate::boxes::IntervalBox;
 use crate::intervals::{box_of, Interval};
+use crate::reach::absorb::{absorber, Absorbers};
 use crate::reach::{Backend, ReachProblem, ReachSettings, TimeModel, Tube, TubeEnd};
 use crate::scenario::Scenario;
 
@@ -173,6 +174,15 @@ pub fn judge(
     let Some(last) = tube.last() else {
         return Judgement::of(Verdict::Unknown, None, Some(Reason::EmptyTube));
     };
+    // Stopped in an absorber: its target decides (every later state lies in it).
+    if let TubeEnd::Absorbed { t } = tube.end {
+        if let Some(a) = absorber(problem, t, &last.set) {
+            return match a.trap {
+                None => Judgement::of(Verdict::Converges, None, None),
+                Some(k) => Judgement::of(Verdict::Trapped, Some(k), None),
+            };
+        }
+    }
     if last.set.is_subset_of(&scenario.reach.goal) {
         return Judgement::of(Verdict::Converges, None, None);
     }
@@ -239,14 +249,21 @@ impl<'a> Verifier<'a> {
             true => super::absorbing_boxes(self.scenario, self.problem, &self.reach, &self.traps)?,
             false => Vec::new(),
         };
+        // From the second round on, also the leaves verified so far that stopped in them.
+        let stopping_in = |leaves: &[BoxVerdict]| {
+            let mut list = super::absorb::target_absorbers(&absorbing);
+            let horizon = self.problem.steps as f64 * self.problem.dt;
+            list.extend(super::absorb::leaf_absorbers(leaves, &absorbing, horizon));
+            ReachProblem {
+                absorbing: Absorbers::new(list, &self.problem.region),
+                ..self.problem.clone()
+            }
+        };
         let stopping;
         let base = match absorbing.is_empty() {
             true => self.problem,
             false => {
-                stopping = ReachProblem {
-                    absorbing: absorbing.iter().map(|a| a.inner.clone()).collect(),
-                    ..self.problem.clone()
-                };
+                stopping = stopping_in(&[]);
                 &stopping
             }
         };
@@ -307,7 +324,15 @@ impl<'a> Verifier<'a> {
                     [(leaves[i].cell, depth, l), (leaves[i].cell, depth, r)]
                 })
                 .collect();
-            let problem = settings.problem_at(base, depth);
+            let stopping;
+            let round = match absorbing.is_empty() {
+                true => base,
+                false => {
+                    stopping = stopping_in(&leaves);
+                    &stopping
+                }
+            };
+            let problem = settings.problem_at(round, depth);
             let judged =
                 self.run_boxes(&problem, &children, chunk, &mut timing, journal, &|d, t| {
                     progress(Stage::Refine(depth), d, t)

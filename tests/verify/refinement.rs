@@ -69,18 +69,16 @@ fn refinement_cuts_the_validated_step_in_continuous_time() {
             budget: 48,
             max_substeps,
             chunk: Some(64),
+            // Every tube to the horizon, as the retraced ones run.
+            absorb: false,
             ..VerifySettings::default()
         };
         verifier.run(&settings, &|_, _, _| {}).unwrap()
     };
     let cut = run(4);
-    let absorbing: Vec<cbfreach::IntervalBox> =
-        cut.run.absorbing.iter().map(|a| a.inner.clone()).collect();
-    // Each leaf as its own tube on `problem` with `substeps` a step, stopping in the run's
-    // absorbing boxes as the run's tubes do: its last set and end.
+    // Each leaf as its own tube on `problem` with `substeps` a step: its last set and end.
     let retrace = |leaf: &cbfreach::verify::BoxVerdict, substeps: usize| {
-        let mut p = problem.clone().with_time(TimeModel::Continuous, substeps);
-        p.absorbing = absorbing.clone();
+        let p = problem.clone().with_time(TimeModel::Continuous, substeps);
         let r = CpuBackend
             .reach(&p, std::slice::from_ref(&leaf.initial), &reach, &|_, _| {})
             .unwrap();
