@@ -569,6 +569,52 @@ fn scenario_settings_table_sets_defaults_that_options_override() {
     assert!(stderr.contains("bound"), "{stderr}");
 }
 
+/// `verify` proves and prints the absorbing boxes and records them in the JSON; `--no-absorb`
+/// (or `absorb = false` in `[settings.verify]`) runs every tube to the horizon.
+#[test]
+fn verify_says_where_tubes_stop_and_can_run_them_to_the_horizon() {
+    let dir = tempfile::tempdir().unwrap();
+    let json = dir.path().join("v.json");
+    let scenario = common::scenario_path("integrator.toml");
+    let verify = |scenario: &std::path::Path, extra: &[&str]| {
+        let mut args = vec![
+            "verify",
+            scenario.to_str().unwrap(),
+            "--grid",
+            "4,3",
+            "--time",
+            "euler",
+            "--json",
+            json.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        let (code, stdout, stderr) = cbfreach(&args);
+        assert_eq!(code, 0, "{stdout}{stderr}");
+        let v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+        (stdout, v["run"]["absorbing"].as_array().unwrap().len())
+    };
+    let (stdout, n) = verify(&scenario, &[]);
+    assert!(stdout.contains("absorbing for the goal: (-0.5000, -0.5000) … (0.5000, 0.5000)"));
+    assert!(stdout.contains("absorbing for trap 0"), "{stdout}");
+    assert_eq!(n, 2);
+    let (stdout, n) = verify(&scenario, &["--no-absorb"]);
+    assert!(!stdout.contains("absorbing"), "{stdout}");
+    assert_eq!(n, 0);
+    let text = std::fs::read_to_string(&scenario).unwrap().replace(
+        "file = \"integrator.safetensors\"",
+        &format!(
+            "file = {:?}",
+            common::scenario_path("integrator.safetensors")
+                .display()
+                .to_string()
+        ),
+    );
+    let off = dir.path().join("off.toml");
+    std::fs::write(&off, format!("{text}\n[settings.verify]\nabsorb = false\n")).unwrap();
+    assert_eq!(verify(&off, &[]).1, 0);
+}
+
 #[test]
 fn plot_error_map_reads_the_map_beside_the_network_or_the_given_one() {
     let tmp = tempfile::tempdir().unwrap();

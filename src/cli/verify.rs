@@ -411,12 +411,13 @@ pub fn print_summary(r: &VerifyReport) {
     );
     for a in &r.run.absorbing {
         println!(
-            "  absorbing for {}: {} … {} (back in it after {} steps); tubes stop there",
+            "  absorbing for {}: {} … {} (back in it after {} step{}); tubes stop there",
             a.trap
                 .map_or("the goal".to_string(), |k| format!("trap {k}")),
             super::fmt_point(&a.inner.lower),
             super::fmt_point(&a.inner.upper),
-            a.period
+            a.period,
+            if a.period == 1 { "" } else { "s" }
         );
     }
     if refined {
