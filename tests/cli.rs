@@ -537,23 +537,8 @@ fn scenario_settings_table_sets_defaults_that_options_override() {
         "[settings.reach]\nbounds = \"forward\"\nface_local = true\n\
          [settings.verify]\ngrid = [2, 2]\n",
     );
-    let verify = |scenario: &std::path::Path, extra: &[&str]| {
-        let json = dir.path().join("v.json");
-        let mut args = vec![
-            "verify",
-            scenario.to_str().unwrap(),
-            "--time",
-            "euler",
-            "--json",
-            json.to_str().unwrap(),
-        ];
-        args.extend_from_slice(extra);
-        let (code, stdout, stderr) = cbfreach(&args);
-        assert_eq!(code, 0, "{stdout}{stderr}");
-        let v: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-        v["run"].clone()
-    };
+    let verify =
+        |scenario: &std::path::Path, extra: &[&str]| verify_euler(dir.path(), scenario, extra).1;
     let run = verify(&with, &[]);
     assert_eq!(run["bounds"], "forward");
     assert_eq!(run["face_local"], true);
@@ -569,30 +554,41 @@ fn scenario_settings_table_sets_defaults_that_options_override() {
     assert!(stderr.contains("bound"), "{stderr}");
 }
 
+/// `cbfreach verify <scenario> --time euler --json <dir>/v.json <extra>`: its standard output
+/// and the JSON's `run`.
+fn verify_euler(
+    dir: &std::path::Path,
+    scenario: &std::path::Path,
+    extra: &[&str],
+) -> (String, serde_json::Value) {
+    let json = dir.join("v.json");
+    let mut args = vec![
+        "verify",
+        scenario.to_str().unwrap(),
+        "--time",
+        "euler",
+        "--json",
+        json.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    let (code, stdout, stderr) = cbfreach(&args);
+    assert_eq!(code, 0, "{stdout}{stderr}");
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    (stdout, v["run"].clone())
+}
+
 /// `verify` proves and prints the absorbing boxes and records them in the JSON; `--no-absorb`
 /// (or `absorb = false` in `[settings.verify]`) runs every tube to the horizon.
 #[test]
 fn verify_says_where_tubes_stop_and_can_run_them_to_the_horizon() {
     let dir = tempfile::tempdir().unwrap();
-    let json = dir.path().join("v.json");
     let scenario = common::scenario_path("integrator.toml");
     let verify = |scenario: &std::path::Path, extra: &[&str]| {
-        let mut args = vec![
-            "verify",
-            scenario.to_str().unwrap(),
-            "--grid",
-            "4,3",
-            "--time",
-            "euler",
-            "--json",
-            json.to_str().unwrap(),
-        ];
+        let mut args = vec!["--grid", "4,3"];
         args.extend_from_slice(extra);
-        let (code, stdout, stderr) = cbfreach(&args);
-        assert_eq!(code, 0, "{stdout}{stderr}");
-        let v: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-        (stdout, v["run"]["absorbing"].as_array().unwrap().len())
+        let (stdout, run) = verify_euler(dir.path(), scenario, &args);
+        (stdout, run["absorbing"].as_array().unwrap().len())
     };
     let (stdout, n) = verify(&scenario, &[]);
     assert!(stdout.contains("absorbing for the goal: (-0.5000, -0.5000) … (0.5000, 0.5000)"));

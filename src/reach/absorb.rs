@@ -151,15 +151,8 @@ pub fn cut(problem: &ReachProblem, tube: &mut Tube) {
     if problem.absorbing.is_empty() {
         return;
     }
-    // A tube that left `C` keeps the set it left on as its last sample, which the engine did
-    // not take as a sample of the model (no other end pushes one).
-    let usable = match tube.end {
-        TubeEnd::LeftRegion { .. } | TubeEnd::FlowpipeLeftRegion { .. } => {
-            tube.tube.len().saturating_sub(1)
-        }
-        _ => tube.tube.len(),
-    };
-    let at = tube.tube[..usable]
+    let at = tube
+        .model_samples()
         .iter()
         .position(|s| absorber(problem, s.t, &s.set).is_some());
     if let Some(k) = at {

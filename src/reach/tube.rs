@@ -316,6 +316,17 @@ impl Tube {
         (self.end != TubeEnd::Horizon).then(|| self.end.to_string())
     }
 
+    /// The recorded samples of the model: all of them but the set a tube left `C` on, which
+    /// ends it without being a state the model reaches inside `C` (no other end pushes one).
+    pub fn model_samples(&self) -> &[TubeSample] {
+        match self.end {
+            TubeEnd::LeftRegion { .. } | TubeEnd::FlowpipeLeftRegion { .. } => {
+                &self.tube[..self.tube.len().saturating_sub(1)]
+            }
+            _ => &self.tube,
+        }
+    }
+
     /// The last recorded sample.
     pub fn last(&self) -> Option<&TubeSample> {
         self.tube.last()

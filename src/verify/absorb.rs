@@ -19,7 +19,7 @@ use serde::{Deserialize, Serialize};
 use super::{BoxVerdict, Trap};
 use crate::boxes::IntervalBox;
 use crate::reach::absorb::Absorber;
-use crate::reach::{Backend, CpuBackend, ReachError, ReachProblem, ReachSettings, Tube, TubeEnd};
+use crate::reach::{Backend, CpuBackend, ReachError, ReachProblem, ReachSettings, Tube};
 use crate::scenario::Scenario;
 
 /// Scales of a target's half-widths tried as absorbing boxes, largest first.
@@ -121,15 +121,8 @@ fn period_of(
     target: &IntervalBox,
 ) -> Option<usize> {
     let control = problem.period_steps().ok()?.max(1);
-    // The set a tube left `C` on is not a sample of the model.
-    let usable = match tube.end {
-        TubeEnd::LeftRegion { .. } | TubeEnd::FlowpipeLeftRegion { .. } => {
-            tube.tube.len().saturating_sub(1)
-        }
-        _ => tube.tube.len(),
-    };
     let finding = tube.unsafe_between_samples.as_ref().map(|f| f.t);
-    let samples = &tube.tube[..usable];
+    let samples = tube.model_samples();
     for (j, s) in samples.iter().enumerate().skip(1) {
         let outside_s = scenario.cbfs.iter().any(|c| {
             c.h.eval_interval(&crate::intervals::box_of(&s.set.lower, &s.set.upper))
