@@ -186,8 +186,8 @@ impl std::fmt::Display for TubeEnd {
                 f,
                 "t = {t:.3}: the step needs the error bound beyond C, where the error map \
                  certifies nothing (the set or its step's enclosure reaches past C's sides): the \
-                 sets grew too wide here; a more accurate network (a smaller M) or smaller boxes \
-                 keep them in C"
+                 sets grew too wide here (from the field itself, or from a large M); smaller \
+                 boxes keep them in C"
             ),
             TubeEnd::FlowpipeLeftRegion { t } => {
                 write!(f, "t = {t:.3}: the flowpipe of the step left the region C")
