@@ -193,6 +193,7 @@ fn a_run_of_billions_of_steps_is_refused() {
     let s = small(dir.path(), &[]);
     let (code, _, err) = cbfreach(&["simulate", s.to_str().unwrap(), "--horizon", "1e300"]);
     no_panic(code, &err);
+    assert_eq!(code, 2, "{err}");
     assert!(err.contains("--horizon 1e300 / --dt 0.05"), "{err}");
     // The same number of steps asked for on the command line (it ran on, silently).
     let s = small(dir.path(), &[]);

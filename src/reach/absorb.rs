@@ -61,13 +61,13 @@ impl Absorbers {
     fn push(&mut self, b: Absorber) {
         let k = self.list.len() as u32;
         if let Some(region) = &self.region {
-            let (lo, hi) = (
-                self.cell(region, &b.set.lower),
-                self.cell(region, &b.set.upper),
-            );
+            let axis = |v: &[f64]| -> Vec<usize> {
+                (0..v.len()).map(|i| self.axis(region, i, v[i])).collect()
+            };
+            let (lo, hi) = (axis(&b.set.lower), axis(&b.set.upper));
             let mut at = lo.clone();
             loop {
-                let flat = at.iter().rev().fold(0, |acc, &i| acc * self.per_axis + i);
+                let flat = self.flat(at.iter().copied());
                 self.buckets[flat].push(k);
                 // The next bucket of the product `lo..=hi`.
                 let Some(d) = (0..at.len()).find(|&d| at[d] < hi[d]) else {
@@ -80,15 +80,16 @@ impl Absorbers {
         self.list.push(b);
     }
 
-    /// The bucket of `x` along each axis (clamped to the grid).
-    fn cell(&self, region: &IntervalBox, x: &[f64]) -> Vec<usize> {
-        (0..x.len())
-            .map(|i| {
-                let w = region.upper[i] - region.lower[i];
-                let f = ((x[i] - region.lower[i]) / w * self.per_axis as f64).floor();
-                (f.max(0.0) as usize).min(self.per_axis - 1)
-            })
-            .collect()
+    /// The bucket of coordinate `v` along axis `i` (clamped to the grid).
+    fn axis(&self, region: &IntervalBox, i: usize, v: f64) -> usize {
+        let w = region.upper[i] - region.lower[i];
+        let f = ((v - region.lower[i]) / w * self.per_axis as f64).floor();
+        (f.max(0.0) as usize).min(self.per_axis - 1)
+    }
+
+    /// The bucket of per-axis indices `at` (axis 0 varies fastest).
+    fn flat(&self, at: impl DoubleEndedIterator<Item = usize>) -> usize {
+        at.rev().fold(0, |acc, i| acc * self.per_axis + i)
     }
 
     /// None to stop in.
@@ -96,21 +97,16 @@ impl Absorbers {
         self.list.is_empty()
     }
 
-    /// All of them.
-    pub fn list(&self) -> &[Absorber] {
-        &self.list
-    }
-
-    /// The first absorber that holds `set` (by the index).
+    /// The absorbers that hold `set`: those listed in the bucket of its lower corner (a lookup
+    /// at every recorded sample of every tube, so it allocates nothing).
     fn holding<'a, 's>(
         &'a self,
         set: &'s IntervalBox,
     ) -> impl Iterator<Item = &'a Absorber> + use<'a, 's> {
         let listed: &[u32] = match &self.region {
             Some(region) => {
-                let at = self.cell(region, &set.lower);
-                let flat = at.iter().rev().fold(0, |acc, &i| acc * self.per_axis + i);
-                &self.buckets[flat]
+                let x = &set.lower;
+                &self.buckets[self.flat((0..x.len()).map(|i| self.axis(region, i, x[i])))]
             }
             None => &[],
         };

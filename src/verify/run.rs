@@ -1,6 +1,7 @@
 //! The verifier: a verdict per cell of a grid from its tube ([`judge`]), and refinement by
 //! bisection. May import `reach`, `scenario` and `verify`'s report types.
 
+use std::borrow::Cow;
 use std::time::Instant;
 
 use rayon::prelude::*;
@@ -250,23 +251,17 @@ impl<'a> Verifier<'a> {
             false => Vec::new(),
         };
         // From the second round on, also the leaves verified so far that stopped in them.
-        let stopping_in = |leaves: &[BoxVerdict]| {
+        let absorbers = |leaves: &[BoxVerdict]| {
             let mut list = super::absorb::target_absorbers(&absorbing);
             let horizon = self.problem.steps as f64 * self.problem.dt;
             list.extend(super::absorb::leaf_absorbers(leaves, &absorbing, horizon));
-            ReachProblem {
-                absorbing: Absorbers::new(list, &self.problem.region),
-                ..self.problem.clone()
-            }
+            Absorbers::new(list, &self.problem.region)
         };
-        let stopping;
-        let base = match absorbing.is_empty() {
-            true => self.problem,
-            false => {
-                stopping = stopping_in(&[]);
-                &stopping
-            }
-        };
+        let mut base = Cow::Borrowed(self.problem);
+        if !absorbing.is_empty() {
+            base.to_mut().absorbing = absorbers(&[]);
+        }
+        let base = &*base;
         // Refinement's shorter steps must run on this engine too: refused before any box runs.
         let deepest = settings.problem_at(base, settings.refine_depth);
         if let Err(u) = self.backend.supports(&deepest, &self.reach) {
@@ -324,15 +319,12 @@ impl<'a> Verifier<'a> {
                     [(leaves[i].cell, depth, l), (leaves[i].cell, depth, r)]
                 })
                 .collect();
-            let stopping;
-            let round = match absorbing.is_empty() {
-                true => base,
-                false => {
-                    stopping = stopping_in(&leaves);
-                    &stopping
-                }
-            };
-            let problem = settings.problem_at(round, depth);
+            // One copy of the problem a round at most: the shorter step's, given this round's
+            // absorbers.
+            let mut problem = settings.problem_at(base, depth);
+            if !absorbing.is_empty() {
+                problem.to_mut().absorbing = absorbers(&leaves);
+            }
             let judged =
                 self.run_boxes(&problem, &children, chunk, &mut timing, journal, &|d, t| {
                     progress(Stage::Refine(depth), d, t)
