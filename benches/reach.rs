@@ -49,6 +49,7 @@ fn reach_12_boxes(bencher: Bencher, method: BoundMethod) {
         // Every step bounds the network: this measures the bound methods.
         exact: ExactField::Nowhere,
         intersect_x: false,
+        ..ReachSettings::default()
     };
     bencher
         .counter(ItemsCount::new(initial.len() * problem.steps))
@@ -91,6 +92,7 @@ fn reach_gpu(bencher: Bencher, count: usize) {
         face_local: false,
         exact: ExactField::Nowhere,
         intersect_x: false,
+        ..ReachSettings::default()
     };
     engine
         .reach(&problem, &boxes[..1], &settings, &|_, _| {})

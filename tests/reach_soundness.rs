@@ -57,6 +57,7 @@ fn run(
         face_local,
         exact: ExactField::Nowhere,
         intersect_x: false,
+        ..ReachSettings::default()
     };
     CpuBackend
         .reach(&problem, &boxes, &settings, &|_, _| {})
@@ -301,6 +302,7 @@ fn run_double_integrator(net: &Mlp, transform: bool, m_c: f64) -> (Vec<Tube>, Op
         face_local: false,
         exact: ExactField::Nowhere,
         intersect_x: false,
+        ..ReachSettings::default()
     };
     let boxes = &s.reach.initial[..3];
     let tubes = CpuBackend
@@ -413,6 +415,7 @@ fn filtered_trajectories_stay_in_sets_intersected_with_the_safe_set() {
         face_local: true,
         exact: ExactField::Nowhere,
         intersect_x: false,
+        ..ReachSettings::default()
     };
     let initial = [cbfreach::IntervalBox::new(vec![4.9, 0.9], vec![5.1, 1.1]).unwrap()];
     let run = |problem: &ReachProblem| {
@@ -545,6 +548,7 @@ fn filtered_trajectories_stay_in_sets_where_the_filter_is_one_smooth_piece() {
                 face_local: true,
                 exact,
                 intersect_x: false,
+                ..ReachSettings::default()
             };
             CpuBackend
                 .reach(&problem, &initial, &settings, &|_, _| {})
@@ -639,6 +643,7 @@ fn sets_met_with_x_boxes_hold_and_turn(s: &Scenario, problem: &ReachProblem, loo
             face_local: true,
             exact: ExactField::ClosedForm,
             intersect_x,
+            ..ReachSettings::default()
         };
         CpuBackend
             .reach(problem, &initial, &settings, &|_, _| {})
@@ -743,6 +748,7 @@ fn tubes_do_not_depend_on_the_thread_count() {
             face_local,
             exact: ExactField::Nowhere,
             intersect_x: false,
+            ..ReachSettings::default()
         };
         let run_on = |threads: usize| {
             let last = std::sync::atomic::AtomicUsize::new(0);

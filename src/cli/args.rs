@@ -107,6 +107,14 @@ pub struct ReachFlags {
     /// The shape of the sets.
     #[command(flatten)]
     pub sets: SetArgs,
+    /// Continuous time: bound steps on a proven piece of the filter by its Taylor form to
+    /// second order too (a third-order remainder; CPU engine)
+    #[arg(long)]
+    pub taylor3: bool,
+    /// Continuous time, a scalar input's closed form: bound the field across a switching
+    /// surface by the lattice of the filter's pieces too (CPU engine)
+    #[arg(long)]
+    pub lattice: bool,
 }
 
 impl ReachFlags {
@@ -128,6 +136,8 @@ impl ReachFlags {
         if self.sets.parallelotope_only {
             s.intersect_x = false;
         }
+        s.taylor3 |= self.taylor3;
+        s.lattice |= self.lattice;
         s
     }
 }

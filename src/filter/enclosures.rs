@@ -176,6 +176,16 @@ impl Centred {
     }
 }
 
+/// A scalar input's filter over a cell as a lattice of its pieces ([`VForms::lattice`]): the
+/// rows that may bind there, bounding `θ` from below (`aₖ < 0`) and from above (`aₖ > 0`).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Lattice {
+    /// Rows with `aₖ < 0` on the cell: `θ ≥ rₖ` where they bind.
+    pub lower: Vec<usize>,
+    /// Rows with `aₖ > 0` on the cell: `θ ≤ rₖ` where they bind.
+    pub upper: Vec<usize>,
+}
+
 /// The rows of the filter over a cell ([`VForms::rows`]).
 struct Rows {
     a_nat: Vec<Interval>,
@@ -458,6 +468,37 @@ impl VForms {
                 _ => vec![self.r[k].e.clone()],
             },
         }
+    }
+
+    /// For a scalar input's closed form, the rows that may bind on `cell ∩ S` by the side of
+    /// `θ` they bound: then `v = clamp(0, lo, hi)` with `lo` the largest `rₖ` of `lower` and
+    /// `hi` the smallest of `upper`, where feasible (rows proven slack are left out: a slack
+    /// row's `rₖ` lies on the far side of 0, or past the other side's bound where the QP is
+    /// feasible). `None` for other filters, or where a row that may bind has `aₖ` of either
+    /// sign on the cell (`v` may jump there).
+    pub fn lattice(&self, s: &Scenario, cell: &IntervalBox) -> Option<Lattice> {
+        if self.qp.is_some()
+            || self.method != FilterMethod::ClosedFormScalar
+            || self.r.len() != self.b.len()
+        {
+            return None;
+        }
+        let Centred { xs, cs, dx } = Centred::of(cell);
+        let Rows { a_nat, b_enc, .. } = self.rows(s, &xs, &cs, &dx, cell)?;
+        let mut lattice = Lattice::default();
+        for (k, (a, b)) in a_nat.iter().zip(&b_enc).enumerate() {
+            if b.lower >= 0.0 {
+                continue;
+            }
+            if a.upper < 0.0 {
+                lattice.lower.push(k);
+            } else if a.lower > 0.0 {
+                lattice.upper.push(k);
+            } else {
+                return None;
+            }
+        }
+        Some(lattice)
     }
 
     /// Its expressions, for engines that evaluate them elsewhere.

@@ -28,7 +28,7 @@ use std::fmt;
 use crate::scenario::Scenario;
 
 pub use active_sets::{natural_qp_enclosure, QpCell, QpForms, MAX_ACTIVE, MAX_SETS};
-pub use enclosures::{v_enclosure, FilterPiece, Smooth, SmoothV, VFormParts, VForms};
+pub use enclosures::{v_enclosure, FilterPiece, Lattice, Smooth, SmoothV, VFormParts, VForms};
 pub use rows::{interval_rows, row_expressions};
 
 pub(crate) use enclosures::meet;

@@ -304,6 +304,7 @@ impl ChunkRun<'_> {
 
     /// [`ChunkRun::enclosure_field`] on the slabs of a flowpipe: `v` enclosed by its closed form
     /// on each slab's x-box (met with `known`, the flowpipes' x-box).
+    /// Met with [`ChunkRun::lattice_slab_field`] where that applies ([`ReachSettings::lattice`]).
     pub(super) fn enclosure_slab_field(
         &self,
         frame: &Frame,
@@ -312,7 +313,80 @@ impl ChunkRun<'_> {
         known: &IntervalBox,
         zeros: &[f64],
     ) -> Option<(Vec<f64>, Vec<f64>)> {
-        self.enclosure_slab_rates(frame, set, pipe, known, zeros, false)
+        let enclosed = self.enclosure_slab_rates(frame, set, pipe, known, zeros, false);
+        let lattice = self
+            .settings
+            .lattice
+            .then(|| self.lattice_slab_field(frame.problem, set, pipe, known, zeros))
+            .flatten();
+        [enclosed, lattice]
+            .into_iter()
+            .flatten()
+            .reduce(meet_fields)
+    }
+
+    /// The field on the slabs from the filter's pieces where `v` is a lattice of them on the
+    /// flowpipe's x-box `known` (a scalar input, constant `g`; [`FilterPieces::lattice`]):
+    /// `v = min(hi, max(0, lo))`, so with `cᵢ = gᵢ` (in the frame's coordinates)
+    /// `Fᵢ = Φ₀ᵢ + cᵢv` is `min(min_U Φₖᵢ, max(Φ₀ᵢ, max_L Φₖᵢ))` for `cᵢ > 0` and
+    /// `max(max_U Φₖᵢ, min(Φ₀ᵢ, min_L Φₖᵢ))` for `cᵢ < 0` (`Φ₀` the inactive piece's field,
+    /// `Φₖ` row `k`'s). Both are non-decreasing in every argument, so the pieces' bounds on a
+    /// slab, put through the same expression, bound `Fᵢ` there: unlike an enclosure of `v`,
+    /// this keeps how `v` moves with the state (a set across the switching surface of one row
+    /// gets the larger of two smooth fields, not the field plus the range of `v`).
+    pub(super) fn lattice_slab_field(
+        &self,
+        p: &ReachProblem,
+        set: &IntervalBox,
+        pipe: &Flowpipe,
+        known: &IntervalBox,
+        zeros: &[f64],
+    ) -> Option<Rates> {
+        let (n, m) = (p.dynamics.n, p.dynamics.m);
+        let c = p.dynamics.g_constant.as_ref().filter(|_| m == 1)?;
+        let lattice = p.pieces.lattice(known)?;
+        let field = |piece: FilterPiece| {
+            let slack = match piece {
+                FilterPiece::Inactive => p.field_slack,
+                FilterPiece::Binding(k) => p.pieces.binding_slack(k, known),
+            };
+            self.piece_slab_field(p, set, pipe, (piece, slack), zeros)
+        };
+        let inactive = field(FilterPiece::Inactive);
+        let lower: Vec<Rates> = lattice
+            .lower
+            .iter()
+            .map(|&k| field(FilterPiece::Binding(k)))
+            .collect();
+        let upper: Vec<Rates> = lattice
+            .upper
+            .iter()
+            .map(|&k| field(FilterPiece::Binding(k)))
+            .collect();
+        let combine = |i: usize, end: &dyn Fn(&Rates) -> f64| -> f64 {
+            let e0 = end(&inactive);
+            let lo = lower.iter().map(end);
+            let up = upper.iter().map(end);
+            if c[i] > 0.0 {
+                let below = lo.fold(e0, f64::max);
+                up.fold(below, f64::min)
+            } else if c[i] < 0.0 {
+                let below = lo.fold(e0, f64::min);
+                up.fold(below, f64::max)
+            } else {
+                e0
+            }
+        };
+        let mut dl = Vec::with_capacity(n);
+        let mut du = Vec::with_capacity(n);
+        for i in 0..n {
+            dl.push(combine(i, &|r: &Rates| r.0[i]));
+            du.push(combine(i, &|r: &Rates| r.1[i]));
+        }
+        if dl.iter().chain(&du).any(|v| v.is_nan()) {
+            return None;
+        }
+        Some((dl, du))
     }
 
     /// [`ChunkRun::enclosure_slab_field`], or with `curved` its
@@ -378,7 +452,8 @@ impl ChunkRun<'_> {
     }
 
     /// Where the filter is proven one smooth piece on the set: the Taylor rates of that
-    /// piece's field over the flowpipe ([`end_rates::taylor_rates`]).
+    /// piece's field over the flowpipe ([`end_rates::taylor_rates`]; with
+    /// [`ReachSettings::taylor3`] met with [`end_rates::taylor3_rates`]).
     pub(super) fn piece_taylor(
         &self,
         p: &ReachProblem,
@@ -389,8 +464,17 @@ impl ChunkRun<'_> {
     ) -> Option<Rates> {
         let euler = Self::piece_field(p, set, piece, zeros, self.h);
         let dynamics = piece_dynamics(p, piece.0);
+        let both = |pipe: &Flowpipe| {
+            let first = end_rates::taylor_rates(dynamics, set, pipe, self.h, euler.clone());
+            let third = self
+                .settings
+                .taylor3
+                .then(|| end_rates::taylor3_rates(dynamics, set, pipe, self.h, euler.clone()))
+                .flatten();
+            [first, third].into_iter().flatten().reduce(meet_fields)
+        };
         if pipe.enclosed {
-            return end_rates::taylor_rates(dynamics, set, pipe, self.h, euler);
+            return both(pipe);
         }
         // A proven moving box holds every trajectory over the step (item 3b), and the piece
         // is proven on its x-box: its field there bounds the motion.
@@ -406,7 +490,7 @@ impl ChunkRun<'_> {
             enclosed: true,
             ..pipe.clone()
         };
-        end_rates::taylor_rates(dynamics, set, &over, self.h, euler)
+        both(&over)
     }
 
     /// Network steps: the Taylor rates from the network's bounds over the flowpipe of frame

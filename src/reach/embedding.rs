@@ -38,6 +38,18 @@ pub struct Dynamics {
     pub g: Vec<Vec<Expr>>,
     /// `g` as numbers when every entry is constant (the interaction-aware case).
     pub g_constant: Option<Vec<f64>>,
+    /// `f̃`'s second-order terms, derived on first use ([`Dynamics::second_order`]).
+    second: std::sync::OnceLock<std::sync::Arc<SecondOrder>>,
+}
+
+/// The second time derivative of a trajectory of `ẋ = f̃(x)`, `ẍ = G(x) = Df̃(x)·f̃(x)`, and
+/// `DG`, for the second-order Taylor rates ([`super::end_rates::taylor3_rates`]).
+#[derive(Debug)]
+pub struct SecondOrder {
+    /// `Gᵢ = Σⱼ ∂ⱼf̃ᵢ·f̃ⱼ`.
+    pub g: Vec<Expr>,
+    /// `[i][j] = ∂Gᵢ/∂xⱼ`.
+    pub g_jacobian: Vec<Vec<Expr>>,
 }
 
 /// A network's bounds over one box, borrowed from a batch: `C̲x + d̲ ≤ N(x) ≤ C̄x + d̄` and
@@ -70,7 +82,23 @@ impl Dynamics {
             f_tilde_jacobian,
             g,
             g_constant,
+            second: std::sync::OnceLock::new(),
         }
+    }
+
+    /// `G = Df̃·f̃` and `DG`, derived once per dynamics (symbolically, as `Df̃`).
+    pub fn second_order(&self) -> &SecondOrder {
+        self.second.get_or_init(|| {
+            let g: Vec<Expr> = (0..self.n)
+                .map(|i| {
+                    (0..self.n).fold(Expr::constant(0.0), |acc, j| {
+                        acc + self.f_tilde_jacobian[i][j].clone() * self.f_tilde[j].clone()
+                    })
+                })
+                .collect();
+            let g_jacobian = crate::expressions::jacobian(&g, self.n);
+            std::sync::Arc::new(SecondOrder { g, g_jacobian })
+        })
     }
 }
 

@@ -27,7 +27,7 @@ use super::embedding::Dynamics;
 use super::transform::Transform;
 use crate::boxes::IntervalBox;
 use crate::expressions::Expr;
-use crate::filter::{row_expressions, FilterPiece, VForms};
+use crate::filter::{row_expressions, FilterPiece, Lattice, VForms};
 use crate::intervals::{box_of, Interval};
 use crate::scenario::Scenario;
 
@@ -147,6 +147,14 @@ impl FilterPieces {
             Some(forms) => forms.piece(&self.scenario, x_box),
             None => self.proves_inactive(x_box).then_some(FilterPiece::Inactive),
         }
+    }
+
+    /// The filter on `x_box ∩ S` as a lattice of its pieces, where it has a scalar input's
+    /// closed form ([`VForms::lattice`]).
+    pub fn lattice(&self, x_box: &IntervalBox) -> Option<Lattice> {
+        self.forms
+            .as_ref()
+            .and_then(|forms| forms.lattice(&self.scenario, x_box))
     }
 
     /// An enclosure of `v` over `x_box ∩ S` (where the filter is feasible) from its closed form

@@ -42,6 +42,19 @@ pub struct ReachSettings {
     /// other (CPU engine). A box in x follows the flow where it turns the set (sliding along a
     /// constraint) and the parallelotope where it contracts (near the goal). Default: true.
     pub intersect_x: bool,
+    /// Continuous time, disturbance method, closed-form filters: where the filter is proven
+    /// one smooth piece `Φ` on the set, also bound each step by `Φ`'s Taylor form to second
+    /// order (`h²/2·DΦ·Φ` on the set's faces, a third-order remainder over the flowpipe;
+    /// [`super::end_rates::taylor3_rates`]) beside the first-order one, whose `h²/2·DΦ·F` over
+    /// the flowpipe grows with how far the set moves in a step. CPU engine only (the GPU's
+    /// refuses it). Default: false.
+    pub taylor3: bool,
+    /// Continuous time, disturbance method, a scalar input's closed form with constant `g`:
+    /// where no piece is proven on the set, also bound the field on each slab by the lattice of
+    /// the filter's pieces (`Fᵢ` is the larger or the smaller of smooth fields; the CPU
+    /// engine's `lattice_slab_field`), which keeps how `v` moves with the state where an
+    /// enclosure of `v` does not. CPU engine only (the GPU's refuses it). Default: false.
+    pub lattice: bool,
 }
 
 /// Where the disturbance method uses the filter itself besides (or instead of) the network plus
@@ -151,6 +164,8 @@ impl Default for ReachSettings {
             face_local: false,
             exact: ExactField::ClosedForm,
             intersect_x: true,
+            taylor3: false,
+            lattice: false,
         }
     }
 }

@@ -571,3 +571,87 @@ fn field_over_is_bound_on_at_both_ends_bit_for_bit() {
         }
     }
 }
+
+/// The active piece of scenario 2's obstacle row, `ẋ₁ = x₂`, `ẋ₂ = −(x₁ − 2) − h(x)/(2x₂)`
+/// (`h = (x₁ − 2)² + x₂² − 1`; nonlinear, stretching at rate ~2.4), over 14 steps from a box
+/// `1/32` wide moving at speed ~1.7: [`taylor3_rates`](crate::reach::end_rates::taylor3_rates)
+/// met with the slab rates hold the flow of every sampled start (RK4 at `h/200`) at every
+/// step's end and end narrower than the first-order form's; without its remainder the form
+/// misses the flow (so the check can fail).
+#[test]
+fn taylor3_rates_hold_a_stretching_flow_and_beat_the_first_order_form() {
+    use crate::reach::embedding::{embedding_field, euler_turn};
+    use crate::reach::end_rates::{taylor3_rates, taylor_rates};
+    let names = ["x1".to_string(), "x2".to_string()];
+    let parse = |s: &str| crate::expressions::parse(s, &names, &Default::default()).unwrap();
+    let d = Dynamics::new(
+        2,
+        1,
+        vec![
+            parse("x2"),
+            parse("-(x1 - 2) - ((x1 - 2)^2 + x2^2 - 1)/(2*x2)"),
+        ],
+        vec![vec![parse("0")], vec![parse("1")]],
+    );
+    let field = |x: [f64; 2]| {
+        let h = (x[0] - 2.0).powi(2) + x[1] * x[1] - 1.0;
+        [x[1], -(x[0] - 2.0) - h / (2.0 * x[1])]
+    };
+    let rk4 = |x: [f64; 2], dt: f64| {
+        let add = |a: [f64; 2], k: [f64; 2], s: f64| [a[0] + s * k[0], a[1] + s * k[1]];
+        let k1 = field(x);
+        let k2 = field(add(x, k1, dt / 2.0));
+        let k3 = field(add(x, k2, dt / 2.0));
+        let k4 = field(add(x, k3, dt));
+        [0, 1].map(|i| x[i] + dt / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]))
+    };
+    let z = [0.0; 4];
+    let h = 0.05;
+    let start = IntervalBox::new(vec![-1.40625, 1.46875], vec![-1.375, 1.5]).unwrap();
+    let mut starts: Vec<[f64; 2]> = Vec::new();
+    for a in 0..=6 {
+        for b in 0..=6 {
+            let (s, t) = (a as f64 / 6.0, b as f64 / 6.0);
+            starts.push([-1.40625 + s / 32.0, 1.46875 + t / 32.0]);
+        }
+    }
+    // One step of the set under `rates`, met with the flowpipe (as the engine does).
+    let step = |set: &IntervalBox, third: bool, remainder: bool| {
+        let exact = exact_field(&d, &z);
+        let Enclosure::Closed(pipe) = enclose_step(set, h, None, None, exact).unwrap() else {
+            panic!("no enclosure from {set:?}")
+        };
+        let (mut el, mut eu) = embedding_field(&d, &set.lower, &set.upper, no_network(&z), &[0.0]);
+        euler_turn(&d, &set.lower, &set.upper, h, None, &mut el, &mut eu);
+        let rates = match (third, remainder) {
+            (true, _) => taylor3_rates(&d, set, &pipe, h, (el, eu)),
+            (false, true) => taylor_rates(&d, set, &pipe, h, (el, eu)),
+            (false, false) => Some((el, eu)),
+        }
+        .expect("the monotonicity check holds on these sets");
+        let (mut lo, mut hi) = (set.lower.clone(), set.upper.clone());
+        super::super::embedding::embedding_step(&mut lo, &mut hi, &rates.0, &rates.1, h);
+        meet_with_pipe(&mut lo, &mut hi, &pipe);
+        IntervalBox::new(lo, hi).unwrap()
+    };
+    let (mut third, mut first, mut euler) = (start.clone(), start.clone(), start.clone());
+    let mut points = starts.clone();
+    let mut missed = 0;
+    for k in 1..=10 {
+        third = step(&third, true, true);
+        first = step(&first, false, true);
+        euler = step(&euler, false, false);
+        for x in points.iter_mut() {
+            for _ in 0..200 {
+                *x = rk4(*x, h / 200.0);
+            }
+            assert!(third.contains(x), "step {k}: {x:?} not in {third:?}");
+            assert!(first.contains(x), "step {k}: {x:?} not in {first:?}");
+            missed += usize::from(!euler.contains(x));
+        }
+    }
+    assert!(missed > 0, "the Euler part alone held the flow");
+    let (w3, w1) = (third.widths(), first.widths());
+    assert!(w3[0] < w1[0] && w3[1] < w1[1], "{w3:?} against {w1:?}");
+    eprintln!("after 10 steps: widths {w3:?} (first order {w1:?}); Euler part alone missed {missed} states");
+}

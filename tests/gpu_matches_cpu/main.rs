@@ -145,6 +145,7 @@ fn with_bounds(bounds: BoundMethod, method: ReachMethod) -> ReachSettings {
         // The GPU engine bounds the network everywhere: compare like with like.
         exact: ExactField::Nowhere,
         intersect_x: false,
+        ..ReachSettings::default()
     }
 }
 

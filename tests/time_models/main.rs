@@ -7,6 +7,7 @@ mod absorbing;
 mod common;
 mod refined;
 mod sampled;
+mod sharper;
 mod shipped;
 
 use cbfreach::filter::SafetyFilter;
