@@ -401,7 +401,8 @@ fn paper_boxes_on_both(gpu: &GpuBackend, s: &Scenario, problem: &ReachProblem) {
     );
 }
 
-/// The continuous setting the GPU engine's device step does not take (the Minkowski method),
+/// The continuous settings the GPU engine's device step does not take (the Minkowski method,
+/// the CPU engine's second-order pieces and lattice),
 /// and sampled runs in f32, are refused before any work, naming the setting and the way out,
 /// and `auto` runs them on the CPU; validated substeps, the scenario's own settings, sampled
 /// runs in f64 and continuous runs in f32 are the GPU's.
@@ -423,15 +424,35 @@ fn other_time_models_are_refused_naming_them() {
         exact: ExactField::Nowhere,
         ..reach.clone()
     };
-    let cases = [(
-        problem_with("continuous", certified),
-        ReachSettings {
-            method: ReachMethod::Minkowski,
-            ..nowhere.clone()
-        },
-        "method = \"minkowski\"",
-        "--backend cpu",
-    )];
+    let cases = [
+        (
+            problem_with("continuous", certified),
+            ReachSettings {
+                method: ReachMethod::Minkowski,
+                ..nowhere.clone()
+            },
+            "method = \"minkowski\"",
+            "--backend cpu",
+        ),
+        (
+            problem_with("continuous", None),
+            ReachSettings {
+                taylor3: true,
+                ..reach.clone()
+            },
+            "taylor3 = true",
+            "--backend cpu",
+        ),
+        (
+            problem_with("continuous", None),
+            ReachSettings {
+                lattice: true,
+                ..reach.clone()
+            },
+            "lattice = true",
+            "--backend cpu",
+        ),
+    ];
     for (problem, reach, names, way_out) in cases {
         assert!(gpu.supports(&problem, &reach).is_err(), "{names}");
         let e = gpu

@@ -105,6 +105,18 @@ pub fn given(id: &str) -> bool {
 /// For summaries: the sets are the meet of a box in x and the parallelotope.
 pub const INTERSECT_X_CLAUSE: &str = ", sets met with their x-boxes";
 
+/// The clause of `ReachSettings::taylor3` and `lattice` in a run's summary line.
+pub fn sharper_clause(taylor3: bool, lattice: bool) -> &'static str {
+    match (taylor3, lattice) {
+        (false, false) => "",
+        (true, false) => ", pieces' Taylor forms to second order",
+        (false, true) => ", the pieces' lattice across switching surfaces",
+        (true, true) => {
+            ", pieces' Taylor forms to second order and their lattice across switching surfaces"
+        }
+    }
+}
+
 /// What a subcommand returns: any library or I/O error, printed by `main`.
 pub type CliResult = Result<(), Box<dyn std::error::Error>>;
 

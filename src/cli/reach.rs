@@ -83,7 +83,8 @@ pub fn run(args: &ReachArgs) -> CliResult {
             INTERSECT_X_CLAUSE
         } else {
             ""
-        };
+        }
+        + super::sharper_clause(settings.taylor3, settings.lattice);
     let within = super::safe_set_clause(&problem.safe_set_for(settings.method).names());
     println!(
         "{}: {} boxes × {} steps, time {}, {} bounds{}, {:?} method, {margin}{within}, backend {}",

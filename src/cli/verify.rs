@@ -408,6 +408,7 @@ pub fn print_summary(r: &VerifyReport) {
             } else {
                 ""
             }
+            + super::sharper_clause(r.run.taylor3, r.run.lattice)
     );
     for a in &r.run.absorbing {
         println!(

@@ -225,17 +225,20 @@ pub fn taylor3_rates(
     let centre: Vec<f64> = (0..n)
         .map(|j| set.lower[j] + 0.5 * (set.upper[j] - set.lower[j]))
         .collect();
+    // `DG` (and `∂ᵢf̃ᵢ` after it) over the set and over the flowpipe.
+    let mut on_set = vec![point(0.0); n * n + n];
+    let mut on_pipe = vec![point(0.0); n * n + n];
+    second.g_jacobian.eval_interval(&x, &mut on_set);
+    second.g_jacobian.eval_interval(&b, &mut on_pipe);
+    let (mut on_face, mut g_at) = (vec![point(0.0); n * n + n], vec![point(0.0); n]);
     let (mut lo, mut hi) = (Vec::with_capacity(n), Vec::with_capacity(n));
     for i in 0..n {
-        let slope = point(1.0)
-            + point(h) * dynamics.f_tilde_jacobian[i][i].eval_interval(&x)
-            + half_h * point(h) * second.g_jacobian[i][i].eval_interval(&x);
+        let slope =
+            point(1.0) + point(h) * on_set[n * n + i] + half_h * point(h) * on_set[i * n + i];
         if slope.lower.is_nan() || slope.lower < 0.0 {
             return None;
         }
-        let r = (0..n).fold(point(0.0), |acc, j| {
-            acc + second.g_jacobian[i][j].eval_interval(&b) * f[j]
-        });
+        let r = (0..n).fold(point(0.0), |acc, j| acc + on_pipe[i * n + j] * f[j]);
         let mut ends = [0.0; 2];
         for (side, on_upper) in [false, true].into_iter().enumerate() {
             let at = if on_upper { set.upper[i] } else { set.lower[i] };
@@ -247,11 +250,11 @@ pub fn taylor3_rates(
                 .collect();
             let mut p: Vec<Interval> = centre.iter().map(|&c| point(c)).collect();
             p[i] = point(at);
-            let g = (0..n)
-                .filter(|&j| j != i)
-                .fold(second.g[i].eval_interval(&p), |acc, j| {
-                    acc + second.g_jacobian[i][j].eval_interval(&face) * (face[j] - p[j])
-                });
+            second.g.eval_interval(&p, &mut g_at);
+            second.g_jacobian.eval_interval(&face, &mut on_face);
+            let g = (0..n).filter(|&j| j != i).fold(g_at[i], |acc, j| {
+                acc + on_face[i * n + j] * (face[j] - p[j])
+            });
             let end = match on_upper {
                 true => (point(du[i]) + half_h * point(g.upper) + h2_6 * point(r.upper)).upper,
                 false => (point(dl[i]) + half_h * point(g.lower) + h2_6 * point(r.lower)).lower,

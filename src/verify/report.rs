@@ -106,6 +106,12 @@ pub struct RunInfo {
     /// (`ReachSettings::intersect_x`).
     #[serde(default)]
     pub intersect_x: bool,
+    /// `ReachSettings::taylor3` (continuous time; files from before it: false).
+    #[serde(default)]
+    pub taylor3: bool,
+    /// `ReachSettings::lattice` (continuous time; files from before it: false).
+    #[serde(default)]
+    pub lattice: bool,
     /// Euler step.
     pub dt: f64,
     /// Euler steps.
@@ -435,6 +441,8 @@ mod tests {
                 face_local: false,
                 exact: ExactField::default(),
                 intersect_x: false,
+                taylor3: false,
+                lattice: false,
                 dt: 0.1,
                 steps: 1,
                 time: String::new(),

@@ -359,6 +359,8 @@ impl<'a> Verifier<'a> {
                 face_local: self.reach.face_local,
                 exact: self.reach.exact_field(),
                 intersect_x: self.problem.frames(&self.reach).len() > 1,
+                taylor3: self.reach.taylor3 && self.problem.time == TimeModel::Continuous,
+                lattice: self.reach.lattice && self.problem.time == TimeModel::Continuous,
                 dt: self.problem.dt,
                 steps: self.problem.steps,
                 time: self.problem.time.to_string(),
