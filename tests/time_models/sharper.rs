@@ -87,3 +87,52 @@ fn sharper_rates_hold_the_continuous_time_system_and_keep_more_boxes() {
         "{wider} wider sets, {narrower} narrower"
     );
 }
+
+/// Every shipped scenario, as `continuous_sets_hold_the_other_shipped_scenarios` runs it, with
+/// both settings: the second-order form on every kind of piece (closed forms of one row and of
+/// a scalar input, a general QP's active sets, state-dependent `g`), the lattice where it
+/// applies (scenario 2, ACC's CBF row and input bounds). Continuous-time trajectories lie in
+/// the sets and flowpipes.
+#[test]
+fn sharper_rates_hold_the_shipped_scenarios() {
+    for (file, steps, extra) in [
+        ("integrator.toml", 100, 6),
+        ("double-integrator.toml", 100, 6),
+        ("acc.toml", 200, 4),
+        ("acc-si.toml", 200, 4),
+        ("spheres3d.toml", 160, 4),
+        ("int3.toml", 40, 6),
+        ("unicycle.toml", 40, 6),
+    ] {
+        let s = Scenario::load(&common::scenario_path(file)).expect("loads");
+        let mut problem = common::shipped_problem(&s);
+        problem.steps = steps.min(problem.steps);
+        let mut boxes = s.reach.initial.clone();
+        boxes.extend(super::shipped::random_boxes(
+            &s.reach.region,
+            extra,
+            0.04,
+            3,
+        ));
+        let settings = ReachSettings {
+            taylor3: true,
+            lattice: true,
+            ..s.settings.reach.clone()
+        };
+        let tubes = CpuBackend
+            .reach(&problem, &boxes, &settings, &|_, _| {})
+            .unwrap()
+            .boxes;
+        let e = escapes(&s, &tubes, s.reach.dt, 1e-6);
+        assert_eq!((e.at_snapshots, e.between), (0, 0), "{file}: {e:?}");
+        let seen: usize = tubes.iter().map(|t| t.tube.len() - 1).sum();
+        assert!(
+            e.checks >= 24 * seen && seen > 0,
+            "{file}: too few checks: {e:?}"
+        );
+        eprintln!(
+            "{file}: {seen} snapshots, {} checks, none outside",
+            e.checks
+        );
+    }
+}

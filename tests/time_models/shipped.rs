@@ -8,7 +8,12 @@
 use super::*;
 
 /// `count` random boxes of `region`, each `frac` of its width on every side (seeded).
-fn random_boxes(region: &IntervalBox, count: usize, frac: f64, seed: u64) -> Vec<IntervalBox> {
+pub(super) fn random_boxes(
+    region: &IntervalBox,
+    count: usize,
+    frac: f64,
+    seed: u64,
+) -> Vec<IntervalBox> {
     let w = region.widths();
     let inner = IntervalBox::new(
         region.lower.clone(),
