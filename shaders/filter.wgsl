@@ -226,6 +226,42 @@ fn proven_piece(x: array<Iv, N0>) -> u32 {
     return PIECE_NONE;
 }
 
+// A scalar input's rows that may bind on x ∩ S by the side of θ they bound (VForms::lattice):
+// bit k of `lower` (aₖ < 0) or `upper` (aₖ > 0); `ok` false for other filters, a NaN row, or a
+// row that may bind with aₖ of either sign.
+struct LatticeRows {
+    lower: u32,
+    upper: u32,
+    ok: bool,
+}
+
+fn lattice_rows(x: array<Iv, N0>) -> LatticeRows {
+    var l = LatticeRows(0u, 0u, false);
+    if (V_KIND != 2u) {
+        return l;
+    }
+    let c = centred_of(x);
+    let r = filter_rows(c);
+    if (!r.ok) {
+        return l;
+    }
+    for (var k = 0u; k < ROWS; k++) {
+        if (r.b_enc[k].lo >= 0.0) {
+            continue;
+        }
+        let side = side_of(r, k);
+        if (side == 0u) {
+            l.lower |= 1u << k;
+        } else if (side == 1u) {
+            l.upper |= 1u << k;
+        } else {
+            return l;
+        }
+    }
+    l.ok = true;
+    return l;
+}
+
 // max(0, −B).
 fn neg_part(b: Iv) -> Iv {
     return Iv(max(-b.hi, 0.0), max(-b.lo, 0.0));

@@ -197,6 +197,71 @@ struct StepRates {
     ok: bool,
 }
 
+// One piece's first-order rate at end (i, side) of the moving box's slab (as the piece's source
+// in step_rates: validated::slab_field's bound clamped to the slab's depth, widened by `sl`).
+fn piece_end(i: u32, side: u32, s: Box, m: Moving, piece: u32, sl: real) -> real {
+    let b = bound_on(i, side, s.lo, s.hi, zero_net(), 0.0, piece);
+    if (side == 0u) {
+        return widen_down(min(b.lo, m.d_lo[i]), sl);
+    }
+    return widen_up(max(b.hi, m.d_hi[i]), sl);
+}
+
+// The field on the slabs from the lattice of the filter's pieces on `known` (cpu_time.rs
+// lattice_slab_field, design §7.1 item 6): with cᵢ = Bᵢ, min(min_U Φₖ, max(Φ₀, max_L Φₖ)) for
+// cᵢ > 0, max(max_U Φₖ, min(Φ₀, min_L Φₖ)) for cᵢ < 0, Φ₀ for cᵢ = 0, each Φ its own slab end
+// (piece_end). `ok` false where the lattice does not apply.
+struct LatticeRates {
+    r: EndPair,
+    ok: bool,
+}
+
+fn lattice_rates(st: StepState, m: Moving, h: Iv, known: array<Iv, N0>, ends: u32) -> LatticeRates {
+    var out = LatticeRates(no_rates(), false);
+    if (!LATTICE) {
+        return out;
+    }
+    let rows = lattice_rows(known);
+    if (!rows.ok) {
+        return out;
+    }
+    for (var f = 0u; f < ends; f++) {
+        let i = f / 2u;
+        let side = f % 2u;
+        let s = slab(st.lo, st.hi, m, h, i, side);
+        let e0 = piece_end(i, side, s, m, PIECE_INACTIVE, FIELD_SLACK);
+        let up = B_HI[i] > 0.0;
+        let down = B_LO[i] < 0.0;
+        var v = e0;
+        if (up || down) {
+            for (var k = 0u; k < ROWS; k++) {
+                if ((rows.lower & (1u << k)) == 0u) {
+                    continue;
+                }
+                let e = piece_end(i, side, s, m, k + 1u, binding_slack(k, known));
+                v = select(min(v, e), max(v, e), up);
+            }
+            for (var k = 0u; k < ROWS; k++) {
+                if ((rows.upper & (1u << k)) == 0u) {
+                    continue;
+                }
+                let e = piece_end(i, side, s, m, k + 1u, binding_slack(k, known));
+                v = select(max(v, e), min(v, e), up);
+            }
+        }
+        if (v != v) {
+            return out;
+        }
+        if (side == 0u) {
+            out.r.lo[i] = v;
+        } else {
+            out.r.hi[i] = v;
+        }
+    }
+    out.ok = true;
+    return out;
+}
+
 // The sources of step_rates' loop: the piece on the slabs, the enclosures, the network, the
 // piece over the hull and on the set's faces (the last two for its Taylor rates).
 const SOURCES: u32 = 5u;
@@ -310,6 +375,15 @@ fn step_rates(st: StepState, m: Moving, h: Iv, known: array<Iv, N0>, piece: u32,
         out.second = meet_pair(out.second, widen_pair(enc.curved, enc_slack));
         out.enclosed = true;
     }
-    out.ok = piece != PIECE_NONE || enclosing || network;
+    var lattice = false;
+    if (ENCLOSE && piece == PIECE_NONE) {
+        let l = lattice_rates(st, m, h, known, ends);
+        if (l.ok) {
+            out.field = meet_pair(out.field, l.r);
+            out.enclosed = true;
+            lattice = true;
+        }
+    }
+    out.ok = piece != PIECE_NONE || enclosing || network || lattice;
     return out;
 }

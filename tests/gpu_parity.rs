@@ -402,7 +402,7 @@ fn paper_boxes_on_both(gpu: &GpuBackend, s: &Scenario, problem: &ReachProblem) {
 }
 
 /// The continuous settings the GPU engine's device step does not take (the Minkowski method,
-/// the CPU engine's second-order pieces and lattice),
+/// the CPU engine's second-order pieces),
 /// and sampled runs in f32, are refused before any work, naming the setting and the way out,
 /// and `auto` runs them on the CPU; validated substeps, the scenario's own settings, sampled
 /// runs in f64 and continuous runs in f32 are the GPU's.
@@ -441,15 +441,6 @@ fn other_time_models_are_refused_naming_them() {
                 ..reach.clone()
             },
             "taylor3 = true",
-            "--backend cpu",
-        ),
-        (
-            problem_with("continuous", None),
-            ReachSettings {
-                lattice: true,
-                ..reach.clone()
-            },
-            "lattice = true",
             "--backend cpu",
         ),
     ];

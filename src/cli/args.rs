@@ -111,10 +111,10 @@ pub struct ReachFlags {
     /// second order too (a third-order remainder; CPU engine)
     #[arg(long)]
     pub taylor3: bool,
-    /// Continuous time, a scalar input's closed form: bound the field across a switching
-    /// surface by the lattice of the filter's pieces too (CPU engine)
+    /// Continuous time, a scalar input's closed form: do not bound the field across a switching
+    /// surface by the lattice of the filter's pieces (only by the enclosures of `v`)
     #[arg(long)]
-    pub lattice: bool,
+    pub no_lattice: bool,
 }
 
 impl ReachFlags {
@@ -137,7 +137,9 @@ impl ReachFlags {
             s.intersect_x = false;
         }
         s.taylor3 |= self.taylor3;
-        s.lattice |= self.lattice;
+        if self.no_lattice {
+            s.lattice = false;
+        }
         s
     }
 }

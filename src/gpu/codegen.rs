@@ -553,6 +553,9 @@ fn closed_form_wgsl(
     let rows = pieces.slack_rows().len();
     let mut s = String::new();
     let _ = writeln!(s, "const ENCLOSE: bool = {};", forms.is_some());
+    // The pieces' lattice (cpu_time.rs `lattice_slab_field`): a scalar input with constant `g`.
+    let lattice = settings.lattice && problem.dynamics.g_constant.is_some() && m == 1;
+    let _ = writeln!(s, "const LATTICE: bool = {lattice};");
     let _ = writeln!(s, "const V_ROWS: u32 = {}u;", rows.max(1));
     let empty: [Smooth; 0] = [];
     let parts = forms.map(|f| f.parts());

@@ -348,6 +348,20 @@ impl ReachProblem {
         x
     }
 
+    /// Whether [`ReachSettings::lattice`] acts on this problem: continuous time, the disturbance
+    /// method with the closed form, a scalar input's closed form, constant `g`.
+    pub fn lattice_applies(&self, settings: &ReachSettings) -> bool {
+        settings.lattice
+            && self.time == TimeModel::Continuous
+            && settings.exact_field() == ExactField::ClosedForm
+            && self.dynamics.m == 1
+            && self.dynamics.g_constant.is_some()
+            && self
+                .pieces
+                .forms()
+                .is_some_and(|f| f.method() == crate::filter::FilterMethod::ClosedFormScalar)
+    }
+
     /// Whether a finite `M` exists for every box within `C`: `m_c` is finite and, with an error
     /// map, the map certifies every one of its cells. Then a step that finds no finite `M` asked
     /// for it beyond `C`.

@@ -52,8 +52,8 @@ pub struct ReachSettings {
     /// Continuous time, disturbance method, a scalar input's closed form with constant `g`:
     /// where no piece is proven on the set, also bound the field on each slab by the lattice of
     /// the filter's pieces (`Fᵢ` is the larger or the smaller of smooth fields; the CPU
-    /// engine's `lattice_slab_field`), which keeps how `v` moves with the state where an
-    /// enclosure of `v` does not. CPU engine only (the GPU's refuses it). Default: false.
+    /// engine's `lattice_slab_field`, the GPU's `lattice_rates`), which keeps how `v` moves with
+    /// the state where an enclosure of `v` does not. Default: true.
     pub lattice: bool,
 }
 
@@ -165,7 +165,7 @@ impl Default for ReachSettings {
             exact: ExactField::ClosedForm,
             intersect_x: true,
             taylor3: false,
-            lattice: false,
+            lattice: true,
         }
     }
 }

@@ -360,7 +360,7 @@ impl<'a> Verifier<'a> {
                 exact: self.reach.exact_field(),
                 intersect_x: self.problem.frames(&self.reach).len() > 1,
                 taylor3: self.reach.taylor3 && self.problem.time == TimeModel::Continuous,
-                lattice: self.reach.lattice && self.problem.time == TimeModel::Continuous,
+                lattice: self.problem.lattice_applies(&self.reach),
                 dt: self.problem.dt,
                 steps: self.problem.steps,
                 time: self.problem.time.to_string(),

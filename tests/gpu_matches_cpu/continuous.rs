@@ -284,7 +284,8 @@ fn continuous_two_frames_match_the_cpu_engine() {
 
 /// Scenario 1 (x) and scenario 2 (z) with small networks under the filter's closed form
 /// (`exact = "closed-form"`: its proven pieces and its enclosures of `v` met with the network
-/// on the slabs, on the device since the fifth stage) and under `"inactive"`, a global `M`,
+/// on the slabs, on the device since the fifth stage; with and without the pieces' lattice) and
+/// under `"inactive"`, a global `M`,
 /// face-local forward bounds, 30 steps, boxes near the obstacle and the rows: the same
 /// verdicts, sets, flowpipes, exact and enclosed steps as the CPU engine's, most box-steps on
 /// the device. (The small networks' `M` bounds nothing: the sets' soundness is checked on the
@@ -317,6 +318,48 @@ fn continuous_closed_form_runs_match_the_cpu_engine() {
             continuous_parity(&g, &problem, &init, (&st, TOL), None, &what);
         }
     }
+    // The pieces' lattice (`lattice_rates`): scenario 2's boxes on the obstacle row's switching
+    // surface, above and below the disc, where no piece is proven, and a margin (0.5) that
+    // leaves the network's rates looser than the lattice's (the CPU's sets change with it).
+    let s2 = double_integrator();
+    let t = Transform::for_scenario(&s2, &TransformChoice::Auto).unwrap();
+    let mut problem =
+        ReachProblem::with_transform(&s2, small_network(&[2, 16, 16, 1], 2, 0.05), 0.5, t)
+            .unwrap()
+            .with_time(TimeModel::Continuous, 1);
+    problem.steps = steps;
+    let across = boxes(
+        &[
+            [-0.83, 1.0],
+            [0.06, 0.5],
+            [-1.71, 1.5],
+            [0.43, 0.3],
+            [0.68, -1.5],
+            [3.32, -1.5],
+        ],
+        0.08,
+    );
+    let st = |lattice: bool| ReachSettings {
+        face_local: true,
+        exact: ExactField::ClosedForm,
+        lattice,
+        ..settings(ReachMethod::Disturbance)
+    };
+    let cpu = |lattice: bool| {
+        CpuBackend
+            .reach(&problem, &across, &st(lattice), &|_, _| {})
+            .unwrap()
+            .boxes
+    };
+    let (plain, sharp) = (cpu(false), cpu(true));
+    let changed = plain
+        .iter()
+        .zip(&sharp)
+        .filter(|(a, b)| a.tube.iter().zip(&b.tube).any(|(x, y)| x.set != y.set))
+        .count();
+    assert!(changed >= 2, "the lattice changed {changed} tubes");
+    let what = "scenario 2, the pieces' lattice";
+    continuous_parity(&g, &problem, &across, (&st(true), TOL), None, what);
 }
 
 /// Scenario 1 with its shipped network, face-local forward bounds, the paper's twelve boxes over

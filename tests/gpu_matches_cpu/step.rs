@@ -198,7 +198,8 @@ fn common_step_matches_the_cpu_engines_step() {
 /// piece's slab field, curved and Taylor rates, and the closed form's enclosures of `v` on each
 /// slab, met with the network's. Scenario 1 (one row, two inputs) with boxes around the
 /// obstacle, where the row binds on some hulls and may on others, and scenario 2 in z (a scalar
-/// input, two rows, the transform's slack), under `exact = "closed-form"` and `"inactive"`,
+/// input, two rows, the transform's slack), under `exact = "closed-form"` (with and without the
+/// pieces' lattice, `lattice_rates`) and `"inactive"`,
 /// face-local forward bounds, 12 steps ([`compare_steps`]: the same sources as the CPU's step,
 /// the same sets and rates to 1e-10).
 #[test]
@@ -237,19 +238,38 @@ fn closed_form_step_matches_the_cpu_engines_step() {
         0.05,
     );
     for (problem, init, name) in [(&p1, &b1, "scenario 1"), (&p2, &b2, "scenario 2")] {
-        for exact in [ExactField::ClosedForm, ExactField::Inactive] {
+        for (exact, lattice) in [
+            (ExactField::ClosedForm, false),
+            (ExactField::ClosedForm, true),
+            (ExactField::Inactive, false),
+        ] {
+            let init = &match (name, lattice) {
+                // On the obstacle row's switching surface, where the lattice applies.
+                ("scenario 2", true) => boxes(
+                    &[
+                        [-0.83, 1.0],
+                        [0.06, 0.5],
+                        [-1.71, 1.5],
+                        [0.43, 0.3],
+                        [3.32, -1.5],
+                    ],
+                    0.03,
+                ),
+                _ => init.clone(),
+            };
             let st = ReachSettings {
                 face_local: true,
                 exact,
+                lattice,
                 ..settings(ReachMethod::Disturbance)
             };
             let mut seen = Seen::default();
             compare_steps(&g, problem, &st, init, 12, &mut seen);
-            eprintln!("{name}, exact {exact:?}: {seen:?}");
+            eprintln!("{name}, exact {exact:?}, lattice {lattice}: {seen:?}");
             assert!(seen.compared >= 30, "{name}, {exact:?}: {seen:?}");
             assert!(seen.pieces > 0, "{name}, {exact:?}: no proven piece");
-            if exact == ExactField::ClosedForm && name == "scenario 1" {
-                assert!(seen.enclosed > 0, "{name}: no enclosure");
+            if exact == ExactField::ClosedForm && (name == "scenario 1" || lattice) {
+                assert!(seen.enclosed > 0, "{name}, lattice {lattice}: no enclosure");
             }
         }
     }

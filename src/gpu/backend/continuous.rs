@@ -48,9 +48,6 @@ pub(super) fn refused(
     if settings.taylor3 {
         return Err(Unsupported::Continuous("taylor3 = true"));
     }
-    if settings.lattice {
-        return Err(Unsupported::Continuous("lattice = true"));
-    }
     match settings.method {
         ReachMethod::Minkowski => Err(Unsupported::Continuous("method = \"minkowski\"")),
         ReachMethod::Disturbance => Ok(()),
