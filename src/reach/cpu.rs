@@ -523,12 +523,8 @@ impl ChunkRun<'_> {
                 margin: Some(problem.network_slack),
             };
         }
-        let slack = |piece| match piece {
-            FilterPiece::Inactive => problem.field_slack,
-            FilterPiece::Binding(k) => problem.pieces.binding_slack(k, x_box),
-        };
         StepInput {
-            piece: facts.piece.map(|p| (p, slack(p))),
+            piece: facts.piece.map(|p| (p, problem.piece_slack(p, x_box))),
             margin: facts
                 .m
                 .map(|m| round_up(m + problem.network_slack))

@@ -314,9 +314,9 @@ impl ChunkRun<'_> {
         zeros: &[f64],
     ) -> Option<(Vec<f64>, Vec<f64>)> {
         let enclosed = self.enclosure_slab_rates(frame, set, pipe, known, zeros, false);
-        let lattice = self
-            .settings
-            .lattice
+        let lattice = frame
+            .problem
+            .lattice_applies(self.settings)
             .then(|| self.lattice_slab_field(frame.problem, set, pipe, known, zeros))
             .flatten();
         [enclosed, lattice]
@@ -326,7 +326,7 @@ impl ChunkRun<'_> {
     }
 
     /// The field on the slabs from the filter's pieces where `v` is a lattice of them on the
-    /// flowpipe's x-box `known` (a scalar input, constant `g`; [`FilterPieces::lattice`]):
+    /// flowpipe's x-box `known` (where [`ReachProblem::lattice_applies`]; [`FilterPieces::lattice`]):
     /// `v = min(hi, max(0, lo))`, so with `cᵢ = gᵢ` (in the frame's coordinates)
     /// `Fᵢ = Φ₀ᵢ + cᵢv` is `min(min_U Φₖᵢ, max(Φ₀ᵢ, max_L Φₖᵢ))` for `cᵢ > 0` and
     /// `max(max_U Φₖᵢ, min(Φ₀ᵢ, min_L Φₖᵢ))` for `cᵢ < 0` (`Φ₀` the inactive piece's field,
@@ -342,15 +342,11 @@ impl ChunkRun<'_> {
         known: &IntervalBox,
         zeros: &[f64],
     ) -> Option<Rates> {
-        let (n, m) = (p.dynamics.n, p.dynamics.m);
-        let c = p.dynamics.g_constant.as_ref().filter(|_| m == 1)?;
+        let n = p.dynamics.n;
+        let c = p.dynamics.g_constant.as_ref()?;
         let lattice = p.pieces.lattice(known)?;
         let field = |piece: FilterPiece| {
-            let slack = match piece {
-                FilterPiece::Inactive => p.field_slack,
-                FilterPiece::Binding(k) => p.pieces.binding_slack(k, known),
-            };
-            self.piece_slab_field(p, set, pipe, (piece, slack), zeros)
+            self.piece_slab_field(p, set, pipe, (piece, p.piece_slack(piece, known)), zeros)
         };
         let inactive = field(FilterPiece::Inactive);
         let lower: Vec<Rates> = lattice

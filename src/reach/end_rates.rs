@@ -231,6 +231,9 @@ pub fn taylor3_rates(
     second.g_jacobian.eval_interval(&x, &mut on_set);
     second.g_jacobian.eval_interval(&b, &mut on_pipe);
     let (mut on_face, mut g_at) = (vec![point(0.0); n * n + n], vec![point(0.0); n]);
+    // A face of the set and its centre: coordinate `i` pinned to the end, the rest as they are.
+    let mut face = x.clone();
+    let mut p: Vec<Interval> = centre.iter().map(|&c| point(c)).collect();
     let (mut lo, mut hi) = (Vec::with_capacity(n), Vec::with_capacity(n));
     for i in 0..n {
         let slope =
@@ -242,13 +245,7 @@ pub fn taylor3_rates(
         let mut ends = [0.0; 2];
         for (side, on_upper) in [false, true].into_iter().enumerate() {
             let at = if on_upper { set.upper[i] } else { set.lower[i] };
-            let face: Vec<Interval> = (0..n)
-                .map(|j| match j == i {
-                    true => point(at),
-                    false => x[j],
-                })
-                .collect();
-            let mut p: Vec<Interval> = centre.iter().map(|&c| point(c)).collect();
+            face[i] = point(at);
             p[i] = point(at);
             second.g.eval_interval(&p, &mut g_at);
             second.g_jacobian.eval_interval(&face, &mut on_face);
@@ -264,6 +261,7 @@ pub fn taylor3_rates(
             }
             ends[side] = end;
         }
+        (face[i], p[i]) = (x[i], point(centre[i]));
         lo.push(ends[0]);
         hi.push(ends[1]);
     }

@@ -348,6 +348,15 @@ impl ReachProblem {
         x
     }
 
+    /// The transform's slack of `piece`'s own field over `x_box` (0 without a transform): the
+    /// scenario's `f̃` for the inactive piece, row `k`'s field for `Binding(k)`.
+    pub fn piece_slack(&self, piece: crate::filter::FilterPiece, x_box: &IntervalBox) -> f64 {
+        match piece {
+            crate::filter::FilterPiece::Inactive => self.field_slack,
+            crate::filter::FilterPiece::Binding(k) => self.pieces.binding_slack(k, x_box),
+        }
+    }
+
     /// Whether [`ReachSettings::lattice`] acts on this problem: continuous time, the disturbance
     /// method with the closed form, a scalar input's closed form, constant `g`.
     pub fn lattice_applies(&self, settings: &ReachSettings) -> bool {
