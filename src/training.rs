@@ -15,7 +15,7 @@ use crate::dataset::{
 use crate::filter::SafetyFilter;
 use crate::network::train::{
     self, Dataset, EpochStats, ErrorStats, Measured, Normalisation, Recipe, RecipeData,
-    RecipeProgress, RecipeReport, Resolution, Target, TrainReport, TrainSettings,
+    RecipeProgress, RecipeReport, Resolution, StagedCheckpoint, Target, TrainReport, TrainSettings,
 };
 use crate::network::{Mlp, NetworkError};
 use crate::scenario::Scenario;
@@ -369,7 +369,8 @@ impl StagedPlan {
     }
 
     /// Runs the schedule from `init` (in the scenario's units; `None`: random weights from
-    /// `seed`) to the target; `f32` rounds the result's weights to f32.
+    /// `seed`) to the target; `f32` rounds the result's weights to f32. With `checkpoint` the
+    /// run keeps its progress there and may continue from it ([`StagedCheckpoint`]).
     #[allow(clippy::too_many_arguments)]
     pub fn run(
         &self,
@@ -379,6 +380,7 @@ impl StagedPlan {
         init: Option<(&Path, &Mlp)>,
         seed: u64,
         f32: bool,
+        checkpoint: Option<&StagedCheckpoint>,
         progress: &dyn DataProgress,
         on_epoch: impl FnMut(&RecipeProgress),
     ) -> Result<Staged, TrainingError> {
@@ -406,6 +408,7 @@ impl StagedPlan {
             &recipe_data,
             &self.recipe,
             &self.target,
+            checkpoint,
             on_epoch,
         )?;
         let net = if f32 { rounded_to_f32(&net) } else { net };

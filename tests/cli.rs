@@ -426,6 +426,13 @@ fn train_without_epochs_runs_the_staged_schedule_and_saves_a_folded_network() {
         .expect("normalisation recorded");
     assert_eq!(norm.input_centre, vec![0.5, 0.0]); // C = [−3.5, 4.5] × [−3, 3]
     assert!(metadata.contains_key("recipe_report"));
+    // Its progress was kept beside the network while it ran, and is gone once it is saved.
+    assert!(stdout.contains("net.ckpt after every stage"), "{stdout}");
+    let left: Vec<_> = std::fs::read_dir(tmp.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(left, ["net.safetensors"]);
     let (code, _, stderr) = cbfreach(&["train", path.to_str().unwrap(), "--budget", "0"]);
     assert_ne!(code, 0);
     assert!(stderr.contains("--budget 0"), "{stderr}");

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use cbfreach::dataset::{filter_dataset, training_points, DatasetSummary, Slopes};
 use cbfreach::filter::SafetyFilter;
-use cbfreach::network::train::{self, EpochStats, RecipeProgress, TrainSettings};
+use cbfreach::network::train::{self, EpochStats, RecipeProgress, StagedCheckpoint, TrainSettings};
 use cbfreach::network::Mlp;
 use cbfreach::scenario::Scenario;
 use cbfreach::training::{
@@ -158,7 +158,9 @@ pub struct TrainArgs {
     /// moments and the full learning-rate schedule (fine-tuning); ignored when resuming.
     #[arg(long)]
     pub init: Option<PathBuf>,
-    /// Continue from the checkpoint beside the output file.
+    /// Continue an interrupted run from its checkpoint beside the output file (`NAME.ckpt`):
+    /// the staged schedule from its last stage and epochs, or one stage (`--epochs`) from its
+    /// epochs.
     #[arg(long)]
     pub resume: bool,
     /// Where to write the network (default: the scenario's network file).
@@ -489,6 +491,28 @@ fn run_staged(job: &Job, bars: &Bars) -> CliResult {
         target
     );
     print_resolution(&plan.resolution, target.linf);
+    let checkpoint = StagedCheckpoint {
+        path: out.with_extension("ckpt"),
+        resume: args.resume,
+    };
+    match (checkpoint.path.exists(), args.resume) {
+        (true, true) => println!(
+            "resuming from {} (the stages done and the current stage's epochs)",
+            checkpoint.path.display()
+        ),
+        (true, false) => println!(
+            "{} holds an earlier run's progress: this run replaces it after its first stage (`--resume` continues it instead)",
+            checkpoint.path.display()
+        ),
+        (false, true) => println!(
+            "no checkpoint at {}: starting afresh",
+            checkpoint.path.display()
+        ),
+        (false, false) => println!(
+            "progress kept in {} after every stage and every 10 epochs: `--resume` continues an interrupted run",
+            checkpoint.path.display()
+        ),
+    }
     let bar = progress_bar(total as u64, "fit");
     let logged = !std::io::stderr().is_terminal();
     let offsets: Vec<usize> = recipe
@@ -532,11 +556,14 @@ fn run_staged(job: &Job, bars: &Bars) -> CliResult {
         init,
         args.seed,
         args.f32,
+        Some(&checkpoint),
         bars,
         progress,
     )?;
     bar.finish_and_clear();
     run.trained.save(out)?;
+    // The network is on disk: its progress is no longer needed.
+    checkpoint.remove(recipe.stages.len());
     let (report, measured) = (&run.report, &run.measured);
     let norm = &report.normalisation;
     println!(

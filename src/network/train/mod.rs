@@ -92,7 +92,8 @@
 //! (the loop: [`train`], [`resume`], [`train_until`]), `report` (what a run reports;
 //! [`evaluate`]), `normalise` (the data's affine maps, folded into the saved network:
 //! [`Normalisation`]), `recipe` (the default staged schedule to an accuracy target:
-//! [`train_to_target`]), `adaptive` (more samples where the network errs most:
+//! [`train_to_target`]), `staged` (its progress on disk between stages:
+//! [`StagedCheckpoint`]), `adaptive` (more samples where the network errs most:
 //! [`refine_round`]), `resolution` (how finely the training grid resolves `v`:
 //! [`grid_resolution`]).
 
@@ -106,6 +107,7 @@ mod report;
 mod resolution;
 mod run;
 mod settings;
+mod staged;
 
 #[cfg(test)]
 mod bench;
@@ -121,5 +123,6 @@ pub use recipe::{
 };
 pub use report::{evaluate, pointwise_errors, EpochStats, ErrorStats, PointErrors, TrainReport};
 pub use resolution::{grid_resolution, Resolution};
-pub use run::{resume, train, train_until, Flow};
+pub use run::{resume, resume_until, train, train_until, Flow};
 pub use settings::{LrSchedule, Precision, TrainSettings};
+pub use staged::StagedCheckpoint;

@@ -30,9 +30,10 @@ use serde::{Deserialize, Serialize};
 
 use super::adaptive::{refine_round, Oracle, Refinement, RoundReport};
 use super::normalise::Normalisation;
-use super::report::pointwise_errors;
-use super::run::{train_until, Flow};
+use super::report::{pointwise_errors, EpochStats};
+use super::run::{resume_until, train_until, Flow};
 use super::settings::{LrSchedule, TrainSettings};
+use super::staged::{fingerprint, tail, Progress, StagedCheckpoint};
 use super::Dataset;
 use crate::network::{Mlp, NetworkError};
 
@@ -295,6 +296,12 @@ pub struct RecipeReport {
 
 /// Runs `recipe` from `init` (in the data's units) or, without one, from random weights of
 /// the given widths; returns the network in the data's units.
+///
+/// With `checkpoint` the run keeps its progress on disk after every stage and refine round
+/// (and every [`TrainSettings::checkpoint_every`](super::TrainSettings) epochs inside a stage),
+/// and with `checkpoint.resume` continues from it: to the same network, bit for bit, as the
+/// uninterrupted run.
+#[allow(clippy::too_many_arguments)]
 pub fn train_to_target(
     init: Option<&Mlp>,
     widths: &[usize],
@@ -302,69 +309,128 @@ pub fn train_to_target(
     data: &RecipeData,
     recipe: &Recipe,
     target: &Target,
+    checkpoint: Option<&StagedCheckpoint>,
     mut progress: impl FnMut(&RecipeProgress),
 ) -> Result<(Mlp, RecipeReport), NetworkError> {
     let t0 = std::time::Instant::now();
     let norm = Normalisation::from_data(data.pointwise);
     let mut pointwise = norm.dataset(data.pointwise, None)?;
     let mut secant = data.secant.map(|d| norm.dataset(d, None)).transpose()?;
-    let (mut rounds, mut refining_done) = (0u64, false);
-    let mut net = match init {
-        Some(net) => norm.unfold(net)?,
-        None => Mlp::random(widths, seed),
-    };
+    let (grid_len, secant_len) = (pointwise.len(), secant.as_ref().map_or(0, Dataset::len));
     let measure = |normalised: &Mlp| -> Result<Measured, NetworkError> {
         measure(&norm.fold(normalised)?, data.validation, &recipe.ibp_radius)
     };
-    let lr = range_test(&net, &pointwise, recipe, seed)?;
-    let mut best = (net.clone(), measure(&net)?);
-    // The target is reached where the validation grid meets it and, with an oracle, a round
-    // of fresh points confirms it between the grid's points: ACC's network met 20 N on the
-    // grid and erred by 39 N beside `∂S` (docs/networks.md).
+    let print = fingerprint(init, widths, seed, data, recipe, target);
+    let resumed = match checkpoint {
+        Some(c) if c.resume && c.path.exists() => {
+            let shape = (pointwise.n_in, pointwise.n_out);
+            let p = Progress::load(&c.path, &print, shape, secant.is_some())?;
+            if p.net.widths() != widths {
+                return Err(NetworkError::Checkpoint {
+                    path: c.path.clone(),
+                    message: format!("its network is {}", p.net.architecture()),
+                });
+            }
+            if !p.added.is_empty() {
+                pointwise.append(p.added.clone())?;
+            }
+            if let (Some(s), Some(a)) = (secant.as_mut(), &p.added_secant) {
+                if !a.is_empty() {
+                    s.append(a.clone())?;
+                }
+            }
+            Some(p)
+        }
+        _ => None,
+    };
+    let mut state = match resumed {
+        Some(p) => p,
+        None => {
+            if let Some(c) = checkpoint {
+                // A fresh run: stale stages' epochs must not be continued later.
+                for i in 0..recipe.stages.len() {
+                    let _ = std::fs::remove_file(c.stage_file(i));
+                }
+            }
+            let net = match init {
+                Some(net) => norm.unfold(net)?,
+                None => Mlp::random(widths, seed),
+            };
+            let lr = range_test(&net, &pointwise, recipe, seed)?;
+            let best = (net.clone(), measure(&net)?);
+            Progress {
+                next: 0,
+                round: None,
+                rounds: 0,
+                refining_done: false,
+                met: target.met(&best.1),
+                // The target is reached where the validation grid meets it and, with an
+                // oracle, a round of fresh points confirms it between the grid's points: ACC's
+                // network met 20 N on the grid and erred by 39 N beside `∂S`
+                // (docs/networks.md).
+                confirmed: data.oracle.is_none(),
+                lr,
+                net,
+                best,
+                stages: Vec::new(),
+                seconds: 0.0,
+                added: tail(&pointwise, grid_len),
+                added_secant: secant.as_ref().map(|s| tail(s, secant_len)),
+            }
+        }
+    };
+    let seconds_before = state.seconds;
+    // The state on disk, with the samples the rounds added so far.
+    let save = |state: &mut Progress, pointwise: &Dataset, secant: &Option<Dataset>| {
+        let Some(c) = checkpoint else {
+            return Ok(());
+        };
+        state.added = tail(pointwise, grid_len);
+        state.added_secant = secant.as_ref().map(|s| tail(s, secant_len));
+        state.seconds = seconds_before + t0.elapsed().as_secs_f64();
+        state.save(&c.path, &print)
+    };
     let linf = target.linf.unwrap_or(f64::INFINITY);
-    let mut met = target.met(&best.1);
-    let mut confirmed = data.oracle.is_none();
-    let mut stages = Vec::new();
-    for (index, stage) in recipe.stages.iter().enumerate() {
+    let lr = state.lr;
+    while state.next < recipe.stages.len() {
+        let index = state.next;
+        let stage = &recipe.stages[index];
         let certify = matches!(stage.kind, StageKind::Certify(_));
         let skip = match stage.kind {
-            StageKind::Fit | StageKind::Secant => met,
-            StageKind::Refine => met && confirmed || refining_done,
+            StageKind::Fit | StageKind::Secant => state.met,
+            StageKind::Refine => state.met && state.confirmed || state.refining_done,
             StageKind::Certify(_) => false,
         };
-        if skip {
+        if skip || stage.kind == StageKind::Refine && data.oracle.is_none() {
+            state.next += 1;
             continue;
         }
         let t_stage = std::time::Instant::now();
-        let mut round = None;
-        if stage.kind == StageKind::Refine {
-            let Some(oracle) = data.oracle else {
-                continue;
-            };
+        if let (StageKind::Refine, None, Some(oracle)) = (&stage.kind, &state.round, data.oracle) {
             let added = refine_round(
-                &norm.fold(&net)?,
+                &norm.fold(&state.net)?,
                 oracle,
                 &recipe.refinement,
-                rounds,
+                state.rounds,
                 target.linf.unwrap_or(0.0),
                 pointwise.len(),
                 secant.as_ref().map(|_| recipe.secant_step.as_slice()),
             )?;
-            rounds += 1;
+            state.rounds += 1;
             let mut report = added.report.clone();
-            confirmed = report.max_error <= linf;
-            if met && confirmed {
+            state.confirmed = report.max_error <= linf;
+            if state.met && state.confirmed {
                 // Its points are not needed: the target holds on the grid and between.
                 report.added = 0;
             }
             if report.added == 0 {
                 // Confirmed, accurate on every fresh point, or the set is full: more rounds
                 // add nothing.
-                stages.push(StageReport {
+                state.stages.push(StageReport {
                     name: stage.name.clone(),
                     epochs: 0,
                     learning_rate: 0.0,
-                    measured: best.1,
+                    measured: state.best.1,
                     kept: true,
                     round: Some(report),
                     seconds: t_stage.elapsed().as_secs_f64(),
@@ -376,10 +442,12 @@ pub fn train_to_target(
                     epoch: stage.settings.epochs,
                     epochs: stage.settings.epochs,
                     max_error: f64::NAN,
-                    measured: Some(best.1),
+                    measured: Some(state.best.1),
                     samples: pointwise.len(),
                 });
-                refining_done = true;
+                state.refining_done = true;
+                state.next += 1;
+                save(&mut state, &pointwise, &secant)?;
                 continue;
             }
             pointwise.append(norm.dataset(&added.pointwise, None)?)?;
@@ -388,7 +456,8 @@ pub fn train_to_target(
                     s.append(norm.dataset(a, None)?)?;
                 }
             }
-            round = Some(report);
+            state.round = Some(report);
+            save(&mut state, &pointwise, &secant)?;
         }
         let mut settings = norm.settings(&stage.settings);
         settings.seed = seed.wrapping_add(index as u64);
@@ -406,15 +475,16 @@ pub fn train_to_target(
         if !matches!(stage.kind, StageKind::Secant | StageKind::Refine) || secant.is_none() {
             settings.secant_step = settings.secant_step.filter(|_| secant.is_some() && certify);
         }
+        settings.checkpoint = checkpoint.map(|c| c.stage_file(index));
         let check_every = (settings.epochs / 20).max(1);
         // A refine stage that starts on the grid's target trains for the fresh points' sake:
         // it runs in full.
-        let stop_early = !(certify || stage.kind == StageKind::Refine && met);
-        let mut last = Some(best.1);
+        let stop_early = !(certify || stage.kind == StageKind::Refine && state.met);
+        let mut last = Some(state.best.1);
         let mut measure_error = None;
-        let (trained, report) = train_until(net.clone(), stage_data, &settings, |e, get| {
+        let on_epoch = |e: &EpochStats, get: &dyn Fn() -> Mlp| {
             let mut flow = Flow::Continue;
-            if !certify && (e.epoch % check_every == 0 || e.epoch == e.epochs) {
+            if !certify && (e.epoch.is_multiple_of(check_every) || e.epoch == e.epochs) {
                 match measure(&get()) {
                     Ok(m) => {
                         last = Some(m);
@@ -439,48 +509,62 @@ pub fn train_to_target(
                 samples: stage_data.len(),
             });
             flow
-        })?;
+        };
+        let within = settings.checkpoint.as_ref().filter(|f| f.exists());
+        let (trained, report) = match within {
+            // Interrupted inside this stage: its epochs continue.
+            Some(file) if checkpoint.is_some_and(|c| c.resume) => {
+                resume_until(&file.clone(), stage_data, &settings, on_epoch)?
+            }
+            _ => train_until(state.net.clone(), stage_data, &settings, on_epoch)?,
+        };
         if let Some(err) = measure_error {
             return Err(err);
         }
         let measured = measure(&trained)?;
         let met_now = target.met(&measured);
+        let best = state.best.1;
         let kept = if certify {
             // Bounds are tightened only as far as accuracy allows.
             // NaN (no slope targets) passes.
-            let slope_ok = measured.slope_p95.partial_cmp(&(1.1 * best.1.slope_p95))
+            let slope_ok = measured.slope_p95.partial_cmp(&(1.1 * best.slope_p95))
                 != Some(std::cmp::Ordering::Greater);
-            met_now || (!met && measured.linf <= 1.1 * best.1.linf && slope_ok)
+            met_now || (!state.met && measured.linf <= 1.1 * best.linf && slope_ok)
         } else {
             true
         };
-        stages.push(StageReport {
+        state.stages.push(StageReport {
             name: stage.name.clone(),
             epochs: report.epochs.len(),
             learning_rate: settings.learning_rate,
             measured,
             kept,
-            round,
+            round: state.round.take(),
             seconds: t_stage.elapsed().as_secs_f64(),
         });
-        if !kept {
-            break;
-        }
+        state.next += 1;
         // Short of the target a certify stage is worth its time only where it still helps:
         // on int3 and the unicycle they moved the max error by 1–3 % and the IBP looseness
         // not at all, for a third of the run (docs/networks.md).
-        let helped = measured.linf < 0.95 * best.1.linf
-            || measured.ibp_looseness < 0.95 * best.1.ibp_looseness;
-        net = trained;
-        best = (net.clone(), measured);
-        met = met_now;
-        // A changed network is confirmed afresh.
-        confirmed = data.oracle.is_none();
-        if certify && !met && !helped {
-            break;
+        let helped =
+            measured.linf < 0.95 * best.linf || measured.ibp_looseness < 0.95 * best.ibp_looseness;
+        if kept {
+            state.net = trained;
+            state.best = (state.net.clone(), measured);
+            state.met = met_now;
+            // A changed network is confirmed afresh.
+            state.confirmed = data.oracle.is_none();
+        }
+        if !kept || certify && !state.met && !helped {
+            state.next = recipe.stages.len();
+        }
+        save(&mut state, &pointwise, &secant)?;
+        if let Some(file) = &settings.checkpoint {
+            // Its epochs are in the state now.
+            let _ = std::fs::remove_file(file);
         }
     }
-    let folded = norm.fold(&best.0)?;
+    let folded = norm.fold(&state.best.0)?;
     let fresh = match data.oracle {
         Some(oracle) => {
             let check = Refinement {
@@ -494,12 +578,12 @@ pub fn train_to_target(
     let report = RecipeReport {
         normalisation: norm.clone(),
         learning_rate: lr,
-        stages,
-        measured: best.1,
-        reached: met && fresh.as_ref().is_none_or(|f| f.max_error <= linf),
+        stages: state.stages,
+        measured: state.best.1,
+        reached: state.met && fresh.as_ref().is_none_or(|f| f.max_error <= linf),
         samples: pointwise.len(),
         fresh,
-        seconds: t0.elapsed().as_secs_f64(),
+        seconds: seconds_before + t0.elapsed().as_secs_f64(),
     };
     Ok((folded, report))
 }

@@ -72,10 +72,19 @@ pub fn resume(
     settings: &TrainSettings,
     mut progress: impl FnMut(&EpochStats),
 ) -> Result<(Mlp, TrainReport), NetworkError> {
-    let progress = |e: &EpochStats, _: &dyn Fn() -> Mlp| {
+    resume_until(checkpoint, data, settings, |e, _| {
         progress(e);
         Flow::Continue
-    };
+    })
+}
+
+/// As [`resume`], with [`train_until`]'s callback (early stopping).
+pub fn resume_until(
+    checkpoint: &Path,
+    data: &Dataset,
+    settings: &TrainSettings,
+    progress: impl FnMut(&EpochStats, &dyn Fn() -> Mlp) -> Flow,
+) -> Result<(Mlp, TrainReport), NetworkError> {
     settings.validate()?;
     data.validate()?;
     let bytes = std::fs::read(checkpoint).map_err(|source| NetworkError::Io {

@@ -144,8 +144,17 @@ fn the_recipe_stops_at_its_target_and_says_when_it_is_not_reached() {
         linf: Some(100.0),
         slope_p95: None,
     };
-    let (net, report) = train_to_target(None, &[2, 16, 16, 2], 1, &input, &recipe, &target, |_| {})
-        .expect("trains");
+    let (net, report) = train_to_target(
+        None,
+        &[2, 16, 16, 2],
+        1,
+        &input,
+        &recipe,
+        &target,
+        None,
+        |_| {},
+    )
+    .expect("trains");
     assert!(report.reached, "{report:?}");
     assert_eq!(report.stages[0].name, "fit");
     assert!(
@@ -165,8 +174,8 @@ fn the_recipe_stops_at_its_target_and_says_when_it_is_not_reached() {
         slope_p95: None,
     };
     let small = Recipe::for_data(data.len(), &[1000.0 / 39.0, 0.02 / 39.0], 0.02);
-    let (_, report) =
-        train_to_target(None, &[2, 8, 2], 1, &input, &small, &target, |_| {}).expect("trains");
+    let (_, report) = train_to_target(None, &[2, 8, 2], 1, &input, &small, &target, None, |_| {})
+        .expect("trains");
     assert!(!report.reached);
     assert_eq!(report.stages[0].epochs, small.stages[0].settings.epochs);
 }
@@ -228,8 +237,17 @@ fn refine_stages_add_samples_where_the_network_errs_and_check_it_on_fresh_points
         validation: &validation,
         oracle: Some(&Bump),
     };
-    let (_, report) = train_to_target(None, &[2, 16, 16, 1], 1, &input, &recipe, &target, |_| {})
-        .expect("trains");
+    let (_, report) = train_to_target(
+        None,
+        &[2, 16, 16, 1],
+        1,
+        &input,
+        &recipe,
+        &target,
+        None,
+        |_| {},
+    )
+    .expect("trains");
     let rounds: Vec<&RoundReport> = report
         .stages
         .iter()
@@ -252,4 +270,135 @@ fn refine_stages_add_samples_where_the_network_errs_and_check_it_on_fresh_points
         "fresh {fresh:?} against the first round {:?}",
         rounds[0]
     );
+}
+
+/// The bump's data, validation points and a short recipe with fit, refine and certify stages
+/// that keep their epochs every 3.
+fn bump_run() -> (Dataset, Dataset, Recipe) {
+    let grid = |k: usize, offset: f64| -> Vec<Vec<f64>> {
+        let h = 1.0 / (k - 1) as f64;
+        (0..k * k)
+            .map(|s| vec![offset + (s % k) as f64 * h, offset + (s / k) as f64 * h])
+            .filter(|x| x[0] <= 1.0 && x[1] <= 1.0)
+            .collect()
+    };
+    let data = Bump.sample(&grid(5, 0.0), SampleSlopes::Pointwise);
+    let validation = Bump.sample(&grid(5, 0.125), SampleSlopes::Pointwise);
+    let mut recipe = Recipe::for_data(data.len(), &[0.25, 0.25], 0.1);
+    recipe.refinement.candidates = 256;
+    recipe.stages.retain(|s| s.kind != StageKind::Secant);
+    for st in &mut recipe.stages {
+        st.settings.checkpoint_every = 3;
+    }
+    (data, validation, recipe)
+}
+
+#[test]
+fn an_interrupted_staged_run_continues_to_the_same_network() {
+    let (data, validation, recipe) = bump_run();
+    let target = Target {
+        linf: Some(0.01),
+        slope_p95: None,
+    };
+    let input = RecipeData {
+        pointwise: &data,
+        secant: None,
+        validation: &validation,
+        oracle: Some(&Bump),
+    };
+    let dir = std::env::temp_dir().join(format!("cbfreach-staged-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("a temporary directory");
+    let fresh = StagedCheckpoint {
+        path: dir.join("net.ckpt"),
+        resume: false,
+    };
+    let seen = std::cell::RefCell::new(Vec::new());
+    let run = |c: &StagedCheckpoint, stop: Option<(usize, usize)>| {
+        seen.borrow_mut().clear();
+        train_to_target(
+            None,
+            &[2, 16, 16, 1],
+            1,
+            &input,
+            &recipe,
+            &target,
+            Some(c),
+            |p| {
+                seen.borrow_mut().push((p.stage_index, p.epoch));
+                if stop == Some((p.stage_index, p.epoch)) {
+                    panic!(
+                        "interrupted (on purpose) at stage {} epoch {}",
+                        p.stage_index, p.epoch
+                    );
+                }
+            },
+        )
+    };
+    let (whole, report) = run(&fresh, None).expect("trains");
+    let names = |r: &RecipeReport| -> Vec<(String, usize, bool)> {
+        r.stages
+            .iter()
+            .map(|s| (s.name.clone(), s.epochs, s.kept))
+            .collect()
+    };
+    // Interrupted in a stage after a refine round, past its first epochs' checkpoint: the
+    // state holds the round's samples, the stage's file its epochs.
+    let refined = report
+        .stages
+        .iter()
+        .find(|s| s.round.as_ref().is_some_and(|r| r.added > 0) && s.epochs >= 5)
+        .expect("a refine stage that trains");
+    let stage = recipe
+        .stages
+        .iter()
+        .position(|s| s.name == refined.name)
+        .expect("in the recipe");
+    fresh.remove(recipe.stages.len());
+    for stop in [4, 2] {
+        let interrupted = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            run(&fresh, Some((stage, stop)))
+        }));
+        assert!(interrupted.is_err());
+        assert!(fresh.path.exists());
+        // Epoch 4 stops after the stage's checkpoint at 3; epoch 2 before any.
+        assert_eq!(fresh.stage_file(stage).exists(), stop == 4);
+        let resumed = StagedCheckpoint {
+            resume: true,
+            ..fresh.clone()
+        };
+        let (net, again) = run(&resumed, None).expect("continues");
+        // It ran on from where it stopped: no earlier stage again, the stage from its
+        // checkpoint's epoch.
+        let first = seen.borrow().first().copied();
+        assert_eq!(first, Some((stage, if stop == 4 { 4 } else { 1 })));
+        assert_eq!(net, whole, "stopped at epoch {stop}: another network");
+        assert_eq!(names(&again), names(&report));
+        assert_eq!(again.samples, report.samples);
+        assert!(!fresh.stage_file(stage).exists());
+        fresh.remove(recipe.stages.len());
+    }
+    // Another seed's run does not continue this one's progress: refused, naming the file.
+    let _ = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        run(&fresh, Some((stage, 4)))
+    }));
+    let resumed = StagedCheckpoint {
+        resume: true,
+        ..fresh.clone()
+    };
+    let other = train_to_target(
+        None,
+        &[2, 16, 16, 1],
+        2,
+        &input,
+        &recipe,
+        &target,
+        Some(&resumed),
+        |_| {},
+    );
+    let message = other.expect_err("refused").to_string();
+    assert!(
+        message.contains("net.ckpt") && message.contains("other data, architecture, seed"),
+        "{message}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
 }
