@@ -120,6 +120,94 @@ struct Taylor {
 }
 
 fn piece_taylor(st: StepState, m: Moving, h: Iv, piece: u32, over: EndPair, euler: EndPair, ends: u32) -> Taylor {
+    let first = piece_taylor2(st, m, h, piece, over, euler, ends);
+    if (!TAYLOR3) {
+        return first;
+    }
+    // With taylor3 the second-order form too, met with the first (cpu_time.rs piece_taylor).
+    let third = piece_taylor3(st, m, h, piece, over, euler, ends);
+    if (!first.ok) {
+        return third;
+    }
+    if (!third.ok) {
+        return first;
+    }
+    var t = first;
+    for (var i = 0u; i < N0; i++) {
+        t.r.lo[i] = max(first.r.lo[i], third.r.lo[i]);
+        t.r.hi[i] = min(first.r.hi[i], third.r.hi[i]);
+    }
+    return t;
+}
+
+// end_rates::taylor3_rates: with G = DΦ·Φ (ẍ = G(x)), x(h) ∈ ψ(x₀) + h³/6·DG(hull)·F, ψ(x) =
+// x + hΦ(x) + h²/2·G(x). Where 1 + h·∂ᵢΦᵢ + h²/2·∂ᵢGᵢ ≥ 0 on the set (checked) ψᵢ is largest on
+// the face xᵢ = x̄ᵢ: there at most `euler` (the piece's field on that face) plus h²/2 times
+// Gᵢ's mean-value form on the face about its centre (mirrored below). G and DG come from the
+// generated g2_iv and dg_iv, one call each in a loop the driver keeps (n0 from `ends`).
+fn piece_taylor3(st: StepState, m: Moving, h: Iv, piece: u32, over: EndPair, euler: EndPair, ends: u32) -> Taylor {
+    var t: Taylor;
+    t.ok = false;
+    let n0 = ends / 2u;
+    let base = piece * (N0 * N0 + N0);
+    var xb: array<Iv, N0>;
+    var hull: array<Iv, N0>;
+    var centre: array<Iv, N0>;
+    for (var j = 0u; j < N0; j++) {
+        xb[j] = Iv(st.lo[j], st.hi[j]);
+        hull[j] = Iv(m.hull_lo[j], m.hull_hi[j]);
+        centre[j] = iv_point(st.lo[j] + 0.5 * (st.hi[j] - st.lo[j]));
+    }
+    let half_h = iv_mul(h, iv_point(0.5));
+    let h2_6 = iv_div(iv_mul(h, h), iv_point(6.0));
+    for (var i = 0u; i < n0; i++) {
+        let slope = iv_add(
+            iv_add(iv_point(1.0), iv_mul(h, dg_iv(base + N0 * N0 + i, xb))),
+            iv_mul(iv_mul(half_h, h), dg_iv(base + i * N0 + i, xb))
+        );
+        if (!(slope.lo >= 0.0)) {
+            return t;
+        }
+        var r = iv_point(0.0);
+        for (var j = 0u; j < n0; j++) {
+            r = iv_add(r, iv_mul(dg_iv(base + i * N0 + j, hull), Iv(over.lo[j], over.hi[j])));
+        }
+        for (var side = 0u; side < 2u; side++) {
+            // The face x_i = its end, and its centre.
+            var face = xb;
+            var p = centre;
+            var at = st.lo[i];
+            if (side == 1u) {
+                at = st.hi[i];
+            }
+            face[i] = iv_point(at);
+            p[i] = iv_point(at);
+            var g = g2_iv(piece * N0 + i, p);
+            for (var j = 0u; j < n0; j++) {
+                if (j != i) {
+                    g = iv_add(g, iv_mul(dg_iv(base + i * N0 + j, face), iv_sub(face[j], p[j])));
+                }
+            }
+            if (side == 1u) {
+                let end = iv_add(iv_add(iv_point(euler.hi[i]), iv_mul(half_h, iv_point(g.hi))), iv_mul(h2_6, iv_point(r.hi))).hi;
+                if (!finite(end)) {
+                    return t;
+                }
+                t.r.hi[i] = end;
+            } else {
+                let end = iv_add(iv_add(iv_point(euler.lo[i]), iv_mul(half_h, iv_point(g.lo))), iv_mul(h2_6, iv_point(r.lo))).lo;
+                if (!finite(end)) {
+                    return t;
+                }
+                t.r.lo[i] = end;
+            }
+        }
+    }
+    t.ok = true;
+    return t;
+}
+
+fn piece_taylor2(st: StepState, m: Moving, h: Iv, piece: u32, over: EndPair, euler: EndPair, ends: u32) -> Taylor {
     var t: Taylor;
     t.ok = false;
     var xb: array<Iv, N0>;

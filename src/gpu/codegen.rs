@@ -621,6 +621,22 @@ fn closed_form_wgsl(
     s += &switch_fn("bft_iv", "ki: u32", "ki", &bft, precision);
     s += &switch_fn("bjac_iv", "kij: u32", "kij", &bjac, precision);
     s += &switch_fn("bfx_iv", "ki: u32", "ki", &bfx, precision);
+    // Each piece's `G = DΦ·Φ` (at `piece·N0 + i`) and `DG` with `∂ᵢΦᵢ` after it (at
+    // `piece·(N0² + N0) + q`), the inactive piece first, for the second-order Taylor rates
+    // (end_rates::taylor3_rates); empty without `taylor3`.
+    let taylor3 = settings.taylor3 && problem.time == crate::reach::TimeModel::Continuous;
+    let _ = writeln!(s, "const TAYLOR3: bool = {taylor3};");
+    let seconds: Vec<_> = match taylor3 {
+        true => std::iter::once(&problem.dynamics)
+            .chain(binding.iter().map(|b| &b.dynamics))
+            .map(|d| d.second_order())
+            .collect(),
+        false => Vec::new(),
+    };
+    let g2: Vec<&Expr> = seconds.iter().flat_map(|o| &o.g_exprs).collect();
+    let dg: Vec<&Expr> = seconds.iter().flat_map(|o| &o.g_jacobian_exprs).collect();
+    s += &switch_fn("g2_iv", "pi: u32", "pi", &g2, precision);
+    s += &switch_fn("dg_iv", "pq: u32", "pq", &dg, precision);
     // `f̃` and `g` in x, for the transform's slack of an enclosed field.
     let fx: Vec<&Expr> = s_.f_tilde.iter().collect();
     let gx: Vec<&Expr> = s_.g.iter().flatten().collect();

@@ -52,6 +52,10 @@ pub struct SecondOrder {
     pub g: Tape,
     /// `∂Gᵢ/∂xⱼ` at output `i·n + j`, and `∂ᵢf̃ᵢ` at `n² + i`.
     pub g_jacobian: Tape,
+    /// `g`'s outputs as expressions (the GPU's shaders are generated from them).
+    pub g_exprs: Vec<Expr>,
+    /// `g_jacobian`'s outputs as expressions, in the same order.
+    pub g_jacobian_exprs: Vec<Expr>,
 }
 
 /// A network's bounds over one box, borrowed from a batch: `C̲x + d̲ ≤ N(x) ≤ C̄x + d̄` and
@@ -99,10 +103,13 @@ impl Dynamics {
                 })
                 .collect();
             let dg = crate::expressions::jacobian(&g, self.n);
-            let diagonal = (0..self.n).map(|i| self.f_tilde_jacobian[i][i].node());
+            let diagonal = (0..self.n).map(|i| self.f_tilde_jacobian[i][i].clone());
+            let dg: Vec<Expr> = dg.into_iter().flatten().chain(diagonal).collect();
             std::sync::Arc::new(SecondOrder {
                 g: Tape::compile(g.iter().map(Expr::node)),
-                g_jacobian: Tape::compile(dg.iter().flatten().map(Expr::node).chain(diagonal)),
+                g_jacobian: Tape::compile(dg.iter().map(Expr::node)),
+                g_exprs: g,
+                g_jacobian_exprs: dg,
             })
         })
     }

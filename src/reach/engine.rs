@@ -95,8 +95,8 @@ pub fn refusal(unsupported: Unsupported) -> String {
         ),
         Unsupported::Continuous(what) => format!(
             "time = \"continuous\" with {what}: the GPU engine's continuous step lacks it \
-             (it runs the disturbance method without the CPU engine's taylor3, \
-             docs/design.md §7.4); change the setting or use the CPU engine (--backend cpu)"
+             (it runs the disturbance method, docs/design.md §7.4); change the setting or use \
+             the CPU engine (--backend cpu)"
         ),
         Unsupported::ExactGeneralQp => "exact = \"closed-form\" for a general QP filter: the GPU \
              engine evaluates the one-row and scalar closed forms alone; set exact = \"inactive\" \

@@ -284,8 +284,8 @@ fn continuous_two_frames_match_the_cpu_engine() {
 
 /// Scenario 1 (x) and scenario 2 (z) with small networks under the filter's closed form
 /// (`exact = "closed-form"`: its proven pieces and its enclosures of `v` met with the network
-/// on the slabs, on the device since the fifth stage; with and without the pieces' lattice) and
-/// under `"inactive"`, a global `M`,
+/// on the slabs, on the device since the fifth stage; with and without the pieces' lattice; with
+/// the second-order Taylor rates) and under `"inactive"`, a global `M`,
 /// face-local forward bounds, 30 steps, boxes near the obstacle and the rows: the same
 /// verdicts, sets, flowpipes, exact and enclosed steps as the CPU engine's, most box-steps on
 /// the device. (The small networks' `M` bounds nothing: the sets' soundness is checked on the
@@ -360,6 +360,45 @@ fn continuous_closed_form_runs_match_the_cpu_engine() {
     assert!(changed >= 2, "the lattice changed {changed} tubes");
     let what = "scenario 2, the pieces' lattice";
     continuous_parity(&g, &problem, &across, (&st(true), TOL), None, what);
+    // The second-order Taylor rates (`taylor3`, `piece_taylor3`) on both scenarios' proven
+    // pieces: they change the CPU's sets, and the device's follow.
+    let [(p1, _), (p2, b2)] = paper_problems(steps);
+    let b1 = boxes(&[[0.8, 0.0], [2.0, 1.3], [1.2, -1.0], [-1.0, 1.0]], 0.05);
+    for (name, problem, init) in [("scenario 1", p1, b1), ("scenario 2", p2, b2)] {
+        let problem = problem.with_time(TimeModel::Continuous, 1);
+        let st = |taylor3: bool| ReachSettings {
+            face_local: true,
+            exact: ExactField::ClosedForm,
+            taylor3,
+            ..settings(ReachMethod::Disturbance)
+        };
+        let cpu = |taylor3: bool| {
+            CpuBackend
+                .reach(&problem, &init, &st(taylor3), &|_, _| {})
+                .unwrap()
+                .boxes
+        };
+        let (plain, sharp) = (cpu(false), cpu(true));
+        // By far more than the parity's tolerance: a device that left them out would fail it.
+        let moved = plain
+            .iter()
+            .zip(&sharp)
+            .flat_map(|(a, b)| a.tube.iter().zip(&b.tube))
+            .flat_map(|(x, y)| {
+                let ends = |s: &IntervalBox| s.lower.iter().chain(&s.upper).copied().collect();
+                let (x, y): (Vec<f64>, Vec<f64>) = (ends(&x.set), ends(&y.set));
+                x.into_iter()
+                    .zip(y)
+                    .map(|(a, b)| (a - b).abs() / a.abs().max(1.0))
+            })
+            .fold(0.0f64, f64::max);
+        assert!(
+            moved > 1e3 * TOL,
+            "{name}: taylor3 moved the sets by {moved:.1e}"
+        );
+        let what = format!("{name}, taylor3");
+        continuous_parity(&g, &problem, &init, (&st(true), TOL), None, &what);
+    }
 }
 
 /// Scenario 1 with its shipped network, face-local forward bounds, the paper's twelve boxes over

@@ -40,14 +40,12 @@ fn cw(n: usize) -> usize {
 /// filter's proven piece and its closed form's enclosures on the slabs as the CPU's does:
 /// `shaders/slab_step.wgsl`), in one frame or two met (`shaders/cmeet.wgsl`), with any
 /// number of validated substeps (the device's step is `dt / substeps`, an enclosure of it in f32:
-/// `H_LO`, `H_HI`), in f64 or f32.
+/// `H_LO`, `H_HI`), in f64 or f32, with the pieces' lattice and the second-order Taylor rates
+/// (`taylor3`: `piece_taylor3`) as the CPU's step takes them.
 pub(super) fn refused(
     _problem: &ReachProblem,
     settings: &ReachSettings,
 ) -> Result<(), Unsupported> {
-    if settings.taylor3 {
-        return Err(Unsupported::Continuous("taylor3 = true"));
-    }
     match settings.method {
         ReachMethod::Minkowski => Err(Unsupported::Continuous("method = \"minkowski\"")),
         ReachMethod::Disturbance => Ok(()),
