@@ -433,6 +433,19 @@ fn train_without_epochs_runs_the_staged_schedule_and_saves_a_folded_network() {
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
         .collect();
     assert_eq!(left, ["net.safetensors"]);
+    // An interrupted run's progress is not started over without `--resume`.
+    std::fs::write(tmp.path().join("net.ckpt"), b"progress").unwrap();
+    let (code, _, stderr) = cbfreach(&[
+        "train",
+        path.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_ne!(code, 0);
+    assert!(
+        stderr.contains("net.ckpt holds the progress") && stderr.contains("--resume"),
+        "{stderr}"
+    );
     let (code, _, stderr) = cbfreach(&["train", path.to_str().unwrap(), "--budget", "0"]);
     assert_ne!(code, 0);
     assert!(stderr.contains("--budget 0"), "{stderr}");

@@ -160,7 +160,7 @@ pub struct TrainArgs {
     pub init: Option<PathBuf>,
     /// Continue an interrupted run from its checkpoint beside the output file (`NAME.ckpt`):
     /// the staged schedule from its last stage and epochs, or one stage (`--epochs`) from its
-    /// epochs.
+    /// epochs. Without it the staged schedule refuses to start over such a file.
     #[arg(long)]
     pub resume: bool,
     /// Where to write the network (default: the scenario's network file).
@@ -259,6 +259,14 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
     };
     // The network and its checkpoint (beside it) are written after the work: checked now.
     super::check_outputs(&[Some(&out)])?;
+    let progress = out.with_extension("ckpt");
+    if args.epochs.is_none() && !args.resume && progress.exists() {
+        return Err(format!(
+            "{} holds the progress of an interrupted run: `--resume` continues it; remove the file to start afresh",
+            progress.display()
+        )
+        .into());
+    }
     let options = data_options(args, &s)?;
     let bars = Bars::default();
     let data = TrainingData::sample(&s, &options, &bars)?;
@@ -500,10 +508,8 @@ fn run_staged(job: &Job, bars: &Bars) -> CliResult {
             "resuming from {} (the stages done and the current stage's epochs)",
             checkpoint.path.display()
         ),
-        (true, false) => println!(
-            "{} holds an earlier run's progress: this run replaces it after its first stage (`--resume` continues it instead)",
-            checkpoint.path.display()
-        ),
+        // Refused in run_train.
+        (true, false) => {}
         (false, true) => println!(
             "no checkpoint at {}: starting afresh",
             checkpoint.path.display()

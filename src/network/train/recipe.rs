@@ -390,6 +390,8 @@ pub fn train_to_target(
         state.seconds = seconds_before + t0.elapsed().as_secs_f64();
         state.save(&c.path, &print)
     };
+    // From the start: the first stage's epochs (an hour for the paper's networks) continue too.
+    save(&mut state, &pointwise, &secant)?;
     let linf = target.linf.unwrap_or(f64::INFINITY);
     let lr = state.lr;
     while state.next < recipe.stages.len() {

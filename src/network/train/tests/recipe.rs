@@ -354,13 +354,14 @@ fn an_interrupted_staged_run_continues_to_the_same_network() {
         .position(|s| s.name == refined.name)
         .expect("in the recipe");
     fresh.remove(recipe.stages.len());
-    for stop in [4, 2] {
+    // The fit stage and the refine stage, each after its first epochs' checkpoint (at 3) and
+    // the refine stage before any.
+    for (stage, stop) in [(0, 4), (stage, 4), (stage, 2)] {
         let interrupted = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
             run(&fresh, Some((stage, stop)))
         }));
         assert!(interrupted.is_err());
         assert!(fresh.path.exists());
-        // Epoch 4 stops after the stage's checkpoint at 3; epoch 2 before any.
         assert_eq!(fresh.stage_file(stage).exists(), stop == 4);
         let resumed = StagedCheckpoint {
             resume: true,
