@@ -108,7 +108,7 @@ pub struct ReachFlags {
     #[command(flatten)]
     pub sets: SetArgs,
     /// Continuous time: bound steps on a proven piece of the filter by its Taylor form to
-    /// second order too (a third-order remainder; CPU engine)
+    /// second order too (a third-order remainder)
     #[arg(long)]
     pub taylor3: bool,
     /// Continuous time, a scalar input's closed form: do not bound the field across a switching

@@ -74,6 +74,14 @@ pub struct PaperArgs {
         value_parser = |s: &str| super::whole_at_least(s, 1)
     )]
     pub max_substeps: usize,
+    /// Continuous time: bound the sound verdicts' steps on a proven piece of the filter by its
+    /// Taylor form to second order too (as `reach`/`verify --taylor3`).
+    #[arg(long)]
+    pub taylor3: bool,
+    /// Continuous time: no lattice of the filter's pieces across a switching surface (as
+    /// `reach`/`verify --no-lattice`).
+    #[arg(long)]
+    pub no_lattice: bool,
     /// Continue an interrupted run (the same command otherwise) from the checkpoints it left
     /// in --out: the split boxes' finished pieces are not run again. Without it, a run
     /// refuses to start over those files.
@@ -156,6 +164,8 @@ pub fn run(args: &PaperArgs) -> CliResult {
             },
             time: args.time.clone(),
             substeps: args.substeps,
+            taylor3: args.taylor3,
+            lattice: !args.no_lattice,
         };
         let run = run_scenario(
             s,
@@ -220,6 +230,8 @@ pub fn run_default() -> CliResult {
         },
         time: "continuous".into(),
         substeps: None,
+        taylor3: ReachSettings::default().taylor3,
+        lattice: ReachSettings::default().lattice,
     };
     // Seconds of work (two boxes in pieces): nothing worth a checkpoint.
     let times = run_scenario(&s, None, &out, verdicts, &timed, SCENARIO_1, None)?;
@@ -313,10 +325,19 @@ fn run_scenario(
     if continuous && verdict_settings.pieces.refine > 0 && finest > problem.substeps.max(1) {
         cut += &format!(", refined pieces' steps down to dt/{finest}");
     }
+    let sharper = ReachSettings {
+        taylor3: verdict_settings.taylor3,
+        lattice: verdict_settings.lattice,
+        ..ReachSettings::default()
+    };
     println!(
-        "Time model: {} — {}{cut}",
+        "Time model: {} — {}{cut}{}",
         problem.time,
-        problem.time.clause()
+        problem.time.clause(),
+        super::sharper_clause(
+            sharper.taylor3 && continuous,
+            problem.lattice_applies(&sharper)
+        )
     );
     if problem.time == cbfreach::reach::TimeModel::Euler {
         println!(
@@ -343,6 +364,8 @@ fn run_scenario(
     let pieces = ReachSettings {
         bounds,
         face_local: true,
+        taylor3: verdict_settings.taylor3,
+        lattice: verdict_settings.lattice,
         ..ReachSettings::default()
     };
     let bar = std::sync::Mutex::new(None::<indicatif::ProgressBar>);
@@ -480,6 +503,9 @@ struct VerdictSettings {
     time: String,
     /// Substeps of a continuous step (`None`: the scenario's).
     substeps: Option<usize>,
+    /// [`ReachSettings::taylor3`] and [`ReachSettings::lattice`] of the verdicts' runs.
+    taylor3: bool,
+    lattice: bool,
 }
 
 /// One line per initial box: its verdict and note, then the tally.
