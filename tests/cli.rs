@@ -446,6 +446,25 @@ fn train_without_epochs_runs_the_staged_schedule_and_saves_a_folded_network() {
         stderr.contains("net.ckpt holds the progress") && stderr.contains("--resume"),
         "{stderr}"
     );
+    // With `--resume`, a file that is no checkpoint is refused by name.
+    let (code, _, stderr) = cbfreach(&[
+        "train",
+        path.to_str().unwrap(),
+        "--architecture",
+        "2,8,2",
+        "--grid",
+        "21,16",
+        "--budget",
+        "0.01",
+        "--out",
+        out.to_str().unwrap(),
+        "--resume",
+    ]);
+    assert_ne!(code, 0);
+    assert!(
+        stderr.contains("net.ckpt: cannot resume") && stderr.contains("not a training checkpoint"),
+        "{stderr}"
+    );
     let (code, _, stderr) = cbfreach(&["train", path.to_str().unwrap(), "--budget", "0"]);
     assert_ne!(code, 0);
     assert!(stderr.contains("--budget 0"), "{stderr}");

@@ -236,11 +236,12 @@ impl Progress {
             path: path.to_path_buf(),
             source,
         })?;
-        let raw = RawTensors::parse(&bytes, path)?;
         let bad = |message: String| NetworkError::Checkpoint {
             path: path.to_path_buf(),
             message,
         };
+        let raw = RawTensors::parse(&bytes, path)
+            .map_err(|_| bad("not a training checkpoint (unreadable as safetensors)".into()))?;
         let meta = |key: &str| {
             raw.metadata
                 .get(key)
