@@ -394,7 +394,7 @@ fn train_without_epochs_runs_the_staged_schedule_and_saves_a_folded_network() {
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("net.safetensors");
     let path = common::scenario_path("integrator.toml");
-    let (code, stdout, stderr) = cbfreach(&[
+    let small = [
         "train",
         path.to_str().unwrap(),
         "--architecture",
@@ -405,7 +405,8 @@ fn train_without_epochs_runs_the_staged_schedule_and_saves_a_folded_network() {
         "0.01",
         "--out",
         out.to_str().unwrap(),
-    ]);
+    ];
+    let (code, stdout, stderr) = cbfreach(&small);
     assert_eq!(code, 0, "{stderr}");
     for part in [
         "schedule: fit",
@@ -447,19 +448,7 @@ fn train_without_epochs_runs_the_staged_schedule_and_saves_a_folded_network() {
         "{stderr}"
     );
     // With `--resume`, a file that is no checkpoint is refused by name.
-    let (code, _, stderr) = cbfreach(&[
-        "train",
-        path.to_str().unwrap(),
-        "--architecture",
-        "2,8,2",
-        "--grid",
-        "21,16",
-        "--budget",
-        "0.01",
-        "--out",
-        out.to_str().unwrap(),
-        "--resume",
-    ]);
+    let (code, _, stderr) = cbfreach(&[small.as_slice(), &["--resume"]].concat());
     assert_ne!(code, 0);
     assert!(
         stderr.contains("net.ckpt: cannot resume") && stderr.contains("not a training checkpoint"),

@@ -213,8 +213,9 @@ impl Oracle for Bump {
     }
 }
 
-#[test]
-fn refine_stages_add_samples_where_the_network_errs_and_check_it_on_fresh_points() {
+/// The bump's data on a 5 × 5 grid, validation points between them, and a short recipe (fit,
+/// refine and certify stages) whose rounds score `candidates` fresh points.
+fn bump_run(candidates: usize) -> (Dataset, Dataset, Recipe) {
     let grid = |k: usize, offset: f64| -> Vec<Vec<f64>> {
         let h = 1.0 / (k - 1) as f64;
         (0..k * k)
@@ -225,8 +226,14 @@ fn refine_stages_add_samples_where_the_network_errs_and_check_it_on_fresh_points
     let data = Bump.sample(&grid(5, 0.0), SampleSlopes::Pointwise);
     let validation = Bump.sample(&grid(5, 0.125), SampleSlopes::Pointwise);
     let mut recipe = Recipe::for_data(data.len(), &[0.25, 0.25], 0.1);
-    recipe.refinement.candidates = 1024;
+    recipe.refinement.candidates = candidates;
     recipe.stages.retain(|s| s.kind != StageKind::Secant);
+    (data, validation, recipe)
+}
+
+#[test]
+fn refine_stages_add_samples_where_the_network_errs_and_check_it_on_fresh_points() {
+    let (data, validation, recipe) = bump_run(1024);
     let target = Target {
         linf: Some(0.05),
         slope_p95: None,
@@ -272,30 +279,13 @@ fn refine_stages_add_samples_where_the_network_errs_and_check_it_on_fresh_points
     );
 }
 
-/// The bump's data, validation points and a short recipe with fit, refine and certify stages
-/// that keep their epochs every 3.
-fn bump_run() -> (Dataset, Dataset, Recipe) {
-    let grid = |k: usize, offset: f64| -> Vec<Vec<f64>> {
-        let h = 1.0 / (k - 1) as f64;
-        (0..k * k)
-            .map(|s| vec![offset + (s % k) as f64 * h, offset + (s / k) as f64 * h])
-            .filter(|x| x[0] <= 1.0 && x[1] <= 1.0)
-            .collect()
-    };
-    let data = Bump.sample(&grid(5, 0.0), SampleSlopes::Pointwise);
-    let validation = Bump.sample(&grid(5, 0.125), SampleSlopes::Pointwise);
-    let mut recipe = Recipe::for_data(data.len(), &[0.25, 0.25], 0.1);
-    recipe.refinement.candidates = 256;
-    recipe.stages.retain(|s| s.kind != StageKind::Secant);
+#[test]
+fn an_interrupted_staged_run_continues_to_the_same_network() {
+    // Each stage keeps its epochs every 3.
+    let (data, validation, mut recipe) = bump_run(256);
     for st in &mut recipe.stages {
         st.settings.checkpoint_every = 3;
     }
-    (data, validation, recipe)
-}
-
-#[test]
-fn an_interrupted_staged_run_continues_to_the_same_network() {
-    let (data, validation, recipe) = bump_run();
     let target = Target {
         linf: Some(0.01),
         slope_p95: None,
