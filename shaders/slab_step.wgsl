@@ -176,10 +176,7 @@ fn piece_taylor3(st: StepState, m: Moving, h: Iv, piece: u32, over: EndPair, eul
             // The face x_i = its end, and its centre.
             var face = xb;
             var p = centre;
-            var at = st.lo[i];
-            if (side == 1u) {
-                at = st.hi[i];
-            }
+            let at = select(st.lo[i], st.hi[i], side == 1u);
             face[i] = iv_point(at);
             p[i] = iv_point(at);
             var g = g2_iv(piece * N0 + i, p);
@@ -188,17 +185,19 @@ fn piece_taylor3(st: StepState, m: Moving, h: Iv, piece: u32, over: EndPair, eul
                     g = iv_add(g, iv_mul(dg_iv(base + i * N0 + j, face), iv_sub(face[j], p[j])));
                 }
             }
-            if (side == 1u) {
-                let end = iv_add(iv_add(iv_point(euler.hi[i]), iv_mul(half_h, iv_point(g.hi))), iv_mul(h2_6, iv_point(r.hi))).hi;
-                if (!finite(end)) {
-                    return t;
-                }
+            // The side's ends of `euler`, `g` and `r`: (euler + h/2·g) + h²/6·r, rounded outward.
+            let up = side == 1u;
+            let e = iv_add(
+                iv_add(iv_point(select(euler.lo[i], euler.hi[i], up)), iv_mul(half_h, iv_point(select(g.lo, g.hi, up)))),
+                iv_mul(h2_6, iv_point(select(r.lo, r.hi, up)))
+            );
+            let end = select(e.lo, e.hi, up);
+            if (!finite(end)) {
+                return t;
+            }
+            if (up) {
                 t.r.hi[i] = end;
             } else {
-                let end = iv_add(iv_add(iv_point(euler.lo[i]), iv_mul(half_h, iv_point(g.lo))), iv_mul(h2_6, iv_point(r.lo))).lo;
-                if (!finite(end)) {
-                    return t;
-                }
                 t.r.lo[i] = end;
             }
         }

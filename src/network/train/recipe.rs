@@ -347,10 +347,7 @@ pub fn train_to_target(
         Some(p) => p,
         None => {
             if let Some(c) = checkpoint {
-                // A fresh run: stale stages' epochs must not be continued later.
-                for i in 0..recipe.stages.len() {
-                    let _ = std::fs::remove_file(c.stage_file(i));
-                }
+                c.remove_stage_files(recipe.stages.len());
             }
             let net = match init {
                 Some(net) => norm.unfold(net)?,

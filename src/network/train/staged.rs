@@ -41,8 +41,13 @@ impl StagedCheckpoint {
 
     /// Removes the run's files (after its network is saved): the state and any stage's.
     pub fn remove(&self, stages: usize) {
-        // Missing files are the normal case (stages skipped, or never interrupted).
         let _ = std::fs::remove_file(&self.path);
+        self.remove_stage_files(stages);
+    }
+
+    /// Removes the stages' epoch files (a fresh run must not continue stale ones later).
+    pub fn remove_stage_files(&self, stages: usize) {
+        // Missing files are the normal case (stages skipped, or never interrupted).
         for i in 0..stages {
             let _ = std::fs::remove_file(self.stage_file(i));
         }
