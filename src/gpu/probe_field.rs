@@ -507,6 +507,136 @@ fn step_test(@builtin(global_invocation_id) id: vec3<u32>) {{
         .collect())
 }
 
+/// The proven piece's Taylor rates of one step as `shaders/slab_step.wgsl` takes them: the set,
+/// the moving box's hull (every state of the step), the step, the piece (0: inactive, `k + 1`:
+/// row `k` binding), its field over the hull and on the set's faces.
+#[derive(Clone, Debug)]
+pub struct TaylorCase {
+    /// The set at the step's start.
+    pub set: IntervalBox,
+    /// The hull of the step's states.
+    pub hull: IntervalBox,
+    /// The step.
+    pub h: f64,
+    /// The piece, as the kernels number them.
+    pub piece: u32,
+    /// The piece's field over the hull, `(F̲, F̄)`.
+    pub over: (Vec<f64>, Vec<f64>),
+    /// The piece's field on the set's faces, `(d̲, d̄)`: the Euler part's rates.
+    pub euler: (Vec<f64>, Vec<f64>),
+}
+
+/// What the device made of a [`TaylorCase`]: `piece_taylor2` (the first-order form,
+/// `end_rates::taylor_rates`) and `piece_taylor3` (`end_rates::taylor3_rates`), each `None`
+/// where it refuses. (Their meet, `piece_taylor`, is the engine's: the parity tests of whole
+/// runs cover it. Calling it here as well would inline both forms twice, and lavapipe's
+/// compile of the state-dependent field's `DG` takes a minute as it is.)
+#[derive(Clone, Debug)]
+pub struct TaylorOnDevice {
+    /// `piece_taylor2`.
+    pub first: Option<(Vec<f64>, Vec<f64>)>,
+    /// `piece_taylor3`.
+    pub third: Option<(Vec<f64>, Vec<f64>)>,
+}
+
+/// `piece_taylor2` and `piece_taylor3` of `shaders/slab_step.wgsl` on the device (f64) for each
+/// case. `piece_taylor3` reads the problem's generated `G` and `DG`, which `settings.taylor3`
+/// (and the continuous model) must ask for.
+pub fn taylor_on_device(
+    ctx: &GpuContext,
+    problem: &ReachProblem,
+    settings: &ReachSettings,
+    cases: &[TaylorCase],
+) -> Result<Vec<TaylorOnDevice>, GpuError> {
+    if !(settings.taylor3 && problem.time == crate::reach::TimeModel::Continuous) {
+        return Err(GpuError::Problem(
+            "piece_taylor3 needs the continuous model with taylor3".into(),
+        ));
+    }
+    let n = problem.dynamics.n;
+    let kernel = "
+@group(0) @binding(0) var<storage, read> xs: array<f64>;
+@group(0) @binding(1) var<storage, read_write> ys: array<f64>;
+
+fn take(at: u32) -> array<real, N0> {
+    var a: array<real, N0>;
+    for (var j = 0u; j < N0; j++) {
+        a[j] = xs[at + j];
+    }
+    return a;
+}
+
+// Unused: the Taylor rates read no network bounds.
+fn slab_bounds(c: u32, f: u32) -> NetBounds {
+    return zero_net();
+}
+
+// Per case lo, hi, hull_lo, hull_hi, over_lo, over_hi, euler_lo, euler_hi, h, piece.
+const IN: u32 = 8u * N0 + 2u;
+const OUT: u32 = 2u + 4u * N0;
+
+fn put(at: u32, t: Taylor) {
+    for (var j = 0u; j < N0; j++) {
+        ys[at + j] = t.r.lo[j];
+        ys[at + N0 + j] = t.r.hi[j];
+    }
+}
+
+@compute @workgroup_size(64)
+fn taylor_test(@builtin(global_invocation_id) id: vec3<u32>) {
+    let q = id.x;
+    if (q >= arrayLength(&xs) / IN) {
+        return;
+    }
+    let a = q * IN;
+    var z: array<real, N0>;
+    let st = StepState(take(a), take(a + N0), z, z, z, z, 0u);
+    var m: Moving;
+    m.hull_lo = take(a + 2u * N0);
+    m.hull_hi = take(a + 3u * N0);
+    m.ok = true;
+    let over = EndPair(take(a + 4u * N0), take(a + 5u * N0));
+    let euler = EndPair(take(a + 6u * N0), take(a + 7u * N0));
+    let h = iv_point(xs[a + 8u * N0]);
+    let piece = u32(xs[a + 8u * N0 + 1u]);
+    let ends = select(2u * N0, 0x7fffffffu, arrayLength(&xs) == 0x7fffffffu);
+    let t2 = piece_taylor2(st, m, h, piece, over, euler, ends);
+    let t3 = piece_taylor3(st, m, h, piece, over, euler, ends);
+    let o = q * OUT;
+    ys[o] = select(real(0.0), real(1.0), t2.ok);
+    ys[o + 1u] = select(real(0.0), real(1.0), t3.ok);
+    put(o + 2u, t2);
+    put(o + 2u + 2u * N0, t3);
+}
+";
+    let source = source(problem, settings, (Precision::F64, true), kernel)?;
+    let mut xs = Vec::with_capacity(cases.len() * (8 * n + 2));
+    for c in cases {
+        for v in [&c.set.lower, &c.set.upper, &c.hull.lower, &c.hull.upper] {
+            xs.extend(v);
+        }
+        for v in [&c.over.0, &c.over.1, &c.euler.0, &c.euler.1] {
+            xs.extend(v);
+        }
+        xs.extend([c.h, f64::from(c.piece)]);
+    }
+    let per = 2 + 4 * n;
+    let ys = run(ctx, &source, "taylor_test", &xs, cases.len(), per)?;
+    Ok(ys
+        .chunks(per)
+        .map(|y| {
+            let rates = |k: usize| {
+                let at = 2 + 2 * k * n;
+                (y[k] != 0.0).then(|| (y[at..at + n].to_vec(), y[at + n..at + 2 * n].to_vec()))
+            };
+            TaylorOnDevice {
+                first: rates(0),
+                third: rates(1),
+            }
+        })
+        .collect())
+}
+
 /// Validates `shaders/field.wgsl`'s slab form, `shaders/curved.wgsl` and
 /// `shaders/slab_step.wgsl` for `problem` with the f32 prelude, every function called (the
 /// probes above run f64 alone): the shader's validation error where they are not valid WGSL

@@ -7,7 +7,7 @@
 
 use super::*;
 use cbfreach::gpu::probe_field::{
-    bound_on_device, curved_on_device, BoundCase, CurvedCase, NetCase,
+    bound_on_device, curved_on_device, taylor_on_device, BoundCase, CurvedCase, NetCase, TaylorCase,
 };
 use cbfreach::reach::embedding::Dynamics;
 use cbfreach::reach::{end_rates, validated};
@@ -304,15 +304,133 @@ fn curved_rates_match_the_cpus() {
     assert!(reached >= 3000);
 }
 
-/// The slab form and the curved rates compile with the f32 prelude for each problem (the
-/// engine builds every kernel in both; the tests above run f64 alone).
+/// `shaders/slab_step.wgsl`'s `piece_taylor2` and `piece_taylor3` (the problem's generated
+/// `G = DΦ·Φ` and `DG`) against `end_rates::taylor_rates` and `end_rates::taylor3_rates`
+/// (their meet, the engine's, is in continuous.rs's run parity), on 2,000 random steps
+/// per problem and each piece of its filter: sets up to 1 wide, hulls up to 0.5 beyond them,
+/// steps of 0.004 to 0.2 (the large ones fail the monotonicity checks), field bounds up to ±15.
+/// The same forms are refused; where not, every rate lies outside the CPU's by at most its
+/// rounding and within the problem's tolerance.
+#[test]
+fn taylor_rates_match_the_cpus() {
+    let Some(g) = gpu_f64() else { return };
+    let mut compared = 0;
+    for Problem {
+        name,
+        problem,
+        settings: st,
+        pieces,
+        tol,
+        radius,
+    } in problems()
+    {
+        assert_eq!(problem.time, TimeModel::Continuous, "{name}");
+        let st = ReachSettings {
+            taylor3: true,
+            ..st
+        };
+        let n = problem.dynamics.n;
+        let mut rng = ChaCha8Rng::seed_from_u64(6000 + n as u64 + u64::from(pieces));
+        let cases: Vec<TaylorCase> = (0..2000)
+            .map(|k| {
+                let set = random_box(&mut rng, n, radius);
+                let mut grow = |x: &[f64], s: f64| -> Vec<f64> {
+                    x.iter()
+                        .map(|v| v + s * rng.random_range(0.0..0.5))
+                        .collect()
+                };
+                let hull = IntervalBox {
+                    lower: grow(&set.lower, -1.0),
+                    upper: grow(&set.upper, 1.0),
+                };
+                let pair = |r: &mut ChaCha8Rng| -> (Vec<f64>, Vec<f64>) {
+                    (0..n)
+                        .map(|_| {
+                            let l = r.random_range(-15.0..15.0);
+                            (l, l + r.random_range(0.0..3.0))
+                        })
+                        .unzip()
+                };
+                TaylorCase {
+                    set,
+                    hull,
+                    h: [0.2, 0.04, 0.01, 0.004][rng.random_range(0..4)],
+                    piece: (k % (pieces as usize + 1)) as u32,
+                    over: pair(&mut rng),
+                    euler: pair(&mut rng),
+                }
+            })
+            .collect();
+        let clock = std::time::Instant::now();
+        let dev = taylor_on_device(g.context(), &problem, &st, &cases).unwrap();
+        let secs = clock.elapsed().as_secs_f64();
+        let (mut ends, mut refused) = ([0; 2], [0; 2]);
+        for (c, d) in cases.iter().zip(&dev) {
+            let dynamics = dynamics_of(&problem, c.piece);
+            let pipe = validated::Flowpipe {
+                set: c.hull.clone(),
+                f_lower: c.over.0.clone(),
+                f_upper: c.over.1.clone(),
+                faces: None,
+                enclosed: true,
+            };
+            let first = end_rates::taylor_rates(dynamics, &c.set, &pipe, c.h, c.euler.clone());
+            let third = end_rates::taylor3_rates(dynamics, &c.set, &pipe, c.h, c.euler.clone());
+            let forms = [(&first, &d.first), (&third, &d.third)];
+            for (k, (cpu, dev)) in forms.into_iter().enumerate() {
+                assert_eq!(
+                    cpu.is_some(),
+                    dev.is_some(),
+                    "{name}: {c:?}: form {k} refused"
+                );
+                let (Some((cl, cu)), Some((dl, du))) = (cpu, dev) else {
+                    refused[k] += 1;
+                    continue;
+                };
+                ends[k] += 1;
+                for i in 0..n {
+                    for (cpu, dev, up) in [(cl[i], dl[i], false), (cu[i], du[i], true)] {
+                        let scale = 1.0 + cpu.abs();
+                        let outside = if up { dev >= cpu } else { dev <= cpu };
+                        assert!(
+                            (outside || (dev - cpu).abs() <= 1e-13 * scale)
+                                && (dev - cpu).abs() <= tol * scale,
+                            "{name}: {c:?}: form {k}, end ({i}, {up}): cpu {cpu}, device {dev}"
+                        );
+                    }
+                }
+            }
+        }
+        eprintln!(
+            "{name}: first, second order: {ends:?} compared, {refused:?} refused \
+             ({secs:.1} s on the device)"
+        );
+        assert!(
+            ends.iter().all(|&e| e >= 500) && refused[1] >= 20,
+            "{name}: {ends:?} compared, {refused:?} refused"
+        );
+        compared += ends[1];
+    }
+    assert!(compared >= 3000);
+}
+
+/// The slab form, the curved rates and the step (with and without `taylor3`) compile with the
+/// f32 prelude for each problem (the engine builds every kernel in both; the tests above run
+/// f64 alone).
 #[test]
 fn field_shaders_compile_in_f32() {
     let Some(g) = gpu() else { return };
     for p in problems() {
         let clock = std::time::Instant::now();
-        cbfreach::gpu::probe_field::field_compiles_in_f32(g.context(), &p.problem, &p.settings)
-            .unwrap_or_else(|e| panic!("{}: {e}", p.name));
+        // With `taylor3` the step also reads the generated `G` and `DG`.
+        for taylor3 in [false, true] {
+            let st = ReachSettings {
+                taylor3,
+                ..p.settings.clone()
+            };
+            cbfreach::gpu::probe_field::field_compiles_in_f32(g.context(), &p.problem, &st)
+                .unwrap_or_else(|e| panic!("{} (taylor3 {taylor3}): {e}", p.name));
+        }
         eprintln!(
             "{}: compiled in {:.1} s",
             p.name,
