@@ -239,6 +239,6 @@ pub fn run(args: &BenchArgs) -> CliResult {
             }
         }
     }
-    println!("  (GFLOP/s by docs/design.md §5's model of the network bounds only; run GF/s: the products the CPU engine ran, counted; per CPU: the same per CPU-second of the process against one thread's share of the peak; × first: the rate over the first engine's at the same bounds and boxes; every engine and bounds ran one box untimed first (not with --profile), so GPU times include upload and readback, not compilation)");
+    println!("  (GFLOP/s by docs/design.md §5's model of the network bounds only, every neuron's dense work: the rate a dense implementation would need, so its share passes 100 % where most neurons are stable; run GF/s: the products the CPU engine ran, counted (it skips neurons inactive over every box), the hardware's share; per CPU: the same per CPU-second of the process against one thread's share of the peak; × first: the rate over the first engine's at the same bounds and boxes; every engine and bounds ran one box untimed first (not with --profile), so GPU times include upload and readback, not compilation)");
     Ok(())
 }
