@@ -3,7 +3,7 @@
 # "GPU engine"): bench of the seeded scenario-1 network in f32 and f64 with both tiled GEMM
 # kernels, CROWN, where a step's time goes (--profile), the paper's 12 boxes with the pipelines
 # cold and cached against the CPU engine, the GEMM kernels at small batches, verify 256 × 256
-# on the GPU, and the GPU tests with their ignored whole-grid cases on that adapter. Roughly
+# on the GPU, scenario 2's 40 × 16 cells with and without --taylor3, and the GPU tests with their ignored whole-grid cases on that adapter. Roughly
 # 11 minutes on an H200, most of it the GPU tests and the cold compiles.
 #
 #   benches/gpu-checks.sh [OUT]        # OUT: where the logs go (default: gpu-checks/)
@@ -87,6 +87,12 @@ done
 stage "verify 256 × 256 on the GPU: Euler, then the scenario's default (continuous)"
 run 120 "$CBFREACH" verify scenarios/integrator.toml --grid 256,256 --backend gpu --time euler
 run 300 "$CBFREACH" verify scenarios/integrator.toml --grid 256,256 --backend gpu
+
+stage "what --taylor3 costs on the GPU (off by default until measured here; design §7.4)"
+for t3 in "" --taylor3; do
+    run 150 "$CBFREACH" verify scenarios/double-integrator.toml --grid 40,16 --face-local \
+        --backend gpu $t3 --json "$out/di-40x16${t3:+-taylor3}.json"
+done
 
 stage "GPU tests on this adapter, ignored cases included"
 for t in ${GPU_TESTS:-}; do
