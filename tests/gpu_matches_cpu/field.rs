@@ -147,6 +147,13 @@ fn holds_near(dev: (f64, f64), cpu: (f64, f64), slack: f64, tol: f64) -> bool {
         && (dev.1 - cpu.1).abs() <= tol
 }
 
+/// A rate of the device beside the CPU's: outside it (above an upper end, below a lower one) or
+/// inside by at most its rounding (`1e-13` of `scale`), and within `tol` of `scale`.
+fn rate_outside_near(cpu: f64, dev: f64, up: bool, scale: f64, tol: f64) -> bool {
+    let outside = if up { dev >= cpu } else { dev <= cpu };
+    (outside || (dev - cpu).abs() <= 1e-13 * scale) && (dev - cpu).abs() <= tol * scale
+}
+
 /// `shaders/field.wgsl`'s `bound_on` (the slab form `form_on` about the box's centre, every
 /// offset an interval) against `validated::bound_on` on 3 × 3,000 random boxes and ends per
 /// problem, with random network bounds and margins for the network's system and zero ones for
@@ -285,10 +292,8 @@ fn curved_rates_match_the_cpus() {
                     }
                     ends += 1;
                     let scale = 1.0 + cpu.abs() + c.rates.0[i].abs().max(c.rates.1[i].abs());
-                    let outside = if up { dev >= cpu } else { dev <= cpu };
                     assert!(
-                        (outside || (dev - cpu).abs() <= 1e-13 * scale)
-                            && (dev - cpu).abs() <= tol * scale,
+                        rate_outside_near(cpu, dev, up, scale, tol),
                         "{name}: {c:?}: end ({i}, {up}): cpu {cpu}, device {dev}"
                     );
                 }
@@ -390,11 +395,8 @@ fn taylor_rates_match_the_cpus() {
                 ends[k] += 1;
                 for i in 0..n {
                     for (cpu, dev, up) in [(cl[i], dl[i], false), (cu[i], du[i], true)] {
-                        let scale = 1.0 + cpu.abs();
-                        let outside = if up { dev >= cpu } else { dev <= cpu };
                         assert!(
-                            (outside || (dev - cpu).abs() <= 1e-13 * scale)
-                                && (dev - cpu).abs() <= tol * scale,
+                            rate_outside_near(cpu, dev, up, 1.0 + cpu.abs(), tol),
                             "{name}: {c:?}: form {k}, end ({i}, {up}): cpu {cpu}, device {dev}"
                         );
                     }
