@@ -461,6 +461,17 @@ fn other_time_models_are_refused_naming_them() {
         ..reach.clone()
     };
     assert_eq!(gpu.supports(&substeps, &taylor3), Ok(()));
+    // Asked of the Euler map, where it would change nothing, `taylor3` is refused by name.
+    let e = gpu
+        .reach(
+            &problem_with("euler", None),
+            &s.reach.initial,
+            &taylor3,
+            &|_, _| {},
+        )
+        .expect_err("taylor3 under euler refused")
+        .to_string();
+    assert!(e.contains("taylor3") && e.contains("euler"), "{e}");
     // The scenario's own settings (exact = "closed-form") run on the device too.
     for m_c in [None, certified] {
         for settings in [&nowhere, &inactive, &reach] {

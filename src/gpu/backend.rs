@@ -435,6 +435,7 @@ impl GpuBackend {
     ) -> Result<ReachResult, ReachError> {
         problem.check_initial(initial)?;
         settings.validate()?;
+        problem.check_time(settings)?;
         if let Err(u) = Backend::supports(self, problem, settings) {
             return Err(GpuError::Unsupported(crate::reach::refusal(u)).into());
         }

@@ -199,7 +199,7 @@ impl CpuBackend {
     ) -> Result<ReachResult, ReachError> {
         problem.check_initial(initial)?;
         settings.validate()?;
-        problem.check_time()?;
+        problem.check_time(settings)?;
         let period = problem.period_steps()?;
         let sampled = matches!(problem.time, TimeModel::Sampled { .. });
         if sampled && settings.method == ReachMethod::Minkowski {

@@ -141,7 +141,7 @@ impl CpuBackend {
         settings: &'a ReachSettings,
     ) -> Result<HostStep<'a>, ReachError> {
         settings.validate()?;
-        problem.check_time()?;
+        problem.check_time(settings)?;
         if problem.time != TimeModel::Continuous || settings.method != ReachMethod::Disturbance {
             return Err(ReachError::Settings(
                 "one continuous step from a given state needs time = \"continuous\" and the \

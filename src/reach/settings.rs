@@ -46,8 +46,8 @@ pub struct ReachSettings {
     /// one smooth piece `Φ` on the set, also bound each step by `Φ`'s Taylor form to second
     /// order (`h²/2·DΦ·Φ` on the set's faces, a third-order remainder over the flowpipe;
     /// [`super::end_rates::taylor3_rates`]) beside the first-order one, whose `h²/2·DΦ·F` over
-    /// the flowpipe grows with how far the set moves in a step. CPU engine only (the GPU's
-    /// refuses it). Default: false.
+    /// the flowpipe grows with how far the set moves in a step. Both engines; asked of another
+    /// time model, the run is refused. Default: false.
     pub taylor3: bool,
     /// Continuous time, disturbance method, a scalar input's closed form with constant `g`:
     /// where no piece is proven on the set, also bound the field on each slab by the lattice of

@@ -165,11 +165,21 @@ impl super::ReachProblem {
         }
     }
 
-    /// Checks the time model against the problem: substeps cut continuous-time steps only.
-    pub fn check_time(&self) -> Result<(), super::ReachError> {
-        self.time
-            .check_substeps(self.substeps)
-            .map_err(|e| super::ReachError::Settings(format!("{e}: --substeps 1, or leave it out")))
+    /// Checks the time model against the problem and the settings: substeps cut, and
+    /// [`taylor3`](super::ReachSettings::taylor3) sharpens, continuous-time steps only (asked
+    /// of another model they would change nothing, silently).
+    pub fn check_time(&self, settings: &super::ReachSettings) -> Result<(), super::ReachError> {
+        self.time.check_substeps(self.substeps).map_err(|e| {
+            super::ReachError::Settings(format!("{e}: --substeps 1, or leave it out"))
+        })?;
+        if settings.taylor3 && self.time != TimeModel::Continuous {
+            return Err(super::ReachError::Settings(format!(
+                "taylor3 (--taylor3) sharpens the validated steps of time = \"continuous\"; \
+                 time = \"{}\" takes none: leave it out, or --time continuous",
+                self.time.name()
+            )));
+        }
+        Ok(())
     }
 }
 

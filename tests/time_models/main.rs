@@ -300,6 +300,42 @@ fn refusals_name_the_setting() {
         err.contains("substeps") && err.contains("--substeps 1"),
         "{err}"
     );
+    // `taylor3` sharpens continuous steps: asked of the Euler map or sampled data (where it
+    // would change nothing), the run is refused by name; in continuous time it runs.
+    let taylor3 = ReachSettings {
+        taylor3: true,
+        ..ReachSettings::default()
+    };
+    for time in [
+        TimeModel::Euler,
+        TimeModel::Sampled {
+            control_period: 0.04,
+        },
+    ] {
+        let err = CpuBackend
+            .reach(&p.clone().with_time(time, 1), boxes, &taylor3, &|_, _| {})
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("taylor3") && err.contains(time.name()),
+            "{time}: {err}"
+        );
+    }
+    let continuous = p.clone().with_time(TimeModel::Continuous, 1);
+    assert!(CpuBackend
+        .reach(&continuous, boxes, &taylor3, &|_, _| {})
+        .is_ok());
+    let (code, _, err) = common::cbfreach(&[
+        "verify",
+        acc,
+        "--grid",
+        "2,2",
+        "--time",
+        "euler",
+        "--taylor3",
+    ]);
+    assert_ne!(code, 0);
+    assert!(err.contains("--taylor3") && err.contains("euler"), "{err}");
 }
 
 /// Validity against `C` speaks of all times: every flowpipe recorded on a valid stretch of a
