@@ -554,40 +554,31 @@ pub fn taylor_on_device(
         ));
     }
     let n = problem.dynamics.n;
-    let kernel = "
-@group(0) @binding(0) var<storage, read> xs: array<f64>;
-@group(0) @binding(1) var<storage, read_write> ys: array<f64>;
-
-fn take(at: u32) -> array<real, N0> {
-    var a: array<real, N0>;
-    for (var j = 0u; j < N0; j++) {
-        a[j] = xs[at + j];
-    }
-    return a;
-}
-
+    let kernel = format!(
+        "
+{READ_NB}
 // Unused: the Taylor rates read no network bounds.
-fn slab_bounds(c: u32, f: u32) -> NetBounds {
+fn slab_bounds(c: u32, f: u32) -> NetBounds {{
     return zero_net();
-}
+}}
 
 // Per case lo, hi, hull_lo, hull_hi, over_lo, over_hi, euler_lo, euler_hi, h, piece.
 const IN: u32 = 8u * N0 + 2u;
 const OUT: u32 = 2u + 4u * N0;
 
-fn put(at: u32, t: Taylor) {
-    for (var j = 0u; j < N0; j++) {
+fn put(at: u32, t: Taylor) {{
+    for (var j = 0u; j < N0; j++) {{
         ys[at + j] = t.r.lo[j];
         ys[at + N0 + j] = t.r.hi[j];
-    }
-}
+    }}
+}}
 
 @compute @workgroup_size(64)
-fn taylor_test(@builtin(global_invocation_id) id: vec3<u32>) {
+fn taylor_test(@builtin(global_invocation_id) id: vec3<u32>) {{
     let q = id.x;
-    if (q >= arrayLength(&xs) / IN) {
+    if (q >= arrayLength(&xs) / IN) {{
         return;
-    }
+    }}
     let a = q * IN;
     var z: array<real, N0>;
     let st = StepState(take(a), take(a + N0), z, z, z, z, 0u);
@@ -607,9 +598,11 @@ fn taylor_test(@builtin(global_invocation_id) id: vec3<u32>) {
     ys[o + 1u] = select(real(0.0), real(1.0), t3.ok);
     put(o + 2u, t2);
     put(o + 2u + 2u * N0, t3);
-}
-";
-    let source = source(problem, settings, (Precision::F64, true), kernel)?;
+}}
+"
+    );
+
+    let source = source(problem, settings, (Precision::F64, true), &kernel)?;
     let mut xs = Vec::with_capacity(cases.len() * (8 * n + 2));
     for c in cases {
         for v in [&c.set.lower, &c.set.upper, &c.hull.lower, &c.hull.upper] {
