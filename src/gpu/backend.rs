@@ -246,7 +246,7 @@ impl GpuBackend {
 
     /// Whether this engine runs `problem` under `settings` as they are, or the setting it
     /// refuses: bounds without a device kernel (IBP alone), a continuous run with a setting its
-    /// device step does not take yet ([`continuous::refused`]), the exact field of a general QP
+    /// device step does not take yet (`continuous::refused`), the exact field of a general QP
     /// filter (on the device's step: a sampled run's is the host's).
     pub fn runs(problem: &ReachProblem, settings: &ReachSettings) -> Result<(), Unsupported> {
         if !GpuBackend::supports(settings) {

@@ -146,7 +146,7 @@ fn turn_test(@builtin(global_invocation_id) id: vec3<u32>) {
     run(ctx, &source, "turn_test", &xs, inputs.len(), 1)
 }
 
-/// One guessed step of the continuous model, as [`validated_on_device`] takes it: the set,
+/// One guessed step of the continuous model, as [`guessed_on_device`] takes it: the set,
 /// the step `h`, last step's slab rates and those of the step before (where known), the rates
 /// the step's field gave on the guessed box's slabs, and second-order rates (`∓1e300` where
 /// none).
@@ -521,7 +521,7 @@ fn fold_test(@builtin(global_invocation_id) id: vec3<u32>) {{
 
 /// Validates `shaders/validated.wgsl` and `shaders/end_rates.wgsl` with the f32 prelude, every
 /// function called (their probes run f64 alone): the shader's validation error where they are
-/// not valid WGSL ([`validate`]).
+/// not valid WGSL (`validate`).
 pub fn validated_compiles_in_f32(ctx: &GpuContext) -> Result<(), GpuError> {
     let kernel = "
 const ABS_UNIT: real = 0.0;

@@ -633,7 +633,7 @@ fn taylor_test(@builtin(global_invocation_id) id: vec3<u32>) {{
 /// Validates `shaders/field.wgsl`'s slab form, `shaders/curved.wgsl` and
 /// `shaders/slab_step.wgsl` for `problem` with the f32 prelude, every function called (the
 /// probes above run f64 alone): the shader's validation error where they are not valid WGSL
-/// ([`super::probe::validate`]: naga's checks, not lavapipe's minute-long compile).
+/// (`probe::validate`: naga's checks, not lavapipe's minute-long compile).
 pub fn field_compiles_in_f32(
     ctx: &GpuContext,
     problem: &ReachProblem,

@@ -45,9 +45,9 @@ const NR_512: usize = 12;
 /// another, each block's panels in order.
 const KB: usize = 128;
 
-/// An `m × k` matrix packed in panels of [`MR`] rows (the last one padded with zeros), stored
+/// An `m × k` matrix packed in panels of `MR` (8) rows (the last one padded with zeros), stored
 /// block-major: block `b` (columns `b·KB ..`, `w_b` of them) holds panel 0's columns, then
-/// panel 1's, …, each column's [`MR`] rows on one cache line.
+/// panel 1's, …, each column's `MR` rows on one cache line.
 #[derive(Clone, Debug, Default)]
 pub struct PackedMatrix {
     m: usize,

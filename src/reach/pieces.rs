@@ -122,7 +122,7 @@ impl FilterPieces {
 
     /// Whether the filter's QP is feasible at every point of `x_box ∩ S` (for a general QP: one
     /// `θ*` satisfies every row over the box, [`VForms::proves_feasible`]). Feasibility is pointwise, so where
-    /// the box as a whole is not proven its halves are tried, [`FEASIBILITY_SPLITS`] deep: the
+    /// the box as a whole is not proven its halves are tried, `FEASIBILITY_SPLITS` deep: the
     /// interval rows of a smaller box lose less to dependency.
     pub fn proves_feasible(&self, x_box: &IntervalBox) -> bool {
         self.proves_feasible_split(x_box, FEASIBILITY_SPLITS)

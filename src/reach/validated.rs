@@ -220,7 +220,7 @@ fn moving_hull(set: &IntervalBox, h: f64, m: &MovingFaces) -> Option<IntervalBox
 /// A moving box of a step from `set` with no a-priori enclosure (docs/design.md §7.1, item
 /// 3b): face rates guessed from last step's slab rates `(r̲, r̄)` and those of the step before
 /// (`before`), `s̄ = max(r̄, r̂) + δ`, `ρ̄ = min(r̄, r̂) − δ` with `r̂ = 2r̄ − r̄_before` the
-/// trend and `δ` a margin ([`GUESS_MARGIN`]; mirrored below). `None` where the box turns
+/// trend and `δ` a margin (`GUESS_MARGIN`; mirrored below). `None` where the box turns
 /// inside out or a value is not finite. Nothing is known of it until [`verified`] passes on
 /// every frame's rates, with the facts (piece, local `M`) taken on its hull. `guessed` in
 /// `shaders/validated.wgsl` mirrors it (and [`slab`], [`verified`] of such a box).

@@ -64,7 +64,7 @@ pub fn enclose_step<E>(
 /// [`enclose_step`] for the filtered system, whose trajectories stay in `S`: `walls` are `S`'s
 /// bounds on single coordinates ([`crate::reach::safe_set::SafeSet::walls`]), which no
 /// trajectory crosses (item 1f), and `safe(x)` proves points in `S`: with `region`, a step from
-/// which some trajectory provably leaves `C` within a time `T` (item 1e, [`exit::exit_time`])
+/// which some trajectory provably leaves `C` within a time `T` (item 1e, `exit::exit_time`)
 /// has no enclosure within `C` over any step longer than `T`, and those steps are not tried.
 pub fn enclose_within<E>(
     set: &IntervalBox,

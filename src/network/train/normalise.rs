@@ -28,7 +28,7 @@ use crate::network::{Mlp, NetworkError};
 /// The metadata key under which [`Normalisation::metadata`] stores the maps (JSON).
 pub const METADATA_KEY: &str = "normalisation";
 
-/// Input and output affine maps of training (see the [module docs](self)).
+/// Input and output affine maps of training (see this module's documentation).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Normalisation {
     /// `cₓ`, one per input.

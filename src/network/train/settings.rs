@@ -114,7 +114,7 @@ pub struct TrainSettings {
     pub ibp_excess: bool,
     /// Every this many epochs (0: never, the default), give the hidden neurons that no
     /// training sample activates fresh incoming weights and zero outgoing ones (see
-    /// [`revive`](crate::network::revive)): the function is unchanged, and the neurons can learn again.
+    /// `network::revive`): the function is unchanged, and the neurons can learn again.
     pub revive_every: usize,
     /// Steps `h_j` (one, or one per input) of the network's own central differences
     /// `(N(x + h_j e_j) − N(x − h_j e_j))/2h_j`, compared by the Sobolev term with the slope
