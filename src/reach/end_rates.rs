@@ -16,8 +16,8 @@ use crate::rounding::{round_down, round_up};
 /// these with the other rates). `nn` as for [`slab_field`](super::validated::slab_field).
 ///
 /// Upper end of `i` (the lower mirrored): on the slab, `Fᵢ(x) ≤ c + Σⱼ kⱼ(xⱼ − pⱼ)` with
-/// `pᵢ = x̄ᵢ` and `pⱼ` the set's centre (`validated::form_on`); at time `τ` every trajectory lies in
-/// `X(τ) = [x̲ + τa̲, x̄ + τā]` (the moving box's rates where the step proved it, else
+/// `pᵢ = x̄ᵢ` and `pⱼ` the set's centre (`validated::form_on`); at time `τ` every trajectory
+/// lies in `X(τ) = [x̲ + τa̲, x̄ + τā]` (the moving box's rates where the step proved it, else
 /// `F̲(A), F̄(A)`). Over `X(τ) ∩ {xᵢ = x̄ᵢ + y}` the form is at most `G₀ + τQ + sup kᵢy`, with
 /// `G₀` its sup over the set's face and `Q = Σ_{j≠i} max(kⱼa̲ⱼ, kⱼāⱼ)` (each end's product). The
 /// barrier `u(τ) = x̄ᵢ + τa + τ²b/2` with `a = G₀` and `b ≥ Q + sup kᵢ·[w̲, w̄]`,

@@ -10,7 +10,8 @@
 //! file as serde reads it, and [`Scenario::from_toml`] checks it and turns it into expression
 //! trees and plain arrays (docs/design.md §4's *compiled problem*). An optional `[settings]` table
 //! ([`SettingsSection`]) sets how runs of the scenario go: `[settings.reach]` the fields of
-//! [`ReachSettings`](crate::reach::ReachSettings), `[settings.verify]` those of [`VerifySettings`](crate::verify::VerifySettings).
+//! [`ReachSettings`](crate::reach::ReachSettings), `[settings.verify]` those of
+//! [`VerifySettings`](crate::verify::VerifySettings).
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
