@@ -420,6 +420,9 @@ fn train_without_epochs_runs_the_staged_schedule_and_saves_a_folded_network() {
         stdout.contains("target reached") || stdout.contains("target NOT reached"),
         "{stdout}"
     );
+    // Without a terminal, every stage that trains logs lines, certify stages too (they
+    // measure only at their end: before, they ran without one).
+    assert!(stderr.contains("certify 1 epoch "), "{stderr}");
     let (net, metadata) = cbfreach::network::Mlp::load_safetensors_with_metadata(&out).unwrap();
     assert_eq!(net.architecture(), "2x8x2");
     let norm = cbfreach::network::train::Normalisation::from_metadata(&metadata)
