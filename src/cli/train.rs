@@ -553,7 +553,7 @@ fn run_staged(job: &Job, bars: &Bars) -> CliResult {
         // with no training max: not a line.)
         let tenth = (p.epochs / 10).max(1);
         let trained = !p.max_error.is_nan();
-        if logged && trained && (p.measured != last_logged || p.epoch % tenth == 0) {
+        if logged && trained && (p.measured != last_logged || p.epoch.is_multiple_of(tenth)) {
             last_logged = p.measured;
             eprintln!(
                 "{} epoch {}/{}: {} samples, training max {:.4}{measured}",
