@@ -117,6 +117,17 @@ pub fn sharper_clause(taylor3: bool, lattice: bool) -> &'static str {
     }
 }
 
+/// [`sharper_clause`] of a run of `problem` under `settings`: the parts that apply to it.
+pub fn sharper_clause_of(
+    problem: &cbfreach::reach::ReachProblem,
+    settings: &cbfreach::reach::ReachSettings,
+) -> &'static str {
+    sharper_clause(
+        settings.taylor3 && problem.time == cbfreach::reach::TimeModel::Continuous,
+        problem.lattice_applies(settings),
+    )
+}
+
 /// What a subcommand returns: any library or I/O error, printed by `main`.
 pub type CliResult = Result<(), Box<dyn std::error::Error>>;
 

@@ -325,7 +325,10 @@ fn run_scenario(
     if continuous && verdict_settings.pieces.refine > 0 && finest > problem.substeps.max(1) {
         cut += &format!(", refined pieces' steps down to dt/{finest}");
     }
-    let sharper = ReachSettings {
+    // The sound verdicts' runs: each piece of a box bounded face by face.
+    let pieces = ReachSettings {
+        bounds,
+        face_local: true,
         taylor3: verdict_settings.taylor3,
         lattice: verdict_settings.lattice,
         ..ReachSettings::default()
@@ -334,10 +337,7 @@ fn run_scenario(
         "Time model: {} — {}{cut}{}",
         problem.time,
         problem.time.clause(),
-        super::sharper_clause(
-            sharper.taylor3 && continuous,
-            problem.lattice_applies(&sharper)
-        )
+        super::sharper_clause_of(&problem, &pieces)
     );
     if problem.time == cbfreach::reach::TimeModel::Euler {
         println!(
@@ -361,13 +361,6 @@ fn run_scenario(
         "Sound verdicts of the {} initial boxes (disturbance method, {bounds} bounds on faces, {margin}):",
         s.reach.initial.len(),
     );
-    let pieces = ReachSettings {
-        bounds,
-        face_local: true,
-        taylor3: verdict_settings.taylor3,
-        lattice: verdict_settings.lattice,
-        ..ReachSettings::default()
-    };
     let bar = std::sync::Mutex::new(None::<indicatif::ProgressBar>);
     let verdicts = verify_by_pieces(
         s,

@@ -84,10 +84,7 @@ pub fn run(args: &ReachArgs) -> CliResult {
         } else {
             ""
         }
-        + super::sharper_clause(
-            settings.taylor3 && problem.time == cbfreach::reach::TimeModel::Continuous,
-            problem.lattice_applies(&settings),
-        );
+        + super::sharper_clause_of(&problem, &settings);
     let within = super::safe_set_clause(&problem.safe_set_for(settings.method).names());
     println!(
         "{}: {} boxes × {} steps, time {}, {} bounds{}, {:?} method, {margin}{within}, backend {}",

@@ -548,9 +548,8 @@ fn run_staged(job: &Job, bars: &Bars) -> CliResult {
             p.max_error
         ));
         // Without a terminal, a line where the figures change and at every tenth of a stage:
-        // certify stages measure at their end only, and scenario 1's ran for 50 minutes
-        // without a line. (A refine stage whose round added nothing reports at its last epoch
-        // with no training max: not a line.)
+        // certify stages measure at their end only, and can run for an hour. (A refine stage
+        // whose round added nothing reports at its last epoch with no training max: no line.)
         let tenth = (p.epochs / 10).max(1);
         let trained = !p.max_error.is_nan();
         if logged && trained && (p.measured != last_logged || p.epoch.is_multiple_of(tenth)) {
