@@ -141,10 +141,15 @@ impl Recipe {
             ((budget * steps * batch as f64 / samples.max(1) as f64).ceil() as usize).clamp(2, 400)
         };
         let fit_epochs = epochs_for(20_000.0);
+        // The certify stages tighten the bounds over the boxes their looseness is measured
+        // on (in the data's units: the trainer's default radius, 0.05, is a length in no
+        // particular scenario's units).
+        let ibp_radius: Vec<f64> = spacing.iter().map(|h| 2.0 * h).collect();
         let base = TrainSettings {
             batch_size: batch,
             chunk_size: (batch / 2).max(128),
             jacobian_weight: 0.1,
+            ibp_radius: ibp_radius.clone(),
             ..TrainSettings::default()
         };
         let secant_step: Vec<f64> = spacing.iter().map(|h| 0.5 * h).collect();
@@ -209,7 +214,7 @@ impl Recipe {
         }
         Recipe {
             stages,
-            ibp_radius: spacing.iter().map(|h| 2.0 * h).collect(),
+            ibp_radius,
             secant_step,
             lr_candidates: vec![3e-4, 1e-3, 3e-3, 1e-2],
             budget,

@@ -180,6 +180,30 @@ fn the_recipe_stops_at_its_target_and_says_when_it_is_not_reached() {
     assert_eq!(report.stages[0].epochs, small.stages[0].settings.epochs);
 }
 
+/// The certify stages train the IBP term on the boxes the recipe measures its looseness on,
+/// in the data's own units (they had taken the trainer's default half-width 0.05 in every
+/// input: on ACC in newtons, metres and m/s the looseness rose through them).
+#[test]
+fn the_certify_stages_tighten_the_boxes_their_looseness_is_measured_on() {
+    let spacing = [1000.0 / 39.0, 0.02 / 39.0];
+    let recipe = Recipe::for_data(1600, &spacing, 1.0);
+    assert_eq!(recipe.ibp_radius, spacing.map(|h| 2.0 * h).to_vec());
+    let certify: Vec<&Stage> = recipe
+        .stages
+        .iter()
+        .filter(|s| matches!(s.kind, StageKind::Certify(_)))
+        .collect();
+    assert_eq!(certify.len(), 3);
+    for stage in certify {
+        assert!(stage.settings.ibp_weight > 0.0, "{}", stage.name);
+        assert_eq!(
+            stage.settings.ibp_radius, recipe.ibp_radius,
+            "{}",
+            stage.name
+        );
+    }
+}
+
 /// `v(x) = x₁ + 2 max(0, 0.1 − |x₁ − 0.375|)` on `[0, 1]²`: a bump of height 0.2 between the
 /// lines x₁ = 0.25 and 0.5 of a 5 × 5 grid, which sees only `x₁`.
 struct Bump;
