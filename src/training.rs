@@ -340,14 +340,22 @@ pub struct Staged {
 }
 
 impl StagedPlan {
-    /// The schedule for `data`, its stages' epochs multiplied by `budget`.
-    pub fn new(s: &Scenario, data: &TrainingData, budget: f64, seed: u64) -> StagedPlan {
+    /// The schedule for `data` and a network of layer widths `widths`, its stages' epochs
+    /// multiplied by `budget`.
+    pub fn new(
+        s: &Scenario,
+        data: &TrainingData,
+        widths: &[usize],
+        budget: f64,
+        seed: u64,
+    ) -> StagedPlan {
         let r = &s.training.region;
         let grid = &data.grid;
         let spacing: Vec<f64> = (0..s.n())
             .map(|i| (r.upper[i] - r.lower[i]) / (grid[i] - 1) as f64)
             .collect();
-        let mut recipe = Recipe::for_data(data.data.len(), &spacing, budget);
+        let hidden = widths.len().saturating_sub(2);
+        let mut recipe = Recipe::for_data(data.data.len(), &spacing, budget, hidden);
         recipe.refinement.seed = seed;
         let target = s.training.target.map_or(Target::default(), |t| Target {
             linf: t.linf,

@@ -484,11 +484,16 @@ fn run_staged(job: &Job, bars: &Bars) -> CliResult {
         data,
         init,
     } = *job;
-    let plan = StagedPlan::new(s, data, args.budget, args.seed);
+    let plan = StagedPlan::new(s, data, architecture, args.budget, args.seed);
     let (recipe, target) = (&plan.recipe, &plan.target);
     let total: usize = recipe.stages.iter().map(|st| st.settings.epochs).sum();
+    let hidden = architecture.len().saturating_sub(2);
+    let ibp = match recipe.stages[0].settings.ibp_weight > 0.0 {
+        true => format!("; the IBP term from the fit stage, {hidden} hidden layers"),
+        false => String::new(),
+    };
     println!(
-        "schedule: {} (batch {}), target {}",
+        "schedule: {} (batch {}{ibp}), target {}",
         recipe
             .stages
             .iter()

@@ -131,7 +131,7 @@ fn train_until_stops_when_told() {
 fn the_recipe_stops_at_its_target_and_says_when_it_is_not_reached() {
     let data = badly_scaled(40);
     let validation = badly_scaled(17);
-    let recipe = Recipe::for_data(data.len(), &[1000.0 / 39.0, 0.02 / 39.0], 0.5);
+    let recipe = Recipe::for_data(data.len(), &[1000.0 / 39.0, 0.02 / 39.0], 0.5, 2);
     let planned = recipe.stages[0].settings.epochs;
     let input = RecipeData {
         pointwise: &data,
@@ -173,34 +173,43 @@ fn the_recipe_stops_at_its_target_and_says_when_it_is_not_reached() {
         linf: Some(1e-6),
         slope_p95: None,
     };
-    let small = Recipe::for_data(data.len(), &[1000.0 / 39.0, 0.02 / 39.0], 0.02);
+    let small = Recipe::for_data(data.len(), &[1000.0 / 39.0, 0.02 / 39.0], 0.02, 1);
     let (_, report) = train_to_target(None, &[2, 8, 2], 1, &input, &small, &target, None, |_| {})
         .expect("trains");
     assert!(!report.reached);
     assert_eq!(report.stages[0].epochs, small.stages[0].settings.epochs);
 }
 
-/// The certify stages train the IBP term on the boxes the recipe measures its looseness on,
-/// in the data's own units (they had taken the trainer's default half-width 0.05 in every
-/// input: on ACC in newtons, metres and m/s the looseness rose through them).
+/// The IBP term is trained on the boxes the recipe measures its looseness on, in the data's
+/// own units (the certify stages had taken the trainer's default half-width 0.05 in every
+/// input: on ACC in newtons, metres and m/s the looseness rose through them), in the certify
+/// stages, and from the first stage on networks of three or more hidden layers.
 #[test]
 fn the_certify_stages_tighten_the_boxes_their_looseness_is_measured_on() {
     let spacing = [1000.0 / 39.0, 0.02 / 39.0];
-    let recipe = Recipe::for_data(1600, &spacing, 1.0);
-    assert_eq!(recipe.ibp_radius, spacing.map(|h| 2.0 * h).to_vec());
-    let certify: Vec<&Stage> = recipe
-        .stages
-        .iter()
-        .filter(|s| matches!(s.kind, StageKind::Certify(_)))
-        .collect();
-    assert_eq!(certify.len(), 3);
-    for stage in certify {
-        assert!(stage.settings.ibp_weight > 0.0, "{}", stage.name);
-        assert_eq!(
-            stage.settings.ibp_radius, recipe.ibp_radius,
-            "{}",
-            stage.name
-        );
+    for hidden in [1, 2, DEEP_HIDDEN_LAYERS, DEEP_HIDDEN_LAYERS + 1] {
+        let recipe = Recipe::for_data(1600, &spacing, 1.0, hidden);
+        assert_eq!(recipe.ibp_radius, spacing.map(|h| 2.0 * h).to_vec());
+        let certify = |s: &Stage| matches!(s.kind, StageKind::Certify(_));
+        assert_eq!(recipe.stages.iter().filter(|s| certify(s)).count(), 3);
+        for stage in &recipe.stages {
+            // Deep networks train the term from the first stage (the looseness compounds
+            // layer by layer); shallow ones in the certify stages only.
+            let on = certify(stage) || hidden >= DEEP_HIDDEN_LAYERS;
+            assert_eq!(
+                stage.settings.ibp_weight > 0.0,
+                on,
+                "{} ({hidden})",
+                stage.name
+            );
+            if on {
+                assert_eq!(
+                    stage.settings.ibp_radius, recipe.ibp_radius,
+                    "{}",
+                    stage.name
+                );
+            }
+        }
     }
 }
 
@@ -249,7 +258,7 @@ fn bump_run(candidates: usize) -> (Dataset, Dataset, Recipe) {
     };
     let data = Bump.sample(&grid(5, 0.0), SampleSlopes::Pointwise);
     let validation = Bump.sample(&grid(5, 0.125), SampleSlopes::Pointwise);
-    let mut recipe = Recipe::for_data(data.len(), &[0.25, 0.25], 0.1);
+    let mut recipe = Recipe::for_data(data.len(), &[0.25, 0.25], 0.1, 2);
     recipe.refinement.candidates = candidates;
     recipe.stages.retain(|s| s.kind != StageKind::Secant);
     (data, validation, recipe)
