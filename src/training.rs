@@ -354,7 +354,7 @@ impl StagedPlan {
         let spacing: Vec<f64> = (0..s.n())
             .map(|i| (r.upper[i] - r.lower[i]) / (grid[i] - 1) as f64)
             .collect();
-        let hidden = widths.len().saturating_sub(2);
+        let hidden = train::hidden_layers(widths);
         let mut recipe = Recipe::for_data(data.data.len(), &spacing, budget, hidden);
         recipe.refinement.seed = seed;
         let target = s.training.target.map_or(Target::default(), |t| Target {

@@ -487,9 +487,11 @@ fn run_staged(job: &Job, bars: &Bars) -> CliResult {
     let plan = StagedPlan::new(s, data, architecture, args.budget, args.seed);
     let (recipe, target) = (&plan.recipe, &plan.target);
     let total: usize = recipe.stages.iter().map(|st| st.settings.epochs).sum();
-    let hidden = architecture.len().saturating_sub(2);
     let ibp = match recipe.stages[0].settings.ibp_weight > 0.0 {
-        true => format!("; the IBP term from the fit stage, {hidden} hidden layers"),
+        true => format!(
+            "; the IBP term from the fit stage, {} hidden layers",
+            train::hidden_layers(architecture)
+        ),
         false => String::new(),
     };
     println!(

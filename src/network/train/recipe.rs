@@ -139,6 +139,11 @@ pub const DEEP_HIDDEN_LAYERS: usize = 3;
 /// The IBP term's weight before the certify stages, for deep networks.
 const EARLY_IBP_WEIGHT: f64 = 0.002;
 
+/// Hidden layers of a network of layer widths `widths` (inputs and outputs included).
+pub fn hidden_layers(widths: &[usize]) -> usize {
+    widths.len().saturating_sub(2)
+}
+
 /// The round index of the last check on fresh points: far from the refine rounds' points.
 const FRESH_ROUND: u64 = 1 << 20;
 
@@ -156,9 +161,9 @@ impl Recipe {
             ((budget * steps * batch as f64 / samples.max(1) as f64).ceil() as usize).clamp(2, 400)
         };
         let fit_epochs = epochs_for(20_000.0);
-        // The certify stages tighten the bounds over the boxes their looseness is measured
-        // on (in the data's units: the trainer's default radius, 0.05, is a length in no
-        // particular scenario's units).
+        // The IBP term tightens the bounds over the boxes their looseness is measured on (in
+        // the data's units: the trainer's default radius, 0.05, is a length in no particular
+        // scenario's units).
         let ibp_radius: Vec<f64> = spacing.iter().map(|h| 2.0 * h).collect();
         let base = TrainSettings {
             batch_size: batch,

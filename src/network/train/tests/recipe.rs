@@ -185,7 +185,7 @@ fn the_recipe_stops_at_its_target_and_says_when_it_is_not_reached() {
 /// input: on ACC in newtons, metres and m/s the looseness rose through them), in the certify
 /// stages, and from the first stage on networks of three or more hidden layers.
 #[test]
-fn the_certify_stages_tighten_the_boxes_their_looseness_is_measured_on() {
+fn the_ibp_term_is_trained_on_the_boxes_its_looseness_is_measured_on() {
     let spacing = [1000.0 / 39.0, 0.02 / 39.0];
     for hidden in [1, 2, DEEP_HIDDEN_LAYERS, DEEP_HIDDEN_LAYERS + 1] {
         let recipe = Recipe::for_data(1600, &spacing, 1.0, hidden);
