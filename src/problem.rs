@@ -75,7 +75,7 @@ pub enum ProblemError {
     #[error(transparent)]
     Network(#[from] NetworkError),
     /// `M_C` names the error map, which is missing or holds no certified bound.
-    #[error("{field} = {margin:?}: {source} (run `cbfreach error {file}` first)")]
+    #[error("{field} = {margin}: {source} (run `cbfreach error {file}` first)")]
     Margin {
         /// The scenario file.
         file: String,

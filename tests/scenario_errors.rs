@@ -149,3 +149,34 @@ fn missing_file_names_the_file() {
         .expect_err("missing");
     assert_mentions(&e.to_string(), &["no/such/file.toml", "cannot read"]);
 }
+
+/// `reach.m_c` left out is the error map's local bounds (what `cbfreach error` writes, the
+/// four-command workflow of the README), and where that map is missing the error says the key,
+/// the value as the file would write it and what to run. Before, a scenario without `m_c` was
+/// refused by the TOML reader (`missing field m_c`), and the message printed `Local`.
+#[test]
+fn m_c_left_out_takes_the_error_map_and_names_it_when_missing() {
+    use cbfreach::scenario::Margin;
+    use cbfreach::{ProblemOptions, ReachProblem, Scenario};
+    let s = from_text(&SMALL.replacen("m_c = 0.1\n", "", 1)).expect("m_c may be left out");
+    assert_eq!(s.reach.m_c, Margin::Local);
+    // chain3's network is shipped, its error map is not.
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures");
+    let text = std::fs::read_to_string(dir.join("chain3.toml")).unwrap();
+    assert!(text.contains("\nm_c = 0.35"), "fixture changed");
+    let text: String = text
+        .lines()
+        .filter(|l| !l.starts_with("m_c ="))
+        .collect::<Vec<_>>()
+        .join("\n");
+    let s = Scenario::from_toml(&text, "chain3.toml", &dir).unwrap();
+    let e = ReachProblem::from_scenario(&s, &ProblemOptions::default()).unwrap_err();
+    assert_mentions(
+        &e.to_string(),
+        &[
+            "reach.m_c = \"local\"",
+            "chain3.errormap.json",
+            "run `cbfreach error",
+        ],
+    );
+}

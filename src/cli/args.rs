@@ -222,7 +222,7 @@ pub fn compile(
                 field
             };
             format!(
-                "{field} = {margin:?}: {source} (run `cbfreach error {file}` first, or give --m-c)"
+                "{field} = {margin}: {source} (run `cbfreach error {file}` first, or give --m-c)"
             )
             .into()
         }

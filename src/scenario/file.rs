@@ -162,7 +162,9 @@ pub struct ReachSection {
     /// Norm for the closeness radius: `inf`, `1` or `2`.
     #[serde(default = "default_norm")]
     pub norm: String,
-    /// `M_C`.
+    /// `M_C`: a number, `"certified"`, `"measured"` or `"local"` (default: `"local"`, the
+    /// per-cell bounds of the error map that `cbfreach error` writes).
+    #[serde(default = "default_margin")]
     pub m_c: MarginSpec,
     /// Euler step.
     pub dt: f64,
@@ -201,6 +203,10 @@ pub enum TransformSpec {
     Name(String),
     /// `T`, as rows.
     Matrix(Vec<Vec<f64>>),
+}
+
+fn default_margin() -> MarginSpec {
+    MarginSpec::Source("local".into())
 }
 
 fn default_norm() -> String {

@@ -158,6 +158,18 @@ pub struct ChoiceError {
     pub expected: &'static str,
 }
 
+impl std::fmt::Display for Margin {
+    /// As a scenario file writes it: `"local"`, `"certified"`, `"measured"` or the number.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Margin::Value(v) => write!(f, "{v}"),
+            Margin::Certified => f.write_str("\"certified\""),
+            Margin::Measured => f.write_str("\"measured\""),
+            Margin::Local => f.write_str("\"local\""),
+        }
+    }
+}
+
 impl std::str::FromStr for Margin {
     type Err = ChoiceError;
 
