@@ -10,6 +10,7 @@ use serde::{Serialize, Serializer};
 
 use crate::boxes::IntervalBox;
 use crate::filter::{FilterError, SafetyFilter};
+use crate::reach::TimeModel;
 
 /// The time-stepping scheme.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, clap::ValueEnum)]
@@ -24,6 +25,28 @@ pub enum Integrator {
     /// digital controller; what `time = "sampled"` bounds). A closed-loop field with no input
     /// to hold (the NN system) is integrated by RK4 at that fine step.
     Zoh,
+}
+
+impl Integrator {
+    /// The scheme whose trajectories a time model's sets bound, and its step: RK4 at `dt` for
+    /// `continuous` (the ODE), the zero-order hold at the control period for `sampled`, the
+    /// map itself for `euler`. What `simulate` runs when no scheme is named.
+    pub fn for_time(time: TimeModel, dt: f64) -> (Integrator, f64) {
+        match time {
+            TimeModel::Continuous => (Integrator::Rk4, dt),
+            TimeModel::Sampled { control_period } => (Integrator::Zoh, control_period),
+            TimeModel::Euler => (Integrator::Euler, dt),
+        }
+    }
+
+    /// Its name as `--integrator` takes it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Integrator::Euler => "euler",
+            Integrator::Rk4 => "rk4",
+            Integrator::Zoh => "zoh",
+        }
+    }
 }
 
 /// RK4 steps per step of [`Integrator::Zoh`].

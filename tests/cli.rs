@@ -811,3 +811,51 @@ fn error_json_has_the_measured_and_certified_fields() {
         "{stderr}"
     );
 }
+
+/// `simulate` with no `--integrator` runs the system the scenario's time model bounds: RK4 for
+/// `continuous` (the default; before, the Euler map, whose trajectories the continuous-time
+/// sets do not bound), the zero-order hold at the control period for `sampled`, the map for
+/// `euler`; the summary says which.
+#[test]
+fn simulate_runs_what_the_time_model_bounds_by_default() {
+    let path = common::scenario_path("integrator.toml");
+    let path = path.to_str().unwrap();
+    let run = |extra: &[&str]| {
+        let mut args = vec!["simulate", path, "--from", "6,0.3", "--horizon", "0.4"];
+        args.extend_from_slice(extra);
+        let (code, stdout, stderr) = cbfreach(&args);
+        assert_eq!(code, 0, "{stderr}");
+        stdout
+    };
+    let default = run(&[]);
+    assert_eq!(default, run(&["--integrator", "rk4"]));
+    assert_ne!(default, run(&["--integrator", "euler"]));
+    // A sampled copy: the hold at T_s = 2 dt, with its samples 2 dt apart.
+    let dir = tempfile::tempdir().unwrap();
+    let text = std::fs::read_to_string(path).unwrap().replace(
+        "\ndt = 0.04",
+        "\ndt = 0.04\ntime = \"sampled\"\ncontrol_period = 0.08",
+    );
+    assert!(text.contains("control_period"), "scenario 1 changed");
+    let sampled = dir.path().join("sampled.toml");
+    std::fs::write(&sampled, text).unwrap();
+    for name in ["integrator.safetensors", "integrator.errormap.json"] {
+        let _ = std::fs::copy(common::scenario_path(name), dir.path().join(name));
+    }
+    let out = dir.path().join("t.csv");
+    let s = sampled.to_str().unwrap();
+    let summary = |extra: &[&str]| {
+        let mut args = vec!["simulate", s, "--from", "6,0.3", "--horizon", "0.4"];
+        args.extend_from_slice(extra);
+        args.extend_from_slice(&["-o", out.to_str().unwrap()]);
+        let (code, stdout, stderr) = cbfreach(&args);
+        assert_eq!(code, 0, "{stderr}");
+        (stdout, std::fs::read_to_string(&out).unwrap())
+    };
+    let (said, held) = summary(&[]);
+    assert!(
+        said.contains("5 steps (dt = 0.08, zoh: the system time = \"sampled\" bounds)"),
+        "{said}"
+    );
+    assert_eq!(held, summary(&["--integrator", "zoh", "--dt", "0.08"]).1);
+}

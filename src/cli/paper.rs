@@ -545,10 +545,11 @@ fn count_escapes(
 
 /// Where the filtered trajectories from the initial boxes' centres end.
 fn endpoint_summary(s: &Scenario, found: &[Equilibrium]) {
+    let (integrator, step) = cbfreach::simulate::Integrator::for_time(s.reach.time, s.reach.dt);
     println!(
-        "Filtered trajectories from the centres of the {} initial boxes (Euler, dt = {}, T = {}):",
+        "Filtered trajectories from the centres of the {} initial boxes ({}, dt = {step}, T = {}):",
         s.reach.initial.len(),
-        s.reach.dt,
+        integrator.name(),
         s.reach.horizon
     );
     super::report::print_endpoints(s, found);

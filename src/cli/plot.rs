@@ -9,10 +9,12 @@ use cbfreach::error_map::{error_map_path, ErrorMap};
 use cbfreach::filter::SafetyFilter;
 use cbfreach::plot::{self, Figure, View};
 use cbfreach::problem::network_path;
-use cbfreach::reach::{Backend, CpuBackend, ReachMethod, ReachProblem, ReachResult, ReachSettings};
+use cbfreach::reach::{
+    Backend, CpuBackend, ReachMethod, ReachProblem, ReachResult, ReachSettings, TimeModel,
+};
 use cbfreach::scenario::Scenario;
-use cbfreach::simulate::{sample_box, simulate_filtered, Integrator, Trajectory};
-use cbfreach::verify::VerifyReport;
+use cbfreach::simulate::{sample_box, Trajectory};
+use cbfreach::verify::{simulate_model, VerifyReport};
 
 use super::args::{compile, ProblemArgs};
 use super::{load_scenario, progress_bar, CliResult};
@@ -96,23 +98,29 @@ pub fn figure_points(s: &Scenario) -> Vec<Vec<f64>> {
     points
 }
 
-/// Filtered trajectories from `points` over the scenario's horizon.
+/// Filtered trajectories from `points` over the scenario's horizon, of the system its time
+/// model names (the ODE by RK4 at `dt`, the held control, or the Euler map).
 pub fn trajectories(s: &Scenario, points: &[Vec<f64>]) -> Vec<Trajectory> {
+    trajectories_in(s, points, s.reach.time)
+}
+
+fn trajectories_in(s: &Scenario, points: &[Vec<f64>], time: TimeModel) -> Vec<Trajectory> {
     let filter = SafetyFilter::new(s);
     points
         .iter()
-        .map(|x| simulate_filtered(&filter, x, s.reach.dt, s.reach.steps(), Integrator::Euler))
+        .map(|x| simulate_model(&filter, x, time, 1).0)
         .collect()
 }
 
-/// `per_box` filtered trajectories from points of each initial box (corners first).
+/// `per_box` filtered trajectories from points of each initial box (corners first), of the
+/// Euler map: drawn with the paper's Minkowski sets, which its construction takes on that map.
 pub fn box_trajectories(s: &Scenario, boxes: &[IntervalBox], per_box: usize) -> Vec<Trajectory> {
     let points: Vec<Vec<f64>> = boxes
         .iter()
         .enumerate()
         .flat_map(|(k, b)| sample_box(b, per_box, k as u64))
         .collect();
-    trajectories(s, &points)
+    trajectories_in(s, &points, TimeModel::Euler)
 }
 
 /// Reach from the scenario's initial boxes with a progress bar.

@@ -4,7 +4,7 @@
 use cbfreach::equilibria::{Equilibrium, Stability};
 use cbfreach::filter::SafetyFilter;
 use cbfreach::scenario::Scenario;
-use cbfreach::simulate::{simulate_filtered, Integrator};
+use cbfreach::verify::simulate_model;
 
 use super::fmt_point;
 
@@ -14,7 +14,7 @@ pub fn print_endpoints(s: &Scenario, found: &[Equilibrium]) {
     let filter = SafetyFilter::new(s);
     for b in &s.reach.initial {
         let x0 = b.center();
-        let t = simulate_filtered(&filter, &x0, s.reach.dt, s.reach.steps(), Integrator::Euler);
+        let t = simulate_model(&filter, &x0, s.reach.time, 1).0;
         let end = t.last();
         let nearest = found
             .iter()

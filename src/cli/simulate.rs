@@ -29,15 +29,17 @@ pub struct SimulateArgs {
     /// Seed for the samples.
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Time step (default: the scenario's dt).
+    /// Time step (default: the scenario's dt; its control period for `zoh` under
+    /// `time = "sampled"`).
     #[arg(long)]
     dt: Option<f64>,
     /// Horizon (default: the scenario's).
     #[arg(long)]
     horizon: Option<f64>,
-    /// Integration scheme.
-    #[arg(long, value_enum, default_value_t = Integrator::Euler)]
-    integrator: Integrator,
+    /// Integration scheme (default: the system the scenario's time model bounds: `rk4` for
+    /// `continuous`, `zoh` for `sampled`, `euler` for `euler`).
+    #[arg(long, value_enum)]
+    integrator: Option<Integrator>,
     /// Output format.
     #[arg(long, value_enum, default_value_t = Format::Csv)]
     format: Format,
@@ -128,7 +130,14 @@ const MAX_TRAJECTORY_BYTES: f64 = 8e9;
 /// Runs the command.
 pub fn run(args: &SimulateArgs) -> CliResult {
     let s = load_scenario(&args.scenario)?;
-    let dt = args.dt.unwrap_or(s.reach.dt);
+    let (integrator, step) = match args.integrator {
+        Some(Integrator::Zoh) | None => {
+            let (chosen, step) = Integrator::for_time(s.reach.time, s.reach.dt);
+            (args.integrator.unwrap_or(chosen), step)
+        }
+        Some(other) => (other, s.reach.dt),
+    };
+    let dt = args.dt.unwrap_or(step);
     let horizon = args.horizon.unwrap_or(s.reach.horizon);
     if !(dt > 0.0 && horizon > 0.0) {
         return Err(
@@ -163,7 +172,7 @@ pub fn run(args: &SimulateArgs) -> CliResult {
     let filter = SafetyFilter::new(&s);
     let trajectories: Vec<Trajectory> = starts(args, &s)?
         .iter()
-        .map(|x0| simulate_filtered(&filter, x0, dt, steps, args.integrator))
+        .map(|x0| simulate_filtered(&filter, x0, dt, steps, integrator))
         .collect();
 
     let mut buffer = Vec::new();
@@ -175,9 +184,14 @@ pub fn run(args: &SimulateArgs) -> CliResult {
         Some(path) => {
             write_atomic(path, &buffer).map_err(|e| format!("{}: {e}", path.display()))?;
             println!(
-                "{} trajectories of {} steps (dt = {dt}) written to {}",
+                "{} trajectories of {} steps (dt = {dt}, {}{}) written to {}",
                 trajectories.len(),
                 steps,
+                integrator.name(),
+                match args.integrator {
+                    Some(_) => String::new(),
+                    None => format!(": the system time = \"{}\" bounds", s.reach.time.name()),
+                },
                 path.display()
             );
             for t in trajectories.iter().take(20) {
