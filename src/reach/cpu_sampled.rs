@@ -5,7 +5,8 @@
 
 use super::*;
 use crate::intervals::box_of;
-use crate::reach::sampled::{euler_image, proven_safe, Intersample, Remainder};
+use crate::reach::sampled::{euler_image, mixed_image, proven_safe, Intersample, Remainder};
+use crate::reach::sampled_second::{frame_speed, held_terms, mix_in_frame, spread_term};
 
 /// The x network's bounds at a sample over the x-boxes of the chunk's live boxes whose held
 /// input needs them, in one batch ([`ChunkRun::held_bounds`]).
@@ -36,6 +37,10 @@ pub(super) struct Held {
     /// Per frame, the Euler part's images at `τ = 0, dt, …, K·dt` (the first: the set at the
     /// sample); `None` where the frame has no sound field.
     images: Vec<Option<Vec<IntervalBox>>>,
+    /// Per frame, the sets at `τ = dt, …, K·dt` by the held motion's second-order image
+    /// ([`crate::reach::sampled_second`], remainders included), met with the images' sets;
+    /// `None` where it does not apply (state-dependent `g`, a still plant, no field).
+    second: Vec<Option<Vec<IntervalBox>>>,
     /// The motion between samples.
     inter: Intersample,
     /// The set's x-box at the sample, and what its box-step's frames shared there.
@@ -127,9 +132,11 @@ impl ChunkRun<'_> {
             return Ok(());
         };
         let (n, m) = (state.known.dim(), self.x_problem.dynamics.m);
+        let terms = held_terms(&plant.0, &state.known, &u, self.h, self.period);
         let inter = Intersample::start(n, u);
         let zeros = &buf.zeros;
         let mut images = Vec::with_capacity(self.frames.len());
+        let mut second = Vec::with_capacity(self.frames.len());
         for (f, frame) in self.frames.iter().enumerate() {
             let p = frame.problem;
             let input = buf.frames[f].inputs[live];
@@ -176,6 +183,63 @@ impl ChunkRun<'_> {
                 .chain((1..=self.period).map(|j| image(j as f64 * self.h)))
                 .collect();
             images.push(held);
+            // The second-order image of each step, from the same sound fields.
+            let second_at = |term: &crate::reach::sampled_second::HeldTerm| {
+                let mix = mix_in_frame(p.transform.as_ref(), term);
+                let branch = |dynamics: &crate::reach::Dynamics,
+                              nn: NetworkBoundsRef,
+                              margin: &[f64],
+                              slack| {
+                    let (mut lo, mut hi) = mixed_image(
+                        dynamics,
+                        set,
+                        term.tau,
+                        nn,
+                        margin,
+                        slack,
+                        Some(&mix.matrix),
+                    );
+                    let u = super::super::embedding::input_enclosure(nn, margin);
+                    let speed = frame_speed(dynamics, set, &u, slack)?;
+                    let spread = spread_term(&mix, &speed, term.tau);
+                    for i in 0..n {
+                        lo[i] = (Interval::point(lo[i]) - Interval::point(spread[i])).lower;
+                        hi[i] = (Interval::point(hi[i]) + Interval::point(spread[i])).upper;
+                    }
+                    Some((lo, hi))
+                };
+                let exact = input.piece.and_then(|(piece, slack)| {
+                    let zero = zero_bounds(zeros, n, m);
+                    branch(piece_dynamics(p, piece), zero, zero.b_lower, slack)
+                });
+                let enclosed = enclosure.as_ref().and_then(|(lo, hi, slack)| {
+                    let consts = constant_bounds(zeros, lo, hi, n);
+                    branch(&p.dynamics, consts, &zeros[..m], *slack)
+                });
+                let net = network.as_ref().and_then(|(slot, margin)| {
+                    let nn = bounds_of(&buf.frames[f].batch, *slot, n, m);
+                    branch(&p.dynamics, nn, margin, p.field_slack)
+                });
+                let (mut lower, mut upper) = [exact, enclosed, net]
+                    .into_iter()
+                    .flatten()
+                    .reduce(meet_fields)?;
+                let (rl, ru) = in_frame(
+                    p,
+                    &Remainder {
+                        lower: term.lower.clone(),
+                        upper: term.upper.clone(),
+                        pipe: state.known.clone(),
+                    },
+                );
+                embedding_step(&mut lower, &mut upper, &rl, &ru, 1.0);
+                Some(IntervalBox { lower, upper })
+            };
+            second.push(
+                terms
+                    .as_ref()
+                    .and_then(|terms| terms.iter().map(second_at).collect::<Option<Vec<_>>>()),
+            );
         }
         if images.iter().all(Option::is_none) {
             state.tube.end = TubeEnd::NoCertifiedBound {
@@ -196,6 +260,7 @@ impl ChunkRun<'_> {
         let input = (!plant.0.is_still()).then(|| Some(inter.input().to_vec()));
         state.held = Some(Held {
             images,
+            second,
             inter,
             sample: state.known.clone(),
             facts,
@@ -248,6 +313,16 @@ impl ChunkRun<'_> {
             let set = &mut state.sets[f];
             set.clone_from(&images[j]);
             embedding_step(&mut set.lower, &mut set.upper, &rl, &ru, 1.0);
+            if let Some(second) = &held.second[f] {
+                let (lower, upper) = meet_fields(
+                    (
+                        std::mem::take(&mut set.lower),
+                        std::mem::take(&mut set.upper),
+                    ),
+                    (second[j - 1].lower.clone(), second[j - 1].upper.clone()),
+                );
+                (set.lower, set.upper) = (lower, upper);
+            }
             let mut swept = images[j - 1].hull(&images[j]);
             embedding_step(&mut swept.lower, &mut swept.upper, &bl, &bu, 1.0);
             let x = p.x_box_in_safe_set(&swept.lower, &swept.upper, frame.safe);

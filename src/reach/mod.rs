@@ -24,6 +24,7 @@ pub mod engine;
 pub mod pieces;
 pub mod safe_set;
 pub mod sampled;
+pub mod sampled_second;
 pub mod settings;
 pub mod time;
 pub mod transform;

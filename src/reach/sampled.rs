@@ -142,6 +142,11 @@ impl Intersample {
         Some(Some(pipe.set))
     }
 
+    /// `H`, the hull of the steps' a-priori enclosures so far.
+    pub fn hull(&self) -> Option<&IntervalBox> {
+        self.hull.as_ref()
+    }
+
     /// `U`, the held input's enclosure (empty for a still plant).
     pub fn input(&self) -> &[Interval] {
         &self.u
@@ -304,6 +309,30 @@ impl Plant {
             .collect()
     }
 
+    /// Whether `g` is constant (the second-order image, [`super::sampled_second`]).
+    pub fn g_is_constant(&self) -> bool {
+        self.dg
+            .iter()
+            .flatten()
+            .flatten()
+            .all(|e| e.as_constant() == Some(0.0))
+    }
+
+    /// `Df` over the x-box `a`, n×n row-major.
+    pub fn df_over(&self, a: &IntervalBox) -> Vec<Interval> {
+        let x = box_of(&a.lower, &a.upper);
+        self.df
+            .iter()
+            .flatten()
+            .map(|e| e.eval_interval(&x))
+            .collect()
+    }
+
+    /// `f(A) + g(A)·U` over the x-box `a`.
+    pub fn velocity_over(&self, a: &IntervalBox, u: &[Interval]) -> Vec<Interval> {
+        self.velocity(&box_of(&a.lower, &a.upper), u)
+    }
+
     /// `f(A) + g(A)·U`.
     fn velocity(&self, a: &[Interval], u: &[Interval]) -> Vec<Interval> {
         (0..self.n)
@@ -394,6 +423,26 @@ pub fn euler_image(
     margin: &[f64],
     slack: f64,
 ) -> (Vec<f64>, Vec<f64>) {
+    mixed_image(dynamics, set, tau, nn, margin, slack, None)
+}
+
+/// [`euler_image`] of `x + τ·W·F(x)` for a point matrix `W` (n×n row-major; `None`: the
+/// identity, [`euler_image`] itself): the second-order image's main part
+/// ([`super::sampled_second`]), constant `g` only. Per coordinate `i` the field's forms are
+/// mixed row by row, `Σₗ Wᵢₗ·(F̲ₗ or F̄ₗ)` by the sign of `Wᵢₗ`, each `F̲ₗ, F̄ₗ` the
+/// interaction-aware form of [`euler_image`].
+pub fn mixed_image(
+    dynamics: &Dynamics,
+    set: &IntervalBox,
+    tau: f64,
+    nn: NetworkBoundsRef,
+    margin: &[f64],
+    slack: f64,
+    mix: Option<&[f64]>,
+) -> (Vec<f64>, Vec<f64>) {
+    if let Some(w) = mix {
+        return super::sampled_second::mixed_rows(dynamics, set, tau, nn, margin, slack, w);
+    }
     let n = dynamics.n;
     let x = box_of(&set.lower, &set.upper);
     let t = Interval::point(tau);

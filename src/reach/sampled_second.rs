@@ -1,0 +1,294 @@
+//! The held motion to second order (sampled data, constant `g`; docs/design.md §7.2 item 5).
+//! Imports the plant and the intersample motion of [`super::sampled`], intervals and boxes.
+//!
+//! With the input held at `u_k`, `ẋ = f(x) + g·u_k`, so `ẋ(s) − ẋ(0) = f(x(s)) − f(x_k)`.
+//! Over an a-priori enclosure `H` of the motion, `x(s) − x_k = s·F(x_k) + e(s)` with
+//! `e(s) ∈ s²/2·ρ` (`ρ = Df(H)·Ẋ`, [`Intersample`]), and by the mean value theorem
+//! `f(x(s)) − f(x_k) = J_s·(x(s) − x_k)` for some `J_s ∈ Df(H)`. Writing `J_s = C + Δ`
+//! (`C` the midpoint of `Df(H)`, `|Δ| ≤ R` its radius) and integrating over `[0, τ]`:
+//!
+//! `x(τ) ∈ x_k + τ(I + τ/2·C)·F(x_k) + τ²/2·R·|F(X)|·[−1, 1] + τ³/6·Df(H)·ρ`,
+//!
+//! where `F(x_k) = f(x_k) + g·u_k` is the field the embedding bounds at the sample (the
+//! network's affine bounds keep `u_k`'s correlation with `x_k`). The first-order form
+//! `x_k + τF(x_k) + τ²/2·ρ` takes the whole `τ²` term as an interval, as wide as `Ẋ` over the
+//! set: for a set of width `w` about `τ²·|Df|·|DF|·w`, which outgrows a slow contraction
+//! (a damped pendulum held over `5·dt` grew without end). Here the `τ²` term moves with `x_k`
+//! through the mixing matrix `I + τ/2·C`, and what is left is `O(τ²·R + τ³)`. For a linear
+//! plant `R = 0`; for the double integrator `Df·ρ = 0` too, so the image is the exact
+//! zero-order hold `x₁ + τx₂ + τ²/2·u_k`.
+//!
+//! In coordinates `z = T x` (`x = S z` exactly) the mixing matrix is `S⁻¹CS`, enclosed by
+//! `T·C·S` in interval arithmetic widened by `ρ_T·‖T·C·S‖∞` (`S⁻¹ = (I − R_T)⁻¹T`), split
+//! again into a midpoint and a radius; the x-coordinate terms go to z as the remainder does.
+
+use super::sampled::{Intersample, Plant};
+use super::transform::Transform;
+use crate::boxes::IntervalBox;
+use crate::intervals::{box_of, Interval};
+use crate::rounding::round_up;
+
+/// The second-order terms of one step of a control period, at `τ = j·dt`, in x coordinates.
+#[derive(Clone, Debug)]
+pub struct HeldTerm {
+    /// `τ`.
+    pub tau: f64,
+    /// `C`, the midpoint of `Df(H)` (n×n row-major, a point matrix).
+    pub c: Vec<f64>,
+    /// Lower ends of `τ²/2·R·|F(X)|·[−1, 1] + τ³/6·Df(H)·ρ`.
+    pub lower: Vec<f64>,
+    /// Upper ends.
+    pub upper: Vec<f64>,
+}
+
+/// The mixing matrix of one frame: `I + τ/2·K_c` as the f64 numbers used, and what that leaves
+/// out, `τ/2·K_r` (`K_r` the radius of `K ∋ S⁻¹CS`) plus the numbers' own rounding
+/// (n×n row-major each).
+#[derive(Clone, Debug)]
+pub struct Mix {
+    /// `I + τ/2·K_c`, a point matrix.
+    pub matrix: Vec<f64>,
+    /// `τ/2·K_r` plus the rounding of `matrix`, upper bounds (the rounding alone in x
+    /// coordinates, where `K = C`).
+    pub spread: Vec<f64>,
+}
+
+/// The terms of each step `j = 1, …, period` of the period that starts at the x-box `known`
+/// with the input held in `u`, over a-priori enclosures of the motion from `known` (each step
+/// enclosed from the last one's enclosure, which holds every state at its end). `None` where
+/// the plant's `g` is not constant, the plant does not move, or the motion has no enclosure.
+pub fn held_terms(
+    plant: &Plant,
+    known: &IntervalBox,
+    u: &[Interval],
+    h: f64,
+    period: usize,
+) -> Option<Vec<HeldTerm>> {
+    if plant.is_still() || !plant.g_is_constant() {
+        return None;
+    }
+    let n = known.dim();
+    let speed: Vec<f64> = plant
+        .velocity_over(known, u)
+        .iter()
+        .map(|v| v.mag())
+        .collect();
+    let mut motion = Intersample::start(n, u.to_vec());
+    let mut from = known.clone();
+    let mut terms = Vec::with_capacity(period);
+    for j in 1..=period {
+        from = motion.step(plant, &from, h)??;
+        let hull = motion.hull()?;
+        let df = plant.df_over(hull);
+        let tau = Interval::point(j as f64 * h);
+        let half_t2 = tau * tau * Interval::point(0.5);
+        let sixth_t3 = tau * tau * tau / Interval::point(6.0);
+        let c: Vec<f64> = df
+            .iter()
+            .map(|e| e.lower + 0.5 * (e.upper - e.lower))
+            .collect();
+        let (mut lower, mut upper) = (Vec::with_capacity(n), Vec::with_capacity(n));
+        for i in 0..n {
+            let mut r = Interval::point(0.0);
+            for k in 0..n {
+                let d = df[i * n + k];
+                let radius = (d - Interval::point(c[i * n + k])).mag();
+                r = r + half_t2 * Interval::point(radius) * Interval::new(-speed[k], speed[k]);
+                r = r + sixth_t3 * d * motion.rho[k];
+            }
+            if !(r.lower.is_finite() && r.upper.is_finite()) {
+                return None;
+            }
+            lower.push(r.lower);
+            upper.push(r.upper);
+        }
+        terms.push(HeldTerm {
+            tau: tau.lower,
+            c,
+            lower,
+            upper,
+        });
+    }
+    Some(terms)
+}
+
+/// The frame's mixing matrix for `term` (`transform`: the frame's `z = T x`, `None` for x).
+pub fn mix_in_frame(transform: Option<&Transform>, term: &HeldTerm) -> Mix {
+    let n = term.c.len().isqrt();
+    let half_tau = Interval::point(0.5) * Interval::point(term.tau);
+    let k: Vec<Interval> = match transform {
+        None => term.c.iter().map(|&v| Interval::point(v)).collect(),
+        Some(t) => {
+            let at = |m: &[f64], i: usize, j: usize| Interval::point(m[i * n + j]);
+            let cs: Vec<Interval> = (0..n * n)
+                .map(|q| {
+                    (0..n).fold(Interval::point(0.0), |acc, l| {
+                        acc + at(&term.c, q / n, l) * at(&t.s, l, q % n)
+                    })
+                })
+                .collect();
+            let tcs: Vec<Interval> = (0..n * n)
+                .map(|q| {
+                    (0..n).fold(Interval::point(0.0), |acc, l| {
+                        acc + at(&t.t, q / n, l) * cs[l * n + q % n]
+                    })
+                })
+                .collect();
+            // ‖T·C·S‖∞, and S⁻¹CS within ρ_T of it (entrywise, by the norm).
+            let norm = (0..n)
+                .map(|i| (0..n).fold(0.0, |acc, j| acc + tcs[i * n + j].mag()))
+                .fold(0.0_f64, f64::max);
+            let pad = round_up(round_up(t.rho * round_up(norm)) * (1.0 + 1e-15));
+            tcs.iter()
+                .map(|e| Interval::new(e.lower - pad, e.upper + pad))
+                .map(|e| Interval::new(round_down(e.lower), round_up(e.upper)))
+                .collect()
+        }
+    };
+    let mut matrix = Vec::with_capacity(n * n);
+    let mut spread = Vec::with_capacity(n * n);
+    for (q, e) in k.iter().enumerate() {
+        let mid = e.lower + 0.5 * (e.upper - e.lower);
+        let radius = (*e - Interval::point(mid)).mag();
+        let diag = Interval::point(f64::from(u8::from(q / n == q % n)));
+        // The matrix is exactly the f64 number used; its rounding goes to the spread.
+        let exact = diag + half_tau * Interval::point(mid);
+        let used = exact.lower + 0.5 * (exact.upper - exact.lower);
+        matrix.push(used);
+        let off = (exact - Interval::point(used)).mag();
+        spread.push(round_up(
+            (half_tau * Interval::point(radius) + Interval::point(off)).upper,
+        ));
+    }
+    Mix { matrix, spread }
+}
+
+fn round_down(x: f64) -> f64 {
+    crate::rounding::round_down(x)
+}
+
+/// `τ·Σₗ spreadᵢₗ·|Fₗ|` per coordinate with `|F|` bounded by `speed`: the part of the frame's
+/// image that the mixing matrix leaves as an interval.
+pub fn spread_term(mix: &Mix, speed: &[f64], tau: f64) -> Vec<f64> {
+    let n = speed.len();
+    (0..n)
+        .map(|i| {
+            let s = (0..n).fold(Interval::point(0.0), |acc, l| {
+                acc + Interval::point(mix.spread[i * n + l]) * Interval::point(speed[l])
+            });
+            (Interval::point(tau) * s).upper
+        })
+        .collect()
+}
+
+/// `|Fₗ|` over the frame's set: `f̃(X) + g·U` (constant `g`), `U` the input's enclosure, plus
+/// the transform's slack.
+pub fn frame_speed(
+    dynamics: &super::embedding::Dynamics,
+    set: &IntervalBox,
+    u: &[Interval],
+    slack: f64,
+) -> Option<Vec<f64>> {
+    let g = dynamics.g_constant.as_ref()?;
+    let (n, m) = (dynamics.n, dynamics.m);
+    let x = box_of(&set.lower, &set.upper);
+    let speed: Vec<f64> = (0..n)
+        .map(|i| {
+            let v = (0..m).fold(dynamics.f_tilde[i].eval_interval(&x), |acc, k| {
+                acc + Interval::point(g[i * m + k]) * u[k]
+            });
+            (Interval::point(v.mag()) + Interval::point(slack)).upper
+        })
+        .collect();
+    speed.iter().all(|s| s.is_finite()).then_some(speed)
+}
+
+/// [`super::sampled::mixed_image`] with a mixing matrix `w`: per coordinate `i` and end, the
+/// mean-value form of `xᵢ + τ·Σₗ wᵢₗ·(f̃ₗ(x) + mₗ·x + δₗ)` about the corner where each
+/// coefficient has one sign (as [`super::sampled::euler_image`]), `mₗ, δₗ` the
+/// interaction-aware row of `Fₗ`'s lower form where `wᵢₗ` has the end's sign, else of its
+/// upper form. State-dependent `g` has no such rows: the identity's image.
+pub(super) fn mixed_rows(
+    dynamics: &super::embedding::Dynamics,
+    set: &IntervalBox,
+    tau: f64,
+    nn: super::embedding::NetworkBoundsRef,
+    margin: &[f64],
+    slack: f64,
+    w: &[f64],
+) -> (Vec<f64>, Vec<f64>) {
+    let Some(b) = dynamics.g_constant.as_ref() else {
+        return super::sampled::mixed_image(dynamics, set, tau, nn, margin, slack, None);
+    };
+    let n = dynamics.n;
+    let x = box_of(&set.lower, &set.upper);
+    let t = Interval::point(tau);
+    let jac: Vec<Vec<Interval>> = dynamics
+        .f_tilde_jacobian
+        .iter()
+        .map(|row| row.iter().map(|e| e.eval_interval(&x)).collect())
+        .collect();
+    let forms: Vec<[(Vec<Interval>, Interval); 2]> = (0..n)
+        .map(|l| {
+            [false, true]
+                .map(|up| super::embedding::interaction_row(b, dynamics, nn, margin, l, up))
+        })
+        .collect();
+    let (mut lower, mut upper) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    for i in 0..n {
+        let wi = &w[i * n..(i + 1) * n];
+        // The transform's slack of each `Fₗ`, mixed.
+        let slack_i = (0..n).fold(Interval::point(0.0), |acc, l| {
+            acc + Interval::point(wi[l].abs()) * Interval::point(slack)
+        });
+        let slack_i = (t * slack_i).upper;
+        for on_upper in [false, true] {
+            // Fₗ's form for this end: its upper one where wᵢₗ·Fₗ is bounded above by it.
+            let form = |l: usize| &forms[l][usize::from((wi[l] >= 0.0) == on_upper)];
+            let a: Vec<Interval> = (0..n)
+                .map(|j| {
+                    let mixed = (0..n)
+                        .filter(|&l| wi[l] != 0.0)
+                        .fold(Interval::point(0.0), |acc, l| {
+                            acc + Interval::point(wi[l]) * (jac[l][j] + form(l).0[j])
+                        });
+                    Interval::point(f64::from(u8::from(i == j))) + t * mixed
+                })
+                .collect();
+            let p: Vec<f64> = (0..n)
+                .map(|j| {
+                    let (lo, hi) = (set.lower[j], set.upper[j]);
+                    let (small, large) = if on_upper { (hi, lo) } else { (lo, hi) };
+                    if a[j].lower >= 0.0 {
+                        small
+                    } else if a[j].upper <= 0.0 {
+                        large
+                    } else {
+                        lo + 0.5 * (hi - lo)
+                    }
+                })
+                .collect();
+            let pp: Vec<Interval> = p.iter().map(|&v| Interval::point(v)).collect();
+            let phi = (0..n)
+                .filter(|&l| wi[l] != 0.0)
+                .fold(Interval::point(0.0), |acc, l| {
+                    let (row, delta) = form(l);
+                    let at_p = (0..n)
+                        .fold(dynamics.f_tilde[l].eval_interval(&pp) + *delta, |acc, j| {
+                            acc + row[j] * pp[j]
+                        });
+                    acc + Interval::point(wi[l]) * at_p
+                });
+            let mut total = pp[i] + t * phi;
+            for j in 0..n {
+                total = total + a[j] * (x[j] - pp[j]);
+            }
+            if on_upper {
+                upper.push((total + Interval::point(slack_i)).upper);
+            } else {
+                lower.push((total - Interval::point(slack_i)).lower);
+            }
+        }
+    }
+    (lower, upper)
+}
