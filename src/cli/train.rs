@@ -542,7 +542,7 @@ fn run_staged(job: &Job, bars: &Bars) -> CliResult {
         bar.set_position((offsets[p.stage_index] + p.epoch) as u64);
         let measured = p.measured.map_or(String::new(), |m| {
             format!(
-                " | max error {:.4} | slope p95 {:.3} | IBP {:.2}×",
+                " | last measured: max ℓ∞ {:.4}, slope p95 {:.3}, IBP {:.2}×",
                 m.linf, m.slope_p95, m.ibp_looseness
             )
         });
