@@ -68,11 +68,15 @@ pub fn held_terms(
         return None;
     }
     let n = known.dim();
-    let speed: Vec<f64> = plant
-        .velocity_over(known, u)
+    // `mag` would drop a NaN end: an undefined velocity proves nothing.
+    let velocity = plant.velocity_over(known, u);
+    if !velocity
         .iter()
-        .map(|v| v.mag())
-        .collect();
+        .all(|v| v.lower.is_finite() && v.upper.is_finite())
+    {
+        return None;
+    }
+    let speed: Vec<f64> = velocity.iter().map(|v| v.mag()).collect();
     let mut motion = Intersample::start(n, u.to_vec());
     let mut from = known.clone();
     let mut terms = Vec::with_capacity(period);
@@ -192,13 +196,23 @@ pub fn frame_speed(
     let g = dynamics.g_constant.as_ref()?;
     let (n, m) = (dynamics.n, dynamics.m);
     let x = box_of(&set.lower, &set.upper);
-    let speed: Vec<f64> = (0..n)
+    let velocity: Vec<Interval> = (0..n)
         .map(|i| {
-            let v = (0..m).fold(dynamics.f_tilde[i].eval_interval(&x), |acc, k| {
+            (0..m).fold(dynamics.f_tilde[i].eval_interval(&x), |acc, k| {
                 acc + Interval::point(g[i * m + k]) * u[k]
-            });
-            (Interval::point(v.mag()) + Interval::point(slack)).upper
+            })
         })
+        .collect();
+    // `mag` would drop a NaN end: an undefined field proves nothing.
+    if !velocity
+        .iter()
+        .all(|v| v.lower.is_finite() && v.upper.is_finite())
+    {
+        return None;
+    }
+    let speed: Vec<f64> = velocity
+        .iter()
+        .map(|v| (Interval::point(v.mag()) + Interval::point(slack)).upper)
         .collect();
     speed.iter().all(|s| s.is_finite()).then_some(speed)
 }
@@ -291,4 +305,96 @@ pub(super) fn mixed_rows(
         }
     }
     (lower, upper)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scenario::Scenario;
+
+    fn plant(f: &str) -> Plant {
+        let text = format!(
+            r#"
+name = "t"
+[system]
+states = ["x1", "x2"]
+inputs = ["u"]
+f = {f}
+g = [["0"], ["1"]]
+kappa = ["-x1 - 2*x2"]
+[[cbf]]
+h = "x1 + 10"
+[reach]
+region = {{ lower = [-3, -3], upper = [3, 3] }}
+dt = 0.05
+horizon = 1.0
+goal = {{ lower = [-0.1, -0.1], upper = [0.1, 0.1] }}
+"#
+        );
+        Plant::of(&Scenario::from_toml(&text, "t.toml", std::path::Path::new(".")).unwrap())
+    }
+
+    /// The double integrator's held motion is `x + τ(I + τ/2·C)F` exactly: `C = Df`, no radius
+    /// and `Df·ρ = 0`, so the terms left are 0 (up to rounding dust); a pendulum's `sin`
+    /// leaves a radius and a `τ³` term, under a fifth of the first-order remainder near its
+    /// rest point and shrinking faster than the box (the point of the form); the mixing matrix
+    /// in z encloses `T·C·S`.
+    #[test]
+    fn the_terms_left_vanish_for_a_linear_plant_and_shrink_with_the_box() {
+        let u = [Interval::new(-1.0, 2.0)];
+        let b = IntervalBox::new(vec![0.2, -0.3], vec![0.4, -0.1]).unwrap();
+        let terms = held_terms(&plant(r#"["x2", "0"]"#), &b, &u, 0.05, 4).unwrap();
+        for t in &terms {
+            assert_eq!(t.c, [0.0, 1.0, 0.0, 0.0]);
+            // Outward rounding of the zero products leaves subnormal dust only.
+            assert!(
+                t.lower.iter().chain(&t.upper).all(|&v| v.abs() < 1e-300),
+                "{t:?}"
+            );
+        }
+        // The pendulum near its rest point with the nominal input held: what the second-order
+        // form leaves is a small part of the first-order remainder `τ²/2·ρ`, and it shrinks
+        // faster than the box.
+        let pendulum = plant(r#"["x2", "sin(x1) - 0.1*x2"]"#);
+        let widths = |r: f64| {
+            let b = IntervalBox::new(vec![0.05 - r, -0.02 - r], vec![0.05 + r, -0.02 + r]).unwrap();
+            let u = pendulum.held_input(&b, &[Interval::point(0.0)]);
+            let t = held_terms(&pendulum, &b, &u, 0.05, 4)
+                .unwrap()
+                .pop()
+                .unwrap();
+            let second = (0..2).map(|i| t.upper[i] - t.lower[i]).fold(0.0, f64::max);
+            let mut first = Intersample::start(2, u);
+            let mut from = b.clone();
+            for _ in 0..4 {
+                from = first.step(&pendulum, &from, 0.05).unwrap().unwrap();
+            }
+            let (lo, hi) = first.at(0.2);
+            (second, (0..2).map(|i| hi[i] - lo[i]).fold(0.0, f64::max))
+        };
+        let (wide, narrow) = (widths(0.05), widths(0.005));
+        assert!(
+            wide.0 < 0.2 * wide.1 && narrow.0 < 0.2 * narrow.1,
+            "{wide:?} {narrow:?}"
+        );
+        assert!(narrow.0 < 0.2 * wide.0, "{wide:?} {narrow:?}");
+        // In z = Tx: the mixing matrix's midpoint and spread hold T·C·S.
+        let t = Transform::from_matrix(vec![2.0, 1.0, 0.5, 3.0], 2).unwrap();
+        let term = &terms[3];
+        let mix = mix_in_frame(Some(&t), term);
+        let c = nalgebra::Matrix2::new(term.c[0], term.c[1], term.c[2], term.c[3]);
+        let (tm, sm) = (
+            nalgebra::Matrix2::new(t.t[0], t.t[1], t.t[2], t.t[3]),
+            nalgebra::Matrix2::new(t.s[0], t.s[1], t.s[2], t.s[3]),
+        );
+        let k = tm * c * sm;
+        for q in 0..4 {
+            let (i, j) = (q / 2, q % 2);
+            let want = f64::from(u8::from(i == j)) + 0.5 * term.tau * k[(i, j)];
+            assert!(
+                (mix.matrix[q] - want).abs() <= mix.spread[q] + 1e-15,
+                "{q}: {mix:?}"
+            );
+        }
+    }
 }
