@@ -428,9 +428,10 @@ pub fn euler_image(
 
 /// [`euler_image`] of `x + τ·W·F(x)` for a point matrix `W` (n×n row-major; `None`: the
 /// identity, [`euler_image`] itself): the second-order image's main part
-/// ([`super::sampled_second`]), constant `g` only. Per coordinate `i` the field's forms are
-/// mixed row by row, `Σₗ Wᵢₗ·(F̲ₗ or F̄ₗ)` by the sign of `Wᵢₗ`, each `F̲ₗ, F̄ₗ` the
-/// interaction-aware form of [`euler_image`].
+/// ([`super::sampled_second`]), constant `g` only (state-dependent `g` takes the identity).
+/// Per coordinate `i` and end the field's forms are mixed row by row, `Σₗ Wᵢₗ·(F̲ₗ or F̄ₗ)` by
+/// the sign of `Wᵢₗ`, and the mean-value form above is taken of the mix. Entries 1 and 0 of
+/// `W` are used without a product, so the identity gives [`euler_image`]'s bits.
 pub fn mixed_image(
     dynamics: &Dynamics,
     set: &IntervalBox,
@@ -440,10 +441,8 @@ pub fn mixed_image(
     slack: f64,
     mix: Option<&[f64]>,
 ) -> (Vec<f64>, Vec<f64>) {
-    if let Some(w) = mix {
-        return super::sampled_second::mixed_rows(dynamics, set, tau, nn, margin, slack, w);
-    }
     let n = dynamics.n;
+    let mix = mix.filter(|_| dynamics.g_constant.is_some());
     let x = box_of(&set.lower, &set.upper);
     let t = Interval::point(tau);
     let jac: Vec<Vec<Interval>> = dynamics
@@ -468,17 +467,41 @@ pub fn mixed_image(
             )
         }
     };
-    let slack = (t * Interval::point(slack)).upper;
+    // Each coordinate's lower and upper form (zero rows for state-dependent g).
+    let forms: Vec<[(Vec<Interval>, Interval); 2]> = (0..n)
+        .map(|l| {
+            [false, true].map(|on_upper| match &dynamics.g_constant {
+                Some(b) => interaction_row(b, dynamics, nn, margin, l, on_upper),
+                None => (vec![Interval::point(0.0); n], Interval::point(0.0)),
+            })
+        })
+        .collect();
+    // `w·v`, exact where `w` is 1.
+    let scaled = |w: f64, v: Interval| if w == 1.0 { v } else { Interval::point(w) * v };
     let mut lower = Vec::with_capacity(n);
     let mut upper = Vec::with_capacity(n);
     for i in 0..n {
+        let terms: Vec<(usize, f64)> = match mix {
+            Some(w) => (0..n)
+                .map(|l| (l, w[i * n + l]))
+                .filter(|&(_, c)| c != 0.0)
+                .collect(),
+            None => vec![(i, 1.0)],
+        };
+        let sum = |f: &dyn Fn(usize, f64) -> Interval| {
+            terms
+                .iter()
+                .fold(Interval::point(0.0), |acc, &(l, c)| acc + f(l, c))
+        };
+        let slack = (t * sum(&|_, c| scaled(c.abs(), Interval::point(slack)))).upper;
         for on_upper in [false, true] {
-            let (row, delta) = match &dynamics.g_constant {
-                Some(b) => interaction_row(b, dynamics, nn, margin, i, on_upper),
-                None => (vec![Interval::point(0.0); n], Interval::point(0.0)),
-            };
+            // Fₗ's form for this end: its upper one where cₗ·Fₗ is bounded above by it.
+            let form = |l: usize, c: f64| &forms[l][usize::from((c >= 0.0) == on_upper)];
             let a: Vec<Interval> = (0..n)
-                .map(|j| Interval::point(f64::from(u8::from(i == j))) + t * (jac[i][j] + row[j]))
+                .map(|j| {
+                    let slope = sum(&|l, c| scaled(c, jac[l][j] + form(l, c).0[j]));
+                    Interval::point(f64::from(u8::from(i == j))) + t * slope
+                })
                 .collect();
             // The expansion point: the end of Xⱼ where the term is smallest (largest for the
             // upper end) when aᵢⱼ has one sign, the centre otherwise.
@@ -496,10 +519,14 @@ pub fn mixed_image(
                 })
                 .collect();
             let pp: Vec<Interval> = p.iter().map(|&v| Interval::point(v)).collect();
-            let mut phi = dynamics.f_tilde[i].eval_interval(&pp) + delta;
-            for j in 0..n {
-                phi = phi + row[j] * pp[j];
-            }
+            let phi = sum(&|l, c| {
+                let (row, delta) = form(l, c);
+                let at_p = (0..n)
+                    .fold(dynamics.f_tilde[l].eval_interval(&pp) + *delta, |acc, j| {
+                        acc + row[j] * pp[j]
+                    });
+                scaled(c, at_p)
+            });
             let mut total = pp[i] + t * phi;
             for j in 0..n {
                 total = total + a[j] * (x[j] - pp[j]);
@@ -527,10 +554,11 @@ pub fn proven_safe(scenario: &Scenario, c: usize, b: &IntervalBox) -> (bool, boo
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
 
-    fn scenario(f: &str, g: &str) -> Scenario {
+    /// A two-state scenario with this `f` and `g` (also for [`super::super::sampled_second`]).
+    pub(in crate::reach) fn scenario(f: &str, g: &str) -> Scenario {
         scenario_with(f, g, "x2 + 2")
     }
 

@@ -217,121 +217,15 @@ pub fn frame_speed(
     speed.iter().all(|s| s.is_finite()).then_some(speed)
 }
 
-/// [`super::sampled::mixed_image`] with a mixing matrix `w`: per coordinate `i` and end, the
-/// mean-value form of `xᵢ + τ·Σₗ wᵢₗ·(f̃ₗ(x) + mₗ·x + δₗ)` about the corner where each
-/// coefficient has one sign (as [`super::sampled::euler_image`]), `mₗ, δₗ` the
-/// interaction-aware row of `Fₗ`'s lower form where `wᵢₗ` has the end's sign, else of its
-/// upper form. State-dependent `g` has no such rows: the identity's image.
-pub(super) fn mixed_rows(
-    dynamics: &super::embedding::Dynamics,
-    set: &IntervalBox,
-    tau: f64,
-    nn: super::embedding::NetworkBoundsRef,
-    margin: &[f64],
-    slack: f64,
-    w: &[f64],
-) -> (Vec<f64>, Vec<f64>) {
-    let Some(b) = dynamics.g_constant.as_ref() else {
-        return super::sampled::mixed_image(dynamics, set, tau, nn, margin, slack, None);
-    };
-    let n = dynamics.n;
-    let x = box_of(&set.lower, &set.upper);
-    let t = Interval::point(tau);
-    let jac: Vec<Vec<Interval>> = dynamics
-        .f_tilde_jacobian
-        .iter()
-        .map(|row| row.iter().map(|e| e.eval_interval(&x)).collect())
-        .collect();
-    let forms: Vec<[(Vec<Interval>, Interval); 2]> = (0..n)
-        .map(|l| {
-            [false, true]
-                .map(|up| super::embedding::interaction_row(b, dynamics, nn, margin, l, up))
-        })
-        .collect();
-    let (mut lower, mut upper) = (Vec::with_capacity(n), Vec::with_capacity(n));
-    for i in 0..n {
-        let wi = &w[i * n..(i + 1) * n];
-        // The transform's slack of each `Fₗ`, mixed.
-        let slack_i = (0..n).fold(Interval::point(0.0), |acc, l| {
-            acc + Interval::point(wi[l].abs()) * Interval::point(slack)
-        });
-        let slack_i = (t * slack_i).upper;
-        for on_upper in [false, true] {
-            // Fₗ's form for this end: its upper one where wᵢₗ·Fₗ is bounded above by it.
-            let form = |l: usize| &forms[l][usize::from((wi[l] >= 0.0) == on_upper)];
-            let a: Vec<Interval> = (0..n)
-                .map(|j| {
-                    let mixed = (0..n)
-                        .filter(|&l| wi[l] != 0.0)
-                        .fold(Interval::point(0.0), |acc, l| {
-                            acc + Interval::point(wi[l]) * (jac[l][j] + form(l).0[j])
-                        });
-                    Interval::point(f64::from(u8::from(i == j))) + t * mixed
-                })
-                .collect();
-            let p: Vec<f64> = (0..n)
-                .map(|j| {
-                    let (lo, hi) = (set.lower[j], set.upper[j]);
-                    let (small, large) = if on_upper { (hi, lo) } else { (lo, hi) };
-                    if a[j].lower >= 0.0 {
-                        small
-                    } else if a[j].upper <= 0.0 {
-                        large
-                    } else {
-                        lo + 0.5 * (hi - lo)
-                    }
-                })
-                .collect();
-            let pp: Vec<Interval> = p.iter().map(|&v| Interval::point(v)).collect();
-            let phi = (0..n)
-                .filter(|&l| wi[l] != 0.0)
-                .fold(Interval::point(0.0), |acc, l| {
-                    let (row, delta) = form(l);
-                    let at_p = (0..n)
-                        .fold(dynamics.f_tilde[l].eval_interval(&pp) + *delta, |acc, j| {
-                            acc + row[j] * pp[j]
-                        });
-                    acc + Interval::point(wi[l]) * at_p
-                });
-            let mut total = pp[i] + t * phi;
-            for j in 0..n {
-                total = total + a[j] * (x[j] - pp[j]);
-            }
-            if on_upper {
-                upper.push((total + Interval::point(slack_i)).upper);
-            } else {
-                lower.push((total - Interval::point(slack_i)).lower);
-            }
-        }
-    }
-    (lower, upper)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::scenario::Scenario;
 
     fn plant(f: &str) -> Plant {
-        let text = format!(
-            r#"
-name = "t"
-[system]
-states = ["x1", "x2"]
-inputs = ["u"]
-f = {f}
-g = [["0"], ["1"]]
-kappa = ["-x1 - 2*x2"]
-[[cbf]]
-h = "x1 + 10"
-[reach]
-region = {{ lower = [-3, -3], upper = [3, 3] }}
-dt = 0.05
-horizon = 1.0
-goal = {{ lower = [-0.1, -0.1], upper = [0.1, 0.1] }}
-"#
-        );
-        Plant::of(&Scenario::from_toml(&text, "t.toml", std::path::Path::new(".")).unwrap())
+        Plant::of(&super::super::sampled::tests::scenario(
+            f,
+            r#"[["0"], ["1"]]"#,
+        ))
     }
 
     /// The double integrator's held motion is `x + τ(I + τ/2·C)F` exactly: `C = Df`, no radius
