@@ -28,14 +28,23 @@ pub enum Integrator {
 }
 
 impl Integrator {
-    /// The scheme whose trajectories a time model's sets bound, and its step: RK4 at `dt` for
-    /// `continuous` (the ODE), the zero-order hold at the control period for `sampled`, the
-    /// map itself for `euler`. What `simulate` runs when no scheme is named.
-    pub fn for_time(time: TimeModel, dt: f64) -> (Integrator, f64) {
+    /// The scheme whose trajectories a time model's sets bound: RK4 for `continuous` (the
+    /// ODE), the zero-order hold for `sampled`, the map itself for `euler`. What `simulate`
+    /// runs when no scheme is named.
+    pub fn for_time(time: TimeModel) -> Integrator {
         match time {
-            TimeModel::Continuous => (Integrator::Rk4, dt),
-            TimeModel::Sampled { control_period } => (Integrator::Zoh, control_period),
-            TimeModel::Euler => (Integrator::Euler, dt),
+            TimeModel::Continuous => Integrator::Rk4,
+            TimeModel::Sampled { .. } => Integrator::Zoh,
+            TimeModel::Euler => Integrator::Euler,
+        }
+    }
+
+    /// Its step under `time` with integration step `dt`: the hold's is the control period
+    /// where the model has one, every other scheme's `dt`.
+    pub fn step(self, time: TimeModel, dt: f64) -> f64 {
+        match (self, time) {
+            (Integrator::Zoh, TimeModel::Sampled { control_period }) => control_period,
+            _ => dt,
         }
     }
 

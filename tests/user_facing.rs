@@ -162,31 +162,23 @@ fn coordinates_left_open_are_chosen_and_said() {
 /// says why.
 #[test]
 fn coordinates_left_open_contract_systems_that_oscillate() {
-    let pendulum = |damping: &str, gains: &str| {
-        let text = format!(
-            r#"
-name = "pendulum"
-[system]
-states = ["theta", "omega"]
-inputs = ["u"]
-f = ["omega", "sin(theta) - {damping}*omega"]
-g = [["0"], ["1"]]
-kappa = ["-sin(theta) - {gains}"]
-[[cbf]]
-h = "0.8 - theta - 0.5*omega"
-alpha = 2.0
-[reach]
-region = {{ lower = [-1.5, -2.0], upper = [1.5, 2.0] }}
-m_c = 0.01
-dt = 0.02
-horizon = 8.0
-goal = {{ lower = [-0.1, -0.1], upper = [0.1, 0.1] }}
-initial = [ {{ lower = [-0.6, -0.1], upper = [-0.4, 0.1] }} ]
-"#
-        );
-        Scenario::from_toml(&text, "pendulum.toml", Path::new(".")).unwrap()
+    // The fixture steered to the origin: (gains, damping).
+    let pendulum = |k1: &str, k2: &str, b: &str| {
+        common::fixture_with(
+            "pendulum.toml",
+            &[
+                ("b = 0.1", b),
+                ("k1 = 4.0", k1),
+                ("k2 = 3.0", k2),
+                ("theta_ref = 1.0", "theta_ref = 0.0"),
+                (
+                    "lower = [0.9, -0.1], upper = [1.1, 0.1]",
+                    "lower = [-0.1, -0.1], upper = [0.1, 0.1]",
+                ),
+            ],
+        )
     };
-    let (t, why) = Transform::chosen(&pendulum("0.1", "4*theta - 3*omega"));
+    let (t, why) = Transform::chosen(&pendulum("k1 = 4.0", "k2 = 3.0", "b = 0.1"));
     assert!(t.is_some(), "{why}");
     let rate = -1.55 + (4.0_f64 - 1.55 * 1.55).sqrt();
     match why {
@@ -207,7 +199,7 @@ initial = [ {{ lower = [-0.6, -0.1], upper = [-0.4, 0.1] }} ]
         matches!(why, CoordinatesReason::NotContractingInX { mu_z, .. } if mu_z < -1.0),
         "{why}"
     );
-    let (t, why) = Transform::chosen(&pendulum("0", "theta"));
+    let (t, why) = Transform::chosen(&pendulum("k1 = 1.0", "k2 = 0.0", "b = 0.0"));
     assert!(t.is_none());
     assert!(
         why.to_string()

@@ -545,7 +545,8 @@ fn count_escapes(
 
 /// Where the filtered trajectories from the initial boxes' centres end.
 fn endpoint_summary(s: &Scenario, found: &[Equilibrium]) {
-    let (integrator, step) = cbfreach::simulate::Integrator::for_time(s.reach.time, s.reach.dt);
+    let integrator = cbfreach::simulate::Integrator::for_time(s.reach.time);
+    let step = integrator.step(s.reach.time, s.reach.dt);
     println!(
         "Filtered trajectories from the centres of the {} initial boxes ({}, dt = {step}, T = {}):",
         s.reach.initial.len(),

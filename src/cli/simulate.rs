@@ -130,14 +130,12 @@ const MAX_TRAJECTORY_BYTES: f64 = 8e9;
 /// Runs the command.
 pub fn run(args: &SimulateArgs) -> CliResult {
     let s = load_scenario(&args.scenario)?;
-    let (integrator, step) = match args.integrator {
-        Some(Integrator::Zoh) | None => {
-            let (chosen, step) = Integrator::for_time(s.reach.time, s.reach.dt);
-            (args.integrator.unwrap_or(chosen), step)
-        }
-        Some(other) => (other, s.reach.dt),
-    };
-    let dt = args.dt.unwrap_or(step);
+    let integrator = args
+        .integrator
+        .unwrap_or_else(|| Integrator::for_time(s.reach.time));
+    let dt = args
+        .dt
+        .unwrap_or_else(|| integrator.step(s.reach.time, s.reach.dt));
     let horizon = args.horizon.unwrap_or(s.reach.horizon);
     if !(dt > 0.0 && horizon > 0.0) {
         return Err(

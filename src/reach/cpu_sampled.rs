@@ -5,7 +5,8 @@
 
 use super::*;
 use crate::intervals::box_of;
-use crate::reach::sampled::{euler_image, mixed_image, proven_safe, Intersample, Remainder};
+use crate::reach::embedding::input_enclosure;
+use crate::reach::sampled::{euler_image, proven_safe, Intersample};
 use crate::reach::sampled_second::{frame_speed, held_terms, mix_in_frame, spread_term};
 
 /// The x network's bounds at a sample over the x-boxes of the chunk's live boxes whose held
@@ -155,23 +156,29 @@ impl ChunkRun<'_> {
                 .margin
                 .zip(slots[f])
                 .map(|(bound, slot)| (slot, vec![bound; m]));
+            // The sound fields over the set: the filter's proven piece (its own field), its
+            // enclosure of `v`, the network's bounds plus the margin; each as (dynamics,
+            // bounds of v, margin, slack).
+            let zero = zero_bounds(zeros, n, m);
+            let mut fields: Vec<(&crate::reach::Dynamics, NetworkBoundsRef, &[f64], f64)> =
+                Vec::with_capacity(3);
+            if let Some((piece, slack)) = input.piece {
+                fields.push((piece_dynamics(p, piece), zero, zero.b_lower, slack));
+            }
+            if let Some((lo, hi, slack)) = &enclosure {
+                let consts = constant_bounds(zeros, lo, hi, n);
+                fields.push((&p.dynamics, consts, &zeros[..m], *slack));
+            }
+            if let Some((slot, margin)) = &network {
+                let nn = bounds_of(&buf.frames[f].batch, *slot, n, m);
+                fields.push((&p.dynamics, nn, margin, p.field_slack));
+            }
             let image = |tau: f64| -> Option<IntervalBox> {
-                let exact = input.piece.map(|(piece, slack)| {
-                    let zero = zero_bounds(zeros, n, m);
-                    let dynamics = piece_dynamics(p, piece);
-                    euler_image(dynamics, set, tau, zero, zero.b_lower, slack)
-                });
-                let enclosed = enclosure.as_ref().map(|(lo, hi, slack)| {
-                    let consts = constant_bounds(zeros, lo, hi, n);
-                    euler_image(&p.dynamics, set, tau, consts, &zeros[..m], *slack)
-                });
-                let net = network.as_ref().map(|(slot, margin)| {
-                    let nn = bounds_of(&buf.frames[f].batch, *slot, n, m);
-                    euler_image(&p.dynamics, set, tau, nn, margin, p.field_slack)
-                });
-                let (lower, upper) = [exact, enclosed, net]
-                    .into_iter()
-                    .flatten()
+                let (lower, upper) = fields
+                    .iter()
+                    .map(|&(d, nn, margin, slack)| {
+                        euler_image(d, set, tau, nn, margin, slack, None)
+                    })
                     .reduce(meet_fields)?;
                 Some(IntervalBox { lower, upper })
             };
@@ -183,55 +190,34 @@ impl ChunkRun<'_> {
                 .chain((1..=self.period).map(|j| image(j as f64 * self.h)))
                 .collect();
             images.push(held);
-            // The second-order image of each step, from the same sound fields.
+            // The second-order image of each step, from the same fields; `|F|` over the set
+            // is the same for every step.
+            let speeds: Vec<Option<Vec<f64>>> = match terms.is_some() {
+                true => fields
+                    .iter()
+                    .map(|&(d, nn, margin, slack)| {
+                        frame_speed(d, set, &input_enclosure(nn, margin), slack)
+                    })
+                    .collect(),
+                false => Vec::new(),
+            };
             let second_at = |term: &crate::reach::sampled_second::HeldTerm| {
                 let mix = mix_in_frame(p.transform.as_ref(), term);
-                let branch = |dynamics: &crate::reach::Dynamics,
-                              nn: NetworkBoundsRef,
-                              margin: &[f64],
-                              slack| {
-                    let (mut lo, mut hi) = mixed_image(
-                        dynamics,
-                        set,
-                        term.tau,
-                        nn,
-                        margin,
-                        slack,
-                        Some(&mix.matrix),
-                    );
-                    let u = super::super::embedding::input_enclosure(nn, margin);
-                    let speed = frame_speed(dynamics, set, &u, slack)?;
-                    let spread = spread_term(&mix, &speed, term.tau);
-                    for i in 0..n {
-                        lo[i] = (Interval::point(lo[i]) - Interval::point(spread[i])).lower;
-                        hi[i] = (Interval::point(hi[i]) + Interval::point(spread[i])).upper;
-                    }
-                    Some((lo, hi))
-                };
-                let exact = input.piece.and_then(|(piece, slack)| {
-                    let zero = zero_bounds(zeros, n, m);
-                    branch(piece_dynamics(p, piece), zero, zero.b_lower, slack)
-                });
-                let enclosed = enclosure.as_ref().and_then(|(lo, hi, slack)| {
-                    let consts = constant_bounds(zeros, lo, hi, n);
-                    branch(&p.dynamics, consts, &zeros[..m], *slack)
-                });
-                let net = network.as_ref().and_then(|(slot, margin)| {
-                    let nn = bounds_of(&buf.frames[f].batch, *slot, n, m);
-                    branch(&p.dynamics, nn, margin, p.field_slack)
-                });
-                let (mut lower, mut upper) = [exact, enclosed, net]
-                    .into_iter()
-                    .flatten()
+                let (mut lower, mut upper) = fields
+                    .iter()
+                    .zip(&speeds)
+                    .filter_map(|(&(d, nn, margin, slack), speed)| {
+                        let w = Some(mix.matrix.as_slice());
+                        let (mut lo, mut hi) = euler_image(d, set, term.tau, nn, margin, slack, w);
+                        let spread = spread_term(&mix, speed.as_ref()?, term.tau);
+                        for i in 0..n {
+                            lo[i] = (Interval::point(lo[i]) - Interval::point(spread[i])).lower;
+                            hi[i] = (Interval::point(hi[i]) + Interval::point(spread[i])).upper;
+                        }
+                        Some((lo, hi))
+                    })
                     .reduce(meet_fields)?;
-                let (rl, ru) = in_frame(
-                    p,
-                    &Remainder {
-                        lower: term.lower.clone(),
-                        upper: term.upper.clone(),
-                        pipe: state.known.clone(),
-                    },
-                );
+                let (rl, ru) = in_frame(p, &term.lower, &term.upper);
                 embedding_step(&mut lower, &mut upper, &rl, &ru, 1.0);
                 Some(IntervalBox { lower, upper })
             };
@@ -304,24 +290,18 @@ impl ChunkRun<'_> {
                 continue;
             };
             let p = frame.problem;
-            let in_p = |(lower, upper): (Vec<f64>, Vec<f64>)| {
-                let pipe = state.known.clone();
-                in_frame(p, &Remainder { lower, upper, pipe })
-            };
+            let in_p = |(lower, upper): (Vec<f64>, Vec<f64>)| in_frame(p, &lower, &upper);
             let (rl, ru) = in_p(held.inter.at(b));
             let (bl, bu) = in_p(held.inter.between(a, b));
             let set = &mut state.sets[f];
             set.clone_from(&images[j]);
             embedding_step(&mut set.lower, &mut set.upper, &rl, &ru, 1.0);
             if let Some(second) = &held.second[f] {
-                let (lower, upper) = meet_fields(
-                    (
-                        std::mem::take(&mut set.lower),
-                        std::mem::take(&mut set.upper),
-                    ),
-                    (second[j - 1].lower.clone(), second[j - 1].upper.clone()),
-                );
-                (set.lower, set.upper) = (lower, upper);
+                let other = &second[j - 1];
+                for i in 0..set.dim() {
+                    set.lower[i] = set.lower[i].max(other.lower[i]);
+                    set.upper[i] = set.upper[i].min(other.upper[i]);
+                }
             }
             let mut swept = images[j - 1].hull(&images[j]);
             embedding_step(&mut swept.lower, &mut swept.upper, &bl, &bu, 1.0);

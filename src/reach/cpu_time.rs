@@ -521,16 +521,18 @@ impl ChunkRun<'_> {
     }
 }
 
-/// The remainder's bounds in a frame's coordinates: `T·R` widened by the transform's `ρ`.
+/// A remainder's bounds (x coordinates) in a frame's coordinates: `T·R` widened by the
+/// transform's `ρ`.
 pub(super) fn in_frame(
     problem: &ReachProblem,
-    r: &crate::reach::sampled::Remainder,
+    lower: &[f64],
+    upper: &[f64],
 ) -> (Vec<f64>, Vec<f64>) {
     let Some(t) = &problem.transform else {
-        return (r.lower.clone(), r.upper.clone());
+        return (lower.to_vec(), upper.to_vec());
     };
     let n = t.n;
-    let rx: Vec<Interval> = crate::intervals::box_of(&r.lower, &r.upper);
+    let rx: Vec<Interval> = crate::intervals::box_of(lower, upper);
     let rz: Vec<Interval> = (0..n)
         .map(|i| {
             (0..n).fold(Interval::point(0.0), |acc, j| {

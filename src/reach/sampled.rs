@@ -297,7 +297,7 @@ impl Plant {
     /// Whether the remainder is 0 whatever the state (`Df = 0`, `Dg = 0`: `ẋ = u`).
     pub fn is_still(&self) -> bool {
         let zero = |e: &Expr| e.as_constant() == Some(0.0);
-        self.df.iter().flatten().all(zero) && self.dg.iter().flatten().flatten().all(zero)
+        self.df.iter().flatten().all(zero) && self.g_is_constant()
     }
 
     /// The held input's enclosure `κ(X) + v`, `v` an enclosure of the filter's correction on
@@ -415,24 +415,14 @@ fn signed_mul(a: Interval, b: Interval) -> Interval {
 /// about the corner where each `aᵢⱼ` has one sign (its low end where `aᵢⱼ ≥ 0`) and the
 /// centre elsewhere: exact for affine fields, and sound whatever the sign of `1 + τ∂ᵢFᵢ`.
 /// State-dependent `g` takes `g(X)·[N̲ − M, N̄ + M]` (no slopes). Mirrored for the upper end.
+///
+/// With `mix = Some(W)` (a point matrix, n×n row-major), the image of `x + τ·W·F(x)`: the
+/// second-order image's main part ([`super::sampled_second`]), constant `g` only
+/// (state-dependent `g` takes the identity). Per coordinate `i` and end the field's forms are
+/// mixed row by row, `Σₗ Wᵢₗ·(F̲ₗ or F̄ₗ)` by the sign of `Wᵢₗ`, and the mean-value form is
+/// taken of the mix. Entries 1 and 0 of `W` are used without a product, so the identity gives
+/// `None`'s bits.
 pub fn euler_image(
-    dynamics: &Dynamics,
-    set: &IntervalBox,
-    tau: f64,
-    nn: NetworkBoundsRef,
-    margin: &[f64],
-    slack: f64,
-) -> (Vec<f64>, Vec<f64>) {
-    mixed_image(dynamics, set, tau, nn, margin, slack, None)
-}
-
-/// [`euler_image`] of `x + τ·W·F(x)` for a point matrix `W` (n×n row-major; `None`: the
-/// identity, [`euler_image`] itself): the second-order image's main part
-/// ([`super::sampled_second`]), constant `g` only (state-dependent `g` takes the identity).
-/// Per coordinate `i` and end the field's forms are mixed row by row, `Σₗ Wᵢₗ·(F̲ₗ or F̄ₗ)` by
-/// the sign of `Wᵢₗ`, and the mean-value form above is taken of the mix. Entries 1 and 0 of
-/// `W` are used without a product, so the identity gives [`euler_image`]'s bits.
-pub fn mixed_image(
     dynamics: &Dynamics,
     set: &IntervalBox,
     tau: f64,

@@ -1,4 +1,4 @@
-//! The held motion to second order (sampled data, constant `g`; docs/design.md §7.2 item 5).
+//! The held motion to second order (sampled data, constant `g`; docs/design.md §7.2 item 2b).
 //! Imports the plant and the intersample motion of [`super::sampled`], intervals and boxes.
 //!
 //! With the input held at `u_k`, `ẋ = f(x) + g·u_k`, so `ẋ(s) − ẋ(0) = f(x(s)) − f(x_k)`.
@@ -138,15 +138,18 @@ pub fn mix_in_frame(transform: Option<&Transform>, term: &HeldTerm) -> Mix {
                     })
                 })
                 .collect();
-            // ‖T·C·S‖∞, and S⁻¹CS within ρ_T of it (entrywise, by the norm).
+            // ‖T·C·S‖∞ (an upper bound), and S⁻¹CS within ρ_T of it (entrywise, by the norm).
             let norm = (0..n)
-                .map(|i| (0..n).fold(0.0, |acc, j| acc + tcs[i * n + j].mag()))
+                .map(|i| {
+                    (0..n)
+                        .fold(Interval::point(0.0), |acc, j| {
+                            acc + Interval::point(tcs[i * n + j].mag())
+                        })
+                        .upper
+                })
                 .fold(0.0_f64, f64::max);
-            let pad = round_up(round_up(t.rho * round_up(norm)) * (1.0 + 1e-15));
-            tcs.iter()
-                .map(|e| Interval::new(e.lower - pad, e.upper + pad))
-                .map(|e| Interval::new(round_down(e.lower), round_up(e.upper)))
-                .collect()
+            let pad = (Interval::point(t.rho) * Interval::point(norm)).upper;
+            tcs.iter().map(|&e| e + Interval::new(-pad, pad)).collect()
         }
     };
     let mut matrix = Vec::with_capacity(n * n);
@@ -165,10 +168,6 @@ pub fn mix_in_frame(transform: Option<&Transform>, term: &HeldTerm) -> Mix {
         ));
     }
     Mix { matrix, spread }
-}
-
-fn round_down(x: f64) -> f64 {
-    crate::rounding::round_down(x)
 }
 
 /// `τ·Σₗ spreadᵢₗ·|Fₗ|` per coordinate with `|F|` bounded by `speed`: the part of the frame's

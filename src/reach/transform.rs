@@ -271,16 +271,18 @@ impl Transform {
         let blocks = schur_blocks(&u);
         // `W`: the blocks' own coordinates; the identity where every eigenvalue is real, so
         // that those systems get the bits they always had.
-        let w = blocks
+        let pairs: Vec<usize> = blocks
             .iter()
-            .fold(None, |w: Option<DMatrix<f64>>, &(i, size)| match size {
-                2 => {
-                    let mut w = w.unwrap_or_else(|| DMatrix::identity(n, n));
-                    w.view_mut((i, i), (2, 2)).copy_from(&rotation_basis(&u, i));
-                    Some(w)
-                }
-                _ => w,
-            });
+            .filter(|&&(_, size)| size == 2)
+            .map(|&(i, _)| i)
+            .collect();
+        let w = (!pairs.is_empty()).then(|| {
+            let mut w = DMatrix::identity(n, n);
+            for &i in &pairs {
+                w.view_mut((i, i), (2, 2)).copy_from(&rotation_basis(&u, i));
+            }
+            w
+        });
         let (w_inv, u) = match &w {
             Some(w) => {
                 let w_inv = w.clone().try_inverse().ok_or(TransformError::Singular)?;
@@ -298,17 +300,7 @@ impl Transform {
         // Each block's own rate `μ∞` (its diagonal part), the slowest of which sets the goal.
         let slowest = blocks
             .iter()
-            .map(|&(i, size)| {
-                (i..i + size)
-                    .map(|r| {
-                        u[(r, r)]
-                            + (i..i + size)
-                                .filter(|&c| c != r)
-                                .map(|c| u[(r, c)].abs())
-                                .sum::<f64>()
-                    })
-                    .fold(f64::NEG_INFINITY, f64::max)
-            })
+            .map(|&(i, size)| log_norm_inf_of(&u.view((i, i), (size, size)).clone_owned()))
             .fold(f64::NEG_INFINITY, f64::max);
         let target = if slowest < 0.0 {
             0.5 * slowest
