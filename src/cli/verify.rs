@@ -48,6 +48,11 @@ pub struct VerifyArgs {
     /// unverified ones, within the budget); their halves keep the verdict.
     #[arg(long)]
     pub refine_feasibility: bool,
+    /// Refinement also bisects partly-unsafe boxes, the band along the safe set's boundary
+    /// (after the others, within the budget); their halves that start safe are run and join
+    /// the safe area.
+    #[arg(long)]
+    pub refine_boundary: bool,
     /// In continuous time, the most substeps refinement cuts a refined box's step into (the
     /// step halves once every n rounds, n states; 1: refinement keeps the step).
     #[arg(long, value_name = "K", default_value_t = VerifySettings::default().max_substeps)]
@@ -147,6 +152,7 @@ pub fn run(args: &VerifyArgs) -> CliResult {
         settings.budget = args.budget;
     }
     settings.refine_feasibility |= args.refine_feasibility;
+    settings.refine_boundary |= args.refine_boundary;
     if given("max_substeps") {
         settings.max_substeps = args.max_substeps;
     }
@@ -479,6 +485,14 @@ pub fn print_summary(r: &VerifyReport) {
                     .filter(|(v, _)| v.starts_safe())
                     .map(|(_, c)| c)
                     .sum::<usize>()
+        );
+    }
+    if r.run.refine_boundary && b.total_area > 0.0 {
+        println!(
+            "    the band along the safe set's boundary refined: the safe area is {:.1}% of the \
+             region, {:.1}% before refinement",
+            100.0 * a.safe_area / a.total_area.max(f64::MIN_POSITIVE),
+            100.0 * b.safe_area / b.total_area
         );
     }
     let rate = |steps: usize| steps as f64 / r.timing.reach_s.max(1e-9);

@@ -29,12 +29,15 @@
 //!
 //! **Refinement** bisects `unknown` and `invalid` leaves across their widest axis and re-runs the
 //! halves, up to a depth and a budget of extra boxes; both can become decidable on smaller
-//! boxes (tighter network bounds, narrower sets). Unsafe-start cells are not refined, so the
-//! *safe area* — the area of the cells that start safe — is the same before and after, and the
-//! **verified share** is `area(converges ∪ trapped) / safe area`. With `refine_feasibility` it
+//! boxes (tighter network bounds, narrower sets). Cells that may start unsafe are not refined
+//! (but see `refine_boundary` below), so the *safe area* — the area of the cells that start
+//! safe — is the same before and after, and the **verified share** is
+//! `area(converges ∪ trapped) / safe area`. With `refine_feasibility` it
 //! also bisects verified leaves whose QP feasibility is not proven (after the undecided ones):
 //! a half keeps its parent's verdict, which holds for every start in the parent, unless its own
-//! sets prove one, and only its own sets can prove the QP feasible.
+//! sets prove one, and only its own sets can prove the QP feasible. With `refine_boundary` it
+//! also bisects `partly-unsafe` leaves (last): their halves that start safe are run and join
+//! the safe area, which then grows from the cells' (docs/design.md §2.9).
 //!
 //! **Shards**: `K/N` takes the K-th (1-based) of N contiguous slices of the grid's cells (axis 0
 //! fastest), so a job array can split a large region; [`merge`] checks that the shards come from

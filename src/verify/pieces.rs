@@ -275,6 +275,7 @@ pub fn verify_by_pieces(
             refine_depth: settings.refine,
             budget: REFINE_BUDGET,
             refine_feasibility: true,
+            refine_boundary: false,
             max_substeps: settings.max_substeps,
             absorb: VerifySettings::default().absorb,
             shard: None,

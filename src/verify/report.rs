@@ -140,6 +140,11 @@ pub struct RunInfo {
     /// Refinement also bisected verified leaves whose QP feasibility was not proven.
     #[serde(default)]
     pub refine_feasibility: bool,
+    /// Refinement also bisected `partly-unsafe` leaves (`VerifySettings::refine_boundary`):
+    /// the safe area after refinement holds their halves that start in `S` (false in files
+    /// from before it).
+    #[serde(default)]
+    pub refine_boundary: bool,
     /// The boxes proven absorbing, where tubes stopped (`VerifySettings::absorb`; none in
     /// files from before it: every tube ran to the horizon).
     #[serde(default)]
@@ -455,6 +460,7 @@ mod tests {
                 refine_depth: 0,
                 budget: 0,
                 refine_feasibility: false,
+                refine_boundary: false,
                 absorbing: Vec::new(),
             },
             shard: None,

@@ -303,10 +303,16 @@ impl<'a> Verifier<'a> {
             let unproven_feasible = (0..leaves.len()).filter(|i| {
                 settings.refine_feasibility && latest(i) && leaves[*i].lacks_feasibility_proof()
             });
+            let boundary = (0..leaves.len()).filter(|i| {
+                settings.refine_boundary && latest(i) && leaves[*i].verdict == Verdict::PartlyUnsafe
+            });
             // The undecided leaves take the budget first; the halves replace their parents in
             // place, so the parents go in leaf order.
-            let mut parents: Vec<usize> =
-                undecided.chain(unproven_feasible).take(left / 2).collect();
+            let mut parents: Vec<usize> = undecided
+                .chain(unproven_feasible)
+                .chain(boundary)
+                .take(left / 2)
+                .collect();
             parents.sort_unstable();
             if parents.is_empty() {
                 break;
@@ -374,6 +380,7 @@ impl<'a> Verifier<'a> {
                 refine_depth: settings.refine_depth,
                 budget: settings.budget,
                 refine_feasibility: settings.refine_feasibility,
+                refine_boundary: settings.refine_boundary,
                 absorbing,
                 // The caller that knows the files records them (the CLI).
                 network_hash: String::new(),

@@ -12,8 +12,8 @@ use crate::scenario::Scenario;
 
 /// Settings of a verification run. `VerifySettings::default()` is what `cbfreach verify` runs
 /// with no options; a scenario's `[settings.verify]` table sets `region`, `grid`,
-/// `refine_depth`, `budget`, `refine_feasibility` and `max_substeps` by name, and command-line options
-/// override both.
+/// `refine_depth`, `budget`, `refine_feasibility`, `refine_boundary` and `max_substeps` by name,
+/// and command-line options override both.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct VerifySettings {
@@ -29,6 +29,12 @@ pub struct VerifySettings {
     /// unverified ones, within the same budget): their halves keep the verdict and may prove
     /// feasibility on their own sets. Default: false.
     pub refine_feasibility: bool,
+    /// Refinement also bisects `partly-unsafe` leaves, the band along `∂S` (after the others,
+    /// within the same budget): their halves that start in `S` are run, and join the safe area,
+    /// which then grows from the cells' (the share before refinement keeps the cells'). Where
+    /// the filter acts and its spurious equilibria lie, which cells straddling `∂S` leave out.
+    /// Default: false (the shares stay those of the cells that start safe).
+    pub refine_boundary: bool,
     /// In continuous time refinement cuts the step as it cuts the boxes: a box of depth `d`
     /// runs `2^⌈d/n⌉` times the problem's substeps (n states; [`VerifySettings::substeps_at`]),
     /// at most this many (never fewer than the problem's own). A validated step's excess over
@@ -61,6 +67,7 @@ impl Default for VerifySettings {
             refine_depth: 0,
             budget: 8192,
             refine_feasibility: false,
+            refine_boundary: false,
             max_substeps: 4,
             absorb: true,
             shard: None,

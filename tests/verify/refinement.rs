@@ -315,3 +315,77 @@ fn pieces_resume_from_their_checkpoints() {
     assert_eq!(handed_back.load(Ordering::SeqCst), recorded);
     assert_eq!(resumed, straight);
 }
+
+/// `refine_boundary`: around the trap (3, 0) on the obstacle's circle, the cells that straddle
+/// the circle are `partly-unsafe` and never run; with the setting their halves that start in
+/// `S` are run and join the safe area, and those beside the trap prove `trapped`, as the
+/// ground-truth filter agrees from every start checked.
+#[test]
+fn boundary_refinement_runs_the_halves_of_cells_straddling_the_safe_sets_boundary() {
+    use cbfreach::verify::start_verdict;
+    use cbfreach::IntervalBox;
+
+    let s = common::integrator();
+    let problem = common::shipped_problem(&s).with_time(TimeModel::Euler, 1);
+    let verifier = Verifier {
+        reach: ReachSettings {
+            face_local: true,
+            ..ReachSettings::default()
+        },
+        ..Verifier::new(&s, &problem, &CpuBackend)
+    };
+    let region = IntervalBox::new(vec![2.8, -0.4], vec![3.6, 0.4]).unwrap();
+    let run = |refine_boundary: bool| {
+        let settings = VerifySettings {
+            region: Some(region.clone()),
+            grid: vec![4, 4],
+            refine_depth: 4,
+            budget: 400,
+            refine_boundary,
+            chunk: Some(64),
+            ..VerifySettings::default()
+        };
+        verifier.run(&settings, &|_, _, _| {}).unwrap()
+    };
+
+    let plain = run(false);
+    let band: Vec<usize> = (plain.before.iter())
+        .filter(|b| b.verdict == Verdict::PartlyUnsafe)
+        .map(|b| b.cell)
+        .collect();
+    assert!(!band.is_empty(), "no cell straddles the circle");
+    let in_band = |b: &&cbfreach::verify::BoxVerdict| band.contains(&b.cell);
+    assert!(plain.after.iter().filter(in_band).all(|b| b.depth == 0));
+    let safe = |r: &VerifyReport| (r.shares_before().safe_area, r.shares_after().safe_area);
+    let (before, after) = safe(&plain);
+    assert!((after - before).abs() < 1e-12, "{before} → {after}");
+
+    let refined = run(true);
+    assert!(refined.run.refine_boundary);
+    let area: f64 = refined.after.iter().map(|b| b.initial.volume()).sum();
+    assert!(
+        (area - region.volume()).abs() < 1e-12,
+        "the leaves do not tile: {area}"
+    );
+    let (before, after) = safe(&refined);
+    assert!(
+        after > before + 0.01,
+        "the safe area did not grow: {before} → {after}"
+    );
+    // Each leaf's start is judged on the leaf itself.
+    for b in &refined.after {
+        let start = start_verdict(&s, &b.initial);
+        match b.verdict.starts_safe() {
+            true => assert_eq!(start, None, "{b:?}"),
+            false => assert_eq!(start, Some(b.verdict), "{b:?}"),
+        }
+    }
+    let trapped: f64 = (refined.after.iter().filter(in_band))
+        .filter(|b| b.verdict == Verdict::Trapped)
+        .map(|b| b.initial.volume())
+        .sum();
+    assert!(trapped > 0.0, "no half in the band proved trapped");
+    let check = simulation_check(&s, &refined, 3);
+    assert!(check.starts > 0);
+    assert!(check.disagreements.is_empty(), "{:?}", check.disagreements);
+}
