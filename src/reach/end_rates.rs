@@ -102,8 +102,8 @@ pub fn curved_rates<'a>(
 /// keeps the argument, and below the floor `u` would leave the slab: where `G₀` dips under it
 /// by rounding alone (a face at rest, `G₀ ≈ 0` under a slab that starts at the end) the end
 /// keeps its second-order rate instead of losing it to the last ulp of `c`. Returns
-/// `(a + hb/2, w̲, w̄)`, rounded up, or `None` where `b` does not settle (`h·|kᵢ|` near 2 or
-/// more) or a value is not finite. `barrier` in `shaders/end_rates.wgsl` mirrors it.
+/// `(a + hb/2, w̲, w̄)`, rounded up, or `None` where `b` does not settle (`h·k̄ᵢ ≥ 2`, where
+/// no `b` bounds the growth) or a value is not finite. `barrier` in `shaders/end_rates.wgsl` mirrors it.
 pub fn barrier(
     c: f64,
     others: impl Iterator<Item = ((f64, f64), (f64, f64), (f64, f64))>,
@@ -126,6 +126,13 @@ pub fn barrier(
     let (a, q) = (g0.upper.max(floor), q.upper);
     let half_h = point(h) * point(0.5);
     let mut b = up(point(q) + point(sup(k_i, (a, a))));
+    // Start from the fixed point itself where it has a closed form ([`fixed_point`]): iterated
+    // to from below, four steps stopped short of it wherever `h·kᵢ` is not small, and the end
+    // lost its second-order rate (scenario 1's leaves that pass under the obstacle, `h·kᵢ` up
+    // to 0.13, grew half as wide again by t = 1).
+    if let Some(fixed) = fixed_point(q, a, k_i, h) {
+        b = b.max(fixed);
+    }
     for _ in 0..4 {
         // `a + τb/2` runs from `a` to `a + hb/2`: `a` is one end exactly (rounding it would
         // put a barrier raised to its floor an ulp below the slab).
@@ -148,6 +155,30 @@ pub fn barrier(
         b = need + BARRIER_OVERSHOOT * (q.abs() + s.abs());
     }
     None
+}
+
+/// The least `b` with `b ≥ q + sup kᵢ·[w̲, w̄]`, `{w̲, w̄} = {a, a + hb/2}`, rounded up: the
+/// right side is the largest of the lines `q + k·a` and `q + k·a + (k·h/2)·b` (`k` either end
+/// of `kᵢ`), each at most `b` exactly where `b ≥ (q + k·a)/(1 − k·h/2)` (slopes `k·h/2 < 1`);
+/// a little past it. `None` where a slope is above 1/2: near 1 the rounding of `need` outgrows
+/// any margin (and past 1 no `b` bounds its line); the iteration then goes on as before.
+/// [`barrier`] checks it.
+/// `fixed_point` in `shaders/end_rates.wgsl` mirrors it.
+pub fn fixed_point(q: f64, a: f64, (k0, k1): (f64, f64), h: f64) -> Option<f64> {
+    let half_h = point(h) * point(0.5);
+    let mut b = f64::NEG_INFINITY;
+    for k in [k0, k1] {
+        let gap = point(1.0) - point(k) * half_h;
+        if gap.lower.is_nan() || gap.lower < 0.5 {
+            return None;
+        }
+        let line = point(q) + point(k) * point(a);
+        b = b.max(line.upper).max((line / gap).upper);
+    }
+    // Past it by [`BARRIER_OVERSHOOT`] of `|q| + |s|` (`s = b − q` there), so that `need`'s own
+    // rounding does not leave it an ulp above `b`.
+    let b = b + BARRIER_OVERSHOOT * (q.abs() + (b - q).abs());
+    b.is_finite().then_some(b)
 }
 
 /// [`barrier`]'s step past its fixed point, relative to the magnitudes summed (`2¹⁰` ulp; the
@@ -321,4 +352,53 @@ pub fn taylor_network_rates(
         hi.push(ends[1]);
     }
     Some((lo, hi))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A face whose own slope `kᵢ ∈ [0.53, 3.25]` makes `h·kᵢ/2` 0.065 (scenario 1's leaves under
+    /// the obstacle, `h = 0.04`): four steps from below left `b` short of its fixed point and
+    /// the end without a rate. From the closed form it settles, its `b` bounds `need` over the
+    /// whole `[w̲, w̄]`, and it lies within a margin of the least such `b` (iterated to the end).
+    #[test]
+    fn the_barrier_settles_where_the_face_grows_with_itself() {
+        let (c, k_i, h) = (1.3037, (0.5317, 3.2527), 0.04);
+        let others = || std::iter::once(((-0.2, 0.4), (-0.06, 0.06), (0.72, 0.81)));
+        let (r, w_lo, w_hi) = barrier(c, others(), k_i, h, 0.0).expect("the barrier settles");
+        // The same sums as `barrier`'s, in f64: `q`, `a` and the least fixed point.
+        let q = 0.4 * 0.81;
+        let a = c + 0.4 * 0.06;
+        let need = |b: f64| {
+            q + [a, a + 0.5 * h * b]
+                .map(|w| k_i.1 * w)
+                .iter()
+                .fold(0.0f64, |m, x| m.max(*x))
+        };
+        let mut least = 0.0;
+        for _ in 0..200 {
+            least = need(least);
+        }
+        let b = 2.0 * (r - a) / h;
+        assert!(
+            b >= least && b - least < 1e-9 * least,
+            "{b} against {least}"
+        );
+        assert!(
+            (w_lo - a).abs() < 1e-12 && w_hi >= a + 0.5 * h * least,
+            "[{w_lo}, {w_hi}]"
+        );
+        assert!(need(b) <= b + 1e-12);
+    }
+
+    /// Where a slope `k·h/2` passes 1 no `b` bounds the growth: no barrier, as before.
+    #[test]
+    fn no_barrier_where_the_face_outgrows_the_step() {
+        assert_eq!(
+            barrier(1.0, std::iter::empty(), (0.0, 60.0), 0.04, 0.0),
+            None
+        );
+        assert_eq!(fixed_point(0.0, 1.0, (0.0, 30.0), 0.04), None);
+    }
 }

@@ -204,7 +204,7 @@ fn guessed_moving_box_matches_the_cpus_validated_step() {
 
 /// `shaders/end_rates.wgsl`'s `barrier` (the curved rates' quadratic barrier) against
 /// `end_rates::barrier` on 3 × 4,000 random upper ends in 1–3 states: slopes up to ±10 off the
-/// diagonal and down to −60 on it (`h·|kᵢ|` past 2 at the largest steps: no barrier), offsets
+/// diagonal and down to −60 on it, one case in ten from `2/h` to `2/h + 25` (no barrier), offsets
 /// of sets up to 1 wide, rates up to ±15, slabs' floors none, 0 or down to −15 (at least 1,000
 /// cases where the floor raises `a`). The same ends settle; where they do the device's rate
 /// is at least the CPU's (it rounds up by more, and settles no earlier) and within `GUESS_TOL`
@@ -224,9 +224,16 @@ fn curved_rates_barrier_matches_the_cpus() {
         let cases: Vec<BarrierCase> = (0..4000)
             .map(|_| {
                 let i = rng.random_range(0..n);
+                let h = [0.04, 0.01, 0.004][rng.random_range(0..3)];
+                // One case in ten grows in xᵢ about as fast as `2/h` or faster: past it no `b`
+                // settles.
+                let k_i = match rng.random_range(0..10) {
+                    0 => ends(&mut rng, 2.0 / h, 2.0 / h + 20.0, 5.0),
+                    _ => ends(&mut rng, -60.0, 5.0, 5.0),
+                };
                 let k = (0..n)
                     .map(|j| match j == i {
-                        true => ends(&mut rng, -60.0, 5.0, 5.0),
+                        true => k_i,
                         false => ends(&mut rng, -10.0, 10.0, 5.0),
                     })
                     .collect();
@@ -243,7 +250,7 @@ fn curved_rates_barrier_matches_the_cpus() {
                     d,
                     a,
                     i,
-                    h: [0.04, 0.01, 0.004][rng.random_range(0..3)],
+                    h,
                     // None, a slab starting at the end, one reaching below it.
                     floor: [-1e300, 0.0, rng.random_range(-15.0..0.0)][rng.random_range(0..3)],
                 }
