@@ -8,9 +8,10 @@
 use super::*;
 
 /// Leaves of `verify --grid 40,16 --face-local --refine 6` (depth 6) that the Euler map verifies
-/// and continuous time at four substeps did not (each ends `invalid`, its sets meeting the
-/// error map's `M = ∞` cells at (1, 0) or (3, 0) between 1.9 and 3 s); with the sharper rates each
-/// reaches the goal.
+/// and continuous time at four substeps did not (each ended `invalid`, its sets meeting the
+/// error map's `M = ∞` cells at (1, 0) or (3, 0) between 1.9 and 3 s; three no longer do since
+/// the curved rates' barrier starts from its fixed point); with the sharper rates each reaches
+/// the goal.
 fn leaves() -> Vec<IntervalBox> {
     [
         ([-1.40625, 1.46875], [-1.375, 1.5]),
@@ -52,16 +53,19 @@ fn sharper_rates_hold_the_continuous_time_system_and_keep_more_boxes() {
 
     let plain = tubes(&problem, &boxes, false);
     let valid = |t: &[Tube]| t.iter().filter(|t| t.valid()).count();
-    assert_eq!(
-        valid(&plain),
-        0,
-        "the leaves ended invalid at four substeps"
+    // All seven ended invalid before the curved rates' barrier started from its fixed point
+    // (`end_rates::fixed_point`); three do now.
+    assert!(
+        valid(&plain) <= 3,
+        "{} of the leaves stay valid at four substeps without the sharper rates",
+        valid(&plain)
     );
     assert!(
-        valid(&sharp) >= 6,
-        "{} of {} valid",
+        valid(&sharp) >= 6 && valid(&sharp) > valid(&plain),
+        "{} of {} valid ({} without)",
         valid(&sharp),
-        boxes.len()
+        boxes.len(),
+        valid(&plain)
     );
     // Where both ran, the sharper sets are no wider, and narrower somewhere.
     let (mut narrower, mut wider) = (0, 0);
@@ -77,9 +81,10 @@ fn sharper_rates_hold_the_continuous_time_system_and_keep_more_boxes() {
         }
     }
     eprintln!(
-        "{} of {} valid (none without); {narrower} sets narrower, {wider} wider; {e:?}",
+        "{} of {} valid ({} without); {narrower} sets narrower, {wider} wider; {e:?}",
         valid(&sharp),
-        boxes.len()
+        boxes.len(),
+        valid(&plain)
     );
     assert!(narrower > 100, "{narrower} narrower sets");
     assert!(
