@@ -44,6 +44,30 @@ fn malformed_expression_names_column() {
     assert_mentions(&m, &["cbf[0].h", "integer"]);
 }
 
+/// An expression of megabytes (a generated file's was 90 MB) is refused before it is lexed, and
+/// the message quotes its start and end, not all of it: it took 16 s to be refused and printed.
+#[test]
+fn a_huge_expression_is_refused_quickly_with_a_short_message() {
+    let huge = format!("y{}", " + y".repeat(400_000));
+    let start = std::time::Instant::now();
+    let m = error_for(r#"h = "y + 2""#, &format!(r#"h = "{huge}""#));
+    assert_mentions(
+        &m,
+        &[
+            "test.toml",
+            "cbf[0].h",
+            "expression too long",
+            "1600001 bytes",
+        ],
+    );
+    assert!(m.len() < 600, "{} characters of message", m.len());
+    assert!(m.contains("(1600001 characters)"), "{m}");
+    eprintln!("refused in {:?}", start.elapsed());
+    // A short one is quoted whole.
+    let m = error_for(r#"h = "y + 2""#, r#"h = "y + * 2""#);
+    assert!(m.ends_with("`y + * 2`"), "{m}");
+}
+
 #[test]
 fn wrong_dimension_of_g() {
     let m = error_for(r#"g = [["0"], ["1"]]"#, r#"g = [["0"], ["1", "2"]]"#);

@@ -8,6 +8,8 @@ use std::collections::BTreeMap;
 const MAX_NESTING: usize = 200;
 /// Most tokens accepted (keeps trees shallow enough for recursive evaluation).
 const MAX_TOKENS: usize = 10_000;
+/// Longest expression text parsed (bytes): room for [`MAX_TOKENS`] tokens of 100 bytes each.
+const MAX_SOURCE_BYTES: usize = 100 * MAX_TOKENS;
 /// Largest accepted `|n|` in `u^n`.
 const MAX_EXPONENT: i64 = 1 << 20;
 /// Functions offered in messages (the derivative-only ones are accepted but not advertised).
@@ -105,6 +107,17 @@ pub fn parse(
     variables: &[String],
     parameters: &BTreeMap<String, f64>,
 ) -> Result<Expr, ExprError> {
+    // Refused before lexing: a generated file's 90 MB expression took 16 s and a 370 MB
+    // character buffer to be counted.
+    if src.len() > MAX_SOURCE_BYTES {
+        return err(
+            1,
+            format!(
+                "expression too long ({} bytes; at most {MAX_SOURCE_BYTES})",
+                src.len()
+            ),
+        );
+    }
     let tokens = lex(src)?;
     if tokens.is_empty() {
         return err(1, "empty expression");

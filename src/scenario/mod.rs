@@ -55,7 +55,7 @@ pub enum ScenarioError {
         message: String,
     },
     /// An expression does not parse or uses an unknown symbol.
-    #[error("{file}: {key}: {source} in `{text}`")]
+    #[error("{file}: {key}: {source} in {}", excerpt(.text))]
     Expression {
         /// The scenario file.
         file: String,
@@ -377,4 +377,19 @@ impl Scenario {
             .map(|c| c.h.eval(x))
             .fold(f64::INFINITY, f64::min)
     }
+}
+
+/// An expression as error messages quote it: whole up to 200 characters, else its start and end
+/// and its length (a generated file's expression of 90 MB was echoed whole, taking longer to
+/// print than to refuse).
+fn excerpt(text: &str) -> String {
+    const HEAD: usize = 120;
+    const TAIL: usize = 40;
+    let n = text.chars().count();
+    if n <= 200 {
+        return format!("`{text}`");
+    }
+    let head: String = text.chars().take(HEAD).collect();
+    let tail: String = text.chars().skip(n - TAIL).collect();
+    format!("`{head} … {tail}` ({n} characters)")
 }
