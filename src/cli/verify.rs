@@ -487,12 +487,14 @@ pub fn print_summary(r: &VerifyReport) {
                     .sum::<usize>()
         );
     }
+    // The leaves tile the cells: one region area for both.
     if r.run.refine_boundary && b.total_area > 0.0 {
+        let share = |s: &cbfreach::verify::Shares| 100.0 * s.safe_area / b.total_area;
         println!(
             "    the band along the safe set's boundary refined: the safe area is {:.1}% of the \
              region, {:.1}% before refinement",
-            100.0 * a.safe_area / a.total_area.max(f64::MIN_POSITIVE),
-            100.0 * b.safe_area / b.total_area
+            share(&a),
+            share(&b)
         );
     }
     let rate = |steps: usize| steps as f64 / r.timing.reach_s.max(1e-9);
