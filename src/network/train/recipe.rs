@@ -508,7 +508,11 @@ pub fn train_to_target(
         // A refine stage that starts on the grid's target trains for the fresh points' sake:
         // it runs in full.
         let stop_early = !(certify || stage.kind == StageKind::Refine && state.met);
-        let mut last = Some(state.best.1);
+        let within = settings.checkpoint.as_ref().filter(|f| f.exists());
+        let resuming = within.is_some() && checkpoint.is_some_and(|c| c.resume);
+        // A stage resumed part-way has no measurement of its current network until its next
+        // check: the stage's starting figures would read as the current ones.
+        let mut last = (!resuming).then_some(state.best.1);
         let mut measure_error = None;
         let on_epoch = |e: &EpochStats, get: &dyn Fn() -> Mlp| {
             let mut flow = Flow::Continue;
@@ -538,12 +542,9 @@ pub fn train_to_target(
             });
             flow
         };
-        let within = settings.checkpoint.as_ref().filter(|f| f.exists());
         let (trained, report) = match within {
             // Interrupted inside this stage: its epochs continue.
-            Some(file) if checkpoint.is_some_and(|c| c.resume) => {
-                resume_until(&file.clone(), stage_data, &settings, on_epoch)?
-            }
+            Some(file) if resuming => resume_until(&file.clone(), stage_data, &settings, on_epoch)?,
             _ => train_until(state.net.clone(), stage_data, &settings, on_epoch)?,
         };
         if let Some(err) = measure_error {

@@ -347,7 +347,7 @@ fn an_interrupted_staged_run_continues_to_the_same_network() {
             &target,
             Some(c),
             |p| {
-                seen.borrow_mut().push((p.stage_index, p.epoch));
+                seen.borrow_mut().push((p.stage_index, p.epoch, p.measured));
                 if stop == Some((p.stage_index, p.epoch)) {
                     panic!(
                         "interrupted (on purpose) at stage {} epoch {}",
@@ -358,6 +358,7 @@ fn an_interrupted_staged_run_continues_to_the_same_network() {
         )
     };
     let (whole, report) = run(&fresh, None).expect("trains");
+    let whole_seen = seen.borrow().clone();
     let names = |r: &RecipeReport| -> Vec<(String, usize, bool)> {
         r.stages
             .iter()
@@ -377,15 +378,15 @@ fn an_interrupted_staged_run_continues_to_the_same_network() {
         .position(|s| s.name == refined.name)
         .expect("in the recipe");
     fresh.remove(recipe.stages.len());
-    // The fit stage and the refine stage, each after its first epochs' checkpoint (at 3) and
-    // the refine stage before any.
-    for (stage, stop) in [(0, 4), (stage, 4), (stage, 2)] {
+    // The fit stage after a measurement (at epoch 20) and a checkpoint (at 21), the refine
+    // stage after its first epochs' checkpoint (at 3) and before any.
+    for (stage, stop, from) in [(0, 22, 22), (stage, 4, 4), (stage, 2, 1)] {
         let interrupted = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
             run(&fresh, Some((stage, stop)))
         }));
         assert!(interrupted.is_err());
         assert!(fresh.path.exists());
-        assert_eq!(fresh.stage_file(stage).exists(), stop == 4);
+        assert_eq!(fresh.stage_file(stage).exists(), stop > 3);
         let resumed = StagedCheckpoint {
             resume: true,
             ..fresh.clone()
@@ -394,7 +395,19 @@ fn an_interrupted_staged_run_continues_to_the_same_network() {
         // It ran on from where it stopped: no earlier stage again, the stage from its
         // checkpoint's epoch.
         let first = seen.borrow().first().copied();
-        assert_eq!(first, Some((stage, if stop == 4 { 4 } else { 1 })));
+        let at = (stage, from);
+        assert_eq!(first.map(|(s, e, _)| (s, e)), Some(at));
+        // Its figures are this epoch's measurement, as the whole run showed, or none yet: not
+        // the figures the stage started from.
+        let shown = first.and_then(|f| f.2);
+        let then = whole_seen
+            .iter()
+            .find(|w| (w.0, w.1) == at)
+            .and_then(|w| w.2);
+        assert!(
+            shown.is_none() || shown == then,
+            "{shown:?} against {then:?}"
+        );
         assert_eq!(net, whole, "stopped at epoch {stop}: another network");
         assert_eq!(names(&again), names(&report));
         assert_eq!(again.samples, report.samples);
