@@ -190,6 +190,41 @@ fn schur_blocks(u: &DMatrix<f64>) -> Vec<(usize, usize)> {
     blocks
 }
 
+/// Makes triangular each 2 × 2 block of `U` whose eigenvalues are real but which nalgebra's
+/// Schur form left unsplit (two double integrators' `−1, −1, −1, −1` leave one: the QR
+/// iteration converges slowly on a defective eigenvalue), by the rotation to the block's
+/// eigenvector, applied to `U` and `Q` alike. Unsplit, the block's entry below the diagonal
+/// is what the scaling of [`Transform::contracting`] multiplies up (`μ∞ = 1` in z, as in x).
+fn split_real_pairs(q: &mut DMatrix<f64>, u: &mut DMatrix<f64>) {
+    let n = u.nrows();
+    let scale = u.amax().max(f64::MIN_POSITIVE);
+    for i in 0..n.saturating_sub(1) {
+        if u[(i + 1, i)].abs() <= 1e-12 * scale || imaginary_part(u, i) > 1e-6 * scale {
+            continue;
+        }
+        let (a, b, c, d) = (u[(i, i)], u[(i, i + 1)], u[(i + 1, i)], u[(i + 1, i + 1)]);
+        let disc = (0.25 * (a - d) * (a - d) + b * c).max(0.0);
+        let lambda = 0.5 * (a + d) + disc.sqrt();
+        // Two directions of the null space of `B − λI`; the longer is the better conditioned.
+        let (p, r) = if b.hypot(lambda - a) >= (lambda - d).hypot(c) {
+            (b, lambda - a)
+        } else {
+            (lambda - d, c)
+        };
+        let norm = p.hypot(r);
+        if norm == 0.0 {
+            continue;
+        }
+        let g = DMatrix::from_row_slice(2, 2, &[p / norm, -r / norm, r / norm, p / norm]);
+        let rows = g.transpose() * u.rows(i, 2);
+        u.rows_mut(i, 2).copy_from(&rows);
+        let cols = u.columns(i, 2) * &g;
+        u.columns_mut(i, 2).copy_from(&cols);
+        let cols = q.columns(i, 2) * &g;
+        q.columns_mut(i, 2).copy_from(&cols);
+    }
+}
+
 /// `β ≥ 0` of the eigenvalues `α ± iβ` of the 2 × 2 block `U[i.., i..]` (0 where they are real).
 fn imaginary_part(u: &DMatrix<f64>, i: usize) -> f64 {
     let (a, b, c, d) = (u[(i, i)], u[(i, i + 1)], u[(i + 1, i)], u[(i + 1, i + 1)]);
@@ -267,7 +302,8 @@ impl Transform {
             return Err(TransformError::Empty);
         }
         let am = DMatrix::from_row_slice(n, n, a);
-        let (q, u) = am.clone().schur().unpack();
+        let (mut q, mut u) = am.clone().schur().unpack();
+        split_real_pairs(&mut q, &mut u);
         let blocks = schur_blocks(&u);
         // `W`: the blocks' own coordinates; the identity where every eigenvalue is real, so
         // that those systems get the bits they always had.
@@ -645,6 +681,34 @@ mod tests {
                 "{block:?}: μ∞ = {mu}"
             );
         }
+        // Two double integrators side by side (`λ = −1` four times, defective): the Schur form
+        // leaves a 2 × 2 block unsplit, which gave `μ∞ = 1` in z as in x, and verified nothing.
+        let mut two = [0.0; 16];
+        for (k, v) in [
+            (2, 1.0),
+            (7, 1.0),
+            (8, -1.0),
+            (10, -2.0),
+            (13, -1.0),
+            (15, -2.0),
+        ] {
+            two[k] = v;
+        }
+        assert!(mu_z(&two, 4) <= -0.5 + 1e-9, "{}", mu_z(&two, 4));
+        // The same, coupled and in skewed coordinates.
+        let skew = DMatrix::from_fn(4, 4, |i, j| {
+            if i == j {
+                1.0
+            } else {
+                0.1 * (i + 2 * j) as f64
+            }
+        });
+        let mut j4 = DMatrix::from_row_slice(4, 4, &two);
+        j4[(2, 1)] = 0.5;
+        let am = &skew * j4 * skew.clone().try_inverse().unwrap();
+        let a: Vec<f64> = (0..16).map(|k| am[(k / 4, k % 4)]).collect();
+        assert!(log_norm_inf(&a, 4) >= 0.0);
+        assert!(mu_z(&a, 4) <= -0.5 + 1e-6, "{}", mu_z(&a, 4));
         // Real eigenvalues, defective or not, as before: within half of the slowest rate.
         for (a, slowest) in [
             ([0.0, 1.0, -1.0, -2.0], -1.0),
