@@ -105,6 +105,14 @@ pub fn given(id: &str) -> bool {
 /// For summaries: the sets are the meet of a box in x and the parallelotope.
 pub const INTERSECT_X_CLAUSE: &str = ", sets met with their x-boxes";
 
+/// For summaries: `ReachSettings::meet_slabs` where it applies.
+pub fn meet_slabs_clause(applies: bool) -> &'static str {
+    match applies {
+        true => ", slabs clipped by the other frame's sets",
+        false => "",
+    }
+}
+
 /// The clause of `ReachSettings::taylor3` and `lattice` in a run's summary line.
 pub fn sharper_clause(taylor3: bool, lattice: bool) -> &'static str {
     match (taylor3, lattice) {

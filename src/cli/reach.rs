@@ -84,7 +84,8 @@ pub fn run(args: &ReachArgs) -> CliResult {
         } else {
             ""
         }
-        + super::sharper_clause_of(&problem, &settings);
+        + super::sharper_clause_of(&problem, &settings)
+        + super::meet_slabs_clause(problem.meet_slabs_applies(&settings));
     let within = super::safe_set_clause(&problem.safe_set_for(settings.method).names());
     println!(
         "{}: {} boxes × {} steps, time {}, {} bounds{}, {:?} method, {margin}{within}, backend {}",

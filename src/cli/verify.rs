@@ -415,6 +415,7 @@ pub fn print_summary(r: &VerifyReport) {
                 ""
             }
             + super::sharper_clause(r.run.taylor3, r.run.lattice)
+            + super::meet_slabs_clause(r.run.meet_slabs)
     );
     for a in &r.run.absorbing {
         println!(

@@ -13,7 +13,7 @@ use rayon::prelude::*;
 
 use super::embedding::{embedding_step, widen_by, NetworkBoundsRef};
 use super::end_rates;
-use super::safe_set::{clip_to_safe_set, SafeSet};
+use super::safe_set::{clip_to_safe_set, frame_halfspaces, SafeHalfspace, SafeSet};
 use super::sampled::Plant;
 use super::validated::{self, Enclosure, Flowpipe};
 use super::TimeModel;

@@ -53,9 +53,47 @@ impl ChunkRun<'_> {
                         pipe.set = met;
                     }
                 }
+                if self.settings.meet_slabs {
+                    self.meet_slabs(state, known);
+                }
             }
         }
         state.pipe_known = known;
+    }
+
+    /// Each frame's flowpipes (moving box and whole enclosure) get the other frames' sets over
+    /// the step as half-spaces, which clip their slabs (design §7.1 item 7): each frame's
+    /// whole enclosure where it has one (proven alone, so sound whichever frames' moving boxes
+    /// fail their checks), else its one flowpipe (an enclosure, or a moving box guessed
+    /// without one, which is proven with every frame's together). `known` holds every state
+    /// of the step.
+    fn meet_slabs(&self, state: &mut Live, known: &IntervalBox) {
+        let sets: Vec<Option<IntervalBox>> = state
+            .pipes
+            .iter()
+            .zip(&state.whole)
+            .map(|(p, w)| w.as_ref().or(p.as_ref()).map(|p| p.set.clone()))
+            .collect();
+        for (f, frame) in self.frames.iter().enumerate() {
+            let others: Vec<SafeHalfspace> = (0..self.frames.len())
+                .filter(|&g| g != f)
+                .filter_map(|g| Some((g, sets[g].as_ref()?)))
+                .flat_map(|(g, set)| {
+                    frame_halfspaces(
+                        frame.problem.transform.as_ref(),
+                        self.frames[g].problem.transform.as_ref(),
+                        set,
+                        known,
+                    )
+                })
+                .collect();
+            for pipe in [&mut state.pipes[f], &mut state.whole[f]]
+                .into_iter()
+                .flatten()
+            {
+                pipe.others.clone_from(&others);
+            }
+        }
     }
 
     /// Continuous time, after the rates on the slabs (`fields`: the filter's piece, its

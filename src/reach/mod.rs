@@ -327,6 +327,12 @@ impl ReachProblem {
         std::iter::once(self).chain(in_x).collect()
     }
 
+    /// Whether [`ReachSettings::meet_slabs`] acts on this problem: continuous time with
+    /// several frames.
+    pub fn meet_slabs_applies(&self, settings: &ReachSettings) -> bool {
+        settings.meet_slabs && self.time == TimeModel::Continuous && self.frames(settings).len() > 1
+    }
+
     /// The box of this problem's coordinates around an x-box (its z-box with a transform).
     pub fn frame_box(&self, x: &IntervalBox) -> IntervalBox {
         match &self.transform {

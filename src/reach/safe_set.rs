@@ -140,6 +140,63 @@ fn halfspaces(scenario: &Scenario, transform: Option<&Transform>) -> Vec<SafeHal
         .collect()
 }
 
+/// The set `[lower, upper]` of another frame (coordinates `z_g = S_g⁻¹x`, `other`; x itself
+/// for `None`) as `2n` half-spaces of this frame's coordinates (`x = S_f z_f`, `this`), for
+/// states in the x-box `x_box` (design §7.1 item 7). With `T_g` for `S_g⁻¹`,
+/// `‖S_g⁻¹y − T_g y‖∞ ≤ ρ_g‖T_g y‖∞`, so row `r` holds `(T_g S_f z_f)ᵣ ∈ [lᵣ − ρ_g K, uᵣ + ρ_g K]`
+/// with `K ≥ ‖T_g x‖∞` over `x_box`; `T_g S_f` is enclosed entry by entry (`S_f` defines this
+/// frame's coordinates exactly).
+pub fn frame_halfspaces(
+    this: Option<&Transform>,
+    other: Option<&Transform>,
+    set: &IntervalBox,
+    x_box: &IntervalBox,
+) -> Vec<SafeHalfspace> {
+    let n = set.dim();
+    let p = Interval::point;
+    let t_g = |r: usize, k: usize| match other {
+        Some(t) => t.t[r * n + k],
+        None => f64::from(u8::from(r == k)),
+    };
+    let s_f = |k: usize, j: usize| match this {
+        Some(t) => t.s[k * n + j],
+        None => f64::from(u8::from(k == j)),
+    };
+    let slack = match other {
+        Some(t) if t.rho > 0.0 => {
+            let k = (0..n)
+                .map(|r| {
+                    (0..n)
+                        .fold(p(0.0), |acc, k| {
+                            acc + p(t_g(r, k)) * Interval::new(x_box.lower[k], x_box.upper[k])
+                        })
+                        .mag()
+                })
+                .fold(0.0, f64::max);
+            p(t.rho) * p(k)
+        }
+        _ => p(0.0),
+    };
+    let mut out = Vec::with_capacity(2 * n);
+    for r in 0..n {
+        let row: Vec<Interval> = (0..n)
+            .map(|j| (0..n).fold(p(0.0), |acc, k| acc + p(t_g(r, k)) * p(s_f(k, j))))
+            .collect();
+        // `row·z − (lᵣ − ρK) ≥ 0` and `−row·z + (uᵣ + ρK) ≥ 0`.
+        out.push(SafeHalfspace {
+            name: String::new(),
+            normal: row.clone(),
+            offset: -(p(set.lower[r]) - slack),
+        });
+        out.push(SafeHalfspace {
+            name: String::new(),
+            normal: row.into_iter().map(|c| -c).collect(),
+            offset: p(set.upper[r]) + slack,
+        });
+    }
+    out
+}
+
 /// A bound on one coordinate implied by a half-space.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Tightening {
@@ -324,5 +381,69 @@ goal = { lower = [-1, -1], upper = [1, 1] }
         let (mut lo, mut hi) = (vec![0.0, -5.0], vec![1.0, -3.0]);
         assert!(!clip_to_safe_set(&mut lo, &mut hi, &hs));
         assert_eq!((lo, hi), (vec![0.0, -5.0], vec![1.0, -3.0]));
+    }
+
+    /// A frame's set as half-spaces of another frame ([`frame_halfspaces`]) holds every state
+    /// of the set, its corners on the boundary (a set shrunk by 1 % of its width loses them),
+    /// and clips a box around it to the set's hull in those coordinates: x and z both ways, and
+    /// two transforms.
+    #[test]
+    fn another_frames_set_holds_its_states_and_is_tight() {
+        let t1 = Transform::from_matrix(vec![0.7, -0.7, 2.8, 2.9], 2).unwrap();
+        let t2 = Transform::from_matrix(vec![1.0, 0.3, -0.4, 1.2], 2).unwrap();
+        let set = IntervalBox::new(vec![-0.3, 0.2], vec![0.5, 0.9]).unwrap();
+        let mul = |m: &[f64], v: &[f64]| [m[0] * v[0] + m[1] * v[1], m[2] * v[0] + m[3] * v[1]];
+        let identity = [1.0, 0.0, 0.0, 1.0];
+        for (this, other) in [(Some(&t1), None), (None, Some(&t1)), (Some(&t2), Some(&t1))] {
+            // x of a point of the other frame's set, and this frame's coordinates of it.
+            let s_g = other.map_or(&identity[..], |t| &t.s[..]);
+            let t_f = this.map_or(&identity[..], |t| &t.t[..]);
+            let points: Vec<[f64; 2]> = (0..=10)
+                .flat_map(|a| (0..=10).map(move |b| (a, b)))
+                .map(|(a, b)| {
+                    let z = [
+                        set.lower[0] + 0.1 * a as f64 * (set.upper[0] - set.lower[0]),
+                        set.lower[1] + 0.1 * b as f64 * (set.upper[1] - set.lower[1]),
+                    ];
+                    mul(t_f, &mul(s_g, &z))
+                })
+                .collect();
+            let x_box = IntervalBox::new(vec![-5.0, -5.0], vec![5.0, 5.0]).unwrap();
+            let hs = frame_halfspaces(this, other, &set, &x_box);
+            assert_eq!(hs.len(), 4);
+            let margin = |h: &SafeHalfspace, z: &[f64; 2]| {
+                (h.offset
+                    + h.normal[0] * Interval::point(z[0])
+                    + h.normal[1] * Interval::point(z[1]))
+                .upper
+            };
+            for z in &points {
+                for h in &hs {
+                    assert!(
+                        margin(h, z) >= -1e-9,
+                        "{this:?} {other:?}: {z:?} outside {h:?}"
+                    );
+                }
+            }
+            // The corners lie on the boundary: 1 % of the set's width is far outside the
+            // rounding.
+            let corner = points[0];
+            let closest = hs
+                .iter()
+                .map(|h| margin(h, &corner))
+                .fold(f64::INFINITY, f64::min);
+            assert!(closest < 1e-3 * (set.upper[0] - set.lower[0]), "{closest}");
+            // Clipping a wide box keeps every point.
+            let (mut lo, mut hi) = (vec![-5.0, -5.0], vec![5.0, 5.0]);
+            assert!(clip_to_safe_set(&mut lo, &mut hi, &hs));
+            for j in 0..2 {
+                let min = points.iter().map(|z| z[j]).fold(f64::INFINITY, f64::min);
+                let max = points
+                    .iter()
+                    .map(|z| z[j])
+                    .fold(f64::NEG_INFINITY, f64::max);
+                assert!(lo[j] <= min + 1e-9 && hi[j] >= max - 1e-9, "{lo:?} {hi:?}");
+            }
+        }
     }
 }

@@ -55,6 +55,12 @@ pub struct ReachSettings {
     /// engine's `lattice_slab_field`, the GPU's `lattice_rates`), which keeps how `v` moves with
     /// the state where an enclosure of `v` does not. Default: true.
     pub lattice: bool,
+    /// Continuous time, with several frames (a transform and `intersect_x`): clip each frame's
+    /// slabs by the other frames' sets over the step before bounding the field on them (design
+    /// §7.1 item 7). Where the frames' boxes meet in a polygon, a face of one box is shorter
+    /// within the other, and a rotating closed loop's sets no longer grow by the whole rotation
+    /// a step. CPU engine (the GPU engine refuses it by name). Default: false.
+    pub meet_slabs: bool,
 }
 
 /// Where the disturbance method uses the filter itself besides (or instead of) the network plus
@@ -166,6 +172,7 @@ impl Default for ReachSettings {
             intersect_x: true,
             taylor3: false,
             lattice: true,
+            meet_slabs: false,
         }
     }
 }

@@ -35,6 +35,7 @@
 //!    place of `X`. Slabs have width `O(h)`, so the loss per step is `O(h²)`.
 
 use super::embedding::{input_enclosure, interaction_row, Dynamics, NetworkBoundsRef};
+use super::safe_set::{clip_to_safe_set, SafeHalfspace};
 use crate::boxes::IntervalBox;
 use crate::intervals::Interval;
 
@@ -54,6 +55,10 @@ pub struct Flowpipe {
     /// `[f_lower, f_upper]` on it. False for a moving box guessed without one ([`guessed`]):
     /// its `f_*` are its face rates, and only [`verified`]'s strict check on its slabs proves it.
     pub enclosed: bool,
+    /// The other frames' sets over the step, as half-spaces of this frame's coordinates
+    /// (`ReachSettings::meet_slabs`; empty otherwise): every trajectory lies in them over the
+    /// whole step, so each slab is clipped by them ([`slab`]; item 7 in docs/design.md §7.1).
+    pub others: Vec<SafeHalfspace>,
 }
 
 /// The moving box `X(τ) = [x̲ + τ·s̲, x̄ + τ·s̄]`, `τ ∈ [0, h]`, of a step (item 3 of the module's
@@ -71,6 +76,8 @@ pub struct MovingFaces {
 }
 
 /// What [`enclose_step`] found.
+// One a frame and step, moved at once into the box's state: boxing would allocate every step.
+#[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug)]
 pub enum Enclosure {
     /// A flowpipe.
@@ -139,6 +146,14 @@ pub fn slab(
         // Only rounding can get here (the slab holds `e ∈ B`): keep the end itself.
         (lower[i], upper[i]) = (end, end);
     }
+    // A state of the slab that a trajectory reaches lies in the other frames' sets too. An
+    // empty meet (no trajectory reaches the slab) keeps the slab whole: any bound is sound.
+    if !pipe.others.is_empty() {
+        let (mut l, mut u) = (lower.clone(), upper.clone());
+        if clip_to_safe_set(&mut l, &mut u, &pipe.others) {
+            return (l, u);
+        }
+    }
     (lower, upper)
 }
 
@@ -191,6 +206,7 @@ pub fn moving(
         f_upper: pipe.f_upper.clone(),
         faces: Some(m),
         enclosed: true,
+        others: Vec::new(),
     })
 }
 
@@ -256,6 +272,7 @@ pub fn guessed(
         f_upper: m.upper.clone(),
         faces: Some(m),
         enclosed: false,
+        others: Vec::new(),
     })
 }
 

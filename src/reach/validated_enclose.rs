@@ -172,6 +172,7 @@ fn enclose_halving<E>(
             .collect(),
         faces: None,
         enclosed: true,
+        others: Vec::new(),
     }))
 }
 
@@ -265,6 +266,7 @@ fn enclose_once<E>(
                 f_upper: hi,
                 faces: None,
                 enclosed: true,
+                others: Vec::new(),
             }));
         }
         let grown = IntervalBox {

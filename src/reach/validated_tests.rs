@@ -515,6 +515,7 @@ fn a_face_at_rest_keeps_its_second_order_rate() {
         f_upper: faces.upper.clone(),
         faces: Some(faces),
         enclosed: false,
+        others: Vec::new(),
     };
     let (_, du) = curved_rates(&d, &set, &pipe, h, |_, _| no_network(&z), &[0.0]);
     assert!(du[1].is_finite(), "the face at rest lost its rate: {du:?}");

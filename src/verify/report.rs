@@ -112,6 +112,10 @@ pub struct RunInfo {
     /// `ReachSettings::lattice` (continuous time; files from before it: false).
     #[serde(default)]
     pub lattice: bool,
+    /// `ReachSettings::meet_slabs` where it applies (continuous time, several frames; files
+    /// from before it: false).
+    #[serde(default)]
+    pub meet_slabs: bool,
     /// Euler step.
     pub dt: f64,
     /// Euler steps.
@@ -448,6 +452,7 @@ mod tests {
                 intersect_x: false,
                 taylor3: false,
                 lattice: false,
+                meet_slabs: false,
                 dt: 0.1,
                 steps: 1,
                 time: String::new(),

@@ -262,9 +262,11 @@ impl<'a> Verifier<'a> {
             base.to_mut().absorbing = absorbers(&[]);
         }
         let base = &*base;
-        // Refinement's shorter steps must run on this engine too: refused before any box runs.
+        // Refinement's shorter steps must run on this engine too: refused before any box runs
+        // (a setting the engine refuses at any step is refused by the first run, by name).
         let deepest = settings.problem_at(base, settings.refine_depth);
-        if let Err(u) = self.backend.supports(&deepest, &self.reach) {
+        let base_runs = self.backend.supports(base, &self.reach).is_ok();
+        if let (true, Err(u)) = (base_runs, self.backend.supports(&deepest, &self.reach)) {
             return Err(VerifyError::Settings {
                 field: "max_substeps",
                 message: format!(
@@ -367,6 +369,7 @@ impl<'a> Verifier<'a> {
                 intersect_x: self.problem.frames(&self.reach).len() > 1,
                 taylor3: self.reach.taylor3 && self.problem.time == TimeModel::Continuous,
                 lattice: self.problem.lattice_applies(&self.reach),
+                meet_slabs: self.problem.meet_slabs_applies(&self.reach),
                 dt: self.problem.dt,
                 steps: self.problem.steps,
                 time: self.problem.time.to_string(),

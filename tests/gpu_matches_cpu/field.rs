@@ -378,6 +378,7 @@ fn taylor_rates_match_the_cpus() {
                 f_upper: c.over.1.clone(),
                 faces: None,
                 enclosed: true,
+                others: Vec::new(),
             };
             let first = end_rates::taylor_rates(dynamics, &c.set, &pipe, c.h, c.euler.clone());
             let third = end_rates::taylor3_rates(dynamics, &c.set, &pipe, c.h, c.euler.clone());

@@ -5,6 +5,7 @@
 mod absorbing;
 #[path = "../common/mod.rs"]
 mod common;
+mod met_slabs;
 mod refined;
 mod sampled;
 mod sharper;
@@ -336,6 +337,26 @@ fn refusals_name_the_setting() {
     ]);
     assert_ne!(code, 0);
     assert!(err.contains("--taylor3") && err.contains("euler"), "{err}");
+    // So is `meet_slabs`; in continuous time with two frames the GPU engine refuses it by
+    // name, and `verify` says so rather than blaming the substeps.
+    let meet = ReachSettings {
+        meet_slabs: true,
+        ..ReachSettings::default()
+    };
+    let err = CpuBackend
+        .reach(
+            &p.clone().with_time(TimeModel::Euler, 1),
+            boxes,
+            &meet,
+            &|_, _| {},
+        )
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("meet_slabs") && err.contains("euler"), "{err}");
+    let two_frames = common::shipped_problem(&common::double_integrator());
+    let refused = cbfreach::gpu::GpuBackend::runs(&two_frames, &meet).unwrap_err();
+    assert!(refused.to_string().contains("meet_slabs"), "{refused}");
+    assert!(cbfreach::gpu::GpuBackend::runs(&two_frames, &ReachSettings::default()).is_ok());
 }
 
 /// Validity against `C` speaks of all times: every flowpipe recorded on a valid stretch of a

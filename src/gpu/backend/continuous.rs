@@ -41,13 +41,14 @@ fn cw(n: usize) -> usize {
 /// `shaders/slab_step.wgsl`), in one frame or two met (`shaders/cmeet.wgsl`), with any
 /// number of validated substeps (the device's step is `dt / substeps`, an enclosure of it in f32:
 /// `H_LO`, `H_HI`), in f64 or f32, with the pieces' lattice and the second-order Taylor rates
-/// (`taylor3`: `piece_taylor3`) as the CPU's step takes them.
-pub(super) fn refused(
-    _problem: &ReachProblem,
-    settings: &ReachSettings,
-) -> Result<(), Unsupported> {
+/// (`taylor3`: `piece_taylor3`) as the CPU's step takes them. Not the slabs clipped by the
+/// other frame's sets (`meet_slabs`).
+pub(super) fn refused(problem: &ReachProblem, settings: &ReachSettings) -> Result<(), Unsupported> {
     match settings.method {
         ReachMethod::Minkowski => Err(Unsupported::Continuous("method = \"minkowski\"")),
+        ReachMethod::Disturbance if problem.meet_slabs_applies(settings) => {
+            Err(Unsupported::Continuous("meet_slabs = true"))
+        }
         ReachMethod::Disturbance => Ok(()),
     }
 }
