@@ -121,3 +121,27 @@ fn clipped_slabs_hold_scenario_2() {
         at_20(&plain)
     );
 }
+
+/// ACC (`acc.toml`, two frames, input bounds and the CBF row binding where the lead car is
+/// near): cells of `verify --region 5,30:18.3,50 --grid 16,6`, which verify only with the
+/// clipping; every continuous-time trajectory lies in their sets and flowpipes over 20 s.
+#[test]
+fn clipped_slabs_hold_acc() {
+    let s = Scenario::load(&common::scenario_path("acc.toml")).unwrap();
+    let mut problem = common::shipped_problem(&s);
+    problem.steps = 400;
+    let region = IntervalBox::new(vec![5.0, 30.0], vec![18.3, 50.0]).unwrap();
+    let boxes: Vec<IntervalBox> = [0, 23, 47, 70, 95]
+        .into_iter()
+        .map(|k| region.partition_cell(&[16, 6], k))
+        .collect();
+    let met = tubes(&problem, &boxes, true);
+    assert!(
+        met.iter().all(|t| t.valid()),
+        "{:?}",
+        met.iter().map(|t| &t.end).collect::<Vec<_>>()
+    );
+    let e = escapes(&s, &met, s.reach.dt, 1e-6);
+    assert_eq!((e.at_snapshots, e.between), (0, 0), "{e:?}");
+    assert!(e.checks >= 5 * 48 * 100, "too few checks: {e:?}");
+}
