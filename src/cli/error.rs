@@ -351,12 +351,22 @@ fn curvature_line(c: &SlopeByCurvature) -> Option<String> {
     let [(_, _, flat_name), (_, _, next_name), (_, _, steep_name)] = CURVATURE_BANDS;
     Some(format!(
         "  by the filter's curvature ‖D²v‖ ({} points), 95th percentile: {flat_name} \
-         (‖D²v‖ ≤ {:.2}) {:.3}, {next_name} (≤ {:.2}) {:.3}, {steep_name} {:.3}",
+         (‖D²v‖ ≤ {}) {:.3}, {next_name} (≤ {}) {:.3}, {steep_name} {:.3}",
         c.points,
-        flat.curvature[1],
+        bound_text(flat.curvature[1]),
         flat.slope.p95,
-        next.curvature[1],
+        bound_text(next.curvature[1]),
         next.slope.p95,
         steep.slope.p95,
     ))
+}
+
+/// A band's edge: two decimals, or two significant digits below 0.01 (where the filter is
+/// inactive on most points `‖D²v‖` is an exact 0, and a small edge is not "0.00").
+fn bound_text(x: f64) -> String {
+    match x {
+        0.0 => "0".into(),
+        x if x.abs() < 0.01 => format!("{x:.1e}"),
+        x => format!("{x:.2}"),
+    }
 }
