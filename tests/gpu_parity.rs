@@ -585,11 +585,7 @@ fn euler_steps_that_turn_a_state_around_hold_the_euler_map() {
     let s = common::from_text(common::CONTRACTING).unwrap();
     assert!(1.0 + s.reach.dt * -30.0 < 0.0);
     let random = cbfreach::network::Mlp::random(&[2, 4, 1], 3);
-    let mut zero = random.clone();
-    for layer in &mut zero.layers {
-        layer.weight.iter_mut().for_each(|w| *w = 0.0);
-        layer.bias.iter_mut().for_each(|b| *b = 0.0);
-    }
+    let zero = common::zero_network(&[2, 4, 1]);
     let problem_of = |net| {
         ReachProblem::new(&s, net, 0.001)
             .unwrap()

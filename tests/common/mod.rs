@@ -53,6 +53,17 @@ pub fn shipped_problem_with(s: &Scenario, network: &Path) -> ReachProblem {
     ReachProblem::from_scenario(s, &options).unwrap()
 }
 
+/// A network of the given widths whose every weight and bias is 0: `N ≡ 0`, standing in for a
+/// filter that never acts (`v = 0`), so that its error is 0.
+pub fn zero_network(widths: &[usize]) -> Mlp {
+    let mut net = Mlp::random(widths, 3);
+    for layer in &mut net.layers {
+        layer.weight.iter_mut().for_each(|w| *w = 0.0);
+        layer.bias.iter_mut().for_each(|b| *b = 0.0);
+    }
+    net
+}
+
 /// Compiles scenario text given inline (errors carry the name `test.toml`).
 pub fn from_text(text: &str) -> Result<Scenario, cbfreach::scenario::ScenarioError> {
     Scenario::from_toml(text, "test.toml", Path::new("."))

@@ -411,11 +411,7 @@ fn flowpipes_lie_in_c_and_a_box_that_leaves_c_is_not_valid() {
 #[test]
 fn euler_sets_hold_the_euler_map_where_it_turns_a_coordinate_around() {
     let s = common::from_text(common::CONTRACTING).unwrap();
-    let mut net = Mlp::random(&[2, 4, 1], 3);
-    for layer in &mut net.layers {
-        layer.weight.iter_mut().for_each(|w| *w = 0.0);
-        layer.bias.iter_mut().for_each(|b| *b = 0.0);
-    }
+    let net = common::zero_network(&[2, 4, 1]);
     let problem = ReachProblem::new(&s, net, 0.001)
         .unwrap()
         .with_time(TimeModel::Euler, 1);

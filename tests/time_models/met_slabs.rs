@@ -60,11 +60,7 @@ fn final_widths(tubes: &[Tube]) -> Vec<f64> {
 #[test]
 fn clipped_slabs_hold_a_rotating_flow_and_contract_it() {
     let s = common::from_text(ROTATING).unwrap();
-    let mut net = Mlp::random(&[2, 4, 1], 3);
-    for layer in &mut net.layers {
-        layer.weight.iter_mut().for_each(|w| *w = 0.0);
-        layer.bias.iter_mut().for_each(|b| *b = 0.0);
-    }
+    let net = common::zero_network(&[2, 4, 1]);
     let (transform, _) = Transform::chosen(&s);
     assert!(
         transform.is_some(),
