@@ -687,3 +687,30 @@ fn simulate_runs_what_the_time_model_bounds_by_default() {
     );
     assert_eq!(held, summary(&["--integrator", "zoh", "--dt", "0.08"]).1);
 }
+
+/// `verify` in continuous time with two frames (scenario 2's coordinates) and sets too loose
+/// names `--meet-slabs`; with it, or in x alone (scenario 1), it does not, and the summary says
+/// when the slabs were clipped.
+#[test]
+fn verify_names_meet_slabs_where_it_could_help() {
+    let sc2 = common::scenario_path("double-integrator.toml");
+    let sc2 = sc2.to_str().unwrap();
+    let (code, out, err) = common::cbfreach(&["verify", sc2, "--grid", "10,4"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("--meet-slabs clips"), "{out}");
+    assert!(
+        !out.contains("slabs clipped by the other frame's sets"),
+        "{out}"
+    );
+    let (code, out, err) = common::cbfreach(&["verify", sc2, "--grid", "10,4", "--meet-slabs"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(!out.contains("--meet-slabs clips"), "{out}");
+    assert!(
+        out.contains("slabs clipped by the other frame's sets"),
+        "{out}"
+    );
+    let sc1 = common::scenario_path("integrator.toml");
+    let (code, out, err) = common::cbfreach(&["verify", sc1.to_str().unwrap(), "--grid", "8,6"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(!out.contains("--meet-slabs"), "{out}");
+}
