@@ -690,7 +690,7 @@ fn simulate_runs_what_the_time_model_bounds_by_default() {
 
 /// `verify` in continuous time with two frames (scenario 2's coordinates) and sets too loose
 /// names `--meet-slabs`; with it, or in x alone (scenario 1), it does not, and the summary says
-/// when the slabs were clipped.
+/// when the slabs were clipped. `reach` names it where tubes stop.
 #[test]
 fn verify_names_meet_slabs_where_it_could_help() {
     let sc2 = common::scenario_path("double-integrator.toml");
@@ -713,4 +713,15 @@ fn verify_names_meet_slabs_where_it_could_help() {
     let (code, out, err) = common::cbfreach(&["verify", sc1.to_str().unwrap(), "--grid", "8,6"]);
     assert_eq!(code, 0, "{err}");
     assert!(!out.contains("--meet-slabs"), "{out}");
+    // `reach` names it beside --face-local where its tubes stop.
+    let (code, out, err) = common::cbfreach(&["reach", sc2]);
+    assert_eq!(code, 0, "{err}");
+    let stopped = out
+        .lines()
+        .find(|l| l.contains("sets stopped"))
+        .expect(&out);
+    assert!(
+        stopped.contains("--face-local") && stopped.contains("--meet-slabs"),
+        "{out}"
+    );
 }
