@@ -176,9 +176,7 @@ pub fn run(args: &ReachArgs) -> CliResult {
     if invalid > 0 {
         // What would tighten the sets and is not on: face-local bounds, and with two frames in
         // continuous time the clipped slabs.
-        let clip = problem.time == cbfreach::reach::TimeModel::Continuous
-            && problem.frames(&settings).len() > 1
-            && !settings.meet_slabs;
+        let clip = problem.slabs_can_meet(&settings) && !settings.meet_slabs;
         let tighter = match (settings.face_local, clip) {
             (true, false) => "",
             (false, false) => {

@@ -272,7 +272,8 @@ fn print_causes(c: &UnverifiedCauses) {
 /// slabs unclipped, says that `--meet-slabs` exists (off by default until the GPU engine takes
 /// it; ACC's 16 × 6 cells: 1.1 % verified without it, 100 % with it).
 fn print_meet_slabs_hint(r: &VerifyReport, c: &UnverifiedCauses) {
-    let continuous = r.run.time == cbfreach::reach::TimeModel::Continuous.name();
+    use cbfreach::reach::TimeModel;
+    let continuous = TimeModel::from_label(&r.run.time) == Some(TimeModel::Continuous);
     if continuous && r.run.intersect_x && !r.run.meet_slabs && c.too_loose > 0.0 {
         println!(
             "    (--meet-slabs clips each frame's slabs by the other frame's set, CPU engine: far \

@@ -327,10 +327,15 @@ impl ReachProblem {
         std::iter::once(self).chain(in_x).collect()
     }
 
-    /// Whether [`ReachSettings::meet_slabs`] acts on this problem: continuous time with
-    /// several frames.
+    /// Whether [`ReachSettings::meet_slabs`] acts on this problem.
     pub fn meet_slabs_applies(&self, settings: &ReachSettings) -> bool {
-        settings.meet_slabs && self.time == TimeModel::Continuous && self.frames(settings).len() > 1
+        settings.meet_slabs && self.slabs_can_meet(settings)
+    }
+
+    /// Whether [`ReachSettings::meet_slabs`] would act, set or not: continuous time with
+    /// several frames.
+    pub fn slabs_can_meet(&self, settings: &ReachSettings) -> bool {
+        self.time == TimeModel::Continuous && self.frames(settings).len() > 1
     }
 
     /// The box of this problem's coordinates around an x-box (its z-box with a transform).

@@ -144,8 +144,9 @@ fn halfspaces(scenario: &Scenario, transform: Option<&Transform>) -> Vec<SafeHal
 /// for `None`) as `2n` half-spaces of this frame's coordinates (`x = S_f z_f`, `this`), for
 /// states in the x-box `x_box` (design §7.1 item 7). With `T_g` for `S_g⁻¹`,
 /// `‖S_g⁻¹y − T_g y‖∞ ≤ ρ_g‖T_g y‖∞`, so row `r` holds `(T_g S_f z_f)ᵣ ∈ [lᵣ − ρ_g K, uᵣ + ρ_g K]`
-/// with `K ≥ ‖T_g x‖∞` over `x_box`; `T_g S_f` is enclosed entry by entry (`S_f` defines this
-/// frame's coordinates exactly).
+/// with `K ≥ ‖T_g x‖∞` over `x_box` (the pad of [`Transform::to_z_box`],
+/// [`Transform::pad_over`]); `T_g S_f` is enclosed entry by entry (`S_f` defines this frame's
+/// coordinates exactly).
 pub fn frame_halfspaces(
     this: Option<&Transform>,
     other: Option<&Transform>,
@@ -162,21 +163,9 @@ pub fn frame_halfspaces(
         Some(t) => t.s[k * n + j],
         None => f64::from(u8::from(k == j)),
     };
-    let slack = match other {
-        Some(t) if t.rho > 0.0 => {
-            let k = (0..n)
-                .map(|r| {
-                    (0..n)
-                        .fold(p(0.0), |acc, k| {
-                            acc + p(t_g(r, k)) * Interval::new(x_box.lower[k], x_box.upper[k])
-                        })
-                        .mag()
-                })
-                .fold(0.0, f64::max);
-            p(t.rho) * p(k)
-        }
-        _ => p(0.0),
-    };
+    let slack = p(other
+        .filter(|t| t.rho > 0.0)
+        .map_or(0.0, |t| t.pad_over(x_box)));
     let mut out = Vec::with_capacity(2 * n);
     for r in 0..n {
         let row: Vec<Interval> = (0..n)
@@ -385,8 +374,8 @@ goal = { lower = [-1, -1], upper = [1, 1] }
 
     /// A frame's set as half-spaces of another frame ([`frame_halfspaces`]) holds every state
     /// of the set, its corners on the boundary (a set shrunk by 1 % of its width loses them),
-    /// and clips a box around it to the set's hull in those coordinates: x and z both ways, and
-    /// two transforms.
+    /// and clipping a box around it keeps them all: x and z both ways, and two transforms. With
+    /// a `T` that misses `S⁻¹` by 0.2 %, the `ρ‖T x‖∞` pad is what keeps them.
     #[test]
     fn another_frames_set_holds_its_states_and_is_tight() {
         let t1 = Transform::from_matrix(vec![0.7, -0.7, 2.8, 2.9], 2).unwrap();
@@ -394,6 +383,10 @@ goal = { lower = [-1, -1], upper = [1, 1] }
         let set = IntervalBox::new(vec![-0.3, 0.2], vec![0.5, 0.9]).unwrap();
         let mul = |m: &[f64], v: &[f64]| [m[0] * v[0] + m[1] * v[1], m[2] * v[0] + m[3] * v[1]];
         let identity = [1.0, 0.0, 0.0, 1.0];
+        let margin = |h: &SafeHalfspace, z: &[f64; 2]| {
+            (h.offset + h.normal[0] * Interval::point(z[0]) + h.normal[1] * Interval::point(z[1]))
+                .upper
+        };
         for (this, other) in [(Some(&t1), None), (None, Some(&t1)), (Some(&t2), Some(&t1))] {
             // x of a point of the other frame's set, and this frame's coordinates of it.
             let s_g = other.map_or(&identity[..], |t| &t.s[..]);
@@ -411,12 +404,6 @@ goal = { lower = [-1, -1], upper = [1, 1] }
             let x_box = IntervalBox::new(vec![-5.0, -5.0], vec![5.0, 5.0]).unwrap();
             let hs = frame_halfspaces(this, other, &set, &x_box);
             assert_eq!(hs.len(), 4);
-            let margin = |h: &SafeHalfspace, z: &[f64; 2]| {
-                (h.offset
-                    + h.normal[0] * Interval::point(z[0])
-                    + h.normal[1] * Interval::point(z[1]))
-                .upper
-            };
             for z in &points {
                 for h in &hs {
                     assert!(
@@ -445,5 +432,45 @@ goal = { lower = [-1, -1], upper = [1, 1] }
                 assert!(lo[j] <= min + 1e-9 && hi[j] >= max - 1e-9, "{lo:?} {hi:?}");
             }
         }
+        // `T` 0.2 % off `S⁻¹` in one entry, `ρ = ‖R‖/(1 − ‖R‖)` with `R = I − TS` (1 % over).
+        let s: [f64; 4] = [1.0, 0.5, -0.3, 2.0];
+        let det = s[0] * s[3] - s[1] * s[2];
+        let t = [1.002 * s[3] / det, -s[1] / det, -s[2] / det, s[0] / det];
+        let ts = [
+            t[0] * s[0] + t[1] * s[2],
+            t[0] * s[1] + t[1] * s[3],
+            t[2] * s[0] + t[3] * s[2],
+            t[2] * s[1] + t[3] * s[3],
+        ];
+        let r = ((1.0 - ts[0]).abs() + ts[1].abs()).max(ts[2].abs() + (1.0 - ts[3]).abs());
+        let off = Transform {
+            n: 2,
+            t: t.to_vec(),
+            s: s.to_vec(),
+            rho: 1.01 * r / (1.0 - r),
+        };
+        let no_pad = Transform {
+            rho: 0.0,
+            ..off.clone()
+        };
+        let x_box = IntervalBox::new(vec![-3.0, -3.0], vec![3.0, 3.0]).unwrap();
+        let xs: Vec<[f64; 2]> = (0..=10)
+            .flat_map(|a| (0..=10).map(move |b| (a, b)))
+            .map(|(a, b)| {
+                let z = [
+                    set.lower[0] + 0.1 * a as f64 * (set.upper[0] - set.lower[0]),
+                    set.lower[1] + 0.1 * b as f64 * (set.upper[1] - set.lower[1]),
+                ];
+                mul(&s, &z)
+            })
+            .collect();
+        let lowest = |hs: &[SafeHalfspace]| {
+            xs.iter()
+                .flat_map(|x| hs.iter().map(move |h| margin(h, x)))
+                .fold(f64::INFINITY, f64::min)
+        };
+        assert!(lowest(&frame_halfspaces(None, Some(&off), &set, &x_box)) >= -1e-9);
+        let unpadded = lowest(&frame_halfspaces(None, Some(&no_pad), &set, &x_box));
+        assert!(unpadded < -1e-4, "the test needs a T off S⁻¹: {unpadded}");
     }
 }

@@ -16,7 +16,7 @@ use nalgebra::{DMatrix, DVector};
 use crate::boxes::IntervalBox;
 use crate::expressions::Expr;
 use crate::filter::{FilterError, SafetyFilter};
-use crate::intervals::Interval;
+use crate::intervals::{box_of, Interval};
 use crate::network::Mlp;
 use crate::rounding::round_up;
 use crate::scenario::{Scenario, TransformChoice};
@@ -180,14 +180,29 @@ fn schur_blocks(u: &DMatrix<f64>) -> Vec<(usize, usize)> {
     let mut blocks = Vec::new();
     let mut i = 0;
     while i < n {
-        // A pair whose imaginary part is negligible is left to the scaling as two real
-        // eigenvalues: its basis `P` would be nearly singular.
-        let pair =
-            i + 1 < n && u[(i + 1, i)].abs() > 1e-12 * scale && imaginary_part(u, i) > 1e-6 * scale;
+        let pair = i + 1 < n && complex_pair(u, i, scale);
         blocks.push((i, if pair { 2 } else { 1 }));
         i += if pair { 2 } else { 1 };
     }
     blocks
+}
+
+/// Whether the entry below `U`'s diagonal at `i` is not negligible against `scale`.
+fn coupled_below(u: &DMatrix<f64>, i: usize, scale: f64) -> bool {
+    u[(i + 1, i)].abs() > 1e-12 * scale
+}
+
+/// Whether the 2 × 2 block at `i` is a complex pair. One whose imaginary part is negligible is
+/// left to the scaling as two real eigenvalues: its basis `P` would be nearly singular.
+fn complex_pair(u: &DMatrix<f64>, i: usize, scale: f64) -> bool {
+    coupled_below(u, i, scale) && imaginary_part(u, i) > 1e-6 * scale
+}
+
+/// `(a − d)²/4 + bc` of the 2 × 2 block `[[a, b], [c, d]]` at `i`: its eigenvalues are
+/// `(a + d)/2 ± √` of it.
+fn discriminant(u: &DMatrix<f64>, i: usize) -> f64 {
+    let (a, b, c, d) = (u[(i, i)], u[(i, i + 1)], u[(i + 1, i)], u[(i + 1, i + 1)]);
+    0.25 * (a - d) * (a - d) + b * c
 }
 
 /// Makes triangular each 2 × 2 block of `U` whose eigenvalues are real but which nalgebra's
@@ -199,12 +214,11 @@ fn split_real_pairs(q: &mut DMatrix<f64>, u: &mut DMatrix<f64>) {
     let n = u.nrows();
     let scale = u.amax().max(f64::MIN_POSITIVE);
     for i in 0..n.saturating_sub(1) {
-        if u[(i + 1, i)].abs() <= 1e-12 * scale || imaginary_part(u, i) > 1e-6 * scale {
+        if !coupled_below(u, i, scale) || complex_pair(u, i, scale) {
             continue;
         }
         let (a, b, c, d) = (u[(i, i)], u[(i, i + 1)], u[(i + 1, i)], u[(i + 1, i + 1)]);
-        let disc = (0.25 * (a - d) * (a - d) + b * c).max(0.0);
-        let lambda = 0.5 * (a + d) + disc.sqrt();
+        let lambda = 0.5 * (a + d) + discriminant(u, i).max(0.0).sqrt();
         // Two directions of the null space of `B − λI`; the longer is the better conditioned.
         let (p, r) = if b.hypot(lambda - a) >= (lambda - d).hypot(c) {
             (b, lambda - a)
@@ -227,9 +241,7 @@ fn split_real_pairs(q: &mut DMatrix<f64>, u: &mut DMatrix<f64>) {
 
 /// `β ≥ 0` of the eigenvalues `α ± iβ` of the 2 × 2 block `U[i.., i..]` (0 where they are real).
 fn imaginary_part(u: &DMatrix<f64>, i: usize) -> f64 {
-    let (a, b, c, d) = (u[(i, i)], u[(i, i + 1)], u[(i + 1, i)], u[(i + 1, i + 1)]);
-    let disc = 0.25 * (a - d) * (a - d) + b * c;
-    (-disc).max(0.0).sqrt()
+    (-discriminant(u, i)).max(0.0).sqrt()
 }
 
 /// `P` with `P⁻¹BP = [[α, β], [−β, α]]` for the 2 × 2 block `B = U[i.., i..]` with eigenvalues
@@ -503,16 +515,29 @@ impl Transform {
 
     /// A sound z-box of `S⁻¹·X`.
     pub fn to_z_box(&self, x: &IntervalBox) -> IntervalBox {
-        let xi: Vec<Interval> = (0..self.n)
-            .map(|i| Interval::new(x.lower[i], x.upper[i]))
-            .collect();
-        let z = mat_vec(&self.t, &xi, self.n);
-        let size = z.iter().fold(0.0_f64, |a, v| a.max(v.mag()));
-        let pad = round_up((ip(self.rho) * ip(size)).upper);
+        let z = self.t_times(x);
+        let pad = self.pad(&z);
         IntervalBox {
             lower: z.iter().map(|v| (ip(v.lower) - ip(pad)).lower).collect(),
             upper: z.iter().map(|v| (ip(v.upper) + ip(pad)).upper).collect(),
         }
+    }
+
+    /// `ρ‖T x‖∞` over the x-box `x`, rounded up: by how much `T x` may miss `S⁻¹x` in each
+    /// coordinate there.
+    pub fn pad_over(&self, x: &IntervalBox) -> f64 {
+        self.pad(&self.t_times(x))
+    }
+
+    /// `[T]·[x]` over an x-box.
+    fn t_times(&self, x: &IntervalBox) -> Vec<Interval> {
+        mat_vec(&self.t, &box_of(&x.lower, &x.upper), self.n)
+    }
+
+    /// `ρ‖z‖∞` for `z = T x`, rounded up.
+    fn pad(&self, z: &[Interval]) -> f64 {
+        let size = z.iter().fold(0.0_f64, |a, v| a.max(v.mag()));
+        round_up((ip(self.rho) * ip(size)).upper)
     }
 
     /// The bounding box of the parallelotope `S·[z̲, z̄]`.

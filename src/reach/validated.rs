@@ -147,12 +147,9 @@ pub fn slab(
         (lower[i], upper[i]) = (end, end);
     }
     // A state of the slab that a trajectory reaches lies in the other frames' sets too. An
-    // empty meet (no trajectory reaches the slab) keeps the slab whole: any bound is sound.
+    // empty meet (no trajectory reaches the slab) leaves the slab whole: any bound is sound.
     if !pipe.others.is_empty() {
-        let (mut l, mut u) = (lower.clone(), upper.clone());
-        if clip_to_safe_set(&mut l, &mut u, &pipe.others) {
-            return (l, u);
-        }
+        clip_to_safe_set(&mut lower, &mut upper, &pipe.others);
     }
     (lower, upper)
 }

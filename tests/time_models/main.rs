@@ -357,6 +357,29 @@ fn refusals_name_the_setting() {
     let refused = cbfreach::gpu::GpuBackend::runs(&two_frames, &meet).unwrap_err();
     assert!(refused.to_string().contains("meet_slabs"), "{refused}");
     assert!(cbfreach::gpu::GpuBackend::runs(&two_frames, &ReachSettings::default()).is_ok());
+    // `verify --backend gpu` (refinement on by default) names it too; it had blamed the
+    // substeps. Needs an adapter: with `CBFREACH_REQUIRE_GPU=1` a missing one fails the test.
+    let require = std::env::var("CBFREACH_REQUIRE_GPU").is_ok_and(|v| v == "1");
+    match cbfreach::gpu::GpuContext::new() {
+        Ok(_) => {
+            let sc2 = common::scenario_path("double-integrator.toml");
+            let args = [
+                "verify",
+                sc2.to_str().unwrap(),
+                "--grid",
+                "4,4",
+                "--meet-slabs",
+            ];
+            let (code, _, err) = common::cbfreach(&[&args[..], &["--backend", "gpu"]].concat());
+            assert_ne!(code, 0);
+            assert!(
+                err.contains("meet_slabs") && !err.contains("substeps"),
+                "{err}"
+            );
+        }
+        Err(e) if require => panic!("CBFREACH_REQUIRE_GPU=1 but {e}"),
+        Err(e) => eprintln!("skipping verify on the GPU engine: {e}"),
+    }
 }
 
 /// Validity against `C` speaks of all times: every flowpipe recorded on a valid stretch of a
