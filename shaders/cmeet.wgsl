@@ -21,10 +21,11 @@
 // Per box the x-box of this step's flowpipes within S, met over the frames (lo, hi).
 @group(0) @binding(6) var<storage, read_write> pipe_known: array<real>;
 
-const CW: u32 = 12u * N0 + 1u;
+const CW: u32 = 14u * N0 + 2u;
 const C_HULL: u32 = 6u * N0 + 1u;
 const C_RATES: u32 = 8u * N0 + 1u;
 const C_DEPTHS: u32 = 10u * N0 + 1u;
+const C_OTHER: u32 = 12u * N0 + 1u;
 
 fn cont_at(f: u32, at: u32) -> real {
     if (f == 0u) {
@@ -75,8 +76,9 @@ fn put_set(f: u32, g: u32, s: array<Iv, N0>) {
     }
 }
 
-// Frame f's moving box m with its hull met (`hull`), for continuous.wgsl's step_guess.
-fn put_moving(f: u32, g: u32, m: Moving, hull: array<Iv, N0>) {
+// Frame f's moving box m with its hull met (`hull`), and the other frame's set over the step
+// (`other`, in its coordinates) with its pad, for continuous.wgsl's step_guess.
+fn put_moving(f: u32, g: u32, m: Moving, hull: array<Iv, N0>, other: array<Iv, N0>, pad: real) {
     var lo: array<real, N0>;
     var hi: array<real, N0>;
     for (var j = 0u; j < N0; j++) {
@@ -90,6 +92,11 @@ fn put_moving(f: u32, g: u32, m: Moving, hull: array<Iv, N0>) {
     put_reals(f, b + C_RATES + N0, m.s_hi);
     put_reals(f, b + C_DEPTHS, m.d_lo);
     put_reals(f, b + C_DEPTHS + N0, m.d_hi);
+    for (var j = 0u; j < N0; j++) {
+        cont_put(f, b + C_OTHER + j, other[j].lo);
+        cont_put(f, b + C_OTHER + N0 + j, other[j].hi);
+    }
+    cont_put(f, b + C_OTHER + 2u * N0, pad);
 }
 
 fn hull_of(m: Moving) -> array<Iv, N0> {
@@ -118,8 +125,12 @@ fn cpipes(@builtin(global_invocation_id) gid: vec3<u32>) {
     let h0 = hull_of(g0.m);
     let h1 = hull_of(g1.m);
     let k = meet_or(clip_to_safe_set(x_box(h0), HS_Z, HS_X), clip_to_safe_set(h1, HS_Z, HS_X));
-    put_moving(0u, g, g0.m, meet_or(h0, z_box_of(k)));
-    put_moving(1u, g, g1.m, meet_or(h1, k));
+    let p0 = meet_or(h0, z_box_of(k));
+    let p1 = meet_or(h1, k);
+    // Each frame's slabs clipped by the other's met hull (cpu_time.rs `meet_slabs`; both
+    // guessed, so proven together): frame 0's in x (no pad), frame 1's in z, padded by ρ‖T k‖∞.
+    put_moving(0u, g, g0.m, p0, p1, 0.0);
+    put_moving(1u, g, g1.m, p1, p0, t_pad(t_times(k)));
     for (var j = 0u; j < N0; j++) {
         pipe_known[g * 2u * N0 + j] = k[j].lo;
         pipe_known[g * 2u * N0 + N0 + j] = k[j].hi;

@@ -20,8 +20,8 @@
 @group(0) @binding(0) var<uniform> p: Params;
 // Per box CW reals: the StepState (lo, hi, r_lo, r_hi, b_lo, b_hi: N0 each; the rates it has),
 // then the step's moving box: its hull (lo, hi) and faces' rates (s_lo, s_hi), which the step
-// leaves for the host, and its slabs' depths (d_lo, d_hi; written by `cpipes` where frames are
-// met).
+// leaves for the host, and its slabs' depths (d_lo, d_hi), the other frame's set over the step
+// (lo, hi) and its pad (these three written by `cpipes` where frames are met).
 @group(0) @binding(1) var<storage, read_write> cont: array<real>;
 // Per box [poisoned, status, -, piece, enclosed, result]: status is the host's (LIVE while it
 // steps), result this step's (C_DEVICE, C_HOST); piece and enclosed whether a step the device
@@ -34,11 +34,13 @@
 // (`cpipes`; the CPU's `pipe_known`): the step's facts are taken there.
 @group(0) @binding(7) var<storage, read> pipe_known: array<real>;
 
-const CW: u32 = 12u * N0 + 1u;
-// Offsets in a box's CW reals of its moving box's hull, faces' rates and depths.
+const CW: u32 = 14u * N0 + 2u;
+// Offsets in a box's CW reals of its moving box's hull, faces' rates and depths, and of the
+// other frame's set over the step with its pad (where slabs are clipped by it, CLIP_SLABS).
 const C_HULL: u32 = 6u * N0 + 1u;
 const C_RATES: u32 = 8u * N0 + 1u;
 const C_DEPTHS: u32 = 10u * N0 + 1u;
+const C_OTHER: u32 = 12u * N0 + 1u;
 
 const SWB: u32 = 2u * N0 + 1u;
 
@@ -79,6 +81,12 @@ fn step_guess(g: u32, st: StepState) -> Guess {
     gs.m.d_lo = reals_at(g, C_DEPTHS);
     gs.m.d_hi = reals_at(g, C_DEPTHS + N0);
     gs.m.ok = gs.on_path;
+    gs.m.clip = CLIP_SLABS;
+    if (CLIP_SLABS) {
+        gs.m.o_lo = reals_at(g, C_OTHER);
+        gs.m.o_hi = reals_at(g, C_OTHER + N0);
+        gs.m.o_pad = cont[g * CW + C_OTHER + 2u * N0];
+    }
     return gs;
 }
 

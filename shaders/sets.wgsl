@@ -91,21 +91,34 @@ fn z_box_of(x: array<Iv, N0>) -> array<Iv, N0> {
     if (!TRANSFORM) {
         return x;
     }
+    var z = t_times(x);
+    let pad = t_pad(z);
+    for (var i = 0u; i < N0; i++) {
+        z[i] = Iv(down(z[i].lo - pad), up(z[i].hi + pad));
+    }
+    return z;
+}
+
+// T·x in interval arithmetic (Transform::t_times).
+fn t_times(x: array<Iv, N0>) -> array<Iv, N0> {
     var z: array<Iv, N0>;
-    var size: real = 0.0;
     for (var i = 0u; i < N0; i++) {
         var zi = iv_point(0.0);
         for (var j = 0u; j < N0; j++) {
             zi = iv_add(zi, iv_mul(Iv(T_LO[i * N0 + j], T_HI[i * N0 + j]), x[j]));
         }
         z[i] = zi;
-        size = max(size, iv_mag(zi));
-    }
-    let pad = up(up(RHO * size));
-    for (var i = 0u; i < N0; i++) {
-        z[i] = Iv(down(z[i].lo - pad), up(z[i].hi + pad));
     }
     return z;
+}
+
+// ρ·‖z‖∞ for z = T·x, rounded up (Transform::pad): by how much T x may miss S⁻¹x.
+fn t_pad(z: array<Iv, N0>) -> real {
+    var size: real = 0.0;
+    for (var i = 0u; i < N0; i++) {
+        size = max(size, iv_mag(z[i]));
+    }
+    return up(up(RHO * size));
 }
 
 // Two frames' sets after a step, met (src/reach/cpu.rs `advance` and `settle`): frame 0's `z` in

@@ -4,7 +4,7 @@
 // `moving_hull`, `slab` of a moving box, `verified` without an enclosure, `clamp_to_depths`,
 // `embedding_step`, `meet_with_pipe`); src/gpu/probe.rs runs each on the device and
 // tests/gpu_matches_cpu/validated.rs compares them with the Rust. Needs N0 (the frame's
-// states) and common.wgsl's intervals. Plain arithmetic where the Rust's is plain (the guess is
+// states), OTHER_LO and OTHER_HI (`clip_by_other`'s rows) and common.wgsl's intervals. Plain arithmetic where the Rust's is plain (the guess is
 // a heuristic: soundness rests on the check), outward steps where the Rust's is outward.
 
 // validated::GUESS_MARGIN.
@@ -22,6 +22,12 @@ struct Moving {
     hull_lo: array<real, N0>,
     hull_hi: array<real, N0>,
     ok: bool,
+    // The other frame's set over the step (validated::Flowpipe::others, meet_slabs): its box in
+    // its coordinates and the pad ρK, the slabs clipped by them where `clip` (`clip_by_other`).
+    o_lo: array<real, N0>,
+    o_hi: array<real, N0>,
+    o_pad: real,
+    clip: bool,
 }
 
 // `e + h·s` as an interval (the Rust's point(e) + point(h)·point(s)). The step `h` is an
@@ -52,6 +58,7 @@ fn guessed(lo: array<real, N0>, hi: array<real, N0>, h: Iv, r_lo: array<real, N0
         m.d_hi[i] = min(ru, tu) - delta;
     }
     m.ok = true;
+    m.clip = false;
     for (var i = 0u; i < N0; i++) {
         if (!(finite(m.s_lo[i]) && finite(m.s_hi[i]) && finite(m.d_lo[i]) && finite(m.d_hi[i]))) {
             m.ok = false;
@@ -103,7 +110,64 @@ fn slab(lo: array<real, N0>, hi: array<real, N0>, m: Moving, h: Iv, i: u32, side
         s.lo[i] = end;
         s.hi[i] = end;
     }
+    if (m.clip) {
+        return clip_by_other(s, m.o_lo, m.o_hi, m.o_pad);
+    }
     return s;
+}
+
+// The other frame's set [o̲, ō] as the 2·N0 half-spaces of safe_set::frame_halfspaces, row r of
+// OTHER_LO/OTHER_HI (its `frame_rows`, T_g S_f enclosed) holding rᵣ·v ∈ [o̲ᵣ − pad, ōᵣ + pad], and
+// the box clipped by them one coordinate at a time as safe_set::clip_to_safe_set
+// (SafeHalfspace::tightening: a row entry that is exactly 0 is skipped, one whose enclosure holds
+// 0 bounds nothing). An empty meet (no trajectory reaches the box) leaves it whole.
+fn clip_by_other(b: Box, o_lo: array<real, N0>, o_hi: array<real, N0>, pad: real) -> Box {
+    var v = b;
+    let slack = iv_point(pad);
+    for (var r = 0u; r < N0; r++) {
+        for (var side = 0u; side < 2u; side++) {
+            // Lower: row·v − (o̲ᵣ − pad) ≥ 0; upper: −row·v + (ōᵣ + pad) ≥ 0.
+            var off = iv_neg(iv_sub(iv_point(o_lo[r]), slack));
+            if (side == 1u) {
+                off = iv_add(iv_point(o_hi[r]), slack);
+            }
+            for (var j = 0u; j < N0; j++) {
+                let c = other_row(r, j, side);
+                if (iv_contains0(c)) {
+                    continue;
+                }
+                var rest = off;
+                for (var k = 0u; k < N0; k++) {
+                    if (k != j && !(OTHER_LO[r * N0 + k] == 0.0 && OTHER_HI[r * N0 + k] == 0.0)) {
+                        rest = iv_add(rest, iv_mul(other_row(r, k, side), Iv(v.lo[k], v.hi[k])));
+                    }
+                }
+                let l = -rest.hi;
+                let q = iv_div(Iv(l, l), c);
+                if (c.lo > 0.0) {
+                    v.lo[j] = max(v.lo[j], q.lo);
+                } else {
+                    v.hi[j] = min(v.hi[j], q.hi);
+                }
+            }
+        }
+    }
+    for (var j = 0u; j < N0; j++) {
+        if (!(v.lo[j] <= v.hi[j])) {
+            return b;
+        }
+    }
+    return v;
+}
+
+// Entry (r, j) of clip_by_other's half-space normal: the row's for the lower side, negated for
+// the upper.
+fn other_row(r: u32, j: u32, side: u32) -> Iv {
+    let c = Iv(OTHER_LO[r * N0 + j], OTHER_HI[r * N0 + j]);
+    if (side == 1u) {
+        return iv_neg(c);
+    }
+    return c;
 }
 
 // validated::verified for a box guessed without an enclosure: the rates (dl, du) found on its

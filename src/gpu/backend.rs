@@ -47,7 +47,7 @@ use rayon::prelude::*;
 use self::chunk::{ChunkResult, FrameRun};
 use self::layout::{method_flags, Shape};
 use super::buffers::status;
-use super::codegen::{problem_wgsl, FLAG_W};
+use super::codegen::{problem_wgsl, Meet, FLAG_W};
 use super::disk_cache::{cache_dir, DiskCache, Loaded, Saved};
 use super::kernels::{
     compiles, shader_source, Gemm, Kernels, Variant, GEMM_TILE, MODULES, WORKGROUP,
@@ -254,7 +254,7 @@ impl GpuBackend {
         }
         match problem.time {
             TimeModel::Euler => {}
-            TimeModel::Continuous => continuous::refused(problem, settings)?,
+            TimeModel::Continuous => continuous::refused(settings)?,
             // The device bounds the network alone; the rest is the CPU engine's (`sampled`).
             TimeModel::Sampled { .. } => return Ok(()),
         }
@@ -478,8 +478,14 @@ impl GpuBackend {
             let shape = Shape::new(frame, settings);
             let mut margins = MarginMap::for_problem(frame, settings, self.precision);
             margins.pad_loops = self.pad_loops;
+            // The other frame, where frames are met: its coordinates, and whether this frame's
+            // slabs are clipped by its sets (continuous time, `meet_slabs`).
+            let with = meet.then(|| Meet {
+                other: frames[1 - f].transform.as_ref(),
+                clip_slabs: continuous && problem.meet_slabs_applies(settings),
+            });
             let source =
-                problem_wgsl(frame, settings, shape.flags, self.precision, &margins, meet)?;
+                problem_wgsl(frame, settings, shape.flags, self.precision, &margins, with)?;
             let kernels = self.kernels.get(
                 &self.ctx,
                 self.cache_dir.as_deref(),

@@ -16,7 +16,8 @@ use super::{GpuError, Precision};
 use crate::expressions::{Expr, Func, Node};
 use crate::filter::{row_expressions, FilterMethod, Smooth};
 use crate::intervals::Interval;
-use crate::reach::safe_set::{SafeHalfspace, Tightening};
+use crate::reach::safe_set::{frame_rows, SafeHalfspace, Tightening};
+use crate::reach::transform::Transform;
 use crate::reach::{ExactField, ReachMethod, ReachProblem, ReachSettings, SafeSet};
 use crate::scenario::Norm;
 
@@ -240,7 +241,11 @@ fn switch_fn(
 }
 
 /// A private `array<real, n>` of device numbers.
-fn private_real(name: &str, values: impl Iterator<Item = f64>, precision: Precision) -> String {
+pub(crate) fn private_real(
+    name: &str,
+    values: impl Iterator<Item = f64>,
+    precision: Precision,
+) -> String {
     let v: Vec<String> = values.map(|x| real_literal(x, precision)).collect();
     format!(
         "var<private> {name}: array<real, {}> = array<real, {}>({});\n",
@@ -327,17 +332,27 @@ pub fn faces_per_box(n: usize, settings: &ReachSettings) -> usize {
     }
 }
 
+/// How a frame's module is met with the other frame's (two frames: z and x).
+#[derive(Clone, Copy, Debug)]
+pub struct Meet<'a> {
+    /// The other frame's transform (`None`: its coordinates are x).
+    pub other: Option<&'a Transform>,
+    /// Whether each slab is clipped by the other frame's set over the step
+    /// (`ReachSettings::meet_slabs`, continuous time).
+    pub clip_slabs: bool,
+}
+
 /// Everything problem-specific the kernels need: sizes, constants, the local-margin map's
 /// geometry (`margins`, with `--local-margin`) and the dynamics' inclusion functions
 /// `ft_iv(i, x)`, `jac_iv(i, j, x)`, `g_iv(i, k, x)`, in `precision`. With `meet` the problem
-/// is one of two frames met after every step (`shaders/settle.wgsl`).
+/// is one of two frames met after every step (`shaders/settle.wgsl`, `shaders/cmeet.wgsl`).
 pub fn problem_wgsl(
     problem: &ReachProblem,
     settings: &ReachSettings,
     flags: MethodFlags,
     precision: Precision,
     margins: &MarginMap,
-    meet: bool,
+    meet: Option<Meet>,
 ) -> Result<String, GpuError> {
     let d = &problem.dynamics;
     let (n, m) = (d.n, d.m);
@@ -469,7 +484,17 @@ pub fn problem_wgsl(
     s += &arr("T_LO", &mut t_lo.into_iter());
     s += &arr("T_HI", &mut t_hi.into_iter());
     let _ = writeln!(s, "const RHO: real = {};", lit(rho));
-    let _ = writeln!(s, "const MEET: bool = {meet};");
+    let _ = writeln!(s, "const MEET: bool = {};", meet.is_some());
+    // The other frame's set as half-spaces of this frame's coordinates (meet_slabs,
+    // shaders/validated.wgsl `clip_by_other`): their rows, the same for every set.
+    let clip = meet.is_some_and(|m| m.clip_slabs);
+    let _ = writeln!(s, "const CLIP_SLABS: bool = {clip};");
+    let rows = match meet {
+        Some(m) => frame_rows(problem.transform.as_ref(), m.other, n),
+        None => vec![Interval::point(0.0); n * n],
+    };
+    s += &arr("OTHER_LO", &mut rows.iter().map(|v| down(v.lower)));
+    s += &arr("OTHER_HI", &mut rows.iter().map(|v| up(v.upper)));
     let b: Vec<f64> = d.g_constant.clone().unwrap_or_else(|| vec![0.0; n * m]);
     s += &arr("B_LO", &mut b.iter().map(|&v| down(v)));
     s += &arr("B_HI", &mut b.iter().map(|&v| up(v)));

@@ -8,13 +8,14 @@
 use wgpu::util::DeviceExt;
 
 use super::buffers::{device_bytes, flatten_network, from_device_bytes, uniform, Params};
-use super::codegen::{h_enclosure, round_down, round_up};
+use super::codegen::{h_enclosure, private_real, round_down, round_up};
 use super::kernels::{
     prelude, Gemm, BOX, COMMON, END_RATES, F32_BITS, FOLD, GEMM, PARAMS, REAL_F32, REAL_F64, TURN,
     VALIDATED,
 };
 use super::{GpuContext, GpuError, Precision};
 use crate::boxes::IntervalBox;
+use crate::intervals::Interval;
 use crate::reach::validated::MovingFaces;
 
 /// `y` after one dispatch of the GEMM kernel `gemm` (dispatched as the engine does) in
@@ -164,6 +165,21 @@ pub struct GuessCase {
     pub slab_rates: (Vec<f64>, Vec<f64>),
     /// `(cl, cu)`: second-order rates, met with the clamped slab rates.
     pub curved: (Vec<f64>, Vec<f64>),
+    /// The other frame's set that clips the slabs (`meet_slabs`), where one does.
+    pub other: Option<OtherSet>,
+}
+
+/// Another frame's set over a step as `validated.wgsl`'s `clip_by_other` takes it: the
+/// half-spaces' rows (`safe_set::frame_rows`, the same for every case of a probe), the set in
+/// the other frame's coordinates and the pad (`safe_set::frame_slack`).
+#[derive(Clone, Debug)]
+pub struct OtherSet {
+    /// `T_g S_f`, row-major `n × n`.
+    pub rows: Vec<Interval>,
+    /// The other frame's set.
+    pub set: IntervalBox,
+    /// `ρ_g K`.
+    pub pad: f64,
 }
 
 /// What `shaders/validated.wgsl` made of a [`GuessCase`] on the device.
@@ -215,16 +231,43 @@ pub fn guessed_on_device_in(
     precision: Precision,
     broken: F32Break,
 ) -> Result<Vec<GuessOnDevice>, GpuError> {
+    // The rows of the cases' other sets, shared by the probe's cases as by a frame's module.
+    let rows = cases
+        .iter()
+        .filter_map(|c| c.other.as_ref())
+        .map(|o| &o.rows);
+    let rows = match rows.clone().next() {
+        Some(first) if rows.clone().any(|r| r != first) => {
+            return Err(GpuError::Problem(
+                "a probe's cases clip by different rows".into(),
+            ))
+        }
+        Some(first) => first.clone(),
+        None => vec![Interval::point(0.0); n * n],
+    };
+    let other_lo = private_real(
+        "OTHER_LO",
+        rows.iter().map(|v| round_down(v.lower, precision)),
+        precision,
+    );
+    let other_hi = private_real(
+        "OTHER_HI",
+        rows.iter().map(|v| round_up(v.upper, precision)),
+        precision,
+    );
     let kernel = format!(
         "
 const ABS_UNIT: real = 0.0;
 const N0: u32 = {n}u;
+{other_lo}
+{other_hi}
 {VALIDATED}
 @group(0) @binding(0) var<storage, read> xs: array<real>;
 @group(0) @binding(1) var<storage, read_write> ys: array<real>;
 
-// Per case lo, hi, h's lower end, r_lo, r_hi, b_lo, b_hi, before, dl, du, cl, cu, h's upper end.
-const IN: u32 = 10u * N0 + 3u;
+// Per case lo, hi, h's lower end, r_lo, r_hi, b_lo, b_hi, before, dl, du, cl, cu, h's upper end,
+// the other set's lo, hi, pad and whether it clips.
+const IN: u32 = 12u * N0 + 5u;
 const OUT: u32 = 2u + 8u * N0 + 4u * N0 * N0;
 
 fn take(at: u32) -> array<real, N0> {{
@@ -250,8 +293,12 @@ fn guess_test(@builtin(global_invocation_id) id: vec3<u32>) {{
     let a = k * IN;
     let lo = take(a);
     let hi = take(a + N0);
-    let h = Iv(xs[a + 2u * N0], xs[a + IN - 1u]);
-    let m = guessed(lo, hi, h, take(a + 2u * N0 + 1u), take(a + 3u * N0 + 1u), take(a + 4u * N0 + 1u), take(a + 5u * N0 + 1u), xs[a + 6u * N0 + 1u] != 0.0);
+    let h = Iv(xs[a + 2u * N0], xs[a + 10u * N0 + 2u]);
+    var m = guessed(lo, hi, h, take(a + 2u * N0 + 1u), take(a + 3u * N0 + 1u), take(a + 4u * N0 + 1u), take(a + 5u * N0 + 1u), xs[a + 6u * N0 + 1u] != 0.0);
+    m.o_lo = take(a + 10u * N0 + 3u);
+    m.o_hi = take(a + 11u * N0 + 3u);
+    m.o_pad = xs[a + 12u * N0 + 3u];
+    m.clip = xs[a + 12u * N0 + 4u] != 0.0;
     let dl = take(a + 6u * N0 + 2u);
     let du = take(a + 7u * N0 + 2u);
     var o = k * OUT;
@@ -293,7 +340,7 @@ fn guess_test(@builtin(global_invocation_id) id: vec3<u32>) {{
         (Precision::F32, F32Break::None) => REAL_F32.to_string(),
     };
     let source = format!("{prelude}\n{F32_BITS}\n{COMMON}\n{kernel}");
-    let mut xs = Vec::with_capacity(cases.len() * (10 * n + 3));
+    let mut xs = Vec::with_capacity(cases.len() * (12 * n + 5));
     for c in cases {
         let (bl, bu) = c
             .before
@@ -311,6 +358,12 @@ fn guess_test(@builtin(global_invocation_id) id: vec3<u32>) {{
             xs.extend(v);
         }
         xs.push(h_hi);
+        let zero = IntervalBox::new(vec![0.0; n], vec![0.0; n]).expect("a point box");
+        let (set, pad) = c.other.as_ref().map_or((&zero, 0.0), |o| (&o.set, o.pad));
+        xs.extend(set.lower.iter().map(|&x| round_down(x, precision)));
+        xs.extend(set.upper.iter().map(|&x| round_up(x, precision)));
+        xs.push(round_up(pad, precision));
+        xs.push(f64::from(u8::from(c.other.is_some())));
     }
     let per = 2 + 8 * n + 4 * n * n;
     let ys = run_in(
@@ -526,6 +579,8 @@ pub fn validated_compiles_in_f32(ctx: &GpuContext) -> Result<(), GpuError> {
     let kernel = "
 const ABS_UNIT: real = 0.0;
 const N0: u32 = 2u;
+var<private> OTHER_LO: array<real, 4> = array<real, 4>(1.0, 0.5, 0.0, 1.0);
+var<private> OTHER_HI: array<real, 4> = array<real, 4>(1.0, 0.5, 0.0, 1.0);
 @group(0) @binding(0) var<storage, read_write> ys: array<f32>;
 
 @compute @workgroup_size(1)
@@ -534,7 +589,8 @@ fn f32_check() {
     x[0] = ys[0];
     x[1] = ys[1];
     let h = Iv(ys[2], ys[3]);
-    let m = guessed(x, x, h, x, x, x, x, ys[3] > 0.0);
+    var m = guessed(x, x, h, x, x, x, x, ys[3] > 0.0);
+    m.clip = ys[2] > 0.0;
     let s = slab(x, x, m, h, 0u, 1u);
     let e = slab_step_end(x, x, m, h, x, x, x, x);
     var k: array<Iv, N0>;

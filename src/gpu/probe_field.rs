@@ -111,7 +111,7 @@ fn source(
         same_slope: false,
     };
     let margins = MarginMap::for_problem(problem, settings, precision);
-    let problem_code = problem_wgsl(problem, settings, flags, precision, &margins, false)?;
+    let problem_code = problem_wgsl(problem, settings, flags, precision, &margins, None)?;
     let prelude = match precision {
         Precision::F32 => REAL_F32,
         Precision::F64 => REAL_F64,

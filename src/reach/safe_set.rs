@@ -154,6 +154,28 @@ pub fn frame_halfspaces(
     x_box: &IntervalBox,
 ) -> Vec<SafeHalfspace> {
     let n = set.dim();
+    let rows = frame_rows(this, other, n);
+    let slack = Interval::point(frame_slack(other, x_box));
+    let mut out = Vec::with_capacity(2 * n);
+    for (r, row) in rows.chunks(n).enumerate() {
+        // `row·z − (lᵣ − ρK) ≥ 0` and `−row·z + (uᵣ + ρK) ≥ 0`.
+        out.push(SafeHalfspace {
+            name: String::new(),
+            normal: row.to_vec(),
+            offset: -(Interval::point(set.lower[r]) - slack),
+        });
+        out.push(SafeHalfspace {
+            name: String::new(),
+            normal: row.iter().map(|&c| -c).collect(),
+            offset: Interval::point(set.upper[r]) + slack,
+        });
+    }
+    out
+}
+
+/// The rows of [`frame_halfspaces`]: `T_g S_f` enclosed entry by entry, row-major `n × n`.
+/// The same for every set of the pair of frames (the GPU engine's constants for them).
+pub fn frame_rows(this: Option<&Transform>, other: Option<&Transform>, n: usize) -> Vec<Interval> {
     let p = Interval::point;
     let t_g = |r: usize, k: usize| match other {
         Some(t) => t.t[r * n + k],
@@ -163,27 +185,19 @@ pub fn frame_halfspaces(
         Some(t) => t.s[k * n + j],
         None => f64::from(u8::from(k == j)),
     };
-    let slack = p(other
+    (0..n * n)
+        .map(|e| {
+            let (r, j) = (e / n, e % n);
+            (0..n).fold(p(0.0), |acc, k| acc + p(t_g(r, k)) * p(s_f(k, j)))
+        })
+        .collect()
+}
+
+/// The pad `ρ_g K` of [`frame_halfspaces`] over `x_box`: 0 where the other frame is x itself.
+pub fn frame_slack(other: Option<&Transform>, x_box: &IntervalBox) -> f64 {
+    other
         .filter(|t| t.rho > 0.0)
-        .map_or(0.0, |t| t.pad_over(x_box)));
-    let mut out = Vec::with_capacity(2 * n);
-    for r in 0..n {
-        let row: Vec<Interval> = (0..n)
-            .map(|j| (0..n).fold(p(0.0), |acc, k| acc + p(t_g(r, k)) * p(s_f(k, j))))
-            .collect();
-        // `row·z − (lᵣ − ρK) ≥ 0` and `−row·z + (uᵣ + ρK) ≥ 0`.
-        out.push(SafeHalfspace {
-            name: String::new(),
-            normal: row.clone(),
-            offset: -(p(set.lower[r]) - slack),
-        });
-        out.push(SafeHalfspace {
-            name: String::new(),
-            normal: row.into_iter().map(|c| -c).collect(),
-            offset: p(set.upper[r]) + slack,
-        });
-    }
-    out
+        .map_or(0.0, |t| t.pad_over(x_box))
 }
 
 /// A bound on one coordinate implied by a half-space.

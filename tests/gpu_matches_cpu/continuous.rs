@@ -237,7 +237,8 @@ fn continuous_runs_match_the_cpu_engine() {
 /// goal: the device guesses both frames' moving boxes, meets their hulls, proves them on both
 /// frames and meets the sets after the step (shaders/cmeet.wgsl); the GPU engine's tubes are
 /// the CPU's (verdicts, sets, flowpipes to 1e-10 relative), most box-steps are the device's, and
-/// its sets and flowpipes hold the disturbed NN system's RK4 trajectories.
+/// its sets and flowpipes hold the disturbed NN system's RK4 trajectories. The same with the
+/// slabs clipped by the other frame's sets (`meet_slabs`), which changes a quarter of the sets.
 #[test]
 fn continuous_two_frames_match_the_cpu_engine() {
     let Some(g) = gpu_f64() else { return };
@@ -276,6 +277,35 @@ fn continuous_two_frames_match_the_cpu_engine() {
         continuous_parity(&g, &problem, &init, (&st, TOL), Some(&paths), what);
     // A substantial share: every tube's first step is the host's (no rates yet), and a step
     // the check fails on either frame.
+    assert!(
+        on_device >= 3 * on_host,
+        "{what}: {on_device} on the device, {on_host} on the host"
+    );
+    // With each frame's slabs clipped by the other's hull (`meet_slabs`, validated.wgsl
+    // `clip_by_other`, the pad from cmeet.wgsl): the same again. The clip changes the CPU's
+    // sets on these boxes, so a device that skipped it (or clipped by a wrong set) would differ.
+    let clipped = ReachSettings {
+        meet_slabs: true,
+        ..st.clone()
+    };
+    assert_eq!(g.supports(&problem, &clipped), Ok(()));
+    let cpu_sets = |s: &ReachSettings| {
+        let r = CpuBackend.reach(&problem, &init, s, &|_, _| {}).unwrap();
+        r.boxes
+            .iter()
+            .flat_map(|t| t.tube.iter().map(|x| x.set.clone()).collect::<Vec<_>>())
+            .collect::<Vec<_>>()
+    };
+    let (plain, met) = (cpu_sets(&st), cpu_sets(&clipped));
+    let changed = plain.iter().zip(&met).filter(|(a, b)| a != b).count();
+    assert!(
+        changed * 4 >= plain.len(),
+        "{changed} of {} sets changed",
+        plain.len()
+    );
+    let what = "scenario 2, two frames met, slabs clipped by the other frame's sets";
+    let (on_device, on_host) =
+        continuous_parity(&g, &problem, &init, (&clipped, TOL), Some(&paths), what);
     assert!(
         on_device >= 3 * on_host,
         "{what}: {on_device} on the device, {on_host} on the host"

@@ -69,6 +69,7 @@ fn f32_cases(count: usize) -> Vec<GuessCase> {
                 before: None,
                 slab_rates: (rl, ru),
                 curved: (vec![-1e30; 2], vec![1e30; 2]),
+                other: None,
             }
         })
         .collect()

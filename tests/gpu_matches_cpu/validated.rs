@@ -86,6 +86,7 @@ fn cases(n: usize, count: usize, seed: u64) -> Vec<GuessCase> {
             before,
             slab_rates: (dl, du),
             curved: (cl, cu),
+            other: None,
         });
     }
     out
@@ -305,4 +306,120 @@ fn curved_rates_barrier_matches_the_cpus() {
 fn validated_shaders_compile_in_f32() {
     let Some(g) = gpu() else { return };
     cbfreach::gpu::probe::validated_compiles_in_f32(g.context()).unwrap();
+}
+
+/// `shaders/validated.wgsl`'s slabs clipped by another frame's set (`clip_by_other`,
+/// `meet_slabs`) against `validated::slab` with the half-spaces of `safe_set::frame_halfspaces`,
+/// on 2 × 2 × 1,500 random guessed steps in 2 and 3 states, with a transform in this frame and
+/// x in the other and the other way round (its `ρ` raised so that the pad counts): the other
+/// frame's set is its image of the guessed hull with each side moved in by up to 40 % of its
+/// width (one case in ten out, past the hull: no meet, the slab stays whole), over an x-box
+/// around the hull. The device's clipped slabs are the CPU's to `GUESS_TOL` of the numbers
+/// involved and hold them where the guess is the CPU's bit for bit; at least a third of the
+/// slabs are clipped (a clip that did nothing, or too much, fails).
+#[test]
+fn slabs_clipped_by_another_frame_match_the_cpus() {
+    use cbfreach::gpu::probe::{guessed_on_device, OtherSet};
+    use cbfreach::reach::safe_set::{frame_halfspaces, frame_rows, frame_slack};
+    use cbfreach::reach::Transform;
+    let Some(g) = gpu_f64() else { return };
+    let (mut slabs_seen, mut clipped, mut whole) = (0, 0, 0);
+    for n in 2..=3 {
+        let mut rng = ChaCha8Rng::seed_from_u64(700 + n as u64);
+        // A well-conditioned rotation-and-shear, and ρ far above its rounding.
+        let mut t_mat: Vec<f64> = (0..n * n)
+            .map(|e| {
+                if e / n == e % n {
+                    1.0
+                } else {
+                    rng.random_range(-0.6..0.6)
+                }
+            })
+            .collect();
+        t_mat[1] += 0.8;
+        let t = Transform {
+            rho: 1e-3,
+            ..Transform::from_matrix(t_mat, n).unwrap()
+        };
+        for (this, other) in [(Some(&t), None), (None, Some(&t))] {
+            let rows = frame_rows(this, other, n);
+            // The other frame's coordinates of a box of this frame's.
+            let image = |b: &IntervalBox| {
+                let x = this.map_or_else(|| b.clone(), |t| t.to_x_box(&b.lower, &b.upper));
+                other.map_or(x.clone(), |t| t.to_z_box(&x))
+            };
+            let mut cases = cases(n, 1500, 710 + n as u64);
+            let mut known = Vec::new();
+            for c in &mut cases {
+                let b = c.before.as_ref().map(|(l, u)| (&l[..], &u[..]));
+                let hull = validated::guessed(&c.set, c.h, (&c.rates.0, &c.rates.1), b)
+                    .map_or(c.set.clone(), |p| p.set);
+                let x_box =
+                    this.map_or_else(|| hull.clone(), |t| t.to_x_box(&hull.lower, &hull.upper));
+                let mut set = image(&hull);
+                let away = rng.random_bool(0.1);
+                for r in 0..n {
+                    let w = set.upper[r] - set.lower[r];
+                    if away && r == 0 {
+                        set.lower[r] = set.upper[r] + 0.1 * w + 1e-3;
+                        set.upper[r] = set.lower[r] + w;
+                        continue;
+                    }
+                    set.lower[r] += rng.random_range(0.0..0.4) * w;
+                    set.upper[r] -= rng.random_range(0.0..0.4) * w;
+                }
+                c.other = Some(OtherSet {
+                    rows: rows.clone(),
+                    set,
+                    pad: frame_slack(other, &x_box),
+                });
+                known.push(x_box);
+            }
+            let dev = guessed_on_device(g.context(), n, &cases).unwrap();
+            for (k, ((c, d), x_box)) in cases.iter().zip(&dev).zip(&known).enumerate() {
+                let b = c.before.as_ref().map(|(l, u)| (&l[..], &u[..]));
+                let Some(mut pipe) = validated::guessed(&c.set, c.h, (&c.rates.0, &c.rates.1), b)
+                else {
+                    assert!(!d.ok, "n = {n}, case {k}: accepted");
+                    continue;
+                };
+                let unclipped: Vec<_> = validated::slabs(&c.set, &pipe, c.h).collect();
+                let o = c.other.as_ref().unwrap();
+                pipe.others = frame_halfspaces(this, other, &o.set, x_box);
+                let same_guess = pipe.faces.as_ref() == Some(&d.faces);
+                let scale = 1.0
+                    + [&pipe.set.lower, &pipe.set.upper, &o.set.lower, &o.set.upper]
+                        .into_iter()
+                        .flatten()
+                        .fold(0.0_f64, |a, v| a.max(v.abs()));
+                let what = format!("n = {n}, {this:?} / {other:?}, case {k}: {c:?}");
+                for ((cs, ds), un) in validated::slabs(&c.set, &pipe, c.h)
+                    .zip(&d.slabs)
+                    .zip(&unclipped)
+                {
+                    slabs_seen += 1;
+                    clipped += usize::from(&cs != un);
+                    whole += usize::from(&cs == un);
+                    for i in 0..n {
+                        let near = |a: f64, b: f64| (a - b).abs() <= GUESS_TOL * scale;
+                        assert!(
+                            near(cs.0[i], ds.0[i]) && near(cs.1[i], ds.1[i]),
+                            "{what}: slab cpu {cs:?} device {ds:?}"
+                        );
+                        if same_guess {
+                            assert!(
+                                ds.0[i] <= cs.0[i] && cs.1[i] <= ds.1[i],
+                                "{what}: device {ds:?} does not hold cpu {cs:?}"
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
+    eprintln!("clipped slabs: {clipped} of {slabs_seen} clipped, {whole} whole");
+    assert!(
+        3 * clipped >= slabs_seen && whole > 0,
+        "{clipped} / {whole} of {slabs_seen}"
+    );
 }

@@ -337,8 +337,7 @@ fn refusals_name_the_setting() {
     ]);
     assert_ne!(code, 0);
     assert!(err.contains("--taylor3") && err.contains("euler"), "{err}");
-    // So is `meet_slabs`; in continuous time with two frames the GPU engine refuses it by
-    // name, and `verify` says so rather than blaming the substeps.
+    // So is `meet_slabs`; in continuous time with two frames both engines run it.
     let meet = ReachSettings {
         meet_slabs: true,
         ..ReachSettings::default()
@@ -354,11 +353,17 @@ fn refusals_name_the_setting() {
         .to_string();
     assert!(err.contains("meet_slabs") && err.contains("euler"), "{err}");
     let two_frames = common::shipped_problem(&common::double_integrator());
-    let refused = cbfreach::gpu::GpuBackend::runs(&two_frames, &meet).unwrap_err();
-    assert!(refused.to_string().contains("meet_slabs"), "{refused}");
-    assert!(cbfreach::gpu::GpuBackend::runs(&two_frames, &ReachSettings::default()).is_ok());
-    // `verify --backend gpu` (refinement on by default) names it too; it had blamed the
-    // substeps. Needs an adapter: with `CBFREACH_REQUIRE_GPU=1` a missing one fails the test.
+    assert!(cbfreach::gpu::GpuBackend::runs(&two_frames, &meet).is_ok());
+    // A setting the GPU engine refuses in continuous time at every depth (the Minkowski
+    // method): `verify --backend gpu` (refinement on by default) names it rather than blaming
+    // the substeps. Needs an adapter: with `CBFREACH_REQUIRE_GPU=1` a missing one fails the
+    // test.
+    let minkowski = ReachSettings {
+        method: cbfreach::reach::ReachMethod::Minkowski,
+        ..ReachSettings::default()
+    };
+    let refused = cbfreach::gpu::GpuBackend::runs(&two_frames, &minkowski).unwrap_err();
+    assert!(refused.to_string().contains("minkowski"), "{refused}");
     let require = std::env::var("CBFREACH_REQUIRE_GPU").is_ok_and(|v| v == "1");
     match cbfreach::gpu::GpuContext::new() {
         Ok(_) => {
@@ -368,12 +373,13 @@ fn refusals_name_the_setting() {
                 sc2.to_str().unwrap(),
                 "--grid",
                 "4,4",
-                "--meet-slabs",
+                "--method",
+                "minkowski",
             ];
             let (code, _, err) = common::cbfreach(&[&args[..], &["--backend", "gpu"]].concat());
             assert_ne!(code, 0);
             assert!(
-                err.contains("meet_slabs") && !err.contains("substeps"),
+                err.contains("minkowski") && !err.contains("substeps"),
                 "{err}"
             );
         }

@@ -21,34 +21,30 @@ use super::sample_of;
 use super::GpuBackend;
 use crate::boxes::IntervalBox;
 use crate::reach::cpu::{record_sample, MetState, StepState};
-use crate::reach::{
-    CpuBackend, ReachError, ReachMethod, ReachProblem, ReachSettings, Tube, Unsupported,
-};
+use crate::reach::{CpuBackend, ReachError, ReachMethod, ReachSettings, Tube, Unsupported};
 
 /// A box-step `cstep` took on the device (flags word 5); anything else is the host's.
 const C_DEVICE: u32 = 1;
 
 /// Reals per box in `cont` (shaders/continuous.wgsl's `CW`): the step state (`6n + 1`), the
-/// step's moving box: its hull (`2n`), faces' rates (`2n`) and slabs' depths (`2n`).
-fn cw(n: usize) -> usize {
-    12 * n + 1
+/// step's moving box: its hull (`2n`), faces' rates (`2n`) and slabs' depths (`2n`), and the
+/// other frame's set over the step with its pad (`2n + 1`, where slabs are clipped by it).
+pub(super) fn cw(n: usize) -> usize {
+    14 * n + 2
 }
 
 /// The settings of a continuous run the device's step does not take, named as a user sets
 /// them: the Minkowski method (the CPU guesses moving boxes under the disturbance method alone,
 /// so every step would be the host's). Every `exact` runs (the device's step meets the
 /// filter's proven piece and its closed form's enclosures on the slabs as the CPU's does:
-/// `shaders/slab_step.wgsl`), in one frame or two met (`shaders/cmeet.wgsl`), with any
-/// number of validated substeps (the device's step is `dt / substeps`, an enclosure of it in f32:
-/// `H_LO`, `H_HI`), in f64 or f32, with the pieces' lattice and the second-order Taylor rates
-/// (`taylor3`: `piece_taylor3`) as the CPU's step takes them. Not the slabs clipped by the
-/// other frame's sets (`meet_slabs`).
-pub(super) fn refused(problem: &ReachProblem, settings: &ReachSettings) -> Result<(), Unsupported> {
+/// `shaders/slab_step.wgsl`), in one frame or two met (`shaders/cmeet.wgsl`, the slabs clipped
+/// by the other frame's sets with `meet_slabs`), with any number of validated substeps (the
+/// device's step is `dt / substeps`, an enclosure of it in f32: `H_LO`, `H_HI`), in f64 or f32,
+/// with the pieces' lattice and the second-order Taylor rates (`taylor3`: `piece_taylor3`) as
+/// the CPU's step takes them.
+pub(super) fn refused(settings: &ReachSettings) -> Result<(), Unsupported> {
     match settings.method {
         ReachMethod::Minkowski => Err(Unsupported::Continuous("method = \"minkowski\"")),
-        ReachMethod::Disturbance if problem.meet_slabs_applies(settings) => {
-            Err(Unsupported::Continuous("meet_slabs = true"))
-        }
         ReachMethod::Disturbance => Ok(()),
     }
 }

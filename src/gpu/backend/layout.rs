@@ -135,7 +135,7 @@ impl Shape {
         // Continuous: per box its step state and what the step leaves the host
         // (shaders/continuous.wgsl, `CW`); no snapshots (the host records the samples).
         let (cont, snap) = match self.continuous {
-            true => (12 * self.n as u64 + 1, 0),
+            true => (super::continuous::cw(self.n) as u64, 0),
             false => (0, self.slots as u64 * sw),
         };
         vec![

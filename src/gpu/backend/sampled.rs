@@ -190,7 +190,7 @@ impl GpuBackend {
                 let shape = Shape::new(frame, &device);
                 let margins = MarginMap::for_problem(frame, &device, self.precision);
                 let source =
-                    problem_wgsl(frame, &device, shape.flags, self.precision, &margins, false)?;
+                    problem_wgsl(frame, &device, shape.flags, self.precision, &margins, None)?;
                 let kernels = self.kernels.get(
                     &self.ctx,
                     self.cache_dir.as_deref(),
