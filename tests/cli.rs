@@ -688,40 +688,50 @@ fn simulate_runs_what_the_time_model_bounds_by_default() {
     assert_eq!(held, summary(&["--integrator", "zoh", "--dt", "0.08"]).1);
 }
 
-/// `verify` in continuous time with two frames (scenario 2's coordinates) and sets too loose
-/// names `--meet-slabs`; with it, or in x alone (scenario 1), it does not, and the summary says
-/// when the slabs were clipped. `reach` names it where tubes stop.
+/// Slabs clipped by the other frame's sets are the default in continuous time with two frames
+/// (scenario 2's coordinates), and the summary says so; `verify --no-meet-slabs` with sets too
+/// loose says what the clip would do. In x alone (scenario 1) neither appears. `reach
+/// --no-meet-slabs` names the clip beside `--face-local` where its tubes stop; by default it
+/// names `--face-local` alone.
 #[test]
-fn verify_names_meet_slabs_where_it_could_help() {
+fn verify_says_when_the_slabs_are_clipped() {
     let sc2 = common::scenario_path("double-integrator.toml");
     let sc2 = sc2.to_str().unwrap();
+    let clipped = "slabs clipped by the other frame's sets";
     let (code, out, err) = common::cbfreach(&["verify", sc2, "--grid", "10,4"]);
     assert_eq!(code, 0, "{err}");
-    assert!(out.contains("--meet-slabs clips"), "{out}");
-    assert!(
-        !out.contains("slabs clipped by the other frame's sets"),
-        "{out}"
-    );
-    let (code, out, err) = common::cbfreach(&["verify", sc2, "--grid", "10,4", "--meet-slabs"]);
+    assert!(out.contains(clipped), "{out}");
+    assert!(!out.contains("--no-meet-slabs"), "{out}");
+    let (code, out, err) = common::cbfreach(&["verify", sc2, "--grid", "10,4", "--no-meet-slabs"]);
     assert_eq!(code, 0, "{err}");
-    assert!(!out.contains("--meet-slabs clips"), "{out}");
+    assert!(!out.contains(clipped), "{out}");
     assert!(
-        out.contains("slabs clipped by the other frame's sets"),
+        out.contains("without --no-meet-slabs each frame's slabs"),
         "{out}"
     );
     let sc1 = common::scenario_path("integrator.toml");
     let (code, out, err) = common::cbfreach(&["verify", sc1.to_str().unwrap(), "--grid", "8,6"]);
     assert_eq!(code, 0, "{err}");
-    assert!(!out.contains("--meet-slabs"), "{out}");
-    // `reach` names it beside --face-local where its tubes stop.
-    let (code, out, err) = common::cbfreach(&["reach", sc2]);
-    assert_eq!(code, 0, "{err}");
-    let stopped = out
-        .lines()
-        .find(|l| l.contains("sets stopped"))
-        .expect(&out);
     assert!(
-        stopped.contains("--face-local") && stopped.contains("--meet-slabs"),
+        !out.contains("meet-slabs") && !out.contains(clipped),
         "{out}"
+    );
+    let stopped = |extra: &[&str]| {
+        let (code, out, err) = common::cbfreach(&[&["reach", sc2][..], extra].concat());
+        assert_eq!(code, 0, "{err}");
+        out.lines()
+            .find(|l| l.contains("sets stopped"))
+            .expect(&out)
+            .to_string()
+    };
+    let plain = stopped(&["--no-meet-slabs"]);
+    assert!(
+        plain.contains("--face-local") && plain.contains("--no-meet-slabs"),
+        "{plain}"
+    );
+    let default = stopped(&[]);
+    assert!(
+        default.contains("--face-local") && !default.contains("meet-slabs"),
+        "{default}"
     );
 }

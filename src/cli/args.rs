@@ -115,10 +115,10 @@ pub struct ReachFlags {
     /// surface by the lattice of the filter's pieces (only by the enclosures of `v`)
     #[arg(long)]
     pub no_lattice: bool,
-    /// Continuous time with a transform: clip each frame's slabs by the other frame's sets
-    /// before bounding the field on them (much tighter where the closed loop rotates; CPU only)
+    /// Continuous time with a transform: do not clip each frame's slabs by the other frame's
+    /// sets before bounding the field on them (far looser where the closed loop rotates)
     #[arg(long)]
-    pub meet_slabs: bool,
+    pub no_meet_slabs: bool,
 }
 
 impl ReachFlags {
@@ -144,7 +144,9 @@ impl ReachFlags {
         if self.no_lattice {
             s.lattice = false;
         }
-        s.meet_slabs |= self.meet_slabs;
+        if self.no_meet_slabs {
+            s.meet_slabs = false;
+        }
         s
     }
 }

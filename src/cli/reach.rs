@@ -175,7 +175,7 @@ pub fn run(args: &ReachArgs) -> CliResult {
     let invalid = result.boxes.iter().filter(|t| !t.valid()).count();
     if invalid > 0 {
         // What would tighten the sets and is not on: face-local bounds, and with two frames in
-        // continuous time the clipped slabs.
+        // continuous time the clipped slabs (on by default).
         let clip = problem.slabs_can_meet(&settings) && !settings.meet_slabs;
         let tighter = match (settings.face_local, clip) {
             (true, false) => "",
@@ -183,12 +183,12 @@ pub fn run(args: &ReachArgs) -> CliResult {
                 "bounds on each face of a box (--face-local, 2n× the bound cost) are tighter, and "
             }
             (true, true) => {
-                "slabs clipped by the other frame's sets (--meet-slabs, CPU engine) are tighter, \
+                "slabs clipped by the other frame's sets (without --no-meet-slabs) are tighter, \
                  and "
             }
             (false, true) => {
                 "bounds on each face of a box (--face-local) and slabs clipped by the other \
-                 frame's sets (--meet-slabs, CPU engine) are tighter, and "
+                 frame's sets (without --no-meet-slabs) are tighter, and "
             }
         };
         println!(

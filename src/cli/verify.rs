@@ -269,15 +269,15 @@ fn print_causes(c: &UnverifiedCauses) {
 }
 
 /// Where sets too loose left boxes unverified in continuous time with two frames and the
-/// slabs unclipped, says that `--meet-slabs` exists (off by default until the GPU engine takes
-/// it; ACC's 16 × 6 cells: 1.1 % verified without it, 100 % with it).
+/// slabs unclipped (`--no-meet-slabs`), says what the clip does (ACC's 16 × 6 cells: 1.1 %
+/// verified without it, 100 % with it).
 fn print_meet_slabs_hint(r: &VerifyReport, c: &UnverifiedCauses) {
     use cbfreach::reach::TimeModel;
     let continuous = TimeModel::from_label(&r.run.time) == Some(TimeModel::Continuous);
     if continuous && r.run.intersect_x && !r.run.meet_slabs && c.too_loose > 0.0 {
         println!(
-            "    (--meet-slabs clips each frame's slabs by the other frame's set, CPU engine: far \
-             tighter where the closed loop turns the sets; docs/design.md §7.1 item 7)"
+            "    (without --no-meet-slabs each frame's slabs are clipped by the other frame's set: \
+             far tighter where the closed loop turns the sets; docs/design.md §7.1 item 7)"
         );
     }
 }

@@ -59,7 +59,7 @@ pub struct ReachSettings {
     /// slabs by the other frames' sets over the step before bounding the field on them (design
     /// §7.1 item 7). Where the frames' boxes meet in a polygon, a face of one box is shorter
     /// within the other, and a rotating closed loop's sets no longer grow by the whole rotation
-    /// a step. CPU engine (the GPU engine refuses it by name). Default: false.
+    /// a step. Both engines; no effect in one frame or another time model. Default: true.
     pub meet_slabs: bool,
 }
 
@@ -172,7 +172,7 @@ impl Default for ReachSettings {
             intersect_x: true,
             taylor3: false,
             lattice: true,
-            meet_slabs: false,
+            meet_slabs: true,
         }
     }
 }

@@ -179,13 +179,6 @@ impl super::ReachProblem {
                 self.time.name()
             )));
         }
-        if settings.meet_slabs && self.time != TimeModel::Continuous {
-            return Err(super::ReachError::Settings(format!(
-                "meet_slabs (--meet-slabs) clips the slabs of time = \"continuous\"'s \
-                 validated steps; time = \"{}\" takes none: leave it out, or --time continuous",
-                self.time.name()
-            )));
-        }
         Ok(())
     }
 }

@@ -337,22 +337,27 @@ fn refusals_name_the_setting() {
     ]);
     assert_ne!(code, 0);
     assert!(err.contains("--taylor3") && err.contains("euler"), "{err}");
-    // So is `meet_slabs`; in continuous time with two frames both engines run it.
-    let meet = ReachSettings {
-        meet_slabs: true,
-        ..ReachSettings::default()
-    };
-    let err = CpuBackend
-        .reach(
-            &p.clone().with_time(TimeModel::Euler, 1),
-            boxes,
-            &meet,
-            &|_, _| {},
-        )
-        .unwrap_err()
-        .to_string();
-    assert!(err.contains("meet_slabs") && err.contains("euler"), "{err}");
+    // `meet_slabs` (on by default) acts in continuous time with two frames alone, on both
+    // engines; the Euler map of scenario 2 (two frames) runs with it, unchanged.
+    let meet = ReachSettings::default();
+    assert!(meet.meet_slabs);
     let two_frames = common::shipped_problem(&common::double_integrator());
+    assert!(two_frames.meet_slabs_applies(&meet));
+    let euler = two_frames.clone().with_time(TimeModel::Euler, 1);
+    assert!(!euler.meet_slabs_applies(&meet));
+    let off = ReachSettings {
+        meet_slabs: false,
+        ..meet.clone()
+    };
+    let start = &common::double_integrator().reach.initial[..2];
+    let sets = |s: &ReachSettings| -> Vec<_> {
+        let r = CpuBackend.reach(&euler, start, s, &|_, _| {}).unwrap();
+        r.boxes
+            .iter()
+            .map(|t| t.tube.last().unwrap().set.clone())
+            .collect()
+    };
+    assert_eq!(sets(&meet), sets(&off));
     assert!(cbfreach::gpu::GpuBackend::runs(&two_frames, &meet).is_ok());
     // A setting the GPU engine refuses in continuous time at every depth (the Minkowski
     // method): `verify --backend gpu` (refinement on by default) names it rather than blaming
