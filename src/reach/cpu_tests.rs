@@ -10,40 +10,10 @@ use crate::scenario::Scenario;
 /// `known` is the meet of the x-boxes of the frames that stepped.
 #[test]
 fn settling_meets_the_frames_and_reseeds_one_that_could_not_step() {
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios");
-    let s = Scenario::load(&dir.join("double-integrator.toml")).unwrap();
-    let t = Transform::for_scenario(&s, &s.reach.transform).unwrap();
-    let net = Mlp::random(&[2, 8, 1], 3);
-    let problem = ReachProblem::with_transform(&s, net, 0.1, t).unwrap();
-    let settings = ReachSettings {
-        bounds: crate::bounds::BoundMethod::Crown,
-        exact: crate::reach::ExactField::Nowhere,
-        intersect_x: true,
-        ..ReachSettings::default()
-    };
+    let problem = scenario_2_problem();
+    let settings = two_frames(false);
     let report = |_: usize| {};
-    let frames: Vec<Frame> = problem
-        .frames(&settings)
-        .into_iter()
-        .map(|p| Frame::new(p, settings.method, false).unwrap())
-        .collect();
-    assert_eq!(frames.len(), 2);
-    let run = ChunkRun {
-        frames,
-        settings: &settings,
-        every: 1,
-        encloses: false,
-        report: &report,
-        time: problem.time,
-        steps: problem.steps,
-        substeps: 1,
-        h: problem.dt,
-        plant: None,
-        x_problem: &problem,
-        period: 1,
-        absorb: false,
-        source: None,
-    };
+    let run = two_frame_run(&problem, &settings, &report);
     let initial = IntervalBox::new(vec![0.9, 1.4], vec![1.1, 1.6]).unwrap();
     let mut state = run.start(&initial);
     // The parallelotope's x-box holds the initial box; their meet is the box itself.
@@ -77,6 +47,150 @@ fn settling_meets_the_frames_and_reseeds_one_that_could_not_step() {
     }
     let sample = run.sample(&state, 0.0);
     assert_eq!(sample.set, narrow);
+}
+
+/// Scenario 2 in its coordinates with a small random network.
+fn scenario_2_problem() -> ReachProblem {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios");
+    let s = Scenario::load(&dir.join("double-integrator.toml")).unwrap();
+    let t = Transform::for_scenario(&s, &s.reach.transform).unwrap();
+    let net = Mlp::random(&[2, 8, 1], 3);
+    ReachProblem::with_transform(&s, net, 0.1, t).unwrap()
+}
+
+/// Settings that keep the sets in two frames (z and x), the network everywhere.
+fn two_frames(meet_slabs: bool) -> ReachSettings {
+    ReachSettings {
+        bounds: crate::bounds::BoundMethod::Crown,
+        exact: crate::reach::ExactField::Nowhere,
+        intersect_x: true,
+        meet_slabs,
+        ..ReachSettings::default()
+    }
+}
+
+/// The CPU engine's run of `problem` in its two frames.
+fn two_frame_run<'a>(
+    problem: &'a ReachProblem,
+    settings: &'a ReachSettings,
+    report: &'a (dyn Fn(usize) + Sync),
+) -> ChunkRun<'a> {
+    let frames: Vec<Frame> = problem
+        .frames(settings)
+        .into_iter()
+        .map(|p| Frame::new(p, settings.method, false).unwrap())
+        .collect();
+    assert_eq!(frames.len(), 2);
+    ChunkRun {
+        frames,
+        settings,
+        every: 1,
+        encloses: false,
+        report,
+        time: problem.time,
+        steps: problem.steps,
+        substeps: 1,
+        h: problem.dt,
+        plant: None,
+        x_problem: problem,
+        period: 1,
+        absorb: false,
+        source: None,
+    }
+}
+
+/// With the slabs clipped by the other frame's sets (`meet_slabs`), a frame's slabs are
+/// clipped by the other frame's whole enclosure where it has one, never by its moving box,
+/// which is checked alone and may fall back to that enclosure (design §7.1 item 7): every
+/// state of the other frame's enclosure lies in the half-spaces of both flowpipes (a clip by
+/// the moving box, a third as wide, fails), and where a frame has only a moving box (guessed,
+/// proven with every frame's together), its hull clips.
+#[test]
+fn slabs_are_clipped_by_the_other_frames_whole_enclosure() {
+    use crate::reach::validated::MovingFaces;
+    let problem = scenario_2_problem();
+    let t = problem.transform.clone().unwrap();
+    let settings = two_frames(true);
+    let report = |_: usize| {};
+    let run = two_frame_run(&problem, &settings, &report);
+    let pipe = |set: IntervalBox, moving: bool| Flowpipe {
+        set,
+        f_lower: vec![-1.0; 2],
+        f_upper: vec![1.0; 2],
+        faces: moving.then(|| MovingFaces {
+            lower: vec![-0.5; 2],
+            upper: vec![0.5; 2],
+            depth_lower: vec![0.5; 2],
+            depth_upper: vec![-0.5; 2],
+        }),
+        enclosed: true,
+        others: Vec::new(),
+    };
+    let x_whole = IntervalBox::new(vec![0.8, 1.3], vec![1.25, 1.75]).unwrap();
+    let x_moving = IntervalBox::new(vec![0.95, 1.45], vec![1.1, 1.6]).unwrap();
+    // States of an x-box, in x and in z = S⁻¹x (T x to rounding).
+    let states = |x: &IntervalBox| -> Vec<([f64; 2], [f64; 2])> {
+        (0..=8)
+            .flat_map(|a| (0..=8).map(move |b| (a, b)))
+            .map(|(a, b)| {
+                let at =
+                    |i: usize, k: i32| x.lower[i] + f64::from(k) / 8.0 * (x.upper[i] - x.lower[i]);
+                let p = [at(0, a), at(1, b)];
+                let z = [t.t[0] * p[0] + t.t[1] * p[1], t.t[2] * p[0] + t.t[3] * p[1]];
+                (p, z)
+            })
+            .collect()
+    };
+    let lowest = |hs: &[SafeHalfspace], v: &[f64; 2]| {
+        hs.iter()
+            .map(|h| {
+                (h.offset
+                    + h.normal[0] * Interval::point(v[0])
+                    + h.normal[1] * Interval::point(v[1]))
+                .upper
+            })
+            .fold(f64::INFINITY, f64::min)
+    };
+    for guessed_only in [false, true] {
+        let mut state = run.start(&x_whole);
+        let z_of = |x: &IntervalBox| t.to_z_box(x);
+        state.pipes = vec![
+            Some(pipe(z_of(&x_moving), true)),
+            Some(pipe(x_moving.clone(), true)),
+        ];
+        state.whole = match guessed_only {
+            false => vec![
+                Some(pipe(z_of(&x_whole), false)),
+                Some(pipe(x_whole.clone(), false)),
+            ],
+            true => vec![None, None],
+        };
+        run.meet_pipes(&mut state);
+        let other = if guessed_only { &x_moving } else { &x_whole };
+        let mut outside = 0;
+        for (x, z) in states(other) {
+            // Frame 0 (z) is clipped by frame 1's (x) set; frame 1 by frame 0's.
+            for (f, v) in [(0, &z), (1, &x)] {
+                let flowpipes = [&state.pipes[f], &state.whole[f]];
+                for p in flowpipes.into_iter().flatten() {
+                    assert_eq!(p.others.len(), 4);
+                    assert!(lowest(&p.others, v) >= -1e-9, "frame {f}: {v:?} cut off");
+                }
+            }
+            // The moving box alone would cut most of these states off.
+            let moving = frame_halfspaces(t_of(&problem, 0), None, &x_moving, &x_whole);
+            outside += usize::from(lowest(&moving, &z) < -1e-3);
+        }
+        assert!(guessed_only || outside > 40, "{outside}");
+    }
+}
+
+/// A frame's transform (`None`: x).
+fn t_of(problem: &ReachProblem, frame: usize) -> Option<&Transform> {
+    match frame {
+        0 => problem.transform.as_ref(),
+        _ => None,
+    }
 }
 
 /// `CpuBackend::continuous_step` from each step's outcome retraces the engine's own tubes

@@ -237,8 +237,9 @@ fn continuous_runs_match_the_cpu_engine() {
 /// goal: the device guesses both frames' moving boxes, meets their hulls, proves them on both
 /// frames and meets the sets after the step (shaders/cmeet.wgsl); the GPU engine's tubes are
 /// the CPU's (verdicts, sets, flowpipes to 1e-10 relative), most box-steps are the device's, and
-/// its sets and flowpipes hold the disturbed NN system's RK4 trajectories. The same with the
-/// slabs clipped by the other frame's sets (`meet_slabs`), which changes a quarter of the sets.
+/// its sets and flowpipes hold the disturbed NN system's RK4 trajectories; first without the
+/// slabs clipped by the other frame's sets, then with them (`meet_slabs`, the default), which
+/// changes a quarter of the sets.
 #[test]
 fn continuous_two_frames_match_the_cpu_engine() {
     let Some(g) = gpu_f64() else { return };
@@ -260,6 +261,7 @@ fn continuous_two_frames_match_the_cpu_engine() {
     let st = ReachSettings {
         face_local: true,
         intersect_x: true,
+        meet_slabs: false,
         ..settings(ReachMethod::Disturbance)
     };
     assert_eq!(problem.frames(&st).len(), 2);

@@ -32,6 +32,8 @@ fn tubes(problem: &ReachProblem, boxes: &[IntervalBox], sharp: bool) -> Vec<Tube
         face_local: true,
         taylor3: sharp,
         lattice: sharp,
+        // Measured before the clipped slabs (item 7), which alone keep all seven valid.
+        meet_slabs: false,
         ..ReachSettings::default()
     };
     CpuBackend
