@@ -334,10 +334,11 @@ fn run_scenario(
         ..ReachSettings::default()
     };
     println!(
-        "Time model: {} — {}{cut}{}",
+        "Time model: {} — {}{cut}{}{}",
         problem.time,
         problem.time.clause(),
-        super::sharper_clause_of(&problem, &pieces)
+        super::sharper_clause_of(&problem, &pieces),
+        super::meet_slabs_clause(problem.meet_slabs_applies(&pieces))
     );
     if problem.time == cbfreach::reach::TimeModel::Euler {
         println!(
