@@ -1,11 +1,13 @@
-// The continuous-time step's common path on the device (docs/design.md §7.1 item 3b, §7.4): the
-// moving box guessed without an a-priori enclosure, its 2n slabs, the strict check of the rates
-// found on them, and the step's end. Mirrors src/reach/validated.rs term for term (`guessed`,
-// `moving_hull`, `slab` of a moving box, `verified` without an enclosure, `clamp_to_depths`,
-// `embedding_step`, `meet_with_pipe`); src/gpu/probe.rs runs each on the device and
-// tests/gpu_matches_cpu/validated.rs compares them with the Rust. Needs N0 (the frame's
-// states), OTHER_LO and OTHER_HI (`clip_by_other`'s rows) and common.wgsl's intervals. Plain arithmetic where the Rust's is plain (the guess is
-// a heuristic: soundness rests on the check), outward steps where the Rust's is outward.
+// The continuous-time step's common path on the device (docs/design.md §7.1 items 3b and 7,
+// §7.4): the moving box guessed without an a-priori enclosure, its 2n slabs (clipped by the other
+// frame's set where frames are met), the strict check of the rates found on them, and the step's
+// end. Mirrors src/reach/validated.rs term for term (`guessed`, `moving_hull`, `slab` of a moving
+// box with its `others`, `verified` without an enclosure, `clamp_to_depths`, `embedding_step`,
+// `meet_with_pipe`) and safe_set.rs (`frame_halfspaces`, `clip_to_safe_set`); src/gpu/probe.rs
+// runs each on the device and tests/gpu_matches_cpu/validated.rs compares them with the Rust.
+// Needs N0 (the frame's states), OTHER_LO and OTHER_HI (`clip_by_other`'s rows) and
+// common.wgsl's intervals. Plain arithmetic where the Rust's is plain (the guess is a heuristic:
+// soundness rests on the check), outward steps where the Rust's is outward.
 
 // validated::GUESS_MARGIN.
 const GUESS_MARGIN: real = 0.05;

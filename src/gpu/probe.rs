@@ -199,8 +199,9 @@ pub struct GuessOnDevice {
     pub end: IntervalBox,
 }
 
-/// The primitives of `shaders/validated.wgsl` (`guessed`, `slab`, `verified`,
-/// `slab_step_end`) on the device (f64), for cases of one dimension `n`.
+/// The primitives of `shaders/validated.wgsl` (`guessed`, `slab`, clipped by the case's other
+/// set where it has one, `verified`, `slab_step_end`) on the device (f64), for cases of one
+/// dimension `n` (and one pair of frames: the same rows in every other set).
 pub fn guessed_on_device(
     ctx: &GpuContext,
     n: usize,
