@@ -122,6 +122,27 @@ fn bad_settings_and_unknown_keys() {
         &error_for("m_c = 0.1", "m_c = 0.1\nnorm = \"3\""),
         &["reach.norm", "\"inf\""],
     );
+    // A value of the wrong shape shows the line and says what the key takes (not serde's "did
+    // not match any variant of untagged enum").
+    for (from, to, key, expected) in [
+        ("m_c = 0.1", "m_c = [0.1]", "m_c = [0.1]", "\"certified\""),
+        (
+            "m_c = 0.1",
+            "m_c = 0.1\ntransform = [1.0, 0.0, 0.0, 1.0]",
+            "transform = [1.0",
+            "as rows",
+        ),
+        (
+            "goal = { lower = [-0.1, -0.1]",
+            "goal = { lower = [true, -0.1]",
+            "goal",
+            "expression",
+        ),
+    ] {
+        let message = error_for(from, to);
+        assert_mentions(&message, &[key, expected]);
+        assert!(!message.contains("untagged"), "{message}");
+    }
     // A typo in a key is caught, not ignored.
     assert_mentions(&error_for("dt = 0.05", "dtt = 0.05"), &["test.toml", "dtt"]);
     // Invalid TOML says where.

@@ -109,7 +109,10 @@ fn one() -> f64 {
 /// A number as written: a TOML number, or an expression in the parameters and `pi`
 /// (`"-0.25*9.81"`, `"-pi"`, `"u_max/2"`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(untagged)]
+#[serde(
+    untagged,
+    expecting = "a number, or an expression in the parameters as a string"
+)]
 pub enum Number {
     /// A plain number.
     Value(f64),
@@ -145,7 +148,10 @@ pub struct ConstraintSection {
 
 /// `M_C` as written: a number, or where to take it from.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(untagged)]
+#[serde(
+    untagged,
+    expecting = "a number ≥ 0, or \"certified\", \"measured\" or \"local\""
+)]
 pub enum MarginSpec {
     /// A fixed bound on `‖N(x) − v(x)‖` over `C`.
     Value(f64),
@@ -197,7 +203,10 @@ pub struct ReachSection {
 
 /// `reach.transform` as written.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(untagged)]
+#[serde(
+    untagged,
+    expecting = "\"none\", \"auto\", \"lyapunov\" or a matrix T as rows, [[t11, t12], [t21, t22]]"
+)]
 pub enum TransformSpec {
     /// `"none"`, `"auto"` or `"lyapunov"`.
     Name(String),
