@@ -239,7 +239,7 @@ fn continuous_runs_match_the_cpu_engine() {
 /// the CPU's (verdicts, sets, flowpipes to 1e-10 relative), most box-steps are the device's, and
 /// its sets and flowpipes hold the disturbed NN system's RK4 trajectories; first without the
 /// slabs clipped by the other frame's sets, then with them (`meet_slabs`, the default), which
-/// changes a quarter of the sets.
+/// changes a quarter of the sets, and with them on a `T` off `S⁻¹`, where the pad counts.
 #[test]
 fn continuous_two_frames_match_the_cpu_engine() {
     let Some(g) = gpu_f64() else { return };
@@ -312,6 +312,36 @@ fn continuous_two_frames_match_the_cpu_engine() {
         on_device >= 3 * on_host,
         "{what}: {on_device} on the device, {on_host} on the host"
     );
+    // With a `T` 1e-4 off `S⁻¹` (and its `ρ = 1.01‖R‖/(1 − ‖R‖)`, `R = I − TS`), the x frame's
+    // half-spaces of the z frame's set carry the pad `ρ‖T k‖∞` (cmeet.wgsl's `t_pad`, the
+    // CPU's `frame_slack`), far above the tolerance: a device without it, or with another,
+    // differs from the CPU.
+    let mut skew = problem.transform.clone().unwrap();
+    skew.t[0] *= 1.0 + 1e-4;
+    let n = skew.n;
+    let r = (0..n)
+        .map(|i| {
+            (0..n)
+                .map(|j| {
+                    let ts: f64 = (0..n).map(|k| skew.t[i * n + k] * skew.s[k * n + j]).sum();
+                    (f64::from(u8::from(i == j)) - ts).abs()
+                })
+                .sum::<f64>()
+        })
+        .fold(0.0, f64::max);
+    skew.rho = 1.01 * r / (1.0 - r);
+    assert!(skew.rho > 1e-5, "{}", skew.rho);
+    let mut skewed = ReachProblem::with_transform(
+        &s,
+        small_network(&[2, 16, 16, 1], 2, 0.05),
+        0.02,
+        Some(skew),
+    )
+    .unwrap()
+    .with_time(TimeModel::Continuous, 1);
+    skewed.steps = steps;
+    let what = "scenario 2, T off S⁻¹, slabs clipped by the other frame's sets";
+    continuous_parity(&g, &skewed, &init, (&clipped, TOL), Some(&paths), what);
 }
 
 /// Scenario 1 (x) and scenario 2 (z) with small networks under the filter's closed form
