@@ -177,19 +177,17 @@ pub fn run(args: &ReachArgs) -> CliResult {
         // What would tighten the sets and is not on: face-local bounds, and with two frames in
         // continuous time the clipped slabs (on by default).
         let clip = problem.slabs_can_meet(&settings) && !settings.meet_slabs;
-        let tighter = match (settings.face_local, clip) {
-            (true, false) => "",
-            (false, false) => {
-                "bounds on each face of a box (--face-local, 2n× the bound cost) are tighter, and "
-            }
-            (true, true) => {
-                "slabs clipped by the other frame's sets (without --no-meet-slabs) are tighter, \
-                 and "
-            }
-            (false, true) => {
-                "bounds on each face of a box (--face-local) and slabs clipped by the other \
-                 frame's sets (without --no-meet-slabs) are tighter, and "
-            }
+        let tighter: Vec<&str> = [
+            (!settings.face_local)
+                .then_some("bounds on each face of a box (--face-local, 2n× the bound cost)"),
+            clip.then_some("slabs clipped by the other frame's sets (without --no-meet-slabs)"),
+        ]
+        .into_iter()
+        .flatten()
+        .collect();
+        let tighter = match tighter.is_empty() {
+            true => String::new(),
+            false => format!("{} are tighter, and ", tighter.join(" and ")),
         };
         println!(
             "  {invalid} of {} sets stopped (INVALID): {tighter}`cbfreach verify` splits boxes \

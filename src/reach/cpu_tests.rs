@@ -167,6 +167,8 @@ fn slabs_are_clipped_by_the_other_frames_whole_enclosure() {
         };
         run.meet_pipes(&mut state);
         let other = if guessed_only { &x_moving } else { &x_whole };
+        // The moving box alone would cut most of these states off.
+        let moving = frame_halfspaces(Some(&t), None, &x_moving, &x_whole);
         let mut outside = 0;
         for (x, z) in states(other) {
             // Frame 0 (z) is clipped by frame 1's (x) set; frame 1 by frame 0's.
@@ -177,19 +179,9 @@ fn slabs_are_clipped_by_the_other_frames_whole_enclosure() {
                     assert!(lowest(&p.others, v) >= -1e-9, "frame {f}: {v:?} cut off");
                 }
             }
-            // The moving box alone would cut most of these states off.
-            let moving = frame_halfspaces(t_of(&problem, 0), None, &x_moving, &x_whole);
             outside += usize::from(lowest(&moving, &z) < -1e-3);
         }
         assert!(guessed_only || outside > 40, "{outside}");
-    }
-}
-
-/// A frame's transform (`None`: x).
-fn t_of(problem: &ReachProblem, frame: usize) -> Option<&Transform> {
-    match frame {
-        0 => problem.transform.as_ref(),
-        _ => None,
     }
 }
 

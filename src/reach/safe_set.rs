@@ -397,6 +397,18 @@ goal = { lower = [-1, -1], upper = [1, 1] }
         let set = IntervalBox::new(vec![-0.3, 0.2], vec![0.5, 0.9]).unwrap();
         let mul = |m: &[f64], v: &[f64]| [m[0] * v[0] + m[1] * v[1], m[2] * v[0] + m[3] * v[1]];
         let identity = [1.0, 0.0, 0.0, 1.0];
+        // The 11 × 11 grid of the set's points, each mapped by `to`.
+        let grid = |to: &dyn Fn(&[f64; 2]) -> [f64; 2]| -> Vec<[f64; 2]> {
+            (0..=10)
+                .flat_map(|a| (0..=10).map(move |b| (a, b)))
+                .map(|(a, b)| {
+                    to(&[
+                        set.lower[0] + 0.1 * a as f64 * (set.upper[0] - set.lower[0]),
+                        set.lower[1] + 0.1 * b as f64 * (set.upper[1] - set.lower[1]),
+                    ])
+                })
+                .collect()
+        };
         let margin = |h: &SafeHalfspace, z: &[f64; 2]| {
             (h.offset + h.normal[0] * Interval::point(z[0]) + h.normal[1] * Interval::point(z[1]))
                 .upper
@@ -405,16 +417,7 @@ goal = { lower = [-1, -1], upper = [1, 1] }
             // x of a point of the other frame's set, and this frame's coordinates of it.
             let s_g = other.map_or(&identity[..], |t| &t.s[..]);
             let t_f = this.map_or(&identity[..], |t| &t.t[..]);
-            let points: Vec<[f64; 2]> = (0..=10)
-                .flat_map(|a| (0..=10).map(move |b| (a, b)))
-                .map(|(a, b)| {
-                    let z = [
-                        set.lower[0] + 0.1 * a as f64 * (set.upper[0] - set.lower[0]),
-                        set.lower[1] + 0.1 * b as f64 * (set.upper[1] - set.lower[1]),
-                    ];
-                    mul(t_f, &mul(s_g, &z))
-                })
-                .collect();
+            let points = grid(&|z| mul(t_f, &mul(s_g, z)));
             let x_box = IntervalBox::new(vec![-5.0, -5.0], vec![5.0, 5.0]).unwrap();
             let hs = frame_halfspaces(this, other, &set, &x_box);
             assert_eq!(hs.len(), 4);
@@ -468,16 +471,7 @@ goal = { lower = [-1, -1], upper = [1, 1] }
             ..off.clone()
         };
         let x_box = IntervalBox::new(vec![-3.0, -3.0], vec![3.0, 3.0]).unwrap();
-        let xs: Vec<[f64; 2]> = (0..=10)
-            .flat_map(|a| (0..=10).map(move |b| (a, b)))
-            .map(|(a, b)| {
-                let z = [
-                    set.lower[0] + 0.1 * a as f64 * (set.upper[0] - set.lower[0]),
-                    set.lower[1] + 0.1 * b as f64 * (set.upper[1] - set.lower[1]),
-                ];
-                mul(&s, &z)
-            })
-            .collect();
+        let xs = grid(&|z| mul(&s, z));
         let lowest = |hs: &[SafeHalfspace]| {
             xs.iter()
                 .flat_map(|x| hs.iter().map(move |h| margin(h, x)))
