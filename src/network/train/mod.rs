@@ -119,7 +119,8 @@ pub use dataset::Dataset;
 pub use normalise::{Normalisation, METADATA_KEY as NORMALISATION_KEY};
 pub use recipe::{
     hidden_layers, ibp_looseness, measure, train_to_target, Measured, Recipe, RecipeData,
-    RecipeProgress, RecipeReport, Stage, StageKind, StageReport, Target, DEEP_HIDDEN_LAYERS,
+    RecipeProgress, RecipeReport, Stage, StageKind, StageReport, Target, CERTIFY_WEIGHTS,
+    DEEP_HIDDEN_LAYERS,
 };
 pub use report::{evaluate, pointwise_errors, EpochStats, ErrorStats, PointErrors, TrainReport};
 pub use resolution::{grid_resolution, Resolution};

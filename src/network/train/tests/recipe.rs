@@ -191,7 +191,10 @@ fn the_ibp_term_is_trained_on_the_boxes_its_looseness_is_measured_on() {
         let recipe = Recipe::for_data(1600, &spacing, 1.0, hidden);
         assert_eq!(recipe.ibp_radius, spacing.map(|h| 2.0 * h).to_vec());
         let certify = |s: &Stage| matches!(s.kind, StageKind::Certify(_));
-        assert_eq!(recipe.stages.iter().filter(|s| certify(s)).count(), 3);
+        assert_eq!(
+            recipe.stages.iter().filter(|s| certify(s)).count(),
+            CERTIFY_WEIGHTS.len()
+        );
         for stage in &recipe.stages {
             // Deep networks train the term from the first stage (the looseness compounds
             // layer by layer); shallow ones in the certify stages only.
@@ -438,4 +441,66 @@ fn an_interrupted_staged_run_continues_to_the_same_network() {
         "{message}"
     );
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A certify stage that breaks the target is dropped and ends the run: the network returned is
+/// the last one that met it, and the later stages (at higher weights) do not run.
+#[test]
+fn a_certify_stage_that_breaks_the_target_is_dropped_and_ends_the_run() {
+    let (data, validation, mut recipe) = bump_run(256);
+    recipe.stages.retain(|s| s.kind != StageKind::Refine);
+    let certify: Vec<usize> = (0..recipe.stages.len())
+        .filter(|&i| matches!(recipe.stages[i].kind, StageKind::Certify(_)))
+        .collect();
+    assert_eq!(certify.len(), CERTIFY_WEIGHTS.len());
+    // The second pulls every IBP width to 0 (a constant network) faster than Adam's step
+    // at the schedule's rate would.
+    let crush = &mut recipe.stages[certify[1]];
+    crush.kind = StageKind::Certify(1e3);
+    crush.settings.ibp_weight = 1e3;
+    crush.settings.learning_rate = 1e-2;
+    let target = Target {
+        linf: Some(0.3),
+        slope_p95: None,
+    };
+    let input = RecipeData {
+        pointwise: &data,
+        secant: None,
+        validation: &validation,
+        oracle: None,
+    };
+    let (net, report) = train_to_target(
+        None,
+        &[2, 16, 16, 1],
+        1,
+        &input,
+        &recipe,
+        &target,
+        None,
+        |_| {},
+    )
+    .expect("trains");
+    let ran: Vec<(&str, bool)> = report
+        .stages
+        .iter()
+        .map(|s| (s.name.as_str(), s.kept))
+        .collect();
+    assert_eq!(
+        ran,
+        [("fit", true), ("certify 1", true), ("certify 2", false)],
+        "{report:?}"
+    );
+    let dropped = &report.stages[2].measured;
+    assert!(
+        dropped.linf > 0.3,
+        "the crushing stage met the target: {dropped:?}"
+    );
+    // What is returned is certify 1's network, which met it.
+    assert!(report.reached, "{report:?}");
+    assert_eq!(report.measured, report.stages[1].measured);
+    let m = measure(&net, &validation, &recipe.ibp_radius).expect("measures");
+    assert!(
+        m.linf <= 0.3 && (m.linf - report.measured.linf).abs() < 1e-9,
+        "{m:?}"
+    );
 }
