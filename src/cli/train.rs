@@ -588,7 +588,18 @@ fn run_staged(job: &Job, bars: &Bars) -> CliResult {
         "normalised: inputs centre {:?} scale {:?}; outputs centre {:?} scale {:.4e}; learning rate {:.0e} (range test)",
         norm.input_centre, norm.input_scale, norm.output_centre, norm.output_scale, report.learning_rate
     );
+    // Whether the target held before each stage: a certify stage is dropped for breaking it, or
+    // (short of it) for errors grown by over 10 %.
+    let mut met_before = false;
     for st in &report.stages {
+        let dropped = match (st.kept, met_before) {
+            (true, _) => "",
+            (false, true) => " (not kept: the target broke)",
+            (false, false) => " (not kept: the errors grew by over 10 %)",
+        };
+        if st.kept {
+            met_before = target.met(&st.measured);
+        }
         if let Some(r) = &st.round {
             let at: Vec<String> = r.at.iter().map(|x| format!("{x:.4}")).collect();
             println!(
@@ -610,7 +621,7 @@ fn run_staged(job: &Job, bars: &Bars) -> CliResult {
             st.measured.mean,
             st.measured.slope_p95,
             st.measured.ibp_looseness,
-            if st.kept { "" } else { " (not kept: target broken)" }
+            dropped
         );
     }
     println!(
