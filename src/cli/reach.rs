@@ -88,7 +88,7 @@ pub fn run(args: &ReachArgs) -> CliResult {
         + super::meet_slabs_clause(problem.meet_slabs_applies(&settings));
     let within = super::safe_set_clause(&problem.safe_set_for(settings.method).names());
     println!(
-        "{}: {} boxes × {} steps, time {}, {} bounds{}, {:?} method, {margin}{within}, backend {}",
+        "{}: {} boxes × {} steps, time {}, {} bounds{}, {} method, {margin}{within}, backend {}",
         s.file,
         result.boxes.len(),
         problem.steps,

@@ -17,6 +17,16 @@ pub enum ReachMethod {
     Minkowski,
 }
 
+impl std::fmt::Display for ReachMethod {
+    /// The command-line and JSON name (`disturbance`, `minkowski`).
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            ReachMethod::Disturbance => "disturbance",
+            ReachMethod::Minkowski => "minkowski",
+        })
+    }
+}
+
 /// Settings of one reach run. `ReachSettings::default()` is what `cbfreach reach` and
 /// `verify` run with no options; a scenario's `[settings.reach]` table sets any of the fields
 /// by name (kebab-case values, e.g. `bounds = "crown"`), and command-line options override
@@ -173,6 +183,21 @@ impl Default for ReachSettings {
             taylor3: false,
             lattice: true,
             meet_slabs: true,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::ReachMethod;
+
+    #[test]
+    fn a_methods_printed_name_is_its_file_and_command_line_name() {
+        for m in [ReachMethod::Disturbance, ReachMethod::Minkowski] {
+            let json = serde_json::to_string(&m).expect("serialises");
+            assert_eq!(json, format!("\"{m}\""));
+            let flag = clap::ValueEnum::to_possible_value(&m).expect("a value");
+            assert_eq!(flag.get_name(), m.to_string());
         }
     }
 }

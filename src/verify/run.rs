@@ -5,7 +5,6 @@ use std::borrow::Cow;
 use std::time::Instant;
 
 use rayon::prelude::*;
-use serde::Serialize;
 
 use super::checkpoint::{Journal, NoJournal};
 use super::{
@@ -360,7 +359,7 @@ impl<'a> Verifier<'a> {
                 region,
                 grid: settings.grid.clone(),
                 goal: self.scenario.reach.goal.clone(),
-                method: serde_name(&self.reach.method),
+                method: self.reach.method.to_string(),
                 bounds: self.reach.bounds.name().to_string(),
                 m_c: self.problem.m_c,
                 local_margin: self.problem.error_map.is_some(),
@@ -494,12 +493,5 @@ impl<'a> Verifier<'a> {
             progress((done + idx.len()).min(total), total);
         }
         Ok(out)
-    }
-}
-
-fn serde_name<T: Serialize>(v: &T) -> String {
-    match serde_json::to_value(v) {
-        Ok(serde_json::Value::String(s)) => s,
-        _ => String::new(),
     }
 }
