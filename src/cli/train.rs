@@ -159,8 +159,9 @@ pub struct TrainArgs {
     #[arg(long)]
     pub init: Option<PathBuf>,
     /// Continue an interrupted run from its checkpoint beside the output file (`NAME.ckpt`):
-    /// the staged schedule from its last stage and epochs, or one stage (`--epochs`) from its
-    /// epochs. Without it the staged schedule refuses to start over such a file.
+    /// the staged schedule from its last stage and epochs (also where a newer cbfreach's
+    /// schedule adds stages at its end: it runs on into them), or one stage (`--epochs`) from
+    /// its epochs. Without it the staged schedule refuses to start over such a file.
     #[arg(long)]
     pub resume: bool,
     /// Where to write the network (default: the scenario's network file).

@@ -80,6 +80,27 @@ pub(super) struct Progress {
     pub added_secant: Option<Dataset>,
 }
 
+/// The first `k` of `recipe`'s stages whose run's [`fingerprint`] is `stored` (the longest
+/// such prefix): a checkpoint written under a schedule that `recipe` extends (stages added at
+/// its end, as the certify stages were in 2026-12) continues into the added stages.
+pub(super) fn shared_stages(
+    stored: &str,
+    init: Option<&Mlp>,
+    widths: &[usize],
+    seed: u64,
+    data: &RecipeData,
+    recipe: &Recipe,
+    target: &Target,
+) -> Option<usize> {
+    (1..=recipe.stages.len()).rev().find(|&k| {
+        let prefix = Recipe {
+            stages: recipe.stages[..k].to_vec(),
+            ..recipe.clone()
+        };
+        fingerprint(init, widths, seed, data, &prefix, target) == stored
+    })
+}
+
 /// A digest of everything a staged run's result depends on.
 pub(super) fn fingerprint(
     init: Option<&Mlp>,
@@ -229,11 +250,13 @@ impl Progress {
         write_atomically(path, &serialize(&t, meta, path)?)
     }
 
-    /// Reads a state written by [`Progress::save`] for the run of `fingerprint`; `shape` is
-    /// the data's `(n_in, n_out)`, `secant` whether the run has secant data.
+    /// Reads a state written by [`Progress::save`] for a run whose fingerprint `accepts`
+    /// (for the schedule's first `k` stages, `Some(k)`); `shape` is the data's `(n_in,
+    /// n_out)`, `secant` whether the run has secant data. A run stopped under a schedule that
+    /// this one extends continues where its stage lies within the shared stages.
     pub(super) fn load(
         path: &Path,
-        fingerprint: &str,
+        accepts: impl Fn(&str) -> Option<usize>,
         shape: (usize, usize),
         secant: bool,
     ) -> Result<Progress, NetworkError> {
@@ -259,7 +282,13 @@ impl Progress {
                     .into(),
             ));
         }
-        if meta("fingerprint")? != fingerprint {
+        let number = |key: &str| {
+            meta(key)?
+                .parse::<u64>()
+                .map_err(|e| bad(format!("metadata `{key}`: {e}")))
+        };
+        let next = number("next")? as usize;
+        if accepts(&meta("fingerprint")?).is_none_or(|shared| next >= shared) {
             return Err(bad(
                 "it was written by a run with other data, architecture, seed, \
                  schedule or target (the scenario, a flag or the start changed): run without \
@@ -267,11 +296,6 @@ impl Progress {
                     .into(),
             ));
         }
-        let number = |key: &str| {
-            meta(key)?
-                .parse::<u64>()
-                .map_err(|e| bad(format!("metadata `{key}`: {e}")))
-        };
         let flags: Vec<bool> = meta("flags")?.split(' ').map(|f| f == "1").collect();
         let [refining_done, met, confirmed] = flags[..] else {
             return Err(bad("metadata `flags`: expected three".into()));
@@ -303,7 +327,7 @@ impl Progress {
             false => None,
         };
         Ok(Progress {
-            next: number("next")? as usize,
+            next,
             round,
             rounds: number("rounds")?,
             refining_done,

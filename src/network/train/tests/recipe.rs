@@ -504,3 +504,88 @@ fn a_certify_stage_that_breaks_the_target_is_dropped_and_ends_the_run() {
         "{m:?}"
     );
 }
+
+/// A run stopped under a schedule continues under one that extends it (stages added at its
+/// end, as the certify stages were): to the network a run of the longer schedule gives from
+/// the start. One whose shared stages changed is refused.
+#[test]
+fn a_stopped_run_continues_into_stages_added_to_its_schedule() {
+    let (data, validation, mut long) = bump_run(256);
+    long.stages.retain(|s| s.kind != StageKind::Refine);
+    for st in &mut long.stages {
+        st.settings.checkpoint_every = 3;
+    }
+    let short = Recipe {
+        stages: long.stages[..long.stages.len() - 3].to_vec(),
+        ..long.clone()
+    };
+    // Met after the fit: every certify stage holds it, and runs.
+    let target = Target {
+        linf: Some(0.3),
+        slope_p95: None,
+    };
+    let input = RecipeData {
+        pointwise: &data,
+        secant: None,
+        validation: &validation,
+        oracle: None,
+    };
+    let dir = std::env::temp_dir().join(format!("cbfreach-extended-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("a temporary directory");
+    let fresh = StagedCheckpoint {
+        path: dir.join("net.ckpt"),
+        resume: false,
+    };
+    let resumed = StagedCheckpoint {
+        resume: true,
+        ..fresh.clone()
+    };
+    let run = |recipe: &Recipe, c: Option<&StagedCheckpoint>, stop: Option<(usize, usize)>| {
+        train_to_target(None, &[2, 16, 16, 1], 1, &input, recipe, &target, c, |p| {
+            if stop == Some((p.stage_index, p.epoch)) {
+                panic!("interrupted (on purpose) at stage {}", p.stage_index);
+            }
+        })
+    };
+    let (whole, report) = run(&long, None, None).expect("trains");
+    let names: Vec<&str> = report.stages.iter().map(|s| s.name.as_str()).collect();
+    assert_eq!(names.len(), long.stages.len(), "{names:?}");
+    // Stopped inside the short schedule's second stage, after its epoch checkpoint.
+    let interrupted = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        run(&short, Some(&fresh), Some((1, 5)))
+    }));
+    assert!(interrupted.is_err() && fresh.path.exists());
+    let (net, again) = run(&long, Some(&resumed), None).expect("continues");
+    assert_eq!(net, whole);
+    let again_names: Vec<&str> = again.stages.iter().map(|s| s.name.as_str()).collect();
+    assert_eq!(again_names, names);
+    fresh.remove(long.stages.len());
+
+    // A schedule whose shared stages changed (the fit one epoch longer) does not continue it.
+    let _ = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        run(&short, Some(&fresh), Some((1, 5)))
+    }));
+    let mut changed = long.clone();
+    changed.stages[0].settings.epochs += 1;
+    let message = run(&changed, Some(&resumed), None)
+        .expect_err("refused")
+        .to_string();
+    assert!(
+        message.contains("other data, architecture, seed"),
+        "{message}"
+    );
+    // Nor one that shortens it below the stage it stopped in.
+    let cut = Recipe {
+        stages: long.stages[..1].to_vec(),
+        ..long.clone()
+    };
+    let message = run(&cut, Some(&resumed), None)
+        .expect_err("refused")
+        .to_string();
+    assert!(
+        message.contains("other data, architecture, seed"),
+        "{message}"
+    );
+    fresh.remove(long.stages.len());
+    let _ = std::fs::remove_dir(&dir);
+}
