@@ -357,14 +357,15 @@ pub fn train_to_target(
     let measure = |normalised: &Mlp| -> Result<Measured, NetworkError> {
         measure(&norm.fold(normalised)?, data.validation, &recipe.ibp_radius)
     };
-    let print = fingerprint(init, widths, seed, data, recipe, target);
+    let print_of = |r: &Recipe| fingerprint(init, widths, seed, data, r, target);
+    let print = print_of(recipe);
     let resumed = match checkpoint {
         Some(c) if c.resume && c.path.exists() => {
             let shape = (pointwise.n_in, pointwise.n_out);
             let accepts = |stored: &str| match stored == print {
                 // The same schedule: any state, the finished one too.
                 true => Some(usize::MAX),
-                false => shared_stages(stored, init, widths, seed, data, recipe, target),
+                false => shared_stages(stored, recipe, print_of),
             };
             let p = Progress::load(&c.path, accepts, shape, secant.is_some())?;
             if p.net.widths() != widths {

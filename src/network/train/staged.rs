@@ -80,24 +80,21 @@ pub(super) struct Progress {
     pub added_secant: Option<Dataset>,
 }
 
-/// The first `k` of `recipe`'s stages whose run's [`fingerprint`] is `stored` (the longest
-/// such prefix): a checkpoint written under a schedule that `recipe` extends (stages added at
-/// its end, as the certify stages were in 2026-12) continues into the added stages.
+/// The first `k` of `recipe`'s stages whose run's fingerprint (`print` of a schedule) is
+/// `stored` (the longest such prefix): a checkpoint written under a schedule that `recipe`
+/// extends (stages added at its end, as the certify stages were in 2026-12) continues into the
+/// added stages.
 pub(super) fn shared_stages(
     stored: &str,
-    init: Option<&Mlp>,
-    widths: &[usize],
-    seed: u64,
-    data: &RecipeData,
     recipe: &Recipe,
-    target: &Target,
+    print: impl Fn(&Recipe) -> String,
 ) -> Option<usize> {
     (1..=recipe.stages.len()).rev().find(|&k| {
         let prefix = Recipe {
             stages: recipe.stages[..k].to_vec(),
             ..recipe.clone()
         };
-        fingerprint(init, widths, seed, data, &prefix, target) == stored
+        print(&prefix) == stored
     })
 }
 
