@@ -589,6 +589,12 @@ fn run_staged(job: &Job, bars: &Bars) -> CliResult {
         "normalised: inputs centre {:?} scale {:?}; outputs centre {:?} scale {:.4e}; learning rate {:.0e} (range test)",
         norm.input_centre, norm.input_scale, norm.output_centre, norm.output_scale, report.learning_rate
     );
+    if let Some(k) = report.extended_from {
+        println!(
+            "continued a run begun under an earlier schedule of {k} stages into this one's {}",
+            recipe.stages.len()
+        );
+    }
     // Whether the target held before each stage: a certify stage is dropped for breaking it, or
     // (short of it) for errors grown by over 10 %.
     let mut met_before = false;

@@ -329,6 +329,10 @@ pub struct RecipeReport {
     pub fresh: Option<RoundReport>,
     /// Wall-clock seconds in all.
     pub seconds: f64,
+    /// Where the run continued a checkpoint written under a shorter schedule that this one
+    /// extends: that schedule's stages (the rest were added after it stopped).
+    #[serde(default)]
+    pub extended_from: Option<usize>,
 }
 
 /// Runs `recipe` from `init` (in the data's units) or, without one, from random weights of
@@ -416,6 +420,7 @@ pub fn train_to_target(
                 seconds: 0.0,
                 added: tail(&pointwise, grid_len),
                 added_secant: secant.as_ref().map(|s| tail(s, secant_len)),
+                extended_from: None,
             }
         }
     };
@@ -627,6 +632,7 @@ pub fn train_to_target(
         samples: pointwise.len(),
         fresh,
         seconds: seconds_before + t0.elapsed().as_secs_f64(),
+        extended_from: state.extended_from,
     };
     Ok((folded, report))
 }

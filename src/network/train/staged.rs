@@ -78,6 +78,9 @@ pub(super) struct Progress {
     /// The samples the refine rounds added, normalised: pointwise and secant.
     pub added: Dataset,
     pub added_secant: Option<Dataset>,
+    /// The stages of the shorter schedule this run began under, where a later one extended it
+    /// ([`shared_stages`]).
+    pub extended_from: Option<usize>,
 }
 
 /// The first `k` of `recipe`'s stages whose run's fingerprint (`print` of a schedule) is
@@ -237,6 +240,9 @@ impl Progress {
             ),
         );
         meta.insert("seconds".into(), self.seconds.to_string());
+        if let Some(k) = self.extended_from {
+            meta.insert("extended_from".into(), k.to_string());
+        }
         meta.insert(
             "stages".into(),
             serde_json::to_string(&self.stages).map_err(json)?,
@@ -248,7 +254,7 @@ impl Progress {
     }
 
     /// Reads a state written by [`Progress::save`] for a run whose fingerprint `accepts`
-    /// (for the schedule's first `k` stages, `Some(k)`); `shape` is the data's `(n_in,
+    /// (for the schedule's first `k` stages, `Some(k)`; the same schedule, `usize::MAX`); `shape` is the data's `(n_in,
     /// n_out)`, `secant` whether the run has secant data. A run stopped under a schedule that
     /// this one extends continues where its stage lies within the shared stages.
     pub(super) fn load(
@@ -285,7 +291,8 @@ impl Progress {
                 .map_err(|e| bad(format!("metadata `{key}`: {e}")))
         };
         let next = number("next")? as usize;
-        if accepts(&meta("fingerprint")?).is_none_or(|shared| next >= shared) {
+        let shared = accepts(&meta("fingerprint")?);
+        if shared.is_none_or(|shared| next >= shared) {
             return Err(bad(
                 "it was written by a run with other data, architecture, seed, \
                  schedule or target (the scenario, a flag or the start changed): run without \
@@ -323,8 +330,18 @@ impl Progress {
             true => Some(read_data(&raw, "added_secant", shape, path)?),
             false => None,
         };
+        // Begun under a shorter schedule: said now, or by the checkpoint that continued it.
+        let extended_from = match (shared, raw.metadata.get("extended_from")) {
+            (Some(k), _) if k != usize::MAX => Some(k),
+            (_, Some(k)) => Some(
+                k.parse::<usize>()
+                    .map_err(|e| json("extended_from", e.to_string()))?,
+            ),
+            _ => None,
+        };
         Ok(Progress {
             next,
+            extended_from,
             round,
             rounds: number("rounds")?,
             refining_done,

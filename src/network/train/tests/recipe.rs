@@ -555,8 +555,19 @@ fn a_stopped_run_continues_into_stages_added_to_its_schedule() {
         run(&short, Some(&fresh), Some((1, 5)))
     }));
     assert!(interrupted.is_err() && fresh.path.exists());
+    // Continued into an added stage and stopped there again: the next resume finds the longer
+    // schedule's own checkpoint, and the report still says where the run began.
+    let added = short.stages.len();
+    let interrupted = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        run(&long, Some(&resumed), Some((added, 5)))
+    }));
+    assert!(interrupted.is_err() && fresh.path.exists());
     let (net, again) = run(&long, Some(&resumed), None).expect("continues");
     assert_eq!(net, whole);
+    assert_eq!(
+        (report.extended_from, again.extended_from),
+        (None, Some(added))
+    );
     let again_names: Vec<&str> = again.stages.iter().map(|s| s.name.as_str()).collect();
     assert_eq!(again_names, names);
     fresh.remove(long.stages.len());
