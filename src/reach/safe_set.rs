@@ -449,23 +449,12 @@ goal = { lower = [-1, -1], upper = [1, 1] }
                 assert!(lo[j] <= min + 1e-9 && hi[j] >= max - 1e-9, "{lo:?} {hi:?}");
             }
         }
-        // `T` 0.2 % off `S⁻¹` in one entry, `ρ = ‖R‖/(1 − ‖R‖)` with `R = I − TS` (1 % over).
+        // `T` 0.2 % off `S⁻¹` in one entry, with the `ρ` every transform has.
         let s: [f64; 4] = [1.0, 0.5, -0.3, 2.0];
         let det = s[0] * s[3] - s[1] * s[2];
         let t = [1.002 * s[3] / det, -s[1] / det, -s[2] / det, s[0] / det];
-        let ts = [
-            t[0] * s[0] + t[1] * s[2],
-            t[0] * s[1] + t[1] * s[3],
-            t[2] * s[0] + t[3] * s[2],
-            t[2] * s[1] + t[3] * s[3],
-        ];
-        let r = ((1.0 - ts[0]).abs() + ts[1].abs()).max(ts[2].abs() + (1.0 - ts[3]).abs());
-        let off = Transform {
-            n: 2,
-            t: t.to_vec(),
-            s: s.to_vec(),
-            rho: 1.01 * r / (1.0 - r),
-        };
+        let off = Transform::with_inverse(t.to_vec(), s.to_vec(), 2).unwrap();
+        assert!(off.rho > 1e-3, "{}", off.rho);
         let no_pad = Transform {
             rho: 0.0,
             ..off.clone()

@@ -271,6 +271,15 @@ impl Transform {
             .try_inverse()
             .ok_or(TransformError::Singular)?;
         let s: Vec<f64> = (0..n * n).map(|k| inv[(k / n, k % n)]).collect();
+        Transform::with_inverse(t, s, n)
+    }
+
+    /// The transform `T` (n×n, row-major) with `S` as its inverse, which need not be exact:
+    /// `ρ` bounds what `S` misses (an error if it misses by half or more).
+    pub fn with_inverse(t: Vec<f64>, s: Vec<f64>, n: usize) -> Result<Transform, TransformError> {
+        if t.len() != n * n || s.len() != n * n || t.iter().chain(&s).any(|v| !v.is_finite()) {
+            return Err(TransformError::Shape { n });
+        }
         // R = I − T S in interval arithmetic; ρ = ‖R‖/(1 − ‖R‖).
         let r_norm = (0..n)
             .map(|i| {

@@ -33,7 +33,7 @@ use super::normalise::Normalisation;
 use super::report::{pointwise_errors, EpochStats};
 use super::run::{resume_until, train_until, Flow};
 use super::settings::{LrSchedule, TrainSettings};
-use super::staged::{fingerprint, shared_stages, tail, Progress, StagedCheckpoint};
+use super::staged::{fingerprint, shared_stages, tail, Progress, StagedCheckpoint, Written};
 use super::Dataset;
 use crate::network::{Mlp, NetworkError};
 
@@ -366,12 +366,11 @@ pub fn train_to_target(
     let resumed = match checkpoint {
         Some(c) if c.resume && c.path.exists() => {
             let shape = (pointwise.n_in, pointwise.n_out);
-            let accepts = |stored: &str| match stored == print {
-                // The same schedule: any state, the finished one too.
-                true => Some(usize::MAX),
-                false => shared_stages(stored, recipe, print_of),
+            let written = |stored: &str| match stored == print {
+                true => Some(Written::Same),
+                false => shared_stages(stored, recipe, print_of).map(Written::Prefix),
             };
-            let p = Progress::load(&c.path, accepts, shape, secant.is_some())?;
+            let p = Progress::load(&c.path, written, shape, secant.is_some())?;
             if p.net.widths() != widths {
                 return Err(NetworkError::Checkpoint {
                     path: c.path.clone(),

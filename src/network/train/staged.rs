@@ -83,6 +83,15 @@ pub(super) struct Progress {
     pub extended_from: Option<usize>,
 }
 
+/// Which schedule wrote a checkpoint, against the run's own ([`Progress::load`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Written {
+    /// The run's schedule itself: any state continues, the finished one too.
+    Same,
+    /// Its first `k` stages, a schedule the run's extends: a state within them continues.
+    Prefix(usize),
+}
+
 /// The first `k` of `recipe`'s stages whose run's fingerprint (`print` of a schedule) is
 /// `stored` (the longest such prefix): a checkpoint written under a schedule that `recipe`
 /// extends (stages added at its end, as the certify stages were in 2026-12) continues into the
@@ -253,13 +262,13 @@ impl Progress {
         write_atomically(path, &serialize(&t, meta, path)?)
     }
 
-    /// Reads a state written by [`Progress::save`] for a run whose fingerprint `accepts`
-    /// (for the schedule's first `k` stages, `Some(k)`; the same schedule, `usize::MAX`); `shape` is the data's `(n_in,
-    /// n_out)`, `secant` whether the run has secant data. A run stopped under a schedule that
-    /// this one extends continues where its stage lies within the shared stages.
+    /// Reads a state written by [`Progress::save`] for a run whose stored fingerprint `written`
+    /// recognises ([`Written`]); `shape` is the data's `(n_in, n_out)`, `secant` whether the
+    /// run has secant data. A run stopped under a schedule that this one extends continues
+    /// where its stage lies within the shared stages.
     pub(super) fn load(
         path: &Path,
-        accepts: impl Fn(&str) -> Option<usize>,
+        written: impl Fn(&str) -> Option<Written>,
         shape: (usize, usize),
         secant: bool,
     ) -> Result<Progress, NetworkError> {
@@ -291,8 +300,13 @@ impl Progress {
                 .map_err(|e| bad(format!("metadata `{key}`: {e}")))
         };
         let next = number("next")? as usize;
-        let shared = accepts(&meta("fingerprint")?);
-        if shared.is_none_or(|shared| next >= shared) {
+        let written = written(&meta("fingerprint")?);
+        let within = match written {
+            Some(Written::Same) => true,
+            Some(Written::Prefix(k)) => next < k,
+            None => false,
+        };
+        if !within {
             return Err(bad(
                 "it was written by a run with other data, architecture, seed, \
                  schedule or target (the scenario, a flag or the start changed): run without \
@@ -330,14 +344,15 @@ impl Progress {
             true => Some(read_data(&raw, "added_secant", shape, path)?),
             false => None,
         };
-        // Begun under a shorter schedule: said now, or by the checkpoint that continued it.
-        let extended_from = match (shared, raw.metadata.get("extended_from")) {
-            (Some(k), _) if k != usize::MAX => Some(k),
-            (_, Some(k)) => Some(
+        // Begun under a shorter schedule: as the checkpoint says (it continued one already), or
+        // as this load finds.
+        let extended_from = match (raw.metadata.get("extended_from"), written) {
+            (Some(k), _) => Some(
                 k.parse::<usize>()
                     .map_err(|e| json("extended_from", e.to_string()))?,
             ),
-            _ => None,
+            (None, Some(Written::Prefix(k))) => Some(k),
+            (None, _) => None,
         };
         Ok(Progress {
             next,
