@@ -270,9 +270,9 @@ pub fn validation_points(s: &Scenario, grid: &[usize]) -> Vec<Vec<f64>> {
         .collect()
 }
 
-/// Gives weight 0 to the unsafe samples with no safe point at distance `band` or `band/2`
-/// along an axis; returns how many.
-pub fn restrict_to_band(s: &Scenario, data: &mut Dataset, band: f64) -> usize {
+/// Gives weight 0 to the unsafe samples with no safe point at distance `band[i]` or
+/// `band[i]/2` along some axis `i`; returns how many.
+pub fn restrict_to_band(s: &Scenario, data: &mut Dataset, band: &[f64]) -> usize {
     let n = s.n();
     let len = data.len();
     let weights = data.weights.get_or_insert_with(|| vec![1.0; len]);
@@ -283,7 +283,8 @@ pub fn restrict_to_band(s: &Scenario, data: &mut Dataset, band: f64) -> usize {
             continue;
         }
         let near = (0..n).any(|i| {
-            [band, -band, 0.5 * band, -0.5 * band].iter().any(|&d| {
+            let b = band[i];
+            [b, -b, 0.5 * b, -0.5 * b].iter().any(|&d| {
                 let mut y = x.to_vec();
                 y[i] += d;
                 s.is_safe(&y)

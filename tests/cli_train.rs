@@ -175,3 +175,44 @@ fn train_without_epochs_runs_the_staged_schedule_and_saves_a_folded_network() {
     assert_ne!(code, 0);
     assert!(stderr.contains("--budget 0"), "{stderr}");
 }
+
+#[test]
+fn train_refuses_tuning_flags_without_epochs_and_the_budget_with_it() {
+    // The staged schedule chooses its own rates, batches and terms: a tuning flag given without
+    // `--epochs` used to be ignored without a word.
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("net.safetensors");
+    let path = common::scenario_path("integrator.toml");
+    for flags in [
+        &["--lr", "0.5"][..],
+        &["--batch-size", "64"],
+        &["--ibp-weight", "0.01"],
+        &["--revive-every", "4"],
+        &["--slope-step", "0.02", "--secant-network"],
+        &["--no-normalise"],
+    ] {
+        let args = [
+            &[
+                "train",
+                path.to_str().unwrap(),
+                "--out",
+                out.to_str().unwrap(),
+            ][..],
+            flags,
+        ]
+        .concat();
+        let (code, _, stderr) = cbfreach(&args);
+        assert_eq!(code, 2, "{flags:?}: {stderr}");
+        assert!(
+            stderr.contains("--epochs <EPOCHS>") && stderr.contains(flags[0]),
+            "{flags:?}: {stderr}"
+        );
+    }
+    let (code, _, stderr) = train_small("21,16", &out, &["--budget", "0.5"]);
+    assert_eq!(code, 2, "{stderr}");
+    assert!(
+        stderr.contains("'--epochs <EPOCHS>' cannot be used with '--budget <BUDGET>'"),
+        "{stderr}"
+    );
+    assert!(!out.exists() && !tmp.path().join("net.ckpt").exists());
+}

@@ -5,11 +5,13 @@ use std::path::PathBuf;
 
 use cbfreach::dataset::{filter_dataset, training_points, DatasetSummary, Slopes};
 use cbfreach::filter::SafetyFilter;
-use cbfreach::network::train::{self, EpochStats, RecipeProgress, StagedCheckpoint, TrainSettings};
+use cbfreach::network::train::{
+    self, EpochStats, RecipeProgress, SlopeCap, StagedCheckpoint, TrainSettings,
+};
 use cbfreach::network::Mlp;
 use cbfreach::scenario::Scenario;
 use cbfreach::training::{
-    self, DataOptions, DataProgress, Dense, OneStage, StagedPlan, TrainingData,
+    self, DataOptions, DataProgress, Dense, OneStage, StagedPlan, TrainingData, UnsafeBand,
 };
 
 use super::{load_scenario, progress_bar, CliResult};
@@ -40,46 +42,49 @@ pub struct TrainArgs {
     pub architecture: Option<Vec<usize>>,
     /// Run one stage of this many passes over the data, with the tuning flags below, instead
     /// of the default staged schedule (fit, secant, certify; docs/networks.md) that stops at
-    /// the scenario's `[training] target`. The flags below apply only with it.
+    /// the scenario's `[training] target`. The tuning flags below (rates, batch, terms) apply
+    /// only with it, and are refused without it.
     #[arg(long)]
     pub epochs: Option<usize>,
     /// Multiplies every stage's epochs of the default schedule (e.g. 0.25 for a quick run).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, conflicts_with = "epochs")]
     pub budget: f64,
     /// With `--epochs`: train on the data as it is, not normalised (the runs of
     /// docs/networks.md were made so).
-    #[arg(long)]
+    #[arg(long, requires = "epochs")]
     pub no_normalise: bool,
     /// Samples per Adam step. Large batches make an epoch much cheaper (scenario 1 on two
     /// cores: 3.5–4 s at 4096 with `--chunk-size 512`, 10–13 s at 256); fine-tunes at 4096 did
     /// as well as at 256 (README).
-    #[arg(long, default_value_t = 256)]
+    #[arg(long, default_value_t = 256, requires = "epochs")]
     pub batch_size: usize,
     /// Samples per gradient chunk: a batch's chunks run side by side on the cores and their
     /// gradients are added in a fixed order, so a seed gives the same network on any number of
     /// threads (but not with another chunk size). `--chunk-size` ≥ `--batch-size` reproduces
     /// runs made before chunks existed.
-    #[arg(long, default_value_t = 128)]
+    #[arg(long, default_value_t = 128, requires = "epochs")]
     pub chunk_size: usize,
     /// Initial learning rate (cosine decay to `--lr-min`).
-    #[arg(long, default_value_t = 1e-3)]
+    #[arg(long, default_value_t = 1e-3, requires = "epochs")]
     pub lr: f64,
     /// Final learning rate. A fine-tune (`--init`) starts Adam afresh, and its first steps move
     /// every weight by about `--lr`: start it near where the previous run ended.
-    #[arg(long, default_value_t = 1e-5)]
+    #[arg(long, default_value_t = 1e-5, requires = "epochs")]
     pub lr_min: f64,
     /// Weight λ of the Jacobian term λ‖DN − Dv‖² (0 disables).
-    #[arg(long, default_value_t = 0.1)]
+    #[arg(long, default_value_t = 0.1, requires = "epochs")]
     pub jacobian_weight: f64,
     /// Leave samples whose target slope |∂vᵢ/∂xⱼ| exceeds this out of the Jacobian term (where
     /// v jumps, e.g. scenario 2 at (1, 0) and (3, 0), finite-difference slopes are ~1/step).
+    /// Without it the staged schedule leaves out those steeper than 3 times the grid's 99th
+    /// percentile (in normalised units), one stage (`--epochs`) none.
     #[arg(long)]
     pub jacobian_cap: Option<f64>,
     /// Slope targets as secants over ±this step (one value or one per state) instead of the
     /// pointwise Jacobian: where `v` has a kink between grid points (scenario 1 near
     /// (4.1, 0.8), slope 0 on one side and ~20 on the other) no network meets both one-sided
     /// slopes, and their pull bends the fit's values; half the grid's spacing is a good start.
-    #[arg(long, value_delimiter = ',')]
+    #[arg(long, value_delimiter = ',', requires = "epochs")]
     pub slope_step: Option<Vec<f64>>,
     /// With `--slope-step`: the Sobolev term compares the network's own central differences
     /// over the same steps with the secant targets, instead of its pointwise Jacobian (which is
@@ -90,50 +95,55 @@ pub struct TrainArgs {
     pub secant_network: bool,
     /// Huber threshold of the Jacobian term: slope residuals beyond it cost linearly, so the few
     /// samples on a steep kink do not steer every step.
-    #[arg(long)]
+    #[arg(long, requires = "epochs")]
     pub jacobian_huber: Option<f64>,
     /// Seed of the initial weights and the shuffles.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Fraction of the samples, those of largest loss in the previous epoch, revisited in each
     /// late epoch (0 disables).
-    #[arg(long, default_value_t = 0.1)]
+    #[arg(long, default_value_t = 0.1, requires = "epochs")]
     pub hard_fraction: f64,
     /// Extra visits of each of those samples per late epoch.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, requires = "epochs")]
     pub hard_repeats: usize,
     /// Fraction of the epochs after which hard examples are revisited.
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, default_value_t = 0.5, requires = "epochs")]
     pub hard_start: f64,
     /// Weight λ_ibp of the certified-training term: λ_ibp times the mean IBP output width over
     /// the boxes [x − ε, x + ε] around each batch's inputs (0 disables).
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, requires = "epochs")]
     pub ibp_weight: f64,
     /// Half-width ε of the IBP boxes: one value, or one per state.
-    #[arg(long, value_delimiter = ',', default_value = "0.05")]
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "0.05",
+        requires = "epochs"
+    )]
     pub ibp_radius: Vec<f64>,
     /// Epoch (over the whole run, resumed epochs included) from which the IBP term is on.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, requires = "epochs")]
     pub ibp_start: usize,
     /// Epochs over which ε ramps up linearly from the IBP start.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, requires = "epochs")]
     pub ibp_ramp: usize,
     /// Penalise only the IBP width in excess of the network's own linear range over each box,
     /// Σⱼ |∂N/∂xⱼ(x)| 2εⱼ: the plain width also penalises the slope that v needs.
-    #[arg(long)]
+    #[arg(long, requires = "epochs")]
     pub ibp_excess: bool,
     /// Every this many epochs, give the hidden neurons that no training sample activates fresh
     /// incoming weights and zero outgoing ones (the network's function is unchanged): dead
     /// ReLUs get no gradient, and without this the paper-size networks lose most of their
     /// deeper neurons early in training. 0 disables.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, requires = "epochs")]
     pub revive_every: usize,
-    /// Train on the unsafe part of the grid only within this distance of S (checked along the
-    /// axes at the distance and half of it): deep inside an obstacle `v` grows without bound
-    /// where `L_g h → 0`, and those points would dominate the loss. Negative: keep every
-    /// feasible point.
-    #[arg(long, default_value_t = 0.3, allow_negative_numbers = true)]
-    pub unsafe_band: f64,
+    /// Train on the unsafe part of the grid only within this distance of S, in the states'
+    /// units (checked along the axes at the distance and half of it); default two grid
+    /// spacings of each axis, 0.3 with `--epochs` (as docs/networks.md's runs were made). Deep inside an obstacle `v` grows without bound where
+    /// `L_g h → 0`, and those points would drag the fit. Negative: keep every feasible point.
+    #[arg(long, allow_negative_numbers = true)]
+    pub unsafe_band: Option<f64>,
     /// Add samples around the grid points of S where `v` is steep (some |∂vᵢ/∂xⱼ| above this,
     /// none above `--jacobian-cap`, which marks jumps):
     /// the points of S on a grid `--dense-factor` times finer within one spacing of each, so
@@ -281,10 +291,15 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
         );
     }
     print_summary(&s, &data.summary);
-    if let Some(excluded) = data.notes.left_out {
+    if let Some((excluded, band)) = &data.notes.left_out {
+        let band: Vec<String> = band.iter().map(|b| format!("{b:.4}")).collect();
         println!(
-            "{excluded} unsafe samples farther than {} from S left out of the training",
-            args.unsafe_band
+            "{excluded} unsafe samples farther from S than ({}) along every axis left out of the training{}",
+            band.join(", "),
+            match (args.unsafe_band, args.epochs) {
+                (None, None) => " (two grid spacings: --unsafe-band sets a distance)",
+                _ => "",
+            }
         );
     }
     if let Some(count) = data.notes.focused {
@@ -373,7 +388,12 @@ fn data_options(args: &TrainArgs, s: &Scenario) -> Result<DataOptions, String> {
         slopes,
         dense,
         jacobian_cap: args.jacobian_cap,
-        unsafe_band: args.unsafe_band,
+        unsafe_band: match (args.unsafe_band, args.epochs) {
+            (None, None) => DataOptions::default().unsafe_band,
+            (None, Some(_)) => UnsafeBand::ONE_STAGE,
+            (Some(d), _) if d < 0.0 => UnsafeBand::All,
+            (Some(d), _) => UnsafeBand::Within(d),
+        },
         focus,
     })
 }
@@ -485,7 +505,10 @@ fn run_staged(job: &Job, bars: &Bars) -> CliResult {
         data,
         init,
     } = *job;
-    let plan = StagedPlan::new(s, data, architecture, args.budget, args.seed);
+    let mut plan = StagedPlan::new(s, data, architecture, args.budget, args.seed);
+    if let Some(cap) = args.jacobian_cap {
+        plan.recipe.slope_cap = SlopeCap::Above(cap);
+    }
     let (recipe, target) = (&plan.recipe, &plan.target);
     let total: usize = recipe.stages.iter().map(|st| st.settings.epochs).sum();
     let ibp = match recipe.stages[0].settings.ibp_weight > 0.0 {
@@ -589,6 +612,7 @@ fn run_staged(job: &Job, bars: &Bars) -> CliResult {
         "normalised: inputs centre {:?} scale {:?}; outputs centre {:?} scale {:.4e}; learning rate {:.0e} (range test)",
         norm.input_centre, norm.input_scale, norm.output_centre, norm.output_scale, report.learning_rate
     );
+    print_steep(&report.steep, recipe.slope_cap);
     if let Some(k) = report.extended_from {
         println!(
             "continued a run begun under an earlier schedule of {k} stages into this one's {}",
@@ -666,6 +690,29 @@ fn run_staged(job: &Job, bars: &Bars) -> CliResult {
     }
     println!("network written to {}", out.display());
     Ok(())
+}
+
+/// One line on the slope targets left out of the Sobolev term, where any were.
+fn print_steep(r: &train::SteepReport, cap: SlopeCap) {
+    if r.pointwise_left_out + r.secant_left_out == 0 {
+        return;
+    }
+    let why = match cap {
+        SlopeCap::Above(c) => format!("with some |∂vᵢ/∂xⱼ| above {c} (--jacobian-cap)"),
+        SlopeCap::Outliers(factor) => format!(
+            "steeper than {factor} times the grid's 99th percentile (bounds in normalised units: {}), jumps of v or kinks the grid does not resolve",
+            [("pointwise", r.pointwise_limit), ("secant", r.secant_limit)]
+                .iter()
+                .filter_map(|(k, l)| l.map(|l| format!("{k} {l:.2}")))
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+        SlopeCap::Off => return,
+    };
+    println!(
+        "slope targets left out of the slope term (their values still trained on): {} pointwise and {} secant samples {why}",
+        r.pointwise_left_out, r.secant_left_out
+    );
 }
 
 /// One line on how finely the training grid resolves `v` (its own multilinear interpolant at

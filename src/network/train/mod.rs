@@ -95,7 +95,8 @@
 //! [`train_to_target`]), `staged` (its progress on disk between stages:
 //! [`StagedCheckpoint`]), `adaptive` (more samples where the network errs most:
 //! [`refine_round`]), `resolution` (how finely the training grid resolves `v`:
-//! [`grid_resolution`]).
+//! [`grid_resolution`]), `steep` (the slope targets the Sobolev term leaves out:
+//! [`SlopeCap`]).
 
 mod adaptive;
 mod checkpoint;
@@ -108,6 +109,7 @@ mod resolution;
 mod run;
 mod settings;
 mod staged;
+mod steep;
 
 #[cfg(test)]
 mod bench;
@@ -127,3 +129,4 @@ pub use resolution::{grid_resolution, Resolution};
 pub use run::{resume, resume_until, train, train_until, Flow};
 pub use settings::{LrSchedule, Precision, TrainSettings};
 pub use staged::StagedCheckpoint;
+pub use steep::{SlopeCap, SlopeLimit, SteepReport, OUTLIER_FACTOR};

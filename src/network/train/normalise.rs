@@ -23,6 +23,7 @@ use serde::{Deserialize, Serialize};
 
 use super::dataset::Dataset;
 use super::settings::TrainSettings;
+use super::steep::SlopeLimit;
 use crate::network::{Mlp, NetworkError};
 
 /// The metadata key under which [`Normalisation::metadata`] stores the maps (JSON).
@@ -111,10 +112,14 @@ impl Normalisation {
         }
     }
 
-    /// `data` in normalised units. A sample whose slope target has an entry above `cap` (in
-    /// the data's own units: [`TrainSettings::jacobian_cap`]) gets NaN slopes, which the
-    /// Sobolev term skips as it skips capped ones.
-    pub fn dataset(&self, data: &Dataset, cap: Option<f64>) -> Result<Dataset, NetworkError> {
+    /// `data` in normalised units. A sample whose slope target `limit` leaves out
+    /// ([`SlopeLimit`]; `--jacobian-cap` in the data's units, or the staged schedule's
+    /// outliers) gets NaN slopes, which the Sobolev term skips.
+    pub fn dataset(
+        &self,
+        data: &Dataset,
+        limit: Option<SlopeLimit>,
+    ) -> Result<Dataset, NetworkError> {
         let (n, m) = (data.n_in, data.n_out);
         self.check(n, m)?;
         let inputs = data
@@ -127,11 +132,10 @@ impl Normalisation {
             .chunks_exact(m)
             .flat_map(|v| (0..m).map(move |o| (v[o] - self.output_centre[o]) / self.output_scale))
             .collect();
-        let cap = cap.unwrap_or(f64::INFINITY);
         let jacobians = data.jacobians.as_ref().map(|jac| {
             jac.chunks_exact(m * n)
                 .flat_map(|dv| {
-                    let capped = dv.iter().any(|d| d.abs() > cap);
+                    let capped = limit.is_some_and(|l| l.leaves_out(self, dv));
                     (0..m * n).map(move |k| {
                         if capped {
                             f64::NAN

@@ -34,6 +34,7 @@ use super::report::{pointwise_errors, EpochStats};
 use super::run::{resume_until, train_until, Flow};
 use super::settings::{LrSchedule, TrainSettings};
 use super::staged::{fingerprint, shared_stages, tail, Progress, StagedCheckpoint, Written};
+use super::steep::{left_out, SlopeCap, SlopeLimit, SteepReport, OUTLIER_FACTOR};
 use super::Dataset;
 use crate::network::{Mlp, NetworkError};
 
@@ -120,6 +121,9 @@ pub struct Recipe {
     pub budget: f64,
     /// How the refine stages choose their samples.
     pub refinement: Refinement,
+    /// Which slope targets the Sobolev term leaves out (default: the outliers, jumps and
+    /// kinks the grid does not resolve; [`SlopeCap`]).
+    pub slope_cap: SlopeCap,
 }
 
 /// Refine stages of the default schedule.
@@ -251,6 +255,7 @@ impl Recipe {
             lr_candidates: vec![3e-4, 1e-3, 3e-3, 1e-2],
             budget,
             refinement: Refinement::for_data(samples, spacing, 0),
+            slope_cap: SlopeCap::Outliers(OUTLIER_FACTOR),
         }
     }
 }
@@ -333,6 +338,9 @@ pub struct RecipeReport {
     /// extends: that schedule's stages (the rest were added after it stopped).
     #[serde(default)]
     pub extended_from: Option<usize>,
+    /// The slope targets left out of the Sobolev term ([`Recipe::slope_cap`]).
+    #[serde(default)]
+    pub steep: SteepReport,
 }
 
 /// Runs `recipe` from `init` (in the data's units) or, without one, from random weights of
@@ -355,8 +363,14 @@ pub fn train_to_target(
 ) -> Result<(Mlp, RecipeReport), NetworkError> {
     let t0 = std::time::Instant::now();
     let norm = Normalisation::from_data(data.pointwise);
-    let mut pointwise = norm.dataset(data.pointwise, None)?;
-    let mut secant = data.secant.map(|d| norm.dataset(d, None)).transpose()?;
+    // Each data set's limit from its own grid, kept for the samples the rounds add.
+    let pointwise_limit = recipe.slope_cap.limit(&norm, data.pointwise);
+    let secant_limit = data.secant.and_then(|d| recipe.slope_cap.limit(&norm, d));
+    let mut pointwise = norm.dataset(data.pointwise, pointwise_limit)?;
+    let mut secant = data
+        .secant
+        .map(|d| norm.dataset(d, secant_limit))
+        .transpose()?;
     let (grid_len, secant_len) = (pointwise.len(), secant.as_ref().map_or(0, Dataset::len));
     let measure = |normalised: &Mlp| -> Result<Measured, NetworkError> {
         measure(&norm.fold(normalised)?, data.validation, &recipe.ibp_radius)
@@ -496,10 +510,10 @@ pub fn train_to_target(
                 save(&mut state, &pointwise, &secant)?;
                 continue;
             }
-            pointwise.append(norm.dataset(&added.pointwise, None)?)?;
+            pointwise.append(norm.dataset(&added.pointwise, pointwise_limit)?)?;
             if let (Some(s), Some(a)) = (secant.as_mut(), added.secant.as_ref()) {
                 if !a.is_empty() {
-                    s.append(norm.dataset(a, None)?)?;
+                    s.append(norm.dataset(a, secant_limit)?)?;
                 }
             }
             state.round = Some(report);
@@ -632,8 +646,22 @@ pub fn train_to_target(
         fresh,
         seconds: seconds_before + t0.elapsed().as_secs_f64(),
         extended_from: state.extended_from,
+        steep: SteepReport {
+            pointwise_limit: normalised(pointwise_limit),
+            pointwise_left_out: left_out(&pointwise),
+            secant_limit: normalised(secant_limit),
+            secant_left_out: secant.as_ref().map_or(0, left_out),
+        },
     };
     Ok((folded, report))
+}
+
+/// A limit's bound in normalised units (the staged schedule's own kind).
+fn normalised(limit: Option<SlopeLimit>) -> Option<f64> {
+    match limit {
+        Some(SlopeLimit::Normalised(cap)) => Some(cap),
+        _ => None,
+    }
 }
 
 /// The learning rate among [`Recipe::lr_candidates`] whose single epoch on a subsample (at
