@@ -252,13 +252,20 @@ pub fn refinement_points<'a>(
         .collect()
 }
 
+/// The spacing per axis of a training grid of `grid` points per axis (each at least 2, as
+/// [`training_points`] checks) on `s`'s training region.
+pub fn grid_spacing(s: &Scenario, grid: &[usize]) -> Vec<f64> {
+    let r = &s.training.region;
+    (0..s.n())
+        .map(|i| (r.upper[i] - r.lower[i]) / (grid[i] - 1) as f64)
+        .collect()
+}
+
 /// A validation grid the training never saw: the training grid shifted by half a spacing,
 /// restricted to the safe set, where the filter acts (`C ∩ S`).
 pub fn validation_points(s: &Scenario, grid: &[usize]) -> Vec<Vec<f64>> {
     let r = &s.training.region;
-    let half: Vec<f64> = (0..s.n())
-        .map(|i| 0.5 * (r.upper[i] - r.lower[i]) / (grid[i] - 1) as f64)
-        .collect();
+    let half: Vec<f64> = grid_spacing(s, grid).iter().map(|h| 0.5 * h).collect();
     let inner = IntervalBox {
         lower: (0..s.n()).map(|i| r.lower[i] + half[i]).collect(),
         upper: (0..s.n()).map(|i| r.upper[i] - half[i]).collect(),

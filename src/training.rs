@@ -9,8 +9,8 @@ use std::path::{Path, PathBuf};
 
 use crate::boxes::IntervalBox;
 use crate::dataset::{
-    filter_dataset, refinement_points, restrict_to_band, steep_samples, training_points,
-    validation_points, weigh_box, DatasetSummary, FilterOracle, Slopes,
+    filter_dataset, grid_spacing, refinement_points, restrict_to_band, steep_samples,
+    training_points, validation_points, weigh_box, DatasetSummary, FilterOracle, Slopes,
 };
 use crate::filter::SafetyFilter;
 use crate::network::train::{
@@ -156,15 +156,10 @@ impl UnsafeBand {
     /// The distance per axis, or none (every sample), for a grid of `grid` points per axis on
     /// `s`'s training region.
     pub fn widths(&self, s: &Scenario, grid: &[usize]) -> Option<Vec<f64>> {
-        let r = &s.training.region;
         match *self {
             UnsafeBand::All => None,
             UnsafeBand::Within(d) => Some(vec![d; s.n()]),
-            UnsafeBand::Spacings(k) => Some(
-                (0..s.n())
-                    .map(|i| k * (r.upper[i] - r.lower[i]) / (grid[i].max(2) - 1) as f64)
-                    .collect(),
-            ),
+            UnsafeBand::Spacings(k) => Some(grid_spacing(s, grid).iter().map(|h| k * h).collect()),
         }
     }
 }
@@ -393,9 +388,7 @@ impl StagedPlan {
     ) -> StagedPlan {
         let r = &s.training.region;
         let grid = &data.grid;
-        let spacing: Vec<f64> = (0..s.n())
-            .map(|i| (r.upper[i] - r.lower[i]) / (grid[i] - 1) as f64)
-            .collect();
+        let spacing = grid_spacing(s, grid);
         let hidden = train::hidden_layers(widths);
         let mut recipe = Recipe::for_data(data.data.len(), &spacing, budget, hidden);
         recipe.refinement.seed = seed;

@@ -296,9 +296,9 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
         println!(
             "{excluded} unsafe samples farther from S than ({}) along every axis left out of the training{}",
             band.join(", "),
-            match (args.unsafe_band, args.epochs) {
-                (None, None) => " (two grid spacings: --unsafe-band sets a distance)",
-                _ => "",
+            match options.unsafe_band {
+                UnsafeBand::Spacings(k) => format!(" ({k} grid spacings: --unsafe-band sets a distance)"),
+                _ => String::new(),
             }
         );
     }

@@ -140,7 +140,7 @@ impl Normalisation {
                         if capped {
                             f64::NAN
                         } else {
-                            dv[k] * self.input_scale[k % n] / self.output_scale
+                            self.slope_entry(k, dv[k])
                         }
                     })
                 })
@@ -154,6 +154,12 @@ impl Normalisation {
             jacobians,
             weights: data.weights.clone(),
         })
+    }
+
+    /// Entry `k` (row-major in the `m × n` Jacobian) of a slope target in normalised units:
+    /// `∂v̂ᵢ/∂x̂ⱼ = ∂vᵢ/∂xⱼ · sⱼ/s_v`.
+    pub fn slope_entry(&self, k: usize, d: f64) -> f64 {
+        d * self.input_scale[k % self.input_scale.len()] / self.output_scale
     }
 
     /// Per-input lengths (IBP radii, secant steps; one entry for all or one per input) in

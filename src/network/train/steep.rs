@@ -60,10 +60,9 @@ impl SlopeLimit {
 
 /// The steepest entry of `dv` in normalised units, `max |∂vᵢ/∂xⱼ| sⱼ / s_v`.
 fn steepness(norm: &Normalisation, dv: &[f64]) -> f64 {
-    let n = norm.input_scale.len();
     dv.iter()
         .enumerate()
-        .map(|(k, d)| d.abs() * norm.input_scale[k % n] / norm.output_scale)
+        .map(|(k, d)| norm.slope_entry(k, *d).abs())
         .fold(0.0, f64::max)
 }
 
@@ -153,8 +152,8 @@ mod tests {
             .filter(|&s| limit.leaves_out(&norm, &d.jacobians.as_ref().unwrap()[s..s + 1]))
             .collect();
         assert_eq!(out, vec![1000]);
-        // The normalised units count: inputs twice as wide make every slope twice as steep
-        // relative to the others only if they differ, so scaling all keeps the same verdict.
+        // Scaling every input alike scales the percentile and each sample's steepness alike:
+        // the same samples are left out.
         let scaled = Normalisation {
             input_scale: vec![2.0],
             ..norm.clone()

@@ -20,6 +20,21 @@ fn badly_scaled(k: usize) -> Dataset {
     d
 }
 
+/// A recipe's data with pointwise slopes alone (no secant set), and the refine stages' oracle
+/// where one is given.
+fn values_only<'a>(
+    data: &'a Dataset,
+    validation: &'a Dataset,
+    oracle: Option<&'a dyn Oracle>,
+) -> RecipeData<'a> {
+    RecipeData {
+        pointwise: data,
+        secant: None,
+        validation,
+        oracle,
+    }
+}
+
 #[test]
 fn normalised_data_are_unit_scaled_and_the_folded_network_is_the_normalised_model() {
     let data = badly_scaled(9);
@@ -123,12 +138,7 @@ fn the_recipe_leaves_slope_outliers_out_and_fits_better_for_it() {
             .copy_from_slice(&[1e4, 0.0, 0.0, 0.0]);
     }
     let validation = smooth_data(17);
-    let input = RecipeData {
-        pointwise: &data,
-        secant: None,
-        validation: &validation,
-        oracle: None,
-    };
+    let input = values_only(&data, &validation, None);
     let target = Target {
         linf: Some(1e-6),
         slope_p95: None,
@@ -196,12 +206,7 @@ fn the_recipe_stops_at_its_target_and_says_when_it_is_not_reached() {
     let validation = badly_scaled(17);
     let recipe = Recipe::for_data(data.len(), &[1000.0 / 39.0, 0.02 / 39.0], 0.5, 2);
     let planned = recipe.stages[0].settings.epochs;
-    let input = RecipeData {
-        pointwise: &data,
-        secant: None,
-        validation: &validation,
-        oracle: None,
-    };
+    let input = values_only(&data, &validation, None);
     // Within 5 % of the targets' range (2000): the fit stage gets there and stops early.
     let target = Target {
         linf: Some(100.0),
@@ -337,12 +342,7 @@ fn refine_stages_add_samples_where_the_network_errs_and_check_it_on_fresh_points
         linf: Some(0.05),
         slope_p95: None,
     };
-    let input = RecipeData {
-        pointwise: &data,
-        secant: None,
-        validation: &validation,
-        oracle: Some(&Bump),
-    };
+    let input = values_only(&data, &validation, Some(&Bump));
     let (_, report) = train_to_target(
         None,
         &[2, 16, 16, 1],
@@ -389,12 +389,7 @@ fn an_interrupted_staged_run_continues_to_the_same_network() {
         linf: Some(0.01),
         slope_p95: None,
     };
-    let input = RecipeData {
-        pointwise: &data,
-        secant: None,
-        validation: &validation,
-        oracle: Some(&Bump),
-    };
+    let input = values_only(&data, &validation, Some(&Bump));
     let dir = std::env::temp_dir().join(format!("cbfreach-staged-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("a temporary directory");
     let fresh = StagedCheckpoint {
@@ -526,12 +521,7 @@ fn a_certify_stage_that_breaks_the_target_is_dropped_and_ends_the_run() {
         linf: Some(0.3),
         slope_p95: None,
     };
-    let input = RecipeData {
-        pointwise: &data,
-        secant: None,
-        validation: &validation,
-        oracle: None,
-    };
+    let input = values_only(&data, &validation, None);
     let (net, report) = train_to_target(
         None,
         &[2, 16, 16, 1],
@@ -587,12 +577,7 @@ fn a_stopped_run_continues_into_stages_added_to_its_schedule() {
         linf: Some(0.3),
         slope_p95: None,
     };
-    let input = RecipeData {
-        pointwise: &data,
-        secant: None,
-        validation: &validation,
-        oracle: None,
-    };
+    let input = values_only(&data, &validation, None);
     let dir = std::env::temp_dir().join(format!("cbfreach-extended-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("a temporary directory");
     let fresh = StagedCheckpoint {
