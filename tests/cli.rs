@@ -95,6 +95,35 @@ fn check_summarises_both_paper_scenarios() {
     }
 }
 
+/// A CBF no input acts on (a position bound on a double integrator) is named with what to do,
+/// and the QP's infeasible share is said; a well-posed scenario says its QP is feasible.
+#[test]
+fn check_names_a_cbf_no_input_acts_on_and_where_the_qp_is_infeasible() {
+    let tmp = tempfile::tempdir().unwrap();
+    let path = tmp.path().join("wall.toml");
+    let text = std::fs::read_to_string(common::scenario_path("double-integrator.toml"))
+        .unwrap()
+        .replace("h = \"(x1 - 2)^2 + x2^2 - 1\"", "h = \"1.5 - x1\"");
+    std::fs::write(&path, text).unwrap();
+    let (code, stdout, stderr) = cbfreach(&["check", path.to_str().unwrap()]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(
+        stdout.contains("CBF obstacle: no input acts on it (L_g h = 0 on all of C)")
+            && stdout.contains("relative degree is above one"),
+        "{stdout}"
+    );
+    let line = stdout
+        .lines()
+        .find(|l| l.contains("the QP is infeasible at"))
+        .unwrap_or_else(|| panic!("{stdout}"));
+    assert!(line.contains("`obstacle` needs"), "{line}");
+    let path = common::scenario_path("integrator.toml");
+    let (code, stdout, _) = cbfreach(&["check", path.to_str().unwrap()]);
+    assert_eq!(code, 0);
+    assert!(!stdout.contains("no input acts"), "{stdout}");
+    assert!(stdout.contains("the QP is feasible at all"), "{stdout}");
+}
+
 #[test]
 fn default_command_reports_equilibria_and_endpoints() {
     let (code, stdout, stderr) = cbfreach(&[]);

@@ -3,7 +3,7 @@
 use std::path::Path;
 
 use cbfreach::expressions::Expr;
-use cbfreach::filter::SafetyFilter;
+use cbfreach::filter::{findings, FilterFindings, SafetyFilter};
 use cbfreach::scenario::Margin;
 
 use super::{fmt_point, load_scenario, CliResult};
@@ -53,6 +53,7 @@ pub fn run(path: &Path) -> CliResult {
             .map(|r| r.q.len())
             .unwrap_or(0)
     );
+    print_findings(&findings(&s));
     let r = &s.reach;
     println!(
         "  reach: C = {} … {}, dt = {}, T = {} ({} steps), norm {:?}, {}",
@@ -99,4 +100,34 @@ pub fn run(path: &Path) -> CliResult {
         fmt_point(&s.training.region.upper)
     );
     Ok(())
+}
+
+/// The filter's findings on `C`, one line each (inert CBFs are also said by `train`).
+fn print_findings(f: &FilterFindings) {
+    for name in &f.inert {
+        println!("  {}", inert_note(name));
+    }
+    match &f.example {
+        None => println!(
+            "  the QP is feasible at all {} points of C ∩ S sampled",
+            f.sampled
+        ),
+        Some((x, why)) => println!(
+            "  the QP is infeasible at {} of {} points of C ∩ S sampled ({:.1} %), first at {}: {why}",
+            f.infeasible,
+            f.sampled,
+            100.0 * f.infeasible as f64 / f.sampled.max(1) as f64,
+            fmt_point(x)
+        ),
+    }
+}
+
+/// What a CBF no input acts on means, and what to do.
+pub(super) fn inert_note(name: &str) -> String {
+    format!(
+        "CBF {name}: no input acts on it (L_g h = 0 on all of C): its relative degree is above \
+         one, so the filter cannot enforce it and the QP is infeasible wherever L_f̃ h + α·h < 0; \
+         use a CBF of relative degree one (for a position bound, one that counts the velocity, \
+         such as L_f̃ h + α·h of this h)"
+    )
 }

@@ -291,6 +291,9 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
         );
     }
     print_summary(&s, &data.summary);
+    for name in cbfreach::filter::inert_cbfs(&s) {
+        println!("warning: {}", super::check::inert_note(&name));
+    }
     if let Some((excluded, band)) = &data.notes.left_out {
         let band: Vec<String> = band.iter().map(|b| format!("{b:.4}")).collect();
         println!(

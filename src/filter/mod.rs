@@ -20,6 +20,7 @@
 mod active_sets;
 mod enclosures;
 mod feasibility;
+mod findings;
 mod rows;
 mod solve;
 
@@ -29,6 +30,7 @@ use crate::scenario::Scenario;
 
 pub use active_sets::{natural_qp_enclosure, QpCell, QpForms, MAX_ACTIVE, MAX_SETS};
 pub use enclosures::{v_enclosure, FilterPiece, Lattice, Smooth, SmoothV, VFormParts, VForms};
+pub use findings::{findings, inert_cbfs, FilterFindings, SAMPLE_POINTS};
 pub use rows::{interval_rows, row_expressions};
 
 pub(crate) use enclosures::meet;
