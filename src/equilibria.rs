@@ -146,11 +146,12 @@ pub fn find_equilibria(
         .collect();
 
     let scale = region.widths().iter().fold(0.0_f64, |a, &b| a.max(b));
+    let periods = state_periods(filter.scenario());
     let mut unique: Vec<Vec<f64>> = Vec::new();
     for x in found {
         if !unique
             .iter()
-            .any(|u| max_dist(u, &x) < 1e-6 * scale.max(1.0))
+            .any(|u| max_dist(u, &x, &periods) < 1e-6 * scale.max(1.0))
         {
             unique.push(x);
         }
@@ -272,10 +273,27 @@ fn halton(k: usize, n: usize) -> Vec<f64> {
         .collect()
 }
 
-fn max_dist(a: &[f64], b: &[f64]) -> f64 {
+/// Each state's period (`[system] periodic`), `None` for an ordinary state.
+fn state_periods(s: &crate::scenario::Scenario) -> Vec<Option<f64>> {
+    let mut periods = vec![None; s.n()];
+    for p in &s.periodic {
+        periods[p.state] = Some(p.period());
+    }
+    periods
+}
+
+/// The ℓ∞ distance, periodic states measured round their circle (`−π` and `π` are one angle).
+fn max_dist(a: &[f64], b: &[f64], periods: &[Option<f64>]) -> f64 {
     a.iter()
         .zip(b)
-        .map(|(p, q)| (p - q).abs())
+        .zip(periods)
+        .map(|((p, q), period)| match period {
+            Some(t) => {
+                let d = (p - q).abs().rem_euclid(*t);
+                d.min(t - d)
+            }
+            None => (p - q).abs(),
+        })
         .fold(0.0, f64::max)
 }
 

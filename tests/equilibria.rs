@@ -133,3 +133,49 @@ initial = [ { lower = [-3.1, 0.1, -0.1], upper = [-2.9, 0.3, 0.1] } ]
     assert_eq!(sets.len(), 4);
     assert!(sets.iter().all(|e| matches!(e, EquilibriumSet::Point(_))));
 }
+
+/// A periodic state's two ends are one angle: the lane keeper's equilibria at `ψ = ±π` are
+/// found once each, not twice (three in all: the origin, the saddle heading backwards, and the
+/// filter's own one at the lane's edge).
+#[test]
+fn equilibria_at_both_ends_of_a_period_are_one() {
+    let text = r#"
+name = "lane"
+[system]
+states = ["y", "psi"]
+inputs = ["w"]
+f = ["sin(psi)", "0"]
+g = [["0"], ["1"]]
+kappa = ["-y - 2*sin(psi)"]
+periodic = { psi = ["-pi", "pi"] }
+[[cbf]]
+h = "1 - y - sin(psi)"
+[input_bounds]
+lower = [-2]
+upper = [2]
+[reach]
+region = { lower = [-2, "-pi"], upper = [2, "pi"] }
+dt = 0.02
+horizon = 1.0
+goal = { lower = [-0.2, -0.2], upper = [0.2, 0.2] }
+initial = [ { lower = [0.4, 0.5], upper = [0.5, 0.6] } ]
+"#;
+    let s = from_text(text).unwrap();
+    let found = find_equilibria(
+        &SafetyFilter::new(&s),
+        &s.reach.region,
+        &EquilibriumSearch::default(),
+    );
+    let at_pi: Vec<_> = found
+        .iter()
+        .filter(|e| (e.x[1].abs() - std::f64::consts::PI).abs() < 1e-6)
+        .collect();
+    assert_eq!(found.len(), 3, "{found:#?}");
+    assert_eq!(at_pi.len(), 2, "{found:#?}");
+    assert!(at_pi
+        .iter()
+        .any(|e| e.x[0].abs() < 1e-6 && e.kind == Stability::Saddle));
+    assert!(at_pi
+        .iter()
+        .any(|e| (e.x[0] - 1.0).abs() < 1e-6 && e.undesirable));
+}

@@ -27,6 +27,13 @@ pub fn run(path: &Path) -> CliResult {
         s.inputs.join(", "),
         s.m()
     );
+    for p in &s.periodic {
+        println!(
+            "  {} is periodic, modulo [{:.4}, {:.4}]: sets are not wrapped, one that reaches the \
+             period's end leaves C",
+            s.states[p.state], p.lower, p.upper
+        );
+    }
     for (i, e) in s.f_tilde.iter().enumerate() {
         println!("  f̃[{}] = {}", s.states[i], show(e));
     }
