@@ -122,6 +122,15 @@ fn check_names_a_cbf_no_input_acts_on_and_where_the_qp_is_infeasible() {
     assert_eq!(code, 0);
     assert!(!stdout.contains("no input acts"), "{stdout}");
     assert!(stdout.contains("the QP is feasible at all"), "{stdout}");
+    // Scenario 2's obstacle row turns round at (1, 0), where L_g h = 2x₂ vanishes: v jumps.
+    let path = common::scenario_path("double-integrator.toml");
+    let (code, stdout, _) = cbfreach(&["check", path.to_str().unwrap()]);
+    assert_eq!(code, 0);
+    assert!(
+        stdout.contains("CBF obstacle: where it needs the input")
+            && stdout.contains("at (1.0000, 0.0000): v divides by ‖L_g h‖²"),
+        "{stdout}"
+    );
 }
 
 #[test]

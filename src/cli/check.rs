@@ -3,7 +3,7 @@
 use std::path::Path;
 
 use cbfreach::expressions::Expr;
-use cbfreach::filter::{findings, FilterFindings, SafetyFilter};
+use cbfreach::filter::{findings, FilterFindings, SafetyFilter, Vanishing};
 use cbfreach::scenario::Margin;
 
 use super::{fmt_point, load_scenario, CliResult};
@@ -114,6 +114,9 @@ fn print_findings(f: &FilterFindings) {
     for name in &f.inert {
         println!("  {}", inert_note(name));
     }
+    for v in &f.vanishing {
+        println!("  {}", vanishing_note(v));
+    }
     match &f.example {
         None => println!(
             "  the QP is feasible at all {} points of C ∩ S sampled",
@@ -136,5 +139,17 @@ pub(super) fn inert_note(name: &str) -> String {
          one, so the filter cannot enforce it and the QP is infeasible wherever L_f̃ h + α·h < 0; \
          use a CBF of relative degree one (for a position bound, one that counts the velocity, \
          such as L_f̃ h + α·h of this h)"
+    )
+}
+
+/// Where a CBF's `‖L_g h‖` vanishes while its row needs the input, and what it does to `v`.
+pub(super) fn vanishing_note(v: &Vanishing) -> String {
+    format!(
+        "CBF {}: where it needs the input (L_f̃ h + α·h < 0), ‖L_g h‖ falls to {:.1e} of its \
+         largest on C ∩ S, at {}: v divides by ‖L_g h‖², so it is steep or jumps there, which \
+         networks fit poorly and certified error bounds see",
+        v.cbf,
+        v.ratio,
+        fmt_point(&v.at)
     )
 }

@@ -28,6 +28,88 @@ pub struct FilterFindings {
     pub infeasible: usize,
     /// The first such point and why.
     pub example: Option<(Vec<f64>, Infeasibility)>,
+    /// CBFs whose `‖L_g h‖` falls below [`VANISHING`] of its largest on `C ∩ S` at a point
+    /// where the row needs the input (`L_f̃ h + αh < 0`): `v` divides by `‖L_g h‖²`, so it is
+    /// steep there or jumps (scenario 2's obstacle at (1, 0) and (3, 0)).
+    pub vanishing: Vec<Vanishing>,
+}
+
+/// Where a CBF's `‖L_g h‖` nearly vanishes while its row needs the input ([`FilterFindings`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Vanishing {
+    /// The CBF's name.
+    pub cbf: String,
+    /// The smallest `‖L_g h‖` at such a point over the largest on the sampled `C ∩ S`.
+    pub ratio: f64,
+    /// That point.
+    pub at: Vec<f64>,
+}
+
+/// A row whose `‖L_g h‖` falls below this share of its largest where it needs the input is
+/// reported ([`FilterFindings::vanishing`]). The grid alone finds a few per cent near a zero
+/// (the unicycle's `‖L_g h‖ ≥ 2lr` is 5.5 % of its largest, and never 0): [`descend`] follows
+/// the smallest sample down to the zero, or stops at the true minimum.
+pub const VANISHING: f64 = 1e-3;
+
+/// The descents per CBF, from its smallest samples.
+const DESCENTS: usize = 8;
+
+/// `CBF k`'s `‖L_g h‖` over the points of `C ∩ S` where its row needs the input, and the point,
+/// by a pattern search from `start` (steps of a cell `cell`, halved where no neighbour is
+/// lower; every neighbour in 3 states or fewer, the axes beyond).
+fn descend(s: &Scenario, k: usize, start: &[f64], cell: &[f64]) -> (f64, Vec<f64>) {
+    let (n, m) = (s.n(), s.m());
+    let filter = SafetyFilter::new(s);
+    let cost = |x: &[f64]| -> Option<f64> {
+        if !s.reach.region.contains(x) || !s.is_safe(x) {
+            return None;
+        }
+        let rows = filter.constraint_rows(x).ok()?;
+        let a = &rows.g[k * m..(k + 1) * m];
+        (rows.q[k] < 0.0).then(|| a.iter().map(|v| v * v).sum::<f64>().sqrt())
+    };
+    let moves: Vec<Vec<f64>> = match n <= 3 {
+        true => (0..3usize.pow(n as u32))
+            .map(|mut d| {
+                (0..n)
+                    .map(|_| {
+                        let step = d % 3;
+                        d /= 3;
+                        step as f64 - 1.0
+                    })
+                    .collect()
+            })
+            .filter(|d: &Vec<f64>| d.iter().any(|&v| v != 0.0))
+            .collect(),
+        false => (0..2 * n)
+            .map(|j| {
+                let mut d = vec![0.0; n];
+                d[j / 2] = if j % 2 == 0 { -1.0 } else { 1.0 };
+                d
+            })
+            .collect(),
+    };
+    let (mut x, mut best) = (start.to_vec(), cost(start).unwrap_or(f64::INFINITY));
+    let mut step = 0.5;
+    for _ in 0..200 {
+        let next = moves
+            .iter()
+            .map(|d| {
+                (0..n)
+                    .map(|i| x[i] + d[i] * step * cell[i])
+                    .collect::<Vec<f64>>()
+            })
+            .filter_map(|y| cost(&y).map(|c| (c, y)))
+            .min_by(|a, b| a.0.total_cmp(&b.0));
+        match next {
+            Some((c, y)) if c < best => (best, x) = (c, y),
+            _ => step *= 0.5,
+        }
+        if step < 1e-12 {
+            break;
+        }
+    }
+    (best, x)
 }
 
 /// The CBFs (by name) whose row `−L_g h` encloses to 0 over `C` (within [`INERT`], the width
@@ -52,24 +134,67 @@ pub fn findings(s: &Scenario) -> FilterFindings {
     let per_axis = ((SAMPLE_POINTS as f64).powf(1.0 / n as f64).floor() as usize).max(2);
     let counts = vec![per_axis; n];
     let filter = SafetyFilter::new(s);
+    let m = s.m();
     let (mut sampled, mut infeasible, mut example) = (0, 0, None);
+    // Per CBF: the largest ‖L_g h‖ sampled, and every sample where its row needs the input.
+    let mut largest = vec![0.0_f64; s.cbfs.len()];
+    let mut needing: Vec<Vec<(f64, Vec<f64>)>> = vec![Vec::new(); s.cbfs.len()];
     for k in 0..per_axis.pow(n as u32) {
         let x = region.partition_cell(&counts, k).center();
         if !s.is_safe(&x) {
             continue;
         }
         sampled += 1;
+        if let Ok(rows) = filter.constraint_rows(&x) {
+            for (c, (big, need)) in largest.iter_mut().zip(&mut needing).enumerate() {
+                let norm = rows.g[c * m..(c + 1) * m]
+                    .iter()
+                    .map(|a| a * a)
+                    .sum::<f64>()
+                    .sqrt();
+                *big = big.max(norm);
+                if rows.q[c] < 0.0 {
+                    need.push((norm, x.clone()));
+                }
+            }
+        }
         // A point where v is not defined (a CBF's gradient) is not an infeasible QP.
         if let Ok(FilterStatus::Infeasible(why)) = filter.solve(&x) {
             infeasible += 1;
             example.get_or_insert((x, why));
         }
     }
+    let inert = inert_cbfs(s);
+    let vanishing = s
+        .cbfs
+        .iter()
+        .zip(largest.iter().zip(needing))
+        .enumerate()
+        .filter(|(_, (c, _))| !inert.contains(&c.name))
+        .filter_map(|(k, (c, (&big, mut need)))| {
+            // From the smallest few: one may start at a corner of the region the row needs
+            // the input in, where the search stalls (the lane keeper's at y = −1).
+            need.sort_by(|a, b| a.0.total_cmp(&b.0));
+            let cell = region.partition_cell(&counts, 0).widths();
+            let (norm, at) = need
+                .iter()
+                .take(DESCENTS)
+                .map(|(_, start)| descend(s, k, start, &cell))
+                .min_by(|a, b| a.0.total_cmp(&b.0))?;
+            let ratio = norm / big;
+            (big > 0.0 && ratio < VANISHING).then(|| Vanishing {
+                cbf: c.name.clone(),
+                ratio,
+                at,
+            })
+        })
+        .collect();
     FilterFindings {
-        inert: inert_cbfs(s),
+        inert,
         sampled,
         infeasible,
         example,
+        vanishing,
     }
 }
 
@@ -120,8 +245,45 @@ initial = [ {{ lower = [-1.1, 0.9], upper = [-0.9, 1.1] }} ]
         assert!(1.5 - x[0] - x[1] < 0.0, "{x:?}");
         assert!(matches!(why, Infeasibility::NoInputOnRow { .. }), "{why:?}");
         let tilted = findings(&van_der_pol("1.5 - x1 - 0.5*x2"));
-        assert!(tilted.inert.is_empty());
+        assert!(tilted.inert.is_empty() && tilted.vanishing.is_empty());
         assert_eq!(tilted.infeasible, 0);
         assert!(tilted.sampled > 3000, "{}", tilted.sampled);
+    }
+
+    /// A lane keeper whose CBF `1 − y − sin ψ` has `L_g h = −cos ψ`: where the row needs the
+    /// input, `‖L_g h‖` reaches 0 at `ψ = π/2` (the grid's nearest sample is at 5 % of the
+    /// largest); the descent finds the zero, on the lane's edge `y = −1 + …`'s line `b < 0`.
+    #[test]
+    fn where_l_g_h_vanishes_with_the_row_needing_input_is_found() {
+        let text = r#"
+name = "lane"
+[system]
+states = ["y", "psi"]
+inputs = ["w"]
+f = ["sin(psi)", "0"]
+g = [["0"], ["1"]]
+kappa = ["-y - 2*sin(psi)"]
+[[cbf]]
+name = "edge"
+h = "1 - y - sin(psi)"
+[reach]
+region = { lower = [-2, -3.14], upper = [2, 3.14] }
+dt = 0.02
+horizon = 1.0
+goal = { lower = [-0.2, -0.2], upper = [0.2, 0.2] }
+initial = [ { lower = [0.4, 0.5], upper = [0.5, 0.6] } ]
+"#;
+        let s = Scenario::from_toml(text, "lane.toml", std::path::Path::new(".")).unwrap();
+        let f = findings(&s);
+        assert_eq!(f.vanishing.len(), 1, "{f:?}");
+        let v = &f.vanishing[0];
+        assert!(v.ratio < 1e-6, "{v:?}");
+        assert!(
+            (v.at[1].abs() - std::f64::consts::FRAC_PI_2).abs() < 1e-5,
+            "{v:?}"
+        );
+        // The point is one the row needs the input at, in S.
+        let rows = SafetyFilter::new(&s).constraint_rows(&v.at).unwrap();
+        assert!(rows.q[0] < 0.0 && s.is_safe(&v.at), "{v:?}");
     }
 }
