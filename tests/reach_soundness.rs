@@ -797,3 +797,84 @@ fn tubes_do_not_depend_on_the_thread_count() {
         }
     }
 }
+
+/// A nominal controller that cancels the drift (feedback linearisation) gives the sets of the
+/// closed loop it makes: a Van der Pol oscillator with `κ` cancelling `(1 − x₁²)x₂` has the
+/// same Euler sets as the linear system `ẋ₁ = x₂, ẋ₂ = −x₁ − 2x₂` written out (f̃'s like terms
+/// collected, docs/design.md §2.3), and they hold the network's closed loop. With both copies
+/// of the cancelled term in `f̃`, the sets part from the linear system's at the first step.
+#[test]
+fn a_controller_that_cancels_the_drift_gives_the_closed_loops_own_sets() {
+    let scenario = |f2: &str, kappa: &str| {
+        from_text(&format!(
+            r#"
+name = "vdp"
+[system]
+states = ["x1", "x2"]
+inputs = ["u"]
+f = ["x2", "{f2}"]
+g = [["0"], ["1"]]
+kappa = ["{kappa}"]
+[[cbf]]
+h = "1.5 - x1 - 0.5*x2"
+[reach]
+region = {{ lower = [-2, -2], upper = [2, 2] }}
+dt = 0.02
+horizon = 1.0
+goal = {{ lower = [-0.2, -0.2], upper = [0.2, 0.2] }}
+initial = [ {{ lower = [-1.2, 1.5], upper = [-1.0, 1.7] }} ]
+"#
+        ))
+        .unwrap()
+    };
+    let vdp = scenario("(1 - x1^2)*x2 - x1", "-x1 - 2*x2 - (1 - x1^2)*x2 + x1");
+    let linear = scenario("-x1 - 2*x2", "0");
+    let net = small_network(&[2, 16, 16, 1], 3, 0.05);
+    let centres = [[-1.1, 1.6], [0.5, -0.5], [0.8, -0.3]];
+    for face_local in [false, true] {
+        let run_on = |s: &Scenario| {
+            run(
+                s,
+                face_local,
+                &net,
+                0.02,
+                BoundMethod::ForwardBackward,
+                &centres,
+                0.1,
+            )
+        };
+        let (a, b) = (run_on(&vdp), run_on(&linear));
+        for (ta, tb) in a.iter().zip(&b) {
+            assert_eq!(ta.tube.len(), tb.tube.len());
+            for (sa, sb) in ta.tube.iter().zip(&tb.tube) {
+                for i in 0..2 {
+                    let scale = 1e-9 * (1.0 + sb.upper[i].abs());
+                    assert!(
+                        (sa.lower[i] - sb.lower[i]).abs() < scale
+                            && (sa.upper[i] - sb.upper[i]).abs() < scale,
+                        "face-local {face_local}, t = {}: {:?}…{:?} against {:?}…{:?}",
+                        sa.t,
+                        sa.lower,
+                        sa.upper,
+                        sb.lower,
+                        sb.upper
+                    );
+                }
+            }
+        }
+        // The network's closed loop of the oscillator itself (its f̃ as written, point by
+        // point: the cancelled terms cancel up to rounding) stays in the sets.
+        let field = |x: &[f64]| -> Result<Vec<f64>, String> {
+            let u = -x[0] - 2.0 * x[1] - (1.0 - x[0] * x[0]) * x[1] + x[0] + net.forward(x)[0];
+            Ok(vec![x[1], (1.0 - x[0] * x[0]) * x[1] - x[0] + u])
+        };
+        let mut checks = 0;
+        for tube in &a {
+            for start in tube.initial.corners() {
+                let traj = integrate(field, &start, 0.02, 50, Integrator::Euler);
+                checks += assert_inside(tube, &traj.x, 1, |_| 1e-9, "vdp");
+            }
+        }
+        assert!(checks > 300, "{checks}");
+    }
+}

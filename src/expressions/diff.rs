@@ -12,20 +12,20 @@ use Node::Const;
 /// it the residual itself could underflow to zero).
 const EXACT_FLOOR: f64 = 1e-280;
 
-fn exact_add(a: f64, b: f64) -> Option<f64> {
+pub(super) fn exact_add(a: f64, b: f64) -> Option<f64> {
     let s = a + b;
     let bb = s - a;
     let err = (a - (s - bb)) + (b - bb);
     (s.is_finite() && err == 0.0).then_some(s)
 }
 
-fn exact_mul(a: f64, b: f64) -> Option<f64> {
+pub(super) fn exact_mul(a: f64, b: f64) -> Option<f64> {
     let p = a * b;
     let exact = a == 0.0 || b == 0.0 || (p.abs() >= EXACT_FLOOR && a.mul_add(b, -p) == 0.0);
     (p.is_finite() && exact).then_some(p)
 }
 
-fn exact_div(a: f64, b: f64) -> Option<f64> {
+pub(super) fn exact_div(a: f64, b: f64) -> Option<f64> {
     let q = a / b;
     let exact = b != 0.0 && (a == 0.0 || (q.abs() >= EXACT_FLOOR && q.mul_add(b, -a) == 0.0));
     (q.is_finite() && exact).then_some(q)

@@ -44,6 +44,7 @@
 //! # Ok::<(), cbfreach::expressions::ExprError>(())
 //! ```
 
+mod collect;
 mod diff;
 mod eval;
 mod parse;
@@ -229,6 +230,13 @@ impl Expr {
     pub fn substitute(&self, with: &[Expr]) -> Expr {
         let nodes: Vec<Node> = with.iter().map(|e| e.node.clone()).collect();
         Expr::of(diff::substitute(&self.node, &nodes))
+    }
+
+    /// The expression with like terms collected (`f − f` of a cancelling controller dropped):
+    /// equal as a real function wherever `self` is defined, tighter in interval arithmetic
+    /// ([`collect`]); `self` unchanged where no two terms combine.
+    pub fn collected(&self) -> Expr {
+        collect::collect(&self.node).map_or_else(|| self.clone(), Expr::of)
     }
 
     /// `Some(c)` when the (simplified) tree is the constant `c`.

@@ -485,3 +485,75 @@ fn tapes_give_the_tree_walks_bits() {
         "{tape_ops} operations for {tree_nodes} nodes"
     );
 }
+
+/// Like terms collected: a cancelling controller's copies drop out (with an f64 coefficient or
+/// a constant divisor), the value is the same at random points wherever the input is defined,
+/// and interval evaluation is never wider; what must not combine does not.
+#[test]
+fn like_terms_collect_exactly_and_only_where_defined() {
+    let show = |e: &Expr| e.display(&names(3)).to_string();
+    // Van der Pol's drift and a controller that cancels it (f̃ as the scenario builds it).
+    let vdp = p("(1 - x1^2)*x2 - x1 + (1)*(-1*x1 - 2*x2 - 1*(1 - x1^2)*x2 + x1)");
+    assert_eq!(show(&vdp.collected()), "-x1 - 2 * x2");
+    // ACC's drag over a mass, cancelled through 1/m (no f64): the divisor is kept exactly.
+    let acc =
+        p("-(0.1 + 5*x1 + 0.25*x1^2)/1650 + 1/1650*(0.1 + 5*x1 + 0.25*x1^2 - 1650*0.3*(x1 - 18))");
+    assert_eq!(show(&acc.collected()), "-(0.3 * (x1 - 18))");
+    // Nothing to combine: the tree as it was.
+    for src in [
+        "(x1 + 1)^2 - x2",
+        "x1*x2 + x2*x3",
+        "sqrt(x1) - sqrt(x1)",
+        "x1/x2 - x1/x2",
+    ] {
+        assert_eq!(show(&p(src).collected()), show(&p(src)), "{src}");
+    }
+    // Like terms in any order of factors; 0.1 + 0.2 is not exact, so those stay apart.
+    assert_eq!(show(&p("x1*x2*3 - 2*x2*x1").collected()), "x1 * x2");
+    assert_eq!(
+        show(&p("0.1*x1 + 0.2*x1 + x2 - x2").collected()),
+        "0.1 * x1 + 0.2 * x1"
+    );
+    let mut rng = ChaCha8Rng::seed_from_u64(7);
+    let sources = [
+        "(1 - x1^2)*x2 - x1 + (1)*(-1*x1 - 2*x2 - 1*(1 - x1^2)*x2 + x1)",
+        "-(0.1 + 5*x1 + 0.25*x1^2)/1650 + 1/1650*(0.1 + 5*x1 + 0.25*x1^2 - 1650*0.3*(x1 - 18))",
+        "sin(x3)*x1 + 2*(x2 - sin(x3)*x1) - x2/4 + cos(x1)^2 - 3*x2",
+        "-(x1 - x2)/3 + (x1 - x2)/3 + x3 + sqrt(x1) - 0*sqrt(x1)",
+    ];
+    for src in sources {
+        let (e, c) = (p(src), p(src).collected());
+        assert!(show(&c).len() < show(&e).len(), "{src}: nothing collected");
+        for _ in 0..200 {
+            let x: Vec<f64> = (0..3).map(|_| rng.random_range(-3.0..3.0)).collect();
+            let (a, b) = (e.eval(&x), c.eval(&x));
+            if a.is_nan() {
+                continue;
+            }
+            assert!(
+                (a - b).abs() <= 1e-12 * (1.0 + a.abs()),
+                "{src} at {x:?}: {a} vs {b}"
+            );
+            let lo: Vec<f64> = x.iter().map(|v| v - rng.random_range(0.0..0.5)).collect();
+            let xs: Vec<Interval> = x
+                .iter()
+                .zip(&lo)
+                .map(|(&h, &l)| Interval::new(l, h))
+                .collect();
+            let (wide, tight) = (e.eval_interval(&xs), c.eval_interval(&xs));
+            if wide.is_nan() {
+                continue;
+            }
+            assert!(
+                tight.lower >= wide.lower - 1e-9 && tight.upper <= wide.upper + 1e-9,
+                "{src}"
+            );
+            // The point values are rounded (the uncollected one after a cancellation).
+            let tol = 1e-12 * (1.0 + a.abs());
+            assert!(
+                tight.lower <= a + tol && a - tol <= tight.upper,
+                "{src} at {x:?}: {tight:?} ∌ {a}"
+            );
+        }
+    }
+}

@@ -132,7 +132,10 @@ impl ScenarioFile {
                 for j in 0..m {
                     text.push_str(&format!(" + ({})*({})", sys.g[i][j], sys.kappa[j]));
                 }
+                // A controller that cancels the drift leaves both copies in the text: collected,
+                // interval evaluation sees the closed loop it is.
                 c.expr(format!("system.f[{i}] + g·kappa"), &text)
+                    .map(|e| e.collected())
             })
             .collect::<Result<Vec<_>, _>>()?;
         for (i, e) in f_tilde.iter().enumerate() {
