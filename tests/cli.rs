@@ -133,6 +133,30 @@ fn check_names_a_cbf_no_input_acts_on_and_where_the_qp_is_infeasible() {
     );
 }
 
+/// A map certified for another filter gets one piece of advice, naming the scenario.
+#[test]
+fn a_stale_error_map_is_named_with_one_piece_of_advice() {
+    let tmp = tempfile::tempdir().unwrap();
+    let path = tmp.path().join("changed.toml");
+    let net = common::scenario_path("double-integrator.safetensors");
+    let text = std::fs::read_to_string(common::scenario_path("double-integrator.toml"))
+        .unwrap()
+        .replace("k2 = 2.0", "k2 = 2.5")
+        .replace(
+            "file = \"double-integrator.safetensors\"",
+            &format!("file = {:?}", net.to_str().unwrap()),
+        );
+    std::fs::write(&path, text).unwrap();
+    let (code, _, stderr) = cbfreach(&["reach", path.to_str().unwrap()]);
+    assert_eq!(code, 2, "{stderr}");
+    assert!(
+        stderr.contains("certified for another version of the filter"),
+        "{stderr}"
+    );
+    assert_eq!(stderr.matches("cbfreach error").count(), 1, "{stderr}");
+    assert!(stderr.contains("again, or give --m-c)"), "{stderr}");
+}
+
 #[test]
 fn default_command_reports_equilibria_and_endpoints() {
     let (code, stdout, stderr) = cbfreach(&[]);

@@ -6,6 +6,7 @@
 use std::path::PathBuf;
 
 use cbfreach::bounds::BoundMethod;
+use cbfreach::error_map::ErrorMapError;
 use cbfreach::gpu::Precision;
 use cbfreach::problem::{ProblemError, ProblemOptions};
 use cbfreach::reach::engine::EngineError;
@@ -228,9 +229,17 @@ pub fn compile(
             } else {
                 field
             };
-            format!(
-                "{field} = {margin}: {source} (run `cbfreach error {file}` first, or give --m-c)"
-            )
+            // A stale map's message already says to run `error` again: one piece of advice.
+            let text = source.to_string();
+            match (text.strip_suffix(" (run `cbfreach error` again)"), *source) {
+                (Some(head), _) => format!(
+                    "{field} = {margin}: {head} (run `cbfreach error {file}` again, or give --m-c)"
+                ),
+                (None, ErrorMapError::Io { .. } | ErrorMapError::Format { .. }) => format!(
+                    "{field} = {margin}: {text} (run `cbfreach error {file}` first, or give --m-c)"
+                ),
+                (None, _) => format!("{field} = {margin}: {text} (or give --m-c)"),
+            }
             .into()
         }
         ProblemError::Time(e) => format!(

@@ -143,7 +143,7 @@ pub(super) fn inert_note(name: &str) -> String {
 }
 
 /// Where a CBF's `‖L_g h‖` vanishes while its row needs the input, and what it does to `v`.
-pub(super) fn vanishing_note(v: &Vanishing) -> String {
+fn vanishing_note(v: &Vanishing) -> String {
     format!(
         "CBF {}: where it needs the input (L_f̃ h + α·h < 0), ‖L_g h‖ falls to {:.1e} of its \
          largest on C ∩ S, at {}: v divides by ‖L_g h‖², so it is steep or jumps there, which \
