@@ -117,6 +117,11 @@ fn check_names_a_cbf_no_input_acts_on_and_where_the_qp_is_infeasible() {
         .find(|l| l.contains("the QP is infeasible at"))
         .unwrap_or_else(|| panic!("{stdout}"));
     assert!(line.contains("`obstacle` needs"), "{line}");
+    // The filter in words, its rows counted from the scenario.
+    assert!(
+        stdout.contains("filter: 2 constraint rows, closed form (scalar input"),
+        "{stdout}"
+    );
     let path = common::scenario_path("integrator.toml");
     let (code, stdout, _) = cbfreach(&["check", path.to_str().unwrap()]);
     assert_eq!(code, 0);

@@ -52,13 +52,12 @@ pub fn run(path: &Path) -> CliResult {
             fmt_point(&b.upper)
         );
     }
+    let filter = SafetyFilter::new(&s);
+    let rows = filter.rows();
     println!(
-        "  filter: {:?} ({} constraint rows)",
-        SafetyFilter::new(&s).method(),
-        SafetyFilter::new(&s)
-            .constraint_rows(&s.reach.region.center())
-            .map(|r| r.q.len())
-            .unwrap_or(0)
+        "  filter: {rows} constraint row{}, {}",
+        if rows == 1 { "" } else { "s" },
+        filter.method()
     );
     print_findings(&findings(&s));
     let r = &s.reach;

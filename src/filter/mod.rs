@@ -151,6 +151,20 @@ pub enum FilterMethod {
     Qp,
 }
 
+impl fmt::Display for FilterMethod {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            FilterMethod::ClosedFormSingle => {
+                "closed form (v projects 0 onto the row's half-space)"
+            }
+            FilterMethod::ClosedFormScalar => {
+                "closed form (scalar input: v is 0 clamped to the interval the rows leave)"
+            }
+            FilterMethod::Qp => "QP (its active sets, clarabel where they do not settle it)",
+        })
+    }
+}
+
 /// The constraint rows `G θ ≤ q` at one state.
 #[derive(Clone, Debug)]
 pub struct ConstraintRows {
@@ -172,10 +186,7 @@ pub struct SafetyFilter<'a> {
 impl<'a> SafetyFilter<'a> {
     /// The filter with the cheapest exact method for the scenario's structure.
     pub fn new(scenario: &'a Scenario) -> SafetyFilter<'a> {
-        let rows = scenario.cbfs.len()
-            + scenario.constraints.len()
-            + 2 * scenario.input_bounds.as_ref().map_or(0, |_| scenario.m());
-        let method = if rows == 1 {
+        let method = if Self::rows_of(scenario) == 1 {
             FilterMethod::ClosedFormSingle
         } else if scenario.m() == 1 {
             FilterMethod::ClosedFormScalar
@@ -189,6 +200,16 @@ impl<'a> SafetyFilter<'a> {
     /// always is). Used to cross-check the closed forms against clarabel.
     pub fn with_method(scenario: &'a Scenario, method: FilterMethod) -> SafetyFilter<'a> {
         SafetyFilter { scenario, method }
+    }
+
+    /// The number of constraint rows: one per CBF and further constraint, two per input with
+    /// bounds.
+    pub fn rows(&self) -> usize {
+        Self::rows_of(self.scenario)
+    }
+
+    fn rows_of(s: &Scenario) -> usize {
+        s.cbfs.len() + s.constraints.len() + 2 * s.input_bounds.as_ref().map_or(0, |_| s.m())
     }
 
     /// The method in use.
