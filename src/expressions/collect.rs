@@ -9,12 +9,13 @@
 //!
 //! Only what stays exact is done, so the result equals the input as a real function wherever
 //! the input is defined:
-//! - constants multiply into coefficients, and constants and constant divisors distribute over
-//!   sums, only where the `f64` products are exact; a coefficient is `num/den`, so `p/1650` and
-//!   `1/1650·p` are like terms although `1/1650` is no `f64` (ACC's drag, cancelled by its
-//!   controller); sums are never multiplied out with variables (`(x + 1)²` stays: expanded,
-//!   its interval evaluation would be looser);
-//! - coefficients of like terms add only where the sum is exact;
+//! - a coefficient is a sign (or an exact sum of like terms' signs) times a product of the
+//!   scenario's constants over another, kept as symbols: `1/(m·l²)·(m·l²·…)` cancels to `1`
+//!   whatever `m` and `l` are (a computed-torque pendulum), `p/1650` and `1/1650·p` are like
+//!   terms (ACC's drag), and no product of constants is ever rounded; constants and constant
+//!   divisors distribute over sums, but sums are never multiplied out with variables
+//!   (`(x + 1)²` stays: expanded, its interval evaluation would be looser);
+//! - like terms (the same factors and the same constants) add their signs, exactly;
 //! - only terms whose factors are defined everywhere (no division by a variable, `√`, `ln`)
 //!   are combined, so no point where the input is undefined (NaN) gets a value.
 //!
@@ -23,29 +24,105 @@
 use super::diff::{exact_add, exact_div, exact_mul};
 use super::{Func, Node};
 
-/// A constant coefficient `num/den`, both `f64` (the quotient need not be one).
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// Integers below this are exact parts of a coefficient ([`Coef::of`]).
+const SMALL: f64 = 67_108_864.0; // 2²⁶
+
+/// A constant coefficient: `exact · ∏ num / ∏ den`, the constants kept as symbols (their bits,
+/// sorted) so that equal ones cancel and no product of them is rounded.
+#[derive(Clone, Debug, PartialEq)]
 struct Coef {
-    num: f64,
-    den: f64,
+    /// A small integer, a power of two, a sign, or an exact sum or product of these.
+    exact: f64,
+    num: Vec<u64>,
+    den: Vec<u64>,
 }
 
 impl Coef {
-    const ONE: Coef = Coef { num: 1.0, den: 1.0 };
+    fn one() -> Coef {
+        Coef::of(1.0)
+    }
 
-    /// `self·other`, where both products are exact.
-    fn times(self, other: Coef) -> Option<Coef> {
+    /// The constant `k`: exact where it is a small integer or a power of two (their products
+    /// stay exact), else its sign exact and its magnitude a symbol.
+    fn of(k: f64) -> Coef {
+        let magnitude = k.abs();
+        let plain = magnitude.fract() == 0.0 && magnitude < SMALL
+            || exact_div(1.0, magnitude).is_some_and(|r| r.fract() == 0.0);
+        match plain {
+            true => Coef {
+                exact: k,
+                num: Vec::new(),
+                den: Vec::new(),
+            },
+            false => Coef {
+                exact: k.signum(),
+                num: vec![magnitude.to_bits()],
+                den: Vec::new(),
+            },
+        }
+    }
+
+    /// `self·other`, equal symbols above and below cancelled.
+    fn times(&self, other: &Coef) -> Option<Coef> {
+        let mut num: Vec<u64> = self.num.iter().chain(&other.num).copied().collect();
+        let mut den: Vec<u64> = Vec::new();
+        for &d in self.den.iter().chain(&other.den) {
+            match num.iter().position(|&a| a == d) {
+                Some(i) => {
+                    num.swap_remove(i);
+                }
+                None => den.push(d),
+            }
+        }
+        let mut exact = exact_mul(self.exact, other.exact)?;
+        // A divisor the exact part holds (1650·p/1650) leaves it exactly.
+        den.retain(|&d| match exact_div(exact, f64::from_bits(d)) {
+            Some(q) => {
+                exact = q;
+                false
+            }
+            None => true,
+        });
+        if exact == 0.0 {
+            // 0 times any constants is 0: like every other 0 term.
+            (num, den) = (Vec::new(), Vec::new());
+        }
+        num.sort_unstable();
+        den.sort_unstable();
+        Some(Coef { exact, num, den })
+    }
+
+    /// `1/self` (none for 0): an exact part with no exact inverse becomes a divisor.
+    fn inverse(&self) -> Option<Coef> {
+        if self.exact == 0.0 {
+            return None;
+        }
+        let mut den = self.num.clone();
+        let exact = match exact_div(1.0, self.exact) {
+            Some(r) => r,
+            None => {
+                den.push(self.exact.abs().to_bits());
+                den.sort_unstable();
+                self.exact.signum()
+            }
+        };
         Some(Coef {
-            num: exact_mul(self.num, other.num)?,
-            den: exact_mul(self.den, other.den)?,
+            exact,
+            num: self.den.clone(),
+            den,
         })
     }
 
-    fn neg(self) -> Coef {
+    fn neg(&self) -> Coef {
         Coef {
-            num: -self.num,
-            den: self.den,
+            exact: -self.exact,
+            ..self.clone()
         }
+    }
+
+    /// The symbols' part, for telling like terms.
+    fn symbols(&self) -> (&[u64], &[u64]) {
+        (&self.num, &self.den)
     }
 }
 
@@ -59,17 +136,18 @@ struct Term {
 /// `node` with like terms collected, or `None` where nothing combines.
 pub(super) fn collect(node: &Node) -> Option<Node> {
     let mut terms = Vec::new();
-    push_terms(node, Coef::ONE, &mut terms);
+    push_terms(node, &Coef::one(), &mut terms);
     let mut out: Vec<Term> = Vec::new();
     let mut merged = false;
     for t in terms {
         let sum = |o: &Term| {
-            let like = o.key == t.key && o.coef.den == t.coef.den && total(&t.factors);
-            like.then(|| exact_add(o.coef.num, t.coef.num)).flatten()
+            let like = o.key == t.key && o.coef.symbols() == t.coef.symbols() && total(&t.factors);
+            like.then(|| exact_add(o.coef.exact, t.coef.exact))
+                .flatten()
         };
         match out.iter_mut().find_map(|o| sum(o).map(|s| (o, s))) {
             Some((o, s)) => {
-                o.coef.num = s;
+                o.coef.exact = s;
                 merged = true;
             }
             None => out.push(t),
@@ -78,12 +156,12 @@ pub(super) fn collect(node: &Node) -> Option<Node> {
     if !merged {
         return None;
     }
-    out.retain(|t| t.coef.num != 0.0 || !total(&t.factors));
+    out.retain(|t| t.coef.exact != 0.0 || !total(&t.factors));
     Some(rebuild(out))
 }
 
 /// Appends `c·node`'s terms to `out`.
-fn push_terms(node: &Node, c: Coef, out: &mut Vec<Term>) {
+fn push_terms(node: &Node, c: &Coef, out: &mut Vec<Term>) {
     match node {
         Node::Add(u, v) => {
             push_terms(u, c, out);
@@ -91,9 +169,9 @@ fn push_terms(node: &Node, c: Coef, out: &mut Vec<Term>) {
         }
         Node::Sub(u, v) => {
             push_terms(u, c, out);
-            push_terms(v, c.neg(), out);
+            push_terms(v, &c.neg(), out);
         }
-        Node::Neg(u) => push_terms(u, c.neg(), out),
+        Node::Neg(u) => push_terms(u, &c.neg(), out),
         // A constant times (or a sum over a constant) distributes; anything else is one term.
         Node::Mul(u, v) => {
             let split = match (constant(u), constant(v)) {
@@ -101,20 +179,15 @@ fn push_terms(node: &Node, c: Coef, out: &mut Vec<Term>) {
                 (None, Some(k)) => Some((k, &**u)),
                 (None, None) => None,
             };
-            match split.and_then(|(k, other)| Some((c.times(k)?, other))) {
-                Some((ck, other)) => push_terms(other, ck, out),
+            match split.and_then(|(k, other)| Some((c.times(&k)?, other))) {
+                Some((ck, other)) => push_terms(other, &ck, out),
                 None => push_product(node, c, out),
             }
         }
         Node::Div(u, v) => {
-            let over = constant(v).filter(|k| k.num != 0.0).and_then(|k| {
-                c.times(Coef {
-                    num: k.den,
-                    den: k.num,
-                })
-            });
+            let over = constant(v).and_then(|k| c.times(&k.inverse()?));
             match over {
-                Some(ck) => push_terms(u, ck, out),
+                Some(ck) => push_terms(u, &ck, out),
                 None => push_product(node, c, out),
             }
         }
@@ -122,12 +195,12 @@ fn push_terms(node: &Node, c: Coef, out: &mut Vec<Term>) {
     }
 }
 
-/// Appends `c·node` as one term, its constant factors folded in where exact.
-fn push_product(node: &Node, c: Coef, out: &mut Vec<Term>) {
+/// Appends `c·node` as one term, its constant factors folded into the coefficient.
+fn push_product(node: &Node, c: &Coef, out: &mut Vec<Term>) {
     let mut factors = Vec::new();
-    let mut coef = c;
+    let mut coef = c.clone();
     flatten_product(node, &mut factors);
-    factors.retain(|f| match constant(f).and_then(|k| coef.times(k)) {
+    factors.retain(|f| match constant(f).and_then(|k| coef.times(&k)) {
         Some(ck) => {
             coef = ck;
             false
@@ -159,23 +232,17 @@ fn flatten_product(node: &Node, out: &mut Vec<Node>) {
     }
 }
 
-/// The value of a constant subtree as `num/den` (products and quotients of constants, where
-/// exact).
+/// A constant subtree (products, quotients and integer powers of constants) as a coefficient.
 fn constant(node: &Node) -> Option<Coef> {
     match node {
-        Node::Const(k) if k.is_finite() => Some(Coef { num: *k, den: 1.0 }),
-        Node::Neg(u) => constant(u).map(Coef::neg),
-        Node::Mul(u, v) => constant(u)?.times(constant(v)?),
-        Node::Div(u, v) => {
-            let (a, b) = (constant(u)?, constant(v)?);
-            (b.num != 0.0)
-                .then(|| {
-                    a.times(Coef {
-                        num: b.den,
-                        den: b.num,
-                    })
-                })
-                .flatten()
+        Node::Const(k) if k.is_finite() => Some(Coef::of(*k)),
+        Node::Neg(u) => constant(u).map(|k| k.neg()),
+        Node::Mul(u, v) => constant(u)?.times(&constant(v)?),
+        Node::Div(u, v) => constant(u)?.times(&constant(v)?.inverse()?),
+        Node::Pow(u, n) if n.unsigned_abs() <= 16 => {
+            let base = constant(u)?;
+            let base = if *n < 0 { base.inverse()? } else { base };
+            (0..n.unsigned_abs()).try_fold(Coef::one(), |acc, _| acc.times(&base))
         }
         _ => None,
     }
@@ -188,7 +255,7 @@ fn total(factors: &[Node]) -> bool {
         match n {
             Node::Const(k) => k.is_finite(),
             Node::Var(_) => true,
-            Node::Div(u, v) => defined(u) && constant(v).is_some_and(|k| k.num != 0.0),
+            Node::Div(u, v) => defined(u) && constant(v).is_some_and(|k| k.exact != 0.0),
             Node::Neg(u) => defined(u),
             Node::Pow(u, k) => *k >= 0 && defined(u),
             Node::Add(u, v) | Node::Sub(u, v) | Node::Mul(u, v) => defined(u) && defined(v),
@@ -203,30 +270,49 @@ fn total(factors: &[Node]) -> bool {
     factors.iter().all(defined)
 }
 
+/// A coefficient's magnitude as a tree: one constant where the product of its symbols is
+/// exact, else their product over their product.
+fn magnitude(c: &Coef) -> Option<Node> {
+    let constants = |bits: &[u64]| bits.iter().map(|&b| f64::from_bits(b)).collect::<Vec<_>>();
+    let (num, den) = (constants(&c.num), constants(&c.den));
+    let folded = num.iter().try_fold(c.exact.abs(), |v, &a| exact_mul(v, a));
+    let folded = folded.and_then(|v| den.iter().try_fold(v, |v, &d| exact_div(v, d)));
+    let product = |values: &[f64], start: Option<f64>| {
+        start
+            .into_iter()
+            .chain(values.iter().copied())
+            .map(Node::Const)
+            .reduce(|a, b| Node::Mul(Box::new(a), Box::new(b)))
+    };
+    match folded {
+        Some(1.0) => None,
+        Some(v) => Some(Node::Const(v)),
+        None => {
+            let top = product(&num, (c.exact.abs() != 1.0).then_some(c.exact.abs()))
+                .unwrap_or(Node::Const(1.0));
+            Some(match product(&den, None) {
+                Some(bottom) => Node::Div(Box::new(top), Box::new(bottom)),
+                None => top,
+            })
+        }
+    }
+}
+
 /// `Σ cₖ·∏ factors` as a tree, in the order the terms first appeared (`0` for no terms).
 fn rebuild(terms: Vec<Term>) -> Node {
-    let boxed = |a: Node, b: Node| (Box::new(a), Box::new(b));
     let mut sum: Option<Node> = None;
     for t in terms {
-        // `num/den` as one f64 where the quotient is exact, else `num·∏/den`.
-        let (num, den) = match exact_div(t.coef.num, t.coef.den) {
-            Some(q) => (q, 1.0),
-            None => (t.coef.num, t.coef.den),
+        let product = t
+            .factors
+            .into_iter()
+            .reduce(|a, b| Node::Mul(Box::new(a), Box::new(b)));
+        let body = match (magnitude(&t.coef), product) {
+            (None, Some(p)) => p,
+            (None, None) => Node::Const(1.0),
+            (Some(k), Some(p)) => Node::Mul(Box::new(k), Box::new(p)),
+            (Some(k), None) => k,
         };
-        let product = t.factors.into_iter().reduce(|a, b| {
-            let (a, b) = boxed(a, b);
-            Node::Mul(a, b)
-        });
-        let scaled = match (product, num.abs() == 1.0) {
-            (Some(p), true) => p,
-            (Some(p), false) => Node::Mul(Box::new(Node::Const(num.abs())), Box::new(p)),
-            (None, _) => Node::Const(num.abs()),
-        };
-        let body = match den == 1.0 {
-            true => scaled,
-            false => Node::Div(Box::new(scaled), Box::new(Node::Const(den))),
-        };
-        sum = Some(match (sum, num.is_sign_negative()) {
+        sum = Some(match (sum, t.coef.exact.is_sign_negative()) {
             (None, false) => body,
             (None, true) => Node::Neg(Box::new(body)),
             (Some(s), false) => Node::Add(Box::new(s), Box::new(body)),
