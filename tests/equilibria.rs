@@ -139,28 +139,7 @@ initial = [ { lower = [-3.1, 0.1, -0.1], upper = [-2.9, 0.3, 0.1] } ]
 /// filter's own one at the lane's edge).
 #[test]
 fn equilibria_at_both_ends_of_a_period_are_one() {
-    let text = r#"
-name = "lane"
-[system]
-states = ["y", "psi"]
-inputs = ["w"]
-f = ["sin(psi)", "0"]
-g = [["0"], ["1"]]
-kappa = ["-y - 2*sin(psi)"]
-periodic = { psi = ["-pi", "pi"] }
-[[cbf]]
-h = "1 - y - sin(psi)"
-[input_bounds]
-lower = [-2]
-upper = [2]
-[reach]
-region = { lower = [-2, "-pi"], upper = [2, "pi"] }
-dt = 0.02
-horizon = 1.0
-goal = { lower = [-0.2, -0.2], upper = [0.2, 0.2] }
-initial = [ { lower = [0.4, 0.5], upper = [0.5, 0.6] } ]
-"#;
-    let s = from_text(text).unwrap();
+    let s = common::fixture_with("lane.toml", &[]);
     let found = find_equilibria(
         &SafetyFilter::new(&s),
         &s.reach.region,

@@ -252,27 +252,10 @@ initial = [ {{ lower = [-1.1, 0.9], upper = [-0.9, 1.1] }} ]
 
     /// A lane keeper whose CBF `1 − y − sin ψ` has `L_g h = −cos ψ`: where the row needs the
     /// input, `‖L_g h‖` reaches 0 at `ψ = π/2` (the grid's nearest sample is at 5 % of the
-    /// largest); the descent finds the zero, on the lane's edge `y = −1 + …`'s line `b < 0`.
+    /// largest); the descent finds the zero (tests/fixtures/lane.toml).
     #[test]
     fn where_l_g_h_vanishes_with_the_row_needing_input_is_found() {
-        let text = r#"
-name = "lane"
-[system]
-states = ["y", "psi"]
-inputs = ["w"]
-f = ["sin(psi)", "0"]
-g = [["0"], ["1"]]
-kappa = ["-y - 2*sin(psi)"]
-[[cbf]]
-name = "edge"
-h = "1 - y - sin(psi)"
-[reach]
-region = { lower = [-2, -3.14], upper = [2, 3.14] }
-dt = 0.02
-horizon = 1.0
-goal = { lower = [-0.2, -0.2], upper = [0.2, 0.2] }
-initial = [ { lower = [0.4, 0.5], upper = [0.5, 0.6] } ]
-"#;
+        let text = include_str!("../../tests/fixtures/lane.toml");
         let s = Scenario::from_toml(text, "lane.toml", std::path::Path::new(".")).unwrap();
         let f = findings(&s);
         assert_eq!(f.vanishing.len(), 1, "{f:?}");
