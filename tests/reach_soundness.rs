@@ -805,30 +805,14 @@ fn tubes_do_not_depend_on_the_thread_count() {
 /// of the cancelled term in `f̃`, the sets part from the linear system's at the first step.
 #[test]
 fn a_controller_that_cancels_the_drift_gives_the_closed_loops_own_sets() {
-    let scenario = |f2: &str, kappa: &str| {
-        from_text(&format!(
-            r#"
-name = "vdp"
-[system]
-states = ["x1", "x2"]
-inputs = ["u"]
-f = ["x2", "{f2}"]
-g = [["0"], ["1"]]
-kappa = ["{kappa}"]
-[[cbf]]
-h = "1.5 - x1 - 0.5*x2"
-[reach]
-region = {{ lower = [-2, -2], upper = [2, 2] }}
-dt = 0.02
-horizon = 1.0
-goal = {{ lower = [-0.2, -0.2], upper = [0.2, 0.2] }}
-initial = [ {{ lower = [-1.2, 1.5], upper = [-1.0, 1.7] }} ]
-"#
-        ))
-        .unwrap()
-    };
-    let vdp = scenario("(1 - x1^2)*x2 - x1", "-x1 - 2*x2 - (1 - x1^2)*x2 + x1");
-    let linear = scenario("-x1 - 2*x2", "0");
+    let vdp = common::fixture_with("vdp.toml", &[]);
+    let linear = common::fixture_with(
+        "vdp.toml",
+        &[
+            ("(1 - x1^2)*x2 - x1", "-x1 - 2*x2"),
+            ("-x1 - 2*x2 - (1 - x1^2)*x2 + x1", "0"),
+        ],
+    );
     let net = small_network(&[2, 16, 16, 1], 3, 0.05);
     let centres = [[-1.1, 1.6], [0.5, -0.5], [0.8, -0.3]];
     for face_local in [false, true] {

@@ -202,26 +202,12 @@ pub fn findings(s: &Scenario) -> FilterFindings {
 mod tests {
     use super::*;
 
+    /// tests/fixtures/vdp.toml with its wall `h`.
     fn van_der_pol(h: &str) -> Scenario {
-        let text = format!(
-            r#"
-name = "vdp"
-[system]
-states = ["x1", "x2"]
-inputs = ["u"]
-f = ["x2", "(1 - x1^2)*x2 - x1"]
-g = [["0"], ["1"]]
-kappa = ["-2*x2 - (1 - x1^2)*x2"]
-[[cbf]]
-name = "wall"
-h = "{h}"
-[reach]
-region = {{ lower = [-2, -2], upper = [2, 2] }}
-dt = 0.02
-horizon = 1.0
-goal = {{ lower = [-0.2, -0.2], upper = [0.2, 0.2] }}
-initial = [ {{ lower = [-1.1, 0.9], upper = [-0.9, 1.1] }} ]
-"#
+        let text = include_str!("../../tests/fixtures/vdp.toml").replacen(
+            "h = \"1.5 - x1 - 0.5*x2\"",
+            &format!("h = \"{h}\""),
+            1,
         );
         Scenario::from_toml(&text, "vdp.toml", std::path::Path::new(".")).unwrap()
     }
