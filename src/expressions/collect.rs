@@ -5,17 +5,18 @@
 //! that cancels the drift (feedback linearisation, computed torque) leaves both copies of the
 //! cancelled term in the tree. Point evaluation does not mind; interval evaluation does, since
 //! each copy ranges over the box on its own: a Van der Pol oscillator's `(1 − x₁²)x₂` twice
-//! took the Euler map's verified share from 93 % to 53 % (docs/design.md §2.3).
+//! held the Euler map's verified share at 53 % where the collected `f̃` gives 90 % (docs/design.md
+//! §2.3).
 //!
 //! Only what stays exact is done, so the result equals the input as a real function wherever
 //! the input is defined:
-//! - a coefficient is a sign (or an exact sum of like terms' signs) times a product of the
-//!   scenario's constants over another, kept as symbols: `1/(m·l²)·(m·l²·…)` cancels to `1`
+//! - a coefficient is an exact part (small integers, powers of two, signs) times a product of
+//!   the scenario's other constants over another, kept as symbols: `1/(m·l²)·(m·l²·…)` cancels to `1`
 //!   whatever `m` and `l` are (a computed-torque pendulum), `p/1650` and `1/1650·p` are like
 //!   terms (ACC's drag), and no product of constants is ever rounded; constants and constant
 //!   divisors distribute over sums, but sums are never multiplied out with variables
 //!   (`(x + 1)²` stays: expanded, its interval evaluation would be looser);
-//! - like terms (the same factors and the same constants) add their signs, exactly;
+//! - like terms (the same factors and the same symbols) add their exact parts, where exact;
 //! - only terms whose factors are defined everywhere (no division by a variable, `√`, `ln`)
 //!   are combined, so no point where the input is undefined (NaN) gets a value.
 //!
