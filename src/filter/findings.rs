@@ -1,11 +1,12 @@
-//! What a scenario's filter does before any network is trained: CBFs that no input acts on,
-//! and where on `C ∩ S` the QP is infeasible ([`findings`]). A user's first scenario often has
-//! a CBF of relative degree two (a position bound on a double integrator): its row
+//! What a scenario's filter does before any network is trained ([`findings`]): CBFs that no
+//! input acts on, where on `C ∩ S` the QP is infeasible, and where a CBF's `‖L_g h‖` vanishes
+//! while its row needs the input (`v` steep or jumping there). A user's first scenario often
+//! has a CBF of relative degree two (a position bound on a double integrator): its row
 //! `−L_g h·θ ≤ L_f̃ h + αh` has no `θ` in it, so the filter cannot enforce it and the QP is
 //! infeasible wherever `L_f̃ h + αh < 0`. Without this the only sign was a count of skipped
 //! training samples. It may import what the filter module may.
 
-use super::{interval_rows, FilterStatus, Infeasibility, SafetyFilter};
+use super::{interval_rows, ConstraintRows, FilterStatus, Infeasibility, SafetyFilter};
 use crate::intervals::Interval;
 use crate::scenario::Scenario;
 
@@ -65,8 +66,7 @@ fn descend(s: &Scenario, k: usize, start: &[f64], cell: &[f64]) -> (f64, Vec<f64
             return None;
         }
         let rows = filter.constraint_rows(x).ok()?;
-        let a = &rows.g[k * m..(k + 1) * m];
-        (rows.q[k] < 0.0).then(|| a.iter().map(|v| v * v).sum::<f64>().sqrt())
+        (rows.q[k] < 0.0).then(|| leverage(&rows, k, m))
     };
     let moves: Vec<Vec<f64>> = match n <= 3 {
         true => (0..3usize.pow(n as u32))
@@ -112,6 +112,15 @@ fn descend(s: &Scenario, k: usize, start: &[f64], cell: &[f64]) -> (f64, Vec<f64
     (best, x)
 }
 
+/// `‖L_g h‖` of CBF `k` (its row's `a`, `m` inputs).
+fn leverage(rows: &ConstraintRows, k: usize, m: usize) -> f64 {
+    rows.g[k * m..(k + 1) * m]
+        .iter()
+        .map(|a| a * a)
+        .sum::<f64>()
+        .sqrt()
+}
+
 /// The CBFs (by name) whose row `−L_g h` encloses to 0 over `C` (within [`INERT`], the width
 /// outward rounding gives a product with 0): no input acts on them anywhere in `C`.
 pub fn inert_cbfs(s: &Scenario) -> Vec<String> {
@@ -145,25 +154,23 @@ pub fn findings(s: &Scenario) -> FilterFindings {
             continue;
         }
         sampled += 1;
-        if let Ok(rows) = filter.constraint_rows(&x) {
-            for (c, (big, need)) in largest.iter_mut().zip(&mut needing).enumerate() {
-                let norm = rows.g[c * m..(c + 1) * m]
-                    .iter()
-                    .map(|a| a * a)
-                    .sum::<f64>()
-                    .sqrt();
-                *big = big.max(norm);
-                if rows.q[c] < 0.0 {
-                    need.push((norm, x.clone()));
-                }
+        // A point where v is not defined (a CBF's gradient) is not an infeasible QP.
+        let Ok(rows) = filter.constraint_rows(&x) else {
+            continue;
+        };
+        for (c, (big, need)) in largest.iter_mut().zip(&mut needing).enumerate() {
+            let norm = leverage(&rows, c, m);
+            *big = big.max(norm);
+            if rows.q[c] < 0.0 {
+                need.push((norm, x.clone()));
             }
         }
-        // A point where v is not defined (a CBF's gradient) is not an infeasible QP.
-        if let Ok(FilterStatus::Infeasible(why)) = filter.solve(&x) {
+        if let Ok(FilterStatus::Infeasible(why)) = filter.solve_rows(&rows, &x) {
             infeasible += 1;
             example.get_or_insert((x, why));
         }
     }
+    let cell = region.partition_cell(&counts, 0).widths();
     let inert = inert_cbfs(s);
     let vanishing = s
         .cbfs
@@ -175,7 +182,6 @@ pub fn findings(s: &Scenario) -> FilterFindings {
             // From the smallest few: one may start at a corner of the region the row needs
             // the input in, where the search stalls (the lane keeper's at y = −1).
             need.sort_by(|a, b| a.0.total_cmp(&b.0));
-            let cell = region.partition_cell(&counts, 0).widths();
             let (norm, at) = need
                 .iter()
                 .take(DESCENTS)

@@ -282,14 +282,18 @@ impl<'a> SafetyFilter<'a> {
     /// The filter's QP at `x`: solved, or infeasible (and which rows conflict). An error only
     /// when the rows cannot be evaluated or clarabel fails.
     pub fn solve(&self, x: &[f64]) -> Result<FilterStatus, FilterError> {
-        let rows = self.constraint_rows(x)?;
+        self.solve_rows(&self.constraint_rows(x)?, x)
+    }
+
+    /// [`SafetyFilter::solve`] with the rows at `x` already evaluated.
+    fn solve_rows(&self, rows: &ConstraintRows, x: &[f64]) -> Result<FilterStatus, FilterError> {
         let m = self.scenario.m();
         Ok(match self.method {
-            FilterMethod::ClosedFormSingle => solve::project_half_space(&rows, m),
-            FilterMethod::ClosedFormScalar => solve::clamp_scalar(&rows),
-            FilterMethod::Qp => match solve::solve_by_active_sets(&rows, m) {
+            FilterMethod::ClosedFormSingle => solve::project_half_space(rows, m),
+            FilterMethod::ClosedFormScalar => solve::clamp_scalar(rows),
+            FilterMethod::Qp => match solve::solve_by_active_sets(rows, m) {
                 Some(theta) => FilterStatus::Solved(theta),
-                None => solve::solve_qp(&rows, m, x)?,
+                None => solve::solve_qp(rows, m, x)?,
             },
         })
     }

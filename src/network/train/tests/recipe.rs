@@ -35,6 +35,17 @@ fn values_only<'a>(
     }
 }
 
+/// [`train_to_target`] from a fresh network of `widths` (seed 1), with no checkpoint and no
+/// progress: how most tests run the recipe.
+fn train_fresh(
+    widths: &[usize],
+    input: &RecipeData,
+    recipe: &Recipe,
+    target: &Target,
+) -> (Mlp, RecipeReport) {
+    train_to_target(None, widths, 1, input, recipe, target, None, |_| {}).expect("trains")
+}
+
 #[test]
 fn normalised_data_are_unit_scaled_and_the_folded_network_is_the_normalised_model() {
     let data = badly_scaled(9);
@@ -146,18 +157,7 @@ fn the_recipe_leaves_slope_outliers_out_and_fits_better_for_it() {
     let run = |cap: SlopeCap| {
         let mut recipe = Recipe::for_data(data.len(), &[2.0 / 29.0; 2], 0.05, 1);
         recipe.slope_cap = cap;
-        train_to_target(
-            None,
-            &[2, 16, 16, 2],
-            1,
-            &input,
-            &recipe,
-            &target,
-            None,
-            |_| {},
-        )
-        .expect("trains")
-        .1
+        train_fresh(&[2, 16, 16, 2], &input, &recipe, &target).1
     };
     let capped = run(Recipe::for_data(1, &[1.0], 1.0, 1).slope_cap);
     assert_eq!(
@@ -212,17 +212,7 @@ fn the_recipe_stops_at_its_target_and_says_when_it_is_not_reached() {
         linf: Some(100.0),
         slope_p95: None,
     };
-    let (net, report) = train_to_target(
-        None,
-        &[2, 16, 16, 2],
-        1,
-        &input,
-        &recipe,
-        &target,
-        None,
-        |_| {},
-    )
-    .expect("trains");
+    let (net, report) = train_fresh(&[2, 16, 16, 2], &input, &recipe, &target);
     assert!(report.reached, "{report:?}");
     assert_eq!(report.stages[0].name, "fit");
     assert!(
@@ -242,8 +232,7 @@ fn the_recipe_stops_at_its_target_and_says_when_it_is_not_reached() {
         slope_p95: None,
     };
     let small = Recipe::for_data(data.len(), &[1000.0 / 39.0, 0.02 / 39.0], 0.02, 1);
-    let (_, report) = train_to_target(None, &[2, 8, 2], 1, &input, &small, &target, None, |_| {})
-        .expect("trains");
+    let (_, report) = train_fresh(&[2, 8, 2], &input, &small, &target);
     assert!(!report.reached);
     assert_eq!(report.stages[0].epochs, small.stages[0].settings.epochs);
 }
@@ -343,17 +332,7 @@ fn refine_stages_add_samples_where_the_network_errs_and_check_it_on_fresh_points
         slope_p95: None,
     };
     let input = values_only(&data, &validation, Some(&Bump));
-    let (_, report) = train_to_target(
-        None,
-        &[2, 16, 16, 1],
-        1,
-        &input,
-        &recipe,
-        &target,
-        None,
-        |_| {},
-    )
-    .expect("trains");
+    let (_, report) = train_fresh(&[2, 16, 16, 1], &input, &recipe, &target);
     let rounds: Vec<&RoundReport> = report
         .stages
         .iter()
@@ -522,17 +501,7 @@ fn a_certify_stage_that_breaks_the_target_is_dropped_and_ends_the_run() {
         slope_p95: None,
     };
     let input = values_only(&data, &validation, None);
-    let (net, report) = train_to_target(
-        None,
-        &[2, 16, 16, 1],
-        1,
-        &input,
-        &recipe,
-        &target,
-        None,
-        |_| {},
-    )
-    .expect("trains");
+    let (net, report) = train_fresh(&[2, 16, 16, 1], &input, &recipe, &target);
     let ran: Vec<(&str, bool)> = report
         .stages
         .iter()
