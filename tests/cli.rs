@@ -3,6 +3,7 @@
 mod common;
 use common::cbfreach;
 
+use std::path::Path;
 use std::process::Command;
 
 #[test]
@@ -134,6 +135,41 @@ fn check_names_a_cbf_no_input_acts_on_and_where_the_qp_is_infeasible() {
     assert!(
         stdout.contains("CBF obstacle: where it needs the input")
             && stdout.contains("at (1.0000, 0.0000): v divides by ‖L_g h‖²"),
+        "{stdout}"
+    );
+}
+
+/// A lightly damped closed loop at the goal (the pendulum fixture at `−0.25 ± 0.97i`) is named
+/// as the reason boxes cannot shrink, by `check` and before a run; the fixture's own damped
+/// loop (`−1.55 ± 1.25i` at the origin, a real pair at its goal) is not.
+#[test]
+fn check_and_runs_name_a_loop_that_turns_sets_faster_than_it_shrinks_them() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures");
+    let text = std::fs::read_to_string(dir.join("pendulum.toml")).unwrap();
+    let light = text
+        .replace("k1 = 4.0", "k1 = 1.0")
+        .replace("k2 = 3.0", "k2 = 0.4")
+        .replace("theta_ref = 1.0", "theta_ref = 0.0")
+        .replace(
+            "lower = [0.9, -0.1], upper = [1.1, 0.1]",
+            "lower = [-0.1, -0.1], upper = [0.1, 0.1]",
+        );
+    let note = "the closed loop at the goal turns sets at least as fast as it shrinks them \
+                (eigenvalues -0.250 ± 0.968i)";
+    for (name, text, turns) in [("light.toml", &light, true), ("damped.toml", &text, false)] {
+        let path = tmp.path().join(name);
+        std::fs::write(&path, text).unwrap();
+        let (code, stdout, stderr) = cbfreach(&["check", path.to_str().unwrap()]);
+        assert_eq!(code, 0, "{stderr}");
+        assert_eq!(stdout.contains(note), turns, "{name}: {stdout}");
+        assert_eq!(stdout.contains("turns sets"), turns, "{name}: {stdout}");
+    }
+    // Before a run too (no network needed to say it: the run then stops for the missing file).
+    let path = tmp.path().join("light.toml");
+    let (_, stdout, _) = cbfreach(&["reach", path.to_str().unwrap()]);
+    assert!(
+        stdout.contains(&format!("note: {note}")) && stdout.contains("α + |β| = 0.718"),
         "{stdout}"
     );
 }

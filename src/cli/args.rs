@@ -217,6 +217,9 @@ pub fn compile(
         let (_, why) = cbfreach::reach::Transform::chosen(s);
         println!("coordinates (reach.transform not set): {why}");
     }
+    if let Some(turning) = cbfreach::reach::Turning::at_goal(s) {
+        println!("note: {turning}");
+    }
     ReachProblem::from_scenario(s, &args.options()).map_err(|e| match e {
         ProblemError::Margin {
             margin,

@@ -82,6 +82,9 @@ pub fn run(path: &Path) -> CliResult {
         fmt_point(&r.goal.upper),
         r.initial.len()
     );
+    if let Some(turning) = cbfreach::reach::Turning::at_goal(&s) {
+        println!("  {turning}");
+    }
     match &s.network {
         Some(net) => println!(
             "  network {} ({}{})",

@@ -29,6 +29,7 @@ pub mod settings;
 pub mod time;
 pub mod transform;
 pub mod tube;
+pub mod turning;
 pub mod validated;
 
 use serde::Serialize;
@@ -43,6 +44,7 @@ pub use safe_set::SafeSet;
 pub use time::TimeModel;
 pub use transform::{log_norm_inf, CoordinatesReason, Transform};
 pub use tube::{Inversion, Tube, TubeEnd, TubeSample, UnsafeBetweenSamples};
+pub use turning::Turning;
 
 pub use cpu::{BatchBounds, Bounded, CpuBackend};
 pub use engine::{choose_engine, refusal, EngineChoice, GpuOptions, AUTO_GPU_BOXES};
