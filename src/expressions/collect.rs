@@ -20,7 +20,7 @@
 //! - only terms whose factors are defined everywhere (no division by a variable, `√`, `ln`)
 //!   are combined, so no point where the input is undefined (NaN) gets a value.
 //!
-//! Where no two terms combine, the tree is returned as it was.
+//! Where no two terms combine and none is exactly 0, the tree is returned as it was.
 
 use super::diff::{exact_add, exact_div, exact_mul};
 use super::{Func, Node};
@@ -154,10 +154,12 @@ pub(super) fn collect(node: &Node) -> Option<Node> {
             None => out.push(t),
         }
     }
-    if !merged {
+    // Terms that are exactly 0 (`0·κ₂` of a `g` with a zero entry) go too, with the tree.
+    let zero = |t: &Term| t.coef.exact == 0.0 && total(&t.factors);
+    if !merged && !out.iter().any(zero) {
         return None;
     }
-    out.retain(|t| t.coef.exact != 0.0 || !total(&t.factors));
+    out.retain(|t| !zero(t));
     Some(rebuild(out))
 }
 

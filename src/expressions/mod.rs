@@ -366,7 +366,9 @@ impl Printer<'_> {
         let mut binary = |u: &Node, op: &str, v: &Node, p: u8| {
             self.write(f, u, p)?;
             write!(f, " {op} ")?;
-            self.write(f, v, p + 1)
+            // `x - (-1)`, not `x - -1`: a negation right of a sum's sign reads as a typo.
+            let negation = p == 1 && precedence(v) == 3;
+            self.write(f, v, if negation { 4 } else { p + 1 })
         };
         match n {
             // Shortest round-trip text; integers without ".0".

@@ -512,6 +512,15 @@ fn like_terms_collect_exactly_and_only_where_defined() {
     ] {
         assert_eq!(show(&p(src).collected()), show(&p(src)), "{src}");
     }
+    // A zero entry of `g` times its input goes, and so do the unit factors with it (scenario
+    // 1's f̃ as built); `0·√x` stays (undefined where `x < 0`).
+    assert_eq!(show(&p("0 + 1*(-1*x1) + 0*(-5*x2)").collected()), "-x1");
+    assert_eq!(
+        show(&p("x2 + 0*sqrt(x1) + 0*x3").collected()),
+        "x2 + 0 * sqrt(x1)"
+    );
+    // A negation right of a sign is parenthesised.
+    assert_eq!(show(&p("x1 - -1 + -x2").collected()), "x1 - (-1) + (-x2)");
     // Like terms in any order of factors; 0.1 + 0.2 is not exact, so those stay apart.
     assert_eq!(show(&p("x1*x2*3 - 2*x2*x1").collected()), "x1 * x2");
     assert_eq!(
