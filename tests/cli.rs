@@ -174,6 +174,30 @@ fn check_and_runs_name_a_loop_that_turns_sets_faster_than_it_shrinks_them() {
     );
 }
 
+/// Where `error`'s budget runs out before the cells meet their targets (the chain of three
+/// integrators' network in 200 evaluations: 1 of 100), it says how to give it more.
+#[test]
+fn error_says_how_to_give_a_spent_budget_more() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures");
+    for file in ["chain3.toml", "chain3.safetensors"] {
+        std::fs::copy(dir.join(file), tmp.path().join(file)).unwrap();
+    }
+    let path = tmp.path().join("chain3.toml");
+    let args = ["error", path.to_str().unwrap(), "--looseness-boxes", "0"];
+    let (code, stdout, stderr) = cbfreach(&[&args[..], &["--budget", "200"]].concat());
+    assert_eq!(code, 0, "{stderr}");
+    let line = stdout
+        .lines()
+        .find(|l| l.contains("the budget ran out with"))
+        .unwrap_or_else(|| panic!("{stdout}"));
+    // The cell cap was not what ran out: only the budget is named.
+    assert!(
+        line.contains("`--budget 2000` (ten times)") && !line.contains("--max-cells"),
+        "{line}"
+    );
+}
+
 /// A map certified for another filter gets one piece of advice, naming the scenario.
 #[test]
 fn a_stale_error_map_is_named_with_one_piece_of_advice() {

@@ -295,6 +295,25 @@ pub fn run(args: &ErrorArgs) -> CliResult {
             r = args.local_ratio,
         );
     }
+    if let Some(c) = certified.as_ref().filter(|c| c.budget_spent) {
+        // Where cells ran out before they met their targets, say how to give it more.
+        let loose = c.satisfied < c.cells.len() / 2
+            || (c.witness_linf > 0.0 && c.linf > 1.5 * c.witness_linf);
+        if loose {
+            // Ten times the evaluations make about ten times the cells: the cap too, if so.
+            let cap = match c.cells.len().saturating_mul(10) > args.max_cells {
+                true => format!(" --max-cells {}", args.max_cells.saturating_mul(10)),
+                false => String::new(),
+            };
+            println!(
+                "  the budget ran out with {} of {} cells within their target: `--budget {}{cap}` \
+                 (ten times) tightens the bound and the local map, in about ten times the time",
+                c.satisfied,
+                c.cells.len(),
+                args.budget.saturating_mul(10),
+            );
+        }
+    }
     if let Some(c) = certified.as_ref().filter(|c| c.uncertified > 0) {
         println!(
             "  {} cells could not be certified (+∞; e.g. where L_g h = 0 on the boundary of S); \
