@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use crate::error_map::{margin_value, ErrorMap, ErrorMapError};
 use crate::network::{Mlp, NetworkError};
-use crate::reach::{ReachError, ReachProblem, TimeModel, Transform};
+use crate::reach::{ReachError, ReachProblem, TimeModel, Transform, Turning};
 use crate::scenario::{Margin, Scenario, TransformChoice};
 
 /// What a caller may change of the scenario's problem; `ProblemOptions::default()` is the
@@ -37,6 +37,24 @@ pub struct ProblemOptions {
     /// This many validated steps per `dt` instead of the scenario's `reach.substeps`
     /// (`continuous`; default: the scenario's).
     pub substeps: Option<usize>,
+    /// Keep continuous-time sets in this many frames turned about the closed loop's turn at
+    /// the goal (1: none turned; default: the scenario's `reach.turned_frames`, else
+    /// [`ProblemOptions::chosen_turned_frames`]).
+    pub turned_frames: Option<usize>,
+}
+
+impl ProblemOptions {
+    /// The turned frames a problem gets where neither the options nor the scenario say: where
+    /// it runs in continuous time in coordinates `z = T x` and its closed loop at the goal
+    /// turns sets at least as fast as it shrinks them ([`Turning`]), the frames
+    /// [`Turning::frames`] picks; else 1 (none turned).
+    pub fn chosen_turned_frames(s: &Scenario, problem: &ReachProblem) -> usize {
+        let turns = problem.time == TimeModel::Continuous && problem.transform.is_some();
+        match turns.then(|| Turning::at_goal(s)).flatten() {
+            Some(turning) => turning.frames(),
+            None => 1,
+        }
+    }
 }
 
 /// Why a scenario could not be compiled into a problem.
@@ -162,6 +180,15 @@ impl ReachProblem {
         if options.no_safe_set {
             problem = problem.without_safe_set();
         }
+        problem = match options.turned_frames.or(s.reach.turned_frames) {
+            Some(frames) => problem.with_turned_frames(s, frames)?,
+            // Chosen: where the coordinates have no pair to turn after all, none.
+            None => {
+                let frames = ProblemOptions::chosen_turned_frames(s, &problem);
+                let plain = problem.clone();
+                problem.with_turned_frames(s, frames).unwrap_or(plain)
+            }
+        };
         // Local bounds on request, or by the scenario's `m_c = "local"` unless the options
         // override it.
         let local = options.local_margin || options.m_c.unwrap_or(s.reach.m_c) == Margin::Local;

@@ -172,6 +172,44 @@ fn check_and_runs_name_a_loop_that_turns_sets_faster_than_it_shrinks_them() {
         stdout.contains(&format!("note: {note}")) && stdout.contains("α + |β| = 0.718"),
         "{stdout}"
     );
+    // With a network, continuous time keeps the sets in turned frames and says how many.
+    cbfreach::network::Mlp::random(&[2, 64, 64, 1], 3)
+        .save_safetensors(
+            &tmp.path().join("pendulum.safetensors"),
+            &Default::default(),
+        )
+        .unwrap();
+    let light = path.to_str().unwrap();
+    let run = |extra: &[&str]| cbfreach(&[&["reach", light, "--m-c", "0.01"][..], extra].concat());
+    let (code, stdout, stderr) = run(&["--backend", "cpu"]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(
+        stdout.contains(
+            "turned frames (reach.turned_frames not set): the sets are kept in z and 4 copies \
+             of it turned by multiples of π/10"
+        ) && stdout.contains("z in 5 frames turned by multiples of π/10"),
+        "{stdout}"
+    );
+    // Given: not said; 1 turns none; refused by name where they cannot help.
+    let (code, stdout, _) = run(&["--backend", "cpu", "--turned-frames", "2"]);
+    assert_eq!(code, 0);
+    assert!(
+        !stdout.contains("turned frames (") && stdout.contains("in 2 frames"),
+        "{stdout}"
+    );
+    let (code, stdout, _) = run(&["--backend", "cpu", "--turned-frames", "1"]);
+    assert_eq!(code, 0);
+    assert!(
+        !stdout.contains("turned by multiples")
+            && stdout.contains("slabs clipped by the other frame's sets"),
+        "{stdout}"
+    );
+    let (code, _, stderr) = run(&["--time", "euler", "--turned-frames", "2"]);
+    assert_ne!(code, 0);
+    assert!(
+        stderr.contains("--turned-frames 2: turned frames tighten continuous time alone"),
+        "{stderr}"
+    );
 }
 
 /// Where `error`'s budget runs out before the cells meet their targets (the chain of three

@@ -101,6 +101,20 @@ fn empty_or_inverted_boxes() {
 }
 
 #[test]
+fn turned_frames_out_of_range() {
+    for k in ["0", "17"] {
+        assert_mentions(
+            &error_for("dt = 0.05", &format!("dt = 0.05\nturned_frames = {k}")),
+            &[
+                "reach.turned_frames",
+                "from 1 (none turned) to 16",
+                &format!("found {k}"),
+            ],
+        );
+    }
+}
+
+#[test]
 fn non_positive_dt_and_horizon() {
     assert_mentions(&error_for("dt = 0.05", "dt = 0"), &["reach.dt", "dt > 0"]);
     assert_mentions(&error_for("dt = 0.05", "dt = -1"), &["reach.dt", "dt > 0"]);

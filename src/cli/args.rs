@@ -12,7 +12,7 @@ use cbfreach::problem::{ProblemError, ProblemOptions};
 use cbfreach::reach::engine::EngineError;
 use cbfreach::reach::{
     choose_engine, Backend, EngineChoice, ExactField, GpuOptions, ReachMethod, ReachProblem,
-    ReachSettings,
+    ReachSettings, Turning,
 };
 use cbfreach::scenario::{Margin, TransformChoice};
 
@@ -188,6 +188,11 @@ pub struct ProblemArgs {
     /// Cut each continuous-time step in K validated steps (default: the scenario's, else 1).
     #[arg(long, value_parser = |s: &str| super::whole_at_least(s, 1))]
     pub substeps: Option<usize>,
+    /// Continuous time, where the closed loop at the goal turns sets: keep them in K frames
+    /// turned about the turn, whose slabs clip each other (1: none turned; default: the
+    /// scenario's `[reach] turned_frames`, else chosen from the turn and said).
+    #[arg(long, value_name = "K", value_parser = |s: &str| super::whole_at_least(s, 1))]
+    pub turned_frames: Option<usize>,
 }
 
 impl ProblemArgs {
@@ -202,6 +207,7 @@ impl ProblemArgs {
             time: self.time.clone(),
             control_period: self.control_period,
             substeps: self.substeps,
+            turned_frames: self.turned_frames,
         }
     }
 }
@@ -217,44 +223,67 @@ pub fn compile(
         let (_, why) = cbfreach::reach::Transform::chosen(s);
         println!("coordinates (reach.transform not set): {why}");
     }
-    if let Some(turning) = cbfreach::reach::Turning::at_goal(s) {
+    if let Some(turning) = Turning::at_goal(s) {
         println!("note: {turning}");
     }
-    ReachProblem::from_scenario(s, &args.options()).map_err(|e| match e {
-        ProblemError::Margin {
-            margin,
-            source,
-            file,
-            field,
-        } => {
-            let field = if field == "m_c" {
-                "--m-c".into()
-            } else {
-                field
-            };
-            // A stale map's message already says to run `error` again: one piece of advice.
-            let text = source.to_string();
-            match (text.strip_suffix(" (run `cbfreach error` again)"), *source) {
-                (Some(head), _) => format!(
+    let problem = ReachProblem::from_scenario(s, &args.options()).map_err(
+        |e| -> Box<dyn std::error::Error> {
+            match e {
+                ProblemError::Margin {
+                    margin,
+                    source,
+                    file,
+                    field,
+                } => {
+                    let field = if field == "m_c" {
+                        "--m-c".into()
+                    } else {
+                        field
+                    };
+                    // A stale map's message already says to run `error` again: one piece of advice.
+                    let text = source.to_string();
+                    match (text.strip_suffix(" (run `cbfreach error` again)"), *source) {
+                        (Some(head), _) => format!(
                     "{field} = {margin}: {head} (run `cbfreach error {file}` again, or give --m-c)"
                 ),
-                (None, ErrorMapError::Io { .. } | ErrorMapError::Format { .. }) => format!(
+                        (None, ErrorMapError::Io { .. } | ErrorMapError::Format { .. }) => format!(
                     "{field} = {margin}: {text} (run `cbfreach error {file}` first, or give --m-c)"
                 ),
-                (None, _) => format!("{field} = {margin}: {text} (or give --m-c)"),
+                        (None, _) => format!("{field} = {margin}: {text} (or give --m-c)"),
+                    }
+                    .into()
+                }
+                ProblemError::Time(e) => format!(
+                    "--time {}: {e}",
+                    args.time.as_deref().unwrap_or(s.reach.time.name())
+                )
+                .into(),
+                ProblemError::NoNetwork { file } => {
+                    format!("{file}: no [network] section and no --network given").into()
+                }
+                // The option as given, where it was given.
+                e if args.turned_frames.is_some() => e
+                    .to_string()
+                    .replace("reach.turned_frames = ", "--turned-frames ")
+                    .into(),
+                e => e.into(),
             }
-            .into()
-        }
-        ProblemError::Time(e) => format!(
-            "--time {}: {e}",
-            args.time.as_deref().unwrap_or(s.reach.time.name())
-        )
-        .into(),
-        ProblemError::NoNetwork { file } => {
-            format!("{file}: no [network] section and no --network given").into()
-        }
-        e => e.into(),
-    })
+        },
+    )?;
+    let frames = problem.turned.len() + 1;
+    if frames > 1 && args.turned_frames.or(s.reach.turned_frames).is_none() {
+        // The frames were left to cbfreach too.
+        println!(
+            "turned frames (reach.turned_frames not set): the sets are kept in z and {} copies of \
+             it turned by multiples of π/{} as well, whose slabs clip each other (their meet \
+             shrinks at about {:.3} where one frame's boxes grow at {:.3}); 1 turns none",
+            frames - 1,
+            2 * frames,
+            Turning::at_goal(s).map_or(f64::NAN, |t| t.rate_in(frames)),
+            Turning::at_goal(s).map_or(f64::NAN, |t| t.box_rate()),
+        );
+    }
+    Ok(problem)
 }
 
 /// The engine asked for a run of `boxes` boxes, its notices printed (an engine refuses

@@ -105,11 +105,15 @@ pub fn given(id: &str) -> bool {
 /// For summaries: the sets are the meet of a box in x and the parallelotope.
 pub const INTERSECT_X_CLAUSE: &str = ", sets met with their x-boxes";
 
-/// For summaries: `ReachSettings::meet_slabs` where it applies.
-pub fn meet_slabs_clause(applies: bool) -> &'static str {
-    match applies {
-        true => ", slabs clipped by the other frame's sets",
-        false => "",
+/// For summaries: `ReachSettings::meet_slabs` where it applies, and the turned frames.
+pub fn meet_slabs_clause(applies: bool, turned_frames: usize) -> String {
+    match (applies, turned_frames) {
+        (false, _) => String::new(),
+        (true, 0 | 1) => ", slabs clipped by the other frame's sets".into(),
+        (true, k) => format!(
+            ", z in {k} frames turned by multiples of π/{}, slabs clipped by the other frames' sets",
+            2 * k
+        ),
     }
 }
 

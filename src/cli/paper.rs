@@ -338,7 +338,10 @@ fn run_scenario(
         problem.time,
         problem.time.clause(),
         super::sharper_clause_of(&problem, &pieces),
-        super::meet_slabs_clause(problem.meet_slabs_applies(&pieces))
+        super::meet_slabs_clause(
+            problem.meet_slabs_applies(&pieces),
+            problem.turned_frames(&pieces),
+        )
     );
     if problem.time == cbfreach::reach::TimeModel::Euler {
         println!(

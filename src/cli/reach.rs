@@ -85,7 +85,10 @@ pub fn run(args: &ReachArgs) -> CliResult {
             ""
         }
         + super::sharper_clause_of(&problem, &settings)
-        + super::meet_slabs_clause(problem.meet_slabs_applies(&settings));
+        + &super::meet_slabs_clause(
+            problem.meet_slabs_applies(&settings),
+            problem.turned_frames(&settings),
+        );
     let within = super::safe_set_clause(&problem.safe_set_for(settings.method).names());
     println!(
         "{}: {} boxes × {} steps, time {}, {} bounds{}, {} method, {margin}{within}, backend {}",

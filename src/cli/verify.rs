@@ -431,7 +431,7 @@ pub fn print_summary(r: &VerifyReport) {
                 ""
             }
             + super::sharper_clause(r.run.taylor3, r.run.lattice)
-            + super::meet_slabs_clause(r.run.meet_slabs)
+            + &super::meet_slabs_clause(r.run.meet_slabs, r.run.turned_frames)
     );
     for a in &r.run.absorbing {
         println!(

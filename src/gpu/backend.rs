@@ -254,6 +254,12 @@ impl GpuBackend {
         }
         match problem.time {
             TimeModel::Euler => {}
+            // The device meets two frames; turned frames are the CPU engine's.
+            TimeModel::Continuous if problem.frames(settings).len() > 2 => {
+                return Err(Unsupported::Continuous(
+                    "turned frames (reach.turned_frames above 1)",
+                ))
+            }
             TimeModel::Continuous => continuous::refused(settings)?,
             // The device bounds the network alone; the rest is the CPU engine's (`sampled`).
             TimeModel::Sampled { .. } => return Ok(()),

@@ -127,6 +127,10 @@ pub struct ReachProblem {
     pub pieces: pieces::FilterPieces,
     /// With a transform: the same problem in x coordinates, for [`ReachSettings::intersect_x`].
     pub in_x: Option<Box<ReachProblem>>,
+    /// Continuous time, where the closed loop at the goal turns sets: the same problem in
+    /// copies of the coordinates turned about the pair ([`turning::turned`]), for
+    /// [`ReachSettings::intersect_x`] (empty: none; [`ReachProblem::with_turned_frames`]).
+    pub turned: Vec<ReachProblem>,
     /// What the sets bound (the scenario's `[reach] time`; `continuous` by default).
     pub time: TimeModel,
     /// Validated steps per `dt` ([`TimeModel::Continuous`]).
@@ -269,6 +273,7 @@ impl ReachProblem {
             safe_set,
             pieces,
             in_x,
+            turned: Vec::new(),
             time: scenario.reach.time,
             substeps: scenario.reach.substeps,
             absorbing: absorb::Absorbers::default(),
@@ -289,6 +294,10 @@ impl ReachProblem {
         if let Some(x) = self.in_x.take() {
             self.in_x = Some(Box::new(x.with_error_map(map.clone())?));
         }
+        self.turned = std::mem::take(&mut self.turned)
+            .into_iter()
+            .map(|p| p.with_error_map(map.clone()))
+            .collect::<Result<_, _>>()?;
         self.error_map = Some(map);
         Ok(self)
     }
@@ -298,6 +307,10 @@ impl ReachProblem {
     pub fn without_safe_set(mut self) -> ReachProblem {
         self.safe_set = SafeSet::default();
         self.in_x = self.in_x.map(|x| Box::new(x.without_safe_set()));
+        self.turned = std::mem::take(&mut self.turned)
+            .into_iter()
+            .map(ReachProblem::without_safe_set)
+            .collect();
         self
     }
 
@@ -319,14 +332,78 @@ impl ReachProblem {
     }
 
     /// The problems whose coordinates the sets are kept in under `settings`: this one, and
-    /// the same in x where [`ReachSettings::intersect_x`] applies (disturbance method, a
-    /// transform).
+    /// the same in x and in the turned frames where [`ReachSettings::intersect_x`] applies
+    /// (disturbance method, a transform).
     pub fn frames(&self, settings: &ReachSettings) -> Vec<&ReachProblem> {
         let in_x = match (&self.in_x, settings.method) {
             (Some(x), ReachMethod::Disturbance) if settings.intersect_x => Some(&**x),
             _ => None,
         };
-        std::iter::once(self).chain(in_x).collect()
+        let turned = match in_x {
+            Some(_) => &self.turned[..],
+            None => &[],
+        };
+        std::iter::once(self).chain(in_x).chain(turned).collect()
+    }
+
+    /// The problem with its sets kept in `frames − 1` copies of its coordinates turned about the
+    /// closed loop's complex pairs as well ([`turning::turned`]; `frames ≤ 1`: none). Continuous
+    /// time alone: there each frame's slabs are clipped by the others' sets (design §7.1
+    /// item 8); the Euler map and sampled data meet frames through x-boxes, which turned frames
+    /// do not tighten.
+    pub fn with_turned_frames(
+        mut self,
+        scenario: &Scenario,
+        frames: usize,
+    ) -> Result<ReachProblem, ReachError> {
+        self.turned.clear();
+        if frames <= 1 {
+            return Ok(self);
+        }
+        let refuse = |why: String| {
+            ReachError::Settings(format!(
+                "{}: reach.turned_frames = {frames}: {why}",
+                scenario.file
+            ))
+        };
+        if self.time != TimeModel::Continuous {
+            return Err(refuse(format!(
+                "turned frames tighten continuous time alone (this run: \"{}\")",
+                self.time.name()
+            )));
+        }
+        let (Some(t), Some(x)) = (&self.transform, &self.in_x) else {
+            return Err(refuse(
+                "turned frames turn coordinates z = T x: they need a transform".into(),
+            ));
+        };
+        let goal = scenario.reach.goal.center();
+        let a = crate::filter::SafetyFilter::new(scenario)
+            .closed_loop_jacobian(&goal)
+            .map_err(|e| refuse(e.to_string()))?;
+        let turned = turning::turned(t, &a, frames).map_err(|e| refuse(e.to_string()))?;
+        let mut problems = Vec::with_capacity(turned.len());
+        for t in turned {
+            let mut p =
+                ReachProblem::with_transform(scenario, x.network.clone(), self.m_c, Some(t))?
+                    .with_time(self.time, self.substeps);
+            // The x frame is this problem's; the safe set as this problem's (none for
+            // comparisons without it).
+            p.in_x = None;
+            if self.safe_set == SafeSet::default() {
+                p = p.without_safe_set();
+            }
+            p.steps = self.steps;
+            problems.push(p);
+        }
+        self.turned = problems;
+        Ok(self)
+    }
+
+    /// The frames turned about the closed loop's turn that the sets are kept in under
+    /// `settings`, z itself included (1: z alone, or no transform).
+    pub fn turned_frames(&self, settings: &ReachSettings) -> usize {
+        self.frames(settings).len().saturating_sub(1).max(1)
     }
 
     /// Whether [`ReachSettings::meet_slabs`] acts on this problem.

@@ -154,6 +154,14 @@ impl super::ReachProblem {
         self.time = time;
         self.substeps = substeps.max(1);
         self.in_x = self.in_x.map(|x| Box::new(x.with_time(time, substeps)));
+        // Turned frames tighten continuous time alone (`with_turned_frames`).
+        self.turned = match time {
+            TimeModel::Continuous => std::mem::take(&mut self.turned)
+                .into_iter()
+                .map(|p| p.with_time(time, substeps))
+                .collect(),
+            _ => Vec::new(),
+        };
         self
     }
 

@@ -48,6 +48,9 @@ pub enum TransformError {
     /// `A` is not Hurwitz.
     #[error("the closed loop is not stable at the goal (P is not positive definite)")]
     NotStable,
+    /// Turned frames were asked of coordinates in which nothing turns.
+    #[error("no complex pair of the closed loop's eigenvalues turns in these coordinates")]
+    NoPair,
     /// The closed loop's Jacobian at the goal could not be evaluated.
     #[error(transparent)]
     ClosedLoop(#[from] FilterError),
@@ -503,7 +506,7 @@ impl Transform {
     }
 
     /// `T A S`: a matrix in x's coordinates written in z's.
-    fn conjugate(&self, a: &[f64]) -> Vec<f64> {
+    pub fn conjugate(&self, a: &[f64]) -> Vec<f64> {
         let n = self.n;
         let at = |m: &[f64], i: usize, j: usize| m[i * n + j];
         let as_: Vec<f64> = (0..n * n)

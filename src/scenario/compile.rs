@@ -491,9 +491,21 @@ fn compile_reach(c: &Compiler, r: &ReachSection, n: usize) -> Result<ReachConfig
             ),
         ));
     }
+    if let Some(k) = r.turned_frames {
+        if !(1..=limits::MAX_TURNED_FRAMES).contains(&k) {
+            return Err(c.invalid(
+                "reach.turned_frames",
+                format!(
+                    "expected a whole number from 1 (none turned) to {}, found {k}",
+                    limits::MAX_TURNED_FRAMES
+                ),
+            ));
+        }
+    }
     Ok(ReachConfig {
         time,
         substeps,
+        turned_frames: r.turned_frames,
         transform,
         region,
         norm,

@@ -199,6 +199,10 @@ pub struct ReachSection {
     /// Validated steps per `dt` in continuous time (default 1).
     #[serde(default)]
     pub substeps: Option<usize>,
+    /// Frames the continuous-time sets are kept in where the closed loop turns them (1: none
+    /// turned; default: chosen from the turn at the goal, `reach::Turning::frames`).
+    #[serde(default)]
+    pub turned_frames: Option<usize>,
 }
 
 /// `reach.transform` as written.

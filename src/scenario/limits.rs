@@ -12,6 +12,10 @@ pub const MAX_INITIAL_BOXES: usize = 1_000_000;
 /// Most steps (`T / dt`, times the substeps) of a run.
 pub const MAX_STEPS: f64 = 10_000_000.0;
 
+/// Most frames the continuous-time sets may be kept in (`[reach] turned_frames`, each bounding
+/// the network on its own slabs).
+pub const MAX_TURNED_FRAMES: usize = 16;
+
 /// Most nodes of an expression's derivative (an upper bound, before simplification); the
 /// filter's enclosures differentiate `∇h · f̃` once more, so this bounds their size too.
 pub const MAX_DERIVATIVE_NODES: f64 = 200_000.0;

@@ -231,6 +231,9 @@ pub struct ReachConfig {
     pub time: crate::reach::TimeModel,
     /// Validated steps per `dt` in continuous time.
     pub substeps: usize,
+    /// Frames the continuous-time sets are kept in where the closed loop turns them (`None`:
+    /// chosen, [`crate::reach::Turning::frames`]; 1: none turned).
+    pub turned_frames: Option<usize>,
 }
 
 impl ReachConfig {

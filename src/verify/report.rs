@@ -116,6 +116,10 @@ pub struct RunInfo {
     /// from before it: false).
     #[serde(default)]
     pub meet_slabs: bool,
+    /// Frames turned about the closed loop's turn the sets were kept in besides x (continuous
+    /// time, `reach.turned_frames`; 1: z alone; files from before it: 1).
+    #[serde(default = "one")]
+    pub turned_frames: usize,
     /// Euler step.
     pub dt: f64,
     /// Euler steps.
@@ -453,6 +457,7 @@ mod tests {
                 taylor3: false,
                 lattice: false,
                 meet_slabs: false,
+                turned_frames: 1,
                 dt: 0.1,
                 steps: 1,
                 time: String::new(),

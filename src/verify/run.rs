@@ -369,6 +369,7 @@ impl<'a> Verifier<'a> {
                 taylor3: self.reach.taylor3 && self.problem.time == TimeModel::Continuous,
                 lattice: self.problem.lattice_applies(&self.reach),
                 meet_slabs: self.problem.meet_slabs_applies(&self.reach),
+                turned_frames: self.problem.turned_frames(&self.reach),
                 dt: self.problem.dt,
                 steps: self.problem.steps,
                 time: self.problem.time.to_string(),

@@ -141,3 +141,53 @@ fn clipped_slabs_hold_acc() {
     assert_eq!((e.at_snapshots, e.between), (0, 0), "{e:?}");
     assert!(e.checks >= 5 * 48 * 100, "too few checks: {e:?}");
 }
+
+/// The rotating pendulum with less damping, `κ = −2.19θ − 0.9ω`: `λ = −0.5 ± 0.97i`, so boxes
+/// in any one frame grow at `α + |β| = 0.47` near the origin, and z and x met still let them.
+/// Kept in three frames turned by `π/6` besides x (design §7.1 item 8), every continuous-time
+/// trajectory lies in the sets and flowpipes over 6 s, and the sets shrink.
+#[test]
+fn turned_frames_hold_a_lightly_damped_flow_and_contract_it() {
+    let s = common::from_text(
+        &ROTATING
+            .replace("-3*theta - 2*omega", "-2.19*theta - 0.9*omega")
+            .replace("horizon = 3", "horizon = 6"),
+    )
+    .unwrap();
+    let turning = cbfreach::reach::Turning::at_goal(&s).expect("the loop turns");
+    assert!(
+        (turning.alpha + 0.5).abs() < 1e-6 && turning.box_rate() > 0.4,
+        "{turning:?}"
+    );
+    assert_eq!(turning.frames(), 3);
+    let net = common::zero_network(&[2, 4, 1]);
+    let (transform, _) = Transform::chosen(&s);
+    let two = ReachProblem::with_transform(&s, net, 0.001, transform).unwrap();
+    let turned = two.clone().with_turned_frames(&s, 3).unwrap();
+    assert_eq!(turned.turned_frames(&ReachSettings::default()), 3);
+    // The device meets two frames: it refuses more by name, so `auto` runs the CPU engine.
+    let refused = cbfreach::gpu::GpuBackend::runs(&turned, &ReachSettings::default());
+    assert!(
+        refused.is_err_and(|e| e.to_string().contains("turned frames")),
+        "the GPU engine must refuse turned frames"
+    );
+    assert!(cbfreach::gpu::GpuBackend::runs(&two, &ReachSettings::default()).is_ok());
+    let met = tubes(&turned, &s.reach.initial, true);
+    assert!(met.iter().all(|t| t.valid()), "{:?}", met[0].end);
+    let e = escapes(&s, &met, s.reach.dt, 1e-6);
+    assert_eq!((e.at_snapshots, e.between), (0, 0), "{e:?}");
+    assert!(e.checks >= 3 * 48 * 300, "too few checks: {e:?}");
+    // Two frames alone: the sets end wider than they started; turned, narrower.
+    let plain = tubes(&two, &s.reach.initial, true);
+    for ((m, p), b) in final_widths(&met)
+        .iter()
+        .zip(final_widths(&plain))
+        .zip(&s.reach.initial)
+    {
+        let start = (0..2).map(|i| b.upper[i] - b.lower[i]).fold(0.0, f64::max);
+        assert!(
+            *m < start && *m < 0.5 * p,
+            "turned {m}, two frames {p}, start {start}"
+        );
+    }
+}
