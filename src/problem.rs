@@ -45,11 +45,18 @@ pub struct ProblemOptions {
 
 impl ProblemOptions {
     /// The turned frames a problem gets where neither the options nor the scenario say: where
-    /// it runs in continuous time in coordinates `z = T x` and its closed loop at the goal
+    /// it runs in continuous time in the `auto` coordinates (`choice`) and its closed loop at the goal
     /// turns sets at least as fast as it shrinks them ([`Turning`]), the frames
     /// [`Turning::frames`] picks; else 1 (none turned).
-    pub fn chosen_turned_frames(s: &Scenario, problem: &ReachProblem) -> usize {
-        let turns = problem.time == TimeModel::Continuous && problem.transform.is_some();
+    pub fn chosen_turned_frames(
+        s: &Scenario,
+        problem: &ReachProblem,
+        choice: &TransformChoice,
+    ) -> usize {
+        // Turns keep a frame as good as z only in the `auto` coordinates, where each pair's
+        // block is `[[α, β], [−β, α]]`; a matrix of the user's is left as given.
+        let auto = matches!(choice, TransformChoice::Auto | TransformChoice::Chosen);
+        let turns = auto && problem.time == TimeModel::Continuous && problem.transform.is_some();
         match turns.then(|| Turning::at_goal(s)).flatten() {
             Some(turning) => turning.frames(),
             None => 1,
@@ -184,7 +191,7 @@ impl ReachProblem {
             Some(frames) => problem.with_turned_frames(s, frames)?,
             // Chosen: where the coordinates have no pair to turn after all, none.
             None => {
-                let frames = ProblemOptions::chosen_turned_frames(s, &problem);
+                let frames = ProblemOptions::chosen_turned_frames(s, &problem, choice);
                 let plain = problem.clone();
                 problem.with_turned_frames(s, frames).unwrap_or(plain)
             }
