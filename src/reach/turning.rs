@@ -181,6 +181,23 @@ mod tests {
         );
     }
 
+    /// A pair that turns, driving a real mode: the `auto` coordinates stop scaling within 1 %
+    /// of the pair's own rate (they scaled by 2⁴⁰ before, and no enclosure closed in them).
+    #[test]
+    fn auto_coordinates_of_a_turning_pair_stay_well_scaled() {
+        // θ̈ = −1.19θ − ω̇…: −0.5 ± 0.97i; ẏ = −2y + 0.5θ.
+        let a = vec![0.0, 1.0, 0.0, -1.19, -1.0, 0.0, 0.5, 0.0, -2.0];
+        let t = Transform::contracting(&a, 3).unwrap();
+        let largest = t.t.iter().chain(&t.s).fold(0.0_f64, |m, v| m.max(v.abs()));
+        assert!(largest < 1e3, "{:?}", t.t);
+        let rate = super::super::log_norm_inf(&t.conjugate(&a), 3);
+        let pair = Turning::of(&a, 3).unwrap().box_rate();
+        assert!(
+            rate <= pair * 1.0101 && rate >= pair - 1e-9,
+            "{rate} against {pair}"
+        );
+    }
+
     fn turned_err(t: &Transform, a: &[f64]) -> TransformError {
         turned(t, a, 2).err().unwrap()
     }

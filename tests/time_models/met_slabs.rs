@@ -191,3 +191,59 @@ fn turned_frames_hold_a_lightly_damped_flow_and_contract_it() {
         );
     }
 }
+
+/// Turned frames in three states: the lightly damped pendulum with a third state driven by it,
+/// `ẏ = −2y + 0.5θ` (the pair turns in its own plane of z, the real coordinate stays). Every
+/// continuous-time trajectory lies in the sets kept in z, x and two turned copies of z.
+#[test]
+fn turned_frames_hold_a_flow_with_a_pair_and_a_real_eigenvalue() {
+    let text = ROTATING
+        .replace("-3*theta - 2*omega", "-2.19*theta - 0.9*omega")
+        .replace(
+            r#"states = ["theta", "omega"]"#,
+            r#"states = ["theta", "omega", "y"]"#,
+        )
+        .replace(
+            r#"f = ["omega", "sin(theta) - 0.1*omega"]"#,
+            r#"f = ["omega", "sin(theta) - 0.1*omega", "-2*y + 0.5*theta"]"#,
+        )
+        .replace(r#"g = [["0"], ["1"]]"#, r#"g = [["0"], ["1"], ["0"]]"#)
+        .replace(
+            "lower = [-1.5, -2], upper = [1.5, 2]",
+            "lower = [-1.5, -2, -1], upper = [1.5, 2, 1]",
+        )
+        .replace(
+            "lower = [-0.1, -0.1], upper = [0.1, 0.1]",
+            "lower = [-0.1, -0.1, -0.1], upper = [0.1, 0.1, 0.1]",
+        )
+        .replace(
+            "lower = [0.3, 0.3], upper = [0.5, 0.5]",
+            "lower = [0.3, 0.3, 0.1], upper = [0.5, 0.5, 0.2]",
+        )
+        .replace(
+            "lower = [-1.0, 0.6], upper = [-0.8, 0.8]",
+            "lower = [-1.0, 0.6, -0.2], upper = [-0.8, 0.8, -0.1]",
+        )
+        .replace(
+            "lower = [0.9, -1.5], upper = [1.1, -1.3]",
+            "lower = [0.9, -1.5, 0.0], upper = [1.1, -1.3, 0.1]",
+        );
+    let s = common::from_text(&text).unwrap();
+    assert_eq!(s.n(), 3);
+    let turning = cbfreach::reach::Turning::at_goal(&s).expect("the pair turns");
+    assert_eq!(turning.frames(), 3);
+    let net = common::zero_network(&[3, 4, 1]);
+    let (transform, _) = Transform::chosen(&s);
+    let two = ReachProblem::with_transform(&s, net, 0.001, transform).unwrap();
+    let turned = two.clone().with_turned_frames(&s, 3).unwrap();
+    assert_eq!(turned.turned_frames(&ReachSettings::default()), 3);
+    let met = tubes(&turned, &s.reach.initial, true);
+    assert!(met.iter().all(|t| t.valid()), "{:?}", met[0].end);
+    let e = escapes(&s, &met, s.reach.dt, 1e-6);
+    assert_eq!((e.at_snapshots, e.between), (0, 0), "{e:?}");
+    assert!(e.checks >= 3 * 48 * 150, "too few checks: {e:?}");
+    let plain = tubes(&two, &s.reach.initial, true);
+    for (m, p) in final_widths(&met).iter().zip(final_widths(&plain)) {
+        assert!(*m < 0.7 * p, "turned {m}, two frames {p}");
+    }
+}
