@@ -192,8 +192,8 @@ impl ReachProblem {
             // Chosen: where the coordinates have no pair to turn after all, none.
             None => {
                 let frames = ProblemOptions::chosen_turned_frames(s, &problem, choice);
-                let plain = problem.clone();
-                problem.with_turned_frames(s, frames).unwrap_or(plain)
+                problem.turned = problem.turned_frames_of(s, frames).unwrap_or_default();
+                problem
             }
         };
         // Local bounds on request, or by the scenario's `m_c = "local"` unless the options

@@ -3,7 +3,6 @@
 mod common;
 use common::cbfreach;
 
-use std::path::Path;
 use std::process::Command;
 
 #[test]
@@ -145,8 +144,7 @@ fn check_names_a_cbf_no_input_acts_on_and_where_the_qp_is_infeasible() {
 #[test]
 fn check_and_runs_name_a_loop_that_turns_sets_faster_than_it_shrinks_them() {
     let tmp = tempfile::tempdir().unwrap();
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures");
-    let text = std::fs::read_to_string(dir.join("pendulum.toml")).unwrap();
+    let text = std::fs::read_to_string(common::fixture_path("pendulum.toml")).unwrap();
     let light = text
         .replace("k1 = 4.0", "k1 = 1.0")
         .replace("k2 = 3.0", "k2 = 0.4")
@@ -217,9 +215,8 @@ fn check_and_runs_name_a_loop_that_turns_sets_faster_than_it_shrinks_them() {
 #[test]
 fn error_says_how_to_give_a_spent_budget_more() {
     let tmp = tempfile::tempdir().unwrap();
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures");
     for file in ["chain3.toml", "chain3.safetensors"] {
-        std::fs::copy(dir.join(file), tmp.path().join(file)).unwrap();
+        std::fs::copy(common::fixture_path(file), tmp.path().join(file)).unwrap();
     }
     let path = tmp.path().join("chain3.toml");
     let args = ["error", path.to_str().unwrap(), "--looseness-boxes", "0"];

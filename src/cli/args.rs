@@ -223,8 +223,9 @@ pub fn compile(
         let (_, why) = cbfreach::reach::Transform::chosen(s);
         println!("coordinates (reach.transform not set): {why}");
     }
-    if let Some(turning) = Turning::at_goal(s) {
-        println!("note: {turning}");
+    let turning = Turning::at_goal(s);
+    if let Some(t) = &turning {
+        println!("note: {t}");
     }
     let problem = ReachProblem::from_scenario(s, &args.options()).map_err(
         |e| -> Box<dyn std::error::Error> {
@@ -271,7 +272,8 @@ pub fn compile(
         },
     )?;
     let frames = problem.turned.len() + 1;
-    if frames > 1 && args.turned_frames.or(s.reach.turned_frames).is_none() {
+    let chosen = args.turned_frames.or(s.reach.turned_frames).is_none();
+    if let Some(t) = turning.filter(|_| frames > 1 && chosen) {
         // The frames were left to cbfreach too.
         println!(
             "turned frames (reach.turned_frames not set): the sets are kept in z and {} copies of \
@@ -279,8 +281,8 @@ pub fn compile(
              shrinks at about {:.3} where one frame's boxes grow at {:.3}); 1 turns none",
             frames - 1,
             2 * frames,
-            Turning::at_goal(s).map_or(f64::NAN, |t| t.rate_in(frames)),
-            Turning::at_goal(s).map_or(f64::NAN, |t| t.box_rate()),
+            t.rate_in(frames),
+            t.box_rate(),
         );
     }
     Ok(problem)

@@ -347,18 +347,29 @@ impl ReachProblem {
     }
 
     /// The problem with its sets kept in `frames − 1` copies of its coordinates turned about the
-    /// closed loop's complex pairs as well ([`turning::turned`]; `frames ≤ 1`: none). Continuous
-    /// time alone: there each frame's slabs are clipped by the others' sets (design §7.1
-    /// item 8); the Euler map and sampled data meet frames through x-boxes, which turned frames
-    /// do not tighten.
+    /// closed loop's complex pairs as well ([`ReachProblem::turned_frames_of`]; `frames ≤ 1`:
+    /// none).
     pub fn with_turned_frames(
         mut self,
         scenario: &Scenario,
         frames: usize,
     ) -> Result<ReachProblem, ReachError> {
-        self.turned.clear();
+        self.turned = self.turned_frames_of(scenario, frames)?;
+        Ok(self)
+    }
+
+    /// The problems of `frames − 1` copies of this problem's coordinates turned about the
+    /// closed loop's complex pairs ([`turning::turned`]; `frames ≤ 1`: none), each with this
+    /// problem's time model, safe set and error map. Continuous time alone: there each frame's
+    /// slabs are clipped by the others' sets (design §7.1 item 8); the Euler map and sampled
+    /// data meet frames through x-boxes, which turned frames do not tighten.
+    pub fn turned_frames_of(
+        &self,
+        scenario: &Scenario,
+        frames: usize,
+    ) -> Result<Vec<ReachProblem>, ReachError> {
         if frames <= 1 {
-            return Ok(self);
+            return Ok(Vec::new());
         }
         let refuse = |why: String| {
             ReachError::Settings(format!(
@@ -382,22 +393,25 @@ impl ReachProblem {
             .closed_loop_jacobian(&goal)
             .map_err(|e| refuse(e.to_string()))?;
         let turned = turning::turned(t, &a, frames).map_err(|e| refuse(e.to_string()))?;
-        let mut problems = Vec::with_capacity(turned.len());
-        for t in turned {
-            let mut p =
-                ReachProblem::with_transform(scenario, x.network.clone(), self.m_c, Some(t))?
-                    .with_time(self.time, self.substeps);
-            // The x frame is this problem's; the safe set as this problem's (none for
-            // comparisons without it).
-            p.in_x = None;
-            if self.safe_set == SafeSet::default() {
-                p = p.without_safe_set();
-            }
-            p.steps = self.steps;
-            problems.push(p);
-        }
-        self.turned = problems;
-        Ok(self)
+        turned
+            .into_iter()
+            .map(|t| {
+                let mut p =
+                    ReachProblem::with_transform(scenario, x.network.clone(), self.m_c, Some(t))?
+                        .with_time(self.time, self.substeps);
+                // The x frame is this problem's; the safe set and the error map as this
+                // problem's.
+                p.in_x = None;
+                p.steps = self.steps;
+                if self.safe_set == SafeSet::default() {
+                    p = p.without_safe_set();
+                }
+                match &self.error_map {
+                    Some(map) => p.with_error_map(map.clone()),
+                    None => Ok(p),
+                }
+            })
+            .collect()
     }
 
     /// The frames turned about the closed loop's turn that the sets are kept in under

@@ -177,7 +177,7 @@ fn log_norm_inf_of(m: &DMatrix<f64>) -> f64 {
 
 /// The diagonal blocks of a real Schur form `U`: `(first row, 1 or 2)`, a 2 × 2 block where
 /// the entry below the diagonal is not negligible (a complex pair).
-fn schur_blocks(u: &DMatrix<f64>) -> Vec<(usize, usize)> {
+pub(super) fn schur_blocks(u: &DMatrix<f64>) -> Vec<(usize, usize)> {
     let n = u.nrows();
     let scale = u.amax().max(f64::MIN_POSITIVE);
     let mut blocks = Vec::new();

@@ -16,7 +16,7 @@
 
 use nalgebra::DMatrix;
 
-use super::transform::{Transform, TransformError};
+use super::transform::{schur_blocks, Transform, TransformError};
 use crate::filter::SafetyFilter;
 use crate::scenario::Scenario;
 
@@ -92,19 +92,13 @@ impl Turning {
 /// An error where `T A T⁻¹` has no such block (nothing turns).
 pub fn turned(t: &Transform, a: &[f64], frames: usize) -> Result<Vec<Transform>, TransformError> {
     let n = t.n;
-    let b = t.conjugate(a);
-    let at = |i: usize, j: usize| b[i * n + j];
-    let mut pairs = Vec::new();
-    let mut i = 0;
-    while i + 1 < n {
-        let disc = 0.25 * (at(i, i) - at(i + 1, i + 1)).powi(2) + at(i, i + 1) * at(i + 1, i);
-        if disc < 0.0 {
-            pairs.push(i);
-            i += 2;
-        } else {
-            i += 1;
-        }
-    }
+    // `T A T⁻¹` is block triangular in these coordinates: its pairs are the blocks the Schur
+    // form's reading finds.
+    let pairs: Vec<usize> = schur_blocks(&DMatrix::from_row_slice(n, n, &t.conjugate(a)))
+        .into_iter()
+        .filter(|&(_, size)| size == 2)
+        .map(|(i, _)| i)
+        .collect();
     if pairs.is_empty() {
         return Err(TransformError::NoPair);
     }

@@ -15,16 +15,24 @@ pub fn scenario_path(name: &str) -> PathBuf {
         .join(name)
 }
 
+/// Path of a test fixture, `tests/fixtures/<name>`.
+pub fn fixture_path(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures")
+        .join(name)
+}
+
 /// A test fixture (`tests/fixtures/<name>`) with each `(from, to)` replaced in its text; every
 /// `from` must be there (a fixture that changed fails here, not in an assertion downstream).
 pub fn fixture_with(name: &str, changes: &[(&str, &str)]) -> Scenario {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures");
-    let mut text = std::fs::read_to_string(dir.join(name)).expect("fixture readable");
+    let path = fixture_path(name);
+    let mut text = std::fs::read_to_string(&path).expect("fixture readable");
     for (from, to) in changes {
         assert!(text.contains(from), "{name} changed: `{from}` is gone");
         text = text.replacen(from, to, 1);
     }
-    Scenario::from_toml(&text, name, &dir).expect("fixture variant valid")
+    let dir = path.parent().expect("fixtures' folder");
+    Scenario::from_toml(&text, name, dir).expect("fixture variant valid")
 }
 
 /// The paper's scenario 1.

@@ -57,6 +57,30 @@ fn final_widths(tubes: &[Tube]) -> Vec<f64> {
         .collect()
 }
 
+/// Every tube valid, and every RK4 state of the true system (48 starts a box) in its sets and
+/// flowpipes, over at least `checks` comparisons.
+fn assert_held(s: &Scenario, tubes: &[Tube], checks: usize) {
+    assert!(
+        tubes.iter().all(|t| t.valid()),
+        "{:?}",
+        tubes.iter().map(|t| &t.end).collect::<Vec<_>>()
+    );
+    let e = escapes(s, tubes, s.reach.dt, 1e-6);
+    assert_eq!((e.at_snapshots, e.between), (0, 0), "{e:?}");
+    assert!(e.checks >= checks, "too few checks: {e:?}");
+}
+
+/// A zero network's problem (the filter's own field proven on every set) in the chosen
+/// coordinates and x, and the same kept in `frames` turned frames too.
+fn two_and_turned(s: &Scenario, frames: usize) -> (ReachProblem, ReachProblem) {
+    let net = common::zero_network(&[s.n(), 4, 1]);
+    let (transform, _) = Transform::chosen(s);
+    let two = ReachProblem::with_transform(s, net, 0.001, transform).unwrap();
+    let turned = two.clone().with_turned_frames(s, frames).unwrap();
+    assert_eq!(turned.turned_frames(&ReachSettings::default()), frames);
+    (two, turned)
+}
+
 #[test]
 fn clipped_slabs_hold_a_rotating_flow_and_contract_it() {
     let s = common::from_text(ROTATING).unwrap();
@@ -68,10 +92,7 @@ fn clipped_slabs_hold_a_rotating_flow_and_contract_it() {
     );
     let problem = ReachProblem::with_transform(&s, net, 0.001, transform).unwrap();
     let met = tubes(&problem, &s.reach.initial, true);
-    assert!(met.iter().all(|t| t.valid()), "{:?}", met[0].end);
-    let e = escapes(&s, &met, s.reach.dt, 1e-6);
-    assert_eq!((e.at_snapshots, e.between), (0, 0), "{e:?}");
-    assert!(e.checks >= 3 * 48 * 150, "too few checks: {e:?}");
+    assert_held(&s, &met, 3 * 48 * 150);
 
     // Without the clipping each face sees the whole rotation: after 3 s the sets are several
     // times wider.
@@ -132,14 +153,7 @@ fn clipped_slabs_hold_acc() {
         .map(|k| region.partition_cell(&[16, 6], k))
         .collect();
     let met = tubes(&problem, &boxes, true);
-    assert!(
-        met.iter().all(|t| t.valid()),
-        "{:?}",
-        met.iter().map(|t| &t.end).collect::<Vec<_>>()
-    );
-    let e = escapes(&s, &met, s.reach.dt, 1e-6);
-    assert_eq!((e.at_snapshots, e.between), (0, 0), "{e:?}");
-    assert!(e.checks >= 5 * 48 * 100, "too few checks: {e:?}");
+    assert_held(&s, &met, 5 * 48 * 100);
 }
 
 /// The rotating pendulum with less damping, `κ = −2.19θ − 0.9ω`: `λ = −0.5 ± 0.97i`, so boxes
@@ -160,11 +174,7 @@ fn turned_frames_hold_a_lightly_damped_flow_and_contract_it() {
         "{turning:?}"
     );
     assert_eq!(turning.frames(), 3);
-    let net = common::zero_network(&[2, 4, 1]);
-    let (transform, _) = Transform::chosen(&s);
-    let two = ReachProblem::with_transform(&s, net, 0.001, transform).unwrap();
-    let turned = two.clone().with_turned_frames(&s, 3).unwrap();
-    assert_eq!(turned.turned_frames(&ReachSettings::default()), 3);
+    let (two, turned) = two_and_turned(&s, 3);
     // The device meets two frames: it refuses more by name, so `auto` runs the CPU engine.
     let refused = cbfreach::gpu::GpuBackend::runs(&turned, &ReachSettings::default());
     assert!(
@@ -173,10 +183,7 @@ fn turned_frames_hold_a_lightly_damped_flow_and_contract_it() {
     );
     assert!(cbfreach::gpu::GpuBackend::runs(&two, &ReachSettings::default()).is_ok());
     let met = tubes(&turned, &s.reach.initial, true);
-    assert!(met.iter().all(|t| t.valid()), "{:?}", met[0].end);
-    let e = escapes(&s, &met, s.reach.dt, 1e-6);
-    assert_eq!((e.at_snapshots, e.between), (0, 0), "{e:?}");
-    assert!(e.checks >= 3 * 48 * 300, "too few checks: {e:?}");
+    assert_held(&s, &met, 3 * 48 * 300);
     // Two frames alone: the sets end wider than they started; turned, narrower.
     let plain = tubes(&two, &s.reach.initial, true);
     for ((m, p), b) in final_widths(&met)
@@ -232,16 +239,9 @@ fn turned_frames_hold_a_flow_with_a_pair_and_a_real_eigenvalue() {
     assert_eq!(s.n(), 3);
     let turning = cbfreach::reach::Turning::at_goal(&s).expect("the pair turns");
     assert_eq!(turning.frames(), 3);
-    let net = common::zero_network(&[3, 4, 1]);
-    let (transform, _) = Transform::chosen(&s);
-    let two = ReachProblem::with_transform(&s, net, 0.001, transform).unwrap();
-    let turned = two.clone().with_turned_frames(&s, 3).unwrap();
-    assert_eq!(turned.turned_frames(&ReachSettings::default()), 3);
+    let (two, turned) = two_and_turned(&s, 3);
     let met = tubes(&turned, &s.reach.initial, true);
-    assert!(met.iter().all(|t| t.valid()), "{:?}", met[0].end);
-    let e = escapes(&s, &met, s.reach.dt, 1e-6);
-    assert_eq!((e.at_snapshots, e.between), (0, 0), "{e:?}");
-    assert!(e.checks >= 3 * 48 * 150, "too few checks: {e:?}");
+    assert_held(&s, &met, 3 * 48 * 150);
     let plain = tubes(&two, &s.reach.initial, true);
     for (m, p) in final_widths(&met).iter().zip(final_widths(&plain)) {
         assert!(*m < 0.7 * p, "turned {m}, two frames {p}");
