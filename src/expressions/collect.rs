@@ -20,7 +20,9 @@
 //! - only terms whose factors are defined everywhere (no division by a variable, `√`, `ln`)
 //!   are combined, so no point where the input is undefined (NaN) gets a value.
 //!
-//! Where no two terms combine and none is exactly 0, the tree is returned as it was.
+//! Where no two terms combine and none is exactly 0, the tree is returned as it was unless the
+//! rebuilt sum is smaller: unit factors (`1·κ`, a parameter set to 1) and negated factors
+//! (`-x·y + …` as `… - x·y`) go, both exact in interval arithmetic too.
 
 use super::diff::{exact_add, exact_div, exact_mul};
 use super::{Func, Node};
@@ -127,7 +129,7 @@ impl Coef {
     }
 }
 
-/// One term: a coefficient and its factors (sorted by their printed form).
+/// One term: a coefficient and its factors (in the order written; `key` sorts them).
 struct Term {
     coef: Coef,
     factors: Vec<Node>,
@@ -156,11 +158,22 @@ pub(super) fn collect(node: &Node) -> Option<Node> {
     }
     // Terms that are exactly 0 (`0·κ₂` of a `g` with a zero entry) go too, with the tree.
     let zero = |t: &Term| t.coef.exact == 0.0 && total(&t.factors);
-    if !merged && !out.iter().any(zero) {
-        return None;
-    }
+    let dropped = out.iter().any(zero);
     out.retain(|t| !zero(t));
-    Some(rebuild(out))
+    let rebuilt = rebuild(out);
+    (merged || dropped || size(&rebuilt) < size(node)).then_some(rebuilt)
+}
+
+/// Nodes in a tree.
+fn size(node: &Node) -> usize {
+    match node {
+        Node::Const(_) | Node::Var(_) => 1,
+        Node::Neg(u) | Node::Pow(u, _) => 1 + size(u),
+        Node::Add(u, v) | Node::Sub(u, v) | Node::Mul(u, v) | Node::Div(u, v) => {
+            1 + size(u) + size(v)
+        }
+        Node::Call(_, args) => 1 + args.iter().map(size).sum::<usize>(),
+    }
 }
 
 /// Appends `c·node`'s terms to `out`.
@@ -201,8 +214,10 @@ fn push_terms(node: &Node, c: &Coef, out: &mut Vec<Term>) {
 /// Appends `c·node` as one term, its constant factors folded into the coefficient.
 fn push_product(node: &Node, c: &Coef, out: &mut Vec<Term>) {
     let mut factors = Vec::new();
-    let mut coef = c.clone();
-    flatten_product(node, &mut factors);
+    let mut coef = match flatten_product(node, &mut factors) {
+        true => c.neg(),
+        false => c.clone(),
+    };
     factors.retain(|f| match constant(f).and_then(|k| coef.times(&k)) {
         Some(ck) => {
             coef = ck;
@@ -210,28 +225,25 @@ fn push_product(node: &Node, c: &Coef, out: &mut Vec<Term>) {
         }
         None => true,
     });
-    let mut keyed: Vec<(String, Node)> =
-        factors.into_iter().map(|f| (format!("{f:?}"), f)).collect();
-    keyed.sort_by(|a, b| a.0.cmp(&b.0));
-    let key = keyed
-        .iter()
-        .map(|(k, _)| k.as_str())
-        .collect::<Vec<_>>()
-        .join("·");
+    let mut keys: Vec<String> = factors.iter().map(|f| format!("{f:?}")).collect();
+    keys.sort();
     out.push(Term {
         coef,
-        factors: keyed.into_iter().map(|(_, f)| f).collect(),
-        key,
+        factors,
+        key: keys.join("·"),
     });
 }
 
-fn flatten_product(node: &Node, out: &mut Vec<Node>) {
+/// Pushes the factors of a product, negations taken out of them (`(−x)·y = −(x·y)`, exact);
+/// returns whether an odd number were.
+fn flatten_product(node: &Node, out: &mut Vec<Node>) -> bool {
     match node {
-        Node::Mul(u, v) => {
-            flatten_product(u, out);
-            flatten_product(v, out);
+        Node::Mul(u, v) => flatten_product(u, out) ^ flatten_product(v, out),
+        Node::Neg(u) if !matches!(**u, Node::Const(_)) => !flatten_product(u, out),
+        _ => {
+            out.push(node.clone());
+            false
         }
-        _ => out.push(node.clone()),
     }
 }
 

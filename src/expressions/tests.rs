@@ -519,8 +519,15 @@ fn like_terms_collect_exactly_and_only_where_defined() {
         show(&p("x2 + 0*sqrt(x1) + 0*x3").collected()),
         "x2 + 0 * sqrt(x1)"
     );
-    // A negation right of a sign is parenthesised.
-    assert_eq!(show(&p("x1 - -1 + -x2").collected()), "x1 - (-1) + (-x2)");
+    // A negation right of a sign is parenthesised; collected, it becomes the sign.
+    assert_eq!(show(&p("x1 - -1 + -x2")), "x1 - (-1) + (-x2)");
+    assert_eq!(show(&p("x1 - -1 + -x2").collected()), "x1 + 1 - x2");
+    // Unit factors (a gain set to 1) and negated factors go where nothing combines, the
+    // factors in the order written (a harvested predator, `g = -x2`, `κ = k·(x2 − 1)`).
+    assert_eq!(
+        show(&p("(x2*(x1 - 1)) + (-x2)*(1*(x2 - 1))").collected()),
+        "x2 * (x1 - 1) - x2 * (x2 - 1)"
+    );
     // Like terms in any order of factors; 0.1 + 0.2 is not exact, so those stay apart.
     assert_eq!(show(&p("x1*x2*3 - 2*x2*x1").collected()), "x1 * x2");
     assert_eq!(
@@ -535,6 +542,7 @@ fn like_terms_collect_exactly_and_only_where_defined() {
         "-9.81/0.7*sin(x1) - 0.1*x2/(1.3*0.7^2) + 1/(1.3*0.7^2)*(1.3*0.7^2*(9.81/0.7*sin(x1) + 0.1*x2/(1.3*0.7^2) - 2*x1 - 3*x2))",
         "0.1*x1/3 - x1/3*0.1 + x2*0.7^2 + x3",
         "-(x1 - x2)/3 + (x1 - x2)/3 + x3 + sqrt(x1) - 0*sqrt(x1)",
+        "(x2*(x1 - 1)) + (-x2)*(1*(x2 - 1)) - (-x1)*x3*(-(x2 + 1))",
     ];
     for src in sources {
         let (e, c) = (p(src), p(src).collected());
