@@ -467,3 +467,56 @@ fn certified_cells_hold(stem: &str, cells: usize, seed: u64) -> usize {
     }
     finite
 }
+
+/// Actuator limits that the nominal input passes by far (the paper's gains, `κ₂ = −5x₂`, with
+/// `|u| ≤ 3`): the feasible `θ` lie far from 0, where a point deep inside the rows at a box's
+/// centre, traded against `‖θ‖`, has no margin left. Every small box away from the obstacle
+/// whose nominal is past a bound by 1 or more is proven feasible (none was before the
+/// candidate chosen for the box's enclosed rows, `filter::solve::robust_point`), and clarabel
+/// solves the QP at points of each.
+#[test]
+fn feasibility_is_proven_where_the_nominal_input_is_far_past_a_bound() {
+    let s = from_text(
+        r#"
+name = "limits"
+[system]
+states = ["x1", "x2"]
+inputs = ["u1", "u2"]
+f = ["0", "0"]
+g = [["1", "0"], ["0", "1"]]
+kappa = ["-x1", "-5*x2"]
+[[cbf]]
+h = "(x1 - 2)^2 + x2^2 - 1"
+[input_bounds]
+lower = [-3, -3]
+upper = [3, 3]
+[reach]
+region = { lower = [-3.5, -3], upper = [4.5, 3] }
+m_c = 0
+dt = 0.04
+horizon = 1
+goal = { lower = [-0.5, -0.5], upper = [0.5, 0.5] }
+"#,
+    )
+    .unwrap();
+    let forms = VForms::new(&s).unwrap();
+    let solver = SafetyFilter::with_method(&s, FilterMethod::Qp);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(23);
+    let mut tried = 0;
+    while tried < 200 {
+        let x: [f64; 2] = [rng.random_range(-3.4..4.4), rng.random_range(-2.9..2.9)];
+        if (5.0 * x[1]).abs() < 4.0 || (x[0] - 2.0).powi(2) + x[1] * x[1] < 4.0 {
+            continue;
+        }
+        tried += 1;
+        let b = IntervalBox {
+            lower: x.iter().map(|v| v - 0.01).collect(),
+            upper: x.iter().map(|v| v + 0.01).collect(),
+        };
+        assert!(forms.proves_feasible(&s, &b), "not proven on {b:?}");
+        for corner in [&b.lower, &b.upper] {
+            let status = solver.solve_with_clarabel(corner);
+            assert!(matches!(status, Ok(FilterStatus::Solved(_))), "{status:?}");
+        }
+    }
+}

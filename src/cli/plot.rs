@@ -54,7 +54,7 @@ pub struct PlotArgs {
     /// Pixel size WIDTH,HEIGHT (default: 1000 wide, the region's aspect ratio).
     #[arg(long)]
     pub size: Option<String>,
-    /// Draw every K-th Euler step of the tubes.
+    /// Draw every K-th step (of dt) of the tubes.
     #[arg(long, default_value_t = 10, value_parser = |s: &str| super::whole_at_least(s, 1))]
     pub every: usize,
     /// How the network is bounded over each box (tubes, minkowski).
@@ -140,7 +140,7 @@ pub fn reach_initial(
         face_local,
         ..ReachSettings::default()
     };
-    let bar = progress_bar(problem.steps as u64, "Euler steps");
+    let bar = progress_bar(problem.steps as u64, "steps of dt");
     let r = engine.reach(problem, &s.reach.initial, &settings, &|d, _| {
         bar.set_position(d as u64)
     })?;

@@ -65,7 +65,7 @@ pub fn run(args: &ReachArgs) -> CliResult {
     }
     settings.validate().map_err(|e| settings_flag_error(&e))?;
     let backend = engine(&args.engine, &mut settings, &problem, s.reach.initial.len())?;
-    let bar = progress_bar(problem.steps as u64, "Euler steps");
+    let bar = progress_bar(problem.steps as u64, "steps of dt");
     let result = backend.reach(&problem, &s.reach.initial, &settings, &|done, _| {
         bar.set_position(done as u64)
     })?;

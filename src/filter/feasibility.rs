@@ -7,10 +7,12 @@ use crate::boxes::IntervalBox;
 use crate::intervals::Interval;
 use crate::scenario::Scenario;
 
-/// Whether one `θ*`, found at the box's centre ([`super::solve::margin_point`]: deep inside the
-/// rows there), satisfies `aₖ(x)·θ* ≤ bₖ(x)` for every `x` of `box ∩ S`, with the rows enclosed
-/// over the box (`a` row-major rows × m, `b` one per row). Then `θ*` is feasible at every such
-/// point, and so is the QP; the point is only a candidate, the interval check is the proof.
+/// Whether one `θ*` satisfies `aₖ(x)·θ* ≤ bₖ(x)` for every `x` of `box ∩ S`, with the rows
+/// enclosed over the box (`a` row-major rows × m, `b` one per row). Then `θ*` is feasible at
+/// every such point, and so is the QP. Two candidates, each only that (the interval check is
+/// the proof): the point deep inside the rows at the box's centre
+/// ([`super::solve::margin_point`]), then the one chosen for the enclosed rows themselves
+/// ([`super::solve::robust_point`]), which finds one where the feasible `θ` lie far from 0.
 pub(crate) fn proves_feasible(
     s: &Scenario,
     cell: &IntervalBox,
@@ -18,13 +20,16 @@ pub(crate) fn proves_feasible(
     b: &[Interval],
 ) -> bool {
     let m = s.m();
-    let Ok(rows) = SafetyFilter::new(s).constraint_rows(&cell.center()) else {
-        return false;
-    };
-    let Some(theta) = super::solve::margin_point(&rows, m) else {
-        return false;
-    };
-    holds(&theta, a, b, m)
+    let at_centre = SafetyFilter::new(s)
+        .constraint_rows(&cell.center())
+        .ok()
+        .and_then(|rows| super::solve::margin_point(&rows, m));
+    if at_centre.is_some_and(|theta| holds(&theta, a, b, m)) {
+        return true;
+    }
+    let ends: Vec<(f64, f64)> = a.iter().map(|e| (e.lower, e.upper)).collect();
+    let least: Vec<f64> = b.iter().map(|e| e.lower).collect();
+    super::solve::robust_point(&ends, &least, m).is_some_and(|theta| holds(&theta, a, b, m))
 }
 
 /// Whether `a(x)·θ ≤ b(x)` on every row for the enclosures `a`, `b` (NaN proves nothing).
