@@ -520,3 +520,64 @@ goal = { lower = [-0.5, -0.5], upper = [0.5, 0.5] }
         }
     }
 }
+
+/// A CBF row nearly parallel to an input bound: a two-link arm commanded in joint velocity,
+/// `|w| ≤ 2`, its tip kept out of a disc. Along a curve where `∂h/∂q₂ = 0` the CBF row is
+/// parallel to `w₁`'s bounds, each two-row piece's `1/det G` leaves its enclosure at the
+/// bounds' whole width (4), and certified error bounds there were 4.0 against 0.1 sampled,
+/// though `v` is continuous. The ball around the least point that satisfies every row over
+/// the box (`VForms::enclose`) bounds `v` by about its largest value there: every small box
+/// across the curve gets an enclosure narrower than 1 that holds clarabel's solutions.
+#[test]
+fn nearly_parallel_rows_are_bounded_by_the_least_feasible_point() {
+    let s = from_text(
+        r#"
+name = "arm"
+[system]
+states = ["q1", "q2"]
+inputs = ["w1", "w2"]
+f = ["0", "0"]
+g = [["1", "0"], ["0", "1"]]
+kappa = ["-1.5*(q1 - 0.2)", "-1.5*(q2 - 0.3)"]
+[[cbf]]
+h = "(cos(q1) + 0.8*cos(q1 + q2) - 1.2)^2 + (sin(q1) + 0.8*sin(q1 + q2) - 0.9)^2 - 0.35^2"
+alpha = 2.0
+[input_bounds]
+lower = [-2, -2]
+upper = [2, 2]
+[reach]
+region = { lower = [-0.5, -0.5], upper = [2, 2] }
+m_c = 0
+dt = 0.02
+horizon = 1
+goal = { lower = [0.1, 0.2], upper = [0.3, 0.4] }
+"#,
+    )
+    .unwrap();
+    let forms = VForms::new(&s).unwrap();
+    let solver = SafetyFilter::with_method(&s, FilterMethod::Qp);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(24);
+    let mut widest: f64 = 0.0;
+    for _ in 0..100 {
+        // Along ∂h/∂q₂ = 0: (1.5, 1.6) to (1.75, 1.2).
+        let t = rng.random_range(0.0..1.0);
+        let x = [
+            1.5 + 0.25 * t,
+            1.6 - 0.4 * t + rng.random_range(-0.01..0.01),
+        ];
+        let b = IntervalBox {
+            lower: vec![x[0] - 0.01, x[1] - 0.01],
+            upper: vec![x[0] + 0.01, x[1] + 0.01],
+        };
+        let (v, _) = forms.enclose(&s, &b);
+        widest = v.iter().map(|e| e.width()).fold(widest, f64::max);
+        for _ in 0..8 {
+            let u: Vec<f64> = (0..2).map(|_| rng.random_range(0.0..=1.0)).collect();
+            let p = b.point_at(&u);
+            if let Ok(FilterStatus::Solved(theta)) = solver.solve_with_clarabel(&p) {
+                assert!(inside(&theta, &v), "v({p:?}) = {theta:?} outside {v:?}");
+            }
+        }
+    }
+    assert!(widest < 1.0, "an enclosure {widest} wide");
+}

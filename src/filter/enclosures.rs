@@ -4,6 +4,7 @@
 
 use super::active_sets::{natural_qp_enclosure, QpForms};
 use super::rows::{interval_rows, row_expressions};
+use super::solve::RobustGoal;
 use super::{FilterMethod, SafetyFilter};
 use crate::boxes::IntervalBox;
 use crate::expressions::{Expr, Tape};
@@ -416,6 +417,35 @@ impl VForms {
         }
     }
 
+    /// The box around the ball `v` lies in over `cell ∩ S` where one `θ*` satisfies every row
+    /// there: `v(x)` is the least-norm point of a convex set that holds `θ*`, so `⟨v, θ* − v⟩ ≥
+    /// 0`, that is `‖v − θ*/2‖ ≤ ‖θ*‖/2`. With `θ*` the least such point over the cell
+    /// ([`super::solve::robust_point`]) the ball is about as small as `v`'s largest value
+    /// there, whatever the pieces: where two rows are nearly parallel (a CBF row beside an
+    /// input bound) each piece's `1/det G` leaves its own enclosure unbounded. `None` where no
+    /// such `θ*` is found and proven (the interval check of [`super::feasibility::holds`]).
+    fn least_feasible_ball(&self, s: &Scenario, cell: &IntervalBox) -> Option<Vec<Interval>> {
+        let Centred { xs, cs, dx } = Centred::of(cell);
+        let Rows { a_nat, b_enc, .. } = self.rows(s, &xs, &cs, &dx, cell)?;
+        let ends: Vec<(f64, f64)> = a_nat.iter().map(|e| (e.lower, e.upper)).collect();
+        let least: Vec<f64> = b_enc.iter().map(|e| e.lower).collect();
+        let theta = super::solve::robust_point(&ends, &least, self.m, RobustGoal::Least)?;
+        if !super::feasibility::holds(&theta, &a_nat, &b_enc, self.m) {
+            return None;
+        }
+        let half = Interval::point(0.5);
+        let radius = sum(theta.iter().map(|&t| Interval::point(t).sqr())).sqrt() * half;
+        Some(
+            theta
+                .iter()
+                .map(|&t| {
+                    let centre = Interval::point(t) * half;
+                    Interval::new((centre - radius).lower, (centre + radius).upper)
+                })
+                .collect(),
+        )
+    }
+
     /// Whether the filter's QP is feasible at every point of `cell ∩ S`. One row: `bₖ ≥ 0` or
     /// `aₖ ≠ 0`. Scalar input: each row's set of `θ` is a half-line (or all of ℝ), and in one
     /// dimension sets that meet pairwise have a common point (Helly), so it suffices that every
@@ -539,11 +569,17 @@ impl VForms {
             v_enclosure(s, self.method, cell).unwrap_or_else(|| vec![Interval::ENTIRE; m]);
         if let Some(qp) = &self.qp {
             let cell_v = qp.enclose(s, cell);
-            let v = natural
+            let mut v: Vec<Interval> = natural
                 .iter()
                 .zip(&cell_v.v)
                 .map(|(&a, &b)| meet(b, a))
                 .collect();
+            // Where one piece is proven its mean-value form is tight already.
+            if cell_v.piece.is_none() && v.iter().any(|e| e.width() > 0.0) {
+                if let Some(ball) = self.least_feasible_ball(s, cell) {
+                    v = v.iter().zip(&ball).map(|(&a, &b)| meet(a, b)).collect();
+                }
+            }
             return (v, cell_v.piece.map(|(_, sv)| sv));
         }
         let centre = cell.center();

@@ -29,7 +29,8 @@ pub(crate) fn proves_feasible(
     }
     let ends: Vec<(f64, f64)> = a.iter().map(|e| (e.lower, e.upper)).collect();
     let least: Vec<f64> = b.iter().map(|e| e.lower).collect();
-    super::solve::robust_point(&ends, &least, m).is_some_and(|theta| holds(&theta, a, b, m))
+    super::solve::robust_point(&ends, &least, m, super::solve::RobustGoal::Deepest)
+        .is_some_and(|theta| holds(&theta, a, b, m))
 }
 
 /// Whether `a(x)·θ ≤ b(x)` on every row for the enclosures `a`, `b` (NaN proves nothing).

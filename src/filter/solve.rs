@@ -264,16 +264,31 @@ pub(super) fn margin_point(rows: &ConstraintRows, m: usize) -> Option<Vec<f64>> 
     (solved && sol.x[m] > 0.0 && sol.x.iter().all(|v| v.is_finite())).then(|| sol.x[..m].to_vec())
 }
 
+/// What [`robust_point`] looks for among the `θ` that satisfy every row over a box.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(super) enum RobustGoal {
+    /// The largest margin, up to the rows' own scale, with a small pull towards 0: a
+    /// candidate for a feasibility proof.
+    Deepest,
+    /// The least `‖θ‖` (within a hair of the rows, so that the interval check passes): the
+    /// tightest ball `v` is known to lie in ([`super::enclosures`]).
+    Least,
+}
+
 /// A `θ` that satisfies rows known only as enclosures over a box, `aₖ·θ ≤ bₖ` for every
-/// `aₖ ∈ [a̲ₖ, āₖ]` and `bₖ ≥ b̲ₖ`, with margin where it can: the robust counterpart
-/// `Σⱼ (midₖⱼ θⱼ + radₖⱼ |θⱼ|) + t‖midₖ‖ ≤ b̲ₖ` (exactly what interval arithmetic checks),
-/// `|θ| ≤ s` as two rows, `t` maximised up to the rows' own scale with a small pull towards 0.
-/// [`margin_point`] at the box's centre trades depth against `‖θ‖` and lands on a row where
-/// the feasible `θ` lie far from 0 (a nominal input well past an input bound); this one is
-/// chosen for the whole box. `a` row-major rows × m, `b` one per row; `None` where an
-/// enclosure is not finite, no such `θ` has `t ≥ 0`, or clarabel fails. Only a candidate:
-/// the caller's interval check is the proof.
-pub(super) fn robust_point(a: &[(f64, f64)], b: &[f64], m: usize) -> Option<Vec<f64>> {
+/// `aₖ ∈ [a̲ₖ, āₖ]` and `bₖ ≥ b̲ₖ`: the robust counterpart `Σⱼ (midₖⱼ θⱼ + radₖⱼ |θⱼ|) +
+/// t‖midₖ‖ ≤ b̲ₖ` (exactly what interval arithmetic checks), `|θ| ≤ s` as two rows, and the
+/// `goal`. [`margin_point`] at the box's centre trades depth against `‖θ‖` and lands on a row
+/// where the feasible `θ` lie far from 0 (a nominal input well past an input bound); this one
+/// is chosen for the whole box. `a` row-major rows × m, `b` one per row; `None` where an
+/// enclosure is not finite, no such `θ` exists, or clarabel fails. Only a candidate: the
+/// caller's interval check is the proof.
+pub(super) fn robust_point(
+    a: &[(f64, f64)],
+    b: &[f64],
+    m: usize,
+    goal: RobustGoal,
+) -> Option<Vec<f64>> {
     let k = b.len();
     let finite =
         a.iter().all(|(l, u)| l.is_finite() && u.is_finite()) && b.iter().all(|v| v.is_finite());
@@ -285,16 +300,17 @@ pub(super) fn robust_point(a: &[(f64, f64)], b: &[f64], m: usize) -> Option<Vec<
     let norms: Vec<f64> = (0..k)
         .map(|r| (0..m).map(|j| mid(r, j).powi(2)).sum::<f64>().sqrt())
         .collect();
-    // The depth is capped at the rows' offsets' scale: where the rows leave a cone (one row,
-    // or bounds on one side) deeper is not better, the rows' spread grows with |θ|.
-    let cap = 1.0
+    // The rows' offsets' scale: the deepest margin is capped at it (where the rows leave a
+    // cone deeper is not better, the rows' spread grows with |θ|), the least `θ` keeps a
+    // hair of it.
+    let scale = 1.0
         + (0..k)
             .filter(|&r| norms[r] > 0.0)
             .map(|r| b[r].abs() / norms[r])
             .fold(0.0, f64::max);
     let cols = 2 * m + 1;
     let (rows, t) = (k + 2 * m + 1, 2 * m);
-    // Column-major entries of [mid | rad | ‖mid‖] over [I, −I, 0; −I, −I, 0; 0, 0, 1].
+    // Column-major entries of [mid | rad | ‖mid‖] over [I, −I, 0; −I, −I, 0; 0, 0, ±1].
     let mut columns: Vec<Vec<(usize, f64)>> = vec![Vec::new(); cols];
     for (r, &norm) in norms.iter().enumerate() {
         for j in 0..m {
@@ -309,7 +325,26 @@ pub(super) fn robust_point(a: &[(f64, f64)], b: &[f64], m: usize) -> Option<Vec<
         columns[m + j].push((k + 2 * j, -1.0));
         columns[m + j].push((k + 2 * j + 1, -1.0));
     }
-    columns[t].push((k + 2 * m, 1.0));
+    let mut rhs = b.to_vec();
+    rhs.extend(std::iter::repeat_n(0.0, 2 * m));
+    let (diagonal, q) = match goal {
+        RobustGoal::Deepest => {
+            // t ≤ scale; a pull towards 0 small against the depth at the rows' scale.
+            columns[t].push((k + 2 * m, 1.0));
+            rhs.push(scale);
+            let mut q = vec![0.0; cols];
+            q[t] = -1.0;
+            (vec![1e-3 / (scale * scale); cols], q)
+        }
+        RobustGoal::Least => {
+            // t ≥ a hair of the scale; ‖θ‖² (s and t only kept bounded).
+            columns[t].push((k + 2 * m, -1.0));
+            rhs.push(-1e-9 * scale);
+            let mut diagonal = vec![1e-9; cols];
+            diagonal[..m].fill(1.0);
+            (diagonal, vec![0.0; cols])
+        }
+    };
     let mut colptr = vec![0];
     let (mut rowval, mut nzval) = (Vec::new(), Vec::new());
     for column in &columns {
@@ -320,20 +355,13 @@ pub(super) fn robust_point(a: &[(f64, f64)], b: &[f64], m: usize) -> Option<Vec<
         colptr.push(rowval.len());
     }
     let constraints = CscMatrix::new(rows, cols, colptr, rowval, nzval);
-    let mut rhs = b.to_vec();
-    rhs.extend(std::iter::repeat_n(0.0, 2 * m));
-    rhs.push(cap);
-    // A pull towards 0 small against the depth at the rows' scale.
-    let pull = 1e-3 / (cap * cap);
     let p = CscMatrix::new(
         cols,
         cols,
         (0..=cols).collect(),
         (0..cols).collect(),
-        vec![pull; cols],
+        diagonal,
     );
-    let mut q = vec![0.0; cols];
-    q[t] = -1.0;
     let cones = [SupportedConeT::NonnegativeConeT(rows)];
     let settings = DefaultSettingsBuilder::default()
         .verbose(false)

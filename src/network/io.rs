@@ -6,6 +6,8 @@
 //!
 //! - any common prefix is accepted (`net.0.weight`, `model.layers.3.bias`), and any strictly
 //!   increasing integer indices; layers are taken in index order;
+//! - so are layers named with a number (`fc1.weight`, `fc2.weight`, …, `fc10.weight`, a
+//!   module's `self.fc1 = nn.Linear(…)` with ReLU between), in the order of their numbers;
 //! - every index needs both `.weight` and `.bias`; weights must be 2-D `[out, in]`, biases
 //!   `[out]`, and each layer's `in` must equal the previous layer's `out`;
 //! - dtypes F32 and F64 are accepted (F32 is widened exactly to f64); NaN and ±∞ are rejected;
@@ -289,7 +291,8 @@ impl<'a> RawTensors<'a> {
     }
 }
 
-/// Splits `prefix.<index>.weight|bias` into `(prefix, index, is_weight)`.
+/// Splits `prefix.<index>.weight|bias`, or `prefix<index>.weight|bias` (a layer named with a
+/// number, `fc1`), into `(prefix, index, is_weight)`.
 fn split_key(key: &str) -> Option<(&str, u64, bool)> {
     let (rest, is_weight) = if let Some(r) = key.strip_suffix(".weight") {
         (r, true)
@@ -302,8 +305,15 @@ fn split_key(key: &str) -> Option<(&str, u64, bool)> {
         Some(p) => (&rest[..=p], &rest[p + 1..]),
         None => ("", rest),
     };
-    let index = idx.parse::<u64>().ok()?;
-    Some((prefix, index, is_weight))
+    if let Ok(index) = idx.parse::<u64>() {
+        return Some((prefix, index, is_weight));
+    }
+    let name = idx.trim_end_matches(|c: char| c.is_ascii_digit());
+    let split = rest.len() - (idx.len() - name.len());
+    match name.is_empty() || name.len() == idx.len() {
+        true => None,
+        false => Some((&rest[..split], rest[split..].parse().ok()?, is_weight)),
+    }
 }
 
 /// Parses an MLP from safetensors bytes (see the module docs for the accepted layout).
@@ -330,7 +340,8 @@ fn parse(bytes: &[u8], path: &Path) -> Result<(Mlp, BTreeMap<String, String>), N
     for name in &names {
         let Some((p, index, is_weight)) = split_key(name) else {
             return Err(unsupported(format!(
-                "tensor `{name}` is not `<index>.weight` or `<index>.bias` of a Linear layer"
+                "tensor `{name}` is not `<index>.weight` or `<index>.bias` of a Linear layer \
+                 (nor `<name><index>.weight`, as `fc1.weight`)"
             )));
         };
         match prefix {
@@ -489,6 +500,35 @@ mod tests {
         t[3].0 = "net.7.bias";
         let mlp = Mlp::from_safetensors_bytes(&torch_style(&t, Dtype::F32), "p").unwrap();
         assert_eq!(mlp.widths(), vec![2, 3, 1]);
+    }
+
+    /// A module's `fc1`, `fc2`, … `fc10`: taken in the order of their numbers (`fc10` after
+    /// `fc2`, which a text sort would not give; the shapes chain only in that order).
+    #[test]
+    fn layers_named_with_numbers_load_in_their_order() {
+        let widths = [2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 1];
+        let mut t: Vec<(String, Vec<usize>, Vec<f32>)> = Vec::new();
+        for k in 0..widths.len() - 1 {
+            let (i, o) = (widths[k], widths[k + 1]);
+            t.push((
+                format!("net.fc{}.weight", k + 1),
+                vec![o, i],
+                vec![0.5; o * i],
+            ));
+            t.push((format!("net.fc{}.bias", k + 1), vec![o], vec![0.0; o]));
+        }
+        let named: Vec<(&str, Vec<usize>, Vec<f32>)> = t
+            .iter()
+            .map(|(n, s, d)| (n.as_str(), s.clone(), d.clone()))
+            .collect();
+        let mlp = Mlp::from_safetensors_bytes(&torch_style(&named, Dtype::F32), "fc").unwrap();
+        assert_eq!(mlp.widths(), widths.to_vec());
+        // Names with no number, or a number alone after a name's own digits, still say what
+        // is expected.
+        let mut t = small();
+        t[0].0 = "out.weight";
+        let err = Mlp::from_safetensors_bytes(&torch_style(&t, Dtype::F32), "o").unwrap_err();
+        assert!(err.to_string().contains("`fc1.weight`"), "{err}");
     }
 
     #[test]
