@@ -471,9 +471,9 @@ fn certified_cells_hold(stem: &str, cells: usize, seed: u64) -> usize {
 /// Actuator limits that the nominal input passes by far (the paper's gains, `κ₂ = −5x₂`, with
 /// `|u| ≤ 3`): the feasible `θ` lie far from 0, where a point deep inside the rows at a box's
 /// centre, traded against `‖θ‖`, has no margin left. Every small box away from the obstacle
-/// whose nominal is past a bound by 1 or more is proven feasible (none was before the
-/// candidate chosen for the box's enclosed rows, `filter::solve::robust_point`), and clarabel
-/// solves the QP at points of each.
+/// whose nominal is past a bound by 1 or more is proven feasible (before the candidate chosen
+/// for the box's enclosed rows, `filter::solve::robust_point`, the first such box failed), and
+/// clarabel solves the QP at points of each.
 #[test]
 fn feasibility_is_proven_where_the_nominal_input_is_far_past_a_bound() {
     let s = from_text(
