@@ -581,3 +581,53 @@ goal = { lower = [0.1, 0.2], upper = [0.3, 0.4] }
     }
     assert!(widest < 1.0, "an enclosure {widest} wide");
 }
+
+/// Three spheres on three inputs with `|uᵢ| ≤ 2`: nine rows, 129 active sets of at most three
+/// rows, past [`cbfreach::filter::MAX_SETS`], so no enclosure and no certified bound before.
+/// An input's lower and upper bound are dependent everywhere and never needed together
+/// (Carathéodory), and without those pairs 105 sets remain: the enumeration is complete, the
+/// enclosures hold clarabel's solutions, and most are bounded.
+#[test]
+fn opposite_bounds_of_an_input_are_never_enumerated_together() {
+    let s = from_text(
+        r#"
+name = "three"
+[system]
+states = ["x1", "x2", "x3"]
+inputs = ["u1", "u2", "u3"]
+f = ["0", "0", "0"]
+g = [["1", "0", "0"], ["0", "1", "0"], ["0", "0", "1"]]
+kappa = ["-x1", "-x2", "-x3"]
+[[cbf]]
+h = "(x1 - 1.5)^2 + (x2 - 0.3)^2 + x3^2 - 0.36"
+[[cbf]]
+h = "(x1 - 0.2)^2 + (x2 - 1.5)^2 + (x3 + 0.2)^2 - 0.36"
+[[cbf]]
+h = "(x1 - 0.4)^2 + (x2 + 0.1)^2 + (x3 - 1.5)^2 - 0.36"
+[input_bounds]
+lower = [-2, -2, -2]
+upper = [2, 2, 2]
+[reach]
+region = { lower = [-1, -1, -1], upper = [3, 3, 3] }
+m_c = 0
+dt = 0.05
+horizon = 1
+goal = { lower = [-0.3, -0.3, -0.3], upper = [0.3, 0.3, 0.3] }
+"#,
+    )
+    .unwrap();
+    let qp = QpForms::new(&s);
+    assert!(qp.is_complete());
+    assert_eq!(qp.len(), 105);
+    assert!(qp
+        .sets()
+        .iter()
+        .all(|set| (0..3).all(|j| !(set.contains(&(3 + 2 * j)) && set.contains(&(4 + 2 * j))))));
+    let seen = solutions_inside(&s, 150, 6);
+    assert!(
+        seen.points > 600 && seen.bounded > 100,
+        "{} {}",
+        seen.points,
+        seen.bounded
+    );
+}

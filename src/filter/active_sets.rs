@@ -183,9 +183,16 @@ pub(crate) fn piece_algebra<T: Ring>(a: &[Vec<T>], b: &[T], set: &[usize]) -> Pi
     PieceAlgebra { d, w, p, primal }
 }
 
-/// Every nonempty subset of `0..rows` of at most `max` elements, smaller sets first; `None`
-/// when there are more than [`MAX_SETS`].
-pub(crate) fn active_sets(rows: usize, max: usize) -> Option<Vec<Vec<usize>>> {
+/// Every nonempty subset of `0..rows` of at most `max` elements with no two rows `parallel`
+/// (dependent at every point: both of their normals constant and parallel, as an input's lower
+/// and upper bound), smaller sets first; `None` when there are more than [`MAX_SETS`]. Sets
+/// with a parallel pair are never needed: some multiplier vector of the KKT conditions has a
+/// support of linearly independent rows (Carathéodory, docs/design.md §2.1a).
+pub(crate) fn active_sets(
+    rows: usize,
+    max: usize,
+    parallel: impl Fn(usize, usize) -> bool,
+) -> Option<Vec<Vec<usize>>> {
     let mut out: Vec<Vec<usize>> = Vec::new();
     let mut layer: Vec<Vec<usize>> = vec![Vec::new()];
     for _ in 0..max.min(rows) {
@@ -193,6 +200,9 @@ pub(crate) fn active_sets(rows: usize, max: usize) -> Option<Vec<Vec<usize>>> {
         for set in &layer {
             let from = set.last().map_or(0, |&l| l + 1);
             for k in from..rows {
+                if set.iter().any(|&j| parallel(j, k)) {
+                    continue;
+                }
                 let mut s = set.clone();
                 s.push(k);
                 next.push(s);
@@ -205,6 +215,32 @@ pub(crate) fn active_sets(rows: usize, max: usize) -> Option<Vec<Vec<usize>>> {
         layer = next;
     }
     Some(out)
+}
+
+/// Whether two rows' normals are both constant (`Some`) and parallel, either way: the two
+/// rows are then dependent at every point (an input's lower and upper bound: `−eⱼ`, `eⱼ`).
+/// Exact: every 2 × 2 minor `aₖbₗ − aₗbₖ` vanishes, the products compared as error-free pairs
+/// (`p + e`, `e` by a fused multiply-add), with every entry 0 or of moderate size so that
+/// nothing underflows; anything else counts as not parallel (a set kept is never unsound).
+fn constant_parallel(a: &Option<Vec<f64>>, b: &Option<Vec<f64>>) -> bool {
+    let (Some(a), Some(b)) = (a, b) else {
+        return false;
+    };
+    let moderate = |v: &[f64]| {
+        v.iter()
+            .all(|&x| x == 0.0 || (1e-100..1e100).contains(&x.abs()))
+    };
+    let product = |x: f64, y: f64| {
+        let p = x * y;
+        (p, x.mul_add(y, -p))
+    };
+    a.len() == b.len()
+        && moderate(a)
+        && moderate(b)
+        && a.iter().any(|&x| x != 0.0)
+        && b.iter().any(|&x| x != 0.0)
+        && (0..a.len())
+            .all(|k| (k + 1..a.len()).all(|l| product(a[k], b[l]) == product(a[l], b[k])))
 }
 
 /// Whether the piece's discarding conditions prove it is not `v`'s piece anywhere on the box.
@@ -284,7 +320,15 @@ pub fn natural_qp_enclosure(a: &[Interval], b: &[Interval], m: usize) -> Vec<Int
         return vec![Interval::point(0.0); m];
     }
     let a: Vec<Vec<Interval>> = a.chunks(m.max(1)).map(<[Interval]>::to_vec).collect();
-    let Some(sets) = active_sets(rows, m.min(MAX_ACTIVE)) else {
+    let point = |k: usize| -> Option<Vec<f64>> {
+        a[k].iter()
+            .map(|e| (e.lower == e.upper).then_some(e.lower))
+            .collect()
+    };
+    let normals: Vec<Option<Vec<f64>>> = (0..rows).map(point).collect();
+    let Some(sets) = active_sets(rows, m.min(MAX_ACTIVE), |i, j| {
+        constant_parallel(&normals[i], &normals[j])
+    }) else {
         return entire;
     };
     if m > MAX_ACTIVE && rows > MAX_ACTIVE {
@@ -363,7 +407,13 @@ impl QpForms {
         let (a_rows, b_rows) = row_expressions(s, false);
         let rows = b_rows.len();
         let b = b_rows.iter().map(|e| Smooth::new(e.clone(), n)).collect();
-        let sets = active_sets(rows, m.min(MAX_ACTIVE));
+        let normals: Vec<Option<Vec<f64>>> = a_rows
+            .iter()
+            .map(|row| row.iter().map(Expr::as_constant).collect())
+            .collect();
+        let sets = active_sets(rows, m.min(MAX_ACTIVE), |i, j| {
+            constant_parallel(&normals[i], &normals[j])
+        });
         let complete = sets.is_some() && (m <= MAX_ACTIVE || rows <= MAX_ACTIVE);
         let pieces = sets
             .unwrap_or_default()
