@@ -3,7 +3,9 @@
 use std::path::Path;
 
 use cbfreach::expressions::Expr;
-use cbfreach::filter::{findings, FilterFindings, SafetyFilter, Vanishing};
+use cbfreach::filter::{
+    findings, FilterFindings, FilterMethod, QpForms, SafetyFilter, Vanishing, MAX_ACTIVE, MAX_SETS,
+};
 use cbfreach::scenario::Margin;
 
 use super::{fmt_point, load_scenario, CliResult};
@@ -59,6 +61,20 @@ pub fn run(path: &Path) -> CliResult {
         if rows == 1 { "" } else { "s" },
         filter.method()
     );
+    if filter.method() == FilterMethod::Qp {
+        let qp = QpForms::new(&s);
+        match qp.is_complete() {
+            true => println!(
+                "    its certified bounds enumerate {} active sets (design §2.1a)",
+                qp.len()
+            ),
+            false => println!(
+                "    its active sets are past those enumerated ({MAX_SETS} sets of at most \
+                 {MAX_ACTIVE} rows): no certified error bound (`cbfreach error` finds none, and \
+                 m_c = \"certified\" or \"local\" cannot run); fewer rows would give one"
+            ),
+        }
+    }
     print_findings(&findings(&s));
     let r = &s.reach;
     println!(
