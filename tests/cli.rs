@@ -905,50 +905,12 @@ fn verify_says_when_the_slabs_are_clipped() {
 #[test]
 fn check_counts_a_general_qps_active_sets_and_says_when_there_are_too_many() {
     let tmp = tempfile::tempdir().unwrap();
-    let spheres = |count: usize| {
-        let centres = [
-            "1.5, 0.3, 0",
-            "0.2, 1.5, -0.2",
-            "0.4, -0.1, 1.5",
-            "1.5, 1.5, 1.5",
-        ];
-        let cbfs: String = centres[..count]
-            .iter()
-            .map(|c| {
-                let c: Vec<&str> = c.split(", ").collect();
-                format!(
-                    "[[cbf]]\nh = \"(x1 - ({}))^2 + (x2 - ({}))^2 + (x3 - ({}))^2 - 0.36\"\n",
-                    c[0], c[1], c[2]
-                )
-            })
-            .collect();
-        format!(
-            r#"name = "spheres"
-[system]
-states = ["x1", "x2", "x3"]
-inputs = ["u1", "u2", "u3"]
-f = ["0", "0", "0"]
-g = [["1", "0", "0"], ["0", "1", "0"], ["0", "0", "1"]]
-kappa = ["-x1", "-x2", "-x3"]
-{cbfs}
-[input_bounds]
-lower = [-2, -2, -2]
-upper = [2, 2, 2]
-[reach]
-region = {{ lower = [-1, -1, -1], upper = [3, 3, 3] }}
-m_c = 0
-dt = 0.05
-horizon = 1
-goal = {{ lower = [-0.3, -0.3, -0.3], upper = [0.3, 0.3, 0.3] }}
-"#
-        )
-    };
     for (count, expected) in [
         (3, "its certified bounds enumerate 105 active sets"),
         (4, "its active sets are past those enumerated (128 sets of at most 4 rows): no certified error bound"),
     ] {
         let path = tmp.path().join(format!("s{count}.toml"));
-        std::fs::write(&path, spheres(count)).unwrap();
+        std::fs::write(&path, common::spheres_with_bounds(count)).unwrap();
         let (code, stdout, stderr) = cbfreach(&["check", path.to_str().unwrap()]);
         assert_eq!(code, 0, "{stderr}");
         assert!(stdout.contains(expected), "{stdout}");

@@ -10,7 +10,9 @@ use cbfreach::filter::{
 };
 use cbfreach::intervals::Interval;
 use cbfreach::scenario::Scenario;
-use common::{double_integrator, from_text, integrator, scenario_path, two_obstacles};
+use common::{
+    double_integrator, from_text, integrator, scenario_path, spheres_with_bounds, two_obstacles,
+};
 use rand::{Rng, SeedableRng};
 
 /// clarabel's answers are polished to the exact KKT point but may keep its tolerance.
@@ -589,33 +591,7 @@ goal = { lower = [0.1, 0.2], upper = [0.3, 0.4] }
 /// enclosures hold clarabel's solutions, and most are bounded.
 #[test]
 fn opposite_bounds_of_an_input_are_never_enumerated_together() {
-    let s = from_text(
-        r#"
-name = "three"
-[system]
-states = ["x1", "x2", "x3"]
-inputs = ["u1", "u2", "u3"]
-f = ["0", "0", "0"]
-g = [["1", "0", "0"], ["0", "1", "0"], ["0", "0", "1"]]
-kappa = ["-x1", "-x2", "-x3"]
-[[cbf]]
-h = "(x1 - 1.5)^2 + (x2 - 0.3)^2 + x3^2 - 0.36"
-[[cbf]]
-h = "(x1 - 0.2)^2 + (x2 - 1.5)^2 + (x3 + 0.2)^2 - 0.36"
-[[cbf]]
-h = "(x1 - 0.4)^2 + (x2 + 0.1)^2 + (x3 - 1.5)^2 - 0.36"
-[input_bounds]
-lower = [-2, -2, -2]
-upper = [2, 2, 2]
-[reach]
-region = { lower = [-1, -1, -1], upper = [3, 3, 3] }
-m_c = 0
-dt = 0.05
-horizon = 1
-goal = { lower = [-0.3, -0.3, -0.3], upper = [0.3, 0.3, 0.3] }
-"#,
-    )
-    .unwrap();
+    let s = from_text(&spheres_with_bounds(3)).unwrap();
     let qp = QpForms::new(&s);
     assert!(qp.is_complete());
     assert_eq!(qp.len(), 105);

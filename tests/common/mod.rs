@@ -150,6 +150,47 @@ goal = {{ lower = [-0.1, -0.1], upper = [0.1, 0.1] }}
     )
 }
 
+/// `count` (1 to 4) spheres of radius 0.6 on the 3-D integrator `ẋ = u`, `κ = −x`, with
+/// `|uᵢ| ≤ 2`: a general QP whose rows are the spheres' and six input bounds.
+pub fn spheres_with_bounds(count: usize) -> String {
+    let centres = [
+        "1.5, 0.3, 0",
+        "0.2, 1.5, -0.2",
+        "0.4, -0.1, 1.5",
+        "1.5, 1.5, 1.5",
+    ];
+    let cbfs: String = centres[..count]
+        .iter()
+        .map(|c| {
+            let c: Vec<&str> = c.split(", ").collect();
+            format!(
+                "[[cbf]]\nh = \"(x1 - ({}))^2 + (x2 - ({}))^2 + (x3 - ({}))^2 - 0.36\"\n",
+                c[0], c[1], c[2]
+            )
+        })
+        .collect();
+    format!(
+        r#"name = "spheres"
+[system]
+states = ["x1", "x2", "x3"]
+inputs = ["u1", "u2", "u3"]
+f = ["0", "0", "0"]
+g = [["1", "0", "0"], ["0", "1", "0"], ["0", "0", "1"]]
+kappa = ["-x1", "-x2", "-x3"]
+{cbfs}
+[input_bounds]
+lower = [-2, -2, -2]
+upper = [2, 2, 2]
+[reach]
+region = {{ lower = [-1, -1, -1], upper = [3, 3, 3] }}
+m_c = 0
+dt = 0.05
+horizon = 1
+goal = {{ lower = [-0.3, -0.3, -0.3], upper = [0.3, 0.3, 0.3] }}
+"#
+    )
+}
+
 /// Runs the `cbfreach` binary: its exit code, stdout and stderr.
 pub fn cbfreach(args: &[&str]) -> (i32, String, String) {
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_cbfreach"))
