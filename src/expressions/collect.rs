@@ -161,19 +161,7 @@ pub(super) fn collect(node: &Node) -> Option<Node> {
     let dropped = out.iter().any(zero);
     out.retain(|t| !zero(t));
     let rebuilt = rebuild(out);
-    (merged || dropped || size(&rebuilt) < size(node)).then_some(rebuilt)
-}
-
-/// Nodes in a tree.
-fn size(node: &Node) -> usize {
-    match node {
-        Node::Const(_) | Node::Var(_) => 1,
-        Node::Neg(u) | Node::Pow(u, _) => 1 + size(u),
-        Node::Add(u, v) | Node::Sub(u, v) | Node::Mul(u, v) | Node::Div(u, v) => {
-            1 + size(u) + size(v)
-        }
-        Node::Call(_, args) => 1 + args.iter().map(size).sum::<usize>(),
-    }
+    (merged || dropped || rebuilt.size() < node.size()).then_some(rebuilt)
 }
 
 /// Appends `c·node`'s terms to `out`.

@@ -103,6 +103,20 @@ pub enum Node {
     Call(Func, Vec<Node>),
 }
 
+impl Node {
+    /// Nodes in the tree, a repeated subtree counted each time it stands.
+    pub fn size(&self) -> usize {
+        1 + match self {
+            Node::Const(_) | Node::Var(_) => 0,
+            Node::Neg(u) | Node::Pow(u, _) => u.size(),
+            Node::Add(u, v) | Node::Sub(u, v) | Node::Mul(u, v) | Node::Div(u, v) => {
+                u.size() + v.size()
+            }
+            Node::Call(_, args) => args.iter().map(Node::size).sum(),
+        }
+    }
+}
+
 /// Functions of the expression language.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Func {

@@ -428,16 +428,6 @@ fn same_bits(a: Interval, b: Interval) -> bool {
 /// ones), while holding fewer operations than the trees have nodes.
 #[test]
 fn tapes_give_the_tree_walks_bits() {
-    fn nodes(n: &Node) -> usize {
-        1 + match n {
-            Node::Const(_) | Node::Var(_) => 0,
-            Node::Neg(u) | Node::Pow(u, _) => nodes(u),
-            Node::Add(u, v) | Node::Sub(u, v) | Node::Mul(u, v) | Node::Div(u, v) => {
-                nodes(u) + nodes(v)
-            }
-            Node::Call(_, args) => args.iter().map(nodes).sum(),
-        }
-    }
     let mut rng = ChaCha8Rng::seed_from_u64(23);
     let (mut compared, mut tree_nodes, mut tape_ops) = (0, 0, 0);
     for _ in 0..400 {
@@ -448,7 +438,7 @@ fn tapes_give_the_tree_walks_bits() {
             .chain(grad.iter().map(|g| g.node()))
             .collect();
         let tape = Tape::compile(trees.iter().copied());
-        tree_nodes += trees.iter().map(|t| nodes(t)).sum::<usize>();
+        tree_nodes += trees.iter().map(|t| Node::size(t)).sum::<usize>();
         tape_ops += tape.ops();
         let mut boxed = vec![Interval::NAN; trees.len()];
         let mut pointed = vec![0.0; trees.len()];

@@ -183,16 +183,20 @@ pub(crate) fn piece_algebra<T: Ring>(a: &[Vec<T>], b: &[T], set: &[usize]) -> Pi
     PieceAlgebra { d, w, p, primal }
 }
 
-/// Every nonempty subset of `0..rows` of at most `max` elements with no two rows `parallel`
-/// (dependent at every point: both of their normals constant and parallel, as an input's lower
-/// and upper bound), smaller sets first; `None` when there are more than [`MAX_SETS`]. Sets
+/// Every nonempty subset of `0..rows` of at most `max` elements with no two rows whose
+/// `normals` are constant (`Some`) and parallel (dependent at every point, as an input's lower
+/// and upper bound; [`constant_parallel`]), smaller sets first; `None` when there are more than [`MAX_SETS`]. Sets
 /// with a parallel pair are never needed: some multiplier vector of the KKT conditions has a
 /// support of linearly independent rows (Carathéodory, docs/design.md §2.1a).
 pub(crate) fn active_sets(
     rows: usize,
     max: usize,
-    parallel: impl Fn(usize, usize) -> bool,
+    normals: &[Option<Vec<f64>>],
 ) -> Option<Vec<Vec<usize>>> {
+    let parallel = |i: usize, j: usize| match (normals.get(i), normals.get(j)) {
+        (Some(a), Some(b)) => constant_parallel(a, b),
+        _ => false,
+    };
     let mut out: Vec<Vec<usize>> = Vec::new();
     let mut layer: Vec<Vec<usize>> = vec![Vec::new()];
     for _ in 0..max.min(rows) {
@@ -320,15 +324,16 @@ pub fn natural_qp_enclosure(a: &[Interval], b: &[Interval], m: usize) -> Vec<Int
         return vec![Interval::point(0.0); m];
     }
     let a: Vec<Vec<Interval>> = a.chunks(m.max(1)).map(<[Interval]>::to_vec).collect();
-    let point = |k: usize| -> Option<Vec<f64>> {
-        a[k].iter()
-            .map(|e| (e.lower == e.upper).then_some(e.lower))
-            .collect()
-    };
-    let normals: Vec<Option<Vec<f64>>> = (0..rows).map(point).collect();
-    let Some(sets) = active_sets(rows, m.min(MAX_ACTIVE), |i, j| {
-        constant_parallel(&normals[i], &normals[j])
-    }) else {
+    // A row's normal is constant over the box where its enclosure is a point.
+    let normals: Vec<Option<Vec<f64>>> = a
+        .iter()
+        .map(|row| {
+            row.iter()
+                .map(|e| (e.lower == e.upper).then_some(e.lower))
+                .collect()
+        })
+        .collect();
+    let Some(sets) = active_sets(rows, m.min(MAX_ACTIVE), &normals) else {
         return entire;
     };
     if m > MAX_ACTIVE && rows > MAX_ACTIVE {
@@ -411,9 +416,7 @@ impl QpForms {
             .iter()
             .map(|row| row.iter().map(Expr::as_constant).collect())
             .collect();
-        let sets = active_sets(rows, m.min(MAX_ACTIVE), |i, j| {
-            constant_parallel(&normals[i], &normals[j])
-        });
+        let sets = active_sets(rows, m.min(MAX_ACTIVE), &normals);
         let complete = sets.is_some() && (m <= MAX_ACTIVE || rows <= MAX_ACTIVE);
         let pieces = sets
             .unwrap_or_default()
@@ -618,5 +621,34 @@ impl QpForms {
             _ => None,
         };
         QpCell { v, piece }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Parallel means exactly parallel: an input's two bounds and scaled copies are, a pair
+    /// whose 2 × 2 minor is `2⁻⁶⁰` (zero in f64 products, not in the error-free ones) is not,
+    /// nor is a row whose normal is not constant; sets with a parallel pair are not enumerated.
+    #[test]
+    fn only_exactly_parallel_constant_rows_are_left_out_together() {
+        let v = |x: &[f64]| Some(x.to_vec());
+        assert!(constant_parallel(&v(&[1.0, 0.0]), &v(&[-1.0, 0.0])));
+        assert!(constant_parallel(&v(&[0.5, -1.5]), &v(&[-2.0, 6.0])));
+        let e = 2f64.powi(-30);
+        // (1 + e)(1 − e) = 1 − 2⁻⁶⁰ rounds to 1 = 1·1.
+        assert_eq!((1.0 + e) * (1.0 - e), 1.0);
+        assert!(!constant_parallel(&v(&[1.0 + e, 1.0]), &v(&[1.0, 1.0 - e])));
+        assert!(!constant_parallel(&None, &v(&[1.0, 0.0])));
+        assert!(!constant_parallel(&v(&[0.0, 0.0]), &v(&[1.0, 0.0])));
+        // Rows e₁, −e₁, e₂: pairs {0, 2} and {1, 2} only.
+        let normals = [v(&[1.0, 0.0]), v(&[-1.0, 0.0]), v(&[0.0, 1.0])];
+        let sets = active_sets(3, 2, &normals).unwrap();
+        assert_eq!(
+            sets,
+            vec![vec![0], vec![1], vec![2], vec![0, 2], vec![1, 2]]
+        );
+        assert_eq!(active_sets(3, 2, &[]).unwrap().len(), 6);
     }
 }

@@ -523,8 +523,7 @@ mod tests {
             .collect();
         let mlp = Mlp::from_safetensors_bytes(&torch_style(&named, Dtype::F32), "fc").unwrap();
         assert_eq!(mlp.widths(), widths.to_vec());
-        // Names with no number, or a number alone after a name's own digits, still say what
-        // is expected.
+        // A name with no number is still refused, the message naming both forms.
         let mut t = small();
         t[0].0 = "out.weight";
         let err = Mlp::from_safetensors_bytes(&torch_style(&t, Dtype::F32), "o").unwrap_err();
