@@ -255,7 +255,11 @@ impl ChunkRun<'_> {
                 t: t0,
                 beyond_c: self.frames[0].problem.certified_on_all_of_c(),
             },
-            Enclosure::Open => TubeEnd::NoEnclosure { t: t0, h: self.h },
+            Enclosure::Open(cause) => TubeEnd::NoEnclosure {
+                t: t0,
+                h: self.h,
+                cause,
+            },
         };
         state.done = true;
     }

@@ -4,6 +4,7 @@
 use serde::ser::{Serialize, SerializeStruct, Serializer};
 
 use crate::boxes::IntervalBox;
+use crate::reach::validated::OpenCause;
 
 /// One recorded time of a tube.
 #[derive(Clone, Debug, serde::Serialize)]
@@ -100,6 +101,8 @@ pub enum TubeEnd {
         t: f64,
         /// The validated step's size.
         h: f64,
+        /// Why it did not close.
+        cause: OpenCause,
     },
     /// Sampled-data: no enclosure of the motion between samples from `t`.
     NoIntersampleEnclosure {
@@ -192,10 +195,44 @@ impl std::fmt::Display for TubeEnd {
             TubeEnd::FlowpipeLeftRegion { t } => {
                 write!(f, "t = {t:.3}: the flowpipe of the step left the region C")
             }
-            TubeEnd::NoEnclosure { t, h } => write!(
+            TubeEnd::NoEnclosure {
+                t,
+                h,
+                cause: OpenCause::Grows,
+            } => write!(
                 f,
                 "t = {t:.3}: no a-priori enclosure of the step (Picard–Lindelöf did not close \
                  with h = {h}; more substeps may close it)"
+            ),
+            TubeEnd::NoEnclosure {
+                t,
+                cause: OpenCause::PastC,
+                ..
+            } => write!(
+                f,
+                "t = {t:.3}: no enclosure of the step within C: it reaches past a side of C \
+                 that the field is not proven to point into (states of the set may leave C, or \
+                 the field's bounds are too wide to rule it out; smaller boxes may keep it in, \
+                 substeps do not)"
+            ),
+            TubeEnd::NoEnclosure {
+                t: 0.0,
+                h,
+                cause: OpenCause::Exits,
+            } => write!(
+                f,
+                "t = 0: trajectories from the initial box provably leave C within {h}: C is not \
+                 invariant there"
+            ),
+            TubeEnd::NoEnclosure {
+                t,
+                h,
+                cause: OpenCause::Exits,
+            } => write!(
+                f,
+                "t = {t:.3}: the set holds states that provably leave C within the next {h} \
+                 (the set may hold more than the reachable states: smaller boxes may keep it in \
+                 C)"
             ),
             TubeEnd::NoIntersampleEnclosure { t } => {
                 write!(f, "t = {t:.3}: no enclosure of the motion between samples")

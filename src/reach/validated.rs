@@ -84,8 +84,22 @@ pub enum Enclosure {
     Closed(Flowpipe),
     /// No sound field on a candidate (e.g. the error map has no finite bound there).
     NoField,
-    /// Picard–Lindelöf did not close in its tries (`enclose::TRIES`).
-    Open,
+    /// Picard–Lindelöf did not close in its tries (`enclose::TRIES`), for the reason given.
+    Open(OpenCause),
+}
+
+/// Why a step's a-priori enclosure did not close: what a user can do about it differs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum OpenCause {
+    /// The candidates grew faster than they closed, within `C`: the field's bounds over them
+    /// are too wide for the step (a shorter step, or substeps, may close it).
+    Grows,
+    /// The candidates' sweep reached past a side of `C` where the field is not proven to point
+    /// into `C`: states of the set may leave `C` within the step, or the field's bounds are too
+    /// wide to rule it out (smaller boxes may; a shorter step does not help).
+    PastC,
+    /// A trajectory from the set provably leaves `C` within the step (design §7.1 item 1e).
+    Exits,
 }
 
 pub(super) fn point(x: f64) -> Interval {

@@ -3,7 +3,7 @@
 //! retried, clipped to `C` and `S`'s walls, bounded whole or by parts, halved where they do not
 //! close. A child of `reach::validated`.
 
-use super::{exit, sweep, Enclosure, FieldOn, Flowpipe};
+use super::{exit, sweep, Enclosure, FieldOn, Flowpipe, OpenCause};
 use crate::boxes::IntervalBox;
 use crate::rounding::{round_down, round_up};
 
@@ -135,7 +135,7 @@ fn enclose_halving<E>(
     // verdict the same), while a stiff field's quarter steps close without it.
     let parts = halvings > 0;
     let whole = match exit {
-        Some(t) if t < h => Enclosure::Open,
+        Some(t) if t < h => Enclosure::Open(OpenCause::Exits),
         _ => enclose_once(set, h, guess, confines, field, parts)?,
     };
     // A candidate without a sound field (it grew into cells with no finite margin) may be
@@ -198,7 +198,7 @@ fn enclose_once<E>(
     let first = match guess {
         Some(guess) => {
             let Some(a) = first_candidate(set, h, guess, region) else {
-                return Ok(Enclosure::Open);
+                return Ok(Enclosure::Open(OpenCause::PastC));
             };
             a
         }
@@ -211,8 +211,9 @@ fn enclose_once<E>(
         },
     };
     let Some(mut a) = clip(first) else {
-        return Ok(Enclosure::Open);
+        return Ok(Enclosure::Open(OpenCause::PastC));
     };
+    let mut cause = OpenCause::Grows;
     for _ in 0..TRIES {
         let whole = field(&a, false)?;
         let closes_with = |f: &(Vec<f64>, Vec<f64>)| {
@@ -269,6 +270,10 @@ fn enclose_once<E>(
                 others: Vec::new(),
             }));
         }
+        cause = match region.is_some_and(|r| reaches_past(&b, r, &inward)) {
+            true => OpenCause::PastC,
+            false => OpenCause::Grows,
+        };
         let grown = IntervalBox {
             lower: (0..a.dim()).map(|i| a.lower[i].min(b.lower[i])).collect(),
             upper: (0..a.dim()).map(|i| a.upper[i].max(b.upper[i])).collect(),
@@ -278,7 +283,16 @@ fn enclose_once<E>(
             _ => break,
         }
     }
-    Ok(Enclosure::Open)
+    Ok(Enclosure::Open(cause))
+}
+
+/// Whether the sweep `b` reaches past a side of `region` (`C`) not proven inward: the
+/// candidates, clipped to `C`, cannot close there however the step is tried.
+fn reaches_past(b: &IntervalBox, region: &IntervalBox, inward: &[[bool; 2]]) -> bool {
+    (0..b.dim()).any(|i| {
+        (b.lower[i] < region.lower[i] && !inward[i][0])
+            || (b.upper[i] > region.upper[i] && !inward[i][1])
+    })
 }
 
 /// Per coordinate, whether no trajectory leaves through `a`'s lower and upper sides: those

@@ -238,9 +238,57 @@ fn parts_cover_and_c_clips_only_inward_motion() {
                 assert!(pipe.set.is_subset_of(&c));
                 assert!(pipe.set.lower[0] <= (-0.1_f64).exp());
             }
-            _ => assert!(!closes, "ẋ = −x from C's side stays in C"),
+            other => {
+                assert!(!closes, "ẋ = −x from C's side stays in C");
+                // The sweep crosses C's side: no shorter step closes it within C.
+                assert!(
+                    matches!(other, Enclosure::Open(OpenCause::PastC)),
+                    "{other:?}"
+                );
+            }
         }
     }
+}
+
+/// Why a step does not close is told apart: `ẋ = 30x` over `h = 0.1` within a `C` it does not
+/// reach in the tries grows faster than the candidates close (a shorter step closes it), and
+/// the same step's sweep past a near side of `C` is `PastC`; the tube's note says which.
+#[test]
+fn an_open_step_names_its_cause() {
+    let z = [0.0; 4];
+    let d = linear([[30.0, 0.0], [0.0, 30.0]]);
+    let set = IntervalBox::new(vec![1.0, 1.0], vec![2.0, 2.0]).unwrap();
+    let far = IntervalBox::new(vec![-1e9, -1e9], vec![1e9, 1e9]).unwrap();
+    let near = IntervalBox::new(vec![-3.0, -3.0], vec![2.5, 2.5]).unwrap();
+    let open = |c: &IntervalBox, h: f64| enclose_step(&set, h, None, Some(c), exact_field(&d, &z));
+    let grows = open(&far, 0.1).unwrap();
+    assert!(
+        matches!(grows, Enclosure::Open(OpenCause::Grows)),
+        "{grows:?}"
+    );
+    assert!(matches!(open(&far, 0.01).unwrap(), Enclosure::Closed(_)));
+    let past = open(&near, 0.1).unwrap();
+    assert!(
+        matches!(past, Enclosure::Open(OpenCause::PastC)),
+        "{past:?}"
+    );
+    let note = |cause| {
+        crate::reach::TubeEnd::NoEnclosure {
+            t: 0.5,
+            h: 0.1,
+            cause,
+        }
+        .to_string()
+    };
+    assert!(note(OpenCause::Grows).contains("more substeps may close it"));
+    assert!(note(OpenCause::PastC).contains("reaches past a side of C"));
+    assert!(note(OpenCause::Exits).contains("provably leave C"));
+    let at_start = crate::reach::TubeEnd::NoEnclosure {
+        t: 0.0,
+        h: 0.1,
+        cause: OpenCause::Exits,
+    };
+    assert!(at_start.to_string().contains("from the initial box"));
 }
 
 /// Item 1f: `ẋ₂ = max(−0.5, −(x₂ + 2))` keeps `x₂ ≥ −2` (a CBF's wall, also `C`'s side), but a
@@ -471,6 +519,10 @@ fn exit_proofs_hold_the_flow_and_skip_only_steps_that_cannot_close() {
             (_, Enclosure::Closed(_)) => panic!("a step closed only with item 1e at {top}"),
             _ if exit.is_some_and(|t| t < h / 4.0) => {
                 assert!(within_calls.get() * 4 < plain_calls.get(), "at {top}");
+                assert!(
+                    matches!(within, Enclosure::Open(OpenCause::Exits)),
+                    "at {top}: {within:?}"
+                );
                 saved += 1;
             }
             _ => {}
