@@ -220,7 +220,7 @@ pub fn run(args: &VerifyArgs) -> CliResult {
     report.run.filter_hash = identity["filter"].clone();
     print_summary(&report);
     let causes = explain_unverified(&s, &report);
-    print_causes(&causes);
+    print_causes(&causes, &report);
     print_meet_slabs_hint(&report, &causes);
     write_outputs(&s, &report, args.json.as_deref(), args.plot.as_deref())?;
     if let Some(j) = journal {
@@ -243,7 +243,26 @@ fn flag_error(e: &VerifyError) -> String {
 }
 
 /// Prints where the true system goes from the boxes that were not verified.
-fn print_causes(c: &UnverifiedCauses) {
+/// What ended the tubes of the boxes not verified, largest share first (where any ended
+/// early: a run whose tubes all reached the horizon has nothing to add to `print_causes`).
+fn print_ends(r: &VerifyReport) {
+    let why = r.why_not_verified();
+    if why.iter().all(|(k, _)| k.is_none()) {
+        return;
+    }
+    let parts: Vec<String> = why
+        .iter()
+        .map(|(k, share)| {
+            let what = k.map_or("ran to the horizon outside the goal and the traps", |k| {
+                k.describe()
+            });
+            format!("{:.1}% {what}", 100.0 * share)
+        })
+        .collect();
+    println!("    what ended their tubes: {}", parts.join("; "));
+}
+
+fn print_causes(c: &UnverifiedCauses, r: &VerifyReport) {
     if c.unverified <= 0.0 {
         return;
     }
@@ -266,6 +285,7 @@ fn print_causes(c: &UnverifiedCauses) {
         100.0 * c.ends_elsewhere,
         100.0 * c.too_loose
     );
+    print_ends(r);
 }
 
 /// Where sets too loose left boxes unverified in continuous time with two frames and the
@@ -604,7 +624,7 @@ pub fn run_merge(args: &MergeArgs) -> CliResult {
             (None, false) => None,
         };
     if let Some(s) = &s {
-        print_causes(&explain_unverified(s, &merged));
+        print_causes(&explain_unverified(s, &merged), &merged);
     }
     if let Some(path) = &args.json {
         cbfreach::output::write_atomic(path, merged.to_json().as_bytes())

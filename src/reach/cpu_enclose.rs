@@ -9,6 +9,7 @@
 //! A child of `reach::cpu`; imports what `cpu` imports.
 
 use super::*;
+use crate::reach::validated::OpenCause;
 
 /// What [`validated::enclose_step`] asks of the field: a candidate, and whether as the hull over
 /// its parts.
@@ -258,7 +259,13 @@ impl ChunkRun<'_> {
             Enclosure::Open(cause) => TubeEnd::NoEnclosure {
                 t: t0,
                 h: self.h,
-                cause,
+                cause: match cause {
+                    // At the start the set in x is the initial box; in z it holds more.
+                    OpenCause::Exits if t0 == 0.0 && self.frames[f].problem.transform.is_none() => {
+                        OpenCause::ExitsFromStart
+                    }
+                    cause => cause,
+                },
             },
         };
         state.done = true;

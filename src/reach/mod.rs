@@ -43,7 +43,7 @@ use embedding::Dynamics;
 pub use safe_set::SafeSet;
 pub use time::TimeModel;
 pub use transform::{log_norm_inf, CoordinatesReason, Transform};
-pub use tube::{Inversion, Tube, TubeEnd, TubeSample, UnsafeBetweenSamples};
+pub use tube::{EndKind, Inversion, Tube, TubeEnd, TubeSample, UnsafeBetweenSamples};
 pub use turning::Turning;
 
 pub use cpu::{BatchBounds, Bounded, CpuBackend};

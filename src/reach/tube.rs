@@ -2,6 +2,7 @@
 //! ([`TubeEnd`]), built alike by every engine. Imports only boxes and serde.
 
 use serde::ser::{Serialize, SerializeStruct, Serializer};
+use serde::Deserialize;
 
 use crate::boxes::IntervalBox;
 use crate::reach::validated::OpenCause;
@@ -123,7 +124,74 @@ pub enum TubeEnd {
     },
 }
 
+/// What ended a tube early, as data: [`TubeEnd`] without its times, for summaries (`verify`
+/// sums the area of the boxes not verified by it).
+#[derive(
+    Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, Deserialize,
+)]
+#[serde(rename_all = "kebab-case")]
+pub enum EndKind {
+    /// The set, or the flowpipe of a step, left `C`.
+    LeftRegion,
+    /// Trajectories from the initial box provably leave `C` in the first step: `C` is not
+    /// invariant there.
+    ExitsAtStart,
+    /// The set holds states proven to leave `C` within a step (it may hold more than the
+    /// reachable states).
+    Exits,
+    /// A step's enclosure reaches past a side of `C` not proven inward.
+    PastRegion,
+    /// A step's enclosure grew faster than it closed within `C`.
+    NoEnclosure,
+    /// No finite error bound where the set is (`M = ∞` cells, or beyond `C`).
+    NoCertifiedBound,
+    /// Sampled data: no enclosure of the motion between samples.
+    NoIntersampleEnclosure,
+    /// The set turned inside out.
+    Inverted,
+    /// The embedding state overflowed.
+    NonFinite,
+}
+
+impl EndKind {
+    /// What it says to a user, in a few words.
+    pub fn describe(self) -> &'static str {
+        match self {
+            EndKind::LeftRegion => "the sets left C",
+            EndKind::ExitsAtStart => {
+                "trajectories from the box provably leave C at once (C is not invariant there: \
+                 verify a region inside C)"
+            }
+            EndKind::Exits => "the sets hold states proven to leave C",
+            EndKind::PastRegion => "a step's enclosure reached past C",
+            EndKind::NoEnclosure => "a step's enclosure did not close (substeps may help)",
+            EndKind::NoCertifiedBound => "the sets met cells with no certified error bound",
+            EndKind::NoIntersampleEnclosure => "no enclosure of the motion between samples",
+            EndKind::Inverted => "the sets turned inside out",
+            EndKind::NonFinite => "the embedding state overflowed",
+        }
+    }
+}
+
 impl TubeEnd {
+    /// What ended the tube early (`None` at the horizon or in an absorbing box).
+    pub fn kind(&self) -> Option<EndKind> {
+        Some(match *self {
+            TubeEnd::Horizon | TubeEnd::Absorbed { .. } => return None,
+            TubeEnd::LeftRegion { .. } | TubeEnd::FlowpipeLeftRegion { .. } => EndKind::LeftRegion,
+            TubeEnd::NoCertifiedBound { .. } => EndKind::NoCertifiedBound,
+            TubeEnd::NoEnclosure { cause, .. } => match cause {
+                OpenCause::ExitsFromStart => EndKind::ExitsAtStart,
+                OpenCause::Exits => EndKind::Exits,
+                OpenCause::PastC => EndKind::PastRegion,
+                OpenCause::Grows => EndKind::NoEnclosure,
+            },
+            TubeEnd::NoIntersampleEnclosure { .. } => EndKind::NoIntersampleEnclosure,
+            TubeEnd::Inverted { .. } => EndKind::Inverted,
+            TubeEnd::NonFinite { .. } => EndKind::NonFinite,
+        })
+    }
+
     /// Whether the tube ran to the horizon inside `C` (its sets bound the filtered system
     /// throughout), or stopped in an absorbing box, which bounds it from there on.
     pub fn valid(&self) -> bool {
@@ -216,9 +284,9 @@ impl std::fmt::Display for TubeEnd {
                  substeps do not)"
             ),
             TubeEnd::NoEnclosure {
-                t: 0.0,
                 h,
-                cause: OpenCause::Exits,
+                cause: OpenCause::ExitsFromStart,
+                ..
             } => write!(
                 f,
                 "t = 0: trajectories from the initial box provably leave C within {h}: C is not \

@@ -100,6 +100,10 @@ pub enum OpenCause {
     PastC,
     /// A trajectory from the set provably leaves `C` within the step (design §7.1 item 1e).
     Exits,
+    /// [`OpenCause::Exits`] on the first step in x, whose set is the initial box (met with
+    /// `S`): trajectories from the initial box leave `C`. Set by the engine, which knows the
+    /// frame (a set in `z = Tx` holds more than the box).
+    ExitsFromStart,
 }
 
 pub(super) fn point(x: f64) -> Interval {

@@ -283,12 +283,7 @@ fn an_open_step_names_its_cause() {
     assert!(note(OpenCause::Grows).contains("more substeps may close it"));
     assert!(note(OpenCause::PastC).contains("reaches past a side of C"));
     assert!(note(OpenCause::Exits).contains("provably leave C"));
-    let at_start = crate::reach::TubeEnd::NoEnclosure {
-        t: 0.0,
-        h: 0.1,
-        cause: OpenCause::Exits,
-    };
-    assert!(at_start.to_string().contains("from the initial box"));
+    assert!(note(OpenCause::ExitsFromStart).contains("from the initial box"));
 }
 
 /// Item 1f: `ẋ₂ = max(−0.5, −(x₂ + 2))` keeps `x₂ ≥ −2` (a CBF's wall, also `C`'s side), but a

@@ -69,6 +69,8 @@ struct Entry {
     #[serde(default)]
     note: Option<String>,
     #[serde(default)]
+    ended: Option<crate::reach::EndKind>,
+    #[serde(default)]
     feasible: Option<bool>,
     steps: usize,
 }
@@ -98,6 +100,7 @@ impl Entry {
             t_end: b.t_end.map(f64::to_bits),
             trap: b.trap,
             note: b.note.clone(),
+            ended: b.ended,
             feasible: b.feasible,
             steps,
         }
@@ -128,6 +131,7 @@ impl Entry {
             t_end: self.t_end.map(f64::from_bits),
             trap: self.trap,
             note: self.note.clone(),
+            ended: self.ended,
             feasible: self.feasible,
         };
         (v, self.steps)

@@ -33,6 +33,9 @@ pub struct BoxVerdict {
     /// Why (`unsafe`: when and which CBF; `invalid`: when it left `C`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub note: Option<String>,
+    /// What ended its tube early, as data (the note says it in words).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ended: Option<crate::reach::EndKind>,
     /// For verified boxes: whether the filter's QP is proven feasible on every set of the tube
     /// ([`crate::reach::pieces::FilterPieces::proves_feasible`]). Where it is not, some
     /// trajectories may meet an infeasible QP and stop existing; the verdict speaks of those
@@ -326,6 +329,24 @@ impl VerifyReport {
         }
     }
 
+    /// Why the leaves that refinement could still decide (`unknown`, `invalid`,
+    /// `unsafe-between-samples`) were not verified, by what ended their tubes: each cause's
+    /// share of the safe area, largest first; `None` for tubes that ran to the horizon (or an
+    /// absorbing box) and ended outside the goal and the traps.
+    pub fn why_not_verified(&self) -> Vec<(Option<crate::reach::EndKind>, f64)> {
+        let safe = self.shares_after().safe_area;
+        let mut by: BTreeMap<Option<crate::reach::EndKind>, f64> = BTreeMap::new();
+        for b in self.after.iter().filter(|b| b.verdict.is_refinable()) {
+            *by.entry(b.ended).or_insert(0.0) += b.initial.volume();
+        }
+        let mut out: Vec<_> = match safe > 0.0 {
+            true => by.into_iter().map(|(k, a)| (k, a / safe)).collect(),
+            false => Vec::new(),
+        };
+        out.sort_by(|a, b| b.1.total_cmp(&a.1));
+        out
+    }
+
     /// Boxes whose sets met the unsafe set (should be none), each once: an unsafe box is not
     /// refined, so it is a leaf of `after` too (the same box is not counted twice).
     pub fn unsafe_boxes(&self) -> Vec<&BoxVerdict> {
@@ -391,6 +412,7 @@ mod tests {
             t_end: Some(10.0),
             trap: None,
             note: None,
+            ended: None,
             feasible: None,
         }
     }

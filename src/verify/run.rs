@@ -420,6 +420,7 @@ impl<'a> Verifier<'a> {
                 t_end: None,
                 trap: None,
                 note: None,
+                ended: None,
                 feasible: None,
             })
             .collect();
@@ -485,6 +486,7 @@ impl<'a> Verifier<'a> {
                 b.verdict = verdict;
                 b.trap = trap;
                 b.note = note;
+                b.ended = tube.end.kind();
                 b.final_set = last.map(|s| s.set.clone());
                 b.t_end = last.map(|s| s.t);
                 b.feasible = feasible;

@@ -415,6 +415,68 @@ fn unverified_area_is_sorted_by_where_the_true_system_goes() {
     assert!(close(c.unverified, 1.0 - area[4] / total), "{c:?}");
 }
 
+/// What ended the tubes not verified is recorded per leaf (`ended`) and summed by
+/// `why_not_verified` to the area not verified. A leaf said to leave `C` at once (a proven
+/// exit at t = 0) holds a start whose true trajectory leaves `C` within the step: scenario 2's
+/// continuous run (its shipped network and certified map) has such cells along `C`'s sides.
+#[test]
+fn what_ended_the_unverified_tubes_is_recorded_and_exits_are_real() {
+    use cbfreach::reach::EndKind;
+    let s = common::double_integrator();
+    let problem = common::shipped_problem(&s);
+    let verifier = Verifier::new(&s, &problem, &CpuBackend);
+    let settings = VerifySettings {
+        grid: vec![20, 8],
+        refine_depth: 0,
+        chunk: Some(64),
+        ..VerifySettings::default()
+    };
+    let report = verifier.run(&settings, &|_, _, _| {}).unwrap();
+    let why = report.why_not_verified();
+    let unverified = 1.0 - report.shares_after().verified_share;
+    let summed: f64 = why.iter().map(|(_, a)| a).sum();
+    assert!(
+        (summed - unverified).abs() < 1e-9,
+        "{why:?} against {unverified}"
+    );
+    for b in &report.after {
+        assert_eq!(
+            b.ended.is_some(),
+            b.verdict == Verdict::Invalid,
+            "{:?}: {:?} ({:?})",
+            b.initial,
+            b.ended,
+            b.note
+        );
+    }
+    let filter = SafetyFilter::new(&s);
+    let c = &s.reach.region;
+    let h = s.reach.dt;
+    let exits: Vec<_> = report
+        .after
+        .iter()
+        .filter(|b| b.ended == Some(EndKind::ExitsAtStart))
+        .collect();
+    assert!(!exits.is_empty(), "{why:?}");
+    for b in exits {
+        let (lo, up) = (&b.initial.lower, &b.initial.upper);
+        let leaves = (0..(DENSE + 1) * (DENSE + 1)).any(|k| {
+            let (i, j) = (k % (DENSE + 1), k / (DENSE + 1));
+            let x0 = [
+                lo[0] + (up[0] - lo[0]) * i as f64 / DENSE as f64,
+                lo[1] + (up[1] - lo[1]) * j as f64 / DENSE as f64,
+            ];
+            let tr = simulate_filtered(&filter, &x0, h / 100.0, 100, Integrator::Rk4);
+            tr.x.iter().any(|x| !c.contains(x))
+        });
+        assert!(
+            leaves,
+            "{:?}: {:?}, yet no start leaves C within {h}",
+            b.initial, b.note
+        );
+    }
+}
+
 /// A set outside `S` is a bug (`unsafe`) only after sets on which the QP is proven feasible:
 /// where it may be infeasible (scenario 2's strip along `x₂ = −2` right of the obstacle, where
 /// its two CBFs conflict), the trajectories may stop existing, and the box is `unknown`.
