@@ -686,11 +686,25 @@ fn run_staged(job: &Job, bars: &Bars) -> CliResult {
             ))
         );
     }
-    if !report.reached && target.linf.is_some_and(|t| plan.resolution.max > t) {
-        println!(
-            "  the grid itself resolves v only to {:.4} (above), and the refine stages' samples did not close the gap: a larger network or a finer [training] grid",
-            plan.resolution.max
-        );
+    if let (false, Some(t)) = (report.reached, target.linf) {
+        match report.training_fit {
+            // The network misses the very points it was trained on: more data will not help.
+            Some(fit) if fit > t => println!(
+                "  it misses its own training samples in C ∩ S by up to {fit:.4} (above the target): the network is too small (or too little trained) for v here; a larger [network] architecture, not more data"
+            ),
+            Some(fit) => println!(
+                "  it fits its own training samples in C ∩ S to {fit:.4}, and misses between them{}: a finer [training] grid",
+                match plan.resolution.max > t {
+                    true => format!(" (the grid itself resolves v only to {:.4})", plan.resolution.max),
+                    false => String::new(),
+                }
+            ),
+            None if plan.resolution.max > t => println!(
+                "  the grid itself resolves v only to {:.4} (above), and the refine stages' samples did not close the gap: a larger network or a finer [training] grid",
+                plan.resolution.max
+            ),
+            None => {}
+        }
     }
     println!("network written to {}", out.display());
     Ok(())

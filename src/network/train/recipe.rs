@@ -341,6 +341,12 @@ pub struct RecipeReport {
     /// The slope targets left out of the Sobolev term ([`Recipe::slope_cap`]).
     #[serde(default)]
     pub steep: SteepReport,
+    /// The returned network's largest ℓ∞ error on its own training samples where accuracy is
+    /// judged (`C ∩ S`; with an oracle), in the scenario's units: above the target, the
+    /// network does not fit even the points it was trained on (too small, or too little
+    /// trained, for `v`); within it, what the target misses lies between them.
+    #[serde(default)]
+    pub training_fit: Option<f64>,
 }
 
 /// Runs `recipe` from `init` (in the data's units) or, without one, from random weights of
@@ -636,7 +642,12 @@ pub fn train_to_target(
         }
         None => None,
     };
+    let training_fit = data
+        .oracle
+        .map(|oracle| training_fit(&state.best.0, &pointwise, &norm, oracle))
+        .transpose()?;
     let report = RecipeReport {
+        training_fit,
         normalisation: norm.clone(),
         learning_rate: lr,
         stages: state.stages,
@@ -654,6 +665,28 @@ pub fn train_to_target(
         },
     };
     Ok((folded, report))
+}
+
+/// [`RecipeReport::training_fit`]: `net` and `data` in normalised units, the error in the
+/// scenario's (one output scale for all outputs); samples of weight 0 and those not judged
+/// (outside `C ∩ S`) left out; 0 where no sample is judged.
+fn training_fit(
+    net: &Mlp,
+    data: &Dataset,
+    norm: &Normalisation,
+    oracle: &dyn Oracle,
+) -> Result<f64, NetworkError> {
+    let errors = pointwise_errors(net, data)?;
+    let raw = |x: &[f64]| -> Vec<f64> {
+        x.iter()
+            .enumerate()
+            .map(|(j, &v)| norm.input_centre[j] + norm.input_scale[j] * v)
+            .collect()
+    };
+    Ok((0..data.len())
+        .filter(|&s| data.weight(s) > 0.0 && oracle.judged(&raw(data.input(s))))
+        .map(|s| errors.value[s] * norm.output_scale)
+        .fold(0.0, f64::max))
 }
 
 /// A limit's bound in normalised units (the staged schedule's own kind).

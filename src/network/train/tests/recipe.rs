@@ -355,6 +355,32 @@ fn refine_stages_add_samples_where_the_network_errs_and_check_it_on_fresh_points
         "fresh {fresh:?} against the first round {:?}",
         rounds[0]
     );
+    // It fits the samples it was trained on, the bump's included, far closer than the
+    // first round found it missing them.
+    let fit = report.training_fit.expect("measured with an oracle");
+    assert!(
+        fit < 0.5 * rounds[0].max_error,
+        "{fit} against {:?}",
+        rounds[0]
+    );
+}
+
+/// A network too small for `v` (one hidden neuron: one kink, where the bump has three) misses
+/// the very samples the refine stages add on the bump, so `training_fit` is above the target:
+/// the run can tell a user that a larger network, not more data, is what is missing.
+#[test]
+fn a_network_too_small_for_v_misses_its_own_training_samples() {
+    let (data, validation, recipe) = bump_run(1024);
+    let target = Target {
+        linf: Some(0.05),
+        slope_p95: None,
+    };
+    let input = values_only(&data, &validation, Some(&Bump));
+    let (_, report) = train_fresh(&[2, 1, 1], &input, &recipe, &target);
+    assert!(!report.reached, "{report:?}");
+    assert!(report.samples > data.len(), "no samples added: {report:?}");
+    let fit = report.training_fit.expect("measured with an oracle");
+    assert!(fit > 0.05, "one neuron fits the bump's samples to {fit}");
 }
 
 #[test]
