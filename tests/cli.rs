@@ -85,13 +85,23 @@ fn bad_input_gives_a_clear_error_and_exit_code_2() {
     );
 }
 
+/// Both paper scenarios check, and `check` says that the filtered flow leaves their `C`
+/// (scenario 1 past `x₁ = −3.5` where the obstacle's row pushes out; scenario 2 through
+/// `x₁ = −4` at full reverse speed), which `verify` over all of `C` loses cells to.
 #[test]
 fn check_summarises_both_paper_scenarios() {
-    for name in ["integrator.toml", "double-integrator.toml"] {
+    for (name, side) in [
+        ("integrator.toml", "through x1 = -3.5"),
+        ("double-integrator.toml", "through x1 = -4"),
+    ] {
         let path = common::scenario_path(name);
         let (code, stdout, stderr) = cbfreach(&["check", path.to_str().unwrap()]);
         assert_eq!(code, 0, "{stderr}");
         assert!(stdout.contains("is valid"), "{stdout}");
+        assert!(
+            stdout.contains("C is not invariant") && stdout.contains(side),
+            "{stdout}"
+        );
     }
 }
 

@@ -75,7 +75,7 @@ pub fn run(path: &Path) -> CliResult {
             ),
         }
     }
-    print_findings(&findings(&s));
+    print_findings(&s, &findings(&s));
     let r = &s.reach;
     println!(
         "  reach: C = {} … {}, dt = {}, T = {} ({} steps), norm {:?}, {}",
@@ -128,7 +128,7 @@ pub fn run(path: &Path) -> CliResult {
 }
 
 /// The filter's findings on `C`, one line each (inert CBFs are also said by `train`).
-fn print_findings(f: &FilterFindings) {
+fn print_findings(s: &cbfreach::scenario::Scenario, f: &FilterFindings) {
     for name in &f.inert {
         println!("  {}", inert_note(name));
     }
@@ -147,6 +147,22 @@ fn print_findings(f: &FilterFindings) {
             100.0 * f.infeasible as f64 / f.sampled.max(1) as f64,
             fmt_point(x)
         ),
+    }
+    if let Some(l) = &f.leaves_c {
+        let (axis, upper) = l.side;
+        let side = match upper {
+            true => s.reach.region.upper[axis],
+            false => s.reach.region.lower[axis],
+        };
+        println!(
+            "  C is not invariant: the filtered flow leaves it at {} of {} points sampled on its sides \
+             in S (first through {} = {side}, at {}): boxes whose flow meets them end early; \
+             verify a region inside C (verify --region) or widen C",
+            l.leaving,
+            l.sampled,
+            s.states[axis],
+            fmt_point(&l.at)
+        );
     }
 }
 

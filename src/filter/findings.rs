@@ -33,6 +33,23 @@ pub struct FilterFindings {
     /// where the row needs the input (`L_f̃ h + αh < 0`): `v` divides by `‖L_g h‖²`, so it is
     /// steep there or jumps (scenario 2's obstacle at (1, 0) and (3, 0)).
     pub vanishing: Vec<Vanishing>,
+    /// Where the filtered flow leaves `C` through its sides (none where it leaves nowhere
+    /// sampled): sets from boxes whose flow meets those sides end there, whatever the network.
+    pub leaves_c: Option<LeavesC>,
+}
+
+/// Where the filtered flow leaves `C` ([`FilterFindings::leaves_c`]): `C` is not invariant,
+/// and `verify` over all of `C` loses the cells along those sides.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LeavesC {
+    /// Points of `C`'s sides sampled in `S` where the filter is defined.
+    pub sampled: usize,
+    /// Those where the filtered field points out of `C`.
+    pub leaving: usize,
+    /// The first such point.
+    pub at: Vec<f64>,
+    /// Its side: the state's index, and whether it is the upper side.
+    pub side: (usize, bool),
 }
 
 /// Where a CBF's `‖L_g h‖` nearly vanishes while its row needs the input ([`FilterFindings`]).
@@ -201,7 +218,52 @@ pub fn findings(s: &Scenario) -> FilterFindings {
         infeasible,
         example,
         vanishing,
+        leaves_c: leaves_c(s, &filter),
     }
+}
+
+/// The filtered field on about [`SAMPLE_POINTS`] points of `C`'s sides in `S` (on each side the
+/// centres of an equal partition of the face), and where it points out of `C`.
+fn leaves_c(s: &Scenario, filter: &SafetyFilter) -> Option<LeavesC> {
+    let region = &s.reach.region;
+    let n = s.n();
+    let per_side = SAMPLE_POINTS / (2 * n);
+    let per_axis = match n {
+        1 => 1,
+        _ => ((per_side as f64).powf(1.0 / (n - 1) as f64).floor() as usize).max(2),
+    };
+    let (mut sampled, mut leaving, mut first) = (0, 0, None);
+    for axis in 0..n {
+        let mut counts = vec![per_axis; n];
+        counts[axis] = 1;
+        for upper in [false, true] {
+            let side = match upper {
+                true => region.upper[axis],
+                false => region.lower[axis],
+            };
+            for k in 0..counts.iter().product::<usize>() {
+                let mut x = region.partition_cell(&counts, k).center();
+                x[axis] = side;
+                if !s.is_safe(&x) {
+                    continue;
+                }
+                let Ok(field) = filter.closed_loop(&x) else {
+                    continue;
+                };
+                sampled += 1;
+                if (upper && field[axis] > 0.0) || (!upper && field[axis] < 0.0) {
+                    leaving += 1;
+                    first.get_or_insert((x, (axis, upper)));
+                }
+            }
+        }
+    }
+    first.map(|(at, side)| LeavesC {
+        sampled,
+        leaving,
+        at,
+        side,
+    })
 }
 
 #[cfg(test)]
@@ -240,6 +302,47 @@ mod tests {
         assert!(tilted.inert.is_empty() && tilted.vanishing.is_empty());
         assert_eq!(tilted.infeasible, 0);
         assert!(tilted.sampled > 3000, "{}", tilted.sampled);
+    }
+
+    /// Scenario 2's filtered flow leaves `C` where `x₂ = 2` carries `x₁` past 6 and where the
+    /// obstacle's row pushes `x₂` above 2; the found point is on that side, in `S`, with the
+    /// field pointing out. `ẋ = u`, `κ = −x`, kept left of a wall, leaves its box nowhere (the
+    /// wall's side lies outside `S`).
+    #[test]
+    fn where_the_filtered_flow_leaves_c_is_found_and_only_there() {
+        let text = include_str!("../../scenarios/double-integrator.toml");
+        let s = Scenario::from_toml(text, "di.toml", std::path::Path::new(".")).unwrap();
+        let l = findings(&s).leaves_c.expect("scenario 2's flow leaves C");
+        assert!(l.leaving > 0 && l.leaving < l.sampled, "{l:?}");
+        let (axis, upper) = l.side;
+        let f = SafetyFilter::new(&s).closed_loop(&l.at).unwrap();
+        let side = [s.reach.region.lower[axis], s.reach.region.upper[axis]][usize::from(upper)];
+        assert_eq!(l.at[axis], side);
+        assert!(s.is_safe(&l.at));
+        assert!(
+            if upper { f[axis] > 0.0 } else { f[axis] < 0.0 },
+            "{l:?}: {f:?}"
+        );
+        let text = include_str!("../../tests/fixtures/vdp.toml")
+            .replacen(
+                "f = [\"x2\", \"(1 - x1^2)*x2 - x1\"]",
+                "f = [\"0\", \"0\"]",
+                1,
+            )
+            .replacen(
+                "g = [[\"0\"], [\"1\"]]",
+                "g = [[\"1\", \"0\"], [\"0\", \"1\"]]",
+                1,
+            )
+            .replacen("inputs = [\"u\"]", "inputs = [\"u1\", \"u2\"]", 1)
+            .replacen(
+                "kappa = [\"-x1 - 2*x2 - (1 - x1^2)*x2 + x1\"]",
+                "kappa = [\"-x1\", \"-x2\"]",
+                1,
+            );
+        let contracting = Scenario::from_toml(&text, "x.toml", std::path::Path::new(".")).unwrap();
+        let f = findings(&contracting);
+        assert_eq!(f.leaves_c, None, "{f:?}");
     }
 
     /// A lane keeper whose CBF `1 − y − sin ψ` has `L_g h = −cos ψ`: where the row needs the
