@@ -544,6 +544,12 @@ fn train_says_when_the_grid_cannot_resolve_the_target() {
         stdout.contains("the grid itself resolves v only to"),
         "{stdout}"
     );
+    // Eight neurons miss even the samples they were trained on: a larger network comes first.
+    assert!(
+        stdout.contains("it misses its own training samples in C ∩ S by up to")
+            && stdout.contains("a larger [network] architecture comes before more data"),
+        "{stdout}"
+    );
     let (_, metadata) = cbfreach::network::Mlp::load_safetensors_with_metadata(&out).unwrap();
     let res: cbfreach::network::train::Resolution =
         serde_json::from_str(&metadata["grid_resolution"]).expect("recorded");

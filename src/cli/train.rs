@@ -687,17 +687,21 @@ fn run_staged(job: &Job, bars: &Bars) -> CliResult {
         );
     }
     if let (false, Some(t)) = (report.reached, target.linf) {
+        let grid = match plan.resolution.max > t {
+            true => format!(
+                " (the grid itself resolves v only to {:.4})",
+                plan.resolution.max
+            ),
+            false => String::new(),
+        };
         match report.training_fit {
-            // The network misses the very points it was trained on: more data will not help.
+            // The network misses the very points it was trained on: more data alone will not
+            // help (the refine stages already sample where it errs).
             Some(fit) if fit > t => println!(
-                "  it misses its own training samples in C ∩ S by up to {fit:.4} (above the target): the network is too small (or too little trained) for v here; a larger [network] architecture, not more data"
+                "  it misses its own training samples in C ∩ S by up to {fit:.4} (above the target): the network is too small (or too little trained) for v here, so a larger [network] architecture comes before more data{grid}"
             ),
             Some(fit) => println!(
-                "  it fits its own training samples in C ∩ S to {fit:.4}, and misses between them{}: a finer [training] grid",
-                match plan.resolution.max > t {
-                    true => format!(" (the grid itself resolves v only to {:.4})", plan.resolution.max),
-                    false => String::new(),
-                }
+                "  it fits its own training samples in C ∩ S to {fit:.4}, and misses between them{grid}: a finer [training] grid"
             ),
             None if plan.resolution.max > t => println!(
                 "  the grid itself resolves v only to {:.4} (above), and the refine stages' samples did not close the gap: a larger network or a finer [training] grid",
