@@ -91,13 +91,14 @@
 //! above, per sample and per chunk of a batch), `checkpoint` (a run's state on disk), `run`
 //! (the loop: [`train`], [`resume`], [`train_until`]), `report` (what a run reports;
 //! [`evaluate`]), `normalise` (the data's affine maps, folded into the saved network:
-//! [`Normalisation`]), `recipe` (the default staged schedule to an accuracy target:
-//! [`train_to_target`]), `staged` (its progress on disk between stages:
+//! [`Normalisation`]), `accuracy` (the [`Target`] and what a network [`Measured`]),
+//! `recipe` (the default staged schedule to an accuracy target: [`train_to_target`]), `staged` (its progress on disk between stages:
 //! [`StagedCheckpoint`]), `adaptive` (more samples where the network errs most:
 //! [`refine_round`]), `resolution` (how finely the training grid resolves `v`:
 //! [`grid_resolution`]), `steep` (the slope targets the Sobolev term leaves out:
 //! [`SlopeCap`]).
 
+mod accuracy;
 mod adaptive;
 mod checkpoint;
 mod dataset;
@@ -116,13 +117,13 @@ mod bench;
 #[cfg(test)]
 mod tests;
 
+pub use accuracy::{ibp_looseness, measure, Measured, Target};
 pub use adaptive::{refine_round, Added, Oracle, Refinement, RoundReport, SampleSlopes};
 pub use dataset::Dataset;
 pub use normalise::{Normalisation, METADATA_KEY as NORMALISATION_KEY};
 pub use recipe::{
-    hidden_layers, ibp_looseness, measure, train_to_target, Measured, Recipe, RecipeData,
-    RecipeProgress, RecipeReport, Stage, StageKind, StageReport, Target, CERTIFY_WEIGHTS,
-    DEEP_HIDDEN_LAYERS,
+    hidden_layers, train_to_target, Recipe, RecipeData, RecipeProgress, RecipeReport, Stage,
+    StageKind, StageReport, CERTIFY_WEIGHTS, DEEP_HIDDEN_LAYERS,
 };
 pub use report::{evaluate, pointwise_errors, EpochStats, ErrorStats, PointErrors, TrainReport};
 pub use resolution::{grid_resolution, Resolution};

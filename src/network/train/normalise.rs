@@ -112,6 +112,14 @@ impl Normalisation {
         }
     }
 
+    /// A normalised input `x` in the data's units.
+    pub fn raw_input(&self, x: &[f64]) -> Vec<f64> {
+        x.iter()
+            .enumerate()
+            .map(|(j, &v)| self.input_centre[j] + self.input_scale[j] * v)
+            .collect()
+    }
+
     /// `data` in normalised units. A sample whose slope target `limit` leaves out
     /// ([`SlopeLimit`]; `--jacobian-cap` in the data's units, or the staged schedule's
     /// outliers) gets NaN slopes, which the Sobolev term skips.

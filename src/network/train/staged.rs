@@ -13,9 +13,10 @@
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
+use super::accuracy::{Measured, Target};
 use super::adaptive::RoundReport;
 use super::dataset::Dataset;
-use super::recipe::{Measured, RecipeData, StageReport, Target};
+use super::recipe::{RecipeData, StageReport};
 use super::Recipe;
 use crate::network::io::{f64_bytes, serialize, write_atomically, RawTensor, RawTensors};
 use crate::network::{Layer, Mlp, NetworkError};
