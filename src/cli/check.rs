@@ -149,18 +149,15 @@ fn print_findings(s: &cbfreach::scenario::Scenario, f: &FilterFindings) {
         ),
     }
     if let Some(l) = &f.leaves_c {
-        let (axis, upper) = l.side;
-        let side = match upper {
-            true => s.reach.region.upper[axis],
-            false => s.reach.region.lower[axis],
-        };
+        let axis = l.side.0;
         println!(
             "  C is not invariant: the filtered flow leaves it at {} of {} points sampled on its sides \
-             in S (first through {} = {side}, at {}): boxes whose flow meets them end early; \
+             in S (first through {} = {}, at {}): boxes whose flow meets them end early; \
              verify a region inside C (verify --region) or widen C",
             l.leaving,
             l.sampled,
             s.states[axis],
+            l.at[axis],
             fmt_point(&l.at)
         );
     }

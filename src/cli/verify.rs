@@ -242,7 +242,6 @@ fn flag_error(e: &VerifyError) -> String {
     }
 }
 
-/// Prints where the true system goes from the boxes that were not verified.
 /// Share of the region in cells straddling `∂S` from which `verify` suggests
 /// `--refine-boundary` (the paper's scenarios on their grids, 64 × 64 and 40 × 16: 1.9 and 5.6 %).
 const STRADDLING_HINT: f64 = 0.2;
@@ -266,6 +265,8 @@ fn print_ends(r: &VerifyReport) {
     println!("    what ended their tubes: {}", parts.join("; "));
 }
 
+/// Prints where the true system goes from the boxes that were not verified, and what ended
+/// their tubes.
 fn print_causes(c: &UnverifiedCauses, r: &VerifyReport) {
     if c.unverified <= 0.0 {
         return;

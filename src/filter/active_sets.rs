@@ -185,17 +185,19 @@ pub(crate) fn piece_algebra<T: Ring>(a: &[Vec<T>], b: &[T], set: &[usize]) -> Pi
 
 /// Every nonempty subset of `0..rows` of at most `max` elements with no two rows whose
 /// `normals` are constant (`Some`) and parallel (dependent at every point, as an input's lower
-/// and upper bound; [`constant_parallel`]), smaller sets first; `None` when there are more than [`MAX_SETS`]. Sets
-/// with a parallel pair are never needed: some multiplier vector of the KKT conditions has a
+/// and upper bound; [`constant_parallel`]), smaller sets first; `None` when there are more than
+/// [`MAX_SETS`]. Sets with a parallel pair are never needed: some multiplier vector of the KKT conditions has a
 /// support of linearly independent rows (Carathéodory, docs/design.md §2.1a).
 pub(crate) fn active_sets(
     rows: usize,
     max: usize,
     normals: &[Option<Vec<f64>>],
 ) -> Option<Vec<Vec<usize>>> {
-    let parallel = |i: usize, j: usize| match (normals.get(i), normals.get(j)) {
-        (Some(a), Some(b)) => constant_parallel(a, b),
-        _ => false,
+    let parallel = |i: usize, j: usize| {
+        normals
+            .get(i)
+            .zip(normals.get(j))
+            .is_some_and(|(a, b)| constant_parallel(a, b))
     };
     let mut out: Vec<Vec<usize>> = Vec::new();
     let mut layer: Vec<Vec<usize>> = vec![Vec::new()];

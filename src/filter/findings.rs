@@ -304,9 +304,9 @@ mod tests {
         assert!(tilted.sampled > 3000, "{}", tilted.sampled);
     }
 
-    /// Scenario 2's filtered flow leaves `C` where `x₂ = 2` carries `x₁` past 6 and where the
-    /// obstacle's row pushes `x₂` above 2; the found point is on that side, in `S`, with the
-    /// field pointing out. `ẋ = u`, `κ = −x`, kept left of a wall, leaves its box nowhere (the
+    /// Scenario 2's filtered flow leaves `C` on some of its sides (first through `x₁ = −4` at
+    /// full reverse speed), not all; the found point is on its side, in `S`, with the field
+    /// pointing out. `ẋ = u`, `κ = −x`, kept left of a wall, leaves its box nowhere (the
     /// wall's side lies outside `S`).
     #[test]
     fn where_the_filtered_flow_leaves_c_is_found_and_only_there() {

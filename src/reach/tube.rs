@@ -1,5 +1,5 @@
 //! What a reach run gives per initial box: its [`Tube`] of recorded sets and how it ended
-//! ([`TubeEnd`]), built alike by every engine. Imports only boxes and serde.
+//! ([`TubeEnd`]), built alike by every engine. Imports boxes, serde and the validated step's `OpenCause`.
 
 use serde::ser::{Serialize, SerializeStruct, Serializer};
 use serde::Deserialize;
