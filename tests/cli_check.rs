@@ -1,0 +1,160 @@
+//! `cbfreach check`: what it finds in a scenario before any network is trained (the paper's
+//! scenarios, CBFs no input acts on, loops that turn sets, a general QP's active sets, a `C`
+//! the flow leaves).
+
+mod common;
+use common::cbfreach;
+
+/// Both paper scenarios check, and `check` says that the filtered flow leaves their `C`
+/// (scenario 1 past `x₁ = −3.5` where the obstacle's row pushes out; scenario 2 through
+/// `x₁ = −4` at full reverse speed), which `verify` over all of `C` loses cells to.
+#[test]
+fn check_summarises_both_paper_scenarios() {
+    for (name, side) in [
+        ("integrator.toml", "through x1 = -3.5"),
+        ("double-integrator.toml", "through x1 = -4"),
+    ] {
+        let path = common::scenario_path(name);
+        let (code, stdout, stderr) = cbfreach(&["check", path.to_str().unwrap()]);
+        assert_eq!(code, 0, "{stderr}");
+        assert!(stdout.contains("is valid"), "{stdout}");
+        assert!(
+            stdout.contains("C is not invariant") && stdout.contains(side),
+            "{stdout}"
+        );
+    }
+}
+
+/// A CBF no input acts on (a position bound on a double integrator) is named with what to do,
+/// and the QP's infeasible share is said; a well-posed scenario says its QP is feasible.
+#[test]
+fn check_names_a_cbf_no_input_acts_on_and_where_the_qp_is_infeasible() {
+    let tmp = tempfile::tempdir().unwrap();
+    let path = tmp.path().join("wall.toml");
+    let text = std::fs::read_to_string(common::scenario_path("double-integrator.toml"))
+        .unwrap()
+        .replace("h = \"(x1 - 2)^2 + x2^2 - 1\"", "h = \"1.5 - x1\"");
+    std::fs::write(&path, text).unwrap();
+    let (code, stdout, stderr) = cbfreach(&["check", path.to_str().unwrap()]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(
+        stdout.contains("CBF obstacle: no input acts on it (L_g h = 0 on all of C)")
+            && stdout.contains("relative degree is above one"),
+        "{stdout}"
+    );
+    let line = stdout
+        .lines()
+        .find(|l| l.contains("the QP is infeasible at"))
+        .unwrap_or_else(|| panic!("{stdout}"));
+    assert!(line.contains("`obstacle` needs"), "{line}");
+    // The filter in words, its rows counted from the scenario.
+    assert!(
+        stdout.contains("filter: 2 constraint rows, closed form (scalar input"),
+        "{stdout}"
+    );
+    let path = common::scenario_path("integrator.toml");
+    let (code, stdout, _) = cbfreach(&["check", path.to_str().unwrap()]);
+    assert_eq!(code, 0);
+    assert!(!stdout.contains("no input acts"), "{stdout}");
+    assert!(stdout.contains("the QP is feasible at all"), "{stdout}");
+    // Scenario 2's obstacle row turns round at (1, 0), where L_g h = 2x₂ vanishes: v jumps.
+    let path = common::scenario_path("double-integrator.toml");
+    let (code, stdout, _) = cbfreach(&["check", path.to_str().unwrap()]);
+    assert_eq!(code, 0);
+    assert!(
+        stdout.contains("CBF obstacle: where it needs the input")
+            && stdout.contains("at (1.0000, 0.0000): v divides by ‖L_g h‖²"),
+        "{stdout}"
+    );
+}
+
+/// A lightly damped closed loop at the goal (the pendulum fixture at `−0.25 ± 0.97i`) is named
+/// as the reason boxes cannot shrink, by `check` and before a run; the fixture's own damped
+/// loop (`−1.55 ± 1.25i` at the origin, a real pair at its goal) is not.
+#[test]
+fn check_and_runs_name_a_loop_that_turns_sets_faster_than_it_shrinks_them() {
+    let tmp = tempfile::tempdir().unwrap();
+    let text = std::fs::read_to_string(common::fixture_path("pendulum.toml")).unwrap();
+    let light = text
+        .replace("k1 = 4.0", "k1 = 1.0")
+        .replace("k2 = 3.0", "k2 = 0.4")
+        .replace("theta_ref = 1.0", "theta_ref = 0.0")
+        .replace(
+            "lower = [0.9, -0.1], upper = [1.1, 0.1]",
+            "lower = [-0.1, -0.1], upper = [0.1, 0.1]",
+        );
+    let note = "the closed loop at the goal turns sets at least as fast as it shrinks them \
+                (eigenvalues -0.250 ± 0.968i)";
+    for (name, text, turns) in [("light.toml", &light, true), ("damped.toml", &text, false)] {
+        let path = tmp.path().join(name);
+        std::fs::write(&path, text).unwrap();
+        let (code, stdout, stderr) = cbfreach(&["check", path.to_str().unwrap()]);
+        assert_eq!(code, 0, "{stderr}");
+        assert_eq!(stdout.contains(note), turns, "{name}: {stdout}");
+        assert_eq!(stdout.contains("turns sets"), turns, "{name}: {stdout}");
+    }
+    // Before a run too (no network needed to say it: the run then stops for the missing file).
+    let path = tmp.path().join("light.toml");
+    let (_, stdout, _) = cbfreach(&["reach", path.to_str().unwrap()]);
+    assert!(
+        stdout.contains(&format!("note: {note}")) && stdout.contains("α + |β| = 0.718"),
+        "{stdout}"
+    );
+    // With a network, continuous time keeps the sets in turned frames and says how many.
+    cbfreach::network::Mlp::random(&[2, 64, 64, 1], 3)
+        .save_safetensors(
+            &tmp.path().join("pendulum.safetensors"),
+            &Default::default(),
+        )
+        .unwrap();
+    let light = path.to_str().unwrap();
+    let run = |extra: &[&str]| cbfreach(&[&["reach", light, "--m-c", "0.01"][..], extra].concat());
+    let (code, stdout, stderr) = run(&["--backend", "cpu"]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(
+        stdout.contains(
+            "turned frames (reach.turned_frames not set): the sets are kept in z and 4 copies \
+             of it turned by multiples of π/10"
+        ) && stdout.contains("z in 5 frames turned by multiples of π/10"),
+        "{stdout}"
+    );
+    // Given: not said; 1 turns none; refused by name where they cannot help.
+    let (code, stdout, _) = run(&["--backend", "cpu", "--turned-frames", "2"]);
+    assert_eq!(code, 0);
+    assert!(
+        !stdout.contains("turned frames (") && stdout.contains("in 2 frames"),
+        "{stdout}"
+    );
+    let (code, stdout, _) = run(&["--backend", "cpu", "--turned-frames", "1"]);
+    assert_eq!(code, 0);
+    assert!(
+        !stdout.contains("turned by multiples")
+            && stdout.contains("slabs clipped by the other frame's sets"),
+        "{stdout}"
+    );
+    let (code, _, stderr) = run(&["--time", "euler", "--turned-frames", "2"]);
+    assert_ne!(code, 0);
+    assert!(
+        stderr.contains("--turned-frames 2: turned frames tighten continuous time alone"),
+        "{stderr}"
+    );
+}
+
+/// A general QP's active sets are counted where the scenario is checked: three spheres on three
+/// inputs with `|uᵢ| ≤ 2` enumerate 105 (an input's two bounds never together); a fourth sphere
+/// passes the 128 enumerated, and `check` says that no certified error bound exists (which
+/// before only `error` found out).
+#[test]
+fn check_counts_a_general_qps_active_sets_and_says_when_there_are_too_many() {
+    let tmp = tempfile::tempdir().unwrap();
+    for (count, expected) in [
+        (3, "its certified bounds enumerate 105 active sets"),
+        (4, "its active sets are past those enumerated (128 sets of at most 4 rows): no certified error bound"),
+    ] {
+        let path = tmp.path().join(format!("s{count}.toml"));
+        std::fs::write(&path, common::spheres_with_bounds(count)).unwrap();
+        let (code, stdout, stderr) = cbfreach(&["check", path.to_str().unwrap()]);
+        assert_eq!(code, 0, "{stderr}");
+        assert!(stdout.contains(expected), "{stdout}");
+    }
+}
