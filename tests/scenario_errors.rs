@@ -123,6 +123,11 @@ fn non_positive_dt_and_horizon() {
         &["reach.horizon"],
     );
     assert_mentions(&error_for("dt = 0.05", "dt = nan"), &["reach.dt", "finite"]);
+    // Longer than the horizon (1.0): it used to run one step of 1e308, every box `unknown`.
+    assert_mentions(
+        &error_for("dt = 0.05", "dt = 1e308"),
+        &["reach.dt", "longer than the horizon", "dt ≤ horizon"],
+    );
 }
 
 #[test]

@@ -410,6 +410,17 @@ fn compile_reach(c: &Compiler, r: &ReachSection, n: usize) -> Result<ReachConfig
             format!("expected a horizon > 0, found {horizon}"),
         ));
     }
+    // A step past the horizon would stretch it to one step silently (`steps` rounds up).
+    if dt > horizon {
+        return Err(c.invalid(
+            "reach.dt",
+            format!(
+                "dt {} is longer than the horizon {}: expected dt ≤ horizon",
+                limits::shown(dt),
+                limits::shown(horizon)
+            ),
+        ));
+    }
     let goal = c.boxed("reach.goal", &r.goal, n)?;
     let mut initial = r
         .initial
