@@ -772,30 +772,3 @@ fn verify_says_when_the_slabs_are_clipped() {
         "{default}"
     );
 }
-
-/// Where much of the region lies in cells straddling `∂S` (skipped unless refined), `verify`
-/// says so and names `--refine-boundary`; with it, no hint, and the band's halves in `S` join
-/// the safe area. Every verified run also says what ended the tubes it did not verify.
-#[test]
-fn verify_points_to_the_skipped_band_along_the_safe_sets_boundary() {
-    let scenario = common::scenario_path("double-integrator.toml");
-    let scenario = scenario.to_str().unwrap();
-    let args = ["verify", scenario, "--grid", "5,3", "--time", "euler"];
-    let (code, stdout, stderr) = cbfreach(&args);
-    assert_eq!(code, 0, "{stderr}");
-    assert!(
-        stdout.contains(
-            "40.0% of the region lies in cells straddling ∂S, skipped: --refine-boundary"
-        ),
-        "{stdout}"
-    );
-    assert!(stdout.contains("what ended their tubes:"), "{stdout}");
-    let (code, stdout, stderr) =
-        cbfreach(&[&args[..], &["--refine", "1", "--refine-boundary"]].concat());
-    assert_eq!(code, 0, "{stderr}");
-    assert!(!stdout.contains("straddling ∂S, skipped"), "{stdout}");
-    assert!(
-        stdout.contains("the band along the safe set's boundary refined"),
-        "{stdout}"
-    );
-}

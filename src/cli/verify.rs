@@ -7,8 +7,9 @@ use cbfreach::plot::{self, Figure};
 use cbfreach::reach::{Backend, ReachProblem, ReachSettings};
 use cbfreach::scenario::Scenario;
 use cbfreach::verify::{
-    explain_unverified, merge, simulation_check, traps_for, Shard, SimulationCheck, Stage,
-    UnverifiedCauses, Verdict, Verifier, VerifyError, VerifyReport, VerifySettings,
+    centre_outcomes, explain_unverified, merge, simulation_check, traps_for, Culprit, Shard,
+    SimulationCheck, Stage, UnverifiedCauses, Verdict, Verifier, VerifyError, VerifyReport,
+    VerifySettings, WhatStops, SUBSTEP_FACTOR,
 };
 
 use super::args::{engine, settings_flag_error, EngineArgs, ProblemArgs, ReachFlags};
@@ -196,7 +197,7 @@ pub fn run(args: &VerifyArgs) -> CliResult {
         &s,
         &problem,
         engine.as_ref(),
-        reach,
+        reach.clone(),
         &settings,
         journal
             .as_ref()
@@ -219,8 +220,19 @@ pub fn run(args: &VerifyArgs) -> CliResult {
     report.run.network_hash = identity["network"].clone();
     report.run.filter_hash = identity["filter"].clone();
     print_summary(&report);
-    let causes = explain_unverified(&s, &report);
+    let outcomes = centre_outcomes(&s, &report);
+    let causes = UnverifiedCauses::of(&report, &outcomes);
     print_causes(&causes, &report);
+    let verifier = Verifier {
+        scenario: &s,
+        problem: &problem,
+        backend: engine.as_ref(),
+        reach,
+        traps: report.traps.clone(),
+    };
+    if let Some(w) = verifier.what_stops(&settings, &report, &outcomes)? {
+        print_what_stops(&w);
+    }
     print_meet_slabs_hint(&report, &causes);
     write_outputs(&s, &report, args.json.as_deref(), args.plot.as_deref())?;
     if let Some(j) = journal {
@@ -291,6 +303,36 @@ fn print_causes(c: &UnverifiedCauses, r: &VerifyReport) {
         100.0 * c.too_loose
     );
     print_ends(r);
+}
+
+/// What the reruns of the largest leaves whose sets were too loose found, and the knob it
+/// points to.
+fn print_what_stops(w: &WhatStops) {
+    let step = w.finer_step.map_or(String::new(), |k| {
+        format!(", with {SUBSTEP_FACTOR}× the substeps {k}")
+    });
+    let knob = match w.culprit() {
+        Culprit::Error => {
+            "the network's error margin stops them: a tighter error map (`cbfreach error \
+             --budget`, ten times the default) or a more accurate network comes before \
+             refinement or substeps"
+        }
+        Culprit::Step => {
+            "the validated step stops them: more substeps (`--substeps`, `--max-substeps`) \
+             come first"
+        }
+        Culprit::Neither => {
+            "neither stops them alone: the sets' own width does (more refinement, \
+             `--face-local` bounds, or other coordinates)"
+        }
+    };
+    println!(
+        "    the {} largest leaves whose sets were too loose ({:.0}% of their area), run again: \
+         with M = 0 (the network taken as exact) {} verify{step}: {knob}",
+        w.leaves.len(),
+        100.0 * w.area_share,
+        w.without_error,
+    );
 }
 
 /// Where sets too loose left boxes unverified in continuous time with two frames and the

@@ -302,6 +302,20 @@ impl ReachProblem {
         Ok(self)
     }
 
+    /// The network taken as exact, in every frame: `M = 0` and no error map. The sets then
+    /// bound the system driven by `N`, not the filtered system: for diagnoses of what the
+    /// error margin costs ([`crate::verify::WhatStops`]), never for a verdict.
+    pub fn without_error(mut self) -> ReachProblem {
+        self.m_c = 0.0;
+        self.error_map = None;
+        self.in_x = self.in_x.map(|x| Box::new(x.without_error()));
+        self.turned = std::mem::take(&mut self.turned)
+            .into_iter()
+            .map(ReachProblem::without_error)
+            .collect();
+        self
+    }
+
     /// Without `S`'s half-spaces: sets are not intersected with them (for comparisons), in every
     /// frame.
     pub fn without_safe_set(mut self) -> ReachProblem {

@@ -148,52 +148,79 @@ pub struct UnverifiedCauses {
     pub too_loose: f64,
 }
 
+/// Where the ground-truth filtered system goes from a leaf's centre (one of
+/// [`UnverifiedCauses`]'s classes), checked in this order.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CentreOutcome {
+    /// Sampled data: the held input carries it out of `S` between samples.
+    LeavesSBetweenSamples,
+    /// It leaves `C`.
+    LeavesRegion,
+    /// It stops at an infeasible QP.
+    Infeasible,
+    /// It ends at `T` in neither the goal nor a trap box.
+    EndsElsewhere,
+    /// It ends in the goal or a trap box: the sets were too loose.
+    EndsInTarget,
+}
+
 /// Simulates the centre of every leaf of `report` that refinement could still decide
 /// (`unknown`, `invalid`, `unsafe-between-samples`) with the ground-truth filter, in the
-/// system its sets bound ([`simulate_model`]), and sorts the leaves' area into
-/// [`UnverifiedCauses`].
-pub fn explain_unverified(s: &Scenario, report: &VerifyReport) -> UnverifiedCauses {
+/// system its sets bound ([`simulate_model`]): the leaf's index in `report.after` and where
+/// the trajectory goes.
+pub fn centre_outcomes(s: &Scenario, report: &VerifyReport) -> Vec<(usize, CentreOutcome)> {
     use crate::filter::SafetyFilter;
     let filter = SafetyFilter::new(s);
     let time = model_of(report);
-    let safe_area = Shares::of(&report.after).safe_area;
-    if safe_area <= 0.0 {
-        return UnverifiedCauses::default();
-    }
     let ends_in_target =
         |x: &[f64]| s.reach.goal.contains(x) || report.traps.iter().any(|t| t.region.contains(x));
-    report
-        .after
-        .par_iter()
-        .filter(|b| b.verdict.is_refinable())
-        .map(|b| {
-            let share = b.initial.volume() / safe_area;
+    (0..report.after.len())
+        .into_par_iter()
+        .filter(|&i| report.after[i].verdict.is_refinable())
+        .map(|i| {
             // A diagnostic, one start a leaf: the ODE by RK4 at `dt` (a QP filter solves four
             // times a step; the proof-grade check, `simulation_check`, takes `dt/10`).
-            let (tr, left_s) = simulate_model(&filter, &b.initial.center(), time, 1);
-            let mut c = UnverifiedCauses {
-                unverified: share,
-                ..UnverifiedCauses::default()
-            };
-            if left_s.is_some() {
-                c.unsafe_between_samples = share;
+            let (tr, left_s) = simulate_model(&filter, &report.after[i].initial.center(), time, 1);
+            let outcome = if left_s.is_some() {
+                CentreOutcome::LeavesSBetweenSamples
             } else if tr.x.iter().any(|x| !s.reach.region.contains(x)) {
-                c.leaves_region = share;
+                CentreOutcome::LeavesRegion
             } else if tr.stopped.is_some() {
-                c.infeasible = share;
+                CentreOutcome::Infeasible
             } else if ends_in_target(tr.last()) {
-                c.too_loose = share;
+                CentreOutcome::EndsInTarget
             } else {
-                c.ends_elsewhere = share;
-            }
-            c
+                CentreOutcome::EndsElsewhere
+            };
+            (i, outcome)
         })
-        .reduce(UnverifiedCauses::default, |a, b| UnverifiedCauses {
-            unverified: a.unverified + b.unverified,
-            unsafe_between_samples: a.unsafe_between_samples + b.unsafe_between_samples,
-            leaves_region: a.leaves_region + b.leaves_region,
-            infeasible: a.infeasible + b.infeasible,
-            ends_elsewhere: a.ends_elsewhere + b.ends_elsewhere,
-            too_loose: a.too_loose + b.too_loose,
-        })
+        .collect()
+}
+
+/// [`centre_outcomes`], summed as shares of the safe area.
+pub fn explain_unverified(s: &Scenario, report: &VerifyReport) -> UnverifiedCauses {
+    UnverifiedCauses::of(report, &centre_outcomes(s, report))
+}
+
+impl UnverifiedCauses {
+    /// The leaves' `outcomes` ([`centre_outcomes`] of `report`) as shares of its safe area.
+    pub fn of(report: &VerifyReport, outcomes: &[(usize, CentreOutcome)]) -> UnverifiedCauses {
+        let safe_area = Shares::of(&report.after).safe_area;
+        let mut c = UnverifiedCauses::default();
+        if safe_area <= 0.0 {
+            return c;
+        }
+        for &(i, outcome) in outcomes {
+            let share = report.after[i].initial.volume() / safe_area;
+            c.unverified += share;
+            *match outcome {
+                CentreOutcome::LeavesSBetweenSamples => &mut c.unsafe_between_samples,
+                CentreOutcome::LeavesRegion => &mut c.leaves_region,
+                CentreOutcome::Infeasible => &mut c.infeasible,
+                CentreOutcome::EndsElsewhere => &mut c.ends_elsewhere,
+                CentreOutcome::EndsInTarget => &mut c.too_loose,
+            } += share;
+        }
+        c
+    }
 }

@@ -58,10 +58,12 @@ mod run;
 mod settings;
 mod shard;
 mod traps;
+mod what_stops;
 
 pub use absorb::{absorbing_boxes, leaf_absorbers, target_absorbers, Absorbing, SCALES};
 pub use check::{
-    explain_unverified, simulate_model, simulation_check, SimulationCheck, UnverifiedCauses,
+    centre_outcomes, explain_unverified, simulate_model, simulation_check, CentreOutcome,
+    SimulationCheck, UnverifiedCauses,
 };
 pub use pieces::{
     no_journals, verify_by_pieces, PieceOutcome, PiecesJournals, PiecesSettings, PiecesVerdict,
@@ -75,6 +77,7 @@ pub use traps::{
     equilibrium_search_for, traps_for, traps_for_equilibria, traps_from_equilibria, Trap,
     MAX_EQUILIBRIUM_STARTS,
 };
+pub use what_stops::{Culprit, WhatStops, SUBSTEP_FACTOR, WHAT_STOPS_LEAVES};
 
 use serde::{Deserialize, Serialize};
 

@@ -596,3 +596,76 @@ fn feasibility_refinement_splits_verified_boxes_until_their_qp_is_proven_feasibl
     assert_eq!(check.stopped, 0);
     assert!(check.disagreements.is_empty(), "{:?}", check.disagreements);
 }
+
+/// What stops the leaves whose sets were too loose is found by running the largest of them
+/// again. Scenario 1's shipped network with a margin far above its certified error (`M = 1.5`,
+/// against 0.18) on cells round the goal: the true system converges from every centre, every
+/// set grows with the margin (the network's field everywhere), and each rerun with `M = 0` verifies, so the error is the
+/// culprit. With `M = 0` already, the rerun is the run itself: none of its too-loose leaves
+/// verifies again.
+#[test]
+fn what_stops_the_too_loose_leaves_is_found_by_running_them_again() {
+    use cbfreach::problem::ProblemOptions;
+    use cbfreach::scenario::Margin;
+    use cbfreach::verify::{centre_outcomes, CentreOutcome, Culprit, WHAT_STOPS_LEAVES};
+    let s = common::integrator();
+    let with_margin = |m: f64| {
+        let options = ProblemOptions {
+            m_c: Some(Margin::Value(m)),
+            ..ProblemOptions::default()
+        };
+        ReachProblem::from_scenario(&s, &options).unwrap()
+    };
+    let around_goal = VerifySettings {
+        grid: vec![4, 4],
+        region: Some(cbfreach::boxes::IntervalBox::new(vec![-0.4, -0.4], vec![0.4, 0.4]).unwrap()),
+        refine_depth: 0,
+        ..VerifySettings::default()
+    };
+    // The filter's own field where its active set is proven fixed needs no margin (and near
+    // the goal it is `v = 0`): the network everywhere, so that the margin counts.
+    let network_everywhere = |problem| Verifier {
+        reach: ReachSettings {
+            exact: ExactField::Nowhere,
+            ..s.settings.reach.clone()
+        },
+        ..Verifier::new(&s, problem, &CpuBackend)
+    };
+    let loose = with_margin(1.5);
+    let verifier = network_everywhere(&loose);
+    let report = verifier.run(&around_goal, &|_, _, _| {}).unwrap();
+    let outcomes = centre_outcomes(&s, &report);
+    assert_eq!(outcomes.len(), 16, "M = 1.5 verifies none of the 16 cells");
+    assert!(outcomes
+        .iter()
+        .all(|(_, o)| *o == CentreOutcome::EndsInTarget));
+    let w = verifier
+        .what_stops(&around_goal, &report, &outcomes)
+        .unwrap()
+        .unwrap();
+    assert_eq!(w.leaves.len(), WHAT_STOPS_LEAVES);
+    assert!((w.area_share - 12.0 / 16.0).abs() < 1e-12, "{w:?}");
+    assert_eq!(w.without_error, w.leaves.len(), "{w:?}");
+    assert_eq!(w.culprit(), Culprit::Error, "{w:?}");
+
+    // Whole cells of all of C with M = 0: some leaves' sets are too loose, and rerunning them
+    // with M = 0 changes nothing.
+    let exact = with_margin(0.0);
+    let verifier = network_everywhere(&exact);
+    let whole = VerifySettings {
+        grid: vec![8, 6],
+        refine_depth: 0,
+        ..VerifySettings::default()
+    };
+    let report = verifier.run(&whole, &|_, _, _| {}).unwrap();
+    let outcomes = centre_outcomes(&s, &report);
+    let w = verifier
+        .what_stops(&whole, &report, &outcomes)
+        .unwrap()
+        .unwrap();
+    assert!(!w.leaves.is_empty());
+    assert_eq!(w.without_error, 0, "{w:?}");
+    for &i in &w.leaves {
+        assert!(!report.after[i].verdict.is_verified());
+    }
+}

@@ -1,0 +1,62 @@
+//! `cbfreach verify`'s hints after its summary: the band along `∂S` it skipped, what ended
+//! the tubes it did not verify, and which knob stops the leaves whose sets were too loose.
+
+mod common;
+use common::cbfreach;
+
+/// Where much of the region lies in cells straddling `∂S` (skipped unless refined), `verify`
+/// says so and names `--refine-boundary`; with it, no hint, and the band's halves in `S` join
+/// the safe area. Every verified run also says what ended the tubes it did not verify.
+#[test]
+fn verify_points_to_the_skipped_band_along_the_safe_sets_boundary() {
+    let scenario = common::scenario_path("double-integrator.toml");
+    let scenario = scenario.to_str().unwrap();
+    let args = ["verify", scenario, "--grid", "5,3", "--time", "euler"];
+    let (code, stdout, stderr) = cbfreach(&args);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(
+        stdout.contains(
+            "40.0% of the region lies in cells straddling ∂S, skipped: --refine-boundary"
+        ),
+        "{stdout}"
+    );
+    assert!(stdout.contains("what ended their tubes:"), "{stdout}");
+    let (code, stdout, stderr) =
+        cbfreach(&[&args[..], &["--refine", "1", "--refine-boundary"]].concat());
+    assert_eq!(code, 0, "{stderr}");
+    assert!(!stdout.contains("straddling ∂S, skipped"), "{stdout}");
+    assert!(
+        stdout.contains("the band along the safe set's boundary refined"),
+        "{stdout}"
+    );
+}
+
+/// Where the sets were too loose, `verify` runs the largest such leaves again with `M = 0` and
+/// with four times the substeps, and names the knob: scenario 1's cells round the goal with a
+/// margin far above the network's certified error (1.5 against 0.18; the network's field
+/// everywhere, so that the margin counts) all verify with `M = 0`, none with the finer step.
+#[test]
+fn verify_names_the_error_margin_where_it_stops_the_sets() {
+    let scenario = common::scenario_path("integrator.toml");
+    let args = [
+        "verify",
+        scenario.to_str().unwrap(),
+        "--region=-0.4,-0.4:0.4,0.4",
+        "--grid",
+        "4,4",
+        "--m-c",
+        "1.5",
+        "--exact",
+        "nowhere",
+    ];
+    let (code, stdout, stderr) = cbfreach(&args);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(
+        stdout.contains(
+            "the 12 largest leaves whose sets were too loose (75% of their area), run again: \
+             with M = 0 (the network taken as exact) 12 verify, with 4× the substeps 0: the \
+             network's error margin stops them"
+        ),
+        "{stdout}"
+    );
+}
