@@ -34,10 +34,13 @@ fn verify_points_to_the_skipped_band_along_the_safe_sets_boundary() {
 /// Where the sets were too loose, `verify` runs the largest such leaves again with `M = 0` and
 /// with four times the substeps, and names the knob: scenario 1's cells round the goal with a
 /// margin far above the network's certified error (1.5 against 0.18; the network's field
-/// everywhere, so that the margin counts) all verify with `M = 0`, none with the finer step.
+/// everywhere, so that the margin counts) all verify with `M = 0`, none with the finer step;
+/// the JSON holds the same as data.
 #[test]
 fn verify_names_the_error_margin_where_it_stops_the_sets() {
     let scenario = common::scenario_path("integrator.toml");
+    let tmp = tempfile::tempdir().unwrap();
+    let json = tmp.path().join("v.json");
     let args = [
         "verify",
         scenario.to_str().unwrap(),
@@ -48,6 +51,8 @@ fn verify_names_the_error_margin_where_it_stops_the_sets() {
         "1.5",
         "--exact",
         "nowhere",
+        "--json",
+        json.to_str().unwrap(),
     ];
     let (code, stdout, stderr) = cbfreach(&args);
     assert_eq!(code, 0, "{stderr}");
@@ -59,4 +64,16 @@ fn verify_names_the_error_margin_where_it_stops_the_sets() {
         ),
         "{stdout}"
     );
+    // The JSON holds it as data, and a report without it (a merge) reads back.
+    let report = cbfreach::verify::VerifyReport::from_json(
+        &std::fs::read_to_string(&json).unwrap(),
+        "v.json",
+    )
+    .unwrap();
+    let w = report.what_stops.expect("what_stops in the JSON");
+    assert_eq!((w.leaves.len(), w.without_error), (12, 12));
+    assert_eq!(w.finer_step, Some(0));
+    assert_eq!(w.culprit, cbfreach::verify::Culprit::Error);
+    let text = std::fs::read_to_string(&json).unwrap();
+    assert!(text.contains("\"culprit\":\"error\""), "{text}");
 }

@@ -230,8 +230,9 @@ pub fn run(args: &VerifyArgs) -> CliResult {
         reach,
         traps: report.traps.clone(),
     };
-    if let Some(w) = verifier.what_stops(&settings, &report, &outcomes)? {
-        print_what_stops(&w);
+    report.what_stops = verifier.what_stops(&settings, &report, &outcomes)?;
+    if let Some(w) = &report.what_stops {
+        print_what_stops(w);
     }
     print_meet_slabs_hint(&report, &causes);
     write_outputs(&s, &report, args.json.as_deref(), args.plot.as_deref())?;
@@ -311,7 +312,7 @@ fn print_what_stops(w: &WhatStops) {
     let step = w.finer_step.map_or(String::new(), |k| {
         format!(", with {SUBSTEP_FACTOR}× the substeps {k}")
     });
-    let knob = match w.culprit() {
+    let knob = match w.culprit {
         Culprit::Error => {
             "the network's error margin stops them: a tighter error map (`cbfreach error \
              --budget`, ten times the default) or a more accurate network comes before \

@@ -305,6 +305,10 @@ pub struct VerifyReport {
     pub after: Vec<BoxVerdict>,
     /// Times.
     pub timing: VerifyTiming,
+    /// What stops the leaves whose sets were too loose (`verify` fills it after the run; a
+    /// diagnosis, not a verdict).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub what_stops: Option<super::WhatStops>,
 }
 
 impl VerifyReport {
@@ -501,6 +505,7 @@ mod tests {
             before: boxes.clone(),
             after: boxes,
             timing: VerifyTiming::default(),
+            what_stops: None,
         };
         let h = report.headline();
         assert_eq!(h.verified, 0.25);

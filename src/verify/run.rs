@@ -395,6 +395,7 @@ impl<'a> Verifier<'a> {
             before,
             after: leaves,
             timing,
+            what_stops: None,
         })
     }
 

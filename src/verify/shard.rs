@@ -140,6 +140,7 @@ pub fn merge(parts: Vec<(String, VerifyReport)>) -> Result<VerifyReport, VerifyE
         before: Vec::new(),
         after: Vec::new(),
         timing: VerifyTiming::default(),
+        what_stops: None,
     };
     for (_, r) in parts {
         merged.before.extend(r.before);

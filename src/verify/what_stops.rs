@@ -7,6 +7,8 @@
 
 use std::borrow::Cow;
 
+use serde::{Deserialize, Serialize};
+
 use super::VerifySettings;
 use super::{judge_with_feasibility, CentreOutcome, Verifier, VerifyError, VerifyReport};
 use crate::boxes::IntervalBox;
@@ -18,8 +20,8 @@ pub const WHAT_STOPS_LEAVES: usize = 12;
 /// The second rerun's substeps, as a multiple of each leaf's own.
 pub const SUBSTEP_FACTOR: usize = 4;
 
-/// What [`Verifier::what_stops`] found.
-#[derive(Clone, Debug, PartialEq)]
+/// What [`Verifier::what_stops`] found (`what_stops` in `verify`'s JSON).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct WhatStops {
     /// The leaves run again (indices into the report's `after`), the largest first.
     pub leaves: Vec<usize>,
@@ -30,10 +32,13 @@ pub struct WhatStops {
     /// How many verify with [`SUBSTEP_FACTOR`] times their substeps: continuous time, on an
     /// engine that runs them (`None` otherwise).
     pub finer_step: Option<usize>,
+    /// The knob the counts point to ([`Culprit::of`]).
+    pub culprit: Culprit,
 }
 
 /// Which knob a [`WhatStops`] points to.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum Culprit {
     /// The network's certified error: `M = 0` verifies more of them than the finer step, and
     /// at least a third.
@@ -45,11 +50,11 @@ pub enum Culprit {
     Neither,
 }
 
-impl WhatStops {
-    /// The knob the reruns point to.
-    pub fn culprit(&self) -> Culprit {
-        let (e, s) = (self.without_error, self.finer_step.unwrap_or(0));
-        let third = self.leaves.len().div_ceil(3).max(1);
+impl Culprit {
+    /// The knob that `without_error` and `finer_step` verified leaves of `leaves` rerun point to.
+    pub fn of(leaves: usize, without_error: usize, finer_step: Option<usize>) -> Culprit {
+        let (e, s) = (without_error, finer_step.unwrap_or(0));
+        let third = leaves.div_ceil(3).max(1);
         match (e.max(s) >= third, e.cmp(&s)) {
             (true, std::cmp::Ordering::Greater) => Culprit::Error,
             (true, std::cmp::Ordering::Less) => Culprit::Step,
@@ -95,6 +100,7 @@ impl Verifier<'_> {
             _ => None,
         };
         Ok(Some(WhatStops {
+            culprit: Culprit::of(leaves.len(), without_error, finer_step),
             leaves,
             area_share,
             without_error,

@@ -646,7 +646,7 @@ fn what_stops_the_too_loose_leaves_is_found_by_running_them_again() {
     assert_eq!(w.leaves.len(), WHAT_STOPS_LEAVES);
     assert!((w.area_share - 12.0 / 16.0).abs() < 1e-12, "{w:?}");
     assert_eq!(w.without_error, w.leaves.len(), "{w:?}");
-    assert_eq!(w.culprit(), Culprit::Error, "{w:?}");
+    assert_eq!(w.culprit, Culprit::Error, "{w:?}");
 
     // Whole cells of all of C with M = 0: some leaves' sets are too loose, and rerunning them
     // with M = 0 changes nothing.
