@@ -32,7 +32,7 @@ fn verify_points_to_the_skipped_band_along_the_safe_sets_boundary() {
 }
 
 /// Where the sets were too loose, `verify` runs the largest such leaves again with `M = 0` and
-/// with four times the substeps, and names the knob: scenario 1's cells round the goal with a
+/// with twice the substeps, and names the knob: scenario 1's cells round the goal with a
 /// margin far above the network's certified error (1.5 against 0.18; the network's field
 /// everywhere, so that the margin counts) all verify with `M = 0`, none with the finer step;
 /// the JSON holds the same as data.
@@ -58,8 +58,8 @@ fn verify_names_the_error_margin_where_it_stops_the_sets() {
     assert_eq!(code, 0, "{stderr}");
     assert!(
         stdout.contains(
-            "the 12 largest leaves whose sets were too loose (75% of their area), run again: \
-             with M = 0 (the network taken as exact) 12 verify, with 4× the substeps 0: the \
+            "the 8 largest leaves whose sets were too loose (50% of their area), run again: \
+             with M = 0 (the network taken as exact) 8 verify, with 2× the substeps 0: the \
              network's error margin stops them"
         ),
         "{stdout}"
@@ -71,7 +71,7 @@ fn verify_names_the_error_margin_where_it_stops_the_sets() {
     )
     .unwrap();
     let w = report.what_stops.expect("what_stops in the JSON");
-    assert_eq!((w.leaves.len(), w.without_error), (12, 12));
+    assert_eq!((w.leaves.len(), w.without_error), (8, 8));
     assert_eq!(w.finer_step, Some(0));
     assert_eq!(w.culprit, cbfreach::verify::Culprit::Error);
     let text = std::fs::read_to_string(&json).unwrap();

@@ -644,7 +644,7 @@ fn what_stops_the_too_loose_leaves_is_found_by_running_them_again() {
         .unwrap()
         .unwrap();
     assert_eq!(w.leaves.len(), WHAT_STOPS_LEAVES);
-    assert!((w.area_share - 12.0 / 16.0).abs() < 1e-12, "{w:?}");
+    assert!((w.area_share - 8.0 / 16.0).abs() < 1e-12, "{w:?}");
     assert_eq!(w.without_error, w.leaves.len(), "{w:?}");
     assert_eq!(w.culprit, Culprit::Error, "{w:?}");
 
