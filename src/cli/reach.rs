@@ -4,6 +4,7 @@ use std::path::PathBuf;
 
 use cbfreach::bounds::BoundMethod;
 use cbfreach::reach::{ExactField, ReachMethod, ReachResult, ReachSettings};
+use cbfreach::verify::{rerun_stopped, SUBSTEP_FACTOR};
 use serde::Serialize;
 
 use super::args::{engine, settings_flag_error, EngineArgs, ProblemArgs, ReachFlags};
@@ -197,6 +198,24 @@ pub fn run(args: &ReachArgs) -> CliResult {
              until they verify",
             result.boxes.len(),
         );
+        let stopped: Vec<_> = result
+            .boxes
+            .iter()
+            .filter(|t| !t.valid())
+            .map(|t| t.initial.clone())
+            .collect();
+        if let Some(r) = rerun_stopped(backend.as_ref(), &problem, &settings, &stopped)? {
+            let step = r.finer_step.map_or(String::new(), |k| {
+                format!(", with {SUBSTEP_FACTOR}× the substeps {k}")
+            });
+            println!(
+                "  {} of them run again: to the horizon with M = 0 (the network taken as exact) \
+                 {}{step}: {}",
+                r.boxes,
+                r.without_error,
+                super::verify::culprit_advice(r.culprit)
+            );
+        }
     }
     if let Some(path) = &args.json {
         let json = ReachJson {

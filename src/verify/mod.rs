@@ -77,7 +77,9 @@ pub use traps::{
     equilibrium_search_for, traps_for, traps_for_equilibria, traps_from_equilibria, Trap,
     MAX_EQUILIBRIUM_STARTS,
 };
-pub use what_stops::{Culprit, WhatStops, SUBSTEP_FACTOR, WHAT_STOPS_LEAVES};
+pub use what_stops::{
+    rerun_stopped, Culprit, StoppedRerun, WhatStops, SUBSTEP_FACTOR, WHAT_STOPS_LEAVES,
+};
 
 use serde::{Deserialize, Serialize};
 

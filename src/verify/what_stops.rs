@@ -12,14 +12,14 @@ use serde::{Deserialize, Serialize};
 use super::VerifySettings;
 use super::{judge_with_feasibility, CentreOutcome, Verifier, VerifyError, VerifyReport};
 use crate::boxes::IntervalBox;
-use crate::reach::{ReachProblem, ReachSettings, TimeModel};
+use crate::reach::{Backend, ReachError, ReachProblem, ReachSettings, TimeModel, Tube};
 
 /// Leaves run again, the largest first: enough to tell a majority, few enough to cost seconds.
 pub const WHAT_STOPS_LEAVES: usize = 8;
 
 /// The second rerun's substeps, as a multiple of each leaf's own (halving the step halves the
-/// validated step's `O(h²)` loss a step; deep leaves already take 4, so 2 more keeps the rerun
-/// at a tenth of a run).
+/// validated step's `O(h²)` loss a step; deep leaves already take 4, and 4 more made the reruns
+/// a quarter of scenario 2's run).
 pub const SUBSTEP_FACTOR: usize = 2;
 
 /// What [`Verifier::what_stops`] found (`what_stops` in `verify`'s JSON).
@@ -128,30 +128,87 @@ impl Verifier<'_> {
         let mut verified = 0;
         for depth in depths {
             let problem = problem_at(depth);
-            if self.backend.supports(&problem, &settings).is_err() {
-                return Ok(None);
-            }
             let boxes: Vec<IntervalBox> = leaves
                 .iter()
                 .map(|&i| &report.after[i])
                 .filter(|b| b.depth == depth)
                 .map(|b| b.initial.clone())
                 .collect();
-            let result = self
-                .backend
-                .reach(&problem, &boxes, &settings, &|_, _| {})?;
-            verified += result
-                .boxes
-                .iter()
-                .filter(|tube| {
-                    let (j, feasible) =
-                        judge_with_feasibility(&problem, self.scenario, &self.traps, tube);
-                    j.verdict.is_verified() && feasible == Some(true)
-                })
-                .count();
+            let verifies = |tube: &Tube| {
+                let (j, feasible) =
+                    judge_with_feasibility(&problem, self.scenario, &self.traps, tube);
+                j.verdict.is_verified() && feasible == Some(true)
+            };
+            match count_passing(self.backend, &problem, &settings, &boxes, verifies)? {
+                Some(k) => verified += k,
+                None => return Ok(None),
+            }
         }
         Ok(Some(verified))
     }
+}
+
+/// How many of `boxes` give a tube that `passes` on `problem`; `None` where the engine refuses
+/// the problem.
+fn count_passing(
+    backend: &dyn Backend,
+    problem: &ReachProblem,
+    settings: &ReachSettings,
+    boxes: &[IntervalBox],
+    passes: impl Fn(&Tube) -> bool,
+) -> Result<Option<usize>, ReachError> {
+    if backend.supports(problem, settings).is_err() {
+        return Ok(None);
+    }
+    let result = backend.reach(problem, boxes, settings, &|_, _| {})?;
+    Ok(Some(result.boxes.iter().filter(|t| passes(t)).count()))
+}
+
+/// `reach`'s tubes that stopped early, run again (at most [`WHAT_STOPS_LEAVES`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct StoppedRerun {
+    /// Tubes run again.
+    pub boxes: usize,
+    /// How many of them run to the horizon with `M = 0`.
+    pub without_error: usize,
+    /// How many run to the horizon with [`SUBSTEP_FACTOR`] times the substeps (continuous time,
+    /// on an engine that runs them; `None` otherwise).
+    pub finer_step: Option<usize>,
+    /// The knob the counts point to.
+    pub culprit: Culprit,
+}
+
+/// Runs the first [`WHAT_STOPS_LEAVES`] of `stopped` (initial boxes whose tubes ended early on
+/// `problem`) again with `M = 0` and with a finer step, and counts the tubes that then run to
+/// the horizon: `reach`'s counterpart of [`Verifier::what_stops`]. `None` when `stopped` is
+/// empty.
+pub fn rerun_stopped(
+    backend: &dyn Backend,
+    problem: &ReachProblem,
+    settings: &ReachSettings,
+    stopped: &[IntervalBox],
+) -> Result<Option<StoppedRerun>, ReachError> {
+    let boxes = &stopped[..stopped.len().min(WHAT_STOPS_LEAVES)];
+    if boxes.is_empty() {
+        return Ok(None);
+    }
+    let runs = |t: &Tube| t.valid();
+    let exact = problem.clone().without_error();
+    let without_error = count_passing(backend, &exact, settings, boxes, runs)?.unwrap_or(0);
+    let finer_step = match problem.time {
+        TimeModel::Continuous => {
+            let k = problem.steps_per_dt() * SUBSTEP_FACTOR;
+            let finer = problem.clone().with_time(TimeModel::Continuous, k);
+            count_passing(backend, &finer, settings, boxes, runs)?
+        }
+        _ => None,
+    };
+    Ok(Some(StoppedRerun {
+        boxes: boxes.len(),
+        without_error,
+        finer_step,
+        culprit: Culprit::of(boxes.len(), without_error, finer_step),
+    }))
 }
 
 /// The first `k` of `sorted` (largest area first), except that where the `k`-th shares its area

@@ -601,13 +601,16 @@ fn feasibility_refinement_splits_verified_boxes_until_their_qp_is_proven_feasibl
 /// again. Scenario 1's shipped network with a margin far above its certified error (`M = 1.5`,
 /// against 0.18) on cells round the goal: the true system converges from every centre, every
 /// set grows with the margin (the network's field everywhere), and each rerun with `M = 0` verifies, so the error is the
-/// culprit. With `M = 0` already, the rerun is the run itself: none of its too-loose leaves
+/// culprit; `reach`'s reruns of stopped tubes say the same. With `M = 0` already, the rerun is
+/// the run itself: none of its too-loose leaves
 /// verifies again.
 #[test]
 fn what_stops_the_too_loose_leaves_is_found_by_running_them_again() {
     use cbfreach::problem::ProblemOptions;
     use cbfreach::scenario::Margin;
-    use cbfreach::verify::{centre_outcomes, CentreOutcome, Culprit, WHAT_STOPS_LEAVES};
+    use cbfreach::verify::{
+        centre_outcomes, rerun_stopped, CentreOutcome, Culprit, WHAT_STOPS_LEAVES,
+    };
     let s = common::integrator();
     let with_margin = |m: f64| {
         let options = ProblemOptions {
@@ -647,6 +650,18 @@ fn what_stops_the_too_loose_leaves_is_found_by_running_them_again() {
     assert!((w.area_share - 8.0 / 16.0).abs() < 1e-12, "{w:?}");
     assert_eq!(w.without_error, w.leaves.len(), "{w:?}");
     assert_eq!(w.culprit, Culprit::Error, "{w:?}");
+    // `reach`'s counterpart on the same boxes: their tubes stop early, and with `M = 0` each
+    // runs to the horizon.
+    let stopped: Vec<_> = report.after.iter().map(|b| b.initial.clone()).collect();
+    assert!(report.after.iter().all(|b| b.verdict == Verdict::Invalid));
+    let r = rerun_stopped(&CpuBackend, &loose, &verifier.reach, &stopped)
+        .unwrap()
+        .unwrap();
+    assert_eq!(
+        (r.boxes, r.without_error),
+        (WHAT_STOPS_LEAVES, WHAT_STOPS_LEAVES)
+    );
+    assert_eq!(r.culprit, Culprit::Error);
 
     // Whole cells of all of C with M = 0: some leaves' sets are too loose, and rerunning them
     // with M = 0 changes nothing.
