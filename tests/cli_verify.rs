@@ -1,5 +1,6 @@
 //! `cbfreach verify`'s hints after its summary: the band along `∂S` it skipped, what ended
-//! the tubes it did not verify, and which knob stops the leaves whose sets were too loose.
+//! the tubes it did not verify, and which knob stops the leaves whose sets were too loose
+//! (and `reach`'s, for its tubes that stopped).
 
 mod common;
 use common::cbfreach;
@@ -76,4 +77,35 @@ fn verify_names_the_error_margin_where_it_stops_the_sets() {
     assert_eq!(w.culprit, cbfreach::verify::Culprit::Error);
     let text = std::fs::read_to_string(&json).unwrap();
     assert!(text.contains("\"culprit\":\"error\""), "{text}");
+}
+
+/// `reach` runs its stopped tubes again the same way: scenario 1's twelve boxes with `M = 1.5`
+/// (the network's field everywhere) all stop, and with `M = 0` most of the eight rerun reach
+/// the horizon, none with the finer step.
+#[test]
+fn reach_names_the_error_margin_where_it_stops_the_tubes() {
+    let scenario = common::scenario_path("integrator.toml");
+    let args = [
+        "reach",
+        scenario.to_str().unwrap(),
+        "--m-c",
+        "1.5",
+        "--exact",
+        "nowhere",
+    ];
+    let (code, stdout, stderr) = cbfreach(&args);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(
+        stdout.contains("12 of 12 sets stopped (INVALID)"),
+        "{stdout}"
+    );
+    let line = stdout
+        .lines()
+        .find(|l| l.contains("of them run again"))
+        .expect(&stdout);
+    assert!(
+        line.contains("8 of them run again: to the horizon with M = 0")
+            && line.contains("with 2× the substeps 0: the network's error margin stops them"),
+        "{line}"
+    );
 }
