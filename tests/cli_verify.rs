@@ -81,10 +81,12 @@ fn verify_names_the_error_margin_where_it_stops_the_sets() {
 
 /// `reach` runs its stopped tubes again the same way: scenario 1's twelve boxes with `M = 1.5`
 /// (the network's field everywhere) all stop, and with `M = 0` most of the eight rerun reach
-/// the horizon, none with the finer step.
+/// the horizon, none with the finer step; its JSON holds the same.
 #[test]
 fn reach_names_the_error_margin_where_it_stops_the_tubes() {
     let scenario = common::scenario_path("integrator.toml");
+    let tmp = tempfile::tempdir().unwrap();
+    let json = tmp.path().join("r.json");
     let args = [
         "reach",
         scenario.to_str().unwrap(),
@@ -92,6 +94,8 @@ fn reach_names_the_error_margin_where_it_stops_the_tubes() {
         "1.5",
         "--exact",
         "nowhere",
+        "--json",
+        json.to_str().unwrap(),
     ];
     let (code, stdout, stderr) = cbfreach(&args);
     assert_eq!(code, 0, "{stderr}");
@@ -107,5 +111,10 @@ fn reach_names_the_error_margin_where_it_stops_the_tubes() {
         line.contains("8 of them run again: to the horizon with M = 0")
             && line.contains("with 2× the substeps 0: the network's error margin stops them"),
         "{line}"
+    );
+    let text = std::fs::read_to_string(&json).unwrap();
+    assert!(
+        text.contains("\"what_stops\":{\"boxes\":8,") && text.contains("\"culprit\":\"error\""),
+        "{text}"
     );
 }

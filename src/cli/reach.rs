@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use cbfreach::bounds::BoundMethod;
 use cbfreach::reach::{ExactField, ReachMethod, ReachResult, ReachSettings};
-use cbfreach::verify::{rerun_stopped, SUBSTEP_FACTOR};
+use cbfreach::verify::{rerun_stopped, StoppedRerun, SUBSTEP_FACTOR};
 use serde::Serialize;
 
 use super::args::{engine, settings_flag_error, EngineArgs, ProblemArgs, ReachFlags};
@@ -47,6 +47,9 @@ struct ReachJson<'a> {
     time: cbfreach::reach::TimeModel,
     substeps: usize,
     m_c: f64,
+    /// Where tubes stopped early: their reruns ([`rerun_stopped`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    what_stops: Option<StoppedRerun>,
     #[serde(flatten)]
     result: &'a ReachResult,
 }
@@ -177,6 +180,7 @@ pub fn run(args: &ReachArgs) -> CliResult {
         );
     }
     let invalid = result.boxes.iter().filter(|t| !t.valid()).count();
+    let mut what_stops = None;
     if invalid > 0 {
         // What would tighten the sets and is not on: face-local bounds, and with two frames in
         // continuous time the clipped slabs (on by default).
@@ -204,7 +208,8 @@ pub fn run(args: &ReachArgs) -> CliResult {
             .filter(|t| !t.valid())
             .map(|t| t.initial.clone())
             .collect();
-        if let Some(r) = rerun_stopped(backend.as_ref(), &problem, &settings, &stopped)? {
+        what_stops = rerun_stopped(backend.as_ref(), &problem, &settings, &stopped)?;
+        if let Some(r) = &what_stops {
             let step = r.finer_step.map_or(String::new(), |k| {
                 format!(", with {SUBSTEP_FACTOR}× the substeps {k}")
             });
@@ -227,6 +232,7 @@ pub fn run(args: &ReachArgs) -> CliResult {
             time: problem.time,
             substeps: problem.steps_per_dt(),
             m_c,
+            what_stops,
             result: &result,
         };
         cbfreach::output::write_atomic(path, serde_json::to_string(&json)?.as_bytes())

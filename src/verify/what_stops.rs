@@ -164,8 +164,9 @@ fn count_passing(
     Ok(Some(result.boxes.iter().filter(|t| passes(t)).count()))
 }
 
-/// `reach`'s tubes that stopped early, run again (at most [`WHAT_STOPS_LEAVES`]).
-#[derive(Clone, Debug, PartialEq)]
+/// `reach`'s tubes that stopped early, run again (at most [`WHAT_STOPS_LEAVES`]; `what_stops`
+/// in `reach`'s JSON).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct StoppedRerun {
     /// Tubes run again.
     pub boxes: usize,
