@@ -248,3 +248,14 @@ pub fn wall_network() -> Mlp {
     net.layers[1].bias = vec![0.0];
     net
 }
+
+/// The NN closed loop `f̃(x) + g(x) N(x)`.
+pub fn nn_field(s: &Scenario, net: &Mlp, x: &[f64]) -> Result<Vec<f64>, String> {
+    let (n, m) = (s.n(), s.m());
+    let f = s.f_tilde_at(x);
+    let g = s.g_at(x);
+    let u = net.forward(x);
+    Ok((0..n)
+        .map(|i| f[i] + (0..m).map(|k| g[i * m + k] * u[k]).sum::<f64>())
+        .collect())
+}
