@@ -32,10 +32,11 @@ fn verify_points_to_the_skipped_band_along_the_safe_sets_boundary() {
     );
 }
 
-/// Where the sets were too loose, `verify` runs the largest such leaves again with `M = 0` and
-/// with twice the substeps, and names the knob: scenario 1's cells round the goal with a
-/// margin far above the network's certified error (1.5 against 0.18; the network's field
-/// everywhere, so that the margin counts) all verify with `M = 0`, none with the finer step;
+/// Where the sets were too loose, `verify` runs the largest such leaves again with `M = 0`, with
+/// twice the substeps and with face-local bounds, and names the knob: scenario 1's cells round
+/// the goal with a margin far above the network's certified error (1.5 against 0.18; the
+/// network's field everywhere, so that the margin counts) all verify with `M = 0`, none with the
+/// other knobs;
 /// the JSON holds the same as data.
 #[test]
 fn verify_names_the_error_margin_where_it_stops_the_sets() {
@@ -60,8 +61,8 @@ fn verify_names_the_error_margin_where_it_stops_the_sets() {
     assert!(
         stdout.contains(
             "the 8 largest leaves whose sets were too loose (50% of their area), run again: \
-             with M = 0 (the network taken as exact) 8 verify, with 2× the substeps 0: the \
-             network's error margin stops them"
+             with M = 0 (the network taken as exact) 8 verify, with 2× the substeps 0, with \
+             --face-local 0: the network's error margin stops them"
         ),
         "{stdout}"
     );
@@ -72,9 +73,12 @@ fn verify_names_the_error_margin_where_it_stops_the_sets() {
     )
     .unwrap();
     let w = report.what_stops.expect("what_stops in the JSON");
-    assert_eq!((w.leaves.len(), w.without_error), (8, 8));
-    assert_eq!(w.finer_step, Some(0));
-    assert_eq!(w.culprit, cbfreach::verify::Culprit::Error);
+    assert_eq!((w.leaves.len(), w.reruns.without_error), (8, 8));
+    assert_eq!(
+        (w.reruns.finer_step, w.reruns.face_local),
+        (Some(0), Some(0))
+    );
+    assert_eq!(w.reruns.culprit, cbfreach::verify::Culprit::Error);
     let text = std::fs::read_to_string(&json).unwrap();
     assert!(text.contains("\"culprit\":\"error\""), "{text}");
 }
@@ -108,8 +112,10 @@ fn reach_names_the_error_margin_where_it_stops_the_tubes() {
         .find(|l| l.contains("of them run again"))
         .expect(&stdout);
     assert!(
-        line.contains("8 of them run again: to the horizon with M = 0")
-            && line.contains("with 2× the substeps 0: the network's error margin stops them"),
+        line.contains("8 of them run again, to the horizon: with M = 0")
+            && line.contains(
+                "with 2× the substeps 0, with --face-local 0: the network's error margin stops them"
+            ),
         "{line}"
     );
     let text = std::fs::read_to_string(&json).unwrap();

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use cbfreach::bounds::BoundMethod;
 use cbfreach::reach::{ExactField, ReachMethod, ReachResult, ReachSettings};
-use cbfreach::verify::{rerun_stopped, StoppedRerun, SUBSTEP_FACTOR};
+use cbfreach::verify::{rerun_stopped, StoppedRerun};
 use serde::Serialize;
 
 use super::args::{engine, settings_flag_error, EngineArgs, ProblemArgs, ReachFlags};
@@ -210,15 +210,10 @@ pub fn run(args: &ReachArgs) -> CliResult {
             .collect();
         what_stops = rerun_stopped(backend.as_ref(), &problem, &settings, &stopped)?;
         if let Some(r) = &what_stops {
-            let step = r.finer_step.map_or(String::new(), |k| {
-                format!(", with {SUBSTEP_FACTOR}× the substeps {k}")
-            });
             println!(
-                "  {} of them run again: to the horizon with M = 0 (the network taken as exact) \
-                 {}{step}: {}",
+                "  {} of them run again, to the horizon: {}",
                 r.boxes,
-                r.without_error,
-                super::verify::culprit_advice(r.culprit)
+                super::verify::reruns_clause(&r.reruns, "")
             );
         }
     }

@@ -7,8 +7,8 @@ use cbfreach::plot::{self, Figure};
 use cbfreach::reach::{Backend, ReachProblem, ReachSettings};
 use cbfreach::scenario::Scenario;
 use cbfreach::verify::{
-    centre_outcomes, explain_unverified, merge, simulation_check, traps_for, Culprit, Shard,
-    SimulationCheck, Stage, UnverifiedCauses, Verdict, Verifier, VerifyError, VerifyReport,
+    centre_outcomes, explain_unverified, merge, simulation_check, traps_for, Culprit, Reruns,
+    Shard, SimulationCheck, Stage, UnverifiedCauses, Verdict, Verifier, VerifyError, VerifyReport,
     VerifySettings, WhatStops, SUBSTEP_FACTOR,
 };
 
@@ -64,8 +64,7 @@ pub struct VerifyArgs {
     #[arg(long)]
     pub no_absorb: bool,
     /// Skip the reruns that say what stops the leaves whose sets were too loose (the 8 largest,
-    /// with M = 0 and with twice their substeps: seconds, 12 s after scenario 2's 67 s run on
-    /// 20 × 8 cells at three rounds)
+    /// with M = 0, with twice their substeps and, where off, with face-local bounds: seconds)
     #[arg(long)]
     pub no_what_stops: bool,
     /// Run only the K-th of N contiguous slices of the cells (1 ≤ K ≤ N); merge the JSON files
@@ -316,21 +315,33 @@ fn print_causes(c: &UnverifiedCauses, r: &VerifyReport) {
 /// What the reruns of the largest leaves whose sets were too loose found, and the knob it
 /// points to.
 fn print_what_stops(w: &WhatStops) {
-    let step = w.finer_step.map_or(String::new(), |k| {
-        format!(", with {SUBSTEP_FACTOR}× the substeps {k}")
-    });
     println!(
         "    the {} largest leaves whose sets were too loose ({:.0}% of their area), run again: \
-         with M = 0 (the network taken as exact) {} verify{step}: {}",
+         {}",
         w.leaves.len(),
         100.0 * w.area_share,
-        w.without_error,
-        culprit_advice(w.culprit),
+        reruns_clause(&w.reruns, " verify"),
     );
 }
 
-/// What a [`Culprit`] says to do (`verify`'s and `reach`'s reruns).
-pub fn culprit_advice(culprit: Culprit) -> &'static str {
+/// The reruns' counts, one clause a knob (`passing` after the first count: what they do), and
+/// what they point to (`verify`'s and `reach`'s).
+pub fn reruns_clause(r: &Reruns, passing: &str) -> String {
+    let mut clauses = vec![format!(
+        "with M = 0 (the network taken as exact) {}{passing}",
+        r.without_error
+    )];
+    if let Some(k) = r.finer_step {
+        clauses.push(format!("with {SUBSTEP_FACTOR}× the substeps {k}"));
+    }
+    if let Some(k) = r.face_local {
+        clauses.push(format!("with --face-local {k}"));
+    }
+    format!("{}: {}", clauses.join(", "), culprit_advice(r.culprit))
+}
+
+/// What a [`Culprit`] says to do.
+fn culprit_advice(culprit: Culprit) -> &'static str {
     match culprit {
         Culprit::Error => {
             "the network's error margin stops them: a tighter error map (`cbfreach error \
@@ -341,9 +352,13 @@ pub fn culprit_advice(culprit: Culprit) -> &'static str {
             "the validated step stops them: more substeps (`--substeps`, `--max-substeps`) \
              come first"
         }
+        Culprit::Bounds => {
+            "the network's bounds stop them: bounds on each face (`--face-local`, 2n× the bound \
+             cost) come first"
+        }
         Culprit::Neither => {
-            "neither stops them alone: the sets' own width does (more refinement, \
-             `--face-local` bounds, or other coordinates)"
+            "no one knob stops them: the sets' own width does (more refinement, or other \
+             coordinates)"
         }
     }
 }

@@ -78,7 +78,7 @@ pub use traps::{
     MAX_EQUILIBRIUM_STARTS,
 };
 pub use what_stops::{
-    rerun_stopped, Culprit, StoppedRerun, WhatStops, SUBSTEP_FACTOR, WHAT_STOPS_LEAVES,
+    rerun_stopped, Culprit, Reruns, StoppedRerun, WhatStops, SUBSTEP_FACTOR, WHAT_STOPS_LEAVES,
 };
 
 use serde::{Deserialize, Serialize};

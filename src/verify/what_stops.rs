@@ -1,8 +1,9 @@
 //! What stops the leaves whose sets were too loose (their centres' true trajectories end in the
-//! goal or a trap): the largest few run again with the network taken as exact (`M = 0`) and,
-//! in continuous time, with [`SUBSTEP_FACTOR`] times their substeps, so that a run can say
-//! which of the two, or neither, stands between them and a verdict. Neither rerun is a proof:
-//! the `M = 0` sets do not bound the filtered system; both only point to the knob worth turning.
+//! goal or a trap), and `reach`'s tubes that stopped early: the largest few run again with one
+//! knob turned at a time — the network taken as exact (`M = 0`), a finer step (continuous
+//! time), bounds on each face (where they are off) — so that a run can say which of the three
+//! terms of a step, or none, stands between them and a verdict. No rerun is a proof (the
+//! `M = 0` sets do not bound the filtered system); they only point to the knob worth turning.
 //! May import `reach`, `scenario` and `verify`'s report types.
 
 use std::borrow::Cow;
@@ -17,10 +18,78 @@ use crate::reach::{Backend, ReachError, ReachProblem, ReachSettings, TimeModel, 
 /// Leaves run again, the largest first: enough to tell a majority, few enough to cost seconds.
 pub const WHAT_STOPS_LEAVES: usize = 8;
 
-/// The second rerun's substeps, as a multiple of each leaf's own (halving the step halves the
+/// The finer step's substeps, as a multiple of each leaf's own (halving the step halves the
 /// validated step's `O(h²)` loss a step; deep leaves already take 4, and 4 more made the reruns
 /// a quarter of scenario 2's run).
 pub const SUBSTEP_FACTOR: usize = 2;
+
+/// One knob a rerun turns.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Knob {
+    /// `M = 0` ([`ReachProblem::without_error`]).
+    Error,
+    /// [`SUBSTEP_FACTOR`] times the substeps (continuous time).
+    Step,
+    /// Bounds on each face (`face_local`), where they are off.
+    Bounds,
+}
+
+impl Knob {
+    /// `problem` and `settings` with this knob turned, or `None` where it does not apply.
+    fn turn<'p>(
+        self,
+        problem: &'p ReachProblem,
+        settings: &ReachSettings,
+    ) -> Option<(Cow<'p, ReachProblem>, ReachSettings)> {
+        match self {
+            Knob::Error => Some((
+                Cow::Owned(problem.clone().without_error()),
+                settings.clone(),
+            )),
+            Knob::Step => (problem.time == TimeModel::Continuous).then(|| {
+                let k = problem.steps_per_dt() * SUBSTEP_FACTOR;
+                let finer = problem.clone().with_time(TimeModel::Continuous, k);
+                (Cow::Owned(finer), settings.clone())
+            }),
+            Knob::Bounds => (!settings.face_local).then(|| {
+                let faces = ReachSettings {
+                    face_local: true,
+                    ..settings.clone()
+                };
+                (Cow::Borrowed(problem), faces)
+            }),
+        }
+    }
+}
+
+/// How many of the rerun boxes pass with each knob turned, and the knob that stops them.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Reruns {
+    /// With `M = 0` (the network taken as exact).
+    pub without_error: usize,
+    /// With [`SUBSTEP_FACTOR`] times the substeps: continuous time, on an engine that runs them
+    /// (`None` otherwise).
+    pub finer_step: Option<usize>,
+    /// With bounds on each face, where the run had them off (`None` otherwise).
+    pub face_local: Option<usize>,
+    /// The knob the counts point to ([`Culprit::of`]).
+    pub culprit: Culprit,
+}
+
+impl Reruns {
+    /// The counts `count` gives for each knob (`None`: it does not apply) of `boxes` rerun.
+    fn of<E>(boxes: usize, count: impl Fn(Knob) -> Result<Option<usize>, E>) -> Result<Reruns, E> {
+        let without_error = count(Knob::Error)?.unwrap_or(0);
+        let finer_step = count(Knob::Step)?;
+        let face_local = count(Knob::Bounds)?;
+        Ok(Reruns {
+            culprit: Culprit::of(boxes, without_error, finer_step, face_local),
+            without_error,
+            finer_step,
+            face_local,
+        })
+    }
+}
 
 /// What [`Verifier::what_stops`] found (`what_stops` in `verify`'s JSON).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -29,48 +98,64 @@ pub struct WhatStops {
     pub leaves: Vec<usize>,
     /// Their share of the area of all leaves whose sets were too loose.
     pub area_share: f64,
-    /// How many of them verify, the filter proven feasible on every set, with `M = 0`.
-    pub without_error: usize,
-    /// How many verify with [`SUBSTEP_FACTOR`] times their substeps: continuous time, on an
-    /// engine that runs them (`None` otherwise).
-    pub finer_step: Option<usize>,
-    /// The knob the counts point to ([`Culprit::of`]).
-    pub culprit: Culprit,
+    /// How many of them verify, the filter proven feasible on every set, with each knob.
+    #[serde(flatten)]
+    pub reruns: Reruns,
 }
 
-/// Which knob a [`WhatStops`] points to.
+/// `reach`'s tubes that stopped early, run again (at most [`WHAT_STOPS_LEAVES`]; `what_stops`
+/// in `reach`'s JSON).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StoppedRerun {
+    /// Tubes run again.
+    pub boxes: usize,
+    /// How many of them run to the horizon with each knob.
+    #[serde(flatten)]
+    pub reruns: Reruns,
+}
+
+/// Which knob the reruns point to.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Culprit {
-    /// The network's certified error: `M = 0` verifies more of them than the finer step, and
-    /// at least a third.
+    /// The network's certified error: `M = 0` passes most of them, and at least a third.
     Error,
-    /// The validated step: the finer step verifies more of them than `M = 0`, and at least a
-    /// third.
+    /// The validated step: the finer step passes most of them, and at least a third.
     Step,
-    /// Neither verifies a third of them: the sets' own looseness (box size, bounds, coordinates).
+    /// The network's bounds: bounds on each face pass most of them, and at least a third.
+    Bounds,
+    /// No knob passes a third of them: the sets' own width (box size, coordinates).
     Neither,
 }
 
 impl Culprit {
-    /// The knob that `without_error` and `finer_step` verified leaves of `leaves` rerun point to.
-    pub fn of(leaves: usize, without_error: usize, finer_step: Option<usize>) -> Culprit {
-        let (e, s) = (without_error, finer_step.unwrap_or(0));
-        let third = leaves.div_ceil(3).max(1);
-        match (e.max(s) >= third, e.cmp(&s)) {
-            (true, std::cmp::Ordering::Greater) => Culprit::Error,
-            (true, std::cmp::Ordering::Less) => Culprit::Step,
-            // A tie with a third or more each: the error first (the step's knob is dearer).
-            (true, std::cmp::Ordering::Equal) => Culprit::Error,
-            (false, _) => Culprit::Neither,
-        }
+    /// The knob that the counts of `boxes` rerun point to: the one that passes most, if a
+    /// third or more; at a tie the cheaper knob (the error map, then face bounds, then the step).
+    pub fn of(
+        boxes: usize,
+        without_error: usize,
+        finer_step: Option<usize>,
+        face_local: Option<usize>,
+    ) -> Culprit {
+        let third = boxes.div_ceil(3).max(1);
+        [
+            (Culprit::Error, without_error),
+            (Culprit::Bounds, face_local.unwrap_or(0)),
+            (Culprit::Step, finer_step.unwrap_or(0)),
+        ]
+        .into_iter()
+        .filter(|&(_, k)| k >= third)
+        // `max_by_key` keeps the last of equals: reversed, the first in the list wins ties.
+        .rev()
+        .max_by_key(|&(_, k)| k)
+        .map_or(Culprit::Neither, |(c, _)| c)
     }
 }
 
 impl Verifier<'_> {
     /// Runs the [`WHAT_STOPS_LEAVES`] largest leaves of `report` whose centres end in a target
-    /// (`outcomes`: [`super::centre_outcomes`] of `report`) again, with `M = 0` and with a finer
-    /// step; `None` when there is no such leaf.
+    /// (`outcomes`: [`super::centre_outcomes`] of `report`) again, each at its depth's step,
+    /// once per knob; `None` when there is no such leaf.
     pub fn what_stops(
         &self,
         settings: &VerifySettings,
@@ -90,35 +175,27 @@ impl Verifier<'_> {
         leaves.sort_by(|a, b| area(b).total_cmp(&area(a)).then(a.cmp(b)));
         let leaves = largest_spread(&leaves, |i| area(&i), WHAT_STOPS_LEAVES);
         let area_share = leaves.iter().map(area).sum::<f64>() / total;
-        let exact = self.problem.clone().without_error();
-        let without_error = self
-            .verified_among(report, &leaves, |d| settings.problem_at(&exact, d))?
-            .unwrap_or(0);
-        let finer_step = match self.problem.time {
-            TimeModel::Continuous => self.verified_among(report, &leaves, |d| {
-                let k = settings.substeps_at(self.problem, d) * SUBSTEP_FACTOR;
-                Cow::Owned(self.problem.clone().with_time(TimeModel::Continuous, k))
-            })?,
-            _ => None,
-        };
+        let reruns = Reruns::of(leaves.len(), |knob| {
+            self.verified_among(settings, report, &leaves, knob)
+        })?;
         Ok(Some(WhatStops {
-            culprit: Culprit::of(leaves.len(), without_error, finer_step),
             leaves,
             area_share,
-            without_error,
-            finer_step,
+            reruns,
         }))
     }
 
     /// How many of `leaves` verify (the filter proven feasible on every set) when each runs
-    /// the problem `problem_at` gives for its depth; `None` when the engine refuses one.
-    fn verified_among<'p>(
+    /// its depth's problem with `knob` turned; `None` where the knob does not apply or the
+    /// engine refuses the problem.
+    fn verified_among(
         &self,
+        settings: &VerifySettings,
         report: &VerifyReport,
         leaves: &[usize],
-        problem_at: impl Fn(usize) -> Cow<'p, ReachProblem>,
+        knob: Knob,
     ) -> Result<Option<usize>, VerifyError> {
-        let settings = ReachSettings {
+        let reach = ReachSettings {
             every: 1,
             ..self.reach.clone()
         };
@@ -127,7 +204,10 @@ impl Verifier<'_> {
         depths.dedup();
         let mut verified = 0;
         for depth in depths {
-            let problem = problem_at(depth);
+            let at_depth = settings.problem_at(self.problem, depth);
+            let Some((problem, reach)) = knob.turn(&at_depth, &reach) else {
+                return Ok(None);
+            };
             let boxes: Vec<IntervalBox> = leaves
                 .iter()
                 .map(|&i| &report.after[i])
@@ -139,13 +219,38 @@ impl Verifier<'_> {
                     judge_with_feasibility(&problem, self.scenario, &self.traps, tube);
                 j.verdict.is_verified() && feasible == Some(true)
             };
-            match count_passing(self.backend, &problem, &settings, &boxes, verifies)? {
+            match count_passing(self.backend, &problem, &reach, &boxes, verifies)? {
                 Some(k) => verified += k,
                 None => return Ok(None),
             }
         }
         Ok(Some(verified))
     }
+}
+
+/// Runs the first [`WHAT_STOPS_LEAVES`] of `stopped` (initial boxes whose tubes ended early on
+/// `problem`) again once per knob, and counts the tubes that then run to the horizon: `reach`'s
+/// counterpart of [`Verifier::what_stops`]. `None` when `stopped` is empty.
+pub fn rerun_stopped(
+    backend: &dyn Backend,
+    problem: &ReachProblem,
+    settings: &ReachSettings,
+    stopped: &[IntervalBox],
+) -> Result<Option<StoppedRerun>, ReachError> {
+    let boxes = &stopped[..stopped.len().min(WHAT_STOPS_LEAVES)];
+    if boxes.is_empty() {
+        return Ok(None);
+    }
+    let reruns = Reruns::of(boxes.len(), |knob| match knob.turn(problem, settings) {
+        Some((problem, settings)) => {
+            count_passing(backend, &problem, &settings, boxes, |t| t.valid())
+        }
+        None => Ok(None),
+    })?;
+    Ok(Some(StoppedRerun {
+        boxes: boxes.len(),
+        reruns,
+    }))
 }
 
 /// How many of `boxes` give a tube that `passes` on `problem`; `None` where the engine refuses
@@ -162,54 +267,6 @@ fn count_passing(
     }
     let result = backend.reach(problem, boxes, settings, &|_, _| {})?;
     Ok(Some(result.boxes.iter().filter(|t| passes(t)).count()))
-}
-
-/// `reach`'s tubes that stopped early, run again (at most [`WHAT_STOPS_LEAVES`]; `what_stops`
-/// in `reach`'s JSON).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct StoppedRerun {
-    /// Tubes run again.
-    pub boxes: usize,
-    /// How many of them run to the horizon with `M = 0`.
-    pub without_error: usize,
-    /// How many run to the horizon with [`SUBSTEP_FACTOR`] times the substeps (continuous time,
-    /// on an engine that runs them; `None` otherwise).
-    pub finer_step: Option<usize>,
-    /// The knob the counts point to.
-    pub culprit: Culprit,
-}
-
-/// Runs the first [`WHAT_STOPS_LEAVES`] of `stopped` (initial boxes whose tubes ended early on
-/// `problem`) again with `M = 0` and with a finer step, and counts the tubes that then run to
-/// the horizon: `reach`'s counterpart of [`Verifier::what_stops`]. `None` when `stopped` is
-/// empty.
-pub fn rerun_stopped(
-    backend: &dyn Backend,
-    problem: &ReachProblem,
-    settings: &ReachSettings,
-    stopped: &[IntervalBox],
-) -> Result<Option<StoppedRerun>, ReachError> {
-    let boxes = &stopped[..stopped.len().min(WHAT_STOPS_LEAVES)];
-    if boxes.is_empty() {
-        return Ok(None);
-    }
-    let runs = |t: &Tube| t.valid();
-    let exact = problem.clone().without_error();
-    let without_error = count_passing(backend, &exact, settings, boxes, runs)?.unwrap_or(0);
-    let finer_step = match problem.time {
-        TimeModel::Continuous => {
-            let k = problem.steps_per_dt() * SUBSTEP_FACTOR;
-            let finer = problem.clone().with_time(TimeModel::Continuous, k);
-            count_passing(backend, &finer, settings, boxes, runs)?
-        }
-        _ => None,
-    };
-    Ok(Some(StoppedRerun {
-        boxes: boxes.len(),
-        without_error,
-        finer_step,
-        culprit: Culprit::of(boxes.len(), without_error, finer_step),
-    }))
 }
 
 /// The first `k` of `sorted` (largest area first), except that where the `k`-th shares its area
@@ -233,4 +290,21 @@ fn largest_spread(sorted: &[usize], area: impl Fn(usize) -> f64, k: usize) -> Ve
     let mut out = sorted[..first_of_class].to_vec();
     out.extend((0..need).map(|j| class[j * class.len() / need]));
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The knob that passes most wins if it passes a third; ties go to the cheaper knob.
+    #[test]
+    fn the_culprit_is_the_knob_that_passes_most() {
+        assert_eq!(Culprit::of(8, 8, Some(0), None), Culprit::Error);
+        assert_eq!(Culprit::of(8, 1, Some(5), Some(2)), Culprit::Step);
+        assert_eq!(Culprit::of(8, 1, Some(2), Some(6)), Culprit::Bounds);
+        assert_eq!(Culprit::of(8, 2, Some(2), Some(2)), Culprit::Neither);
+        assert_eq!(Culprit::of(8, 3, Some(3), Some(3)), Culprit::Error);
+        assert_eq!(Culprit::of(8, 0, Some(4), Some(4)), Culprit::Bounds);
+        assert_eq!(Culprit::of(1, 0, None, None), Culprit::Neither);
+    }
 }

@@ -648,8 +648,8 @@ fn what_stops_the_too_loose_leaves_is_found_by_running_them_again() {
         .unwrap();
     assert_eq!(w.leaves.len(), WHAT_STOPS_LEAVES);
     assert!((w.area_share - 8.0 / 16.0).abs() < 1e-12, "{w:?}");
-    assert_eq!(w.without_error, w.leaves.len(), "{w:?}");
-    assert_eq!(w.culprit, Culprit::Error, "{w:?}");
+    assert_eq!(w.reruns.without_error, w.leaves.len(), "{w:?}");
+    assert_eq!(w.reruns.culprit, Culprit::Error, "{w:?}");
     // `reach`'s counterpart on the same boxes: their tubes stop early, and with `M = 0` each
     // runs to the horizon.
     let stopped: Vec<_> = report.after.iter().map(|b| b.initial.clone()).collect();
@@ -658,10 +658,10 @@ fn what_stops_the_too_loose_leaves_is_found_by_running_them_again() {
         .unwrap()
         .unwrap();
     assert_eq!(
-        (r.boxes, r.without_error),
+        (r.boxes, r.reruns.without_error),
         (WHAT_STOPS_LEAVES, WHAT_STOPS_LEAVES)
     );
-    assert_eq!(r.culprit, Culprit::Error);
+    assert_eq!(r.reruns.culprit, Culprit::Error);
 
     // Whole cells of all of C with M = 0: some leaves' sets are too loose, and rerunning them
     // with M = 0 changes nothing.
@@ -679,7 +679,7 @@ fn what_stops_the_too_loose_leaves_is_found_by_running_them_again() {
         .unwrap()
         .unwrap();
     assert!(!w.leaves.is_empty());
-    assert_eq!(w.without_error, 0, "{w:?}");
+    assert_eq!(w.reruns.without_error, 0, "{w:?}");
     for &i in &w.leaves {
         assert!(!report.after[i].verdict.is_verified());
     }
