@@ -124,3 +124,31 @@ fn reach_names_the_error_margin_where_it_stops_the_tubes() {
         "{text}"
     );
 }
+
+/// Without face-local bounds, a rerun with them is the third knob: scenario 1's 8 × 6 whole
+/// cells under the Euler map (no finer step there) verify 3 of the 8 leaves rerun with them,
+/// none with `M = 0`, so the bounds are named.
+#[test]
+fn verify_names_the_bounds_where_face_local_bounds_would_verify() {
+    let scenario = common::scenario_path("integrator.toml");
+    let args = [
+        "verify",
+        scenario.to_str().unwrap(),
+        "--grid",
+        "8,6",
+        "--time",
+        "euler",
+    ];
+    let (code, stdout, stderr) = cbfreach(&args);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(
+        stdout.contains(
+            "with M = 0 (the network taken as exact) 0 verify, with --face-local 3: the \
+             network's bounds stop them"
+        ),
+        "{stdout}"
+    );
+    let (code, stdout, _) = cbfreach(&[&args[..], &["--no-what-stops"]].concat());
+    assert_eq!(code, 0);
+    assert!(!stdout.contains("run again"), "{stdout}");
+}
