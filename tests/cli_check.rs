@@ -1,6 +1,6 @@
 //! `cbfreach check`: what it finds in a scenario before any network is trained (the paper's
 //! scenarios, CBFs no input acts on, loops that turn sets, a general QP's active sets, a `C`
-//! the flow leaves).
+//! the flow leaves, a loop at the goal that grows boxes before it shrinks them).
 
 mod common;
 use common::cbfreach;
@@ -22,7 +22,21 @@ fn check_summarises_both_paper_scenarios() {
             stdout.contains("C is not invariant") && stdout.contains(side),
             "{stdout}"
         );
+        assert!(!stdout.contains("boxes at the goal grow"), "{stdout}");
     }
+}
+
+/// A cart-pole under pole placement (tests/fixtures/cartpole.toml) is far from normal at the
+/// goal: `check` says boxes there grow tenfold before they shrink, before any network exists.
+#[test]
+fn check_says_when_boxes_at_the_goal_grow_before_they_shrink() {
+    let path = common::fixture_path("cartpole.toml");
+    let (code, stdout, stderr) = cbfreach(&["check", path.to_str().unwrap()]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(
+        stdout.contains("boxes at the goal grow to 10.0× their width (in x, at t = 0.63)"),
+        "{stdout}"
+    );
 }
 
 /// A CBF no input acts on (a position bound on a double integrator) is named with what to do,

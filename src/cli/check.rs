@@ -98,6 +98,9 @@ pub fn run(path: &Path) -> CliResult {
         fmt_point(&r.goal.upper),
         r.initial.len()
     );
+    if let Some(transient) = cbfreach::reach::Transient::at_goal(&s).filter(|t| t.growth >= 2.0) {
+        println!("  {transient}");
+    }
     if let Some(turning) = cbfreach::reach::Turning::at_goal(&s) {
         println!("  {turning}");
     }

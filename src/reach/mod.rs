@@ -44,7 +44,7 @@ pub use safe_set::SafeSet;
 pub use time::TimeModel;
 pub use transform::{log_norm_inf, CoordinatesReason, Transform};
 pub use tube::{EndKind, Inversion, Tube, TubeEnd, TubeSample, UnsafeBetweenSamples};
-pub use turning::Turning;
+pub use turning::{Transient, Turning};
 
 pub use cpu::{BatchBounds, Bounded, CpuBackend};
 pub use engine::{choose_engine, refusal, EngineChoice, GpuOptions, AUTO_GPU_BOXES};
