@@ -227,6 +227,9 @@ pub fn compile(
     if let Some(t) = &turning {
         println!("note: {t}");
     }
+    if let Some(t) = cbfreach::reach::Transient::at_goal(s, choice) {
+        println!("note: {t}");
+    }
     let problem = ReachProblem::from_scenario(s, &args.options()).map_err(
         |e| -> Box<dyn std::error::Error> {
             match e {

@@ -98,7 +98,7 @@ pub fn run(path: &Path) -> CliResult {
         fmt_point(&r.goal.upper),
         r.initial.len()
     );
-    if let Some(transient) = cbfreach::reach::Transient::at_goal(&s).filter(|t| t.growth >= 2.0) {
+    if let Some(transient) = cbfreach::reach::Transient::at_goal(&s, &s.reach.transform) {
         println!("  {transient}");
     }
     if let Some(turning) = cbfreach::reach::Turning::at_goal(&s) {

@@ -18,7 +18,7 @@ use nalgebra::DMatrix;
 
 use super::transform::{schur_blocks, Transform, TransformError};
 use crate::filter::SafetyFilter;
-use crate::scenario::Scenario;
+use crate::scenario::{Scenario, TransformChoice};
 
 /// Most frames [`Turning::frames`] picks (each bounds the network on its own slabs).
 pub const MAX_FRAMES: usize = 8;
@@ -214,15 +214,19 @@ impl Transient {
         None
     }
 
+    /// Growth worth saying (`check` and every run say it from here).
+    pub const NOTABLE: f64 = 2.0;
+
     /// The transient of the filtered closed loop's Jacobian at the goal's centre, in the
-    /// coordinates the scenario's `transform` gives.
-    pub fn at_goal(scenario: &Scenario) -> Option<Transient> {
+    /// coordinates `choice` gives (the scenario's `transform`, or a flag's), where it is
+    /// [`Transient::NOTABLE`].
+    pub fn at_goal(scenario: &Scenario, choice: &TransformChoice) -> Option<Transient> {
         let goal = scenario.reach.goal.center();
         let a = SafetyFilter::new(scenario)
             .closed_loop_jacobian(&goal)
             .ok()?;
-        let t = Transform::for_scenario(scenario, &scenario.reach.transform).ok()?;
-        Transient::of(&a, t.as_ref(), scenario.n())
+        let t = Transform::for_scenario(scenario, choice).ok()?;
+        Transient::of(&a, t.as_ref(), scenario.n()).filter(|t| t.growth >= Self::NOTABLE)
     }
 }
 
