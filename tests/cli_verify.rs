@@ -36,8 +36,7 @@ fn verify_points_to_the_skipped_band_along_the_safe_sets_boundary() {
 /// twice the substeps and with face-local bounds, and names the knob: scenario 1's cells round
 /// the goal with a margin far above the network's certified error (1.5 against 0.18; the
 /// network's field everywhere, so that the margin counts) all verify with `M = 0`, none with the
-/// other knobs;
-/// the JSON holds the same as data.
+/// other knobs; the JSON holds the same as data.
 #[test]
 fn verify_names_the_error_margin_where_it_stops_the_sets() {
     let scenario = common::scenario_path("integrator.toml");
@@ -66,7 +65,7 @@ fn verify_names_the_error_margin_where_it_stops_the_sets() {
         ),
         "{stdout}"
     );
-    // The JSON holds it as data, and a report without it (a merge) reads back.
+    // The JSON holds it as data.
     let report = cbfreach::verify::VerifyReport::from_json(
         &std::fs::read_to_string(&json).unwrap(),
         "v.json",
