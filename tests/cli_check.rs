@@ -5,6 +5,13 @@
 mod common;
 use common::cbfreach;
 
+/// `cbfreach check <path>`'s output, asserting that it succeeded.
+fn check(path: &std::path::Path) -> String {
+    let (code, stdout, stderr) = cbfreach(&["check", path.to_str().unwrap()]);
+    assert_eq!(code, 0, "{}: {stderr}", path.display());
+    stdout
+}
+
 /// Both paper scenarios check, and `check` says that the filtered flow leaves their `C`
 /// (scenario 1 past `x₁ = −3.5` where the obstacle's row pushes out; scenario 2 through
 /// `x₁ = −4` at full reverse speed), which `verify` over all of `C` loses cells to.
@@ -15,8 +22,7 @@ fn check_summarises_both_paper_scenarios() {
         ("double-integrator.toml", "through x1 = -4"),
     ] {
         let path = common::scenario_path(name);
-        let (code, stdout, stderr) = cbfreach(&["check", path.to_str().unwrap()]);
-        assert_eq!(code, 0, "{stderr}");
+        let stdout = check(&path);
         assert!(stdout.contains("is valid"), "{stdout}");
         assert!(
             stdout.contains("C is not invariant") && stdout.contains(side),
@@ -31,8 +37,7 @@ fn check_summarises_both_paper_scenarios() {
 #[test]
 fn check_says_when_boxes_at_the_goal_grow_before_they_shrink() {
     let path = common::fixture_path("cartpole.toml");
-    let (code, stdout, stderr) = cbfreach(&["check", path.to_str().unwrap()]);
-    assert_eq!(code, 0, "{stderr}");
+    let stdout = check(&path);
     assert!(
         stdout.contains("boxes at the goal grow to 10.0× their width (in x, at t = 0.63)"),
         "{stdout}"
@@ -49,8 +54,7 @@ fn check_names_a_cbf_no_input_acts_on_and_where_the_qp_is_infeasible() {
         .unwrap()
         .replace("h = \"(x1 - 2)^2 + x2^2 - 1\"", "h = \"1.5 - x1\"");
     std::fs::write(&path, text).unwrap();
-    let (code, stdout, stderr) = cbfreach(&["check", path.to_str().unwrap()]);
-    assert_eq!(code, 0, "{stderr}");
+    let stdout = check(&path);
     assert!(
         stdout.contains("CBF obstacle: no input acts on it (L_g h = 0 on all of C)")
             && stdout.contains("relative degree is above one"),
@@ -67,14 +71,12 @@ fn check_names_a_cbf_no_input_acts_on_and_where_the_qp_is_infeasible() {
         "{stdout}"
     );
     let path = common::scenario_path("integrator.toml");
-    let (code, stdout, _) = cbfreach(&["check", path.to_str().unwrap()]);
-    assert_eq!(code, 0);
+    let stdout = check(&path);
     assert!(!stdout.contains("no input acts"), "{stdout}");
     assert!(stdout.contains("the QP is feasible at all"), "{stdout}");
     // Scenario 2's obstacle row turns round at (1, 0), where L_g h = 2x₂ vanishes: v jumps.
     let path = common::scenario_path("double-integrator.toml");
-    let (code, stdout, _) = cbfreach(&["check", path.to_str().unwrap()]);
-    assert_eq!(code, 0);
+    let stdout = check(&path);
     assert!(
         stdout.contains("CBF obstacle: where it needs the input")
             && stdout.contains("at (1.0000, 0.0000): v divides by ‖L_g h‖²"),
@@ -102,8 +104,7 @@ fn check_and_runs_name_a_loop_that_turns_sets_faster_than_it_shrinks_them() {
     for (name, text, turns) in [("light.toml", &light, true), ("damped.toml", &text, false)] {
         let path = tmp.path().join(name);
         std::fs::write(&path, text).unwrap();
-        let (code, stdout, stderr) = cbfreach(&["check", path.to_str().unwrap()]);
-        assert_eq!(code, 0, "{stderr}");
+        let stdout = check(&path);
         assert_eq!(stdout.contains(note), turns, "{name}: {stdout}");
         assert_eq!(stdout.contains("turns sets"), turns, "{name}: {stdout}");
     }
@@ -167,8 +168,7 @@ fn check_counts_a_general_qps_active_sets_and_says_when_there_are_too_many() {
     ] {
         let path = tmp.path().join(format!("s{count}.toml"));
         std::fs::write(&path, common::spheres_with_bounds(count)).unwrap();
-        let (code, stdout, stderr) = cbfreach(&["check", path.to_str().unwrap()]);
-        assert_eq!(code, 0, "{stderr}");
+        let stdout = check(&path);
         assert!(stdout.contains(expected), "{stdout}");
     }
 }

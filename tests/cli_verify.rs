@@ -5,6 +5,15 @@
 mod common;
 use common::cbfreach;
 
+/// `cbfreach <args> --json <file>`: its output and the file's text, asserting that it succeeded.
+fn with_json(args: &[&str]) -> (String, String) {
+    let tmp = tempfile::tempdir().unwrap();
+    let path = tmp.path().join("out.json");
+    let (code, stdout, stderr) = cbfreach(&[args, &["--json", path.to_str().unwrap()]].concat());
+    assert_eq!(code, 0, "{stderr}");
+    (stdout, std::fs::read_to_string(&path).unwrap())
+}
+
 /// Where much of the region lies in cells straddling `∂S` (skipped unless refined), `verify`
 /// says so and names `--refine-boundary`; with it, no hint, and the band's halves in `S` join
 /// the safe area. Every verified run also says what ended the tubes it did not verify.
@@ -40,9 +49,7 @@ fn verify_points_to_the_skipped_band_along_the_safe_sets_boundary() {
 #[test]
 fn verify_names_the_error_margin_where_it_stops_the_sets() {
     let scenario = common::scenario_path("integrator.toml");
-    let tmp = tempfile::tempdir().unwrap();
-    let json = tmp.path().join("v.json");
-    let args = [
+    let (stdout, json) = with_json(&[
         "verify",
         scenario.to_str().unwrap(),
         "--region=-0.4,-0.4:0.4,0.4",
@@ -52,11 +59,7 @@ fn verify_names_the_error_margin_where_it_stops_the_sets() {
         "1.5",
         "--exact",
         "nowhere",
-        "--json",
-        json.to_str().unwrap(),
-    ];
-    let (code, stdout, stderr) = cbfreach(&args);
-    assert_eq!(code, 0, "{stderr}");
+    ]);
     assert!(
         stdout.contains(
             "the 8 largest leaves whose sets were too loose (50% of their area), run again: \
@@ -66,11 +69,7 @@ fn verify_names_the_error_margin_where_it_stops_the_sets() {
         "{stdout}"
     );
     // The JSON holds it as data.
-    let report = cbfreach::verify::VerifyReport::from_json(
-        &std::fs::read_to_string(&json).unwrap(),
-        "v.json",
-    )
-    .unwrap();
+    let report = cbfreach::verify::VerifyReport::from_json(&json, "v.json").unwrap();
     let w = report.what_stops.expect("what_stops in the JSON");
     assert_eq!((w.leaves.len(), w.reruns.without_error), (8, 8));
     assert_eq!(
@@ -78,8 +77,7 @@ fn verify_names_the_error_margin_where_it_stops_the_sets() {
         (Some(0), Some(0))
     );
     assert_eq!(w.reruns.culprit, cbfreach::verify::Culprit::Error);
-    let text = std::fs::read_to_string(&json).unwrap();
-    assert!(text.contains("\"culprit\":\"error\""), "{text}");
+    assert!(json.contains("\"culprit\":\"error\""), "{json}");
 }
 
 /// `reach` runs its stopped tubes again the same way: scenario 1's twelve boxes with `M = 1.5`
@@ -88,20 +86,14 @@ fn verify_names_the_error_margin_where_it_stops_the_sets() {
 #[test]
 fn reach_names_the_error_margin_where_it_stops_the_tubes() {
     let scenario = common::scenario_path("integrator.toml");
-    let tmp = tempfile::tempdir().unwrap();
-    let json = tmp.path().join("r.json");
-    let args = [
+    let (stdout, json) = with_json(&[
         "reach",
         scenario.to_str().unwrap(),
         "--m-c",
         "1.5",
         "--exact",
         "nowhere",
-        "--json",
-        json.to_str().unwrap(),
-    ];
-    let (code, stdout, stderr) = cbfreach(&args);
-    assert_eq!(code, 0, "{stderr}");
+    ]);
     assert!(
         stdout.contains("12 of 12 sets stopped (INVALID)"),
         "{stdout}"
@@ -117,10 +109,9 @@ fn reach_names_the_error_margin_where_it_stops_the_tubes() {
             ),
         "{line}"
     );
-    let text = std::fs::read_to_string(&json).unwrap();
     assert!(
-        text.contains("\"what_stops\":{\"boxes\":8,") && text.contains("\"culprit\":\"error\""),
-        "{text}"
+        json.contains("\"what_stops\":{\"boxes\":8,") && json.contains("\"culprit\":\"error\""),
+        "{json}"
     );
 }
 

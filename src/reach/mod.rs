@@ -302,30 +302,31 @@ impl ReachProblem {
         Ok(self)
     }
 
+    /// `change` applied to this problem and to each of its other frames (`in_x`, `turned`).
+    fn in_every_frame(mut self, change: &impl Fn(&mut ReachProblem)) -> ReachProblem {
+        self.in_x = self.in_x.map(|x| Box::new(x.in_every_frame(change)));
+        self.turned = std::mem::take(&mut self.turned)
+            .into_iter()
+            .map(|p| p.in_every_frame(change))
+            .collect();
+        change(&mut self);
+        self
+    }
+
     /// The network taken as exact, in every frame: `M = 0` and no error map. The sets then
     /// bound the system driven by `N`, not the filtered system: for diagnoses of what the
     /// error margin costs ([`crate::verify::WhatStops`]), never for a verdict.
-    pub fn without_error(mut self) -> ReachProblem {
-        self.m_c = 0.0;
-        self.error_map = None;
-        self.in_x = self.in_x.map(|x| Box::new(x.without_error()));
-        self.turned = std::mem::take(&mut self.turned)
-            .into_iter()
-            .map(ReachProblem::without_error)
-            .collect();
-        self
+    pub fn without_error(self) -> ReachProblem {
+        self.in_every_frame(&|p| {
+            p.m_c = 0.0;
+            p.error_map = None;
+        })
     }
 
     /// Without `S`'s half-spaces: sets are not intersected with them (for comparisons), in every
     /// frame.
-    pub fn without_safe_set(mut self) -> ReachProblem {
-        self.safe_set = SafeSet::default();
-        self.in_x = self.in_x.map(|x| Box::new(x.without_safe_set()));
-        self.turned = std::mem::take(&mut self.turned)
-            .into_iter()
-            .map(ReachProblem::without_safe_set)
-            .collect();
-        self
+    pub fn without_safe_set(self) -> ReachProblem {
+        self.in_every_frame(&|p| p.safe_set = SafeSet::default())
     }
 
     /// The half-spaces of `S` that bound the method's sets: the filtered system's (disturbance)

@@ -17,6 +17,7 @@
 use nalgebra::DMatrix;
 
 use super::transform::{schur_blocks, Transform, TransformError};
+use crate::boxes::IntervalBox;
 use crate::filter::SafetyFilter;
 use crate::scenario::{Scenario, TransformChoice};
 
@@ -151,19 +152,18 @@ impl Transient {
                 false => lambda[k].abs(),
             })
             .collect();
-        let abs_row_sums = |mat: &[f64], v: &[f64]| -> Vec<f64> {
-            (0..n)
-                .map(|i| (0..n).map(|j| mat[i * n + j].abs() * v[j]).sum())
-                .collect()
+        // The z-widths of the unit x-box (centred: widths are all that matter), and the
+        // x-width of a z-box of widths `w`, by the transform's own maps.
+        let half =
+            |w: &[f64], sign: f64| -> Vec<f64> { w.iter().map(|v| sign * 0.5 * v).collect() };
+        let unit = IntervalBox {
+            lower: vec![-0.5; n],
+            upper: vec![0.5; n],
         };
-        // The z-widths of the unit x-box, and the x-width of z-widths.
-        let mut w = match t {
-            Some(t) => abs_row_sums(&t.t, &vec![1.0; n]),
-            None => vec![1.0; n],
-        };
+        let mut w = t.map_or_else(|| vec![1.0; n], |t| t.to_z_box(&unit).widths());
         let x_width = |w: &[f64]| -> f64 {
             let xs = match t {
-                Some(t) => abs_row_sums(&t.s, w),
+                Some(t) => t.to_x_box(&half(w, -1.0), &half(w, 1.0)).widths(),
                 None => w.to_vec(),
             };
             xs.into_iter().fold(0.0, f64::max)

@@ -202,10 +202,23 @@ impl Verifier<'_> {
         let mut depths: Vec<usize> = leaves.iter().map(|&i| report.after[i].depth).collect();
         depths.sort_unstable();
         depths.dedup();
+        // `M = 0` once for every depth: the problem's clone holds the whole error map.
+        let exact;
+        let base = match knob {
+            Knob::Error => {
+                exact = self.problem.clone().without_error();
+                &exact
+            }
+            _ => self.problem,
+        };
         let mut verified = 0;
         for depth in depths {
-            let at_depth = settings.problem_at(self.problem, depth);
-            let Some((problem, reach)) = knob.turn(&at_depth, &reach) else {
+            let at_depth = settings.problem_at(base, depth);
+            let turned = match knob {
+                Knob::Error => Some((Cow::Borrowed(&*at_depth), reach.clone())),
+                other => other.turn(&at_depth, &reach),
+            };
+            let Some((problem, reach)) = turned else {
                 return Ok(None);
             };
             let boxes: Vec<IntervalBox> = leaves
@@ -295,6 +308,20 @@ fn largest_spread(sorted: &[usize], area: impl Fn(usize) -> f64, k: usize) -> Ve
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The larger leaves come first; the last class of equal areas is sampled evenly over its
+    /// leaves, not taken from its start (one corner of the region).
+    #[test]
+    fn the_leaves_rerun_are_the_largest_spread_over_equal_areas() {
+        let area = |i: usize| if i < 2 { 4.0 } else { 1.0 };
+        let sorted: Vec<usize> = (0..18).collect();
+        assert_eq!(
+            largest_spread(&sorted, area, 8),
+            vec![0, 1, 2, 4, 7, 10, 12, 15]
+        );
+        assert_eq!(largest_spread(&sorted[..5], area, 8), sorted[..5].to_vec());
+        assert_eq!(largest_spread(&sorted, |_| 1.0, 3), vec![0, 6, 12]);
+    }
 
     /// The knob that passes most wins if it passes a third; ties go to the cheaper knob.
     #[test]

@@ -84,8 +84,8 @@ pub fn measure(
 }
 
 /// Median over up to 200 boxes `[x − ε, x + ε]` around validation points of the summed IBP
-/// output width over the summed sampled output range (32 points a box); boxes on which the
-/// network is constant to sampling are left out.
+/// output width ([`crate::bounds::ibp`]) over the summed sampled output range (32 points a box);
+/// boxes on which the network is constant to sampling are left out.
 pub fn ibp_looseness(net: &Mlp, validation: &Dataset, radius: &[f64]) -> f64 {
     let n = validation.n_in;
     let stride = validation.len().div_ceil(200).max(1);
@@ -94,24 +94,13 @@ pub fn ibp_looseness(net: &Mlp, validation: &Dataset, radius: &[f64]) -> f64 {
     let mut ratios = Vec::new();
     for s in (0..validation.len()).step_by(stride) {
         let x = validation.input(s);
-        let (mut c, mut rad): (Vec<f64>, Vec<f64>) = (x.to_vec(), (0..n).map(r).collect());
-        for (k, layer) in net.layers.iter().enumerate() {
-            let mut c2 = layer.apply(&c);
-            let mut r2: Vec<f64> = layer
-                .weight
-                .chunks_exact(layer.n_in)
-                .map(|row| row.iter().zip(&rad).map(|(w, r)| w.abs() * r).sum())
-                .collect();
-            if k + 1 < net.layers.len() {
-                for (ci, ri) in c2.iter_mut().zip(&mut r2) {
-                    let (lo, hi) = ((*ci - *ri).max(0.0), (*ci + *ri).max(0.0));
-                    *ci = 0.5 * (lo + hi);
-                    *ri = 0.5 * (hi - lo);
-                }
-            }
-            (c, rad) = (c2, r2);
-        }
-        let m = c.len();
+        let lower: Vec<f64> = (0..n).map(|j| x[j] - r(j)).collect();
+        let upper: Vec<f64> = (0..n).map(|j| x[j] + r(j)).collect();
+        // Non-finite inputs or weights: no width to compare.
+        let Ok(b) = crate::bounds::ibp(net, &lower, &upper) else {
+            continue;
+        };
+        let m = b.upper.len();
         let (mut lo, mut hi) = (vec![f64::INFINITY; m], vec![f64::NEG_INFINITY; m]);
         for _ in 0..32 {
             let p: Vec<f64> = (0..n)
@@ -123,7 +112,7 @@ pub fn ibp_looseness(net: &Mlp, validation: &Dataset, radius: &[f64]) -> f64 {
             }
         }
         let range: f64 = (0..m).map(|o| hi[o] - lo[o]).sum();
-        let width: f64 = rad.iter().map(|r| 2.0 * r).sum();
+        let width: f64 = (0..m).map(|o| b.upper[o] - b.lower[o]).sum();
         if range > 1e-12 * (1.0 + width) {
             ratios.push(width / range);
         }
