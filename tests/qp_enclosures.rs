@@ -6,7 +6,8 @@ mod common;
 
 use cbfreach::boxes::IntervalBox;
 use cbfreach::filter::{
-    interval_rows, natural_qp_enclosure, FilterMethod, FilterStatus, QpForms, SafetyFilter, VForms,
+    interval_rows, natural_qp_enclosure, FilterMethod, FilterStatus, Kink, QpForms, SafetyFilter,
+    VForms, VShape,
 };
 use cbfreach::intervals::Interval;
 use cbfreach::scenario::Scenario;
@@ -81,6 +82,8 @@ struct Seen {
     bounded: usize,
     pieces: usize,
     points: usize,
+    /// Boxes where `v` is proven `min(0, F)` / `max(0, F)` of one row's formula.
+    kinked: usize,
 }
 
 /// On `boxes` random boxes, clarabel's solution at 12 random points of `box ∩ S` (where
@@ -95,6 +98,7 @@ fn solutions_inside(s: &Scenario, boxes: usize, seed: u64) -> Seen {
         bounded: 0,
         pieces: 0,
         points: 0,
+        kinked: 0,
     };
     for _ in 0..boxes {
         let b = random_box(&mut rng, &s.reach.region);
@@ -108,6 +112,7 @@ fn solutions_inside(s: &Scenario, boxes: usize, seed: u64) -> Seen {
                 .all(|v| v.lower.is_finite() && v.upper.is_finite()),
         );
         seen.pieces += usize::from(cell.piece.is_some());
+        seen.kinked += usize::from(cell.kinked.is_some());
         for _ in 0..12 {
             let u: Vec<f64> = (0..s.n()).map(|_| rng.random_range(0.0..=1.0)).collect();
             let x = b.point_at(&u);
@@ -143,6 +148,28 @@ fn solutions_inside(s: &Scenario, boxes: usize, seed: u64) -> Seen {
                 "{}: v({x:?}) = {theta:?} outside {own:?}",
                 s.name
             );
+            // Where kinked, `v = min(0, F)` or `max(0, F)` by each input, `F`'s mean-value
+            // form around the centre evaluated at x.
+            if let Some(VShape::Kinked { binding, kinks }) = &cell.kinked {
+                let n = s.n();
+                for (j, kink) in kinks.iter().enumerate() {
+                    let lin = (0..n).fold(binding.value[j], |acc, i| {
+                        acc + binding.jac[j * n + i] * Interval::point(x[i] - binding.centre[i])
+                    });
+                    let zero = Interval::point(0.0);
+                    let form = match kink {
+                        Some(Kink::Min) => lin.min(zero),
+                        Some(Kink::Max) => lin.max(zero),
+                        None => Interval::ENTIRE,
+                    };
+                    assert!(
+                        inside(&theta[j..=j], &[form]),
+                        "{}: kinked form {form:?} ({kink:?}) misses {} at {x:?}",
+                        s.name,
+                        theta[j]
+                    );
+                }
+            }
             if let Some((piece, sv)) = &cell.piece {
                 let at: Vec<f64> = match piece {
                     None => vec![0.0; s.m()],
@@ -194,6 +221,11 @@ fn every_solution_lies_in_every_enclosure_on_the_shipped_scenarios() {
             s.name,
             seen.pieces
         );
+        // One row binding on part of the box (scenario 1's one CBF), or the kinked forms
+        // would go unchecked.
+        if seed == 1 {
+            assert!(seen.kinked > 5, "{}: {} kinked of 150", s.name, seen.kinked);
+        }
     }
 }
 
@@ -213,8 +245,8 @@ fn every_solution_lies_in_every_enclosure_on_the_other_shipped_scenarios() {
         let s = Scenario::load(&scenario_path(file)).expect("loads");
         let seen = solutions_inside(&s, 120, seed);
         eprintln!(
-            "{file}: {} points, {} bounded, {} pieces of 120",
-            seen.points, seen.bounded, seen.pieces
+            "{file}: {} points, {} bounded, {} pieces, {} kinked of 120",
+            seen.points, seen.bounded, seen.pieces, seen.kinked
         );
         assert!(seen.points > 400, "{file}: {} points", seen.points);
         assert!(
@@ -348,7 +380,8 @@ fn general_path_is_as_tight_as_the_closed_forms() {
                 );
                 tighter += usize::from(g.width() < c.width() - tol);
             }
-            pieces_closed += usize::from(closed.piece(&s, &b).is_some() && smooth.is_some());
+            pieces_closed +=
+                usize::from(closed.piece(&s, &b).is_some() && smooth.smooth().is_some());
             pieces_general += usize::from(general.piece.is_some());
         }
         assert!(

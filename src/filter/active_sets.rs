@@ -393,6 +393,9 @@ pub struct QpCell {
     /// index of its active set in [`QpForms::sets`]; with the centre, value and Jacobian
     /// enclosures of that smooth function.
     pub piece: Option<(Option<usize>, super::SmoothV)>,
+    /// Where only `θ = 0` and one single-row piece are possible on the box: `v` is that
+    /// row's closed form, kinked where it starts to bind ([`super::VShape::Kinked`]).
+    pub kinked: Option<super::VShape>,
 }
 
 /// A general QP filter's pieces as expressions, built once per scenario.
@@ -497,6 +500,7 @@ impl QpForms {
         let entire = QpCell {
             v: vec![Interval::ENTIRE; m],
             piece: None,
+            kinked: None,
         };
         if !self.complete {
             return entire;
@@ -543,12 +547,15 @@ impl QpForms {
             return QpCell {
                 v: vec![Interval::point(0.0); m],
                 piece: Some((None, zero_piece())),
+                kinked: None,
             };
         }
         let centred = |f: &Smooth, nat: Interval| meet(nat, f.centred(&xs, &cs, &dx).enclosure);
         let mut union: Option<Vec<Interval>> = None;
         let mut only: Vec<Option<usize>> = Vec::new();
         let mut smooth: Option<super::SmoothV> = None;
+        // The last possible piece's row and smooth form, where it has one row.
+        let mut single: Option<(usize, super::SmoothV)> = None;
         if inactive_possible(&a, &b) {
             union = Some(vec![Interval::point(0.0); m]);
             only.push(None);
@@ -593,6 +600,10 @@ impl QpForms {
                 value: forms.iter().map(|f| f.value).collect(),
                 jac: forms.iter().flat_map(|f| f.grad.iter().copied()).collect(),
             });
+            single = match piece.set[..] {
+                [row] => smooth.clone().map(|sv| (row, sv)),
+                _ => None,
+            };
         }
         let Some(mut v) = union else {
             return entire;
@@ -618,11 +629,31 @@ impl QpForms {
                 v[0] = meet(v[0], side);
             }
         }
+        // `θ = 0` or row `r` alone binding: `v = min(0, bᵣ)·aᵣ/‖aᵣ‖²` (the piece's formula has
+        // a negative multiplier where `bᵣ > 0`, so `0` is the solution there), which is
+        // `min(0, θⱼ)` where `aᵣⱼ > 0` and `max(0, θⱼ)` where `aᵣⱼ < 0`.
+        let kinked = match (only.as_slice(), single) {
+            ([None, Some(_)], Some((r, binding))) => {
+                let kinks: Vec<Option<super::Kink>> = a[r]
+                    .iter()
+                    .map(|arj| match (arj.lower > 0.0, arj.upper < 0.0) {
+                        (true, _) => Some(super::Kink::Min),
+                        (_, true) => Some(super::Kink::Max),
+                        _ => None,
+                    })
+                    .collect();
+                kinks
+                    .iter()
+                    .any(Option::is_some)
+                    .then_some(super::VShape::Kinked { binding, kinks })
+            }
+            _ => None,
+        };
         let piece = match (only.as_slice(), smooth) {
             ([one], Some(sv)) => Some((*one, sv)),
             _ => None,
         };
-        QpCell { v, piece }
+        QpCell { v, piece, kinked }
     }
 }
 

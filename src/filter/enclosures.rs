@@ -149,6 +149,45 @@ pub struct SmoothV {
     pub jac: Vec<Interval>,
 }
 
+/// What an enclosure of `v` over a cell knows of its form, for joint bounds of `N − v` (whose
+/// common slope then cancels: `surrogate_error`'s certified cells).
+#[derive(Clone, Debug)]
+pub enum VShape {
+    /// Nothing beyond the enclosure.
+    Unknown,
+    /// `v` is one smooth function on the cell.
+    Smooth(SmoothV),
+    /// One row of a closed form binds on part of the cell: `vⱼ = min(0, Fⱼ)` or `max(0, Fⱼ)`
+    /// (`kinks[j]`; `None` where neither is proven) on `cell ∩ S`, with `F` (`binding`) the
+    /// row's binding formula, smooth on the whole cell. `v` has a kink where the row starts to
+    /// bind; `F` has none.
+    Kinked {
+        /// `F`'s centred form over the cell.
+        binding: SmoothV,
+        /// Per input: `vⱼ = min(0, Fⱼ)`, `max(0, Fⱼ)`, or not proven.
+        kinks: Vec<Option<Kink>>,
+    },
+}
+
+/// Which side of 0 a kinked `vⱼ` takes ([`VShape::Kinked`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Kink {
+    /// `vⱼ = min(0, Fⱼ)`.
+    Min,
+    /// `vⱼ = max(0, Fⱼ)`.
+    Max,
+}
+
+impl VShape {
+    /// The smooth function, where `v` is one.
+    pub fn smooth(&self) -> Option<&SmoothV> {
+        match self {
+            VShape::Smooth(sv) => Some(sv),
+            _ => None,
+        }
+    }
+}
+
 /// One smooth piece of the filter `v` (the filter's active set held fixed).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum FilterPiece {
@@ -560,10 +599,11 @@ impl VForms {
     }
 
     /// An enclosure of `v` over `cell ∩ S` (where feasible), the natural one of
-    /// [`v_enclosure`] intersected with mean-value forms where those apply, and, when `v` is one
-    /// smooth function on the cell (the filter provably inactive: `v ≡ 0`; or one row provably
-    /// active on the whole cell), its centred form for a joint bound of `N − v`.
-    pub fn enclose(&self, s: &Scenario, cell: &IntervalBox) -> (Vec<Interval>, Option<SmoothV>) {
+    /// [`v_enclosure`] intersected with mean-value forms where those apply, and its form for a
+    /// joint bound of `N − v`: smooth where `v` is one smooth function on the cell (the filter
+    /// provably inactive: `v ≡ 0`; or one row provably active on the whole cell), kinked where
+    /// a closed form's one row binds on part of it.
+    pub fn enclose(&self, s: &Scenario, cell: &IntervalBox) -> (Vec<Interval>, VShape) {
         let (n, m) = (self.n, self.m);
         let natural =
             v_enclosure(s, self.method, cell).unwrap_or_else(|| vec![Interval::ENTIRE; m]);
@@ -580,7 +620,12 @@ impl VForms {
                     v = v.iter().zip(&ball).map(|(&a, &b)| meet(a, b)).collect();
                 }
             }
-            return (v, cell_v.piece.map(|(_, sv)| sv));
+            let shape = match (cell_v.piece, cell_v.kinked) {
+                (Some((_, sv)), _) => VShape::Smooth(sv),
+                (None, Some(kinked)) => kinked,
+                (None, None) => VShape::Unknown,
+            };
+            return (v, shape);
         }
         let centre = cell.center();
         let Centred { xs, cs, dx } = Centred::of(cell);
@@ -595,7 +640,7 @@ impl VForms {
             b_enc,
         }) = self.rows(s, &xs, &cs, &dx, cell)
         else {
-            return (natural, None);
+            return (natural, VShape::Unknown);
         };
         let smooth_of = |forms: Vec<CentredForm>| SmoothV {
             centre: centre.clone(),
@@ -606,42 +651,51 @@ impl VForms {
             FilterMethod::ClosedFormSingle if !self.f.is_empty() => {
                 let b = b_enc[0];
                 if b.lower >= 0.0 {
-                    return (vec![Interval::point(0.0); m], Some(zero_v()));
+                    return (vec![Interval::point(0.0); m], VShape::Smooth(zero_v()));
                 }
                 let norm2 = sum(a_nat.iter().map(|&aj| aj.sqr()));
                 // (NaN counts as "maybe zero".)
                 if norm2.lower.is_nan() || norm2.lower <= 0.0 {
-                    return (natural, None);
+                    return (natural, VShape::Unknown);
                 }
                 let forms: Vec<CentredForm> =
                     self.f.iter().map(|f| f.centred(&xs, &cs, &dx)).collect();
                 if forms.iter().any(|f| f.grad.iter().any(|g| g.is_nan())) {
-                    return (natural, None);
+                    return (natural, VShape::Unknown);
                 }
                 if b.upper <= 0.0 {
                     let enc = (0..m)
                         .map(|j| meet(natural[j], forms[j].enclosure))
                         .collect();
-                    return (enc, Some(smooth_of(forms)));
+                    return (enc, VShape::Smooth(smooth_of(forms)));
                 }
                 // Active on part of the cell: vⱼ = min(0, b)·pⱼ = min(0, Fⱼ) where pⱼ ≥ 0,
                 // max(0, Fⱼ) where pⱼ ≤ 0.
                 let zero = Interval::point(0.0);
+                let mut kinks = Vec::with_capacity(m);
                 let enc = (0..m)
                     .map(|j| {
                         let pj = meet(a_nat[j] / norm2, self.p[j].centred(&xs, &cs, &dx).enclosure);
                         let fj = forms[j].enclosure;
-                        let e = if pj.lower >= 0.0 {
-                            fj.min(zero)
+                        let (e, kink) = if pj.lower >= 0.0 {
+                            (fj.min(zero), Some(Kink::Min))
                         } else if pj.upper <= 0.0 {
-                            fj.max(zero)
+                            (fj.max(zero), Some(Kink::Max))
                         } else {
-                            b.min(zero) * pj
+                            (b.min(zero) * pj, None)
                         };
+                        kinks.push(kink);
                         meet(natural[j], e)
                     })
                     .collect();
-                (enc, None)
+                let shape = match kinks.iter().any(Option::is_some) {
+                    true => VShape::Kinked {
+                        binding: smooth_of(forms),
+                        kinks,
+                    },
+                    false => VShape::Unknown,
+                };
+                (enc, shape)
             }
             FilterMethod::ClosedFormScalar if self.r.len() == b_enc.len() => {
                 let zero = Interval::point(0.0);
@@ -653,7 +707,7 @@ impl VForms {
                     }
                     let ak = a_nat[k];
                     if ak.lower <= 0.0 && ak.upper >= 0.0 {
-                        return (natural, None);
+                        return (natural, VShape::Unknown);
                     }
                     active.push(k);
                     let rk = meet(b_nat[k] / ak, self.r[k].centred(&xs, &cs, &dx).enclosure);
@@ -664,18 +718,29 @@ impl VForms {
                     }
                 }
                 if active.is_empty() {
-                    return (vec![zero], Some(zero_v()));
+                    return (vec![zero], VShape::Smooth(zero_v()));
                 }
                 let enc = vec![meet(natural[0], lo + hi)];
-                if active.len() == 1 && b_enc[active[0]].upper <= 0.0 {
-                    let form = self.r[active[0]].centred(&xs, &cs, &dx);
+                if let [k] = active[..] {
+                    let form = self.r[k].centred(&xs, &cs, &dx);
                     if !form.grad.iter().any(|g| g.is_nan()) {
-                        return (enc, Some(smooth_of(vec![form])));
+                        let binding = smooth_of(vec![form]);
+                        if b_enc[k].upper <= 0.0 {
+                            return (enc, VShape::Smooth(binding));
+                        }
+                        // Binding on part of the cell: `θ ≥ r` (`a < 0`) gives `max(0, r)`,
+                        // `θ ≤ r` gives `min(0, r)`.
+                        let kink = match a_nat[k].upper < 0.0 {
+                            true => Kink::Max,
+                            false => Kink::Min,
+                        };
+                        let kinks = vec![Some(kink)];
+                        return (enc, VShape::Kinked { binding, kinks });
                     }
                 }
-                (enc, None)
+                (enc, VShape::Unknown)
             }
-            _ => (natural, None),
+            _ => (natural, VShape::Unknown),
         }
     }
 }

@@ -29,7 +29,9 @@ use std::fmt;
 use crate::scenario::Scenario;
 
 pub use active_sets::{natural_qp_enclosure, QpCell, QpForms, MAX_ACTIVE, MAX_SETS};
-pub use enclosures::{v_enclosure, FilterPiece, Lattice, Smooth, SmoothV, VFormParts, VForms};
+pub use enclosures::{
+    v_enclosure, FilterPiece, Kink, Lattice, Smooth, SmoothV, VFormParts, VForms, VShape,
+};
 pub use findings::{findings, inert_cbfs, FilterFindings, Vanishing, SAMPLE_POINTS, VANISHING};
 pub use rows::{interval_rows, row_expressions};
 

@@ -7,18 +7,19 @@ use std::collections::BinaryHeap;
 
 use rayon::prelude::*;
 
+use super::joint::piece_error;
 use super::{check_dims, AnalysisError, ErrorSettings, SplitMix};
-use crate::bounds::{network_bounds, AffineBounds, BoundMethod, PreparedNetwork};
+use crate::bounds::{network_bounds, BoundMethod, PreparedNetwork};
 use crate::boxes::IntervalBox;
 use crate::dataset::grid_points;
 use crate::error_map::CellBound;
-use crate::filter::{meet, v_enclosure, FilterMethod, SafetyFilter, SmoothV, VForms};
+use crate::filter::{meet, v_enclosure, FilterMethod, SafetyFilter, VForms};
 use crate::intervals::Interval;
 use crate::network::Mlp;
 use crate::rounding::round_up;
 use crate::scenario::Scenario;
 
-fn sum(it: impl Iterator<Item = Interval>) -> Interval {
+pub(super) fn sum(it: impl Iterator<Item = Interval>) -> Interval {
     it.fold(Interval::point(0.0), |a, b| a + b)
 }
 
@@ -34,7 +35,7 @@ pub fn proven_unsafe(s: &Scenario, cell: &IntervalBox) -> bool {
 }
 
 /// `max_j max(N̄ⱼ − v̲ⱼ, v̄ⱼ − N̲ⱼ)`, rounded up; +∞ when anything is unbounded or NaN.
-fn error_from(n_lo: &[f64], n_hi: &[f64], v: &[Interval]) -> f64 {
+pub(super) fn error_from(n_lo: &[f64], n_hi: &[f64], v: &[Interval]) -> f64 {
     let mut e = 0.0_f64;
     for j in 0..v.len() {
         let a = round_up(n_hi[j] - v[j].lower);
@@ -78,34 +79,6 @@ pub fn cell_error_bound(
         .map(|j| ibp.upper[j].min(crown.upper[j]))
         .collect();
     Ok(Some(e.min(error_from(&lo, &hi, &v))))
-}
-
-/// `sup ‖N − v‖∞` over the cell from CROWN's affine forms of `N` and the centred form of `v`,
-/// both linear in `x − c`, so that their common slope cancels:
-/// `N − v ≤ (C̄c + d̄ − v(c)) + (C̄ − Jᵥ(X))(X − c)` and likewise below. +∞ on NaN.
-fn joint_error(ab: &AffineBounds, sv: &SmoothV, cell: &IntervalBox) -> f64 {
-    let (m, n) = (ab.n_out, ab.n_in);
-    let cs: Vec<Interval> = sv.centre.iter().map(|&c| Interval::point(c)).collect();
-    let dx: Vec<Interval> = (0..n)
-        .map(|i| Interval::new(cell.lower[i], cell.upper[i]) - cs[i])
-        .collect();
-    let mut e = 0.0_f64;
-    for j in 0..m {
-        for (a, d, upper) in [
-            (ab.a_upper_row(j), ab.b_upper[j], true),
-            (ab.a_lower_row(j), ab.b_lower[j], false),
-        ] {
-            let at_c = sum((0..n).map(|i| Interval::point(a[i]) * cs[i])) + Interval::point(d);
-            let slope = sum((0..n).map(|i| (Interval::point(a[i]) - sv.jac[j * n + i]) * dx[i]));
-            let diff = at_c - sv.value[j] + slope;
-            let side = if upper { diff.upper } else { -diff.lower };
-            if side.is_nan() {
-                return f64::INFINITY;
-            }
-            e = e.max(round_up(side));
-        }
-    }
-    e
 }
 
 /// Sub-boxes per axis of a cell for the enclosures of `v` ([`VForms::enclose`] runs on each):
@@ -152,41 +125,6 @@ pub fn enclosure_pieces(cell: &IntervalBox) -> Vec<IntervalBox> {
     }
 }
 
-/// `[C x + d]` over a box, outward rounded: one side of an affine bound, made concrete.
-fn affine_over(a: &[f64], d: f64, b: &IntervalBox) -> Interval {
-    sum(a
-        .iter()
-        .enumerate()
-        .map(|(i, &ai)| Interval::point(ai) * Interval::new(b.lower[i], b.upper[i])))
-        + Interval::point(d)
-}
-
-/// `sup ‖N − v‖∞` over one piece of a cell from affine bounds of `N` valid on the whole cell
-/// (made concrete on the piece and intersected with the cell's interval bounds `n_lo, n_hi`)
-/// and the piece's enclosure of `v`; with the joint form ([`joint_error`]) where `v` is smooth
-/// on the piece. Each bound is sound on `piece ∩ S`; the least is kept.
-fn piece_error(
-    ab: &AffineBounds,
-    n_lo: &[f64],
-    n_hi: &[f64],
-    piece: &IntervalBox,
-    v: &[Interval],
-    smooth: Option<&SmoothV>,
-) -> f64 {
-    let m = v.len();
-    let lo: Vec<f64> = (0..m)
-        .map(|j| n_lo[j].max(affine_over(ab.a_lower_row(j), ab.b_lower[j], piece).lower))
-        .collect();
-    let hi: Vec<f64> = (0..m)
-        .map(|j| n_hi[j].min(affine_over(ab.a_upper_row(j), ab.b_upper[j], piece).upper))
-        .collect();
-    let e = error_from(&lo, &hi, v);
-    match smooth {
-        Some(sv) => e.min(joint_error(ab, sv, piece)),
-        None => e,
-    }
-}
-
 /// [`cell_error_bound`] with the mean-value enclosures of `v` ([`VForms::enclose`]) on the
 /// pieces of the cell ([`enclosure_pieces`]) and, where `v` is smooth on a piece, the joint
 /// affine bound of `N − v` there (`joint_error`): `N` is bounded once over the cell (IBP, and
@@ -222,11 +160,11 @@ pub fn cell_error_bound_mv(
     let n_hi: Vec<f64> = (0..ab.n_out)
         .map(|j| ibp.upper[j].min(ab.upper[j]))
         .collect();
-    let (v_whole, smooth_whole) = forms.enclose(s, cell);
+    let (v_whole, shape_whole) = forms.enclose(s, cell);
     let whole = if unbounded(&v_whole) {
         f64::INFINITY
     } else {
-        piece_error(&ab, &n_lo, &n_hi, cell, &v_whole, smooth_whole.as_ref())
+        piece_error(&ab, &n_lo, &n_hi, cell, &v_whole, &shape_whole)
     };
     let coarse = coarse.min(whole);
     if coarse <= good_enough {
@@ -234,12 +172,12 @@ pub fn cell_error_bound_mv(
     }
     let mut worst = 0.0_f64;
     for piece in enclosure_pieces(cell) {
-        let (vp, smooth) = forms.enclose(s, &piece);
+        let (vp, shape) = forms.enclose(s, &piece);
         let vp: Vec<Interval> = vp.iter().zip(&v_whole).map(|(&a, &b)| meet(a, b)).collect();
         if unbounded(&vp) {
             return Ok(coarse);
         }
-        worst = worst.max(piece_error(&ab, &n_lo, &n_hi, &piece, &vp, smooth.as_ref()));
+        worst = worst.max(piece_error(&ab, &n_lo, &n_hi, &piece, &vp, &shape));
         if worst >= coarse {
             return Ok(coarse);
         }
@@ -577,6 +515,9 @@ pub fn certify(
             .min(settings.budget.saturating_sub(evaluated) / 2)
             .clamp(1, batch);
         let mut children = Vec::new();
+        // The parent's bound holds on its halves too: a child keeps the lesser, so that
+        // refinement never raises a bound (`CROWN` on a half is not always tighter).
+        let mut parents = Vec::new();
         while children.len() < 2 * room {
             let Some(Entry {
                 bound, met, cell, ..
@@ -596,13 +537,18 @@ pub fn certify(
             let (l, r) = cell.bisect();
             children.push(l);
             children.push(r);
+            parents.extend([bound, bound]);
         }
         if children.is_empty() {
             continue;
         }
         let salt = evaluated;
         evaluated += children.len();
-        let res = eval(children, salt)?;
+        let res = eval(children, salt)?
+            .into_iter()
+            .zip(parents)
+            .map(|(r, parent)| r.map(|(b, tgt, cell)| (b.min(parent), tgt, cell)))
+            .collect();
         absorb(res, detail, &mut heap, &mut done);
     }
     done.extend(heap.into_iter().map(|e| {

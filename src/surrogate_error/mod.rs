@@ -27,6 +27,7 @@
 //! [`Certified`].
 
 mod certify;
+mod joint;
 mod looseness;
 mod measure;
 

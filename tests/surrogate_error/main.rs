@@ -15,7 +15,7 @@ use cbfreach::bounds::{BoundMethod, PreparedNetwork};
 use cbfreach::boxes::IntervalBox;
 use cbfreach::dataset::{filter_dataset, grid_points, Slopes};
 use cbfreach::error_map::{error_map_path, resolve_margin, CellBound, ErrorMap};
-use cbfreach::filter::{v_enclosure, FilterMethod, SafetyFilter, VForms};
+use cbfreach::filter::{v_enclosure, FilterMethod, Kink, SafetyFilter, VForms, VShape};
 use cbfreach::network::train::{train, TrainSettings};
 use cbfreach::network::Mlp;
 use cbfreach::scenario::{Margin, Scenario};
@@ -227,7 +227,7 @@ fn mean_value_enclosure_contains_sampled_v_on_random_cells() {
         let forms = VForms::new(&s).expect("closed form");
         let c = &s.reach.region;
         let mut rnd = uniform(424242_u64);
-        let (mut smooth_active, mut tighter, mut checked) = (0, 0, 0);
+        let (mut smooth_active, mut tighter, mut checked, mut kinked) = (0, 0, 0, 0);
         for k in 0..600 {
             // Small cells too, and cells along the obstacle where the filter acts.
             let w = if k % 2 == 0 {
@@ -240,7 +240,7 @@ fn mean_value_enclosure_contains_sampled_v_on_random_cells() {
                 .collect();
             let cell = IntervalBox::new(lo.clone(), lo.iter().map(|l| l + w).collect()).unwrap();
             let natural = v_enclosure(&s, method, &cell).unwrap();
-            let (v, smooth) = forms.enclose(&s, &cell);
+            let (v, shape) = forms.enclose(&s, &cell);
             for j in 0..v.len() {
                 assert!(v[j].is_subset_of(&natural[j]) || natural[j].is_nan());
                 if v[j].width() < 0.9 * natural[j].width() {
@@ -248,11 +248,21 @@ fn mean_value_enclosure_contains_sampled_v_on_random_cells() {
                 }
             }
             let n = cell.dim();
-            if let Some(sv) = &smooth {
+            if let Some(sv) = shape.smooth() {
                 if sv.jac.iter().any(|g| g.width() > 0.0 || g.lower != 0.0) {
                     smooth_active += 1;
                 }
             }
+            // Where one row binds on part of the cell, `v` is `min(0, F)` or `max(0, F)` of
+            // the row's binding formula `F`, whose centred form is checked below.
+            let (form, kinks) = match &shape {
+                VShape::Smooth(sv) => (Some(sv), None),
+                VShape::Kinked { binding, kinks } => {
+                    kinked += 1;
+                    (Some(binding), Some(kinks))
+                }
+                VShape::Unknown => (None, None),
+            };
             for _ in 0..40 {
                 let x = cell.point_at(&[rnd(), rnd()]);
                 if !s.is_safe(&x) {
@@ -268,14 +278,22 @@ fn mean_value_enclosure_contains_sampled_v_on_random_cells() {
                         vx[j],
                         v[j]
                     );
-                    if let Some(sv) = &smooth {
-                        // v(x) ∈ v(c) + J(X)·(x − c), evaluated in intervals.
+                    if let Some(sv) = form {
+                        // v(x) ∈ v(c) + J(X)·(x − c), evaluated in intervals (of F where
+                        // kinked, then min(0, ·) or max(0, ·)).
                         let mut e = sv.value[j];
                         for (i, (&xi, &ci)) in x.iter().zip(&sv.centre).enumerate() {
                             let d = cbfreach::intervals::Interval::point(xi)
                                 - cbfreach::intervals::Interval::point(ci);
                             e = e + sv.jac[j * n + i] * d;
                         }
+                        let zero = cbfreach::intervals::Interval::point(0.0);
+                        let e = match kinks.map(|k| k[j]) {
+                            None => e,
+                            Some(Some(Kink::Min)) => e.min(zero),
+                            Some(Some(Kink::Max)) => e.max(zero),
+                            Some(None) => cbfreach::intervals::Interval::ENTIRE,
+                        };
                         assert!(
                             e.contains(vx[j]),
                             "{}: v_{j}({x:?}) = {} not in the centred form {e} (cell {cell:?})",
@@ -297,6 +315,7 @@ fn mean_value_enclosure_contains_sampled_v_on_random_cells() {
             "{}: the mean-value form never helped ({tighter})",
             s.name
         );
+        assert!(kinked > 10, "{}: {kinked} kinked cells", s.name);
     }
 }
 

@@ -1,0 +1,316 @@
+//! Joint bounds of `N − v` over a cell: where `v`'s form is known there (one smooth function,
+//! or a closed form's one row binding on part of the cell), `N`'s affine bounds and `v`'s
+//! mean-value form share their slope, which cancels, so a cell pays for how far `N` is from `v`
+//! rather than for the range of either (design §2.1).
+
+use super::certify::{error_from, sum};
+use crate::bounds::AffineBounds;
+use crate::boxes::IntervalBox;
+use crate::filter::{Kink, SmoothV, VShape};
+use crate::intervals::Interval;
+use crate::rounding::round_up;
+
+/// `sup` and `−inf` of `Nⱼ − Fⱼ` over the cell, per output `j`, from CROWN's affine forms of
+/// `N` and the centred form of a smooth `F`, both linear in `x − c`, so that their common slope
+/// cancels: `N − F ≤ (C̄c + d̄ − F(c)) + (C̄ − J_F(X))(X − c)` and likewise below. NaN becomes
+/// +∞.
+fn joint_sides(ab: &AffineBounds, sv: &SmoothV, cell: &IntervalBox) -> Vec<(f64, f64)> {
+    let (m, n) = (ab.n_out, ab.n_in);
+    let cs: Vec<Interval> = sv.centre.iter().map(|&c| Interval::point(c)).collect();
+    let dx: Vec<Interval> = (0..n)
+        .map(|i| Interval::new(cell.lower[i], cell.upper[i]) - cs[i])
+        .collect();
+    let side = |a: &[f64], d: f64, j: usize| -> Interval {
+        let at_c = sum((0..n).map(|i| Interval::point(a[i]) * cs[i])) + Interval::point(d);
+        let slope = sum((0..n).map(|i| (Interval::point(a[i]) - sv.jac[j * n + i]) * dx[i]));
+        at_c - sv.value[j] + slope
+    };
+    let up = |v: f64| {
+        if v.is_nan() {
+            f64::INFINITY
+        } else {
+            round_up(v)
+        }
+    };
+    (0..m)
+        .map(|j| {
+            let hi = side(ab.a_upper_row(j), ab.b_upper[j], j).upper;
+            let lo = side(ab.a_lower_row(j), ab.b_lower[j], j).lower;
+            (up(hi), up(-lo))
+        })
+        .collect()
+}
+
+/// `‖N − v‖∞` on output `j` over the cell where `vⱼ = min(0, Fⱼ)` or `max(0, Fⱼ)`
+/// ([`VShape::Kinked`]), from `N`'s bounds `[n̲, n̄]` over the cell, `Nⱼ − Fⱼ`'s joint sides
+/// `(s̄, −s̲)` ([`joint_sides`]) and, for the inner side, the affine forms themselves
+/// ([`inf_of_max`]). With `v = min(0, F)`, `N − v = max(N, N − F)`, so `N − v ≤ max(n̄, s̄)`
+/// and `N − v ≥ max(n̲, s̲)`, or better `inf max(ℓ_N, ℓ_{N−F})` of the two lower forms; with
+/// `v = max(0, F)`, `N − v = min(N, N − F)`, the mirror image. Where `v` follows `F` the slopes
+/// cancel, and where it is 0 `N`'s own bound is small: neither side pays for the range of `v`
+/// across its kink.
+fn kinked_error(
+    kink: Kink,
+    ab: &AffineBounds,
+    sv: &SmoothV,
+    piece: &IntervalBox,
+    j: usize,
+    (n_lo, n_hi): (f64, f64),
+    (s_hi, s_neg_lo): (f64, f64),
+) -> f64 {
+    let s_lo = -s_neg_lo;
+    let (hi, lo) = match kink {
+        Kink::Min => {
+            let forms = CentredPair::of(ab.a_lower_row(j), ab.b_lower[j], sv, piece, j, false);
+            (n_hi.max(s_hi), n_lo.max(s_lo).max(forms.inf_of_max()))
+        }
+        Kink::Max => {
+            // sup min(u_N, u_{N−F}) = −inf max(−u_N, −u_{N−F}).
+            let forms = CentredPair::of(ab.a_upper_row(j), ab.b_upper[j], sv, piece, j, true);
+            (n_hi.min(s_hi).min(-forms.inf_of_max()), n_lo.min(s_lo))
+        }
+    };
+    let e = round_up(hi.max(-lo));
+    if e.is_nan() {
+        f64::INFINITY
+    } else {
+        e
+    }
+}
+
+/// Two affine lower bounds over a cell in centred form, `ℓₖ(x) = pₖ·(x − c) + Kₖ` (intervals
+/// for the coefficients, so that rounding and the Jacobian's width are inside them), and the
+/// cell's half-widths `r` about `c`.
+struct CentredPair {
+    p: [Vec<Interval>; 2],
+    k: [Interval; 2],
+    r: Vec<f64>,
+}
+
+impl CentredPair {
+    /// `ℓ₁ = N`'s affine form `a·x + d` (a lower one, or with `negate` an upper one, both
+    /// negated so that the pair bounds `−N` and `−(N − F)` from below), `ℓ₂ = ℓ₁ − F`'s
+    /// mean-value form over the cell.
+    fn of(a: &[f64], d: f64, sv: &SmoothV, cell: &IntervalBox, j: usize, negate: bool) -> Self {
+        let n = a.len();
+        let sign = Interval::point(if negate { -1.0 } else { 1.0 });
+        let c: Vec<Interval> = sv.centre.iter().map(|&x| Interval::point(x)).collect();
+        let r: Vec<f64> = (0..n)
+            .map(|i| (Interval::new(cell.lower[i], cell.upper[i]) - c[i]).mag())
+            .collect();
+        let a: Vec<Interval> = a.iter().map(|&ai| Interval::point(ai)).collect();
+        let k1 = sum((0..n).map(|i| a[i] * c[i])) + Interval::point(d);
+        let p2: Vec<Interval> = (0..n).map(|i| (a[i] - sv.jac[j * n + i]) * sign).collect();
+        let p1: Vec<Interval> = a.iter().map(|&ai| ai * sign).collect();
+        CentredPair {
+            p: [p1, p2],
+            k: [k1 * sign, (k1 - sv.value[j]) * sign],
+            r,
+        }
+    }
+
+    /// A lower bound of `inf_x max(ℓ₁(x), ℓ₂(x))` over the cell: `max(ℓ₁, ℓ₂) ≥ λℓ₁ + (1 − λ)ℓ₂`
+    /// for every `λ ∈ [0, 1]`, whose infimum is `λK₁ + (1 − λ)K₂ − Σᵢ |λp₁ᵢ + (1 − λ)p₂ᵢ| rᵢ`,
+    /// concave and piecewise linear in `λ` with its kinks where a coefficient changes sign: the
+    /// best of `λ = 0, 1` and those kinks (each a multiple of 2⁻³⁰, so that `1 − λ` is exact).
+    /// The LP's value where the coefficients are points; −∞ on NaN.
+    fn inf_of_max(&self) -> f64 {
+        let [p1, p2] = &self.p;
+        let mut lambdas = vec![0.0, 1.0];
+        for (a, b) in p1.iter().zip(p2) {
+            let (a, b) = (a.center(), b.center());
+            let l = b / (b - a);
+            if l > 0.0 && l < 1.0 {
+                lambdas.push((l * 1_073_741_824.0).round() / 1_073_741_824.0);
+            }
+        }
+        lambdas
+            .into_iter()
+            .map(|l| {
+                let (l, m) = (Interval::point(l), Interval::point(1.0 - l));
+                let slack = sum(p1.iter().zip(p2).zip(&self.r).map(|((&a, &b), &r)| {
+                    Interval::point((l * a + m * b).mag()) * Interval::point(r)
+                }));
+                let v = (l * self.k[0] + m * self.k[1] - slack).lower;
+                if v.is_nan() {
+                    f64::NEG_INFINITY
+                } else {
+                    v
+                }
+            })
+            .fold(f64::NEG_INFINITY, f64::max)
+    }
+}
+
+/// `[C x + d]` over a box, outward rounded: one side of an affine bound, made concrete.
+fn affine_over(a: &[f64], d: f64, b: &IntervalBox) -> Interval {
+    sum(a
+        .iter()
+        .enumerate()
+        .map(|(i, &ai)| Interval::point(ai) * Interval::new(b.lower[i], b.upper[i])))
+        + Interval::point(d)
+}
+
+/// `sup ‖N − v‖∞` over one piece of a cell from affine bounds of `N` valid on the whole cell
+/// (made concrete on the piece and intersected with the cell's interval bounds `n_lo, n_hi`)
+/// and the piece's enclosure of `v`; per output, the least of that and, where `v`'s form is
+/// known on the piece, the joint bound of `N − v` ([`joint_sides`], [`kinked_error`]). Each
+/// bound is sound on `piece ∩ S`.
+pub(super) fn piece_error(
+    ab: &AffineBounds,
+    n_lo: &[f64],
+    n_hi: &[f64],
+    piece: &IntervalBox,
+    v: &[Interval],
+    shape: &VShape,
+) -> f64 {
+    let m = v.len();
+    let lo: Vec<f64> = (0..m)
+        .map(|j| n_lo[j].max(affine_over(ab.a_lower_row(j), ab.b_lower[j], piece).lower))
+        .collect();
+    let hi: Vec<f64> = (0..m)
+        .map(|j| n_hi[j].min(affine_over(ab.a_upper_row(j), ab.b_upper[j], piece).upper))
+        .collect();
+    let joint = match shape {
+        VShape::Smooth(sv) | VShape::Kinked { binding: sv, .. } => Some(joint_sides(ab, sv, piece)),
+        VShape::Unknown => None,
+    };
+    let mut e = 0.0_f64;
+    for j in 0..m {
+        let mut ej = error_from(&lo[j..=j], &hi[j..=j], &v[j..=j]);
+        if let Some(sides) = &joint {
+            ej = ej.min(match shape {
+                VShape::Smooth(_) => sides[j].0.max(sides[j].1),
+                VShape::Kinked { binding, kinks } => match kinks[j] {
+                    Some(kink) => {
+                        kinked_error(kink, ab, binding, piece, j, (lo[j], hi[j]), sides[j])
+                    }
+                    None => f64::INFINITY,
+                },
+                VShape::Unknown => f64::INFINITY,
+            });
+        }
+        e = e.max(ej);
+    }
+    e
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bounds::{BoundMethod, PreparedNetwork};
+    use crate::filter::VForms;
+    use crate::network::{Layer, Mlp};
+    use crate::scenario::Scenario;
+
+    /// `inf max(ℓ₁, ℓ₂)` over a box is the LP's value: never above the least of `max` on a
+    /// fine grid (sound), and within the grid's resolution of it (tight), for random pairs.
+    #[test]
+    fn inf_of_max_is_the_lp_value() {
+        let mut seed = 7_u64;
+        let mut rnd = move || {
+            seed = seed
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (seed >> 11) as f64 / (1_u64 << 53) as f64 * 2.0 - 1.0
+        };
+        for _ in 0..200 {
+            let p: [Vec<f64>; 2] = [
+                vec![rnd() * 3.0, rnd() * 3.0],
+                vec![rnd() * 3.0, rnd() * 3.0],
+            ];
+            let k = [rnd(), rnd()];
+            let r = vec![0.5 + rnd().abs(), 0.5 + rnd().abs()];
+            let pair = CentredPair {
+                p: p.clone()
+                    .map(|v| v.into_iter().map(Interval::point).collect()),
+                k: k.map(Interval::point),
+                r: r.clone(),
+            };
+            let lp = pair.inf_of_max();
+            let steps = 400;
+            let mut least = f64::INFINITY;
+            for a in 0..=steps {
+                for b in 0..=steps {
+                    let x = [
+                        r[0] * (2.0 * a as f64 / steps as f64 - 1.0),
+                        r[1] * (2.0 * b as f64 / steps as f64 - 1.0),
+                    ];
+                    let l = |i: usize| p[i][0] * x[0] + p[i][1] * x[1] + k[i];
+                    least = least.min(l(0).max(l(1)));
+                }
+            }
+            assert!(lp <= least, "{lp} above the sampled {least}");
+            let resolution = 2.0 * 6.0 * 1.5 / steps as f64;
+            assert!(
+                lp >= least - resolution,
+                "{lp} far below the sampled {least}"
+            );
+        }
+    }
+
+    /// A wall at `x = 2` and a constant push: `v = min(0, 1 − x)`, kinked at `x = 1`. A network
+    /// equal to `v` (`−ReLU(x − 1)`, plus `offset`) on the cell `[0.5, 1.5]` across the kink:
+    /// the enclosures alone bound its error by the range of `v` (0.5); the kinked form by half
+    /// that, and never below the error itself.
+    #[test]
+    fn a_kinked_cell_pays_for_the_error_not_for_the_range_of_v() {
+        let text = r#"
+name = "wall"
+[system]
+states = ["x"]
+inputs = ["u"]
+f = ["0"]
+g = [["1"]]
+kappa = ["1"]
+[[cbf]]
+name = "wall"
+h = "2 - x"
+[reach]
+region = { lower = [0.0], upper = [2.0] }
+m_c = 0.1
+dt = 0.1
+horizon = 1.0
+goal = { lower = [1.5], upper = [2.0] }
+initial = [ { lower = [0.0], upper = [0.1] } ]
+"#;
+        let s = Scenario::from_toml(text, "wall.toml", std::path::Path::new(".")).unwrap();
+        let cell = IntervalBox::new(vec![0.5], vec![1.5]).unwrap();
+        let forms = VForms::new(&s).unwrap();
+        let (v, shape) = forms.enclose(&s, &cell);
+        assert!(matches!(shape, VShape::Kinked { .. }), "{shape:?}");
+        for offset in [0.0, 0.1] {
+            let net = Mlp {
+                layers: vec![
+                    Layer {
+                        weight: vec![1.0],
+                        bias: vec![-1.0],
+                        n_in: 1,
+                        n_out: 1,
+                    },
+                    Layer {
+                        weight: vec![-1.0],
+                        bias: vec![offset],
+                        n_in: 1,
+                        n_out: 1,
+                    },
+                ],
+            };
+            let p = PreparedNetwork::new(&net).unwrap();
+            let ab = p
+                .bounds(&cell.lower, &cell.upper, BoundMethod::Crown)
+                .unwrap();
+            let ibp = p
+                .bounds(&cell.lower, &cell.upper, BoundMethod::Ibp)
+                .unwrap();
+            let enclosures = piece_error(&ab, &ibp.lower, &ibp.upper, &cell, &v, &VShape::Unknown);
+            let kinked = piece_error(&ab, &ibp.lower, &ibp.upper, &cell, &v, &shape);
+            assert!(enclosures >= 0.5, "{enclosures}");
+            assert!(kinked >= offset, "{kinked} below the error {offset}");
+            assert!(
+                kinked <= 0.25 + offset + 1e-9,
+                "{kinked} (enclosures {enclosures})"
+            );
+        }
+    }
+}
