@@ -281,6 +281,91 @@ fn three_states_verify_and_draw_as_projections_and_slices() {
     assert!(err.contains("`q` is not a state"), "{err}");
 }
 
+/// Item 4 over time: `--axes t,NAME` draws one state's tubes and trajectories against time
+/// (the other states projected), the only picture of a one-state system; the figures drawn
+/// over two states say so instead of drawing nothing.
+#[test]
+fn one_state_draws_over_time() {
+    let tmp = tempfile::tempdir().unwrap();
+    let wall = root().join("tests/fixtures/wall1d.toml");
+    let wall = wall.to_str().unwrap().to_string();
+    let chain = chain3();
+    for (scenario, figure, extra, needle) in [
+        (
+            &chain,
+            "tubes",
+            vec!["--axes", "t,p"],
+            "[projected along v, a]",
+        ),
+        (
+            &chain,
+            "trajectories",
+            vec!["--axes", "time,a"],
+            "[projected along p, v]",
+        ),
+        (&wall, "trajectories", vec![], "gap"),
+    ] {
+        let svg = tmp.path().join(format!("{figure}.svg"));
+        let path = svg.to_str().unwrap().to_string();
+        let mut args = vec!["plot", scenario, "--figure", figure, "-o", &path];
+        args.extend(extra.iter().copied());
+        let (code, _, err) = cbfreach(&args);
+        assert_eq!(code, 0, "{figure} {extra:?}: {err}");
+        // The SVG's text elements, their padding folded.
+        let text = std::fs::read_to_string(&svg).unwrap();
+        let text = text.split_whitespace().collect::<Vec<_>>().join(" ");
+        assert!(text.contains(needle), "{figure} {extra:?}: no `{needle}`");
+        assert!(
+            text.contains("> t </text>"),
+            "{figure} {extra:?}: no t axis"
+        );
+    }
+    // The wall's equilibrium (gap = 2, made by the filter) lies in the goal: every
+    // trajectory ends at the goal, and is drawn so.
+    let text = std::fs::read_to_string(tmp.path().join("trajectories.svg")).unwrap();
+    assert!(
+        text.contains("ends at the goal") && !text.contains("undesirable"),
+        "the wall's trajectories"
+    );
+    let out = tmp.path().join("x.svg");
+    let out = out.to_str().unwrap();
+    for (scenario, args, needle) in [
+        (
+            &chain,
+            vec![
+                "--figure",
+                "verdicts",
+                "--input",
+                "none.json",
+                "--axes",
+                "t,p",
+            ],
+            "verdict maps are drawn over two states",
+        ),
+        (
+            &chain,
+            vec!["--figure", "error-map", "--axes", "t,p"],
+            "error maps are drawn over two states",
+        ),
+        (
+            &wall,
+            vec!["--figure", "trajectories", "--axes", "gap,gap"],
+            "draw it over time (--axes t,gap)",
+        ),
+        (
+            &wall,
+            vec!["--figure", "verdicts", "--input", "none.json"],
+            "not over time",
+        ),
+    ] {
+        let mut all = vec!["plot", scenario.as_str(), "-o", out];
+        all.extend(args.iter().copied());
+        let (code, _, err) = cbfreach(&all);
+        assert_ne!(code, 0, "{args:?}");
+        assert!(err.contains(needle), "{args:?}: {err}");
+    }
+}
+
 /// Item 5: the GPU path prints no driver noise without a desktop session (before: libwayland's
 /// `error: XDG_RUNTIME_DIR is invalid or not set`, once per Vulkan driver).
 #[test]

@@ -54,14 +54,16 @@ pub struct PlotArgs {
     /// Pixel size WIDTH,HEIGHT (default: 1000 wide, the region's aspect ratio).
     #[arg(long)]
     pub size: Option<String>,
-    /// Draw every K-th step (of dt) of the tubes.
-    #[arg(long, default_value_t = 10, value_parser = |s: &str| super::whole_at_least(s, 1))]
-    pub every: usize,
+    /// Draw every K-th step (of dt) of the tubes [default: 10; 1 over time, where each bar
+    /// is the hull of K steps' flowpipes].
+    #[arg(long, value_parser = |s: &str| super::whole_at_least(s, 1))]
+    pub every: Option<usize>,
     /// How the network is bounded over each box (tubes, minkowski).
     #[arg(long, value_enum, default_value_t = ReachSettings::default().bounds)]
     pub bounds: BoundMethod,
-    /// The two states drawn, e.g. `--axes p,v` (default: the first two). Other states are
-    /// projected unless sliced.
+    /// The two states drawn, e.g. `--axes p,v` (default: the first two), or `t` and one state
+    /// (`--axes t,p`: tubes and trajectories over time, the default for one state). Other
+    /// states are projected unless sliced.
     #[arg(long, value_name = "A,B")]
     pub axes: Option<String>,
     /// Draw only the sets that meet the hyperplane NAME = VALUE (repeatable), e.g.
@@ -153,8 +155,20 @@ pub fn run(args: &PlotArgs) -> CliResult {
     let s = load_scenario(&args.scenario)?;
     super::check_outputs(&[Some(&args.out)])?;
     let view = View::parse(&s, args.axes.as_deref(), &args.slice)?;
+    // Before any input is read: these are pictures over two states.
+    let over_two_states = match args.figure {
+        FigureKind::Minkowski => Some("Minkowski tubes"),
+        FigureKind::Verdicts => Some("verdict maps"),
+        FigureKind::ErrorMap => Some("error maps"),
+        FigureKind::Trajectories | FigureKind::Tubes => None,
+    };
+    if let (true, Some(figure)) = (view.time, over_two_states) {
+        let file = s.file.clone();
+        return Err(plot::DrawError::NotOverTime { file, figure }.into());
+    }
     let size = match &args.size {
         Some(t) => parse_size(t)?,
+        None if view.time => (1000, 600),
         None => plot::default_size(&view.plane(&s.reach.region), 1000),
     };
     let out: &Path = &args.out;
@@ -183,7 +197,8 @@ pub fn run(args: &PlotArgs) -> CliResult {
             } else {
                 ReachMethod::Minkowski
             };
-            let r = reach_initial(&s, &problem, args.bounds, method, args.every.max(1), false)?;
+            let every = args.every.unwrap_or(if view.time { 1 } else { 10 });
+            let r = reach_initial(&s, &problem, args.bounds, method, every, false)?;
             if method == ReachMethod::Disturbance {
                 plot::save_view(
                     &Figure::Tubes {
@@ -191,7 +206,7 @@ pub fn run(args: &PlotArgs) -> CliResult {
                         tubes: &r.boxes,
                         split: &[],
                         every: 1,
-                        title: titled_tubes(&s, &problem, method, args.every.max(1)),
+                        title: titled_tubes(&s, &problem, method, every),
                     },
                     &view,
                     out,

@@ -396,6 +396,7 @@ mod tests {
             x: 0,
             y: 2,
             slice: vec![],
+            time: false,
         };
         let region = IntervalBox::new(vec![0.0; 3], vec![4.0, 9.0, 2.0]).unwrap();
         let grid = PlaneGrid::new(&view, &region, [4, 2]);

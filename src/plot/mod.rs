@@ -32,6 +32,7 @@ use crate::simulate::Trajectory;
 use crate::verify::{BoxVerdict, Verdict, VerifyReport};
 
 mod maps;
+mod time;
 mod view;
 
 use maps::{draw_error_map, draw_verdicts};
@@ -70,6 +71,17 @@ pub enum DrawError {
         file: String,
         /// Its number of states.
         n: usize,
+    },
+    /// A figure drawn over two states was asked over time.
+    #[error(
+        "{figure} are drawn over two states, not over time ({file} with --axes t,…: tubes and \
+         trajectories are)"
+    )]
+    NotOverTime {
+        /// The scenario file.
+        file: String,
+        /// The figure, in the plural.
+        figure: &'static str,
     },
     /// plotters or its backend failed (its error type depends on the backend).
     #[error("{0}")]
@@ -242,6 +254,32 @@ fn draw<DB: DrawingBackend<ErrorType: 'static>>(
     view: &View,
 ) -> Result<(), DrawError> {
     root.fill(&WHITE).map_err(DrawError::from)?;
+    if view.time {
+        return match figure {
+            Figure::Trajectories {
+                scenario,
+                trajectories,
+                equilibria,
+            } => time::draw_trajectories_over_time(root, view, scenario, trajectories, equilibria),
+            // A split box's whole tube failed; over time its pieces are not drawn.
+            Figure::Tubes {
+                scenario,
+                tubes,
+                split,
+                title,
+                ..
+            } => {
+                let whole: Vec<&Tube> = (tubes.iter().enumerate())
+                    .filter(|(k, _)| split.iter().all(|&(i, _)| i != *k))
+                    .map(|(_, t)| t)
+                    .collect();
+                time::draw_tubes_over_time(root, view, scenario, &whole, title)
+            }
+            Figure::Minkowski { scenario, .. } => Err(not_over_time(scenario, "Minkowski tubes")),
+            Figure::Verdicts { scenario, .. } => Err(not_over_time(scenario, "verdict maps")),
+            Figure::ErrorMap { scenario, .. } => Err(not_over_time(scenario, "error maps")),
+        };
+    }
     match figure {
         Figure::Trajectories {
             scenario,
@@ -263,6 +301,13 @@ fn draw<DB: DrawingBackend<ErrorType: 'static>>(
         } => draw_minkowski(root, view, scenario, tubes, trajectories, *every),
         Figure::Verdicts { scenario, report } => draw_verdicts(root, view, scenario, report),
         Figure::ErrorMap { scenario, map } => draw_error_map(root, view, scenario, map),
+    }
+}
+
+fn not_over_time(scenario: &Scenario, figure: &'static str) -> DrawError {
+    DrawError::NotOverTime {
+        file: scenario.file.clone(),
+        figure,
     }
 }
 
@@ -406,7 +451,8 @@ fn box_series<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
     Ok(())
 }
 
-/// The end-point class of a trajectory: 0 goal, 1 an undesirable stable equilibrium, 2 other.
+/// The end-point class of a trajectory: 0 the goal, 1 near an undesirable stable equilibrium
+/// outside it, 2 other.
 fn ending(scenario: &Scenario, equilibria: &[Equilibrium], end: &[f64]) -> usize {
     let near = |e: &Equilibrium| {
         e.x.iter()
@@ -415,13 +461,15 @@ fn ending(scenario: &Scenario, equilibria: &[Equilibrium], end: &[f64]) -> usize
             .fold(0.0, f64::max)
             < 0.05
     };
-    if equilibria
+    // The goal first, as `verify`'s verdicts take it: an undesirable equilibrium inside the
+    // goal (a wall the goal touches) is where the user asked to go.
+    if scenario.reach.goal.contains(end) {
+        0
+    } else if equilibria
         .iter()
         .any(|e| e.kind == Stability::Stable && e.undesirable && near(e))
     {
         1
-    } else if scenario.reach.goal.contains(end) {
-        0
     } else {
         2
     }

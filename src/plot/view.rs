@@ -1,6 +1,7 @@
 //! Which two states a picture shows and where it cuts the others: pictures of systems with
 //! more than two states are projections onto two chosen states, or slices through
-//! hyperplanes `x_k = c` (`--axes p,v --slice a=0`), or both. Imports boxes and the scenario.
+//! hyperplanes `x_k = c` (`--axes p,v --slice a=0`), or both; or one state against time
+//! (`--axes t,p`, the default for a one-state system). Imports boxes and the scenario.
 
 use crate::boxes::IntervalBox;
 use crate::scenario::Scenario;
@@ -18,6 +19,8 @@ pub struct View {
     pub y: usize,
     /// `(state, value)`: only the sets that contain `value` along `state` are drawn.
     pub slice: Vec<(usize, f64)>,
+    /// Time across and the state `y` up (`x == y` then): tubes and trajectories over time.
+    pub time: bool,
 }
 
 impl Default for View {
@@ -27,13 +30,15 @@ impl Default for View {
             x: 0,
             y: 1,
             slice: Vec::new(),
+            time: false,
         }
     }
 }
 
 impl View {
-    /// The view of `--axes A,B` (state names; default the first two states) and `--slice
-    /// NAME=VALUE` (repeatable), checked against the scenario's states.
+    /// The view of `--axes A,B` (state names, default the first two states; `t` or `time`
+    /// first, where no state has that name, for one state over time, the default with one
+    /// state) and `--slice NAME=VALUE` (repeatable), checked against the scenario's states.
     pub fn parse(
         scenario: &Scenario,
         axes: Option<&str>,
@@ -54,25 +59,38 @@ impl View {
                     ))
                 })
         };
-        let (x, y) = match axes {
+        let is_time = |name: &str| {
+            let name = name.trim();
+            matches!(name, "t" | "time") && !scenario.states.iter().any(|s| s == name)
+        };
+        let (x, y, time) = match axes {
             Some(text) => {
                 let (a, b) = text.split_once(',').ok_or_else(|| {
                     PlotError::Input(format!(
-                        "--axes: expected two state names, e.g. {}, found `{text}`",
+                        "--axes: expected two state names (or t and a state), e.g. {}, found \
+                         `{text}`",
                         scenario.states[..n.min(2)].join(",")
                     ))
                 })?;
-                (state(a, "--axes")?, state(b, "--axes")?)
+                match is_time(a) {
+                    true => {
+                        let y = state(b, "--axes")?;
+                        (y, y, true)
+                    }
+                    false => (state(a, "--axes")?, state(b, "--axes")?, false),
+                }
             }
-            None => (0, 1),
+            None if n == 1 => (0, 0, true),
+            None => (0, 1, false),
         };
-        if n < 2 {
+        if n < 2 && !time {
             return Err(PlotError::Input(format!(
-                "{}: pictures need at least 2 states, it has {n}",
-                scenario.file
+                "{}: a picture over two states needs 2, it has {n}: draw it over time \
+                 (--axes t,{})",
+                scenario.file, scenario.states[0]
             )));
         }
-        if x == y {
+        if x == y && !time {
             return Err(PlotError::Input(format!(
                 "--axes: the two axes must be different states, found `{}` twice",
                 scenario.states[x]
@@ -82,6 +100,7 @@ impl View {
             x,
             y,
             slice: Vec::new(),
+            time,
         };
         for text in slices {
             let (name, value) = text.split_once('=').ok_or_else(|| {
@@ -112,7 +131,8 @@ impl View {
 
     /// Whether the picture shows every state: each is drawn or sliced.
     pub fn is_whole(&self, n: usize) -> bool {
-        2 + self.slice.len() == n
+        let drawn = if self.time { 1 } else { 2 };
+        drawn + self.slice.len() == n
     }
 
     /// Whether a set is drawn: it meets every slice's hyperplane.
@@ -155,7 +175,7 @@ impl View {
     /// For captions: what the picture is of (empty for a planar system's whole picture).
     pub fn describe(&self, scenario: &Scenario) -> String {
         let n = scenario.n();
-        if n == 2 {
+        if self.is_whole(n) && self.slice.is_empty() {
             return String::new();
         }
         let mut parts: Vec<String> = self
@@ -210,5 +230,28 @@ mod tests {
             let e = View::parse(&s, axes, &slices).unwrap_err().to_string();
             assert!(e.contains(needle), "{e}");
         }
+    }
+
+    /// `t` (or `time`) first draws one state over time, the default for one state; a state
+    /// named `t` is that state.
+    #[test]
+    fn time_is_an_axis_unless_a_state_is_named_so() {
+        let s = chain3();
+        let v = View::parse(&s, Some("t,v"), &["a=0".into()]).unwrap();
+        assert!(v.time && v.y == 1 && v.x == 1, "{v:?}");
+        assert!(!v.is_whole(3));
+        assert_eq!(v.describe(&s), " [a = 0; projected along p]");
+        assert!(View::parse(&s, Some("time, p"), &[]).unwrap().time);
+        assert!(!View::parse(&s, None, &[]).unwrap().time);
+        let e = View::parse(&s, Some("t,v"), &["v=0".into()]).unwrap_err();
+        assert!(e.to_string().contains("drawn or sliced already"), "{e}");
+        let mut named_t = s.clone();
+        named_t.states[0] = "t".into();
+        let v = View::parse(&named_t, Some("t,v"), &[]).unwrap();
+        assert!(!v.time && (v.x, v.y) == (0, 1), "{v:?}");
+        let mut one = s.clone();
+        one.states.truncate(1);
+        let v = View::parse(&one, None, &[]).unwrap();
+        assert!(v.time && v.y == 0 && v.is_whole(1) && v.describe(&one).is_empty());
     }
 }

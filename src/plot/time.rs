@@ -1,0 +1,207 @@
+//! Pictures over time (`--axes t,NAME`, as JuliaReach's `vars = (0, k)`): one state's sets and
+//! trajectories against `t`, the other states projected (or sliced). The only picture a
+//! one-state system has. Draws with [`super`]'s palette and legend.
+
+use plotters::coord::Shift;
+use plotters::prelude::*;
+
+use super::view::View;
+use super::{
+    caption_size, ending, legend, tube_class, Chart, DrawError, BLUE, DARK, GREEN, GREY, OBSTACLE,
+    VERMILION,
+};
+use crate::equilibria::Equilibrium;
+use crate::reach::Tube;
+use crate::scenario::Scenario;
+use crate::simulate::Trajectory;
+
+/// The chart: `t` from 0 to the horizon across, the drawn state up over `C`'s extent, with
+/// the unsafe set shaded where the state alone decides it (one state, all others sliced) and
+/// the goal's band.
+fn time_chart<'a, DB: DrawingBackend<ErrorType: 'static>>(
+    root: &'a DrawingArea<DB, Shift>,
+    view: &View,
+    scenario: &Scenario,
+    title: &str,
+) -> Result<Chart<'a, DB>, DrawError> {
+    let n = scenario.n();
+    let y = view.y;
+    if y >= n || view.slice.iter().any(|&(k, _)| k >= n) {
+        return Err(DrawError::NotPlanar {
+            file: scenario.file.clone(),
+            n,
+        });
+    }
+    let (lo, hi) = (
+        scenario.reach.region.lower[y],
+        scenario.reach.region.upper[y],
+    );
+    let horizon = scenario.reach.horizon;
+    let title = format!("{title}{}", view.describe(scenario));
+    let mut chart = ChartBuilder::on(root)
+        .caption(&title, ("sans-serif", caption_size(root, &title)))
+        .margin(12)
+        .x_label_area_size(48)
+        .y_label_area_size(58)
+        .build_cartesian_2d(0.0..horizon, lo..hi)
+        .map_err(DrawError::from)?;
+    chart
+        .configure_mesh()
+        .x_desc("t")
+        .y_desc(scenario.states[y].as_str())
+        .axis_desc_style(("sans-serif", 18))
+        .label_style(("sans-serif", 14))
+        .light_line_style(RGBColor(245, 245, 245))
+        .bold_line_style(RGBColor(225, 225, 225))
+        .draw()
+        .map_err(DrawError::from)?;
+    if view.is_whole(n) {
+        // Bands of a fine grid of the state where some `hᵢ < 0` at the band's centre.
+        const BANDS: usize = 400;
+        let dy = (hi - lo) / BANDS as f64;
+        let unsafe_bands = (0..BANDS).filter_map(|k| {
+            let mid = lo + (k as f64 + 0.5) * dy;
+            let x = view.lift(&scenario.reach.region, 0.0, mid);
+            (!scenario.is_safe(&x)).then(|| {
+                Rectangle::new(
+                    [
+                        (0.0, lo + k as f64 * dy),
+                        (horizon, lo + (k + 1) as f64 * dy),
+                    ],
+                    OBSTACLE.filled(),
+                )
+            })
+        });
+        chart.draw_series(unsafe_bands).map_err(DrawError::from)?;
+    }
+    let goal = &scenario.reach.goal;
+    let style = GREEN.stroke_width(2);
+    chart
+        .draw_series(std::iter::once(Rectangle::new(
+            [
+                (0.0, goal.lower[y].max(lo)),
+                (horizon, goal.upper[y].min(hi)),
+            ],
+            style,
+        )))
+        .map_err(DrawError::from)?
+        .label("goal set")
+        .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 14, y + 6)], style));
+    Ok(chart)
+}
+
+/// The tubes against time: in continuous time (and sampled-data) each step's flowpipe as a
+/// bar over its time interval, which holds every state of that interval; for the Euler map,
+/// which has no states between its samples, each set as a line at its time.
+pub(super) fn draw_tubes_over_time<DB: DrawingBackend<ErrorType: 'static>>(
+    root: &DrawingArea<DB, Shift>,
+    view: &View,
+    scenario: &Scenario,
+    tubes: &[&Tube],
+    title: &str,
+) -> Result<(), DrawError> {
+    let mut chart = time_chart(root, view, scenario, title)?;
+    let y = view.y;
+    let (lo, hi) = (
+        scenario.reach.region.lower[y],
+        scenario.reach.region.upper[y],
+    );
+    let clip = |v: f64| v.clamp(lo, hi);
+    let mut seen: Vec<&str> = Vec::new();
+    for &tube in tubes {
+        let (colour, label) = tube_class(scenario, tube);
+        let style = colour.mix(0.5).filled();
+        let mut bars = Vec::new();
+        let mut lines = Vec::new();
+        if view.keeps(&tube.initial) {
+            let b = &tube.initial;
+            lines.push(vec![(0.0, clip(b.lower[y])), (0.0, clip(b.upper[y]))]);
+        }
+        let mut since = 0.0;
+        for s in &tube.tube {
+            match &s.flowpipe {
+                Some(pipe) if view.keeps(pipe) => {
+                    bars.push([(since, clip(pipe.lower[y])), (s.t, clip(pipe.upper[y]))])
+                }
+                Some(_) => {}
+                None if view.keeps(&s.set) => lines.push(vec![
+                    (s.t, clip(s.set.lower[y])),
+                    (s.t, clip(s.set.upper[y])),
+                ]),
+                None => {}
+            }
+            since = s.t;
+        }
+        let new = !seen.contains(&label);
+        if new {
+            seen.push(label);
+        }
+        let series = chart
+            .draw_series(bars.into_iter().map(|r| Rectangle::new(r, style)))
+            .map_err(DrawError::from)?;
+        if new {
+            series
+                .label(label)
+                .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 14, y + 6)], style));
+        }
+        chart
+            .draw_series(
+                lines
+                    .into_iter()
+                    .map(|l| PathElement::new(l, colour.mix(0.8).stroke_width(2))),
+            )
+            .map_err(DrawError::from)?;
+    }
+    legend(&mut chart)
+}
+
+/// The trajectories against time, coloured by where they end, and the equilibria's values of
+/// the drawn state as thin lines.
+pub(super) fn draw_trajectories_over_time<DB: DrawingBackend<ErrorType: 'static>>(
+    root: &DrawingArea<DB, Shift>,
+    view: &View,
+    scenario: &Scenario,
+    trajectories: &[Trajectory],
+    equilibria: &[Equilibrium],
+) -> Result<(), DrawError> {
+    let title = format!("Filtered system `{}`: trajectories", scenario.name);
+    let mut chart = time_chart(root, view, scenario, &title)?;
+    let y = view.y;
+    for (class, (label, colour)) in [
+        ("ends at the goal", BLUE),
+        ("ends at an undesirable equilibrium", VERMILION),
+        ("ends elsewhere", GREY),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let lines: Vec<Vec<(f64, f64)>> = trajectories
+            .iter()
+            .filter(|t| ending(scenario, equilibria, t.last()) == class)
+            .map(|t| t.t.iter().zip(&t.x).map(|(&ti, xi)| (ti, xi[y])).collect())
+            .collect();
+        if lines.is_empty() {
+            continue;
+        }
+        let style = colour.stroke_width(2);
+        chart
+            .draw_series(lines.into_iter().map(|l| PathElement::new(l, style)))
+            .map_err(DrawError::from)?
+            .label(label)
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 14, y)], style));
+    }
+    if !equilibria.is_empty() {
+        let horizon = scenario.reach.horizon;
+        let style = DARK.stroke_width(1);
+        chart
+            .draw_series(
+                equilibria
+                    .iter()
+                    .map(|e| PathElement::new(vec![(0.0, e.x[y]), (horizon, e.x[y])], style)),
+            )
+            .map_err(DrawError::from)?
+            .label("equilibria")
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 14, y)], style));
+    }
+    legend(&mut chart)
+}
