@@ -320,6 +320,29 @@ fn one_state_draws_over_time() {
             "{figure} {extra:?}: no t axis"
         );
     }
+    // `reach --plot` of a one-state system draws its tube over time (N ≡ 0 and a margin
+    // that covers |v| ≤ 1.5: a picture, not a claim).
+    std::fs::copy(
+        root().join("tests/fixtures/wall1d.toml"),
+        tmp.path().join("w.toml"),
+    )
+    .unwrap();
+    common::zero_network(&[1, 16, 16, 1])
+        .save_safetensors(&tmp.path().join("wall1d.safetensors"), &Default::default())
+        .unwrap();
+    let (w, svg) = (tmp.path().join("w.toml"), tmp.path().join("reach.svg"));
+    let (code, out, err) = cbfreach(&[
+        "reach",
+        w.to_str().unwrap(),
+        "--m-c",
+        "1.5",
+        "--plot",
+        svg.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert!(out.contains("tubes drawn to"), "{out}");
+    let text = std::fs::read_to_string(&svg).unwrap();
+    assert!(text.split_whitespace().any(|w| w == "gap"), "no state axis");
     // The wall's equilibrium (gap = 2, made by the filter) lies in the goal: every
     // trajectory ends at the goal, and is drawn so.
     let text = std::fs::read_to_string(tmp.path().join("trajectories.svg")).unwrap();

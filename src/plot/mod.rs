@@ -74,7 +74,7 @@ pub enum DrawError {
     },
     /// A figure drawn over two states was asked over time.
     #[error(
-        "{figure} are drawn over two states, not over time ({file} with --axes t,…: tubes and \
+        "{figure} are drawn over two states, not over time ({file}: over time, tubes and \
          trajectories are)"
     )]
     NotOverTime {
@@ -163,9 +163,22 @@ pub fn default_size(region: &IntervalBox, width: u32) -> (u32, u32) {
 }
 
 /// Draws `figure` into `path` (`.png` or `.svg`) at `size` pixels: the first two states, the
-/// others projected.
+/// others projected (one state: over time).
 pub fn save(figure: &Figure, path: &Path, size: (u32, u32)) -> Result<(), PlotError> {
-    save_view(figure, &View::default(), path, size)
+    save_view(figure, &View::first(figure.scenario().n()), path, size)
+}
+
+impl Figure<'_> {
+    /// The scenario drawn.
+    pub fn scenario(&self) -> &Scenario {
+        match self {
+            Figure::Trajectories { scenario, .. }
+            | Figure::Tubes { scenario, .. }
+            | Figure::Minkowski { scenario, .. }
+            | Figure::Verdicts { scenario, .. }
+            | Figure::ErrorMap { scenario, .. } => scenario,
+        }
+    }
 }
 
 /// Draws `figure` as `view` sees it into `path` (`.png` or `.svg`) at `size` pixels.
@@ -266,14 +279,14 @@ fn draw<DB: DrawingBackend<ErrorType: 'static>>(
                 scenario,
                 tubes,
                 split,
+                every,
                 title,
-                ..
             } => {
                 let whole: Vec<&Tube> = (tubes.iter().enumerate())
                     .filter(|(k, _)| split.iter().all(|&(i, _)| i != *k))
                     .map(|(_, t)| t)
                     .collect();
-                time::draw_tubes_over_time(root, view, scenario, &whole, title)
+                time::draw_tubes_over_time(root, view, scenario, &whole, *every, title)
             }
             Figure::Minkowski { scenario, .. } => Err(not_over_time(scenario, "Minkowski tubes")),
             Figure::Verdicts { scenario, .. } => Err(not_over_time(scenario, "verdict maps")),

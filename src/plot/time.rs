@@ -10,6 +10,7 @@ use super::{
     caption_size, ending, legend, tube_class, Chart, DrawError, BLUE, DARK, GREEN, GREY, OBSTACLE,
     VERMILION,
 };
+use crate::boxes::IntervalBox;
 use crate::equilibria::Equilibrium;
 use crate::reach::Tube;
 use crate::scenario::Scenario;
@@ -90,14 +91,16 @@ fn time_chart<'a, DB: DrawingBackend<ErrorType: 'static>>(
     Ok(chart)
 }
 
-/// The tubes against time: in continuous time (and sampled-data) each step's flowpipe as a
-/// bar over its time interval, which holds every state of that interval; for the Euler map,
-/// which has no states between its samples, each set as a line at its time.
+/// The tubes against time: in continuous time (and sampled-data) the hull of each `every`
+/// recorded samples' flowpipes as a bar over their time interval, which holds every state of
+/// that interval; for the Euler map, which has no states between its samples, every
+/// `every`-th set as a line at its time.
 pub(super) fn draw_tubes_over_time<DB: DrawingBackend<ErrorType: 'static>>(
     root: &DrawingArea<DB, Shift>,
     view: &View,
     scenario: &Scenario,
     tubes: &[&Tube],
+    every: usize,
     title: &str,
 ) -> Result<(), DrawError> {
     let mut chart = time_chart(root, view, scenario, title)?;
@@ -118,19 +121,31 @@ pub(super) fn draw_tubes_over_time<DB: DrawingBackend<ErrorType: 'static>>(
             lines.push(vec![(0.0, clip(b.lower[y])), (0.0, clip(b.upper[y]))]);
         }
         let mut since = 0.0;
-        for s in &tube.tube {
-            match &s.flowpipe {
-                Some(pipe) if view.keeps(pipe) => {
-                    bars.push([(since, clip(pipe.lower[y])), (s.t, clip(pipe.upper[y]))])
+        for chunk in tube.tube.chunks(every.max(1)) {
+            let last = &chunk[chunk.len() - 1];
+            let pipes: Option<Vec<&IntervalBox>> =
+                chunk.iter().map(|s| s.flowpipe.as_ref()).collect();
+            match pipes {
+                Some(pipes) => {
+                    // Slices keep the steps whose flowpipe meets them.
+                    let hull = pipes.into_iter().filter(|p| view.keeps(p)).fold(
+                        None::<(f64, f64)>,
+                        |h, p| {
+                            let (lo, hi) = (p.lower[y], p.upper[y]);
+                            Some(h.map_or((lo, hi), |(a, b)| (a.min(lo), b.max(hi))))
+                        },
+                    );
+                    if let Some((lo, hi)) = hull {
+                        bars.push([(since, clip(lo)), (last.t, clip(hi))]);
+                    }
                 }
-                Some(_) => {}
-                None if view.keeps(&s.set) => lines.push(vec![
-                    (s.t, clip(s.set.lower[y])),
-                    (s.t, clip(s.set.upper[y])),
+                None if view.keeps(&last.set) => lines.push(vec![
+                    (last.t, clip(last.set.lower[y])),
+                    (last.t, clip(last.set.upper[y])),
                 ]),
                 None => {}
             }
-            since = s.t;
+            since = last.t;
         }
         let new = !seen.contains(&label);
         if new {

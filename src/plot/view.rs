@@ -36,6 +36,20 @@ impl Default for View {
 }
 
 impl View {
+    /// The first two states, or with one state that state over time: what [`View::parse`]
+    /// gives without `--axes` and `--slice`.
+    pub fn first(n: usize) -> View {
+        match n {
+            1 => View {
+                x: 0,
+                y: 0,
+                slice: Vec::new(),
+                time: true,
+            },
+            _ => View::default(),
+        }
+    }
+
     /// The view of `--axes A,B` (state names, default the first two states; `t` or `time`
     /// first, where no state has that name, for one state over time, the default with one
     /// state) and `--slice NAME=VALUE` (repeatable), checked against the scenario's states.
@@ -80,8 +94,10 @@ impl View {
                     false => (state(a, "--axes")?, state(b, "--axes")?, false),
                 }
             }
-            None if n == 1 => (0, 0, true),
-            None => (0, 1, false),
+            None => {
+                let first = View::first(n);
+                (first.x, first.y, first.time)
+            }
         };
         if n < 2 && !time {
             return Err(PlotError::Input(format!(
