@@ -351,22 +351,37 @@ fn chart<'a, DB: DrawingBackend<ErrorType: 'static>>(
         });
     }
     let title = format!("{title}{}", view.describe(scenario));
-    let title = title.as_str();
     let region = &view.plane(region);
+    axes(
+        root,
+        &title,
+        [
+            (region.lower[0], region.upper[0]),
+            (region.lower[1], region.upper[1]),
+        ],
+        [&scenario.states[view.x], &scenario.states[view.y]],
+    )
+}
+
+/// A captioned chart over `ranges` (across, up) with a light mesh and the axes' names.
+fn axes<'a, DB: DrawingBackend<ErrorType: 'static>>(
+    root: &'a DrawingArea<DB, Shift>,
+    title: &str,
+    ranges: [(f64, f64); 2],
+    names: [&str; 2],
+) -> Result<Chart<'a, DB>, DrawError> {
+    let [(x0, x1), (y0, y1)] = ranges;
     let mut chart = ChartBuilder::on(root)
         .caption(title, ("sans-serif", caption_size(root, title)))
         .margin(12)
         .x_label_area_size(48)
         .y_label_area_size(58)
-        .build_cartesian_2d(
-            region.lower[0]..region.upper[0],
-            region.lower[1]..region.upper[1],
-        )
+        .build_cartesian_2d(x0..x1, y0..y1)
         .map_err(DrawError::from)?;
     chart
         .configure_mesh()
-        .x_desc(scenario.states[view.x].as_str())
-        .y_desc(scenario.states[view.y].as_str())
+        .x_desc(names[0])
+        .y_desc(names[1])
         .axis_desc_style(("sans-serif", 18))
         .label_style(("sans-serif", 14))
         .light_line_style(RGBColor(245, 245, 245))

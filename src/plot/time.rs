@@ -7,7 +7,7 @@ use plotters::prelude::*;
 
 use super::view::View;
 use super::{
-    caption_size, ending, legend, tube_class, Chart, DrawError, BLUE, DARK, GREEN, GREY, OBSTACLE,
+    axes, ending, legend, tube_class, Chart, DrawError, BLUE, DARK, GREEN, GREY, OBSTACLE,
     VERMILION,
 };
 use crate::boxes::IntervalBox;
@@ -39,23 +39,8 @@ fn time_chart<'a, DB: DrawingBackend<ErrorType: 'static>>(
     );
     let horizon = scenario.reach.horizon;
     let title = format!("{title}{}", view.describe(scenario));
-    let mut chart = ChartBuilder::on(root)
-        .caption(&title, ("sans-serif", caption_size(root, &title)))
-        .margin(12)
-        .x_label_area_size(48)
-        .y_label_area_size(58)
-        .build_cartesian_2d(0.0..horizon, lo..hi)
-        .map_err(DrawError::from)?;
-    chart
-        .configure_mesh()
-        .x_desc("t")
-        .y_desc(scenario.states[y].as_str())
-        .axis_desc_style(("sans-serif", 18))
-        .label_style(("sans-serif", 14))
-        .light_line_style(RGBColor(245, 245, 245))
-        .bold_line_style(RGBColor(225, 225, 225))
-        .draw()
-        .map_err(DrawError::from)?;
+    let names = ["t", scenario.states[y].as_str()];
+    let mut chart = axes(root, &title, [(0.0, horizon), (lo, hi)], names)?;
     if view.is_whole(n) {
         // Bands of a fine grid of the state where some `hᵢ < 0` at the band's centre.
         const BANDS: usize = 400;
