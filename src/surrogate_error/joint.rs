@@ -44,11 +44,11 @@ fn joint_sides(ab: &AffineBounds, sv: &SmoothV, cell: &IntervalBox) -> Vec<(f64,
 /// `‖N − v‖∞` on output `j` over the cell where `vⱼ = min(0, Fⱼ)` or `max(0, Fⱼ)`
 /// ([`VShape::Kinked`]), from `N`'s bounds `[n̲, n̄]` over the cell, `Nⱼ − Fⱼ`'s joint sides
 /// `(s̄, −s̲)` ([`joint_sides`]) and, for the inner side, the affine forms themselves
-/// ([`inf_of_max`]). With `v = min(0, F)`, `N − v = max(N, N − F)`, so `N − v ≤ max(n̄, s̄)`
-/// and `N − v ≥ max(n̲, s̲)`, or better `inf max(ℓ_N, ℓ_{N−F})` of the two lower forms; with
-/// `v = max(0, F)`, `N − v = min(N, N − F)`, the mirror image. Where `v` follows `F` the slopes
-/// cancel, and where it is 0 `N`'s own bound is small: neither side pays for the range of `v`
-/// across its kink.
+/// ([`CentredPair::inf_of_max`]). With `v = min(0, F)`, `N − v = max(N, N − F)`, so
+/// `N − v ≤ max(n̄, s̄)` and `N − v ≥ max(n̲, s̲)`, or better `inf max(ℓ_N, ℓ_{N−F})` of the
+/// two lower forms; with `v = max(0, F)`, `N − v = min(N, N − F)`, the mirror image. Where
+/// `v` follows `F` the slopes cancel, and where it is 0 `N`'s own bound is small: neither side
+/// pays for the range of `v` across its kink.
 fn kinked_error(
     kink: Kink,
     ab: &AffineBounds,
