@@ -195,8 +195,8 @@ pub fn step<E>(
     }
 }
 
-/// One classical RK4 step.
-fn rk4<E>(
+/// One classical RK4 step (also of the box embedding's widths, [`crate::reach::Transient`]).
+pub(crate) fn rk4<E>(
     field: &impl Fn(&[f64]) -> Result<Vec<f64>, E>,
     x: &[f64],
     dt: f64,

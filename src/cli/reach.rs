@@ -179,7 +179,13 @@ pub fn run(args: &ReachArgs) -> CliResult {
             result.boxes.len()
         );
     }
-    let invalid = result.boxes.iter().filter(|t| !t.valid()).count();
+    let stopped: Vec<_> = result
+        .boxes
+        .iter()
+        .filter(|t| !t.valid())
+        .map(|t| t.initial.clone())
+        .collect();
+    let invalid = stopped.len();
     let mut what_stops = None;
     if invalid > 0 {
         // What would tighten the sets and is not on: face-local bounds, and with two frames in
@@ -202,12 +208,6 @@ pub fn run(args: &ReachArgs) -> CliResult {
              until they verify",
             result.boxes.len(),
         );
-        let stopped: Vec<_> = result
-            .boxes
-            .iter()
-            .filter(|t| !t.valid())
-            .map(|t| t.initial.clone())
-            .collect();
         what_stops = rerun_stopped(backend.as_ref(), &problem, &settings, &stopped)?;
         if let Some(r) = &what_stops {
             println!(

@@ -571,9 +571,11 @@ fn draw_equilibria<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
     Ok(())
 }
 
+/// Trajectories as lines through `at(t, x)` (where a point is drawn: the plane's two states,
+/// or time and a state), the first labelled, each start as a dot where `starts`.
 fn draw_lines<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
     chart: &mut Chart<'a, DB>,
-    view: &View,
+    at: &impl Fn(f64, &[f64]) -> (f64, f64),
     lines: &[&Trajectory],
     style: ShapeStyle,
     label: Option<&str>,
@@ -581,8 +583,9 @@ fn draw_lines<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
 ) -> Result<(), DrawError> {
     let mut first = true;
     for t in lines {
+        let points = t.t.iter().zip(&t.x).map(|(&ti, x)| at(ti, x));
         let s = chart
-            .draw_series(LineSeries::new(t.x.iter().map(|x| view.point(x)), style))
+            .draw_series(LineSeries::new(points, style))
             .map_err(DrawError::from)?;
         if first {
             if let Some(l) = label {
@@ -595,12 +598,35 @@ fn draw_lines<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
         if starts {
             chart
                 .draw_series(std::iter::once(Circle::new(
-                    view.point(&t.x0),
+                    at(t.t.first().copied().unwrap_or(0.0), &t.x0),
                     3,
                     style.color.filled(),
                 )))
                 .map_err(DrawError::from)?;
         }
+    }
+    Ok(())
+}
+
+/// The trajectories through `at` (as [`draw_lines`]), coloured by where they end ([`ending`]).
+fn draw_by_ending<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
+    chart: &mut Chart<'a, DB>,
+    at: &impl Fn(f64, &[f64]) -> (f64, f64),
+    scenario: &Scenario,
+    trajectories: &[Trajectory],
+    equilibria: &[Equilibrium],
+) -> Result<(), DrawError> {
+    let labels = [
+        ("ends at the goal", BLUE),
+        ("ends at an undesirable equilibrium", VERMILION),
+        ("ends elsewhere", GREY),
+    ];
+    for (class, (label, colour)) in labels.iter().enumerate() {
+        let lines: Vec<&Trajectory> = trajectories
+            .iter()
+            .filter(|t| ending(scenario, equilibria, t.last()) == class)
+            .collect();
+        draw_lines(chart, at, &lines, colour.stroke_width(2), Some(label), true)?;
     }
     Ok(())
 }
@@ -619,25 +645,8 @@ fn draw_trajectories<DB: DrawingBackend<ErrorType: 'static>>(
     );
     let mut chart = chart(root, view, scenario, region, &title)?;
     shade_unsafe(&mut chart, view, scenario, region)?;
-    let labels = [
-        ("ends at the goal", BLUE),
-        ("ends at an undesirable equilibrium", VERMILION),
-        ("ends elsewhere", GREY),
-    ];
-    for (class, (label, colour)) in labels.iter().enumerate() {
-        let lines: Vec<&Trajectory> = trajectories
-            .iter()
-            .filter(|t| ending(scenario, equilibria, t.last()) == class)
-            .collect();
-        draw_lines(
-            &mut chart,
-            view,
-            &lines,
-            colour.stroke_width(2),
-            Some(label),
-            true,
-        )?;
-    }
+    let at = |_: f64, x: &[f64]| view.point(x);
+    draw_by_ending(&mut chart, &at, scenario, trajectories, equilibria)?;
     draw_equilibria(&mut chart, view, equilibria)?;
     legend(&mut chart)?;
     Ok(())
@@ -784,7 +793,7 @@ fn draw_minkowski<DB: DrawingBackend<ErrorType: 'static>>(
     let lines: Vec<&Trajectory> = trajectories.iter().collect();
     draw_lines(
         &mut chart,
-        view,
+        &|_, x| view.point(x),
         &lines,
         BLACK.mix(0.6).stroke_width(1),
         Some("filtered trajectories"),

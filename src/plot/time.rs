@@ -6,10 +6,7 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use super::view::View;
-use super::{
-    axes, ending, legend, tube_class, Chart, DrawError, BLUE, DARK, GREEN, GREY, OBSTACLE,
-    VERMILION,
-};
+use super::{axes, draw_by_ending, legend, tube_class, Chart, DrawError, DARK, GREEN, OBSTACLE};
 use crate::boxes::IntervalBox;
 use crate::equilibria::Equilibrium;
 use crate::reach::Tube;
@@ -167,29 +164,13 @@ pub(super) fn draw_trajectories_over_time<DB: DrawingBackend<ErrorType: 'static>
     let title = format!("Filtered system `{}`: trajectories", scenario.name);
     let mut chart = time_chart(root, view, scenario, &title)?;
     let y = view.y;
-    for (class, (label, colour)) in [
-        ("ends at the goal", BLUE),
-        ("ends at an undesirable equilibrium", VERMILION),
-        ("ends elsewhere", GREY),
-    ]
-    .into_iter()
-    .enumerate()
-    {
-        let lines: Vec<Vec<(f64, f64)>> = trajectories
-            .iter()
-            .filter(|t| ending(scenario, equilibria, t.last()) == class)
-            .map(|t| t.t.iter().zip(&t.x).map(|(&ti, xi)| (ti, xi[y])).collect())
-            .collect();
-        if lines.is_empty() {
-            continue;
-        }
-        let style = colour.stroke_width(2);
-        chart
-            .draw_series(lines.into_iter().map(|l| PathElement::new(l, style)))
-            .map_err(DrawError::from)?
-            .label(label)
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 14, y)], style));
-    }
+    draw_by_ending(
+        &mut chart,
+        &|t, x| (t, x[y]),
+        scenario,
+        trajectories,
+        equilibria,
+    )?;
     if !equilibria.is_empty() {
         let horizon = scenario.reach.horizon;
         let style = DARK.stroke_width(1);

@@ -172,10 +172,10 @@ impl Transient {
             .map(|i| (0..n).map(|j| m[i * n + j].abs()).sum::<f64>())
             .fold(f64::MIN_POSITIVE, f64::max);
         let h = 0.05 / norm;
-        let field = |w: &[f64]| -> Vec<f64> {
-            (0..n)
+        let field = |w: &[f64]| -> Result<Vec<f64>, std::convert::Infallible> {
+            Ok((0..n)
                 .map(|i| (0..n).map(|j| m[i * n + j] * w[j]).sum())
-                .collect()
+                .collect())
         };
         // Against the z-image's own x-width: the wrap of a box into z and back is another
         // matter (with the meet with x-boxes, §2.11, the sets do not pay it).
@@ -186,16 +186,8 @@ impl Transient {
         };
         for step in 1..=100_000 {
             // RK4: the widths' linear ODE, to well within the figure's two digits.
-            let k1 = field(&w);
-            let mid = |k: &[f64], c: f64| -> Vec<f64> {
-                w.iter().zip(k).map(|(a, b)| a + c * h * b).collect()
-            };
-            let k2 = field(&mid(&k1, 0.5));
-            let k3 = field(&mid(&k2, 0.5));
-            let k4 = field(&mid(&k3, 1.0));
-            for i in 0..n {
-                w[i] += h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]);
-            }
+            let Ok(next) = crate::simulate::rk4(&field, &w, h);
+            w = next;
             let xw = x_width(&w) / start;
             // Widths that grow without end: boxes do not contract here at all.
             if !xw.is_finite() || xw > 1e6 {

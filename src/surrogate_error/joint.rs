@@ -10,93 +10,26 @@ use crate::filter::{Kink, SmoothV, VShape};
 use crate::intervals::Interval;
 use crate::rounding::round_up;
 
-/// `sup` and `−inf` of `Nⱼ − Fⱼ` over the cell, per output `j`, from CROWN's affine forms of
-/// `N` and the centred form of a smooth `F`, both linear in `x − c`, so that their common slope
-/// cancels: `N − F ≤ (C̄c + d̄ − F(c)) + (C̄ − J_F(X))(X − c)` and likewise below. NaN becomes
-/// +∞.
-fn joint_sides(ab: &AffineBounds, sv: &SmoothV, cell: &IntervalBox) -> Vec<(f64, f64)> {
-    let (m, n) = (ab.n_out, ab.n_in);
-    let cs: Vec<Interval> = sv.centre.iter().map(|&c| Interval::point(c)).collect();
-    let dx: Vec<Interval> = (0..n)
-        .map(|i| Interval::new(cell.lower[i], cell.upper[i]) - cs[i])
-        .collect();
-    let side = |a: &[f64], d: f64, j: usize| -> Interval {
-        let at_c = sum((0..n).map(|i| Interval::point(a[i]) * cs[i])) + Interval::point(d);
-        let slope = sum((0..n).map(|i| (Interval::point(a[i]) - sv.jac[j * n + i]) * dx[i]));
-        at_c - sv.value[j] + slope
-    };
-    let up = |v: f64| {
-        if v.is_nan() {
-            f64::INFINITY
-        } else {
-            round_up(v)
-        }
-    };
-    (0..m)
-        .map(|j| {
-            let hi = side(ab.a_upper_row(j), ab.b_upper[j], j).upper;
-            let lo = side(ab.a_lower_row(j), ab.b_lower[j], j).lower;
-            (up(hi), up(-lo))
-        })
-        .collect()
-}
-
-/// `‖N − v‖∞` on output `j` over the cell where `vⱼ = min(0, Fⱼ)` or `max(0, Fⱼ)`
-/// ([`VShape::Kinked`]), from `N`'s bounds `[n̲, n̄]` over the cell, `Nⱼ − Fⱼ`'s joint sides
-/// `(s̄, −s̲)` ([`joint_sides`]) and, for the inner side, the affine forms themselves
-/// ([`CentredPair::inf_of_max`]). With `v = min(0, F)`, `N − v = max(N, N − F)`, so
-/// `N − v ≤ max(n̄, s̄)` and `N − v ≥ max(n̲, s̲)`, or better `inf max(ℓ_N, ℓ_{N−F})` of the
-/// two lower forms; with `v = max(0, F)`, `N − v = min(N, N − F)`, the mirror image. Where
-/// `v` follows `F` the slopes cancel, and where it is 0 `N`'s own bound is small: neither side
-/// pays for the range of `v` across its kink.
-fn kinked_error(
-    kink: Kink,
-    ab: &AffineBounds,
-    sv: &SmoothV,
-    piece: &IntervalBox,
-    j: usize,
-    (n_lo, n_hi): (f64, f64),
-    (s_hi, s_neg_lo): (f64, f64),
-) -> f64 {
-    let s_lo = -s_neg_lo;
-    let (hi, lo) = match kink {
-        Kink::Min => {
-            let forms = CentredPair::of(ab.a_lower_row(j), ab.b_lower[j], sv, piece, j, false);
-            (n_hi.max(s_hi), n_lo.max(s_lo).max(forms.inf_of_max()))
-        }
-        Kink::Max => {
-            // sup min(u_N, u_{N−F}) = −inf max(−u_N, −u_{N−F}).
-            let forms = CentredPair::of(ab.a_upper_row(j), ab.b_upper[j], sv, piece, j, true);
-            (n_hi.min(s_hi).min(-forms.inf_of_max()), n_lo.min(s_lo))
-        }
-    };
-    let e = round_up(hi.max(-lo));
-    if e.is_nan() {
-        f64::INFINITY
-    } else {
-        e
-    }
-}
-
 /// Two affine lower bounds over a cell in centred form, `ℓₖ(x) = pₖ·(x − c) + Kₖ` (intervals
 /// for the coefficients, so that rounding and the Jacobian's width are inside them), and the
-/// cell's half-widths `r` about `c`.
+/// cell about its centre, `X − c`.
 struct CentredPair {
     p: [Vec<Interval>; 2],
     k: [Interval; 2],
-    r: Vec<f64>,
+    dx: Vec<Interval>,
 }
 
 impl CentredPair {
-    /// `ℓ₁ = N`'s affine form `a·x + d` (a lower one, or with `negate` an upper one, both
-    /// negated so that the pair bounds `−N` and `−(N − F)` from below), `ℓ₂ = ℓ₁ − F`'s
-    /// mean-value form over the cell.
+    /// `ℓ₁ = N`'s affine form `a·x + d`, `ℓ₂ = ℓ₁ − F` by `F`'s mean-value form over the cell,
+    /// `N − F ≥ (a·c + d − F(c)) + (a − J_F(X))(x − c)`, so that their common slope cancels. A
+    /// lower form of `N` as it is; with `negate` an upper one, both negated, so that the pair
+    /// bounds `−N` and `−(N − F)` from below.
     fn of(a: &[f64], d: f64, sv: &SmoothV, cell: &IntervalBox, j: usize, negate: bool) -> Self {
         let n = a.len();
         let sign = Interval::point(if negate { -1.0 } else { 1.0 });
         let c: Vec<Interval> = sv.centre.iter().map(|&x| Interval::point(x)).collect();
-        let r: Vec<f64> = (0..n)
-            .map(|i| (Interval::new(cell.lower[i], cell.upper[i]) - c[i]).mag())
+        let dx: Vec<Interval> = (0..n)
+            .map(|i| Interval::new(cell.lower[i], cell.upper[i]) - c[i])
             .collect();
         let a: Vec<Interval> = a.iter().map(|&ai| Interval::point(ai)).collect();
         let k1 = sum((0..n).map(|i| a[i] * c[i])) + Interval::point(d);
@@ -105,40 +38,84 @@ impl CentredPair {
         CentredPair {
             p: [p1, p2],
             k: [k1 * sign, (k1 - sv.value[j]) * sign],
-            r,
+            dx,
         }
     }
 
+    /// A lower bound of `p·(x − c) + K` over the cell; −∞ on NaN.
+    fn inf(&self, p: impl Iterator<Item = Interval>, k: Interval) -> f64 {
+        let v = (k + sum(p.zip(&self.dx).map(|(pi, &di)| pi * di))).lower;
+        if v.is_nan() {
+            f64::NEG_INFINITY
+        } else {
+            v
+        }
+    }
+
+    /// A lower bound of `ℓ₂` over the cell: of `N − F` (negated: of `F − N`).
+    fn joint_inf(&self) -> f64 {
+        self.inf(self.p[1].iter().copied(), self.k[1])
+    }
+
     /// A lower bound of `inf_x max(ℓ₁(x), ℓ₂(x))` over the cell: `max(ℓ₁, ℓ₂) ≥ λℓ₁ + (1 − λ)ℓ₂`
-    /// for every `λ ∈ [0, 1]`, whose infimum is `λK₁ + (1 − λ)K₂ − Σᵢ |λp₁ᵢ + (1 − λ)p₂ᵢ| rᵢ`,
-    /// concave and piecewise linear in `λ` with its kinks where a coefficient changes sign: the
-    /// best of `λ = 0, 1` and those kinks (each a multiple of 2⁻³⁰, so that `1 − λ` is exact).
-    /// The LP's value where the coefficients are points; −∞ on NaN.
+    /// for every `λ ∈ [0, 1]`, whose infimum is concave and piecewise linear in `λ` with its
+    /// kinks where a coefficient changes sign: the best of `λ = 0, 1` and those kinks (each a
+    /// multiple of 2⁻³⁰, so that `1 − λ` is exact). The LP's value where the coefficients are
+    /// points.
     fn inf_of_max(&self) -> f64 {
         let [p1, p2] = &self.p;
-        let mut lambdas = vec![0.0, 1.0];
-        for (a, b) in p1.iter().zip(p2) {
+        let inner = p1.iter().zip(p2).filter_map(|(a, b)| {
             let (a, b) = (a.center(), b.center());
             let l = b / (b - a);
-            if l > 0.0 && l < 1.0 {
-                lambdas.push((l * 1_073_741_824.0).round() / 1_073_741_824.0);
-            }
-        }
-        lambdas
-            .into_iter()
-            .map(|l| {
-                let (l, m) = (Interval::point(l), Interval::point(1.0 - l));
-                let slack = sum(p1.iter().zip(p2).zip(&self.r).map(|((&a, &b), &r)| {
-                    Interval::point((l * a + m * b).mag()) * Interval::point(r)
-                }));
-                let v = (l * self.k[0] + m * self.k[1] - slack).lower;
-                if v.is_nan() {
-                    f64::NEG_INFINITY
-                } else {
-                    v
-                }
-            })
-            .fold(f64::NEG_INFINITY, f64::max)
+            (l > 0.0 && l < 1.0).then(|| (l * 1_073_741_824.0).round() / 1_073_741_824.0)
+        });
+        let mixed = inner.map(|l| {
+            let (l, m) = (Interval::point(l), Interval::point(1.0 - l));
+            let p = p1.iter().zip(p2).map(|(&a, &b)| l * a + m * b);
+            self.inf(p, l * self.k[0] + m * self.k[1])
+        });
+        let first = self.inf(p1.iter().copied(), self.k[0]);
+        mixed.fold(first.max(self.joint_inf()), f64::max)
+    }
+}
+
+/// `‖Nⱼ − vⱼ‖` over the cell from the joint forms of `N − F` ([`CentredPair`]), where `v`'s
+/// form is known there (+∞ where it is not), `[n̲, n̄]` bounding `N` there. Where `v` is one
+/// smooth `F`, `N − v ∈ [s̲, s̄]`, the joint forms' bounds. Where `vⱼ = min(0, Fⱼ)`,
+/// `N − v = max(N, N − F)`, so `N − v ≤ max(n̄, s̄)` and `N − v ≥ max(n̲, s̲)`, or better
+/// `inf max(ℓ_N, ℓ_{N−F})` of the two lower forms ([`CentredPair::inf_of_max`]); where
+/// `vⱼ = max(0, Fⱼ)`, `N − v = min(N, N − F)`, the mirror image. Where `v` follows `F` the
+/// slopes cancel, and where it is 0 `N`'s own bound is small: neither side pays for the range
+/// of `v` across its kink.
+fn joint_error(
+    ab: &AffineBounds,
+    shape: &VShape,
+    piece: &IntervalBox,
+    j: usize,
+    (n_lo, n_hi): (f64, f64),
+) -> f64 {
+    let (sv, kink) = match shape {
+        VShape::Unknown => return f64::INFINITY,
+        VShape::Smooth(sv) => (sv, None),
+        VShape::Kinked { binding, kinks } => match kinks[j] {
+            Some(kink) => (binding, Some(kink)),
+            None => return f64::INFINITY,
+        },
+    };
+    let below = CentredPair::of(ab.a_lower_row(j), ab.b_lower[j], sv, piece, j, false);
+    let above = CentredPair::of(ab.a_upper_row(j), ab.b_upper[j], sv, piece, j, true);
+    let (s_lo, s_hi) = (below.joint_inf(), -above.joint_inf());
+    let (hi, lo) = match kink {
+        None => (s_hi, s_lo),
+        Some(Kink::Min) => (n_hi.max(s_hi), n_lo.max(below.inf_of_max())),
+        // sup min(u_N, u_{N−F}) = −inf max(−u_N, −u_{N−F}).
+        Some(Kink::Max) => (n_hi.min(-above.inf_of_max()), n_lo.min(s_lo)),
+    };
+    let e = round_up(hi.max(-lo));
+    if e.is_nan() {
+        f64::INFINITY
+    } else {
+        e
     }
 }
 
@@ -154,8 +131,8 @@ fn affine_over(a: &[f64], d: f64, b: &IntervalBox) -> Interval {
 /// `sup ‖N − v‖∞` over one piece of a cell from affine bounds of `N` valid on the whole cell
 /// (made concrete on the piece and intersected with the cell's interval bounds `n_lo, n_hi`)
 /// and the piece's enclosure of `v`; per output, the least of that and, where `v`'s form is
-/// known on the piece, the joint bound of `N − v` ([`joint_sides`], [`kinked_error`]). Each
-/// bound is sound on `piece ∩ S`.
+/// known on the piece, the joint bound of `N − v` ([`joint_error`]). Each bound is sound on
+/// `piece ∩ S`.
 pub(super) fn piece_error(
     ab: &AffineBounds,
     n_lo: &[f64],
@@ -164,35 +141,14 @@ pub(super) fn piece_error(
     v: &[Interval],
     shape: &VShape,
 ) -> f64 {
-    let m = v.len();
-    let lo: Vec<f64> = (0..m)
-        .map(|j| n_lo[j].max(affine_over(ab.a_lower_row(j), ab.b_lower[j], piece).lower))
-        .collect();
-    let hi: Vec<f64> = (0..m)
-        .map(|j| n_hi[j].min(affine_over(ab.a_upper_row(j), ab.b_upper[j], piece).upper))
-        .collect();
-    let joint = match shape {
-        VShape::Smooth(sv) | VShape::Kinked { binding: sv, .. } => Some(joint_sides(ab, sv, piece)),
-        VShape::Unknown => None,
-    };
-    let mut e = 0.0_f64;
-    for j in 0..m {
-        let mut ej = error_from(&lo[j..=j], &hi[j..=j], &v[j..=j]);
-        if let Some(sides) = &joint {
-            ej = ej.min(match shape {
-                VShape::Smooth(_) => sides[j].0.max(sides[j].1),
-                VShape::Kinked { binding, kinks } => match kinks[j] {
-                    Some(kink) => {
-                        kinked_error(kink, ab, binding, piece, j, (lo[j], hi[j]), sides[j])
-                    }
-                    None => f64::INFINITY,
-                },
-                VShape::Unknown => f64::INFINITY,
-            });
-        }
-        e = e.max(ej);
-    }
-    e
+    (0..v.len())
+        .map(|j| {
+            let lo = n_lo[j].max(affine_over(ab.a_lower_row(j), ab.b_lower[j], piece).lower);
+            let hi = n_hi[j].min(affine_over(ab.a_upper_row(j), ab.b_upper[j], piece).upper);
+            let enclosed = error_from(&[lo], &[hi], &v[j..=j]);
+            enclosed.min(joint_error(ab, shape, piece, j, (lo, hi)))
+        })
+        .fold(0.0, f64::max)
 }
 
 #[cfg(test)]
@@ -220,12 +176,12 @@ mod tests {
                 vec![rnd() * 3.0, rnd() * 3.0],
             ];
             let k = [rnd(), rnd()];
-            let r = vec![0.5 + rnd().abs(), 0.5 + rnd().abs()];
+            let r = [0.5 + rnd().abs(), 0.5 + rnd().abs()];
             let pair = CentredPair {
                 p: p.clone()
                     .map(|v| v.into_iter().map(Interval::point).collect()),
                 k: k.map(Interval::point),
-                r: r.clone(),
+                dx: r.iter().map(|&ri| Interval::new(-ri, ri)).collect(),
             };
             let lp = pair.inf_of_max();
             let steps = 400;
