@@ -282,8 +282,9 @@ fn three_states_verify_and_draw_as_projections_and_slices() {
 }
 
 /// Item 4 over time: `--axes t,NAME` draws one state's tubes and trajectories against time
-/// (the other states projected), the only picture of a one-state system; the figures drawn
-/// over two states say so instead of drawing nothing.
+/// (the other states projected), a verdict map as each box's band until its tube ended, and an
+/// error map as the bound along the state: all the pictures of a one-state system. Minkowski
+/// tubes, and verdict maps with a state projected, say why they are not drawn.
 #[test]
 fn one_state_draws_over_time() {
     let tmp = tempfile::tempdir().unwrap();
@@ -343,6 +344,44 @@ fn one_state_draws_over_time() {
     assert!(out.contains("tubes drawn to"), "{out}");
     let text = std::fs::read_to_string(&svg).unwrap();
     assert!(text.split_whitespace().any(|w| w == "gap"), "no state axis");
+    // Its verdict map is each box's band over time, its error map the bound along the state.
+    let (json, svg) = (tmp.path().join("v.json"), tmp.path().join("v.svg"));
+    let (code, _, err) = cbfreach(&[
+        "verify",
+        w.to_str().unwrap(),
+        "--grid",
+        "7",
+        "--m-c",
+        "1.5",
+        "--json",
+        json.to_str().unwrap(),
+        "--plot",
+        svg.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let text = std::fs::read_to_string(&svg).unwrap();
+    let text = text.split_whitespace().collect::<Vec<_>>().join(" ");
+    assert!(
+        text.contains("each box until its tube ended"),
+        "verdicts: no caption"
+    );
+    assert!(text.contains("> t </text>"), "verdicts: no t axis");
+    let (code, _, err) = cbfreach(&["error", w.to_str().unwrap(), "--budget", "200"]);
+    assert_eq!(code, 0, "{err}");
+    let svg = tmp.path().join("e.svg");
+    let (code, _, err) = cbfreach(&[
+        "plot",
+        w.to_str().unwrap(),
+        "--figure",
+        "error-map",
+        "-o",
+        svg.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let text = std::fs::read_to_string(&svg).unwrap();
+    let text = text.split_whitespace().collect::<Vec<_>>().join(" ");
+    assert!(text.contains("along gap"), "error map: no caption");
+    assert!(text.contains("> M </text>"), "error map: no bound axis");
     // The wall's equilibrium (gap = 2, made by the filter) lies in the goal: every
     // trajectory ends at the goal, and is drawn so.
     let text = std::fs::read_to_string(tmp.path().join("trajectories.svg")).unwrap();
@@ -362,23 +401,20 @@ fn one_state_draws_over_time() {
                 "none.json",
                 "--axes",
                 "t,p",
+                "--slice",
+                "a=0",
             ],
-            "verdict maps are drawn over two states",
+            "needs every other state of",
         ),
         (
             &chain,
-            vec!["--figure", "error-map", "--axes", "t,p"],
-            "error maps are drawn over two states",
+            vec!["--figure", "minkowski", "--axes", "t,p"],
+            "Minkowski tubes are drawn over two states",
         ),
         (
             &wall,
             vec!["--figure", "trajectories", "--axes", "gap,gap"],
             "draw it over time (--axes t,gap)",
-        ),
-        (
-            &wall,
-            vec!["--figure", "verdicts", "--input", "none.json"],
-            "not over time",
         ),
     ] {
         let mut all = vec!["plot", scenario.as_str(), "-o", out];

@@ -155,17 +155,15 @@ pub fn run(args: &PlotArgs) -> CliResult {
     let s = load_scenario(&args.scenario)?;
     super::check_outputs(&[Some(&args.out)])?;
     let view = View::parse(&s, args.axes.as_deref(), &args.slice)?;
-    // Before any input is read: these are pictures over two states.
-    let over_two_states = match args.figure {
-        FigureKind::Minkowski => Some("Minkowski tubes"),
-        FigureKind::Verdicts => Some("verdict maps"),
-        FigureKind::ErrorMap => Some("error maps"),
-        FigureKind::Trajectories | FigureKind::Tubes => None,
+    // Before any input is read: what the view can show.
+    let kind = match args.figure {
+        FigureKind::Trajectories => plot::Kind::Trajectories,
+        FigureKind::Tubes => plot::Kind::Tubes,
+        FigureKind::Minkowski => plot::Kind::Minkowski,
+        FigureKind::Verdicts => plot::Kind::Verdicts,
+        FigureKind::ErrorMap => plot::Kind::ErrorMap,
     };
-    if let (true, Some(figure)) = (view.time, over_two_states) {
-        let file = s.file.clone();
-        return Err(plot::DrawError::NotOverTime { file, figure }.into());
-    }
+    kind.check(&view, &s)?;
     let size = match &args.size {
         Some(t) => parse_size(t)?,
         None if view.time => (1000, 600),

@@ -106,6 +106,64 @@ fn verdict_class(b: &crate::verify::BoxVerdict) -> (Verdict, bool) {
     (b.verdict, b.feasible == Some(false))
 }
 
+/// One colour of a verdict map: a verdict, verified ones split by whether the QP is proven
+/// feasible on every set.
+pub(super) struct VerdictClass<'a> {
+    /// `(verdict, feasibility not proven)`, the order classes are stacked in.
+    pub key: (Verdict, bool),
+    pub colour: RGBAColor,
+    /// The legend's label, with the class's share of the safe area.
+    pub label: String,
+    pub boxes: Vec<&'a BoxVerdict>,
+}
+
+/// The report's leaves sorted into their colour classes, those with no leaf left out.
+/// Verified boxes whose QP was not proven feasible on every set are pale: their verdict speaks
+/// only of the trajectories that do not meet an infeasible QP.
+pub(super) fn verdict_classes(report: &VerifyReport) -> Vec<VerdictClass<'_>> {
+    let after = report.shares_after();
+    let share = |bs: &[&BoxVerdict]| {
+        let area: f64 = bs.iter().map(|b| b.initial.volume()).sum();
+        100.0 * area / after.safe_area.max(f64::MIN_POSITIVE)
+    };
+    let mut classes = Vec::new();
+    for v in Verdict::ALL {
+        let split = report
+            .after
+            .iter()
+            .any(|b| b.verdict == v && b.feasible == Some(false));
+        for pale in [false, true] {
+            let boxes: Vec<&BoxVerdict> = (report.after.iter())
+                .filter(|b| verdict_class(b) == (v, pale))
+                .collect();
+            if boxes.is_empty() {
+                continue;
+            }
+            let (colour, label) = if pale {
+                let label = format!(
+                    "{}, QP feasibility not proven ({:.1}%)",
+                    v.name(),
+                    share(&boxes)
+                );
+                (verdict_colour(v).mix(0.4), label)
+            } else if split {
+                let label = format!("{}, QP proven feasible ({:.1}%)", v.name(), share(&boxes));
+                (verdict_colour(v).mix(1.0), label)
+            } else {
+                let label = format!("{} ({:.1}%)", v.name(), 100.0 * after.share(v));
+                (verdict_colour(v).mix(1.0), label)
+            };
+            classes.push(VerdictClass {
+                key: (v, pale),
+                colour,
+                label,
+                boxes,
+            });
+        }
+    }
+    classes
+}
+
 pub(super) fn draw_verdicts<DB: DrawingBackend<ErrorType: 'static>>(
     root: &DrawingArea<DB, Shift>,
     view: &View,
@@ -113,7 +171,6 @@ pub(super) fn draw_verdicts<DB: DrawingBackend<ErrorType: 'static>>(
     report: &VerifyReport,
 ) -> Result<(), DrawError> {
     let region = &report.run.region;
-    let after = report.shares_after();
     let title = verdicts_title(report);
     let mut chart = chart(root, view, scenario, region, &title)?;
     // In a projection: the volume of each class above each cell of a grid over the plane.
@@ -133,79 +190,42 @@ pub(super) fn draw_verdicts<DB: DrawingBackend<ErrorType: 'static>>(
         }
         (grid, volume)
     });
-    for v in Verdict::ALL {
-        // Verified boxes whose QP was not proven feasible on every set are drawn pale: their
-        // verdict speaks only of the trajectories that do not meet an infeasible QP.
-        let split = report
-            .after
-            .iter()
-            .any(|b| b.verdict == v && b.feasible == Some(false));
-        for pale in [false, true] {
-            let boxes: Vec<IntervalBox> = report
-                .after
-                .iter()
-                .filter(|b| b.verdict == v && (b.feasible == Some(false)) == pale)
-                .map(|b| b.initial.clone())
-                .collect();
-            if boxes.is_empty() || !boxes.iter().any(|b| view.keeps(b)) {
-                continue;
-            }
-            let share = |bs: &[IntervalBox]| {
-                let area: f64 = bs.iter().map(IntervalBox::volume).sum();
-                100.0 * area / after.safe_area.max(f64::MIN_POSITIVE)
-            };
-            let (colour, label) = if pale {
-                (
-                    verdict_colour(v).mix(0.4),
-                    format!(
-                        "{}, QP feasibility not proven ({:.1}%)",
-                        v.name(),
-                        share(&boxes)
-                    ),
-                )
-            } else if split {
-                (
-                    verdict_colour(v).mix(1.0),
-                    format!("{}, QP proven feasible ({:.1}%)", v.name(), share(&boxes)),
-                )
-            } else {
-                (
-                    verdict_colour(v).mix(1.0),
-                    format!("{} ({:.1}%)", v.name(), 100.0 * after.share(v)),
-                )
-            };
-            let Some((grid, volume)) = &projected else {
-                box_series(
-                    &mut chart,
-                    view,
-                    &boxes,
-                    region,
-                    colour.filled(),
-                    Some(&label),
-                )?;
-                continue;
-            };
-            // Each grid cell split left to right into stripes, one per class, as wide as the
-            // class's share of the volume above the cell.
-            let stripes = volume.iter().enumerate().filter_map(|(k, classes)| {
-                let total: f64 = classes.values().sum();
-                let mine = *classes.get(&(v, pale))?;
-                let before: f64 = classes.range(..(v, pale)).map(|(_, a)| a).sum();
-                let [(x0, y0), (x1, y1)] = grid.rect(k);
-                let at = |a: f64| x0 + (x1 - x0) * a / total;
-                Some(Rectangle::new(
-                    [(at(before), y0), (at(before + mine), y1)],
-                    colour.filled(),
-                ))
-            });
-            chart
-                .draw_series(stripes)
-                .map_err(DrawError::from)?
-                .label(label)
-                .legend(move |(x, y)| {
-                    Rectangle::new([(x, y - 6), (x + 14, y + 6)], colour.filled())
-                });
+    for class in verdict_classes(report) {
+        let boxes: Vec<IntervalBox> = class.boxes.iter().map(|b| b.initial.clone()).collect();
+        if !boxes.iter().any(|b| view.keeps(b)) {
+            continue;
         }
+        let (colour, label) = (class.colour, class.label);
+        let Some((grid, volume)) = &projected else {
+            box_series(
+                &mut chart,
+                view,
+                &boxes,
+                region,
+                colour.filled(),
+                Some(&label),
+            )?;
+            continue;
+        };
+        // Each grid cell split left to right into stripes, one per class, as wide as the
+        // class's share of the volume above the cell.
+        let key = class.key;
+        let stripes = volume.iter().enumerate().filter_map(|(k, classes)| {
+            let total: f64 = classes.values().sum();
+            let mine = *classes.get(&key)?;
+            let before: f64 = classes.range(..key).map(|(_, a)| a).sum();
+            let [(x0, y0), (x1, y1)] = grid.rect(k);
+            let at = |a: f64| x0 + (x1 - x0) * a / total;
+            Some(Rectangle::new(
+                [(at(before), y0), (at(before + mine), y1)],
+                colour.filled(),
+            ))
+        });
+        chart
+            .draw_series(stripes)
+            .map_err(DrawError::from)?
+            .label(label)
+            .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 14, y + 6)], colour.filled()));
     }
     // Thin cell borders so the refinement is visible (left out when cells are tiny or
     // stacked in a projection).
@@ -384,6 +404,149 @@ pub(super) fn draw_error_map<DB: DrawingBackend<ErrorType: 'static>>(
     legend(&mut chart)
 }
 
+/// An error map along one state (`--axes t,NAME`, the default for a one-state system): the
+/// state across and the certified bound up, each cell a bar as high as its bound, coloured by
+/// its class; where other states are projected, the largest bound above each of 400 bands.
+pub(super) fn draw_error_map_along<DB: DrawingBackend<ErrorType: 'static>>(
+    root: &DrawingArea<DB, Shift>,
+    view: &View,
+    scenario: &Scenario,
+    map: &ErrorMap,
+) -> Result<(), DrawError> {
+    let (n, y) = (scenario.n(), view.y);
+    let region = &map.region;
+    if y >= n || y >= region.dim() || view.slice.iter().any(|&(k, _)| k >= region.dim()) {
+        return Err(DrawError::NotPlanar {
+            file: scenario.file.clone(),
+            n,
+        });
+    }
+    let (lo, hi) = (region.lower[y], region.upper[y]);
+    let kept = map.cells.iter().filter(|c| view.keeps(&c.cell()));
+    // (from, to, bound) along the state.
+    let bars: Vec<(f64, f64, f64)> = if view.is_whole(n) {
+        kept.map(|c| (c.lower[y], c.upper[y], c.bound)).collect()
+    } else {
+        let cells = kept.map(|c| (c.lower[y], c.upper[y], c.bound));
+        envelope(cells, (lo, hi), 400)
+    };
+    let finite = bars.iter().map(|b| b.2).filter(|m| m.is_finite());
+    // Room above the bars for the legend.
+    let top = 1.3
+        * finite
+            .fold(map.measured_linf, f64::max)
+            .max(f64::MIN_POSITIVE);
+    let certified = match map.certified_linf {
+        Some(m) if m.is_finite() => format!("{m:.3}"),
+        Some(_) => "∞".to_string(),
+        None => "none".to_string(),
+    };
+    let mut title = format!(
+        "{}: certified local bound M on ‖N − v‖∞ along {} (max {certified}; measured {:.3})",
+        map.network, scenario.states[y], map.measured_linf
+    );
+    if !view.is_whole(n) {
+        title += ", largest above each point";
+    }
+    let title = format!("{title}{}", view.describe(scenario));
+    let names = [scenario.states[y].as_str(), "M"];
+    let mut chart = axes(root, &title, [(lo, hi), (0.0, top)], names)?;
+    if view.is_whole(n) {
+        // Bands of the state where some `hᵢ < 0` at the band's centre.
+        const BANDS: usize = 400;
+        let w = (hi - lo) / BANDS as f64;
+        let shaded = (0..BANDS).filter_map(|k| {
+            let x = view.lift(region, lo + (k as f64 + 0.5) * w, lo + (k as f64 + 0.5) * w);
+            (!scenario.is_safe(&x)).then(|| {
+                let (a, b) = (lo + k as f64 * w, lo + (k + 1) as f64 * w);
+                Rectangle::new([(a, 0.0), (b, top)], OBSTACLE.filled())
+            })
+        });
+        chart.draw_series(shaded).map_err(DrawError::from)?;
+    }
+    let uncertified = ERROR_CLASSES.len() + 1;
+    let total: f64 = bars.iter().map(|b| b.1 - b.0).sum();
+    for class in 0..=uncertified {
+        let mine: Vec<&(f64, f64, f64)> = (bars.iter())
+            .filter(|b| error_class(b.2) == class)
+            .collect();
+        if mine.is_empty() {
+            continue;
+        }
+        let length: f64 = mine.iter().map(|b| b.1 - b.0).sum();
+        let share = 100.0 * length / total.max(f64::MIN_POSITIVE);
+        let share = if share < 0.05 {
+            "< 0.1%".to_string()
+        } else {
+            format!("{share:.1}%")
+        };
+        let label = format!(
+            "{} ({share} of the mapped length)",
+            error_class_label(class)
+        );
+        // Uncertified cells reach to the top, hatched pale.
+        let (colour, height) = match ERROR_COLOURS.get(class) {
+            Some(&c) => (c.mix(1.0), None),
+            None => (VERMILION.mix(0.45), Some(top)),
+        };
+        let style = colour.filled();
+        chart
+            .draw_series(
+                mine.iter()
+                    .map(|&&(a, b, m)| Rectangle::new([(a, 0.0), (b, height.unwrap_or(m))], style)),
+            )
+            .map_err(DrawError::from)?
+            .label(label)
+            .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 14, y + 6)], style));
+    }
+    let goal = &scenario.reach.goal;
+    let style = BLUE.stroke_width(2);
+    let (g0, g1) = (goal.lower[y].max(lo), goal.upper[y].min(hi));
+    chart
+        .draw_series(std::iter::once(Rectangle::new(
+            [(g0, 0.0), (g1, top)],
+            style,
+        )))
+        .map_err(DrawError::from)?
+        .label("goal set")
+        .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 14, y + 6)], style));
+    let measured = map.measured_linf;
+    let style = DARK.stroke_width(1);
+    chart
+        .draw_series(std::iter::once(PathElement::new(
+            vec![(lo, measured), (hi, measured)],
+            style,
+        )))
+        .map_err(DrawError::from)?
+        .label(format!("measured max ‖N − v‖∞ over C ∩ S ({measured:.3})"))
+        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 14, y)], style));
+    legend(&mut chart)
+}
+
+/// The largest bound above each of `bands` equal bands of `[lo, hi]`, from cells `(from, to,
+/// bound)` along it: `(band's from, band's to, largest bound of the cells that overlap it)`
+/// for the bands some cell overlaps. A cell that ends on a band's edge does not reach into the
+/// band beyond; +∞ (uncertified) wins.
+fn envelope(
+    cells: impl Iterator<Item = (f64, f64, f64)>,
+    (lo, hi): (f64, f64),
+    bands: usize,
+) -> Vec<(f64, f64, f64)> {
+    let w = (hi - lo) / bands as f64;
+    let mut largest = vec![None::<f64>; bands];
+    for (a, b, bound) in cells {
+        let at = |v: f64| ((v - lo) / w).clamp(0.0, bands as f64);
+        let first = (at(a).floor() as usize).min(bands - 1);
+        let end = (at(b).ceil() as usize).max(first + 1);
+        for m in &mut largest[first..end] {
+            *m = Some(m.map_or(bound, |m: f64| m.max(bound)));
+        }
+    }
+    (largest.iter().enumerate())
+        .filter_map(|(k, m)| Some((lo + w * k as f64, lo + w * (k + 1) as f64, (*m)?)))
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -412,5 +575,28 @@ mod tests {
         assert_eq!(cells.len(), 8);
         let total: f64 = cells.iter().map(|c| c.1).sum();
         assert!((total - 1.0).abs() < 1e-12, "{total}");
+    }
+
+    /// Each band carries the largest bound of the cells over it, cells that only touch a
+    /// band's edge stay out of it, and an uncertified cell wins.
+    #[test]
+    fn the_envelope_is_the_largest_bound_above_each_band() {
+        let cells = [
+            (0.0, 0.5, 0.1),
+            (0.25, 0.75, 0.3),
+            (0.5, 1.0, 0.2),
+            (0.9, 1.0, f64::INFINITY),
+        ];
+        let e = envelope(cells.into_iter(), (0.0, 1.0), 4);
+        let bounds: Vec<f64> = e.iter().map(|b| b.2).collect();
+        assert_eq!(bounds, vec![0.1, 0.3, 0.3, f64::INFINITY]);
+        assert_eq!((e[1].0, e[1].1), (0.25, 0.5));
+        // A cell beyond the range lands in the last band; bands no cell meets are left out.
+        let e = envelope(
+            [(0.0, 0.2, 1.0), (1.5, 2.0, 2.0)].into_iter(),
+            (0.0, 1.0),
+            4,
+        );
+        assert_eq!(e, vec![(0.0, 0.25, 1.0), (0.75, 1.0, 2.0)]);
     }
 }

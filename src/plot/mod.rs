@@ -74,14 +74,26 @@ pub enum DrawError {
     },
     /// A figure drawn over two states was asked over time.
     #[error(
-        "{figure} are drawn over two states, not over time ({file}: over time, tubes and \
-         trajectories are)"
+        "{figure} are drawn over two states, not over time ({file}: over time, tubes, \
+         trajectories, verdict maps and error maps are)"
     )]
     NotOverTime {
         /// The scenario file.
         file: String,
         /// The figure, in the plural.
         figure: &'static str,
+    },
+    /// A verdict map over time asked with a state projected: the boxes' bands would cover
+    /// each other.
+    #[error(
+        "verdict maps over time show each box as one band, which needs every other state of \
+         {file} sliced (--slice {example}=VALUE): projected, the boxes would cover each other"
+    )]
+    ProjectedOverTime {
+        /// The scenario file.
+        file: String,
+        /// A projected state's name.
+        example: String,
     },
     /// plotters or its backend failed (its error type depends on the backend).
     #[error("{0}")]
@@ -94,6 +106,47 @@ pub enum DrawError {
 impl<E: std::error::Error + Send + Sync + 'static> From<DrawingAreaErrorKind<E>> for DrawError {
     fn from(e: DrawingAreaErrorKind<E>) -> DrawError {
         DrawError::Plotters(Box::new(e))
+    }
+}
+
+/// The kinds of [`Figure`], for what can be checked before a figure's data are read.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Kind {
+    /// [`Figure::Trajectories`].
+    Trajectories,
+    /// [`Figure::Tubes`].
+    Tubes,
+    /// [`Figure::Minkowski`].
+    Minkowski,
+    /// [`Figure::Verdicts`].
+    Verdicts,
+    /// [`Figure::ErrorMap`].
+    ErrorMap,
+}
+
+impl Kind {
+    /// Whether `view` of `scenario` can show this kind of figure: over time, Minkowski tubes
+    /// are not drawn (their inflated sets are planar pictures), and verdict maps need every
+    /// other state sliced.
+    pub fn check(self, view: &View, scenario: &Scenario) -> Result<(), DrawError> {
+        let file = || scenario.file.clone();
+        match self {
+            _ if !view.time => Ok(()),
+            Kind::Minkowski => Err(DrawError::NotOverTime {
+                file: file(),
+                figure: "Minkowski tubes",
+            }),
+            Kind::Verdicts if !view.is_whole(scenario.n()) => {
+                let projected = (0..scenario.n())
+                    .find(|&k| k != view.y && view.slice.iter().all(|&(j, _)| j != k))
+                    .unwrap_or(view.y);
+                Err(DrawError::ProjectedOverTime {
+                    file: file(),
+                    example: scenario.states[projected].clone(),
+                })
+            }
+            _ => Ok(()),
+        }
     }
 }
 
@@ -149,14 +202,15 @@ pub enum Figure<'a> {
     },
 }
 
-/// A pixel size with the region's aspect ratio: about `width` wide, height between 300 and 1000.
+/// A pixel size with the region's aspect ratio: about `width` wide, height between 300 and 1000
+/// (one state: 0.6 × `width`).
 pub fn default_size(region: &IntervalBox, width: u32) -> (u32, u32) {
     let w = region.widths();
-    let ratio = if w.len() >= 2 && w[0] > 0.0 {
-        w[1] / w[0]
-    } else {
-        0.75
-    };
+    if w.len() < 2 {
+        // One state: drawn over time or along the state, a wide picture.
+        return (width, (0.6 * width as f64) as u32);
+    }
+    let ratio = if w[0] > 0.0 { w[1] / w[0] } else { 0.75 };
     let plot_w = width.saturating_sub(120) as f64;
     let h = (plot_w * ratio + 130.0).clamp(300.0, 1000.0) as u32;
     (width, h)
@@ -169,6 +223,17 @@ pub fn save(figure: &Figure, path: &Path, size: (u32, u32)) -> Result<(), PlotEr
 }
 
 impl Figure<'_> {
+    /// Its kind.
+    pub fn kind(&self) -> Kind {
+        match self {
+            Figure::Trajectories { .. } => Kind::Trajectories,
+            Figure::Tubes { .. } => Kind::Tubes,
+            Figure::Minkowski { .. } => Kind::Minkowski,
+            Figure::Verdicts { .. } => Kind::Verdicts,
+            Figure::ErrorMap { .. } => Kind::ErrorMap,
+        }
+    }
+
     /// The scenario drawn.
     pub fn scenario(&self) -> &Scenario {
         match self {
@@ -266,6 +331,7 @@ fn draw<DB: DrawingBackend<ErrorType: 'static>>(
     figure: &Figure,
     view: &View,
 ) -> Result<(), DrawError> {
+    figure.kind().check(view, figure.scenario())?;
     root.fill(&WHITE).map_err(DrawError::from)?;
     if view.time {
         return match figure {
@@ -288,9 +354,14 @@ fn draw<DB: DrawingBackend<ErrorType: 'static>>(
                     .collect();
                 time::draw_tubes_over_time(root, view, scenario, &whole, *every, title)
             }
-            Figure::Minkowski { scenario, .. } => Err(not_over_time(scenario, "Minkowski tubes")),
-            Figure::Verdicts { scenario, .. } => Err(not_over_time(scenario, "verdict maps")),
-            Figure::ErrorMap { scenario, .. } => Err(not_over_time(scenario, "error maps")),
+            // Refused over time (the check above has said so already).
+            Figure::Minkowski { scenario, .. } => Kind::Minkowski.check(view, scenario),
+            Figure::Verdicts { scenario, report } => {
+                time::draw_verdicts_over_time(root, view, scenario, report)
+            }
+            Figure::ErrorMap { scenario, map } => {
+                maps::draw_error_map_along(root, view, scenario, map)
+            }
         };
     }
     match figure {
@@ -314,13 +385,6 @@ fn draw<DB: DrawingBackend<ErrorType: 'static>>(
         } => draw_minkowski(root, view, scenario, tubes, trajectories, *every),
         Figure::Verdicts { scenario, report } => draw_verdicts(root, view, scenario, report),
         Figure::ErrorMap { scenario, map } => draw_error_map(root, view, scenario, map),
-    }
-}
-
-fn not_over_time(scenario: &Scenario, figure: &'static str) -> DrawError {
-    DrawError::NotOverTime {
-        file: scenario.file.clone(),
-        figure,
     }
 }
 

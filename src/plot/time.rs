@@ -1,10 +1,12 @@
 //! Pictures over time (`--axes t,NAME`, as JuliaReach's `vars = (0, k)`): one state's sets and
-//! trajectories against `t`, the other states projected (or sliced). The only picture a
-//! one-state system has. Draws with [`super`]'s palette and legend.
+//! trajectories against `t`, the other states projected (or sliced), and a verdict map as each
+//! box's band until its tube ended. With the error map along the state (`maps`), the pictures
+//! a one-state system has. Draws with [`super`]'s palette and legend.
 
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
+use super::maps::{verdict_classes, verdicts_title};
 use super::view::View;
 use super::{axes, draw_by_ending, legend, tube_class, Chart, DrawError, DARK, GREEN, OBSTACLE};
 use crate::boxes::IntervalBox;
@@ -12,29 +14,28 @@ use crate::equilibria::Equilibrium;
 use crate::reach::Tube;
 use crate::scenario::Scenario;
 use crate::simulate::Trajectory;
+use crate::verify::VerifyReport;
 
-/// The chart: `t` from 0 to the horizon across, the drawn state up over `C`'s extent, with
-/// the unsafe set shaded where the state alone decides it (one state, all others sliced) and
-/// the goal's band.
+/// The chart: `t` from 0 to `horizon` across, the drawn state up over `region`'s extent,
+/// with the unsafe set shaded where the state alone decides it (one state, all others sliced)
+/// and the goal's band.
 fn time_chart<'a, DB: DrawingBackend<ErrorType: 'static>>(
     root: &'a DrawingArea<DB, Shift>,
     view: &View,
     scenario: &Scenario,
+    (region, horizon): (&IntervalBox, f64),
     title: &str,
 ) -> Result<Chart<'a, DB>, DrawError> {
     let n = scenario.n();
     let y = view.y;
-    if y >= n || view.slice.iter().any(|&(k, _)| k >= n) {
+    let dim = region.dim().min(n);
+    if y >= dim || view.slice.iter().any(|&(k, _)| k >= dim) {
         return Err(DrawError::NotPlanar {
             file: scenario.file.clone(),
             n,
         });
     }
-    let (lo, hi) = (
-        scenario.reach.region.lower[y],
-        scenario.reach.region.upper[y],
-    );
-    let horizon = scenario.reach.horizon;
+    let (lo, hi) = (region.lower[y], region.upper[y]);
     let title = format!("{title}{}", view.describe(scenario));
     let names = ["t", scenario.states[y].as_str()];
     let mut chart = axes(root, &title, [(0.0, horizon), (lo, hi)], names)?;
@@ -44,7 +45,7 @@ fn time_chart<'a, DB: DrawingBackend<ErrorType: 'static>>(
         let dy = (hi - lo) / BANDS as f64;
         let unsafe_bands = (0..BANDS).filter_map(|k| {
             let mid = lo + (k as f64 + 0.5) * dy;
-            let x = view.lift(&scenario.reach.region, 0.0, mid);
+            let x = view.lift(region, 0.0, mid);
             (!scenario.is_safe(&x)).then(|| {
                 Rectangle::new(
                     [
@@ -85,12 +86,16 @@ pub(super) fn draw_tubes_over_time<DB: DrawingBackend<ErrorType: 'static>>(
     every: usize,
     title: &str,
 ) -> Result<(), DrawError> {
-    let mut chart = time_chart(root, view, scenario, title)?;
+    let region = &scenario.reach.region;
+    let mut chart = time_chart(
+        root,
+        view,
+        scenario,
+        (region, scenario.reach.horizon),
+        title,
+    )?;
     let y = view.y;
-    let (lo, hi) = (
-        scenario.reach.region.lower[y],
-        scenario.reach.region.upper[y],
-    );
+    let (lo, hi) = (region.lower[y], region.upper[y]);
     let clip = |v: f64| v.clamp(lo, hi);
     let mut seen: Vec<&str> = Vec::new();
     for &tube in tubes {
@@ -162,7 +167,8 @@ pub(super) fn draw_trajectories_over_time<DB: DrawingBackend<ErrorType: 'static>
     equilibria: &[Equilibrium],
 ) -> Result<(), DrawError> {
     let title = format!("Filtered system `{}`: trajectories", scenario.name);
-    let mut chart = time_chart(root, view, scenario, &title)?;
+    let over = (&scenario.reach.region, scenario.reach.horizon);
+    let mut chart = time_chart(root, view, scenario, over, &title)?;
     let y = view.y;
     draw_by_ending(
         &mut chart,
@@ -183,6 +189,44 @@ pub(super) fn draw_trajectories_over_time<DB: DrawingBackend<ErrorType: 'static>
             .map_err(DrawError::from)?
             .label("equilibria")
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 14, y)], style));
+    }
+    legend(&mut chart)
+}
+
+/// A verdict map over time: each leaf's interval of the drawn state as a band from `t = 0` to
+/// the time its tube ended (a verified leaf's: when its set was proven in the goal or a trap),
+/// coloured by its verdict; a leaf with no tube (it starts unsafe) spans the horizon. Needs
+/// every other state sliced ([`super::Kind::check`]), so that the bands tile the state.
+pub(super) fn draw_verdicts_over_time<DB: DrawingBackend<ErrorType: 'static>>(
+    root: &DrawingArea<DB, Shift>,
+    view: &View,
+    scenario: &Scenario,
+    report: &VerifyReport,
+) -> Result<(), DrawError> {
+    let region = &report.run.region;
+    let ends = report.after.iter().filter_map(|b| b.t_end);
+    let horizon = ends.fold(scenario.reach.horizon, f64::max);
+    let title = format!("{}; each box until its tube ended", verdicts_title(report));
+    let mut chart = time_chart(root, view, scenario, (region, horizon), &title)?;
+    let y = view.y;
+    let clip = |v: f64| v.clamp(region.lower[y], region.upper[y]);
+    for class in verdict_classes(report) {
+        let style = class.colour.filled();
+        let bands = (class.boxes.iter())
+            .filter(|b| view.keeps(&b.initial))
+            .map(|b| {
+                let (lo, hi) = (clip(b.initial.lower[y]), clip(b.initial.upper[y]));
+                Rectangle::new([(0.0, lo), (b.t_end.unwrap_or(horizon), hi)], style)
+            })
+            .collect::<Vec<_>>();
+        if bands.is_empty() {
+            continue;
+        }
+        chart
+            .draw_series(bands)
+            .map_err(DrawError::from)?
+            .label(class.label)
+            .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 14, y + 6)], style));
     }
     legend(&mut chart)
 }
