@@ -211,6 +211,11 @@ impl IntervalBox {
         let axis = (0..self.dim())
             .max_by(|&a, &b| widths[a].total_cmp(&widths[b]))
             .unwrap_or(0);
+        self.bisect_along(axis)
+    }
+
+    /// The two halves across `axis`, at its midpoint.
+    pub fn bisect_along(&self, axis: usize) -> (IntervalBox, IntervalBox) {
         let mid = 0.5 * (self.lower[axis] + self.upper[axis]);
         let mut left = self.clone();
         let mut right = self.clone();

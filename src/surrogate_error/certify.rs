@@ -7,7 +7,7 @@ use std::collections::BinaryHeap;
 
 use rayon::prelude::*;
 
-use super::joint::piece_error;
+use super::joint::{piece_error, split_axis};
 use super::{check_dims, AnalysisError, ErrorSettings, SplitMix};
 use crate::bounds::{network_bounds, BoundMethod, PreparedNetwork};
 use crate::boxes::IntervalBox;
@@ -138,6 +138,19 @@ pub fn cell_error_bound_mv(
     method: BoundMethod,
     good_enough: f64,
 ) -> Result<f64, AnalysisError> {
+    Ok(bound_and_split(forms, s, net, cell, method, good_enough)?.0)
+}
+
+/// [`cell_error_bound_mv`] and the axis to bisect the cell across ([`split_axis`]; `None`:
+/// its widest).
+fn bound_and_split(
+    forms: &VForms,
+    s: &Scenario,
+    net: &PreparedNetwork<'_>,
+    cell: &IntervalBox,
+    method: BoundMethod,
+    good_enough: f64,
+) -> Result<(f64, Option<usize>), AnalysisError> {
     let v =
         v_enclosure(s, forms.method(), cell).unwrap_or_else(|| vec![Interval::ENTIRE; forms.m()]);
     let unbounded = |v: &[Interval]| {
@@ -151,7 +164,7 @@ pub fn cell_error_bound_mv(
         error_from(&ibp.lower, &ibp.upper, &v)
     };
     if coarse <= good_enough {
-        return Ok(coarse);
+        return Ok((coarse, None));
     }
     let ab = net.bounds(&cell.lower, &cell.upper, method)?;
     let n_lo: Vec<f64> = (0..ab.n_out)
@@ -167,22 +180,23 @@ pub fn cell_error_bound_mv(
         piece_error(&ab, &n_lo, &n_hi, cell, &v_whole, &shape_whole)
     };
     let coarse = coarse.min(whole);
+    let axis = split_axis(&ab, &shape_whole, cell, &s.reach.region);
     if coarse <= good_enough {
-        return Ok(coarse);
+        return Ok((coarse, axis));
     }
     let mut worst = 0.0_f64;
     for piece in enclosure_pieces(cell) {
         let (vp, shape) = forms.enclose(s, &piece);
         let vp: Vec<Interval> = vp.iter().zip(&v_whole).map(|(&a, &b)| meet(a, b)).collect();
         if unbounded(&vp) {
-            return Ok(coarse);
+            return Ok((coarse, axis));
         }
         worst = worst.max(piece_error(&ab, &n_lo, &n_hi, &piece, &vp, &shape));
         if worst >= coarse {
-            return Ok(coarse);
+            return Ok((coarse, axis));
         }
     }
-    Ok(worst.min(coarse))
+    Ok((worst.min(coarse), axis))
 }
 
 /// `max ‖N(x) − v(x)‖∞` over a few points of `cell ∩ S` where the filter is feasible: the
@@ -270,6 +284,8 @@ struct Entry {
     /// Whether the bound met the cell's target (the second stage refines such cells too).
     met: bool,
     cell: IntervalBox,
+    /// The axis to bisect it across (`None`: the widest).
+    axis: Option<usize>,
 }
 
 impl Entry {
@@ -322,8 +338,8 @@ impl Ord for Entry {
 /// The cells are the leaves of a bisection tree grown from `C` itself (no starting width, so
 /// that the map fits the region and the network in any dimension). Every cell gets a certified
 /// bound ([`cell_error_bound_mv`]) and a cheap sampled error `e` (corners, centre and
-/// [`ErrorSettings::cell_samples`] random points). A cell is bisected (across its widest
-/// axis) while its bound exceeds its target `max(local_ratio · e, floor)`
+/// [`ErrorSettings::cell_samples`] random points). A cell is bisected (across the axis
+/// [`super::joint::split_axis`] names, else its widest) while its bound exceeds its target `max(local_ratio · e, floor)`
 /// ([`ErrorSettings::local_ratio`], [`ErrorSettings::floor`]), the largest gaps
 /// `bound − target` times cell width first (weighted by [`ErrorSettings::goal_weight`] on cells
 /// that meet the scenario's goal set), down to [`ErrorSettings::min_cell`], in parallel
@@ -395,8 +411,8 @@ pub fn certify(
                 // A cell's own error may exceed the global one (it was not sampled there), but
                 // its bound must also come within `local_ratio` of the global measured error.
                 let tgt = (ratio * e).max(floor).min(global_goal.max(floor));
-                let b =
-                    cell_error_bound_mv(&forms, s, &prepared, &cell, settings.cell_bounds, tgt)?;
+                let (b, axis) =
+                    bound_and_split(&forms, s, &prepared, &cell, settings.cell_bounds, tgt)?;
                 // Where the QP is infeasible on part of the cell, the enclosure of `v` stays
                 // wide however small the cell: once the cell is small (a 64th of C's widest
                 // side), keep its bound as it is (target +∞: settled, not refined further).
@@ -406,7 +422,7 @@ pub fn certify(
                 } else {
                     tgt
                 };
-                Ok(Ok((b, tgt, cell)))
+                Ok(Ok((b, tgt, cell, axis)))
             })
             .collect()
     };
@@ -429,7 +445,7 @@ pub fn certify(
                     };
                     done.push((c, true, true));
                 }
-                Ok((bound, tgt, cell)) => {
+                Ok((bound, tgt, cell, axis)) => {
                     let size = width(&cell);
                     let settled = tgt == f64::INFINITY;
                     let finer = detail && !settled && bound.is_finite() && bound > floor;
@@ -456,6 +472,7 @@ pub fn certify(
                             size,
                             met,
                             cell,
+                            axis,
                         });
                     }
                 }
@@ -491,6 +508,7 @@ pub fn certify(
                     size,
                     met,
                     cell,
+                    axis: None,
                 });
             }
         }
@@ -520,7 +538,11 @@ pub fn certify(
         let mut parents = Vec::new();
         while children.len() < 2 * room {
             let Some(Entry {
-                bound, met, cell, ..
+                bound,
+                met,
+                cell,
+                axis,
+                ..
             }) = heap.pop()
             else {
                 break;
@@ -534,7 +556,10 @@ pub fn certify(
                 done.push((c, met, false));
                 continue;
             }
-            let (l, r) = cell.bisect();
+            let (l, r) = match axis {
+                Some(i) => cell.bisect_along(i),
+                None => cell.bisect(),
+            };
             children.push(l);
             children.push(r);
             parents.extend([bound, bound]);
@@ -547,7 +572,7 @@ pub fn certify(
         let res = eval(children, salt)?
             .into_iter()
             .zip(parents)
-            .map(|(r, parent)| r.map(|(b, tgt, cell)| (b.min(parent), tgt, cell)))
+            .map(|(r, parent)| r.map(|(b, tgt, cell, axis)| (b.min(parent), tgt, cell, axis)))
             .collect();
         absorb(res, detail, &mut heap, &mut done);
     }
@@ -623,7 +648,7 @@ pub fn witness_error(
 const SETTLE_SPLITS: f64 = 64.0;
 
 /// A kept cell's certified bound, its refinement target (+∞: settled), and the cell.
-type CellOutcome = (f64, f64, IntervalBox);
+type CellOutcome = (f64, f64, IntervalBox, Option<usize>);
 
 #[cfg(test)]
 mod tests {
