@@ -305,6 +305,26 @@ fn error_class_label(class: usize) -> String {
     }
 }
 
+/// An error map's title: the network, the certified and measured maxima, along which state
+/// (a picture along one), and whether each place shows the largest bound above it.
+fn error_map_title(map: &ErrorMap, along: Option<&str>, whole: bool) -> String {
+    let certified = match map.certified_linf {
+        Some(m) if m.is_finite() => format!("{m:.3}"),
+        Some(_) => "∞".to_string(),
+        None => "none".to_string(),
+    };
+    let along = along.map(|s| format!(" along {s}")).unwrap_or_default();
+    let largest = if whole {
+        ""
+    } else {
+        ", largest above each point"
+    };
+    format!(
+        "{}: certified local bound M on ‖N − v‖∞{along} (max {certified}; measured {:.3}){largest}",
+        map.network, map.measured_linf
+    )
+}
+
 pub(super) fn draw_error_map<DB: DrawingBackend<ErrorType: 'static>>(
     root: &DrawingArea<DB, Shift>,
     view: &View,
@@ -312,20 +332,7 @@ pub(super) fn draw_error_map<DB: DrawingBackend<ErrorType: 'static>>(
     map: &ErrorMap,
 ) -> Result<(), DrawError> {
     let region = &map.region;
-    let certified = match map.certified_linf {
-        Some(m) if m.is_finite() => format!("{m:.3}"),
-        Some(_) => "∞".to_string(),
-        None => "none".to_string(),
-    };
-    let title = format!(
-        "{}: certified local bound M on ‖N − v‖∞ (max {certified}; measured {:.3})",
-        map.network, map.measured_linf
-    );
-    let title = if view.is_whole(scenario.n()) {
-        title
-    } else {
-        format!("{title}, largest above each point")
-    };
+    let title = error_map_title(map, None, view.is_whole(scenario.n()));
     let mut chart = chart(root, view, scenario, region, &title)?;
     // The cells as boxes, sorted into their classes in one pass; in a projection, the cells
     // of a 96 × 96 grid over the plane, each with the largest bound of the cells above it.
@@ -436,18 +443,8 @@ pub(super) fn draw_error_map_along<DB: DrawingBackend<ErrorType: 'static>>(
         * finite
             .fold(map.measured_linf, f64::max)
             .max(f64::MIN_POSITIVE);
-    let certified = match map.certified_linf {
-        Some(m) if m.is_finite() => format!("{m:.3}"),
-        Some(_) => "∞".to_string(),
-        None => "none".to_string(),
-    };
-    let mut title = format!(
-        "{}: certified local bound M on ‖N − v‖∞ along {} (max {certified}; measured {:.3})",
-        map.network, scenario.states[y], map.measured_linf
-    );
-    if !view.is_whole(n) {
-        title += ", largest above each point";
-    }
+    let along = Some(scenario.states[y].as_str());
+    let title = error_map_title(map, along, view.is_whole(n));
     let title = format!("{title}{}", view.describe(scenario));
     let names = [scenario.states[y].as_str(), "M"];
     let mut chart = axes(root, &title, [(lo, hi), (0.0, top)], names)?;
