@@ -284,7 +284,8 @@ fn three_states_verify_and_draw_as_projections_and_slices() {
 /// Item 4 over time: `--axes t,NAME` draws one state's tubes and trajectories against time
 /// (the other states projected), a verdict map as each box's band until its tube ended, and an
 /// error map as the bound along the state: all the pictures of a one-state system. Minkowski
-/// tubes, and verdict maps with a state projected, say why they are not drawn.
+/// tubes, verdict maps with a state projected, and verdicts or maps of another system say why
+/// they are not drawn.
 #[test]
 fn one_state_draws_over_time() {
     let tmp = tempfile::tempdir().unwrap();
@@ -382,6 +383,20 @@ fn one_state_draws_over_time() {
     let text = text.split_whitespace().collect::<Vec<_>>().join(" ");
     assert!(text.contains("along gap"), "error map: no caption");
     assert!(text.contains("> M </text>"), "error map: no bound axis");
+    // Verdicts and maps of this one-state system are refused over a three-state one, named.
+    let map = tmp.path().join("wall1d.errormap.json");
+    for (figure, input, needle) in [
+        ("verdicts", &json, "verdicts of a system with 1 state, not of"),
+        ("error-map", &map, "an error map of a system with 1 state, not of"),
+    ] {
+        let input = input.to_str().unwrap();
+        let out = tmp.path().join("other.svg");
+        let args = ["plot", &chain, "--figure", figure, "--input", input, "-o"];
+        let (code, _, err) = cbfreach(&[&args[..], &[out.to_str().unwrap()]].concat());
+        assert_ne!(code, 0, "{figure} of another system drawn");
+        assert!(err.contains(input) && err.contains(needle), "{figure}: {err}");
+        assert!(!out.exists(), "{figure}: a picture was written");
+    }
     // The wall's equilibrium (gap = 2, made by the filter) lies in the goal: every
     // trajectory ends at the goal, and is drawn so.
     let text = std::fs::read_to_string(tmp.path().join("trajectories.svg")).unwrap();

@@ -232,15 +232,18 @@ pub fn run(args: &PlotArgs) -> CliResult {
             let name = input.display().to_string();
             let text = std::fs::read_to_string(input).map_err(|e| format!("{name}: {e}"))?;
             let report = VerifyReport::from_json(&text, &name)?;
-            plot::save_view(
-                &Figure::Verdicts {
-                    scenario: &s,
-                    report: &report,
-                },
-                &view,
-                out,
-                size,
-            )?;
+            let figure = Figure::Verdicts {
+                scenario: &s,
+                report: &report,
+            };
+            figure.check_data().map_err(|e| format!("{name}: {e}"))?;
+            if report.run.scenario != s.name {
+                eprintln!(
+                    "note: {name} holds the verdicts of `{}`, drawn over `{}`",
+                    report.run.scenario, s.name
+                );
+            }
+            plot::save_view(&figure, &view, out, size)?;
         }
         FigureKind::ErrorMap => {
             let file = match &args.input {
@@ -248,15 +251,13 @@ pub fn run(args: &PlotArgs) -> CliResult {
                 None => error_map_path(&network_path(&s, args.problem.network.as_deref())?),
             };
             let map = ErrorMap::load(&file)?;
-            plot::save_view(
-                &Figure::ErrorMap {
-                    scenario: &s,
-                    map: &map,
-                },
-                &view,
-                out,
-                size,
-            )?;
+            let figure = Figure::ErrorMap {
+                scenario: &s,
+                map: &map,
+            };
+            let name = file.display();
+            figure.check_data().map_err(|e| format!("{name}: {e}"))?;
+            plot::save_view(&figure, &view, out, size)?;
         }
     }
     println!("{} written ({}×{} px)", out.display(), size.0, size.1);

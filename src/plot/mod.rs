@@ -95,12 +95,33 @@ pub enum DrawError {
         /// A projected state's name.
         example: String,
     },
+    /// Verdicts or an error map of a system with another number of states than the
+    /// scenario's.
+    #[error("{what} of a system with {}, not of {file} ({})", states_text(*.states), states_text(*.n))]
+    OtherSystem {
+        /// The figure's data, in words.
+        what: &'static str,
+        /// Their number of states.
+        states: usize,
+        /// The scenario file.
+        file: String,
+        /// Its number of states.
+        n: usize,
+    },
     /// plotters or its backend failed (its error type depends on the backend).
     #[error("{0}")]
     Plotters(#[source] Box<dyn std::error::Error + Send + Sync>),
     /// The finished picture could not be moved into place.
     #[error("{0}")]
     Io(#[from] std::io::Error),
+}
+
+/// `1 state`, `3 states`.
+fn states_text(n: usize) -> String {
+    match n {
+        1 => "1 state".to_string(),
+        n => format!("{n} states"),
+    }
 }
 
 impl<E: std::error::Error + Send + Sync + 'static> From<DrawingAreaErrorKind<E>> for DrawError {
@@ -223,6 +244,27 @@ pub fn save(figure: &Figure, path: &Path, size: (u32, u32)) -> Result<(), PlotEr
 }
 
 impl Figure<'_> {
+    /// Whether the figure's data (verdicts, an error map) are of the scenario's system: a
+    /// report or map of another number of states is refused rather than drawn across the
+    /// wrong axes.
+    pub fn check_data(&self) -> Result<(), DrawError> {
+        let (what, states) = match self {
+            Figure::Verdicts { report, .. } => ("verdicts", report.run.region.dim()),
+            Figure::ErrorMap { map, .. } => ("an error map", map.region.dim()),
+            _ => return Ok(()),
+        };
+        let scenario = self.scenario();
+        match states == scenario.n() {
+            true => Ok(()),
+            false => Err(DrawError::OtherSystem {
+                what,
+                states,
+                file: scenario.file.clone(),
+                n: scenario.n(),
+            }),
+        }
+    }
+
     /// Its kind.
     pub fn kind(&self) -> Kind {
         match self {
@@ -332,6 +374,7 @@ fn draw<DB: DrawingBackend<ErrorType: 'static>>(
     view: &View,
 ) -> Result<(), DrawError> {
     figure.kind().check(view, figure.scenario())?;
+    figure.check_data()?;
     root.fill(&WHITE).map_err(DrawError::from)?;
     if view.time {
         return match figure {
