@@ -386,15 +386,26 @@ fn one_state_draws_over_time() {
     // Verdicts and maps of this one-state system are refused over a three-state one, named.
     let map = tmp.path().join("wall1d.errormap.json");
     for (figure, input, needle) in [
-        ("verdicts", &json, "verdicts of a system with 1 state, not of"),
-        ("error-map", &map, "an error map of a system with 1 state, not of"),
+        (
+            "verdicts",
+            &json,
+            "verdicts of a system with 1 state, not of",
+        ),
+        (
+            "error-map",
+            &map,
+            "an error map of a system with 1 state, not of",
+        ),
     ] {
         let input = input.to_str().unwrap();
         let out = tmp.path().join("other.svg");
         let args = ["plot", &chain, "--figure", figure, "--input", input, "-o"];
         let (code, _, err) = cbfreach(&[&args[..], &[out.to_str().unwrap()]].concat());
         assert_ne!(code, 0, "{figure} of another system drawn");
-        assert!(err.contains(input) && err.contains(needle), "{figure}: {err}");
+        assert!(
+            err.contains(input) && err.contains(needle),
+            "{figure}: {err}"
+        );
         assert!(!out.exists(), "{figure}: a picture was written");
     }
     // The wall's equilibrium (gap = 2, made by the filter) lies in the goal: every

@@ -51,7 +51,7 @@ pub struct PlotArgs {
     /// Output file, .png or .svg.
     #[arg(long, short)]
     pub out: PathBuf,
-    /// Pixel size WIDTH,HEIGHT (default: 1000 wide, the region's aspect ratio).
+    /// Pixel size WIDTH,HEIGHT or WIDTHxHEIGHT (default: 1000 wide, the region's aspect ratio).
     #[arg(long)]
     pub size: Option<String>,
     /// Draw every K-th step (of dt) of the tubes [default: 10; 1 over time, where each bar
@@ -77,7 +77,10 @@ pub struct PlotArgs {
 
 fn parse_size(text: &str) -> Result<(u32, u32), String> {
     let bad = || format!("--size: expected WIDTH,HEIGHT in pixels, e.g. 1000,750, found `{text}`");
-    let (w, h) = text.split_once(',').ok_or_else(bad)?;
+    // `1000,750` or `1000x750` (`×` too), as image tools write sizes.
+    let (w, h) = text
+        .split_once(|c| matches!(c, ',' | 'x' | 'X' | '×'))
+        .ok_or_else(bad)?;
     Ok((
         w.trim().parse().map_err(|_| bad())?,
         h.trim().parse().map_err(|_| bad())?,
@@ -320,4 +323,24 @@ pub fn plot_tubes(
     )?;
     println!("  tubes drawn to {}", out.display());
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::parse_size;
+
+    /// Sizes as `1000,750` or `1000x750`; anything else names what was expected.
+    #[test]
+    fn sizes_take_a_comma_or_an_x() {
+        for text in ["1000,750", "1000x750", "1000 X 750", "1000×750"] {
+            assert_eq!(parse_size(text), Ok((1000, 750)), "{text}");
+        }
+        for text in ["1000", "1000;750", "x750", "1e3,750", "-1,750"] {
+            let err = parse_size(text).unwrap_err();
+            assert!(
+                err.contains("WIDTH,HEIGHT") && err.contains(text),
+                "{text}: {err}"
+            );
+        }
+    }
 }
