@@ -78,9 +78,7 @@ pub struct PlotArgs {
 fn parse_size(text: &str) -> Result<(u32, u32), String> {
     let bad = || format!("--size: expected WIDTH,HEIGHT in pixels, e.g. 1000,750, found `{text}`");
     // `1000,750` or `1000x750` (`×` too), as image tools write sizes.
-    let (w, h) = text
-        .split_once(|c| matches!(c, ',' | 'x' | 'X' | '×'))
-        .ok_or_else(bad)?;
+    let (w, h) = text.split_once([',', 'x', 'X', '×']).ok_or_else(bad)?;
     Ok((
         w.trim().parse().map_err(|_| bad())?,
         h.trim().parse().map_err(|_| bad())?,
