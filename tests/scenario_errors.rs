@@ -244,3 +244,52 @@ fn m_c_left_out_takes_the_error_map_and_names_it_when_missing() {
         ],
     );
 }
+
+/// `[system] units` labels states and inputs (`v [m/s]`); a name that is neither, or a unit
+/// that is empty, long or holds control characters, is refused by key.
+#[test]
+fn units_label_axes_and_bad_ones_are_named() {
+    let with = |units: &str| {
+        SMALL.replacen(
+            r#"kappa = ["-x - y"]"#,
+            &format!("kappa = [\"-x - y\"]\n{units}"),
+            1,
+        )
+    };
+    let s = from_text(&with(r#"units = { x = "m", u = "N" }"#)).expect("valid");
+    assert_eq!(
+        (s.label("x"), s.label("y"), s.label("u")),
+        ("x [m]".into(), "y".into(), "u [N]".into())
+    );
+    assert_eq!(s.input_unit(), Some("N"));
+    let s = from_text(&with(r#"units = { x = "m" }"#)).expect("valid");
+    assert_eq!(s.input_unit(), None);
+    for (units, parts) in [
+        (
+            r#"units = { q = "m" }"#,
+            &[
+                "system.units.q",
+                "neither a state nor an input",
+                "x, y",
+                "u",
+            ][..],
+        ),
+        (
+            r#"units = { x = "" }"#,
+            &["system.units.x", "expected a unit"][..],
+        ),
+        (
+            r#"units = { x = "metres per second squared" }"#,
+            &["system.units.x", "24"][..],
+        ),
+        (
+            r#"units = { x = "m\ns" }"#,
+            &["system.units.x", "printable"][..],
+        ),
+    ] {
+        match from_text(&with(units)) {
+            Ok(_) => panic!("`{units}` was accepted"),
+            Err(e) => assert_mentions(&e.to_string(), parts),
+        }
+    }
+}

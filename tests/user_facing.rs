@@ -382,7 +382,15 @@ fn one_state_draws_over_time() {
     let text = std::fs::read_to_string(&svg).unwrap();
     let text = text.split_whitespace().collect::<Vec<_>>().join(" ");
     assert!(text.contains("along gap"), "error map: no caption");
-    assert!(text.contains("> M </text>"), "error map: no bound axis");
+    // The axes carry the scenario's units (`[system] units`): the error is in u's.
+    assert!(
+        text.contains("> M [m/s] </text>"),
+        "error map: no bound axis"
+    );
+    assert!(
+        text.contains("> gap [m] </text>"),
+        "error map: no state axis"
+    );
     // Verdicts and maps of this one-state system are refused over a three-state one, named.
     let map = tmp.path().join("wall1d.errormap.json");
     for (figure, input, needle) in [

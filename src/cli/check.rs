@@ -22,11 +22,12 @@ pub fn run(path: &Path) -> CliResult {
     if !s.description.is_empty() {
         println!("  {}", s.description.replace('\n', "\n  "));
     }
+    let labels = |names: &[String]| -> Vec<String> { names.iter().map(|x| s.label(x)).collect() };
     println!(
         "  states  {} (n = {}), inputs {} (m = {})",
-        s.states.join(", "),
+        labels(&s.states).join(", "),
         s.n(),
-        s.inputs.join(", "),
+        labels(&s.inputs).join(", "),
         s.m()
     );
     for p in &s.periodic {

@@ -446,7 +446,14 @@ pub(super) fn draw_error_map_along<DB: DrawingBackend<ErrorType: 'static>>(
     let along = Some(scenario.states[y].as_str());
     let title = error_map_title(map, along, view.is_whole(n));
     let title = format!("{title}{}", view.describe(scenario));
-    let names = [scenario.states[y].as_str(), "M"];
+    let (state, bound) = (
+        scenario.label(&scenario.states[y]),
+        match scenario.input_unit() {
+            Some(unit) => format!("M [{unit}]"),
+            None => "M".to_string(),
+        },
+    );
+    let names = [state.as_str(), bound.as_str()];
     let mut chart = axes(root, &title, [(lo, hi), (0.0, top)], names)?;
     if view.is_whole(n) {
         // Bands of the state where some `hᵢ < 0` at the band's centre.

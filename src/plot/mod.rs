@@ -466,7 +466,10 @@ fn chart<'a, DB: DrawingBackend<ErrorType: 'static>>(
             (region.lower[0], region.upper[0]),
             (region.lower[1], region.upper[1]),
         ],
-        [&scenario.states[view.x], &scenario.states[view.y]],
+        [
+            &scenario.label(&scenario.states[view.x]),
+            &scenario.label(&scenario.states[view.y]),
+        ],
     )
 }
 

@@ -197,7 +197,13 @@ impl View {
         let mut parts: Vec<String> = self
             .slice
             .iter()
-            .map(|&(k, v)| format!("{} = {v}", scenario.states[k]))
+            .map(|&(k, v)| {
+                let name = &scenario.states[k];
+                match scenario.units.get(name) {
+                    Some(unit) => format!("{name} = {v} {unit}"),
+                    None => format!("{name} = {v}"),
+                }
+            })
             .collect();
         let projected: Vec<&str> = (0..n)
             .filter(|&k| k != self.x && k != self.y && self.slice.iter().all(|&(j, _)| j != k))

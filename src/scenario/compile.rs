@@ -205,6 +205,26 @@ impl ScenarioFile {
 
         let reach = compile_reach(&c, &self.reach, n)?;
         let periodic = compile_periodic(&c, &sys.periodic, &reach)?;
+        for (name, unit) in &sys.units {
+            let key = format!("system.units.{name}");
+            if !c.states.contains(name) && !sys.inputs.contains(name) {
+                return Err(c.invalid(
+                    key,
+                    format!(
+                        "`{name}` is neither a state nor an input (states: {}; inputs: {})",
+                        c.states.join(", "),
+                        sys.inputs.join(", ")
+                    ),
+                ));
+            }
+            let fine = |ch: char| !ch.is_control();
+            if unit.trim().is_empty() || unit.chars().count() > 24 || !unit.chars().all(fine) {
+                return Err(c.invalid(
+                    key,
+                    format!("expected a unit such as \"m/s\" (1 to 24 printable characters), found {unit:?}"),
+                ));
+            }
+        }
         let network = self
             .network
             .as_ref()
@@ -330,6 +350,7 @@ impl ScenarioFile {
             training,
             settings: self.settings.clone(),
             periodic,
+            units: sys.units.clone(),
         })
     }
 }

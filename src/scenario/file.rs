@@ -86,6 +86,10 @@ pub struct SystemSection {
     /// the initial boxes must lie within one period (docs/design.md §2.12).
     #[serde(default)]
     pub periodic: BTreeMap<String, Vec<Number>>,
+    /// Units of states and inputs for axes and reports: `{ D = "m", v = "m/s", u = "N" }`
+    /// (default: none; any subset of the names).
+    #[serde(default)]
+    pub units: BTreeMap<String, String>,
 }
 
 /// One `[[cbf]]`.

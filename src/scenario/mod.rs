@@ -313,6 +313,8 @@ pub struct Scenario {
     pub settings: SettingsSection,
     /// States defined modulo a period (`[system] periodic`), by state index.
     pub periodic: Vec<Periodic>,
+    /// Units of states and inputs by name (`[system] units`), for axes and reports.
+    pub units: BTreeMap<String, String>,
 }
 
 impl Scenario {
@@ -341,6 +343,24 @@ impl Scenario {
             message: e.to_string().trim_end().to_string(),
         })?;
         raw.compile(file, base)
+    }
+
+    /// A state's or input's name for an axis or a report: `v [m/s]` where `[system] units`
+    /// gives its unit, else the name.
+    pub fn label(&self, name: &str) -> String {
+        match self.units.get(name) {
+            Some(unit) => format!("{name} [{unit}]"),
+            None => name.to_string(),
+        }
+    }
+
+    /// The unit the network's error is in, `‖N − v‖∞` taken across the inputs: theirs where
+    /// all inputs have one and the same (`None` otherwise).
+    pub fn input_unit(&self) -> Option<&str> {
+        let first = self.units.get(self.inputs.first()?)?;
+        (self.inputs.iter())
+            .all(|u| self.units.get(u) == Some(first))
+            .then_some(first.as_str())
     }
 
     /// State dimension `n`.
