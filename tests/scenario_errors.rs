@@ -262,8 +262,8 @@ fn units_label_axes_and_bad_ones_are_named() {
         ("x [m]".into(), "y".into(), "u [N]".into())
     );
     assert_eq!(s.input_unit(), Some("N"));
-    let s = from_text(&with(r#"units = { x = "m" }"#)).expect("valid");
-    assert_eq!(s.input_unit(), None);
+    let s = from_text(&with(r#"units = { x = "m", t = "s" }"#)).expect("valid");
+    assert_eq!((s.input_unit(), s.time_label()), (None, "t [s]".into()));
     for (units, parts) in [
         (
             r#"units = { q = "m" }"#,

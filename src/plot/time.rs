@@ -38,7 +38,8 @@ fn time_chart<'a, DB: DrawingBackend<ErrorType: 'static>>(
     let (lo, hi) = (region.lower[y], region.upper[y]);
     let title = format!("{title}{}", view.describe(scenario));
     let state = scenario.label(&scenario.states[y]);
-    let names = ["t", state.as_str()];
+    let time = scenario.time_label();
+    let names = [time.as_str(), state.as_str()];
     let mut chart = axes(root, &title, [(0.0, horizon), (lo, hi)], names)?;
     if view.is_whole(n) {
         // Bands of a fine grid of the state where some `hᵢ < 0` at the band's centre.

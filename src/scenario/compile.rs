@@ -207,11 +207,13 @@ impl ScenarioFile {
         let periodic = compile_periodic(&c, &sys.periodic, &reach)?;
         for (name, unit) in &sys.units {
             let key = format!("system.units.{name}");
-            if !c.states.contains(name) && !sys.inputs.contains(name) {
+            // `t` is time's unit unless a state or input has that name.
+            if !c.states.contains(name) && !sys.inputs.contains(name) && name != "t" {
                 return Err(c.invalid(
                     key,
                     format!(
-                        "`{name}` is neither a state nor an input (states: {}; inputs: {})",
+                        "`{name}` is neither a state nor an input nor t, the time (states: {}; \
+                         inputs: {})",
                         c.states.join(", "),
                         sys.inputs.join(", ")
                     ),

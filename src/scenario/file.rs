@@ -86,8 +86,8 @@ pub struct SystemSection {
     /// the initial boxes must lie within one period (docs/design.md §2.12).
     #[serde(default)]
     pub periodic: BTreeMap<String, Vec<Number>>,
-    /// Units of states and inputs for axes and reports: `{ D = "m", v = "m/s", u = "N" }`
-    /// (default: none; any subset of the names).
+    /// Units of states and inputs for axes and reports: `{ D = "m", v = "m/s", u = "N" }`, and
+    /// of time as `t` (unless a state or input is named so) (default: none; any subset).
     #[serde(default)]
     pub units: BTreeMap<String, String>,
 }

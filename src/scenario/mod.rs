@@ -354,6 +354,16 @@ impl Scenario {
         }
     }
 
+    /// The time axis' name: `t [s]` where `[system] units` gives `t` a unit and no state or
+    /// input is named `t`, else `t`.
+    pub fn time_label(&self) -> String {
+        let named = self.states.iter().chain(&self.inputs).any(|x| x == "t");
+        match self.units.get("t") {
+            Some(unit) if !named => format!("t [{unit}]"),
+            _ => "t".to_string(),
+        }
+    }
+
     /// The unit the network's error is in, `‖N − v‖∞` taken across the inputs: theirs where
     /// all inputs have one and the same (`None` otherwise).
     pub fn input_unit(&self) -> Option<&str> {
