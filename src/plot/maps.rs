@@ -6,6 +6,7 @@
 
 use std::collections::BTreeMap;
 
+use super::chart::{axes, line_swatch, unsafe_bands};
 use super::*;
 
 /// A verdict map's title: the share verified with the QP proven feasible on every set first,
@@ -225,7 +226,7 @@ pub(super) fn draw_verdicts<DB: DrawingBackend<ErrorType: 'static>>(
             .draw_series(stripes)
             .map_err(DrawError::from)?
             .label(label)
-            .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 14, y + 6)], colour.filled()));
+            .legend(swatch(colour.filled()));
     }
     // Thin cell borders so the refinement is visible (left out when cells are tiny or
     // stacked in a projection).
@@ -456,16 +457,9 @@ pub(super) fn draw_error_map_along<DB: DrawingBackend<ErrorType: 'static>>(
     let names = [state.as_str(), bound.as_str()];
     let mut chart = axes(root, &title, [(lo, hi), (0.0, top)], names)?;
     if view.is_whole(n) {
-        // Bands of the state where some `hᵢ < 0` at the band's centre.
-        const BANDS: usize = 400;
-        let w = (hi - lo) / BANDS as f64;
-        let shaded = (0..BANDS).filter_map(|k| {
-            let x = view.lift(region, lo + (k as f64 + 0.5) * w, lo + (k as f64 + 0.5) * w);
-            (!scenario.is_safe(&x)).then(|| {
-                let (a, b) = (lo + k as f64 * w, lo + (k + 1) as f64 * w);
-                Rectangle::new([(a, 0.0), (b, top)], OBSTACLE.filled())
-            })
-        });
+        let bands = unsafe_bands(view, scenario, region, (lo, hi), 400);
+        let shaded = (bands.into_iter())
+            .map(|(a, b)| Rectangle::new([(a, 0.0), (b, top)], OBSTACLE.filled()));
         chart.draw_series(shaded).map_err(DrawError::from)?;
     }
     let uncertified = ERROR_CLASSES.len() + 1;
@@ -501,7 +495,7 @@ pub(super) fn draw_error_map_along<DB: DrawingBackend<ErrorType: 'static>>(
             )
             .map_err(DrawError::from)?
             .label(label)
-            .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 14, y + 6)], style));
+            .legend(swatch(style));
     }
     let goal = &scenario.reach.goal;
     let style = BLUE.stroke_width(2);
@@ -513,7 +507,7 @@ pub(super) fn draw_error_map_along<DB: DrawingBackend<ErrorType: 'static>>(
         )))
         .map_err(DrawError::from)?
         .label("goal set")
-        .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 14, y + 6)], style));
+        .legend(swatch(style));
     let measured = map.measured_linf;
     let style = DARK.stroke_width(1);
     chart
@@ -523,7 +517,7 @@ pub(super) fn draw_error_map_along<DB: DrawingBackend<ErrorType: 'static>>(
         )))
         .map_err(DrawError::from)?
         .label(format!("measured max ‖N − v‖∞ over C ∩ S ({measured:.3})"))
-        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 14, y)], style));
+        .legend(line_swatch(style));
     legend(&mut chart)
 }
 

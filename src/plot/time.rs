@@ -6,9 +6,11 @@
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
+use super::chart::{axes, legend, line_swatch, swatch, unsafe_bands};
 use super::maps::{verdict_classes, verdicts_title};
+use super::planar::{draw_by_ending, tube_class};
 use super::view::View;
-use super::{axes, draw_by_ending, legend, tube_class, Chart, DrawError, DARK, GREEN, OBSTACLE};
+use super::{Chart, DrawError, DARK, GREEN, OBSTACLE};
 use crate::boxes::IntervalBox;
 use crate::equilibria::Equilibrium;
 use crate::reach::Tube;
@@ -42,23 +44,10 @@ fn time_chart<'a, DB: DrawingBackend<ErrorType: 'static>>(
     let names = [time.as_str(), state.as_str()];
     let mut chart = axes(root, &title, [(0.0, horizon), (lo, hi)], names)?;
     if view.is_whole(n) {
-        // Bands of a fine grid of the state where some `hᵢ < 0` at the band's centre.
-        const BANDS: usize = 400;
-        let dy = (hi - lo) / BANDS as f64;
-        let unsafe_bands = (0..BANDS).filter_map(|k| {
-            let mid = lo + (k as f64 + 0.5) * dy;
-            let x = view.lift(region, 0.0, mid);
-            (!scenario.is_safe(&x)).then(|| {
-                Rectangle::new(
-                    [
-                        (0.0, lo + k as f64 * dy),
-                        (horizon, lo + (k + 1) as f64 * dy),
-                    ],
-                    OBSTACLE.filled(),
-                )
-            })
-        });
-        chart.draw_series(unsafe_bands).map_err(DrawError::from)?;
+        let bands = unsafe_bands(view, scenario, region, (lo, hi), 400);
+        let shaded = (bands.into_iter())
+            .map(|(a, b)| Rectangle::new([(0.0, a), (horizon, b)], OBSTACLE.filled()));
+        chart.draw_series(shaded).map_err(DrawError::from)?;
     }
     let goal = &scenario.reach.goal;
     let style = GREEN.stroke_width(2);
@@ -72,7 +61,7 @@ fn time_chart<'a, DB: DrawingBackend<ErrorType: 'static>>(
         )))
         .map_err(DrawError::from)?
         .label("goal set")
-        .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 14, y + 6)], style));
+        .legend(swatch(style));
     Ok(chart)
 }
 
@@ -144,9 +133,7 @@ pub(super) fn draw_tubes_over_time<DB: DrawingBackend<ErrorType: 'static>>(
             .draw_series(bars.into_iter().map(|r| Rectangle::new(r, style)))
             .map_err(DrawError::from)?;
         if new {
-            series
-                .label(label)
-                .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 14, y + 6)], style));
+            series.label(label).legend(swatch(style));
         }
         chart
             .draw_series(
@@ -190,7 +177,7 @@ pub(super) fn draw_trajectories_over_time<DB: DrawingBackend<ErrorType: 'static>
             )
             .map_err(DrawError::from)?
             .label("equilibria")
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 14, y)], style));
+            .legend(line_swatch(style));
     }
     legend(&mut chart)
 }
@@ -228,7 +215,7 @@ pub(super) fn draw_verdicts_over_time<DB: DrawingBackend<ErrorType: 'static>>(
             .draw_series(bands)
             .map_err(DrawError::from)?
             .label(class.label)
-            .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 14, y + 6)], style));
+            .legend(swatch(style));
     }
     legend(&mut chart)
 }
