@@ -7,7 +7,7 @@ use cbfreach::boxes::IntervalBox;
 use cbfreach::equilibria::find_equilibria;
 use cbfreach::error_map::{error_map_path, ErrorMap};
 use cbfreach::filter::SafetyFilter;
-use cbfreach::plot::{self, Figure, View};
+use cbfreach::plot::{self, Figure, Kind, View};
 use cbfreach::problem::network_path;
 use cbfreach::reach::{
     Backend, CpuBackend, ReachMethod, ReachProblem, ReachResult, ReachSettings, TimeModel,
@@ -19,23 +19,6 @@ use cbfreach::verify::{simulate_model, VerifyReport};
 use super::args::{compile, ProblemArgs};
 use super::{load_scenario, progress_bar, CliResult};
 
-/// Which picture.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum FigureKind {
-    /// Paper Fig. 1: filtered-system trajectories, the unsafe set, equilibria.
-    Trajectories,
-    /// Paper Fig. 2: reach tubes (disturbance method) from the scenario's initial boxes.
-    Tubes,
-    /// Paper Fig. 3: NN-system boxes with and without the closeness inflation, and filtered
-    /// trajectories inside them.
-    Minkowski,
-    /// A verdict map from `cbfreach verify --json` (give it with --input).
-    Verdicts,
-    /// The network's error map (`cbfreach error`): each cell coloured by its certified bound
-    /// on ‖N − v‖∞ (the map beside the network, or the one given with --input).
-    ErrorMap,
-}
-
 /// Arguments of `cbfreach plot`.
 #[derive(clap::Args)]
 pub struct PlotArgs {
@@ -43,7 +26,7 @@ pub struct PlotArgs {
     pub scenario: PathBuf,
     /// Which picture.
     #[arg(long, value_enum)]
-    pub figure: FigureKind,
+    pub figure: Kind,
     /// Input data: the verdict JSON for `verdicts`; for `error-map` a map file instead of
     /// the one beside the network.
     #[arg(long)]
@@ -157,14 +140,7 @@ pub fn run(args: &PlotArgs) -> CliResult {
     super::check_outputs(&[Some(&args.out)])?;
     let view = View::parse(&s, args.axes.as_deref(), &args.slice)?;
     // Before any input is read: what the view can show.
-    let kind = match args.figure {
-        FigureKind::Trajectories => plot::Kind::Trajectories,
-        FigureKind::Tubes => plot::Kind::Tubes,
-        FigureKind::Minkowski => plot::Kind::Minkowski,
-        FigureKind::Verdicts => plot::Kind::Verdicts,
-        FigureKind::ErrorMap => plot::Kind::ErrorMap,
-    };
-    kind.check(&view, &s)?;
+    args.figure.check(&view, &s)?;
     let size = match &args.size {
         Some(t) => parse_size(t)?,
         None if view.time => (1000, 600),
@@ -172,7 +148,7 @@ pub fn run(args: &PlotArgs) -> CliResult {
     };
     let out: &Path = &args.out;
     match args.figure {
-        FigureKind::Trajectories => {
+        Kind::Trajectories => {
             // Past the dense search's size: no equilibria drawn.
             let found = cbfreach::verify::equilibrium_search_for(s.n())
                 .map(|q| find_equilibria(&SafetyFilter::new(&s), &s.reach.region, &q))
@@ -189,9 +165,9 @@ pub fn run(args: &PlotArgs) -> CliResult {
                 size,
             )?;
         }
-        FigureKind::Tubes | FigureKind::Minkowski => {
+        Kind::Tubes | Kind::Minkowski => {
             let problem = compile(&s, &args.problem)?;
-            let method = if args.figure == FigureKind::Tubes {
+            let method = if args.figure == Kind::Tubes {
                 ReachMethod::Disturbance
             } else {
                 ReachMethod::Minkowski
@@ -226,7 +202,7 @@ pub fn run(args: &PlotArgs) -> CliResult {
                 )?;
             }
         }
-        FigureKind::Verdicts => {
+        Kind::Verdicts => {
             let input = args.input.as_ref().ok_or(
                 "--figure verdicts needs --input FILE (from `cbfreach verify --json FILE`)",
             )?;
@@ -246,7 +222,7 @@ pub fn run(args: &PlotArgs) -> CliResult {
             }
             plot::save_view(&figure, &view, out, size)?;
         }
-        FigureKind::ErrorMap => {
+        Kind::ErrorMap => {
             let file = match &args.input {
                 Some(f) => f.clone(),
                 None => error_map_path(&network_path(&s, args.problem.network.as_deref())?),

@@ -134,18 +134,21 @@ impl<E: std::error::Error + Send + Sync + 'static> From<DrawingAreaErrorKind<E>>
     }
 }
 
-/// The kinds of [`Figure`], for what can be checked before a figure's data are read.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// The kinds of [`Figure`] (`plot --figure`), for what can be checked before a figure's data
+/// are read.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum Kind {
-    /// [`Figure::Trajectories`].
+    /// Paper Fig. 1: filtered-system trajectories, the unsafe set, equilibria.
     Trajectories,
-    /// [`Figure::Tubes`].
+    /// Paper Fig. 2: reach tubes (disturbance method) from the scenario's initial boxes.
     Tubes,
-    /// [`Figure::Minkowski`].
+    /// Paper Fig. 3: NN-system boxes with and without the closeness inflation, and filtered
+    /// trajectories inside them.
     Minkowski,
-    /// [`Figure::Verdicts`].
+    /// A verdict map from `cbfreach verify --json` (give it with --input).
     Verdicts,
-    /// [`Figure::ErrorMap`].
+    /// The network's error map (`cbfreach error`): each cell coloured by its certified bound
+    /// on ‖N − v‖∞ (the map beside the network, or the one given with --input).
     ErrorMap,
 }
 

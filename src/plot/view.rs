@@ -239,6 +239,10 @@ mod tests {
         assert!(!v.keeps(&off));
         assert_eq!(v.lift(&s.reach.region, 1.0, 2.0), vec![1.0, 0.5, 2.0]);
         assert_eq!(v.describe(&s), " [v = 0.5]");
+        // A slice carries its state's unit (`[system] units`).
+        let mut with_units = s.clone();
+        with_units.units.insert("v".into(), "m/s".into());
+        assert_eq!(v.describe(&with_units), " [v = 0.5 m/s]");
         let projected = View::parse(&s, None, &[]).unwrap();
         assert_eq!(projected.describe(&s), " [projected along a]");
         for (axes, slices, needle) in [

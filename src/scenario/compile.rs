@@ -219,11 +219,14 @@ impl ScenarioFile {
                     ),
                 ));
             }
-            let fine = |ch: char| !ch.is_control();
-            if unit.trim().is_empty() || unit.chars().count() > 24 || !unit.chars().all(fine) {
+            let printable = !unit.chars().any(char::is_control);
+            if unit.trim().is_empty() || unit.chars().count() > 24 || !printable {
                 return Err(c.invalid(
                     key,
-                    format!("expected a unit such as \"m/s\" (1 to 24 printable characters), found {unit:?}"),
+                    format!(
+                        "expected a unit such as \"m/s\" (1 to 24 printable characters), \
+                         found {unit:?}"
+                    ),
                 ));
             }
         }

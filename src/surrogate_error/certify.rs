@@ -339,8 +339,9 @@ impl Ord for Entry {
 /// that the map fits the region and the network in any dimension). Every cell gets a certified
 /// bound ([`cell_error_bound_mv`]) and a cheap sampled error `e` (corners, centre and
 /// [`ErrorSettings::cell_samples`] random points). A cell is bisected (across the axis
-/// [`super::joint::split_axis`] names, else its widest) while its bound exceeds its target `max(local_ratio · e, floor)`
-/// ([`ErrorSettings::local_ratio`], [`ErrorSettings::floor`]), the largest gaps
+/// [`super::joint::split_axis`] names, else its widest) while its bound exceeds its target
+/// `max(local_ratio · e, floor)` ([`ErrorSettings::local_ratio`], [`ErrorSettings::floor`]),
+/// the largest gaps
 /// `bound − target` times cell width first (weighted by [`ErrorSettings::goal_weight`] on cells
 /// that meet the scenario's goal set), down to [`ErrorSettings::min_cell`], in parallel
 /// batches, until every cell meets its target, [`ErrorSettings::budget`] cell evaluations are
@@ -647,7 +648,8 @@ pub fn witness_error(
 /// most `1/SETTLE_SPLITS` of `C`'s, then kept as it is.
 const SETTLE_SPLITS: f64 = 64.0;
 
-/// A kept cell's certified bound, its refinement target (+∞: settled), and the cell.
+/// A kept cell's certified bound, its refinement target (+∞: settled), the cell, and the axis
+/// to bisect it across (`None`: its widest).
 type CellOutcome = (f64, f64, IntervalBox, Option<usize>);
 
 #[cfg(test)]
