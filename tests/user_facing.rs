@@ -347,12 +347,12 @@ fn one_state_draws_over_time() {
     let text = std::fs::read_to_string(&svg).unwrap();
     assert!(text.split_whitespace().any(|w| w == "gap"), "no state axis");
     // Its verdict map is each box's band over time, its error map the bound along the state.
+    // With no --grid: 64 cells along its one state (the default was 64 × 64 whatever the
+    // state count, and refused here).
     let (json, svg) = (tmp.path().join("v.json"), tmp.path().join("v.svg"));
-    let (code, _, err) = cbfreach(&[
+    let (code, out, err) = cbfreach(&[
         "verify",
         w.to_str().unwrap(),
-        "--grid",
-        "7",
         "--m-c",
         "1.5",
         "--json",
@@ -361,6 +361,7 @@ fn one_state_draws_over_time() {
         svg.to_str().unwrap(),
     ]);
     assert_eq!(code, 0, "{err}");
+    assert!(out.contains("grid [64],"), "{out}");
     let text = std::fs::read_to_string(&svg).unwrap();
     let text = text.split_whitespace().collect::<Vec<_>>().join(" ");
     assert!(

@@ -27,9 +27,10 @@ pub struct VerifyArgs {
     /// Region to partition, LOWER:UPPER (e.g. -3.5,-3:4.5,3); default: the region C.
     #[arg(long, value_name = "LOWER:UPPER", allow_hyphen_values = true)]
     pub region: Option<String>,
-    /// Cells per axis, e.g. 64,64.
-    #[arg(long, default_value_t = Grid(VerifySettings::default().grid))]
-    pub grid: Grid,
+    /// Cells per axis, e.g. 64,64 (default: the scenario's `[settings.verify] grid`, else 64 per axis
+    /// in one or two states and at most 4,096 cells in more: 16,16,16 or 8,8,8,8).
+    #[arg(long)]
+    pub grid: Option<Grid>,
     /// Engine and GPU options.
     #[command(flatten)]
     pub engine: EngineArgs,
@@ -147,9 +148,10 @@ pub fn run(args: &VerifyArgs) -> CliResult {
         .map(str::parse::<Shard>)
         .transpose()
         .map_err(|e| flag_error(&e))?;
-    if given("grid") {
-        settings.grid = args.grid.0.clone();
-    }
+    settings.grid = match &args.grid {
+        Some(grid) => grid.0.clone(),
+        None => settings.grid_for(s.n()),
+    };
     if given("refine") {
         settings.refine_depth = args.refine;
     }

@@ -3,6 +3,7 @@
 
 use plotters::coord::Shift;
 use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 use super::{Chart, DrawError, View, DARK, OBSTACLE};
 use crate::boxes::IntervalBox;
@@ -78,55 +79,187 @@ pub(super) fn axes<'a, DB: DrawingBackend<ErrorType: 'static>>(
     Ok(chart)
 }
 
-/// Shades the cells of a fine grid over `region` where some `hᵢ < 0` at the centre; in a
-/// projection (some state neither drawn nor sliced) there is no one point to ask, and nothing
-/// is shaded.
-pub(super) fn shade_unsafe<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
-    chart: &mut Chart<'a, DB>,
+/// The unsafe set over the view's plane as rectangles: runs of a grid at about two pixels of
+/// a `pixels`-sized picture where some `hᵢ < 0` at the grid point, merged along each row (a
+/// sampled picture, not a proof). In a projection (some state neither drawn nor sliced) there
+/// is no one point to ask, and nothing is returned.
+pub(super) fn unsafe_rects(
     view: &View,
     scenario: &Scenario,
     region: &IntervalBox,
-) -> Result<(), DrawError> {
+    pixels: (u32, u32),
+) -> Vec<[(f64, f64); 2]> {
     if !view.is_whole(scenario.n()) {
-        return Ok(());
+        return Vec::new();
     }
-    let (nx, ny) = (240usize, 180usize);
-    let cells = view.plane(region).partition(&[nx, ny]);
-    let bad: Vec<&IntervalBox> = cells
-        .iter()
-        .filter(|c| {
-            let m = c.center();
-            let x = view.lift(region, m[0], m[1]);
-            scenario.cbfs.iter().any(|h| h.h.eval(&x) < 0.0)
-        })
-        .collect();
-    if bad.is_empty() {
-        return Ok(());
+    let plane = view.plane(region);
+    let (nx, ny) = (
+        (pixels.0 / 2).max(8) as usize,
+        (pixels.1 / 2).max(8) as usize,
+    );
+    let (x0, y0) = (plane.lower[0], plane.lower[1]);
+    let (dx, dy) = (plane.widths()[0] / nx as f64, plane.widths()[1] / ny as f64);
+    let mut rects = Vec::new();
+    for j in 0..ny {
+        let y = y0 + (j as f64 + 0.5) * dy;
+        let mut run: Option<usize> = None;
+        for i in 0..=nx {
+            let unsafe_here = i < nx && {
+                let x = view.lift(region, x0 + (i as f64 + 0.5) * dx, y);
+                !scenario.is_safe(&x)
+            };
+            match (unsafe_here, run) {
+                (true, None) => run = Some(i),
+                (false, Some(from)) => {
+                    let rect = [
+                        (x0 + from as f64 * dx, y0 + j as f64 * dy),
+                        (x0 + i as f64 * dx, y0 + (j + 1) as f64 * dy),
+                    ];
+                    rects.push(rect);
+                    run = None;
+                }
+                _ => {}
+            }
+        }
     }
+    rects
+}
+
+/// The unsafe set's rectangles over the view's plane for a picture of `root`'s size, and its
+/// legend entry where there are any.
+pub(super) fn unsafe_layer<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    legend: &mut Legend,
+    view: &View,
+    scenario: &Scenario,
+    region: &IntervalBox,
+) -> Vec<[(f64, f64); 2]> {
+    let rects = unsafe_rects(view, scenario, region, root.dim_in_pixel());
+    if !rects.is_empty() {
+        legend.push("unsafe set (some h < 0)", Swatch::Rect(OBSTACLE.filled()));
+    }
+    rects
+}
+
+/// Rectangles of the chart's coordinates, filled or outlined as `style` says.
+pub(super) fn draw_rects<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
+    chart: &mut Chart<'a, DB>,
+    rects: &[[(f64, f64); 2]],
+    style: ShapeStyle,
+) -> Result<(), DrawError> {
     chart
-        .draw_series(bad.iter().map(|c| {
-            Rectangle::new(
-                [(c.lower[0], c.lower[1]), (c.upper[0], c.upper[1])],
-                OBSTACLE.filled(),
-            )
-        }))
-        .map_err(DrawError::from)?
-        .label("unsafe set (some h < 0)")
-        .legend(|(x, y)| Rectangle::new([(x, y - 6), (x + 14, y + 6)], OBSTACLE.filled()));
+        .draw_series(rects.iter().map(|&r| Rectangle::new(r, style)))
+        .map_err(DrawError::from)?;
     Ok(())
 }
 
-pub(super) fn legend<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
-    chart: &mut Chart<'a, DB>,
-) -> Result<(), DrawError> {
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperLeft)
-        .background_style(WHITE.mix(0.85))
-        .border_style(DARK)
-        .label_font(("sans-serif", 14))
-        .draw()
-        .map_err(DrawError::from)
+/// What a legend entry shows beside its label.
+#[derive(Clone, Copy, Debug)]
+pub(super) enum Swatch {
+    /// A small rectangle, filled or outlined as the style says: boxes, cells, shading.
+    Rect(ShapeStyle),
+    /// A short stroke: trajectories, levels.
+    Line(ShapeStyle),
+    /// A dot.
+    Dot(ShapeStyle),
+    /// A cross.
+    Cross(ShapeStyle),
+    /// A triangle.
+    Triangle(ShapeStyle),
+}
+
+/// A picture's legend: its entries in the order they are drawn, laid out in a strip below the
+/// chart in as many columns as fit, so that it hides none of the data.
+#[derive(Debug, Default)]
+pub(super) struct Legend {
+    entries: Vec<(String, Swatch)>,
+}
+
+/// The legend's text size, row height, room for a swatch before its label, space between
+/// columns and above and below the rows, in pixels.
+const LEGEND_FONT: f64 = 14.0;
+const LEGEND_ROW: u32 = 20;
+const LEGEND_SWATCH: i32 = 24;
+const LEGEND_GAP: i32 = 28;
+const LEGEND_PAD: u32 = 8;
+/// Where the rows start across: the chart's margin and y-label area, so that the legend lines
+/// up with the plotting area.
+const LEGEND_LEFT: i32 = 12 + 58;
+
+impl Legend {
+    /// An entry, unless one with the same label is already there.
+    pub(super) fn push(&mut self, label: impl Into<String>, swatch: Swatch) {
+        let label = label.into();
+        if !self.entries.iter().any(|(l, _)| *l == label) {
+            self.entries.push((label, swatch));
+        }
+    }
+
+    fn font(&self) -> TextStyle<'static> {
+        ("sans-serif", LEGEND_FONT).into_font().color(&DARK)
+    }
+
+    /// Columns, each column's width and rows, for a picture `root` wide.
+    fn layout<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> (usize, i32, usize) {
+        let font = self.font();
+        let widest = (self.entries.iter())
+            .map(|(l, _)| {
+                root.estimate_text_size(l, &font)
+                    .map_or(8 * l.len() as u32, |s| s.0)
+            })
+            .max()
+            .unwrap_or(0) as i32;
+        let column = widest + LEGEND_SWATCH + LEGEND_GAP;
+        let room = root.dim_in_pixel().0 as i32 - LEGEND_LEFT - 12 + LEGEND_GAP;
+        let columns = ((room / column.max(1)).max(1) as usize).min(self.entries.len().max(1));
+        let rows = self.entries.len().div_ceil(columns);
+        (columns, column, rows)
+    }
+
+    /// The chart's area and, below it, the legend's strip (none for no entries).
+    pub(super) fn split<DB: DrawingBackend>(
+        &self,
+        root: &DrawingArea<DB, Shift>,
+    ) -> (DrawingArea<DB, Shift>, Option<DrawingArea<DB, Shift>>) {
+        if self.entries.is_empty() {
+            return (root.clone(), None);
+        }
+        let (_, _, rows) = self.layout(root);
+        let strip = rows as u32 * LEGEND_ROW + 2 * LEGEND_PAD;
+        let height = root.dim_in_pixel().1;
+        // A picture too short for its legend keeps at least half its height for the chart.
+        let strip = strip.min(height / 2);
+        let (chart, legend) = root.split_vertically(height - strip);
+        (chart, Some(legend))
+    }
+
+    /// Draws the entries row by row into the strip [`Legend::split`] gave.
+    pub(super) fn draw<DB: DrawingBackend<ErrorType: 'static>>(
+        &self,
+        strip: Option<&DrawingArea<DB, Shift>>,
+    ) -> Result<(), DrawError> {
+        let Some(strip) = strip else {
+            return Ok(());
+        };
+        let (columns, column, _) = self.layout(strip);
+        let style = (self.font()).pos(Pos::new(HPos::Left, VPos::Center));
+        for (k, (label, swatch)) in self.entries.iter().enumerate() {
+            let x = LEGEND_LEFT + (k % columns) as i32 * column;
+            let y = (LEGEND_PAD + (k / columns) as u32 * LEGEND_ROW + LEGEND_ROW / 2) as i32;
+            let drawn = match *swatch {
+                Swatch::Rect(s) => strip.draw(&Rectangle::new([(x, y - 6), (x + 16, y + 6)], s)),
+                Swatch::Line(s) => strip.draw(&PathElement::new(vec![(x, y), (x + 16, y)], s)),
+                Swatch::Dot(s) => strip.draw(&Circle::new((x + 8, y), 6, s)),
+                Swatch::Cross(s) => strip.draw(&Cross::new((x + 8, y), 6, s)),
+                Swatch::Triangle(s) => strip.draw(&TriangleMarker::new((x + 8, y), 7, s)),
+            };
+            drawn.map_err(DrawError::from)?;
+            strip
+                .draw(&Text::new(label.as_str(), (x + LEGEND_SWATCH, y), &style))
+                .map_err(DrawError::from)?;
+        }
+        Ok(())
+    }
 }
 
 /// A box's rectangle in the picture, clipped to the region.
@@ -139,6 +272,11 @@ pub(super) fn clamp_box(view: &View, b: &IntervalBox, r: &IntervalBox) -> [(f64,
     ]
 }
 
+/// Whether the view shows any of `boxes` (a slice meets it, or the view projects).
+pub(super) fn any_kept(view: &View, boxes: &[IntervalBox]) -> bool {
+    boxes.iter().any(|b| view.keeps(b))
+}
+
 /// Boxes of the state space (n-D) as rectangles: those the view's slices meet, projected.
 pub(super) fn box_series<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
     chart: &mut Chart<'a, DB>,
@@ -146,32 +284,12 @@ pub(super) fn box_series<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
     boxes: &[IntervalBox],
     region: &IntervalBox,
     style: ShapeStyle,
-    label: Option<&str>,
 ) -> Result<(), DrawError> {
-    let kept: Vec<&IntervalBox> = boxes.iter().filter(|b| view.keeps(b)).collect();
-    if kept.is_empty() {
-        return Ok(());
-    }
-    let series = chart
-        .draw_series(
-            kept.iter()
-                .map(|b| Rectangle::new(clamp_box(view, b, region), style)),
-        )
+    let kept = boxes.iter().filter(|b| view.keeps(b));
+    chart
+        .draw_series(kept.map(|b| Rectangle::new(clamp_box(view, b, region), style)))
         .map_err(DrawError::from)?;
-    if let Some(l) = label {
-        series.label(l).legend(swatch(style));
-    }
     Ok(())
-}
-
-/// A legend's swatch: a small rectangle in `style`.
-pub(super) fn swatch(style: ShapeStyle) -> impl Fn((i32, i32)) -> Rectangle<(i32, i32)> {
-    move |(x, y)| Rectangle::new([(x, y - 6), (x + 14, y + 6)], style)
-}
-
-/// A legend's swatch for a line: a short stroke in `style`.
-pub(super) fn line_swatch(style: ShapeStyle) -> impl Fn((i32, i32)) -> PathElement<(i32, i32)> {
-    move |(x, y)| PathElement::new(vec![(x, y), (x + 14, y)], style)
 }
 
 /// The intervals of `bands` equal bands of `[lo, hi]` along the view's drawn state (`view.y`)
@@ -192,4 +310,79 @@ pub(super) fn unsafe_bands(
             !scenario.is_safe(&view.lift(region, mid, mid))
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The legend takes a strip below the chart, in columns, and draws nothing above it.
+    #[test]
+    fn the_legend_lies_below_the_chart_in_columns() {
+        super::super::register_font();
+        let mut legend = Legend::default();
+        for k in 0..5 {
+            legend.push(format!("entry {k}"), Swatch::Rect(DARK.filled()));
+        }
+        legend.push("entry 0", Swatch::Line(DARK.stroke_width(1)));
+        assert_eq!(legend.entries.len(), 5, "a repeated label is one entry");
+        let mut svg = String::new();
+        let chart_height = {
+            let root = SVGBackend::with_string(&mut svg, (800, 600)).into_drawing_area();
+            let (columns, _, rows) = legend.layout(&root);
+            assert!(
+                columns > 1 && rows < 5 && rows * columns >= 5,
+                "{columns} × {rows}"
+            );
+            let (area, strip) = legend.split(&root);
+            let strip_height = strip.as_ref().map(|s| s.dim_in_pixel().1).unwrap();
+            assert_eq!(strip_height, rows as u32 * LEGEND_ROW + 2 * LEGEND_PAD);
+            assert_eq!(area.dim_in_pixel().1 + strip_height, 600);
+            legend.draw(strip.as_ref()).unwrap();
+            root.present().unwrap();
+            area.dim_in_pixel().1 as f64
+        };
+        let ys: Vec<f64> = (svg.split("<text").skip(1))
+            .filter_map(|t| t.split("y=\"").nth(1)?.split('"').next()?.parse().ok())
+            .collect();
+        assert_eq!(ys.len(), 5, "{svg}");
+        assert!(
+            ys.iter().all(|&y| y > chart_height),
+            "{ys:?} above {chart_height}"
+        );
+        // No entries: the chart keeps the whole picture.
+        let mut svg = String::new();
+        let root = SVGBackend::with_string(&mut svg, (800, 600)).into_drawing_area();
+        let (area, strip) = Legend::default().split(&root);
+        assert!(strip.is_none() && area.dim_in_pixel() == (800, 600));
+    }
+
+    /// The unsafe set's runs cover the sampled points where some `h < 0`, and no others.
+    #[test]
+    fn unsafe_runs_cover_the_unsafe_points() {
+        let scenario = crate::scenario::Scenario::load(std::path::Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/scenarios/integrator.toml"
+        )))
+        .unwrap();
+        let region = scenario.reach.region.clone();
+        let view = View::first(scenario.n());
+        let rects = unsafe_rects(&view, &scenario, &region, (400, 300));
+        let inside = |x: f64, y: f64| {
+            (rects.iter()).any(|r| r[0].0 <= x && x <= r[1].0 && r[0].1 <= y && y <= r[1].1)
+        };
+        // The obstacle's disc of radius 1 about (2, 0), within a grid step (0.04 × 0.04).
+        for (x, y, unsafe_here) in [
+            (2.0, 0.0, true),
+            (2.9, 0.0, true),
+            (2.0, -0.9, true),
+            (3.1, 0.0, false),
+            (0.0, 0.0, false),
+            (2.0, 1.1, false),
+        ] {
+            assert_eq!(inside(x, y), unsafe_here, "({x}, {y})");
+        }
+        // Runs, not cells: about one a row through the disc (50 rows of 0.04).
+        assert!(rects.len() <= 60, "{} rectangles", rects.len());
+    }
 }

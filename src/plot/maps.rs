@@ -6,7 +6,7 @@
 
 use std::collections::BTreeMap;
 
-use super::chart::{axes, line_swatch, unsafe_bands};
+use super::chart::{any_kept, axes, draw_rects, unsafe_bands, unsafe_layer, Legend, Swatch};
 use super::*;
 
 /// A verdict map's title: the share verified with the QP proven feasible on every set first,
@@ -173,7 +173,23 @@ pub(super) fn draw_verdicts<DB: DrawingBackend<ErrorType: 'static>>(
 ) -> Result<(), DrawError> {
     let region = &report.run.region;
     let title = verdicts_title(report);
-    let mut chart = chart(root, view, scenario, region, &title)?;
+    let classes = verdict_classes(report);
+    let traps: Vec<IntervalBox> = report.traps.iter().map(|t| t.region.clone()).collect();
+    let goal = std::slice::from_ref(&report.run.goal);
+    let mut legend = Legend::default();
+    for class in &classes {
+        if class.boxes.iter().any(|b| view.keeps(&b.initial)) {
+            legend.push(class.label.clone(), Swatch::Rect(class.colour.filled()));
+        }
+    }
+    if any_kept(view, &traps) {
+        legend.push("trap boxes", Swatch::Rect(VERMILION.stroke_width(2)));
+    }
+    if any_kept(view, goal) {
+        legend.push("goal set", Swatch::Rect(BLUE.stroke_width(2)));
+    }
+    let (area, strip) = legend.split(root);
+    let mut chart = chart(&area, view, scenario, region, &title)?;
     // In a projection: the volume of each class above each cell of a grid over the plane.
     let projected = (!view.is_whole(scenario.n())).then(|| {
         let grid = PlaneGrid::new(
@@ -191,21 +207,14 @@ pub(super) fn draw_verdicts<DB: DrawingBackend<ErrorType: 'static>>(
         }
         (grid, volume)
     });
-    for class in verdict_classes(report) {
+    for class in &classes {
         let boxes: Vec<IntervalBox> = class.boxes.iter().map(|b| b.initial.clone()).collect();
-        if !boxes.iter().any(|b| view.keeps(b)) {
+        if !any_kept(view, &boxes) {
             continue;
         }
-        let (colour, label) = (class.colour, class.label);
+        let colour = class.colour;
         let Some((grid, volume)) = &projected else {
-            box_series(
-                &mut chart,
-                view,
-                &boxes,
-                region,
-                colour.filled(),
-                Some(&label),
-            )?;
+            box_series(&mut chart, view, &boxes, region, colour.filled())?;
             continue;
         };
         // Each grid cell split left to right into stripes, one per class, as wide as the
@@ -222,11 +231,7 @@ pub(super) fn draw_verdicts<DB: DrawingBackend<ErrorType: 'static>>(
                 colour.filled(),
             ))
         });
-        chart
-            .draw_series(stripes)
-            .map_err(DrawError::from)?
-            .label(label)
-            .legend(swatch(colour.filled()));
+        chart.draw_series(stripes).map_err(DrawError::from)?;
     }
     // Thin cell borders so the refinement is visible (left out when cells are tiny or
     // stacked in a projection).
@@ -238,34 +243,11 @@ pub(super) fn draw_verdicts<DB: DrawingBackend<ErrorType: 'static>>(
             &all,
             region,
             WHITE.mix(0.6).stroke_width(1),
-            None,
         )?;
     }
-    let traps: Vec<IntervalBox> = report.traps.iter().map(|t| t.region.clone()).collect();
-    box_series(
-        &mut chart,
-        view,
-        &traps,
-        region,
-        VERMILION.stroke_width(2),
-        Some("trap boxes"),
-    )?;
-    box_series(
-        &mut chart,
-        view,
-        std::slice::from_ref(&report.run.goal),
-        region,
-        BLUE.stroke_width(2),
-        Some("goal set"),
-    )?;
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperLeft)
-        .background_style(WHITE.mix(0.9))
-        .border_style(DARK)
-        .label_font(("sans-serif", 14))
-        .draw()
-        .map_err(DrawError::from)
+    box_series(&mut chart, view, &traps, region, VERMILION.stroke_width(2))?;
+    box_series(&mut chart, view, goal, region, BLUE.stroke_width(2))?;
+    legend.draw(strip.as_ref())
 }
 
 /// Upper ends of the error map's colour classes (the last class is everything finite above).
@@ -334,7 +316,6 @@ pub(super) fn draw_error_map<DB: DrawingBackend<ErrorType: 'static>>(
 ) -> Result<(), DrawError> {
     let region = &map.region;
     let title = error_map_title(map, None, view.is_whole(scenario.n()));
-    let mut chart = chart(root, view, scenario, region, &title)?;
     // The cells as boxes, sorted into their classes in one pass; in a projection, the cells
     // of a 96 × 96 grid over the plane, each with the largest bound of the cells above it.
     let uncertified_class = ERROR_CLASSES.len() + 1;
@@ -371,45 +352,54 @@ pub(super) fn draw_error_map<DB: DrawingBackend<ErrorType: 'static>>(
         }
     }
     let total: f64 = classes.iter().flatten().map(IntervalBox::volume).sum();
-    for (class, boxes) in classes.iter().enumerate().filter(|(_, b)| !b.is_empty()) {
+    let mut legend = Legend::default();
+    for (class, boxes) in classes
+        .iter()
+        .enumerate()
+        .filter(|(_, b)| any_kept(view, b))
+    {
         let colour = ERROR_COLOURS.get(class).copied().unwrap_or(VERMILION);
         let area: f64 = boxes.iter().map(IntervalBox::volume).sum();
-        let share = 100.0 * area / total.max(f64::MIN_POSITIVE);
-        let share = if share < 0.05 {
-            "< 0.1%".to_string()
-        } else {
-            format!("{share:.1}%")
-        };
-        let label = format!("{} ({share} of the mapped area)", error_class_label(class));
-        box_series(
-            &mut chart,
-            view,
-            boxes,
-            region,
-            colour.filled(),
-            Some(&label),
-        )?;
+        let label = format!(
+            "{} ({} of the mapped area)",
+            error_class_label(class),
+            percent(100.0 * area / total.max(f64::MIN_POSITIVE))
+        );
+        legend.push(label, Swatch::Rect(colour.filled()));
     }
-    shade_unsafe(&mut chart, view, scenario, region)?;
+    let shaded = unsafe_layer(root, &mut legend, view, scenario, region);
+    let goal = std::slice::from_ref(&scenario.reach.goal);
+    if any_kept(view, goal) {
+        legend.push("goal set", Swatch::Rect(BLUE.stroke_width(2)));
+    }
+    let (area, strip) = legend.split(root);
+    let mut chart = chart(&area, view, scenario, region, &title)?;
+    for (class, boxes) in classes.iter().enumerate() {
+        let colour = ERROR_COLOURS.get(class).copied().unwrap_or(VERMILION);
+        box_series(&mut chart, view, boxes, region, colour.filled())?;
+    }
+    draw_rects(&mut chart, &shaded, OBSTACLE.filled())?;
     // Uncertified cells are few and tiny (where `L_g h = 0` on S's boundary): ring them, over
     // the shading of the unsafe set they straddle.
+    let uncertified = &classes[uncertified_class];
     box_series(
         &mut chart,
         view,
-        &classes[uncertified_class],
+        uncertified,
         region,
         VERMILION.stroke_width(3),
-        None,
     )?;
-    box_series(
-        &mut chart,
-        view,
-        std::slice::from_ref(&scenario.reach.goal),
-        region,
-        BLUE.stroke_width(2),
-        Some("goal set"),
-    )?;
-    legend(&mut chart)
+    box_series(&mut chart, view, goal, region, BLUE.stroke_width(2))?;
+    legend.draw(strip.as_ref())
+}
+
+/// A share in percent as the legends give it: one decimal, `< 0.1%` for less.
+fn percent(share: f64) -> String {
+    if share < 0.05 {
+        "< 0.1%".to_string()
+    } else {
+        format!("{share:.1}%")
+    }
 }
 
 /// An error map along one state (`--axes t,NAME`, the default for a one-state system): the
@@ -439,8 +429,8 @@ pub(super) fn draw_error_map_along<DB: DrawingBackend<ErrorType: 'static>>(
         envelope(cells, (lo, hi), 400)
     };
     let finite = bars.iter().map(|b| b.2).filter(|m| m.is_finite());
-    // Room above the bars for the legend.
-    let top = 1.3
+    // A little room above the tallest bar and the measured line.
+    let top = 1.05
         * finite
             .fold(map.measured_linf, f64::max)
             .max(f64::MIN_POSITIVE);
@@ -455,70 +445,64 @@ pub(super) fn draw_error_map_along<DB: DrawingBackend<ErrorType: 'static>>(
         },
     );
     let names = [state.as_str(), bound.as_str()];
-    let mut chart = axes(root, &title, [(lo, hi), (0.0, top)], names)?;
-    if view.is_whole(n) {
-        let bands = unsafe_bands(view, scenario, region, (lo, hi), 400);
-        let shaded = (bands.into_iter())
-            .map(|(a, b)| Rectangle::new([(a, 0.0), (b, top)], OBSTACLE.filled()));
-        chart.draw_series(shaded).map_err(DrawError::from)?;
+    let shaded = match view.is_whole(n) {
+        true => unsafe_bands(view, scenario, region, (lo, hi), 400),
+        false => Vec::new(),
+    };
+    let mut legend = Legend::default();
+    if !shaded.is_empty() {
+        legend.push("unsafe set (some h < 0)", Swatch::Rect(OBSTACLE.filled()));
     }
     let uncertified = ERROR_CLASSES.len() + 1;
     let total: f64 = bars.iter().map(|b| b.1 - b.0).sum();
+    // Each class's bars and style; uncertified cells reach to the top, pale.
+    let mut classes = Vec::new();
     for class in 0..=uncertified {
-        let mine: Vec<&(f64, f64, f64)> = (bars.iter())
+        let mine: Vec<[(f64, f64); 2]> = (bars.iter())
             .filter(|b| error_class(b.2) == class)
+            .map(|&(a, b, m)| [(a, 0.0), (b, if class == uncertified { top } else { m })])
             .collect();
         if mine.is_empty() {
             continue;
         }
-        let length: f64 = mine.iter().map(|b| b.1 - b.0).sum();
-        let share = 100.0 * length / total.max(f64::MIN_POSITIVE);
-        let share = if share < 0.05 {
-            "< 0.1%".to_string()
-        } else {
-            format!("{share:.1}%")
+        let length: f64 = mine.iter().map(|[a, b]| b.0 - a.0).sum();
+        let colour = match ERROR_COLOURS.get(class) {
+            Some(&c) => c.mix(1.0),
+            None => VERMILION.mix(0.45),
         };
         let label = format!(
-            "{} ({share} of the mapped length)",
-            error_class_label(class)
+            "{} ({} of the mapped length)",
+            error_class_label(class),
+            percent(100.0 * length / total.max(f64::MIN_POSITIVE))
         );
-        // Uncertified cells reach to the top, hatched pale.
-        let (colour, height) = match ERROR_COLOURS.get(class) {
-            Some(&c) => (c.mix(1.0), None),
-            None => (VERMILION.mix(0.45), Some(top)),
-        };
-        let style = colour.filled();
-        chart
-            .draw_series(
-                mine.iter()
-                    .map(|&&(a, b, m)| Rectangle::new([(a, 0.0), (b, height.unwrap_or(m))], style)),
-            )
-            .map_err(DrawError::from)?
-            .label(label)
-            .legend(swatch(style));
+        legend.push(label, Swatch::Rect(colour.filled()));
+        classes.push((mine, colour.filled()));
     }
     let goal = &scenario.reach.goal;
-    let style = BLUE.stroke_width(2);
-    let (g0, g1) = (goal.lower[y].max(lo), goal.upper[y].min(hi));
-    chart
-        .draw_series(std::iter::once(Rectangle::new(
-            [(g0, 0.0), (g1, top)],
-            style,
-        )))
-        .map_err(DrawError::from)?
-        .label("goal set")
-        .legend(swatch(style));
+    let goal_style = BLUE.stroke_width(2);
+    legend.push("goal set", Swatch::Rect(goal_style));
     let measured = map.measured_linf;
-    let style = DARK.stroke_width(1);
+    let measured_style = DARK.stroke_width(1);
+    legend.push(
+        format!("measured max ‖N − v‖∞ over C ∩ S ({measured:.3})"),
+        Swatch::Line(measured_style),
+    );
+    let (area, strip) = legend.split(root);
+    let mut chart = axes(&area, &title, [(lo, hi), (0.0, top)], names)?;
+    let shaded: Vec<[(f64, f64); 2]> = shaded.iter().map(|&(a, b)| [(a, 0.0), (b, top)]).collect();
+    draw_rects(&mut chart, &shaded, OBSTACLE.filled())?;
+    for (bars, style) in &classes {
+        draw_rects(&mut chart, bars, *style)?;
+    }
+    let (g0, g1) = (goal.lower[y].max(lo), goal.upper[y].min(hi));
+    draw_rects(&mut chart, &[[(g0, 0.0), (g1, top)]], goal_style)?;
     chart
         .draw_series(std::iter::once(PathElement::new(
             vec![(lo, measured), (hi, measured)],
-            style,
+            measured_style,
         )))
-        .map_err(DrawError::from)?
-        .label(format!("measured max ‖N − v‖∞ over C ∩ S ({measured:.3})"))
-        .legend(line_swatch(style));
-    legend(&mut chart)
+        .map_err(DrawError::from)?;
+    legend.draw(strip.as_ref())
 }
 
 /// The largest bound above each of `bands` equal bands of `[lo, hi]`, from cells `(from, to,

@@ -37,7 +37,7 @@ mod planar;
 mod time;
 mod view;
 
-use chart::{box_series, chart, legend, shade_unsafe, swatch};
+use chart::{box_series, chart};
 use maps::{draw_error_map, draw_verdicts};
 pub use maps::{error_class, verdicts_title, ERROR_CLASSES};
 use planar::{draw_minkowski, draw_trajectories, draw_tubes};
@@ -45,6 +45,15 @@ pub use view::View;
 
 const FONT: &[u8] = include_bytes!("../../assets/DejaVuSans.ttf");
 static REGISTER: Once = Once::new();
+
+/// Makes the embedded font plotters' `sans-serif`, once.
+fn register_font() {
+    REGISTER.call_once(|| {
+        // The embedded font is valid; if registration failed, text would be missing but the
+        // drawing itself still errors clearly.
+        let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, FONT);
+    });
+}
 
 /// Why a picture could not be made.
 #[derive(Debug, thiserror::Error)]
@@ -302,11 +311,7 @@ pub fn save_view(
     path: &Path,
     size: (u32, u32),
 ) -> Result<(), PlotError> {
-    REGISTER.call_once(|| {
-        // The embedded font is valid; if registration failed, text would be missing but the
-        // drawing itself still errors clearly below.
-        let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, FONT);
-    });
+    register_font();
     if size.0 < 100 || size.1 < 100 || size.0 > 20_000 || size.1 > 20_000 {
         return Err(PlotError::Input(format!(
             "picture size {}×{}: each side must be between 100 and 20000 pixels",

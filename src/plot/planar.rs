@@ -5,8 +5,8 @@
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::chart::{box_series, chart, legend, shade_unsafe};
-use super::{Chart, DrawError, View, BLUE, DARK, GREEN, GREY, ORANGE, PURPLE, VERMILION};
+use super::chart::{any_kept, box_series, chart, draw_rects, unsafe_layer, Legend, Swatch};
+use super::{Chart, DrawError, View, BLUE, DARK, GREEN, GREY, OBSTACLE, ORANGE, PURPLE, VERMILION};
 use crate::boxes::IntervalBox;
 use crate::equilibria::{Equilibrium, Stability};
 use crate::reach::Tube;
@@ -38,98 +38,108 @@ pub(super) fn ending(scenario: &Scenario, equilibria: &[Equilibrium], end: &[f64
     }
 }
 
-fn draw_equilibria<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
-    chart: &mut Chart<'a, DB>,
-    view: &View,
-    equilibria: &[Equilibrium],
-) -> Result<(), DrawError> {
-    type Kind = (&'static str, fn(&Equilibrium) -> bool, RGBColor, u8);
+/// How an equilibrium of one kind is drawn.
+#[derive(Clone, Copy)]
+enum Marker {
+    Dot,
+    Cross,
+    Triangle,
+}
+
+/// The equilibria the view shows, by kind: label, colour, marker, points.
+type EquilibriumKind = (&'static str, RGBColor, Marker, Vec<(f64, f64)>);
+
+fn equilibrium_kinds(view: &View, equilibria: &[Equilibrium]) -> Vec<EquilibriumKind> {
+    type Kind = (&'static str, fn(&Equilibrium) -> bool, RGBColor, Marker);
     let kinds: [Kind; 4] = [
         (
             "stable equilibrium (goal)",
             |e| e.kind == Stability::Stable && !e.undesirable,
             BLUE,
-            0,
+            Marker::Dot,
         ),
         (
             "stable undesirable equilibrium",
             |e| e.kind == Stability::Stable && e.undesirable,
             VERMILION,
-            0,
+            Marker::Dot,
         ),
-        ("saddle", |e| e.kind == Stability::Saddle, DARK, 1),
+        (
+            "saddle",
+            |e| e.kind == Stability::Saddle,
+            DARK,
+            Marker::Cross,
+        ),
         (
             "unstable / non-hyperbolic",
             |e| matches!(e.kind, Stability::Unstable | Stability::NonHyperbolic),
             PURPLE,
-            2,
+            Marker::Triangle,
         ),
     ];
-    for (label, pick, colour, shape) in kinds {
-        let pts: Vec<(f64, f64)> = equilibria
-            .iter()
-            .filter(|e| pick(e) && view.keeps_point(&e.x, 1e-6))
-            .map(|e| view.point(&e.x))
-            .collect();
-        if pts.is_empty() {
-            continue;
-        }
-        let series = match shape {
-            0 => chart.draw_series(pts.into_iter().map(|p| {
+    (kinds.into_iter())
+        .map(|(label, pick, colour, marker)| {
+            let pts: Vec<(f64, f64)> = (equilibria.iter())
+                .filter(|e| pick(e) && view.keeps_point(&e.x, 1e-6))
+                .map(|e| view.point(&e.x))
+                .collect();
+            (label, colour, marker, pts)
+        })
+        .filter(|k| !k.3.is_empty())
+        .collect()
+}
+
+fn legend_equilibria(legend: &mut Legend, kinds: &[EquilibriumKind]) {
+    for &(label, colour, marker, _) in kinds {
+        legend.push(
+            label,
+            match marker {
+                Marker::Dot => Swatch::Dot(colour.filled()),
+                Marker::Cross => Swatch::Cross(colour.stroke_width(3)),
+                Marker::Triangle => Swatch::Triangle(colour.filled()),
+            },
+        );
+    }
+}
+
+fn draw_equilibria<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
+    chart: &mut Chart<'a, DB>,
+    kinds: &[EquilibriumKind],
+) -> Result<(), DrawError> {
+    for (_, colour, marker, pts) in kinds {
+        let (colour, pts) = (*colour, pts.iter().copied());
+        match marker {
+            Marker::Dot => chart.draw_series(pts.map(|p| {
                 EmptyElement::at(p)
                     + Circle::new((0, 0), 7, colour.filled())
                     + Circle::new((0, 0), 7, BLACK.stroke_width(1))
             })),
-            1 => chart.draw_series(
-                pts.into_iter()
-                    .map(|p| EmptyElement::at(p) + Cross::new((0, 0), 7, colour.stroke_width(3))),
+            Marker::Cross => chart.draw_series(
+                pts.map(|p| EmptyElement::at(p) + Cross::new((0, 0), 7, colour.stroke_width(3))),
             ),
-            _ => chart
-                .draw_series(pts.into_iter().map(|p| {
-                    EmptyElement::at(p) + TriangleMarker::new((0, 0), 8, colour.filled())
-                })),
+            Marker::Triangle => chart.draw_series(
+                pts.map(|p| EmptyElement::at(p) + TriangleMarker::new((0, 0), 8, colour.filled())),
+            ),
         }
         .map_err(DrawError::from)?;
-        let style: ShapeStyle = if shape == 1 {
-            colour.stroke_width(3)
-        } else {
-            colour.filled()
-        };
-        series.label(label).legend(move |(x, y)| {
-            if shape == 1 {
-                Cross::new((x + 7, y), 6, style).into_dyn()
-            } else {
-                Circle::new((x + 7, y), 6, style).into_dyn()
-            }
-        });
     }
     Ok(())
 }
 
 /// Trajectories as lines through `at(t, x)` (where a point is drawn: the plane's two states,
-/// or time and a state), the first labelled, each start as a dot where `starts`.
+/// or time and a state), each start as a dot where `starts`.
 pub(super) fn draw_lines<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
     chart: &mut Chart<'a, DB>,
     at: &impl Fn(f64, &[f64]) -> (f64, f64),
     lines: &[&Trajectory],
     style: ShapeStyle,
-    label: Option<&str>,
     starts: bool,
 ) -> Result<(), DrawError> {
-    let mut first = true;
     for t in lines {
         let points = t.t.iter().zip(&t.x).map(|(&ti, x)| at(ti, x));
-        let s = chart
+        chart
             .draw_series(LineSeries::new(points, style))
             .map_err(DrawError::from)?;
-        if first {
-            if let Some(l) = label {
-                s.label(l).legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 16, y)], style.stroke_width(3))
-                });
-            }
-            first = false;
-        }
         if starts {
             chart
                 .draw_series(std::iter::once(Circle::new(
@@ -143,25 +153,45 @@ pub(super) fn draw_lines<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
     Ok(())
 }
 
-/// The trajectories through `at` (as [`draw_lines`]), coloured by where they end ([`ending`]).
-pub(super) fn draw_by_ending<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
-    chart: &mut Chart<'a, DB>,
-    at: &impl Fn(f64, &[f64]) -> (f64, f64),
+/// Trajectories sorted by where they end ([`ending`]): label, colour, trajectories, for the
+/// classes that have some.
+pub(super) type EndingClass<'t> = (&'static str, RGBColor, Vec<&'t Trajectory>);
+
+pub(super) fn by_ending<'t>(
     scenario: &Scenario,
-    trajectories: &[Trajectory],
+    trajectories: &'t [Trajectory],
     equilibria: &[Equilibrium],
-) -> Result<(), DrawError> {
+) -> Vec<EndingClass<'t>> {
     let labels = [
         ("ends at the goal", BLUE),
         ("ends at an undesirable equilibrium", VERMILION),
         ("ends elsewhere", GREY),
     ];
-    for (class, (label, colour)) in labels.iter().enumerate() {
-        let lines: Vec<&Trajectory> = trajectories
-            .iter()
-            .filter(|t| ending(scenario, equilibria, t.last()) == class)
-            .collect();
-        draw_lines(chart, at, &lines, colour.stroke_width(2), Some(label), true)?;
+    (labels.into_iter().enumerate())
+        .map(|(class, (label, colour))| {
+            let lines: Vec<&Trajectory> = (trajectories.iter())
+                .filter(|t| ending(scenario, equilibria, t.last()) == class)
+                .collect();
+            (label, colour, lines)
+        })
+        .filter(|c| !c.2.is_empty())
+        .collect()
+}
+
+pub(super) fn legend_by_ending(legend: &mut Legend, classes: &[EndingClass]) {
+    for (label, colour, _) in classes {
+        legend.push(*label, Swatch::Line(colour.stroke_width(3)));
+    }
+}
+
+/// The trajectories through `at` (as [`draw_lines`]), coloured by where they end.
+pub(super) fn draw_by_ending<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
+    chart: &mut Chart<'a, DB>,
+    at: &impl Fn(f64, &[f64]) -> (f64, f64),
+    classes: &[EndingClass],
+) -> Result<(), DrawError> {
+    for (_, colour, lines) in classes {
+        draw_lines(chart, at, lines, colour.stroke_width(2), true)?;
     }
     Ok(())
 }
@@ -178,13 +208,18 @@ pub(super) fn draw_trajectories<DB: DrawingBackend<ErrorType: 'static>>(
         "Filtered system `{}`: trajectories and equilibria",
         scenario.name
     );
-    let mut chart = chart(root, view, scenario, region, &title)?;
-    shade_unsafe(&mut chart, view, scenario, region)?;
-    let at = |_: f64, x: &[f64]| view.point(x);
-    draw_by_ending(&mut chart, &at, scenario, trajectories, equilibria)?;
-    draw_equilibria(&mut chart, view, equilibria)?;
-    legend(&mut chart)?;
-    Ok(())
+    let mut legend = Legend::default();
+    let shaded = unsafe_layer(root, &mut legend, view, scenario, region);
+    let classes = by_ending(scenario, trajectories, equilibria);
+    legend_by_ending(&mut legend, &classes);
+    let kinds = equilibrium_kinds(view, equilibria);
+    legend_equilibria(&mut legend, &kinds);
+    let (area, strip) = legend.split(root);
+    let mut chart = chart(&area, view, scenario, region, &title)?;
+    draw_rects(&mut chart, &shaded, OBSTACLE.filled())?;
+    draw_by_ending(&mut chart, &|_, x| view.point(x), &classes)?;
+    draw_equilibria(&mut chart, &kinds)?;
+    legend.draw(strip.as_ref())
 }
 
 /// The colour and label of a tube by its outcome.
@@ -206,16 +241,34 @@ fn pick_samples(tube: &Tube, every: usize) -> impl Iterator<Item = &crate::reach
         .map(|(_, s)| s)
 }
 
-fn draw_goal<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
+/// Boxes drawn in one style, with the legend's label where they have one.
+type BoxLayer = (Vec<IntervalBox>, ShapeStyle, Option<&'static str>);
+
+/// Puts each labelled layer the view shows in the legend.
+fn legend_boxes(legend: &mut Legend, view: &View, layers: &[BoxLayer]) {
+    for (boxes, style, label) in layers {
+        if let Some(label) = label.filter(|_| any_kept(view, boxes)) {
+            legend.push(label, Swatch::Rect(*style));
+        }
+    }
+}
+
+/// Draws the layers in order.
+fn draw_boxes<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
     chart: &mut Chart<'a, DB>,
     view: &View,
-    scenario: &Scenario,
+    region: &IntervalBox,
+    layers: &[BoxLayer],
 ) -> Result<(), DrawError> {
-    box_series(
-        chart,
-        view,
-        std::slice::from_ref(&scenario.reach.goal),
-        &scenario.reach.region,
+    for (boxes, style, _) in layers {
+        box_series(chart, view, boxes, region, *style)?;
+    }
+    Ok(())
+}
+
+fn goal_layer(scenario: &Scenario) -> BoxLayer {
+    (
+        vec![scenario.reach.goal.clone()],
         GREEN.stroke_width(2),
         Some("goal set"),
     )
@@ -231,27 +284,16 @@ pub(super) fn draw_tubes<DB: DrawingBackend<ErrorType: 'static>>(
     title: &str,
 ) -> Result<(), DrawError> {
     let region = &scenario.reach.region;
-    let mut chart = chart(root, view, scenario, region, title)?;
-    shade_unsafe(&mut chart, view, scenario, region)?;
-    let mut seen: Vec<&str> = Vec::new();
+    let mut legend = Legend::default();
+    let shaded = unsafe_layer(root, &mut legend, view, scenario, region);
+    let mut layers: Vec<BoxLayer> = Vec::new();
     for (k, tube) in tubes.iter().enumerate() {
         if split.iter().any(|&(i, _)| i == k) {
             continue;
         }
         let (colour, label) = tube_class(scenario, tube);
         let boxes: Vec<IntervalBox> = pick_samples(tube, every).map(|s| s.set.clone()).collect();
-        let new = !seen.contains(&label);
-        if new {
-            seen.push(label);
-        }
-        box_series(
-            &mut chart,
-            view,
-            &boxes,
-            region,
-            colour.mix(0.8).stroke_width(1),
-            new.then_some(label),
-        )?;
+        layers.push((boxes, colour.mix(0.8).stroke_width(1), Some(label)));
     }
     // A split box's whole sets say nothing (they failed); its pieces and where they end do.
     for (converges, colour, label) in [
@@ -264,23 +306,17 @@ pub(super) fn draw_tubes<DB: DrawingBackend<ErrorType: 'static>>(
             .filter(|b| (b.verdict == Verdict::Converges) == converges)
             .flat_map(|b| std::iter::once(b.initial.clone()).chain(b.final_set.clone()))
             .collect();
-        if !boxes.is_empty() {
-            let style = colour.mix(0.8).stroke_width(1);
-            box_series(&mut chart, view, &boxes, region, style, Some(label))?;
-        }
+        layers.push((boxes, colour.mix(0.8).stroke_width(1), Some(label)));
     }
     let initial: Vec<IntervalBox> = tubes.iter().map(|t| t.initial.clone()).collect();
-    box_series(
-        &mut chart,
-        view,
-        &initial,
-        region,
-        BLACK.stroke_width(2),
-        Some("initial boxes"),
-    )?;
-    draw_goal(&mut chart, view, scenario)?;
-    legend(&mut chart)?;
-    Ok(())
+    layers.push((initial, BLACK.stroke_width(2), Some("initial boxes")));
+    layers.push(goal_layer(scenario));
+    legend_boxes(&mut legend, view, &layers);
+    let (area, strip) = legend.split(root);
+    let mut chart = chart(&area, view, scenario, region, title)?;
+    draw_rects(&mut chart, &shaded, OBSTACLE.filled())?;
+    draw_boxes(&mut chart, view, region, &layers)?;
+    legend.draw(strip.as_ref())
 }
 
 pub(super) fn draw_minkowski<DB: DrawingBackend<ErrorType: 'static>>(
@@ -296,8 +332,8 @@ pub(super) fn draw_minkowski<DB: DrawingBackend<ErrorType: 'static>>(
         "`{}`: NN-system boxes and closeness-inflated sets (Minkowski, paper Thm. 2)",
         scenario.name
     );
-    let mut chart = chart(root, view, scenario, region, &title)?;
-    shade_unsafe(&mut chart, view, scenario, region)?;
+    let mut legend = Legend::default();
+    let shaded = unsafe_layer(root, &mut legend, view, scenario, region);
     let mut inflated = Vec::new();
     let mut nn = Vec::new();
     for tube in tubes {
@@ -309,32 +345,27 @@ pub(super) fn draw_minkowski<DB: DrawingBackend<ErrorType: 'static>>(
             });
         }
     }
-    box_series(
-        &mut chart,
-        view,
-        &inflated,
-        region,
-        VERMILION.mix(0.7).stroke_width(1),
-        Some("with closeness radius r_t (filtered system)"),
-    )?;
-    box_series(
-        &mut chart,
-        view,
-        &nn,
-        region,
-        BLUE.stroke_width(1),
-        Some("without (NN system)"),
-    )?;
+    let boxes: Vec<BoxLayer> = vec![
+        (
+            inflated,
+            VERMILION.mix(0.7).stroke_width(1),
+            Some("with closeness radius r_t (filtered system)"),
+        ),
+        (nn, BLUE.stroke_width(1), Some("without (NN system)")),
+    ];
+    legend_boxes(&mut legend, view, &boxes);
     let lines: Vec<&Trajectory> = trajectories.iter().collect();
-    draw_lines(
-        &mut chart,
-        &|_, x| view.point(x),
-        &lines,
-        BLACK.mix(0.6).stroke_width(1),
-        Some("filtered trajectories"),
-        false,
-    )?;
-    draw_goal(&mut chart, view, scenario)?;
-    legend(&mut chart)?;
-    Ok(())
+    let line_style = BLACK.mix(0.6).stroke_width(1);
+    if !lines.is_empty() {
+        legend.push("filtered trajectories", Swatch::Line(line_style));
+    }
+    let goal = [goal_layer(scenario)];
+    legend_boxes(&mut legend, view, &goal);
+    let (area, strip) = legend.split(root);
+    let mut chart = chart(&area, view, scenario, region, &title)?;
+    draw_rects(&mut chart, &shaded, OBSTACLE.filled())?;
+    draw_boxes(&mut chart, view, region, &boxes)?;
+    draw_lines(&mut chart, &|_, x| view.point(x), &lines, line_style, false)?;
+    draw_boxes(&mut chart, view, region, &goal)?;
+    legend.draw(strip.as_ref())
 }

@@ -6,9 +6,9 @@
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::chart::{axes, legend, line_swatch, swatch, unsafe_bands};
+use super::chart::{axes, draw_rects, unsafe_bands, Legend, Swatch};
 use super::maps::{verdict_classes, verdicts_title};
-use super::planar::{draw_by_ending, tube_class};
+use super::planar::{by_ending, draw_by_ending, legend_by_ending, tube_class};
 use super::view::View;
 use super::{Chart, DrawError, DARK, GREEN, OBSTACLE};
 use crate::boxes::IntervalBox;
@@ -18,51 +18,83 @@ use crate::scenario::Scenario;
 use crate::simulate::Trajectory;
 use crate::verify::VerifyReport;
 
-/// The chart: `t` from 0 to `horizon` across, the drawn state up over `region`'s extent,
-/// with the unsafe set shaded where the state alone decides it (one state, all others sliced)
-/// and the goal's band.
-fn time_chart<'a, DB: DrawingBackend<ErrorType: 'static>>(
-    root: &'a DrawingArea<DB, Shift>,
-    view: &View,
-    scenario: &Scenario,
-    (region, horizon): (&IntervalBox, f64),
-    title: &str,
-) -> Result<Chart<'a, DB>, DrawError> {
-    let n = scenario.n();
-    let y = view.y;
-    let dim = region.dim().min(n);
-    if y >= dim || view.slice.iter().any(|&(k, _)| k >= dim) {
-        return Err(DrawError::NotPlanar {
-            file: scenario.file.clone(),
-            n,
-        });
+/// The time chart's ranges and axis names: `t` from 0 to `horizon` across, the drawn state up
+/// over `region`'s extent. Checks that the view fits the scenario.
+struct TimeAxes {
+    y: usize,
+    range: (f64, f64),
+    horizon: f64,
+    title: String,
+    names: [String; 2],
+}
+
+impl TimeAxes {
+    fn new(
+        view: &View,
+        scenario: &Scenario,
+        (region, horizon): (&IntervalBox, f64),
+        title: &str,
+    ) -> Result<TimeAxes, DrawError> {
+        let n = scenario.n();
+        let y = view.y;
+        let dim = region.dim().min(n);
+        if y >= dim || view.slice.iter().any(|&(k, _)| k >= dim) {
+            return Err(DrawError::NotPlanar {
+                file: scenario.file.clone(),
+                n,
+            });
+        }
+        Ok(TimeAxes {
+            y,
+            range: (region.lower[y], region.upper[y]),
+            horizon,
+            title: format!("{title}{}", view.describe(scenario)),
+            names: [scenario.time_label(), scenario.label(&scenario.states[y])],
+        })
     }
-    let (lo, hi) = (region.lower[y], region.upper[y]);
-    let title = format!("{title}{}", view.describe(scenario));
-    let state = scenario.label(&scenario.states[y]);
-    let time = scenario.time_label();
-    let names = [time.as_str(), state.as_str()];
-    let mut chart = axes(root, &title, [(0.0, horizon), (lo, hi)], names)?;
-    if view.is_whole(n) {
-        let bands = unsafe_bands(view, scenario, region, (lo, hi), 400);
-        let shaded = (bands.into_iter())
-            .map(|(a, b)| Rectangle::new([(0.0, a), (horizon, b)], OBSTACLE.filled()));
-        chart.draw_series(shaded).map_err(DrawError::from)?;
+
+    /// The chart on `area` with the unsafe set's `shaded` bands and the goal's band drawn.
+    fn chart<'a, DB: DrawingBackend<ErrorType: 'static>>(
+        &self,
+        area: &'a DrawingArea<DB, Shift>,
+        shaded: &[(f64, f64)],
+        goal: &IntervalBox,
+    ) -> Result<Chart<'a, DB>, DrawError> {
+        let (lo, hi) = self.range;
+        let names = [self.names[0].as_str(), self.names[1].as_str()];
+        let mut chart = axes(area, &self.title, [(0.0, self.horizon), (lo, hi)], names)?;
+        let bands: Vec<[(f64, f64); 2]> = (shaded.iter())
+            .map(|&(a, b)| [(0.0, a), (self.horizon, b)])
+            .collect();
+        draw_rects(&mut chart, &bands, OBSTACLE.filled())?;
+        let (g0, g1) = (goal.lower[self.y].max(lo), goal.upper[self.y].min(hi));
+        draw_rects(
+            &mut chart,
+            &[[(0.0, g0), (self.horizon, g1)]],
+            GREEN.stroke_width(2),
+        )?;
+        Ok(chart)
     }
-    let goal = &scenario.reach.goal;
-    let style = GREEN.stroke_width(2);
-    chart
-        .draw_series(std::iter::once(Rectangle::new(
-            [
-                (0.0, goal.lower[y].max(lo)),
-                (horizon, goal.upper[y].min(hi)),
-            ],
-            style,
-        )))
-        .map_err(DrawError::from)?
-        .label("goal set")
-        .legend(swatch(style));
-    Ok(chart)
+
+    /// The unsafe set's bands along the drawn state (where it alone decides it: one state, all
+    /// others sliced) and the legend's first entries: the shading (where any) and the goal.
+    fn legend(
+        &self,
+        view: &View,
+        scenario: &Scenario,
+        region: &IntervalBox,
+    ) -> (Legend, Vec<(f64, f64)>) {
+        let mut legend = Legend::default();
+        let shaded = match view.is_whole(scenario.n()) {
+            true => unsafe_bands(view, scenario, region, self.range, 400),
+            false => Vec::new(),
+        };
+        if !shaded.is_empty() {
+            legend.push("unsafe set (some h < 0)", Swatch::Rect(OBSTACLE.filled()));
+        }
+        legend.push("goal set", Swatch::Rect(GREEN.stroke_width(2)));
+        (legend, shaded)
+    }
 }
 
 /// The tubes against time: in continuous time (and sampled-data) the hull of each `every`
@@ -78,17 +110,13 @@ pub(super) fn draw_tubes_over_time<DB: DrawingBackend<ErrorType: 'static>>(
     title: &str,
 ) -> Result<(), DrawError> {
     let region = &scenario.reach.region;
-    let mut chart = time_chart(
-        root,
-        view,
-        scenario,
-        (region, scenario.reach.horizon),
-        title,
-    )?;
+    let time = TimeAxes::new(view, scenario, (region, scenario.reach.horizon), title)?;
+    let (mut legend, shaded) = time.legend(view, scenario, region);
     let y = view.y;
-    let (lo, hi) = (region.lower[y], region.upper[y]);
+    let (lo, hi) = time.range;
     let clip = |v: f64| v.clamp(lo, hi);
-    let mut seen: Vec<&str> = Vec::new();
+    // Each tube's bars (flowpipes over time) and lines (sets at one time), in its class's style.
+    let mut drawn = Vec::new();
     for &tube in tubes {
         let (colour, label) = tube_class(scenario, tube);
         let style = colour.mix(0.5).filled();
@@ -125,25 +153,18 @@ pub(super) fn draw_tubes_over_time<DB: DrawingBackend<ErrorType: 'static>>(
             }
             since = last.t;
         }
-        let new = !seen.contains(&label);
-        if new {
-            seen.push(label);
-        }
-        let series = chart
-            .draw_series(bars.into_iter().map(|r| Rectangle::new(r, style)))
-            .map_err(DrawError::from)?;
-        if new {
-            series.label(label).legend(swatch(style));
-        }
+        legend.push(label, Swatch::Rect(style));
+        drawn.push((bars, style, lines, colour.mix(0.8).stroke_width(2)));
+    }
+    let (area, strip) = legend.split(root);
+    let mut chart = time.chart(&area, &shaded, &scenario.reach.goal)?;
+    for (bars, style, lines, line_style) in drawn {
+        draw_rects(&mut chart, &bars, style)?;
         chart
-            .draw_series(
-                lines
-                    .into_iter()
-                    .map(|l| PathElement::new(l, colour.mix(0.8).stroke_width(2))),
-            )
+            .draw_series(lines.into_iter().map(|l| PathElement::new(l, line_style)))
             .map_err(DrawError::from)?;
     }
-    legend(&mut chart)
+    legend.draw(strip.as_ref())
 }
 
 /// The trajectories against time, coloured by where they end, and the equilibria's values of
@@ -156,30 +177,27 @@ pub(super) fn draw_trajectories_over_time<DB: DrawingBackend<ErrorType: 'static>
     equilibria: &[Equilibrium],
 ) -> Result<(), DrawError> {
     let title = format!("Filtered system `{}`: trajectories", scenario.name);
-    let over = (&scenario.reach.region, scenario.reach.horizon);
-    let mut chart = time_chart(root, view, scenario, over, &title)?;
-    let y = view.y;
-    draw_by_ending(
-        &mut chart,
-        &|t, x| (t, x[y]),
-        scenario,
-        trajectories,
-        equilibria,
-    )?;
+    let region = &scenario.reach.region;
+    let time = TimeAxes::new(view, scenario, (region, scenario.reach.horizon), &title)?;
+    let (mut legend, shaded) = time.legend(view, scenario, region);
+    let classes = by_ending(scenario, trajectories, equilibria);
+    legend_by_ending(&mut legend, &classes);
+    let style = DARK.stroke_width(1);
     if !equilibria.is_empty() {
-        let horizon = scenario.reach.horizon;
-        let style = DARK.stroke_width(1);
-        chart
-            .draw_series(
-                equilibria
-                    .iter()
-                    .map(|e| PathElement::new(vec![(0.0, e.x[y]), (horizon, e.x[y])], style)),
-            )
-            .map_err(DrawError::from)?
-            .label("equilibria")
-            .legend(line_swatch(style));
+        legend.push("equilibria", Swatch::Line(style));
     }
-    legend(&mut chart)
+    let (area, strip) = legend.split(root);
+    let mut chart = time.chart(&area, &shaded, &scenario.reach.goal)?;
+    let y = view.y;
+    draw_by_ending(&mut chart, &|t, x| (t, x[y]), &classes)?;
+    let horizon = time.horizon;
+    chart
+        .draw_series(
+            (equilibria.iter())
+                .map(|e| PathElement::new(vec![(0.0, e.x[y]), (horizon, e.x[y])], style)),
+        )
+        .map_err(DrawError::from)?;
+    legend.draw(strip.as_ref())
 }
 
 /// A verdict map over time: each leaf's interval of the drawn state as a band from `t = 0` to
@@ -196,26 +214,29 @@ pub(super) fn draw_verdicts_over_time<DB: DrawingBackend<ErrorType: 'static>>(
     let ends = report.after.iter().filter_map(|b| b.t_end);
     let horizon = ends.fold(scenario.reach.horizon, f64::max);
     let title = format!("{}; each box until its tube ended", verdicts_title(report));
-    let mut chart = time_chart(root, view, scenario, (region, horizon), &title)?;
+    let time = TimeAxes::new(view, scenario, (region, horizon), &title)?;
+    let (mut legend, shaded) = time.legend(view, scenario, region);
     let y = view.y;
     let clip = |v: f64| v.clamp(region.lower[y], region.upper[y]);
+    let mut classes = Vec::new();
     for class in verdict_classes(report) {
-        let style = class.colour.filled();
-        let bands = (class.boxes.iter())
+        let bands: Vec<[(f64, f64); 2]> = (class.boxes.iter())
             .filter(|b| view.keeps(&b.initial))
             .map(|b| {
                 let (lo, hi) = (clip(b.initial.lower[y]), clip(b.initial.upper[y]));
-                Rectangle::new([(0.0, lo), (b.t_end.unwrap_or(horizon), hi)], style)
+                [(0.0, lo), (b.t_end.unwrap_or(horizon), hi)]
             })
-            .collect::<Vec<_>>();
-        if bands.is_empty() {
-            continue;
+            .collect();
+        if !bands.is_empty() {
+            let style = class.colour.filled();
+            legend.push(class.label, Swatch::Rect(style));
+            classes.push((bands, style));
         }
-        chart
-            .draw_series(bands)
-            .map_err(DrawError::from)?
-            .label(class.label)
-            .legend(swatch(style));
     }
-    legend(&mut chart)
+    let (area, strip) = legend.split(root);
+    let mut chart = time.chart(&area, &shaded, &scenario.reach.goal)?;
+    for (bands, style) in &classes {
+        draw_rects(&mut chart, bands, *style)?;
+    }
+    legend.draw(strip.as_ref())
 }

@@ -284,12 +284,13 @@ impl<'a> Verifier<'a> {
             .chunk
             .unwrap_or_else(|| self.backend.preferred_batch());
         // Only this shard's cells are made: a shard's memory follows its slice.
-        let total: usize = settings.grid.iter().product();
+        let grid = settings.grid_for(self.scenario.n());
+        let total: usize = grid.iter().product();
         let range = settings.shard.map_or(0..total, |s| s.range(total));
         let mut timing = VerifyTiming::default();
         let cells: Vec<(usize, usize, IntervalBox)> = range
             .clone()
-            .map(|k| (k, 0, region.partition_cell(&settings.grid, k)))
+            .map(|k| (k, 0, region.partition_cell(&grid, k)))
             .collect();
         let before = self.run_boxes(base, &cells, chunk, &mut timing, journal, &|d, t| {
             progress(Stage::Cells, d, t)
@@ -357,7 +358,7 @@ impl<'a> Verifier<'a> {
                 scenario: self.scenario.name.clone(),
                 scenario_file: self.scenario.file.clone(),
                 region,
-                grid: settings.grid.clone(),
+                grid,
                 goal: self.scenario.reach.goal.clone(),
                 method: self.reach.method.to_string(),
                 bounds: self.reach.bounds.name().to_string(),

@@ -19,7 +19,9 @@ use crate::scenario::Scenario;
 pub struct VerifySettings {
     /// The region to partition (inside `C`). Default: `None`, the region `C` itself.
     pub region: Option<IntervalBox>,
-    /// Cells per axis, one count per state. Default: `[64, 64]`.
+    /// Cells per axis, one count per state. Default: empty, the grid
+    /// [`VerifySettings::default_grid`] gives for the scenario's state count (64 × 64 in two
+    /// states).
     pub grid: Vec<usize>,
     /// Bisection rounds of `unknown`/`invalid` leaves. Default: 0.
     pub refine_depth: usize,
@@ -63,7 +65,7 @@ impl Default for VerifySettings {
     fn default() -> Self {
         VerifySettings {
             region: None,
-            grid: vec![64, 64],
+            grid: Vec::new(),
             refine_depth: 0,
             budget: 8192,
             refine_feasibility: false,
@@ -80,6 +82,29 @@ impl Default for VerifySettings {
 pub const MAX_CELLS_PER_RUN: usize = 50_000_000;
 
 impl VerifySettings {
+    /// The grid where none is given: 64 cells per axis in one and two states, and in more the
+    /// most per axis that keeps the grid within 4,096 cells (16³, 8⁴, 5⁵, 4⁶, …, at least 2).
+    pub fn default_grid(n: usize) -> Vec<usize> {
+        const CELLS: usize = 4096;
+        let per_axis = match n {
+            0..=2 => 64,
+            _ => (2..=64)
+                .take_while(|&k: &usize| k.checked_pow(n as u32).is_some_and(|c| c <= CELLS))
+                .last()
+                .unwrap_or(2),
+        };
+        vec![per_axis; n]
+    }
+
+    /// The cells per axis of a run over `n` states: [`VerifySettings::grid`], or
+    /// [`VerifySettings::default_grid`] where it is empty.
+    pub fn grid_for(&self, n: usize) -> Vec<usize> {
+        match self.grid.is_empty() {
+            true => Self::default_grid(n),
+            false => self.grid.clone(),
+        }
+    }
+
     /// The region partitioned for `scenario`: `region`, else `C`.
     pub fn region_in(&self, scenario: &Scenario) -> IntervalBox {
         self.region
@@ -141,21 +166,19 @@ impl VerifySettings {
         if region.widths().iter().any(|&w| w <= 0.0) {
             return Err(bad("region", "every side must have positive width".into()));
         }
-        if self.grid.len() != n || self.grid.contains(&0) {
+        let grid = self.grid_for(n);
+        if grid.len() != n || grid.contains(&0) {
             return Err(bad(
                 "grid",
-                format!(
-                    "expected {n} positive cell counts (e.g. 64,64), found {:?}",
-                    self.grid
-                ),
+                format!("expected {n} positive cell counts (e.g. 64,64), found {grid:?}"),
             ));
         }
         // The cap is per run: a shard runs only its slice of the grid.
-        let total = self.grid.iter().try_fold(1usize, |a, &k| a.checked_mul(k));
+        let total = grid.iter().try_fold(1usize, |a, &k| a.checked_mul(k));
         let Some(total) = total else {
             return Err(bad(
                 "grid",
-                format!("{:?}: the number of cells overflows", self.grid),
+                format!("{grid:?}: the number of cells overflows"),
             ));
         };
         if let Some(s) = self.shard {
@@ -171,9 +194,8 @@ impl VerifySettings {
             return Err(bad(
                 "grid",
                 format!(
-                    "{:?} gives {here} cells to this run, more than {MAX_CELLS_PER_RUN} \
+                    "{grid:?} gives {here} cells to this run, more than {MAX_CELLS_PER_RUN} \
                      (use --shard K/N with N ≥ {})",
-                    self.grid,
                     total.div_ceil(MAX_CELLS_PER_RUN)
                 ),
             ));
@@ -194,7 +216,26 @@ fn cut_step(base: usize, n: usize, depth: usize, max: usize) -> usize {
 
 #[cfg(test)]
 mod tests {
-    use super::cut_step;
+    use super::{cut_step, VerifySettings};
+
+    #[test]
+    fn the_default_grid_follows_the_state_count() {
+        let grid = VerifySettings::default_grid;
+        assert_eq!(grid(1), [64]);
+        assert_eq!(grid(2), [64, 64]);
+        assert_eq!(grid(3), [16; 3]);
+        assert_eq!(grid(4), [8; 4]);
+        assert_eq!(grid(5), [5; 5]);
+        assert_eq!(grid(6), [4; 6]);
+        assert_eq!(grid(13), [2; 13]);
+        // A given grid is kept.
+        let given = VerifySettings {
+            grid: vec![3, 4, 5],
+            ..VerifySettings::default()
+        };
+        assert_eq!(given.grid_for(3), [3, 4, 5]);
+        assert_eq!(VerifySettings::default().grid_for(3), [16; 3]);
+    }
 
     #[test]
     fn the_step_halves_once_every_n_rounds_within_its_bounds() {
