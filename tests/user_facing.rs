@@ -334,6 +334,7 @@ fn one_state_draws_over_time() {
         .save_safetensors(&tmp.path().join("wall1d.safetensors"), &Default::default())
         .unwrap();
     let (w, svg) = (tmp.path().join("w.toml"), tmp.path().join("reach.svg"));
+    let tubes = tmp.path().join("reach.json");
     let (code, out, err) = cbfreach(&[
         "reach",
         w.to_str().unwrap(),
@@ -341,8 +342,14 @@ fn one_state_draws_over_time() {
         "1.5",
         "--plot",
         svg.to_str().unwrap(),
+        "--json",
+        tubes.to_str().unwrap(),
     ]);
     assert_eq!(code, 0, "{err}");
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&tubes).unwrap()).unwrap();
+    assert_eq!(json["states"], serde_json::json!(["gap"]));
+    assert_eq!(json["units"]["u"], "m/s");
     assert!(out.contains("tubes drawn to"), "{out}");
     let text = std::fs::read_to_string(&svg).unwrap();
     assert!(text.split_whitespace().any(|w| w == "gap"), "no state axis");
@@ -362,6 +369,12 @@ fn one_state_draws_over_time() {
     ]);
     assert_eq!(code, 0, "{err}");
     assert!(out.contains("grid [64],"), "{out}");
+    // The report names its states and their units for whoever reads it next.
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(report["run"]["states"], serde_json::json!(["gap"]));
+    assert_eq!(report["run"]["units"]["gap"], "m");
+    assert_eq!(report["run"]["units"]["t"], "s");
     let text = std::fs::read_to_string(&svg).unwrap();
     let text = text.split_whitespace().collect::<Vec<_>>().join(" ");
     assert!(

@@ -1,5 +1,6 @@
 //! `cbfreach reach <scenario>`: tubes from the scenario's initial boxes.
 
+use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 use cbfreach::bounds::BoundMethod;
@@ -40,6 +41,11 @@ pub struct ReachArgs {
 #[derive(Serialize)]
 struct ReachJson<'a> {
     scenario: &'a str,
+    /// The states' names, in the order of every set's coordinates.
+    states: &'a [String],
+    /// Units of states, inputs and time by name (`[system] units`), where given.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    units: &'a BTreeMap<String, String>,
     backend: String,
     bounds: BoundMethod,
     method: ReachMethod,
@@ -220,6 +226,8 @@ pub fn run(args: &ReachArgs) -> CliResult {
     if let Some(path) = &args.json {
         let json = ReachJson {
             scenario: &s.file,
+            states: &s.states,
+            units: &s.units,
             backend: backend.name(),
             bounds: settings.bounds,
             method: settings.method,

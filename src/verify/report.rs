@@ -84,6 +84,13 @@ pub struct RunInfo {
     pub scenario: String,
     /// Scenario file.
     pub scenario_file: String,
+    /// The states' names, in the order of every box's coordinates (files from before them:
+    /// none).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub states: Vec<String>,
+    /// Units of states, inputs and time by name (`[system] units`; absent where none given).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub units: BTreeMap<String, String>,
     /// The partitioned region.
     pub region: IntervalBox,
     /// Cells per axis.
@@ -470,6 +477,8 @@ mod tests {
             run: RunInfo {
                 scenario: "s".into(),
                 scenario_file: "s.toml".into(),
+                states: vec!["x1".into(), "x2".into()],
+                units: BTreeMap::new(),
                 region: IntervalBox::new(vec![0.0, 0.0], vec![4.0, 1.0]).unwrap(),
                 grid: vec![2, 1],
                 goal: IntervalBox::new(vec![0.0, 0.0], vec![0.1, 0.1]).unwrap(),

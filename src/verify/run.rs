@@ -357,6 +357,8 @@ impl<'a> Verifier<'a> {
             run: RunInfo {
                 scenario: self.scenario.name.clone(),
                 scenario_file: self.scenario.file.clone(),
+                states: self.scenario.states.clone(),
+                units: self.scenario.units.clone(),
                 region,
                 grid,
                 goal: self.scenario.reach.goal.clone(),
