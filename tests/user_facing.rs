@@ -353,6 +353,33 @@ fn one_state_draws_over_time() {
     assert!(out.contains("tubes drawn to"), "{out}");
     let text = std::fs::read_to_string(&svg).unwrap();
     assert!(text.split_whitespace().any(|w| w == "gap"), "no state axis");
+    // The tube's bars start at t = 0, where the unsafe set's bands do (the first bar, which
+    // holds the initial set, was drawn as a line at its end).
+    let left = |fill: &str| -> Vec<(f64, f64)> {
+        (text.split("<rect").skip(1))
+            .filter(|r| r.contains(&format!("fill=\"{fill}\"")))
+            .map(|r| {
+                let at = |key: &str| -> f64 {
+                    let v = r.split(&format!("{key}=\"")).nth(1).unwrap();
+                    v.split('"').next().unwrap().parse().unwrap()
+                };
+                (at("x"), at("y"))
+            })
+            .collect()
+    };
+    let mut bars = left("#0072B2");
+    // The lowest is the legend's swatch, below the chart.
+    bars.sort_by(|a, b| a.1.total_cmp(&b.1));
+    bars.pop();
+    let first_bar = bars.iter().map(|b| b.0).fold(f64::INFINITY, f64::min);
+    let shading = left("#CDCDCD")
+        .iter()
+        .map(|b| b.0)
+        .fold(f64::INFINITY, f64::min);
+    assert!(
+        bars.len() > 5 && first_bar == shading,
+        "{first_bar} against {shading}"
+    );
     // Its verdict map is each box's band over time, its error map the bound along the state.
     // With no --grid: 64 cells along its one state (the default was 64 × 64 whatever the
     // state count, and refused here).

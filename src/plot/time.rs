@@ -126,30 +126,29 @@ pub(super) fn draw_tubes_over_time<DB: DrawingBackend<ErrorType: 'static>>(
             let b = &tube.initial;
             lines.push(vec![(0.0, clip(b.lower[y])), (0.0, clip(b.upper[y]))]);
         }
+        // Steps of continuous time (and sampled data) have flowpipes; the first sample, the
+        // initial set, has none and holds the state at t = 0 itself.
+        let piped = tube.tube.iter().any(|s| s.flowpipe.is_some());
         let mut since = 0.0;
         for chunk in tube.tube.chunks(every.max(1)) {
             let last = &chunk[chunk.len() - 1];
-            let pipes: Option<Vec<&IntervalBox>> =
-                chunk.iter().map(|s| s.flowpipe.as_ref()).collect();
-            match pipes {
-                Some(pipes) => {
-                    // Slices keep the steps whose flowpipe meets them.
-                    let hull = pipes.into_iter().filter(|p| view.keeps(p)).fold(
-                        None::<(f64, f64)>,
-                        |h, p| {
-                            let (lo, hi) = (p.lower[y], p.upper[y]);
-                            Some(h.map_or((lo, hi), |(a, b)| (a.min(lo), b.max(hi))))
-                        },
-                    );
-                    if let Some((lo, hi)) = hull {
-                        bars.push([(since, clip(lo)), (last.t, clip(hi))]);
-                    }
+            if piped {
+                // Slices keep the steps whose flowpipe meets them.
+                let pipes = chunk.iter().map(|s| s.flowpipe.as_ref().unwrap_or(&s.set));
+                let hull = pipes
+                    .filter(|p| view.keeps(p))
+                    .fold(None::<(f64, f64)>, |h, p| {
+                        let (lo, hi) = (p.lower[y], p.upper[y]);
+                        Some(h.map_or((lo, hi), |(a, b)| (a.min(lo), b.max(hi))))
+                    });
+                if let Some((lo, hi)) = hull {
+                    bars.push([(since, clip(lo)), (last.t, clip(hi))]);
                 }
-                None if view.keeps(&last.set) => lines.push(vec![
+            } else if view.keeps(&last.set) {
+                lines.push(vec![
                     (last.t, clip(last.set.lower[y])),
                     (last.t, clip(last.set.upper[y])),
-                ]),
-                None => {}
+                ]);
             }
             since = last.t;
         }
