@@ -311,6 +311,15 @@ fn print_causes(c: &UnverifiedCauses, r: &VerifyReport) {
         100.0 * c.ends_elsewhere,
         100.0 * c.too_loose
     );
+    if c.arrives_later > 0.0 {
+        println!(
+            "    on {:.1}% of the safe area it reaches the goal or a trap after the horizon, all \
+             by t = {:.1}: the horizon ends before they arrive (a longer reach.horizon lets their \
+             tubes follow)",
+            100.0 * c.arrives_later,
+            c.latest_arrival,
+        );
+    }
     print_ends(r);
 }
 

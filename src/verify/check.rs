@@ -144,13 +144,22 @@ pub struct UnverifiedCauses {
     pub infeasible: f64,
     /// The centre's trajectory ends at `T` in neither the goal nor a trap box.
     pub ends_elsewhere: f64,
+    /// Of `ends_elsewhere`, the centres whose trajectory, run on, reaches the goal or a trap
+    /// box within [`LATER_HORIZONS`] more horizons: the horizon, not the sets, stopped them.
+    pub arrives_later: f64,
+    /// The latest time such a trajectory reached its target (0 where none does).
+    pub latest_arrival: f64,
     /// The centre's trajectory ends in the goal or a trap box: the sets were too loose.
     pub too_loose: f64,
 }
 
+/// How many horizons past `T` [`centre_outcomes`] runs a trajectory that ended elsewhere, to
+/// tell a horizon too short from an end away from every target.
+pub const LATER_HORIZONS: usize = 3;
+
 /// Where the ground-truth filtered system goes from a leaf's centre (one of
 /// [`UnverifiedCauses`]'s classes), checked in this order.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub enum CentreOutcome {
     /// Sampled data: the held input carries it out of `S` between samples.
     LeavesSBetweenSamples,
@@ -158,8 +167,9 @@ pub enum CentreOutcome {
     LeavesRegion,
     /// It stops at an infeasible QP.
     Infeasible,
-    /// It ends at `T` in neither the goal nor a trap box.
-    EndsElsewhere,
+    /// It ends at `T` in neither the goal nor a trap box; run on, it first reaches one at
+    /// this time (within [`LATER_HORIZONS`] more horizons), or never (`None`).
+    EndsElsewhere(Option<f64>),
     /// It ends in the goal or a trap box: the sets were too loose.
     EndsInTarget,
 }
@@ -190,11 +200,41 @@ pub fn centre_outcomes(s: &Scenario, report: &VerifyReport) -> Vec<(usize, Centr
             } else if ends_in_target(tr.last()) {
                 CentreOutcome::EndsInTarget
             } else {
-                CentreOutcome::EndsElsewhere
+                CentreOutcome::EndsElsewhere(arrival(&filter, tr.last(), time, &ends_in_target))
             };
             (i, outcome)
         })
         .collect()
+}
+
+/// When the system from `x` (at `T`) first reaches a target, run on for [`LATER_HORIZONS`]
+/// horizons in the same model: `None` where it does not, or leaves `C` or `S` or meets an
+/// infeasible QP first.
+fn arrival(
+    filter: &crate::filter::SafetyFilter,
+    x: &[f64],
+    time: TimeModel,
+    in_target: &dyn Fn(&[f64]) -> bool,
+) -> Option<f64> {
+    let s = filter.scenario();
+    let mut x = x.to_vec();
+    for k in 1..=LATER_HORIZONS {
+        let (tr, left_s) = simulate_model(filter, &x, time, 1);
+        let from = k as f64 * s.reach.horizon;
+        for (t, state) in tr.t.iter().zip(&tr.x) {
+            if !s.reach.region.contains(state) {
+                return None;
+            }
+            if in_target(state) {
+                return Some(from + t);
+            }
+        }
+        if left_s.is_some() || tr.stopped.is_some() {
+            return None;
+        }
+        x = tr.last().to_vec();
+    }
+    None
 }
 
 /// [`centre_outcomes`], summed as shares of the safe area.
@@ -217,9 +257,13 @@ impl UnverifiedCauses {
                 CentreOutcome::LeavesSBetweenSamples => &mut c.unsafe_between_samples,
                 CentreOutcome::LeavesRegion => &mut c.leaves_region,
                 CentreOutcome::Infeasible => &mut c.infeasible,
-                CentreOutcome::EndsElsewhere => &mut c.ends_elsewhere,
+                CentreOutcome::EndsElsewhere(_) => &mut c.ends_elsewhere,
                 CentreOutcome::EndsInTarget => &mut c.too_loose,
             } += share;
+            if let CentreOutcome::EndsElsewhere(Some(t)) = outcome {
+                c.arrives_later += share;
+                c.latest_arrival = c.latest_arrival.max(t);
+            }
         }
         c
     }

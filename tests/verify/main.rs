@@ -415,6 +415,65 @@ fn unverified_area_is_sorted_by_where_the_true_system_goes() {
     assert!(close(c.unverified, 1.0 - area[4] / total), "{c:?}");
 }
 
+#[test]
+fn a_horizon_too_short_is_told_from_an_end_away_from_the_targets() {
+    // Scenario 1 with a 1 s horizon: from (−3, 0) the true system (slowed by the filter)
+    // reaches the goal [−0.5, 0.5]² after the horizon; from the saddle it does not. Both end
+    // elsewhere at T; only the first arrives later, when a finer simulation says.
+    use cbfreach::boxes::IntervalBox;
+    use cbfreach::verify::{explain_unverified, LATER_HORIZONS};
+    let s = common::integrator();
+    let mut report = run(&s, [2, 2], 0, None);
+    let template = report.before[0].clone();
+    let leaf = |lower: [f64; 2], upper: [f64; 2]| {
+        let mut b = template.clone();
+        b.initial = IntervalBox {
+            lower: lower.to_vec(),
+            upper: upper.to_vec(),
+        };
+        b.verdict = Verdict::Unknown;
+        b
+    };
+    let y = 0.75f64.sqrt();
+    report.after = vec![
+        leaf([-3.05, -0.05], [-2.95, 0.05]),
+        leaf([2.49, y - 0.01], [2.51, y + 0.01]),
+    ];
+    let mut short = s.clone();
+    short.reach.horizon = 1.0;
+    let c = explain_unverified(&short, &report);
+    let area: Vec<f64> = report.after.iter().map(|b| b.initial.volume()).collect();
+    let total: f64 = area.iter().sum();
+    let close = |a: f64, b: f64| (a - b).abs() < 1e-12;
+    assert!(close(c.ends_elsewhere, 1.0), "{c:?}");
+    assert!(close(c.arrives_later, area[0] / total), "{c:?}");
+    // The first state in the goal of an RK4 trajectory at a tenth of the step, to a step.
+    let filter = cbfreach::filter::SafetyFilter::new(&s);
+    let fine = cbfreach::simulate::simulate_filtered(
+        &filter,
+        &[-3.0, 0.0],
+        0.004,
+        1000,
+        cbfreach::simulate::Integrator::Rk4,
+    );
+    let k = fine
+        .x
+        .iter()
+        .position(|x| s.reach.goal.contains(x))
+        .unwrap();
+    let arrives = fine.t[k];
+    assert!(arrives > 1.0, "{arrives}");
+    assert!(
+        (c.latest_arrival - arrives).abs() <= 0.04 + 1e-9,
+        "{c:?} against {arrives}"
+    );
+    // With the scenario's own 10 s the first reaches the goal within it: its sets were too
+    // loose, not its horizon too short.
+    let c = explain_unverified(&s, &report);
+    assert!(close(c.too_loose, area[0] / total), "{c:?}");
+    assert!(LATER_HORIZONS >= 1);
+}
+
 /// What ended the tubes not verified is recorded per leaf (`ended`) and summed by
 /// `why_not_verified` to the area not verified. A leaf said to leave `C` at once (a proven
 /// exit at t = 0) holds a start whose true trajectory leaves `C` within the step: scenario 2's
