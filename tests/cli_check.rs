@@ -32,6 +32,50 @@ fn check_summarises_both_paper_scenarios() {
     }
 }
 
+/// Where the true filtered system goes from a grid over `C ∩ S`, said before any network: on
+/// scenario 1 every start reaches the origin or the trap at (3, 0) within its 10 s; with a 1 s
+/// horizon most get there after it, and `check` says so with the time they need; scenario 2
+/// names the starts that meet its infeasible QP.
+#[test]
+fn check_says_where_the_true_system_goes_and_when_the_horizon_is_too_short() {
+    let survey = |stdout: &str| -> String {
+        let line = stdout
+            .lines()
+            .find(|l| l.contains("starts on a grid over C ∩ S"));
+        line.unwrap_or_else(|| panic!("{stdout}")).to_string()
+    };
+    // The counts of a line add up to its starts.
+    let total = |line: &str| -> (usize, usize) {
+        let words: Vec<&str> = line.split_whitespace().collect();
+        let starts = words[1].parse().unwrap();
+        let counted = (line.split(": ").nth(1).unwrap().split(", "))
+            .filter_map(|part| part.split_whitespace().next()?.parse::<usize>().ok())
+            .sum();
+        (starts, counted)
+    };
+    let line = survey(&check(&common::scenario_path("integrator.toml")));
+    assert!(
+        line.contains("62 reach the goal or a trap by T = 10"),
+        "{line}"
+    );
+    assert!(!line.contains("after it"), "{line}");
+    let tmp = tempfile::tempdir().unwrap();
+    let path = tmp.path().join("short.toml");
+    let text = std::fs::read_to_string(common::scenario_path("integrator.toml")).unwrap();
+    std::fs::write(&path, text.replace("horizon = 10.0", "horizon = 1.0")).unwrap();
+    let line = survey(&check(&path));
+    assert!(
+        line.contains("by T = 1,") && line.contains("after it, all by t = "),
+        "{line}"
+    );
+    let (starts, counted) = total(&line);
+    assert_eq!((starts, counted), (62, 62), "{line}");
+    let line = survey(&check(&common::scenario_path("double-integrator.toml")));
+    assert!(line.contains("meet an infeasible QP"), "{line}");
+    let (starts, counted) = total(&line);
+    assert_eq!(starts, counted, "{line}");
+}
+
 /// A cart-pole under pole placement (tests/fixtures/cartpole.toml) is far from normal at the
 /// goal: `check` says boxes there grow tenfold before they shrink, before any network exists.
 #[test]

@@ -99,6 +99,7 @@ pub fn run(path: &Path) -> CliResult {
         fmt_point(&r.goal.upper),
         r.initial.len()
     );
+    print_survey(&s);
     if let Some(transient) = cbfreach::reach::Transient::at_goal(&s, &s.reach.transform) {
         println!("  {transient}");
     }
@@ -129,6 +130,59 @@ pub fn run(path: &Path) -> CliResult {
         fmt_point(&s.training.region.upper)
     );
     Ok(())
+}
+
+/// Where the true filtered system goes from a grid of starts over `C ∩ S` within the horizon
+/// (`verify::survey`): what a run can at best prove, before any training.
+fn print_survey(s: &cbfreach::scenario::Scenario) {
+    use cbfreach::verify::CentreOutcome as O;
+    let traps = cbfreach::verify::traps_for(s);
+    let survey = cbfreach::verify::survey(s, &traps);
+    if survey.starts == 0 {
+        return;
+    }
+    let count = |pick: &dyn Fn(&O) -> bool| survey.outcomes.iter().filter(|o| pick(o)).count();
+    let arrive = count(&|o| *o == O::EndsInTarget);
+    let later: Vec<f64> = (survey.outcomes.iter())
+        .filter_map(|o| match o {
+            O::EndsElsewhere(Some(t)) => Some(*t),
+            _ => None,
+        })
+        .collect();
+    let mut parts = vec![format!(
+        "{arrive} reach the goal{} by T = {}",
+        if traps.is_empty() { "" } else { " or a trap" },
+        s.reach.horizon
+    )];
+    if !later.is_empty() {
+        let last = later.iter().copied().fold(0.0, f64::max);
+        parts.push(format!(
+            "{} after it, all by t = {last:.1} (a longer reach.horizon lets verify follow them)",
+            later.len()
+        ));
+    }
+    for (k, what) in [
+        (count(&|o| *o == O::LeavesRegion), "leave C"),
+        (count(&|o| *o == O::Infeasible), "meet an infeasible QP"),
+        (
+            count(&|o| *o == O::LeavesSBetweenSamples),
+            "leave S between samples",
+        ),
+        (
+            count(&|o| *o == O::EndsElsewhere(None)),
+            "end elsewhere (no target within four horizons)",
+        ),
+    ] {
+        if k > 0 {
+            parts.push(format!("{k} {what}"));
+        }
+    }
+    println!(
+        "  from {} starts on a grid over C ∩ S the true filtered system ({} time): {}",
+        survey.starts,
+        s.reach.time,
+        parts.join(", ")
+    );
 }
 
 /// The filter's findings on `C`, one line each (inert CBFs are also said by `train`).

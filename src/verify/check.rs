@@ -188,23 +188,77 @@ pub fn centre_outcomes(s: &Scenario, report: &VerifyReport) -> Vec<(usize, Centr
         .into_par_iter()
         .filter(|&i| report.after[i].verdict.is_refinable())
         .map(|i| {
-            // A diagnostic, one start a leaf: the ODE by RK4 at `dt` (a QP filter solves four
-            // times a step; the proof-grade check, `simulation_check`, takes `dt/10`).
-            let (tr, left_s) = simulate_model(&filter, &report.after[i].initial.center(), time, 1);
-            let outcome = if left_s.is_some() {
-                CentreOutcome::LeavesSBetweenSamples
-            } else if tr.x.iter().any(|x| !s.reach.region.contains(x)) {
-                CentreOutcome::LeavesRegion
-            } else if tr.stopped.is_some() {
-                CentreOutcome::Infeasible
-            } else if ends_in_target(tr.last()) {
-                CentreOutcome::EndsInTarget
-            } else {
-                CentreOutcome::EndsElsewhere(arrival(&filter, tr.last(), time, &ends_in_target))
-            };
-            (i, outcome)
+            let x0 = report.after[i].initial.center();
+            (i, outcome_from(&filter, &x0, time, &ends_in_target))
         })
         .collect()
+}
+
+/// Where the ground-truth filtered system goes from `x0` in the system `time` names, with
+/// `in_target` the goal and trap boxes. A diagnostic, one start: the ODE by RK4 at `dt` (a QP
+/// filter solves four times a step; the proof-grade check, [`simulation_check`], takes
+/// `dt/10`).
+pub fn outcome_from(
+    filter: &crate::filter::SafetyFilter,
+    x0: &[f64],
+    time: TimeModel,
+    in_target: &(dyn Fn(&[f64]) -> bool + Sync),
+) -> CentreOutcome {
+    let s = filter.scenario();
+    let (tr, left_s) = simulate_model(filter, x0, time, 1);
+    if left_s.is_some() {
+        CentreOutcome::LeavesSBetweenSamples
+    } else if tr.x.iter().any(|x| !s.reach.region.contains(x)) {
+        CentreOutcome::LeavesRegion
+    } else if tr.stopped.is_some() {
+        CentreOutcome::Infeasible
+    } else if in_target(tr.last()) {
+        CentreOutcome::EndsInTarget
+    } else {
+        CentreOutcome::EndsElsewhere(arrival(filter, tr.last(), time, in_target))
+    }
+}
+
+/// Where the ground-truth filtered system goes from a grid of starts over `C ∩ S` (cell
+/// centres, at most 64), in the scenario's time model, with the goal and `traps` as targets:
+/// `cbfreach check` says it before any training, so that a horizon too short or a region the
+/// system leaves shows before a run.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Survey {
+    /// The starts in `S`.
+    pub starts: usize,
+    /// Each start's outcome, in the grid's order.
+    pub outcomes: Vec<CentreOutcome>,
+}
+
+/// Most starts of [`survey`]: a grid of `kⁿ ≤ 64` cell centres.
+const SURVEY_STARTS: usize = 64;
+
+/// [`Survey`] of scenario `s`.
+pub fn survey(s: &Scenario, traps: &[crate::verify::Trap]) -> Survey {
+    use crate::filter::SafetyFilter;
+    let n = s.n();
+    let per_axis = (1..=SURVEY_STARTS)
+        .take_while(|&k: &usize| k.checked_pow(n as u32).is_some_and(|c| c <= SURVEY_STARTS))
+        .last()
+        .unwrap_or(1);
+    let region = &s.reach.region;
+    let starts: Vec<Vec<f64>> = region
+        .partition(&vec![per_axis; n])
+        .iter()
+        .map(|c| c.center())
+        .filter(|x| s.is_safe(x))
+        .collect();
+    let filter = SafetyFilter::new(s);
+    let in_target =
+        |x: &[f64]| s.reach.goal.contains(x) || traps.iter().any(|t| t.region.contains(x));
+    let outcomes = (starts.par_iter())
+        .map(|x0| outcome_from(&filter, x0, s.reach.time, &in_target))
+        .collect();
+    Survey {
+        starts: starts.len(),
+        outcomes,
+    }
 }
 
 /// When the system from `x` (at `T`) first reaches a target, run on for [`LATER_HORIZONS`]
@@ -214,7 +268,7 @@ fn arrival(
     filter: &crate::filter::SafetyFilter,
     x: &[f64],
     time: TimeModel,
-    in_target: &dyn Fn(&[f64]) -> bool,
+    in_target: &(dyn Fn(&[f64]) -> bool + Sync),
 ) -> Option<f64> {
     let s = filter.scenario();
     let mut x = x.to_vec();
