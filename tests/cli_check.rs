@@ -44,34 +44,35 @@ fn check_says_where_the_true_system_goes_and_when_the_horizon_is_too_short() {
             .find(|l| l.contains("starts on a grid over C ∩ S"));
         line.unwrap_or_else(|| panic!("{stdout}")).to_string()
     };
-    // The counts of a line add up to its starts.
+    // The counts of a line (`from N it …`) add up to its starts (`from N starts`).
     let total = |line: &str| -> (usize, usize) {
-        let words: Vec<&str> = line.split_whitespace().collect();
-        let starts = words[1].parse().unwrap();
-        let counted = (line.split(": ").nth(1).unwrap().split(", "))
-            .filter_map(|part| part.split_whitespace().next()?.parse::<usize>().ok())
-            .sum();
-        (starts, counted)
+        let after = |word: &str| -> Vec<usize> {
+            (line.split("from ").skip(1))
+                .filter(|part| part.split_whitespace().nth(1) == Some(word))
+                .map(|part| part.split_whitespace().next().unwrap().parse().unwrap())
+                .collect()
+        };
+        (after("starts")[0], after("it").iter().sum())
     };
     let line = survey(&check(&common::scenario_path("integrator.toml")));
     assert!(
-        line.contains("62 reach the goal or a trap by T = 10"),
+        line.contains("from 62 it reaches the goal or a trap by T = 10"),
         "{line}"
     );
-    assert!(!line.contains("after it"), "{line}");
+    assert!(!line.contains("after T"), "{line}");
     let tmp = tempfile::tempdir().unwrap();
     let path = tmp.path().join("short.toml");
     let text = std::fs::read_to_string(common::scenario_path("integrator.toml")).unwrap();
     std::fs::write(&path, text.replace("horizon = 10.0", "horizon = 1.0")).unwrap();
     let line = survey(&check(&path));
     assert!(
-        line.contains("by T = 1,") && line.contains("after it, all by t = "),
+        line.contains("by T = 1;") && line.contains("it gets there after T, all by t = "),
         "{line}"
     );
     let (starts, counted) = total(&line);
     assert_eq!((starts, counted), (62, 62), "{line}");
     let line = survey(&check(&common::scenario_path("double-integrator.toml")));
-    assert!(line.contains("meet an infeasible QP"), "{line}");
+    assert!(line.contains("it meets an infeasible QP"), "{line}");
     let (starts, counted) = total(&line);
     assert_eq!(starts, counted, "{line}");
 }

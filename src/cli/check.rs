@@ -150,38 +150,39 @@ fn print_survey(s: &cbfreach::scenario::Scenario) {
         })
         .collect();
     let mut parts = vec![format!(
-        "{arrive} reach the goal{} by T = {}",
+        "from {arrive} it reaches the goal{} by T = {}",
         if traps.is_empty() { "" } else { " or a trap" },
         s.reach.horizon
     )];
     if !later.is_empty() {
         let last = later.iter().copied().fold(0.0, f64::max);
         parts.push(format!(
-            "{} after it, all by t = {last:.1} (a longer reach.horizon lets verify follow them)",
+            "from {} it gets there after T, all by t = {last:.1} (a longer reach.horizon lets \
+             verify follow them)",
             later.len()
         ));
     }
     for (k, what) in [
-        (count(&|o| *o == O::LeavesRegion), "leave C"),
-        (count(&|o| *o == O::Infeasible), "meet an infeasible QP"),
+        (count(&|o| *o == O::LeavesRegion), "leaves C"),
+        (count(&|o| *o == O::Infeasible), "meets an infeasible QP"),
         (
             count(&|o| *o == O::LeavesSBetweenSamples),
-            "leave S between samples",
+            "leaves S between samples",
         ),
         (
             count(&|o| *o == O::EndsElsewhere(None)),
-            "end elsewhere (no target within four horizons)",
+            "ends elsewhere (no target within four horizons)",
         ),
     ] {
         if k > 0 {
-            parts.push(format!("{k} {what}"));
+            parts.push(format!("from {k} it {what}"));
         }
     }
     println!(
-        "  from {} starts on a grid over C ∩ S the true filtered system ({} time): {}",
-        survey.starts,
+        "  the true filtered system ({} time) from {} starts on a grid over C ∩ S: {}",
         s.reach.time,
-        parts.join(", ")
+        survey.starts,
+        parts.join("; ")
     );
 }
 
