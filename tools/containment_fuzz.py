@@ -7,10 +7,12 @@ obstacle; sometimes input bounds, then a general QP), a 32x32 network trained by
 `cbfreach train --budget 0.1`, its error certified by `cbfreach error`, then `cbfreach reach
 --json` of four random initial boxes under each time model and setting below. Every recorded
 set must hold the states that `cbfreach simulate` gives from the boxes' safe corners and 40
-random safe points, at the same times (to 1e-7 of the set's width): RK4 at a tenth of the step for `continuous` (every state
-between two samples also inside that step's flowpipe), the exact zero-order hold for `sampled`,
-the Euler map for `euler`. An escape is printed with the box, time, coordinate and set; the
-exit status is 1 if there was one. Only the CLI is used, so this checks what users run.
+random safe points, at the same times (to 1e-7 of the set's width): RK4 at a tenth of the
+step for `continuous` (every state between two samples also inside that step's flowpipe), the
+exact zero-order hold for `sampled`, the Euler map for `euler`. An escape is printed with the
+box, time, coordinate and set. Then `verify --grid 6,6 --check 3` (4,4,4 in three states)
+checks the verdicts against simulated starts. The exit status is 1 if a state escaped or a
+verdict disagreed. Only the CLI is used, so this checks what users run.
 
     python3 tools/containment_fuzz.py --first 0 --count 20 [--exotic] [--binary PATH]
 
@@ -239,6 +241,17 @@ def main():
                     print(f"  {name}: ESCAPE by {worst:.2e} of the set's width at {info[1]}")
                 else:
                     print(f"  {name}: {info[0]} states inside their sets", flush=True)
+            # Verdicts too: `verify --check 3` simulates 3ⁿ starts in every verified box with
+            # the true filter and fails if one ends elsewhere than its verdict says.
+            grid = "6,6" if n == 2 else "4,4,4"
+            code, out, err = run(["verify", scenario, "--grid", grid, "--check", "3",
+                                  "--no-what-stops"])
+            said = [l.strip() for l in out.splitlines() if "ground-truth check" in l]
+            if code != 0:
+                escapes += 1
+                print(f"  verify --check 3: FAILED: {(said or [err.strip()])[0]}")
+            else:
+                print(f"  verify --check 3: {said[0] if said else 'no verified box'}", flush=True)
     print(f"{escapes} escape(s); scenarios in {folder}")
     sys.exit(1 if escapes else 0)
 
