@@ -51,6 +51,17 @@ pub enum BoxError {
     },
 }
 
+/// The most cells per axis, at most `most`, that keep a grid over `n` axes within `cells`
+/// cells (`kⁿ ≤ cells`); 1 where even two per axis would pass it.
+pub fn per_axis_within(n: usize, cells: usize, most: usize) -> usize {
+    let fits = |k: usize| {
+        (u32::try_from(n).ok())
+            .and_then(|n| k.checked_pow(n))
+            .is_some_and(|c| c <= cells)
+    };
+    (2..=most).rev().find(|&k| fits(k)).unwrap_or(1)
+}
+
 impl IntervalBox {
     /// A box, checked: equal lengths, finite corners, `lower ≤ upper` on every axis.
     /// The error says which axis is wrong and how.
@@ -228,6 +239,18 @@ impl IntervalBox {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn per_axis_counts_keep_the_grid_within_its_cells() {
+        assert_eq!(per_axis_within(2, 4096, 64), 64);
+        assert_eq!(per_axis_within(3, 4096, 64), 16);
+        assert_eq!(per_axis_within(5, 4096, 64), 5);
+        assert_eq!(per_axis_within(2, 64, 8), 8);
+        assert_eq!(per_axis_within(7, 64, 64), 1);
+        assert_eq!(per_axis_within(0, 1, 30), 30);
+        // No overflow where `kⁿ` would pass `usize`.
+        assert_eq!(per_axis_within(200, usize::MAX, 3), 1);
+    }
 
     #[test]
     fn hull_holds_both_and_nothing_wider() {

@@ -137,13 +137,13 @@ pub fn run(path: &Path) -> CliResult {
 fn print_survey(s: &cbfreach::scenario::Scenario) {
     use cbfreach::verify::CentreOutcome as O;
     let traps = cbfreach::verify::traps_for(s);
-    let survey = cbfreach::verify::survey(s, &traps);
-    if survey.starts == 0 {
+    let outcomes = cbfreach::verify::survey(s, &traps);
+    if outcomes.is_empty() {
         return;
     }
-    let count = |pick: &dyn Fn(&O) -> bool| survey.outcomes.iter().filter(|o| pick(o)).count();
+    let count = |pick: &dyn Fn(&O) -> bool| outcomes.iter().filter(|o| pick(o)).count();
     let arrive = count(&|o| *o == O::EndsInTarget);
-    let later: Vec<f64> = (survey.outcomes.iter())
+    let later: Vec<f64> = (outcomes.iter())
         .filter_map(|o| match o {
             O::EndsElsewhere(Some(t)) => Some(*t),
             _ => None,
@@ -181,7 +181,7 @@ fn print_survey(s: &cbfreach::scenario::Scenario) {
     println!(
         "  the true filtered system ({} time) from {} starts on a grid over C ∩ S: {}",
         s.reach.time,
-        survey.starts,
+        outcomes.len(),
         parts.join("; ")
     );
 }

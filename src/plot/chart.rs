@@ -136,9 +136,25 @@ pub(super) fn unsafe_layer<DB: DrawingBackend>(
 ) -> Vec<[(f64, f64); 2]> {
     let rects = unsafe_rects(view, scenario, region, root.dim_in_pixel());
     if !rects.is_empty() {
-        legend.push("unsafe set (some h < 0)", Swatch::Rect(OBSTACLE.filled()));
+        legend.push_unsafe();
     }
     rects
+}
+
+/// The unsafe set's bands along the view's drawn state over `range` (400 of them: [`unsafe_bands`]),
+/// and its legend entry where there are any: the shading of the pictures over one state.
+pub(super) fn unsafe_band_layer(
+    legend: &mut Legend,
+    view: &View,
+    scenario: &Scenario,
+    region: &IntervalBox,
+    range: (f64, f64),
+) -> Vec<(f64, f64)> {
+    let bands = unsafe_bands(view, scenario, region, range, 400);
+    if !bands.is_empty() {
+        legend.push_unsafe();
+    }
+    bands
 }
 
 /// Rectangles of the chart's coordinates, filled or outlined as `style` says.
@@ -195,6 +211,11 @@ impl Legend {
         }
     }
 
+    /// The unsafe set's entry: its shading's swatch.
+    pub(super) fn push_unsafe(&mut self) {
+        self.push("unsafe set (some h < 0)", Swatch::Rect(OBSTACLE.filled()));
+    }
+
     fn font(&self) -> TextStyle<'static> {
         ("sans-serif", LEGEND_FONT).into_font().color(&DARK)
     }
@@ -216,32 +237,43 @@ impl Legend {
         (columns, column, rows)
     }
 
-    /// The chart's area and, below it, the legend's strip (none for no entries).
+    /// The chart's area and, below it, the legend's strip with its columns (none for no
+    /// entries).
     pub(super) fn split<DB: DrawingBackend>(
         &self,
         root: &DrawingArea<DB, Shift>,
-    ) -> (DrawingArea<DB, Shift>, Option<DrawingArea<DB, Shift>>) {
+    ) -> (DrawingArea<DB, Shift>, Option<Strip<DB>>) {
         if self.entries.is_empty() {
             return (root.clone(), None);
         }
-        let (_, _, rows) = self.layout(root);
+        let (columns, column, rows) = self.layout(root);
         let strip = rows as u32 * LEGEND_ROW + 2 * LEGEND_PAD;
         let height = root.dim_in_pixel().1;
         // A picture too short for its legend keeps at least half its height for the chart.
         let strip = strip.min(height / 2);
-        let (chart, legend) = root.split_vertically(height - strip);
-        (chart, Some(legend))
+        let (chart, area) = root.split_vertically(height - strip);
+        let strip = Strip {
+            area,
+            columns,
+            column,
+        };
+        (chart, Some(strip))
     }
 
     /// Draws the entries row by row into the strip [`Legend::split`] gave.
     pub(super) fn draw<DB: DrawingBackend<ErrorType: 'static>>(
         &self,
-        strip: Option<&DrawingArea<DB, Shift>>,
+        strip: Option<&Strip<DB>>,
     ) -> Result<(), DrawError> {
-        let Some(strip) = strip else {
+        let Some(Strip {
+            area: strip,
+            columns,
+            column,
+        }) = strip
+        else {
             return Ok(());
         };
-        let (columns, column, _) = self.layout(strip);
+        let (columns, column) = (*columns, *column);
         let style = (self.font()).pos(Pos::new(HPos::Left, VPos::Center));
         for (k, (label, swatch)) in self.entries.iter().enumerate() {
             let x = LEGEND_LEFT + (k % columns) as i32 * column;
@@ -260,6 +292,13 @@ impl Legend {
         }
         Ok(())
     }
+}
+
+/// The legend's strip below a chart, and its columns and their width in pixels.
+pub(super) struct Strip<DB: DrawingBackend> {
+    area: DrawingArea<DB, Shift>,
+    columns: usize,
+    column: i32,
 }
 
 /// A box's rectangle in the picture, clipped to the region.
@@ -294,7 +333,8 @@ pub(super) fn box_series<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
 
 /// The intervals of `bands` equal bands of `[lo, hi]` along the view's drawn state (`view.y`)
 /// where some `hᵢ < 0` at the band's centre, for pictures over one state (time or the error
-/// along it); the others states at the view's slices and `region`'s centre.
+/// along it); the other states at the view's slices. In a projection (some state neither
+/// drawn nor sliced) there is no one point to ask, and nothing is returned.
 pub(super) fn unsafe_bands(
     view: &View,
     scenario: &Scenario,
@@ -302,6 +342,9 @@ pub(super) fn unsafe_bands(
     (lo, hi): (f64, f64),
     bands: usize,
 ) -> Vec<(f64, f64)> {
+    if !view.is_whole(scenario.n()) {
+        return Vec::new();
+    }
     let w = (hi - lo) / bands as f64;
     (0..bands)
         .map(|k| (lo + k as f64 * w, lo + (k + 1) as f64 * w))
@@ -335,7 +378,7 @@ mod tests {
                 "{columns} × {rows}"
             );
             let (area, strip) = legend.split(&root);
-            let strip_height = strip.as_ref().map(|s| s.dim_in_pixel().1).unwrap();
+            let strip_height = strip.as_ref().map(|s| s.area.dim_in_pixel().1).unwrap();
             assert_eq!(strip_height, rows as u32 * LEGEND_ROW + 2 * LEGEND_PAD);
             assert_eq!(area.dim_in_pixel().1 + strip_height, 600);
             legend.draw(strip.as_ref()).unwrap();

@@ -6,7 +6,7 @@
 
 use std::collections::BTreeMap;
 
-use super::chart::{any_kept, axes, draw_rects, unsafe_bands, unsafe_layer, Legend, Swatch};
+use super::chart::{any_kept, axes, draw_rects, unsafe_band_layer, unsafe_layer, Legend, Swatch};
 use super::*;
 
 /// A verdict map's title: the share verified with the QP proven feasible on every set first,
@@ -277,6 +277,11 @@ const ERROR_COLOURS: [RGBColor; 8] = [
     RGBColor(68, 1, 84),
 ];
 
+/// A class's colour: viridis for the finite ones, vermilion for the uncertified.
+fn error_colour(class: usize) -> RGBColor {
+    ERROR_COLOURS.get(class).copied().unwrap_or(VERMILION)
+}
+
 fn error_class_label(class: usize) -> String {
     match class {
         0 => format!("M ≤ {}", ERROR_CLASSES[0]),
@@ -358,7 +363,7 @@ pub(super) fn draw_error_map<DB: DrawingBackend<ErrorType: 'static>>(
         .enumerate()
         .filter(|(_, b)| any_kept(view, b))
     {
-        let colour = ERROR_COLOURS.get(class).copied().unwrap_or(VERMILION);
+        let colour = error_colour(class);
         let area: f64 = boxes.iter().map(IntervalBox::volume).sum();
         let label = format!(
             "{} ({} of the mapped area)",
@@ -375,7 +380,7 @@ pub(super) fn draw_error_map<DB: DrawingBackend<ErrorType: 'static>>(
     let (area, strip) = legend.split(root);
     let mut chart = chart(&area, view, scenario, region, &title)?;
     for (class, boxes) in classes.iter().enumerate() {
-        let colour = ERROR_COLOURS.get(class).copied().unwrap_or(VERMILION);
+        let colour = error_colour(class);
         box_series(&mut chart, view, boxes, region, colour.filled())?;
     }
     draw_rects(&mut chart, &shaded, OBSTACLE.filled())?;
@@ -445,14 +450,8 @@ pub(super) fn draw_error_map_along<DB: DrawingBackend<ErrorType: 'static>>(
         },
     );
     let names = [state.as_str(), bound.as_str()];
-    let shaded = match view.is_whole(n) {
-        true => unsafe_bands(view, scenario, region, (lo, hi), 400),
-        false => Vec::new(),
-    };
     let mut legend = Legend::default();
-    if !shaded.is_empty() {
-        legend.push("unsafe set (some h < 0)", Swatch::Rect(OBSTACLE.filled()));
-    }
+    let shaded = unsafe_band_layer(&mut legend, view, scenario, region, (lo, hi));
     let uncertified = ERROR_CLASSES.len() + 1;
     let total: f64 = bars.iter().map(|b| b.1 - b.0).sum();
     // Each class's bars and style; uncertified cells reach to the top, pale.
@@ -466,10 +465,7 @@ pub(super) fn draw_error_map_along<DB: DrawingBackend<ErrorType: 'static>>(
             continue;
         }
         let length: f64 = mine.iter().map(|[a, b]| b.0 - a.0).sum();
-        let colour = match ERROR_COLOURS.get(class) {
-            Some(&c) => c.mix(1.0),
-            None => VERMILION.mix(0.45),
-        };
+        let colour = error_colour(class).mix(if class == uncertified { 0.45 } else { 1.0 });
         let label = format!(
             "{} ({} of the mapped length)",
             error_class_label(class),

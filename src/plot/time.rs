@@ -6,7 +6,7 @@
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::chart::{axes, draw_rects, unsafe_bands, Legend, Swatch};
+use super::chart::{axes, draw_rects, unsafe_band_layer, Legend, Swatch};
 use super::maps::{verdict_classes, verdicts_title};
 use super::planar::{by_ending, draw_by_ending, legend_by_ending, tube_class};
 use super::view::View;
@@ -85,13 +85,7 @@ impl TimeAxes {
         region: &IntervalBox,
     ) -> (Legend, Vec<(f64, f64)>) {
         let mut legend = Legend::default();
-        let shaded = match view.is_whole(scenario.n()) {
-            true => unsafe_bands(view, scenario, region, self.range, 400),
-            false => Vec::new(),
-        };
-        if !shaded.is_empty() {
-            legend.push("unsafe set (some h < 0)", Swatch::Rect(OBSTACLE.filled()));
-        }
+        let shaded = unsafe_band_layer(&mut legend, view, scenario, region, self.range);
         legend.push("goal set", Swatch::Rect(GREEN.stroke_width(2)));
         (legend, shaded)
     }

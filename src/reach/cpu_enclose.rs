@@ -210,10 +210,7 @@ impl ChunkRun<'_> {
         let p = frame.problem;
         let n = p.dynamics.n;
         // Parts per axis: at most `PARTS` boxes in all.
-        let k = (2..=3)
-            .rev()
-            .find(|k: &usize| k.pow(n as u32) <= PARTS)
-            .unwrap_or(1);
+        let k = crate::boxes::per_axis_within(n, PARTS, 3);
         if k == 1 {
             return Vec::new();
         }

@@ -86,10 +86,7 @@ pub fn cell_error_bound(
 /// `k` per axis with `kⁿ ≤ 64` (8 × 8 in the plane).
 pub fn enclosure_pieces(cell: &IntervalBox) -> Vec<IntervalBox> {
     let n = cell.dim();
-    let k = (1..=8usize)
-        .rev()
-        .find(|k| k.checked_pow(n as u32).is_some_and(|p| p <= 64))
-        .unwrap_or(1);
+    let k = crate::boxes::per_axis_within(n, 64, 8);
     // Shared cut points, so that the pieces tile the cell whatever the rounding (the cuts are
     // monotone in `j` and the end points are the cell's own).
     let cuts: Vec<Vec<f64>> = (0..n)

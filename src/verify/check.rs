@@ -182,8 +182,7 @@ pub fn centre_outcomes(s: &Scenario, report: &VerifyReport) -> Vec<(usize, Centr
     use crate::filter::SafetyFilter;
     let filter = SafetyFilter::new(s);
     let time = model_of(report);
-    let ends_in_target =
-        |x: &[f64]| s.reach.goal.contains(x) || report.traps.iter().any(|t| t.region.contains(x));
+    let ends_in_target = in_targets(s, &report.traps);
     (0..report.after.len())
         .into_par_iter()
         .filter(|&i| report.after[i].verdict.is_refinable())
@@ -219,46 +218,34 @@ pub fn outcome_from(
     }
 }
 
-/// Where the ground-truth filtered system goes from a grid of starts over `C ∩ S` (cell
-/// centres, at most 64), in the scenario's time model, with the goal and `traps` as targets:
-/// `cbfreach check` says it before any training, so that a horizon too short or a region the
-/// system leaves shows before a run.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct Survey {
-    /// The starts in `S`.
-    pub starts: usize,
-    /// Each start's outcome, in the grid's order.
-    pub outcomes: Vec<CentreOutcome>,
+/// Whether a state lies in the goal or one of `traps`' boxes: where the outcomes end well.
+fn in_targets<'a>(
+    s: &'a Scenario,
+    traps: &'a [crate::verify::Trap],
+) -> impl Fn(&[f64]) -> bool + Sync + 'a {
+    |x: &[f64]| s.reach.goal.contains(x) || traps.iter().any(|t| t.region.contains(x))
 }
 
 /// Most starts of [`survey`]: a grid of `kⁿ ≤ 64` cell centres.
 const SURVEY_STARTS: usize = 64;
 
-/// [`Survey`] of scenario `s`.
-pub fn survey(s: &Scenario, traps: &[crate::verify::Trap]) -> Survey {
+/// Where the ground-truth filtered system goes from a grid of starts over `C ∩ S` (the centres
+/// in `S` of at most 64 cells, in the grid's order), in the scenario's time model, with the
+/// goal and `traps` as targets: `cbfreach check` says it before any training, so that a
+/// horizon too short or a region the system leaves shows before a run.
+pub fn survey(s: &Scenario, traps: &[crate::verify::Trap]) -> Vec<CentreOutcome> {
     use crate::filter::SafetyFilter;
     let n = s.n();
-    let per_axis = (1..=SURVEY_STARTS)
-        .take_while(|&k: &usize| k.checked_pow(n as u32).is_some_and(|c| c <= SURVEY_STARTS))
-        .last()
-        .unwrap_or(1);
-    let region = &s.reach.region;
-    let starts: Vec<Vec<f64>> = region
-        .partition(&vec![per_axis; n])
-        .iter()
+    let per_axis = crate::boxes::per_axis_within(n, SURVEY_STARTS, SURVEY_STARTS);
+    let starts: Vec<Vec<f64>> = (s.reach.region.partition(&vec![per_axis; n]).iter())
         .map(|c| c.center())
         .filter(|x| s.is_safe(x))
         .collect();
     let filter = SafetyFilter::new(s);
-    let in_target =
-        |x: &[f64]| s.reach.goal.contains(x) || traps.iter().any(|t| t.region.contains(x));
-    let outcomes = (starts.par_iter())
+    let in_target = in_targets(s, traps);
+    (starts.par_iter())
         .map(|x0| outcome_from(&filter, x0, s.reach.time, &in_target))
-        .collect();
-    Survey {
-        starts: starts.len(),
-        outcomes,
-    }
+        .collect()
 }
 
 /// When the system from `x` (at `T`) first reaches a target, run on for [`LATER_HORIZONS`]

@@ -85,15 +85,7 @@ impl VerifySettings {
     /// The grid where none is given: 64 cells per axis in one and two states, and in more the
     /// most per axis that keeps the grid within 4,096 cells (16³, 8⁴, 5⁵, 4⁶, …, at least 2).
     pub fn default_grid(n: usize) -> Vec<usize> {
-        const CELLS: usize = 4096;
-        let per_axis = match n {
-            0..=2 => 64,
-            _ => (2..=64)
-                .take_while(|&k: &usize| k.checked_pow(n as u32).is_some_and(|c| c <= CELLS))
-                .last()
-                .unwrap_or(2),
-        };
-        vec![per_axis; n]
+        vec![crate::boxes::per_axis_within(n, 4096, 64).max(2); n]
     }
 
     /// The cells per axis of a run over `n` states: [`VerifySettings::grid`], or

@@ -52,19 +52,9 @@ pub const MAX_EQUILIBRIUM_STARTS: usize = 100_000;
 /// [`MAX_EQUILIBRIUM_STARTS`]; `None` when even 2 per axis would.
 pub fn equilibrium_search_for(n: usize) -> Option<EquilibriumSearch> {
     let mut search = EquilibriumSearch::default();
-    let fits = |k: usize| {
-        u32::try_from(n)
-            .ok()
-            .and_then(|n| k.checked_pow(n))
-            .is_some_and(|t| t <= MAX_EQUILIBRIUM_STARTS)
-    };
-    while !fits(search.starts_per_axis) {
-        if search.starts_per_axis <= 2 {
-            return None;
-        }
-        search.starts_per_axis -= 1;
-    }
-    Some(search)
+    search.starts_per_axis =
+        crate::boxes::per_axis_within(n, MAX_EQUILIBRIUM_STARTS, search.starts_per_axis);
+    (search.starts_per_axis >= 2).then_some(search)
 }
 
 /// [`traps_for`] with the equilibria already found.
