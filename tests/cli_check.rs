@@ -29,7 +29,23 @@ fn check_summarises_both_paper_scenarios() {
             "{stdout}"
         );
         assert!(!stdout.contains("boxes at the goal grow"), "{stdout}");
+        assert!(stdout.contains("α(h) = 1·h"), "{stdout}");
     }
+}
+
+/// A class-K function of `h` (scenario 1 with `α(h) = h³ + 0.5h`) is printed as written, and
+/// `check` runs its filter.
+#[test]
+fn check_prints_a_class_k_function_as_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("cubic.toml");
+    let text = std::fs::read_to_string(common::scenario_path("integrator.toml"))
+        .unwrap()
+        .replacen("alpha = 1.0", "alpha = \"h^3 + 0.5*h\"", 1);
+    std::fs::write(&path, text).unwrap();
+    let stdout = check(&path);
+    assert!(stdout.contains("α(h) = h^3 + 0.5*h"), "{stdout}");
+    assert!(stdout.contains("starts on a grid over C ∩ S"), "{stdout}");
 }
 
 /// Where the true filtered system goes from a grid over `C ∩ S`, said before any network: on

@@ -180,6 +180,33 @@ fn bad_settings_and_unknown_keys() {
         ),
         &["cbf[0].alpha", "positive"],
     );
+    // A class-K function of h: what is not one is refused by what fails, naming the key.
+    for (alpha, expected) in [
+        (r#""h + 1""#, "α(0) = 1"),
+        (r#""sqrt(h)""#, "Lipschitz"),
+        (r#""h - h^2""#, "increases"),
+        (r#""-h^3""#, "positive"),
+        (r#""h*y""#, "unknown symbol `y`"),
+    ] {
+        let message = error_for(
+            "[[cbf]]\nh = \"y + 2\"",
+            &format!("[[cbf]]\nh = \"y + 2\"\nalpha = {alpha}"),
+        );
+        assert_mentions(&message, &["test.toml", "cbf[0].alpha", expected]);
+    }
+    for alpha in [r#""h^3 + 0.5*h""#, r#""tanh(h)""#, r#""2*k""#] {
+        let text = SMALL
+            .replace(
+                "[[cbf]]\nh = \"y + 2\"",
+                &format!("[[cbf]]\nh = \"y + 2\"\nalpha = {alpha}"),
+            )
+            .replace("[system]", "[parameters]\nk = 1.5\n[system]");
+        assert!(
+            from_text(&text).is_ok(),
+            "{alpha}: {:?}",
+            from_text(&text).err()
+        );
+    }
 }
 
 #[test]

@@ -14,7 +14,7 @@ box, time, coordinate and set. Then `verify --grid 6,6 --check 3` (4,4,4 in thre
 checks the verdicts against simulated starts. The exit status is 1 if a state escaped or a
 verdict disagreed. Only the CLI is used, so this checks what users run.
 
-    python3 tools/containment_fuzz.py --first 0 --count 20 [--exotic] [--binary PATH]
+    python3 tools/containment_fuzz.py --first 0 --count 20 [--exotic] [--class-k] [--binary PATH]
 
 Standard settings: continuous (the defaults), continuous with --exact nowhere --face-local,
 continuous --transform auto, sampled (T_s = dt), euler, and every third seed continuous on the
@@ -33,8 +33,10 @@ import tempfile
 import time
 
 
-def generate(rng, index):
-    """A random scenario's text, its h as a Python function, and (n, dt)."""
+def generate(rng, index, class_k=False):
+    """A random scenario's text, its h as a Python function, and (n, dt). With `class_k`, the
+    CBF's class-K function is a nonlinear function of h drawn from a stream of its own (the rest
+    of the system is the seed's, as without)."""
     n = rng.choice([2, 2, 2, 3])
     xs = [f"x{i + 1}" for i in range(n)]
     f = []
@@ -83,6 +85,11 @@ def generate(rng, index):
         def h_of(p, c=c):
             return c - p[0] - 0.3 * p[1]
     alpha = rng.choice([0.5, 1.0, 2.0, 3.0])
+    if class_k:
+        own = random.Random(7919 * index + 1)
+        a, b = own.uniform(0.2, 2.0), own.uniform(0.1, 2.0)
+        alpha = json.dumps(own.choice([f"{a:.3f}*h + {b:.3f}*h^3", f"{a:.3f}*h + {b:.3f}*h^2",
+                                       f"{a:.3f}*tanh({b:.3f}*h) + 0.05*h"]))
     lo = [-2.0] + [-1.8] * (n - 1)
     hi = [3.0] + [1.8] * (n - 1)
     dt = rng.choice([0.02, 0.04, 0.05])
@@ -204,6 +211,8 @@ def main():
     parser.add_argument("--first", type=int, default=0, help="first seed")
     parser.add_argument("--count", type=int, default=10, help="systems to try")
     parser.add_argument("--exotic", action="store_true", help="the rarer settings")
+    parser.add_argument("--class-k", action="store_true",
+                        help="nonlinear class-K functions (a·h + b·h³, a·h + b·h², a·tanh(b·h))")
     parser.add_argument("--binary", default="target/release/cbfreach")
     parser.add_argument("--dir", help="where the scenarios go (default: a temporary folder)")
     args = parser.parse_args()
@@ -217,7 +226,7 @@ def main():
 
     escapes = 0
     for index in range(args.first, args.first + args.count):
-        text, h_of, n, dt = generate(random.Random(index), index)
+        text, h_of, n, dt = generate(random.Random(index), index, args.class_k)
         scenario = os.path.join(folder, f"fuzz{index}.toml")
         with open(scenario, "w") as fh:
             fh.write(text)

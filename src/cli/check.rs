@@ -41,12 +41,7 @@ pub fn run(path: &Path) -> CliResult {
         println!("  f̃[{}] = {}", s.states[i], show(e));
     }
     for c in &s.cbfs {
-        println!(
-            "  CBF {}: h = {}   α(s) = {}·s",
-            c.name,
-            show(&c.h),
-            c.alpha
-        );
+        println!("  CBF {}: h = {}   α(h) = {}", c.name, show(&c.h), c.alpha);
     }
     if let Some(b) = &s.input_bounds {
         println!(
@@ -226,16 +221,16 @@ fn print_findings(s: &cbfreach::scenario::Scenario, f: &FilterFindings) {
 pub(super) fn inert_note(name: &str) -> String {
     format!(
         "CBF {name}: no input acts on it (L_g h = 0 on all of C): its relative degree is above \
-         one, so the filter cannot enforce it and the QP is infeasible wherever L_f̃ h + α·h < 0; \
+         one, so the filter cannot enforce it and the QP is infeasible wherever L_f̃ h + α(h) < 0; \
          use a CBF of relative degree one (for a position bound, one that counts the velocity, \
-         such as L_f̃ h + α·h of this h)"
+         such as L_f̃ h + α(h) of this h)"
     )
 }
 
 /// Where a CBF's `‖L_g h‖` vanishes while its row needs the input, and what it does to `v`.
 fn vanishing_note(v: &Vanishing) -> String {
     format!(
-        "CBF {}: where it needs the input (L_f̃ h + α·h < 0), ‖L_g h‖ falls to {:.1e} of its \
+        "CBF {}: where it needs the input (L_f̃ h + α(h) < 0), ‖L_g h‖ falls to {:.1e} of its \
          largest on C ∩ S, at {}: v divides by ‖L_g h‖², so it is steep or jumps there, which \
          networks fit poorly and certified error bounds see",
         v.cbf,

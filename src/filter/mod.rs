@@ -245,11 +245,11 @@ impl<'a> SafetyFilter<'a> {
                     x: x.to_vec(),
                 });
             }
-            // aₖ = −L_g h = −∇hᵀ g,  bₖ = L_f̃ h + a·h.
+            // aₖ = −L_g h = −∇hᵀ g,  bₖ = L_f̃ h + α(h).
             rows.g
                 .extend((0..m).map(|j| -(0..n).map(|i| grad[i] * g[i * m + j]).sum::<f64>()));
             rows.q
-                .push((0..n).map(|i| grad[i] * f_tilde[i]).sum::<f64>() + cbf.alpha * h);
+                .push((0..n).map(|i| grad[i] * f_tilde[i]).sum::<f64>() + cbf.alpha.at(h));
             rows.labels.push(cbf.name.clone());
         }
         if let Some(bounds) = &s.input_bounds {

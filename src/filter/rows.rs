@@ -33,7 +33,7 @@ pub fn interval_rows(s: &Scenario, cell: &IntervalBox) -> (Vec<Interval>, Vec<In
         for j in 0..m {
             a.push(-sum((0..n).map(|i| grad[i] * g[i * m + j])));
         }
-        b.push(sum((0..n).map(|i| grad[i] * ft[i])) + h * cbf.alpha);
+        b.push(sum((0..n).map(|i| grad[i] * ft[i])) + cbf.alpha.over(h));
     }
     if let Some(bounds) = &s.input_bounds {
         let kappa: Vec<Interval> = s.kappa.iter().map(|e| e.eval_interval(&xs)).collect();
@@ -55,7 +55,7 @@ pub fn interval_rows(s: &Scenario, cell: &IntervalBox) -> (Vec<Interval>, Vec<In
 }
 
 /// The filter's constraint rows `aₖ(x)·θ ≤ bₖ(x)` as expressions, in the order of
-/// [`interval_rows`] (per CBF `aₖ = −∇hᵢ·g`, `bₖ = ∇hᵢ·f̃ + αᵢhᵢ`; per input bound; per extra
+/// [`interval_rows`] (per CBF `aₖ = −∇hᵢ·g`, `bₖ = ∇hᵢ·f̃ + αᵢ(hᵢ)`; per input bound; per extra
 /// constraint): `(a, b)` with `a` one row of `m` per constraint. With `clamp_h`, each `hᵢ`
 /// enters as `max(hᵢ, 0)` (equal on `S`; tighter over boxes that reach outside it).
 pub fn row_expressions(s: &Scenario, clamp_h: bool) -> (Vec<Vec<Expr>>, Vec<Expr>) {
@@ -76,7 +76,7 @@ pub fn row_expressions(s: &Scenario, clamp_h: bool) -> (Vec<Vec<Expr>>, Vec<Expr
         };
         b_rows.push(
             sum_e(&mut (0..n).map(|i| cbf.gradient[i].clone() * s.f_tilde[i].clone()))
-                + Expr::constant(cbf.alpha) * h,
+                + cbf.alpha.of(h),
         );
     }
     if let Some(bounds) = &s.input_bounds {

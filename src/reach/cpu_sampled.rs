@@ -47,8 +47,9 @@ pub(super) struct Held {
     /// The set's x-box at the sample, and what its box-step's frames shared there.
     sample: IntervalBox,
     facts: SetFacts,
-    /// Per CBF, `max(0, h̲)` over `sample`: a floor of `h(x_k)`.
-    h_floor: Vec<f64>,
+    /// Per CBF, an enclosure of `h(x_k)` over `sample`, its lower end raised to 0 (the true
+    /// state is in `S` at the sample) and NaN taken as 0.
+    h_k: Vec<Interval>,
     /// Every state since the sample: the hull of the steps' flowpipes (`None` where a step
     /// had none).
     motion: Option<IntervalBox>,
@@ -237,11 +238,19 @@ impl ChunkRun<'_> {
         }
         let at_sample = box_of(&state.known.lower, &state.known.upper);
         let scenario = self.x_problem.pieces.scenario();
-        let h_floor = scenario
+        let h_k = scenario
             .cbfs
             .iter()
-            .map(|c| c.h.eval_interval(&at_sample).lower)
-            .map(|h| if h > 0.0 { h } else { 0.0 })
+            .map(|c| c.h.eval_interval(&at_sample))
+            .map(|h| {
+                let floor = if h.lower > 0.0 { h.lower } else { 0.0 };
+                let ceil = if h.upper >= floor {
+                    h.upper
+                } else {
+                    f64::INFINITY
+                };
+                Interval::new(floor, ceil)
+            })
             .collect();
         let input = (!plant.0.is_still()).then(|| Some(inter.input().to_vec()));
         state.held = Some(Held {
@@ -250,7 +259,7 @@ impl ChunkRun<'_> {
             inter,
             sample: state.known.clone(),
             facts,
-            h_floor,
+            h_k,
             motion: Some(state.known.clone()),
             input,
         });
@@ -385,7 +394,7 @@ impl ChunkRun<'_> {
             return Ok(false);
         };
         let tau = j as f64 * self.h;
-        Ok(plant.0.keeps(c, held.h_floor[c], motion, u, tau))
+        Ok(plant.0.keeps(c, held.h_k[c], motion, u, tau))
     }
 
     /// The held input's enclosure `κ(X) + v` over the x-box `known` of the set, `v` enclosed by

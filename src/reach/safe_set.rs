@@ -1,6 +1,6 @@
 //! Intersecting the filtered system's sets with the safe set `S = {x : hᵢ(x) ≥ 0}`.
 //!
-//! The filter imposes `ḣᵢ ≥ −aᵢhᵢ` wherever its QP is feasible, so every `hᵢ ≥ 0` is forward
+//! The filter imposes `ḣᵢ ≥ −αᵢ(hᵢ)` wherever its QP is feasible, so every `hᵢ ≥ 0` is forward
 //! invariant along the filtered system's trajectories (Nagumo; the CBF theorem). A trajectory
 //! that starts in `S` stays in `S`, and any set that bounds it may be intersected with `S`.
 //! The analysis already assumes the filter is defined along the trajectories it bounds (the

@@ -23,7 +23,7 @@ use super::validated::{enclose_step, Enclosure};
 use crate::boxes::IntervalBox;
 use crate::expressions::Expr;
 use crate::intervals::{box_of, Interval};
-use crate::scenario::Scenario;
+use crate::scenario::{ClassK, Scenario};
 
 /// The plant's parts, with the derivatives the remainder needs (x coordinates).
 #[derive(Clone, Debug)]
@@ -40,8 +40,8 @@ pub struct Plant {
     /// Per CBF, `∇h` and `∇²h` ([`Plant::keeps`]).
     cbf_gradient: Vec<Vec<Expr>>,
     cbf_hessian: Vec<Vec<Vec<Expr>>>,
-    /// Per CBF, the gain `a` of `α(s) = a·s`.
-    alpha: Vec<f64>,
+    /// Per CBF, `α`.
+    alpha: Vec<ClassK>,
 }
 
 /// The remainder over one control period and the enclosure of the intersample motion.
@@ -204,23 +204,24 @@ impl Plant {
                 .iter()
                 .map(|c| crate::expressions::jacobian(&c.gradient, n))
                 .collect(),
-            alpha: s.cbfs.iter().map(|c| c.alpha).collect(),
+            alpha: s.cbfs.iter().map(|c| c.alpha.clone()).collect(),
         }
     }
 
     /// Whether the filter's own constraint keeps the true state in `{h_c ≥ 0}` at every
     /// `τ ∈ [0, tau]` after a sample (design §7.2 item 4). The true input `u_k` satisfies the QP's row
-    /// `φ(x_k) = ∇h(x_k)·(f(x_k) + g(x_k)u_k) ≥ −a·h(x_k)`, and `φ` is `d/dt h` along the held
+    /// `φ(x_k) = ∇h(x_k)·(f(x_k) + g(x_k)u_k) ≥ −α(h(x_k))`, and `φ` is `d/dt h` along the held
     /// motion, so by Taylor's theorem with the integral remainder
-    /// `h(x(τ)) ≥ (1 − aτ)·h(x_k) + τ²/2·inf φ̇`, the infimum over `motion` (every state since
-    /// the sample) and `u` (the held input's enclosure). With `h(x_k) ≥ h_floor ≥ 0` (the true
-    /// state is in `S` at the sample: the tube's earlier checks) and `aτ ≤ 1`, both terms only
-    /// fall as `τ` grows, so the bound at `tau` covers the interval. `ḧ ≥ 0` (a convex `h` on
-    /// `ẋ = u`) proves it whatever `h_floor`. NaN (a kink's `delta`, a domain) proves nothing.
+    /// `h(x(τ)) ≥ h(x_k) − τα(h(x_k)) + τ²/2·inf φ̇`, the infimum over `motion` (every state
+    /// since the sample) and `u` (the held input's enclosure). `h_k` encloses `h(x_k)`, its lower
+    /// end at least 0 (the true state is in `S` at the sample: the tube's earlier checks). With
+    /// a gain (`α(h) = a·h`) and `aτ ≤ 1` both terms only fall as `τ` grows, so the bound at
+    /// `tau` covers the interval ([`Plant::kept`] for other `α`). `ḧ ≥ 0` (a convex `h` on
+    /// `ẋ = u`) proves it whatever the floor. NaN (a kink's `delta`, a domain) proves nothing.
     pub fn keeps(
         &self,
         c: usize,
-        h_floor: f64,
+        h_k: Interval,
         motion: &IntervalBox,
         u: &[Interval],
         tau: f64,
@@ -230,14 +231,8 @@ impl Plant {
             return false;
         }
         let t = Interval::point(tau);
-        let decay = (Interval::point(1.0) - Interval::point(self.alpha[c]) * t).lower;
-        if decay < 0.0 {
+        let Some(kept) = self.kept(c, h_k, tau) else {
             return false;
-        }
-        // Terms that are exactly 0 stay 0 (outward rounding would push them below).
-        let kept = match h_floor > 0.0 {
-            true => (Interval::point(decay) * Interval::point(h_floor)).lower,
-            false => 0.0,
         };
         if accel >= 0.0 {
             return kept >= 0.0;
@@ -245,6 +240,36 @@ impl Plant {
         let half_t2 = (t * t * Interval::point(0.5)).upper;
         let lost = Interval::point(half_t2) * Interval::point(accel);
         (Interval::point(kept) + lost).lower >= 0.0
+    }
+
+    /// A lower bound of `h_k − τ'α(h_k)` over `h_k` and `τ' ∈ [0, tau]` (`None` where it may
+    /// be negative: `a·tau > 1` for a gain). With a gain, `(1 − a·tau)·h̲`. Otherwise the
+    /// expression is affine in `τ'`, so its least value is at `τ' = 0` (`h_k ≥ h̲`) or at `tau`,
+    /// where it rises with `h_k` wherever `1 − tau·α' ≥ 0` on `h_k` (then its value at `h̲`,
+    /// 0 at `h̲ = 0` since `α(0) = 0`), else is enclosed as a whole. Terms that are exactly 0
+    /// stay 0 (outward rounding would push them below).
+    fn kept(&self, c: usize, h_k: Interval, tau: f64) -> Option<f64> {
+        let (alpha, floor, t) = (&self.alpha[c], h_k.lower, Interval::point(tau));
+        if floor.is_nan() {
+            return None;
+        }
+        if let Some(a) = alpha.gain {
+            let decay = (Interval::point(1.0) - Interval::point(a) * t).lower;
+            return (decay >= 0.0).then(|| match floor > 0.0 {
+                true => (Interval::point(decay) * Interval::point(floor)).lower,
+                false => 0.0,
+            });
+        }
+        let rising = (Interval::point(1.0) - t * alpha.slope_over(h_k)).lower >= 0.0;
+        let at_tau = match (rising, floor > 0.0) {
+            (true, true) => {
+                let at = Interval::point(floor);
+                (at - t * alpha.over(at)).lower
+            }
+            (true, false) => 0.0,
+            (false, _) => (h_k - t * alpha.over(h_k)).lower,
+        };
+        (at_tau >= 0.0).then_some(at_tau.min(floor))
     }
 
     /// An enclosure of `ḧ = ẋᵀ∇²h ẋ + ∇h·ẍ` for CBF `c` over the states `motion` with the
@@ -553,6 +578,11 @@ pub(super) mod tests {
     }
 
     fn scenario_with(f: &str, g: &str, h: &str) -> Scenario {
+        scenario_alpha(f, g, h, "1.0")
+    }
+
+    /// `h ≥ 0` with `alpha` (a TOML value).
+    fn scenario_alpha(f: &str, g: &str, h: &str, alpha: &str) -> Scenario {
         let text = format!(
             r#"
 name = "t"
@@ -564,6 +594,7 @@ g = {g}
 kappa = ["-x1 - 2*x2"]
 [[cbf]]
 h = "{h}"
+alpha = {alpha}
 [reach]
 region = {{ lower = [-3, -3], upper = [3, 3] }}
 m_c = 0.1
@@ -606,13 +637,20 @@ goal = {{ lower = [-0.1, -0.1], upper = [0.1, 0.1] }}
     /// obstacle, where `ḧ = 2x₂² + 2(x₁ − 2)u + 2u²` takes both signs: from random states in `S`
     /// and inputs that satisfy the QP's row, a proof never meets a trajectory that leaves `S`
     /// before `τ`; some trajectories do leave (a digital filter does not keep `S`), and some
-    /// proofs are given (the test is not vacuous either way).
+    /// proofs are given (the test is not vacuous either way). With `α(h) = h` and with a
+    /// nonlinear `α` (`3h² + 0.2h`: rising in `h − τα(h)` on part of the states, not on others).
     #[test]
     fn the_filter_constraint_proof_holds_on_the_exact_held_motion() {
-        let s = scenario_with(
+        held_motion_proofs("1.0", |h| h);
+        held_motion_proofs(r#""3*h^2 + 0.2*h""#, |h| 3.0 * h * h + 0.2 * h);
+    }
+
+    fn held_motion_proofs(alpha_toml: &str, alpha: impl Fn(f64) -> f64) {
+        let s = scenario_alpha(
             r#"["x2", "0"]"#,
             r#"[["0"], ["1"]]"#,
             "(x1 - 2)^2 + x2^2 - 1",
+            alpha_toml,
         );
         let plant = Plant::of(&s);
         let h = |x: [f64; 2]| (x[0] - 2.0).powi(2) + x[1] * x[1] - 1.0;
@@ -630,7 +668,7 @@ goal = {{ lower = [-0.1, -0.1], upper = [0.1, 0.1] }}
             let x = [2.0 + r * angle.cos(), r * angle.sin()];
             let u = uniform(-4.0, 4.0);
             let phi = 2.0 * (x[0] - 2.0) * x[1] + 2.0 * x[1] * u;
-            if h(x) < 0.0 || phi < -h(x) {
+            if h(x) < 0.0 || phi < -alpha(h(x)) {
                 continue;
             }
             let tau = [0.1, 0.3, 0.6, 0.9][trial % 4];
@@ -649,8 +687,8 @@ goal = {{ lower = [-0.1, -0.1], upper = [0.1, 0.1] }}
             .unwrap();
             let leaves = path.iter().any(|&p| h(p) < -1e-12);
             exits += usize::from(leaves);
-            let floor = h(x) * (1.0 - 1e-12);
-            if plant.keeps(0, floor, &motion, &[Interval::point(u)], tau) {
+            let h_k = Interval::new(h(x) * (1.0 - 1e-12), h(x) * (1.0 + 1e-12) + 1e-15);
+            if plant.keeps(0, h_k, &motion, &[Interval::point(u)], tau) {
                 proofs += 1;
                 assert!(
                     !leaves,
@@ -664,6 +702,11 @@ goal = {{ lower = [-0.1, -0.1], upper = [0.1, 0.1] }}
         );
     }
 
+    /// `h(x_k) ≥ floor`.
+    fn above(floor: f64) -> Interval {
+        Interval::new(floor, f64::INFINITY)
+    }
+
     /// A convex `h` on `ẋ = u` (`ḧ = 2|u|² ≥ 0`) is kept whatever the floor, for `aτ ≤ 1`
     /// alone; a concave one near its boundary is not.
     #[test]
@@ -675,16 +718,26 @@ goal = {{ lower = [-0.1, -0.1], upper = [0.1, 0.1] }}
             r#"[["1"], ["0"]]"#,
             "x1^2 + x2^2 - 1",
         ));
-        assert!(convex.keeps(0, 0.0, &motion, &u, 0.5));
-        assert!(convex.keeps(0, 0.0, &motion, &u, 0.99));
-        assert!(!convex.keeps(0, 0.0, &motion, &u, 1.01), "aτ > 1");
+        assert!(convex.keeps(0, above(0.0), &motion, &u, 0.5));
+        assert!(convex.keeps(0, above(0.0), &motion, &u, 0.99));
+        assert!(!convex.keeps(0, above(0.0), &motion, &u, 1.01), "aτ > 1");
+        // A nonlinear α at the floor 0: `α(0) = 0` keeps the set whatever τ where `h − τα(h)`
+        // rises over `h_k` (`1 − 3τh² ≥ 0` on [0, 0.5] for τ ≤ 4/3), not where it may fall.
+        let cubic = Plant::of(&scenario_alpha(
+            r#"["0", "0"]"#,
+            r#"[["1"], ["0"]]"#,
+            "x1^2 + x2^2 - 1",
+            r#""h^3""#,
+        ));
+        assert!(cubic.keeps(0, Interval::new(0.0, 0.5), &motion, &u, 1.2));
+        assert!(!cubic.keeps(0, Interval::new(0.0, 0.5), &motion, &u, 1.4));
         let concave = Plant::of(&scenario_with(
             r#"["0", "0"]"#,
             r#"[["1"], ["0"]]"#,
             "1 - x1^2 - x2^2",
         ));
-        assert!(!concave.keeps(0, 0.0, &motion, &u, 0.1));
-        assert!(concave.keeps(0, 0.5, &motion, &u, 0.1));
+        assert!(!concave.keeps(0, above(0.0), &motion, &u, 0.1));
+        assert!(concave.keeps(0, above(0.5), &motion, &u, 0.1));
     }
 
     /// A positive definite `∇²h` with cross terms (`h = x₁² + x₁x₂ + x₂² − 1`, `ẋ = (u, u)`,
@@ -697,10 +750,10 @@ goal = {{ lower = [-0.1, -0.1], upper = [0.1, 0.1] }}
         let motion = IntervalBox::new(vec![0.0, -1.0], vec![1.0, 1.0]).unwrap();
         let plant = |h: &str| Plant::of(&scenario_with(r#"["0", "0"]"#, r#"[["1"], ["1"]]"#, h));
         let dominant = plant("x1^2 + x1*x2 + x2^2 - 1");
-        assert!(dominant.keeps(0, 0.0, &motion, &u, 0.5));
+        assert!(dominant.keeps(0, above(0.0), &motion, &u, 0.5));
         assert!(dominant.held_acceleration(0, &motion, &u).lower >= 0.0);
         let indefinite = plant("x1^2 + 3*x1*x2 + x2^2 - 1");
-        assert!(!indefinite.keeps(0, 0.0, &motion, &u, 0.5));
+        assert!(!indefinite.keeps(0, above(0.0), &motion, &u, 0.5));
     }
 
     /// [`quadratic_floor`] against `vᵀHv` at random symmetric matrices and vectors drawn from

@@ -55,6 +55,29 @@ impl Compiler<'_> {
             .collect()
     }
 
+    /// A CBF's `alpha`: a gain (a number, or an expression in the parameters), or a function
+    /// of `h` (checked against `h`'s values on `C` once those are known).
+    pub(super) fn class_k(&self, key: &str, alpha: &Number) -> Result<ClassK, ScenarioError> {
+        let text = match alpha {
+            Number::Value(a) => return Ok(ClassK::gain(*a)),
+            Number::Expr(text) => text,
+        };
+        let e =
+            expressions::parse(text, &["h".to_string()], self.parameters).map_err(|source| {
+                ScenarioError::Expression {
+                    file: self.file.to_string(),
+                    key: key.to_string(),
+                    text: text.clone(),
+                    source,
+                }
+            })?;
+        if !e.uses_variable(0) {
+            return Ok(ClassK::gain(e.eval(&[])));
+        }
+        limits::check_derivative_size(&e, None).map_err(|m| self.invalid(key, m))?;
+        Ok(ClassK::function(e, text))
+    }
+
     pub(super) fn finite(&self, key: &str, v: f64) -> Result<f64, ScenarioError> {
         if v.is_finite() {
             Ok(v)
@@ -154,13 +177,7 @@ impl ScenarioFile {
                 // Before differentiating: the filter's rows differentiate ∇h·f̃ again.
                 limits::check_derivative_size(&h, Some(&f_tilde))
                     .map_err(|m| c.invalid(format!("{key}.h"), m))?;
-                let alpha = c.finite(&format!("{key}.alpha"), cb.alpha)?;
-                if alpha <= 0.0 {
-                    return Err(c.invalid(
-                        format!("{key}.alpha"),
-                        format!("the class-K gain must be positive, found {alpha}"),
-                    ));
-                }
+                let alpha = c.class_k(&format!("{key}.alpha"), &cb.alpha)?;
                 Ok(Cbf {
                     name: cb.name.clone().unwrap_or_else(|| format!("h{}", i + 1)),
                     gradient: expressions::gradient(&h, n),
@@ -334,6 +351,11 @@ impl ScenarioFile {
                     "is {v} at x = {x:?} in the region C (every expression must be finite on C)"
                 ),
             ));
+        }
+        for (i, cb) in cbfs.iter().enumerate() {
+            if let Some(why) = cb.alpha.check(limits::largest_on(&reach.region, &cb.h)) {
+                return Err(c.invalid(format!("cbf[{i}].alpha"), why));
+            }
         }
         Ok(Scenario {
             name: self.name.clone(),

@@ -101,13 +101,14 @@ pub struct CbfSection {
     pub name: Option<String>,
     /// `h(x)`.
     pub h: String,
-    /// Gain `a` of the class-K function `α(s) = a·s` (default 1).
+    /// The class-K function `α` of `ḣ ≥ −α(h)`: a gain `a` (`α(h) = a·h`; default 1, as a
+    /// number or an expression in the parameters) or an expression in `h` (`"0.5*h + h^3"`).
     #[serde(default = "one")]
-    pub alpha: f64,
+    pub alpha: Number,
 }
 
-fn one() -> f64 {
-    1.0
+fn one() -> Number {
+    Number::Value(1.0)
 }
 
 /// A number as written: a TOML number, or an expression in the parameters and `pi`

@@ -141,6 +141,32 @@ pub fn find_non_finite(
     None
 }
 
+/// Cells of the grid over `C` at whose nodes [`largest_on`] samples.
+const SAMPLE_NODES: usize = 4096;
+
+/// The largest finite value of `e` at the nodes of a grid of at most [`SAMPLE_NODES`] cells
+/// over `region` (corners included): where a CBF's `α` must be class-K, `h`'s range on `C`
+/// (sampled, so a guard against a mistyped `α`, not a proof). −∞ where no node is finite.
+pub fn largest_on(region: &IntervalBox, e: &Expr) -> f64 {
+    let n = region.dim();
+    let k = crate::boxes::per_axis_within(n, SAMPLE_NODES, 64);
+    let mut largest = f64::NEG_INFINITY;
+    let mut index = vec![0usize; n];
+    loop {
+        let s: Vec<f64> = index.iter().map(|&i| i as f64 / k as f64).collect();
+        let v = e.eval(&region.point_at(&s));
+        if v.is_finite() {
+            largest = largest.max(v);
+        }
+        // The next node, the first axis fastest.
+        let Some(axis) = index.iter().position(|&i| i < k) else {
+            return largest;
+        };
+        index[axis] += 1;
+        index[..axis].iter_mut().for_each(|i| *i = 0);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -181,5 +207,21 @@ mod tests {
         assert!(find_non_finite(&c, &[("h".into(), &pole)]).is_some());
         let fine = parse("1/(x1^2 + 1) + x1/(x2^2+2)");
         assert!(find_non_finite(&c, &[("h".into(), &fine)]).is_none());
+    }
+
+    #[test]
+    fn the_largest_value_on_c_is_found_at_its_corners_and_nodes() {
+        let c = IntervalBox::new(vec![-1.0, 0.0], vec![2.0, 1.0]).unwrap();
+        let e = crate::expressions::parse(
+            "x1^2 - x2",
+            &["x1".to_string(), "x2".to_string()],
+            &Default::default(),
+        )
+        .unwrap();
+        assert_eq!(largest_on(&c, &e), 4.0);
+        let nowhere =
+            crate::expressions::parse("ln(x1 - 5)", &["x1".to_string()], &Default::default())
+                .unwrap();
+        assert_eq!(largest_on(&c, &nowhere), f64::NEG_INFINITY);
     }
 }

@@ -1,9 +1,10 @@
 //! Scenario files: a whole problem in one TOML file.
 //!
 //! A scenario states the control-affine system `ẋ = f(x) + g(x) u`, the nominal controller
-//! `κ(x)`, the CBFs `hᵢ` with their class-K gains `αᵢ(s) = aᵢ s`, optional constraints linear in
-//! the filter's correction `θ`, and the reachability settings (region `C`, norm, `M_C`, `dt`,
-//! horizon, initial boxes, goal set, network). Expressions are strings in the state names and
+//! `κ(x)`, the CBFs `hᵢ` with their class-K functions `αᵢ` (a gain, `αᵢ(h) = aᵢh`, or a
+//! function of `h`), optional constraints linear in the filter's correction `θ`, and the
+//! reachability settings (region `C`, norm, `M_C`, `dt`, horizon, initial boxes, goal set,
+//! network). Expressions are strings in the state names and
 //! the scenario's named parameters (see [`crate::expressions`]).
 //!
 //! Loading is two steps, so that every error can name its file and key: [`ScenarioFile`] is the
@@ -21,11 +22,13 @@ use serde::{Deserialize, Serialize};
 use crate::boxes::IntervalBox;
 use crate::expressions::{self, Expr};
 
+mod class_k;
 mod compile;
 mod file;
 pub mod limits;
 mod values;
 
+pub use class_k::ClassK;
 pub use file::*;
 pub use values::Periodic;
 
@@ -99,7 +102,7 @@ pub enum TransformChoice {
     Matrix(Vec<f64>),
 }
 
-/// A CBF `h` with its gradient `∇h` and class-K gain `a` in `α(s) = a·s`.
+/// A CBF `h` with its gradient `∇h` and class-K function `α`.
 #[derive(Clone, Debug)]
 pub struct Cbf {
     /// Name for reports (`h1`, `h2`, … when the file gives none).
@@ -108,8 +111,8 @@ pub struct Cbf {
     pub h: Expr,
     /// `∇h(x)`, n expressions.
     pub gradient: Vec<Expr>,
-    /// The gain `a` of `α(s) = a·s`.
-    pub alpha: f64,
+    /// `α` in `∇h·(f̃ + gθ) ≥ −α(h)`.
+    pub alpha: ClassK,
 }
 
 /// A constraint `a(x)·θ ≤ b(x)` on the filter's correction `θ`.

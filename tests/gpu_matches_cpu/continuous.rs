@@ -521,3 +521,64 @@ fn continuous_sets_hold_the_filtered_system_on_scenario_1() {
         compare_within(&cpu, &dev, &format!("{what}, Euler"), SHIPPED_TOL);
     }
 }
+
+/// A nonlinear class-K function (`α(h) = 3h³ + 0.1h`, a curved wall `h = x₁ + 1 + 0.2x₂²` on
+/// `ẋ = u`, a small network, `M = 0.35`, the filter's closed form and face-local bounds, 30
+/// steps): `α` reaches the device's generated code (the pieces' fields, the slack rows), so
+/// its tubes are the CPU's, which differ from those with `α(h) = 0.1h`.
+#[test]
+fn continuous_runs_with_a_nonlinear_class_k_match_the_cpu_engine() {
+    let Some(g) = gpu_f64() else { return };
+    let wall = |alpha: &str| {
+        common::from_text(&format!(
+            r#"
+name = "curved-wall"
+[system]
+states = ["x1", "x2"]
+inputs = ["u1", "u2"]
+f = ["0", "0"]
+g = [["1", "0"], ["0", "1"]]
+kappa = ["-0.4*(x1 + 1.6)", "-0.2*x2"]
+[[cbf]]
+h = "x1 + 1 + 0.2*x2^2"
+alpha = {alpha}
+[reach]
+region = {{ lower = [-1.5, -1.5], upper = [1.5, 1.5] }}
+dt = 0.05
+horizon = 1.5
+goal = {{ lower = [-1.2, -0.3], upper = [-0.8, 0.3] }}
+"#
+        ))
+        .unwrap()
+    };
+    let init = boxes(
+        &[[-0.55, 0.35], [-0.85, -0.45], [-0.25, -0.05], [0.5, 1.0]],
+        0.05,
+    );
+    let net = small_network(&[2, 16, 2], 4, 0.05);
+    let st = ReachSettings {
+        face_local: true,
+        exact: ExactField::ClosedForm,
+        ..settings(ReachMethod::Disturbance)
+    };
+    let problem = |s: &Scenario| {
+        ReachProblem::new(s, net.clone(), 0.35)
+            .unwrap()
+            .with_time(TimeModel::Continuous, 1)
+    };
+    let (cubic, linear) = (wall(r#""3*h^3 + 0.1*h""#), wall("0.1"));
+    let cpu = |s: &Scenario| {
+        CpuBackend
+            .reach(&problem(s), &init, &st, &|_, _| {})
+            .unwrap()
+            .boxes
+    };
+    let differ = cpu(&cubic)
+        .iter()
+        .zip(&cpu(&linear))
+        .filter(|(a, b)| a.tube.iter().zip(&b.tube).any(|(x, y)| x.set != y.set))
+        .count();
+    assert!(differ >= 2, "α changed {differ} tubes");
+    let what = "curved wall, α(h) = 3h³ + 0.1h";
+    continuous_parity(&g, &problem(&cubic), &init, (&st, TOL), None, what);
+}

@@ -3,6 +3,7 @@
 //! snapshots; the Euler map's sets (`time = "euler"`) miss some of them, so each test can fail.
 
 mod absorbing;
+mod class_k;
 #[path = "../common/mod.rs"]
 mod common;
 mod met_slabs;
