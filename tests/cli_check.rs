@@ -105,8 +105,9 @@ fn check_says_when_boxes_at_the_goal_grow_before_they_shrink() {
     );
 }
 
-/// A CBF no input acts on (a position bound on a double integrator) is named with what to do,
-/// and the QP's infeasible share is said; a well-posed scenario says its QP is feasible.
+/// A CBF no input acts on (a position bound on a double integrator) is named with what to do
+/// (the high-order CBF to add, which then keeps its row), and the QP's infeasible share is
+/// said; a well-posed scenario says its QP is feasible.
 #[test]
 fn check_names_a_cbf_no_input_acts_on_and_where_the_qp_is_infeasible() {
     let tmp = tempfile::tempdir().unwrap();
@@ -129,6 +130,25 @@ fn check_names_a_cbf_no_input_acts_on_and_where_the_qp_is_infeasible() {
     // The filter in words, its rows counted from the scenario.
     assert!(
         stdout.contains("filter: 2 constraint rows, closed form (scalar input"),
+        "{stdout}"
+    );
+    // The note ends with the high-order CBF to add; added, it keeps the inert row, and the QP
+    // is feasible on all of C ∩ S.
+    let next = stdout
+        .split("[[cbf]] h = \"")
+        .nth(1)
+        .and_then(|rest| rest.split('"').next())
+        .unwrap_or_else(|| panic!("{stdout}"));
+    let text = std::fs::read_to_string(&path).unwrap().replacen(
+        "h = \"1.5 - x1\"",
+        &format!("h = \"1.5 - x1\"\n[[cbf]]\nname = \"next\"\nh = \"{next}\""),
+        1,
+    );
+    std::fs::write(&path, text).unwrap();
+    let stdout = check(&path);
+    assert!(
+        stdout.contains("its row asks L_f̃ h + α(h) ≥ 0, which CBF next is (a high-order CBF)")
+            && stdout.contains("the QP is feasible at all"),
         "{stdout}"
     );
     let path = common::scenario_path("integrator.toml");

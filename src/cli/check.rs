@@ -4,9 +4,10 @@ use std::path::Path;
 
 use cbfreach::expressions::Expr;
 use cbfreach::filter::{
-    findings, FilterFindings, FilterMethod, QpForms, SafetyFilter, Vanishing, MAX_ACTIVE, MAX_SETS,
+    findings, FilterFindings, FilterMethod, Inert, QpForms, SafetyFilter, Vanishing, MAX_ACTIVE,
+    MAX_SETS,
 };
-use cbfreach::scenario::Margin;
+use cbfreach::scenario::{Margin, Scenario};
 
 use super::{fmt_point, load_scenario, CliResult};
 
@@ -129,7 +130,7 @@ pub fn run(path: &Path) -> CliResult {
 
 /// Where the true filtered system goes from a grid of starts over `C ∩ S` within the horizon
 /// (`verify::survey`): what a run can at best prove, before any training.
-fn print_survey(s: &cbfreach::scenario::Scenario) {
+fn print_survey(s: &Scenario) {
     use cbfreach::verify::CentreOutcome as O;
     let traps = cbfreach::verify::traps_for(s);
     let outcomes = cbfreach::verify::survey(s, &traps);
@@ -182,9 +183,9 @@ fn print_survey(s: &cbfreach::scenario::Scenario) {
 }
 
 /// The filter's findings on `C`, one line each (inert CBFs are also said by `train`).
-fn print_findings(s: &cbfreach::scenario::Scenario, f: &FilterFindings) {
-    for name in &f.inert {
-        println!("  {}", inert_note(name));
+fn print_findings(s: &Scenario, f: &FilterFindings) {
+    for inert in &f.inert {
+        println!("  {}", inert_note(s, inert));
     }
     for v in &f.vanishing {
         println!("  {}", vanishing_note(v));
@@ -217,14 +218,25 @@ fn print_findings(s: &cbfreach::scenario::Scenario, f: &FilterFindings) {
     }
 }
 
-/// What a CBF no input acts on means, and what to do.
-pub(super) fn inert_note(name: &str) -> String {
-    format!(
-        "CBF {name}: no input acts on it (L_g h = 0 on all of C): its relative degree is above \
-         one, so the filter cannot enforce it and the QP is infeasible wherever L_f̃ h + α(h) < 0; \
-         use a CBF of relative degree one (for a position bound, one that counts the velocity, \
-         such as L_f̃ h + α(h) of this h)"
-    )
+/// What a CBF no input acts on means, and what to do: write out the high-order CBF its row
+/// asks for (`ψ = L_f̃h + α(h)`, printed to paste), or nothing where another CBF is that.
+pub(super) fn inert_note(s: &Scenario, inert: &Inert) -> String {
+    let name = &inert.cbf;
+    match &inert.kept_by {
+        Some(next) => format!(
+            "CBF {name}: no input acts on it (L_g h = 0 on all of C); its row asks \
+             L_f̃ h + α(h) ≥ 0, which CBF {next} is (a high-order CBF): S requires both, and \
+             where {next} holds so does {name}'s row"
+        ),
+        None => format!(
+            "CBF {name}: no input acts on it (L_g h = 0 on all of C): its relative degree is \
+             above one, so the filter cannot enforce it and the QP is infeasible wherever \
+             L_f̃ h + α(h) < 0; add that function as a CBF of its own and keep this one (a \
+             high-order CBF: S then requires both, and the input acts on the new row where h \
+             is a position bound): [[cbf]] h = \"{}\"",
+            inert.next.display(&s.states)
+        ),
+    }
 }
 
 /// Where a CBF's `‖L_g h‖` vanishes while its row needs the input, and what it does to `v`.

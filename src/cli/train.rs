@@ -292,8 +292,11 @@ pub fn run_train(args: &TrainArgs) -> CliResult {
     }
     print_summary(&s, &data.summary);
     // `check` says the rest of the filter's findings; an inert CBF makes the training moot.
-    for name in cbfreach::filter::inert_cbfs(&s) {
-        println!("warning: {}", super::check::inert_note(&name));
+    for inert in cbfreach::filter::inert_cbfs(&s)
+        .iter()
+        .filter(|i| i.kept_by.is_none())
+    {
+        println!("warning: {}", super::check::inert_note(&s, inert));
     }
     if let Some((excluded, band)) = &data.notes.left_out {
         let band: Vec<String> = band.iter().map(|b| format!("{b:.4}")).collect();

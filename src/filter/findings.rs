@@ -6,7 +6,9 @@
 //! infeasible wherever `L_f̃ h + αh < 0`. Without this the only sign was a count of skipped
 //! training samples. It may import what the filter module may.
 
-use super::{interval_rows, ConstraintRows, FilterStatus, Infeasibility, SafetyFilter};
+use super::SafetyFilter;
+use super::{interval_rows, row_expressions, ConstraintRows, FilterStatus, Infeasibility};
+use crate::expressions::Expr;
 use crate::intervals::Interval;
 use crate::scenario::Scenario;
 
@@ -20,9 +22,9 @@ pub const INERT: f64 = 1e-300;
 /// What [`findings`] found.
 #[derive(Clone, Debug, PartialEq)]
 pub struct FilterFindings {
-    /// The CBFs (by name) whose row `−L_g h` is 0 on all of `C`, proven by interval evaluation:
-    /// their relative degree is above one.
-    pub inert: Vec<String>,
+    /// The CBFs whose row `−L_g h` is 0 on all of `C`, proven by interval evaluation: their
+    /// relative degree is above one.
+    pub inert: Vec<Inert>,
     /// The points of `C ∩ S` solved: the centres of an equal partition of `C` that lie in `S`.
     pub sampled: usize,
     /// Those where the QP is infeasible.
@@ -138,18 +140,85 @@ fn leverage(rows: &ConstraintRows, k: usize, m: usize) -> f64 {
         .sqrt()
 }
 
-/// The CBFs (by name) whose row `−L_g h` encloses to 0 over `C` (within [`INERT`], the width
-/// outward rounding gives a product with 0): no input acts on them anywhere in `C`.
-pub fn inert_cbfs(s: &Scenario) -> Vec<String> {
+/// A CBF no input acts on ([`inert_cbfs`]), what its row asks of the state, and whether
+/// another of the scenario's CBFs asks the same.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Inert {
+    /// The CBF's name.
+    pub cbf: String,
+    /// `ψ = L_f̃h + α(h)`: the row reads `0·θ ≤ ψ(x)`, so the QP is feasible only where
+    /// `ψ ≥ 0`. For a position bound on a double integrator `ψ` counts the velocity, and the
+    /// input acts on its own row: the next level of a high-order CBF.
+    pub next: Expr,
+    /// The CBF whose `h` is a positive multiple of `ψ` (at the nodes of a grid over `C`), if
+    /// one is: where it holds, so does the inert row (a high-order CBF written out).
+    pub kept_by: Option<String>,
+}
+
+/// The CBFs whose row `−L_g h` encloses to 0 over `C` (within [`INERT`], the width outward
+/// rounding gives a product with 0): no input acts on them anywhere in `C`.
+pub fn inert_cbfs(s: &Scenario) -> Vec<Inert> {
     let (a, _) = interval_rows(s, &s.reach.region);
     let m = s.m();
     let zero = |i: &Interval| i.lower.abs() <= INERT && i.upper.abs() <= INERT;
-    s.cbfs
-        .iter()
-        .enumerate()
-        .filter(|(k, _)| a[k * m..(k + 1) * m].iter().all(zero))
-        .map(|(_, c)| c.name.clone())
+    let inert: Vec<usize> = (0..s.cbfs.len())
+        .filter(|k| a[k * m..(k + 1) * m].iter().all(zero))
+        .collect();
+    if inert.is_empty() {
+        return Vec::new();
+    }
+    // The CBFs' rows come first, in order.
+    let (_, b) = row_expressions(s, false);
+    let nodes = grid_nodes(&s.reach.region, 1024);
+    inert
+        .into_iter()
+        .map(|k| {
+            let next = b[k].collected();
+            let kept_by = (0..s.cbfs.len())
+                .filter(|&j| j != k)
+                .find(|&j| positive_multiple(&s.cbfs[j].h, &next, &nodes))
+                .map(|j| s.cbfs[j].name.clone());
+            Inert {
+                cbf: s.cbfs[k].name.clone(),
+                next,
+                kept_by,
+            }
+        })
         .collect()
+}
+
+/// The nodes of a grid of at most `cells` cells over `region`, corners included.
+fn grid_nodes(region: &crate::boxes::IntervalBox, cells: usize) -> Vec<Vec<f64>> {
+    let n = region.dim();
+    let k = crate::boxes::per_axis_within(n, cells, 32);
+    let count = (k + 1).pow(n as u32);
+    (0..count)
+        .map(|mut i| {
+            let s: Vec<f64> = (0..n)
+                .map(|_| {
+                    let j = i % (k + 1);
+                    i /= k + 1;
+                    j as f64 / k as f64
+                })
+                .collect();
+            region.point_at(&s)
+        })
+        .collect()
+}
+
+/// Whether `h = c·ψ` with one `c > 0` at every node (to 1e-9 relative), `c` taken where `|ψ|`
+/// is largest.
+fn positive_multiple(h: &Expr, psi: &Expr, nodes: &[Vec<f64>]) -> bool {
+    let pairs: Vec<(f64, f64)> = nodes.iter().map(|x| (h.eval(x), psi.eval(x))).collect();
+    let Some(&(h0, p0)) = pairs.iter().max_by(|a, b| a.1.abs().total_cmp(&b.1.abs())) else {
+        return false;
+    };
+    let c = h0 / p0;
+    c.is_finite()
+        && c > 0.0
+        && pairs
+            .iter()
+            .all(|&(h, p)| (h - c * p).abs() <= 1e-9 * (1.0 + h.abs() + (c * p).abs()))
 }
 
 /// The scenario's filter checked on `C`: inert CBFs, and the QP solved at about
@@ -194,7 +263,7 @@ pub fn findings(s: &Scenario) -> FilterFindings {
         .iter()
         .zip(largest.iter().zip(needing))
         .enumerate()
-        .filter(|(_, (c, _))| !inert.contains(&c.name))
+        .filter(|(_, (c, _))| !inert.iter().any(|i| i.cbf == c.name))
         .filter_map(|(k, (c, (&big, mut need)))| {
             // From the smallest few: one may start at a corner of the region the row needs
             // the input in, where the search stalls (the lane keeper's at y = −1).
@@ -287,7 +356,13 @@ mod tests {
     fn a_cbf_no_input_acts_on_is_named_with_where_the_qp_fails() {
         let s = van_der_pol("1.5 - x1");
         let f = findings(&s);
-        assert_eq!(f.inert, vec!["wall".to_string()]);
+        assert_eq!(f.inert.len(), 1);
+        let wall = &f.inert[0];
+        assert_eq!((wall.cbf.as_str(), wall.kept_by.as_ref()), ("wall", None));
+        // Its row asks ψ = L_f h + αh = −x₂ + 1.5 − x₁ ≥ 0 (α = 1).
+        for x in [[0.3, -0.2], [-1.0, 0.7], [1.2, 1.1]] {
+            assert!((wall.next.eval(&x) - (1.5 - x[0] - x[1])).abs() < 1e-12);
+        }
         let counts = vec![64, 64];
         let expected = (0..64 * 64)
             .map(|k| s.reach.region.partition_cell(&counts, k).center())
@@ -298,6 +373,17 @@ mod tests {
         let (x, why) = f.example.expect("an infeasible point");
         assert!(1.5 - x[0] - x[1] < 0.0, "{x:?}");
         assert!(matches!(why, Infeasibility::NoInputOnRow { .. }), "{why:?}");
+        // Written out as a high-order CBF (ψ as a CBF of its own, here scaled by 2), the inert
+        // row is kept by it, and the QP is feasible on all of C ∩ S.
+        let text = include_str!("../../tests/fixtures/vdp.toml").replacen(
+            "h = \"1.5 - x1 - 0.5*x2\"",
+            "h = \"1.5 - x1\"\n[[cbf]]\nname = \"next\"\nh = \"3 - 2*x1 - 2*x2\"",
+            1,
+        );
+        let both =
+            findings(&Scenario::from_toml(&text, "vdp.toml", std::path::Path::new(".")).unwrap());
+        assert_eq!(both.inert[0].kept_by.as_deref(), Some("next"));
+        assert_eq!(both.infeasible, 0);
         let tilted = findings(&van_der_pol("1.5 - x1 - 0.5*x2"));
         assert!(tilted.inert.is_empty() && tilted.vanishing.is_empty());
         assert_eq!(tilted.infeasible, 0);

@@ -32,7 +32,9 @@ pub use active_sets::{natural_qp_enclosure, QpCell, QpForms, MAX_ACTIVE, MAX_SET
 pub use enclosures::{
     v_enclosure, FilterPiece, Kink, Lattice, Smooth, SmoothV, VFormParts, VForms, VShape,
 };
-pub use findings::{findings, inert_cbfs, FilterFindings, Vanishing, SAMPLE_POINTS, VANISHING};
+pub use findings::{
+    findings, inert_cbfs, FilterFindings, Inert, Vanishing, SAMPLE_POINTS, VANISHING,
+};
 pub use rows::{interval_rows, row_expressions};
 
 pub(crate) use enclosures::meet;
