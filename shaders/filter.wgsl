@@ -117,8 +117,8 @@ fn vrd_form(kj: u32, c: Centred) -> Form {
     return form_of(vrd_iv(kj, c.cs), g, c);
 }
 
-// The rows over the box: natural a and b, and b met with its mean-value form (VForms::rows);
-// `ok` false where some row is NaN.
+// The rows over the box: natural a and b, and b met with its mean-value form (VForms::v_rows,
+// rows no input acts on made slack); `ok` false where some row is NaN.
 struct Rows {
     a: array<Iv, V_ROWS * M_OUT>,
     b_nat: array<Iv, V_ROWS>,
@@ -137,6 +137,16 @@ fn filter_rows(c: Centred) -> Rows {
         r.b_nat[k] = row_b_iv(k, c.xs);
         r.ok = r.ok && !iv_nan(r.b_nat[k]);
         r.b_enc[k] = iv_meet(r.b_nat[k], vb_form(k, c).enc);
+        // A row no input acts on (its a exactly 0) binds nowhere v exists (VForms::v_rows).
+        var inert = true;
+        for (var j = 0u; j < M_OUT; j++) {
+            let a = r.a[k * M_OUT + j];
+            inert = inert && a.lo == 0.0 && a.hi == 0.0;
+        }
+        if (inert) {
+            r.b_nat[k] = Iv(max(r.b_nat[k].lo, 0.0), max(r.b_nat[k].hi, 0.0));
+            r.b_enc[k] = Iv(max(r.b_enc[k].lo, 0.0), max(r.b_enc[k].hi, 0.0));
+        }
     }
     return r;
 }

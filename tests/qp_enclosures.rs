@@ -640,3 +640,92 @@ fn opposite_bounds_of_an_input_are_never_enumerated_together() {
         seen.bounded
     );
 }
+
+/// A high-order CBF written out: a position bound `h` no input acts on, listed first, beside
+/// `ψ = L_f̃h + α(h)` as a CBF of its own (what `check` prints to add): on a double integrator
+/// (a scalar input: the closed form's rows) and a planar one past a disc (two inputs: a QP).
+fn high_order(planar: bool) -> Scenario {
+    let text = match planar {
+        false => r#"
+name = "wall"
+[system]
+states = ["x1", "x2"]
+inputs = ["u"]
+f = ["x2", "0"]
+g = [["0"], ["1"]]
+kappa = ["-x1 - 2*x2"]
+[[cbf]]
+h = "1.5 - x1"
+[[cbf]]
+h = "1.5 - x1 - x2"
+[reach]
+region = { lower = [-2, -2], upper = [2, 2] }
+m_c = 0
+dt = 0.05
+horizon = 1
+goal = { lower = [-0.1, -0.1], upper = [0.1, 0.1] }
+"#
+        .to_string(),
+        true => r#"
+name = "disc"
+[system]
+states = ["px", "py", "vx", "vy"]
+inputs = ["ax", "ay"]
+f = ["vx", "vy", "0", "0"]
+g = [["0", "0"], ["0", "0"], ["1", "0"], ["0", "1"]]
+kappa = ["-px - 1.8*vx", "-py - 1.8*vy"]
+[[cbf]]
+h = "(px - 2)^2 + (py - 0.3)^2 - 0.36"
+alpha = 1.5
+[[cbf]]
+h = "2*(px - 2)*vx + 2*(py - 0.3)*vy + 1.5*((px - 2)^2 + (py - 0.3)^2 - 0.36)"
+alpha = 2.0
+[reach]
+region = { lower = [0.5, -1, -1.5, -1], upper = [3.5, 1, 0.5, 1] }
+m_c = 0
+dt = 0.05
+horizon = 1
+goal = { lower = [-0.1, -0.1, -0.1, -0.1], upper = [0.1, 0.1, 0.1, 0.1] }
+"#
+        .to_string(),
+    };
+    from_text(&text).unwrap()
+}
+
+/// The row no input acts on (exactly 0: `0·θ ≤ ψ`) binds nowhere `v` exists, so the enclosures
+/// of `v` leave it out: on boxes across `ψ = 0`, where its `b` takes both signs (and before, the
+/// enclosures were unbounded: the certified error map of such a scenario had 12,822 of 20,000
+/// cells at +∞), they are bounded, and every solution lies in them.
+#[test]
+fn a_row_no_input_acts_on_leaves_the_enclosures_of_v_bounded() {
+    for (planar, seed) in [(false, 11), (true, 12)] {
+        let s = high_order(planar);
+        assert!(s.cbfs[0].inert && !s.cbfs[1].inert, "{}", s.name);
+        let seen = solutions_inside(&s, 150, seed);
+        assert!(seen.points > 400, "{}: {} points", s.name, seen.points);
+        let (qp, forms) = (QpForms::new(&s), VForms::new(&s).expect("forms"));
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let bounded = |v: &[Interval]| v.iter().all(|e| e.lower.is_finite() && e.upper.is_finite());
+        let (mut across, mut held) = (0, 0);
+        for _ in 0..1000 {
+            let b = random_box(&mut rng, &s.reach.region);
+            let (a, rows_b) = interval_rows(&s, &b);
+            assert!(a[..s.m()].iter().all(|e| e.lower == 0.0 && e.upper == 0.0));
+            if !(rows_b[0].lower < 0.0 && rows_b[0].upper > 0.0) {
+                continue;
+            }
+            across += 1;
+            held += usize::from(
+                bounded(&qp.enclose(&s, &b).v)
+                    && bounded(&natural_qp_enclosure(&a, &rows_b, s.m()))
+                    && bounded(&forms.enclose(&s, &b).0),
+            );
+        }
+        eprintln!("{}: {held} of {across} boxes across ψ = 0 bounded", s.name);
+        assert!(
+            across > 40 && held * 2 > across,
+            "{}: {held} of {across}",
+            s.name
+        );
+    }
+}

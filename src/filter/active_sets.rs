@@ -206,7 +206,7 @@ pub(crate) fn active_sets(
         for set in &layer {
             let from = set.last().map_or(0, |&l| l + 1);
             for k in from..rows {
-                if set.iter().any(|&j| parallel(j, k)) {
+                if set.iter().any(|&j| parallel(j, k)) || inert(normals.get(k)) {
                     continue;
                 }
                 let mut s = set.clone();
@@ -221,6 +221,24 @@ pub(crate) fn active_sets(
         layer = next;
     }
     Some(out)
+}
+
+/// Whether a row's normal is the constant 0 (`0·θ ≤ bₖ`): where the QP is feasible `bₖ ≥ 0`,
+/// so the row never binds, and `v` is the solution of the other rows. Such a row is in no
+/// active set, and the enclosures of `v` take its `bₖ` as nonnegative ([`slack_inert`]): `v`
+/// exists only where it is (the feasibility proofs, which keep the row, see the rest).
+fn inert(normal: Option<&Option<Vec<f64>>>) -> bool {
+    normal.is_some_and(|a| a.as_ref().is_some_and(|a| a.iter().all(|&x| x == 0.0)))
+}
+
+/// Raises to 0 the `bₖ` of every row whose normal (`a`, row-major rows × `m`) encloses to the
+/// point 0 ([`inert`]): for enclosures of `v`, which exists only where such a `bₖ ≥ 0`.
+pub(crate) fn slack_inert(a: &[Interval], m: usize, b: &mut [Interval]) {
+    for (ak, bk) in a.chunks(m.max(1)).zip(b.iter_mut()) {
+        if ak.iter().all(|e| e.lower == 0.0 && e.upper == 0.0) {
+            *bk = Interval::new(bk.lower.max(0.0), bk.upper.max(0.0));
+        }
+    }
 }
 
 /// Whether two rows' normals are both constant (`Some`) and parallel, either way: the two
@@ -321,6 +339,9 @@ pub fn natural_qp_enclosure(a: &[Interval], b: &[Interval], m: usize) -> Vec<Int
     if a.len() != rows * m || a.iter().chain(b).any(|v| v.is_nan()) {
         return entire;
     }
+    let mut b = b.to_vec();
+    slack_inert(a, m, &mut b);
+    let b = &b;
     // `θ = 0` feasible throughout: it is the least-norm point ([`QpForms::enclose`]).
     if b.iter().all(|bk| bk.lower >= 0.0) {
         return vec![Interval::point(0.0); m];
@@ -517,6 +538,7 @@ impl QpForms {
             .zip(&b_nat)
             .map(|(bk, &nat)| meet(nat, bk.centred(&xs, &cs, &dx).enclosure))
             .collect();
+        slack_inert(&a_flat, m, &mut b);
         // A row's own piece can bound its `bₖ` better than `bₖ`'s forms (as the closed form's
         // `F = b·a/‖a‖²` does): where `‖aₖ‖² > 0`, `bₖ = θⱼ‖aₖ‖²/aₖⱼ` for every input `j` with
         // `aₖⱼ ≠ 0`, `θ` the piece's formula (`bₖaₖ/‖aₖ‖²`, or `bₖ/aₖ`).

@@ -2,7 +2,7 @@
 //! mean-value forms of [`VForms`] (docs/design.md §2.1). It may import the filter's rows, the scenario,
 //! expressions, intervals and boxes.
 
-use super::active_sets::{natural_qp_enclosure, QpForms};
+use super::active_sets::{natural_qp_enclosure, slack_inert, QpForms};
 use super::rows::{interval_rows, row_expressions};
 use super::solve::RobustGoal;
 use super::{FilterMethod, SafetyFilter};
@@ -37,11 +37,13 @@ pub fn v_enclosure(
     cell: &IntervalBox,
 ) -> Option<Vec<Interval>> {
     let m = s.m();
-    let (a, b) = interval_rows(s, cell);
+    let (a, mut b) = interval_rows(s, cell);
     let bad = || Some(vec![Interval::ENTIRE; m]);
     if a.iter().chain(&b).any(|v| v.is_nan()) {
         return bad();
     }
+    // A row no input acts on binds nowhere `v` exists.
+    slack_inert(&a, m, &mut b);
     match method {
         FilterMethod::Qp => Some(natural_qp_enclosure(&a, &b, m)),
         FilterMethod::ClosedFormSingle => {
@@ -378,6 +380,22 @@ impl VForms {
         })
     }
 
+    /// [`VForms::rows`] for enclosing `v`, which exists only where the QP is feasible: the rows
+    /// no input acts on made slack there ([`slack_inert`]). Never for proofs of feasibility.
+    fn v_rows(
+        &self,
+        s: &Scenario,
+        xs: &[Interval],
+        cs: &[Interval],
+        dx: &[Interval],
+        cell: &IntervalBox,
+    ) -> Option<Rows> {
+        let mut rows = self.rows(s, xs, cs, dx, cell)?;
+        slack_inert(&rows.a_nat, self.m, &mut rows.b_nat);
+        slack_inert(&rows.a_nat, self.m, &mut rows.b_enc);
+        Some(rows)
+    }
+
     /// Which smooth piece of the closed form `v` is on the whole of `cell ∩ S` (where the
     /// filter is feasible), if one provably is: every row slack (`bₖ ≥ 0`: `v = 0`), or one row
     /// binding throughout (`bₖ ≤ 0`, its `aₖ` bounded away from 0) while every other row that
@@ -395,7 +413,7 @@ impl VForms {
             a_nat,
             b_nat,
             b_enc,
-        } = self.rows(s, &xs, &cs, &dx, cell)?;
+        } = self.v_rows(s, &xs, &cs, &dx, cell)?;
         let may_bind: Vec<usize> = (0..b_enc.len()).filter(|&k| b_enc[k].lower < 0.0).collect();
         if may_bind.is_empty() {
             return Some(FilterPiece::Inactive);
@@ -465,7 +483,7 @@ impl VForms {
     /// such `θ*` is found and proven (the interval check of [`super::feasibility::holds`]).
     fn least_feasible_ball(&self, s: &Scenario, cell: &IntervalBox) -> Option<Vec<Interval>> {
         let Centred { xs, cs, dx } = Centred::of(cell);
-        let Rows { a_nat, b_enc, .. } = self.rows(s, &xs, &cs, &dx, cell)?;
+        let Rows { a_nat, b_enc, .. } = self.v_rows(s, &xs, &cs, &dx, cell)?;
         let ends: Vec<(f64, f64)> = a_nat.iter().map(|e| (e.lower, e.upper)).collect();
         let least: Vec<f64> = b_enc.iter().map(|e| e.lower).collect();
         let theta = super::solve::robust_point(&ends, &least, self.m, RobustGoal::Least)?;
@@ -553,7 +571,7 @@ impl VForms {
             return None;
         }
         let Centred { xs, cs, dx } = Centred::of(cell);
-        let Rows { a_nat, b_enc, .. } = self.rows(s, &xs, &cs, &dx, cell)?;
+        let Rows { a_nat, b_enc, .. } = self.v_rows(s, &xs, &cs, &dx, cell)?;
         let mut lattice = Lattice::default();
         for (k, (a, b)) in a_nat.iter().zip(&b_enc).enumerate() {
             if b.lower >= 0.0 {
@@ -638,7 +656,7 @@ impl VForms {
             a_nat,
             b_nat,
             b_enc,
-        }) = self.rows(s, &xs, &cs, &dx, cell)
+        }) = self.v_rows(s, &xs, &cs, &dx, cell)
         else {
             return (natural, VShape::Unknown);
         };

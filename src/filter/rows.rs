@@ -31,7 +31,11 @@ pub fn interval_rows(s: &Scenario, cell: &IntervalBox) -> (Vec<Interval>, Vec<In
             Interval::new(h_all.lower.max(0.0), h_all.upper.max(0.0))
         };
         for j in 0..m {
-            a.push(-sum((0..n).map(|i| grad[i] * g[i * m + j])));
+            // Exactly 0 where no input acts on h (its enclosure would be ±the least subnormal).
+            a.push(match cbf.inert {
+                true => Interval::point(0.0),
+                false => -sum((0..n).map(|i| grad[i] * g[i * m + j])),
+            });
         }
         b.push(sum((0..n).map(|i| grad[i] * ft[i])) + cbf.alpha.over(h));
     }
@@ -66,7 +70,10 @@ pub fn row_expressions(s: &Scenario, clamp_h: bool) -> (Vec<Vec<Expr>>, Vec<Expr
     let mut b_rows: Vec<Expr> = Vec::new();
     for cbf in &s.cbfs {
         let row: Vec<Expr> = (0..m)
-            .map(|j| -sum_e(&mut (0..n).map(|i| cbf.gradient[i].clone() * s.g[i][j].clone())))
+            .map(|j| match cbf.inert {
+                true => zero(),
+                false => -sum_e(&mut (0..n).map(|i| cbf.gradient[i].clone() * s.g[i][j].clone())),
+            })
             .collect();
         a_rows.push(row);
         let h = if clamp_h {

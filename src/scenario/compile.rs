@@ -178,11 +178,21 @@ impl ScenarioFile {
                 limits::check_derivative_size(&h, Some(&f_tilde))
                     .map_err(|m| c.invalid(format!("{key}.h"), m))?;
                 let alpha = c.class_k(&format!("{key}.alpha"), &cb.alpha)?;
+                let gradient = expressions::gradient(&h, n);
+                let inert = (0..m).all(|j| {
+                    (0..n)
+                        .map(|i| gradient[i].clone() * g[i][j].clone())
+                        .fold(Expr::constant(0.0), |a, b| a + b)
+                        .collected()
+                        .as_constant()
+                        == Some(0.0)
+                });
                 Ok(Cbf {
                     name: cb.name.clone().unwrap_or_else(|| format!("h{}", i + 1)),
-                    gradient: expressions::gradient(&h, n),
+                    gradient,
                     h,
                     alpha,
+                    inert,
                 })
             })
             .collect::<Result<Vec<_>, _>>()?;

@@ -113,6 +113,9 @@ pub struct Cbf {
     pub gradient: Vec<Expr>,
     /// `α` in `∇h·(f̃ + gθ) ≥ −α(h)`.
     pub alpha: ClassK,
+    /// No input acts on `h`: every `∇h·gⱼ` simplifies to the constant 0 (exactly, so its row
+    /// `0·θ ≤ L_f̃h + α(h)` holds only where the right side is nonnegative, and binds nowhere).
+    pub inert: bool,
 }
 
 /// A constraint `a(x)·θ ≤ b(x)` on the filter's correction `θ`.

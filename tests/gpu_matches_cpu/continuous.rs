@@ -582,3 +582,46 @@ goal = {{ lower = [-1.2, -0.3], upper = [-0.8, 0.3] }}
     let what = "curved wall, α(h) = 3h³ + 0.1h";
     continuous_parity(&g, &problem(&cubic), &init, (&st, TOL), None, what);
 }
+
+/// A high-order CBF written out on a double integrator (`h = 1.5 − x₁ − 0.1x₁³`, which no
+/// input acts on, beside `ψ = L_f̃h + h`; a scalar input, so the closed form's rows; neither
+/// affine, so the sets are not clipped to them): the row of `h` binds nowhere `v` exists, on the
+/// device (shaders/filter.wgsl `filter_rows`) as on the host (`VForms::v_rows`), so sets across
+/// `ψ = 0` take the filter's pieces on both, and the tubes agree.
+#[test]
+fn continuous_runs_with_a_high_order_cbf_match_the_cpu_engine() {
+    let Some(g) = gpu_f64() else { return };
+    let s = common::from_text(
+        r#"
+name = "wall"
+[system]
+states = ["x1", "x2"]
+inputs = ["u"]
+f = ["x2", "0"]
+g = [["0"], ["1"]]
+kappa = ["-x1 - 2*x2 + 1.2"]
+[[cbf]]
+h = "1.5 - x1 - 0.1*x1^3"
+[[cbf]]
+h = "1.5 - x1 - 0.1*x1^3 - (1 + 0.3*x1^2)*x2"
+[reach]
+region = { lower = [-2, -2], upper = [2, 2] }
+dt = 0.05
+horizon = 1.5
+goal = { lower = [-0.1, -0.1], upper = [0.1, 0.1] }
+"#,
+    )
+    .unwrap();
+    assert!(s.cbfs[0].inert);
+    let init = boxes(&[[0.9, 0.4], [1.2, 0.07], [0.3, 1.1], [-0.5, 1.6]], 0.05);
+    let problem = ReachProblem::new(&s, small_network(&[2, 16, 1], 6, 0.05), 0.2)
+        .unwrap()
+        .with_time(TimeModel::Continuous, 1);
+    let st = ReachSettings {
+        face_local: true,
+        exact: ExactField::ClosedForm,
+        ..settings(ReachMethod::Disturbance)
+    };
+    let what = "double integrator, high-order CBF written out";
+    continuous_parity(&g, &problem, &init, (&st, TOL), None, what);
+}

@@ -6,6 +6,7 @@ mod absorbing;
 mod class_k;
 #[path = "../common/mod.rs"]
 mod common;
+mod high_order;
 mod met_slabs;
 mod refined;
 mod sampled;
