@@ -643,30 +643,14 @@ fn opposite_bounds_of_an_input_are_never_enumerated_together() {
 
 /// A high-order CBF written out: a position bound `h` no input acts on, listed first, beside
 /// `ψ = L_f̃h + α(h)` as a CBF of its own (what `check` prints to add): on a double integrator
-/// (a scalar input: the closed form's rows) and a planar one past a disc (two inputs: a QP).
+/// ([`common::high_order_wall`], a scalar input: the closed form's rows) and a planar one past a
+/// disc (two inputs: a QP).
 fn high_order(planar: bool) -> Scenario {
-    let text = match planar {
-        false => r#"
-name = "wall"
-[system]
-states = ["x1", "x2"]
-inputs = ["u"]
-f = ["x2", "0"]
-g = [["0"], ["1"]]
-kappa = ["-x1 - 2*x2"]
-[[cbf]]
-h = "1.5 - x1"
-[[cbf]]
-h = "1.5 - x1 - x2"
-[reach]
-region = { lower = [-2, -2], upper = [2, 2] }
-m_c = 0
-dt = 0.05
-horizon = 1
-goal = { lower = [-0.1, -0.1], upper = [0.1, 0.1] }
-"#
-        .to_string(),
-        true => r#"
+    if !planar {
+        return common::high_order_wall("m_c = 0\nhorizon = 1");
+    }
+    from_text(
+        r#"
 name = "disc"
 [system]
 states = ["px", "py", "vx", "vy"]
@@ -686,10 +670,9 @@ m_c = 0
 dt = 0.05
 horizon = 1
 goal = { lower = [-0.1, -0.1, -0.1, -0.1], upper = [0.1, 0.1, 0.1, 0.1] }
-"#
-        .to_string(),
-    };
-    from_text(&text).unwrap()
+"#,
+    )
+    .unwrap()
 }
 
 /// The row no input acts on (exactly 0: `0·θ ≤ ψ`) binds nowhere `v` exists, so the enclosures

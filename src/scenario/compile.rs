@@ -26,10 +26,20 @@ impl Compiler<'_> {
     }
 
     pub(super) fn expr(&self, key: String, text: &str) -> Result<Expr, ScenarioError> {
-        expressions::parse(text, &self.states, self.parameters).map_err(|source| {
+        self.parse_over(&key, text, &self.states)
+    }
+
+    /// `text` parsed over `variables` and the parameters, its error naming `key`.
+    pub(super) fn parse_over(
+        &self,
+        key: &str,
+        text: &str,
+        variables: &[String],
+    ) -> Result<Expr, ScenarioError> {
+        expressions::parse(text, variables, self.parameters).map_err(|source| {
             ScenarioError::Expression {
                 file: self.file.to_string(),
-                key,
+                key: key.to_string(),
                 text: text.to_string(),
                 source,
             }
@@ -62,15 +72,7 @@ impl Compiler<'_> {
             Number::Value(a) => return Ok(ClassK::gain(*a)),
             Number::Expr(text) => text,
         };
-        let e =
-            expressions::parse(text, &["h".to_string()], self.parameters).map_err(|source| {
-                ScenarioError::Expression {
-                    file: self.file.to_string(),
-                    key: key.to_string(),
-                    text: text.clone(),
-                    source,
-                }
-            })?;
+        let e = self.parse_over(key, text, &["h".to_string()])?;
         if !e.uses_variable(0) {
             return Ok(ClassK::gain(e.eval(&[])));
         }

@@ -31,14 +31,7 @@ impl Compiler<'_> {
         match v {
             Number::Value(v) => self.finite(key, *v),
             Number::Expr(text) => {
-                let e = expressions::parse(text, &[], self.parameters).map_err(|source| {
-                    ScenarioError::Expression {
-                        file: self.file.to_string(),
-                        key: key.to_string(),
-                        text: text.clone(),
-                        source,
-                    }
-                })?;
+                let e = self.parse_over(key, text, &[])?;
                 let v = e.eval(&[]);
                 if v.is_finite() {
                     Ok(v)

@@ -259,3 +259,58 @@ pub fn nn_field(s: &Scenario, net: &Mlp, x: &[f64]) -> Result<Vec<f64>, String> 
         .map(|i| f[i] + (0..m).map(|k| g[i * m + k] * u[k]).sum::<f64>())
         .collect())
 }
+
+/// `ẋ = u` driven past a curved wall `h = x₁ + 1 + 0.2x₂² ≥ 0` by `κ = (−0.4(x₁ + 1.6),
+/// −0.2x₂)`, the CBF's class-K function `alpha` (a TOML value), `C = [−1.5, 1.5]²`; `reach`
+/// holds the rest of the `[reach]` table. The filter's correction stays below 0.28 on `C ∩ S`
+/// with `α = 3h³ + 0.1h`.
+pub fn curved_wall(alpha: &str, reach: &str) -> Scenario {
+    from_text(&format!(
+        r#"
+name = "curved-wall"
+[system]
+states = ["x1", "x2"]
+inputs = ["u1", "u2"]
+f = ["0", "0"]
+g = [["1", "0"], ["0", "1"]]
+kappa = ["-0.4*(x1 + 1.6)", "-0.2*x2"]
+[[cbf]]
+h = "x1 + 1 + 0.2*x2^2"
+alpha = {alpha}
+[reach]
+region = {{ lower = [-1.5, -1.5], upper = [1.5, 1.5] }}
+dt = 0.05
+goal = {{ lower = [-1.2, -0.3], upper = [-0.8, 0.3] }}
+{reach}
+"#
+    ))
+    .unwrap()
+}
+
+/// A high-order CBF written out on a double integrator pushed towards a wall
+/// (`κ = −x₁ − 2x₂ + 1.2`): `h = 1.5 − x₁ − 0.1x₁³`, which no input acts on, listed first,
+/// beside `ψ = L_f̃h + h` (neither affine, so sets are not clipped to them), `C = [−2, 2]²`;
+/// `reach` holds the rest of the `[reach]` table.
+pub fn high_order_wall(reach: &str) -> Scenario {
+    from_text(&format!(
+        r#"
+name = "wall"
+[system]
+states = ["x1", "x2"]
+inputs = ["u"]
+f = ["x2", "0"]
+g = [["0"], ["1"]]
+kappa = ["-x1 - 2*x2 + 1.2"]
+[[cbf]]
+h = "1.5 - x1 - 0.1*x1^3"
+[[cbf]]
+h = "1.5 - x1 - 0.1*x1^3 - (1 + 0.3*x1^2)*x2"
+[reach]
+region = {{ lower = [-2, -2], upper = [2, 2] }}
+dt = 0.05
+goal = {{ lower = [-0.1, -0.1], upper = [0.1, 0.1] }}
+{reach}
+"#
+    ))
+    .unwrap()
+}

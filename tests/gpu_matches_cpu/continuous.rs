@@ -529,28 +529,7 @@ fn continuous_sets_hold_the_filtered_system_on_scenario_1() {
 #[test]
 fn continuous_runs_with_a_nonlinear_class_k_match_the_cpu_engine() {
     let Some(g) = gpu_f64() else { return };
-    let wall = |alpha: &str| {
-        common::from_text(&format!(
-            r#"
-name = "curved-wall"
-[system]
-states = ["x1", "x2"]
-inputs = ["u1", "u2"]
-f = ["0", "0"]
-g = [["1", "0"], ["0", "1"]]
-kappa = ["-0.4*(x1 + 1.6)", "-0.2*x2"]
-[[cbf]]
-h = "x1 + 1 + 0.2*x2^2"
-alpha = {alpha}
-[reach]
-region = {{ lower = [-1.5, -1.5], upper = [1.5, 1.5] }}
-dt = 0.05
-horizon = 1.5
-goal = {{ lower = [-1.2, -0.3], upper = [-0.8, 0.3] }}
-"#
-        ))
-        .unwrap()
-    };
+    let wall = |alpha: &str| common::curved_wall(alpha, "horizon = 1.5");
     let init = boxes(
         &[[-0.55, 0.35], [-0.85, -0.45], [-0.25, -0.05], [0.5, 1.0]],
         0.05,
@@ -591,27 +570,7 @@ goal = {{ lower = [-1.2, -0.3], upper = [-0.8, 0.3] }}
 #[test]
 fn continuous_runs_with_a_high_order_cbf_match_the_cpu_engine() {
     let Some(g) = gpu_f64() else { return };
-    let s = common::from_text(
-        r#"
-name = "wall"
-[system]
-states = ["x1", "x2"]
-inputs = ["u"]
-f = ["x2", "0"]
-g = [["0"], ["1"]]
-kappa = ["-x1 - 2*x2 + 1.2"]
-[[cbf]]
-h = "1.5 - x1 - 0.1*x1^3"
-[[cbf]]
-h = "1.5 - x1 - 0.1*x1^3 - (1 + 0.3*x1^2)*x2"
-[reach]
-region = { lower = [-2, -2], upper = [2, 2] }
-dt = 0.05
-horizon = 1.5
-goal = { lower = [-0.1, -0.1], upper = [0.1, 0.1] }
-"#,
-    )
-    .unwrap();
+    let s = common::high_order_wall("horizon = 1.5");
     assert!(s.cbfs[0].inert);
     let init = boxes(&[[0.9, 0.4], [1.2, 0.07], [0.3, 1.1], [-0.5, 1.6]], 0.05);
     let problem = ReachProblem::new(&s, small_network(&[2, 16, 1], 6, 0.05), 0.2)

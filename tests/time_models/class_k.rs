@@ -5,48 +5,21 @@
 
 use super::*;
 
-/// `ẋ = u` driven past a curved wall `h = x₁ + 1 + 0.2x₂² ≥ 0` by `κ = (−0.4(x₁ + 1.6), −0.2x₂)`:
-/// the filter's correction is at most ~0.28 on `C`, so the zero network with `M_C = 0.35`
-/// (checked on a grid below) stands in for a trained one; where the filter's active set is
-/// proven on a set the engine integrates its own field, in which `α` enters.
+/// [`common::curved_wall`] with `alpha`: the filter's correction is at most ~0.28 on `C`, so
+/// the zero network with `M_C = 0.35` (checked on a grid below) stands in for a trained one;
+/// where the filter's active set is proven on a set the engine integrates its own field, in
+/// which `α` enters.
 fn wall(alpha: &str) -> Scenario {
-    let text = format!(
-        r#"
-name = "curved-wall"
-[system]
-states = ["x1", "x2"]
-inputs = ["u1", "u2"]
-f = ["0", "0"]
-g = [["1", "0"], ["0", "1"]]
-kappa = ["-0.4*(x1 + 1.6)", "-0.2*x2"]
-[[cbf]]
-h = "x1 + 1 + 0.2*x2^2"
-alpha = {alpha}
-[reach]
-region = {{ lower = [-1.5, -1.5], upper = [1.5, 1.5] }}
-m_c = 0.35
-dt = 0.05
+    common::curved_wall(
+        alpha,
+        r#"m_c = 0.35
 horizon = 4.0
-goal = {{ lower = [-1.2, -0.3], upper = [-0.8, 0.3] }}
 initial = [
-  {{ lower = [-0.6, 0.3], upper = [-0.5, 0.4] }},
-  {{ lower = [-0.9, -0.5], upper = [-0.85, -0.45] }},
-  {{ lower = [-0.3, -0.1], upper = [-0.2, 0.0] }},
-]
-"#
-    );
-    common::from_text(&text).unwrap()
-}
-
-fn zero_network() -> Mlp {
-    let mut net = Mlp::random(&[2, 8, 2], 3);
-    for l in &mut net.layers {
-        l.weight
-            .iter_mut()
-            .chain(&mut l.bias)
-            .for_each(|w| *w = 0.0);
-    }
-    net
+  { lower = [-0.6, 0.3], upper = [-0.5, 0.4] },
+  { lower = [-0.9, -0.5], upper = [-0.85, -0.45] },
+  { lower = [-0.3, -0.1], upper = [-0.2, 0.0] },
+]"#,
+    )
 }
 
 #[test]
@@ -79,7 +52,7 @@ fn sets_hold_a_nonlinear_class_k_filter_in_continuous_and_sampled_time() {
         worst < 0.3 && active > 200,
         "v up to {worst}, active at {active}"
     );
-    let problem = ReachProblem::new(&s, zero_network(), 0.35).unwrap();
+    let problem = ReachProblem::new(&s, common::zero_network(&[2, 8, 2]), 0.35).unwrap();
     let tubes = run(&problem, &s.reach.initial, ExactField::ClosedForm);
     let e = escapes(&s, &tubes, s.reach.dt, 1e-6);
     assert_eq!((e.at_snapshots, e.between), (0, 0), "{e:?}");

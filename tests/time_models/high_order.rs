@@ -6,33 +6,15 @@ use super::*;
 
 #[test]
 fn sets_hold_a_high_order_cbf_written_out() {
-    let s = common::from_text(
-        r#"
-name = "wall"
-[system]
-states = ["x1", "x2"]
-inputs = ["u"]
-f = ["x2", "0"]
-g = [["0"], ["1"]]
-kappa = ["-x1 - 2*x2 + 1.2"]
-[[cbf]]
-h = "1.5 - x1 - 0.1*x1^3"
-[[cbf]]
-h = "1.5 - x1 - 0.1*x1^3 - (1 + 0.3*x1^2)*x2"
-[reach]
-region = { lower = [-2, -2], upper = [2, 2] }
-m_c = 3.0
-dt = 0.05
+    let s = common::high_order_wall(
+        r#"m_c = 3.0
 horizon = 2.0
-goal = { lower = [-0.1, -0.1], upper = [0.1, 0.1] }
 initial = [
   { lower = [0.85, 0.35], upper = [0.95, 0.45] },
   { lower = [1.15, 0.02], upper = [1.25, 0.12] },
   { lower = [0.25, 1.05], upper = [0.35, 1.15] },
-]
-"#,
-    )
-    .unwrap();
+]"#,
+    );
     assert!(s.cbfs[0].inert && !s.cbfs[1].inert);
     // The zero network with M = 3 stands in for a trained one: v stays within it on C ∩ S.
     let filter = SafetyFilter::new(&s);
@@ -46,14 +28,7 @@ initial = [
         }
     }
     assert!(worst > 0.5 && worst < 2.7, "v up to {worst}");
-    let mut net = Mlp::random(&[2, 8, 1], 3);
-    for l in &mut net.layers {
-        l.weight
-            .iter_mut()
-            .chain(&mut l.bias)
-            .for_each(|w| *w = 0.0);
-    }
-    let problem = ReachProblem::new(&s, net, 3.0).unwrap();
+    let problem = ReachProblem::new(&s, common::zero_network(&[2, 8, 1]), 3.0).unwrap();
     let tubes = run(&problem, &s.reach.initial, ExactField::ClosedForm);
     let e = escapes(&s, &tubes, s.reach.dt, 1e-6);
     assert_eq!((e.at_snapshots, e.between), (0, 0), "{e:?}");
