@@ -186,6 +186,26 @@ impl IntervalBox {
             .collect()
     }
 
+    /// The nodes of the grid of `per_axis` equal cells along every axis, corners included:
+    /// `(per_axis + 1)ⁿ` points, axis 0 fastest. The caller bounds their number
+    /// ([`per_axis_within`]).
+    pub fn nodes(&self, per_axis: usize) -> Vec<Vec<f64>> {
+        let (n, k) = (self.dim(), per_axis.max(1));
+        let count = (k + 1).pow(n as u32);
+        (0..count)
+            .map(|mut i| {
+                let s: Vec<f64> = (0..n)
+                    .map(|_| {
+                        let j = i % (k + 1);
+                        i /= k + 1;
+                        j as f64 / k as f64
+                    })
+                    .collect();
+                self.point_at(&s)
+            })
+            .collect()
+    }
+
     /// The box cut into `counts[i]` equal cells along axis i, axis 0 fastest. The caller
     /// bounds the number of cells (`Π counts[i]`; checked against overflow here).
     pub fn partition(&self, counts: &[usize]) -> Vec<IntervalBox> {
@@ -250,6 +270,17 @@ mod tests {
         assert_eq!(per_axis_within(0, 1, 30), 30);
         // No overflow where `kⁿ` would pass `usize`.
         assert_eq!(per_axis_within(200, usize::MAX, 3), 1);
+    }
+
+    #[test]
+    fn nodes_run_from_corner_to_corner_axis_0_fastest() {
+        let b = IntervalBox::new(vec![0.0, -1.0], vec![1.0, 1.0]).unwrap();
+        let nodes = b.nodes(2);
+        assert_eq!(nodes.len(), 9);
+        assert_eq!(nodes[0], vec![0.0, -1.0]);
+        assert_eq!(nodes[1], vec![0.5, -1.0]);
+        assert_eq!(nodes[3], vec![0.0, 0.0]);
+        assert_eq!(nodes[8], vec![1.0, 1.0]);
     }
 
     #[test]

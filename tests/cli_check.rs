@@ -4,6 +4,16 @@
 
 mod common;
 use common::cbfreach;
+use std::path::PathBuf;
+
+/// A copy of the shipped scenario `shipped` in `dir`, with its first `from` made `to`.
+fn edited_copy(dir: &tempfile::TempDir, shipped: &str, from: &str, to: &str) -> PathBuf {
+    let text = std::fs::read_to_string(common::scenario_path(shipped)).unwrap();
+    assert!(text.contains(from), "{shipped} lacks `{from}`");
+    let path = dir.path().join(shipped);
+    std::fs::write(&path, text.replacen(from, to, 1)).unwrap();
+    path
+}
 
 /// `cbfreach check <path>`'s output, asserting that it succeeded.
 fn check(path: &std::path::Path) -> String {
@@ -38,11 +48,12 @@ fn check_summarises_both_paper_scenarios() {
 #[test]
 fn check_prints_a_class_k_function_as_written() {
     let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("cubic.toml");
-    let text = std::fs::read_to_string(common::scenario_path("integrator.toml"))
-        .unwrap()
-        .replacen("alpha = 1.0", "alpha = \"h^3 + 0.5*h\"", 1);
-    std::fs::write(&path, text).unwrap();
+    let path = edited_copy(
+        &dir,
+        "integrator.toml",
+        "alpha = 1.0",
+        "alpha = \"h^3 + 0.5*h\"",
+    );
     let stdout = check(&path);
     assert!(stdout.contains("α(h) = h^3 + 0.5*h"), "{stdout}");
     assert!(stdout.contains("starts on a grid over C ∩ S"), "{stdout}");
@@ -77,9 +88,7 @@ fn check_says_where_the_true_system_goes_and_when_the_horizon_is_too_short() {
     );
     assert!(!line.contains("after T"), "{line}");
     let tmp = tempfile::tempdir().unwrap();
-    let path = tmp.path().join("short.toml");
-    let text = std::fs::read_to_string(common::scenario_path("integrator.toml")).unwrap();
-    std::fs::write(&path, text.replace("horizon = 10.0", "horizon = 1.0")).unwrap();
+    let path = edited_copy(&tmp, "integrator.toml", "horizon = 10.0", "horizon = 1.0");
     let line = survey(&check(&path));
     assert!(
         line.contains("by T = 1;") && line.contains("it gets there after T, all by t = "),
@@ -111,11 +120,12 @@ fn check_says_when_boxes_at_the_goal_grow_before_they_shrink() {
 #[test]
 fn check_names_a_cbf_no_input_acts_on_and_where_the_qp_is_infeasible() {
     let tmp = tempfile::tempdir().unwrap();
-    let path = tmp.path().join("wall.toml");
-    let text = std::fs::read_to_string(common::scenario_path("double-integrator.toml"))
-        .unwrap()
-        .replace("h = \"(x1 - 2)^2 + x2^2 - 1\"", "h = \"1.5 - x1\"");
-    std::fs::write(&path, text).unwrap();
+    let path = edited_copy(
+        &tmp,
+        "double-integrator.toml",
+        "h = \"(x1 - 2)^2 + x2^2 - 1\"",
+        "h = \"1.5 - x1\"",
+    );
     let stdout = check(&path);
     assert!(
         stdout.contains("CBF obstacle: no input acts on it (L_g h = 0 on all of C)")

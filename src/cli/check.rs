@@ -131,44 +131,33 @@ pub fn run(path: &Path) -> CliResult {
 /// Where the true filtered system goes from a grid of starts over `C ∩ S` within the horizon
 /// (`verify::survey`): what a run can at best prove, before any training.
 fn print_survey(s: &Scenario) {
-    use cbfreach::verify::CentreOutcome as O;
     let traps = cbfreach::verify::traps_for(s);
-    let outcomes = cbfreach::verify::survey(s, &traps);
-    if outcomes.is_empty() {
+    let c = cbfreach::verify::survey(s, &traps);
+    if c.starts == 0 {
         return;
     }
-    let count = |pick: &dyn Fn(&O) -> bool| outcomes.iter().filter(|o| pick(o)).count();
-    let arrive = count(&|o| *o == O::EndsInTarget);
-    let later: Vec<f64> = (outcomes.iter())
-        .filter_map(|o| match o {
-            O::EndsElsewhere(Some(t)) => Some(*t),
-            _ => None,
-        })
-        .collect();
     let mut parts = vec![format!(
-        "from {arrive} it reaches the goal{} by T = {}",
+        "from {} it reaches the goal{} by T = {}",
+        c.by_horizon,
         if traps.is_empty() { "" } else { " or a trap" },
         s.reach.horizon
     )];
-    if !later.is_empty() {
-        let last = later.iter().copied().fold(0.0, f64::max);
+    if c.later > 0 {
         parts.push(format!(
-            "from {} it gets there after T, all by t = {last:.1} (a longer reach.horizon lets \
+            "from {} it gets there after T, all by t = {:.1} (a longer reach.horizon lets \
              verify follow them)",
-            later.len()
+            c.later, c.latest
         ));
     }
+    let within = format!(
+        "ends elsewhere (no target within {} horizons)",
+        1 + cbfreach::verify::LATER_HORIZONS
+    );
     for (k, what) in [
-        (count(&|o| *o == O::LeavesRegion), "leaves C"),
-        (count(&|o| *o == O::Infeasible), "meets an infeasible QP"),
-        (
-            count(&|o| *o == O::LeavesSBetweenSamples),
-            "leaves S between samples",
-        ),
-        (
-            count(&|o| *o == O::EndsElsewhere(None)),
-            "ends elsewhere (no target within four horizons)",
-        ),
+        (c.leaves_c, "leaves C"),
+        (c.infeasible, "meets an infeasible QP"),
+        (c.leaves_s, "leaves S between samples"),
+        (c.elsewhere, within.as_str()),
     ] {
         if k > 0 {
             parts.push(format!("from {k} it {what}"));
@@ -177,7 +166,7 @@ fn print_survey(s: &Scenario) {
     println!(
         "  the true filtered system ({} time) from {} starts on a grid over C ∩ S: {}",
         s.reach.time,
-        outcomes.len(),
+        c.starts,
         parts.join("; ")
     );
 }

@@ -169,7 +169,8 @@ pub fn inert_cbfs(s: &Scenario) -> Vec<Inert> {
     }
     // The CBFs' rows come first, in order.
     let (_, b) = row_expressions(s, false);
-    let nodes = grid_nodes(&s.reach.region, 1024);
+    let region = &s.reach.region;
+    let nodes = region.nodes(crate::boxes::per_axis_within(region.dim(), 1024, 32));
     inert
         .into_iter()
         .map(|k| {
@@ -183,25 +184,6 @@ pub fn inert_cbfs(s: &Scenario) -> Vec<Inert> {
                 next,
                 kept_by,
             }
-        })
-        .collect()
-}
-
-/// The nodes of a grid of at most `cells` cells over `region`, corners included.
-fn grid_nodes(region: &crate::boxes::IntervalBox, cells: usize) -> Vec<Vec<f64>> {
-    let n = region.dim();
-    let k = crate::boxes::per_axis_within(n, cells, 32);
-    let count = (k + 1).pow(n as u32);
-    (0..count)
-        .map(|mut i| {
-            let s: Vec<f64> = (0..n)
-                .map(|_| {
-                    let j = i % (k + 1);
-                    i /= k + 1;
-                    j as f64 / k as f64
-                })
-                .collect();
-            region.point_at(&s)
         })
         .collect()
 }

@@ -46,18 +46,11 @@ impl ClassK {
 
     /// `α(h) = expr(h)` written as `text`; a gain where `expr` is one.
     pub fn function(expr: Expr, text: &str) -> ClassK {
-        let slope = expr.derivative(0).as_constant();
-        match slope {
-            Some(a) if expr.eval(&[0.0]) == 0.0 => ClassK {
-                gain: Some(a),
-                expr,
-                text: text.trim().to_string(),
-            },
-            _ => ClassK {
-                expr,
-                gain: None,
-                text: text.trim().to_string(),
-            },
+        let gain = (expr.derivative(0).as_constant()).filter(|_| expr.eval(&[0.0]) == 0.0);
+        ClassK {
+            expr,
+            gain,
+            text: text.trim().to_string(),
         }
     }
 
@@ -93,13 +86,13 @@ impl ClassK {
         }
     }
 
-    /// Why `α` is not a class-K function on `[0, h_max]` (`h_max`: the largest `h` on `C`),
-    /// or `None`: a gain must be positive; a function must have `α(0) = 0` (its f64 value, and
+    /// Why `α` is not a class-K function on `[0, h_max]` (`h_max()`: the largest `h` on `C`,
+    /// asked for by a function alone), or `None`: a gain must be positive; a function must have `α(0) = 0` (its f64 value, and
     /// its outward-rounded enclosure within [`ZERO_WITHIN`] of 0), a finite slope
     /// at 0 (Lipschitz there: `√h` is not, and uniqueness of the filtered system's
     /// trajectories, hence the invariance of `S`, needs it), and be positive and increasing
     /// at [`CHECK_POINTS`] points of `(0, h_max]`.
-    pub fn check(&self, h_max: f64) -> Option<String> {
+    pub fn check(&self, h_max: impl FnOnce() -> f64) -> Option<String> {
         if let Some(a) = self.gain {
             return (!(a.is_finite() && a > 0.0))
                 .then(|| format!("the class-K gain must be positive and finite, found {a}"));
@@ -120,6 +113,7 @@ impl ClassK {
                  trajectories are unique and S is invariant), e.g. not √h"
             ));
         }
+        let h_max = h_max();
         if !(h_max.is_finite() && h_max > 0.0) {
             return None;
         }
@@ -194,17 +188,20 @@ mod tests {
 
     #[test]
     fn what_is_not_class_k_is_refused_by_what_fails() {
-        assert!(alpha("h^3").check(10.0).is_none());
-        assert_eq!(alpha("tanh(h)").check(10.0), None);
-        assert!(alpha("h/(1 + h)").check(10.0).is_none());
-        let said = |t: &str| alpha(t).check(4.0).unwrap_or_default();
+        assert!(alpha("h^3").check(|| 10.0).is_none());
+        assert_eq!(alpha("tanh(h)").check(|| 10.0), None);
+        assert!(alpha("h/(1 + h)").check(|| 10.0).is_none());
+        let said = |t: &str| alpha(t).check(|| 4.0).unwrap_or_default();
         assert!(said("h + 1").contains("α(0) = 1"), "{}", said("h + 1"));
         assert!(said("sqrt(h)").contains("Lipschitz"), "{}", said("sqrt(h)"));
         assert!(said("-h^3").contains("positive"), "{}", said("-h^3"));
         // Increasing up to h = 1, falling beyond: refused only where h reaches past 1.
         assert!(said("2*h - h^2").contains("falls"), "{}", said("2*h - h^2"));
-        assert!(alpha("2*h - h^2").check(0.9).is_none());
-        assert!(ClassK::gain(-1.0).check(1.0).unwrap().contains("positive"));
-        assert!(ClassK::gain(f64::NAN).check(1.0).is_some());
+        assert!(alpha("2*h - h^2").check(|| 0.9).is_none());
+        assert!(ClassK::gain(-1.0)
+            .check(|| 1.0)
+            .unwrap()
+            .contains("positive"));
+        assert!(ClassK::gain(f64::NAN).check(|| 1.0).is_some());
     }
 }

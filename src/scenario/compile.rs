@@ -365,7 +365,7 @@ impl ScenarioFile {
             ));
         }
         for (i, cb) in cbfs.iter().enumerate() {
-            if let Some(why) = cb.alpha.check(limits::largest_on(&reach.region, &cb.h)) {
+            if let Some(why) = cb.alpha.check(|| limits::largest_on(&reach.region, &cb.h)) {
                 return Err(c.invalid(format!("cbf[{i}].alpha"), why));
             }
         }

@@ -148,23 +148,11 @@ const SAMPLE_NODES: usize = 4096;
 /// over `region` (corners included): where a CBF's `α` must be class-K, `h`'s range on `C`
 /// (sampled, so a guard against a mistyped `α`, not a proof). −∞ where no node is finite.
 pub fn largest_on(region: &IntervalBox, e: &Expr) -> f64 {
-    let n = region.dim();
-    let k = crate::boxes::per_axis_within(n, SAMPLE_NODES, 64);
-    let mut largest = f64::NEG_INFINITY;
-    let mut index = vec![0usize; n];
-    loop {
-        let s: Vec<f64> = index.iter().map(|&i| i as f64 / k as f64).collect();
-        let v = e.eval(&region.point_at(&s));
-        if v.is_finite() {
-            largest = largest.max(v);
-        }
-        // The next node, the first axis fastest.
-        let Some(axis) = index.iter().position(|&i| i < k) else {
-            return largest;
-        };
-        index[axis] += 1;
-        index[..axis].iter_mut().for_each(|i| *i = 0);
-    }
+    let k = crate::boxes::per_axis_within(region.dim(), SAMPLE_NODES, 64);
+    (region.nodes(k).iter())
+        .map(|x| e.eval(x))
+        .filter(|v| v.is_finite())
+        .fold(f64::NEG_INFINITY, f64::max)
 }
 
 #[cfg(test)]

@@ -229,11 +229,58 @@ fn in_targets<'a>(
 /// Most starts of [`survey`]: a grid of `kⁿ ≤ 64` cell centres.
 const SURVEY_STARTS: usize = 64;
 
+/// [`survey`]'s outcomes counted: of its starts, how many reach the goal or a trap by `T`,
+/// after it (and the latest arrival), leave `C`, meet an infeasible QP, leave `S` between
+/// samples, or reach no target within [`LATER_HORIZONS`] more horizons.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Survey {
+    /// Starts run (the centres in `S`).
+    pub starts: usize,
+    /// Reach the goal or a trap by `T`.
+    pub by_horizon: usize,
+    /// Reach one after `T`.
+    pub later: usize,
+    /// The latest such arrival (0 where none).
+    pub latest: f64,
+    /// Leave `C`.
+    pub leaves_c: usize,
+    /// Meet an infeasible QP.
+    pub infeasible: usize,
+    /// Leave `S` between samples.
+    pub leaves_s: usize,
+    /// Reach no target within [`LATER_HORIZONS`] more horizons.
+    pub elsewhere: usize,
+}
+
+impl Survey {
+    /// The counts of `outcomes`.
+    pub fn of(outcomes: &[CentreOutcome]) -> Survey {
+        let mut c = Survey {
+            starts: outcomes.len(),
+            ..Survey::default()
+        };
+        for o in outcomes {
+            match o {
+                CentreOutcome::EndsInTarget => c.by_horizon += 1,
+                CentreOutcome::EndsElsewhere(Some(t)) => {
+                    c.later += 1;
+                    c.latest = c.latest.max(*t);
+                }
+                CentreOutcome::EndsElsewhere(None) => c.elsewhere += 1,
+                CentreOutcome::LeavesRegion => c.leaves_c += 1,
+                CentreOutcome::Infeasible => c.infeasible += 1,
+                CentreOutcome::LeavesSBetweenSamples => c.leaves_s += 1,
+            }
+        }
+        c
+    }
+}
+
 /// Where the ground-truth filtered system goes from a grid of starts over `C ∩ S` (the centres
-/// in `S` of at most 64 cells, in the grid's order), in the scenario's time model, with the
-/// goal and `traps` as targets: `cbfreach check` says it before any training, so that a
-/// horizon too short or a region the system leaves shows before a run.
-pub fn survey(s: &Scenario, traps: &[crate::verify::Trap]) -> Vec<CentreOutcome> {
+/// in `S` of at most 64 cells), in the scenario's time model, with the goal and `traps` as
+/// targets, counted: `cbfreach check` says it before any training, so that a horizon too short
+/// or a region the system leaves shows before a run.
+pub fn survey(s: &Scenario, traps: &[crate::verify::Trap]) -> Survey {
     use crate::filter::SafetyFilter;
     let n = s.n();
     let per_axis = crate::boxes::per_axis_within(n, SURVEY_STARTS, SURVEY_STARTS);
@@ -243,9 +290,10 @@ pub fn survey(s: &Scenario, traps: &[crate::verify::Trap]) -> Vec<CentreOutcome>
         .collect();
     let filter = SafetyFilter::new(s);
     let in_target = in_targets(s, traps);
-    (starts.par_iter())
+    let outcomes: Vec<CentreOutcome> = (starts.par_iter())
         .map(|x0| outcome_from(&filter, x0, s.reach.time, &in_target))
-        .collect()
+        .collect();
+    Survey::of(&outcomes)
 }
 
 /// When the system from `x` (at `T`) first reaches a target, run on for [`LATER_HORIZONS`]

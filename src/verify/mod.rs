@@ -63,7 +63,7 @@ mod what_stops;
 pub use absorb::{absorbing_boxes, leaf_absorbers, target_absorbers, Absorbing, SCALES};
 pub use check::{
     centre_outcomes, explain_unverified, outcome_from, simulate_model, simulation_check, survey,
-    CentreOutcome, SimulationCheck, UnverifiedCauses, LATER_HORIZONS,
+    CentreOutcome, SimulationCheck, Survey, UnverifiedCauses, LATER_HORIZONS,
 };
 pub use pieces::{
     no_journals, verify_by_pieces, PieceOutcome, PiecesJournals, PiecesSettings, PiecesVerdict,
