@@ -114,6 +114,53 @@ fn check_says_when_boxes_at_the_goal_grow_before_they_shrink() {
     );
 }
 
+/// A position bound on a triple integrator has relative degree three: `order = 2` leaves its
+/// `ψ₁` inert, and `check` says to write `order = 3`, which makes the QP feasible on `C ∩ S`.
+#[test]
+fn check_says_which_order_a_position_bound_needs() {
+    let tmp = tempfile::tempdir().unwrap();
+    let path = tmp.path().join("jerk.toml");
+    let text = |order: usize| {
+        format!(
+            r#"name = "jerk"
+[system]
+states = ["x1", "x2", "x3"]
+inputs = ["u"]
+f = ["x2", "x3", "0"]
+g = [["0"], ["0"], ["1"]]
+kappa = ["-x1 - 3*x2 - 3*x3"]
+[[cbf]]
+name = "wall"
+h = "1.5 - x1"
+order = {order}
+alpha = 2
+[reach]
+region = {{ lower = [-2, -2, -2], upper = [2, 2, 2] }}
+dt = 0.05
+horizon = 5
+goal = {{ lower = [-0.1, -0.1, -0.1], upper = [0.1, 0.1, 0.1] }}
+"#
+        )
+    };
+    std::fs::write(&path, text(2)).unwrap();
+    let stdout = check(&path);
+    assert!(
+        stdout.contains("CBF wall.psi1: no input acts on it")
+            && stdout.contains("write order = 3 in cbf[0], or add")
+            && stdout.contains("the QP is infeasible at"),
+        "{stdout}"
+    );
+    std::fs::write(&path, text(3)).unwrap();
+    let stdout = check(&path);
+    assert!(
+        stdout.contains("CBF wall.psi2: h = ")
+            && stdout.contains("which CBF wall.psi2 is (a high-order CBF)")
+            && stdout.contains("the QP is feasible at all"),
+        "{stdout}"
+    );
+    assert!(!stdout.contains("write order"), "{stdout}");
+}
+
 /// A CBF no input acts on (a position bound on a double integrator) is named with what to do
 /// (the high-order CBF to add, which then keeps its row), and the QP's infeasible share is
 /// said; a well-posed scenario says its QP is feasible.
@@ -129,7 +176,8 @@ fn check_names_a_cbf_no_input_acts_on_and_where_the_qp_is_infeasible() {
     let stdout = check(&path);
     assert!(
         stdout.contains("CBF obstacle: no input acts on it (L_g h = 0 on all of C)")
-            && stdout.contains("relative degree is above one"),
+            && stdout.contains("relative degree is above one")
+            && stdout.contains("write order = 2 in cbf[0], or add"),
         "{stdout}"
     );
     let line = stdout
@@ -158,6 +206,20 @@ fn check_names_a_cbf_no_input_acts_on_and_where_the_qp_is_infeasible() {
     let stdout = check(&path);
     assert!(
         stdout.contains("its row asks L_f̃ h + α(h) ≥ 0, which CBF next is (a high-order CBF)")
+            && stdout.contains("the QP is feasible at all"),
+        "{stdout}"
+    );
+    // `order = 2` writes the same CBF: the same note and the same feasibility.
+    let text = std::fs::read_to_string(&path).unwrap().replacen(
+        &format!("[[cbf]]\nname = \"next\"\nh = \"{next}\""),
+        "order = 2",
+        1,
+    );
+    std::fs::write(&path, text).unwrap();
+    let stdout = check(&path);
+    assert!(
+        stdout.contains("which CBF obstacle.psi1 is (a high-order CBF)")
+            && stdout.contains("written by cbf[0].order")
             && stdout.contains("the QP is feasible at all"),
         "{stdout}"
     );

@@ -209,6 +209,51 @@ fn bad_settings_and_unknown_keys() {
     }
 }
 
+/// `order = r`: a relative degree from 1 to 4, above every level the input acts on, and one
+/// class-K function or one per level; refused by the key that is wrong.
+#[test]
+fn high_order_cbfs_are_refused_by_the_key_that_is_wrong() {
+    let cbf = "[[cbf]]\nh = \"y + 2\"";
+    for (order, expected) in [("0", "1 to 4, found 0"), ("5", "1 to 4, found 5")] {
+        let message = error_for(cbf, &format!("{cbf}\norder = {order}"));
+        assert_mentions(&message, &["test.toml", "cbf[0].order", expected]);
+    }
+    // The input acts on y + 2 itself: relative degree one.
+    let message = error_for(cbf, &format!("{cbf}\norder = 2"));
+    assert_mentions(
+        &message,
+        &[
+            "cbf[0].order",
+            "acts on h1 already",
+            "relative degree is 1",
+            "order = 1",
+        ],
+    );
+    // A position bound (f = [y, -x], the input on y): relative degree two.
+    let position = "[[cbf]]\nh = \"x + 2\"\norder = 2";
+    let message = error_for(cbf, &format!("{position}\nalpha = [1, 2, 3]"));
+    assert_mentions(
+        &message,
+        &["cbf[0].alpha", "expected 2 class-K functions", "found 3"],
+    );
+    let message = error_for(cbf, &format!("{position}\nalpha = [1, \"h - h^2\"]"));
+    assert_mentions(&message, &["cbf[0].alpha[1]", "increases"]);
+    let message = error_for(cbf, &format!("{position}\nalpha = [\"-h\", 1]"));
+    assert_mentions(&message, &["cbf[0].alpha[0]", "positive"]);
+    let message = error_for(cbf, &format!("{position}\nalpha = \"-h\""));
+    assert_mentions(&message, &["cbf[0].alpha", "positive"]);
+    let s = from_text(&SMALL.replace(cbf, &format!("{position}\nalpha = [1, \"h^3 + h\"]")))
+        .expect("valid");
+    let names: Vec<&str> = s.cbfs.iter().map(|c| c.name.as_str()).collect();
+    assert_eq!(names, ["h1", "h1.psi1"]);
+    assert!(s.cbfs[0].inert && !s.cbfs[1].inert);
+    // ψ₁ = ∇h·f̃ + α₁(h) = y + (x + 2), whatever α₂ is.
+    for x in [[0.3, -0.7], [-1.0, 1.0], [0.9, 0.2]] {
+        let psi = x[1] + x[0] + 2.0;
+        assert!((s.cbfs[1].h.eval(&x) - psi).abs() < 1e-15, "{x:?}");
+    }
+}
+
 #[test]
 fn network_architecture_must_match_the_system() {
     let text = format!("{SMALL}\n[network]\nfile = \"n.safetensors\"\narchitecture = [2, 8, 2]\n");

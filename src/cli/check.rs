@@ -7,7 +7,7 @@ use cbfreach::filter::{
     findings, FilterFindings, FilterMethod, Inert, QpForms, SafetyFilter, Vanishing, MAX_ACTIVE,
     MAX_SETS,
 };
-use cbfreach::scenario::{Margin, Scenario};
+use cbfreach::scenario::{Margin, Scenario, MAX_ORDER};
 
 use super::{fmt_point, load_scenario, CliResult};
 
@@ -42,7 +42,21 @@ pub fn run(path: &Path) -> CliResult {
         println!("  f̃[{}] = {}", s.states[i], show(e));
     }
     for c in &s.cbfs {
-        println!("  CBF {}: h = {}   α(h) = {}", c.name, show(&c.h), c.alpha);
+        let written = match c.level {
+            0 => String::new(),
+            k => format!(
+                "   (ψ{k} = L_f̃ψ{} + α(ψ{}), written by cbf[{}].order)",
+                k - 1,
+                k - 1,
+                c.section
+            ),
+        };
+        println!(
+            "  CBF {}: h = {}   α(h) = {}{written}",
+            c.name,
+            show(&c.h),
+            c.alpha
+        );
     }
     if let Some(b) = &s.input_bounds {
         println!(
@@ -217,14 +231,23 @@ pub(super) fn inert_note(s: &Scenario, inert: &Inert) -> String {
              L_f̃ h + α(h) ≥ 0, which CBF {next} is (a high-order CBF): S requires both, and \
              where {next} holds so does {name}'s row"
         ),
-        None => format!(
-            "CBF {name}: no input acts on it (L_g h = 0 on all of C): its relative degree is \
-             above one, so the filter cannot enforce it and the QP is infeasible wherever \
-             L_f̃ h + α(h) < 0; add that function as a CBF of its own and keep this one (a \
-             high-order CBF: S then requires both, and the input acts on the new row where h \
-             is a position bound): [[cbf]] h = \"{}\"",
-            inert.next.display(&s.states)
-        ),
+        None => {
+            // The next level: `order` one higher in the section it comes from.
+            let cbf = &s.cbfs[inert.index];
+            let order = cbf.level + 2;
+            let raise = match order <= MAX_ORDER {
+                true => format!("write order = {order} in cbf[{}], or ", cbf.section),
+                false => String::new(),
+            };
+            format!(
+                "CBF {name}: no input acts on it (L_g h = 0 on all of C): its relative degree \
+                 is above one, so the filter cannot enforce it and the QP is infeasible wherever \
+                 L_f̃ h + α(h) < 0; {raise}add that function as a CBF of its own and keep this \
+                 one (a high-order CBF: S then requires both, and the input acts on the new \
+                 row where h is a position bound): [[cbf]] h = \"{}\"",
+                inert.next.display(&s.states)
+            )
+        }
     }
 }
 

@@ -537,6 +537,15 @@ fn run_staged(job: &Job, bars: &Bars) -> CliResult {
         target
     );
     print_resolution(&plan.resolution, target.linf);
+    // The running figure and the target's are measured on different points: say which.
+    println!(
+        "progress: 'training max' is the largest error on the training samples as each was visited{}; \
+         'last measured' is on unseen points of C ∩ S, the figure the target speaks of",
+        match data.summary.unsafe_samples {
+            0 => String::new(),
+            k => format!(" ({k} of them outside S, where no target applies)"),
+        }
+    );
     let checkpoint = StagedCheckpoint {
         path: out.with_extension("ckpt"),
         resume: args.resume,

@@ -144,6 +144,8 @@ fn leverage(rows: &ConstraintRows, k: usize, m: usize) -> f64 {
 /// another of the scenario's CBFs asks the same.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Inert {
+    /// The CBF's index in the scenario's CBFs.
+    pub index: usize,
     /// The CBF's name.
     pub cbf: String,
     /// `ψ = L_f̃h + α(h)`: the row reads `0·θ ≤ ψ(x)`, so the QP is feasible only where
@@ -180,6 +182,7 @@ pub fn inert_cbfs(s: &Scenario) -> Vec<Inert> {
                 .find(|&j| positive_multiple(&s.cbfs[j].h, &next, &nodes))
                 .map(|j| s.cbfs[j].name.clone());
             Inert {
+                index: k,
                 cbf: s.cbfs[k].name.clone(),
                 next,
                 kept_by,

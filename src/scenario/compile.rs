@@ -2,6 +2,7 @@
 //! into expression trees and plain arrays ([`super::Scenario`]); every error names the file and
 //! the key.
 
+use super::high_order::alpha_key;
 use super::values::{compile_periodic, resolve_parameters};
 use super::*;
 
@@ -169,35 +170,10 @@ impl ScenarioFile {
         }
         let f_tilde_jacobian = expressions::jacobian(&f_tilde, n);
 
-        let cbfs = self
-            .cbfs
-            .iter()
-            .enumerate()
-            .map(|(i, cb)| {
-                let key = format!("cbf[{i}]");
-                let h = c.expr(format!("{key}.h"), &cb.h)?;
-                // Before differentiating: the filter's rows differentiate ∇h·f̃ again.
-                limits::check_derivative_size(&h, Some(&f_tilde))
-                    .map_err(|m| c.invalid(format!("{key}.h"), m))?;
-                let alpha = c.class_k(&format!("{key}.alpha"), &cb.alpha)?;
-                let gradient = expressions::gradient(&h, n);
-                let inert = (0..m).all(|j| {
-                    (0..n)
-                        .map(|i| gradient[i].clone() * g[i][j].clone())
-                        .fold(Expr::constant(0.0), |a, b| a + b)
-                        .collected()
-                        .as_constant()
-                        == Some(0.0)
-                });
-                Ok(Cbf {
-                    name: cb.name.clone().unwrap_or_else(|| format!("h{}", i + 1)),
-                    gradient,
-                    h,
-                    alpha,
-                    inert,
-                })
-            })
-            .collect::<Result<Vec<_>, _>>()?;
+        let mut cbfs = Vec::new();
+        for (i, cb) in self.cbfs.iter().enumerate() {
+            cbfs.extend(c.high_order_cbf(i, cb, &f_tilde, &g)?);
+        }
 
         let input_bounds = self
             .input_bounds
@@ -342,8 +318,12 @@ impl ScenarioFile {
         }
         // NaN or ∞ somewhere in C: found by interval evaluation, confirmed at a point.
         let mut exprs: Vec<(String, &Expr)> = Vec::new();
-        for (i, cb) in cbfs.iter().enumerate() {
-            exprs.push((format!("cbf[{i}].h"), &cb.h));
+        for cb in &cbfs {
+            let key = match cb.level {
+                0 => format!("cbf[{}].h", cb.section),
+                k => format!("cbf[{}].order (ψ{k})", cb.section),
+            };
+            exprs.push((key, &cb.h));
         }
         for (i, e) in f.iter().enumerate() {
             exprs.push((format!("system.f[{i}]"), e));
@@ -364,9 +344,10 @@ impl ScenarioFile {
                 ),
             ));
         }
-        for (i, cb) in cbfs.iter().enumerate() {
+        for cb in &cbfs {
             if let Some(why) = cb.alpha.check(|| limits::largest_on(&reach.region, &cb.h)) {
-                return Err(c.invalid(format!("cbf[{i}].alpha"), why));
+                let key = alpha_key(cb.section, &self.cbfs[cb.section].alpha, cb.level);
+                return Err(c.invalid(key, why));
             }
         }
         Ok(Scenario {

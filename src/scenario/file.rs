@@ -103,12 +103,32 @@ pub struct CbfSection {
     pub h: String,
     /// The class-K function `α` of `ḣ ≥ −α(h)`: a gain `a` (`α(h) = a·h`; default 1, as a
     /// number or an expression in the parameters) or an expression in `h` (`"0.5*h + h^3"`).
+    /// With `order = r`, one for every level or a list of `r` (`α₁ … α_r`).
     #[serde(default = "one")]
-    pub alpha: Number,
+    pub alpha: Alpha,
+    /// `h`'s relative degree `r` (default 1): the filter enforces the high-order CBF
+    /// `ψ₀ = h`, `ψₖ = L_f̃ψₖ₋₁ + αₖ(ψₖ₋₁)` (`k < r`), each `ψₖ` a CBF of its own with
+    /// `αₖ₊₁`, so that `S` requires all of them and the input acts on `ψ_{r−1}`'s row.
+    #[serde(default)]
+    pub order: Option<i64>,
 }
 
-fn one() -> Number {
-    Number::Value(1.0)
+fn one() -> Alpha {
+    Alpha::One(Number::Value(1.0))
+}
+
+/// A `[[cbf]]`'s `alpha`: one class-K function for every level, or one per level.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(
+    untagged,
+    expecting = "a number, an expression (in the parameters, or a function of h) as a string, \
+                 or a list of them, one per level of `order`"
+)]
+pub enum Alpha {
+    /// The same class-K function at every level.
+    One(Number),
+    /// `α₁ … α_r`, one per level of `order = r`.
+    Levels(Vec<Number>),
 }
 
 /// A number as written: a TOML number, or an expression in the parameters and `pi`

@@ -25,11 +25,13 @@ use crate::expressions::{self, Expr};
 mod class_k;
 mod compile;
 mod file;
+mod high_order;
 pub mod limits;
 mod values;
 
 pub use class_k::ClassK;
 pub use file::*;
+pub use high_order::{level_name, MAX_ORDER};
 pub use values::Periodic;
 
 /// The built-in default scenario (the paper's scenario 1), so that `cbfreach` runs anywhere.
@@ -113,6 +115,11 @@ pub struct Cbf {
     pub gradient: Vec<Expr>,
     /// `α` in `∇h·(f̃ + gθ) ≥ −α(h)`.
     pub alpha: ClassK,
+    /// The `[[cbf]]` it comes from (its index in the file).
+    pub section: usize,
+    /// Its level in that section's high-order CBF: 0 for `h` as written, `k` for `ψₖ`
+    /// (`order = r` writes levels `0 … r−1`).
+    pub level: usize,
     /// No input acts on `h`: every `∇h·gⱼ` simplifies to the constant 0 (exactly, so its row
     /// `0·θ ≤ L_f̃h + α(h)` holds only where the right side is nonnegative, and binds nowhere).
     pub inert: bool,

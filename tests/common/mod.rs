@@ -292,6 +292,18 @@ goal = {{ lower = [-1.2, -0.3], upper = [-0.8, 0.3] }}
 /// beside `ψ = L_f̃h + h` (neither affine, so sets are not clipped to them), `C = [−2, 2]²`;
 /// `reach` holds the rest of the `[reach]` table.
 pub fn high_order_wall(reach: &str) -> Scenario {
+    wall_of_order(
+        "[[cbf]]\nh = \"1.5 - x1 - 0.1*x1^3 - (1 + 0.3*x1^2)*x2\"",
+        reach,
+    )
+}
+
+/// [`high_order_wall`] with its second CBF written by `order = 2` instead of by hand.
+pub fn high_order_wall_by_order(reach: &str) -> Scenario {
+    wall_of_order("order = 2", reach)
+}
+
+fn wall_of_order(second: &str, reach: &str) -> Scenario {
     from_text(&format!(
         r#"
 name = "wall"
@@ -303,8 +315,7 @@ g = [["0"], ["1"]]
 kappa = ["-x1 - 2*x2 + 1.2"]
 [[cbf]]
 h = "1.5 - x1 - 0.1*x1^3"
-[[cbf]]
-h = "1.5 - x1 - 0.1*x1^3 - (1 + 0.3*x1^2)*x2"
+{second}
 [reach]
 region = {{ lower = [-2, -2], upper = [2, 2] }}
 dt = 0.05

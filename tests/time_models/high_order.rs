@@ -4,17 +4,17 @@
 
 use super::*;
 
-#[test]
-fn sets_hold_a_high_order_cbf_written_out() {
-    let s = common::high_order_wall(
-        r#"m_c = 3.0
+const REACH: &str = r#"m_c = 3.0
 horizon = 2.0
 initial = [
   { lower = [0.85, 0.35], upper = [0.95, 0.45] },
   { lower = [1.15, 0.02], upper = [1.25, 0.12] },
   { lower = [0.25, 1.05], upper = [0.35, 1.15] },
-]"#,
-    );
+]"#;
+
+#[test]
+fn sets_hold_a_high_order_cbf_written_out() {
+    let s = common::high_order_wall(REACH);
     assert!(s.cbfs[0].inert && !s.cbfs[1].inert);
     // The zero network with M = 3 stands in for a trained one: v stays within it on C ∩ S.
     let filter = SafetyFilter::new(&s);
@@ -36,4 +36,52 @@ initial = [
     // The filter's own field carried steps where the sets straddle ψ = 0.
     let exact: usize = tubes.iter().map(|t| t.exact_steps).sum();
     assert!(exact > 30, "{exact} exact steps");
+}
+
+/// `order = 2` writes the same CBF as the hand-written one: the same filter at every point and
+/// the same sets, to the last bits that the two expression trees' roundings leave.
+#[test]
+fn order_two_writes_the_high_order_cbf_out() {
+    let (by_hand, by_order) = (
+        common::high_order_wall(REACH),
+        common::high_order_wall_by_order(REACH),
+    );
+    assert_eq!(by_order.cbfs.len(), 2);
+    assert_eq!(by_order.cbfs[1].name, "h1.psi1");
+    assert!(by_order.cbfs[0].inert && !by_order.cbfs[1].inert);
+    let (f, g) = (SafetyFilter::new(&by_hand), SafetyFilter::new(&by_order));
+    let mut compared = 0;
+    for a in 0..=40 {
+        for b in 0..=40 {
+            let x = [-2.0 + 0.1 * a as f64, -2.0 + 0.1 * b as f64];
+            assert_eq!(by_hand.is_safe(&x), by_order.is_safe(&x), "{x:?}");
+            let diff = by_hand.cbfs[1].h.eval(&x) - by_order.cbfs[1].h.eval(&x);
+            assert!(diff.abs() < 1e-12, "ψ differs by {diff} at {x:?}");
+            if let (Ok(p), Ok(q)) = (f.eval(&x), g.eval(&x)) {
+                assert!((p[0] - q[0]).abs() < 1e-9, "v {p:?} against {q:?} at {x:?}");
+                compared += 1;
+            }
+        }
+    }
+    assert!(compared > 800, "{compared} points compared");
+    let tubes = |s: &Scenario| {
+        let problem = ReachProblem::new(s, common::zero_network(&[2, 8, 1]), 3.0).unwrap();
+        run(&problem, &s.reach.initial, ExactField::ClosedForm)
+    };
+    let (p, q) = (tubes(&by_hand), tubes(&by_order));
+    for (a, b) in p.iter().zip(&q) {
+        assert_eq!((a.tube.len(), &a.end), (b.tube.len(), &b.end));
+        for (x, y) in a.tube.iter().zip(&b.tube) {
+            for i in 0..2 {
+                assert!(
+                    (x.lower[i] - y.lower[i]).abs() < 1e-9,
+                    "{x:?} against {y:?}"
+                );
+                assert!(
+                    (x.upper[i] - y.upper[i]).abs() < 1e-9,
+                    "{x:?} against {y:?}"
+                );
+            }
+        }
+    }
 }
