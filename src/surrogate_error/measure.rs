@@ -55,6 +55,9 @@ pub struct Measured {
     pub mean: f64,
     /// Points of the full grid over `C`.
     pub grid_points: usize,
+    /// The grid's points per axis ([`measurement_counts`]).
+    #[serde(default)]
+    pub counts: Vec<usize>,
     /// Points on the boundary of `C` besides the grid ([`measurement_points`]).
     pub boundary_points: usize,
     /// Points of `C ∩ S` where the filter is feasible (the ones measured).
@@ -156,17 +159,55 @@ pub fn slope_by_curvature(
     }
 }
 
-/// Points per axis of the measurement grid.
+/// At most this many points (the grid and its projections onto `C`'s faces,
+/// [`measurement_size`]) when the measurement grid's counts come from the training grid:
+/// [`ErrorSettings::refine`] is lowered evenly on every axis until they fit. Twice the
+/// training grid per axis is `2ⁿ` times its points, 64 times in six states, where one
+/// measurement took 18 GB before this cap. Every shipped scenario measures fewer (≤ 400,000).
+pub const MAX_MEASUREMENT_POINTS: usize = 1 << 20;
+
+/// An explicit [`ErrorSettings::grid`] larger than this is refused (about 1.5 GB of samples).
+pub const MAX_EXPLICIT_MEASUREMENT_POINTS: usize = 4 << 20;
+
+/// Points per axis of the measurement grid: [`ErrorSettings::grid`], or
+/// [`ErrorSettings::refine`] times the training grid's, at most [`MAX_MEASUREMENT_POINTS`]
+/// in all.
 pub fn measurement_counts(s: &Scenario, settings: &ErrorSettings) -> Vec<usize> {
-    match &settings.grid {
-        Some(g) if g.len() == s.n() => g.iter().map(|&k| k.max(1)).collect(),
-        _ => s
-            .training
-            .grid
-            .iter()
-            .map(|&k| k.max(2) * settings.refine.max(1))
-            .collect(),
+    if let Some(g) = settings.grid.as_ref().filter(|g| g.len() == s.n()) {
+        return g.iter().map(|&k| k.max(1)).collect();
     }
+    let training: Vec<f64> = s.training.grid.iter().map(|&k| k.max(2) as f64).collect();
+    let counts = |r: f64| -> Vec<usize> {
+        training
+            .iter()
+            .map(|&k| ((k * r).floor() as usize).max(2))
+            .collect()
+    };
+    let refine = settings.refine.max(1) as f64;
+    let wanted = measurement_size(&counts(refine));
+    if wanted <= MAX_MEASUREMENT_POINTS as f64 {
+        return counts(refine);
+    }
+    // Evenly on every axis, then down by 1 % until the points fit (the faces' share moves).
+    let n = training.len().max(1) as f64;
+    let mut r = refine * (MAX_MEASUREMENT_POINTS as f64 / wanted).powf(1.0 / n);
+    while r > 1e-3 && measurement_size(&counts(r)) > MAX_MEASUREMENT_POINTS as f64 {
+        r *= 0.99;
+    }
+    counts(r)
+}
+
+/// How many points [`measurement_points`] gives for `counts`: the grid, its projections onto
+/// the `2n` faces of `C` and the `2ⁿ` corners (as f64: it may not fit a `usize`).
+pub fn measurement_size(counts: &[usize]) -> f64 {
+    let grid: f64 = counts.iter().map(|&k| k as f64).product();
+    let faces: f64 = counts.iter().map(|&k| 2.0 * grid / k.max(1) as f64).sum();
+    let corners = if counts.len() > 1 {
+        2f64.powi(counts.len() as i32)
+    } else {
+        0.0
+    };
+    grid + faces + corners
 }
 
 /// The cell-centred grid with `counts[i]` points along axis i: `lᵢ + (j + ½)(uᵢ − lᵢ)/countsᵢ`.
@@ -234,6 +275,15 @@ pub fn measure(
 ) -> Result<Measured, AnalysisError> {
     check_dims(s, net)?;
     check_box_width(settings)?;
+    let counts = measurement_counts(s, settings);
+    let size = measurement_size(&counts);
+    if size > MAX_EXPLICIT_MEASUREMENT_POINTS as f64 {
+        return Err(AnalysisError::Setting {
+            name: "measurement grid points",
+            value: size,
+            expected: "at most 4,194,304 (a coarser grid)",
+        });
+    }
     let (all, grid_points) = measurement_points(s, settings);
     let boundary_points = all.len() - grid_points;
     let safe: Vec<Vec<f64>> = all.into_iter().filter(|x| s.is_safe(x)).collect();
@@ -260,6 +310,7 @@ pub fn measure(
         argmax_l2: data.inputs[k2 * n..(k2 + 1) * n].to_vec(),
         mean: pe.value.iter().sum::<f64>() / pe.value.len() as f64,
         grid_points,
+        counts,
         boundary_points,
         samples: summary.samples,
         infeasible: summary.infeasible,
@@ -275,6 +326,25 @@ pub fn measure(
 /// `max_ij |((N − v)(x + δeⱼ) − (N − v)(x − δeⱼ)) / 2δ|ᵢ`, at each of `points` where the filter
 /// is feasible at the `2n` ends (the others are skipped).
 pub fn secant_slope_errors(
+    filter: &SafetyFilter,
+    net: &Mlp,
+    points: &[Vec<f64>],
+    delta: f64,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Vec<f64> {
+    // In chunks: a sample's secant ends are 2n² numbers (72 in six states), which for all of
+    // a million points at once would be half a gigabyte.
+    const CHUNK: usize = 1 << 15;
+    let mut errors = Vec::with_capacity(points.len());
+    for (c, chunk) in points.chunks(CHUNK).enumerate() {
+        let done = c * CHUNK;
+        let each = secant_chunk(filter, net, chunk, delta, &|d| progress(done + d));
+        errors.extend(each);
+    }
+    errors
+}
+
+fn secant_chunk(
     filter: &SafetyFilter,
     net: &Mlp,
     points: &[Vec<f64>],

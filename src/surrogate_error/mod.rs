@@ -46,9 +46,10 @@ pub use certify::{
 };
 pub use looseness::{looseness, Looseness, Ratio};
 pub use measure::{
-    centred_grid, measure, measurement_counts, measurement_points, secant_slope_errors,
-    slope_by_curvature, CurvatureBand, Measured, Percentiles, SlopeByCurvature, CURVATURE_BANDS,
-    CURVATURE_POINTS,
+    centred_grid, measure, measurement_counts, measurement_points, measurement_size,
+    secant_slope_errors, slope_by_curvature, CurvatureBand, Measured, Percentiles,
+    SlopeByCurvature, CURVATURE_BANDS, CURVATURE_POINTS, MAX_EXPLICIT_MEASUREMENT_POINTS,
+    MAX_MEASUREMENT_POINTS,
 };
 
 /// Why an error analysis (or an error map) failed.

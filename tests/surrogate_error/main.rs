@@ -21,8 +21,8 @@ use cbfreach::network::Mlp;
 use cbfreach::scenario::{Margin, Scenario};
 use cbfreach::surrogate_error::{
     cell_error_bound_mv, centred_grid, certify, looseness, measure, measurement_counts,
-    measurement_points, proven_unsafe, Certified, ErrorSettings, Measured, Percentiles,
-    WITNESS_CELLS,
+    measurement_points, measurement_size, proven_unsafe, Certified, ErrorSettings, Measured,
+    Percentiles, MAX_MEASUREMENT_POINTS, WITNESS_CELLS,
 };
 use tempfile::TempDir;
 

@@ -217,3 +217,48 @@ fn slope_error_by_curvature_pairs_each_point_with_its_own_curvature() {
         "{got:?}"
     );
 }
+
+/// Twice the training grid per axis is `2ⁿ` times its points (64 times in six states, where one
+/// `cbfreach error` took 18 GB): the measurement grid is capped at [`MAX_MEASUREMENT_POINTS`],
+/// evenly on every axis, and an explicit grid beyond four times that is refused by name before
+/// any point is evaluated. Every shipped scenario still measures twice its training grid.
+#[test]
+fn the_measurement_grid_is_capped_in_many_states() {
+    for name in [
+        "integrator",
+        "double-integrator",
+        "int3",
+        "unicycle",
+        "acc-si",
+        "spheres3d",
+    ] {
+        let s = Scenario::load(&common::scenario_path(&format!("{name}.toml"))).unwrap();
+        let doubled: Vec<usize> = s.training.grid.iter().map(|&k| 2 * k.max(2)).collect();
+        assert_eq!(
+            measurement_counts(&s, &ErrorSettings::default()),
+            doubled,
+            "{name}"
+        );
+    }
+    let mut s = Scenario::load(&common::scenario_path("int3.toml")).unwrap();
+    s.training.grid = vec![60, 60, 60];
+    let counts = measurement_counts(&s, &ErrorSettings::default());
+    let size = measurement_size(&counts);
+    assert!(
+        counts.iter().all(|&k| k == counts[0] && k >= 60 && k < 120),
+        "{counts:?}"
+    );
+    let (all, _) = measurement_points(&s, &ErrorSettings::default());
+    assert_eq!(all.len() as f64, size);
+    assert!(size <= MAX_MEASUREMENT_POINTS as f64 && size > 0.9 * MAX_MEASUREMENT_POINTS as f64);
+    let huge = ErrorSettings {
+        grid: Some(vec![200, 200, 200]),
+        ..ErrorSettings::default()
+    };
+    let net = common::zero_network(&[3, 4, 3]);
+    let e = measure(&s, &net, &huge, &|_| {}).unwrap_err().to_string();
+    assert!(
+        e.contains("measurement grid points") && e.contains("coarser"),
+        "{e}"
+    );
+}
