@@ -145,6 +145,9 @@ pub enum EndKind {
     NoEnclosure,
     /// No finite error bound where the set is (`M = ∞` cells, or beyond `C`).
     NoCertifiedBound,
+    /// The error map certifies all of `C`, and the set or its step reached past it: the sets
+    /// grew too wide, not a hole in the map.
+    BoundBeyondC,
     /// Sampled data: no enclosure of the motion between samples.
     NoIntersampleEnclosure,
     /// The set turned inside out.
@@ -166,6 +169,10 @@ impl EndKind {
             EndKind::PastRegion => "a step's enclosure reached past C",
             EndKind::NoEnclosure => "a step's enclosure did not close (substeps may help)",
             EndKind::NoCertifiedBound => "the sets met cells with no certified error bound",
+            EndKind::BoundBeyondC => {
+                "the sets grew past C, where the error map certifies nothing (smaller boxes \
+                 keep them in C)"
+            }
             EndKind::NoIntersampleEnclosure => "no enclosure of the motion between samples",
             EndKind::Inverted => "the sets turned inside out",
             EndKind::NonFinite => "the embedding state overflowed",
@@ -179,7 +186,8 @@ impl TubeEnd {
         Some(match *self {
             TubeEnd::Horizon | TubeEnd::Absorbed { .. } => return None,
             TubeEnd::LeftRegion { .. } | TubeEnd::FlowpipeLeftRegion { .. } => EndKind::LeftRegion,
-            TubeEnd::NoCertifiedBound { .. } => EndKind::NoCertifiedBound,
+            TubeEnd::NoCertifiedBound { beyond_c: false, .. } => EndKind::NoCertifiedBound,
+            TubeEnd::NoCertifiedBound { beyond_c: true, .. } => EndKind::BoundBeyondC,
             TubeEnd::NoEnclosure { cause, .. } => match cause {
                 OpenCause::ExitsFromStart => EndKind::ExitsAtStart,
                 OpenCause::Exits => EndKind::Exits,
@@ -447,6 +455,19 @@ impl Tube {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `verify`'s summary of what ended the tubes tells a hole in the error map from sets that
+    /// grew past `C` (a 6-state run said "cells with no certified error bound" for all of its
+    /// boxes, of a map that certified every cell).
+    #[test]
+    fn an_error_bound_asked_beyond_c_is_its_own_kind() {
+        let end = |beyond_c| TubeEnd::NoCertifiedBound { t: 0.5, beyond_c };
+        assert_eq!(end(false).kind(), Some(EndKind::NoCertifiedBound));
+        assert_eq!(end(true).kind(), Some(EndKind::BoundBeyondC));
+        assert!(EndKind::BoundBeyondC.describe().contains("grew past C"));
+        let json = serde_json::to_string(&EndKind::BoundBeyondC).unwrap();
+        assert_eq!(json, "\"bound-beyond-c\"");
+    }
 
     /// The JSON of a tube is as before the ending became a type: `valid`, then `note` only for
     /// an early end, between the samples and the step counts.
