@@ -186,7 +186,9 @@ impl TubeEnd {
         Some(match *self {
             TubeEnd::Horizon | TubeEnd::Absorbed { .. } => return None,
             TubeEnd::LeftRegion { .. } | TubeEnd::FlowpipeLeftRegion { .. } => EndKind::LeftRegion,
-            TubeEnd::NoCertifiedBound { beyond_c: false, .. } => EndKind::NoCertifiedBound,
+            TubeEnd::NoCertifiedBound {
+                beyond_c: false, ..
+            } => EndKind::NoCertifiedBound,
             TubeEnd::NoCertifiedBound { beyond_c: true, .. } => EndKind::BoundBeyondC,
             TubeEnd::NoEnclosure { cause, .. } => match cause {
                 OpenCause::ExitsFromStart => EndKind::ExitsAtStart,

@@ -245,7 +245,9 @@ fn the_measurement_grid_is_capped_in_many_states() {
     let counts = measurement_counts(&s, &ErrorSettings::default());
     let size = measurement_size(&counts);
     assert!(
-        counts.iter().all(|&k| k == counts[0] && k >= 60 && k < 120),
+        counts
+            .iter()
+            .all(|&k| k == counts[0] && (60..120).contains(&k)),
         "{counts:?}"
     );
     let (all, _) = measurement_points(&s, &ErrorSettings::default());
