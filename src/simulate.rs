@@ -282,13 +282,17 @@ pub fn simulate_filtered(
         // one watching `S` between samples here).
         return iterate(|x| zoh_step(filter, x, dt, |_| {}), x0, dt, steps);
     }
-    integrate(
-        |x: &[f64]| -> Result<Vec<f64>, FilterError> { filter.closed_loop(x) },
-        x0,
-        dt,
-        steps,
-        integrator,
-    )
+    // From a start where the QP is feasible, the rows kept by a high-order CBF hold along the
+    // ODE's trajectory (SafetyFilter::field_on_trajectories); from any other the trajectory
+    // ends where it starts.
+    let start = filter.eval(x0);
+    let field = |x: &[f64]| -> Result<Vec<f64>, FilterError> {
+        match &start {
+            Ok(_) => filter.field_on_trajectories(x),
+            Err(e) => Err(e.clone()),
+        }
+    };
+    integrate(field, x0, dt, steps, integrator)
 }
 
 /// `count` boxes 0.02 wide around safe points spread over the middle of `C` (its central 40 %

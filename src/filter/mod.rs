@@ -185,6 +185,8 @@ pub struct ConstraintRows {
 pub struct SafetyFilter<'a> {
     scenario: &'a Scenario,
     method: FilterMethod,
+    /// [`SafetyFilter::field_on_trajectories`]'s rows, found on first use.
+    kept_inert: std::sync::OnceLock<Vec<usize>>,
 }
 
 impl<'a> SafetyFilter<'a> {
@@ -197,13 +199,21 @@ impl<'a> SafetyFilter<'a> {
         } else {
             FilterMethod::Qp
         };
-        SafetyFilter { scenario, method }
+        SafetyFilter {
+            scenario,
+            method,
+            kept_inert: Default::default(),
+        }
     }
 
     /// The filter with a chosen method (a closed form is only valid for its structure; the QP
     /// always is). Used to cross-check the closed forms against clarabel.
     pub fn with_method(scenario: &'a Scenario, method: FilterMethod) -> SafetyFilter<'a> {
-        SafetyFilter { scenario, method }
+        SafetyFilter {
+            scenario,
+            method,
+            kept_inert: Default::default(),
+        }
     }
 
     /// The number of constraint rows: one per CBF and further constraint, two per input with
@@ -324,6 +334,40 @@ impl<'a> SafetyFilter<'a> {
     pub fn closed_loop(&self, x: &[f64]) -> Result<Vec<f64>, FilterError> {
         let v = self.eval(x)?;
         Ok(self.closed_loop_with(x, &v))
+    }
+
+    /// The filtered vector field for integrating a trajectory that starts where the QP is
+    /// feasible: [`Self::closed_loop`], except where the QP is infeasible only by a row no
+    /// input acts on that another CBF keeps (a high-order CBF written out, [`inert_cbfs`]).
+    /// That row asks `ψ ≥ 0`, which the other CBF's row keeps along the ODE's trajectory; a
+    /// numerical integrator sliding along `ψ = 0` errs across it (RK4's stages, at dt = 0.05 on
+    /// a 6-state double integrator by 5·10⁻⁵), where the QP would end the trajectory. There the
+    /// row is taken as slack, as every enclosure of `v` takes it (design §1).
+    pub fn field_on_trajectories(&self, x: &[f64]) -> Result<Vec<f64>, FilterError> {
+        let kept = self.kept_inert.get_or_init(|| {
+            inert_cbfs(self.scenario)
+                .into_iter()
+                .filter(|i| i.kept_by.is_some())
+                .map(|i| i.index)
+                .collect()
+        });
+        match self.closed_loop(x) {
+            Err(FilterError::Infeasible { .. }) if !kept.is_empty() => {
+                // The CBFs' rows come first, in order.
+                let mut rows = self.constraint_rows(x)?;
+                for &k in kept {
+                    rows.q[k] = rows.q[k].max(0.0);
+                }
+                match self.solve_rows(&rows, x)? {
+                    FilterStatus::Solved(v) => Ok(self.closed_loop_with(x, &v)),
+                    FilterStatus::Infeasible(reason) => Err(FilterError::Infeasible {
+                        x: x.to_vec(),
+                        reason,
+                    }),
+                }
+            }
+            field => field,
+        }
     }
 
     /// `f̃(x) + g(x) θ` for a given input correction `θ`.

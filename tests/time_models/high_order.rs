@@ -85,3 +85,81 @@ fn order_two_writes_the_high_order_cbf_out() {
         }
     }
 }
+
+/// A point mass in the plane past a disc, the high-order CBF by `order = 2` (`order` 1: the
+/// position bound alone).
+fn planar_disc(order: usize) -> Scenario {
+    common::from_text(&format!(
+        r#"
+name = "planar"
+[system]
+states = ["px", "py", "vx", "vy"]
+inputs = ["ax", "ay"]
+f = ["vx", "vy", "0", "0"]
+g = [["0", "0"], ["0", "0"], ["1", "0"], ["0", "1"]]
+kappa = ["-px - 2*vx", "-py - 2*vy"]
+[[cbf]]
+h = "(px - 2)^2 + (py - 0.2)^2 - 0.36"
+order = {order}
+alpha = 2
+[reach]
+region = {{ lower = [-1, -1.5, -2, -2], upper = [5, 1.5, 2, 2] }}
+dt = 0.05
+horizon = 10
+m_c = 0
+goal = {{ lower = [-0.5, -0.5, -0.5, -0.5], upper = [0.5, 0.5, 0.5, 0.5] }}
+"#
+    ))
+    .unwrap()
+}
+
+/// Trajectories that slide along `ψ = 0` (the high-order CBF's row holding them there) are
+/// integrated through: RK4's stages err across `ψ = 0` by a little, where the position bound's
+/// row, which no input acts on, would make the QP infeasible and end them (52 of 917 did with
+/// the QP's own field). Without the high-order CBF the QP is really infeasible, and says so.
+#[test]
+fn integrators_slide_along_a_high_order_cbf() {
+    let s = planar_disc(2);
+    let filter = SafetyFilter::new(&s);
+    let start = IntervalBox::new(vec![3.0, -1.0, -2.0, -2.0], vec![4.8, 1.0, 2.0, 2.0]).unwrap();
+    let (mut stopped, mut plain_stopped, mut lowest) = (0, 0, f64::INFINITY);
+    let starts: Vec<Vec<f64>> = sample_box(&start, 1000, 3)
+        .into_iter()
+        .filter(|x| s.is_safe(x))
+        .collect();
+    for x0 in &starts {
+        let x0 = x0.as_slice();
+        let tr = simulate_filtered(&filter, x0, s.reach.dt, 200, Integrator::Rk4);
+        stopped += usize::from(tr.stopped.is_some());
+        let psi =
+            tr.x.iter()
+                .map(|x| s.cbfs[1].h.eval(x))
+                .fold(f64::INFINITY, f64::min);
+        lowest = lowest.min(psi);
+        // The QP's own field: RK4's stages cross ψ = 0, where it has no value.
+        let plain = integrate(
+            |x| filter.closed_loop(x),
+            x0,
+            s.reach.dt,
+            200,
+            Integrator::Rk4,
+        );
+        plain_stopped += usize::from(plain.stopped.is_some());
+    }
+    assert_eq!(stopped, 0, "{stopped} trajectories stopped");
+    assert!(lowest > -1e-3, "ψ down to {lowest}");
+    assert!(
+        plain_stopped > 10,
+        "{plain_stopped} of {} stopped with the QP's own field",
+        starts.len()
+    );
+    let alone = planar_disc(1);
+    let filter = SafetyFilter::new(&alone);
+    let infeasible = sample_box(&start, 100, 3)
+        .into_iter()
+        .filter(|x| alone.is_safe(x))
+        .map(|x0| simulate_filtered(&filter, &x0, alone.reach.dt, 200, Integrator::Rk4))
+        .filter(|tr| tr.stopped.as_ref().is_some_and(|s| s.cause.is_infeasible()))
+        .count();
+    assert!(infeasible > 10, "{infeasible} met an infeasible QP");
+}

@@ -19,7 +19,7 @@ use cbfreach::reach::{
     Backend, CpuBackend, ExactField, ReachProblem, ReachSettings, TimeModel, Tube,
 };
 use cbfreach::scenario::Scenario;
-use cbfreach::simulate::{sample_box, simulate_filtered, step, Integrator};
+use cbfreach::simulate::{integrate, sample_box, simulate_filtered, step, Integrator};
 use cbfreach::IntervalBox;
 
 /// Points of continuous-time trajectories (fine-step RK4) outside their sets, and checks made.
