@@ -323,6 +323,11 @@ pub fn weigh_box(data: &mut Dataset, focus: &IntervalBox, weight: f64) -> usize 
 /// with secant slopes).
 pub const MAX_GRID_POINTS: usize = 20_000_000;
 
+/// Most numbers its samples may hold, `points × (n + m + mn)`: [`MAX_GRID_POINTS`] of a system
+/// with two states and two inputs. Six states and three inputs hold 27 numbers a point, so
+/// their grids stop at 5.9 million points.
+pub const MAX_GRID_NUMBERS: usize = 8 * MAX_GRID_POINTS;
+
 /// The training grid's points over `[training] region` (`grid`, else the scenario's), refused
 /// with a message naming the grid where it has the wrong length, a count below 2, or more
 /// points than the trainer holds in memory.
@@ -336,13 +341,18 @@ pub fn training_points(s: &Scenario, grid: Option<&Vec<usize>>) -> Result<Vec<Ve
     }
     // The points, their targets and slopes are held in memory: refuse a grid that would not
     // fit rather than abort on the allocation.
+    let (n, m) = (s.n(), s.m());
+    let per_point = n + m + m * n;
+    let most = MAX_GRID_POINTS.min(MAX_GRID_NUMBERS / per_point);
     let total = grid
         .iter()
         .try_fold(1usize, |a, &k| a.checked_mul(k))
-        .filter(|&t| t <= MAX_GRID_POINTS);
+        .filter(|&t| t <= most);
     if total.is_none() {
         return Err(format!(
-            "training grid {grid:?}: {} points, more than the {MAX_GRID_POINTS} the trainer holds in memory; use a coarser grid (the refine stages add samples where v needs them)",
+            "training grid {grid:?}: {} points, more than the {most} the trainer holds in memory \
+             with {n} states and {m} inputs ({per_point} numbers a point); use a coarser grid \
+             (the refine stages add samples where v needs them)",
             grid.iter().map(|&k| k as f64).product::<f64>()
         ));
     }

@@ -365,3 +365,40 @@ fn units_label_axes_and_bad_ones_are_named() {
         }
     }
 }
+
+/// A training grid is refused before it is built where its samples would not fit in memory:
+/// 20 million points in two states, fewer where each point holds more numbers (six states and
+/// three inputs: 27 a point, 5.9 million points).
+#[test]
+fn a_training_grid_too_large_for_memory_is_refused_by_size() {
+    use cbfreach::dataset::training_points;
+    let small = from_text(SMALL).unwrap();
+    let e = training_points(&small, Some(&vec![4473, 4473])).unwrap_err();
+    assert!(
+        e.contains("more than the 20000000") && e.contains("2 states and 1 inputs"),
+        "{e}"
+    );
+    let six = from_text(
+        &SMALL
+            .replace(r#"states = ["x", "y"]"#, r#"states = ["x", "y", "a", "b", "c", "d"]"#)
+            .replace(r#"inputs = ["u"]"#, r#"inputs = ["u", "w", "z"]"#)
+            .replace(r#"f = ["y", "-x"]"#, r#"f = ["y", "-x", "0", "0", "0", "0"]"#)
+            .replace(
+                r#"g = [["0"], ["1"]]"#,
+                r#"g = [["0", "0", "0"], ["1", "0", "0"], ["0", "1", "0"], ["0", "0", "1"], ["0", "0", "0"], ["0", "0", "0"]]"#,
+            )
+            .replace(r#"kappa = ["-x - y"]"#, r#"kappa = ["-x - y", "-a", "-b"]"#)
+            .replace("lower = [-1, -1]", "lower = [-1, -1, -1, -1, -1, -1]")
+            .replace("upper = [1, 1]", "upper = [1, 1, 1, 1, 1, 1]")
+            .replace(
+                "{ lower = [-0.1, -0.1], upper = [0.1, 0.1] }",
+                "{ lower = [-0.1, -0.1, -0.1, -0.1, -0.1, -0.1], upper = [0.1, 0.1, 0.1, 0.1, 0.1, 0.1] }",
+            ),
+    )
+    .unwrap();
+    let e = training_points(&six, Some(&vec![14; 6])).unwrap_err();
+    assert!(
+        e.contains("7529536 points, more than the 5925925") && e.contains("27 numbers a point"),
+        "{e}"
+    );
+}
