@@ -69,10 +69,15 @@ fn parse_size(text: &str) -> Result<(u32, u32), String> {
 }
 
 /// Starting points for Figure 1: the initial boxes' centres and the safe points of a 7×5 grid
-/// over C.
+/// over C (7×5×5 in three states; in more, at most 256 cells: a 7×5⁵ grid in six states drew
+/// 21,875 trajectories into one projection, a solid blot).
 pub fn figure_points(s: &Scenario) -> Vec<Vec<f64>> {
     let mut points: Vec<Vec<f64>> = s.reach.initial.iter().map(IntervalBox::center).collect();
-    let counts: Vec<usize> = (0..s.n()).map(|i| if i == 0 { 7 } else { 5 }).collect();
+    let n = s.n();
+    let counts: Vec<usize> = match n {
+        1..=3 => (0..n).map(|i| if i == 0 { 7 } else { 5 }).collect(),
+        _ => vec![cbfreach::boxes::per_axis_within(n, 256, 5).max(2); n],
+    };
     points.extend(
         s.reach
             .region
