@@ -649,30 +649,20 @@ fn high_order(planar: bool) -> Scenario {
     if !planar {
         return common::high_order_wall("m_c = 0\nhorizon = 1");
     }
-    from_text(
-        r#"
-name = "disc"
-[system]
-states = ["px", "py", "vx", "vy"]
-inputs = ["ax", "ay"]
-f = ["vx", "vy", "0", "0"]
-g = [["0", "0"], ["0", "0"], ["1", "0"], ["0", "1"]]
-kappa = ["-px - 1.8*vx", "-py - 1.8*vy"]
-[[cbf]]
+    common::planar_point_mass(
+        1.8,
+        r#"[[cbf]]
 h = "(px - 2)^2 + (py - 0.3)^2 - 0.36"
 alpha = 1.5
 [[cbf]]
 h = "2*(px - 2)*vx + 2*(py - 0.3)*vy + 1.5*((px - 2)^2 + (py - 0.3)^2 - 0.36)"
-alpha = 2.0
-[reach]
-region = { lower = [0.5, -1, -1.5, -1], upper = [3.5, 1, 0.5, 1] }
+alpha = 2.0"#,
+        r#"region = { lower = [0.5, -1, -1.5, -1], upper = [3.5, 1, 0.5, 1] }
 m_c = 0
 dt = 0.05
 horizon = 1
-goal = { lower = [-0.1, -0.1, -0.1, -0.1], upper = [0.1, 0.1, 0.1, 0.1] }
-"#,
+goal = { lower = [-0.1, -0.1, -0.1, -0.1], upper = [0.1, 0.1, 0.1, 0.1] }"#,
     )
-    .unwrap()
 }
 
 /// The row no input acts on (exactly 0: `0·θ ≤ ψ`) binds nowhere `v` exists, so the enclosures

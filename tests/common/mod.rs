@@ -325,3 +325,24 @@ goal = {{ lower = [-0.1, -0.1], upper = [0.1, 0.1] }}
     ))
     .unwrap()
 }
+
+/// A point mass in the plane (`ṗ = v`, `v̇ = u`, states `px, py, vx, vy`) under
+/// `κ = −p − damping·v`, with `cbfs` (its `[[cbf]]` tables) and `reach` (the keys of its
+/// `[reach]` table).
+pub fn planar_point_mass(damping: f64, cbfs: &str, reach: &str) -> Scenario {
+    from_text(&format!(
+        r#"
+name = "planar"
+[system]
+states = ["px", "py", "vx", "vy"]
+inputs = ["ax", "ay"]
+f = ["vx", "vy", "0", "0"]
+g = [["0", "0"], ["0", "0"], ["1", "0"], ["0", "1"]]
+kappa = ["-px - {damping}*vx", "-py - {damping}*vy"]
+{cbfs}
+[reach]
+{reach}
+"#
+    ))
+    .unwrap()
+}

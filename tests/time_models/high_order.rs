@@ -89,28 +89,20 @@ fn order_two_writes_the_high_order_cbf_out() {
 /// A point mass in the plane past a disc, the high-order CBF by `order = 2` (`order` 1: the
 /// position bound alone).
 fn planar_disc(order: usize) -> Scenario {
-    common::from_text(&format!(
-        r#"
-name = "planar"
-[system]
-states = ["px", "py", "vx", "vy"]
-inputs = ["ax", "ay"]
-f = ["vx", "vy", "0", "0"]
-g = [["0", "0"], ["0", "0"], ["1", "0"], ["0", "1"]]
-kappa = ["-px - 2*vx", "-py - 2*vy"]
-[[cbf]]
+    common::planar_point_mass(
+        2.0,
+        &format!(
+            r#"[[cbf]]
 h = "(px - 2)^2 + (py - 0.2)^2 - 0.36"
 order = {order}
-alpha = 2
-[reach]
-region = {{ lower = [-1, -1.5, -2, -2], upper = [5, 1.5, 2, 2] }}
+alpha = 2"#
+        ),
+        r#"region = { lower = [-1, -1.5, -2, -2], upper = [5, 1.5, 2, 2] }
 dt = 0.05
 horizon = 10
 m_c = 0
-goal = {{ lower = [-0.5, -0.5, -0.5, -0.5], upper = [0.5, 0.5, 0.5, 0.5] }}
-"#
-    ))
-    .unwrap()
+goal = { lower = [-0.5, -0.5, -0.5, -0.5], upper = [0.5, 0.5, 0.5, 0.5] }"#,
+    )
 }
 
 /// Trajectories that slide along `ψ = 0` (the high-order CBF's row holding them there) are
