@@ -25,6 +25,10 @@ pub struct DatasetSummary {
     pub samples: usize,
     /// Points where the filter's QP is infeasible (skipped).
     pub infeasible: usize,
+    /// Of those, the points in the safe set `S` where the QP itself has no solution (where it is
+    /// meant to have one; a high-order CBF's has none wherever `ψ < 0`, outside `S`). The rest
+    /// are outside `S`, or points whose slope's difference quotients reach where it has none.
+    pub infeasible_in_s: usize,
     /// Kept samples outside the safe set `S`.
     pub unsafe_samples: usize,
     /// Kept samples where the filter acts (`v ≠ 0`).
@@ -37,6 +41,7 @@ impl DatasetSummary {
         self.grid_points += other.grid_points;
         self.samples += other.samples;
         self.infeasible += other.infeasible;
+        self.infeasible_in_s += other.infeasible_in_s;
         self.unsafe_samples += other.unsafe_samples;
         self.active_samples += other.active_samples;
     }
@@ -94,18 +99,20 @@ pub fn filter_dataset(
     let scenario = filter.scenario();
     let (n, m) = (scenario.n(), scenario.m());
     let done = std::sync::atomic::AtomicUsize::new(0);
-    let results: Vec<Option<(Vec<f64>, Vec<f64>)>> = points
+    // `Err(true)`: the QP has no solution at the point; `Err(false)`: only its slope failed
+    // (a difference quotient's end beyond a boundary of feasibility).
+    let results: Vec<Result<(Vec<f64>, Vec<f64>), bool>> = points
         .par_chunks(1024)
         .flat_map_iter(|chunk| {
             let out: Vec<_> = chunk
                 .iter()
                 .map(|x| {
-                    let v = filter.eval(x).ok()?;
+                    let v = filter.eval(x).map_err(|_| true)?;
                     let dv = match slopes {
-                        Slopes::Pointwise => filter.jacobian(x).ok()?,
-                        Slopes::Secant(h) => filter.secant_jacobian(x, h).ok()?,
+                        Slopes::Pointwise => filter.jacobian(x),
+                        Slopes::Secant(h) => filter.secant_jacobian(x, h),
                     };
-                    Some((v, dv))
+                    Ok((v, dv.map_err(|_| false)?))
                 })
                 .collect();
             let total = done.fetch_add(chunk.len(), std::sync::atomic::Ordering::Relaxed);
@@ -127,9 +134,13 @@ pub fn filter_dataset(
         ..DatasetSummary::default()
     };
     for (x, r) in points.iter().zip(results) {
-        let Some((v, dv)) = r else {
-            summary.infeasible += 1;
-            continue;
+        let (v, dv) = match r {
+            Ok(sample) => sample,
+            Err(at_x) => {
+                summary.infeasible += 1;
+                summary.infeasible_in_s += usize::from(at_x && scenario.is_safe(x));
+                continue;
+            }
         };
         summary.samples += 1;
         summary.unsafe_samples += usize::from(!scenario.is_safe(x));

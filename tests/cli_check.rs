@@ -142,6 +142,13 @@ goal = {{ lower = [-0.1, -0.1, -0.1], upper = [0.1, 0.1, 0.1] }}
 "#
         )
     };
+    // The training data say whether the QP's infeasible points lie in S.
+    let dataset = |path: &std::path::Path| {
+        let (code, stdout, stderr) =
+            cbfreach(&["dataset", path.to_str().unwrap(), "--grid", "9,9,9"]);
+        assert_eq!(code, 0, "{stderr}");
+        stdout
+    };
     std::fs::write(&path, text(2)).unwrap();
     let stdout = check(&path);
     assert!(
@@ -150,7 +157,14 @@ goal = {{ lower = [-0.1, -0.1, -0.1], upper = [0.1, 0.1, 0.1] }}
             && stdout.contains("the QP is infeasible at"),
         "{stdout}"
     );
+    let data = dataset(&path);
+    assert!(data.contains(" of them in S)"), "{data}");
     std::fs::write(&path, text(3)).unwrap();
+    let data = dataset(&path);
+    assert!(
+        data.contains("infeasible skipped (all outside S)"),
+        "{data}"
+    );
     let stdout = check(&path);
     assert!(
         stdout.contains("CBF wall.psi2: h = ")

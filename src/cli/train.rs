@@ -202,8 +202,14 @@ impl DataProgress for Bars {
 }
 
 fn print_summary(s: &Scenario, d: &DatasetSummary) {
+    // A high-order CBF's QP is infeasible wherever ψ < 0, outside S: say whether S is clear.
+    let where_ = match (d.infeasible, d.infeasible_in_s) {
+        (0, _) => String::new(),
+        (_, 0) => " (all outside S)".to_string(),
+        (_, k) => format!(" ({k} of them in S)"),
+    };
     println!(
-        "{}: {} grid points, {} samples ({} outside S, {} where the filter acts), {} infeasible skipped",
+        "{}: {} grid points, {} samples ({} outside S, {} where the filter acts), {} infeasible skipped{where_}",
         s.file, d.grid_points, d.samples, d.unsafe_samples, d.active_samples, d.infeasible
     );
 }
