@@ -101,7 +101,8 @@ pub fn filter_dataset(
     let done = std::sync::atomic::AtomicUsize::new(0);
     // `Err(true)`: the QP has no solution at the point; `Err(false)`: only its slope failed
     // (a difference quotient's end beyond a boundary of feasibility).
-    let results: Vec<Result<(Vec<f64>, Vec<f64>), bool>> = points
+    type Sample = (Vec<f64>, Vec<f64>);
+    let results: Vec<Result<Sample, bool>> = points
         .par_chunks(1024)
         .flat_map_iter(|chunk| {
             let out: Vec<_> = chunk
