@@ -14,7 +14,8 @@ box, time, coordinate and set. Then `verify --grid 6,6 --check 3` (4,4,4 in thre
 checks the verdicts against simulated starts. The exit status is 1 if a state escaped or a
 verdict disagreed. Only the CLI is used, so this checks what users run.
 
-    python3 tools/containment_fuzz.py --first 0 --count 20 [--exotic] [--class-k] [--binary PATH]
+    python3 tools/containment_fuzz.py --first 0 --count 20 [--exotic] [--class-k] [--high-order]
+        [--binary PATH]
 
 Standard settings: continuous (the defaults), continuous with --exact nowhere --face-local,
 continuous --transform auto, sampled (T_s = dt), euler, and every third seed continuous on the
@@ -33,11 +34,12 @@ import tempfile
 import time
 
 
-def generate(rng, index, class_k=False):
+def generate(rng, index, class_k=False, high_order=False):
     """A random scenario's text, its h as a Python function, and (n, dt). With `class_k`, the
     CBF's class-K function is a nonlinear function of h drawn from a stream of its own (the rest
-    of the system is the seed's, as without)."""
-    n = rng.choice([2, 2, 2, 3])
+    of the system is the seed's, as without). With `high_order`, a double integrator with a
+    drift whose obstacle is a bound on x1 alone, kept by `order = 2` (a high-order CBF)."""
+    n = 2 if high_order else rng.choice([2, 2, 2, 3])
     xs = [f"x{i + 1}" for i in range(n)]
     f = []
     for i in range(n):
@@ -54,7 +56,7 @@ def generate(rng, index, class_k=False):
         turn = rng.uniform(0.5, 2.0)
         f[0] = f"{f[0]} + {turn:.3f}*x2"
         f[1] = f"{f[1]} - {turn:.3f}*x1"
-    if n == 2 and rng.random() < 0.3:
+    if n == 2 and (rng.random() < 0.3 or high_order):
         # A double integrator with a drift: one input on the velocity.
         m = 1
         f = [f"x2 + {f[0]}", f[1]]
@@ -84,6 +86,15 @@ def generate(rng, index, class_k=False):
 
         def h_of(p, c=c):
             return c - p[0] - 0.3 * p[1]
+    if high_order:
+        c = rng.uniform(1.2, 2.2)
+        h = f"{c:.3f} - x1 - {rng.uniform(0, 0.1):.3f}*x1^3" if rng.random() < 0.5 \
+            else f"{c:.3f} - x1"
+        h = h if rng.random() < 0.7 else f"(x1 - {c:.3f})^2 - 0.09"
+        text_h = h
+
+        def h_of(p, text_h=text_h):
+            return eval(text_h.replace("^", "**"), {}, {"x1": p[0], "x2": p[1]})
     alpha = rng.choice([0.5, 1.0, 2.0, 3.0])
     if class_k:
         own = random.Random(7919 * index + 1)
@@ -104,6 +115,8 @@ def generate(rng, index, class_k=False):
     text += f"inputs = {json.dumps([f'u{i + 1}' for i in range(m)])}\n"
     text += f"f = {json.dumps(f)}\ng = {json.dumps(g)}\nkappa = {json.dumps(kappa)}\n"
     text += f'[[cbf]]\nname = "obstacle"\nh = "{h}"\nalpha = {alpha}\n'
+    if high_order:
+        text += "order = 2\n"
     if rng.random() < 0.3:
         b = rng.uniform(2, 5)
         text += f"[input_bounds]\nlower = {[-b] * m}\nupper = {[b] * m}\n"
@@ -213,6 +226,8 @@ def main():
     parser.add_argument("--exotic", action="store_true", help="the rarer settings")
     parser.add_argument("--class-k", action="store_true",
                         help="nonlinear class-K functions (a·h + b·h³, a·h + b·h², a·tanh(b·h))")
+    parser.add_argument("--high-order", action="store_true",
+                        help="double integrators with a bound on x1 kept by order = 2")
     parser.add_argument("--binary", default="target/release/cbfreach")
     parser.add_argument("--dir", help="where the scenarios go (default: a temporary folder)")
     args = parser.parse_args()
@@ -226,7 +241,7 @@ def main():
 
     escapes = 0
     for index in range(args.first, args.first + args.count):
-        text, h_of, n, dt = generate(random.Random(index), index, args.class_k)
+        text, h_of, n, dt = generate(random.Random(index), index, args.class_k, args.high_order)
         scenario = os.path.join(folder, f"fuzz{index}.toml")
         with open(scenario, "w") as fh:
             fh.write(text)
