@@ -8,8 +8,8 @@ use cbfreach::error_map::{error_map_path, ErrorMap};
 use cbfreach::output::check_writable;
 use cbfreach::provenance::restamp;
 use cbfreach::surrogate_error::{
-    certify, looseness, measure, measurement_size, ErrorSettings, Looseness, Percentiles,
-    SlopeByCurvature, CURVATURE_BANDS, MAX_MEASUREMENT_POINTS, WITNESS_CELLS,
+    asked_counts, certify, looseness, measure, measurement_size, ErrorSettings, Looseness,
+    Percentiles, SlopeByCurvature, CURVATURE_BANDS, MAX_MEASUREMENT_POINTS, WITNESS_CELLS,
 };
 use serde::Serialize;
 
@@ -213,12 +213,7 @@ pub fn run(args: &ErrorArgs) -> CliResult {
         "measured on {} points of C ∩ S ({} grid points and {} on C's boundary, {} infeasible skipped):",
         measured.samples, measured.grid_points, measured.boundary_points, measured.infeasible
     );
-    let asked: Vec<usize> = s
-        .training
-        .grid
-        .iter()
-        .map(|&k| k.max(2) * args.refine.max(1))
-        .collect();
+    let asked = asked_counts(&s, &settings);
     if measured.counts != asked {
         println!(
             "  the grid is {} points per axis: --refine {} would measure {:.0} points, more than the {} allowed",

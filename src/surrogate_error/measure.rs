@@ -163,18 +163,36 @@ pub fn slope_by_curvature(
 /// [`measurement_size`]) when the measurement grid's counts come from the training grid:
 /// [`ErrorSettings::refine`] is lowered evenly on every axis until they fit. Twice the
 /// training grid per axis is `2ⁿ` times its points, 64 times in six states, where one
-/// measurement took 18 GB before this cap. Every shipped scenario measures fewer (≤ 400,000).
+/// measurement grew past 19 GB before this cap. Every shipped scenario measures fewer (≤ 400,000).
 pub const MAX_MEASUREMENT_POINTS: usize = 1 << 20;
 
 /// An explicit [`ErrorSettings::grid`] larger than this is refused (about 1.5 GB of samples).
 pub const MAX_EXPLICIT_MEASUREMENT_POINTS: usize = 4 << 20;
 
-/// Points per axis of the measurement grid: [`ErrorSettings::grid`], or
-/// [`ErrorSettings::refine`] times the training grid's, at most [`MAX_MEASUREMENT_POINTS`]
-/// in all.
+/// Points per axis of the measurement grid as asked: [`ErrorSettings::grid`], or
+/// [`ErrorSettings::refine`] times the training grid's ([`measurement_counts`] caps the
+/// latter).
+pub fn asked_counts(s: &Scenario, settings: &ErrorSettings) -> Vec<usize> {
+    match settings.grid.as_ref().filter(|g| g.len() == s.n()) {
+        Some(g) => g.iter().map(|&k| k.max(1)).collect(),
+        None => s
+            .training
+            .grid
+            .iter()
+            .map(|&k| k.max(2) * settings.refine.max(1))
+            .collect(),
+    }
+}
+
+/// Points per axis of the measurement grid: [`asked_counts`], the training grid's refined at
+/// most to [`MAX_MEASUREMENT_POINTS`] in all.
 pub fn measurement_counts(s: &Scenario, settings: &ErrorSettings) -> Vec<usize> {
-    if let Some(g) = settings.grid.as_ref().filter(|g| g.len() == s.n()) {
-        return g.iter().map(|&k| k.max(1)).collect();
+    let asked = asked_counts(s, settings);
+    let wanted = measurement_size(&asked);
+    if settings.grid.as_ref().is_some_and(|g| g.len() == s.n())
+        || wanted <= MAX_MEASUREMENT_POINTS as f64
+    {
+        return asked;
     }
     let training: Vec<f64> = s.training.grid.iter().map(|&k| k.max(2) as f64).collect();
     let counts = |r: f64| -> Vec<usize> {
@@ -184,10 +202,6 @@ pub fn measurement_counts(s: &Scenario, settings: &ErrorSettings) -> Vec<usize> 
             .collect()
     };
     let refine = settings.refine.max(1) as f64;
-    let wanted = measurement_size(&counts(refine));
-    if wanted <= MAX_MEASUREMENT_POINTS as f64 {
-        return counts(refine);
-    }
     // Evenly on every axis, then down by 1 % until the points fit (the faces' share moves).
     let n = training.len().max(1) as f64;
     let mut r = refine * (MAX_MEASUREMENT_POINTS as f64 / wanted).powf(1.0 / n);

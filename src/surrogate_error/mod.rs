@@ -46,7 +46,7 @@ pub use certify::{
 };
 pub use looseness::{looseness, Looseness, Ratio};
 pub use measure::{
-    centred_grid, measure, measurement_counts, measurement_points, measurement_size,
+    asked_counts, centred_grid, measure, measurement_counts, measurement_points, measurement_size,
     secant_slope_errors, slope_by_curvature, CurvatureBand, Measured, Percentiles,
     SlopeByCurvature, CURVATURE_BANDS, CURVATURE_POINTS, MAX_EXPLICIT_MEASUREMENT_POINTS,
     MAX_MEASUREMENT_POINTS,
