@@ -62,6 +62,35 @@ pub fn per_axis_within(n: usize, cells: usize, most: usize) -> usize {
     (2..=most).rev().find(|&k| fits(k)).unwrap_or(1)
 }
 
+/// The points of an equispaced grid with `counts[i]` points along axis i, both ends included,
+/// axis 0 fastest.
+pub fn grid_points(region: &IntervalBox, counts: &[usize]) -> Vec<Vec<f64>> {
+    let n = region.dim();
+    let total: usize = counts.iter().product();
+    (0..total)
+        .map(|mut k| {
+            (0..n)
+                .map(|i| {
+                    let j = k % counts[i];
+                    k /= counts[i];
+                    lattice_coordinate(region, i, j, counts[i])
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// Coordinate `i` of point `j` of `count` equispaced points over the region's axis `i`: the
+/// ends exact, interior points by interpolation.
+pub(crate) fn lattice_coordinate(region: &IntervalBox, i: usize, j: usize, count: usize) -> f64 {
+    if j + 1 == count {
+        region.upper[i]
+    } else {
+        let s = j as f64 / (count.max(2) - 1) as f64;
+        region.lower[i] + s * (region.upper[i] - region.lower[i])
+    }
+}
+
 impl IntervalBox {
     /// A box, checked: equal lengths, finite corners, `lower ≤ upper` on every axis.
     /// The error says which axis is wrong and how.
@@ -186,26 +215,6 @@ impl IntervalBox {
             .collect()
     }
 
-    /// The nodes of the grid of `per_axis` equal cells along every axis, corners included:
-    /// `(per_axis + 1)ⁿ` points, axis 0 fastest. The caller bounds their number
-    /// ([`per_axis_within`]).
-    pub fn nodes(&self, per_axis: usize) -> Vec<Vec<f64>> {
-        let (n, k) = (self.dim(), per_axis.max(1));
-        let count = (k + 1).pow(n as u32);
-        (0..count)
-            .map(|mut i| {
-                let s: Vec<f64> = (0..n)
-                    .map(|_| {
-                        let j = i % (k + 1);
-                        i /= k + 1;
-                        j as f64 / k as f64
-                    })
-                    .collect();
-                self.point_at(&s)
-            })
-            .collect()
-    }
-
     /// The box cut into `counts[i]` equal cells along axis i, axis 0 fastest. The caller
     /// bounds the number of cells (`Π counts[i]`; checked against overflow here).
     pub fn partition(&self, counts: &[usize]) -> Vec<IntervalBox> {
@@ -273,9 +282,9 @@ mod tests {
     }
 
     #[test]
-    fn nodes_run_from_corner_to_corner_axis_0_fastest() {
+    fn grid_points_run_from_corner_to_corner_axis_0_fastest() {
         let b = IntervalBox::new(vec![0.0, -1.0], vec![1.0, 1.0]).unwrap();
-        let nodes = b.nodes(2);
+        let nodes = grid_points(&b, &[3, 3]);
         assert_eq!(nodes.len(), 9);
         assert_eq!(nodes[0], vec![0.0, -1.0]);
         assert_eq!(nodes[1], vec![0.5, -1.0]);

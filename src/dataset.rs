@@ -11,10 +11,12 @@
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::boxes::IntervalBox;
+use crate::boxes::{lattice_coordinate, IntervalBox};
 use crate::filter::SafetyFilter;
 use crate::network::train::{Dataset, Oracle, SampleSlopes};
 use crate::scenario::Scenario;
+
+pub use crate::boxes::grid_points;
 
 /// What building a data set found.
 #[derive(Clone, Debug, Default, Serialize)]
@@ -44,35 +46,6 @@ impl DatasetSummary {
         self.infeasible_in_s += other.infeasible_in_s;
         self.unsafe_samples += other.unsafe_samples;
         self.active_samples += other.active_samples;
-    }
-}
-
-/// The points of an equispaced grid with `counts[i]` points along axis i, both ends included,
-/// axis 0 fastest.
-pub fn grid_points(region: &IntervalBox, counts: &[usize]) -> Vec<Vec<f64>> {
-    let n = region.dim();
-    let total: usize = counts.iter().product();
-    (0..total)
-        .map(|mut k| {
-            (0..n)
-                .map(|i| {
-                    let j = k % counts[i];
-                    k /= counts[i];
-                    lattice_coordinate(region, i, j, counts[i])
-                })
-                .collect()
-        })
-        .collect()
-}
-
-/// Coordinate `i` of point `j` of `count` equispaced points over the region's axis `i`: the
-/// ends exact, interior points by interpolation.
-fn lattice_coordinate(region: &IntervalBox, i: usize, j: usize, count: usize) -> f64 {
-    if j + 1 == count {
-        region.upper[i]
-    } else {
-        let s = j as f64 / (count.max(2) - 1) as f64;
-        region.lower[i] + s * (region.upper[i] - region.lower[i])
     }
 }
 

@@ -172,7 +172,9 @@ pub fn inert_cbfs(s: &Scenario) -> Vec<Inert> {
     // The CBFs' rows come first, in order.
     let (_, b) = row_expressions(s, false);
     let region = &s.reach.region;
-    let nodes = region.nodes(crate::boxes::per_axis_within(region.dim(), 1024, 32));
+    let n = region.dim();
+    let k = crate::boxes::per_axis_within(n, 1024, 32);
+    let nodes = crate::boxes::grid_points(region, &vec![k + 1; n]);
     inert
         .into_iter()
         .map(|k| {

@@ -344,18 +344,21 @@ impl<'a> SafetyFilter<'a> {
     /// a 6-state double integrator by 5·10⁻⁵), where the QP would end the trajectory. There the
     /// row is taken as slack, as every enclosure of `v` takes it (design §1).
     pub fn field_on_trajectories(&self, x: &[f64]) -> Result<Vec<f64>, FilterError> {
-        let kept = self.kept_inert.get_or_init(|| {
-            inert_cbfs(self.scenario)
-                .into_iter()
-                .filter(|i| i.kept_by.is_some())
-                .map(|i| i.index)
-                .collect()
-        });
+        // The rows are found on the first infeasible QP, not on every filter's first call.
+        let kept = || {
+            self.kept_inert.get_or_init(|| {
+                inert_cbfs(self.scenario)
+                    .into_iter()
+                    .filter(|i| i.kept_by.is_some())
+                    .map(|i| i.index)
+                    .collect()
+            })
+        };
         match self.closed_loop(x) {
-            Err(FilterError::Infeasible { .. }) if !kept.is_empty() => {
+            Err(FilterError::Infeasible { .. }) if !kept().is_empty() => {
                 // The CBFs' rows come first, in order.
                 let mut rows = self.constraint_rows(x)?;
-                for &k in kept {
+                for &k in kept() {
                     rows.q[k] = rows.q[k].max(0.0);
                 }
                 match self.solve_rows(&rows, x)? {

@@ -87,11 +87,11 @@ impl ClassK {
     }
 
     /// Why `α` is not a class-K function on `[0, h_max]` (`h_max()`: the largest `h` on `C`,
-    /// asked for by a function alone), or `None`: a gain must be positive; a function must have `α(0) = 0` (its f64 value, and
-    /// its outward-rounded enclosure within [`ZERO_WITHIN`] of 0), a finite slope
-    /// at 0 (Lipschitz there: `√h` is not, and uniqueness of the filtered system's
-    /// trajectories, hence the invariance of `S`, needs it), and be positive and increasing
-    /// at [`CHECK_POINTS`] points of `(0, h_max]`.
+    /// asked for by a function alone), or `None`: a gain must be positive; a function must have
+    /// `α(0) = 0` (its f64 value, and its outward-rounded enclosure within [`ZERO_WITHIN`] of
+    /// 0), a finite slope at 0 (Lipschitz there: `√h` is not, and uniqueness of the filtered
+    /// system's trajectories, hence the invariance of `S`, needs it), and be positive and
+    /// increasing at [`CHECK_POINTS`] points of `(0, h_max]`.
     pub fn check(&self, h_max: impl FnOnce() -> f64) -> Option<String> {
         if let Some(a) = self.gain {
             return (!(a.is_finite() && a > 0.0))

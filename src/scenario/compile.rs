@@ -2,7 +2,7 @@
 //! into expression trees and plain arrays ([`super::Scenario`]); every error names the file and
 //! the key.
 
-use super::high_order::alpha_key;
+use super::high_order::{alpha_key, level_key};
 use super::values::{compile_periodic, resolve_parameters};
 use super::*;
 
@@ -319,11 +319,7 @@ impl ScenarioFile {
         // NaN or ∞ somewhere in C: found by interval evaluation, confirmed at a point.
         let mut exprs: Vec<(String, &Expr)> = Vec::new();
         for cb in &cbfs {
-            let key = match cb.level {
-                0 => format!("cbf[{}].h", cb.section),
-                k => format!("cbf[{}].order (ψ{k})", cb.section),
-            };
-            exprs.push((key, &cb.h));
+            exprs.push((level_key(cb.section, cb.level), &cb.h));
         }
         for (i, e) in f.iter().enumerate() {
             exprs.push((format!("system.f[{i}]"), e));

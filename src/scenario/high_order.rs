@@ -22,8 +22,17 @@ pub(super) fn alpha_key(i: usize, alpha: &Alpha, level: usize) -> String {
     }
 }
 
+/// The key naming the expression of level `level` of section `i`: its `h`, or its `order`
+/// (which wrote `ψ_level`).
+pub(super) fn level_key(i: usize, level: usize) -> String {
+    match level {
+        0 => format!("cbf[{i}].h"),
+        k => format!("cbf[{i}].order (ψ{k})"),
+    }
+}
+
 /// The name of level `level` of the CBF named `name`.
-pub fn level_name(name: &str, level: usize) -> String {
+fn level_name(name: &str, level: usize) -> String {
     match level {
         0 => name.to_string(),
         k => format!("{name}.psi{k}"),
@@ -70,12 +79,8 @@ impl Compiler<'_> {
         let mut levels = Vec::with_capacity(order);
         for (level, alpha) in alphas.into_iter().enumerate() {
             // Before differentiating: the filter's rows differentiate ∇ψ·f̃ again.
-            let size_key = match level {
-                0 => format!("{key}.h"),
-                _ => format!("{key}.order"),
-            };
             limits::check_derivative_size(&h, Some(f_tilde))
-                .map_err(|m| self.invalid(size_key, format!("ψ{level}: {m}")))?;
+                .map_err(|m| self.invalid(level_key(i, level), m))?;
             let alpha = self.class_k(&alpha_key(i, &cb.alpha, level), alpha)?;
             let gradient = expressions::gradient(&h, n);
             let inert = (0..m).all(|j| {

@@ -148,8 +148,9 @@ const SAMPLE_NODES: usize = 4096;
 /// over `region` (corners included): where a CBF's `α` must be class-K, `h`'s range on `C`
 /// (sampled, so a guard against a mistyped `α`, not a proof). −∞ where no node is finite.
 pub fn largest_on(region: &IntervalBox, e: &Expr) -> f64 {
-    let k = crate::boxes::per_axis_within(region.dim(), SAMPLE_NODES, 64);
-    (region.nodes(k).iter())
+    let n = region.dim();
+    let k = crate::boxes::per_axis_within(n, SAMPLE_NODES, 64);
+    (crate::boxes::grid_points(region, &vec![k + 1; n]).iter())
         .map(|x| e.eval(x))
         .filter(|v| v.is_finite())
         .fold(f64::NEG_INFINITY, f64::max)

@@ -31,7 +31,7 @@ mod values;
 
 pub use class_k::ClassK;
 pub use file::*;
-pub use high_order::{level_name, MAX_ORDER};
+pub use high_order::MAX_ORDER;
 pub use values::Periodic;
 
 /// The built-in default scenario (the paper's scenario 1), so that `cbfreach` runs anywhere.

@@ -274,3 +274,44 @@ fn closed_form_step_matches_the_cpu_engines_step() {
         }
     }
 }
+
+/// A high-order CBF written out ([`common::high_order_wall`]): the position bound's row, which
+/// no input acts on, is made slack in the device's `filter_rows` as in the CPU's `v_rows`
+/// (design §1). Boxes straddling `ψ = 0`, where that row's `b` takes both signs, under
+/// `exact = "closed-form"` with and without the lattice: the same sources, sets and rates as
+/// the CPU's step ([`compare_steps`]).
+#[test]
+fn a_high_order_cbfs_step_matches_the_cpu_engines_step() {
+    let Some(g) = gpu_f64() else { return };
+    let s = common::high_order_wall("horizon = 1");
+    let problem = ReachProblem::new(&s, small_network(&[2, 16, 16, 1], 3, 0.05), 0.05)
+        .unwrap()
+        .with_time(TimeModel::Continuous, 1);
+    // On ψ = 0: x₂ = h(x₁)/(1 + 0.3x₁²).
+    let init = boxes(
+        &[
+            [0.9, 0.42],
+            [0.6, 0.79],
+            [1.1, 0.2],
+            [0.3, 1.16],
+            [0.0, 1.5],
+            [-0.5, 1.6],
+        ],
+        0.05,
+    );
+    for lattice in [false, true] {
+        let st = ReachSettings {
+            face_local: true,
+            exact: ExactField::ClosedForm,
+            lattice,
+            ..settings(ReachMethod::Disturbance)
+        };
+        let mut seen = Seen::default();
+        compare_steps(&g, &problem, &st, &init, 12, &mut seen);
+        eprintln!("high-order wall, lattice {lattice}: {seen:?}");
+        assert!(
+            seen.compared >= 30 && seen.enclosed > 0,
+            "lattice {lattice}: {seen:?}"
+        );
+    }
+}

@@ -187,6 +187,8 @@ pub fn proven_safe(scenario: &Scenario, c: usize, b: &IntervalBox) -> (bool, boo
 mod tests {
     use super::super::tests::{scenario_alpha, scenario_with};
     use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
 
     /// [`Plant::keeps`] against the exact held motion of the double integrator past the disc
     /// obstacle, where `ḧ = 2x₂² + 2(x₁ − 2)u + 2u²` takes both signs: from random states in `S`
@@ -209,13 +211,8 @@ mod tests {
         );
         let plant = Plant::of(&s);
         let h = |x: [f64; 2]| (x[0] - 2.0).powi(2) + x[1] * x[1] - 1.0;
-        let mut seed = 7u64;
-        let mut uniform = |lo: f64, hi: f64| {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            lo + (hi - lo) * ((seed >> 11) as f64 / (1u64 << 53) as f64)
-        };
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let mut uniform = |lo: f64, hi: f64| rng.random_range(lo..hi);
         let (mut proofs, mut exits) = (0, 0);
         for trial in 0..40_000 {
             // Near the disc, where the held input can carry the state into it.
