@@ -5,7 +5,8 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
-use super::{Chart, DrawError, View, DARK, OBSTACLE};
+use super::shadow::{Shade, Shadow};
+use super::{Chart, DrawError, View, DARK, OBSTACLE, SHADOW};
 use crate::boxes::IntervalBox;
 use crate::scenario::Scenario;
 
@@ -79,19 +80,38 @@ pub(super) fn axes<'a, DB: DrawingBackend<ErrorType: 'static>>(
     Ok(chart)
 }
 
+/// The unsafe set's shading of a picture: where it lies over every value of the projected
+/// states (in a slice or a planar picture: where it is) and where over some ([`Shadow`]).
+#[derive(Debug, Default, PartialEq)]
+pub(super) struct Shading<T> {
+    pub(super) every: Vec<T>,
+    pub(super) some: Vec<T>,
+}
+
+impl<T> Shading<T> {
+    fn is_empty(&self) -> bool {
+        self.every.is_empty() && self.some.is_empty()
+    }
+
+    /// The same shading in other coordinates (bands as rectangles).
+    pub(super) fn map<U>(&self, f: impl Fn(&T) -> U) -> Shading<U> {
+        Shading {
+            every: self.every.iter().map(&f).collect(),
+            some: self.some.iter().map(&f).collect(),
+        }
+    }
+}
+
 /// The unsafe set over the view's plane as rectangles: runs of a grid at about two pixels of
-/// a `pixels`-sized picture where some `hᵢ < 0` at the grid point, merged along each row (a
-/// sampled picture, not a proof). In a projection (some state neither drawn nor sliced) there
-/// is no one point to ask, and nothing is returned.
+/// a `pixels`-sized picture, merged along each row by their [`Shade`] at the grid points (a
+/// sampled picture, not a proof).
 pub(super) fn unsafe_rects(
     view: &View,
     scenario: &Scenario,
     region: &IntervalBox,
     pixels: (u32, u32),
-) -> Vec<[(f64, f64); 2]> {
-    if !view.is_whole(scenario.n()) {
-        return Vec::new();
-    }
+) -> Shading<[(f64, f64); 2]> {
+    let shadow = Shadow::new(view, scenario, region);
     let plane = view.plane(region);
     let (nx, ny) = (
         (pixels.0 / 2).max(8) as usize,
@@ -99,62 +119,82 @@ pub(super) fn unsafe_rects(
     );
     let (x0, y0) = (plane.lower[0], plane.lower[1]);
     let (dx, dy) = (plane.widths()[0] / nx as f64, plane.widths()[1] / ny as f64);
-    let mut rects = Vec::new();
+    let mut shading = Shading::default();
     for j in 0..ny {
         let y = y0 + (j as f64 + 0.5) * dy;
-        let mut run: Option<usize> = None;
+        let mut run = (0, Shade::Clear);
         for i in 0..=nx {
-            let unsafe_here = i < nx && {
-                let x = view.lift(region, x0 + (i as f64 + 0.5) * dx, y);
-                !scenario.is_safe(&x)
+            let shade = match i < nx {
+                true => shadow.at(x0 + (i as f64 + 0.5) * dx, y),
+                false => Shade::Clear,
             };
-            match (unsafe_here, run) {
-                (true, None) => run = Some(i),
-                (false, Some(from)) => {
-                    let rect = [
-                        (x0 + from as f64 * dx, y0 + j as f64 * dy),
-                        (x0 + i as f64 * dx, y0 + (j + 1) as f64 * dy),
-                    ];
-                    rects.push(rect);
-                    run = None;
-                }
-                _ => {}
+            if shade == run.1 {
+                continue;
             }
+            let rect = [
+                (x0 + run.0 as f64 * dx, y0 + j as f64 * dy),
+                (x0 + i as f64 * dx, y0 + (j + 1) as f64 * dy),
+            ];
+            match run.1 {
+                Shade::Every => shading.every.push(rect),
+                Shade::Some => shading.some.push(rect),
+                Shade::Clear => {}
+            }
+            run = (i, shade);
         }
     }
-    rects
+    shading
 }
 
-/// The unsafe set's rectangles over the view's plane for a picture of `root`'s size, and its
-/// legend entry where there are any.
+/// Which of a shading's tones a picture draws.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Tones {
+    /// The unsafe set over every value of the projected states, and its pale shadow.
+    Both,
+    /// Only over every value: where the pale shadow would hide the picture's data.
+    Every,
+}
+
+/// The unsafe set's shading over the view's plane for a picture of `root`'s size in `tones`,
+/// and its legend entries where there are any.
 pub(super) fn unsafe_layer<DB: DrawingBackend>(
     root: &DrawingArea<DB, Shift>,
     legend: &mut Legend,
     view: &View,
     scenario: &Scenario,
     region: &IntervalBox,
-) -> Vec<[(f64, f64); 2]> {
-    let rects = unsafe_rects(view, scenario, region, root.dim_in_pixel());
-    if !rects.is_empty() {
-        legend.push_unsafe();
+    tones: Tones,
+) -> Shading<[(f64, f64); 2]> {
+    let mut shading = unsafe_rects(view, scenario, region, root.dim_in_pixel());
+    if tones == Tones::Every {
+        shading.some.clear();
     }
-    rects
+    legend.push_unsafe(&Shadow::new(view, scenario, region), &shading);
+    shading
 }
 
 /// The unsafe set's bands along the view's drawn state over `range` (400 of them: [`unsafe_bands`]),
-/// and its legend entry where there are any: the shading of the pictures over one state.
+/// and its legend entries where there are any: the shading of the pictures over one state.
 pub(super) fn unsafe_band_layer(
     legend: &mut Legend,
     view: &View,
     scenario: &Scenario,
     region: &IntervalBox,
     range: (f64, f64),
-) -> Vec<(f64, f64)> {
-    let bands = unsafe_bands(view, scenario, region, range, 400);
-    if !bands.is_empty() {
-        legend.push_unsafe();
-    }
-    bands
+) -> Shading<(f64, f64)> {
+    let shading = unsafe_bands(view, scenario, region, range, 400);
+    legend.push_unsafe(&Shadow::new(view, scenario, region), &shading);
+    shading
+}
+
+/// Draws a shading: the unsafe set over some values of the projected states pale, over every
+/// value (or, in a slice, the set itself) as the unsafe set.
+pub(super) fn draw_shading<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
+    chart: &mut Chart<'a, DB>,
+    shading: &Shading<[(f64, f64); 2]>,
+) -> Result<(), DrawError> {
+    draw_rects(chart, &shading.some, SHADOW.filled())?;
+    draw_rects(chart, &shading.every, OBSTACLE.filled())
 }
 
 /// Rectangles of the chart's coordinates, filled or outlined as `style` says.
@@ -211,9 +251,32 @@ impl Legend {
         }
     }
 
-    /// The unsafe set's entry: its shading's swatch.
-    pub(super) fn push_unsafe(&mut self) {
-        self.push("unsafe set (some h < 0)", Swatch::Rect(OBSTACLE.filled()));
+    /// The unsafe set's entries, for the tones `shading` has: in a projection they say over
+    /// which states the set is seen.
+    pub(super) fn push_unsafe<T>(&mut self, shadow: &Shadow, shading: &Shading<T>) {
+        if shading.is_empty() {
+            return;
+        }
+        let names: Vec<&str> = shadow.projected().collect();
+        let over = match names.len() {
+            0 => {
+                self.push("unsafe set (some h < 0)", Swatch::Rect(OBSTACLE.filled()));
+                return;
+            }
+            1..=4 => names.join(", "),
+            k => format!("the {k} projected states"),
+        };
+        if !shading.every.is_empty() {
+            let label = format!("unsafe set (some h < 0) for every {over}");
+            self.push(label, Swatch::Rect(OBSTACLE.filled()));
+        }
+        if !shading.some.is_empty() {
+            let label = match shadow.has_levels() {
+                true => format!("some h < 0 as written (not ψ) for some {over}"),
+                false => format!("unsafe for some {over}"),
+            };
+            self.push(label, Swatch::Rect(SHADOW.filled()));
+        }
     }
 
     fn font(&self) -> TextStyle<'static> {
@@ -331,28 +394,31 @@ pub(super) fn box_series<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
     Ok(())
 }
 
-/// The intervals of `bands` equal bands of `[lo, hi]` along the view's drawn state (`view.y`)
-/// where some `hᵢ < 0` at the band's centre, for pictures over one state (time or the error
-/// along it); the other states at the view's slices. In a projection (some state neither
-/// drawn nor sliced) there is no one point to ask, and nothing is returned.
+/// The shading of `bands` equal bands of `[lo, hi]` along the view's drawn state (`view.y`)
+/// by their [`Shade`] at the band's centre, for pictures over one state (time or the error
+/// along it); the other states at the view's slices, or projected. Only the unsafe set over
+/// every value of projected states is kept: along one state the pale shadow of an obstacle
+/// in the others covers much of the picture (x2 over time past spheres3d's two spheres:
+/// 2.8 of its 5 units) and says little.
 pub(super) fn unsafe_bands(
     view: &View,
     scenario: &Scenario,
     region: &IntervalBox,
     (lo, hi): (f64, f64),
     bands: usize,
-) -> Vec<(f64, f64)> {
-    if !view.is_whole(scenario.n()) {
-        return Vec::new();
-    }
+) -> Shading<(f64, f64)> {
+    let shadow = Shadow::new(view, scenario, region);
     let w = (hi - lo) / bands as f64;
-    (0..bands)
-        .map(|k| (lo + k as f64 * w, lo + (k + 1) as f64 * w))
-        .filter(|&(a, b)| {
-            let mid = 0.5 * (a + b);
-            !scenario.is_safe(&view.lift(region, mid, mid))
-        })
-        .collect()
+    let mut shading = Shading::default();
+    for k in 0..bands {
+        let band = (lo + k as f64 * w, lo + (k + 1) as f64 * w);
+        let mid = 0.5 * (band.0 + band.1);
+        match shadow.at(mid, mid) {
+            Shade::Every => shading.every.push(band),
+            Shade::Some | Shade::Clear => {}
+        }
+    }
+    shading
 }
 
 #[cfg(test)]
@@ -410,7 +476,9 @@ mod tests {
         .unwrap();
         let region = scenario.reach.region.clone();
         let view = View::first(scenario.n());
-        let rects = unsafe_rects(&view, &scenario, &region, (400, 300));
+        let shading = unsafe_rects(&view, &scenario, &region, (400, 300));
+        assert!(shading.some.is_empty(), "a planar picture has no shadow");
+        let rects = shading.every;
         let inside = |x: f64, y: f64| {
             (rects.iter()).any(|r| r[0].0 <= x && x <= r[1].0 && r[0].1 <= y && y <= r[1].1)
         };

@@ -6,7 +6,10 @@
 
 use std::collections::BTreeMap;
 
-use super::chart::{any_kept, axes, draw_rects, unsafe_band_layer, unsafe_layer, Legend, Swatch};
+use super::chart::{
+    any_kept, axes, draw_rects, draw_shading, unsafe_band_layer, unsafe_layer, Legend, Swatch,
+    Tones,
+};
 use super::*;
 
 /// A verdict map's title: the share verified with the QP proven feasible on every set first,
@@ -356,7 +359,14 @@ pub(super) fn draw_error_map<DB: DrawingBackend<ErrorType: 'static>>(
             }
         }
     }
-    let total: f64 = classes.iter().flatten().map(IntervalBox::volume).sum();
+    // Shares of the map's volume, or in a projection of the plane's area (the grid cells'
+    // boxes are flat along the projected states).
+    let whole = view.is_whole(scenario.n());
+    let size = |b: &IntervalBox| match whole {
+        true => b.volume(),
+        false => view.plane(b).volume(),
+    };
+    let total: f64 = classes.iter().flatten().map(size).sum();
     let mut legend = Legend::default();
     for (class, boxes) in classes
         .iter()
@@ -364,7 +374,7 @@ pub(super) fn draw_error_map<DB: DrawingBackend<ErrorType: 'static>>(
         .filter(|(_, b)| any_kept(view, b))
     {
         let colour = error_colour(class);
-        let area: f64 = boxes.iter().map(IntervalBox::volume).sum();
+        let area: f64 = boxes.iter().map(size).sum();
         let label = format!(
             "{} ({} of the mapped area)",
             error_class_label(class),
@@ -372,7 +382,9 @@ pub(super) fn draw_error_map<DB: DrawingBackend<ErrorType: 'static>>(
         );
         legend.push(label, Swatch::Rect(colour.filled()));
     }
-    let shaded = unsafe_layer(root, &mut legend, view, scenario, region);
+    // Over the cells only where every projected value is unsafe: the pale shadow would hide
+    // the largest bound above points that are partly safe.
+    let shaded = unsafe_layer(root, &mut legend, view, scenario, region, Tones::Every);
     let goal = std::slice::from_ref(&scenario.reach.goal);
     if any_kept(view, goal) {
         legend.push("goal set", Swatch::Rect(BLUE.stroke_width(2)));
@@ -383,7 +395,7 @@ pub(super) fn draw_error_map<DB: DrawingBackend<ErrorType: 'static>>(
         let colour = error_colour(class);
         box_series(&mut chart, view, boxes, region, colour.filled())?;
     }
-    draw_rects(&mut chart, &shaded, OBSTACLE.filled())?;
+    draw_shading(&mut chart, &shaded)?;
     // Uncertified cells are few and tiny (where `L_g h = 0` on S's boundary): ring them, over
     // the shading of the unsafe set they straddle.
     let uncertified = &classes[uncertified_class];
@@ -485,8 +497,7 @@ pub(super) fn draw_error_map_along<DB: DrawingBackend<ErrorType: 'static>>(
     );
     let (area, strip) = legend.split(root);
     let mut chart = axes(&area, &title, [(lo, hi), (0.0, top)], names)?;
-    let shaded: Vec<[(f64, f64); 2]> = shaded.iter().map(|&(a, b)| [(a, 0.0), (b, top)]).collect();
-    draw_rects(&mut chart, &shaded, OBSTACLE.filled())?;
+    draw_shading(&mut chart, &shaded.map(|&(a, b)| [(a, 0.0), (b, top)]))?;
     for (bars, style) in &classes {
         draw_rects(&mut chart, bars, *style)?;
     }
@@ -553,6 +564,41 @@ mod tests {
         assert_eq!(cells.len(), 8);
         let total: f64 = cells.iter().map(|c| c.1).sum();
         assert!((total - 1.0).abs() < 1e-12, "{total}");
+    }
+
+    /// A projected error map's legend gives each class's share of the plane's area (its grid
+    /// cells' boxes are flat along the projected state: by volume every share read "< 0.1%").
+    #[test]
+    fn a_projected_error_map_shares_the_planes_area() {
+        super::super::register_font();
+        let scenario = crate::scenario::Scenario::load(std::path::Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/scenarios/int3.toml"
+        )))
+        .unwrap();
+        // Two cells of int3's region split at x1 = 0.25: a quarter and three quarters.
+        let map: ErrorMap = serde_json::from_value(serde_json::json!({
+            "format": "cbfreach-errormap-1", "network": "t", "network_hash": "0",
+            "region": { "lower": [-1.0, -1.0, -1.5], "upper": [4.0, 4.0, 1.5] },
+            "norm": "inf", "measured_linf": 0.01, "measured_l2": 0.01, "certified_linf": 0.5,
+            "cells": [
+                { "lower": [-1.0, -1.0, -1.5], "upper": [0.25, 4.0, 1.5], "bound": 0.05 },
+                { "lower": [0.25, -1.0, -1.5], "upper": [4.0, 4.0, 1.5], "bound": 0.5 },
+            ],
+        }))
+        .unwrap();
+        let mut svg = String::new();
+        {
+            let root = SVGBackend::with_string(&mut svg, (600, 600)).into_drawing_area();
+            draw_error_map(&root, &View::default(), &scenario, &map).unwrap();
+            root.present().unwrap();
+        }
+        let text = svg.split_whitespace().collect::<Vec<_>>().join(" ");
+        for share in ["(25.0% of the mapped area)", "(75.0% of the mapped area)"] {
+            assert!(text.contains(share), "no `{share}`");
+        }
+        // The spheres' shadows are not drawn over the cells: no pale tone in the legend.
+        assert!(!text.contains("for some x3"), "the shadow hides the cells");
     }
 
     /// Each band carries the largest bound of the cells over it, cells that only touch a

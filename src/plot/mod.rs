@@ -13,7 +13,9 @@
 //!   large, tubes grow).
 //!
 //! The unsafe set is shaded cell by cell: a cell of a fine grid over the plot is grey when some
-//! `hᵢ < 0` at its centre (a picture, not a proof). Text uses the embedded DejaVu Sans
+//! `hᵢ < 0` at its centre (a picture, not a proof). Where states are projected it is shaded
+//! grey where it lies over the centre for every value of them and pale where for some
+//! (`shadow.rs`). Text uses the embedded DejaVu Sans
 //! (`assets/DejaVuSans.ttf`, license beside it), registered once as `sans-serif`.
 
 use std::path::Path;
@@ -34,6 +36,7 @@ use crate::verify::{BoxVerdict, Verdict, VerifyReport};
 mod chart;
 mod maps;
 mod planar;
+mod shadow;
 mod time;
 mod view;
 
@@ -363,6 +366,8 @@ const ORANGE: RGBColor = RGBColor(230, 159, 0);
 const PURPLE: RGBColor = RGBColor(204, 121, 167);
 const GREY: RGBColor = RGBColor(150, 150, 150);
 const OBSTACLE: RGBColor = RGBColor(205, 205, 205);
+/// The unsafe set's shadow in a projection: over some values of the projected states.
+const SHADOW: RGBColor = RGBColor(226, 226, 232);
 const DARK: RGBColor = RGBColor(60, 60, 60);
 
 fn verdict_colour(v: Verdict) -> RGBColor {

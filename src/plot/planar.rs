@@ -5,8 +5,10 @@
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::chart::{any_kept, box_series, chart, draw_rects, unsafe_layer, Legend, Swatch};
-use super::{Chart, DrawError, View, BLUE, DARK, GREEN, GREY, OBSTACLE, ORANGE, PURPLE, VERMILION};
+use super::chart::{
+    any_kept, box_series, chart, draw_shading, unsafe_layer, Legend, Swatch, Tones,
+};
+use super::{Chart, DrawError, View, BLUE, DARK, GREEN, GREY, ORANGE, PURPLE, VERMILION};
 use crate::boxes::IntervalBox;
 use crate::equilibria::{Equilibrium, Stability};
 use crate::reach::Tube;
@@ -209,14 +211,14 @@ pub(super) fn draw_trajectories<DB: DrawingBackend<ErrorType: 'static>>(
         scenario.name
     );
     let mut legend = Legend::default();
-    let shaded = unsafe_layer(root, &mut legend, view, scenario, region);
+    let shaded = unsafe_layer(root, &mut legend, view, scenario, region, Tones::Both);
     let classes = by_ending(scenario, trajectories, equilibria);
     legend_by_ending(&mut legend, &classes);
     let kinds = equilibrium_kinds(view, equilibria);
     legend_equilibria(&mut legend, &kinds);
     let (area, strip) = legend.split(root);
     let mut chart = chart(&area, view, scenario, region, &title)?;
-    draw_rects(&mut chart, &shaded, OBSTACLE.filled())?;
+    draw_shading(&mut chart, &shaded)?;
     draw_by_ending(&mut chart, &|_, x| view.point(x), &classes)?;
     draw_equilibria(&mut chart, &kinds)?;
     legend.draw(strip.as_ref())
@@ -285,7 +287,7 @@ pub(super) fn draw_tubes<DB: DrawingBackend<ErrorType: 'static>>(
 ) -> Result<(), DrawError> {
     let region = &scenario.reach.region;
     let mut legend = Legend::default();
-    let shaded = unsafe_layer(root, &mut legend, view, scenario, region);
+    let shaded = unsafe_layer(root, &mut legend, view, scenario, region, Tones::Both);
     let mut layers: Vec<BoxLayer> = Vec::new();
     for (k, tube) in tubes.iter().enumerate() {
         if split.iter().any(|&(i, _)| i == k) {
@@ -314,7 +316,7 @@ pub(super) fn draw_tubes<DB: DrawingBackend<ErrorType: 'static>>(
     legend_boxes(&mut legend, view, &layers);
     let (area, strip) = legend.split(root);
     let mut chart = chart(&area, view, scenario, region, title)?;
-    draw_rects(&mut chart, &shaded, OBSTACLE.filled())?;
+    draw_shading(&mut chart, &shaded)?;
     draw_boxes(&mut chart, view, region, &layers)?;
     legend.draw(strip.as_ref())
 }
@@ -333,7 +335,7 @@ pub(super) fn draw_minkowski<DB: DrawingBackend<ErrorType: 'static>>(
         scenario.name
     );
     let mut legend = Legend::default();
-    let shaded = unsafe_layer(root, &mut legend, view, scenario, region);
+    let shaded = unsafe_layer(root, &mut legend, view, scenario, region, Tones::Both);
     let mut inflated = Vec::new();
     let mut nn = Vec::new();
     for tube in tubes {
@@ -363,7 +365,7 @@ pub(super) fn draw_minkowski<DB: DrawingBackend<ErrorType: 'static>>(
     legend_boxes(&mut legend, view, &goal);
     let (area, strip) = legend.split(root);
     let mut chart = chart(&area, view, scenario, region, &title)?;
-    draw_rects(&mut chart, &shaded, OBSTACLE.filled())?;
+    draw_shading(&mut chart, &shaded)?;
     draw_boxes(&mut chart, view, region, &boxes)?;
     draw_lines(&mut chart, &|_, x| view.point(x), &lines, line_style, false)?;
     draw_boxes(&mut chart, view, region, &goal)?;

@@ -6,11 +6,11 @@
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::chart::{axes, draw_rects, unsafe_band_layer, Legend, Swatch};
+use super::chart::{axes, draw_rects, draw_shading, unsafe_band_layer, Legend, Shading, Swatch};
 use super::maps::{verdict_classes, verdicts_title};
 use super::planar::{by_ending, draw_by_ending, legend_by_ending, tube_class};
 use super::view::View;
-use super::{Chart, DrawError, DARK, GREEN, OBSTACLE};
+use super::{Chart, DrawError, DARK, GREEN};
 use crate::boxes::IntervalBox;
 use crate::equilibria::Equilibrium;
 use crate::reach::Tube;
@@ -57,16 +57,16 @@ impl TimeAxes {
     fn chart<'a, DB: DrawingBackend<ErrorType: 'static>>(
         &self,
         area: &'a DrawingArea<DB, Shift>,
-        shaded: &[(f64, f64)],
+        shaded: &Shading<(f64, f64)>,
         goal: &IntervalBox,
     ) -> Result<Chart<'a, DB>, DrawError> {
         let (lo, hi) = self.range;
         let names = [self.names[0].as_str(), self.names[1].as_str()];
         let mut chart = axes(area, &self.title, [(0.0, self.horizon), (lo, hi)], names)?;
-        let bands: Vec<[(f64, f64); 2]> = (shaded.iter())
-            .map(|&(a, b)| [(0.0, a), (self.horizon, b)])
-            .collect();
-        draw_rects(&mut chart, &bands, OBSTACLE.filled())?;
+        draw_shading(
+            &mut chart,
+            &shaded.map(|&(a, b)| [(0.0, a), (self.horizon, b)]),
+        )?;
         let (g0, g1) = (goal.lower[self.y].max(lo), goal.upper[self.y].min(hi));
         draw_rects(
             &mut chart,
@@ -76,14 +76,14 @@ impl TimeAxes {
         Ok(chart)
     }
 
-    /// The unsafe set's bands along the drawn state (where it alone decides it: one state, all
-    /// others sliced) and the legend's first entries: the shading (where any) and the goal.
+    /// The unsafe set's bands along the drawn state (the others sliced, or projected: its
+    /// shadow) and the legend's first entries: the shading (where any) and the goal.
     fn legend(
         &self,
         view: &View,
         scenario: &Scenario,
         region: &IntervalBox,
-    ) -> (Legend, Vec<(f64, f64)>) {
+    ) -> (Legend, Shading<(f64, f64)>) {
         let mut legend = Legend::default();
         let shaded = unsafe_band_layer(&mut legend, view, scenario, region, self.range);
         legend.push("goal set", Swatch::Rect(GREEN.stroke_width(2)));
