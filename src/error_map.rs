@@ -621,6 +621,8 @@ pub fn margin_value(margin: Margin, s: &Scenario, network: &Path) -> Result<f64,
 #[cfg(test)]
 mod tests {
     use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
 
     #[test]
     fn infinite_bounds_round_trip_through_json() {
@@ -650,13 +652,8 @@ mod tests {
     /// boxes, points and boxes on cell faces: the indexed bound equals a scan of every cell.
     #[test]
     fn tree_index_equals_a_linear_scan_in_four_states() {
-        let mut seed = 11_u64;
-        let mut rnd = move || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let mut rnd = move || rng.random::<f64>();
         let region = IntervalBox::new(vec![0.0, -1.0, 0.0, 5.0], vec![4.0, 1.0, 0.5, 9.0]).unwrap();
         let mut cells = vec![region.clone()];
         while cells.len() < 3000 {

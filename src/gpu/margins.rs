@@ -390,6 +390,8 @@ impl MarginMap {
 mod tests {
     use super::*;
     use crate::boxes::IntervalBox;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
 
     /// A map over [0, 1]² bisected like `cbfreach error`'s (x then y, deeper towards a ring),
     /// with bounds that vary over the cells, one +∞, and gaps (cells proven to miss S).
@@ -445,13 +447,8 @@ mod tests {
         let m32 = MarginMap::new(&map, Precision::F32);
         assert!(m64.shapes >= 8, "{} shapes", m64.shapes);
         assert!(m64.shapes < 12, "{} shapes", m64.shapes);
-        let mut seed = 7u64;
-        let mut rnd = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let mut rnd = || rng.random::<f64>();
         let mut checked = 0;
         for t in 0..4000 {
             let w = [rnd().powi(3), rnd().powi(3)];

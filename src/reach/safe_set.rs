@@ -273,6 +273,8 @@ pub fn clip_to_safe_set(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
 
     fn halfspace(normal: &[f64], offset: f64) -> SafeHalfspace {
         SafeHalfspace {
@@ -321,13 +323,8 @@ mod tests {
         assert!(lo[1] <= -1.0 && lo[1] > -1.0 - 1e-12, "{lo:?}");
         assert!(hi[0] >= 0.5 && hi[0] < 0.5 + 1e-12, "{hi:?}");
         assert_eq!((lo[0], hi[1]), (-3.0, 3.0));
-        let mut state = 12345_u64;
-        let mut uniform = |a: f64, b: f64| {
-            state = state
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            a + (b - a) * ((state >> 11) as f64 / (1u64 << 53) as f64)
-        };
+        let mut rng = ChaCha8Rng::seed_from_u64(12345);
+        let mut uniform = |a: f64, b: f64| rng.random_range(a..b);
         let mut inside = 0;
         for _ in 0..20_000 {
             let (x1, x2) = (uniform(-3.0, 3.0), uniform(-3.0, 3.0));

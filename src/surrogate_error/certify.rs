@@ -8,7 +8,7 @@ use std::collections::BinaryHeap;
 use rayon::prelude::*;
 
 use super::joint::{piece_error, split_axis};
-use super::{check_dims, AnalysisError, ErrorSettings, SplitMix};
+use super::{check_dims, random_points, AnalysisError, ErrorSettings};
 use crate::bounds::{network_bounds, BoundMethod, PreparedNetwork};
 use crate::boxes::IntervalBox;
 use crate::dataset::grid_points;
@@ -206,14 +206,9 @@ pub fn sampled_cell_error(
     extra: usize,
     seed: u64,
 ) -> f64 {
-    let n = cell.dim();
     let mut pts: Vec<Vec<f64>> = cell.corners().collect();
     pts.push(cell.center());
-    let mut rng = SplitMix(seed);
-    for _ in 0..extra {
-        let u: Vec<f64> = (0..n).map(|_| rng.next_f64()).collect();
-        pts.push(cell.point_at(&u));
-    }
+    pts.extend(random_points(cell, extra, seed));
     pts.iter()
         .filter_map(|x| error_at(s, filter, net, x))
         .fold(0.0, f64::max)

@@ -209,18 +209,15 @@ mod tests {
     use crate::filter::VForms;
     use crate::network::{Layer, Mlp};
     use crate::scenario::Scenario;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
 
     /// `inf max(ℓ₁, ℓ₂)` over a box is the LP's value: never above the least of `max` on a
     /// fine grid (sound), and within the grid's resolution of it (tight), for random pairs.
     #[test]
     fn inf_of_max_is_the_lp_value() {
-        let mut seed = 7_u64;
-        let mut rnd = move || {
-            seed = seed
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            (seed >> 11) as f64 / (1_u64 << 53) as f64 * 2.0 - 1.0
-        };
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let mut rnd = move || rng.random_range(-1.0..1.0);
         for _ in 0..200 {
             let p: [Vec<f64>; 2] = [
                 vec![rnd() * 3.0, rnd() * 3.0],

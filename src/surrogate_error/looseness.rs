@@ -5,7 +5,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::measure::{centred_grid, Percentiles};
-use super::{check_box_width, check_dims, AnalysisError, ErrorSettings, SplitMix};
+use super::{check_box_width, check_dims, random_points, AnalysisError, ErrorSettings};
 use crate::bounds::{network_bounds, BoundMethod};
 use crate::boxes::IntervalBox;
 use crate::network::Mlp;
@@ -67,12 +67,9 @@ pub fn looseness(
         .par_iter()
         .enumerate()
         .map(|(k, b)| {
-            let mut rng = SplitMix(settings.seed ^ (k as u64).wrapping_mul(0x2545_F491_4F6C_DD1D));
+            let seed = settings.seed ^ (k as u64).wrapping_mul(0x2545_F491_4F6C_DD1D);
             let mut pts: Vec<Vec<f64>> = b.corners().collect();
-            for _ in 0..settings.looseness_samples {
-                let u: Vec<f64> = (0..n).map(|_| rng.next_f64()).collect();
-                pts.push(b.point_at(&u));
-            }
+            pts.extend(random_points(b, settings.looseness_samples, seed));
             let m = net.output_dim();
             let (mut lo, mut hi) = (vec![f64::INFINITY; m], vec![f64::NEG_INFINITY; m]);
             for p in &pts {

@@ -169,18 +169,14 @@ fn check_dims(s: &Scenario, net: &Mlp) -> Result<(), AnalysisError> {
     Ok(())
 }
 
-/// A small deterministic generator (splitmix64) for sample points.
-struct SplitMix(u64);
-
-impl SplitMix {
-    fn next_f64(&mut self) -> f64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^= z >> 31;
-        (z >> 11) as f64 / (1u64 << 53) as f64
-    }
+/// `k` uniform points of `cell`, from the seeded generator of every sample in the project.
+fn random_points(cell: &IntervalBox, k: usize, seed: u64) -> impl Iterator<Item = Vec<f64>> + '_ {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    (0..k).map(move |_| {
+        let u: Vec<f64> = (0..cell.dim()).map(|_| rng.random::<f64>()).collect();
+        cell.point_at(&u)
+    })
 }
 
 /// The boxes of [`looseness()`] and of [`Measured::box_slope`] must have a positive width.

@@ -353,14 +353,11 @@ fn mean_value_cell_bounds_hold_at_samples() {
     assert!(finite > 200, "{finite}");
 }
 
-/// A seeded generator of uniform numbers in [0, 1) (a 64-bit LCG's top 53 bits).
-fn uniform(mut seed: u64) -> impl FnMut() -> f64 {
-    move || {
-        seed = seed
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (seed >> 11) as f64 / (1u64 << 53) as f64
-    }
+/// A seeded generator of uniform numbers in [0, 1).
+fn uniform(seed: u64) -> impl FnMut() -> f64 {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    move || rng.random::<f64>()
 }
 
 /// The fixture's network saved in a fresh temporary folder and its error map (not yet saved):
