@@ -265,6 +265,32 @@ impl IntervalBox {
     }
 }
 
+/// Formats a point compactly for messages: `(1.0000, -2.5000)`; values that print as zero
+/// print without a sign.
+pub fn fmt_point(x: &[f64]) -> String {
+    let parts: Vec<String> = x
+        .iter()
+        .map(|&v| format!("{:.4}", if v.abs() < 5e-5 { 0.0 } else { v }))
+        .collect();
+    format!("({})", parts.join(", "))
+}
+
+/// Formats numbers of any magnitude for messages, to four significant digits or so:
+/// `(0.8400, 2.640, 1846, 3.000e-7)`.
+pub fn fmt_numbers(x: &[f64]) -> String {
+    let parts: Vec<String> = (x.iter())
+        .map(|&v| match v.abs() {
+            a if a < 5e-13 => "0".to_string(),
+            a if (1e-3..1e4).contains(&a) => {
+                let digits = 3 - a.log10().floor().clamp(-3.0, 3.0) as i32;
+                format!("{v:.*}", digits as usize)
+            }
+            _ => format!("{v:.3e}"),
+        })
+        .collect();
+    format!("({})", parts.join(", "))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -333,5 +359,22 @@ mod tests {
         let (l, r) = b.bisect();
         assert_eq!(l.upper[0], 0.5);
         assert_eq!(r.lower[0], 0.5);
+    }
+    /// Numbers of every magnitude keep about four significant digits; zero is "0".
+    #[test]
+    fn numbers_print_to_four_digits_whatever_their_size() {
+        assert_eq!(
+            fmt_numbers(&[
+                5.551115123125783e-17,
+                0.8400000000000001,
+                2.6399999999999997
+            ]),
+            "(0, 0.8400, 2.640)"
+        );
+        assert_eq!(
+            fmt_numbers(&[1845.5, -0.43972, 3e-7, 2.5e6]),
+            "(1846, -0.4397, 3.000e-7, 2.500e6)"
+        );
+        assert_eq!(fmt_point(&[1.0, -2.5, -1e-9]), "(1.0000, -2.5000, 0.0000)");
     }
 }

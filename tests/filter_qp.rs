@@ -237,3 +237,59 @@ fn secant_slopes_are_the_mean_pointwise_slope_over_the_step() {
         assert_eq!(data.jacobians, Some(want), "{slopes:?}");
     }
 }
+
+/// A scalar input's conflict is told in the input itself, `u = κ(x) + θ`: a pendulum's state
+/// is named `theta`, and "needs θ ≥ −0.59" read as its angle.
+#[test]
+fn a_scalar_conflict_is_told_in_the_input() {
+    let s = from_text(
+        r#"
+name = "pendulum"
+[system]
+states = ["theta", "w"]
+inputs = ["torque"]
+f = ["w", "sin(theta) - 0.1*w"]
+g = [["0"], ["1"]]
+kappa = ["-sin(theta) - 4*theta - 3*w"]
+[[cbf]]
+name = "lower"
+h = "theta + 0.8"
+alpha = 2.0
+order = 2
+[input_bounds]
+lower = [-3]
+upper = [3]
+[reach]
+region = { lower = [-1, -3], upper = [1, 3] }
+m_c = 0.1
+dt = 0.02
+horizon = 1.0
+goal = { lower = [-0.1, -0.1], upper = [0.1, 0.1] }
+"#,
+    )
+    .unwrap();
+    let filter = SafetyFilter::new(&s);
+    assert_eq!(filter.method(), FilterMethod::ClosedFormScalar);
+    // Falling at 2.9 rad/s towards −0.8 from 0.7: stopping needs more than the torque bound.
+    let x = [0.7, -2.9];
+    let Ok(FilterStatus::Infeasible(why)) = filter.solve(&x) else {
+        panic!("feasible at {x:?}");
+    };
+    // ψ₁ = w + 2(θ + 0.8) needs torque ≥ κ + (−2ψ₁ − L_f̃ψ₁ terms): 4.666 here.
+    let kappa = -(0.7f64.sin()) - 4.0 * 0.7 + 3.0 * 2.9;
+    let Infeasibility::Conflict { lower, upper, .. } = &why else {
+        panic!("{why:?}");
+    };
+    let message = why.to_string();
+    assert_eq!(
+        message,
+        format!(
+            "`lower.psi1` needs torque ≥ {:.6} but `torque ≤ 3` needs torque ≤ 3.000000",
+            kappa + lower
+        )
+    );
+    assert!(
+        (kappa + upper - 3.0).abs() < 1e-12 && kappa + lower > 4.6,
+        "{message}"
+    );
+}

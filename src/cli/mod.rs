@@ -216,12 +216,4 @@ pub fn number_at_least(text: &str, min: f64, strict: bool) -> Result<f64, String
         })
 }
 
-/// Formats a vector compactly: `(1.000, -2.500)`.
-pub fn fmt_point(x: &[f64]) -> String {
-    // Values that print as zero print without a sign.
-    let parts: Vec<String> = x
-        .iter()
-        .map(|&v| format!("{:.4}", if v.abs() < 5e-5 { 0.0 } else { v }))
-        .collect();
-    format!("({})", parts.join(", "))
-}
+pub use cbfreach::boxes::fmt_point;

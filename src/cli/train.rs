@@ -3,6 +3,7 @@
 use std::io::IsTerminal;
 use std::path::PathBuf;
 
+use cbfreach::boxes::fmt_numbers;
 use cbfreach::dataset::{filter_dataset, training_points, DatasetSummary, Slopes};
 use cbfreach::filter::SafetyFilter;
 use cbfreach::network::train::{
@@ -631,8 +632,13 @@ fn run_staged(job: &Job, bars: &Bars) -> CliResult {
     let (report, measured) = (&run.report, &run.measured);
     let norm = &report.normalisation;
     println!(
-        "normalised: inputs centre {:?} scale {:?}; outputs centre {:?} scale {:.4e}; learning rate {:.0e} (range test)",
-        norm.input_centre, norm.input_scale, norm.output_centre, norm.output_scale, report.learning_rate
+        "normalised: inputs centre {} scale {}; outputs centre {} scale {}; learning rate {:.0e} \
+         (range test)",
+        fmt_numbers(&norm.input_centre),
+        fmt_numbers(&norm.input_scale),
+        fmt_numbers(&norm.output_centre),
+        fmt_numbers(&[norm.output_scale]),
+        report.learning_rate
     );
     print_steep(&report.steep, recipe.slope_cap);
     if let Some(k) = report.extended_from {

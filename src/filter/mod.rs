@@ -105,6 +105,11 @@ pub enum Infeasibility {
         upper_row: String,
         /// Its bound.
         upper: f64,
+        /// The input's name: the message speaks of `u = κ(x) + θ`, since `θ` reads as a
+        /// state in systems that have one so named (a pendulum's angle).
+        input: String,
+        /// `κ(x)`.
+        kappa: f64,
     },
     /// clarabel certifies that the rows (all of them, by label) have no common point.
     Incompatible {
@@ -131,9 +136,13 @@ impl fmt::Display for Infeasibility {
                 lower,
                 upper_row,
                 upper,
+                input,
+                kappa,
             } => write!(
                 f,
-                "`{lower_row}` needs θ ≥ {lower:.6} but `{upper_row}` needs θ ≤ {upper:.6}"
+                "`{lower_row}` needs {input} ≥ {:.6} but `{upper_row}` needs {input} ≤ {:.6}",
+                kappa + lower,
+                kappa + upper
             ),
             Infeasibility::Incompatible { rows } => write!(
                 f,
@@ -178,6 +187,8 @@ pub struct ConstraintRows {
     pub q: Vec<f64>,
     /// A label per row for messages (`obstacle`, `u1 ≤ u_max`, …).
     pub labels: Vec<String>,
+    /// `κ(x)`, for messages in the inputs `u = κ(x) + θ`.
+    pub kappa: Vec<f64>,
 }
 
 /// The filter `v(x)` of a scenario.
@@ -247,6 +258,7 @@ impl<'a> SafetyFilter<'a> {
             g: Vec::new(),
             q: Vec::new(),
             labels: Vec::new(),
+            kappa: kappa.clone(),
         };
         for cbf in &s.cbfs {
             let grad: Vec<f64> = cbf.gradient.iter().map(|e| e.eval(x)).collect();
@@ -304,7 +316,7 @@ impl<'a> SafetyFilter<'a> {
         let m = self.scenario.m();
         Ok(match self.method {
             FilterMethod::ClosedFormSingle => solve::project_half_space(rows, m),
-            FilterMethod::ClosedFormScalar => solve::clamp_scalar(rows),
+            FilterMethod::ClosedFormScalar => solve::clamp_scalar(rows, &self.scenario.inputs[0]),
             FilterMethod::Qp => match solve::solve_by_active_sets(rows, m) {
                 Some(theta) => FilterStatus::Solved(theta),
                 None => solve::solve_qp(rows, m, x)?,

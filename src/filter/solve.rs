@@ -29,7 +29,7 @@ pub(super) fn project_half_space(rows: &ConstraintRows, m: usize) -> FilterStatu
 }
 
 /// Scalar input: each row bounds `θ` from one side; `θ = clamp(0, lo, hi)`.
-pub(super) fn clamp_scalar(rows: &ConstraintRows) -> FilterStatus {
+pub(super) fn clamp_scalar(rows: &ConstraintRows, input: &str) -> FilterStatus {
     let (mut lo, mut hi) = (f64::NEG_INFINITY, f64::INFINITY);
     let (mut lo_label, mut hi_label) = ("", "");
     for ((&a, &b), label) in rows.g.iter().zip(&rows.q).zip(&rows.labels) {
@@ -56,6 +56,8 @@ pub(super) fn clamp_scalar(rows: &ConstraintRows) -> FilterStatus {
             lower: lo,
             upper_row: hi_label.to_string(),
             upper: hi,
+            input: input.to_string(),
+            kappa: rows.kappa.first().copied().unwrap_or(0.0),
         });
     }
     FilterStatus::Solved(vec![0.0_f64.clamp(lo, hi)])

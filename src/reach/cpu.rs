@@ -703,6 +703,10 @@ impl ChunkRun<'_> {
                         embedding_step(&mut set.lower, &mut set.upper, dl, du, self.h);
                         if let Some(Some(pipe)) = state.pipes.get(f) {
                             validated::meet_with_pipe(&mut set.lower, &mut set.upper, pipe);
+                            let inverted = (set.lower.iter().zip(&set.upper)).any(|(l, u)| l > u);
+                            if state.inversion.is_none() && inverted {
+                                state.inversion = Some(super::tube::Inversion::PipeDisjoint);
+                            }
                         }
                     }
                     buf.stepped.push(field.is_some());

@@ -54,6 +54,10 @@ pub enum Inversion {
     /// bounds of the same field cannot disagree, so one of them is not a bound — the network's,
     /// widened by an `M` smaller than its actual error there.
     BoundsDisagree,
+    /// The field kept the box, but the stepped set and the step's validated flowpipe (an
+    /// a-priori enclosure of the same trajectories) do not meet: an assumption of both failed
+    /// (the filter's QP without a solution along the way, or `M` below the network's error).
+    PipeDisjoint,
     /// Not recorded by this engine.
     Unattributed,
 }
@@ -152,6 +156,9 @@ pub enum EndKind {
     NoIntersampleEnclosure,
     /// The set turned inside out.
     Inverted,
+    /// The set turned inside out after sets on which the QP is not proven feasible: the
+    /// trajectories may have met an infeasible QP, where no bound of `v` holds.
+    InvertedAfterUnprovenQp,
     /// The embedding state overflowed.
     NonFinite,
 }
@@ -175,6 +182,10 @@ impl EndKind {
             }
             EndKind::NoIntersampleEnclosure => "no enclosure of the motion between samples",
             EndKind::Inverted => "the sets turned inside out",
+            EndKind::InvertedAfterUnprovenQp => {
+                "the sets turned inside out after sets on which the QP is not proven feasible \
+                 (the trajectories may meet an infeasible QP)"
+            }
             EndKind::NonFinite => "the embedding state overflowed",
         }
     }
@@ -246,8 +257,8 @@ impl std::fmt::Display for TubeEnd {
         let became = |f: &mut std::fmt::Formatter<'_>, t: f64, what: &str| {
             write!(
                 f,
-                "t = {t:.3}: the embedding state became {what} (Euler step too large for this \
-                 system?)"
+                "t = {t:.3}: the embedding state became {what} (a step too large for this \
+                 system, M below the network's error, or a QP without a solution on the way)"
             )
         };
         match *self {
@@ -331,6 +342,15 @@ impl std::fmt::Display for TubeEnd {
                 "t = {t:.3}: the embedding state became inverted: the network's bounds widened \
                  by M and the filter's own bounds of the field disagree, so M is below the \
                  network's actual error there (a certified M: m_c = \"certified\" or \"local\")"
+            ),
+            TubeEnd::Inverted {
+                t,
+                cause: Inversion::PipeDisjoint,
+            } => write!(
+                f,
+                "t = {t:.3}: the embedding state became inverted: the stepped set and the step's \
+                 validated enclosure do not meet, so an assumption of both failed (a QP without \
+                 a solution on the way, or M below the network's error)"
             ),
             TubeEnd::Inverted { t, .. } => became(f, t, "inverted"),
             TubeEnd::NonFinite { t } => became(f, t, "non-finite"),

@@ -7,7 +7,7 @@ use super::{
     judge_with_feasibility, BoxVerdict, Reason, Trap, Verdict, Verifier, VerifyError,
     VerifySettings,
 };
-use crate::boxes::IntervalBox;
+use crate::boxes::{fmt_point, IntervalBox};
 use crate::reach::{CpuBackend, ReachProblem, ReachSettings, Tube};
 use crate::scenario::Scenario;
 
@@ -106,15 +106,6 @@ impl PiecesVerdict {
             _ => None,
         }
     }
-}
-
-/// Formats a vector compactly: `(1.000, -2.500)`; values that print as zero print unsigned.
-fn fmt_point(x: &[f64]) -> String {
-    let parts: Vec<String> = x
-        .iter()
-        .map(|&v| format!("{:.4}", if v.abs() < 5e-5 { 0.0 } else { v }))
-        .collect();
-    format!("({})", parts.join(", "))
 }
 
 /// Whether the filter's QP was proven feasible on every set of a verified box.

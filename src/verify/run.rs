@@ -14,7 +14,9 @@ use super::{
 use crate::boxes::IntervalBox;
 use crate::intervals::{box_of, Interval};
 use crate::reach::absorb::{absorber, Absorbers};
-use crate::reach::{Backend, ReachProblem, ReachSettings, TimeModel, Tube, TubeEnd};
+use crate::reach::{
+    Backend, EndKind, Inversion, ReachProblem, ReachSettings, TimeModel, Tube, TubeEnd,
+};
 use crate::scenario::Scenario;
 
 /// Which phase a progress report is about.
@@ -71,6 +73,10 @@ pub enum Reason {
     },
     /// `invalid`: the tube stopped early; why, as the engine says.
     Stopped(TubeEnd),
+    /// `invalid`: the sets turned inside out (not by a step too large) after sets on which
+    /// the QP is not proven feasible: where it has no solution no bound of `v` holds, which
+    /// is the likelier cause than the one the engine names.
+    InvertedAfterUnprovenQp(TubeEnd),
     /// `unknown`: the engine recorded no set.
     EmptyTube,
     /// `unsafe-between-samples`: where the sampled-data sets first may leave `S`.
@@ -96,6 +102,11 @@ impl std::fmt::Display for Reason {
                 )
             }
             Reason::Stopped(end) => write!(f, "{end}"),
+            Reason::InvertedAfterUnprovenQp(end) => write!(
+                f,
+                "{end}; after sets on which the QP is not proven feasible: the trajectories may \
+                 have met an infeasible QP before"
+            ),
             Reason::EmptyTube => f.write_str("empty tube"),
             Reason::BetweenSamples(found) => write!(f, "{found}"),
         }
@@ -169,7 +180,15 @@ pub fn judge(
         }
     }
     if !tube.valid() {
-        return Judgement::of(Verdict::Invalid, None, Some(Reason::Stopped(tube.end)));
+        let why = match tube.end {
+            TubeEnd::Inverted { cause, .. }
+                if cause != Inversion::StepTooLarge && !problem.proves_feasible_along(tube) =>
+            {
+                Reason::InvertedAfterUnprovenQp(tube.end)
+            }
+            end => Reason::Stopped(end),
+        };
+        return Judgement::of(Verdict::Invalid, None, Some(why));
     }
     let Some(last) = tube.last() else {
         return Judgement::of(Verdict::Unknown, None, Some(Reason::EmptyTube));
@@ -475,12 +494,29 @@ impl<'a> Verifier<'a> {
                 .par_iter()
                 .map(|tube| {
                     let (j, feasible) = judge_with_feasibility(problem, scenario, traps, tube);
+                    // Sets that left S or turned inside out after an unproven QP: the
+                    // summary says so (the engine's cause assumes the filter defined).
+                    let unproven = matches!(
+                        j.reason,
+                        Some(
+                            Reason::InvertedAfterUnprovenQp(_)
+                                | Reason::LeftSafeSetAfterUnprovenQp { .. }
+                        )
+                    );
+                    let ended = match tube.end {
+                        TubeEnd::Inverted { cause, .. }
+                            if unproven && cause != Inversion::StepTooLarge =>
+                        {
+                            Some(EndKind::InvertedAfterUnprovenQp)
+                        }
+                        end => end.kind(),
+                    };
                     let note = j.reason.map(|r| r.to_string());
-                    (j.verdict, j.trap, note, feasible)
+                    (j.verdict, j.trap, note, feasible, ended)
                 })
                 .collect();
             let mut finished = Vec::with_capacity(idx.len());
-            for ((&i, tube), (verdict, trap, note, feasible)) in
+            for ((&i, tube), (verdict, trap, note, feasible, ended)) in
                 idx.iter().zip(&result.boxes).zip(judged)
             {
                 let last = tube.last();
@@ -490,7 +526,7 @@ impl<'a> Verifier<'a> {
                 b.verdict = verdict;
                 b.trap = trap;
                 b.note = note;
-                b.ended = tube.end.kind();
+                b.ended = ended;
                 b.final_set = last.map(|s| s.set.clone());
                 b.t_end = last.map(|s| s.t);
                 b.feasible = feasible;

@@ -586,6 +586,54 @@ fn a_set_outside_s_is_a_bug_only_where_the_qp_was_proven_feasible() {
     let j = judge(&problem, &s, &[], &clear);
     assert_eq!(j.verdict, Verdict::Unsafe, "{:?}", j.reason);
     assert!(matches!(j.reason, Some(Reason::LeftSafeSet { .. })));
+
+    // Sets that turned inside out, in S: after the conflict the likelier cause is the QP
+    // (a pendulum at its torque limit: the step's set missed its flowpipe, and the note said
+    // "Euler step too large"); a step too large says so whatever came before.
+    use cbfreach::reach::{EndKind, Inversion, TubeEnd};
+    let inverted = |first: [[f64; 2]; 2], cause: Inversion| Tube {
+        tube: vec![
+            sample(0.0, first[0], first[1]),
+            sample(0.05, first[0], first[1]),
+        ],
+        end: TubeEnd::Inverted { t: 0.1, cause },
+        ..Tube::new(IntervalBox::new(first[0].to_vec(), first[1].to_vec()).unwrap())
+    };
+    let at_conflict = [[4.0, -1.995], [4.01, -1.99]];
+    let j = judge(
+        &problem,
+        &s,
+        &[],
+        &inverted(at_conflict, Inversion::PipeDisjoint),
+    );
+    assert_eq!(j.verdict, Verdict::Invalid);
+    assert!(matches!(j.reason, Some(Reason::InvertedAfterUnprovenQp(_))));
+    let note = j.reason.unwrap().to_string();
+    assert!(
+        note.contains("validated enclosure do not meet") && note.contains("not proven feasible"),
+        "{note}"
+    );
+    assert!(EndKind::InvertedAfterUnprovenQp
+        .describe()
+        .contains("infeasible QP"));
+    let j = judge(
+        &problem,
+        &s,
+        &[],
+        &inverted(at_conflict, Inversion::StepTooLarge),
+    );
+    assert!(
+        matches!(j.reason, Some(Reason::Stopped(_))),
+        "{:?}",
+        j.reason
+    );
+    let away = [[-3.01, -0.01], [-3.0, 0.0]];
+    let j = judge(&problem, &s, &[], &inverted(away, Inversion::PipeDisjoint));
+    assert!(
+        matches!(j.reason, Some(Reason::Stopped(_))),
+        "{:?}",
+        j.reason
+    );
 }
 
 /// `--refine-feasibility` bisects a verified box whose sets leave the QP's feasibility open
