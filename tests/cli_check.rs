@@ -339,3 +339,62 @@ fn check_counts_a_general_qps_active_sets_and_says_when_there_are_too_many() {
         assert!(stdout.contains(expected), "{stdout}");
     }
 }
+
+/// An initial box outside `S` is named by `check`, and `reach` does not run it: its sets are
+/// clipped to `S` and bound the trajectories that start there (a user's box at (0.5, 0.8) of a
+/// pendulum whose high-order CBF asks ω ≤ 2(0.8 − θ) ran to "the embedding state became
+/// inverted", with its own field counted on 7 of 6 box-steps). A box partly in `S` runs, said.
+#[test]
+fn an_initial_box_outside_s_is_named_and_not_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    let text = std::fs::read_to_string(common::fixture_path("pendulum.toml")).unwrap();
+    let boxes = "initial = [ { lower = [-0.1, -0.1], upper = [0.1, 0.1] } ]";
+    assert!(text.contains(boxes));
+    let text = text
+        .replace(
+            boxes,
+            "initial = [ { lower = [0.5, 0.8], upper = [0.55, 0.85] }, \
+             { lower = [0.1, 1.0], upper = [0.2, 1.2] }, \
+             { lower = [-0.1, -0.1], upper = [0.1, 0.1] } ]",
+        )
+        .replace("architecture = [2, 64, 64, 1]", "architecture = [2, 16, 1]");
+    let path = tmp.path().join("pendulum.toml");
+    std::fs::write(&path, text).unwrap();
+    let stdout = check(&path);
+    // h = 0.8 − θ − 0.5ω: −0.075 at (0.5, 0.8), and from −0.2 to 0.2 over the second box.
+    for line in [
+        "initial box 0 (0.5000, 0.8000) … (0.5500, 0.8500) lies outside S (limit < 0 on all of it)",
+        "initial box 1 (0.1000, 1.0000) … (0.2000, 1.2000) lies partly outside S (limit not ≥ 0",
+    ] {
+        assert!(stdout.contains(line), "{stdout}");
+    }
+    assert!(!stdout.contains("initial box 2"), "{stdout}");
+    cbfreach::network::Mlp::random(&[2, 16, 1], 3)
+        .save_safetensors(
+            &tmp.path().join("pendulum.safetensors"),
+            &Default::default(),
+        )
+        .unwrap();
+    let json = tmp.path().join("r.json");
+    let (code, stdout, stderr) = cbfreach(&[
+        "reach",
+        path.to_str().unwrap(),
+        "--m-c",
+        "0.01",
+        "--backend",
+        "cpu",
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(
+        stdout.contains("(0.5000, 0.8000) … (0.5500, 0.8500)  →  not run: the box lies outside S")
+            && stdout.contains("2 boxes × 400 steps")
+            && stdout.contains("(the next box starts partly outside S"),
+        "{stdout}"
+    );
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(json["outside_s"][0]["lower"], serde_json::json!([0.5, 0.8]));
+    assert_eq!(json["boxes"].as_array().map(Vec::len), Some(2), "{json}");
+}

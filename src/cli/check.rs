@@ -109,6 +109,17 @@ pub fn run(path: &Path) -> CliResult {
         fmt_point(&r.goal.upper),
         r.initial.len()
     );
+    for (k, b) in r.initial.iter().enumerate() {
+        let start = cbfreach::verify::in_safe_set(&s, b);
+        if start != cbfreach::verify::InSafeSet::Inside {
+            println!(
+                "  initial box {k} {} … {} lies {start}: reach bounds the trajectories that \
+                 start in S",
+                fmt_point(&b.lower),
+                fmt_point(&b.upper)
+            );
+        }
+    }
     print_survey(&s);
     if let Some(transient) = cbfreach::reach::Transient::at_goal(&s, &s.reach.transform) {
         println!("  {transient}");

@@ -4,8 +4,9 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 use cbfreach::bounds::BoundMethod;
+use cbfreach::boxes::{fmt_numbers, IntervalBox};
 use cbfreach::reach::{ExactField, ReachMethod, ReachResult, ReachSettings};
-use cbfreach::verify::{rerun_stopped, StoppedRerun};
+use cbfreach::verify::{in_safe_set, rerun_stopped, InSafeSet, StoppedRerun};
 use serde::Serialize;
 
 use super::args::{engine, settings_flag_error, EngineArgs, ProblemArgs, ReachFlags};
@@ -53,6 +54,10 @@ struct ReachJson<'a> {
     time: cbfreach::reach::TimeModel,
     substeps: usize,
     m_c: f64,
+    /// Initial boxes not run: they lie outside `S`, and the sets bound the trajectories that
+    /// start in `S`.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    outside_s: Vec<IntervalBox>,
     /// Where tubes stopped early: their reruns ([`rerun_stopped`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     what_stops: Option<StoppedRerun>,
@@ -67,16 +72,29 @@ pub fn run(args: &ReachArgs) -> CliResult {
     let problem = super::args::compile(&s, &args.problem)?;
     let m_c = problem.m_c;
     if let Some(t) = &problem.transform {
-        println!("embedding in z = T x, T = {:?} (ρ = {:.1e})", t.t, t.rho);
+        let n = s.n();
+        let rows: Vec<String> = t.t.chunks(n.max(1)).map(fmt_numbers).collect();
+        println!(
+            "embedding in z = T x, T = [{}] (ρ = {:.1e})",
+            rows.join(", "),
+            t.rho
+        );
     }
     let mut settings = args.reach.settings(&s.settings.reach);
     if given("every") {
         settings.every = args.every;
     }
     settings.validate().map_err(|e| settings_flag_error(&e))?;
-    let backend = engine(&args.engine, &mut settings, &problem, s.reach.initial.len())?;
+    // The disturbance method's sets are clipped to S: they bound the trajectories that start
+    // in S, and a box wholly outside it has none.
+    let (outside_s, initial): (Vec<IntervalBox>, Vec<IntervalBox>) =
+        (s.reach.initial.iter().cloned()).partition(|b| {
+            settings.method == ReachMethod::Disturbance
+                && matches!(in_safe_set(&s, b), InSafeSet::Outside(_))
+        });
+    let backend = engine(&args.engine, &mut settings, &problem, initial.len())?;
     let bar = progress_bar(problem.steps as u64, "steps of dt");
-    let result = backend.reach(&problem, &s.reach.initial, &settings, &|done, _| {
+    let result = backend.reach(&problem, &initial, &settings, &|done, _| {
         bar.set_position(done as u64)
     })?;
     bar.finish_and_clear();
@@ -115,7 +133,22 @@ pub fn run(args: &ReachArgs) -> CliResult {
         settings.method,
         backend.name()
     );
+    for b in &outside_s {
+        println!(
+            "  {} … {}  →  not run: the box lies {}, and the sets bound the trajectories that \
+             start in S",
+            fmt_point(&b.lower),
+            fmt_point(&b.upper),
+            in_safe_set(&s, b)
+        );
+    }
     for tube in &result.boxes {
+        let start = in_safe_set(&s, &tube.initial);
+        if let (InSafeSet::Partly(_), ReachMethod::Disturbance) = (&start, settings.method) {
+            println!(
+                "  (the next box starts {start}: its sets bound the trajectories from its part in S)"
+            );
+        }
         if let Some(last) = tube.last() {
             let set = last.filtered_set().clone();
             let width = set.widths().iter().fold(0.0_f64, |a, &b| a.max(b));
@@ -151,17 +184,21 @@ pub fn run(args: &ReachArgs) -> CliResult {
          Minkowski",
         result.timing.reach_s,
         run as f64 / result.timing.reach_s.max(1e-12),
-        result.timing.minkowski_s
+        result.timing.minkowski_s.max(0.0)
     );
     if settings.exact_field() != ExactField::Nowhere {
         let exact: usize = result.boxes.iter().map(|t| t.exact_steps).sum();
         let enclosed: usize = result.boxes.iter().map(|t| t.enclosed_steps).sum();
-        // Both counts are per engine step: `substeps` of them make one box-step of `dt`.
+        // Both counts are per engine step: `substeps` of them make one box-step of `dt`; a
+        // step that ended a tube counts (its field was computed).
         let k = problem.steps_per_dt();
+        let taken: usize = (result.boxes.iter())
+            .map(|t| t.engine_steps(problem.dt, k))
+            .sum();
         let of = if k > 1 {
-            format!("{} engine steps ({k} per box-step)", run * k)
+            format!("{taken} engine steps ({k} per box-step)")
         } else {
-            format!("{run} box-steps")
+            format!("{taken} box-steps")
         };
         println!(
             "  the filtered system's own field (the filter proven one smooth function on the set) \
@@ -235,6 +272,7 @@ pub fn run(args: &ReachArgs) -> CliResult {
             time: problem.time,
             substeps: problem.steps_per_dt(),
             m_c,
+            outside_s,
             what_stops,
             result: &result,
         };

@@ -472,6 +472,17 @@ impl Tube {
     pub fn steps_run(&self, dt: f64) -> usize {
         self.last().map_or(0, |l| (l.t / dt).round() as usize)
     }
+
+    /// Engine steps (`k` a `dt`) this tube took, the one that turned its set inside out or
+    /// non-finite included (its field was computed, and counted in [`Tube::exact_steps`]).
+    pub fn engine_steps(&self, dt: f64, k: usize) -> usize {
+        match self.end {
+            TubeEnd::Inverted { t, .. } | TubeEnd::NonFinite { t } => {
+                (t * k as f64 / dt).round() as usize
+            }
+            _ => self.steps_run(dt) * k,
+        }
+    }
 }
 
 #[cfg(test)]

@@ -70,7 +70,10 @@ pub use pieces::{
     PIECES_CHUNK, REFINE_BUDGET, SPLIT,
 };
 pub use report::{BoxVerdict, Headline, RunInfo, Shares, VerifyReport, VerifyTiming};
-pub use run::{judge, judge_with_feasibility, start_verdict, Judgement, Reason, Stage, Verifier};
+pub use run::{
+    in_safe_set, judge, judge_with_feasibility, start_verdict, InSafeSet, Judgement, Reason, Stage,
+    Verifier,
+};
 pub use settings::VerifySettings;
 pub use shard::{merge, Shard};
 pub use traps::{

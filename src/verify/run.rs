@@ -31,19 +31,49 @@ pub enum Stage {
 /// `Some(UnsafeStart)`, `Some(PartlyUnsafe)` or `None` (the box starts safe), by interval
 /// evaluation of every CBF over the box.
 pub fn start_verdict(scenario: &Scenario, b: &IntervalBox) -> Option<Verdict> {
+    match in_safe_set(scenario, b) {
+        InSafeSet::Inside => None,
+        InSafeSet::Partly(_) => Some(Verdict::PartlyUnsafe),
+        InSafeSet::Outside(_) => Some(Verdict::UnsafeStart),
+    }
+}
+
+/// How a box lies in `S`, by interval evaluation of every CBF over it; `Display` says it with
+/// the CBF that decides.
+#[derive(Clone, Debug, PartialEq)]
+pub enum InSafeSet {
+    /// Every CBF is proven non-negative on the box.
+    Inside,
+    /// Not proven inside: this CBF may be negative on part of it.
+    Partly(String),
+    /// This CBF is negative on the whole box.
+    Outside(String),
+}
+
+/// [`InSafeSet`] of a box.
+pub fn in_safe_set(scenario: &Scenario, b: &IntervalBox) -> InSafeSet {
     let x = box_of(&b.lower, &b.upper);
-    let hs: Vec<Interval> = scenario
-        .cbfs
-        .iter()
-        .map(|c| c.h.eval_interval(&x))
+    let hs: Vec<(Interval, &str)> = (scenario.cbfs.iter())
+        .map(|c| (c.h.eval_interval(&x), c.name.as_str()))
         .collect();
     // NaN bounds (an expression undefined somewhere on the box) count as "maybe unsafe".
-    if hs.iter().any(|h| h.upper < 0.0) {
-        Some(Verdict::UnsafeStart)
-    } else if !hs.iter().all(|h| h.lower >= 0.0) {
-        Some(Verdict::PartlyUnsafe)
+    let proven = |h: &Interval| h.lower >= 0.0 && !h.is_nan();
+    if let Some((_, name)) = hs.iter().find(|(h, _)| h.upper < 0.0) {
+        InSafeSet::Outside(name.to_string())
+    } else if let Some((_, name)) = hs.iter().find(|(h, _)| !proven(h)) {
+        InSafeSet::Partly(name.to_string())
     } else {
-        None
+        InSafeSet::Inside
+    }
+}
+
+impl std::fmt::Display for InSafeSet {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            InSafeSet::Inside => f.write_str("inside S"),
+            InSafeSet::Partly(cbf) => write!(f, "partly outside S ({cbf} not ≥ 0 on all of it)"),
+            InSafeSet::Outside(cbf) => write!(f, "outside S ({cbf} < 0 on all of it)"),
+        }
     }
 }
 
