@@ -17,7 +17,7 @@ use cbfreach::simulate::{sample_box, Trajectory};
 use cbfreach::verify::{simulate_model, VerifyReport};
 
 use super::args::{compile, ProblemArgs};
-use super::{load_scenario, progress_bar, CliResult};
+use super::{fmt_point, load_scenario, progress_bar, CliResult};
 
 /// Arguments of `cbfreach plot`.
 #[derive(clap::Args)]
@@ -131,8 +131,18 @@ pub fn reach_initial(
         face_local,
         ..ReachSettings::default()
     };
+    let (initial, outside) = cbfreach::verify::split_outside_s(s, &s.reach.initial, method);
+    for b in &outside {
+        eprintln!(
+            "initial box {} … {} not drawn: it lies {}, and the sets bound the trajectories \
+             that start in S",
+            fmt_point(&b.lower),
+            fmt_point(&b.upper),
+            cbfreach::verify::in_safe_set(s, b)
+        );
+    }
     let bar = progress_bar(problem.steps as u64, "steps of dt");
-    let r = engine.reach(problem, &s.reach.initial, &settings, &|d, _| {
+    let r = engine.reach(problem, &initial, &settings, &|d, _| {
         bar.set_position(d as u64)
     })?;
     bar.finish_and_clear();

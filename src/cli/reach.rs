@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use cbfreach::bounds::BoundMethod;
 use cbfreach::boxes::{fmt_numbers, IntervalBox};
 use cbfreach::reach::{ExactField, ReachMethod, ReachResult, ReachSettings};
-use cbfreach::verify::{in_safe_set, rerun_stopped, InSafeSet, StoppedRerun};
+use cbfreach::verify::{in_safe_set, rerun_stopped, split_outside_s, InSafeSet, StoppedRerun};
 use serde::Serialize;
 
 use super::args::{engine, settings_flag_error, EngineArgs, ProblemArgs, ReachFlags};
@@ -85,13 +85,7 @@ pub fn run(args: &ReachArgs) -> CliResult {
         settings.every = args.every;
     }
     settings.validate().map_err(|e| settings_flag_error(&e))?;
-    // The disturbance method's sets are clipped to S: they bound the trajectories that start
-    // in S, and a box wholly outside it has none.
-    let (outside_s, initial): (Vec<IntervalBox>, Vec<IntervalBox>) =
-        (s.reach.initial.iter().cloned()).partition(|b| {
-            settings.method == ReachMethod::Disturbance
-                && matches!(in_safe_set(&s, b), InSafeSet::Outside(_))
-        });
+    let (initial, outside_s) = split_outside_s(&s, &s.reach.initial, settings.method);
     let backend = engine(&args.engine, &mut settings, &problem, initial.len())?;
     let bar = progress_bar(problem.steps as u64, "steps of dt");
     let result = backend.reach(&problem, &initial, &settings, &|done, _| {

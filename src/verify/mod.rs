@@ -71,8 +71,8 @@ pub use pieces::{
 };
 pub use report::{BoxVerdict, Headline, RunInfo, Shares, VerifyReport, VerifyTiming};
 pub use run::{
-    in_safe_set, judge, judge_with_feasibility, start_verdict, InSafeSet, Judgement, Reason, Stage,
-    Verifier,
+    in_safe_set, judge, judge_with_feasibility, split_outside_s, start_verdict, InSafeSet,
+    Judgement, Reason, Stage, Verifier,
 };
 pub use settings::VerifySettings;
 pub use shard::{merge, Shard};

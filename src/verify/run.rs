@@ -67,6 +67,20 @@ pub fn in_safe_set(scenario: &Scenario, b: &IntervalBox) -> InSafeSet {
     }
 }
 
+/// The initial boxes a run bounds trajectories from, and those it does not run: under the
+/// disturbance method the sets are clipped to `S` and bound the trajectories that start there,
+/// so a box wholly outside `S` has none (the Minkowski method's sets bound the NN system).
+pub fn split_outside_s(
+    scenario: &Scenario,
+    boxes: &[IntervalBox],
+    method: crate::reach::ReachMethod,
+) -> (Vec<IntervalBox>, Vec<IntervalBox>) {
+    (boxes.iter().cloned()).partition(|b| {
+        method != crate::reach::ReachMethod::Disturbance
+            || !matches!(in_safe_set(scenario, b), InSafeSet::Outside(_))
+    })
+}
+
 impl std::fmt::Display for InSafeSet {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
