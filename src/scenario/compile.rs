@@ -155,7 +155,9 @@ impl ScenarioFile {
         let f_tilde = (0..n)
             .map(|i| {
                 let mut text = format!("({})", sys.f[i]);
-                for j in 0..m {
+                // An input that does not act on the state (gᵢⱼ = 0) adds no term: `0·κⱼ` kept
+                // whole (κ divides, so collecting may not drop it) bloated f̃ and ψ's.
+                for j in (0..m).filter(|&j| g[i][j].as_constant() != Some(0.0)) {
                     text.push_str(&format!(" + ({})*({})", sys.g[i][j], sys.kappa[j]));
                 }
                 // A controller that cancels the drift leaves both copies in the text: collected,
@@ -563,4 +565,53 @@ fn compile_reach(c: &Compiler, r: &ReachSection, n: usize) -> Result<ReachConfig
         goal,
         initial,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::scenario::Scenario;
+
+    /// An input that does not act on a state adds no term to its closed loop: a Dubins car's
+    /// `f̃[x]` read `cos(theta) + 0 * (−2·(…)/sqrt(…))` (the controller divides, so collecting
+    /// kept the zero term) and its high-order CBF carried the copy. Where `g` is not zero the
+    /// term stays.
+    #[test]
+    fn an_input_that_does_not_act_on_a_state_adds_no_term() {
+        let text = r#"
+name = "dubins"
+[system]
+states = ["x", "y", "theta"]
+inputs = ["w"]
+f = ["cos(theta)", "sin(theta)", "0"]
+g = [["0"], ["0"], ["1"]]
+kappa = ["-2*(y*cos(theta) - x*sin(theta))/sqrt(x^2 + y^2 + 0.01)"]
+[[cbf]]
+h = "(x + 1.5)^2 + (y - 0.3)^2 - 0.16"
+order = 2
+[reach]
+region = { lower = [-3.5, -1.5, -3], upper = [0.5, 1.5, 3] }
+m_c = 0.1
+dt = 0.02
+horizon = 1.0
+goal = { lower = [-0.4, -0.4, -3], upper = [0.4, 0.4, 3] }
+"#;
+        let s = Scenario::from_toml(text, "dubins.toml", std::path::Path::new(".")).unwrap();
+        let shown = |e: &crate::expressions::Expr| e.display(&s.states).to_string();
+        assert_eq!(shown(&s.f_tilde[0]), "cos(theta)");
+        assert_eq!(shown(&s.f_tilde[1]), "sin(theta)");
+        assert!(
+            shown(&s.f_tilde[2]).contains("sqrt"),
+            "{}",
+            shown(&s.f_tilde[2])
+        );
+        let psi = shown(&s.cbfs[1].h);
+        assert!(!psi.contains("sqrt") && !psi.contains("0 *"), "{psi}");
+        // The same closed loop at points: f̃ = f + g·κ.
+        for x in [[-2.0, 0.5, 0.3], [0.2, -1.0, -2.0]] {
+            let k = s.kappa_at(&x);
+            let f = s.f_tilde_at(&x);
+            assert_eq!((f[0], f[1]), (x[2].cos(), x[2].sin()));
+            assert!((f[2] - k[0]).abs() < 1e-15, "{f:?} {k:?}");
+        }
+    }
 }
