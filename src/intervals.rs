@@ -303,6 +303,37 @@ impl Interval {
         }
     }
 
+    /// `atan X` (increasing).
+    pub fn atan(self) -> Interval {
+        if self.is_nan() {
+            return Interval::NAN;
+        }
+        Interval::new(widen_down(self.lower.atan()), widen_up(self.upper.atan()))
+    }
+
+    /// `atan2(Y, X)` for `self = Y` and `other = X`. Off the cut `{x ≤ 0, y = 0}` it is
+    /// continuous with no critical point (its gradient `(x, −y)/r²` vanishes nowhere) and
+    /// monotone along every edge of the box, so its range is the corners'; a box meeting the
+    /// cut (the origin included) gets `[−π, π]`.
+    pub fn atan2(self, other: Interval) -> Interval {
+        let (y, x) = (self, other);
+        if y.is_nan() || x.is_nan() {
+            return Interval::NAN;
+        }
+        if x.lower <= 0.0 && y.lower <= 0.0 && 0.0 <= y.upper {
+            return Interval::new(widen_down(-PI), widen_up(PI));
+        }
+        let corners = [
+            y.lower.atan2(x.lower),
+            y.lower.atan2(x.upper),
+            y.upper.atan2(x.lower),
+            y.upper.atan2(x.upper),
+        ];
+        let lo = corners.iter().fold(f64::INFINITY, |m, &v| m.min(v));
+        let hi = corners.iter().fold(f64::NEG_INFINITY, |m, &v| m.max(v));
+        Interval::new(widen_down(lo), widen_up(hi))
+    }
+
     /// `|X|` (exact).
     pub fn abs(self) -> Interval {
         if self.is_nan() {

@@ -217,6 +217,11 @@ pub(super) fn derivative(n: &Node, var: usize) -> Node {
                     mul(d(v), call(Func::Step, sv)),
                 )
             }
+            (Func::Atan2, [y, x]) => {
+                // d atan2(y, x) = (x·y' − y·x')/(x² + y²).
+                let r2 = add(pow(x.clone(), 2), pow(y.clone(), 2));
+                div(sub(mul(x.clone(), d(y)), mul(y.clone(), d(x))), r2)
+            }
             (_, [u]) => {
                 let u0 = u.clone();
                 let outer = match f {
@@ -226,9 +231,10 @@ pub(super) fn derivative(n: &Node, var: usize) -> Node {
                     Func::Exp => call(Func::Exp, u0),
                     Func::Sin => call(Func::Cos, u0),
                     Func::Tanh => sub(Const(1.0), pow(call(Func::Tanh, u0), 2)),
+                    Func::Atan => return div(d(u), add(Const(1.0), pow(u0, 2))),
                     Func::Abs => call(Func::Sign, u0),
                     Func::Sign | Func::Step | Func::Delta => call(Func::Delta, u0),
-                    Func::Min | Func::Max => Const(f64::NAN),
+                    Func::Min | Func::Max | Func::Atan2 => Const(f64::NAN),
                 };
                 mul(d(u), outer)
             }

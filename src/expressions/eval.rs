@@ -26,15 +26,16 @@ pub(super) fn apply1(f: Func, u: f64) -> f64 {
         Func::Sin => u.sin(),
         Func::Cos => u.cos(),
         Func::Tanh => u.tanh(),
+        Func::Atan => u.atan(),
         Func::Abs => u.abs(),
         Func::Sign => kink(-1.0, 1.0),
         Func::Step => kink(0.0, 1.0),
         Func::Delta => kink(0.0, 0.0),
-        Func::Min | Func::Max => f64::NAN,
+        Func::Min | Func::Max | Func::Atan2 => f64::NAN,
     }
 }
 
-/// `f(u, v)` for `min`/`max` (NaN if either is NaN, or for other functions).
+/// `f(u, v)` for `min`/`max`/`atan2` (NaN if either is NaN, or for other functions).
 pub(super) fn apply2(f: Func, u: f64, v: f64) -> f64 {
     if u.is_nan() || v.is_nan() {
         return f64::NAN;
@@ -42,6 +43,7 @@ pub(super) fn apply2(f: Func, u: f64, v: f64) -> f64 {
     match f {
         Func::Min => u.min(v),
         Func::Max => u.max(v),
+        Func::Atan2 => u.atan2(v),
         _ => f64::NAN,
     }
 }
@@ -87,11 +89,22 @@ pub(super) fn apply1_interval(f: Func, u: Interval) -> Interval {
         Func::Sin => u.sin(),
         Func::Cos => u.cos(),
         Func::Tanh => u.tanh(),
+        Func::Atan => u.atan(),
         Func::Abs => u.abs(),
         Func::Sign => kink(-1.0, Interval::new(-1.0, 1.0), 1.0),
         Func::Step => kink(0.0, Interval::new(0.0, 1.0), 1.0),
         Func::Delta => kink(0.0, Interval::ENTIRE, 0.0),
-        Func::Min | Func::Max => Interval::NAN,
+        Func::Min | Func::Max | Func::Atan2 => Interval::NAN,
+    }
+}
+
+/// Interval version of [`apply2`].
+pub(super) fn apply2_interval(f: Func, u: Interval, v: Interval) -> Interval {
+    match f {
+        Func::Min => u.min(v),
+        Func::Max => u.max(v),
+        Func::Atan2 => u.atan2(v),
+        _ => Interval::NAN,
     }
 }
 
@@ -108,8 +121,7 @@ pub(super) fn eval_interval(n: &Node, x: &[Interval]) -> Interval {
         Node::Div(u, v) => eval_interval(u, x) / eval_interval(v, x),
         Node::Pow(u, k) => eval_interval(u, x).powi(*k),
         Node::Call(f, args) => match (f, args.as_slice()) {
-            (Func::Min, [u, v]) => eval_interval(u, x).min(eval_interval(v, x)),
-            (Func::Max, [u, v]) => eval_interval(u, x).max(eval_interval(v, x)),
+            (_, [u, v]) => apply2_interval(*f, eval_interval(u, x), eval_interval(v, x)),
             (_, [u]) => apply1_interval(*f, eval_interval(u, x)),
             _ => Interval::NAN,
         },

@@ -138,6 +138,10 @@ pub enum Func {
     Min,
     /// `max(u, v)`.
     Max,
+    /// Arc tangent, in `(−π/2, π/2)`.
+    Atan,
+    /// `atan2(y, x)`: the angle of `(x, y)`, in `(−π, π]`; 0 at the origin (as libm).
+    Atan2,
     /// Derivative of `|u|`: `±1`, NaN at `u = 0`. Made by [`Expr::derivative`].
     Sign,
     /// Derivative of `max(u, 0)`: 1 for `u > 0`, 0 for `u < 0`, NaN at 0. Made by
@@ -150,7 +154,7 @@ pub enum Func {
 
 impl Func {
     /// Every function, user-facing ones first.
-    pub const ALL: [Func; 12] = [
+    pub const ALL: [Func; 14] = [
         Func::Sqrt,
         Func::Exp,
         Func::Ln,
@@ -160,6 +164,8 @@ impl Func {
         Func::Abs,
         Func::Min,
         Func::Max,
+        Func::Atan,
+        Func::Atan2,
         Func::Sign,
         Func::Step,
         Func::Delta,
@@ -177,6 +183,8 @@ impl Func {
             Func::Abs => "abs",
             Func::Min => "min",
             Func::Max => "max",
+            Func::Atan => "atan",
+            Func::Atan2 => "atan2",
             Func::Sign => "sign",
             Func::Step => "step",
             Func::Delta => "delta",
@@ -186,7 +194,7 @@ impl Func {
     /// The number of arguments.
     pub fn arity(self) -> usize {
         match self {
-            Func::Min | Func::Max => 2,
+            Func::Min | Func::Max | Func::Atan2 => 2,
             _ => 1,
         }
     }
@@ -259,6 +267,21 @@ impl Expr {
             Node::Const(c) => Some(c),
             _ => None,
         }
+    }
+
+    /// Whether the tree calls `f`.
+    pub fn calls(&self, f: Func) -> bool {
+        fn calls(n: &Node, f: Func) -> bool {
+            match n {
+                Node::Const(_) | Node::Var(_) => false,
+                Node::Neg(u) | Node::Pow(u, _) => calls(u, f),
+                Node::Add(u, v) | Node::Sub(u, v) | Node::Mul(u, v) | Node::Div(u, v) => {
+                    calls(u, f) || calls(v, f)
+                }
+                Node::Call(g, args) => *g == f || args.iter().any(|a| calls(a, f)),
+            }
+        }
+        calls(&self.node, f)
     }
 
     /// Whether `x_i` occurs in the tree.

@@ -13,7 +13,7 @@ const MAX_SOURCE_BYTES: usize = 100 * MAX_TOKENS;
 /// Largest accepted `|n|` in `u^n`.
 const MAX_EXPONENT: i64 = 1 << 20;
 /// Functions offered in messages (the derivative-only ones are accepted but not advertised).
-const USER_FUNCTIONS: usize = 9;
+const USER_FUNCTIONS: usize = 11;
 
 #[derive(Clone, Debug, PartialEq)]
 enum Tok {

@@ -10,7 +10,7 @@
 use std::cell::Cell;
 use std::collections::HashMap;
 
-use super::eval::{apply1, apply1_interval, apply2};
+use super::eval::{apply1, apply1_interval, apply2, apply2_interval};
 use super::{Func, Node};
 use crate::intervals::Interval;
 use crate::rounding::pow_int;
@@ -114,9 +114,7 @@ impl Tape {
                 Op::Div(u, v) => at(u) / at(v),
                 Op::Pow(u, k) => at(u).powi(k),
                 Op::Call1(f, u) => apply1_interval(f, at(u)),
-                Op::Call2(Func::Min, u, v) => at(u).min(at(v)),
-                Op::Call2(Func::Max, u, v) => at(u).max(at(v)),
-                Op::Call2(..) => Interval::NAN,
+                Op::Call2(f, u, v) => apply2_interval(f, at(u), at(v)),
             };
             slots.push(value);
         }

@@ -120,7 +120,7 @@ fn every_error_class_has_a_column_and_a_reason() {
 }
 
 /// Expressions over `x1, x2, x3` and points where they are smooth.
-const BANK: [&str; 16] = [
+const BANK: [&str; 18] = [
     "((x1-5)^2+(x2-1)^2+1)*((x1-2)^2+x2^2-1)",
     "x1 * x2 * x3 - 3 * x1^2 * x3",
     "x1 / (x2 + x3) - x3 / x1^2",
@@ -137,6 +137,8 @@ const BANK: [&str; 16] = [
     "ln(x1) - ln(1/x1)",
     "x2 - x2 + x1 * 0 + 1",
     "exp(x1) ^ 2 - exp(2 * x1)",
+    "atan(x1 * x2 - 2) + atan2(x3, x1 - 1.5)",
+    "atan2(x2 - x3, x1) * atan2(-x1, 1 - x2)",
 ];
 
 fn random_point(rng: &mut ChaCha8Rng) -> [f64; 3] {
@@ -569,4 +571,49 @@ fn like_terms_collect_exactly_and_only_where_defined() {
             );
         }
     }
+}
+
+/// `atan2` over boxes near its cut and around the origin: the corners' range off the cut,
+/// `[−π, π]` on it, and every sampled point inside (a dense grid of each box).
+#[test]
+fn atan2_encloses_its_values_on_and_off_the_cut() {
+    use std::f64::consts::PI;
+    let yx = |y: (f64, f64), x: (f64, f64)| Interval::new(y.0, y.1).atan2(Interval::new(x.0, x.1));
+    // Quadrants and boxes touching the axes but not the cut: tight.
+    let second = yx((1.0, 2.0), (-2.0, -1.0));
+    assert!(second.lower > PI / 2.0 && second.upper < PI, "{second:?}");
+    let right = yx((-1.0, 1.0), (0.5, 2.0));
+    assert!(
+        right.lower > -PI / 2.0 && right.upper < PI / 2.0,
+        "{right:?}"
+    );
+    // On the cut (y straddling 0 left of the origin) and at the origin: the whole range.
+    for (y, x) in [
+        ((-0.1, 0.1), (-2.0, -1.0)),
+        ((0.0, 1.0), (0.0, 1.0)),
+        ((-1.0, 0.0), (-1.0, 1.0)),
+    ] {
+        let r = yx(y, x);
+        assert!(r.lower <= -PI && r.upper >= PI, "{y:?} {x:?}: {r:?}");
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    for _ in 0..2000 {
+        let (yc, xc) = (rng.random_range(-2.0..2.0), rng.random_range(-2.0..2.0));
+        let (ry, rx) = (rng.random_range(0.0..0.7), rng.random_range(0.0..0.7));
+        let (y, x) = ((yc - ry, yc + ry), (xc - rx, xc + rx));
+        let r = yx(y, x);
+        for i in 0..=12 {
+            for j in 0..=12 {
+                // Clamped: `y.0 + (y.1 − y.0)` may round past `y.1`.
+                let py = (y.0 + (y.1 - y.0) * i as f64 / 12.0).min(y.1);
+                let px = (x.0 + (x.1 - x.0) * j as f64 / 12.0).min(x.1);
+                let v = py.atan2(px);
+                assert!(r.contains(v), "atan2({py}, {px}) = {v} outside {r:?}");
+            }
+        }
+    }
+    // Parsed and evaluated as written: atan2(y, x) with y first.
+    let e = p("atan2(x2, x1) + atan(x3)");
+    let v = e.eval(&[-1.0, 1.0, 1.0]);
+    assert!((v - (3.0 * PI / 4.0 + PI / 4.0)).abs() < 1e-15, "{v}");
 }

@@ -252,6 +252,9 @@ impl GpuBackend {
         if !GpuBackend::supports(settings) {
             return Err(Unsupported::Bounds(settings.bounds));
         }
+        if let Some(f) = super::codegen::not_on_device(problem) {
+            return Err(Unsupported::Function(f.name()));
+        }
         match problem.time {
             TimeModel::Euler => {}
             // The device meets two frames; turned frames are the CPU engine's.

@@ -182,6 +182,10 @@ fn node_code(
                 Func::Abs => call("iv_abs", &a),
                 Func::Min => call("iv_min", &a),
                 Func::Max => call("iv_max", &a),
+                // No device implementation (WGSL's are f32, to 4096 ulp): `problem_wgsl`
+                // refuses a program that calls them, by name.
+                Func::Atan => call("iv_atan", &a),
+                Func::Atan2 => call("iv_atan2", &a),
                 Func::Sign => call("iv_sign", &a),
                 Func::Step => call("iv_step", &a),
                 Func::Delta => call("iv_delta", &a),
@@ -342,10 +346,27 @@ pub struct Meet<'a> {
     pub clip_slabs: bool,
 }
 
+/// Functions the device does not evaluate (WGSL's `atan` and `atan2` are f32, to 4096 ulp).
+const NOT_ON_DEVICE: [Func; 2] = [Func::Atan2, Func::Atan];
+
+/// The first function of [`NOT_ON_DEVICE`] that the problem's dynamics or the filter's rows
+/// call (the rest of the program derives from them; [`problem_wgsl`] checks what it wrote).
+pub fn not_on_device(problem: &ReachProblem) -> Option<Func> {
+    let d = &problem.dynamics;
+    let exprs = (d.f_tilde.iter())
+        .chain(d.g.iter().flatten())
+        .chain(problem.pieces.slack_rows());
+    let exprs: Vec<&Expr> = exprs.collect();
+    NOT_ON_DEVICE
+        .into_iter()
+        .find(|&f| exprs.iter().any(|e| e.calls(f)))
+}
+
 /// Everything problem-specific the kernels need: sizes, constants, the local-margin map's
 /// geometry (`margins`, with `--local-margin`) and the dynamics' inclusion functions
 /// `ft_iv(i, x)`, `jac_iv(i, j, x)`, `g_iv(i, k, x)`, in `precision`. With `meet` the problem
 /// is one of two frames met after every step (`shaders/settle.wgsl`, `shaders/cmeet.wgsl`).
+/// A program that calls a function of [`NOT_ON_DEVICE`] is refused by name.
 pub fn problem_wgsl(
     problem: &ReachProblem,
     settings: &ReachSettings,
@@ -555,6 +576,13 @@ pub fn problem_wgsl(
     s += &switch_fn("jac_iv", "i: u32, j: u32", "i * N0 + j", &jac, precision);
     s += &switch_fn("g_iv", "i: u32, k: u32", "i * M_OUT + k", &g, precision);
     s += &closed_form_wgsl(problem, settings, precision);
+    let called = |f: &Func| s.contains(&format!("iv_{}(", f.name()));
+    if let Some(f) = NOT_ON_DEVICE.iter().find(|f| called(f)) {
+        return Err(GpuError::Unsupported(format!(
+            "the scenario calls {}, which the device does not evaluate: run with --backend cpu",
+            f.name()
+        )));
+    }
     Ok(s)
 }
 
@@ -701,6 +729,64 @@ pub fn nnb_width(n: usize, m: usize) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The device does not evaluate `atan` or `atan2`: a problem whose closed loop calls one is
+    /// refused by name (so `auto` takes the CPU engine) before any adapter is asked for.
+    #[test]
+    fn atan_is_refused_by_name() {
+        let text = |kappa: &str| {
+            format!(
+                r#"
+name = "heading"
+[system]
+states = ["x", "y"]
+inputs = ["u"]
+f = ["0", "0"]
+g = [["1"], ["0"]]
+kappa = ["{kappa}"]
+[[cbf]]
+h = "x + 2"
+[reach]
+region = {{ lower = [-1, 0.5], upper = [1, 1.5] }}
+m_c = 0.01
+dt = 0.02
+horizon = 1.0
+goal = {{ lower = [-0.1, 0.9], upper = [0.1, 1.1] }}
+"#
+            )
+        };
+        let problem = |kappa: &str| {
+            let s = crate::scenario::Scenario::from_toml(
+                &text(kappa),
+                "heading.toml",
+                std::path::Path::new("."),
+            )
+            .unwrap();
+            ReachProblem::new(&s, crate::network::Mlp::random(&[2, 8, 1], 1), 0.01).unwrap()
+        };
+        let settings = ReachSettings::default();
+        for (kappa, refused) in [
+            ("-atan2(x, y)", Some(Func::Atan2)),
+            ("-atan(x)", Some(Func::Atan)),
+            ("-x", None),
+        ] {
+            let p = problem(kappa);
+            assert_eq!(not_on_device(&p), refused, "{kappa}");
+            let runs = crate::gpu::GpuBackend::runs(&p, &settings);
+            match refused {
+                Some(f) => {
+                    let why = runs.unwrap_err();
+                    assert_eq!(why, crate::reach::Unsupported::Function(f.name()));
+                    let said = crate::reach::refusal(why);
+                    assert!(
+                        said.contains(f.name()) && said.contains("--backend cpu"),
+                        "{said}"
+                    );
+                }
+                None => assert!(runs.is_ok(), "{kappa}: {runs:?}"),
+            }
+        }
+    }
 
     /// The continuous step's enclosure holds the f64 step (0.04/3 and 0.1 are not f32
     /// numbers: their nearest f32 lies on one side, the enclosure on both).

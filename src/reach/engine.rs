@@ -102,6 +102,10 @@ pub fn refusal(unsupported: Unsupported) -> String {
              engine evaluates the one-row and scalar closed forms alone; set exact = \"inactive\" \
              (--exact inactive) or use the CPU engine (--backend cpu)"
             .to_string(),
+        Unsupported::Function(f) => format!(
+            "{f} in the scenario: the GPU engine does not evaluate it (WGSL's is f32 to 4096 \
+             ulp); use the CPU engine (--backend cpu)"
+        ),
     }
 }
 

@@ -146,6 +146,9 @@ pub enum Unsupported {
     /// pieces of a general QP filter.
     #[error("the engine has no exact field for a general QP filter")]
     ExactGeneralQp,
+    /// The scenario calls a function the engine does not evaluate (the device: `atan`, `atan2`).
+    #[error("the engine does not evaluate {0}, which the scenario calls")]
+    Function(&'static str),
 }
 
 impl ReachSettings {

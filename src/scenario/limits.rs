@@ -51,7 +51,7 @@ pub fn derivative_size(n: &Node) -> f64 {
             let s: f64 = args.iter().map(size).sum();
             let d: f64 = args.iter().map(derivative_size).sum();
             let k = match f {
-                Func::Min | Func::Max => 3.0,
+                Func::Min | Func::Max | Func::Atan2 => 3.0,
                 _ => 2.0,
             };
             k * (s + d) + 6.0
