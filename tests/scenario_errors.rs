@@ -402,3 +402,62 @@ fn a_training_grid_too_large_for_memory_is_refused_by_size() {
         "{e}"
     );
 }
+
+/// The device does not evaluate `atan` or `atan2`: a problem whose closed loop calls one is
+/// refused by name (so `auto` takes the CPU engine) before any adapter is asked for.
+#[test]
+fn the_device_refuses_atan_by_name() {
+    use cbfreach::expressions::Func;
+    let text = |kappa: &str| {
+        format!(
+            r#"
+name = "heading"
+[system]
+states = ["x", "y"]
+inputs = ["u"]
+f = ["0", "0"]
+g = [["1"], ["0"]]
+kappa = ["{kappa}"]
+[[cbf]]
+h = "x + 2"
+[reach]
+region = {{ lower = [-1, 0.5], upper = [1, 1.5] }}
+m_c = 0.01
+dt = 0.02
+horizon = 1.0
+goal = {{ lower = [-0.1, 0.9], upper = [0.1, 1.1] }}
+"#
+        )
+    };
+    let problem = |kappa: &str| {
+        let s = common::from_text(&text(kappa)).unwrap();
+        cbfreach::reach::ReachProblem::new(&s, cbfreach::network::Mlp::random(&[2, 8, 1], 1), 0.01)
+            .unwrap()
+    };
+    let settings = cbfreach::reach::ReachSettings::default();
+    for (kappa, refused) in [
+        ("-atan2(x, y)", Some(Func::Atan2)),
+        ("-atan(x)", Some(Func::Atan)),
+        ("-x", None),
+    ] {
+        let p = problem(kappa);
+        assert_eq!(
+            cbfreach::gpu::codegen::not_on_device(&p),
+            refused,
+            "{kappa}"
+        );
+        let runs = cbfreach::gpu::GpuBackend::runs(&p, &settings);
+        match refused {
+            Some(f) => {
+                let why = runs.unwrap_err();
+                assert_eq!(why, cbfreach::reach::Unsupported::Function(f.name()));
+                let said = cbfreach::reach::refusal(why);
+                assert!(
+                    said.contains(f.name()) && said.contains("--backend cpu"),
+                    "{said}"
+                );
+            }
+            None => assert!(runs.is_ok(), "{kappa}: {runs:?}"),
+        }
+    }
+}

@@ -730,64 +730,6 @@ pub fn nnb_width(n: usize, m: usize) -> usize {
 mod tests {
     use super::*;
 
-    /// The device does not evaluate `atan` or `atan2`: a problem whose closed loop calls one is
-    /// refused by name (so `auto` takes the CPU engine) before any adapter is asked for.
-    #[test]
-    fn atan_is_refused_by_name() {
-        let text = |kappa: &str| {
-            format!(
-                r#"
-name = "heading"
-[system]
-states = ["x", "y"]
-inputs = ["u"]
-f = ["0", "0"]
-g = [["1"], ["0"]]
-kappa = ["{kappa}"]
-[[cbf]]
-h = "x + 2"
-[reach]
-region = {{ lower = [-1, 0.5], upper = [1, 1.5] }}
-m_c = 0.01
-dt = 0.02
-horizon = 1.0
-goal = {{ lower = [-0.1, 0.9], upper = [0.1, 1.1] }}
-"#
-            )
-        };
-        let problem = |kappa: &str| {
-            let s = crate::scenario::Scenario::from_toml(
-                &text(kappa),
-                "heading.toml",
-                std::path::Path::new("."),
-            )
-            .unwrap();
-            ReachProblem::new(&s, crate::network::Mlp::random(&[2, 8, 1], 1), 0.01).unwrap()
-        };
-        let settings = ReachSettings::default();
-        for (kappa, refused) in [
-            ("-atan2(x, y)", Some(Func::Atan2)),
-            ("-atan(x)", Some(Func::Atan)),
-            ("-x", None),
-        ] {
-            let p = problem(kappa);
-            assert_eq!(not_on_device(&p), refused, "{kappa}");
-            let runs = crate::gpu::GpuBackend::runs(&p, &settings);
-            match refused {
-                Some(f) => {
-                    let why = runs.unwrap_err();
-                    assert_eq!(why, crate::reach::Unsupported::Function(f.name()));
-                    let said = crate::reach::refusal(why);
-                    assert!(
-                        said.contains(f.name()) && said.contains("--backend cpu"),
-                        "{said}"
-                    );
-                }
-                None => assert!(runs.is_ok(), "{kappa}: {runs:?}"),
-            }
-        }
-    }
-
     /// The continuous step's enclosure holds the f64 step (0.04/3 and 0.1 are not f32
     /// numbers: their nearest f32 lies on one side, the enclosure on both).
     #[test]
