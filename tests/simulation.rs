@@ -85,3 +85,21 @@ fn scenario_2_forward_invariance() {
     // About a tenth of the safe starts of C run into the conflict of the two CBFs.
     check_invariance(&double_integrator(), 300, 60);
 }
+
+/// `simulate` says which starts lie outside `S`, where the filter promises nothing (scenario
+/// 1's obstacle is the disc of radius 1 about (2, 0)).
+#[test]
+fn simulate_names_starts_outside_s() {
+    let path = common::scenario_path("integrator.toml");
+    let path = path.to_str().unwrap();
+    let args = ["simulate", path, "--from", "6,0.3", "--horizon", "0.2"];
+    let (code, _, stderr) = common::cbfreach(&[&args[..], &["--from", "2,0.5"]].concat());
+    assert_eq!(code, 0, "{stderr}");
+    assert!(
+        stderr.contains("note: 1 of 2 starts lie outside S (the first, (2.0000, 0.5000)"),
+        "{stderr}"
+    );
+    let (code, _, stderr) = common::cbfreach(&args);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(!stderr.contains("outside S"), "{stderr}");
+}

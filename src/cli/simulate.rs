@@ -199,7 +199,30 @@ pub fn run(args: &SimulateArgs) -> CliResult {
         None => std::io::stdout().write_all(&buffer)?,
     }
     print_stops(&trajectories);
+    print_outside_s(&s, &trajectories);
     Ok(())
+}
+
+/// One line for the starts outside `S`, where the filter promises nothing: it keeps `S`
+/// invariant, and from outside its QP may have no solution (a Dubins car aimed at its disc
+/// stopped at once, "`disc` needs -4.200e-1 ≥ 0 but the input cannot act on it").
+fn print_outside_s(s: &Scenario, trajectories: &[Trajectory]) {
+    let outside: Vec<(&Trajectory, &str)> = (trajectories.iter())
+        .filter_map(|t| {
+            let outside = |h: f64| h < 0.0 || h.is_nan();
+            let c = s.cbfs.iter().find(|c| outside(c.h.eval(&t.x0)))?;
+            Some((t, c.name.as_str()))
+        })
+        .collect();
+    if let Some((first, cbf)) = outside.first() {
+        eprintln!(
+            "note: {} of {} starts lie outside S (the first, {}: {cbf} < 0): the filter keeps S \
+             invariant, it does not bring states into it",
+            outside.len(),
+            trajectories.len(),
+            fmt_point(&first.x0)
+        );
+    }
 }
 
 /// One line for the trajectories that stopped early: how many, how many at an infeasible QP,
