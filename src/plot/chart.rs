@@ -105,14 +105,8 @@ impl<T> Shading<T> {
 /// The unsafe set over the view's plane as rectangles: runs of a grid at about two pixels of
 /// a `pixels`-sized picture, merged along each row by their [`Shade`] at the grid points (a
 /// sampled picture, not a proof).
-pub(super) fn unsafe_rects(
-    view: &View,
-    scenario: &Scenario,
-    region: &IntervalBox,
-    pixels: (u32, u32),
-) -> Shading<[(f64, f64); 2]> {
-    let shadow = Shadow::new(view, scenario, region);
-    let plane = view.plane(region);
+pub(super) fn unsafe_rects(shadow: &Shadow, pixels: (u32, u32)) -> Shading<[(f64, f64); 2]> {
+    let plane = shadow.view.plane(shadow.region);
     let (nx, ny) = (
         (pixels.0 / 2).max(8) as usize,
         (pixels.1 / 2).max(8) as usize,
@@ -165,11 +159,12 @@ pub(super) fn unsafe_layer<DB: DrawingBackend>(
     region: &IntervalBox,
     tones: Tones,
 ) -> Shading<[(f64, f64); 2]> {
-    let mut shading = unsafe_rects(view, scenario, region, root.dim_in_pixel());
+    let shadow = Shadow::new(view, scenario, region);
+    let mut shading = unsafe_rects(&shadow, root.dim_in_pixel());
     if tones == Tones::Every {
         shading.some.clear();
     }
-    legend.push_unsafe(&Shadow::new(view, scenario, region), &shading);
+    legend.push_unsafe(&shadow, &shading);
     shading
 }
 
@@ -182,8 +177,9 @@ pub(super) fn unsafe_band_layer(
     region: &IntervalBox,
     range: (f64, f64),
 ) -> Shading<(f64, f64)> {
-    let shading = unsafe_bands(view, scenario, region, range, 400);
-    legend.push_unsafe(&Shadow::new(view, scenario, region), &shading);
+    let shadow = Shadow::new(view, scenario, region);
+    let shading = unsafe_bands(&shadow, range, 400);
+    legend.push_unsafe(&shadow, &shading);
     shading
 }
 
@@ -401,21 +397,17 @@ pub(super) fn box_series<'a, DB: DrawingBackend<ErrorType: 'static> + 'a>(
 /// in the others covers much of the picture (x2 over time past spheres3d's two spheres:
 /// 2.8 of its 5 units) and says little.
 pub(super) fn unsafe_bands(
-    view: &View,
-    scenario: &Scenario,
-    region: &IntervalBox,
+    shadow: &Shadow,
     (lo, hi): (f64, f64),
     bands: usize,
 ) -> Shading<(f64, f64)> {
-    let shadow = Shadow::new(view, scenario, region);
     let w = (hi - lo) / bands as f64;
     let mut shading = Shading::default();
     for k in 0..bands {
         let band = (lo + k as f64 * w, lo + (k + 1) as f64 * w);
         let mid = 0.5 * (band.0 + band.1);
-        match shadow.at(mid, mid) {
-            Shade::Every => shading.every.push(band),
-            Shade::Some | Shade::Clear => {}
+        if shadow.every_at(mid, mid) == Shade::Every {
+            shading.every.push(band);
         }
     }
     shading
@@ -476,7 +468,7 @@ mod tests {
         .unwrap();
         let region = scenario.reach.region.clone();
         let view = View::first(scenario.n());
-        let shading = unsafe_rects(&view, &scenario, &region, (400, 300));
+        let shading = unsafe_rects(&Shadow::new(&view, &scenario, &region), (400, 300));
         assert!(shading.some.is_empty(), "a planar picture has no shadow");
         let rects = shading.every;
         let inside = |x: f64, y: f64| {

@@ -177,9 +177,7 @@ impl Kind {
                 figure: "Minkowski tubes",
             }),
             Kind::Verdicts if !view.is_whole(scenario.n()) => {
-                let projected = (0..scenario.n())
-                    .find(|&k| k != view.y && view.slice.iter().all(|&(j, _)| j != k))
-                    .unwrap_or(view.y);
+                let projected = view.projected(scenario.n()).next().unwrap_or(view.y);
                 Err(DrawError::ProjectedOverTime {
                     file: file(),
                     example: scenario.states[projected].clone(),

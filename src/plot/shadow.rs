@@ -34,8 +34,8 @@ const BUDGET: usize = 48;
 /// The shadow of `scenario`'s unsafe set over the pictures of one view of `region`.
 pub(super) struct Shadow<'a> {
     scenario: &'a Scenario,
-    region: &'a IntervalBox,
-    view: &'a View,
+    pub(super) region: &'a IntervalBox,
+    pub(super) view: &'a View,
     /// The projected states.
     hidden: Vec<usize>,
     /// The region's widths, to split the projected states in proportion.
@@ -45,9 +45,7 @@ pub(super) struct Shadow<'a> {
 impl<'a> Shadow<'a> {
     pub(super) fn new(view: &'a View, scenario: &'a Scenario, region: &'a IntervalBox) -> Self {
         let n = scenario.n().min(region.dim());
-        let hidden = (0..n)
-            .filter(|&k| k != view.x && k != view.y && view.slice.iter().all(|&(j, _)| j != k))
-            .collect();
+        let hidden = view.projected(n).collect();
         Shadow {
             scenario,
             region,
@@ -64,6 +62,17 @@ impl<'a> Shadow<'a> {
 
     /// The shade over the picture's point `(px, py)` (`px` is ignored over time).
     pub(super) fn at(&self, px: f64, py: f64) -> Shade {
+        self.shade(px, py, Question::SomeUnsafe)
+    }
+
+    /// [`Shadow::at`], asking only whether every value is unsafe (`Clear` where not): the
+    /// pictures over one state draw nothing else.
+    pub(super) fn every_at(&self, px: f64, py: f64) -> Shade {
+        self.shade(px, py, Question::EveryUnsafe)
+    }
+
+    /// The shade over `(px, py)`, the pale one asked for only down to `last`.
+    fn shade(&self, px: f64, py: f64, last: Question) -> Shade {
         let point = self.view.lift(self.region, px, py);
         if self.hidden.is_empty() {
             return match self.scenario.is_safe(&point) {
@@ -79,7 +88,7 @@ impl<'a> Shadow<'a> {
             .collect();
         if self.search(&whole, Question::EveryUnsafe) {
             Shade::Every
-        } else if self.search(&whole, Question::SomeUnsafe) {
+        } else if last == Question::SomeUnsafe && self.search(&whole, Question::SomeUnsafe) {
             Shade::Some
         } else {
             Shade::Clear
@@ -326,6 +335,13 @@ goal = { lower = [-0.3, -0.3, -0.3, -0.3, -0.3, -0.3], upper = [0.3, 0.3, 0.3, 0
             (2.0, 0.0, Shade::Some),
         ] {
             assert_eq!(shadow.at(px, vx), expected, "({px}, {vx})");
+            // Asked for the grey alone, the pale shadow reads clear.
+            let grey = if expected == Shade::Every {
+                Shade::Every
+            } else {
+                Shade::Clear
+            };
+            assert_eq!(shadow.every_at(px, vx), grey, "({px}, {vx})");
         }
     }
 

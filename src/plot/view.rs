@@ -151,6 +151,11 @@ impl View {
         drawn + self.slice.len() == n
     }
 
+    /// The projected states of an `n`-state system: neither drawn nor sliced.
+    pub fn projected(&self, n: usize) -> impl Iterator<Item = usize> + '_ {
+        (0..n).filter(|&k| k != self.x && k != self.y && self.slice.iter().all(|&(j, _)| j != k))
+    }
+
     /// Whether a set is drawn: it meets every slice's hyperplane.
     pub fn keeps(&self, b: &IntervalBox) -> bool {
         self.slice
@@ -205,8 +210,7 @@ impl View {
                 }
             })
             .collect();
-        let projected: Vec<&str> = (0..n)
-            .filter(|&k| k != self.x && k != self.y && self.slice.iter().all(|&(j, _)| j != k))
+        let projected: Vec<&str> = (self.projected(n))
             .map(|k| scenario.states[k].as_str())
             .collect();
         if !projected.is_empty() {
